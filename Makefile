@@ -1,0 +1,49 @@
+# photosurf: `make demo` and `make test` each do every set-up step they need.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.photosurf-installed
+OUT    ?= out
+
+.PHONY: setup sysdeps demo test bench lint clean
+
+# Debian packages photosurf needs at run time (open3d loads libusb-1.0).
+SYSLIBS := libusb-1.0.so.0:libusb-1.0-0
+
+sysdeps:
+	@missing=""; for pair in $(SYSLIBS); do lib=$${pair%%:*}; pkg=$${pair##*:}; \
+	  if ! ldconfig -p 2>/dev/null | grep -q "$$lib"; then missing="$$missing $$pkg"; fi; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "photosurf setup: installing Debian packages:$$missing"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null || exit 1; \
+	  else \
+	    echo "photosurf setup: missing system packages:$$missing -- run: sudo apt-get install$$missing" >&2; exit 1; \
+	  fi; \
+	fi
+
+$(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory sysdeps
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[test]"
+	@touch $(STAMP)
+
+setup: $(STAMP)
+	@$(MAKE) --no-print-directory sysdeps
+
+demo: setup
+	$(VENV)/bin/photosurf run fixtures/scenes/vase.toml --out $(OUT)
+
+test: setup
+	$(PY) -m pytest -n 2 -q
+
+bench: setup
+	@mkdir -p benchmarks/results
+	@for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --json benchmarks/results/$$(basename $$b .py).json || exit 1; done
+
+lint: setup
+	$(VENV)/bin/ruff check matching surface pipeline tests benchmarks
+
+clean:
+	rm -rf $(VENV) $(OUT) *.egg-info .pytest_cache

@@ -1,0 +1,102 @@
+"""The ``photosurf`` command.
+
+Each subcommand lives in its own module ``pipeline/cmd_<name>.py`` exposing
+
+* ``HELP``: one line for ``photosurf --help``;
+* ``add_arguments(parser)``: its argparse options (inputs positional, outputs
+  named by ``--out``);
+* ``run(args) -> int``: the work; returns the exit status.
+
+Errors a user can fix (bad input, missing file, invalid recipe) are raised as
+``ValueError`` / ``FileNotFoundError`` / :class:`pipeline.errors.InputError`
+and printed here as one line, ``photosurf CMD: error: ...``, with exit
+status 2.  ``-v`` also prints the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+import traceback
+
+from pipeline import __version__
+from pipeline.errors import InputError
+
+#: Subcommands in the order ``--help`` lists them.
+COMMANDS = [
+    "run",
+    "synth",
+    "calibrate",
+    "match",
+    "stereo",
+    "acquire",
+    "sections",
+    "smooth",
+    "render",
+    "batch",
+]
+
+USER_ERRORS = (InputError, ValueError, FileNotFoundError, NotADirectoryError,
+               IsADirectoryError, PermissionError)
+
+
+def _load(name: str):
+    try:
+        return importlib.import_module(f"pipeline.cmd_{name}")
+    except ModuleNotFoundError as exc:
+        if exc.name == f"pipeline.cmd_{name}":
+            return None  # not built yet
+        raise
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="photosurf",
+        description="Photographs to a smooth, watertight surface: least-squares matching, "
+        "planar sections, Catmull-Rom curves, Delaunay stitching, Loop's sextic Bezier patches.",
+    )
+    parser.add_argument("--version", action="version", version=f"photosurf {__version__}")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more output (-vv for debug); tracebacks on error")
+    common.add_argument("-q", "--quiet", action="store_true", help="only errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        module = _load(name)
+        if module is None:
+            continue
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP, parents=[common])
+        module.add_arguments(p)
+        p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1 else
+                                              logging.INFO if args.verbose else logging.WARNING)
+    logging.basicConfig(level=level, format="photosurf: %(message)s")
+    try:
+        status = args._module.run(args)
+    except USER_ERRORS as exc:
+        if args.verbose:
+            traceback.print_exc()
+        message = str(exc) or type(exc).__name__
+        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
+            message = f"{exc.filename}: {exc.strerror or message}"
+        print(f"photosurf {args.command}: error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"photosurf {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return int(status or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
