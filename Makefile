@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.photosurf-installed
 OUT    ?= out
 
-.PHONY: setup sysdeps demo test bench lint clean
+.PHONY: setup sysdeps sysdeps-test demo test bench lint clean
 
 # Debian packages photosurf needs at run time (open3d loads libusb-1.0).
 SYSLIBS := libusb-1.0.so.0:libusb-1.0-0
@@ -22,6 +22,17 @@ sysdeps:
 	  fi; \
 	fi
 
+# The report test renders report.html in headless Chromium (Debian's chromium).
+sysdeps-test:
+	@if ! command -v chromium >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "photosurf setup: installing Debian package chromium (report test)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null || exit 1; \
+	  else \
+	    echo "photosurf setup: missing system package: chromium -- run: sudo apt-get install chromium" >&2; exit 1; \
+	  fi; \
+	fi
+
 $(STAMP): pyproject.toml
 	@$(MAKE) --no-print-directory sysdeps
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -35,7 +46,7 @@ setup: $(STAMP)
 demo: setup
 	$(VENV)/bin/photosurf run fixtures/scenes/vase.toml --out $(OUT)
 
-test: setup
+test: setup sysdeps-test
 	$(PY) -m pytest -n 2 -q
 
 bench: setup
