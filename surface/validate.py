@@ -23,6 +23,9 @@ class Tolerance:
     planar_rel: float = 1e-9
     #: Numerical zero for areas, determinants and normalisation.
     zero: float = 1e-12
+    #: Radians: an opposite-angle sum counts as Delaunay up to pi + angle
+    #: (co-circular quads, e.g. N-to-N stitching of a cylinder, sum to pi exactly).
+    angle: float = 1e-9
 
 
 TOL = Tolerance()
