@@ -23,6 +23,11 @@ class Tolerance:
     affine_det_min: float = 0.1
     #: Numerical zero for pivots / determinants of small matrices.
     zero: float = 1e-12
+    #: Largest |R^T R - I| (and |det R - 1|) accepted for a camera rotation.
+    rotation_orthonormal: float = 1e-6
+    #: Rotations read from text with few digits are re-orthonormalised when
+    #: |R^T R - I| is below this (beyond it the file is wrong, not rounded).
+    rotation_text_digits: float = 1e-3
 
 
 TOL = Tolerance()

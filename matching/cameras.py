@@ -1,0 +1,1060 @@
+r"""Pinhole cameras with lens distortion, stereo rigs, and their file formats.
+
+A camera maps a world point :math:`X` to a pixel :math:`x` by
+
+.. math::
+
+    x_c = R X + t, \qquad
+    (x', y') = (x_c / z_c,\; y_c / z_c), \qquad
+    (x'', y'') = \mathrm{distort}(x', y'; k_1, k_2, p_1, p_2[, k_3, \ldots]), \qquad
+    x = K\,(x'', y'', 1)^T,
+
+the OpenCV model (Brown-Conrady radial + tangential distortion), with pixel
+centres at integer coordinates.  Without distortion the projection matrix is
+:math:`P = K [R \mid t]` (Hartley & Zisserman [1]_ §6.1).  A stereo rig maps
+left-camera coordinates to right-camera coordinates, :math:`x_r = R\,x_l + T`
+(the convention of ``cv2.stereoCalibrate``).
+
+File formats (readers and writers are symmetric and round-trip tested):
+
+* **cameras.yml** (OpenCV FileStorage, YAML or XML by suffix), photosurf's own::
+
+      format: "photosurf-cameras"   version: 1   n_views: N
+      view_00: {name, width, height, K (3x3), dist (1xk), R (3x3), t (3x1)}
+      ...
+      rig_left: 0  rig_right: 1  rig_R (3x3)  rig_T (3x1)     # stereo pairs only
+      rms_px, ...                                             # optional scalars
+
+* **OpenCV stereo-calibration sample files**: ``intrinsics.yml`` (M1 D1 M2 D2)
+  and ``extrinsics.yml`` (R T R1 R2 P1 P2 Q); the left camera is put at the
+  world origin.  They carry no image size, so it is given or read from an image.
+* **COLMAP text model** (``cameras.txt``, ``images.txt``, ``points3D.txt``)
+  [2]_.  COLMAP puts the origin at the *corner* of the top-left pixel, OpenCV
+  at its *centre*: the principal point is shifted by +0.5 px on writing and
+  −0.5 px on reading, so that both programs project a point to the same pixel.
+  Binary models are read through pycolmap.
+* **Projection-matrix text files** (``name k11..k33 r11..r33 t1 t2 t3`` per
+  line, optionally preceded by the number of lines, as the Middlebury
+  multi-view sets [3]_ ship them): reader only.
+
+References
+----------
+.. [1] R. Hartley and A. Zisserman, "Multiple View Geometry in Computer
+   Vision", 2nd ed., Cambridge University Press (2004).
+.. [2] J. L. Schönberger and J.-M. Frahm, "Structure-from-Motion Revisited",
+   CVPR (2016); https://colmap.github.io/format.html
+.. [3] S. M. Seitz, B. Curless, J. Diebel, D. Scharstein and R. Szeliski,
+   "A Comparison and Evaluation of Multi-View Stereo Reconstruction
+   Algorithms", CVPR (2006).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from matching.validate import TOL, check_shape
+
+__all__ = [
+    "Camera",
+    "StereoRig",
+    "write_cameras_yml",
+    "read_cameras_yml",
+    "write_rig",
+    "read_rig",
+    "read_stereo_calibration",
+    "write_colmap_text",
+    "read_colmap_text",
+    "read_colmap",
+    "cameras_from_pycolmap",
+    "read_projection_txt",
+    "read_cameras",
+    "rotation_to_quaternion",
+    "quaternion_to_rotation",
+]
+
+#: cv2.undistortPoints stops after 5 iterations by default (errors of ~1e-3 px
+#: under strong distortion); these criteria give ~1e-13 px.
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
+_VALID_DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
+_FORMAT_TAG = "photosurf-cameras"
+
+
+# --------------------------------------------------------------------------- camera
+def _frozen(array: np.ndarray) -> np.ndarray:
+    array = np.array(array, dtype=np.float64, copy=True)
+    array.flags.writeable = False
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A calibrated pinhole camera with OpenCV lens distortion.
+
+    Parameters
+    ----------
+    K : (3, 3) float64
+        Intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``, pixels;
+        fx, fy > 0, pixel centres at integer coordinates.
+    dist : (k,) float64
+        Distortion coefficients in OpenCV order ``k1 k2 p1 p2 [k3 [k4 k5 k6
+        [s1 s2 s3 s4 [tx ty]]]]``, k in {0, 4, 5, 8, 12, 14}; empty = none.
+    R : (3, 3) float64
+        World-to-camera rotation (orthonormal, det +1).
+    t : (3,) float64
+        World-to-camera translation, scene units: ``x_c = R X + t``.
+    width, height : int
+        Image size in pixels.
+    name : str
+        Image file name (or any label).
+
+    Notes
+    -----
+    Arrays are copied and made read-only.  Equality is identity; compare two
+    cameras with :meth:`allclose`.
+    """
+
+    K: np.ndarray
+    dist: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    width: int
+    height: int
+    name: str = field(default="")
+
+    def __post_init__(self) -> None:
+        K = _frozen(check_shape(self.K, "(3, 3)", "K", dtype=np.float64))
+        dist = _frozen(np.asarray(self.dist, dtype=np.float64).reshape(-1))
+        R = _frozen(check_shape(self.R, "(3, 3)", "R", dtype=np.float64))
+        t = _frozen(np.asarray(self.t, dtype=np.float64).reshape(-1))
+        for value, label in ((K, "K"), (dist, "dist"), (R, "R"), (t, "t")):
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"{label} must be finite, got {value.tolist()}")
+        if t.shape != (3,):
+            raise ValueError(f"t must have shape (3,), got {np.shape(self.t)}")
+        if dist.size not in _VALID_DIST_LENGTHS:
+            raise ValueError(
+                f"dist must have 0, 4, 5, 8, 12 or 14 coefficients, got {dist.size}")
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise ValueError(f"K must have positive focal lengths, got fx={K[0, 0]}, fy={K[1, 1]}")
+        if not np.allclose(K[2], [0.0, 0.0, 1.0], atol=TOL.zero) or abs(K[1, 0]) > TOL.zero:
+            raise ValueError(f"K must be upper triangular with K[2] = [0, 0, 1], got {K.tolist()}")
+        if abs(np.linalg.det(K)) < TOL.zero:
+            raise ValueError(f"K is singular: {K.tolist()}")
+        orth = np.abs(R.T @ R - np.eye(3)).max()
+        det_err = abs(np.linalg.det(R) - 1.0)
+        if orth > TOL.rotation_orthonormal or det_err > TOL.rotation_orthonormal:
+            raise ValueError(
+                f"R must be a rotation (R^T R = I within {TOL.rotation_orthonormal}, det +1), "
+                f"got max|R^T R - I| = {orth:.3g}, det = {np.linalg.det(R):.6g}")
+        width, height = int(self.width), int(self.height)
+        if width <= 0 or height <= 0 or width != self.width or height != self.height:
+            raise ValueError(
+                f"width, height must be positive integers, got {self.width}x{self.height}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "width", width)
+        object.__setattr__(self, "height", height)
+        object.__setattr__(self, "name", str(self.name))
+
+    # ------------------------------------------------------------ geometry
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) camera centre in world coordinates, ``C = -R^T t``."""
+        return -self.R.T @ self.t
+
+    @property
+    def P(self) -> np.ndarray:
+        """(3, 4) projection matrix ``K [R | t]`` (distortion not included)."""
+        return self.K @ np.hstack([self.R, self.t[:, None]])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` in pixels, the order OpenCV expects."""
+        return (self.width, self.height)
+
+    @property
+    def has_distortion(self) -> bool:
+        """True if any distortion coefficient is non-zero."""
+        return bool(np.any(self.dist != 0.0))
+
+    @property
+    def rvec(self) -> np.ndarray:
+        """(3,) Rodrigues vector of ``R``."""
+        return cv2.Rodrigues(self.R)[0].reshape(3)
+
+    def _dist_or_none(self) -> np.ndarray | None:
+        return self.dist if self.dist.size else None
+
+    def depth(self, X) -> np.ndarray:
+        """Depth (z in the camera frame) of world points.
+
+        Parameters
+        ----------
+        X : (N, 3) float64, scene units
+
+        Returns
+        -------
+        (N,) float64, scene units; negative behind the camera.
+        """
+        X = check_shape(X, "(N, 3)", "X", dtype=np.float64)
+        return X @ self.R[2] + self.t[2]
+
+    def to_camera(self, X) -> np.ndarray:
+        """World points (N, 3) -> camera-frame points (N, 3), ``R X + t``."""
+        X = check_shape(X, "(N, 3)", "X", dtype=np.float64)
+        return X @ self.R.T + self.t
+
+    def project(self, X, with_jacobian: bool = False):
+        """Project world points to distorted pixel coordinates.
+
+        Parameters
+        ----------
+        X : (N, 3) float64, scene units
+        with_jacobian : bool
+            Also return the derivative of the pixel with respect to ``X``.
+
+        Returns
+        -------
+        x : (N, 2) float64, pixels
+            Points behind the camera are projected too (check :meth:`depth`).
+        J : (N, 2, 3) float64, pixels per scene unit (only if ``with_jacobian``)
+        """
+        X = check_shape(X, "(N, 3)", "X", dtype=np.float64)
+        if len(X) == 0:
+            empty = np.zeros((0, 2))
+            return (empty, np.zeros((0, 2, 3))) if with_jacobian else empty
+        x, jac = cv2.projectPoints(X.reshape(-1, 1, 3), self.rvec, self.t, self.K,
+                                   self._dist_or_none())
+        x = x.reshape(-1, 2)
+        if not with_jacobian:
+            return x
+        # columns 3:6 are d(pixel)/d(t) = d(pixel)/d(x_c); d(x_c)/dX = R.
+        dx_dt = jac[:, 3:6].reshape(-1, 2, 3)
+        return x, dx_dt @ self.R
+
+    def undistort_points(self, x) -> np.ndarray:
+        """Remove lens distortion from pixel coordinates.
+
+        Parameters
+        ----------
+        x : (N, 2) float64, distorted pixels
+
+        Returns
+        -------
+        (N, 2) float64, pixels of the ideal pinhole camera with the same ``K``.
+        """
+        x = check_shape(x, "(N, 2)", "x", dtype=np.float64)
+        if not self.has_distortion or len(x) == 0:
+            return x.copy()
+        out = cv2.undistortPoints(x.reshape(-1, 1, 2), self.K, self.dist, P=self.K,
+                                  criteria=_UNDISTORT_CRITERIA)
+        return out.reshape(-1, 2)
+
+    def normalized(self, x) -> np.ndarray:
+        """Distorted pixels (N, 2) -> normalised image coordinates (N, 2), ``z = 1``."""
+        ideal = self.undistort_points(x)
+        homog = np.column_stack([ideal, np.ones(len(ideal))])
+        return np.linalg.solve(self.K, homog.T).T[:, :2]
+
+    def ray(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Viewing rays through pixels.
+
+        Parameters
+        ----------
+        x : (N, 2) float64, distorted pixels
+
+        Returns
+        -------
+        origin : (N, 3) float64
+            The camera centre, repeated.
+        direction : (N, 3) float64
+            Unit direction in world coordinates, pointing forward (z_c > 0).
+        """
+        n = self.normalized(x)
+        d_cam = np.column_stack([n, np.ones(len(n))])
+        d = d_cam @ self.R  # R^T d_cam, row-wise
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return np.broadcast_to(self.center, d.shape).copy(), d
+
+    def allclose(self, other: Camera, rtol: float = 1e-9, atol: float = 1e-9) -> bool:
+        """True if both cameras have the same size and (numerically) the same parameters."""
+        n = max(self.dist.size, other.dist.size)
+        d1 = np.pad(self.dist, (0, n - self.dist.size))
+        d2 = np.pad(other.dist, (0, n - other.dist.size))
+        return (self.size == other.size
+                and np.allclose(self.K, other.K, rtol=rtol, atol=atol)
+                and np.allclose(d1, d2, rtol=rtol, atol=atol)
+                and np.allclose(self.R, other.R, rtol=rtol, atol=atol)
+                and np.allclose(self.t, other.t, rtol=rtol, atol=atol))
+
+    @classmethod
+    def from_projection(cls, P, width: int, height: int, name: str = "") -> Camera:
+        """Camera from a (3, 4) projection matrix (RQ decomposition, no distortion)."""
+        P = check_shape(P, "(3, 4)", "P", dtype=np.float64)
+        K, R, c_h = cv2.decomposeProjectionMatrix(P)[:3]
+        if abs(c_h[3, 0]) < TOL.zero:
+            raise ValueError("P has its centre at infinity (affine camera)")
+        C = (c_h[:3, 0] / c_h[3, 0])
+        # decomposeProjectionMatrix may return negative diagonals; make them positive.
+        S = np.diag(np.sign(np.diag(K)))
+        K, R = K @ S, S @ R
+        if np.linalg.det(R) < 0:
+            R = -R  # P was given up to a negative scale
+        K = K / K[2, 2]
+        return cls(K=K, dist=np.zeros(0), R=R, t=-R @ C, width=width, height=height, name=name)
+
+
+# ----------------------------------------------------------------------- stereo rig
+@dataclass(frozen=True, eq=False)
+class StereoRig:
+    """Two cameras seeing the same scene.
+
+    Parameters
+    ----------
+    left, right : Camera
+
+    Notes
+    -----
+    ``R`` and ``T`` map left-camera to right-camera coordinates,
+    ``x_r = R x_l + T`` (``cv2.stereoCalibrate``'s convention), whatever the
+    world frame of the two cameras is.
+    """
+
+    left: Camera
+    right: Camera
+
+    def __post_init__(self) -> None:
+        for label in ("left", "right"):
+            if not isinstance(getattr(self, label), Camera):
+                raise ValueError(f"{label} must be a Camera, got {type(getattr(self, label))}")
+
+    @property
+    def R(self) -> np.ndarray:
+        """(3, 3) rotation left camera -> right camera."""
+        return self.right.R @ self.left.R.T
+
+    @property
+    def T(self) -> np.ndarray:
+        """(3,) translation left camera -> right camera, scene units."""
+        return self.right.t - self.R @ self.left.t
+
+    @property
+    def baseline(self) -> float:
+        """Distance between the two camera centres, scene units."""
+        return float(np.linalg.norm(self.T))
+
+    @classmethod
+    def from_calibration(cls, K1, D1, K2, D2, R, T, width: int, height: int,
+                         names: tuple[str, str] = ("left", "right")) -> StereoRig:
+        """Rig from OpenCV stereo calibration output; the left camera is the world frame."""
+        left = Camera(K1, D1, np.eye(3), np.zeros(3), width, height, names[0])
+        right = Camera(K2, D2, R, np.asarray(T, dtype=np.float64).reshape(3), width, height,
+                       names[1])
+        return cls(left, right)
+
+
+# -------------------------------------------------------------- FileStorage helpers
+def _check_exists(path: Path) -> Path:
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, expected a file")
+    return path
+
+
+def _open_fs(path: Path) -> cv2.FileStorage:
+    _check_exists(path)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:  # SystemError: cv2's parser on malformed text
+        reason = " ".join(str(getattr(exc, "err", None) or exc.__cause__ or exc).split())
+        raise ValueError(f"{path}: not a readable OpenCV FileStorage file ({reason})") from None
+    if not fs.isOpened():
+        raise ValueError(f"{path}: not a readable OpenCV FileStorage file")
+    return fs
+
+
+def _read_mat(node, path: Path, label: str, shape: tuple[int, ...] | None = None,
+              optional: bool = False) -> np.ndarray | None:
+    if node.empty() or node.isNone():
+        if optional:
+            return None
+        raise ValueError(f"{path}: missing field {label}")
+    if node.isSeq():
+        mat = np.array([node.at(i).real() for i in range(node.size())], dtype=np.float64)
+    elif node.isReal() or node.isInt():
+        mat = np.array([node.real()])
+    else:
+        mat = node.mat()
+        if mat is None:  # an empty opencv-matrix (rows or cols 0)
+            mat = np.zeros(0)
+    mat = np.asarray(mat, dtype=np.float64)
+    if shape is not None:
+        if mat.size != int(np.prod(shape)):
+            raise ValueError(f"{path}: field {label} must have shape {shape}, got {mat.shape}")
+        mat = mat.reshape(shape)
+    if not np.all(np.isfinite(mat)):
+        raise ValueError(f"{path}: field {label} contains NaN/inf")
+    return mat
+
+
+def _read_scalar(node, path: Path, label: str, optional: bool = False):
+    if node.empty() or node.isNone():
+        if optional:
+            return None
+        raise ValueError(f"{path}: missing field {label}")
+    if node.isString():
+        return node.string()
+    return node.real()
+
+
+def _has(fs: cv2.FileStorage, key: str) -> bool:
+    node = fs.getNode(key)
+    return not (node.empty() or node.isNone())
+
+
+def _camera_error(path: Path, label: str, exc: ValueError) -> ValueError:
+    return ValueError(f"{path}: {label}: {exc}")
+
+
+# ------------------------------------------------------------------- cameras.yml
+def write_cameras_yml(path: str | os.PathLike, cameras: Sequence[Camera] | None,
+                      rig: StereoRig | None = None, extra: dict | None = None) -> None:
+    """Write cameras (and optionally a stereo rig) to an OpenCV FileStorage file.
+
+    Parameters
+    ----------
+    path : path
+        ``.yml`` / ``.yaml`` / ``.xml`` / ``.json``: OpenCV picks the format by suffix.
+    cameras : sequence of Camera, or None
+        The views.  With ``rig`` and no cameras, the rig's two cameras are written.
+    rig : StereoRig, optional
+        Recorded as ``rig_left``, ``rig_right`` (view indices, found among
+        ``cameras`` by identity or equality), ``rig_R``, ``rig_T``.
+    extra : dict of str -> float | int | str, optional
+        Extra scalars (e.g. ``rms_px``) written at the top level.
+
+    Notes
+    -----
+    The write is not atomic; wrap it in ``pipeline.atomic.atomic_file``.
+    """
+    path = Path(path)
+    cameras = list(cameras) if cameras is not None else []
+    if rig is not None and not cameras:
+        cameras = [rig.left, rig.right]
+    if not cameras:
+        raise ValueError(f"{path}: no cameras to write")
+    for i, cam in enumerate(cameras):
+        if not isinstance(cam, Camera):
+            raise ValueError(f"cameras[{i}] must be a Camera, got {type(cam).__name__}")
+    rig_index = None
+    if rig is not None:
+        rig_index = (_find_camera(cameras, rig.left, "rig.left"),
+                     _find_camera(cameras, rig.right, "rig.right"))
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    if not fs.isOpened():
+        raise ValueError(f"{path}: cannot open for writing")
+    try:
+        fs.write("format", _FORMAT_TAG)
+        fs.write("version", 1)
+        fs.write("n_views", len(cameras))
+        for i, cam in enumerate(cameras):
+            fs.startWriteStruct(f"view_{i:02d}", cv2.FileNode_MAP)
+            fs.write("name", cam.name)
+            fs.write("width", cam.width)
+            fs.write("height", cam.height)
+            fs.write("K", cam.K)
+            fs.write("dist", cam.dist.reshape(1, -1))
+            fs.write("R", cam.R)
+            fs.write("t", cam.t.reshape(3, 1))
+            fs.endWriteStruct()
+        if rig is not None:
+            fs.write("rig_left", rig_index[0])
+            fs.write("rig_right", rig_index[1])
+            fs.write("rig_R", rig.R)
+            fs.write("rig_T", rig.T.reshape(3, 1))
+        for key, value in (extra or {}).items():
+            fs.write(str(key), value if isinstance(value, str) else float(value))
+    finally:
+        fs.release()
+
+
+def _find_camera(cameras: list[Camera], cam: Camera, label: str) -> int:
+    for i, other in enumerate(cameras):
+        if other is cam:
+            return i
+    for i, other in enumerate(cameras):
+        if other.allclose(cam):
+            return i
+    raise ValueError(f"{label} is not among the cameras written")
+
+
+def _read_view(fs: cv2.FileStorage, path: Path, key: str) -> Camera:
+    node = fs.getNode(key)
+    if node.empty() or node.isNone():
+        raise ValueError(f"{path}: missing field {key}")
+    label = lambda f: f"{key}.{f}"
+    K = _read_mat(node.getNode("K"), path, label("K"), (3, 3))
+    dist = _read_mat(node.getNode("dist"), path, label("dist"), optional=True)
+    R = _read_mat(node.getNode("R"), path, label("R"), (3, 3))
+    t = _read_mat(node.getNode("t"), path, label("t"), (3,))
+    width = _read_scalar(node.getNode("width"), path, label("width"))
+    height = _read_scalar(node.getNode("height"), path, label("height"))
+    name = _read_scalar(node.getNode("name"), path, label("name"), optional=True) or ""
+    try:
+        return Camera(K, np.zeros(0) if dist is None else dist.reshape(-1), R, t,
+                      int(width), int(height), str(name))
+    except ValueError as exc:
+        raise _camera_error(path, key, exc) from None
+
+
+def read_cameras_yml(path: str | os.PathLike) -> list[Camera]:
+    """Read the cameras written by :func:`write_cameras_yml`.
+
+    Parameters
+    ----------
+    path : path to a ``cameras.yml`` / ``.xml``
+
+    Returns
+    -------
+    list of Camera, in view order.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        Unreadable file, missing ``n_views`` or a view field, invalid camera
+        (the message names the file and the field).
+    """
+    path = Path(path)
+    fs = _open_fs(path)
+    try:
+        n_views = _read_scalar(fs.getNode("n_views"), path, "n_views")
+        if isinstance(n_views, str) or n_views < 1 or int(n_views) != n_views:
+            raise ValueError(f"{path}: n_views must be a positive integer, got {n_views!r}")
+        return [_read_view(fs, path, f"view_{i:02d}") for i in range(int(n_views))]
+    finally:
+        fs.release()
+
+
+def write_rig(path: str | os.PathLike, rig: StereoRig, extra: dict | None = None) -> None:
+    """Write a stereo rig as a two-view ``cameras.yml`` (see :func:`write_cameras_yml`)."""
+    write_cameras_yml(path, [rig.left, rig.right], rig=rig, extra=extra)
+
+
+def _read_rig_yml(path: Path) -> StereoRig:
+    cameras = read_cameras_yml(path)
+    fs = _open_fs(path)
+    try:
+        if _has(fs, "rig_left"):
+            i = int(_read_scalar(fs.getNode("rig_left"), path, "rig_left"))
+            j = int(_read_scalar(fs.getNode("rig_right"), path, "rig_right"))
+        elif len(cameras) == 2:
+            i, j = 0, 1
+        else:
+            raise ValueError(f"{path}: {len(cameras)} views and no rig_left/rig_right: "
+                             "which two form the stereo pair?")
+    finally:
+        fs.release()
+    for label, index in (("rig_left", i), ("rig_right", j)):
+        if not 0 <= index < len(cameras):
+            raise ValueError(f"{path}: {label} = {index} is not a view index (n_views = "
+                             f"{len(cameras)})")
+    return StereoRig(cameras[i], cameras[j])
+
+
+# --------------------------------------------- OpenCV stereo calibration sample files
+def _image_size(image: str | os.PathLike) -> tuple[int, int]:
+    image = Path(image)
+    _check_exists(image)
+    array = cv2.imread(str(image), cv2.IMREAD_UNCHANGED)
+    if array is None:
+        raise ValueError(f"{image}: not a readable image")
+    return int(array.shape[1]), int(array.shape[0])
+
+
+def read_stereo_calibration(intrinsics: str | os.PathLike, extrinsics: str | os.PathLike,
+                            width: int | None = None, height: int | None = None,
+                            image: str | os.PathLike | None = None) -> StereoRig:
+    """Read OpenCV's stereo-calibration sample output into a rig.
+
+    Parameters
+    ----------
+    intrinsics : path
+        ``intrinsics.yml`` with ``M1 D1 M2 D2`` (camera matrices, distortion).
+    extrinsics : path
+        ``extrinsics.yml`` with ``R T`` (``x_r = R x_l + T``); ``R1 R2 P1 P2 Q``
+        (rectification) are ignored: they follow from the rest.  May be the
+        same file as ``intrinsics``.
+    width, height : int, optional
+        Image size in pixels.  The files do not store it.
+    image : path, optional
+        An image of the pair, read for its size when width/height are not given.
+
+    Returns
+    -------
+    StereoRig with the left camera at the world origin.
+    """
+    intrinsics, extrinsics = Path(intrinsics), Path(extrinsics)
+    if width is None or height is None:
+        if image is None:
+            raise ValueError(f"{intrinsics}: OpenCV calibration files carry no image size; "
+                             "give width and height (or an image of the pair)")
+        width, height = _image_size(image)
+    fs = _open_fs(intrinsics)
+    try:
+        K1 = _read_mat(fs.getNode("M1"), intrinsics, "M1", (3, 3))
+        D1 = _read_mat(fs.getNode("D1"), intrinsics, "D1", optional=True)
+        K2 = _read_mat(fs.getNode("M2"), intrinsics, "M2", (3, 3))
+        D2 = _read_mat(fs.getNode("D2"), intrinsics, "D2", optional=True)
+    finally:
+        fs.release()
+    fs = _open_fs(extrinsics)
+    try:
+        R = _read_mat(fs.getNode("R"), extrinsics, "R", (3, 3))
+        T = _read_mat(fs.getNode("T"), extrinsics, "T", (3,))
+    finally:
+        fs.release()
+    D1 = np.zeros(0) if D1 is None else D1.reshape(-1)
+    D2 = np.zeros(0) if D2 is None else D2.reshape(-1)
+    try:
+        left = Camera(K1, D1, np.eye(3), np.zeros(3), width, height, "left")
+    except ValueError as exc:
+        raise _camera_error(intrinsics, "M1/D1", exc) from None
+    try:
+        right = Camera(K2, D2, R, T, width, height, "right")
+    except ValueError as exc:
+        raise _camera_error(intrinsics if "R" not in str(exc) else extrinsics,
+                            "M2/D2/R/T", exc) from None
+    return StereoRig(left, right)
+
+
+def read_rig(path: str | os.PathLike, extrinsics: str | os.PathLike | None = None,
+             width: int | None = None, height: int | None = None,
+             image: str | os.PathLike | None = None) -> StereoRig:
+    """Read a stereo rig from any of the supported files, by content.
+
+    Parameters
+    ----------
+    path : path
+        One of: a ``cameras.yml`` with two views (synthetic scenes) or with
+        ``rig_left``/``rig_right`` (more views); a rig file written by
+        ``photosurf calibrate`` (the same format); OpenCV's ``intrinsics.yml``
+        (its ``extrinsics.yml`` is taken from ``extrinsics`` or the same
+        folder) or ``extrinsics.yml`` (its ``intrinsics.yml`` beside it), or
+        one file holding ``M1 D1 M2 D2 R T``.
+    extrinsics : path, optional
+        The extrinsics file for an ``intrinsics.yml``.
+    width, height, image :
+        Image size for the OpenCV sample files (see :func:`read_stereo_calibration`).
+
+    Returns
+    -------
+    StereoRig
+    """
+    path = Path(path)
+    fs = _open_fs(path)
+    try:
+        kind = ("photosurf" if _has(fs, "n_views") else
+                "intrinsics" if _has(fs, "M1") else
+                "extrinsics" if _has(fs, "R") and _has(fs, "T") else None)
+        combined = kind == "intrinsics" and _has(fs, "R") and _has(fs, "T")
+    finally:
+        fs.release()
+    if kind == "photosurf":
+        return _read_rig_yml(path)
+    if kind is None:
+        raise ValueError(f"{path}: not a rig file (no n_views, no M1/M2 intrinsics, "
+                         "no R/T extrinsics)")
+    if kind == "intrinsics":
+        ext = path if combined else Path(extrinsics) if extrinsics is not None else \
+            path.with_name(path.name.replace("intrinsics", "extrinsics"))
+        if ext == path and not combined:
+            raise ValueError(f"{path}: intrinsics only; give the extrinsics file (R, T)")
+        return read_stereo_calibration(path, ext, width, height, image)
+    intr = path.with_name(path.name.replace("extrinsics", "intrinsics"))
+    if intr == path:
+        raise ValueError(f"{path}: extrinsics only; give the intrinsics file (M1 D1 M2 D2)")
+    return read_stereo_calibration(intr, path, width, height, image)
+
+
+# ------------------------------------------------------------------ quaternions
+def rotation_to_quaternion(R) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) ``(w, x, y, z)``, w >= 0.
+
+    Shepperd's method (the numerically stable branch per matrix), vectorised.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    m = R.reshape(-1, 3, 3)
+    tr = np.trace(m, axis1=1, axis2=2)
+    diag = np.diagonal(m, axis1=1, axis2=2)
+    # four candidate (unnormalised) quaternions, pick the one with largest norm
+    cand = np.stack([
+        np.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0],
+                  m[:, 1, 0] - m[:, 0, 1]], -1),
+        np.stack([m[:, 2, 1] - m[:, 1, 2], 1 + 2 * diag[:, 0] - tr, m[:, 0, 1] + m[:, 1, 0],
+                  m[:, 0, 2] + m[:, 2, 0]], -1),
+        np.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 + 2 * diag[:, 1] - tr,
+                  m[:, 1, 2] + m[:, 2, 1]], -1),
+        np.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1],
+                  1 + 2 * diag[:, 2] - tr], -1),
+    ], 1)  # (M, 4 candidates, 4)
+    best = np.argmax(np.stack([tr, diag[:, 0], diag[:, 1], diag[:, 2]], -1), axis=1)
+    q = cand[np.arange(len(m)), best]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def quaternion_to_rotation(q) -> np.ndarray:
+    """Quaternions (..., 4) ``(w, x, y, z)`` (normalised here) -> rotations (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+# ------------------------------------------------------------------- COLMAP text
+#: COLMAP model -> (number of params, function params -> (fx, fy, cx, cy, dist))
+_COLMAP_MODELS = {
+    "SIMPLE_PINHOLE": (3, lambda p: (p[0], p[0], p[1], p[2], [])),
+    "PINHOLE": (4, lambda p: (p[0], p[1], p[2], p[3], [])),
+    "SIMPLE_RADIAL": (4, lambda p: (p[0], p[0], p[1], p[2], [p[3], 0, 0, 0])),
+    "RADIAL": (5, lambda p: (p[0], p[0], p[1], p[2], [p[3], p[4], 0, 0])),
+    "OPENCV": (8, lambda p: (p[0], p[1], p[2], p[3], list(p[4:8]))),
+    "FULL_OPENCV": (12, lambda p: (p[0], p[1], p[2], p[3],
+                                   list(p[4:9]) if not np.any(p[9:12]) else list(p[4:12]))),
+}
+#: COLMAP's pixel origin is the corner of the top-left pixel, OpenCV's its centre.
+_COLMAP_PIXEL_SHIFT = 0.5
+
+
+def _colmap_camera_line(camera_id: int, cam: Camera) -> str:
+    fx, fy, cx, cy = cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]
+    if abs(cam.K[0, 1]) > TOL.zero:
+        raise ValueError(
+            f"camera {cam.name!r}: COLMAP models have no skew, K[0, 1] = {cam.K[0, 1]}")
+    cx, cy = cx + _COLMAP_PIXEL_SHIFT, cy + _COLMAP_PIXEL_SHIFT
+    dist = cam.dist
+    if not cam.has_distortion:
+        model, params = "PINHOLE", [fx, fy, cx, cy]
+    elif dist.size == 4:
+        model, params = "OPENCV", [fx, fy, cx, cy, *dist]
+    elif dist.size in (5, 8):
+        model, params = "FULL_OPENCV", [fx, fy, cx, cy, *np.pad(dist, (0, 8 - dist.size))]
+    elif not np.any(dist[8:]):
+        model, params = "FULL_OPENCV", [fx, fy, cx, cy, *dist[:8]]
+    else:
+        raise ValueError(f"camera {cam.name!r}: thin-prism/tilt distortion (dist[8:]) has no "
+                         "COLMAP model")
+    values = " ".join(repr(float(v)) for v in params)
+    return f"{camera_id} {model} {cam.width} {cam.height} {values}"
+
+
+def write_colmap_text(folder: str | os.PathLike, cameras: Sequence[Camera],
+                      points: np.ndarray | None = None) -> None:
+    """Write cameras as a COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``).
+
+    Parameters
+    ----------
+    folder : path
+        Created if missing; the three files are overwritten.
+    cameras : sequence of Camera
+        One COLMAP camera and one image per entry (ids 1..N); names must be
+        unique, non-empty and without whitespace.  PINHOLE model without
+        distortion, OPENCV for 4 coefficients, FULL_OPENCV for 5 or 8.
+    points : (M, 3) float64, optional
+        Written to ``points3D.txt`` with colour 128 and no track (COLMAP's
+        reader accepts empty tracks).  Default: an empty ``points3D.txt``.
+    """
+    folder = Path(folder)
+    cameras = list(cameras)
+    if not cameras:
+        raise ValueError(f"{folder}: no cameras to write")
+    names = [cam.name for cam in cameras]
+    for i, name in enumerate(names):
+        if not name or any(ch.isspace() for ch in name):
+            raise ValueError(f"cameras[{i}].name must be non-empty without whitespace for COLMAP, "
+                             f"got {name!r}")
+    if len(set(names)) != len(names):
+        raise ValueError("camera names must be unique for COLMAP")
+    folder.mkdir(parents=True, exist_ok=True)
+    cam_lines = [_colmap_camera_line(i + 1, cam) for i, cam in enumerate(cameras)]
+    quats = rotation_to_quaternion(np.stack([cam.R for cam in cameras]))
+    img_lines = []
+    for i, (cam, q) in enumerate(zip(cameras, quats, strict=True)):
+        values = " ".join(repr(float(v)) for v in (*q, *cam.t))
+        img_lines += [f"{i + 1} {values} {i + 1} {cam.name}", ""]
+    (folder / "cameras.txt").write_text(
+        "# Camera list with one line of data per camera:\n"
+        "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+        f"# Number of cameras: {len(cameras)}\n" + "\n".join(cam_lines) + "\n")
+    (folder / "images.txt").write_text(
+        "# Image list with two lines of data per image:\n"
+        "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+        "#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
+        f"# Number of images: {len(cameras)}, mean observations per image: 0\n"
+        + "\n".join(img_lines) + "\n")
+    pts_lines = []
+    if points is not None:
+        points = check_shape(points, "(M, 3)", "points", dtype=np.float64)
+        pts_lines = [f"{i + 1} {x!r} {y!r} {z!r} 128 128 128 0"
+                     for i, (x, y, z) in enumerate(points.tolist())]
+    (folder / "points3D.txt").write_text(
+        "# 3D point list with one line of data per point:\n"
+        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+        f"# Number of points: {len(pts_lines)}, mean track length: 0\n"
+        + "".join(line + "\n" for line in pts_lines))
+
+
+def _data_lines(path: Path) -> list[tuple[int, str]]:
+    lines = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            lines.append((number, line))
+    return lines
+
+
+def _parse_colmap_cameras(path: Path) -> dict[int, tuple]:
+    intrinsics = {}
+    for number, line in _data_lines(path):
+        fields = line.split()
+        where = f"{path}:{number}"
+        if len(fields) < 4:
+            raise ValueError(f"{where}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]")
+        model = fields[1]
+        if model not in _COLMAP_MODELS:
+            raise ValueError(f"{where}: camera model {model} not supported (supported: "
+                             f"{', '.join(_COLMAP_MODELS)})")
+        n_params, convert = _COLMAP_MODELS[model]
+        try:
+            camera_id, width, height = int(fields[0]), int(fields[2]), int(fields[3])
+            params = np.array([float(v) for v in fields[4:]])
+        except ValueError:
+            raise ValueError(f"{where}: malformed number in {line.strip()!r}") from None
+        if params.size != n_params:
+            raise ValueError(f"{where}: {model} needs {n_params} parameters, got {params.size}")
+        fx, fy, cx, cy, dist = convert(params)
+        K = np.array([[fx, 0.0, cx - _COLMAP_PIXEL_SHIFT], [0.0, fy, cy - _COLMAP_PIXEL_SHIFT],
+                      [0.0, 0.0, 1.0]])
+        intrinsics[camera_id] = (K, np.array(dist, dtype=np.float64), width, height)
+    return intrinsics
+
+
+def read_colmap_text(folder: str | os.PathLike) -> list[Camera]:
+    """Read the registered images of a COLMAP text model as cameras.
+
+    Parameters
+    ----------
+    folder : path
+        Holding ``cameras.txt`` and ``images.txt`` (``points3D.txt`` is not read).
+        Supported models: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL,
+        OPENCV, FULL_OPENCV.
+
+    Returns
+    -------
+    list of Camera, in ``images.txt`` order, named by the image names.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such folder")
+    cam_path, img_path = folder / "cameras.txt", folder / "images.txt"
+    _check_exists(cam_path)
+    _check_exists(img_path)
+    intrinsics = _parse_colmap_cameras(cam_path)
+    cameras = []
+    lines = _data_lines(img_path)
+    # Every image has two lines, the second (POINTS2D) may be empty: parse the
+    # raw lines, skipping comments, pairing each header with its next line.
+    raw = [ln for ln in img_path.read_text().splitlines() if not ln.lstrip().startswith("#")]
+    headers = raw[0::2]
+    if not lines:
+        raise ValueError(f"{img_path}: no images")
+    for index, line in enumerate(headers):
+        if not line.strip():
+            continue
+        fields = line.split()
+        where = f"{img_path}: image entry {index + 1}"
+        if len(fields) < 10:
+            raise ValueError(f"{where}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
+        try:
+            q = np.array([float(v) for v in fields[1:5]])
+            t = np.array([float(v) for v in fields[5:8]])
+            camera_id = int(fields[8])
+        except ValueError:
+            raise ValueError(f"{where}: malformed number in {line.strip()!r}") from None
+        if camera_id not in intrinsics:
+            raise ValueError(f"{where}: CAMERA_ID {camera_id} not in {cam_path}")
+        K, dist, width, height = intrinsics[camera_id]
+        name = " ".join(fields[9:])
+        try:
+            cameras.append(Camera(K, dist, quaternion_to_rotation(q), t, width, height, name))
+        except ValueError as exc:
+            raise ValueError(f"{where} ({name}): {exc}") from None
+    return cameras
+
+
+def cameras_from_pycolmap(reconstruction) -> list[Camera]:
+    """Cameras of the registered images of a ``pycolmap.Reconstruction``, sorted by name.
+
+    Supports the models of :func:`read_colmap_text`; the principal point is
+    moved from COLMAP's pixel-corner origin to OpenCV's pixel-centre origin.
+    """
+    cameras = []
+    for image in reconstruction.images.values():
+        if not _is_registered(image):
+            continue
+        colmap_cam = reconstruction.cameras[image.camera_id]
+        model = str(colmap_cam.model_name) if hasattr(colmap_cam, "model_name") else \
+            colmap_cam.model.name
+        if model not in _COLMAP_MODELS:
+            raise ValueError(f"image {image.name}: camera model {model} not supported")
+        fx, fy, cx, cy, dist = _COLMAP_MODELS[model][1](np.asarray(colmap_cam.params))
+        K = np.array([[fx, 0.0, cx - _COLMAP_PIXEL_SHIFT], [0.0, fy, cy - _COLMAP_PIXEL_SHIFT],
+                      [0.0, 0.0, 1.0]])
+        pose = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
+        R = np.asarray(pose.rotation.matrix())
+        t = np.asarray(pose.translation)
+        cameras.append(Camera(K, np.array(dist, dtype=np.float64), R, t, colmap_cam.width,
+                              colmap_cam.height, image.name))
+    return sorted(cameras, key=lambda c: c.name)
+
+
+def _is_registered(image) -> bool:
+    flag = getattr(image, "has_pose", None)
+    if flag is None:
+        flag = getattr(image, "registered", True)
+    return bool(flag() if callable(flag) else flag)
+
+
+def read_colmap(folder: str | os.PathLike) -> list[Camera]:
+    """Read a COLMAP model folder, text (by photosurf's parser) or binary (through pycolmap)."""
+    folder = Path(folder)
+    if (folder / "cameras.txt").exists():
+        return read_colmap_text(folder)
+    if (folder / "cameras.bin").exists():
+        import pycolmap
+
+        try:
+            reconstruction = pycolmap.Reconstruction(str(folder))
+        except Exception as exc:  # pycolmap raises its own error types
+            raise ValueError(f"{folder}: unreadable COLMAP binary model ({exc})") from None
+        return cameras_from_pycolmap(reconstruction)
+    raise FileNotFoundError(f"{folder}: no COLMAP model (cameras.txt or cameras.bin)")
+
+
+# ------------------------------------------------------------ projection matrices
+def _nearest_rotation(R: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(R)
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+
+
+def read_projection_txt(path: str | os.PathLike, width: int | None = None,
+                        height: int | None = None,
+                        image_dir: str | os.PathLike | None = None) -> list[Camera]:
+    """Read per-image ``name k11..k33 r11..r33 t1 t2 t3`` lines (Middlebury ``*_par.txt``).
+
+    Parameters
+    ----------
+    path : path
+        Text file; an optional first line holds the number of images.
+    width, height : int, optional
+        Image size.  If not given, the first image is looked up in
+        ``image_dir`` (default: the file's folder) and its size used.
+    image_dir : path, optional
+
+    Returns
+    -------
+    list of Camera, no distortion, in file order.  Rotations printed with few
+    digits are projected onto the nearest rotation if they are within
+    ``TOL.rotation_text_digits`` of one.
+    """
+    path = Path(path)
+    _check_exists(path)
+    rows = []
+    for number, line in _data_lines(path):
+        fields = line.split()
+        if len(fields) == 1 and not rows:
+            continue  # the image count
+        if len(fields) != 22:
+            raise ValueError(f"{path}:{number}: expected name and 21 numbers "
+                             f"(k11..k33 r11..r33 t1 t2 t3), got {len(fields)} fields")
+        try:
+            values = np.array([float(v) for v in fields[1:]])
+        except ValueError:
+            raise ValueError(f"{path}:{number}: malformed number in {line.strip()!r}") from None
+        rows.append((number, fields[0], values))
+    if not rows:
+        raise ValueError(f"{path}: no camera lines")
+    if width is None or height is None:
+        folder = Path(image_dir) if image_dir is not None else path.parent
+        candidate = folder / rows[0][1]
+        if not candidate.exists():
+            raise ValueError(f"{path}: no image size given and {candidate} not found; give "
+                             "width and height")
+        width, height = _image_size(candidate)
+    cameras = []
+    for number, name, values in rows:
+        K, R, t = values[:9].reshape(3, 3), values[9:18].reshape(3, 3), values[18:]
+        if np.abs(R.T @ R - np.eye(3)).max() < TOL.rotation_text_digits:
+            R = _nearest_rotation(R)
+        try:
+            cameras.append(Camera(K / K[2, 2] if K[2, 2] else K, np.zeros(0), R, t, width,
+                                  height, name))
+        except ValueError as exc:
+            raise ValueError(f"{path}:{number} ({name}): {exc}") from None
+    return cameras
+
+
+# ------------------------------------------------------------------- dispatch
+def read_cameras(path: str | os.PathLike, width: int | None = None,
+                 height: int | None = None) -> list[Camera]:
+    """Read cameras from any supported source, by content.
+
+    Parameters
+    ----------
+    path : path
+        ``cameras.yml`` / ``.xml`` (photosurf), a rig file, OpenCV
+        ``intrinsics.yml`` / ``extrinsics.yml`` (returns [left, right]), a
+        COLMAP model folder (text or binary) or its ``cameras.txt`` /
+        ``images.txt``, or a projection-matrix ``.txt``.
+    width, height : int, optional
+        Image size for formats that do not store it.
+
+    Returns
+    -------
+    list of Camera
+    """
+    path = Path(path)
+    if path.is_dir():
+        return read_colmap(path)
+    _check_exists(path)
+    if path.name in ("cameras.txt", "images.txt", "points3D.txt"):
+        return read_colmap_text(path.parent)
+    if path.suffix.lower() in (".yml", ".yaml", ".xml", ".json"):
+        fs = _open_fs(path)
+        try:
+            photosurf = _has(fs, "n_views")
+        finally:
+            fs.release()
+        if photosurf:
+            return read_cameras_yml(path)
+        rig = read_rig(path, width=width, height=height)
+        return [rig.left, rig.right]
+    if path.suffix.lower() == ".txt":
+        return read_projection_txt(path, width, height)
+    raise ValueError(f"{path}: unknown camera file type (expected .yml/.xml, a COLMAP folder "
+                     "or cameras.txt, or a projection-matrix .txt)")
