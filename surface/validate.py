@@ -23,6 +23,12 @@ class Tolerance:
     planar_rel: float = 1e-9
     #: Numerical zero for areas, determinants and normalisation.
     zero: float = 1e-12
+    #: Relative height tolerance (x bounding-box diagonal) grouping points of
+    #: already-sectioned data into one section (sections.read_sectioned).
+    section_group_rel: float = 1e-6
+    #: Absolute tolerance on a curve parameter u in [0, 1] when intersecting
+    #: rays with curve segments (catmull_rom.resample_theta).
+    param: float = 1e-9
     #: Radians: an opposite-angle sum counts as Delaunay up to pi + angle
     #: (co-circular quads, e.g. N-to-N stitching of a cylinder, sum to pi exactly).
     angle: float = 1e-9
