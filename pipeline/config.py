@@ -1,0 +1,154 @@
+"""Configuration: defaults, a TOML file, and ``--set`` overrides, resolved in that order.
+
+Every parameter of ``photosurf run`` has its default in ``pipeline/defaults.toml``
+(one place).  A config file (``--config FILE``) and command-line assignments
+(``--set section.key=value``, the value written as a TOML value: ``3``,
+``0.5``, ``true``, ``"auto"``, ``[1, 0, 0]``; a bare word is taken as a
+string) override it.  Unknown sections or keys and values of the wrong type
+are errors naming the key and the value, so that a typo never passes silently.
+A table whose default is empty (``{}``) is free-form: any key is accepted there
+(used for the scene-recipe overrides).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import tomllib
+from collections.abc import Iterable, Mapping
+from importlib import resources
+from pathlib import Path
+
+import tomli_w
+
+from pipeline.errors import InputError
+
+#: Keys whose value may be a string or a list/number (e.g. ``axis = "auto"`` or ``[0, 0, 1]``).
+FLEXIBLE = frozenset({"sections.axis"})
+
+
+def defaults() -> dict:
+    """The parsed ``pipeline/defaults.toml`` (a fresh copy)."""
+    text = resources.files("pipeline").joinpath("defaults.toml").read_text(encoding="utf-8")
+    return tomllib.loads(text)
+
+
+def load_file(path: str | os.PathLike) -> dict:
+    """Read a TOML config file; errors name the file and the TOML problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such config file")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text TOML file ({exc.reason})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: invalid TOML: {exc}") from exc
+
+
+def parse_assignment(text: str) -> tuple[list[str], object]:
+    """Split ``"section.key=value"`` into ``(["section", "key"], value)``.
+
+    The value is parsed as a TOML value; when that fails (a bare word such as
+    ``auto``) it is kept as a string.
+    """
+    if "=" not in text:
+        raise InputError(f"--set {text!r}: expected section.key=value")
+    key, raw = text.split("=", 1)
+    path = [part.strip() for part in key.strip().split(".")]
+    if len(path) < 2 or not all(path):
+        raise InputError(f"--set {text!r}: the key must be section.key (e.g. sections.count=24)")
+    raw = raw.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return path, value
+
+
+def _type_ok(default, value) -> tuple[bool, object]:
+    if isinstance(default, bool):
+        return isinstance(value, bool), value
+    if isinstance(default, int):
+        return isinstance(value, int) and not isinstance(value, bool), value
+    if isinstance(default, float):
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return True, float(value)
+        return False, value
+    return isinstance(value, type(default)), value
+
+
+def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
+    """Merge ``update`` into ``base`` (in place), checking keys and types against ``base``."""
+    for key, value in update.items():
+        dotted = f"{prefix}{key}"
+        if key not in base:
+            known = ", ".join(sorted(base)) or "none"
+            what = "section" if not prefix else "parameter"
+            raise InputError(f"{origin}: unknown {what} {dotted!r} (known: {known})")
+        default = base[key]
+        if isinstance(default, dict):
+            if not isinstance(value, Mapping):
+                raise InputError(f"{origin}: {dotted} must be a table, got {value!r}")
+            if default:
+                _merge(default, value, origin, f"{dotted}.")
+            else:  # free-form table: deep-merge without checks
+                _deep_update(default, value)
+            continue
+        if dotted in FLEXIBLE:
+            base[key] = value
+            continue
+        ok, converted = _type_ok(default, value)
+        if not ok:
+            raise InputError(f"{origin}: {dotted} must be {type(default).__name__} "
+                             f"(like {default!r}), got {value!r}")
+        base[key] = converted
+
+
+def _deep_update(base: dict, update: Mapping) -> None:
+    for key, value in update.items():
+        if isinstance(value, Mapping) and isinstance(base.get(key), dict):
+            _deep_update(base[key], value)
+        else:
+            base[key] = copy.deepcopy(value)
+
+
+def resolve(config_file: str | os.PathLike | None = None,
+            assignments: Iterable[str] = (),
+            overrides: Mapping | None = None) -> dict:
+    """Resolve the configuration: defaults, ``config_file``, ``overrides``, then ``--set``.
+
+    Parameters
+    ----------
+    config_file : path, optional
+        TOML file with the same sections as ``defaults.toml``.
+    assignments : iterable of str
+        ``"section.key=value"`` strings from ``--set``.
+    overrides : mapping, optional
+        A nested dict applied after the file (used by ``photosurf batch``).
+
+    Returns
+    -------
+    dict
+        The full parameter set, every section present.
+    """
+    config = defaults()
+    if config_file is not None:
+        _merge(config, load_file(config_file), str(config_file))
+    if overrides:
+        _merge(config, overrides, "batch manifest")
+    for text in assignments:
+        path, value = parse_assignment(text)
+        nested: dict = {}
+        cursor = nested
+        for part in path[:-1]:
+            cursor = cursor.setdefault(part, {})
+        cursor[path[-1]] = value
+        _merge(config, nested, f"--set {text}")
+    return config
+
+
+def dumps(config: Mapping) -> str:
+    """The configuration as TOML text (what ``OUTDIR/config.toml`` holds)."""
+    header = "# photosurf: resolved configuration of this run (defaults + --config + --set)\n"
+    return header + tomli_w.dumps(dict(config))

@@ -1,0 +1,169 @@
+"""Where independent tasks run: in this process (default) or on a Dask cluster.
+
+An executor maps a module-level function over a list of arguments and
+returns the results in order::
+
+    with get_executor(scheduler) as ex:
+        results = ex.map(func, items)
+
+* :class:`LocalExecutor` (default, ``scheduler=None`` or ``"local"``): a plain
+  loop in this process, or a thread pool with ``workers > 1``.  No set-up, no
+  network, no background processes.
+* :class:`DaskExecutor`: ``dask.distributed`` on an existing cluster
+  (``"tcp://HOST:PORT"`` → ``Client(address)``) or on a fresh
+  ``LocalCluster`` of worker processes (``"local-cluster"`` or
+  ``"local-cluster:N"``), bound to 127.0.0.1 with the dashboard off so that an
+  offline machine is not probed (dask/distributed#8559).
+
+Tasks are the objects of a batch and the view pairs of an image folder; each
+result is a small summary, the big arrays stay in files, so memory is bounded
+by the tasks in flight, not by the batch.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import warnings
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+
+from pipeline.errors import InputError
+
+_ADDRESS = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s]+$")
+_LOCAL_CLUSTER = re.compile(r"^local-cluster(?::(\d+))?$")
+
+
+class LocalExecutor:
+    """Run tasks in this process: in order (``workers=1``) or on a thread pool.
+
+    Parameters
+    ----------
+    workers : int
+        Threads; 1 (default) is a plain loop, the most predictable choice for
+        numpy/OpenCV code that already uses every core.
+    """
+
+    name = "local"
+
+    def __init__(self, workers: int = 1):
+        if int(workers) < 1:
+            raise InputError(f"executor workers must be >= 1, got {workers}")
+        self.workers = int(workers)
+
+    def map(self, func: Callable, items: Iterable, **kwargs) -> list:
+        items = list(items)
+        if self.workers == 1 or len(items) < 2:
+            return [func(item, **kwargs) for item in items]
+        with ThreadPoolExecutor(self.workers) as pool:
+            return list(pool.map(lambda item: func(item, **kwargs), items))
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def describe(self) -> str:
+        return f"local ({self.workers} thread{'s' if self.workers > 1 else ''})"
+
+
+class DaskExecutor:
+    """Run tasks as ``dask.distributed`` futures.
+
+    Parameters
+    ----------
+    address : str, optional
+        Scheduler address ``tcp://HOST:PORT``; without it a ``LocalCluster``
+        of ``n_workers`` processes (one thread each) is started on 127.0.0.1.
+    n_workers : int
+        Workers of the local cluster.
+    """
+
+    name = "dask"
+
+    def __init__(self, address: str | None = None, n_workers: int = 2):
+        quiet_dask()
+        from distributed import Client, LocalCluster
+
+        self._cluster = None
+        try:
+            if address is None:
+                self._cluster = LocalCluster(
+                    n_workers=int(n_workers), threads_per_worker=1, processes=True,
+                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
+                self.client = Client(self._cluster)
+            else:
+                self.client = Client(address, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            if self._cluster is not None:
+                self._cluster.close()
+            raise InputError(f"--scheduler {address or 'local-cluster'}: cannot connect "
+                             f"({exc})") from exc
+        self.address = address or self.client.scheduler.address
+
+    def map(self, func: Callable, items: Iterable, **kwargs) -> list:
+        items = list(items)
+        if not items:
+            return []
+        # pure=False: every item is its own task even if two items are equal
+        futures = self.client.map(func, items, pure=False, **kwargs)
+        return self.client.gather(futures)
+
+    def close(self) -> None:
+        self.client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def describe(self) -> str:
+        workers = len(self.client.scheduler_info().get("workers", {}))
+        return f"dask {self.address} ({workers} workers)"
+
+
+def quiet_dask() -> None:
+    """Keep dask off the network and the terminal (no dashboard, errors only)."""
+    import dask
+
+    dask.config.set({"distributed.scheduler.dashboard.enabled": False,
+                     "distributed.dashboard.link": "",
+                     "distributed.admin.system-monitor.gil.enabled": False,
+                     "distributed.worker.daemon": True})
+    for name in ("distributed", "distributed.scheduler", "distributed.worker",
+                 "distributed.nanny", "distributed.core", "distributed.http.proxy",
+                 "distributed.utils_perf"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    warnings.filterwarnings("ignore", message=".*Port .* is already in use.*")
+    os.environ.setdefault("DASK_DISTRIBUTED__SCHEDULER__DASHBOARD__ENABLED", "False")
+
+
+def get_executor(scheduler: str | None = None, workers: int = 1):
+    """The executor for ``--scheduler``.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        ``None``/``""``/``"local"``: in-process; ``"local-cluster[:N]"``: a Dask
+        LocalCluster of N (default 2) processes; ``"tcp://HOST:PORT"``: an
+        existing Dask scheduler.
+    workers : int
+        Threads of the in-process executor.
+    """
+    if scheduler in (None, "", "local"):
+        return LocalExecutor(workers)
+    match = _LOCAL_CLUSTER.match(scheduler)
+    if match:
+        return DaskExecutor(None, int(match.group(1) or 2))
+    if _ADDRESS.match(scheduler):
+        return DaskExecutor(scheduler)
+    raise InputError(f"--scheduler {scheduler!r}: expected tcp://HOST:PORT, local-cluster[:N] "
+                     "or local")

@@ -1,0 +1,221 @@
+"""The run workspace: one folder per stage, a manifest, and resumable stages.
+
+A stage ``s`` is *up to date* when its manifest record holds
+
+    sha256(inputs) == recorded,  sha256(params) == recorded,
+    every recorded output exists with its recorded sha256,
+
+the same rule as ``make`` with content hashes instead of times (the design
+of DVC's ``dvc.lock`` and Snakemake's provenance records).  Every stage writes
+into a hidden temporary folder that is renamed to ``OUTDIR/<stage>`` only when
+complete (:func:`pipeline.atomic.atomic_dir`), and the manifest is replaced
+atomically after each stage, so a run killed at any moment (``kill -9``)
+leaves either the old or the new state of each stage, never a mixture; the
+same command run again resumes where it stopped.
+
+Layout::
+
+    OUTDIR/manifest.json     inputs' hashes, resolved parameters, versions,
+                             per-stage timing, input and output hashes
+    OUTDIR/config.toml       the resolved configuration
+    OUTDIR/<stage>/...       each stage's outputs
+    OUTDIR/report.html       the report
+    OUTDIR/.lock             held (flock) while a run is in progress
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import io
+import json
+import os
+import platform
+import shutil
+import zipfile
+from collections.abc import Iterator, Mapping
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.atomic import atomic_file
+from pipeline.errors import InputError
+
+MANIFEST = "manifest.json"
+CONFIG = "config.toml"
+#: Manifest format version; a different version means every stage reruns.
+MANIFEST_VERSION = 1
+#: Distributions whose versions are recorded (they change results).
+VERSIONED = ("photosurf", "numpy", "scipy", "opencv-contrib-python-headless", "open3d",
+             "pycolmap", "numba", "triangle", "mapbox-earcut", "dask", "distributed")
+_CHUNK = 1 << 20
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """Hex SHA-256 of a file's bytes, read in 1 MiB chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(_CHUNK), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def sha256_json(value) -> str:
+    """Hex SHA-256 of a JSON-serialisable value in canonical form (sorted keys)."""
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def hash_tree(root: str | os.PathLike, relative_to: str | os.PathLike) -> dict[str, str]:
+    """``{relative path: sha256}`` of every regular file under ``root`` (sorted)."""
+    root, base = Path(root), Path(relative_to)
+    if root.is_file():
+        return {root.relative_to(base).as_posix(): sha256_file(root)}
+    return {p.relative_to(base).as_posix(): sha256_file(p)
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of Python and of the distributions that shape the results."""
+    versions = {"python": platform.python_version()}
+    for name in VERSIONED:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return versions
+
+
+def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
+    """Write arrays to an ``.npz`` atomically and byte-reproducibly.
+
+    ``numpy.savez`` stamps each member with the current time, so two runs give
+    different bytes and different hashes; here every member carries the fixed
+    date 1980-01-01 so that the same arrays always give the same file.
+    """
+    path = Path(path)
+    with atomic_file(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
+        for name, value in arrays.items():
+            buffer = io.BytesIO()
+            np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, buffer.getvalue())
+    return path
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write text atomically (temporary name, then rename)."""
+    path = Path(path)
+    with atomic_file(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+class Workspace:
+    """A run's output folder and its manifest.
+
+    Parameters
+    ----------
+    root : path
+        ``OUTDIR``; created if missing.  Raises :class:`InputError` when it is
+        a file or cannot be written.
+    """
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise InputError(f"{self.root}: --out must be a folder, found a file")
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise InputError(f"{self.root}: cannot create the output folder "
+                             f"({exc.strerror or exc})") from exc
+        if not os.access(self.root, os.W_OK | os.X_OK):
+            raise InputError(f"{self.root}: output folder is not writable")
+        self.manifest = self._load()
+
+    # -- manifest ---------------------------------------------------------
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / MANIFEST
+
+    def _load(self) -> dict:
+        path = self.manifest_path
+        fresh = {"manifest_version": MANIFEST_VERSION, "stages": {}}
+        if not path.is_file():
+            return fresh
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return fresh  # unreadable manifest: rebuild everything (written atomically, so rare)
+        if not isinstance(data, dict) or data.get("manifest_version") != MANIFEST_VERSION:
+            return fresh
+        data.setdefault("stages", {})
+        return data
+
+    def save(self) -> None:
+        """Replace ``manifest.json`` atomically."""
+        write_text(self.manifest_path, json.dumps(self.manifest, indent=1, sort_keys=True) + "\n")
+
+    def record(self, stage: str) -> dict | None:
+        return self.manifest["stages"].get(stage)
+
+    def set_record(self, stage: str, record: Mapping) -> None:
+        self.manifest["stages"][stage] = dict(record)
+        self.save()
+
+    def forget(self, stage: str) -> None:
+        if self.manifest["stages"].pop(stage, None) is not None:
+            self.save()
+
+    # -- stages -----------------------------------------------------------
+    def stage_dir(self, stage: str) -> Path:
+        return self.root / stage
+
+    def outputs_of(self, stage: str) -> dict[str, str]:
+        """``{path relative to OUTDIR: sha256}`` recorded for ``stage`` (empty if none)."""
+        rec = self.record(stage)
+        return dict(rec.get("outputs", {})) if rec and rec.get("status") == "done" else {}
+
+    def up_to_date(self, stage: str, inputs: Mapping[str, str], params_sha256: str) -> bool:
+        """True when ``stage`` ran with these inputs and parameters and its outputs are intact."""
+        rec = self.record(stage)
+        if not rec or rec.get("status") != "done":
+            return False
+        if rec.get("inputs") != dict(inputs) or rec.get("params_sha256") != params_sha256:
+            return False
+        outputs = rec.get("outputs") or {}
+        if not outputs:
+            return False
+        for rel, digest in outputs.items():
+            path = self.root / rel
+            if not path.is_file() or sha256_file(path) != digest:
+                return False
+        return True
+
+    def clean_temporaries(self, names: list[str]) -> None:
+        """Remove temporary files/folders a killed run left (``.<name>.*`` for known names)."""
+        for name in names:
+            stem = Path(name).stem if "." in name else name
+            for leftover in self.root.glob(f".{stem}.*"):
+                if leftover.is_dir():
+                    shutil.rmtree(leftover, ignore_errors=True)
+                else:
+                    leftover.unlink(missing_ok=True)
+
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[None]:
+        """Hold an exclusive lock on ``OUTDIR/.lock`` (released by the OS even on kill -9)."""
+        fh = open(self.root / ".lock", "w")  # noqa: SIM115 - held for the block
+        try:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError as exc:
+                raise InputError(f"{self.root}: another photosurf run is using this "
+                                 "output folder") from exc
+            yield
+        finally:
+            fh.close()

@@ -1,0 +1,226 @@
+"""The workspace engine: manifest, up-to-date rule, --from/--to, availability, config."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline import config as config_mod
+from pipeline.errors import InputError
+from pipeline.stages import Stage, StageError, detect_kind, missing_modules, run_pipeline
+from pipeline.workspace import Workspace, save_npz, sha256_file
+
+CALLS: list[str] = []
+
+
+def _first(ctx):
+    CALLS.append("first")
+    values = np.loadtxt(ctx.inputs[0]) * ctx.params["toy"]["scale"]
+    save_npz(ctx.out / "values.npz", values=values)
+    return {"count": len(values)}
+
+
+def _second(ctx):
+    CALLS.append("second")
+    values = np.load(ctx.stage_path("first", "values.npz"))["values"]
+    save_npz(ctx.out / "sum.npz", total=values.sum() + ctx.params["toy2"]["offset"])
+
+
+def _third(ctx):
+    CALLS.append("third")
+    total = np.load(ctx.stage_path("second", "sum.npz"))["total"]
+    ctx.out.write_text(f"{float(total)!r}\n")
+
+
+def _broken(ctx):
+    raise np.linalg.LinAlgError("singular matrix")
+
+
+TOY = [
+    Stage("first", _first, params=("toy",), external=True),
+    Stage("second", _second, params=("toy2",), needs=("first",)),
+    Stage("third", _third, needs=("second",), target="third.txt"),
+]
+TOY_CONFIG = {"toy": {"scale": 2.0}, "toy2": {"offset": 1.0}}
+
+
+@pytest.fixture()
+def toy_input(tmp_path):
+    path = tmp_path / "in.txt"
+    np.savetxt(path, np.arange(5.0))
+    return path
+
+
+def _run(toy_input, out, config=None, **kw):
+    CALLS.clear()
+    return run_pipeline([toy_input], out, config or json.loads(json.dumps(TOY_CONFIG)),
+                        stages=kw.pop("stages", TOY), **kw)
+
+
+def test_run_writes_manifest_and_skips_up_to_date(toy_input, tmp_path):
+    out = tmp_path / "ws"
+    summary = _run(toy_input, out)
+    assert [s.status for s in summary.stages] == ["done"] * 3
+    assert CALLS == ["first", "second", "third"]
+    # 2 * (0+1+2+3+4) + 1 = 21
+    assert float((out / "third.txt").read_text()) == 21.0
+    manifest = json.loads((out / "manifest.json").read_text())
+    rec = manifest["stages"]["first"]
+    assert rec["outputs"] == {"first/values.npz": sha256_file(out / "first/values.npz")}
+    assert rec["params"] == {"toy": {"scale": 2.0}}
+    assert rec["info"] == {"count": 5}
+    assert "numpy" in manifest["versions"]
+    assert manifest["inputs"][0]["sha256"] == sha256_file(toy_input)
+    assert (out / "config.toml").is_file()
+    summary = _run(toy_input, out)
+    assert CALLS == []
+    assert [s.status for s in summary.stages] == ["up to date"] * 3
+
+
+def test_parameter_change_reruns_that_stage_and_downstream(toy_input, tmp_path):
+    out = tmp_path / "ws"
+    _run(toy_input, out)
+    config = json.loads(json.dumps(TOY_CONFIG))
+    config["toy2"]["offset"] = 5.0
+    _run(toy_input, out, config)
+    assert CALLS == ["second", "third"]
+    assert float((out / "third.txt").read_text()) == 25.0
+
+
+def test_changed_input_or_tampered_output_reruns(toy_input, tmp_path):
+    out = tmp_path / "ws"
+    _run(toy_input, out)
+    (out / "second" / "sum.npz").write_bytes(b"garbage")
+    _run(toy_input, out)
+    assert CALLS == ["second"]  # same bytes again: third's input hash is unchanged
+    np.savetxt(toy_input, np.arange(6.0))
+    _run(toy_input, out)
+    assert CALLS == ["first", "second", "third"]
+    assert float((out / "third.txt").read_text()) == 31.0
+
+
+def test_deterministic_npz(tmp_path):
+    a = save_npz(tmp_path / "a.npz", x=np.arange(3), y=np.eye(2))
+    b = save_npz(tmp_path / "b.npz", x=np.arange(3), y=np.eye(2))
+    assert sha256_file(a) == sha256_file(b)
+    assert np.array_equal(np.load(a)["y"], np.eye(2))
+
+
+def test_from_to_and_force(toy_input, tmp_path):
+    out = tmp_path / "ws"
+    with pytest.raises(InputError, match="stage first has no outputs"):
+        _run(toy_input, out, start="second")
+    summary = _run(toy_input, out, stop="second")
+    assert CALLS == ["first", "second"]
+    assert summary.stages[2].status == "outside range"
+    assert not (out / "third.txt").exists()
+    _run(toy_input, out, start="second", force=True)
+    assert CALLS == ["second", "third"]
+    with pytest.raises(InputError, match="--from 'nope'"):
+        _run(toy_input, out, start="nope")
+
+
+def test_missing_module_is_not_available_and_blocks_downstream(toy_input, tmp_path):
+    stages = [TOY[0], Stage("second", _second, params=("toy2",), needs=("first",),
+                            modules=("surface.no_such_module_yet",)), TOY[2]]
+    summary = _run(toy_input, tmp_path / "ws", stages=stages)
+    status = {s.name: (s.status, s.reason) for s in summary.stages}
+    assert status["first"][0] == "done"
+    assert status["second"] == ("not available", "surface.no_such_module_yet not there yet")
+    assert status["third"] == ("blocked", "needs second")
+    assert missing_modules(["json", "json:no_attr", "pipeline.nothing_here"]) == \
+        ["json.no_attr", "pipeline.nothing_here"]
+
+
+def test_failed_stage_is_one_line_error_and_recorded(toy_input, tmp_path):
+    out = tmp_path / "ws"
+    stages = [TOY[0], Stage("second", _broken, needs=("first",)), TOY[2]]
+    with pytest.raises(StageError, match=r"^stage second failed: LinAlgError: singular matrix$"):
+        _run(toy_input, out, stages=stages)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["stages"]["second"]["status"] == "failed"
+    assert not (out / "second").exists()  # nothing half-written
+    assert not [p for p in out.iterdir() if p.name.startswith(".second")]
+
+
+def test_workspace_rejects_file_and_lock(tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match="must be a folder"):
+        Workspace(tmp_path / "f")
+    ws = Workspace(tmp_path / "ws")
+    with ws.lock(), pytest.raises(InputError, match="another photosurf run"), \
+            Workspace(tmp_path / "ws").lock():
+        pass
+
+
+def test_detect_kind(tmp_path):
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("")
+    cloud = tmp_path / "c.xyz"
+    cloud.write_text("0 0 0\n")
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(3):
+        (folder / f"{i}.png").write_bytes(b"")
+    pair = tmp_path / "pair"
+    pair.mkdir()
+    (pair / "left.png").write_bytes(b"")
+    (pair / "right.png").write_bytes(b"")
+    (pair / "rig.yml").write_text("")
+    assert detect_kind([recipe]) == "scene"
+    assert detect_kind([cloud]) == "cloud"
+    assert detect_kind([folder]) == "folder"
+    assert detect_kind([pair]) == "stereo"
+    assert detect_kind([pair / "left.png", pair / "right.png"], pair / "rig.yml") == "stereo"
+    assert detect_kind([cloud], kind="cloud") == "cloud"
+    with pytest.raises(InputError, match="needs --rig"):
+        detect_kind([pair / "left.png", pair / "right.png"])
+    with pytest.raises(InputError, match="cannot tell"):
+        detect_kind([Path(sys.executable)])  # a file of no known kind
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        detect_kind([tmp_path / "missing.ply"])
+    with pytest.raises(InputError, match="--kind scene needs a recipe"):
+        detect_kind([folder], kind="scene")
+
+
+def test_config_resolution(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[sections]\ncount = 12\n[smooth]\nlevel = 2\n")
+    resolved = config_mod.resolve(cfg, ["smooth.level=4", "sections.axis=auto",
+                                        "report.error_scale=1", "scene.overrides.noise.sigma=0"])
+    assert resolved["sections"]["count"] == 12
+    assert resolved["smooth"]["level"] == 4
+    assert resolved["sections"]["axis"] == "auto"
+    assert resolved["report"]["error_scale"] == 1.0
+    assert resolved["scene"]["overrides"] == {"noise": {"sigma": 0}}
+    assert config_mod.resolve(None, ["sections.axis=[0, 1, 0]"])["sections"]["axis"] == [0, 1, 0]
+    # the written file reads back to the same set
+    import tomllib
+
+    assert tomllib.loads(config_mod.dumps(resolved)) == resolved
+
+
+@pytest.mark.parametrize("assignment, message", [
+    ("sections.cuont=3", r"unknown parameter 'sections.cuont' \(known: axis, count\)"),
+    ("nosuch.key=3", r"unknown section 'nosuch'"),
+    ("smooth.level=high", r"smooth.level must be int \(like 3\), got 'high'"),
+    ("smooth.level=2.5", r"smooth.level must be int"),
+    ("stitch.caps=1", r"stitch.caps must be bool"),
+    ("smoothlevel", r"expected section.key=value"),
+])
+def test_config_errors_name_the_key(assignment, message):
+    with pytest.raises(InputError, match=message):
+        config_mod.resolve(None, [assignment])
+
+
+def test_config_file_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sections\ncount = 3\n")
+    with pytest.raises(InputError, match=r"bad.toml: invalid TOML"):
+        config_mod.resolve(bad)
+    with pytest.raises(FileNotFoundError, match="no such config file"):
+        config_mod.resolve(tmp_path / "none.toml")
