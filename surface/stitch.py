@@ -1,0 +1,539 @@
+r"""Delaunay-stitched triangle mesh from closed section rings.
+
+Between two adjacent sections, odd points :math:`o_k` at
+:math:`\theta = 2\pi k/N` and even points :math:`e_j` at
+:math:`\theta = \pi j/N`, the *direction criterion* of the paper builds
+
+.. math::
+
+    (o_k, e_{2k}, e_{2k+1}),\quad (o_k, e_{2k+1}, o_{k+1}),\quad
+    (o_{k+1}, e_{2k+1}, e_{2k+2}),\qquad k = 0, \dots, N-1.
+
+Generalised to any two ring sizes it is a merge by angle: walking both rings
+counter-clockwise, the next triangle advances the ring whose next point comes
+first (on a tie the coarser ring first, which reproduces the three triangles
+above for N↔2N and a regular diagonal for N↔N).  Each ring of :math:`n_a` and
+:math:`n_b` points gives exactly :math:`n_a + n_b` triangles.
+
+The strip is then improved by Lawson's flips [1]_: an interior edge
+:math:`ab` with opposite vertices :math:`c, d` is replaced by :math:`cd`
+while :math:`\angle acb + \angle adb > \pi` (the local Delaunay criterion),
+never across a section contour (the contours are constraints), never when
+:math:`cd` already exists (non-manifold) and never when a new face normal
+turns by more than ``max_normal_change`` from the old pair's (fold-over).
+End caps are an ear-clipping triangulation (mapbox ``earcut``) of the end
+contours in the section plane followed by the same flips inside the cap,
+giving the constrained Delaunay triangulation of the contour.
+
+All faces are counter-clockwise seen from outside: the side normal
+:math:`(a_{i+1} - a_i) \times (b_j - a_i)` points away from the axis when the
+rings run counter-clockwise about the axis and ``b`` lies above ``a``; the
+bottom cap faces :math:`-\mathbf{axis}`, the top cap :math:`+\mathbf{axis}`.
+
+References
+----------
+.. [1] C. L. Lawson, "Software for C1 surface interpolation", in Mathematical
+   Software III, Academic Press (1977), 161-194.
+.. [2] The paper's section-to-section direction criterion (DESIGN.md,
+   "Stitching").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from surface.metrics import delaunay_fraction, edge_table, face_normals, mesh_topology
+from surface.validate import TOL, check_finite, check_shape
+
+__all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
+           "axis_frame"]
+
+#: Default largest turn of a face normal a flip may cause (radians).  A flip on
+#: a smooth patch re-triangulates it and turns normals by about the local
+#: dihedral angle; 45° is far above that and far below a fold-over (90°+).
+MAX_NORMAL_CHANGE = np.pi / 4
+
+
+@dataclass(frozen=True)
+class StitchResult:
+    """A stitched mesh and how it was made.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+        All ring points, section after section, loop after loop.
+    triangles : (F, 3) int64
+        Counter-clockwise seen from outside.
+    closed : bool
+        Every edge has exactly two faces.
+    messages : tuple of str
+        Human-readable notes: open interfaces (loops splitting or merging),
+        incomplete caps, flips that did not converge.
+    region : (F,) int64
+        ``2 * s`` for the strip between sections ``s`` and ``s + 1``,
+        ``-1`` bottom cap, ``-2`` top cap (``-3`` any other cap).
+    section_of_vertex : (V,) int64
+        Section index of each vertex.
+    loop_of_vertex : (V,) int64
+        Loop index (within its section) of each vertex.
+    open_interfaces : tuple of int
+        Sections ``s`` whose interface to ``s + 1`` was left (partly) open.
+    flips : int
+        Number of Lawson flips applied.
+    delaunay_fraction : float
+        Share of flippable edges (not a contour, both faces in one region)
+        meeting the local Delaunay criterion after the flips.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    closed: bool
+    messages: tuple[str, ...] = ()
+    region: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    section_of_vertex: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    loop_of_vertex: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    open_interfaces: tuple[int, ...] = ()
+    flips: int = 0
+    delaunay_fraction: float = 1.0
+
+
+# --------------------------------------------------------------------------- frames and parameters
+def axis_frame(axis: np.ndarray) -> np.ndarray:
+    """Right-handed orthonormal frame ``(3, 3)``, rows ``e1, e2, axis/|axis|``."""
+    a = check_shape(axis, "(3,)", "axis", dtype=np.float64)
+    check_finite(a, "axis")
+    norm = float(np.linalg.norm(a))
+    if norm <= TOL.zero:
+        raise ValueError(f"axis must have non-zero length, got {a.tolist()}")
+    a = a / norm
+    helper = np.eye(3)[int(np.argmin(np.abs(a)))]
+    e1 = np.cross(helper, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    return np.stack([e1, e2, a])
+
+
+def _ring_order_and_parameter(ring2d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Counter-clockwise order and absolute merge parameter of one planar ring.
+
+    Parameters
+    ----------
+    ring2d : (n, 2) float64
+        Ring points in the section plane's (e1, e2) coordinates.
+
+    Returns
+    -------
+    order : (n,) int64
+        Index permutation making the ring counter-clockwise, ``order[0] == 0``.
+    param : (n,) float64
+        Increasing parameter of ``ring2d[order]``, in turns: the polar angle
+        about the ring centroid over 2π when the ring is star-shaped about it,
+        otherwise the normalised arc length, both offset by the angle of the
+        first point so that rings are aligned by direction.
+    """
+    n = len(ring2d)
+    x, y = ring2d[:, 0], ring2d[:, 1]
+    twice_area = float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+    order = np.arange(n)
+    if twice_area < 0:
+        order = np.concatenate([[0], np.arange(n - 1, 0, -1)])
+    pts = ring2d[order]
+    centre = pts.mean(axis=0)
+    theta = np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0])
+    step = np.mod(np.diff(theta), 2 * np.pi)
+    star = bool(np.all(step > TOL.angle)) and float(step.sum()) < 2 * np.pi
+    if star:
+        relative = np.concatenate([[0.0], np.cumsum(step)]) / (2 * np.pi)
+    else:
+        chord = np.linalg.norm(np.diff(np.vstack([pts, pts[:1]]), axis=0), axis=1)
+        relative = np.concatenate([[0.0], np.cumsum(chord[:-1])]) / chord.sum()
+    return order, theta[0] / (2 * np.pi) + relative
+
+
+# --------------------------------------------------------------------------- side strips
+def zip_rings(param_lower: np.ndarray, param_upper: np.ndarray) -> np.ndarray:
+    """Triangulate the strip between two closed rings by merging their parameters.
+
+    Parameters
+    ----------
+    param_lower : (n_a,) float64
+        Increasing angular parameter (in turns) of the lower ring, counter-
+        clockwise about the axis; its span is less than one turn.
+    param_upper : (n_b,) float64
+        The same for the upper ring, in the same angular frame.
+
+    Returns
+    -------
+    (n_a + n_b, 3) int64
+        Faces over local indices: lower ring ``0 .. n_a - 1``, upper ring
+        ``n_a .. n_a + n_b - 1``; outward (away from the axis) when the rings
+        run counter-clockwise and the upper ring lies further along the axis.
+
+    Notes
+    -----
+    The upper ring is started at its point closest in angle to the lower
+    ring's first point; every later step adds the triangle that advances the
+    ring whose next point comes first.  Ties (within ``TOL.angle``) advance the
+    coarser ring first: for ``n_b = 2 n_a`` this is exactly the paper's
+    (o_k, e_2k, e_2k+1), (o_k, e_2k+1, o_k+1), (o_k+1, e_2k+1, e_2k+2).
+    """
+    n_a, n_b = len(param_lower), len(param_upper)
+    u_a = param_lower - param_lower[0]
+    rel_b = np.mod(param_upper - param_lower[0], 1.0)
+    start = int(np.argmin(np.minimum(rel_b, 1.0 - rel_b)))
+    index_b = np.roll(np.arange(n_b), -start)
+    u_b = np.mod(param_upper[index_b] - param_lower[0], 1.0)
+    u_b = u_b[0] - 1.0 * (u_b[0] > 0.5) + np.concatenate(
+        [[0.0], np.cumsum(np.mod(np.diff(u_b), 1.0))])
+    # Events: each ring's points 1..n and its closing step back to point 0.
+    ev_a = np.append(u_a[1:], 1.0)
+    ev_b = np.append(u_b[1:], u_b[0] + 1.0)
+    tie = TOL.angle / (2 * np.pi)
+    bias_a = tie if n_a <= n_b else 0.0  # the coarser (or the lower, if equal) goes first
+    bias_b = 0.0 if n_a <= n_b else tie
+    keys = np.concatenate([ev_a - bias_a, ev_b - bias_b])
+    is_a = np.concatenate([np.ones(n_a, bool), np.zeros(n_b, bool)])
+    order = np.argsort(keys, kind="stable")
+    is_a = is_a[order]
+    i_a = np.cumsum(is_a) - is_a        # lower-ring position before each event
+    i_b = np.cumsum(~is_a) - ~is_a      # upper-ring position before each event
+    a0 = i_a % n_a
+    a1 = (i_a + 1) % n_a
+    b0 = n_a + index_b[i_b % n_b]
+    b1 = n_a + index_b[(i_b + 1) % n_b]
+    return np.where(is_a[:, None],
+                    np.stack([a0, a1, b0], axis=1),
+                    np.stack([a0, b1, b0], axis=1)).astype(np.int64)
+
+
+# --------------------------------------------------------------------------- caps
+def cap_triangles(ring2d: np.ndarray, outward_up: bool) -> np.ndarray:
+    """Ear-clipping triangulation of a closed planar contour.
+
+    Parameters
+    ----------
+    ring2d : (n, 2) float64
+        Contour in the section plane's (e1, e2) coordinates (either winding).
+    outward_up : bool
+        Orient faces counter-clockwise in (e1, e2) (normal ``+axis``) if True,
+        clockwise (normal ``-axis``) otherwise.
+
+    Returns
+    -------
+    (m, 3) int64
+        Faces over ``0 .. n-1``; ``m == n - 2`` for a simple polygon (fewer
+        when earcut meets a self-intersecting contour).
+    """
+    import mapbox_earcut
+
+    pts = np.ascontiguousarray(ring2d - ring2d.mean(axis=0), dtype=np.float64)
+    flat = mapbox_earcut.triangulate_float64(pts, np.array([len(pts)], dtype=np.uint32))
+    tri = np.asarray(flat, dtype=np.int64).reshape(-1, 3)
+    if len(tri) == 0:
+        return tri
+    p = pts[tri]
+    twice = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
+             - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
+    flip = (twice < 0) if outward_up else (twice > 0)
+    tri[flip] = tri[flip][:, ::-1]
+    return tri
+
+
+# --------------------------------------------------------------------------- Lawson flips
+def _edge_keys(pairs: np.ndarray, n_vertices: int) -> np.ndarray:
+    lo = np.minimum(pairs[:, 0], pairs[:, 1])
+    hi = np.maximum(pairs[:, 0], pairs[:, 1])
+    return lo * n_vertices + hi
+
+
+def _angle(vertices: np.ndarray, apex: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    u = vertices[a] - vertices[apex]
+    w = vertices[b] - vertices[apex]
+    return np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+
+
+def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit):
+    """One sweep's non-Delaunay, legal flips: ``(f1, f2, new f1, new f2, excess)``."""
+    n_v = len(vertices)
+    table = edge_table(triangles)
+    edge_ids, faces, corners = table.edge_faces()
+    f1, f2 = faces[:, 0], faces[:, 1]
+    k1, k2 = corners[:, 0], corners[:, 1]
+    a = triangles[f1, k1]
+    b = triangles[f1, (k1 + 1) % 3]
+    c = triangles[f1, (k1 + 2) % 3]
+    d = triangles[f2, (k2 + 2) % 3]
+    edge_keys = _edge_keys(table.edges, n_v)
+    ok = ((region[f1] == region[f2])
+          & (triangles[f2, k2] == b) & (triangles[f2, (k2 + 1) % 3] == a)  # consistently oriented
+          & (c != d)
+          & ~np.isin(edge_keys[edge_ids], fixed_keys))
+    excess = _angle(vertices, c, a, b) + _angle(vertices, d, b, a) - np.pi
+    ok &= excess > TOL.angle
+    # The new edge must not exist already (else the flip makes it non-manifold).
+    new_keys = _edge_keys(np.stack([c, d], axis=1), n_v)
+    ok &= ~np.isin(new_keys, edge_keys)
+    new1 = np.stack([c, a, d], axis=1)
+    new2 = np.stack([d, b, c], axis=1)
+    # No fold-over: both new normals within cos_limit of the old area-weighted normal.
+    old = face_normals(vertices, triangles[f1], unit=False) + face_normals(
+        vertices, triangles[f2], unit=False)
+    old /= np.maximum(np.linalg.norm(old, axis=1, keepdims=True), TOL.zero)
+    n1 = face_normals(vertices, new1)
+    n2 = face_normals(vertices, new2)
+    ok &= (np.einsum("ij,ij->i", n1, old) > cos_limit) & (np.einsum("ij,ij->i", n2, old) > cos_limit)
+    sel = np.flatnonzero(ok)
+    return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
+
+
+def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarray | None = None,
+                   fixed_edges: np.ndarray | None = None,
+                   max_normal_change: float = MAX_NORMAL_CHANGE,
+                   max_sweeps: int = 1000) -> tuple[np.ndarray, int, bool]:
+    """Lawson flips until every flippable interior edge is locally Delaunay.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+        Consistently oriented, edge-manifold faces.
+    region : (F,) int, optional
+        Only edges whose two faces share a region label may flip (a flip keeps
+        both faces in that region).  Default: one region.
+    fixed_edges : (C, 2) int, optional
+        Constraint edges that never flip (section contours).
+    max_normal_change : float
+        Largest angle (radians) between a new face normal and the old pair's
+        area-weighted normal; larger flips are refused as fold-overs.
+    max_sweeps : int
+        Upper bound on sweeps.  Every sweep flips, at once, a set of
+        non-Delaunay edges no two of which share a face (for each face the
+        candidate with the largest angle excess).
+
+    Returns
+    -------
+    triangles : (F, 3) int64
+        The flipped faces (same count, same regions, same orientation).
+    flips : int
+        Number of flips applied.
+    converged : bool
+        False if ``max_sweeps`` was reached with flips still pending.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    tri = np.array(triangles, dtype=np.int64, copy=True)
+    reg = np.zeros(len(tri), np.int64) if region is None else np.asarray(region, np.int64)
+    fixed = (np.zeros(0, np.int64) if fixed_edges is None or len(fixed_edges) == 0
+             else np.unique(_edge_keys(np.asarray(fixed_edges, np.int64), len(v))))
+    cos_limit = float(np.cos(max_normal_change))
+    total = 0
+    for _ in range(max_sweeps):
+        f1, f2, new1, new2, excess, new_keys = _flip_candidates(v, tri, reg, fixed, cos_limit)
+        if len(f1) == 0:
+            return tri, total, True
+        # Independent set: every face keeps its largest-excess candidate (unique ranks).
+        rank = np.empty(len(f1), np.int64)
+        rank[np.argsort(excess, kind="stable")] = np.arange(len(f1))
+        best = np.full(len(tri), -1, np.int64)
+        np.maximum.at(best, f1, rank)
+        np.maximum.at(best, f2, rank)
+        win = (best[f1] == rank) & (best[f2] == rank)
+        # Two winners must not create the same new edge.
+        _, first = np.unique(new_keys[win], return_index=True)
+        chosen = np.flatnonzero(win)[first]
+        tri[f1[chosen]] = new1[chosen]
+        tri[f2[chosen]] = new2[chosen]
+        total += len(chosen)
+    return tri, total, False
+
+
+# --------------------------------------------------------------------------- loops and overlap
+def _as_sections(rings) -> list[list[np.ndarray]]:
+    if not isinstance(rings, Sequence) or isinstance(rings, np.ndarray) and rings.ndim == 2:
+        raise ValueError("rings must be a list of (n, 3) arrays (or of lists of them), "
+                         f"got {type(rings).__name__}")
+    sections = []
+    for s, item in enumerate(rings):
+        loops = [item] if isinstance(item, np.ndarray) and item.ndim == 2 else list(item)
+        if not loops:
+            raise ValueError(f"rings[{s}] has no loop")
+        checked = []
+        for lp, loop in enumerate(loops):
+            arr = check_shape(loop, "(n, 3)", f"rings[{s}][{lp}]", dtype=np.float64)
+            check_finite(arr, f"rings[{s}][{lp}]")
+            if len(arr) < 3:
+                raise ValueError(f"rings[{s}][{lp}] has {len(arr)} points; a closed ring needs >= 3")
+            checked.append(arr)
+        sections.append(checked)
+    return sections
+
+
+def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Even-odd point-in-polygon test, ``(P, 2)`` points against an ``(n, 2)`` ring."""
+    x, y = points[:, 0:1], points[:, 1:2]                       # (P, 1)
+    x0, y0 = polygon[:, 0], polygon[:, 1]                        # (n,)
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    straddle = (y0 > y) != (y1 > y)                              # (P, n)
+    dy = np.where(y1 == y0, 1.0, y1 - y0)
+    x_cross = x0 + (y - y0) * (x1 - x0) / dy
+    return np.count_nonzero(straddle & (x < x_cross), axis=1) % 2 == 1
+
+
+def _overlap(loops_a: list[np.ndarray], loops_b: list[np.ndarray]) -> np.ndarray:
+    """``(m, n)`` bool: the projections of loop i and loop j overlap."""
+    out = np.zeros((len(loops_a), len(loops_b)), bool)
+    for i, pa in enumerate(loops_a):
+        for j, pb in enumerate(loops_b):
+            out[i, j] = bool(_inside(pa, pb).any() or _inside(pb, pa).any())
+    return out
+
+
+def _pairs(loops_a: list[np.ndarray], loops_b: list[np.ndarray]) -> list[tuple[int, int]]:
+    """Loop pairs to stitch: one-to-one overlaps (any single pair is stitched)."""
+    if len(loops_a) == 1 and len(loops_b) == 1:
+        return [(0, 0)]
+    over = _overlap(loops_a, loops_b)
+    rows, cols = over.sum(axis=1), over.sum(axis=0)
+    return [(int(i), int(j)) for i, j in zip(*np.nonzero(over), strict=True)
+            if rows[i] == 1 and cols[j] == 1]
+
+
+# --------------------------------------------------------------------------- the public entry
+def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
+                 max_normal_change: float = MAX_NORMAL_CHANGE) -> StitchResult:
+    """Stitch closed section rings into an oriented triangle mesh.
+
+    Parameters
+    ----------
+    rings : list of (n_k, 3) float64, or list of lists of them
+        One closed ring per section (or several loops per section), sections
+        ordered along the axis (either direction); points in scene units,
+        each ring's points in order around it (either winding; point 0 is the
+        ring's start, e.g. θ = 0 from ``catmull_rom.predict_sections``).
+    axis : (3,) float64
+        Direction of the section normals (need not be unit length).
+    close_ends : bool
+        Cap the first and last sections' loops.
+    flip : bool
+        Apply Lawson flips (strips and caps, contours fixed).
+    max_normal_change : float
+        Fold-over limit for a flip, radians (see :func:`delaunay_flips`).
+
+    Returns
+    -------
+    StitchResult
+
+    Raises
+    ------
+    ValueError
+        Fewer than two sections, a ring with fewer than 3 points, NaN/inf, a
+        zero axis, or sections not ordered along the axis.
+
+    Notes
+    -----
+    Adjacent sections with one loop each are always stitched.  With several
+    loops, loops are paired by overlap of their projections on the section
+    plane; a loop overlapping exactly one loop of the next section (and that
+    one only it) is stitched, every other loop (splits, merges, loops that
+    appear or vanish) is left open on that side and reported in ``messages``.
+    """
+    frame = axis_frame(axis)
+    sections = _as_sections(rings)
+    if len(sections) < 2:
+        raise ValueError(f"rings must hold at least 2 sections, got {len(sections)}")
+    heights = np.array([np.mean([lp @ frame[2] for lp in loops]) for loops in sections])
+    steps = np.diff(heights)
+    if np.all(steps < 0):
+        sections, heights = sections[::-1], heights[::-1]
+    elif not np.all(steps > 0):
+        raise ValueError("rings must be ordered along the axis (heights strictly monotone), "
+                         f"got heights {np.round(heights, 6).tolist()}")
+
+    # Vertices: every loop in counter-clockwise order about the axis.
+    vertices, sec_of, loop_of, params, offsets, planar = [], [], [], [], [], []
+    count = 0
+    for s, loops in enumerate(sections):
+        offsets.append([])
+        params.append([])
+        planar.append([])
+        for lp, pts in enumerate(loops):
+            flat = pts @ frame[:2].T                                # (n, 2)
+            order, param = _ring_order_and_parameter(flat)
+            vertices.append(pts[order])
+            planar[s].append(flat[order])
+            params[s].append(param)
+            offsets[s].append(count)
+            sec_of.append(np.full(len(pts), s))
+            loop_of.append(np.full(len(pts), lp))
+            count += len(pts)
+    vertices = np.vstack(vertices)
+    faces, region, fixed, messages, open_ifaces = [], [], [], [], []
+
+    for s in range(len(sections) - 1):
+        pairs = _pairs(planar[s], planar[s + 1])
+        if len(pairs) < max(len(sections[s]), len(sections[s + 1])):
+            open_ifaces.append(s)
+            messages.append(
+                f"sections {s} and {s + 1}: {len(sections[s])} and {len(sections[s + 1])} loops, "
+                f"{len(pairs)} stitched one-to-one; the surface is left open there "
+                "(loops split, merge, appear or vanish)")
+        for i, j in pairs:
+            local = zip_rings(params[s][i], params[s + 1][j])
+            n_a = len(params[s][i])
+            glob = np.where(local < n_a, local + offsets[s][i], local - n_a + offsets[s + 1][j])
+            faces.append(glob)
+            region.append(np.full(len(glob), 2 * s))
+    for s, loops in enumerate(planar):
+        for lp, flat in enumerate(loops):
+            n = len(flat)
+            idx = offsets[s][lp] + np.arange(n)
+            fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
+
+    if close_ends:
+        for s, label, up in ((0, -1, False), (len(sections) - 1, -2, True)):
+            for lp, flat in enumerate(planar[s]):
+                cap = cap_triangles(flat, outward_up=up)
+                if len(cap) != len(flat) - 2:
+                    messages.append(f"cap of section {s} loop {lp}: {len(cap)} triangles for "
+                                    f"{len(flat)} points (contour not simple); cap incomplete")
+                faces.append(cap + offsets[s][lp])
+                region.append(np.full(len(cap), label))
+
+    triangles = np.vstack(faces).astype(np.int64) if faces else np.zeros((0, 3), np.int64)
+    region = np.concatenate(region).astype(np.int64) if region else np.zeros(0, np.int64)
+    fixed = np.vstack(fixed)
+    flips = 0
+    if flip and len(triangles):
+        triangles, flips, converged = delaunay_flips(vertices, triangles, region, fixed,
+                                                     max_normal_change=max_normal_change)
+        if not converged:
+            messages.append(f"Lawson flips stopped after the sweep limit ({flips} flips)")
+    topo = mesh_topology(vertices, triangles)
+    if topo["nonmanifold_edges"]:
+        messages.append(f"{topo['nonmanifold_edges']} non-manifold edges")
+    if not topo["oriented"]:
+        messages.append("faces are not consistently oriented")
+    table = edge_table(triangles)
+    fixed_keys = np.unique(_edge_keys(fixed, len(vertices)))
+    face_of_slot = np.arange(table.face_edge.size) // 3
+    same = np.ones(len(table.edges), bool)
+    # An edge is flippable when both its faces share a region and it is no contour.
+    first_region = np.full(len(table.edges), -10**9, np.int64)
+    first_region[table.face_edge.ravel()] = region[face_of_slot]
+    np.logical_and.at(same, table.face_edge.ravel(), region[face_of_slot] == first_region[
+        table.face_edge.ravel()])
+    mask = same & ~np.isin(_edge_keys(table.edges, len(vertices)), fixed_keys)
+    return StitchResult(
+        vertices=vertices,
+        triangles=triangles,
+        closed=bool(topo["closed"]),
+        messages=tuple(messages),
+        region=region,
+        section_of_vertex=np.concatenate(sec_of).astype(np.int64),
+        loop_of_vertex=np.concatenate(loop_of).astype(np.int64),
+        open_interfaces=tuple(open_ifaces),
+        flips=int(flips),
+        delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
+    )
