@@ -1,0 +1,574 @@
+"""Export of the tessellated surface and of its exact Bézier control net.
+
+A tessellated mesh ``vertices (V, 3) float64``, ``triangles (F, 3) int64``,
+``normals (V, 3)`` is written by file suffix:
+
+========  =========================================  ==========================
+suffix    writer                                     keeps
+========  =========================================  ==========================
+``.ply``  open3d, binary little-endian               float64 xyz, normals, rgb
+``.obj``  here (``v``/``vn``/``f a//a``, shortest    xyz and normals, exact
+          round-trip decimal of each float64)        float64 text
+``.stl``  open3d, binary                             float32 xyz, face normals
+``.gltf`` open3d (buffer embedded as a data URI)     float32 xyz, normals
+``.glb``  here: the glTF 2.0 binary container        float32 xyz, normals, rgb
+          [1]_ (12-byte header, JSON chunk, BIN
+          chunk), uint32 indices
+========  =========================================  ==========================
+
+open3d 0.20 writes a ``.glb`` that its own reader rejects (the buffer is
+stored as a data URI and no BIN chunk is written), so the GLB container is
+assembled here from the arrays and verified to read back through open3d;
+open3d's OBJ writer keeps only six significant digits (≈ 5e-7 of the unit),
+too few for a surface that CAD tools rebuild, so OBJ is also written here.
+
+The control net of the sextic triangular Bézier surface (Loop [2]_) is
+written beside the mesh as a documented ``.npz`` (:func:`write_control_net`).
+Patch ``p`` is
+
+.. math::
+
+    S_p(r, s, t) = \\sum_{i+j+k=6} \\frac{6!}{i!\\,j!\\,k!}\\, r^i s^j t^k\\,
+                   P_{p,ijk}, \\qquad r + s + t = 1,\\; r, s, t \\ge 0,
+
+where row ``m`` of ``control_points[p]`` is :math:`P_{p,ijk}` with
+``(i, j, k) = index[m]``; corner ``(6, 0, 0)`` is the patch's first corner.
+:meth:`ControlNet.evaluate` evaluates it independently of
+``surface.bezier``, which is how the tests prove the file is sufficient.
+
+Every write is atomic (:func:`pipeline.atomic.atomic_file`): a failed export
+leaves no file behind, and :func:`export_surface` publishes the mesh and its
+control net together or not at all.
+
+References
+----------
+.. [1] Khronos Group, "glTF 2.0 Specification", section 4.4 "GLB File
+       Format Specification" (2021).
+.. [2] C. Loop, "Smooth spline surfaces over irregular meshes", Proc.
+       SIGGRAPH '94, pp. 303-310 (1994).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.atomic import atomic_file
+from pipeline.errors import InputError
+from pipeline.mesh_io import to_open3d
+from surface.validate import TOL, check_finite, check_shape
+
+#: Suffixes :func:`export_mesh` writes.
+EXPORT_SUFFIXES = (".ply", ".obj", ".stl", ".gltf", ".glb")
+
+#: ``format`` field of the control-net ``.npz`` and its version.
+CONTROL_NET_FORMAT = "photosurf.bezier_control_net"
+CONTROL_NET_VERSION = 1
+#: Degree of Loop's patches and their number of control points, (d+1)(d+2)/2.
+DEGREE = 6
+N_CONTROL = (DEGREE + 1) * (DEGREE + 2) // 2
+
+# glTF 2.0 constants (specification section 3.6 / 5.24).
+_GLB_MAGIC = 0x46546C67  # b"glTF"
+_CHUNK_JSON = 0x4E4F534A  # b"JSON"
+_CHUNK_BIN = 0x004E4942  # b"BIN\0"
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_FLOAT, _UNSIGNED_INT = 5126, 5125
+_INDEX_TYPES = {5121: "<u1", 5123: "<u2", 5125: "<u4"}
+_TRIANGLES = 4
+
+
+# --------------------------------------------------------------------------- meshes
+
+
+def _check_mesh(vertices, triangles, normals=None, colors=None):
+    """Validate mesh arrays at the entrance; return them as contiguous arrays."""
+    vertices = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
+    check_finite(vertices, "vertices")
+    triangles = check_shape(triangles, "(F, 3)", "triangles")
+    if triangles.size and not np.issubdtype(triangles.dtype, np.integer):
+        raise ValueError(f"triangles must be integer indices, got dtype {triangles.dtype}")
+    triangles = triangles.astype(np.int64)
+    if len(triangles) == 0:
+        raise ValueError("triangles is empty: nothing to export")
+    if triangles.min() < 0 or triangles.max() >= len(vertices):
+        raise ValueError(f"triangles index vertices outside [0, {len(vertices)}): "
+                         f"min {triangles.min()}, max {triangles.max()}")
+    if normals is not None:
+        normals = check_shape(normals, "(V, 3)", "normals", dtype=np.float64)
+        if len(normals) != len(vertices):
+            raise ValueError(f"normals must have one row per vertex ({len(vertices)}), "
+                             f"got {len(normals)}")
+        check_finite(normals, "normals")
+    if colors is not None:
+        colors = check_shape(colors, "(V, 3)", "colors")
+        if len(colors) != len(vertices):
+            raise ValueError(f"colors must have one row per vertex ({len(vertices)}), "
+                             f"got {len(colors)}")
+    return vertices, triangles, normals, colors
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64, counter-clockwise seen from outside
+
+    Returns
+    -------
+    normals : (V, 3) float64
+        Unit normals; a vertex used by no triangle (or only by degenerate
+        ones) gets ``(0, 0, 1)`` so that no writer ever sees a NaN.
+    """
+    corners = vertices[triangles]  # (F, 3, 3)
+    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])  # 2·area·n
+    normals = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(normals, triangles[:, c], face)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    scale = float(np.abs(vertices).max()) if len(vertices) else 1.0
+    empty = length[:, 0] <= TOL.zero * max(scale, 1.0) ** 2  # |Σ 2·area·n| ~ size²
+    normals[~empty] /= length[~empty]
+    normals[empty] = (0.0, 0.0, 1.0)
+    return normals
+
+
+def export_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
+                normals: np.ndarray | None = None, colors: np.ndarray | None = None) -> Path:
+    """Write a triangle mesh atomically, the format chosen by the suffix.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file; suffix one of :data:`EXPORT_SUFFIXES`.
+    vertices : (V, 3) float64, scene units
+    triangles : (F, 3) int64, counter-clockwise seen from outside
+    normals : (V, 3) float64, optional
+        Unit vertex normals (e.g. the exact Bézier normals); area-weighted
+        normals are computed when omitted.  STL keeps only face normals.
+    colors : (V, 3) uint8 or float in [0, 1], optional
+        Vertex colours (PLY, glTF, GLB).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        Unknown suffix or malformed arrays (the message names which).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in EXPORT_SUFFIXES:
+        raise InputError(f"{path}: cannot export mesh format {suffix!r} "
+                         f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
+    vertices, triangles, normals, colors = _check_mesh(vertices, triangles, normals, colors)
+    if normals is None:
+        normals = vertex_normals(vertices, triangles)
+    with atomic_file(path) as tmp:
+        _write_mesh_to(tmp, suffix, vertices, triangles, normals, colors)
+    return path
+
+
+def _write_mesh_to(tmp: Path, suffix: str, vertices, triangles, normals, colors) -> None:
+    """Write the (validated) mesh to ``tmp`` in the format of ``suffix``."""
+    if suffix == ".glb":
+        _write_glb_to(tmp, vertices, triangles, normals, colors)
+    elif suffix == ".obj":
+        _write_obj_to(tmp, vertices, triangles, normals)
+    else:
+        _write_open3d_to(tmp, suffix, vertices, triangles, normals, colors)
+
+
+def _write_open3d_to(tmp: Path, suffix: str, vertices, triangles, normals, colors) -> None:
+    import open3d as o3d
+
+    mesh = to_open3d(vertices, triangles, normals, colors)
+    if suffix == ".stl":
+        mesh.compute_triangle_normals()  # STL stores one normal per facet
+    ok = o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False,
+                                    write_vertex_normals=suffix != ".stl",
+                                    write_vertex_colors=colors is not None)
+    if not ok:
+        raise OSError(f"{tmp}: open3d could not write the {suffix} mesh")
+
+
+def _write_obj_to(tmp: Path, vertices, triangles, normals) -> None:
+    """Wavefront OBJ with ``v``, ``vn`` and ``f a//a b//b c//c`` (1-based) lines.
+
+    ``%r`` prints the shortest decimal that reads back to the same float64, so
+    the text is exact; the whole block is formatted by one C-level ``%``.
+    """
+    n_v, n_f = len(vertices), len(triangles)
+    with open(tmp, "w", encoding="ascii", newline="\n") as out:
+        out.write(f"# photosurf OBJ: {n_v} vertices, {n_f} triangles, vertex normals\n")
+        out.write(("v %r %r %r\n" * n_v) % tuple(vertices.ravel().tolist()))
+        out.write(("vn %r %r %r\n" * n_v) % tuple(normals.ravel().tolist()))
+        faces = np.repeat(triangles + 1, 2, axis=1)  # (F, 6): a a b b c c
+        out.write(("f %d//%d %d//%d %d//%d\n" * n_f) % tuple(faces.ravel().tolist()))
+
+
+# --------------------------------------------------------------------------- GLB
+
+
+def _pad4(data: bytes, fill: bytes) -> bytes:
+    return data + fill * (-len(data) % 4)
+
+
+def write_glb(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
+              normals: np.ndarray | None = None, colors: np.ndarray | None = None) -> Path:
+    """Write a binary glTF 2.0 (``.glb``) file atomically.
+
+    One mesh, one primitive (mode TRIANGLES) with ``POSITION`` and ``NORMAL``
+    (float32 VEC3, and ``COLOR_0`` when colours are given), uint32 indices,
+    in the scene's units and axes (glTF calls +Y up; no transform is added,
+    the same choice as open3d's ``.gltf`` writer).
+
+    Parameters
+    ----------
+    path : path-like
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    normals : (V, 3) float64, optional (area-weighted when omitted)
+    colors : (V, 3) uint8 or float in [0, 1], optional
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    vertices, triangles, normals, colors = _check_mesh(vertices, triangles, normals, colors)
+    if normals is None:
+        normals = vertex_normals(vertices, triangles)
+    with atomic_file(path) as tmp:
+        _write_glb_to(tmp, vertices, triangles, normals, colors)
+    return path
+
+
+def _glb_document(vertices, triangles, normals, colors) -> tuple[dict, bytes]:
+    """The glTF JSON document and the BIN chunk's payload for one primitive."""
+    positions = np.ascontiguousarray(vertices, dtype="<f4")
+    unit = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), TOL.zero)
+    arrays = [np.ascontiguousarray(triangles, dtype="<u4"), positions,
+              np.ascontiguousarray(unit, dtype="<f4")]
+    if colors is not None:
+        rgb = np.asarray(colors)
+        rgb = rgb / 255.0 if rgb.dtype == np.uint8 else rgb
+        arrays.append(np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype="<f4"))
+    blob, views = b"", []
+    for i, array in enumerate(arrays):
+        data = array.tobytes()
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data),
+                      "target": _ELEMENT_ARRAY_BUFFER if i == 0 else _ARRAY_BUFFER})
+        blob += _pad4(data, b"\0")  # every view starts 4-byte aligned (spec 3.6.2.4)
+    accessors = [{"bufferView": 0, "componentType": _UNSIGNED_INT, "count": int(triangles.size),
+                  "type": "SCALAR", "min": [int(triangles.min())],
+                  "max": [int(triangles.max())]},
+                 {"bufferView": 1, "componentType": _FLOAT, "count": len(positions),
+                  "type": "VEC3", "min": positions.min(axis=0).tolist(),
+                  "max": positions.max(axis=0).tolist()},
+                 {"bufferView": 2, "componentType": _FLOAT, "count": len(positions),
+                  "type": "VEC3"}]
+    attributes = {"POSITION": 1, "NORMAL": 2}
+    if colors is not None:
+        accessors.append({"bufferView": 3, "componentType": _FLOAT, "count": len(positions),
+                          "type": "VEC3"})
+        attributes["COLOR_0"] = 3
+    document = {
+        "asset": {"version": "2.0", "generator": "photosurf pipeline.export"},
+        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": attributes, "indices": 0,
+                                    "mode": _TRIANGLES}]}],
+        "buffers": [{"byteLength": len(blob)}],
+        "bufferViews": views, "accessors": accessors,
+    }
+    return document, blob
+
+
+def _write_glb_to(tmp: Path, vertices, triangles, normals, colors) -> None:
+    document, blob = _glb_document(vertices, triangles, normals, colors)
+    text = _pad4(json.dumps(document, separators=(",", ":")).encode("utf-8"), b" ")
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    with open(tmp, "wb") as out:
+        out.write(struct.pack("<III", _GLB_MAGIC, 2, total))
+        out.write(struct.pack("<II", len(text), _CHUNK_JSON) + text)
+        out.write(struct.pack("<II", len(blob), _CHUNK_BIN) + blob)
+
+
+def read_glb(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read the triangle primitives of a binary glTF 2.0 file.
+
+    A small, strict reader (header, chunk types and lengths, accessor bounds
+    are checked) used to verify :func:`write_glb` independently of open3d.
+    Node transforms are ignored; all TRIANGLES primitives are concatenated.
+
+    Returns
+    -------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    normals : (V, 3) float64 or None
+        ``None`` when any primitive lacks ``NORMAL``.
+
+    Raises
+    ------
+    FileNotFoundError, InputError
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such GLB file")
+    data = path.read_bytes()
+    document, blob = _glb_chunks(path, data)
+    vertices, triangles, normals = [], [], []
+    for mesh in document.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            if prim.get("mode", _TRIANGLES) != _TRIANGLES:
+                continue
+            attrs = prim.get("attributes", {})
+            if "POSITION" not in attrs or "indices" not in prim:
+                raise InputError(f"{path}: primitive without POSITION or indices")
+            positions = _accessor(path, document, blob, attrs["POSITION"])
+            index = _accessor(path, document, blob, prim["indices"])
+            if index.size % 3 or (index.size and index.max() >= len(positions)):
+                raise InputError(f"{path}: indices do not form triangles over "
+                                 f"{len(positions)} vertices")
+            triangles.append(index.reshape(-1, 3).astype(np.int64) + sum(map(len, vertices)))
+            vertices.append(positions.astype(np.float64))
+            normals.append(_accessor(path, document, blob, attrs["NORMAL"])
+                           if "NORMAL" in attrs else None)
+    if not triangles:
+        raise InputError(f"{path}: no triangle primitives")
+    has_normals = all(n is not None for n in normals)
+    return (np.concatenate(vertices), np.concatenate(triangles),
+            np.concatenate(normals).astype(np.float64) if has_normals else None)
+
+
+def _glb_chunks(path: Path, data: bytes) -> tuple[dict, bytes]:
+    if len(data) < 20:
+        raise InputError(f"{path}: too short for a GLB file ({len(data)} bytes)")
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    if magic != _GLB_MAGIC or version != 2 or length != len(data):
+        raise InputError(f"{path}: not a glTF 2.0 binary (magic {magic:#x}, version "
+                         f"{version}, length {length} vs {len(data)} bytes)")
+    json_len, json_type = struct.unpack_from("<II", data, 12)
+    if json_type != _CHUNK_JSON or 20 + json_len > len(data):
+        raise InputError(f"{path}: first chunk is not a JSON chunk")
+    document = json.loads(data[20:20 + json_len].decode("utf-8"))
+    blob = b""
+    offset = 20 + json_len
+    if offset + 8 <= len(data):
+        bin_len, bin_type = struct.unpack_from("<II", data, offset)
+        if bin_type != _CHUNK_BIN or offset + 8 + bin_len > len(data):
+            raise InputError(f"{path}: second chunk is not a BIN chunk")
+        blob = data[offset + 8:offset + 8 + bin_len]
+    return document, blob
+
+
+def _accessor(path: Path, document: dict, blob: bytes, index: int) -> np.ndarray:
+    accessor = document["accessors"][index]
+    view = document["bufferViews"][accessor["bufferView"]]
+    if view.get("buffer", 0) != 0 or "byteStride" in view:
+        raise InputError(f"{path}: accessor {index}: only tightly packed data in the BIN chunk "
+                         "is supported")
+    width = {"SCALAR": 1, "VEC3": 3}.get(accessor["type"])
+    dtype = {_FLOAT: "<f4", **_INDEX_TYPES}.get(accessor["componentType"])
+    if width is None or dtype is None:
+        raise InputError(f"{path}: accessor {index}: unsupported type {accessor['type']} / "
+                         f"{accessor['componentType']}")
+    start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+    count = accessor["count"] * width
+    end = start + count * np.dtype(dtype).itemsize
+    if end > view.get("byteOffset", 0) + view["byteLength"] or end > len(blob):
+        raise InputError(f"{path}: accessor {index} runs past its buffer view")
+    values = np.frombuffer(blob, dtype=dtype, count=count, offset=start)
+    return values.reshape(-1, 3) if width == 3 else values
+
+
+# --------------------------------------------------------------------------- control net
+
+
+@dataclass(frozen=True)
+class ControlNet:
+    """The exact Bézier surface as stored in the control-net ``.npz``.
+
+    Attributes
+    ----------
+    control_points : (P, 28, 3) float64
+        Control point ``m`` of patch ``p`` is :math:`P_{p,ijk}`, ``(i,j,k) = index[m]``.
+    index : (28, 3) int64
+        The (i, j, k) exponents, each row summing to 6.
+    source_face : (P,) int64
+        The triangle of the input control mesh each patch lies over (``-1``
+        when unknown).
+    format_version : int
+    """
+
+    control_points: np.ndarray
+    index: np.ndarray
+    source_face: np.ndarray
+    format_version: int = CONTROL_NET_VERSION
+
+    def evaluate(self, barycentric: np.ndarray) -> np.ndarray:
+        """Points of every patch at the barycentric coordinates ``(r, s, t)``.
+
+        Parameters
+        ----------
+        barycentric : (M, 3) float64
+            Rows ``(r, s, t)`` with ``r + s + t = 1``.
+
+        Returns
+        -------
+        points : (P, M, 3) float64
+        """
+        uvw = check_shape(barycentric, "(M, 3)", "barycentric", dtype=np.float64)
+        fact = np.array([math.factorial(n) for n in range(DEGREE + 1)], dtype=np.float64)
+        coeff = math.factorial(DEGREE) / fact[self.index].prod(axis=1)  # (28,)
+        basis = coeff * np.prod(uvw[:, None, :] ** self.index[None], axis=2)  # (M, 28)
+        return np.einsum("mc,pcx->pmx", basis, self.control_points)
+
+
+def _check_index(index) -> np.ndarray:
+    index = check_shape(index, f"({N_CONTROL}, 3)", "index")
+    if not np.issubdtype(index.dtype, np.integer):
+        raise ValueError(f"index must hold integers, got dtype {index.dtype}")
+    if index.min() < 0 or np.any(index.sum(axis=1) != DEGREE):
+        raise ValueError(f"index rows must be (i, j, k) >= 0 with i + j + k = {DEGREE}")
+    if len({tuple(row) for row in index.tolist()}) != N_CONTROL:
+        raise ValueError(f"index must list each of the {N_CONTROL} (i, j, k) exactly once")
+    return index.astype(np.int64)
+
+
+def _net_arrays(control_points, index, source_face) -> dict:
+    control_points = check_shape(control_points, f"(P, {N_CONTROL}, 3)", "control_points",
+                                 dtype=np.float64)
+    check_finite(control_points, "control_points")
+    index = _check_index(index)
+    if source_face is None:
+        source_face = np.full(len(control_points), -1, dtype=np.int64)
+    source_face = check_shape(source_face, "(P,)", "source_face").astype(np.int64)
+    if len(source_face) != len(control_points):
+        raise ValueError(f"source_face must have one entry per patch ({len(control_points)}), "
+                         f"got {len(source_face)}")
+    return {"format": np.array(CONTROL_NET_FORMAT), "format_version": np.int64(CONTROL_NET_VERSION),
+            "degree": np.int64(DEGREE), "control_points": control_points, "index": index,
+            "source_face": source_face}
+
+
+def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index: np.ndarray,
+                      source_face: np.ndarray | None = None) -> Path:
+    """Write the Bézier control net as an uncompressed ``.npz``, atomically.
+
+    Arrays in the file (read them with ``numpy.load(path)``; no pickles):
+
+    ==================  ===============  ============================================
+    ``format``          str              ``"photosurf.bezier_control_net"``
+    ``format_version``  int64            1
+    ``degree``          int64            6
+    ``control_points``  (P, 28, 3) f8    :math:`P_{p,ijk}`, row ``m`` ↔ ``index[m]``
+    ``index``           (28, 3) int64    the (i, j, k), ``i + j + k = 6``
+    ``source_face``     (P,) int64       input-mesh triangle under each patch, or -1
+    ==================  ===============  ============================================
+
+    Patch ``p`` is :math:`S_p(r,s,t)=\\sum 6!/(i!j!k!)\\,r^i s^j t^k P_{p,ijk}`
+    (module docstring).
+
+    Parameters
+    ----------
+    path : path-like, suffix ``.npz``
+    control_points : (P, 28, 3) float64
+    index : (28, 3) int
+    source_face : (P,) int, optional
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".npz":
+        raise InputError(f"{path}: the control net is written as .npz")
+    arrays = _net_arrays(control_points, index, source_face)
+    with atomic_file(path) as tmp:
+        np.savez(tmp, **arrays)
+    return path
+
+
+def read_control_net(path: str | os.PathLike) -> ControlNet:
+    """Read a control net written by :func:`write_control_net`.
+
+    Raises
+    ------
+    FileNotFoundError, InputError
+        Missing file, not a control net, a newer format version, or
+        malformed arrays.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such control-net file")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {name: npz[name] for name in npz.files}
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable .npz ({exc})") from exc
+    if str(arrays.get("format", "")) != CONTROL_NET_FORMAT:
+        raise InputError(f"{path}: not a photosurf control net (format "
+                         f"{str(arrays.get('format', 'missing'))!r})")
+    version = int(arrays.get("format_version", -1))
+    if version != CONTROL_NET_VERSION:
+        raise InputError(f"{path}: control-net format version {version} is not supported "
+                         f"(this reader knows {CONTROL_NET_VERSION})")
+    try:
+        checked = _net_arrays(arrays["control_points"], arrays["index"], arrays["source_face"])
+    except (KeyError, ValueError) as exc:
+        raise InputError(f"{path}: {exc}") from exc
+    return ControlNet(checked["control_points"], checked["index"], checked["source_face"],
+                      version)
+
+
+def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
+                   normals: np.ndarray | None, control_points: np.ndarray, index: np.ndarray,
+                   source_face: np.ndarray | None = None) -> tuple[Path, Path]:
+    """Write the tessellated mesh to ``path`` and its control net to ``path.npz``.
+
+    Both files are written to temporaries first and renamed only when both
+    are complete, so either both appear or neither does.
+
+    Parameters
+    ----------
+    path : path-like
+        Mesh file, suffix one of :data:`EXPORT_SUFFIXES`; the net goes to
+        ``path.with_suffix(".npz")``.
+    vertices, triangles, normals
+        As :func:`export_mesh`.
+    control_points, index, source_face
+        As :func:`write_control_net`.
+
+    Returns
+    -------
+    (mesh_path, net_path) : tuple of Path
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in EXPORT_SUFFIXES:
+        raise InputError(f"{path}: cannot export mesh format {suffix!r} "
+                         f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
+    net_path = path.with_suffix(".npz")
+    vertices, triangles, normals, _ = _check_mesh(vertices, triangles, normals)
+    if normals is None:
+        normals = vertex_normals(vertices, triangles)
+    arrays = _net_arrays(control_points, index, source_face)
+    with contextlib.ExitStack() as stack:
+        tmp_mesh = stack.enter_context(atomic_file(path))
+        tmp_net = stack.enter_context(atomic_file(net_path))
+        _write_mesh_to(tmp_mesh, suffix, vertices, triangles, normals, None)
+        np.savez(tmp_net, **arrays)
+    return path, net_path

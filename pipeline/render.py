@@ -1,0 +1,527 @@
+"""Headless CPU rendering of a triangle mesh: a shaded contact sheet of views.
+
+Each pixel's ray is cast with open3d's ``RaycastingScene`` (Embree on the
+CPU, no display or GPU needed), and shaded in numpy with the Blinn-Phong
+model [1]_ [2]_
+
+.. math::
+
+    c = \\rho\\,\\Big(k_a + \\sum_l k_l \\max(0, \\mathbf n\\cdot\\mathbf l)\\Big)
+        + k_s \\sum_l k_l \\max(0, \\mathbf n\\cdot\\mathbf h_l)^{\\alpha},
+    \\qquad \\mathbf h_l = \\frac{\\mathbf l + \\mathbf v}{\\lVert\\mathbf l + \\mathbf v\\rVert},
+
+in linear light, then encoded with the sRGB transfer curve.  The normal
+:math:`\\mathbf n` is the barycentric interpolation of the vertex normals at
+the hit point (Phong normal interpolation), so a finely tessellated smooth
+surface looks smooth: open3d's ``primitive_normals`` are per face and would
+show every facet.  Lights are fixed to the camera (a key light above-left, a
+fill light right), so every view of the sheet is lit alike; surfaces are lit
+from both sides.  Anti-aliasing: each view is cast at ``supersample``× the
+resolution and reduced with ``cv2.INTER_AREA`` (a box filter over the
+sub-pixels), which the raycaster alone does not provide.
+
+Cameras follow the OpenCV convention (``x_c = R X + t``, pixel centres at
+integer coordinates, y down); the world's +z axis is up in every view.  The
+camera looks at the centre of the bounding box from azimuth φ and elevation
+θ; its distance makes the bounding sphere (radius r) fill ``fill`` of the
+smaller tile side at the fixed field of view.
+
+With a truth mesh, the surface is coloured by each vertex's distance to the
+truth (signed, negative inside, with a diverging blue-white-red map when the
+truth is closed; unsigned with the sequential viridis map otherwise),
+interpolated across triangles; a scale bar states the range.  Error colours
+are shaded without the specular term, so a pixel's chromaticity is exactly the
+colour map's.
+
+References
+----------
+.. [1] B. T. Phong, "Illumination for computer generated pictures",
+       Communications of the ACM 18(6), pp. 311-317 (1975).
+.. [2] J. F. Blinn, "Models of light reflection for computer synthesized
+       pictures", Proc. SIGGRAPH '77, pp. 192-198 (1977).
+.. [3] K. Moreland, "Diverging color maps for scientific visualization",
+       ISVC 2009, LNCS 5876, pp. 92-103 (2009).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.atomic import atomic_file
+from pipeline.export import vertex_normals
+from surface.validate import TOL, check_finite, check_shape
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Blinn-Phong parameters (linear light, fractions of full white).
+
+    ``albedo · (ambient + key + fill) + specular`` stays below 1 so that no
+    lit pixel is ever pure white (the default background).
+    """
+
+    albedo: tuple[float, float, float] = (0.62, 0.66, 0.74)  # a light blue-grey
+    ambient: float = 0.15
+    key: float = 0.65
+    fill: float = 0.20
+    specular: float = 0.12
+    shininess: float = 40.0
+    #: Key light direction in the camera frame (x right, y down, z forward),
+    #: pointing from the surface towards the light: above-left, behind the eye.
+    key_dir: tuple[float, float, float] = (-0.45, -0.6, -1.0)
+    fill_dir: tuple[float, float, float] = (0.8, 0.1, -0.6)
+
+
+#: Field of view of every view (horizontal = vertical, square pixels), degrees.
+FOV_DEG = 30.0
+#: Share of the tile's smaller side the bounding sphere's image spans.
+FILL = 0.92
+#: Default elevation of the two rows of the contact sheet, degrees.
+ELEVATION_DEG = 25.0
+
+# Moreland's cool-warm diverging map [3], sRGB anchors at 0, 1/4, 1/2, 3/4, 1.
+_COOLWARM = np.array([[0.2298, 0.2987, 0.7537], [0.5529, 0.6901, 0.9955],
+                      [0.8650, 0.8650, 0.8650], [0.9566, 0.5983, 0.4773],
+                      [0.7057, 0.0156, 0.1502]])
+
+
+# --------------------------------------------------------------------------- cameras
+
+
+def default_views(n_views: int = 6, elevation_deg: float = ELEVATION_DEG
+                  ) -> list[tuple[float, float]]:
+    """Viewpoints ``(azimuth, elevation)`` in degrees around the object.
+
+    Azimuths at ``360/n`` steps; with more than three views the elevation
+    alternates ``+elevation`` / ``-elevation`` (six views: 60° steps, the
+    top row seen from above, the bottom row from below).
+    """
+    if n_views < 1:
+        raise ValueError(f"views must be at least 1, got {n_views}")
+    views = []
+    for k in range(n_views):
+        el = elevation_deg if n_views <= 3 or k % 2 == 0 else -elevation_deg
+        views.append((360.0 * k / n_views, el))
+    return views
+
+
+def _grid(n_views: int) -> tuple[int, int]:
+    """(rows, cols) of the sheet: one row up to three views, else two rows."""
+    return (1, n_views) if n_views <= 3 else (2, math.ceil(n_views / 2))
+
+
+def look_at(center: np.ndarray, radius: float, azimuth_deg: float, elevation_deg: float,
+            width: int, height: int, fov_deg: float = FOV_DEG, fill: float = FILL
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An OpenCV pinhole camera looking at a bounding sphere.
+
+    Parameters
+    ----------
+    center : (3,) float64
+        Bounding-sphere centre, scene units.
+    radius : float
+        Bounding-sphere radius, scene units.
+    azimuth_deg, elevation_deg : float
+        Direction from the centre to the eye (azimuth about +z from +x).
+    width, height : int
+        Image size in pixels.
+    fov_deg : float
+        Field of view across the smaller image side.
+    fill : float
+        Share of the smaller side the sphere's image spans; the eye distance
+        ``d = r / sin(atan(fill · tan(fov/2)))`` follows.
+
+    Returns
+    -------
+    K : (3, 3) float64
+    R : (3, 3) float64
+    t : (3,) float64
+        ``x_c = R X + t``.
+    """
+    half = math.radians(fov_deg) / 2.0
+    focal = 0.5 * min(width, height) / math.tan(half)
+    distance = radius / math.sin(math.atan(fill * math.tan(half)))
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    outward = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    eye = np.asarray(center, dtype=np.float64) + distance * outward
+    forward = -outward
+    up = np.array([0.0, 0.0, 1.0])
+    right = np.cross(forward, up)
+    if np.linalg.norm(right) < 1e-6:  # looking straight up/down: any horizontal right will do
+        right = np.array([-math.sin(az), math.cos(az), 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    R = np.stack([right, down, forward])
+    K = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0],
+                  [0.0, 0.0, 1.0]])
+    return K, R, -R @ eye
+
+
+def camera_rays(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
+                supersample: int = 1) -> np.ndarray:
+    """Rays through pixel centres, ``supersample²`` per pixel.
+
+    Returns
+    -------
+    rays : (height·s, width·s, 6) float32
+        Origin and unit direction per sub-pixel; sub-pixel ``(x', y')`` has
+        centre ``((x' + 0.5) / s - 0.5, (y' + 0.5) / s - 0.5)`` in the
+        pixel grid, so a box filter over each s×s block recovers pixel ``(x, y)``.
+    """
+    s = supersample
+    xs = (np.arange(width * s) + 0.5) / s - 0.5
+    ys = (np.arange(height * s) + 0.5) / s - 0.5
+    grid_x, grid_y = np.meshgrid(xs, ys)  # (Hs, Ws)
+    pixels = np.stack([grid_x, grid_y, np.ones_like(grid_x)], axis=-1)
+    dirs = pixels @ np.linalg.inv(K).T @ R  # (Hs, Ws, 3): R^T K^-1 x, row-vector form
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    eye = -R.T @ t
+    origins = np.broadcast_to(eye, dirs.shape)
+    return np.concatenate([origins, dirs], axis=-1).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- shading
+
+
+def _srgb(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1), linear [0, 1] -> encoded [0, 1]."""
+    linear = np.clip(linear, 0.0, 1.0)
+    return np.where(linear <= 0.0031308, 12.92 * linear,
+                    1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def _linear(encoded: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_srgb`."""
+    encoded = np.clip(encoded, 0.0, 1.0)
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), TOL.zero)
+
+
+def _shade(normals: np.ndarray, view_dirs: np.ndarray, albedo: np.ndarray, R: np.ndarray,
+           lighting: Lighting, specular: bool) -> np.ndarray:
+    """Blinn-Phong colour in linear light.
+
+    normals, view_dirs : (M, 3) unit, world frame (view_dirs along the rays)
+    albedo : (M, 3) or (3,) linear reflectance
+    Returns (M, 3) linear colour.
+    """
+    flip = np.einsum("ij,ij->i", normals, view_dirs) > 0  # lit from both sides
+    normals = np.where(flip[:, None], -normals, normals)
+    to_eye = -view_dirs
+    diffuse = np.full(len(normals), lighting.ambient)
+    highlight = np.zeros(len(normals))
+    for weight, direction in ((lighting.key, lighting.key_dir), (lighting.fill, lighting.fill_dir)):
+        light = _unit(R.T @ np.asarray(direction, dtype=np.float64))  # camera -> world
+        diffuse += weight * np.clip(normals @ light, 0.0, None)
+        if specular:
+            half = _unit(light[None, :] + to_eye)
+            highlight += weight * np.clip(np.einsum("ij,ij->i", normals, half), 0.0,
+                                          None) ** lighting.shininess
+    return albedo * diffuse[:, None] + lighting.specular * highlight[:, None]
+
+
+def _cast(scene, rays: np.ndarray) -> dict[str, np.ndarray]:
+    import open3d as o3d
+
+    hits = scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))
+    return {key: value.numpy() for key, value in hits.items()}
+
+
+def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
+                K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
+                supersample: int = 2, lighting: Lighting = Lighting(),
+                vertex_values: np.ndarray | None = None, colormap=None,
+                background=(255, 255, 255), smooth: bool = True) -> np.ndarray:
+    """Render one view of a mesh already loaded in ``scene``.
+
+    Parameters
+    ----------
+    scene : open3d.t.geometry.RaycastingScene
+        Holding exactly the mesh ``(vertices, triangles)`` as geometry 0.
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    normals : (V, 3) float64, unit vertex normals
+    K, R, t : camera, see :func:`look_at`
+    width, height : int, output size in pixels
+    supersample : int
+        Rays per pixel side (anti-aliasing); 1 disables it.
+    lighting : Lighting
+    vertex_values : (V,) float64, optional
+        Scalars mapped through ``colormap`` (interpolated per pixel); the
+        specular term is then left out.
+    colormap : callable, optional
+        ``(M,) values -> (M, 3) sRGB in [0, 1]``.
+    background : 3 ints, RGB
+    smooth : bool
+        Interpolated vertex normals (default) or the flat face normals.
+
+    Returns
+    -------
+    image : (height, width, 3) uint8, RGB
+    """
+    import cv2
+
+    rays = camera_rays(K, R, t, width, height, supersample)  # (Hs, Ws, 6)
+    hits = _cast(scene, rays)
+    hit = np.isfinite(hits["t_hit"])
+    face = hits["primitive_ids"][hit].astype(np.int64)
+    uv = hits["primitive_uvs"][hit].astype(np.float64)
+    bary = np.column_stack([1.0 - uv.sum(axis=1), uv])  # (M, 3): weights of corners 0, 1, 2
+    corners = triangles[face]  # (M, 3)
+    if smooth:
+        normal = _unit(np.einsum("mc,mcx->mx", bary, normals[corners]))
+    else:
+        normal = hits["primitive_normals"][hit].astype(np.float64)
+    view_dirs = rays.reshape(-1, 6)[hit, 3:].astype(np.float64)
+    if vertex_values is None:
+        albedo = np.asarray(lighting.albedo, dtype=np.float64)
+    else:
+        value = np.einsum("mc,mc->m", bary, vertex_values[corners])
+        albedo = _linear(colormap(value))
+    colour = _shade(normal, view_dirs, albedo, R, lighting, specular=vertex_values is None)
+    image = np.empty((hit.size, 3))
+    image[:] = np.asarray(background, dtype=np.float64) / 255.0
+    image[hit] = _srgb(colour)
+    image = image.reshape(height * supersample, width * supersample, 3).astype(np.float32)
+    if supersample > 1:
+        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- error colours
+
+
+def coolwarm(values: np.ndarray) -> np.ndarray:
+    """Moreland's diverging map [3]_: ``values`` in [0, 1] -> (M, 3) sRGB in [0, 1]."""
+    x = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0) * (len(_COOLWARM) - 1)
+    lo = np.minimum(x.astype(np.int64), len(_COOLWARM) - 2)
+    w = (x - lo)[..., None]
+    return (1 - w) * _COOLWARM[lo] + w * _COOLWARM[lo + 1]
+
+
+def viridis(values: np.ndarray) -> np.ndarray:
+    """OpenCV's viridis table: ``values`` in [0, 1] -> (M, 3) sRGB in [0, 1]."""
+    import cv2
+
+    table = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_VIRIDIS)
+    table = table[:, 0, ::-1].astype(np.float64) / 255.0  # BGR -> RGB
+    x = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0) * 255.0
+    lo = np.minimum(x.astype(np.int64), 254)
+    w = (x - lo)[..., None]
+    return (1 - w) * table[lo] + w * table[lo + 1]
+
+
+def is_closed(triangles: np.ndarray) -> bool:
+    """Every directed edge has exactly one opposite twin (closed, oriented, manifold)."""
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    forward = np.unique(edges, axis=0, return_counts=True)
+    if np.any(forward[1] != 1):
+        return False
+    backward = np.unique(edges[:, ::-1], axis=0)
+    return len(backward) == len(forward[0]) and np.array_equal(backward, forward[0])
+
+
+def distance_to_truth(vertices: np.ndarray, truth_vertices: np.ndarray,
+                      truth_triangles: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Distance of each vertex to the truth surface.
+
+    Returns
+    -------
+    distance : (V,) float64, scene units
+        Signed (negative inside) when the truth is closed, else unsigned.
+    signed : bool
+    """
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(truth_vertices.astype(np.float32), truth_triangles.astype(np.uint32))
+    query = o3d.core.Tensor(vertices.astype(np.float32))
+    signed = is_closed(truth_triangles)
+    if signed:
+        distance = scene.compute_signed_distance(query)
+    else:
+        distance = scene.compute_distance(query)
+    return distance.numpy().astype(np.float64), signed
+
+
+def _nice_ceil(x: float) -> float:
+    """Smallest of 1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 8 × 10^k that is ≥ x."""
+    if x <= 0 or not math.isfinite(x):
+        return 1.0
+    exp = math.floor(math.log10(x))
+    for step in (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0):
+        if step * 10.0**exp >= x * (1 - 1e-12):
+            return step * 10.0**exp
+    return 10.0 ** (exp + 1)
+
+
+def _draw_legend(band: np.ndarray, lo: float, hi: float, colormap, caption: str) -> None:
+    """Draw a caption, a horizontal colour bar and its end/middle labels into ``band`` (RGB)."""
+    import cv2
+
+    h, w = band.shape[:2]
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, max(0.35, h / 130.0)
+    x0, x1 = int(0.08 * w), int(0.92 * w)
+    bar_top, bar_bottom = int(0.38 * h), int(0.62 * h)
+    ramp = np.linspace(0.0, 1.0, x1 - x0)
+    band[bar_top:bar_bottom, x0:x1] = np.rint(colormap(ramp) * 255.0).astype(np.uint8)[None]
+    cv2.rectangle(band, (x0, bar_top), (x1 - 1, bar_bottom - 1), (0, 0, 0), 1)
+    (cw, ch), _ = cv2.getTextSize(caption, font, scale, 1)
+    cv2.putText(band, caption, (max(2, (w - cw) // 2), max(ch + 1, bar_top - int(0.08 * h))),
+                font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    for frac, value in ((0.0, lo), (0.5, 0.5 * (lo + hi)), (1.0, hi)):
+        label = f"{value:+.3g}" if lo < 0 else f"{value:.3g}"
+        (tw, th), _ = cv2.getTextSize(label, font, scale, 1)
+        x = int(x0 + frac * (x1 - x0) - frac * tw)
+        cv2.putText(band, label, (x, min(h - 3, bar_bottom + th + int(0.1 * h))), font, scale,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+
+
+# --------------------------------------------------------------------------- the sheet
+
+
+def _layout(views) -> tuple[list[tuple[float, float]], list[tuple[int, int]], int, int]:
+    """Viewpoints, their (row, col) cells, and the grid's rows and cols.
+
+    A count puts the upper-elevation views (even k) on the top row and the
+    lower ones under them; explicit viewpoints fill the grid row by row.
+    """
+    if isinstance(views, int | np.integer):
+        pairs = default_views(int(views))
+        rows, cols = _grid(len(pairs))
+        cells = [(k % 2, k // 2) if rows == 2 else (0, k) for k in range(len(pairs))]
+        return pairs, cells, rows, cols
+    pairs = [tuple(float(x) for x in v) for v in views]
+    if not pairs or any(len(p) != 2 for p in pairs):
+        raise ValueError(f"views must be a count or (azimuth, elevation) pairs, got {views!r}")
+    rows, cols = _grid(len(pairs))
+    return pairs, [divmod(k, cols) for k in range(len(pairs))], rows, cols
+
+
+def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
+                views: int | Sequence[tuple[float, float]] = 6,
+                size: tuple[int, int] = (1200, 800),
+                truth: tuple[np.ndarray, np.ndarray] | None = None,
+                normals: np.ndarray | None = None,
+                error_range: tuple[float, float] | None = None,
+                supersample: int = 2, lighting: Lighting = Lighting(),
+                background: tuple[int, int, int] = (255, 255, 255),
+                smooth: bool = True) -> np.ndarray:
+    """Render a contact sheet of shaded views of a mesh, headless on the CPU.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64, scene units
+    triangles : (F, 3) int64
+    views : int or sequence of (azimuth_deg, elevation_deg)
+        A count (default 6: azimuths at 60° steps, elevations alternating
+        ±25°, laid out 3×2) or explicit viewpoints; more than three views
+        make two rows.
+    size : (width, height) int
+        Size of the whole sheet in pixels (including the error scale bar).
+    truth : (truth_vertices (T, 3), truth_triangles (G, 3)), optional
+        Colour the surface by each vertex's distance to this mesh.
+    normals : (V, 3) float64, optional
+        Vertex normals (e.g. exact Bézier normals); area-weighted otherwise.
+    error_range : (lo, hi) float, optional
+        Distances mapped to the ends of the colour map (clipped beyond);
+        default ``±m`` (signed) or ``[0, m]`` (unsigned) with ``m`` the
+        largest distance rounded up to a 1-1.2-1.5-2-2.5-3-4-5-6-8 step.
+    supersample : int
+        Anti-aliasing factor (rays per pixel side), ≥ 1.
+    lighting : Lighting
+    background : RGB
+    smooth : bool
+        Interpolated vertex normals (default) or flat facets.
+
+    Returns
+    -------
+    image : (height, width, 3) uint8, RGB
+    """
+    import open3d as o3d
+
+    vertices = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
+    check_finite(vertices, "vertices")
+    triangles = check_shape(triangles, "(F, 3)", "triangles").astype(np.int64)
+    if len(triangles) == 0 or triangles.min() < 0 or triangles.max() >= len(vertices):
+        raise ValueError(f"triangles must be non-empty and index [0, {len(vertices)})")
+    width, height = (int(x) for x in size)
+    if width < 8 or height < 8:
+        raise ValueError(f"size must be at least 8x8 pixels, got {width}x{height}")
+    if supersample < 1:
+        raise ValueError(f"supersample must be >= 1, got {supersample}")
+    pairs, cells, rows, cols = _layout(views)
+    normals = vertex_normals(vertices, triangles) if normals is None else _unit(
+        check_shape(normals, "(V, 3)", "normals", dtype=np.float64))
+
+    values = colormap = legend = None
+    if truth is not None:
+        values, colormap, legend = _error_colours(vertices, truth, error_range)
+    legend_h = max(48, height // 10) if legend is not None else 0
+    tile_w, tile_h = width // cols, (height - legend_h) // rows
+    if tile_w < 8 or tile_h < 8:
+        raise ValueError(f"size {width}x{height} is too small for {len(pairs)} views")
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(vertices.astype(np.float32), triangles.astype(np.uint32))
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    center = 0.5 * (lo + hi)
+    radius = max(float(np.linalg.norm(vertices - center, axis=1).max()), TOL.zero)
+
+    sheet = np.empty((height, width, 3), dtype=np.uint8)
+    sheet[:] = np.asarray(background, dtype=np.uint8)
+    for (az, el), (row, col) in zip(pairs, cells, strict=True):
+        K, R, t = look_at(center, radius, az, el, tile_w, tile_h)
+        tile = render_view(scene, vertices, triangles, normals, K, R, t, tile_w, tile_h,
+                           supersample, lighting, values, colormap, background, smooth)
+        sheet[row * tile_h:(row + 1) * tile_h, col * tile_w:(col + 1) * tile_w] = tile
+    if legend is not None:
+        _draw_legend(sheet[height - legend_h:], *legend)
+    return sheet
+
+
+def _error_colours(vertices, truth, error_range):
+    """Per-vertex normalised distances, the colour map and the legend's arguments."""
+    truth_vertices = check_shape(truth[0], "(T, 3)", "truth vertices", dtype=np.float64)
+    truth_triangles = check_shape(truth[1], "(G, 3)", "truth triangles").astype(np.int64)
+    distance, signed = distance_to_truth(vertices, truth_vertices, truth_triangles)
+    if error_range is None:
+        top = _nice_ceil(float(np.abs(distance).max()))
+        error_range = (-top, top) if signed else (0.0, top)
+    lo, hi = (float(x) for x in error_range)
+    if not hi > lo:
+        raise ValueError(f"error_range must have hi > lo, got ({lo}, {hi})")
+    colormap = coolwarm if signed else viridis
+    values = (distance - lo) / (hi - lo)
+    kind = "signed distance to truth (- inside)" if signed else "distance to truth"
+    caption = f"{kind}, range [{lo:.3g}, {hi:.3g}], clipped"
+    return values, colormap, (lo, hi, colormap, caption)
+
+
+def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Write an RGB uint8 image as PNG, atomically.
+
+    Parameters
+    ----------
+    path : path-like, suffix ``.png``
+    image : (H, W, 3) uint8, RGB
+    """
+    import cv2
+
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{path}: renders are written as .png")
+    image = check_shape(image, "(H, W, 3)", "image")
+    with atomic_file(path) as tmp:
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image[:, :, ::-1])):
+            raise OSError(f"{path}: OpenCV could not write the PNG")
+    return path
