@@ -28,6 +28,12 @@ class Tolerance:
     #: Rotations read from text with few digits are re-orthonormalised when
     #: |R^T R - I| is below this (beyond it the file is wrong, not rounded).
     rotation_text_digits: float = 1e-3
+    #: Triangulation: a point whose normal matrix J^T W J has a larger condition
+    #: number is ill-conditioned (~1/angle² between rays: 1e10 <-> 1e-5 rad).
+    triangulation_cond_max: float = 1e10
+    #: Gauss-Newton triangulation stops when every step is below this times the
+    #: mean camera distance from the camera centroid.
+    triangulation_step_rel: float = 1e-10
 
 
 TOL = Tolerance()
