@@ -284,7 +284,8 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit):
     old /= np.maximum(np.linalg.norm(old, axis=1, keepdims=True), TOL.zero)
     n1 = face_normals(vertices, new1)
     n2 = face_normals(vertices, new2)
-    ok &= (np.einsum("ij,ij->i", n1, old) > cos_limit) & (np.einsum("ij,ij->i", n2, old) > cos_limit)
+    ok &= np.einsum("ij,ij->i", n1, old) > cos_limit
+    ok &= np.einsum("ij,ij->i", n2, old) > cos_limit
     sel = np.flatnonzero(ok)
     return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
 
@@ -349,6 +350,20 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
     return tri, total, False
 
 
+def _flippable_edges(triangles: np.ndarray, region: np.ndarray, fixed: np.ndarray,
+                     n_vertices: int) -> np.ndarray:
+    """``(E,)`` bool over ``edge_table(triangles).edges``: one region on both sides, no contour."""
+    table = edge_table(triangles)
+    slots = table.face_edge.ravel()
+    face_region = np.repeat(region, 3)
+    lo = np.full(len(table.edges), np.iinfo(np.int64).max)
+    hi = np.full(len(table.edges), np.iinfo(np.int64).min)
+    np.minimum.at(lo, slots, face_region)
+    np.maximum.at(hi, slots, face_region)
+    fixed_keys = np.unique(_edge_keys(fixed, n_vertices))
+    return (lo == hi) & ~np.isin(_edge_keys(table.edges, n_vertices), fixed_keys)
+
+
 # --------------------------------------------------------------------------- loops and overlap
 def _as_sections(rings) -> list[list[np.ndarray]]:
     if not isinstance(rings, Sequence) or isinstance(rings, np.ndarray) and rings.ndim == 2:
@@ -364,7 +379,8 @@ def _as_sections(rings) -> list[list[np.ndarray]]:
             arr = check_shape(loop, "(n, 3)", f"rings[{s}][{lp}]", dtype=np.float64)
             check_finite(arr, f"rings[{s}][{lp}]")
             if len(arr) < 3:
-                raise ValueError(f"rings[{s}][{lp}] has {len(arr)} points; a closed ring needs >= 3")
+                raise ValueError(f"rings[{s}][{lp}] has {len(arr)} points; "
+                                 "a closed ring needs >= 3")
             checked.append(arr)
         sections.append(checked)
     return sections
@@ -402,6 +418,7 @@ def _pairs(loops_a: list[np.ndarray], loops_b: list[np.ndarray]) -> list[tuple[i
 
 # --------------------------------------------------------------------------- the public entry
 def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
+                 constrain_contours: bool = True,
                  max_normal_change: float = MAX_NORMAL_CHANGE) -> StitchResult:
     """Stitch closed section rings into an oriented triangle mesh.
 
@@ -417,7 +434,13 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     close_ends : bool
         Cap the first and last sections' loops.
     flip : bool
-        Apply Lawson flips (strips and caps, contours fixed).
+        Apply Lawson flips (inside each strip and each cap).
+    constrain_contours : bool
+        Keep every section contour edge (the chords of the section curves)
+        fixed, so each strip is flipped on its own and the mesh passes
+        through the section polygons.  With False only the capped end
+        contours are fixed and flips may cross interior sections (the
+        unconstrained Delaunay criterion on the whole side surface).
     max_normal_change : float
         Fold-over limit for a flip, radians (see :func:`delaunay_flips`).
 
@@ -486,6 +509,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             faces.append(glob)
             region.append(np.full(len(glob), 2 * s))
     for s, loops in enumerate(planar):
+        if not constrain_contours and 0 < s < len(planar) - 1:
+            continue
         for lp, flat in enumerate(loops):
             n = len(flat)
             idx = offsets[s][lp] + np.arange(n)
@@ -505,8 +530,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     region = np.concatenate(region).astype(np.int64) if region else np.zeros(0, np.int64)
     fixed = np.vstack(fixed)
     flips = 0
+    flip_region = region if constrain_contours else np.where(region >= 0, 0, region)
     if flip and len(triangles):
-        triangles, flips, converged = delaunay_flips(vertices, triangles, region, fixed,
+        triangles, flips, converged = delaunay_flips(vertices, triangles, flip_region, fixed,
                                                      max_normal_change=max_normal_change)
         if not converged:
             messages.append(f"Lawson flips stopped after the sweep limit ({flips} flips)")
@@ -515,16 +541,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         messages.append(f"{topo['nonmanifold_edges']} non-manifold edges")
     if not topo["oriented"]:
         messages.append("faces are not consistently oriented")
-    table = edge_table(triangles)
-    fixed_keys = np.unique(_edge_keys(fixed, len(vertices)))
-    face_of_slot = np.arange(table.face_edge.size) // 3
-    same = np.ones(len(table.edges), bool)
-    # An edge is flippable when both its faces share a region and it is no contour.
-    first_region = np.full(len(table.edges), -10**9, np.int64)
-    first_region[table.face_edge.ravel()] = region[face_of_slot]
-    np.logical_and.at(same, table.face_edge.ravel(), region[face_of_slot] == first_region[
-        table.face_edge.ravel()])
-    mask = same & ~np.isin(_edge_keys(table.edges, len(vertices)), fixed_keys)
+    mask = _flippable_edges(triangles, flip_region, fixed, len(vertices))
     return StitchResult(
         vertices=vertices,
         triangles=triangles,
