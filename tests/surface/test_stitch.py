@@ -1,0 +1,264 @@
+"""Tests of surface.stitch on analytic rings (vase r(z) = 1 + 0.3 sin 2z)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import quad
+from scipy.spatial import Delaunay
+
+from surface import metrics as M
+from surface.stitch import cap_triangles, delaunay_flips, stitch_rings, zip_rings
+
+Z_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+def radius(z):
+    return 1.0 + 0.3 * np.sin(2.0 * z)
+
+
+def vase_rings(sections, n, double=True, a=1.0, b=1.0, twist=0.0, centre=(0.0, 0.0)):
+    """Rings at equal theta: N points on sections 0, 2, ..., 2N on 1, 3, ... (or N on all)."""
+    rings = []
+    for k, z in enumerate(np.linspace(0.0, 3.0, sections)):
+        n_k = 2 * n if double and k % 2 else n
+        theta = 2 * np.pi * np.arange(n_k) / n_k + twist * k
+        r = radius(z)
+        rings.append(np.stack([centre[0] + a * r * np.cos(theta), centre[1] + b * r * np.sin(theta),
+                               np.full(n_k, z)], axis=1))
+    return rings
+
+
+VASE_VOLUME = quad(lambda z: np.pi * radius(z) ** 2, 0.0, 3.0)[0]
+
+
+def volume_bound(sections, n):
+    """|V_mesh - V| bound for the inscribed vase mesh.
+
+    Polygon deficit: an inscribed regular n-gon has area pi r^2 sin(2pi/n)/(2pi/n),
+    relative deficit <= (2pi/n)^2/6.  Between sections the radius is interpolated
+    linearly: |r - r_lin| <= h^2/8 max|r''| (max|r''| = 1.2), so
+    |int r^2 - int r_lin^2| <= L h^2/8 * 1.2 * 2 max r (max r = 1.3).
+    """
+    h = 3.0 / (sections - 1)
+    return VASE_VOLUME * (2 * np.pi / n) ** 2 / 6 + np.pi * 3.0 * h**2 / 8 * 1.2 * 2 * 1.3
+
+
+def assert_closed_oriented(result, components=1):
+    topo = M.mesh_topology(result.vertices, result.triangles)
+    table = M.edge_table(result.triangles)
+    assert np.all(table.counts == 2), "every edge must have exactly 2 faces"
+    assert topo["oriented"] and result.closed
+    assert topo["components"] == components
+    assert topo["euler"] == 2 * components
+    assert topo["degenerate_faces"] == 0
+    return topo
+
+
+# ----------------------------------------------------------------------------- direction criterion
+def test_zip_rings_reproduces_the_papers_triangles_n_to_2n():
+    n = 6
+    lower = np.arange(n) / n                # o_k at theta = 2 pi k / N
+    upper = np.arange(2 * n) / (2 * n)      # e_j at theta = pi j / N
+    tri = zip_rings(lower, upper)
+    o = lambda k: k % n
+    e = lambda j: n + j % (2 * n)
+    paper = set()
+    for k in range(n):
+        paper |= {frozenset((o(k), e(2 * k), e(2 * k + 1))),
+                  frozenset((o(k), e(2 * k + 1), o(k + 1))),
+                  frozenset((o(k + 1), e(2 * k + 1), e(2 * k + 2)))}
+    assert {frozenset(t) for t in tri.tolist()} == paper
+    assert len(tri) == 3 * n
+
+
+def test_zip_rings_equal_counts_and_offset_start():
+    n = 8
+    tri = zip_rings(np.arange(n) / n, np.arange(n) / n)
+    assert len(tri) == 2 * n
+    # Each quad (a_i, a_i+1, b_i+1, b_i) split into two triangles.
+    assert {frozenset(t) for t in tri.tolist()} == (
+        {frozenset((i, (i + 1) % n, n + i)) for i in range(n)}
+        | {frozenset(((i + 1) % n, n + (i + 1) % n, n + i)) for i in range(n)})
+    # The upper ring listed from another start gives the same faces (mapped).
+    shift = 3
+    rolled = zip_rings(np.arange(n) / n, np.roll(np.arange(n) / n, -shift))
+    back = np.where(rolled >= n, n + (rolled - n + shift) % n, rolled)
+    assert {frozenset(t) for t in back.tolist()} == {frozenset(t) for t in tri.tolist()}
+
+
+# ----------------------------------------------------------------------------- the vase
+@pytest.mark.parametrize("double", [True, False], ids=["N-2N", "N-N"])
+def test_vase_closed_oriented_volume(double):
+    sections, n = 21, 32
+    result = stitch_rings(vase_rings(sections, n, double), Z_AXIS)
+    topo = assert_closed_oriented(result)
+    assert result.messages == ()
+    volume = topo["signed_volume"]
+    assert volume > 0
+    assert abs(volume - VASE_VOLUME) <= volume_bound(sections, n)
+    assert result.delaunay_fraction == 1.0
+    counts = [n * (2 if double and k % 2 else 1) for k in range(sections)]
+    side = sum(counts[k] + counts[k + 1] for k in range(sections - 1))
+    assert len(result.triangles) == side + counts[0] - 2 + counts[-1] - 2
+
+
+def test_volume_error_is_second_order():
+    # Doubling N and the number of intervals divides the error by about 4.
+    coarse = stitch_rings(vase_rings(11, 16), Z_AXIS)
+    fine = stitch_rings(vase_rings(21, 32), Z_AXIS)
+    e1 = abs(M.signed_volume(coarse.vertices, coarse.triangles) - VASE_VOLUME)
+    e2 = abs(M.signed_volume(fine.vertices, fine.triangles) - VASE_VOLUME)
+    assert 0.15 < e2 / e1 < 0.35
+
+
+def test_flips_reach_delaunay_on_twisted_elliptic_rings():
+    # Elliptic rings twisted by 0.15 rad per section: the merge makes skewed
+    # strips and earcut makes fan-like caps; Lawson flips must fix both.
+    rings = vase_rings(15, 24, a=1.5, b=0.8, twist=0.15)
+    raw = stitch_rings(rings, Z_AXIS, flip=False)
+    result = stitch_rings(rings, Z_AXIS)
+    assert raw.delaunay_fraction < 1.0
+    assert result.flips > 0
+    assert result.delaunay_fraction == 1.0
+    assert_closed_oriented(result)
+    # Flips move no vertex and keep the enclosed volume close (same rings).
+    v_raw = M.signed_volume(raw.vertices, raw.triangles)
+    v_new = M.signed_volume(result.vertices, result.triangles)
+    assert abs(v_new - v_raw) < 0.01 * v_raw
+
+
+def test_unconstrained_contours_make_the_whole_side_delaunay():
+    # Many close sections with few points: contour chords are long and not
+    # Delaunay; letting flips cross the sections fixes every side edge.
+    rings = vase_rings(61, 12)
+    fixed = stitch_rings(rings, Z_AXIS)
+    free = stitch_rings(rings, Z_AXIS, constrain_contours=False)
+    assert M.delaunay_fraction(fixed.vertices, fixed.triangles) < 1.0
+    assert M.delaunay_fraction(free.vertices, free.triangles) == 1.0
+    assert_closed_oriented(free)
+
+
+def test_cap_is_constrained_delaunay_of_a_convex_contour():
+    # Points on an ellipse are in convex position and (generically) not co-circular:
+    # the Delaunay triangulation is unique and earcut + flips must find it.
+    rng = np.random.default_rng(5)
+    theta = np.sort(rng.uniform(0, 2 * np.pi, 30))
+    flat = np.stack([2.0 * np.cos(theta), 0.7 * np.sin(theta)], axis=1)
+    cap = cap_triangles(flat, outward_up=True)
+    v = np.column_stack([flat, np.zeros(len(flat))])
+    tri, flips, converged = delaunay_flips(v, cap)
+    assert converged and flips > 0
+    want = {frozenset(t) for t in Delaunay(flat).simplices.tolist()}
+    assert {frozenset(t) for t in tri.tolist()} == want
+    # Counter-clockwise in the plane: normals +z.
+    assert np.all(M.face_normals(v, tri)[:, 2] > 0)
+
+
+def test_order_and_winding_do_not_matter():
+    rings = vase_rings(9, 16)
+    reference = M.signed_volume(*_mesh(stitch_rings(rings, Z_AXIS)))
+    # Sections top to bottom, rings clockwise, axis pointing down: same solid.
+    reversed_rings = [r[::-1] for r in rings[::-1]]
+    for axis in (Z_AXIS, -Z_AXIS):
+        result = stitch_rings(reversed_rings, axis)
+        assert_closed_oriented(result)
+        assert M.signed_volume(*_mesh(result)) == pytest.approx(reference, rel=1e-9)
+
+
+def test_rotated_rings_stitch_the_same_way():
+    rings = vase_rings(7, 12)
+    base = stitch_rings(rings, Z_AXIS)
+    angle = 0.7
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    turned = stitch_rings([r @ rot.T for r in rings], Z_AXIS)
+    assert np.array_equal(np.sort(np.sort(base.triangles, 1), 0),
+                          np.sort(np.sort(turned.triangles, 1), 0))
+
+
+def _mesh(result):
+    return result.vertices, result.triangles
+
+
+# ----------------------------------------------------------------------------- several loops
+def test_two_loops_per_section_give_two_closed_solids():
+    left = vase_rings(9, 16, centre=(-3.0, 0.0))
+    right = vase_rings(9, 16, centre=(3.0, 0.5))
+    result = stitch_rings([[lft, rgt] for lft, rgt in zip(left, right, strict=True)], Z_AXIS)
+    topo = assert_closed_oriented(result, components=2)
+    one = M.signed_volume(*_mesh(stitch_rings(left, Z_AXIS)))
+    assert topo["signed_volume"] == pytest.approx(2 * one, rel=1e-9)
+    # Listing the loops in another order in one section changes nothing.
+    swapped = [[lft, rgt] if k != 4 else [rgt, lft]
+               for k, (lft, rgt) in enumerate(zip(left, right, strict=True))]
+    assert_closed_oriented(stitch_rings(swapped, Z_AXIS), components=2)
+
+
+def test_split_is_left_open_and_reported():
+    # One loop on sections 0-3, two loops on 4-7 (a trunk splitting into two branches).
+    trunk = vase_rings(8, 16, a=2.5)
+    left = vase_rings(8, 16, centre=(-1.2, 0.0))
+    right = vase_rings(8, 16, centre=(1.2, 0.0))
+    rings = trunk[:4] + [[left[k], right[k]] for k in range(4, 8)]
+    result = stitch_rings(rings, Z_AXIS)
+    assert not result.closed
+    assert result.open_interfaces == (3,)
+    assert any("left open" in m for m in result.messages)
+    topo = M.mesh_topology(*_mesh(result))
+    assert topo["edge_manifold"] and topo["oriented"]
+    # The open boundary is exactly the three contours at the split.
+    n3, n4 = len(trunk[3]), len(left[4]) + len(right[4])
+    assert topo["boundary_edges"] == n3 + n4
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("rings, axis, match", [
+    ([np.zeros((5, 3))], Z_AXIS, "at least 2 sections"),
+    ([np.eye(3)[:2], np.eye(3)], Z_AXIS, r"rings\[0\]\[0\] has 2 points"),
+    ([np.full((4, 3), np.nan), np.ones((4, 3))], Z_AXIS, "NaN"),
+    (None, [0.0, 0.0, 0.0], "non-zero length"),
+    (None, Z_AXIS, "ordered along the axis"),
+])
+def test_bad_input_is_named(rings, axis, match):
+    if rings is None:
+        rings = vase_rings(4, 8)
+        if np.linalg.norm(axis) > 0:
+            rings = [rings[1], rings[0], rings[2], rings[3]]
+    with pytest.raises(ValueError, match=match):
+        stitch_rings(rings, axis)
+
+
+# ----------------------------------------------------------------------------- properties
+@settings(max_examples=40, deadline=None)
+@given(counts=st.lists(st.integers(3, 40), min_size=2, max_size=7),
+       seed=st.integers(0, 2**31 - 1))
+def test_any_ring_counts_close_the_surface(counts, seed):
+    rng = np.random.default_rng(seed)
+    rings = []
+    for k, n_k in enumerate(counts):
+        theta = np.sort(rng.uniform(0, 2 * np.pi, n_k))
+        theta = theta[np.r_[True, np.diff(theta) > 1e-3]]
+        if len(theta) < 3:
+            theta = 2 * np.pi * np.arange(3) / 3
+        r = radius(0.4 * k) * (1 + 0.1 * rng.uniform(-1, 1, len(theta)))
+        rings.append(np.stack([r * np.cos(theta), r * np.sin(theta), np.full(len(theta), 0.4 * k)],
+                              axis=1))
+    result = stitch_rings(rings, Z_AXIS)
+    topo = assert_closed_oriented(result)
+    assert topo["signed_volume"] > 0
+    sizes = [len(r) for r in rings]
+    assert len(result.triangles) == (sum(sizes[k] + sizes[k + 1] for k in range(len(sizes) - 1))
+                                     + sizes[0] - 2 + sizes[-1] - 2)
+    # The flips stopped at a fixed point: no legal flip is left.
+    _, more, converged = delaunay_flips(result.vertices, result.triangles, result.region,
+                                        _contours(result))
+    assert converged and more == 0
+
+
+def _contours(result):
+    edges = []
+    for s in np.unique(result.section_of_vertex):
+        idx = np.flatnonzero(result.section_of_vertex == s)
+        edges.append(np.stack([idx, np.roll(idx, -1)], axis=1))
+    return np.vstack(edges)
