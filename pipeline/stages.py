@@ -406,6 +406,7 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
              external: dict, input_paths: list[Path], kind: str, rig: Path | None, executor,
              force: bool, unusable: dict) -> StageResult:
     blocked = [n for n in stage.needs if n in unusable]
+    modules = stage.modules + (_acquire_modules(kind, ws) if stage.name == "acquire" else ())
     if not lo <= index <= hi:
         if index < lo and not ws.outputs_of(stage.name) and stage.name != "report":
             raise InputError(f"--from: stage {stage.name} has no outputs in {ws.root} yet; "
@@ -413,13 +414,14 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
         status = "done before" if ws.outputs_of(stage.name) else "outside range"
         return StageResult(stage.name, status if index < lo else "outside range")
     if blocked:
-        ws.forget(stage.name)
-        return StageResult(stage.name, "blocked", reason=f"needs {', '.join(blocked)}")
-    missing = missing_modules(stage.modules)
+        reason = f"needs {', '.join(blocked)}"
+        ws.set_record(stage.name, {"status": "blocked", "reason": reason})
+        return StageResult(stage.name, "blocked", reason=reason)
+    missing = missing_modules(modules)
     if missing:
-        ws.forget(stage.name)
-        return StageResult(stage.name, "not available",
-                           reason=f"{', '.join(missing)} not there yet")
+        reason = f"{', '.join(missing)} not there yet"
+        ws.set_record(stage.name, {"status": "not available", "reason": reason})
+        return StageResult(stage.name, "not available", reason=reason)
     params = _stage_params(stage, config)
     params_sha = sha256_json(params)
     inputs = _input_hashes(stage, ws, external)
@@ -473,37 +475,40 @@ def _jsonable(value):
 
 
 # --------------------------------------------------------------------------- adapters
-# Each adapter only moves data between the workspace files and the public
+# Each adapter only moves data between workspace files and the public
 # functions of matching/, surface/ and the pipeline's I/O modules.
-
-def _truth_mesh(ctx: StageContext) -> Path | None:
-    """The truth mesh of a scene input (``scene/truth/mesh.ply``), if any."""
-    path = ctx.stage_path("scene", "truth/mesh.ply")
-    return path if ctx.kind == "scene" and path.is_file() else None
-
+# Intermediate files (all written byte-reproducibly):
+#   acquire/cloud.npz     points (N,3) float64, colors (N,3) uint8, sigma (N,) float64
+#   sections/sections.npz points (P,3), offsets (K+1,), heights (K,), section_id (K,),
+#                         origin (K,3), frame (3,3), source_index (P,)
+#   curves/curves.npz     points (Q,3) of the resampled closed rings, offsets (R+1,),
+#                         section (R,), loop (R,)  (R rings; a section may hold several loops)
+#   stitch/mesh.ply       the stitched mesh; stitch/stitch.json its notes
+#   smooth/surface.ply    the tessellated Bezier surface; smooth/control_net.npz its patches
+#   export/surface.*      the surface in every export format, with its control net
 
 def _scene(ctx: StageContext) -> dict:
     from pipeline import scenes
 
     recipe = ctx.inputs[0]
     overrides = ctx.params["scene"].get("overrides", {})
-    render = scenes.render_scene
     if overrides:
         import tomllib
 
+        import tomli_w
+
         data = tomllib.loads(recipe.read_text(encoding="utf-8"))
         _deep_set(data, overrides)
-        result = render(data, ctx.out) if _accepts_mapping(render) else None
-        if result is None and not _accepts_mapping(render):
-            raise InputError(f"{recipe}: scene overrides need render_scene to accept a dict")
+        # the recipe may name files relative to itself: keep it in its folder
+        patched = recipe.parent / f".{recipe.stem}.photosurf-{os.getpid()}.toml"
+        try:
+            patched.write_text(tomli_w.dumps(data), encoding="utf-8")
+            scenes.render_scene(patched, ctx.out)
+        finally:
+            patched.unlink(missing_ok=True)
     else:
-        render(recipe, ctx.out)
-    images = sorted((ctx.out / "images").glob("*.png"))
-    return {"views": len(images)}
-
-
-def _accepts_mapping(func) -> bool:
-    return True
+        scenes.render_scene(recipe, ctx.out)
+    return {"views": len(list((ctx.out / "images").glob("*.png")))}
 
 
 def _deep_set(data: dict, overrides: Mapping) -> None:
@@ -514,4 +519,259 @@ def _deep_set(data: dict, overrides: Mapping) -> None:
             data[key] = value
 
 
-STAGES: list[Stage] = []
+def _scene_layout(ctx: StageContext) -> str:
+    """``stereo`` or ``ring``: how the rendered scene's cameras are laid out."""
+    meta = ctx.stage_path("scene", "scene.json")
+    if meta.is_file():
+        import json
+
+        recipe = json.loads(meta.read_text(encoding="utf-8"))
+        layout = recipe.get("cameras", {}).get("layout") or recipe.get("recipe", {}).get(
+            "cameras", {}).get("layout")
+        if layout:
+            return str(layout)
+    return "stereo" if len(folder_images(ctx.stage_path("scene"))) == 2 else "ring"
+
+
+def _save_cloud(ctx: StageContext, points, colors=None, sigma=None) -> dict:
+    import numpy as np
+
+    from pipeline.workspace import save_npz
+
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        raise InputError(f"{ctx.inputs[0]}: acquisition produced no points")
+    colors = (np.zeros((len(points), 3), np.uint8) if colors is None
+              else np.asarray(colors).astype(np.uint8).reshape(-1, 3))
+    sigma = np.full(len(points), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+    save_npz(ctx.out / "cloud.npz", points=points, colors=colors, sigma=sigma)
+    finite = sigma[np.isfinite(sigma)]
+    return {"points": len(points),
+            **({"sigma_median": float(np.median(finite))} if finite.size else {})}
+
+
+def _acquire(ctx: StageContext) -> dict:
+    kind = ctx.kind
+    if kind == "scene":
+        kind = "stereo" if _scene_layout(ctx) == "stereo" else "folder"
+    if kind == "cloud":
+        from pipeline import cloud_io
+
+        cloud = cloud_io.read_cloud(ctx.inputs[0])
+        return _save_cloud(ctx, *_cloud_arrays(cloud))
+    if kind == "stereo":
+        if ctx.kind == "scene":
+            left, right = folder_images(ctx.stage_path("scene"))[:2]
+            rig = ctx.stage_path("scene", "cameras.yml")
+        else:
+            left, right, rig = stereo_inputs(ctx.inputs, ctx.rig)
+        from matching import pair
+
+        cloud = pair.reconstruct_pair(left, right, rig, **_acquire_kwargs(ctx))
+        return _save_cloud(ctx, *_cloud_arrays(cloud))
+    from pipeline import multiview
+
+    folder = ctx.stage_path("scene") if ctx.kind == "scene" else ctx.inputs[0]
+    cloud = multiview.acquire_folder(folder, executor=ctx.executor, **_acquire_kwargs(ctx))
+    return _save_cloud(ctx, *_cloud_arrays(cloud))
+
+
+def _acquire_kwargs(ctx: StageContext) -> dict:
+    return dict(ctx.params["acquire"])
+
+
+def _cloud_arrays(cloud) -> tuple:
+    """``(points, colors, sigma)`` from whatever a reader returned (arrays, dict or object)."""
+    if isinstance(cloud, tuple):
+        return (tuple(cloud) + (None, None))[:3]
+    get = cloud.get if isinstance(cloud, Mapping) else lambda k, d=None: getattr(cloud, k, d)
+    return get("points"), get("colors"), get("sigma")
+
+
+def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
+    if kind == "scene":
+        meta = ws.stage_dir("scene")
+        kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
+    return {"cloud": ("pipeline.cloud_io:read_cloud",),
+            "stereo": ("matching.pair:reconstruct_pair",),
+            "folder": ("pipeline.multiview:acquire_folder",)}.get(kind, ())
+
+
+def _load_cloud(ctx: StageContext):
+    import numpy as np
+
+    with np.load(ctx.stage_path("acquire", "cloud.npz")) as data:
+        return {k: data[k] for k in data.files}
+
+
+def _sections(ctx: StageContext) -> dict:
+    import warnings
+
+    import numpy as np
+
+    from pipeline.workspace import save_npz
+    from surface import sections as sections_mod
+
+    p = ctx.params["sections"]
+    points = _load_cloud(ctx)["points"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
+        sections = sections_mod.slice_sections(
+            points, axis=p["axis"], count=p["count"] or None, spacing=p["spacing"] or None,
+            thickness=p["thickness"] or None)
+    kept = [s for s in sections if len(s) > 0]
+    if len(kept) < 2:
+        raise InputError(f"sections: only {len(kept)} non-empty sections; need at least 2 "
+                         "(set sections.count or sections.spacing)")
+    offsets = np.concatenate([[0], np.cumsum([len(s) for s in kept])]).astype(np.int64)
+    save_npz(ctx.out / "sections.npz",
+             points=np.concatenate([s.points for s in kept]), offsets=offsets,
+             heights=np.array([s.height for s in kept]),
+             section_id=np.array([s.section_id for s in kept], np.int64),
+             origin=np.array([s.origin for s in kept]), frame=kept[0].frame,
+             source_index=np.concatenate([s.source_index for s in kept]).astype(np.int64))
+    warned = [str(w.message) for w in caught]
+    for message in warned:
+        log.warning("sections: %s", message)
+    return {"sections": len(kept), "empty": len(sections) - len(kept), "warnings": warned}
+
+
+def _load_sections(ctx: StageContext) -> list:
+    import numpy as np
+
+    from surface.sections import Section
+
+    with np.load(ctx.stage_path("sections", "sections.npz")) as d:
+        off = d["offsets"]
+        return [Section(height=float(d["heights"][k]), points=d["points"][off[k]:off[k + 1]],
+                        origin=d["origin"][k], frame=d["frame"], section_id=int(d["section_id"][k]),
+                        source_index=d["source_index"][off[k]:off[k + 1]])
+                for k in range(len(off) - 1)]
+
+
+def _curves(ctx: StageContext) -> dict:
+    import numpy as np
+
+    from pipeline.workspace import save_npz
+    from surface import catmull_rom
+
+    p = ctx.params["curves"]
+    sections = _load_sections(ctx)
+    rings = catmull_rom.predict_sections(sections, n=p["n"] or None, smoothing=p["smoothing"],
+                                         centripetal=p["centripetal"])
+    flat, sec, loop = [], [], []
+    for s, item in enumerate(rings):
+        loops = [item] if getattr(item, "ndim", 0) == 2 else list(item)
+        for lp, ring in enumerate(loops):
+            flat.append(np.asarray(ring, np.float64))
+            sec.append(s)
+            loop.append(lp)
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in flat])]).astype(np.int64)
+    save_npz(ctx.out / "curves.npz", points=np.concatenate(flat), offsets=offsets,
+             section=np.array(sec, np.int64), loop=np.array(loop, np.int64),
+             axis=sections[0].frame[2])
+    return {"rings": len(flat), "points": int(offsets[-1])}
+
+
+def _load_rings(ctx: StageContext) -> tuple[list, object]:
+    import numpy as np
+
+    with np.load(ctx.stage_path("curves", "curves.npz")) as d:
+        off, sec = d["offsets"], d["section"]
+        rings: list[list] = []
+        for k in range(len(off) - 1):
+            if k == 0 or sec[k] != sec[k - 1]:
+                rings.append([])
+            rings[-1].append(d["points"][off[k]:off[k + 1]])
+        return rings, d["axis"]
+
+
+def _stitch(ctx: StageContext) -> dict:
+    import json
+
+    from pipeline.mesh_io import write_mesh
+    from surface.stitch import stitch_rings
+
+    rings, axis = _load_rings(ctx)
+    result = stitch_rings(rings, axis, close_ends=ctx.params["stitch"]["caps"])
+    write_mesh(ctx.out / "mesh.ply", result.vertices, result.triangles)
+    notes = {"closed": bool(result.closed), "messages": list(result.messages),
+             "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
+             "delaunay_fraction": float(result.delaunay_fraction)}
+    write_text(ctx.out / "stitch.json", json.dumps(notes, indent=1, sort_keys=True) + "\n")
+    for message in result.messages:
+        log.warning("stitch: %s", message)
+    return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
+
+
+def _smooth(ctx: StageContext) -> dict:
+    from pipeline.mesh_io import read_mesh, write_mesh
+    from pipeline.workspace import save_npz
+    from surface import bezier
+
+    vertices, triangles = read_mesh(ctx.stage_path("stitch", "mesh.ply"))
+    net = bezier.control_net(vertices, triangles)
+    tess = bezier.tessellate(net, level=ctx.params["smooth"]["level"])
+    v, t, n = _mesh_arrays(tess)
+    write_mesh(ctx.out / "surface.ply", v, t, normals=n)
+    control_points = getattr(net, "control_points", net)
+    save_npz(ctx.out / "control_net.npz", control_points=control_points,
+             **({"index": net.index} if hasattr(net, "index") else {}))
+    return {"patches": len(control_points), "vertices": len(v), "triangles": len(t)}
+
+
+def _mesh_arrays(mesh) -> tuple:
+    if isinstance(mesh, tuple):
+        return (tuple(mesh) + (None,))[:3]
+    get = mesh.get if isinstance(mesh, Mapping) else lambda k, d=None: getattr(mesh, k, d)
+    return get("vertices"), get("triangles"), get("normals")
+
+
+def _export(ctx: StageContext) -> dict:
+    import numpy as np
+
+    from pipeline import export
+    from pipeline.mesh_io import read_mesh
+
+    surface = ctx.stage_path("smooth", "surface.ply")
+    vertices, triangles = read_mesh(surface)
+    with np.load(ctx.stage_path("smooth", "control_net.npz")) as net:
+        control_points = net["control_points"]
+        index = net["index"] if "index" in net.files else None
+    written = []
+    for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):
+        path = ctx.out / f"surface.{fmt}"
+        export.export_mesh(path, vertices, triangles)
+        written.append(path.name)
+    if index is not None:
+        export.write_control_net(ctx.out / "control_net.npz", control_points, index)
+        written.append("control_net.npz")
+    return {"files": written}
+
+
+def _report(ctx: StageContext) -> dict:
+    from pipeline.report import build_report
+
+    return build_report(ctx.workspace.root, ctx.config, ctx.out,
+                        track=lambda items, desc="": ctx.track(items, desc))
+
+
+_SURFACE_STAGES = ("stitch", "smooth")
+STAGES: list[Stage] = [
+    Stage("scene", _scene, params=("scene",), external=True, modules=("pipeline.scenes",)),
+    Stage("acquire", _acquire, params=("acquire",), external=True,
+          optional_needs=("scene",)),
+    Stage("sections", _sections, params=("sections",), needs=("acquire",),
+          modules=("surface.sections:slice_sections",)),
+    Stage("curves", _curves, params=("curves",), needs=("sections",),
+          modules=("surface.catmull_rom:predict_sections",)),
+    Stage("stitch", _stitch, params=("stitch",), needs=("curves",),
+          modules=("surface.stitch:stitch_rings",)),
+    Stage("smooth", _smooth, params=("smooth",), needs=("stitch",),
+          modules=("surface.bezier:control_net", "surface.bezier:tessellate")),
+    Stage("export", _export, params=("export",), needs=("smooth",),
+          modules=("pipeline.export:export_mesh",)),
+    Stage("report", _report, params=("report",), target="report.html",
+          optional_needs=("scene", "acquire", "sections", "curves", "stitch", "smooth"),
+          modules=("pipeline.render:render_mesh", "surface.metrics:compare_meshes")),
+]

@@ -191,11 +191,11 @@ def test_config_resolution(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[sections]\ncount = 12\n[smooth]\nlevel = 2\n")
     resolved = config_mod.resolve(cfg, ["smooth.level=4", "sections.axis=auto",
-                                        "report.error_scale=1", "scene.overrides.noise.sigma=0"])
+                                        "report.tau_rel=1", "scene.overrides.noise.sigma=0"])
     assert resolved["sections"]["count"] == 12
     assert resolved["smooth"]["level"] == 4
     assert resolved["sections"]["axis"] == "auto"
-    assert resolved["report"]["error_scale"] == 1.0
+    assert resolved["report"]["tau_rel"] == 1.0
     assert resolved["scene"]["overrides"] == {"noise": {"sigma": 0}}
     assert config_mod.resolve(None, ["sections.axis=[0, 1, 0]"])["sections"]["axis"] == [0, 1, 0]
     # the written file reads back to the same set
@@ -205,7 +205,7 @@ def test_config_resolution(tmp_path):
 
 
 @pytest.mark.parametrize("assignment, message", [
-    ("sections.cuont=3", r"unknown parameter 'sections.cuont' \(known: axis, count\)"),
+    ("sections.cuont=3", r"unknown parameter 'sections.cuont' \(known: axis, count, spacing, thickness\)"),
     ("nosuch.key=3", r"unknown section 'nosuch'"),
     ("smooth.level=high", r"smooth.level must be int \(like 3\), got 'high'"),
     ("smooth.level=2.5", r"smooth.level must be int"),

@@ -1,0 +1,340 @@
+"""The HTML report of a run: one self-contained file, ``OUTDIR/report.html``.
+
+Contents, each present when the run produced what it needs:
+
+* the run: input, kind, versions, per-stage status and timing (from the
+  manifest) and the parameters each stage ran with;
+* the rendered surface (:func:`pipeline.render.render_mesh`, a 3×2 contact
+  sheet of the smooth surface, or of the stitched mesh before smoothing);
+* the sections and their curves, drawn with OpenCV: a top view (every
+  section in its plane, coloured by height, its curve as a closed line) and a
+  side view (in-plane coordinate ``e1`` against height);
+* against the truth (scene inputs, ``scene/truth/mesh.ply``): the error map
+  (the surface coloured by its distance to the truth) and the metrics table
+  (:func:`surface.metrics.compare_meshes`: accuracy, completeness, Chamfer,
+  F-score at τ, Hausdorff), with the cloud's RMS distance to the truth;
+* the topology of each mesh (:func:`surface.metrics.mesh_topology`).
+
+Images are PNGs embedded as base64 ``data:`` URIs, so the file can be mailed
+or archived alone.  A four-line script records on ``<body data-images>`` how
+many images decoded, which the report test reads back from headless Chromium.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import logging
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("photosurf")
+
+#: The meshes a run makes, as (label, path relative to OUTDIR).
+MESHES = (("stitched mesh", "stitch/mesh.ply"), ("smooth surface", "smooth/surface.ply"))
+#: Size of the sections plots (each panel), pixels.
+PLOT_SIZE = (520, 420)
+_MARGIN = 40
+
+
+# --------------------------------------------------------------------------- helpers
+def png_data_uri(image_rgb: np.ndarray) -> str:
+    """``data:image/png;base64,...`` of an RGB uint8 image."""
+    import cv2
+
+    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image_rgb[:, :, ::-1]))
+    if not ok:
+        raise ValueError("could not encode a report image as PNG")
+    return "data:image/png;base64," + base64.b64encode(buffer.tobytes()).decode("ascii")
+
+
+def _esc(value) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def _fmt(value) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def _table(rows: list[list], header: list[str]) -> str:
+    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{_esc(_fmt(c))}</td>" for c in row) + "</tr>"
+                   for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _figure(uri: str, caption: str) -> str:
+    return (f'<figure><img src="{uri}" alt="{_esc(caption)}">'
+            f"<figcaption>{_esc(caption)}</figcaption></figure>")
+
+
+# --------------------------------------------------------------------------- sections plot
+def _to_pixels(xy: np.ndarray, lo: np.ndarray, scale: float, height: int) -> np.ndarray:
+    """Plot coordinates → integer pixel coordinates (y up), for cv2 drawing."""
+    px = _MARGIN + (xy - lo) * scale
+    px[:, 1] = height - px[:, 1]
+    return np.round(px).astype(np.int32)
+
+
+def _panel(points_xy: list[np.ndarray], curves_xy: list[np.ndarray], colors: np.ndarray,
+           title: str, xlabel: str, ylabel: str, closed: bool) -> np.ndarray:
+    """One plot: dots for section points, lines for curves, equal axis scales."""
+    import cv2
+
+    width, height = PLOT_SIZE
+    canvas = np.full((height, width, 3), 255, np.uint8)
+    everything = [a for a in points_xy + curves_xy if len(a)]
+    if not everything:
+        return canvas
+    stacked = np.concatenate(everything)
+    lo, hi = stacked.min(axis=0), stacked.max(axis=0)
+    span = np.maximum(hi - lo, 1e-12)
+    scale = float(min((width - 2 * _MARGIN) / span[0], (height - 2 * _MARGIN) / span[1]))
+    cv2.rectangle(canvas, (_MARGIN - 4, _MARGIN - 4),
+                  (width - _MARGIN + 4, height - _MARGIN + 4), (200, 200, 200), 1)
+    for pts, color in zip(points_xy, colors, strict=True):
+        if len(pts):
+            px = _to_pixels(pts, lo, scale, height)
+            canvas[np.clip(px[:, 1], 0, height - 1), np.clip(px[:, 0], 0, width - 1)] = color
+    for curve in curves_xy:
+        if len(curve) > 1:
+            px = _to_pixels(curve, lo, scale, height)
+            cv2.polylines(canvas, [px.reshape(-1, 1, 2)], closed, (20, 20, 20), 1, cv2.LINE_AA)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.putText(canvas, title, (_MARGIN, 22), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(canvas, xlabel, (width // 2 - 20, height - 10), font, 0.42, (60, 60, 60), 1,
+                cv2.LINE_AA)
+    cv2.putText(canvas, ylabel, (4, height // 2), font, 0.42, (60, 60, 60), 1, cv2.LINE_AA)
+    return canvas
+
+
+def sections_plot(sections: Mapping[str, np.ndarray], curves: Mapping[str, np.ndarray] | None
+                  ) -> np.ndarray:
+    """Top and side views of the sections (points) and their curves (lines), RGB uint8.
+
+    Parameters
+    ----------
+    sections : mapping
+        The arrays of ``sections/sections.npz`` (``points (P, 3)``,
+        ``offsets (K+1,)``, ``heights (K,)``, ``frame (3, 3)``, ``origin (3,)``).
+    curves : mapping, optional
+        The arrays of ``curves/curves.npz`` (``points (Q, 3)``, ``offsets``).
+    """
+    from pipeline.render import viridis
+
+    frame = np.asarray(sections["frame"], np.float64)
+    origin = np.asarray(sections["origin"], np.float64).reshape(-1, 3)[0]
+    offsets = np.asarray(sections["offsets"])
+    points = np.asarray(sections["points"], np.float64)
+    heights = np.asarray(sections["heights"], np.float64)
+    groups = [points[a:b] for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+    hspan = max(float(np.ptp(heights)) if len(heights) else 0.0, 1e-12)
+    colors = (viridis((heights - heights.min()) / hspan) * 255).astype(np.uint8) \
+        if len(heights) else np.zeros((0, 3), np.uint8)
+    top = [(g - origin) @ frame[:2].T for g in groups]
+    side = [np.column_stack([(g - origin) @ frame[0], g @ frame[2]]) for g in groups]
+    top_curves: list[np.ndarray] = []
+    side_curves: list[np.ndarray] = []
+    if curves is not None:
+        c_points = np.asarray(curves["points"], np.float64)
+        c_off = np.asarray(curves["offsets"])
+        for a, b in zip(c_off[:-1], c_off[1:], strict=True):
+            ring = c_points[a:b]
+            top_curves.append((ring - origin) @ frame[:2].T)
+            side_curves.append(np.column_stack([(ring - origin) @ frame[0], ring @ frame[2]]))
+    left = _panel(top, top_curves, colors, f"{len(groups)} sections, top view", "e1", "e2",
+                  closed=True)
+    right = _panel(side, side_curves, colors, "side view", "e1", "h", closed=True)
+    return np.concatenate([left, right], axis=1)
+
+
+# --------------------------------------------------------------------------- report
+def _load_npz(path: Path) -> dict | None:
+    if not path.is_file():
+        return None
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}
+
+
+def _final_mesh(root: Path) -> tuple[str, Path] | None:
+    for label, rel in (("smooth surface", "smooth/surface.ply"),
+                       ("stitched mesh", "stitch/mesh.ply")):
+        if (root / rel).is_file():
+            return label, root / rel
+    return None
+
+
+def build_report(root: str | Path, config: Mapping, out_html: str | Path,
+                 track=lambda items, desc="": items) -> dict:
+    """Write the report of the workspace ``root`` to ``out_html``; return its key figures.
+
+    Parameters
+    ----------
+    root : path
+        The workspace (``OUTDIR``) with its ``manifest.json``.
+    config : mapping
+        The resolved configuration (section ``report``: ``width``,
+        ``height``, ``tau_rel``, ``samples``).
+    out_html : path
+        Where to write (the caller renames it into place).
+    track : callable
+        Progress wrapper ``track(iterable, desc)``.
+
+    Returns
+    -------
+    dict
+        ``metrics`` (against the truth, when there is one) and ``topology``.
+    """
+    from pipeline.mesh_io import read_mesh
+
+    root = Path(root)
+    params = config.get("report", {})
+    manifest = json.loads((root / "manifest.json").read_text(encoding="utf-8"))
+    truth_path = root / "scene" / "truth" / "mesh.ply"
+    truth = read_mesh(truth_path) if truth_path.is_file() else None
+    final = _final_mesh(root)
+    parts: list[str] = []
+    info: dict = {}
+    jobs = ["surface", "sections", "truth"]
+    for job in track(jobs, "report"):
+        if job == "surface" and final is not None:
+            parts.append(_surface_section(final, params, info, read_mesh))
+        elif job == "sections":
+            parts.append(_sections_section(root))
+        elif job == "truth" and truth is not None:
+            parts.append(_truth_section(root, final, truth, params, info, read_mesh))
+    parts.append(_run_section(manifest))
+    page = _page(manifest, "\n".join(p for p in parts if p))
+    Path(out_html).write_text(page, encoding="utf-8")
+    return info
+
+
+def _surface_section(final, params, info, read_mesh) -> str:
+    from pipeline.render import render_mesh
+    from surface.metrics import mesh_topology
+
+    label, path = final
+    vertices, triangles = read_mesh(path)
+    size = (3 * int(params["width"]), 2 * int(params["height"]))
+    sheet = render_mesh(vertices, triangles, views=6, size=size)
+    rows = []
+    for name, rel in MESHES:
+        mesh_path = path.parents[1] / rel
+        if mesh_path.is_file():
+            v, t = (vertices, triangles) if mesh_path == path else read_mesh(mesh_path)
+            topo = mesh_topology(v, t)
+            info.setdefault("topology", {})[name] = topo
+            rows.append([name, topo["vertices"], topo["faces"], topo["closed"], topo["oriented"],
+                         topo["components"], topo["boundary_edges"], topo["nonmanifold_edges"]])
+    table = _table(rows, ["mesh", "vertices", "faces", "closed", "oriented", "components",
+                          "boundary edges", "non-manifold edges"])
+    return (f"<section><h2>Surface</h2>{_figure(png_data_uri(sheet), f'{label}: six views')}"
+            f"<h3>Topology</h3>{table}</section>")
+
+
+def _sections_section(root: Path) -> str:
+    sections = _load_npz(root / "sections" / "sections.npz")
+    if sections is None:
+        return ""
+    curves = _load_npz(root / "curves" / "curves.npz")
+    plot = sections_plot(sections, curves)
+    caption = ("sections (dots, coloured by height) and their closed Catmull-Rom curves (lines)"
+               if curves is not None else "sections (dots, coloured by height); no curves yet")
+    return f"<section><h2>Sections and curves</h2>{_figure(png_data_uri(plot), caption)}</section>"
+
+
+def _truth_section(root, final, truth, params, info, read_mesh) -> str:
+    from pipeline.render import is_closed, render_mesh
+    from surface.metrics import compare_meshes, point_mesh_distance
+
+    tv, tt = truth
+    diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
+    tau = float(params["tau_rel"]) * diag
+    rows, blocks = [], []
+    cloud = _load_npz(root / "acquire" / "cloud.npz")
+    if cloud is not None and len(cloud["points"]):
+        d = point_mesh_distance(cloud["points"], tv, tt)
+        info.setdefault("metrics", {})["cloud_rms"] = float(np.sqrt(np.mean(d ** 2)))
+        rows.append(["point cloud", len(d), "", "", "", "", "", float(np.sqrt(np.mean(d ** 2)))])
+    for name, rel in MESHES:
+        if (root / rel).is_file():
+            v, t = read_mesh(root / rel)
+            m = compare_meshes(v, t, tv, tt, tau=tau, count=int(params["samples"]))
+            info.setdefault("metrics", {})[name] = m
+            rows.append([name, m["samples"], m["accuracy"], m["completeness"], m["chamfer"],
+                         m["fscore"], m["hausdorff"], ""])
+    if final is not None:
+        v, t = read_mesh(final[1])
+        size = (3 * int(params["width"]), 2 * int(params["height"]))
+        # colours saturate at τ, the F-score threshold: red/blue = beyond it
+        error_range = (-tau, tau) if is_closed(tt) else (0.0, tau)
+        sheet = render_mesh(v, t, views=6, size=size, truth=(tv, tt), error_range=error_range)
+        blocks.append(_figure(png_data_uri(sheet), f"{final[0]} coloured by its distance to "
+                              f"the truth mesh (saturating at τ = {tau:.3g})"))
+    table = _table(rows, ["surface", "samples", "accuracy", "completeness", "Chamfer",
+                          f"F@{tau:.3g}", "Hausdorff", "RMS (points)"])
+    note = (f"<p>Distances in scene units; τ = {params['tau_rel']} × truth bounding-box "
+            f"diagonal ({diag:.4g}) = {tau:.4g}.  Accuracy: mean distance from the surface to "
+            "the truth; completeness: from the truth to the surface (Tanks and Temples).</p>")
+    return f"<section><h2>Against the truth</h2>{''.join(blocks)}{table}{note}</section>"
+
+
+def _run_section(manifest: Mapping) -> str:
+    stages = manifest.get("stages", {})
+    rows = []
+    for name, rec in stages.items():
+        extra = rec.get("reason", "") or ", ".join(
+            f"{k}={_fmt(v)}" for k, v in (rec.get("info") or {}).items()
+            if not isinstance(v, dict | list))
+        seconds = rec.get("seconds", "")
+        rows.append([name, rec.get("status", ""), seconds if seconds != "" else "", extra])
+    timing = _table(rows, ["stage", "status", "seconds", "notes"])
+    params_rows = []
+    for name, rec in stages.items():
+        for section, values in (rec.get("params") or {}).items():
+            for key, value in values.items():
+                params_rows.append([name, f"{section}.{key}", json.dumps(value)])
+    params = _table(params_rows, ["stage", "parameter", "value"])
+    versions = _table([[k, v] for k, v in (manifest.get("versions") or {}).items()],
+                      ["package", "version"])
+    return (f"<section><h2>Stages</h2>{timing}</section>"
+            f"<section><h2>Parameters</h2>{params}</section>"
+            f"<section><h2>Versions</h2>{versions}</section>")
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1500px;color:#222}
+h1{font-size:1.5em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
+table{border-collapse:collapse;margin:.5em 0} td,th{border:1px solid #ddd;padding:.25em .6em;
+text-align:left;font-size:.9em} th{background:#f4f4f4}
+figure{margin:1em 0} img{max-width:100%;border:1px solid #eee}
+figcaption{font-size:.85em;color:#555} code{background:#f4f4f4;padding:0 .2em}
+"""
+
+_SCRIPT = """
+window.addEventListener("load", function () {
+  var ok = Array.prototype.filter.call(document.images,
+    function (img) { return img.complete && img.naturalWidth > 0; }).length;
+  document.body.setAttribute("data-images", ok + "/" + document.images.length);
+});
+"""
+
+
+def _page(manifest: Mapping, body: str) -> str:
+    inputs = ", ".join(i.get("path", "") for i in manifest.get("inputs", []))
+    stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        f"<title>photosurf report: {_esc(inputs)}</title><style>{_CSS}</style></head>\n"
+        f"<body><h1>photosurf report</h1><p>Input <code>{_esc(inputs)}</code> "
+        f"({_esc(manifest.get('kind', ''))}), photosurf {_esc(manifest.get('photosurf', ''))}, "
+        f"written {stamp} UTC.</p>\n{body}\n<script>{_SCRIPT}</script></body></html>\n"
+    )
