@@ -43,7 +43,8 @@ def _workspace(tmp_path):
     sections = [s for s in slice_sections(cloud, count=20) if len(s)]
     offsets = np.concatenate([[0], np.cumsum([len(s) for s in sections])])
     save_npz(root / "sections" / "sections.npz",
-             points=np.concatenate([s.points for s in sections]), offsets=offsets, heights=np.array([s.height for s in sections]),
+             points=np.concatenate([s.points for s in sections]), offsets=offsets,
+             heights=np.array([s.height for s in sections]),
              origin=np.array([s.origin for s in sections]), frame=sections[0].frame)
     manifest = {"kind": "scene", "photosurf": "test", "inputs": [{"path": "vase.toml"}],
                 "versions": {"numpy": np.__version__},
