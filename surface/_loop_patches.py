@@ -1,0 +1,481 @@
+"""Mesh topology, Loop subdivision and the patch construction behind ``bezier.control_net``.
+
+Private helpers of :mod:`surface.bezier` (see its module docstring for the
+construction, after C. Loop, "Smooth spline surfaces over irregular meshes",
+SIGGRAPH 1994).  Half-edge ``h = 3 f + c`` runs from ``tri[f, c]`` to
+``tri[f, (c + 1) % 3]``; ``twin[h]`` is the opposite half-edge; rotating an
+outgoing half-edge counter-clockwise about its origin is
+``twin[prev(h)]``.  Every kernel is vectorised over faces or vertices; the
+only Python loops run over ring positions (<= max valence) and valence classes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from surface.validate import TOL
+
+DEGREE = 6
+
+
+# ----------------------------------------------------------------------------- topology
+@dataclass(frozen=True)
+class HalfEdges:
+    """Half-edge view of a closed, oriented 2-manifold triangle mesh."""
+
+    triangles: np.ndarray  # (F, 3) int64
+    twin: np.ndarray  # (3F,) int64
+    valence: np.ndarray  # (V,) int64, 0 for unused vertices
+    first_out: np.ndarray  # (V,) one outgoing half-edge per vertex (-1 if unused)
+
+    @property
+    def origin(self) -> np.ndarray:
+        return self.triangles.ravel()
+
+    @property
+    def dest(self) -> np.ndarray:
+        return self.triangles[:, [1, 2, 0]].ravel()
+
+
+def prev_half_edge(h: np.ndarray) -> np.ndarray:
+    return 3 * (h // 3) + (h + 2) % 3
+
+
+def next_half_edge(h: np.ndarray) -> np.ndarray:
+    return 3 * (h // 3) + (h + 1) % 3
+
+
+def build_half_edges(n_vertices: int, triangles: np.ndarray) -> HalfEdges:
+    """Half-edges of a closed oriented manifold mesh, or ``ValueError`` naming the defect."""
+    tris = triangles
+    if tris.size and (tris.min() < 0 or tris.max() >= n_vertices):
+        raise ValueError(f"triangles index vertices outside 0..{n_vertices - 1} "
+                         f"(found {tris.min()}..{tris.max()})")
+    repeated = (tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 2] == tris[:, 0])
+    if np.any(repeated):
+        raise ValueError(f"triangles has {int(repeated.sum())} degenerate triangles with a "
+                         f"repeated vertex (first: face {int(np.argmax(repeated))})")
+    origin = tris.ravel()
+    dest = tris[:, [1, 2, 0]].ravel()
+    key = origin * n_vertices + dest
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    dup = sorted_key[1:] == sorted_key[:-1]
+    if np.any(dup):
+        undirected = np.minimum(origin, dest) * n_vertices + np.maximum(origin, dest)
+        _, counts = np.unique(undirected, return_counts=True)
+        if np.any(counts > 2):
+            raise ValueError(f"triangles is non-manifold: {int((counts > 2).sum())} edges are "
+                             "shared by more than two triangles")
+        a = int(sorted_key[1:][dup][0] // n_vertices)
+        b = int(sorted_key[1:][dup][0] % n_vertices)
+        raise ValueError(f"triangles is not consistently oriented: edge ({a}, {b}) is "
+                         "traversed twice in the same direction")
+    twin_key = dest * n_vertices + origin
+    pos = np.minimum(np.searchsorted(sorted_key, twin_key), len(key) - 1)
+    found = sorted_key[pos] == twin_key
+    if not np.all(found):
+        raise ValueError(f"triangles has {int((~found).sum())} border edges; the Bezier "
+                         "construction needs a closed mesh (close borders first, e.g. end caps)")
+    twin = order[pos]
+    valence = np.bincount(origin, minlength=n_vertices)
+    first_out = np.full(n_vertices, -1, dtype=np.int64)
+    first_out[origin[::-1]] = np.arange(len(origin))[::-1]
+    mesh = HalfEdges(tris, twin, valence, first_out)
+    _check_vertex_manifold(mesh)
+    return mesh
+
+
+def rotate_ccw(mesh: HalfEdges, h: np.ndarray) -> np.ndarray:
+    """Next outgoing half-edge counter-clockwise about the same origin."""
+    return mesh.twin[prev_half_edge(h)]
+
+
+def ring_half_edges(mesh: HalfEdges, start: np.ndarray, steps: int) -> np.ndarray:
+    """``(len(start), steps)`` outgoing half-edges, counter-clockwise from ``start``."""
+    out = np.empty((len(start), steps), dtype=np.int64)
+    h = np.asarray(start, dtype=np.int64)
+    for k in range(steps):
+        out[:, k] = h
+        h = rotate_ccw(mesh, h)
+    return out
+
+
+def _check_vertex_manifold(mesh: HalfEdges) -> None:
+    """Each vertex's outgoing half-edges must form one fan (no bow-ties)."""
+    used = np.flatnonzero(mesh.valence > 0)
+    h = mesh.first_out[used]
+    start = h.copy()
+    steps = np.zeros(len(used), dtype=np.int64)
+    open_ = np.ones(len(used), dtype=bool)
+    for _ in range(int(mesh.valence.max(initial=0))):
+        h = np.where(open_, rotate_ccw(mesh, h), h)
+        steps += open_
+        open_ &= h != start
+    bad = steps != mesh.valence[used]
+    if np.any(bad):
+        raise ValueError(f"triangles is non-manifold at {int(bad.sum())} vertices "
+                         f"(first: vertex {int(used[bad][0])} joins several fans)")
+
+
+# ----------------------------------------------------------------------------- Loop subdivision
+def loop_beta(n: np.ndarray) -> np.ndarray:
+    """Loop's (1987) vertex weight ``beta(n) = (5/8 - (3/8 + cos(2 pi/n)/4)^2) / n``."""
+    n = np.asarray(n, dtype=np.float64)
+    return (5.0 / 8.0 - (3.0 / 8.0 + 0.25 * np.cos(2.0 * np.pi / n)) ** 2) / n
+
+
+def limit_positions(mesh: HalfEdges, points: np.ndarray) -> np.ndarray:
+    """Loop limit positions ``(1 - n chi) v + chi sum(w)``, ``chi = 1 / (3 / (8 beta) + n)``.
+
+    ``points`` may have any trailing width (``(V, D)``).
+    """
+    n = np.maximum(mesh.valence, 1)
+    chi = 1.0 / (3.0 / (8.0 * loop_beta(n)) + n)
+    ring_sum = np.zeros_like(points)
+    np.add.at(ring_sum, mesh.origin, points[mesh.dest])
+    return (1.0 - n * chi)[:, None] * points + chi[:, None] * ring_sum
+
+
+def loop_subdivide(mesh: HalfEdges, points: np.ndarray):
+    """One step of Loop subdivision of a closed mesh.
+
+    Returns ``(points (V + E, D), triangles (4F, 3))``; new vertex ``V + e`` sits
+    on undirected edge ``e`` (numbered by the half-edge with ``h < twin[h]``);
+    children ``4f .. 4f + 3`` of face f are its corner triangles at
+    ``tri[0], tri[1], tri[2]`` and the centre ``(m12, m20, m01)``.
+    """
+    tris = mesh.triangles
+    n_vertices = len(points)
+    h = np.arange(3 * len(tris))
+    primary = h < mesh.twin
+    edge_of = np.empty(len(h), dtype=np.int64)
+    edge_of[primary] = np.arange(int(primary.sum()))
+    edge_of[mesh.twin[primary]] = edge_of[primary]
+    hp = h[primary]
+    opposite = tris.ravel()[prev_half_edge(hp)]
+    opposite_twin = tris.ravel()[prev_half_edge(mesh.twin[hp])]
+    edge_points = (3.0 / 8.0) * (points[mesh.origin[hp]] + points[mesh.dest[hp]]) \
+        + (1.0 / 8.0) * (points[opposite] + points[opposite_twin])
+    n = np.maximum(mesh.valence, 1)
+    beta = loop_beta(n)
+    ring_sum = np.zeros_like(points)
+    np.add.at(ring_sum, mesh.origin, points[mesh.dest])
+    vertex_points = (1.0 - n * beta)[:, None] * points + beta[:, None] * ring_sum
+    mid = n_vertices + edge_of.reshape(-1, 3)  # (F, 3): m01, m12, m20
+    a, b, c = tris.T
+    m01, m12, m20 = mid.T
+    children = np.stack([
+        np.stack([a, m01, m20], 1), np.stack([m01, b, m12], 1),
+        np.stack([m20, m12, c], 1), np.stack([m12, m20, m01], 1)], axis=1).reshape(-1, 3)
+    return np.concatenate([vertex_points, edge_points]), children
+
+
+#: Barycentric corners of the children of the midpoint split (Loop's order).
+CHILD_CORNERS = np.array([
+    [[1, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0.5]],
+    [[0.5, 0.5, 0], [0, 1, 0], [0, 0.5, 0.5]],
+    [[0.5, 0, 0.5], [0, 0.5, 0.5], [0, 0, 1]],
+    [[0, 0.5, 0.5], [0.5, 0, 0.5], [0.5, 0.5, 0]],
+])
+
+
+def subdivide_tracked(points: np.ndarray, triangles: np.ndarray, steps: int):
+    """``steps`` Loop steps, tracking where each new face lies in its root face.
+
+    Returns ``(points, triangles, root_face (F',), corner_bary (F', 3, 3))``:
+    corner ``c`` of face ``f'`` sits at barycentric ``corner_bary[f', c]`` of
+    root face ``root_face[f']`` (of the input mesh).
+    """
+    root = np.arange(len(triangles))
+    bary = np.broadcast_to(np.eye(3), (len(triangles), 3, 3)).copy()
+    for _ in range(steps):
+        mesh = build_half_edges(len(points), triangles)
+        points, triangles = loop_subdivide(mesh, points)
+        bary = np.einsum("cij,fjd->fcid", CHILD_CORNERS, bary).reshape(-1, 3, 3)
+        root = np.repeat(root, 4)
+    return points, triangles, root, bary
+
+
+# ----------------------------------------------------------------------------- Bézier helpers
+def _index_table(degree: int) -> np.ndarray:
+    return np.array([(i, j, degree - i - j) for i in range(degree, -1, -1)
+                     for j in range(degree - i, -1, -1)], dtype=np.int64)
+
+
+def _control_index(multi: np.ndarray) -> np.ndarray:
+    m = multi[..., 1] + multi[..., 2]
+    return m * (m + 1) // 2 + multi[..., 2]
+
+
+@lru_cache(maxsize=None)
+def corner_rotation(corner: int, degree: int = DEGREE) -> np.ndarray:
+    """Index array ``q`` with ``net_rotated = net[..., q, :]``.
+
+    ``net_rotated`` is the same patch with its corners relabelled to start at
+    ``corner``: ``(tri[c], tri[c+1], tri[c+2])``.
+    """
+    rot = _index_table(degree)  # exponents on (t_c, t_c+1, t_c+2)
+    face = np.empty_like(rot)
+    for axis in range(3):
+        face[:, (corner + axis) % 3] = rot[:, axis]
+    return _control_index(face)
+
+
+@lru_cache(maxsize=None)
+def bernstein_interpolation_inverse(degree: int) -> np.ndarray:
+    """Inverse of the Bernstein matrix at the uniform grid ``(i, j, k) / degree``."""
+    from surface.bezier import bernstein_matrix
+
+    return np.linalg.inv(bernstein_matrix(_index_table(degree) / degree, degree))
+
+
+# ----------------------------------------------------------------------------- box spline
+def box_spline_stencil(mesh: HalfEdges, faces: np.ndarray) -> np.ndarray:
+    """The 12 control vertices of each regular face, ``(len(faces), 12)``.
+
+    Order: ``a, b, c``, then a's ring slots 2..5, b's ring slots 3..5, c's ring
+    slots 3..4, each ring counter-clockwise starting at the next corner.
+    """
+    h = 3 * np.asarray(faces)[:, None] + np.arange(3)[None, :]  # a->b, b->c, c->a
+    dest = mesh.dest
+    rings = [dest[ring_half_edges(mesh, h[:, c], 6)] for c in range(3)]  # (n, 6) each
+    tri = mesh.triangles[faces]
+    cols = [tri[:, 0], tri[:, 1], tri[:, 2]]
+    cols += [rings[0][:, s] for s in (2, 3, 4, 5)]
+    cols += [rings[1][:, s] for s in (3, 4, 5)]
+    cols += [rings[2][:, s] for s in (3, 4)]
+    return np.stack(cols, axis=1)
+
+
+#: Quartic Bézier net of the three-direction box spline over a regular triangle
+#: (a, b, c), times 24, from its 12-point stencil in :func:`box_spline_stencil`
+#: order (rows in quartic index order).  Re-derived from Loop subdivision by
+#: :func:`derive_box_spline_quartic` (a test checks they agree).
+BOX_SPLINE_QUARTIC = np.array([
+    [12, 2, 2, 2, 2, 2, 2, 0, 0, 0, 0, 0],
+    [12, 4, 3, 1, 0, 1, 3, 0, 0, 0, 0, 0],
+    [12, 3, 4, 3, 1, 0, 1, 0, 0, 0, 0, 0],
+    [8, 8, 4, 0, 0, 0, 4, 0, 0, 0, 0, 0],
+    [10, 6, 6, 1, 0, 0, 1, 0, 0, 0, 0, 0],
+    [8, 4, 8, 4, 0, 0, 0, 0, 0, 0, 0, 0],
+    [4, 12, 3, 0, 0, 0, 3, 1, 0, 1, 0, 0],
+    [6, 10, 6, 0, 0, 0, 1, 0, 0, 1, 0, 0],
+    [6, 6, 10, 1, 0, 0, 0, 0, 0, 1, 0, 0],
+    [4, 3, 12, 3, 0, 0, 0, 0, 0, 1, 0, 1],
+    [2, 12, 2, 0, 0, 0, 2, 2, 2, 2, 0, 0],
+    [3, 12, 4, 0, 0, 0, 1, 0, 1, 3, 0, 0],
+    [4, 8, 8, 0, 0, 0, 0, 0, 0, 4, 0, 0],
+    [3, 4, 12, 1, 0, 0, 0, 0, 0, 3, 1, 0],
+    [2, 2, 12, 2, 0, 0, 0, 0, 0, 2, 2, 2],
+]) / 24.0
+
+
+def derive_box_spline_quartic() -> np.ndarray:
+    """``(15, 12)`` map from a regular stencil to the quartic Bézier net.
+
+    Derived, not typed in: on a periodic regular grid (a torus, every valence
+    6) whose vertex "positions" are the unit vectors, two Loop steps followed
+    by Loop's limit mask give the limit surface at the 15 points
+    ``(i, j, k) / 4`` of one triangle; inverting the quartic Bernstein
+    interpolation there yields the Bézier net as weights of the grid vertices.
+    The weights outside the 12-point stencil vanish (checked), which is the
+    locality of the quartic box spline.
+    """
+    size = 8
+    ij = np.arange(size * size).reshape(size, size)
+    q, r = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+    v00, v10 = ij[q, r], ij[(q + 1) % size, r]
+    v01, v11 = ij[q, (r + 1) % size], ij[(q + 1) % size, (r + 1) % size]
+    tris = np.concatenate([np.stack([v00, v10, v01], -1).reshape(-1, 3),
+                           np.stack([v10, v11, v01], -1).reshape(-1, 3)])
+    n_vertices = size * size
+    face = 0  # (0,0), (1,0), (0,1)
+    mesh = build_half_edges(n_vertices, tris)
+    stencil = box_spline_stencil(mesh, np.array([face]))[0]
+    points, sub_tris, root, bary = subdivide_tracked(np.eye(n_vertices), tris, 2)
+    sub_mesh = build_half_edges(len(points), sub_tris)
+    limit = limit_positions(sub_mesh, points)
+    target = _index_table(4) / 4.0
+    mine = np.flatnonzero(root == face)
+    corner_b = bary[mine].reshape(-1, 3)
+    corner_v = sub_tris[mine].reshape(-1)
+    match = np.all(np.abs(corner_b[None, :, :] - target[:, None, :]) < 1e-12, axis=2)
+    values = limit[corner_v[np.argmax(match, axis=1)]]  # (15, V)
+    net = bernstein_interpolation_inverse(4) @ values
+    outside = np.delete(net, stencil, axis=1)
+    if np.abs(outside).max() > 1e-12:
+        raise RuntimeError("box-spline stencil derivation is not local")
+    matrix = net[:, stencil]
+    matrix.flags.writeable = False
+    return matrix
+
+
+# ----------------------------------------------------------------------------- irregular vertices
+#: Barycentric coordinates, in the neighbour's frame (w_{i+1}, w_i, x_i), of the
+#: ring triangle's corners (v, w_i, w_{i+1}); x_i = w_i + w_{i+1} - v on the grid.
+_NEIGHBOUR_TO_RING = np.array([[1.0, 1.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+
+
+def _spoke_g1_rows(n: int, i: int) -> np.ndarray:
+    """Rows of ``D_l + D_r - lambda D_e == 0`` (degree-6 Bernstein coefficients in t).
+
+    Spoke i runs from v (t = 0) to w_i (t = 1); it is edge (corner 0 -> 1) of
+    ring patch i = (v, w_i, w_{i+1}) and edge (corner 0 -> 2) of patch i - 1 =
+    (v, w_{i-1}, w_i).  Columns index all ``28 n`` ring control points.
+    """
+    lam0, lam1 = 2.0 * np.cos(2.0 * np.pi / n), 1.0
+    left, right = 28 * i, 28 * ((i - 1) % n)
+
+    def col(base, i_, j_, k_):
+        return base + int(_control_index(np.array([i_, j_, k_])))
+
+    def vec(entries):
+        row = np.zeros(28 * n)
+        for c, w in entries:
+            row[c] += w
+        return row
+
+    e = [vec([(col(left, 5 - m, m + 1, 0), 6.0), (col(left, 6 - m, m, 0), -6.0)]) for m in range(6)]
+    d = [vec([(col(left, 5 - m, m, 1), 6.0), (col(left, 6 - m, m, 0), -6.0),
+              (col(right, 5 - m, 1, m), 6.0), (col(right, 6 - m, 0, m), -6.0)]) for m in range(6)]
+    zero = np.zeros(28 * n)
+    rows = []
+    for m in range(7):
+        d_m, d_prev = (d[m] if m < 6 else zero), (d[m - 1] if m > 0 else zero)
+        e_m, e_prev = (e[m] if m < 6 else zero), (e[m - 1] if m > 0 else zero)
+        rows.append((6 - m) / 6 * d_m + m / 6 * d_prev
+                    - lam0 * (6 - m) / 6 * e_m - lam1 * m / 6 * e_prev)
+    return np.array(rows)
+
+
+def _spoke_share_rows(n: int, i: int) -> np.ndarray:
+    """Rows equating spoke i's inner points (v-exponent 2..5) seen from both patches."""
+    left, right = 28 * i, 28 * ((i - 1) % n)
+    rows = []
+    for a in range(2, 6):
+        row = np.zeros(28 * n)
+        row[left + int(_control_index(np.array([a, 6 - a, 0])))] = 1.0
+        row[right + int(_control_index(np.array([a, 0, 6 - a])))] = -1.0
+        rows.append(row)
+    return np.array(rows)
+
+
+@lru_cache(maxsize=None)
+def ring_operator(n: int) -> np.ndarray:
+    """Linear map from the data of a valence-n vertex to its n sextic ring patches.
+
+    Data (columns): ``[p_v, N_0 (28), ..., N_{n-1} (28)]`` -- Loop's limit
+    point of v and the nets of the regular neighbours across the outer edges,
+    each in the frame (w_{i+1}, w_i, x_i).  Output (rows): the n nets of the
+    ring patches ``(v, w_i, w_{i+1})``, ``28 i + index``.
+
+    Fixed: ``b_600 = p_v``; the two rows nearest the outer edge are the C1
+    continuation of N_i.  Free: the rows with v-exponent 2..5, set to the
+    least-squares nearest to the continuation of N_i subject to spoke sharing
+    and Loop's G1 condition on every spoke (see ``bezier``'s module notes).
+    """
+    from surface.bezier import _blossom_matrix
+
+    idx = _index_table(DEGREE)
+    n_data = 1 + 28 * n
+    extend = _blossom_matrix(_NEIGHBOUR_TO_RING)  # (28, 28): N-frame net -> ring frame
+    reference = np.zeros((28 * n, n_data))
+    for i in range(n):
+        reference[28 * i:28 * i + 28, 1 + 28 * i:1 + 28 * i + 28] = extend
+    v_exp = np.tile(idx[:, 0], n)
+    fixed_map = reference.copy()
+    fixed_map[v_exp == 6] = 0.0
+    fixed_map[v_exp == 6, 0] = 1.0
+    fixed = (v_exp <= 1) | (v_exp == 6)
+    free = ~fixed
+    constraints = np.concatenate([np.concatenate([_spoke_share_rows(n, i), _spoke_g1_rows(n, i)])
+                                  for i in range(n)])
+    a_free = constraints[:, free]
+    b_data = -constraints[:, fixed] @ fixed_map[fixed]
+    z_ref = reference[free]
+    a_pinv = np.linalg.pinv(a_free, rcond=1e-10)
+    z = z_ref + a_pinv @ (b_data - a_free @ z_ref)
+    operator = fixed_map.copy()
+    operator[free] = z
+    operator.flags.writeable = False
+    return operator
+
+
+# ----------------------------------------------------------------------------- the surface
+def _compact(vertices: np.ndarray, triangles: np.ndarray):
+    """Drop vertices no triangle uses (they carry no patch)."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[triangles.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return vertices[used], remap[triangles]
+
+
+def _check_areas(vertices: np.ndarray, triangles: np.ndarray) -> None:
+    corner = vertices[triangles]
+    doubled = np.linalg.norm(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]),
+                             axis=1)
+    scale = np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0))
+    bad = doubled <= TOL.zero * max(scale, TOL.zero) ** 2
+    if np.any(bad):
+        raise ValueError(f"triangles has {int(bad.sum())} degenerate (zero-area) triangles "
+                         f"(first: face {int(np.argmax(bad))})")
+
+
+def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Sextic nets of regular faces: box-spline quartic, degree-elevated. ``(R, 28, 3)``."""
+    from surface.bezier import elevate
+
+    stencil = box_spline_stencil(mesh, faces)
+    quartic = np.einsum("qs,fsd->fqd", BOX_SPLINE_QUARTIC, points[stencil])
+    return elevate(quartic, DEGREE)
+
+
+def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
+                       control_points: np.ndarray) -> None:
+    """Fill the ring patches of every irregular vertex, one batch per valence."""
+    irregular = np.flatnonzero((mesh.valence != 6) & (mesh.valence > 0))
+    for n in np.unique(mesh.valence[irregular]):
+        n = int(n)
+        centres = irregular[mesh.valence[irregular] == n]
+        spokes = ring_half_edges(mesh, mesh.first_out[centres], n)  # (Vn, n): v -> w_i
+        across = mesh.twin[next_half_edge(spokes)]  # w_{i+1} -> w_i in N_i
+        neighbour = np.empty((len(centres), n, 28, 3))
+        for c in range(3):
+            sel = across % 3 == c
+            neighbour[sel] = control_points[across[sel] // 3][:, corner_rotation(c)]
+        data = np.concatenate([limit[centres][:, None, :],
+                               neighbour.reshape(len(centres), 28 * n, 3)], axis=1)
+        rings = np.einsum("md,vdk->vmk", ring_operator(n), data).reshape(-1, 28, 3)
+        spokes = spokes.ravel()
+        for c in range(3):
+            sel = spokes % 3 == c
+            out = np.empty((int(sel.sum()), 28, 3))
+            out[:, corner_rotation(c)] = rings[sel]
+            control_points[spokes[sel] // 3] = out
+
+
+def build_surface(vertices: np.ndarray, triangles: np.ndarray):
+    """Control nets over the once-refined mesh; see ``bezier.control_net``.
+
+    Returns ``(control_points (4F, 28, 3), source_face (4F,), refined vertices,
+    refined triangles (4F, 3))``.
+    """
+    if len(triangles) == 0:
+        raise ValueError("triangles is empty")
+    mesh0 = build_half_edges(len(vertices), triangles)
+    vertices, triangles = _compact(vertices, triangles)
+    mesh0 = build_half_edges(len(vertices), triangles)
+    _check_areas(vertices, triangles)
+    points, tris = loop_subdivide(mesh0, vertices)
+    source = np.repeat(np.arange(len(triangles)), 4)
+    mesh = build_half_edges(len(points), tris)
+    control_points = np.empty((len(tris), 28, 3))
+    regular = np.all(mesh.valence[tris] == 6, axis=1)
+    control_points[regular] = regular_patches(mesh, points, np.flatnonzero(regular))
+    limit = limit_positions(mesh, points)
+    _irregular_patches(mesh, points, limit, control_points)
+    return control_points, source, points, tris

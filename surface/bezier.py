@@ -1,0 +1,588 @@
+r"""Loop's tangent-plane-continuous sextic triangular Bézier surface.
+
+Each triangle of the (once Loop-refined) control mesh carries one sextic
+triangular Bézier patch
+
+.. math::
+
+    P(r, s, t) = \sum_{i+j+k=6} b_{ijk} \, B_{ijk}(r, s, t), \qquad
+    B_{ijk} = \frac{6!}{i!\,j!\,k!} r^i s^j t^k, \quad r + s + t = 1,
+
+following C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH
+1994, pp. 303-310 [1]_.  ``(r, s, t)`` weight the patch's domain triangle
+corners ``(tri[0], tri[1], tri[2])`` (counter-clockwise seen from outside), so
+``b_600`` sits at ``tri[0]``, ``b_060`` at ``tri[1]``, ``b_006`` at ``tri[2]``.
+
+Index order
+-----------
+The 28 control points of a patch are stored lexicographically **descending in
+i, then descending in j** (``k = 6 - i - j``)::
+
+    0:(6,0,0) 1:(5,1,0) 2:(5,0,1) 3:(4,2,0) 4:(4,1,1) 5:(4,0,2) 6:(3,3,0) ...
+    ... 21:(0,6,0) 22:(0,5,1) ... 27:(0,0,6)
+
+i.e. ``index(i, j, k) = m (m + 1) / 2 + k`` with ``m = 6 - i = j + k``
+(:func:`index_table`, :func:`control_index`).  The same rule, with 6 replaced by
+the degree, orders nets of any degree in this module (quartic nets,
+derivative nets, tessellation sample grids).
+
+Construction (what :func:`control_net` does)
+--------------------------------------------
+1. **Refinement.**  One step of Loop subdivision (original weights
+   ``beta(n) = (5/8 - (3/8 + cos(2 pi / n) / 4)^2) / n``).  Afterwards every
+   triangle has at most one vertex of valence != 6, and the triangles that
+   have one are exactly the corner triangles of the old irregular vertices.
+2. **Regular patches.**  A triangle whose three vertices have valence 6 has a
+   regular 12-point stencil (the union of its corners' 1-rings); its patch is
+   the quartic three-direction box spline of Loop subdivision converted to
+   Bézier form and degree-elevated to 6 (so it *is* the Loop limit surface
+   there).  Adjacent regular patches join C2.
+3. **Irregular vertex, valence n.**  The n patches around it are constrained
+   as in [1]_: position at the vertex = Loop's limit point; across the patch
+   boundary shared with a regular patch the two outer Bézier rows are the C1
+   continuation of that neighbour (so the join with the box-spline region is
+   C1); across each spoke ``v -> w_i`` the cross-boundary derivatives of the
+   two patches satisfy Loop's scalar G1 condition
+
+   .. math::  D_l(t) + D_r(t) = \lambda(t)\, D_e(t), \qquad
+              \lambda(t) = 2\cos(2\pi/n)\,(1 - t) + t,
+
+   (``lambda = 1`` at the regular end, where the three-direction grid gives
+   ``e_l + e_r = e``) as a polynomial identity in t.  At ``t = 0`` this forces
+   the first-row points into ``a cos(2 pi i / n) + b sin(2 pi i / n)`` form:
+   one tangent plane at the vertex; the second-order (vertex-enclosure)
+   condition for even n is met through the free spoke points.
+   **Difference from Loop's paper:** Loop writes the remaining free Bézier
+   points with explicit formulas (quartic boundary curves, then the interior);
+   here the free points (the inner five rows of every patch around the vertex)
+   are the least-squares closest, in control-point space, to the polynomial
+   continuation of the neighbouring box-spline patches, subject to exactly the
+   constraints above.  The solution is a fixed linear map per valence
+   (precomputed once with a pseudo-inverse, applied to all vertices of that
+   valence in one ``einsum``), so it is affine invariant and reproduces the
+   box spline where n = 6 (the reference then satisfies every constraint).
+   The spoke curves come out of degree <= 5 rather than Loop's quartics.
+
+Borders are not supported: a control mesh with border edges raises
+``ValueError`` (close it first, e.g. with the section stage's end caps).
+
+References
+----------
+.. [1] C. Loop, "Smooth spline surfaces over irregular meshes",
+   Proc. SIGGRAPH 94, pp. 303-310 (1994).
+.. [2] C. Loop, "Smooth subdivision surfaces based on triangles", MSc thesis,
+   University of Utah (1987).
+.. [3] G. Farin, "Triangular Bernstein-Bézier patches", CAGD 3 (1986) 83-127.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from math import factorial
+
+import numpy as np
+
+from surface.validate import TOL, check_finite, check_shape
+
+DEGREE = 6
+N_CONTROL = (DEGREE + 1) * (DEGREE + 2) // 2  # 28
+
+__all__ = [
+    "DEGREE",
+    "N_CONTROL",
+    "BezierSurface",
+    "bernstein_matrix",
+    "control_index",
+    "control_net",
+    "corner_normals",
+    "edge_continuity",
+    "elevate",
+    "evaluate",
+    "index_table",
+    "normals",
+    "subdivide",
+    "tessellate",
+]
+
+
+# ----------------------------------------------------------------------------- index order
+@lru_cache(maxsize=None)
+def _index_table(degree: int) -> np.ndarray:
+    rows = [(i, j, degree - i - j) for i in range(degree, -1, -1) for j in range(degree - i, -1, -1)]
+    table = np.array(rows, dtype=np.int64).reshape(-1, 3)
+    table.flags.writeable = False
+    return table
+
+
+def index_table(degree: int = DEGREE) -> np.ndarray:
+    """Multi-indices ``(i, j, k)`` of a triangular net, in storage order.
+
+    Parameters
+    ----------
+    degree : int
+        Polynomial degree (6 for the surface's patches).
+
+    Returns
+    -------
+    (N, 3) int64, N = (degree + 1)(degree + 2) / 2
+        Row ``p`` holds the exponents of ``r, s, t`` of control point ``p``;
+        descending i, then descending j.
+    """
+    return _index_table(int(degree))
+
+
+def control_index(i, j, k, degree: int = DEGREE):
+    """Storage position of control point ``b_ijk`` (vectorised over arrays).
+
+    ``index = m (m + 1) / 2 + k`` with ``m = degree - i = j + k``.
+
+    Raises
+    ------
+    ValueError
+        If ``i + j + k != degree`` or an index is negative.
+    """
+    i, j, k = (np.asarray(a, dtype=np.int64) for a in (i, j, k))
+    if np.any(i + j + k != degree) or np.any((i < 0) | (j < 0) | (k < 0)):
+        raise ValueError(f"control_index needs non-negative i + j + k == {degree}")
+    m = degree - i
+    out = m * (m + 1) // 2 + k
+    return int(out) if out.ndim == 0 else out
+
+
+# ----------------------------------------------------------------------------- Bernstein basis
+def _multinomials(degree: int) -> np.ndarray:
+    idx = index_table(degree)
+    return np.array([factorial(degree) / (factorial(i) * factorial(j) * factorial(k))
+                     for i, j, k in idx])
+
+
+def _bernstein(bary: np.ndarray, degree: int) -> np.ndarray:
+    idx = index_table(degree)
+    powers = bary[:, None, :] ** idx[None, :, :]  # (S, N, 3); 0**0 == 1
+    return _multinomials(degree)[None, :] * powers.prod(axis=2)
+
+
+def bernstein_matrix(bary, degree: int = DEGREE) -> np.ndarray:
+    """Bernstein basis ``B_ijk(r, s, t)`` at sample points.
+
+    Parameters
+    ----------
+    bary : (S, 3) array_like
+        Barycentric coordinates ``(r, s, t)``; rows should sum to 1.
+    degree : int
+
+    Returns
+    -------
+    (S, N) float64
+        ``points = B @ control_points`` evaluates a patch at every sample.
+    """
+    bary = check_shape(bary, "(S, 3)", "bary", dtype=np.float64)
+    check_finite(bary, "bary")
+    return _bernstein(bary, degree)
+
+
+def _derivative_nets(control_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nets of the derivatives along corner 0 -> 1 and corner 0 -> 2.
+
+    ``d/du P = deg * sum_{|a| = deg-1} B_a (b_{a+e2} - b_{a+e1})`` and the same
+    with ``e3`` for ``d/dv``; returns two ``(..., N', 3)`` arrays of degree - 1.
+    """
+    n = control_points.shape[-2]
+    degree = int(round((np.sqrt(8 * n + 1) - 3) / 2))
+    low = index_table(degree - 1)
+    i0 = control_index(low[:, 0] + 1, low[:, 1], low[:, 2], degree)
+    i1 = control_index(low[:, 0], low[:, 1] + 1, low[:, 2], degree)
+    i2 = control_index(low[:, 0], low[:, 1], low[:, 2] + 1, degree)
+    du = degree * (control_points[..., i1, :] - control_points[..., i0, :])
+    dv = degree * (control_points[..., i2, :] - control_points[..., i0, :])
+    return du, dv
+
+
+def _check_control_points(control_points) -> np.ndarray:
+    cp = check_shape(control_points, f"(P, {N_CONTROL}, 3)", "control_points", dtype=np.float64)
+    return check_finite(cp, "control_points")
+
+
+def evaluate(control_points, bary) -> np.ndarray:
+    """Points of every patch at the same barycentric samples.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+        Sextic nets in the module's index order.
+    bary : (S, 3) array_like
+        Barycentric sample coordinates ``(r, s, t)``.
+
+    Returns
+    -------
+    (P, S, 3) float64
+        ``points[p, s] = sum_ijk B_ijk(bary[s]) b_ijk[p]``: one ``(S, 28)``
+        Bernstein matrix times the control array.
+    """
+    cp = _check_control_points(control_points)
+    basis = bernstein_matrix(bary, DEGREE)
+    return np.einsum("sn,pnd->psd", basis, cp, optimize=True)
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return vectors / np.maximum(length, TOL.zero)
+
+
+def _normals(cp: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    du, dv = _derivative_nets(cp)
+    basis = _bernstein(bary, DEGREE - 1)
+    tu = np.einsum("sn,pnd->psd", basis, du, optimize=True)
+    tv = np.einsum("sn,pnd->psd", basis, dv, optimize=True)
+    return _unit(np.cross(tu, tv))
+
+
+def normals(control_points, bary) -> np.ndarray:
+    """Exact unit normals of every patch at the barycentric samples.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+    bary : (S, 3) array_like
+
+    Returns
+    -------
+    (P, S, 3) float64
+        ``normalise(P_u x P_v)`` with ``P_u``, ``P_v`` the derivatives along
+        corner 0 -> 1 and corner 0 -> 2, evaluated from the quintic derivative
+        nets; outward for a counter-clockwise domain triangle.  A vanishing
+        cross product (a degenerate patch) gives a zero vector, never NaN.
+    """
+    cp = _check_control_points(control_points)
+    bary = check_shape(bary, "(S, 3)", "bary", dtype=np.float64)
+    check_finite(bary, "bary")
+    return _normals(cp, bary)
+
+
+# ----------------------------------------------------------------------------- de Casteljau
+def _casteljau_step(degree: int, weights: np.ndarray) -> np.ndarray:
+    """Matrix of one de Casteljau step from degree ``degree`` to ``degree - 1``."""
+    low = index_table(degree - 1)
+    step = np.zeros((len(low), len(index_table(degree))))
+    rows = np.arange(len(low))
+    for axis in range(3):
+        shifted = low.copy()
+        shifted[:, axis] += 1
+        step[rows, control_index(shifted[:, 0], shifted[:, 1], shifted[:, 2], degree)] += weights[axis]
+    return step
+
+
+def _blossom_matrix(corners: np.ndarray, degree: int = DEGREE) -> np.ndarray:
+    """Reparametrisation of a net onto the sub-triangle with barycentric ``corners``.
+
+    The new point ``b'_ijk`` is the blossom ``b[q0^i, q1^j, q2^k]`` evaluated
+    by ``degree`` de Casteljau steps (Farin [3]_ §4); returns ``(N, N)``.
+    """
+    idx = index_table(degree)
+    out = np.zeros((len(idx), len(idx)))
+    for row, multi in enumerate(idx):
+        args = np.repeat(corners, multi, axis=0)  # (degree, 3)
+        mat = np.eye(1)
+        for level, u in zip(range(1, degree + 1), args[::-1], strict=True):
+            mat = mat @ _casteljau_step(level, u)
+        out[row] = mat[0]
+    return out
+
+
+#: Barycentric corners of the four children of the midpoint split, the same
+#: order as Loop subdivision's children: three corner triangles, then the centre.
+_CHILD_CORNERS = np.array([
+    [[1, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0.5]],
+    [[0.5, 0.5, 0], [0, 1, 0], [0, 0.5, 0.5]],
+    [[0.5, 0, 0.5], [0, 0.5, 0.5], [0, 0, 1]],
+    [[0, 0.5, 0.5], [0.5, 0, 0.5], [0.5, 0.5, 0]],
+])
+
+
+@lru_cache(maxsize=None)
+def _subdivision_matrices() -> np.ndarray:
+    mats = np.stack([_blossom_matrix(c) for c in _CHILD_CORNERS])
+    mats.flags.writeable = False
+    return mats
+
+
+def subdivide(control_points) -> np.ndarray:
+    """Split every patch at its edge midpoints into 4 sub-patches (de Casteljau).
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+
+    Returns
+    -------
+    (4P, 28, 3) float64
+        Children ``4p .. 4p+3`` of patch ``p``: the corner triangles at
+        ``tri[0]``, ``tri[1]``, ``tri[2]``, then the centre triangle
+        ``(m12, m20, m01)``; each exactly reparametrises its part of the parent.
+    """
+    cp = _check_control_points(control_points)
+    children = np.einsum("cmn,pnd->pcmd", _subdivision_matrices(), cp, optimize=True)
+    return children.reshape(-1, N_CONTROL, 3)
+
+
+@lru_cache(maxsize=None)
+def _elevation_matrix(degree: int) -> np.ndarray:
+    """``(N_{d+1}, N_d)`` degree elevation: ``b'_a = sum_e (a_e / (d+1)) b_{a - e}``."""
+    high, low = index_table(degree + 1), index_table(degree)
+    mat = np.zeros((len(high), len(low)))
+    for row, multi in enumerate(high):
+        for axis in range(3):
+            if multi[axis] > 0:
+                src = multi.copy()
+                src[axis] -= 1
+                mat[row, control_index(*src, degree=degree)] += multi[axis] / (degree + 1)
+    mat.flags.writeable = False
+    return mat
+
+
+def elevate(control_points, to_degree: int = DEGREE) -> np.ndarray:
+    """Degree-elevate triangular nets ``(..., N_d, D)`` to degree ``to_degree``."""
+    net = np.asarray(control_points, dtype=np.float64)
+    degree = int(round((np.sqrt(8 * net.shape[-2] + 1) - 3) / 2))
+    if (degree + 1) * (degree + 2) // 2 != net.shape[-2] or to_degree < degree:
+        raise ValueError(f"control_points has {net.shape[-2]} points per net: not a "
+                         f"triangular net of degree <= {to_degree}")
+    for d in range(degree, to_degree):
+        net = np.einsum("mn,...nd->...md", _elevation_matrix(d), net)
+    return net
+
+
+# ----------------------------------------------------------------------------- tessellation
+@lru_cache(maxsize=None)
+def _grid(segments: int):
+    """Sample grid of a patch: bary (S, 3), local triangles, and sample kinds."""
+    idx = index_table(segments)  # (S, 3) as (a, b, c), a + b + c = segments
+    bary = idx / segments
+    b, c = np.meshgrid(np.arange(segments), np.arange(segments), indexing="ij")
+    b, c = b.ravel(), c.ravel()
+    up = b + c <= segments - 1
+    down = b + c <= segments - 2
+
+    def at(bb, cc):
+        return control_index(segments - bb - cc, bb, cc, segments)
+
+    tris_up = np.stack([at(b[up], c[up]), at(b[up] + 1, c[up]), at(b[up], c[up] + 1)], axis=1)
+    tris_down = np.stack([at(b[down] + 1, c[down]), at(b[down] + 1, c[down] + 1),
+                          at(b[down], c[down] + 1)], axis=1)
+    local_tris = np.concatenate([tris_up, tris_down]).astype(np.int64)
+    return bary, local_tris, idx
+
+
+def _edge_ids(triangles: np.ndarray):
+    """Undirected edge id of every half-edge ``3f + c`` (corner c -> c + 1)."""
+    start = triangles.ravel()
+    end = triangles[:, [1, 2, 0]].ravel()
+    keys = np.minimum(start, end) * (int(triangles.max()) + 1) + np.maximum(start, end)
+    unique, edge_id = np.unique(keys, return_inverse=True)
+    return edge_id.reshape(-1, 3), len(unique), start.reshape(-1, 3) < end.reshape(-1, 3)
+
+
+def tessellate(control_points, level: int, triangles=None):
+    """Uniform, welded triangulation of all patches.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like or BezierSurface
+        Patches; a :class:`BezierSurface` brings its own domain triangles.
+    level : int
+        Each patch edge is cut into ``2**level`` segments; a patch gives
+        ``4**level`` triangles (level 0: one flat triangle per patch).
+    triangles : (P, 3) int array_like, optional
+        Domain triangles of the patches (vertex ids), required with a plain
+        array: shared vertices along patch edges get one index through the
+        shared edge's parametrisation (exact index sharing, no distance
+        tolerance), so a closed domain mesh gives a watertight result.
+
+    Returns
+    -------
+    vertices : (V, 3) float64
+        Points on the patches (each evaluated exactly on one patch).
+    triangles : (F, 3) int64
+        Counter-clockwise as the domain triangles; ``F = P 4**level``.
+    normals : (V, 3) float64
+        Exact unit surface normals from the derivative nets.
+    """
+    if isinstance(control_points, BezierSurface):
+        triangles = control_points.domain_mesh[1] if triangles is None else triangles
+        control_points = control_points.control_points
+    cp = _check_control_points(control_points)
+    if triangles is None:
+        raise ValueError("tessellate needs the domain triangles (P, 3) to weld patch edges")
+    tris = check_shape(triangles, "(P, 3)", "triangles", dtype=np.int64)
+    if len(tris) != len(cp):
+        raise ValueError(f"triangles has {len(tris)} rows but control_points {len(cp)} patches")
+    level = int(level)
+    if not 0 <= level <= 10:
+        raise ValueError(f"level must be in 0..10, got {level}")
+    segments = 2 ** level
+    bary, local_tris, grid_idx = _grid(segments)
+    points = np.einsum("sn,pnd->psd", _bernstein(bary, DEGREE), cp, optimize=True)
+    vertex_normals = _normals(cp, bary)
+    gid = _global_sample_ids(tris, segments, grid_idx)  # (P, S)
+    used = np.zeros(int(gid.max()) + 1, dtype=bool)
+    used[gid] = True
+    remap = np.cumsum(used) - 1
+    gid = remap[gid]
+    n_vertices = int(used.sum())
+    vertices = np.empty((n_vertices, 3))
+    out_normals = np.empty((n_vertices, 3))
+    vertices[gid.ravel()] = points.reshape(-1, 3)
+    out_normals[gid.ravel()] = vertex_normals.reshape(-1, 3)
+    faces = gid[:, local_tris]  # (P, 4**level, 3)
+    return vertices, faces.reshape(-1, 3), out_normals
+
+
+def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray) -> np.ndarray:
+    """Global vertex id of every (patch, sample): corners by domain vertex,
+    edge samples by (undirected edge, position from the lower vertex id),
+    interior samples per patch."""
+    n_patches = len(tris)
+    n_vertices = int(tris.max()) + 1
+    edge_id, n_edges, forward = _edge_ids(tris)
+    a, b, c = grid_idx.T
+    m = segments
+    gid = np.empty((n_patches, len(grid_idx)), dtype=np.int64)
+    # corners
+    for corner, mask in enumerate([a == m, b == m, c == m]):
+        gid[:, mask] = tris[:, corner:corner + 1]
+    # edge-interior samples: edge 0 (c == 0, position b from corner 0), edge 1
+    # (a == 0, position c from corner 1), edge 2 (b == 0, position a from corner 2)
+    base = n_vertices
+    for edge, (mask, pos) in enumerate([((c == 0) & (a > 0) & (b > 0), b),
+                                         ((a == 0) & (b > 0) & (c > 0), c),
+                                         ((b == 0) & (c > 0) & (a > 0), a)]):
+        pos = pos[mask][None, :]
+        along = np.where(forward[:, edge:edge + 1], pos, m - pos)
+        gid[:, mask] = base + edge_id[:, edge:edge + 1] * (m - 1) + along - 1
+    inner = (a > 0) & (b > 0) & (c > 0)
+    n_inner = int(inner.sum())
+    start = base + n_edges * max(m - 1, 0)
+    gid[:, inner] = start + np.arange(n_patches)[:, None] * n_inner + np.arange(n_inner)[None, :]
+    return gid
+
+
+# ----------------------------------------------------------------------------- continuity report
+def _edge_pairs(tris: np.ndarray):
+    """Pairs of half-edges ``(3f + c, 3g + c')`` sharing an undirected edge."""
+    edge_id, n_edges, _ = _edge_ids(tris)
+    flat = edge_id.ravel()
+    order = np.argsort(flat, kind="stable")
+    counts = np.bincount(flat, minlength=n_edges)
+    if np.any(counts > 2):
+        raise ValueError("triangles has non-manifold edges (shared by more than 2 triangles)")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    interior = counts == 2
+    return order[starts[interior]], order[starts[interior] + 1]
+
+
+def edge_continuity(control_points, triangles, samples: int = 9):
+    """Largest position gap and normal angle across every interior patch edge.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+    triangles : (P, 3) int array_like
+        Domain triangles of the patches.
+    samples : int
+        Points per edge, uniformly in ``t = 0 .. 1`` (ends included).
+
+    Returns
+    -------
+    gap : float
+        Largest ``|P_f(t) - P_g(t)|`` over all shared edges and samples
+        (scene units).
+    angle : float
+        Largest ``atan2(|n_f x n_g|, n_f . n_g)`` (radians).
+    """
+    cp = _check_control_points(control_points)
+    tris = check_shape(triangles, "(P, 3)", "triangles", dtype=np.int64)
+    h1, h2 = _edge_pairs(tris)
+    t = np.linspace(0.0, 1.0, int(samples))
+    p1, n1 = _edge_samples(cp, h1, t)
+    p2, n2 = _edge_samples(cp, h2, 1.0 - t)  # the twin runs the other way
+    gap = float(np.max(np.linalg.norm(p1 - p2, axis=-1), initial=0.0))
+    angle = np.arctan2(np.linalg.norm(np.cross(n1, n2), axis=-1), np.sum(n1 * n2, axis=-1))
+    return gap, float(np.max(angle, initial=0.0))
+
+
+def _edge_samples(cp: np.ndarray, half_edges: np.ndarray, t: np.ndarray):
+    """Points and normals on half-edge ``3f + c`` at parameter t from corner c."""
+    face, corner = half_edges // 3, half_edges % 3
+    pts = np.empty((len(face), len(t), 3))
+    nrm = np.empty_like(pts)
+    for c in range(3):  # three corner cases, vectorised over edges
+        sel = corner == c
+        bary = np.zeros((len(t), 3))
+        bary[:, c] = 1.0 - t
+        bary[:, (c + 1) % 3] = t
+        pts[sel] = np.einsum("sn,pnd->psd", _bernstein(bary, DEGREE), cp[face[sel]])
+        nrm[sel] = _normals(cp[face[sel]], bary)
+    return pts, nrm
+
+
+def corner_normals(control_points) -> np.ndarray:
+    """Unit normals of every patch at its three corners, ``(P, 3, 3)``."""
+    cp = _check_control_points(control_points)
+    return _normals(cp, np.eye(3))
+
+
+# ----------------------------------------------------------------------------- the surface
+@dataclass(frozen=True)
+class BezierSurface:
+    """Sextic triangular Bézier patches over a triangle mesh.
+
+    Attributes
+    ----------
+    control_points : (P, 28, 3) float64
+        One net per domain triangle, index order of :func:`index_table`.
+    source_face : (P,) int64
+        Control-mesh face each patch lies in (refinement splits a face in 4).
+    domain_mesh : tuple of (V', 3) float64 and (P, 3) int64
+        The mesh the patches are built over (the once-refined control mesh);
+        patch p's corners ``b_600, b_060, b_006`` belong to
+        ``domain_mesh[1][p]``'s three vertices.
+    """
+
+    control_points: np.ndarray
+    source_face: np.ndarray
+    domain_mesh: tuple[np.ndarray, np.ndarray]
+
+
+def control_net(vertices, triangles) -> BezierSurface:
+    """Loop's G1 sextic Bézier surface over a closed triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like, scene units
+    triangles : (F, 3) int array_like
+        Counter-clockwise seen from outside, closed 2-manifold.  Vertices used
+        by no triangle are ignored.
+
+    Returns
+    -------
+    BezierSurface
+        ``4F`` patches over the once Loop-refined mesh (see the module notes).
+
+    Raises
+    ------
+    ValueError
+        Non-finite vertices, out-of-range indices, non-manifold edges or
+        vertices, inconsistent orientation, border edges, degenerate
+        (zero-area) triangles.
+    """
+    from surface._loop_patches import build_surface
+
+    verts = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
+    check_finite(verts, "vertices")
+    tris = check_shape(triangles, "(F, 3)", "triangles")
+    if not np.issubdtype(tris.dtype, np.integer):
+        raise ValueError(f"triangles must hold integer vertex ids, got dtype {tris.dtype}")
+    tris = tris.astype(np.int64)
+    cp, source, refined_vertices, refined_tris = build_surface(verts, tris)
+    return BezierSurface(cp, source, (refined_vertices, refined_tris))
