@@ -1,0 +1,818 @@
+r"""Adaptive least-squares correlation (Gruen 1985), batched over all patches.
+
+For every pixel :math:`(x, y)` of a square template patch centred on a point of
+the template image :math:`f`, the observation equation is
+
+.. math::
+
+    f(x, y) - e(x, y) = r_0 + r_1\, g(a_0 + a_1 x + a_2 y,\; b_0 + b_1 x + b_2 y)
+
+with :math:`(x, y)` in pixels relative to the template centre, six affine
+unknowns :math:`a_0 \ldots b_2`, two radiometric unknowns (offset
+:math:`r_0`, gain :math:`r_1`) and the search image :math:`g` resampled at the
+warped position.  :math:`(a_0, b_0)` is therefore the position of the template
+centre in the search image.  The system is linearised and solved by
+Gauss-Newton until the shift update :math:`\lVert(\delta a_0, \delta b_0)\rVert`
+is below ``TOL.lsm_shift_stop_px`` or ``max_iter`` is reached.  The precision
+of the match is :math:`\sigma_0^2 (A^\mathsf{T}A)^{-1}` with
+:math:`\sigma_0^2 = v^\mathsf{T}v / (n - u)` from the final linearisation.
+
+Speed.  The iterations use the *template-gradient* Jacobian (the idea behind
+inverse-compositional alignment, Baker & Matthews 2004): at the solution
+:math:`r_1 \nabla g(W(x)) = A^{-\mathsf{T}} \nabla f(x)` and
+:math:`g(W(x)) = (f - r_0)/r_1`, so the Jacobian is a fixed 8x8 mixing
+:math:`T(p)` of template quantities :math:`j = [f_x, f_x x, f_x y, f_y, f_y x,
+f_y y, 1, f]` whose normal matrix :math:`H = \sum j j^\mathsf{T}` is computed
+once per patch; an iteration then only resamples :math:`g` (values, no
+gradients) and accumulates :math:`\sum j\,v`.  After convergence one exact
+forward-additive Gauss-Newton step (resampled :math:`g` *and* its gradients)
+is applied; it moves the estimate onto the true least-squares solution and
+its normal matrix gives the reported covariance, so the precision is the
+textbook :math:`\sigma_0^2 (A^\mathsf{T}A)^{-1}` of the final linearisation.
+All patches run in one numba ``prange`` kernel.
+
+References
+----------
+.. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image
+   matching technique", South African Journal of Photogrammetry, Remote
+   Sensing and Cartography 14(3), 175-187 (1985).
+.. [2] S. Baker, I. Matthews, "Lucas-Kanade 20 years on: a unifying
+   framework", IJCV 56(3), 221-255 (2004).
+.. [3] J. Immerkaer, "Fast noise variance estimation", Computer Vision and
+   Image Understanding 64(2), 300-302 (1996).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from matching.validate import TOL, check_shape
+
+
+class Status(IntEnum):
+    """Why a point was accepted or rejected (``LSMResult.status``)."""
+
+    #: accepted
+    OK = 0
+    #: no shift update below the stop threshold within ``max_iter`` (or NaN)
+    NO_CONVERGENCE = 1
+    #: residual σ0 above ``sigma0_factor`` x the reference noise σ0
+    SIGMA0_TOO_LARGE = 2
+    #: the solution moved farther than ``max_shift_px`` from the approximation
+    PULL_IN = 3
+    #: det of the affine part outside [affine_det_min, 1/affine_det_min]
+    DEGENERATE_AFFINE = 4
+    #: correlation coefficient below ``min_correlation``
+    LOW_CORRELATION = 5
+    #: template or warped search patch (plus interpolation support) leaves the image
+    OUTSIDE_IMAGE = 6
+    #: template gradient energy not above the noise's (or singular normal matrix)
+    TEXTURELESS = 7
+
+
+#: ``status code -> name`` for every value :class:`Status` takes.
+STATUS_NAMES = {int(s): s.name.lower() for s in Status}
+
+INTERPOLATIONS = ("bilinear", "bicubic", "spline")
+_KIND = {"bilinear": 0, "bicubic": 1, "spline": 2}
+#: Default resampling: the cubic B-spline (see ``benchmarks/matching.py``: its
+#: zero-noise bias is ~4x below bilinear's for ~1.3x the time).
+DEFAULT_INTERPOLATION = "spline"
+
+
+@dataclass(frozen=True)
+class LSMResult:
+    """Per-point output of :func:`lsm_match` (arrays over the N points).
+
+    Attributes
+    ----------
+    position : (N, 2) float64
+        Matched position of the template centre in the search image, px.
+    affine : (N, 6) float64
+        ``a0 a1 a2 b0 b1 b2`` (``a0, b0`` = ``position``).
+    radiometric : (N, 2) float64
+        ``r0`` (offset, grey levels), ``r1`` (gain).
+    converged : (N,) bool
+        Gauss-Newton met the shift stop threshold.
+    iterations : (N,) int32
+        Gauss-Newton iterations used (the final exact step included).
+    sigma0 : (N,) float64
+        A-posteriori σ of unit weight, grey levels.
+    cov : (N, 2, 2) float64
+        Covariance of ``position``, px².
+    correlation : (N,) float64
+        Correlation coefficient of template and resampled search patch.
+    status : (N,) uint8
+        :class:`Status` code (``STATUS_NAMES`` gives the names).
+    noise_sigma0 : float
+        The reference σ0 the ``SIGMA0_TOO_LARGE`` test used, grey levels.
+    """
+
+    position: np.ndarray
+    affine: np.ndarray
+    radiometric: np.ndarray
+    converged: np.ndarray
+    iterations: np.ndarray
+    sigma0: np.ndarray
+    cov: np.ndarray
+    correlation: np.ndarray
+    status: np.ndarray
+    noise_sigma0: float
+
+    @property
+    def accepted(self) -> np.ndarray:
+        """(N,) bool: status OK."""
+        return self.status == Status.OK
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """(N,) float64: RMS of the two position σ's, sqrt(trace(cov)/2), px."""
+        return np.sqrt(np.maximum(np.trace(self.cov, axis1=1, axis2=2), 0.0) / 2.0)
+
+
+# --------------------------------------------------------------------------------------
+# numba kernels
+# --------------------------------------------------------------------------------------
+
+#: fast-math without "no NaN / no inf", so the NaN checks stay meaningful
+_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+# --------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _weights(t, kind, w, dw):
+    """Fill the 4 tap weights (offsets -1, 0, 1, 2) and their derivatives for frac ``t``."""
+    if kind == 0:  # bilinear
+        w[0] = 0.0
+        w[1] = 1.0 - t
+        w[2] = t
+        w[3] = 0.0
+        dw[0] = 0.0
+        dw[1] = -1.0
+        dw[2] = 1.0
+        dw[3] = 0.0
+    elif kind == 1:  # Keys cubic convolution, a = -0.5
+        t2 = t * t
+        t3 = t2 * t
+        w[0] = -0.5 * t3 + t2 - 0.5 * t
+        w[1] = 1.5 * t3 - 2.5 * t2 + 1.0
+        w[2] = -1.5 * t3 + 2.0 * t2 + 0.5 * t
+        w[3] = 0.5 * t3 - 0.5 * t2
+        dw[0] = -1.5 * t2 + 2.0 * t - 0.5
+        dw[1] = 4.5 * t2 - 5.0 * t
+        dw[2] = -4.5 * t2 + 4.0 * t + 0.5
+        dw[3] = 1.5 * t2 - t
+    else:  # cubic B-spline on prefiltered coefficients
+        s = 1.0 - t
+        t2 = t * t
+        t3 = t2 * t
+        w[0] = s * s * s / 6.0
+        w[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+        w[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+        w[3] = t3 / 6.0
+        dw[0] = -0.5 * s * s
+        dw[1] = 1.5 * t2 - 2.0 * t
+        dw[2] = -1.5 * t2 + t + 0.5
+        dw[3] = 0.5 * t2
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _sample(img, u, v, kind, wx, dwx, wy, dwy, grad, out):
+    """Interpolate ``img`` at (u, v); ``out = [value, d/du, d/dv]`` (gradients if ``grad``)."""
+    x0 = int(np.floor(u))
+    y0 = int(np.floor(v))
+    _weights(u - x0, kind, wx, dwx)
+    _weights(v - y0, kind, wy, dwy)
+    val = 0.0
+    gu = 0.0
+    gv = 0.0
+    for r in range(4):
+        row = y0 - 1 + r
+        s0 = 0.0
+        s1 = 0.0
+        for c in range(4):
+            pix = img[row, x0 - 1 + c]
+            s0 += wx[c] * pix
+            if grad:
+                s1 += dwx[c] * pix
+        val += wy[r] * s0
+        if grad:
+            gu += wy[r] * s1
+            gv += dwy[r] * s0
+    out[0] = val
+    out[1] = gu
+    out[2] = gv
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _inside(p, half, width, height):
+    """True when the warped patch and its 4x4 interpolation support lie in the image."""
+    for sx in (-half, half):
+        for sy in (-half, half):
+            u = p[0] + p[1] * sx + p[2] * sy
+            v = p[3] + p[4] * sx + p[5] * sy
+            if not (u >= 1.0 and v >= 1.0 and u < width - 2.0 and v < height - 2.0):
+                return False
+    return True
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _cholesky_solve(a, b, m, x):
+    """Solve the SPD system ``a[:m, :m] x = b[:m]`` in place of ``x``; False if not SPD."""
+    lo = np.empty((8, 8))
+    for i in range(m):
+        for j in range(i + 1):
+            s = a[i, j]
+            for k in range(j):
+                s -= lo[i, k] * lo[j, k]
+            if i == j:
+                if not s > 1e-300:
+                    return False
+                lo[i, i] = np.sqrt(s)
+            else:
+                lo[i, j] = s / lo[j, j]
+    for i in range(m):
+        s = b[i]
+        for k in range(i):
+            s -= lo[i, k] * x[k]
+        x[i] = s / lo[i, i]
+    for i in range(m - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, m):
+            s -= lo[k, i] * x[k]
+        x[i] = s / lo[i, i]
+    return True
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _reduce(nmat, rhs, d, constrained, nred, bred):
+    """Project the 8x8 system onto the unknowns (shift along ``d`` if constrained)."""
+    if not constrained:
+        for i in range(8):
+            bred[i] = rhs[i]
+            for j in range(8):
+                nred[i, j] = nmat[i, j]
+        return 8
+    # unknowns: s, a1, a2, b1, b2, r0, r1 with (a0, b0) = s * d
+    pm = np.zeros((8, 7))
+    pm[0, 0] = d[0]
+    pm[3, 0] = d[1]
+    pm[1, 1] = 1.0
+    pm[2, 2] = 1.0
+    pm[4, 3] = 1.0
+    pm[5, 4] = 1.0
+    pm[6, 5] = 1.0
+    pm[7, 6] = 1.0
+    for i in range(7):
+        s = 0.0
+        for k in range(8):
+            s += pm[k, i] * rhs[k]
+        bred[i] = s
+        for j in range(7):
+            s = 0.0
+            for k in range(8):
+                if pm[k, i] != 0.0:
+                    for m in range(8):
+                        s += pm[k, i] * nmat[k, m] * pm[m, j]
+            nred[i, j] = s
+    return 7
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _expand(xred, d, constrained, delta):
+    if not constrained:
+        for i in range(8):
+            delta[i] = xred[i]
+        return
+    delta[0] = d[0] * xred[0]
+    delta[3] = d[1] * xred[0]
+    delta[1] = xred[1]
+    delta[2] = xred[2]
+    delta[4] = xred[3]
+    delta[5] = xred[4]
+    delta[6] = xred[5]
+    delta[7] = xred[6]
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _mixing(p, tmat):
+    """T(p): template-gradient Jacobian J = T j (module docstring); False if det(A) ~ 0."""
+    det = p[1] * p[5] - p[2] * p[4]
+    if abs(det) < 1e-12 or abs(p[7]) < 1e-12:
+        return False
+    # B = A^{-T}, A = [[a1, a2], [b1, b2]]
+    b00 = p[5] / det
+    b01 = -p[4] / det
+    b10 = -p[2] / det
+    b11 = p[1] / det
+    for i in range(8):
+        for j in range(8):
+            tmat[i, j] = 0.0
+    for k in range(3):
+        tmat[k, k] = b00
+        tmat[k, 3 + k] = b01
+        tmat[3 + k, k] = b10
+        tmat[3 + k, 3 + k] = b11
+    tmat[6, 6] = 1.0
+    tmat[7, 7] = 1.0 / p[7]
+    tmat[7, 6] = -p[6] / p[7]
+    return True
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat):
+    """Sample the template patch and its gradients; accumulate H = sum j j^T.
+
+    At an integer centre the pixels are read directly and the gradients are central
+    differences (they only steer the iterations; the final step uses exact gradients).
+    """
+    integer = cx == np.floor(cx) and cy == np.floor(cy)
+    icx = int(cx)
+    icy = int(cy)
+    wx = np.empty(4)
+    dwx = np.empty(4)
+    wy = np.empty(4)
+    dwy = np.empty(4)
+    out = np.empty(3)
+    jv = np.empty(8)
+    for i in range(8):
+        for j in range(8):
+            hmat[i, j] = 0.0
+    n = 0
+    for iy in range(-half, half + 1):
+        for ix in range(-half, half + 1):
+            if integer:
+                r = icy + iy
+                q = icx + ix
+                out[0] = fraw[r, q]
+                out[1] = 0.5 * (fraw[r, q + 1] - fraw[r, q - 1])
+                out[2] = 0.5 * (fraw[r + 1, q] - fraw[r - 1, q])
+            else:
+                _sample(fimg, cx + ix, cy + iy, kind, wx, dwx, wy, dwy, True, out)
+            fv[n] = out[0]
+            fx[n] = out[1]
+            fy[n] = out[2]
+            jv[0] = out[1]
+            jv[1] = out[1] * ix
+            jv[2] = out[1] * iy
+            jv[3] = out[2]
+            jv[4] = out[2] * ix
+            jv[5] = out[2] * iy
+            jv[6] = 1.0
+            jv[7] = out[0]
+            for i in range(8):
+                for j in range(i + 1):
+                    hmat[i, j] += jv[i] * jv[j]
+            n += 1
+    for i in range(8):
+        for j in range(i + 1, 8):
+            hmat[i, j] = hmat[j, i]
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _ic_rhs(gimg, p, half, kind, fv, fx, fy, c):
+    """c = sum j v over the patch with v = f - r0 - r1 g(W(x)) (values only)."""
+    wx = np.empty(4)
+    dwx = np.empty(4)
+    wy = np.empty(4)
+    dwy = np.empty(4)
+    out = np.empty(3)
+    for i in range(8):
+        c[i] = 0.0
+    n = 0
+    for iy in range(-half, half + 1):
+        for ix in range(-half, half + 1):
+            u = p[0] + p[1] * ix + p[2] * iy
+            v = p[3] + p[4] * ix + p[5] * iy
+            _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
+            res = fv[n] - p[6] - p[7] * out[0]
+            rx = fx[n] * res
+            ry = fy[n] * res
+            c[0] += rx
+            c[1] += rx * ix
+            c[2] += rx * iy
+            c[3] += ry
+            c[4] += ry * ix
+            c[5] += ry * iy
+            c[6] += res
+            c[7] += fv[n] * res
+            n += 1
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _exact_normals(gimg, p, half, kind, fv, nmat, rhs, stats):
+    """Exact forward-additive normal equations at p; stats = [vtv, sf, sg, sff, sgg, sfg]."""
+    wx = np.empty(4)
+    dwx = np.empty(4)
+    wy = np.empty(4)
+    dwy = np.empty(4)
+    out = np.empty(3)
+    jv = np.empty(8)
+    for i in range(8):
+        rhs[i] = 0.0
+        for j in range(8):
+            nmat[i, j] = 0.0
+    for i in range(6):
+        stats[i] = 0.0
+    n = 0
+    for iy in range(-half, half + 1):
+        for ix in range(-half, half + 1):
+            u = p[0] + p[1] * ix + p[2] * iy
+            v = p[3] + p[4] * ix + p[5] * iy
+            _sample(gimg, u, v, kind, wx, dwx, wy, dwy, True, out)
+            gval = out[0]
+            gu = p[7] * out[1]
+            gv = p[7] * out[2]
+            res = fv[n] - p[6] - p[7] * gval
+            jv[0] = gu
+            jv[1] = gu * ix
+            jv[2] = gu * iy
+            jv[3] = gv
+            jv[4] = gv * ix
+            jv[5] = gv * iy
+            jv[6] = 1.0
+            jv[7] = gval
+            for i in range(8):
+                rhs[i] += jv[i] * res
+                for j in range(i + 1):
+                    nmat[i, j] += jv[i] * jv[j]
+            stats[0] += res * res
+            stats[1] += fv[n]
+            stats[2] += gval
+            stats[3] += fv[n] * fv[n]
+            stats[4] += gval * gval
+            stats[5] += fv[n] * gval
+            n += 1
+    for i in range(8):
+        for j in range(i + 1, 8):
+            nmat[i, j] = nmat[j, i]
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _solve_point(fimg, fraw, gimg, centre, approx, direction, constrained, half, kind, max_iter,
+                 tol, max_shift, det_min, min_texture, p_out, cov_out, sig0_out, corr_out):
+    """Gauss-Newton LSM for one patch; returns (status, iterations, converged)."""
+    npix = (2 * half + 1) ** 2
+    fh, fw = fimg.shape
+    gh, gw = gimg.shape
+    cx = centre[0]
+    cy = centre[1]
+    if not (cx - half >= 1.0 and cy - half >= 1.0 and cx + half < fw - 2.0
+            and cy + half < fh - 2.0):
+        return 6, 0, False
+    fv = np.empty(npix)
+    fx = np.empty(npix)
+    fy = np.empty(npix)
+    hmat = np.empty((8, 8))
+    _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat)
+    # texture: smallest eigenvalue of the mean structure tensor
+    sxx = hmat[0, 0] / npix
+    syy = hmat[3, 3] / npix
+    sxy = hmat[0, 3] / npix
+    lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+    if not lam_min > min_texture:
+        return 7, 0, False
+    d = direction
+    p = np.empty(8)
+    p[0] = approx[0]
+    p[1] = 1.0
+    p[2] = 0.0
+    p[3] = approx[1]
+    p[4] = 0.0
+    p[5] = 1.0
+    p[6] = 0.0
+    p[7] = 1.0
+    # initial radiometry from the patch means/stds would bias nothing; start at identity
+    tmat = np.empty((8, 8))
+    tt = np.empty((8, 8))
+    nmat = np.empty((8, 8))
+    nred = np.empty((8, 8))
+    c = np.empty(8)
+    rhs = np.empty(8)
+    bred = np.empty(8)
+    xred = np.empty(8)
+    delta = np.empty(8)
+    stats = np.empty(6)
+    converged = False
+    it = 0
+    status = 0
+    while it < max_iter:
+        it += 1
+        if not _inside(p, half, gw, gh):
+            return 6, it, False
+        if not _mixing(p, tmat):
+            return 4, it, False
+        _ic_rhs(gimg, p, half, kind, fv, fx, fy, c)
+        # N = T H T^T, rhs = T c
+        for i in range(8):
+            for j in range(8):
+                s = 0.0
+                for k in range(8):
+                    s += tmat[i, k] * hmat[k, j]
+                tt[i, j] = s
+        for i in range(8):
+            s = 0.0
+            for k in range(8):
+                s += tmat[i, k] * c[k]
+            rhs[i] = s
+            for j in range(8):
+                s = 0.0
+                for k in range(8):
+                    s += tt[i, k] * tmat[j, k]
+                nmat[i, j] = s
+        m = _reduce(nmat, rhs, d, constrained, nred, bred)
+        if not _cholesky_solve(nred, bred, m, xred):
+            return 7, it, False
+        _expand(xred, d, constrained, delta)
+        for i in range(8):
+            p[i] += delta[i]
+        if not np.isfinite(p[0] + p[3]):
+            return 1, it, False
+        if (p[0] - approx[0]) ** 2 + (p[3] - approx[1]) ** 2 > max_shift * max_shift:
+            return 3, it, False
+        if np.sqrt(delta[0] ** 2 + delta[3] ** 2) < tol:
+            converged = True
+            break
+    det = p[1] * p[5] - p[2] * p[4]
+    if not (det > det_min and det < 1.0 / det_min and p[7] > det_min):
+        status = 4
+    if not _inside(p, half, gw, gh):
+        return 6, it, converged
+    # final exact forward-additive step: its normal matrix gives the covariance
+    _exact_normals(gimg, p, half, kind, fv, nmat, rhs, stats)
+    m = _reduce(nmat, rhs, d, constrained, nred, bred)
+    if not _cholesky_solve(nred, bred, m, xred):
+        return 7, it, False
+    _expand(xred, d, constrained, delta)
+    vtv = stats[0]
+    for i in range(m):
+        vtv -= xred[i] * bred[i]  # linearised residual after the step
+    for i in range(8):
+        p[i] += delta[i]
+        p_out[i] = p[i]
+    sig0sq = max(vtv, 0.0) / (npix - m)
+    sig0_out[0] = np.sqrt(sig0sq)
+    # covariance of the shift: rows of N_red^{-1} for the shift unknown(s)
+    unit = np.zeros(8)
+    col = np.empty(8)
+    if constrained:
+        unit[0] = 1.0
+        _cholesky_solve(nred, unit, m, col)
+        var_s = sig0sq * col[0]
+        cov_out[0, 0] = var_s * d[0] * d[0]
+        cov_out[0, 1] = var_s * d[0] * d[1]
+        cov_out[1, 0] = var_s * d[0] * d[1]
+        cov_out[1, 1] = var_s * d[1] * d[1]
+    else:
+        unit[0] = 1.0
+        _cholesky_solve(nred, unit, m, col)
+        cov_out[0, 0] = sig0sq * col[0]
+        cov_out[1, 0] = sig0sq * col[3]
+        unit[0] = 0.0
+        unit[3] = 1.0
+        _cholesky_solve(nred, unit, m, col)
+        cov_out[0, 1] = sig0sq * col[0]
+        cov_out[1, 1] = sig0sq * col[3]
+    sf = stats[1] / npix
+    sg = stats[2] / npix
+    vf = stats[3] / npix - sf * sf
+    vg = stats[4] / npix - sg * sg
+    cfg = stats[5] / npix - sf * sg
+    corr_out[0] = cfg / np.sqrt(vf * vg) if vf > 0.0 and vg > 0.0 else 0.0
+    if (p[0] - approx[0]) ** 2 + (p[3] - approx[1]) ** 2 > max_shift * max_shift:
+        return 3, it + 1, converged
+    if not converged:
+        return 1, it + 1, False
+    return status, it + 1, converged
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FM, error_model="numpy")
+def _lsm_batch(fimg, fraw, gimg, centres, approx, directions, constrained, half, kind, max_iter,
+               tol, max_shift, det_min, min_texture, params, cov, sigma0, corr, status, iters,
+               conv):
+    n = centres.shape[0]
+    for i in numba.prange(n):
+        s, it, cv = _solve_point(fimg, fraw, gimg, centres[i], approx[i], directions[i],
+                                 constrained, half, kind, max_iter, tol, max_shift, det_min,
+                                 min_texture,
+                                 params[i], cov[i], sigma0[i:i + 1], corr[i:i + 1])
+        status[i] = s
+        iters[i] = it
+        conv[i] = cv
+
+
+# --------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------
+
+
+def estimate_noise(image: np.ndarray) -> float:
+    """Image noise σ (grey levels) by Immerkaer's Laplacian-difference estimator [3]_.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey image.
+
+    Returns
+    -------
+    float
+        σ = sqrt(π/2) / (6 (W-2)(H-2)) Σ |I * N|, N = [[1,-2,1],[-2,4,-2],[1,-2,1]].
+        Texture adds to it, so it is an upper bound on textured images.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2 or min(img.shape) < 3:
+        raise ValueError(f"image must be a 2-D array of at least 3x3, got shape {img.shape}")
+    lap = (img[:-2, :-2] - 2 * img[:-2, 1:-1] + img[:-2, 2:]
+           - 2 * img[1:-1, :-2] + 4 * img[1:-1, 1:-1] - 2 * img[1:-1, 2:]
+           + img[2:, :-2] - 2 * img[2:, 1:-1] + img[2:, 2:])
+    return float(np.sqrt(np.pi / 2.0) * np.abs(lap).mean() / 6.0)
+
+
+@dataclass(frozen=True)
+class PreparedImage:
+    """An image ready for :func:`lsm_match`'s resampler.
+
+    Attributes
+    ----------
+    values : (H, W) float64
+        Pixel values, or cubic B-spline coefficients for ``interpolation == "spline"``.
+    raw : (H, W) float64
+        The pixel values themselves (templates at integer centres read them directly).
+    noise : float
+        Immerkaer noise estimate of the original image, grey levels.
+    interpolation : str
+        The resampler ``values`` is meant for.
+    """
+
+    values: np.ndarray
+    raw: np.ndarray
+    noise: float
+    interpolation: str
+
+
+def prepare_image(image, interpolation: str = DEFAULT_INTERPOLATION) -> PreparedImage:
+    """Prepare an image once for several :func:`lsm_match` calls (prefilter + noise).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey image, grey levels.
+    interpolation : {"bilinear", "bicubic", "spline"}
+    """
+    if interpolation not in _KIND:
+        raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
+    img = np.ascontiguousarray(image, dtype=np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"image must be a 2-D grey image, got shape {img.shape}")
+    noise = estimate_noise(img)
+    values = img
+    if interpolation == "spline":
+        values = ndimage.spline_filter(img, order=3, mode="mirror", output=np.float64)
+    return PreparedImage(values=values, raw=img, noise=noise, interpolation=interpolation)
+
+
+def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
+              interpolation: str = DEFAULT_INTERPOLATION, direction=None,
+              max_iter: int = 20, shift_stop_px: float | None = None,
+              max_shift_px: float | None = None, noise_sigma: float | None = None,
+              sigma0_factor: float = 2.5, min_correlation: float = 0.7,
+              min_texture_snr: float = 2.0) -> LSMResult:
+    """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
+
+    Parameters
+    ----------
+    template_image, search_image : (H, W) array_like or PreparedImage
+        Grey images (any real dtype; float32 and float64 give the same answer to
+        float32 precision).  The two may differ in size.  Pass :class:`PreparedImage`
+        (same ``interpolation``) to match several point sets without refiltering.
+    points : (N, 2) array_like
+        Template centres (x, y) in the template image, px (integer values avoid
+        resampling the template).
+    approx : (N, 2) array_like
+        Approximate positions of the centres in the search image, px; must lie within
+        the pull-in range (about a quarter of the patch for band-limited texture).
+    patch : int
+        Odd patch side, px (default 15).
+    interpolation : {"bilinear", "bicubic", "spline"}
+        Resampler of the search image: bilinear, Keys cubic convolution (a = -0.5) or
+        cubic B-spline interpolation (default; lowest zero-noise bias).
+    direction : (N, 2) or (2,) array_like, optional
+        Epipolar constraint: the shift (a0, b0) only moves along this direction from
+        ``approx`` (``(1, 0)`` for a rectified pair).  The covariance is then rank 1.
+    max_iter : int
+        Maximum Gauss-Newton iterations (default 20).
+    shift_stop_px : float, optional
+        Stop threshold on the shift update, px (default ``TOL.lsm_shift_stop_px``).
+    max_shift_px : float, optional
+        Pull-in range: reject a solution farther than this from ``approx`` (default
+        ``patch / 4``: a Gauss-Newton linearisation over the patch holds for shifts
+        below about a quarter of its width on texture the patch resolves).
+    noise_sigma : float, optional
+        Reference σ0 for the residual test, grey levels.  Default: the median σ0 of the
+        converged points when there are at least 30 of them (the matching noise measured
+        on the data), else ``sqrt(2)`` x Immerkaer's noise estimate of the search image.
+    sigma0_factor : float
+        Reject when σ0 > ``sigma0_factor`` x reference (default 2.5: 6x the noise
+        variance; a correct match has σ0/σ ~ 1 ± sqrt(2/(n-u)) ≈ 1 ± 0.1).
+    min_correlation : float
+        Reject when the correlation coefficient is below this (default 0.7: the
+        signal explains under half the patch variance).
+    min_texture_snr : float
+        Reject as textureless when the smaller eigenvalue of the template's mean
+        structure tensor is below ``min_texture_snr`` x σ_n²/2 (σ_n²/2 = what noise of
+        σ_n alone gives a central-difference gradient), σ_n = Immerkaer's estimate for
+        the template image (and never below ``TOL.zero``).
+
+    Returns
+    -------
+    LSMResult
+        Positions, affine and radiometric parameters, precision and a status per point.
+
+    Notes
+    -----
+    The iterations use the template-gradient Jacobian (cheap, module docstring) and a
+    final exact Gauss-Newton step gives the least-squares solution and its covariance
+    σ0² (AᵀA)⁻¹ restricted to the shift.
+    """
+    if interpolation not in _KIND:
+        raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
+    if not (isinstance(patch, int | np.integer) and patch >= 5 and patch % 2 == 1):
+        raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
+    if max_iter < 1:
+        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    approx = check_shape(approx, "(N, 2)", "approx", dtype=np.float64)
+    if len(points) != len(approx):
+        raise ValueError(f"points and approx must have the same length, got {len(points)} "
+                         f"and {len(approx)}")
+    images = []
+    for name, img in (("template_image", template_image), ("search_image", search_image)):
+        if not isinstance(img, PreparedImage):
+            if np.ndim(img) != 2:
+                raise ValueError(f"{name} must be a 2-D grey image, got shape {np.shape(img)}")
+            img = prepare_image(img, interpolation)
+        elif img.interpolation != interpolation:
+            raise ValueError(f"{name} was prepared for {img.interpolation!r}, "
+                             f"not {interpolation!r}")
+        images.append(img)
+    fprep, gprep = images
+    constrained = direction is not None
+    if constrained:
+        dirs = np.broadcast_to(np.asarray(direction, dtype=np.float64), points.shape).copy()
+        norm = np.linalg.norm(dirs, axis=1)
+        if not np.all(norm > TOL.zero):
+            raise ValueError("direction must be non-zero for every point")
+        dirs /= norm[:, None]
+    else:
+        dirs = np.zeros_like(points)
+    tol = TOL.lsm_shift_stop_px if shift_stop_px is None else float(shift_stop_px)
+    max_shift = 0.25 * patch if max_shift_px is None else float(max_shift_px)
+    fimg, gimg = fprep.values, gprep.values
+    noise_f = fprep.noise
+    min_texture = max(min_texture_snr * 0.5 * noise_f**2, TOL.zero)
+    n = len(points)
+    params = np.full((n, 8), np.nan)
+    cov = np.full((n, 2, 2), np.nan)
+    sigma0 = np.full(n, np.nan)
+    corr = np.full(n, np.nan)
+    status = np.zeros(n, np.uint8)
+    iters = np.zeros(n, np.int32)
+    conv = np.zeros(n, np.bool_)
+    finite = np.isfinite(points).all(1) & np.isfinite(approx).all(1)
+    status[~finite] = Status.NO_CONVERGENCE
+    idx = np.flatnonzero(finite)
+    if len(idx):
+        sub = [params[idx], cov[idx], sigma0[idx], corr[idx], status[idx], iters[idx],
+               conv[idx]]
+        _lsm_batch(fimg, fprep.raw, gimg, np.ascontiguousarray(points[idx]),
+                   np.ascontiguousarray(approx[idx]), np.ascontiguousarray(dirs[idx]),
+                   constrained, patch // 2, _KIND[interpolation], int(max_iter), tol,
+                   max_shift, TOL.affine_det_min, min_texture, *sub)
+        for full, part in zip((params, cov, sigma0, corr, status, iters, conv), sub,
+                              strict=True):
+            full[idx] = part
+    good = status == Status.OK
+    if noise_sigma is not None:
+        # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
+        gain = float(np.median(params[good, 7])) if good.any() else 1.0
+        ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
+    elif good.sum() >= 30:
+        ref = float(np.median(sigma0[good]))
+    else:
+        ref = float(np.hypot(fprep.noise, gprep.noise))
+    ok = status == Status.OK
+    status[ok & (sigma0 > sigma0_factor * ref)] = Status.SIGMA0_TOO_LARGE
+    ok = status == Status.OK
+    status[ok & ~(corr >= min_correlation)] = Status.LOW_CORRELATION
+    return LSMResult(position=params[:, [0, 3]], affine=params[:, :6],
+                     radiometric=params[:, 6:], converged=conv, iterations=iters,
+                     sigma0=sigma0, cov=cov, correlation=corr, status=status,
+                     noise_sigma0=float(ref))
