@@ -85,7 +85,8 @@ def _to_pixels(xy: np.ndarray, lo: np.ndarray, scale: float, height: int) -> np.
 
 
 def _panel(points_xy: list[np.ndarray], curves_xy: list[np.ndarray], colors: np.ndarray,
-           title: str, xlabel: str, ylabel: str, closed: bool) -> np.ndarray:
+           curve_colors: np.ndarray, title: str, xlabel: str, ylabel: str,
+           closed: bool) -> np.ndarray:
     """One plot: dots for section points, lines for curves, equal axis scales."""
     import cv2
 
@@ -100,14 +101,18 @@ def _panel(points_xy: list[np.ndarray], curves_xy: list[np.ndarray], colors: np.
     scale = float(min((width - 2 * _MARGIN) / span[0], (height - 2 * _MARGIN) / span[1]))
     cv2.rectangle(canvas, (_MARGIN - 4, _MARGIN - 4),
                   (width - _MARGIN + 4, height - _MARGIN + 4), (200, 200, 200), 1)
+    # with curves: points grey, curves in their section's colour; without: points coloured
+    dot = np.array([150, 150, 150], np.uint8)
     for pts, color in zip(points_xy, colors, strict=True):
         if len(pts):
             px = _to_pixels(pts, lo, scale, height)
-            canvas[np.clip(px[:, 1], 0, height - 1), np.clip(px[:, 0], 0, width - 1)] = color
-    for curve in curves_xy:
+            canvas[np.clip(px[:, 1], 0, height - 1), np.clip(px[:, 0], 0, width - 1)] = \
+                dot if curves_xy else color
+    for curve, color in zip(curves_xy, curve_colors, strict=True):
         if len(curve) > 1:
             px = _to_pixels(curve, lo, scale, height)
-            cv2.polylines(canvas, [px.reshape(-1, 1, 2)], closed, (20, 20, 20), 1, cv2.LINE_AA)
+            cv2.polylines(canvas, [px.reshape(-1, 1, 2)], closed,
+                          tuple(int(c) for c in color), 1, cv2.LINE_AA)
     font = cv2.FONT_HERSHEY_SIMPLEX
     cv2.putText(canvas, title, (_MARGIN, 22), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(canvas, xlabel, (width // 2 - 20, height - 10), font, 0.42, (60, 60, 60), 1,
@@ -143,6 +148,7 @@ def sections_plot(sections: Mapping[str, np.ndarray], curves: Mapping[str, np.nd
     side = [np.column_stack([(g - origin) @ frame[0], g @ frame[2]]) for g in groups]
     top_curves: list[np.ndarray] = []
     side_curves: list[np.ndarray] = []
+    curve_colors = np.zeros((0, 3), np.uint8)
     if curves is not None:
         c_points = np.asarray(curves["points"], np.float64)
         c_off = np.asarray(curves["offsets"])
@@ -150,9 +156,11 @@ def sections_plot(sections: Mapping[str, np.ndarray], curves: Mapping[str, np.nd
             ring = c_points[a:b]
             top_curves.append((ring - origin) @ frame[:2].T)
             side_curves.append(np.column_stack([(ring - origin) @ frame[0], ring @ frame[2]]))
-    left = _panel(top, top_curves, colors, f"{len(groups)} sections, top view", "e1", "e2",
-                  closed=True)
-    right = _panel(side, side_curves, colors, "side view", "e1", "h", closed=True)
+        ring_heights = np.array([r[:, 1].mean() for r in side_curves])
+        curve_colors = (viridis((ring_heights - heights.min()) / hspan) * 230).astype(np.uint8)
+    left = _panel(top, top_curves, colors, curve_colors, f"{len(groups)} sections, top view",
+                  "e1", "e2", closed=True)
+    right = _panel(side, side_curves, colors, curve_colors, "side view", "e1", "h", closed=True)
     return np.concatenate([left, right], axis=1)
 
 
@@ -288,7 +296,11 @@ def _truth_section(root, final, truth, params, info, read_mesh) -> str:
 
 
 def _run_section(manifest: Mapping) -> str:
-    stages = manifest.get("stages", {})
+    from pipeline.stages import STAGE_ORDER
+
+    recorded = manifest.get("stages", {})
+    order = [n for n in STAGE_ORDER if n in recorded] + sorted(set(recorded) - set(STAGE_ORDER))
+    stages = {name: recorded[name] for name in order}
     rows = []
     for name, rec in stages.items():
         extra = rec.get("reason", "") or ", ".join(

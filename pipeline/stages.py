@@ -438,6 +438,7 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
             ctx = StageContext(stage.name, ws, Path(tmp), params, config, input_paths, kind,
                                rig, executor)
             info = stage.func(ctx) or {}
+            _publish_permissions(Path(tmp))
     except Exception as exc:  # one line for the user; -v shows the chain
         seconds = time.perf_counter() - t0
         log.debug("stage %s failed:\n%s", stage.name, traceback.format_exc())
@@ -455,6 +456,15 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
         "finished": time.time(), "info": _jsonable(info),
     })
     return StageResult(stage.name, "done", seconds, info=_jsonable(info))
+
+
+def _publish_permissions(path: Path) -> None:
+    """Give a stage's outputs the user's usual modes (temporary names are created 0600/0700)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    paths = [path] + (list(path.rglob("*")) if path.is_dir() else [])
+    for p in paths:
+        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~umask)
 
 
 def _jsonable(value):
@@ -482,32 +492,21 @@ def _jsonable(value):
 #   sections/sections.npz points (P,3), offsets (K+1,), heights (K,), section_id (K,),
 #                         origin (K,3), frame (3,3), source_index (P,)
 #   curves/curves.npz     points (Q,3) of the resampled closed rings, offsets (R+1,),
-#                         section (R,), loop (R,)  (R rings; a section may hold several loops)
+#                         section (R,), loop (R,), heights (R,), axis (3,)
+#                         (R rings; a section may hold several loops)
 #   stitch/mesh.ply       the stitched mesh; stitch/stitch.json its notes
-#   smooth/surface.ply    the tessellated Bezier surface; smooth/control_net.npz its patches
-#   export/surface.*      the surface in every export format, with its control net
+#   smooth/surface.ply    the tessellated Bezier surface with its exact normals
+#   smooth/control_net.npz control_points (P,28,3), index (28,3), source_face (P,),
+#                         domain_vertices, domain_triangles (the refined control mesh)
+#   export/surface.*      the surface in every export format; export/surface.npz the
+#                         control net in pipeline.export's documented format
 
 def _scene(ctx: StageContext) -> dict:
     from pipeline import scenes
 
-    recipe = ctx.inputs[0]
     overrides = ctx.params["scene"].get("overrides", {})
-    if overrides:
-        import tomllib
-
-        import tomli_w
-
-        data = tomllib.loads(recipe.read_text(encoding="utf-8"))
-        _deep_set(data, overrides)
-        # the recipe may name files relative to itself: keep it in its folder
-        patched = recipe.parent / f".{recipe.stem}.photosurf-{os.getpid()}.toml"
-        try:
-            patched.write_text(tomli_w.dumps(data), encoding="utf-8")
-            scenes.render_scene(patched, ctx.out)
-        finally:
-            patched.unlink(missing_ok=True)
-    else:
-        scenes.render_scene(recipe, ctx.out)
+    recipe = scenes.load_recipe(ctx.inputs[0], overrides) if overrides else ctx.inputs[0]
+    scenes.render_scene(recipe, ctx.out, progress=progress.enabled())
     return {"views": len(list((ctx.out / "images").glob("*.png")))}
 
 
@@ -650,27 +649,54 @@ def _load_sections(ctx: StageContext) -> list:
 
 
 def _curves(ctx: StageContext) -> dict:
+    import warnings
+
     import numpy as np
 
     from pipeline.workspace import save_npz
-    from surface import catmull_rom
+    from surface import catmull_rom, topology
 
     p = ctx.params["curves"]
     sections = _load_sections(ctx)
-    rings = catmull_rom.predict_sections(sections, n=p["n"] or None, smoothing=p["smoothing"],
-                                         centripetal=p["centripetal"])
-    flat, sec, loop = [], [], []
-    for s, item in enumerate(rings):
-        loops = [item] if getattr(item, "ndim", 0) == 2 else list(item)
-        for lp, ring in enumerate(loops):
+    kept, loops = [], []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", topology.SectionSkippedWarning)
+        for section in ctx.track(sections, "loops", unit="section"):
+            found = topology.organise(section, outlier_threshold=p["outlier_threshold"])
+            if found:
+                kept.append(section)
+                loops.append(found)
+    skipped = [str(w.message) for w in caught]
+    for message in skipped:
+        log.warning("curves: %s", message)
+    if len(kept) < 2:
+        raise InputError(f"curves: {len(kept)} section(s) with a closed loop; stitching needs "
+                         "at least 2 (too few points, or set sections.count)")
+    n = p["n"] or _default_ring_count(kept, loops)
+    rings = catmull_rom.predict_sections(loops, n, smoothing=p["smoothing"],
+                                         parametrisation=p["parametrisation"])
+    flat, sec, loop_ids = [], [], []
+    for s_index, item in enumerate(rings):
+        for lp, ring in enumerate([item] if getattr(item, "ndim", 0) == 2 else list(item)):
             flat.append(np.asarray(ring, np.float64))
-            sec.append(s)
-            loop.append(lp)
+            sec.append(s_index)
+            loop_ids.append(lp)
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in flat])]).astype(np.int64)
     save_npz(ctx.out / "curves.npz", points=np.concatenate(flat), offsets=offsets,
-             section=np.array(sec, np.int64), loop=np.array(loop, np.int64),
-             axis=sections[0].frame[2])
-    return {"rings": len(flat), "points": int(offsets[-1])}
+             section=np.array(sec, np.int64), loop=np.array(loop_ids, np.int64),
+             heights=np.array([kept[k].height for k in sec]), axis=kept[0].frame[2])
+    return {"rings": len(flat), "n": int(n), "points": int(offsets[-1]),
+            "sections_without_loop": len(sections) - len(kept), "warnings": skipped}
+
+
+def _default_ring_count(sections: list, loops: list) -> int:
+    """N from the data: ring points as far apart as the sections (``surface.stitch``'s rule)."""
+    import numpy as np
+
+    from surface import stitch
+
+    delta = float(np.min(np.abs(np.diff([s.height for s in sections]))))
+    return max(4, int(np.ceil(stitch._largest_perimeter(loops) / delta)))
 
 
 def _load_rings(ctx: StageContext) -> tuple[list, object]:
@@ -710,21 +736,14 @@ def _smooth(ctx: StageContext) -> dict:
     from surface import bezier
 
     vertices, triangles = read_mesh(ctx.stage_path("stitch", "mesh.ply"))
-    net = bezier.control_net(vertices, triangles)
-    tess = bezier.tessellate(net, level=ctx.params["smooth"]["level"])
-    v, t, n = _mesh_arrays(tess)
+    surface = bezier.control_net(vertices, triangles)
+    v, t, n = bezier.tessellate(surface, level=ctx.params["smooth"]["level"])
     write_mesh(ctx.out / "surface.ply", v, t, normals=n)
-    control_points = getattr(net, "control_points", net)
-    save_npz(ctx.out / "control_net.npz", control_points=control_points,
-             **({"index": net.index} if hasattr(net, "index") else {}))
-    return {"patches": len(control_points), "vertices": len(v), "triangles": len(t)}
-
-
-def _mesh_arrays(mesh) -> tuple:
-    if isinstance(mesh, tuple):
-        return (tuple(mesh) + (None,))[:3]
-    get = mesh.get if isinstance(mesh, Mapping) else lambda k, d=None: getattr(mesh, k, d)
-    return get("vertices"), get("triangles"), get("normals")
+    domain_vertices, domain_triangles = surface.domain_mesh
+    save_npz(ctx.out / "control_net.npz", control_points=surface.control_points,
+             index=bezier.index_table(), source_face=surface.source_face,
+             domain_vertices=domain_vertices, domain_triangles=domain_triangles)
+    return {"patches": len(surface.control_points), "vertices": len(v), "triangles": len(t)}
 
 
 def _export(ctx: StageContext) -> dict:
@@ -733,20 +752,27 @@ def _export(ctx: StageContext) -> dict:
     from pipeline import export
     from pipeline.mesh_io import read_mesh
 
-    surface = ctx.stage_path("smooth", "surface.ply")
-    vertices, triangles = read_mesh(surface)
-    with np.load(ctx.stage_path("smooth", "control_net.npz")) as net:
-        control_points = net["control_points"]
-        index = net["index"] if "index" in net.files else None
+    vertices, triangles = read_mesh(ctx.stage_path("smooth", "surface.ply"))
+    normals = _ply_normals(ctx.stage_path("smooth", "surface.ply"))
     written = []
     for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):
-        path = ctx.out / f"surface.{fmt}"
-        export.export_mesh(path, vertices, triangles)
+        path = ctx.out / f"surface.{str(fmt).lower().lstrip('.')}"
+        export.export_mesh(path, vertices, triangles, normals=normals)
         written.append(path.name)
-    if index is not None:
-        export.write_control_net(ctx.out / "control_net.npz", control_points, index)
-        written.append("control_net.npz")
+    with np.load(ctx.stage_path("smooth", "control_net.npz")) as net:
+        export.write_control_net(ctx.out / "surface.npz", net["control_points"], net["index"],
+                                 net["source_face"])
+    written.append("surface.npz")
     return {"files": written}
+
+
+def _ply_normals(path: Path):
+    """The exact Bezier normals stored in the smooth surface's PLY (None if absent)."""
+    import numpy as np
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    return np.asarray(mesh.vertex_normals, np.float64) if mesh.has_vertex_normals() else None
 
 
 def _report(ctx: StageContext) -> dict:
@@ -764,13 +790,14 @@ STAGES: list[Stage] = [
     Stage("sections", _sections, params=("sections",), needs=("acquire",),
           modules=("surface.sections:slice_sections",)),
     Stage("curves", _curves, params=("curves",), needs=("sections",),
-          modules=("surface.catmull_rom:predict_sections",)),
+          modules=("surface.topology:organise", "surface.catmull_rom:predict_sections",
+                   "surface.stitch:_largest_perimeter")),
     Stage("stitch", _stitch, params=("stitch",), needs=("curves",),
           modules=("surface.stitch:stitch_rings",)),
     Stage("smooth", _smooth, params=("smooth",), needs=("stitch",),
           modules=("surface.bezier:control_net", "surface.bezier:tessellate")),
     Stage("export", _export, params=("export",), needs=("smooth",),
-          modules=("pipeline.export:export_mesh",)),
+          modules=("pipeline.export:export_mesh", "pipeline.export:write_control_net")),
     Stage("report", _report, params=("report",), target="report.html",
           optional_needs=("scene", "acquire", "sections", "curves", "stitch", "smooth"),
           modules=("pipeline.render:render_mesh", "surface.metrics:compare_meshes")),

@@ -103,7 +103,15 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.external_attr = 0o644 << 16
             zf.writestr(info, buffer.getvalue())
+        _usual_mode(tmp)
     return path
+
+
+def _usual_mode(path: Path) -> None:
+    """Give a temporary file (created 0600 by mkstemp) the user's usual mode."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, 0o666 & ~umask)
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
@@ -111,6 +119,7 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     path = Path(path)
     with atomic_file(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+        _usual_mode(tmp)
     return path
 
 
