@@ -208,7 +208,7 @@ def test_config_resolution(tmp_path):
     ("sections.cuont=3",
      r"unknown parameter 'sections.cuont' \(known: axis, count, spacing, thickness\)"),
     ("nosuch.key=3", r"unknown section 'nosuch'"),
-    ("smooth.level=high", r"smooth.level must be int \(like 3\), got 'high'"),
+    ("smooth.level=high", r"smooth.level must be int \(like 1\), got 'high'"),
     ("smooth.level=2.5", r"smooth.level must be int"),
     ("stitch.caps=1", r"stitch.caps must be bool"),
     ("smoothlevel", r"expected section.key=value"),
