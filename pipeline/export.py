@@ -411,12 +411,19 @@ class ControlNet:
         The triangle of the input control mesh each patch lies over (``-1``
         when unknown).
     format_version : int
+    domain_vertices : (D, 3) float64 or None
+    domain_triangles : (P, 3) int64 or None
+        The triangle mesh the patches are built over (patch ``p``'s corners
+        ``b_600, b_060, b_006`` lie over ``domain_triangles[p]``): which
+        patches share an edge, for re-tessellating without cracks.
     """
 
     control_points: np.ndarray
     index: np.ndarray
     source_face: np.ndarray
     format_version: int = CONTROL_NET_VERSION
+    domain_vertices: np.ndarray | None = None
+    domain_triangles: np.ndarray | None = None
 
     def evaluate(self, barycentric: np.ndarray) -> np.ndarray:
         """Points of every patch at the barycentric coordinates ``(r, s, t)``.
@@ -448,7 +455,7 @@ def _check_index(index) -> np.ndarray:
     return index.astype(np.int64)
 
 
-def _net_arrays(control_points, index, source_face) -> dict:
+def _net_arrays(control_points, index, source_face, domain_mesh=None) -> dict:
     control_points = check_shape(control_points, f"(P, {N_CONTROL}, 3)", "control_points",
                                  dtype=np.float64)
     check_finite(control_points, "control_points")
@@ -459,25 +466,40 @@ def _net_arrays(control_points, index, source_face) -> dict:
     if len(source_face) != len(control_points):
         raise ValueError(f"source_face must have one entry per patch ({len(control_points)}), "
                          f"got {len(source_face)}")
-    return {"format": np.array(CONTROL_NET_FORMAT), "format_version": np.int64(CONTROL_NET_VERSION),
-            "degree": np.int64(DEGREE), "control_points": control_points, "index": index,
-            "source_face": source_face}
+    arrays = {"format": np.array(CONTROL_NET_FORMAT),
+              "format_version": np.int64(CONTROL_NET_VERSION), "degree": np.int64(DEGREE),
+              "control_points": control_points, "index": index, "source_face": source_face}
+    if domain_mesh is not None:
+        domain_vertices = check_shape(domain_mesh[0], "(D, 3)", "domain_vertices",
+                                      dtype=np.float64)
+        domain_triangles = check_shape(domain_mesh[1], "(P, 3)", "domain_triangles")
+        if len(domain_triangles) != len(control_points) or (
+                domain_triangles.size and (domain_triangles.min() < 0
+                                           or domain_triangles.max() >= len(domain_vertices))):
+            raise ValueError(f"domain_triangles must be ({len(control_points)}, 3) indices "
+                             f"into {len(domain_vertices)} domain vertices")
+        arrays["domain_vertices"] = domain_vertices
+        arrays["domain_triangles"] = domain_triangles.astype(np.int64)
+    return arrays
 
 
 def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index: np.ndarray,
-                      source_face: np.ndarray | None = None) -> Path:
+                      source_face: np.ndarray | None = None,
+                      domain_mesh: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Write the Bézier control net as an uncompressed ``.npz``, atomically.
 
     Arrays in the file (read them with ``numpy.load(path)``; no pickles):
 
-    ==================  ===============  ============================================
-    ``format``          str              ``"photosurf.bezier_control_net"``
-    ``format_version``  int64            1
-    ``degree``          int64            6
-    ``control_points``  (P, 28, 3) f8    :math:`P_{p,ijk}`, row ``m`` ↔ ``index[m]``
-    ``index``           (28, 3) int64    the (i, j, k), ``i + j + k = 6``
-    ``source_face``     (P,) int64       input-mesh triangle under each patch, or -1
-    ==================  ===============  ============================================
+    ====================  ===============  ==========================================
+    ``format``            str              ``"photosurf.bezier_control_net"``
+    ``format_version``    int64            1
+    ``degree``            int64            6
+    ``control_points``    (P, 28, 3) f8    :math:`P_{p,ijk}`, row ``m`` ↔ ``index[m]``
+    ``index``             (28, 3) int64    the (i, j, k), ``i + j + k = 6``
+    ``source_face``       (P,) int64       input-mesh triangle under each patch, or -1
+    ``domain_vertices``   (D, 3) f8        optional: the mesh the patches lie over,
+    ``domain_triangles``  (P, 3) int64     patch p's corners over row p (shared edges)
+    ====================  ===============  ==========================================
 
     Patch ``p`` is :math:`S_p(r,s,t)=\\sum 6!/(i!j!k!)\\,r^i s^j t^k P_{p,ijk}`
     (module docstring).
@@ -488,6 +510,8 @@ def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index
     control_points : (P, 28, 3) float64
     index : (28, 3) int
     source_face : (P,) int, optional
+    domain_mesh : ((D, 3) float64, (P, 3) int), optional
+        The triangle mesh the patches lie over (``BezierSurface.domain_mesh``).
 
     Returns
     -------
@@ -496,7 +520,7 @@ def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index
     path = Path(path)
     if path.suffix.lower() != ".npz":
         raise InputError(f"{path}: the control net is written as .npz")
-    arrays = _net_arrays(control_points, index, source_face)
+    arrays = _net_arrays(control_points, index, source_face, domain_mesh)
     with atomic_file(path) as tmp:
         np.savez(tmp, **arrays)
     return path
@@ -526,17 +550,22 @@ def read_control_net(path: str | os.PathLike) -> ControlNet:
     if version != CONTROL_NET_VERSION:
         raise InputError(f"{path}: control-net format version {version} is not supported "
                          f"(this reader knows {CONTROL_NET_VERSION})")
+    domain = ((arrays["domain_vertices"], arrays["domain_triangles"])
+              if "domain_vertices" in arrays and "domain_triangles" in arrays else None)
     try:
-        checked = _net_arrays(arrays["control_points"], arrays["index"], arrays["source_face"])
+        checked = _net_arrays(arrays["control_points"], arrays["index"], arrays["source_face"],
+                              domain)
     except (KeyError, ValueError) as exc:
         raise InputError(f"{path}: {exc}") from exc
     return ControlNet(checked["control_points"], checked["index"], checked["source_face"],
-                      version)
+                      version, checked.get("domain_vertices"), checked.get("domain_triangles"))
 
 
 def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
                    normals: np.ndarray | None, control_points: np.ndarray, index: np.ndarray,
-                   source_face: np.ndarray | None = None) -> tuple[Path, Path]:
+                   source_face: np.ndarray | None = None,
+                   domain_mesh: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[Path, Path]:
     """Write the tessellated mesh to ``path`` and its control net to ``path.npz``.
 
     Both files are written to temporaries first and renamed only when both
@@ -549,7 +578,7 @@ def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.
         ``path.with_suffix(".npz")``.
     vertices, triangles, normals
         As :func:`export_mesh`.
-    control_points, index, source_face
+    control_points, index, source_face, domain_mesh
         As :func:`write_control_net`.
 
     Returns
@@ -565,7 +594,7 @@ def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.
     vertices, triangles, normals, _ = _check_mesh(vertices, triangles, normals)
     if normals is None:
         normals = vertex_normals(vertices, triangles)
-    arrays = _net_arrays(control_points, index, source_face)
+    arrays = _net_arrays(control_points, index, source_face, domain_mesh)
     with contextlib.ExitStack() as stack:
         tmp_mesh = stack.enter_context(atomic_file(path))
         tmp_net = stack.enter_context(atomic_file(net_path))

@@ -10,7 +10,9 @@ itself, so ``.glb`` is not offered here (see
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -87,3 +89,79 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndar
         if not ok:
             raise OSError(f"{path}: open3d could not write the mesh")
     return path
+
+
+# --------------------------------------------------------------------------- additions for
+# the smooth/render commands (pipeline/cmd_smooth.py, pipeline/cmd_render.py)
+
+
+@contextlib.contextmanager
+def quiet_native_stderr() -> Iterator[None]:
+    """Silence C-level writes to file descriptor 2 (open3d's RPly, tinyobj) for a moment.
+
+    The CLI promises one error line on bad input; open3d's file parsers print
+    their own diagnostics straight to fd 2, which ``VerbosityLevel`` does not
+    reach.  Python-level ``sys.stderr`` is untouched.
+    """
+    try:
+        saved = os.dup(2)
+    except OSError:  # no fd 2 (embedded interpreter): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
+def read_mesh_with_normals(path: str | os.PathLike, quiet: bool = True
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`read_mesh` plus the file's vertex normals, if it stores any.
+
+    Returns
+    -------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    normals : (V, 3) float64 or None
+        Unit vertex normals as stored (PLY, OBJ, glTF, GLB), ``None`` when the
+        file has none (STL stores facet normals only, so ``None``).
+    """
+    import open3d as o3d
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such mesh file")
+    with contextlib.ExitStack() as stack:
+        if quiet:
+            stack.enter_context(quiet_native_stderr())
+            stack.enter_context(o3d.utility.VerbosityContextManager(
+                o3d.utility.VerbosityLevel.Error))
+        vertices, triangles = read_mesh(path)
+        normals = None
+        if path.suffix.lower() != ".stl":
+            mesh = o3d.io.read_triangle_mesh(str(path))
+            if mesh.has_vertex_normals() and len(mesh.vertex_normals) == len(vertices):
+                normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
+                if not np.all(np.isfinite(normals)):
+                    normals = None
+    return vertices, triangles, normals
+
+
+def weld_vertices(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices with bit-identical positions (STL stores three per facet).
+
+    Exact equality only, no distance tolerance: two distinct vertices of a
+    real mesh never coincide exactly unless the file split them.
+
+    Returns
+    -------
+    vertices : (U, 3) float64, U <= V
+    triangles : (F, 3) int64, re-indexed
+    """
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)[triangles]
