@@ -53,6 +53,10 @@ from scipy import ndimage
 
 from matching.validate import TOL, check_shape
 
+# The TBB layer numba tries first is too old here and warns; OpenMP works on every
+# platform numba wheels ship for, the work queue is the fallback.
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+
 
 class Status(IntEnum):
     """Why a point was accepted or rejected (``LSMResult.status``)."""
