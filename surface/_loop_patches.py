@@ -12,7 +12,7 @@ only Python loops run over ring positions (<= max valence) and valence classes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -211,7 +211,7 @@ def _control_index(multi: np.ndarray) -> np.ndarray:
     return m * (m + 1) // 2 + multi[..., 2]
 
 
-@lru_cache(maxsize=None)
+@cache
 def corner_rotation(corner: int, degree: int = DEGREE) -> np.ndarray:
     """Index array ``q`` with ``net_rotated = net[..., q, :]``.
 
@@ -225,7 +225,7 @@ def corner_rotation(corner: int, degree: int = DEGREE) -> np.ndarray:
     return _control_index(face)
 
 
-@lru_cache(maxsize=None)
+@cache
 def bernstein_interpolation_inverse(degree: int) -> np.ndarray:
     """Inverse of the Bernstein matrix at the uniform grid ``(i, j, k) / degree``."""
     from surface.bezier import bernstein_matrix
@@ -364,7 +364,7 @@ def _spoke_share_rows(n: int, i: int) -> np.ndarray:
     return np.array(rows)
 
 
-@lru_cache(maxsize=None)
+@cache
 def ring_operator(n: int) -> np.ndarray:
     """Linear map from the data of a valence-n vertex to its n sextic ring patches.
 

@@ -78,7 +78,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from math import factorial
 
 import numpy as np
@@ -107,9 +107,10 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- index order
-@lru_cache(maxsize=None)
+@cache
 def _index_table(degree: int) -> np.ndarray:
-    rows = [(i, j, degree - i - j) for i in range(degree, -1, -1) for j in range(degree - i, -1, -1)]
+    rows = [(i, j, degree - i - j) for i in range(degree, -1, -1)
+            for j in range(degree - i, -1, -1)]
     table = np.array(rows, dtype=np.int64).reshape(-1, 3)
     table.flags.writeable = False
     return table
@@ -269,7 +270,8 @@ def _casteljau_step(degree: int, weights: np.ndarray) -> np.ndarray:
     for axis in range(3):
         shifted = low.copy()
         shifted[:, axis] += 1
-        step[rows, control_index(shifted[:, 0], shifted[:, 1], shifted[:, 2], degree)] += weights[axis]
+        cols = control_index(shifted[:, 0], shifted[:, 1], shifted[:, 2], degree)
+        step[rows, cols] += weights[axis]
     return step
 
 
@@ -300,7 +302,7 @@ _CHILD_CORNERS = np.array([
 ])
 
 
-@lru_cache(maxsize=None)
+@cache
 def _subdivision_matrices() -> np.ndarray:
     mats = np.stack([_blossom_matrix(c) for c in _CHILD_CORNERS])
     mats.flags.writeable = False
@@ -326,7 +328,7 @@ def subdivide(control_points) -> np.ndarray:
     return children.reshape(-1, N_CONTROL, 3)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _elevation_matrix(degree: int) -> np.ndarray:
     """``(N_{d+1}, N_d)`` degree elevation: ``b'_a = sum_e (a_e / (d+1)) b_{a - e}``."""
     high, low = index_table(degree + 1), index_table(degree)
@@ -354,7 +356,7 @@ def elevate(control_points, to_degree: int = DEGREE) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- tessellation
-@lru_cache(maxsize=None)
+@cache
 def _grid(segments: int):
     """Sample grid of a patch: bary (S, 3), local triangles, and sample kinds."""
     idx = index_table(segments)  # (S, 3) as (a, b, c), a + b + c = segments

@@ -1,0 +1,424 @@
+"""Tests of surface.bezier: Loop's G1 sextic triangular Bézier surface.
+
+Tolerances: the construction and evaluation are a few hundred floating-point
+operations deep on coordinates of size ~1, so exact identities hold to
+~1e-14 x the mesh size; the issue's limits (gap <= 1e-12 x size, angle <=
+1e-9 rad) are used where they are stated, 1e-12 relative elsewhere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import cKDTree
+
+from surface import _loop_patches as lp
+from surface import bezier as bz
+
+# ----------------------------------------------------------------------------- meshes
+
+
+def _o3d_arrays(mesh):
+    return np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).astype(np.int64)
+
+
+def icosphere(level: int = 1):
+    mesh = o3d.geometry.TriangleMesh.create_icosahedron(1.0).subdivide_midpoint(level)
+    v, t = _o3d_arrays(mesh)
+    return v / np.linalg.norm(v, axis=1, keepdims=True), t
+
+
+def octahedron():
+    return _o3d_arrays(o3d.geometry.TriangleMesh.create_octahedron(1.0))
+
+
+def cube(level: int = 1):
+    """Unit cube, triangulated and midpoint-subdivided: valences 3, 4, 5, 6."""
+    mesh = o3d.geometry.TriangleMesh.create_box().subdivide_midpoint(level)
+    return _o3d_arrays(mesh)
+
+
+def band_mesh(n: int = 6, sections: int = 6, height: float = 2.0):
+    """Vase-like closed mesh stitched like the direction criterion N <-> 2N.
+
+    Sections alternate N and 2N points at equal angles; neighbouring sections
+    are zipped by angle (ties advance the sparser section, as in the paper's
+    triangles (o_k, e_2k, e_2k+1), (o_k, e_2k+1, o_k+1)); a pole closes each
+    end.  Interior valences are 4, 6 and 8.
+    """
+    z = np.linspace(0.0, height, sections)
+    radius = 0.6 + 0.25 * np.sin(2.2 * z) + 0.1 * z
+    counts = [n if k % 2 == 0 else 2 * n for k in range(sections)]
+    points, start = [], []
+    for zk, rk, ck in zip(z, radius, counts, strict=True):
+        theta = 2 * np.pi * np.arange(ck) / ck
+        start.append(sum(len(p) for p in points))
+        points.append(np.stack([rk * np.cos(theta), rk * np.sin(theta), np.full(ck, zk)], 1))
+    tris = []
+    for k in range(sections - 1):
+        lo, up, nl, nu = start[k], start[k + 1], counts[k], counts[k + 1]
+        i = j = 0
+        while i < nl or j < nu:
+            ahead = (i + 1) / nl - (j + 1) / nu  # ties advance the sparser section
+            advance_low = j >= nu or (i < nl and (ahead < -1e-12 or (abs(ahead) <= 1e-12
+                                                                     and nl < nu)))
+            if advance_low:
+                tris.append((lo + i % nl, lo + (i + 1) % nl, up + j % nu))
+                i += 1
+            else:
+                tris.append((lo + i % nl, up + (j + 1) % nu, up + j % nu))
+                j += 1
+    vertices = np.concatenate(points + [[[0, 0, -0.4]], [[0, 0, height + 0.3]]])
+    bottom, top = len(vertices) - 2, len(vertices) - 1
+    n0, nk, last = counts[0], counts[-1], start[-1]
+    tris += [(bottom, (i + 1) % n0, i) for i in range(n0)]
+    tris += [(top, last + i, last + (i + 1) % nk) for i in range(nk)]
+    return vertices.astype(np.float64), np.array(tris, dtype=np.int64)
+
+
+MESHES = {
+    "octahedron": octahedron,
+    "icosphere": icosphere,
+    "cube": cube,
+    "band": band_mesh,
+}
+
+
+@pytest.fixture(scope="module")
+def surfaces():
+    return {name: (make(), bz.control_net(*make())) for name, make in MESHES.items()}
+
+
+def _size(vertices):
+    return float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+
+
+def _angle(n1, n2):
+    return np.arctan2(np.linalg.norm(np.cross(n1, n2), axis=-1), np.sum(n1 * n2, axis=-1))
+
+
+# ----------------------------------------------------------------------------- index order / basis
+def test_index_table_is_descending_i_then_j():
+    table = bz.index_table()
+    assert table.shape == (28, 3)
+    assert np.all(table.sum(axis=1) == 6)
+    assert [tuple(r) for r in table[:6]] == [(6, 0, 0), (5, 1, 0), (5, 0, 1), (4, 2, 0),
+                                            (4, 1, 1), (4, 0, 2)]
+    assert tuple(table[21]) == (0, 6, 0) and tuple(table[27]) == (0, 0, 6)
+    assert np.array_equal(bz.control_index(*table.T), np.arange(28))
+    with pytest.raises(ValueError, match="i \\+ j \\+ k"):
+        bz.control_index(3, 2, 2)
+
+
+def test_bernstein_basis_is_a_partition_of_unity():
+    bary = np.random.default_rng(0).dirichlet([1, 1, 1], size=50)
+    assert np.allclose(bz.bernstein_matrix(bary).sum(axis=1), 1.0, atol=1e-14)
+
+
+def _casteljau(net, bary):
+    """Direct recursive de Casteljau on a dict of (i, j, k) -> point."""
+    degree = int(round((np.sqrt(8 * len(net) + 1) - 3) / 2))
+    pts = {tuple(m): net[p] for p, m in enumerate(bz.index_table(degree))}
+    for d in range(degree, 0, -1):
+        pts = {(i, j, k): bary[0] * pts[(i + 1, j, k)] + bary[1] * pts[(i, j + 1, k)]
+               + bary[2] * pts[(i, j, k + 1)] for i, j, k in bz.index_table(d - 1)}
+    return pts[(0, 0, 0)]
+
+
+def test_evaluate_matches_direct_de_casteljau():
+    rng = np.random.default_rng(1)
+    nets = rng.normal(size=(3, 28, 3))
+    bary = rng.dirichlet([1, 1, 1], size=7)
+    got = bz.evaluate(nets, bary)
+    want = np.array([[_casteljau(net, b) for b in bary] for net in nets])
+    assert np.abs(got - want).max() < 1e-13
+
+
+def test_evaluate_matches_bezier_package():
+    bezier = pytest.importorskip("bezier")
+    rng = np.random.default_rng(2)
+    net = rng.normal(size=(28, 3))
+    # bezier orders nodes by k, then j ("left to right, bottom to top")
+    order = sorted(range(28), key=lambda p: (bz.index_table()[p][2], bz.index_table()[p][1]))
+    triangle = bezier.Triangle(np.asfortranarray(net[order].T), degree=6)
+    bary = rng.dirichlet([1, 1, 1], size=9)
+    want = triangle.evaluate_barycentric_multi(np.asfortranarray(bary)).T
+    assert np.abs(bz.evaluate(net[None], bary)[0] - want).max() < 1e-13
+
+
+def test_normals_are_unit_cross_products_of_finite_differences():
+    rng = np.random.default_rng(3)
+    nets = rng.normal(size=(2, 28, 3))
+    bary = np.array([[0.2, 0.3, 0.5], [0.6, 0.2, 0.2]])
+    step = 1e-6
+    du = (bz.evaluate(nets, bary + [-step, step, 0]) - bz.evaluate(nets, bary - [-step, step, 0]))
+    dv = (bz.evaluate(nets, bary + [-step, 0, step]) - bz.evaluate(nets, bary - [-step, 0, step]))
+    want = np.cross(du, dv)
+    want /= np.linalg.norm(want, axis=-1, keepdims=True)
+    # central differences: error O(step^2 * |P'''|) ~ 1e-10 relative
+    assert np.abs(bz.normals(nets, bary) - want).max() < 1e-7
+
+
+def test_subdivide_children_reparametrise_the_parent():
+    rng = np.random.default_rng(4)
+    nets = rng.normal(size=(3, 28, 3))
+    children = bz.subdivide(nets).reshape(3, 4, 28, 3)
+    local = rng.dirichlet([1, 1, 1], size=6)
+    for c, corners in enumerate(lp.CHILD_CORNERS):
+        parent_bary = local @ corners
+        assert np.abs(bz.evaluate(children[:, c], local) - bz.evaluate(nets, parent_bary)).max() \
+            < 1e-13
+
+
+def test_degree_elevation_keeps_the_polynomial():
+    rng = np.random.default_rng(5)
+    quartic = rng.normal(size=(2, 15, 3))
+    sextic = bz.elevate(quartic)
+    bary = rng.dirichlet([1, 1, 1], size=8)
+    want = np.einsum("sn,pnd->psd", bz.bernstein_matrix(bary, 4), quartic)
+    assert np.abs(bz.evaluate(sextic, bary) - want).max() < 1e-13
+
+
+# ----------------------------------------------------------------------------- G1
+@pytest.mark.parametrize("name", list(MESHES))
+def test_g1_along_every_interior_edge(surfaces, name):
+    (vertices, _), surface = surfaces[name]
+    gap, angle = bz.edge_continuity(surface.control_points, surface.domain_mesh[1], samples=9)
+    assert gap <= 1e-12 * _size(vertices)
+    assert angle <= 1e-9
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_patches_share_one_tangent_plane_at_every_vertex(surfaces, name):
+    _, surface = surfaces[name]
+    tris = surface.domain_mesh[1]
+    corner = bz.corner_normals(surface.control_points).reshape(-1, 3)
+    vertex = tris.ravel()
+    first = np.zeros((tris.max() + 1, 3))
+    first[vertex[::-1]] = corner[::-1]  # normal of one patch per vertex
+    assert np.all(np.linalg.norm(corner, axis=1) > 0.99)
+    assert _angle(corner, first[vertex]).max() <= 1e-9
+
+
+def test_band_mesh_has_valences_4_6_8():
+    n = 6
+    vertices, tris = band_mesh(n=n, sections=6)
+    valence = np.bincount(tris.ravel())
+    inner = valence[n:-2 - 2 * n]  # without the end sections and the poles
+    assert set(inner) == {4, 6, 8}
+
+
+# ----------------------------------------------------------------------------- regular reproduction
+def test_box_spline_masks_rederive_from_loop_subdivision():
+    assert np.abs(lp.derive_box_spline_quartic() - lp.BOX_SPLINE_QUARTIC).max() < 1e-13
+
+
+def _loop_limit(vertices, triangles):
+    """Loop's limit-position mask, written independently of the module."""
+    n = np.bincount(triangles.ravel(), minlength=len(vertices))
+    ring = np.zeros_like(vertices)
+    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    np.add.at(ring, edges[:, 0], vertices[edges[:, 1]])
+    np.add.at(ring, edges[:, 1], vertices[edges[:, 0]])
+    beta = (5 / 8 - (3 / 8 + np.cos(2 * np.pi / n) / 4) ** 2) / n
+    chi = 1 / (3 / (8 * beta) + n)
+    return (1 - n * chi)[:, None] * vertices + chi[:, None] * ring
+
+
+def box():
+    """open3d's box: 12 triangles, valences 3 and 6 only."""
+    return _o3d_arrays(o3d.geometry.TriangleMesh.create_box())
+
+
+@pytest.mark.parametrize("mesh, subdivider", [(box, "open3d"), (icosphere, "own")])
+def test_regular_patches_are_the_loop_limit_surface(mesh, subdivider):
+    """Where the 1-ring is regular the patch equals the Loop limit surface.
+
+    The domain mesh is Loop-subdivided twice more; Loop's limit mask then gives
+    exact limit points at the dyadic parameters (i, j, k) / 4 of every patch,
+    which must lie on the regular patches to rounding.  With "open3d" the
+    subdivision is open3d's ``subdivide_loop`` (Warren's weights, equal to
+    Loop's for the valences 3 and 6 of the box), matched to our tracked
+    subdivision by position; with "own" it is this package's.
+    """
+    vertices, tris = mesh()
+    surface = bz.control_net(vertices, tris)
+    dom_v, dom_t = surface.domain_mesh
+    steps = 2
+    mine_v, mine_t, root, bary = lp.subdivide_tracked(dom_v, dom_t, steps)
+    if subdivider == "open3d":
+        fine = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(dom_v),
+                                         o3d.utility.Vector3iVector(dom_t)).subdivide_loop(steps)
+        fine_v, fine_t = _o3d_arrays(fine)
+        dist, match = cKDTree(fine_v).query(mine_v)
+        assert dist.max() < 1e-14
+    else:
+        fine_v, fine_t, match = mine_v, mine_t, np.arange(len(mine_v))
+    limit = _loop_limit(fine_v, fine_t)
+    valence = np.bincount(dom_t.ravel())
+    regular = np.all(valence[dom_t] == 6, axis=1)
+    assert regular.sum() >= len(dom_t) // 4
+    faces = np.flatnonzero(regular[root])
+    corner_bary = bary[faces].reshape(-1, 3)
+    corner_vertex = match[mine_t[faces].ravel()]
+    patch = np.repeat(root[faces], 3)
+    got = np.einsum("sn,snd->sd", bz.bernstein_matrix(corner_bary),
+                    surface.control_points[patch])
+    assert np.abs(got - limit[corner_vertex]).max() < 1e-12 * _size(vertices)
+
+
+def test_regular_patches_are_degree_elevated_quartics(surfaces):
+    (vertices, _), surface = surfaces["icosphere"]
+    tris = surface.domain_mesh[1]
+    regular = np.all(np.bincount(tris.ravel())[tris] == 6, axis=1)
+    elevation = bz.elevate(np.eye(15), 6)  # (28, 15): the net of each quartic basis function
+    nets = surface.control_points[regular]
+    quartic = np.linalg.lstsq(elevation, nets.transpose(1, 0, 2).reshape(28, -1), rcond=None)[0]
+    again = (elevation @ quartic).reshape(28, -1, 3).transpose(1, 0, 2)
+    assert np.abs(again - nets).max() < 1e-13 * _size(vertices)
+    # and that quartic is the box spline's: the corner is Loop's limit point
+    limit = _loop_limit(*surface.domain_mesh)
+    assert np.abs(nets[:, 0] - limit[tris[regular, 0]]).max() < 1e-13 * _size(vertices)
+
+
+# ----------------------------------------------------------------------------- invariance
+@settings(max_examples=15, deadline=None)
+@given(st.lists(st.floats(-2, 2), min_size=12, max_size=12))
+def test_affine_map_of_the_control_mesh_maps_the_surface(values):
+    matrix = np.array(values[:9]).reshape(3, 3) + 3 * np.eye(3)  # keep it invertible
+    shift = np.array(values[9:])
+    vertices, tris = octahedron()
+    base = bz.control_net(vertices, tris).control_points
+    mapped = bz.control_net(vertices @ matrix.T + shift, tris).control_points
+    scale = np.abs(base @ matrix.T + shift).max()
+    assert np.abs(mapped - (base @ matrix.T + shift)).max() < 1e-12 * scale
+
+
+def test_flattened_mesh_gives_a_surface_in_the_same_plane():
+    """A control mesh in a plane gives a planar surface (as a squashed sphere:
+    the construction is coordinate-wise, so z = 0 stays exactly 0)."""
+    vertices, tris = icosphere(1)
+    squashed = vertices * [1.0, 1.0, 1e-3] + [0.0, 0.0, 5.0]
+    cp = bz.control_net(squashed, tris).control_points
+    assert np.abs(cp[..., 2] - 5.0).max() <= 1e-3 * 1.0001
+    z_scaled = bz.control_net(vertices * [1, 1, 0.5], tris).control_points
+    full = bz.control_net(vertices, tris).control_points
+    assert np.abs(z_scaled[..., 2] - 0.5 * full[..., 2]).max() < 1e-14
+
+
+# ----------------------------------------------------------------------------- tessellation
+@pytest.mark.parametrize("level", [0, 1, 3])
+def test_tessellation_is_watertight_and_consistently_oriented(surfaces, level):
+    _, surface = surfaces["band"]
+    vertices, triangles, vertex_normals = bz.tessellate(surface, level)
+    assert len(triangles) == len(surface.control_points) * 4 ** level
+    directed = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    keys = directed[:, 0] * len(vertices) + directed[:, 1]
+    assert len(np.unique(keys)) == len(keys)  # every directed edge once: oriented
+    twin = directed[:, 1] * len(vertices) + directed[:, 0]
+    assert np.all(np.isin(twin, keys))  # every edge in exactly two triangles: watertight
+    assert len(vertices) - len(keys) // 2 + len(triangles) == 2  # sphere topology
+    assert np.allclose(np.linalg.norm(vertex_normals, axis=1), 1.0)
+
+
+def test_tessellated_vertices_lie_on_the_patches(surfaces):
+    (control_vertices, _), surface = surfaces["cube"]
+    level = 2
+    vertices, triangles, vertex_normals = bz.tessellate(surface, level)
+    bary, local_tris, _ = bz._grid(2 ** level)
+    per_patch = triangles.reshape(len(surface.control_points), -1, 3)
+    sample_vertex = np.empty((len(per_patch), len(bary)), dtype=np.int64)
+    sample_vertex[:, local_tris.ravel()] = per_patch.reshape(len(per_patch), -1)
+    points = bz.evaluate(surface.control_points, bary)
+    assert np.abs(vertices[sample_vertex] - points).max() < 1e-12 * _size(control_vertices)
+    patch_normals = bz.normals(surface.control_points, bary)
+    assert _angle(vertex_normals[sample_vertex], patch_normals).max() < 1e-9
+
+
+def test_tessellation_faces_outward_on_a_sphere(surfaces):
+    _, surface = surfaces["icosphere"]
+    vertices, triangles, vertex_normals = bz.tessellate(surface, 2)
+    assert np.all(np.sum(vertices * vertex_normals, axis=1) > 0.9 * np.linalg.norm(vertices,
+                                                                                   axis=1))
+    corner = vertices[triangles]
+    face_normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    assert np.all(np.sum(face_normal * corner.mean(axis=1), axis=1) > 0)
+
+
+def test_tessellate_needs_the_domain_triangles(surfaces):
+    _, surface = surfaces["octahedron"]
+    with pytest.raises(ValueError, match="domain triangles"):
+        bz.tessellate(surface.control_points, 1)
+
+
+# ----------------------------------------------------------------------------- bad input
+def test_rejects_border_edges():
+    vertices, tris = octahedron()
+    with pytest.raises(ValueError, match="border edges"):
+        bz.control_net(vertices, tris[1:])
+
+
+def test_rejects_inconsistent_orientation():
+    vertices, tris = octahedron()
+    tris = tris.copy()
+    tris[0] = tris[0, ::-1]
+    with pytest.raises(ValueError, match="oriented"):
+        bz.control_net(vertices, tris)
+
+
+def test_rejects_non_manifold_edges():
+    vertices, tris = octahedron()
+    extra = np.vstack([vertices, [[3.0, 3.0, 3.0]]])
+    a, b = tris[0, 0], tris[0, 1]
+    with pytest.raises(ValueError, match="non-manifold"):
+        bz.control_net(extra, np.vstack([tris, [[b, a, len(vertices)]]]))
+
+
+def test_rejects_bow_tie_vertices():
+    v1, t1 = octahedron()
+    v2 = v1 + [3.0, 0.0, 0.0]
+    t2 = t1 + len(v1)
+    t2[t2 == len(v1)] = 0  # glue one vertex of the second octahedron onto the first
+    with pytest.raises(ValueError, match="non-manifold at"):
+        bz.control_net(np.vstack([v1, v2]), np.vstack([t1, t2]))
+
+
+def test_rejects_zero_area_triangles():
+    vertices, tris = octahedron()
+    vertices = vertices.copy()
+    vertices[tris[0, 2]] = 0.5 * (vertices[tris[0, 0]] + vertices[tris[0, 1]])
+    with pytest.raises(ValueError, match="zero-area"):
+        bz.control_net(vertices, tris)
+
+
+def test_rejects_nan_and_bad_indices():
+    vertices, tris = octahedron()
+    with pytest.raises(ValueError, match="NaN"):
+        bz.control_net(np.where(np.arange(len(vertices))[:, None] == 0, np.nan, vertices), tris)
+    with pytest.raises(ValueError, match="outside"):
+        bz.control_net(vertices, tris + 1)
+    with pytest.raises(ValueError, match="shape"):
+        bz.control_net(vertices[:, :2], tris)
+
+
+def test_isolated_vertices_are_ignored():
+    vertices, tris = octahedron()
+    extra = np.vstack([[9.0, 9.0, 9.0], vertices])
+    with_isolated = bz.control_net(extra, tris + 1)
+    plain = bz.control_net(vertices, tris)
+    assert np.array_equal(with_isolated.control_points, plain.control_points)
+    assert np.all(np.isfinite(with_isolated.control_points))
+
+
+def test_source_face_maps_patches_to_control_faces(surfaces):
+    (vertices, tris), surface = surfaces["band"]
+    assert np.array_equal(np.bincount(surface.source_face), np.full(len(tris), 4))
+    # each patch lies near its source face: its centre is closer to that face's
+    # centroid than the face's own circumradius-scale
+    centre = bz.evaluate(surface.control_points, np.full((1, 3), 1 / 3))[:, 0]
+    centroid = vertices[tris].mean(axis=1)[surface.source_face]
+    edge = np.linalg.norm(vertices[tris[:, 0]] - vertices[tris[:, 1]], axis=1).max()
+    assert np.linalg.norm(centre - centroid, axis=1).max() < edge
