@@ -78,6 +78,18 @@ def _type_ok(default, value) -> tuple[bool, object]:
     return isinstance(value, type(default)), value
 
 
+def _free_tables(table: Mapping, prefix: str = "") -> frozenset[str]:
+    """Dotted names of the tables whose default is empty (free-form)."""
+    found = set()
+    for key, value in table.items():
+        if isinstance(value, Mapping):
+            found |= {f"{prefix}{key}"} if not value else _free_tables(value, f"{prefix}{key}.")
+    return frozenset(found)
+
+
+_FREE = _free_tables(defaults())
+
+
 def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
     """Merge ``update`` into ``base`` (in place), checking keys and types against ``base``."""
     for key, value in update.items():
@@ -90,10 +102,10 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
         if isinstance(default, dict):
             if not isinstance(value, Mapping):
                 raise InputError(f"{origin}: {dotted} must be a table, got {value!r}")
-            if default:
-                _merge(default, value, origin, f"{dotted}.")
-            else:  # free-form table: deep-merge without checks
+            if dotted in _FREE:  # free-form table: deep-merge without checks
                 _deep_update(default, value)
+            else:
+                _merge(default, value, origin, f"{dotted}.")
             continue
         if dotted in FLEXIBLE:
             base[key] = value

@@ -368,7 +368,8 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     executor = executor or LocalExecutor()
     results: list[StageResult] = []
     with ws.lock():
-        ws.clean_temporaries([s.output for s in plan_stages] + [MANIFEST, CONFIG])
+        for name in ws.clean_temporaries([s.output for s in plan_stages] + [MANIFEST, CONFIG]):
+            log.info("removed %s, left by an interrupted run", name)
         external = {}
         for p in input_paths + ([rig_path] if rig_path else []):
             external.update({f"input:{p.resolve()}/{k}": v for k, v in hash_tree(p, p).items()}
@@ -429,6 +430,7 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
         rec = ws.record(stage.name) or {}
         return StageResult(stage.name, "up to date", reason="", info=rec.get("info", {}))
     ws.forget(stage.name)  # from here until the new record, the stage counts as not run
+    log.info("%s: started", stage.name)
     target = ws.root / stage.output
     started = time.time()
     t0 = time.perf_counter()

@@ -32,6 +32,7 @@ import io
 import json
 import os
 import platform
+import re
 import shutil
 import zipfile
 from collections.abc import Iterator, Mapping
@@ -205,15 +206,26 @@ class Workspace:
                 return False
         return True
 
-    def clean_temporaries(self, names: list[str]) -> None:
-        """Remove temporary files/folders a killed run left (``.<name>.*`` for known names)."""
-        for name in names:
-            stem = Path(name).stem if "." in name else name
-            for leftover in self.root.glob(f".{stem}.*"):
-                if leftover.is_dir():
-                    shutil.rmtree(leftover, ignore_errors=True)
-                else:
-                    leftover.unlink(missing_ok=True)
+    def clean_temporaries(self, names: list[str]) -> list[str]:
+        """Remove temporaries a killed run left; return their names.
+
+        Temporaries are the hidden ``.<name>.XXXX`` files and folders of
+        :mod:`pipeline.atomic` for the known output ``names`` (also nested
+        ones, ``..<name>.XXXX.YYYY``, from a writer that is itself atomic);
+        nothing else of OUTDIR is touched.
+        """
+        stems = "|".join(re.escape(Path(n).stem if "." in n else n) for n in names)
+        pattern = re.compile(rf"^\.+({stems})\.")
+        removed = []
+        for leftover in self.root.iterdir():
+            if not pattern.match(leftover.name):
+                continue
+            if leftover.is_dir() and not leftover.is_symlink():
+                shutil.rmtree(leftover, ignore_errors=True)
+            else:
+                leftover.unlink(missing_ok=True)
+            removed.append(leftover.name)
+        return removed
 
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:

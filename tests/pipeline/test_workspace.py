@@ -191,12 +191,15 @@ def test_config_resolution(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[sections]\ncount = 12\n[smooth]\nlevel = 2\n")
     resolved = config_mod.resolve(cfg, ["smooth.level=4", "sections.axis=auto",
-                                        "report.tau_rel=1", "scene.overrides.noise.sigma=0"])
+                                        "report.tau_rel=1", "scene.overrides.noise.sigma=0",
+                                        "scene.overrides.cameras.width=64",
+                                        "scene.overrides.cameras.height=48"])
     assert resolved["sections"]["count"] == 12
     assert resolved["smooth"]["level"] == 4
     assert resolved["sections"]["axis"] == "auto"
     assert resolved["report"]["tau_rel"] == 1.0
-    assert resolved["scene"]["overrides"] == {"noise": {"sigma": 0}}
+    assert resolved["scene"]["overrides"] == {"noise": {"sigma": 0},
+                                              "cameras": {"width": 64, "height": 48}}
     assert config_mod.resolve(None, ["sections.axis=[0, 1, 0]"])["sections"]["axis"] == [0, 1, 0]
     # the written file reads back to the same set
     import tomllib
