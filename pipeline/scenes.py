@@ -64,12 +64,15 @@ import json
 import math
 import os
 import tomllib
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 
+from matching.cameras import Camera, StereoRig, write_cameras_yml, write_colmap_text
 from pipeline.errors import InputError
 
 #: Default recipe shipped with the project.
@@ -623,80 +626,69 @@ def shape_mesh(shape: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- texture
 
 
-def _kernels():
-    """Compile (once, cached on disk) the numba kernels: sinusoid sum and shading."""
-    global _KERNELS
-    if _KERNELS is not None:
-        return _KERNELS
-    import warnings
+@numba.njit(inline="always", fastmath=True, cache=True)
+def _sin_turns(u):  # pragma: no cover - compiled
+    # sin 2πu: reduce to [-1/4, 1/4] turn, degree-9 Taylor polynomial (error < 4e-6, far
+    # below a grey level); ~7x faster than libm's sin, which numba cannot vectorise here
+    # (no SVML).
+    u = u - np.floor(u + np.float32(0.5))
+    a = abs(u)
+    if a > np.float32(0.25):
+        a = np.float32(0.5) - a
+    w = a * np.float32(2.0 * np.pi)
+    w2 = w * w
+    sine = w * (np.float32(1.0) + w2 * (np.float32(-1.0 / 6.0) + w2 * (
+        np.float32(1.0 / 120.0) + w2 * (np.float32(-1.0 / 5040.0)
+                                       + w2 * np.float32(1.0 / 362880.0)))))
+    return sine if u >= 0 else -sine
 
-    import numba
 
-    f32 = np.float32
+@numba.njit(inline="always", fastmath=True, cache=True)
+def _texture_sum(x, y, z, freq, phase):  # pragma: no cover - compiled
+    total = np.float32(0.0)
+    for k in range(freq.shape[0]):
+        total += _sin_turns(freq[k, 0] * x + freq[k, 1] * y + freq[k, 2] * z + phase[k])
+    return total
 
-    @numba.njit(inline="always", fastmath=True)
-    def sin_turns(u):  # pragma: no cover - compiled
-        # sin 2πu: reduce to [-1/4, 1/4] turn, degree-9 Taylor polynomial (error < 4e-6,
-        # far below a grey level); ~7x faster than libm's sin, which numba cannot
-        # vectorise here (no SVML).
-        u = u - np.floor(u + f32(0.5))
-        a = abs(u)
-        if a > f32(0.25):
-            a = f32(0.5) - a
-        w = a * f32(2.0 * np.pi)
-        w2 = w * w
-        sine = w * (f32(1.0) + w2 * (f32(-1.0 / 6.0) + w2 * (f32(1.0 / 120.0) + w2 * (
-            f32(-1.0 / 5040.0) + w2 * f32(1.0 / 362880.0)))))
-        return sine if u >= 0 else -sine
 
-    @numba.njit(inline="always", fastmath=True)
-    def texture_sum(x, y, z, freq, phase):  # pragma: no cover - compiled
-        total = f32(0.0)
-        for k in range(freq.shape[0]):
-            total += sin_turns(freq[k, 0] * x + freq[k, 1] * y + freq[k, 2] * z + phase[k])
-        return total
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _sinusoid_sum(points, freq, phase, out):  # pragma: no cover - compiled
+    for i in numba.prange(points.shape[0]):
+        out[i] = _texture_sum(points[i, 0], points[i, 1], points[i, 2], freq, phase)
 
-    @numba.njit(parallel=True, fastmath=True, cache=True)
-    def sinusoid_sum(points, freq, phase, out):  # pragma: no cover - compiled
-        for i in numba.prange(points.shape[0]):
-            out[i] = texture_sum(points[i, 0], points[i, 1], points[i, 2], freq, phase)
 
-    @numba.njit(parallel=True, fastmath=True, cache=True)
-    def shade(origin, directions, t, ids, uv, corner, light, params, freq, phase,
-              out):  # pragma: no cover - compiled
-        # params: ambient, diffuse, background, albedo mid, albedo half-range, 1/(2 σ_T)
-        for i in numba.prange(t.shape[0]):
-            tri = ids[i]
-            if tri < 0:
-                out[i] = params[2]
-                continue
-            u, v = uv[i, 0], uv[i, 1]
-            w = f32(1.0) - u - v
-            nx = w * corner[tri, 0, 0] + u * corner[tri, 1, 0] + v * corner[tri, 2, 0]
-            ny = w * corner[tri, 0, 1] + u * corner[tri, 1, 1] + v * corner[tri, 2, 1]
-            nz = w * corner[tri, 0, 2] + u * corner[tri, 1, 2] + v * corner[tri, 2, 2]
-            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-            if nx * dx + ny * dy + nz * dz > 0:  # seen from behind: shade the side seen
-                nx, ny, nz = -nx, -ny, -nz
-            norm = np.sqrt(nx * nx + ny * ny + nz * nz)
-            lambert = max((nx * light[0] + ny * light[1] + nz * light[2]) / norm, f32(0.0))
-            x = origin[0] + t[i] * dx
-            y = origin[1] + t[i] * dy
-            z = origin[2] + t[i] * dz
-            albedo = params[3] + params[4] * np.tanh(texture_sum(x, y, z, freq, phase)
-                                                     * params[5])
-            out[i] = albedo * (params[0] + params[1] * lambert)
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _shade(origin, directions, t, ids, uv, corner, light, params, freq, phase,
+           out):  # pragma: no cover - compiled
+    """Radiance per ray; params = ambient, diffuse, background, albedo mid, half-range,
+    1/(2 σ_T).  Corner normals interpolated barycentrically, texture at the hit point."""
+    for i in numba.prange(t.shape[0]):
+        tri = ids[i]
+        if tri < 0:
+            out[i] = params[2]
+            continue
+        u, v = uv[i, 0], uv[i, 1]
+        w = np.float32(1.0) - u - v
+        nx = w * corner[tri, 0, 0] + u * corner[tri, 1, 0] + v * corner[tri, 2, 0]
+        ny = w * corner[tri, 0, 1] + u * corner[tri, 1, 1] + v * corner[tri, 2, 1]
+        nz = w * corner[tri, 0, 2] + u * corner[tri, 1, 2] + v * corner[tri, 2, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        if nx * dx + ny * dy + nz * dz > 0:  # seen from behind: shade the side seen
+            nx, ny, nz = -nx, -ny, -nz
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        lambert = max((nx * light[0] + ny * light[1] + nz * light[2]) / norm, np.float32(0.0))
+        x = origin[0] + t[i] * dx
+        y = origin[1] + t[i] * dy
+        z = origin[2] + t[i] * dz
+        albedo = params[3] + params[4] * np.tanh(_texture_sum(x, y, z, freq, phase) * params[5])
+        out[i] = albedo * (params[0] + params[1] * lambert)
 
-    with warnings.catch_warnings():  # numba probes an old TBB before falling back
+
+def _quiet_numba(function, *args):
+    """Call a parallel kernel with numba's one-time TBB-version warning silenced."""
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", numba.NumbaWarning)
-        probe = np.zeros((1, 3), np.float32)
-        sinusoid_sum(probe, np.zeros((1, 3), np.float32), np.zeros(1, np.float32),
-                     np.empty(1, np.float32))
-    _KERNELS = {"sinusoid_sum": sinusoid_sum, "shade": shade}
-    return _KERNELS
-
-
-_KERNELS = None
+        return function(*args)
 
 
 @dataclass(frozen=True)
@@ -729,8 +721,8 @@ class SinusoidTexture:
         points = np.ascontiguousarray(points, dtype=np.float32)
         out = np.empty(len(points), dtype=np.float32)
         if len(points):
-            _kernels()["sinusoid_sum"](points, self.frequencies.astype(np.float32),
-                                       self.phases.astype(np.float32), out)
+            _quiet_numba(_sinusoid_sum, points, self.frequencies.astype(np.float32),
+                         self.phases.astype(np.float32), out)
         return out
 
     @property
@@ -747,45 +739,6 @@ class SinusoidTexture:
 
 
 # --------------------------------------------------------------------------- cameras
-
-
-@dataclass(frozen=True)
-class SceneCamera:
-    """A pinhole camera with Brown–Conrady distortion, world→camera ``x_c = R X + t``.
-
-    Attributes
-    ----------
-    name : str
-    K : (3, 3) float64
-    dist : (5,) float64, k1 k2 p1 p2 k3 (OpenCV order).
-    R : (3, 3) float64
-    t : (3,) float64
-    width, height : int, pixels.
-    """
-
-    name: str
-    K: np.ndarray
-    dist: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-    width: int
-    height: int
-
-    @property
-    def centre(self) -> np.ndarray:
-        """Projection centre ``C = -Rᵀ t`` (3,) in world units."""
-        return -self.R.T @ self.t
-
-    def project(self, points: np.ndarray) -> np.ndarray:
-        """Pixel coordinates ``(N, 2)`` of world ``points (N, 3)``, with distortion."""
-        import cv2
-
-        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 1, 3)
-        if len(points) == 0:
-            return np.empty((0, 2))
-        rvec, _ = cv2.Rodrigues(self.R)
-        pixels, _ = cv2.projectPoints(points, rvec, self.t, self.K, self.dist)
-        return pixels.reshape(-1, 2)
 
 
 def _look_at(position: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -810,12 +763,13 @@ def _intrinsics(cams: dict) -> tuple[np.ndarray, np.ndarray]:
         cams["distortion"], dtype=np.float64)
 
 
-def _make_camera(name, position, rotation, K, dist, cams) -> SceneCamera:
-    return SceneCamera(name, K, dist, rotation, -rotation @ position, cams["width"],
-                       cams["height"])
+def _make_camera(index: int, position, rotation, K, dist, cams) -> Camera:
+    """Camera number ``index`` (named after its image, ``view_XX.png``) at ``position``."""
+    return Camera(K, dist, rotation, -rotation @ position, cams["width"], cams["height"],
+                  f"view_{index:02d}.png")
 
 
-def _stereo_cameras(cams: dict, centre: np.ndarray, distance: float) -> list[SceneCamera]:
+def _stereo_cameras(cams: dict, centre: np.ndarray, distance: float) -> list[Camera]:
     """Left and right camera: midpoint at ``distance`` from the centre, toed in symmetrically."""
     K, dist = _intrinsics(cams)
     view = _direction(cams["azimuth_deg"], cams["elevation_deg"])
@@ -826,16 +780,16 @@ def _stereo_cameras(cams: dict, centre: np.ndarray, distance: float) -> list[Sce
     convergence = cams.get("convergence_deg",
                            math.degrees(2.0 * math.atan2(0.5 * baseline, distance)))
     out = []
-    for name, side in (("view_00", -1.0), ("view_01", 1.0)):
+    for index, side in ((0, -1.0), (1, 1.0)):
         position = middle + side * 0.5 * baseline * right_axis
         # toe-in: turn about the image's down axis by ±convergence/2 from the parallel pose
         turn = _rotation_about(mid_rotation[1], -side * 0.5 * convergence)
         rotation = mid_rotation @ turn.T
-        out.append(_make_camera(name, position, rotation, K, dist, cams))
+        out.append(_make_camera(index, position, rotation, K, dist, cams))
     return out
 
 
-def _ring_cameras(cams: dict, centre: np.ndarray, radius: float) -> list[SceneCamera]:
+def _ring_cameras(cams: dict, centre: np.ndarray, radius: float) -> list[Camera]:
     K, dist = _intrinsics(cams)
     rings = [(cams["n"], cams["elevation_deg"], cams["azimuth_deg"])]
     if "second_ring" in cams:
@@ -846,12 +800,12 @@ def _ring_cameras(cams: dict, centre: np.ndarray, radius: float) -> list[SceneCa
     for n, elevation, azimuth0 in rings:
         for k in range(n):
             position = centre + radius * _direction(azimuth0 + 360.0 * k / n, elevation)
-            out.append(_make_camera(f"view_{len(out):02d}", position,
-                                    _look_at(position, centre), K, dist, cams))
+            out.append(_make_camera(len(out), position, _look_at(position, centre), K, dist,
+                                    cams))
     return out
 
 
-def make_cameras(cams: dict, centre: np.ndarray, distance: float) -> list[SceneCamera]:
+def make_cameras(cams: dict, centre: np.ndarray, distance: float) -> list[Camera]:
     """Cameras of a validated ``cameras`` table at ``distance`` (ring radius) from ``centre``."""
     if cams["layout"] == "stereo":
         return _stereo_cameras(cams, centre, distance)
@@ -901,7 +855,7 @@ def _distort(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
                      y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], axis=1)
 
 
-def undistort_pixels(pixels: np.ndarray, camera: SceneCamera) -> np.ndarray:
+def undistort_pixels(pixels: np.ndarray, camera: Camera) -> np.ndarray:
     """Normalised undistorted coordinates ``(N, 2)`` of distorted ``pixels (N, 2)``.
 
     OpenCV's iterative inverse, then Newton steps on the exact forward model
@@ -939,7 +893,7 @@ def undistort_pixels(pixels: np.ndarray, camera: SceneCamera) -> np.ndarray:
     return xy
 
 
-def pixel_rays(camera: SceneCamera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def pixel_rays(camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rays through distorted ``pixels (N, 2)``: origin ``(3,)`` and directions ``(N, 3)``.
 
     Each direction has camera-frame z component exactly 1, so the ray parameter
@@ -948,7 +902,7 @@ def pixel_rays(camera: SceneCamera, pixels: np.ndarray) -> tuple[np.ndarray, np.
     xy = undistort_pixels(pixels, camera)
     R = camera.R  # directions Rᵀ (x, y, 1), written out: (N, 3) @ (3, 3) is slow in BLAS
     directions = xy[:, 0:1] * R[0] + xy[:, 1:2] * R[1] + R[2]
-    return camera.centre, directions
+    return camera.center, directions
 
 
 class RayCaster:
@@ -1001,7 +955,7 @@ class Scene:
     Attributes
     ----------
     vertices : (V, 3) float64, triangles : (F, 3) int64, corner_normals : (F, 3, 3) float64
-    cameras : list of SceneCamera
+    cameras : list of Camera
     texture : SinusoidTexture
     light : (3,) unit vector towards the light.
     gains, offsets : (n_views,) float64, grey levels for offsets.
@@ -1011,7 +965,7 @@ class Scene:
     vertices: np.ndarray
     triangles: np.ndarray
     corner_normals: np.ndarray
-    cameras: list[SceneCamera]
+    cameras: list[Camera]
     texture: SinusoidTexture
     light: np.ndarray
     gains: np.ndarray
@@ -1068,7 +1022,7 @@ def build_scene(recipe: dict, source: str = "<recipe>") -> Scene:
         sample = vertices[:: max(1, len(vertices) // 4000)]
         distance = _fit_distance(cams, centre, sample, bound)
     cameras = make_cameras(cams, centre, distance)
-    footprint = float(np.mean([np.linalg.norm(c.centre - centre) / c.K[0, 0] for c in cameras]))
+    footprint = float(np.mean([np.linalg.norm(c.center - centre) / c.K[0, 0] for c in cameras]))
     tex = recipe["texture"]
     wavelength = (tex["wavelength_px"][0] * footprint, tex["wavelength_px"][1] * footprint)
     texture = SinusoidTexture.random(tex["components"], wavelength, tex["albedo"],
@@ -1083,7 +1037,7 @@ def build_scene(recipe: dict, source: str = "<recipe>") -> Scene:
                "gains": gains.tolist(), "offsets": offsets.tolist(),
                "vertices": len(vertices), "triangles": len(triangles)}
     if cams["layout"] == "stereo":
-        derived["baseline"] = float(np.linalg.norm(cameras[1].centre - cameras[0].centre))
+        derived["baseline"] = float(np.linalg.norm(cameras[1].center - cameras[0].center))
         f0, f1 = cameras[0].R[2], cameras[1].R[2]
         derived["convergence_deg"] = math.degrees(math.acos(np.clip(f0 @ f1, -1.0, 1.0)))
     scene = Scene(vertices, triangles, corner, cameras, texture, light / np.linalg.norm(light),
@@ -1096,7 +1050,7 @@ def _check_visibility(scene: Scene, source: str, key: str) -> None:
     """Every camera must be outside the object's bounding sphere and see it on a coarse grid."""
     centre = np.asarray(scene.derived["centre"])
     for cam in scene.cameras:
-        if np.linalg.norm(cam.centre - centre) <= scene.derived["bounding_radius"]:
+        if np.linalg.norm(cam.center - centre) <= scene.derived["bounding_radius"]:
             raise InputError(f"{source}: field cameras.{key}: {cam.name} lies inside the "
                              f"object's bounding sphere (radius "
                              f"{scene.derived['bounding_radius']:.4g})")
@@ -1138,14 +1092,14 @@ def _radiance(scene: Scene, origin: np.ndarray, directions: np.ndarray) -> np.nd
                        0.5 * (tex.albedo[0] + tex.albedo[1]), 0.5 * (tex.albedo[1] - tex.albedo[0]),
                        1.0 / (2.0 * tex.sigma)], dtype=np.float32)
     out = np.empty(len(directions), dtype=np.float32)
-    _kernels()["shade"](np.asarray(origin, np.float32), np.asarray(directions, np.float32),
-                        hit["t"], hit["ids"], hit["uv"], scene.corner_normals32,
-                        scene.light.astype(np.float32), params,
-                        tex.frequencies.astype(np.float32), tex.phases.astype(np.float32), out)
+    _quiet_numba(_shade, np.asarray(origin, np.float32), np.asarray(directions, np.float32),
+                 hit["t"], hit["ids"], hit["uv"], scene.corner_normals32,
+                 scene.light.astype(np.float32), params, tex.frequencies.astype(np.float32),
+                 tex.phases.astype(np.float32), out)
     return out
 
 
-def _box_radiance(scene: Scene, cam: SceneCamera, active: np.ndarray) -> np.ndarray:
+def _box_radiance(scene: Scene, cam: Camera, active: np.ndarray) -> np.ndarray:
     """Mean radiance over the area of each ``active`` pixel (flat indices ``(P,)``).
 
     s×s rays per pixel at the centres of the cells tiling it (``_pixel_grid``); their mean
@@ -1204,7 +1158,7 @@ def render_view(scene: Scene, index: int) -> tuple[np.ndarray, np.ndarray, np.nd
 def visible_from(scene: Scene, index: int, points: np.ndarray) -> np.ndarray:
     """Whether each of ``points (N, 3)`` (on the surface) is unoccluded from camera ``index``."""
     cam = scene.cameras[index]
-    origin = cam.centre
+    origin = cam.center
     directions = points - origin  # the point sits at ray parameter 1
     hit = scene.caster.cast(origin, directions)
     in_front = (points - origin) @ cam.R[2] > 0
@@ -1233,77 +1187,6 @@ def correspondence(scene: Scene, points: np.ndarray, target: int = 1) -> np.ndar
 
 
 # --------------------------------------------------------------------------- files
-
-
-def _write_cameras_yml(path: Path, cameras: list[SceneCamera], stereo: bool) -> None:
-    """OpenCV FileStorage YAML: per view name, image, width, height, K, dist, R, t; rig R, T."""
-    import cv2
-
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    try:
-        fs.write("count", len(cameras))
-        fs.startWriteStruct("cameras", cv2.FileNode_SEQ)
-        for cam in cameras:
-            fs.startWriteStruct("", cv2.FileNode_MAP)
-            fs.write("name", cam.name)
-            fs.write("image", f"images/{cam.name}.png")
-            fs.write("width", cam.width)
-            fs.write("height", cam.height)
-            fs.write("K", cam.K)
-            fs.write("dist", cam.dist.reshape(1, -1))
-            fs.write("R", cam.R)
-            fs.write("t", cam.t.reshape(3, 1))
-            fs.endWriteStruct()
-        fs.endWriteStruct()
-        if stereo:
-            left, right = cameras
-            R = right.R @ left.R.T  # x_r = R x_l + T
-            fs.write("R", R)
-            fs.write("T", (right.t - R @ left.t).reshape(3, 1))
-    finally:
-        fs.release()
-
-
-def _colmap_camera_line(camera_id: int, cam: SceneCamera) -> str:
-    """COLMAP camera: its pixel centres sit at +0.5 (COLMAP's origin is the pixel corner)."""
-    fx, fy = cam.K[0, 0], cam.K[1, 1]
-    cx, cy = cam.K[0, 2] + 0.5, cam.K[1, 2] + 0.5
-    k1, k2, p1, p2, k3 = cam.dist
-    if not np.any(cam.dist):
-        model, params = "PINHOLE", [fx, fy, cx, cy]
-    elif k3 == 0:
-        model, params = "OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2]
-    else:
-        model, params = "FULL_OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
-    return f"{camera_id} {model} {cam.width} {cam.height} " + " ".join(map(repr, map(float,
-                                                                                      params)))
-
-
-def _write_colmap_text(folder: Path, cameras: list[SceneCamera]) -> None:
-    """COLMAP text model (cameras.txt, images.txt, empty points3D.txt); one camera per image."""
-    from scipy.spatial.transform import Rotation
-
-    folder.mkdir(parents=True, exist_ok=True)
-    lines = ["# Camera list with one line of data per camera:",
-             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
-             f"# Number of cameras: {len(cameras)}"]
-    lines += [_colmap_camera_line(i + 1, cam) for i, cam in enumerate(cameras)]
-    (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
-    lines = ["# Image list with two lines of data per image:",
-             "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
-             "#   POINTS2D[] as (X, Y, POINT3D_ID)",
-             f"# Number of images: {len(cameras)}, mean observations per image: 0"]
-    for i, cam in enumerate(cameras):
-        qx, qy, qz, qw = Rotation.from_matrix(cam.R).as_quat()
-        if qw < 0:
-            qw, qx, qy, qz = -qw, -qx, -qy, -qz
-        values = " ".join(repr(float(v)) for v in (qw, qx, qy, qz, *cam.t))
-        lines += [f"{i + 1} {values} {i + 1} {cam.name}.png", ""]
-    (folder / "images.txt").write_text("\n".join(lines) + "\n")
-    (folder / "points3D.txt").write_text(
-        "# 3D point list with one line of data per point:\n"
-        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
-        "# Number of points: 0, mean track length: 0\n")
 
 
 def _scene_json(scene: Scene, source: str) -> str:
@@ -1365,8 +1248,8 @@ def render_scene(recipe_or_path: dict | str | os.PathLike, outdir: str | os.Path
         for index in _views(scene, progress):
             image, depth, points = render_view(scene, index)
             name = scene.cameras[index].name
-            if not cv2.imwrite(str(tmp / "images" / f"{name}.png"), image):
-                raise OSError(f"{outdir}: could not write {name}.png")
+            if not cv2.imwrite(str(tmp / "images" / name), image):
+                raise OSError(f"{outdir}: could not write images/{name}")
             np.save(tmp / "truth" / f"depth_{index:02d}.npy", depth)
             if index == 0:
                 first_points = points
@@ -1374,8 +1257,9 @@ def render_scene(recipe_or_path: dict | str | os.PathLike, outdir: str | os.Path
         if stereo:
             np.save(tmp / "truth" / "correspondence.npy", correspondence(scene, first_points, 1))
         write_mesh(tmp / "truth" / "mesh.ply", scene.vertices, scene.triangles)
-        _write_cameras_yml(tmp / "cameras.yml", scene.cameras, stereo)
-        _write_colmap_text(tmp / "sparse", scene.cameras)
+        rig = StereoRig(*scene.cameras) if stereo else None
+        write_cameras_yml(tmp / "cameras.yml", scene.cameras, rig=rig)
+        write_colmap_text(tmp / "sparse", scene.cameras)
         (tmp / "scene.json").write_text(_scene_json(scene, source))
     return outdir
 
