@@ -136,10 +136,12 @@ def edge_table(triangles: np.ndarray) -> EdgeTable:
     """
     tri = np.asarray(triangles, dtype=np.int64)
     directed = np.stack([tri, np.roll(tri, -1, axis=1)], axis=2).reshape(-1, 2)  # (3F, 2)
-    lo = directed.min(axis=1)
-    hi = directed.max(axis=1)
-    keys = np.stack([lo, hi], axis=1)
-    edges, inverse = np.unique(keys, axis=0, return_inverse=True)
+    lo = np.minimum(directed[:, 0], directed[:, 1])
+    hi = np.maximum(directed[:, 0], directed[:, 1])
+    # One int64 key per undirected edge: a 1-D unique is ~20x faster than unique(axis=0).
+    n_vertices = int(tri.max()) + 1 if tri.size else 1
+    unique_keys, inverse = np.unique(lo * n_vertices + hi, return_inverse=True)
+    edges = np.stack([unique_keys // n_vertices, unique_keys % n_vertices], axis=1)
     inverse = inverse.reshape(-1)
     n_edges = edges.shape[0]
     counts = np.bincount(inverse, minlength=n_edges).astype(np.int64)

@@ -255,37 +255,50 @@ def _angle(vertices: np.ndarray, apex: np.ndarray, a: np.ndarray, b: np.ndarray)
     return np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
 
 
-def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit):
-    """One sweep's non-Delaunay, legal flips: ``(f1, f2, new f1, new f2, excess)``."""
+def _member(sorted_keys: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """``query`` values present in the sorted 1-D ``sorted_keys`` (bool, same shape)."""
+    if sorted_keys.size == 0:
+        return np.zeros(query.shape, bool)
+    pos = np.minimum(np.searchsorted(sorted_keys, query), sorted_keys.size - 1)
+    return sorted_keys[pos] == query
+
+
+def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active):
+    """One sweep's non-Delaunay, legal flips among edges touching ``active`` faces.
+
+    Returns ``(f1, f2, new f1, new f2, excess, new edge keys)``; the cheap
+    tests run first so that angles and normals are computed for few edges.
+    """
     n_v = len(vertices)
     table = edge_table(triangles)
     edge_ids, faces, corners = table.edge_faces()
     f1, f2 = faces[:, 0], faces[:, 1]
     k1, k2 = corners[:, 0], corners[:, 1]
+    edge_keys = _edge_keys(table.edges, n_v)  # sorted: edges are in (lo, hi) order
     a = triangles[f1, k1]
     b = triangles[f1, (k1 + 1) % 3]
+    keep = ((active[f1] | active[f2])
+            & (region[f1] == region[f2])
+            & (triangles[f2, k2] == b) & (triangles[f2, (k2 + 1) % 3] == a)  # consistently oriented
+            & ~_member(fixed_keys, edge_keys[edge_ids]))
+    sel = np.flatnonzero(keep)
+    f1, f2, k1, k2, a, b = f1[sel], f2[sel], k1[sel], k2[sel], a[sel], b[sel]
     c = triangles[f1, (k1 + 2) % 3]
     d = triangles[f2, (k2 + 2) % 3]
-    edge_keys = _edge_keys(table.edges, n_v)
-    ok = ((region[f1] == region[f2])
-          & (triangles[f2, k2] == b) & (triangles[f2, (k2 + 1) % 3] == a)  # consistently oriented
-          & (c != d)
-          & ~np.isin(edge_keys[edge_ids], fixed_keys))
     excess = _angle(vertices, c, a, b) + _angle(vertices, d, b, a) - np.pi
-    ok &= excess > TOL.angle
-    # The new edge must not exist already (else the flip makes it non-manifold).
+    # Not Delaunay, and the new edge must not exist already (else it is non-manifold).
     new_keys = _edge_keys(np.stack([c, d], axis=1), n_v)
-    ok &= ~np.isin(new_keys, edge_keys)
+    sel = np.flatnonzero((excess > TOL.angle) & (c != d) & ~_member(edge_keys, new_keys))
+    f1, f2, a, b, c, d = f1[sel], f2[sel], a[sel], b[sel], c[sel], d[sel]
+    excess, new_keys = excess[sel], new_keys[sel]
     new1 = np.stack([c, a, d], axis=1)
     new2 = np.stack([d, b, c], axis=1)
     # No fold-over: both new normals within cos_limit of the old area-weighted normal.
     old = face_normals(vertices, triangles[f1], unit=False) + face_normals(
         vertices, triangles[f2], unit=False)
     old /= np.maximum(np.linalg.norm(old, axis=1, keepdims=True), TOL.zero)
-    n1 = face_normals(vertices, new1)
-    n2 = face_normals(vertices, new2)
-    ok &= np.einsum("ij,ij->i", n1, old) > cos_limit
-    ok &= np.einsum("ij,ij->i", n2, old) > cos_limit
+    ok = np.einsum("ij,ij->i", face_normals(vertices, new1), old) > cos_limit
+    ok &= np.einsum("ij,ij->i", face_normals(vertices, new2), old) > cos_limit
     sel = np.flatnonzero(ok)
     return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
 
@@ -312,7 +325,10 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
     max_sweeps : int
         Upper bound on sweeps.  Every sweep flips, at once, a set of
         non-Delaunay edges no two of which share a face (for each face the
-        candidate with the largest angle excess).
+        candidate with the largest angle excess).  After the first sweep only
+        edges of faces changed by the previous sweep are examined (a flip can
+        only spoil the four edges of its own quad); a last full sweep
+        confirms the fixed point.
 
     Returns
     -------
@@ -329,11 +345,17 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
     fixed = (np.zeros(0, np.int64) if fixed_edges is None or len(fixed_edges) == 0
              else np.unique(_edge_keys(np.asarray(fixed_edges, np.int64), len(v))))
     cos_limit = float(np.cos(max_normal_change))
+    everything = np.ones(len(tri), bool)
+    active = everything
     total = 0
     for _ in range(max_sweeps):
-        f1, f2, new1, new2, excess, new_keys = _flip_candidates(v, tri, reg, fixed, cos_limit)
+        f1, f2, new1, new2, excess, new_keys = _flip_candidates(v, tri, reg, fixed, cos_limit,
+                                                                active)
         if len(f1) == 0:
-            return tri, total, True
+            if active is everything:
+                return tri, total, True
+            active = everything  # confirm with a full sweep
+            continue
         # Independent set: every face keeps its largest-excess candidate (unique ranks).
         rank = np.empty(len(f1), np.int64)
         rank[np.argsort(excess, kind="stable")] = np.arange(len(f1))
@@ -347,6 +369,11 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
         tri[f1[chosen]] = new1[chosen]
         tri[f2[chosen]] = new2[chosen]
         total += len(chosen)
+        active = np.zeros(len(tri), bool)
+        # Faces of this sweep's flips, and those of candidates that lost the
+        # independent-set draw, are examined again.
+        active[f1] = True
+        active[f2] = True
     return tri, total, False
 
 
@@ -554,3 +581,234 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         flips=int(flips),
         delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
     )
+
+
+# --------------------------------------------------------------------------- points to surface
+#: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
+NORMAL_NEIGHBOURS = 12
+#: Smallest sin(angle between surface normal and axis) for a point to join a
+#: section contour: below it the surface is within 30° of the section plane
+#: (an end cap, a pole) and sliding the point to its plane would move it more
+#: than twice its height offset.
+MIN_WALL_SINE = 0.5
+
+
+def _pca_normals(cloud: np.ndarray, query: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
+    """Unit normals ``(Q, 3)`` at ``query`` points: least-variance axis of k neighbours."""
+    from scipy.spatial import cKDTree
+
+    k = min(k, len(cloud))
+    _, idx = cKDTree(cloud).query(query, k=k)
+    nbrs = cloud[idx.reshape(len(query), k)]                       # (Q, k, 3)
+    centred = nbrs - nbrs.mean(axis=1, keepdims=True)
+    cov = np.einsum("qki,qkj->qij", centred, centred)              # (Q, 3, 3)
+    _, vecs = np.linalg.eigh(cov)
+    return vecs[:, :, 0]
+
+
+def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]:
+    """Move each section's points to its plane along the surface, not along the axis.
+
+    A point at height offset ``δ = a·x − h`` on a wall of normal ``n`` lies on
+    the tangent plane; the tangent direction of steepest ascent is
+    ``t = a − (a·n) n`` with ``t·a = 1 − (a·n)²``, so ``x' = x − δ t/(t·a)``
+    is on both the tangent plane and the section plane (error O(κ δ²)
+    instead of the axis projection's O(|r'| δ), which on a sloped wall is
+    noise of size slope × slab half-width).  Points where the surface is
+    nearly parallel to the plane (``sqrt(t·a) < MIN_WALL_SINE``) are left out
+    of the contour and returned as *cap points*.
+
+    Returns
+    -------
+    sections : list of Section
+        The same sections with slid points (``source_index`` kept).
+    cap_points : (C,) int64
+        Indices into ``points`` of the section points left out.
+    """
+    from dataclasses import replace
+
+    members = [s.source_index for s in slices if len(s)]
+    if not members:
+        return slices, np.zeros(0, np.int64)
+    index = np.concatenate(members)
+    normals = _pca_normals(points, points[index])
+    out, capped, start = [], [], 0
+    for section in slices:
+        m = len(section)
+        if m == 0:
+            out.append(section)
+            continue
+        x = points[section.source_index]
+        n = normals[start:start + m]
+        start += m
+        axis = section.frame[2]
+        delta = x @ axis - section.height                          # (m,)
+        an = n @ axis
+        tangent = axis - an[:, None] * n                           # (m, 3)
+        ta = 1.0 - an**2
+        wall = ta >= MIN_WALL_SINE**2
+        slid = x[wall] - (delta[wall] / ta[wall])[:, None] * tangent[wall]
+        slid -= (slid @ axis - section.height)[:, None] * axis     # exactly on the plane
+        capped.append(section.source_index[~wall])
+        out.append(replace(section, points=slid, source_index=section.source_index[wall]))
+    return out, np.concatenate(capped).astype(np.int64)
+
+
+def surface_from_points(points: np.ndarray, axis="z", sections: int | None = None,
+                        spacing: float | None = None, thickness: float | None = None,
+                        n: int | None = None, smoothing: float = 8.0,
+                        projection: str = "surface", extend_ends: bool = True,
+                        close_ends: bool = True, flip: bool = True) -> StitchResult:
+    """Unorganised points to a stitched mesh: slice → organise → fit/predict → stitch.
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+        The cloud, scene units.
+    axis : {"z", "x", "y", "auto"} or (3,) array_like
+        Slicing axis (:func:`surface.sections.slice_sections`).
+    sections : int, optional
+        Number of sections K (default from the point spacing, see
+        ``sections.slice_sections``).
+    spacing : float, optional
+        Distance between sections instead of ``sections``.
+    thickness : float, optional
+        Half-width of the slab of points assigned to a section.  Default:
+        ``sections.slice_sections``'s with ``projection="axis"``, and half the
+        section spacing (every point used once) with ``projection="surface"``.
+    n : int, optional
+        N, ring points on the odd sections (2N on the even ones).  Default
+        ``ceil(P_max / Δ)`` with ``P_max`` the largest loop perimeter (convex
+        hull) and Δ the section spacing, so that triangles are about as wide
+        along the rings as they are tall across them.
+    smoothing : float
+        Data points per Catmull-Rom control point (``catmull_rom.fit``).
+    projection : {"surface", "axis"}
+        How a slab point reaches its plane: along the local surface (tangent
+        plane from a PCA normal of its 12 nearest neighbours; points on
+        surfaces within 30° of the plane are left out) or straight along the
+        axis (``sections.slice_sections`` as is).
+    extend_ends : bool
+        Move the end caps from the first and last section planes to the
+        median height of the cloud's cap points beyond them (if at least
+        ``NORMAL_NEIGHBOURS`` such points lie inside the end contour); the end
+        ring is extrapolated linearly from the last two rings.
+    close_ends : bool
+        Cap the first and last sections.
+    flip : bool
+        Lawson flips.
+
+    Returns
+    -------
+    StitchResult
+        With skipped sections and end extensions reported in ``messages``.
+
+    Raises
+    ------
+    ValueError
+        Bad cloud or parameters (from the steps), an unknown projection, or
+        fewer than two sections with a loop.
+    """
+    import warnings
+
+    from surface.catmull_rom import predict_sections
+    from surface.sections import slice_sections
+    from surface.topology import organise
+
+    if projection not in ("surface", "axis"):
+        raise ValueError(f"projection must be 'surface' or 'axis', got {projection!r}")
+    slices = slice_sections(points, axis=axis, count=sections, spacing=spacing,
+                            thickness=thickness)
+    pts = np.asarray(points, dtype=np.float64)
+    delta = abs(slices[1].height - slices[0].height) if len(slices) > 1 else 0.0
+    cap_points = np.zeros(0, np.int64)
+    if projection == "surface" and len(slices) > 1:
+        if thickness is None:
+            slices = slice_sections(pts, axis=slices[0].frame[2], count=len(slices),
+                                    thickness=delta / 2)
+        slices, cap_points = _slide_to_planes(pts, slices)
+    messages = []
+    kept, loops = [], []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for section in slices:
+            found = organise(section) if len(section) else []
+            if found:
+                kept.append(section)
+                loops.append(found)
+    messages += [str(w.message) for w in caught]
+    if len(slices) - len(kept):
+        messages.append(f"{len(slices) - len(kept)} of {len(slices)} sections had no loop "
+                        "and were skipped")
+    if len(kept) < 2:
+        raise ValueError(f"points gave {len(kept)} section(s) with a closed loop; "
+                         "stitching needs at least 2 (too few points or sections?)")
+    if n is None:
+        gaps = np.abs(np.diff([section.height for section in kept]))
+        n = max(4, int(np.ceil(_largest_perimeter(loops) / float(gaps.min()))))
+    # A lone loop is passed as itself, so its ring comes back as one (n_k, 3) array.
+    rings = predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
+                             smoothing=smoothing)
+    if extend_ends and close_ends:
+        rings, notes = _extend_ends(rings, kept, pts, cap_points, delta)
+        messages += notes
+    result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip)
+    if messages:
+        from dataclasses import replace
+
+        result = replace(result, messages=tuple(messages) + result.messages)
+    return result
+
+
+def _extend_ends(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
+                 delta: float) -> tuple[list, list[str]]:
+    """Add an end ring at each end's cap height (see ``surface_from_points``)."""
+    rings = list(rings)
+    notes = []
+    axis = kept[0].frame[2]
+    candidates = cap_points if len(cap_points) else np.arange(len(points))
+    heights = points[candidates] @ axis
+    for end, (this, prev, sign) in enumerate(((0, 1, -1.0), (-1, -2, 1.0))):
+        ring, before = rings[this], rings[prev]
+        if not isinstance(ring, np.ndarray) or not isinstance(before, np.ndarray):
+            continue  # several loops at an end: cap where the sections stop
+        h_end = kept[this].height
+        beyond = candidates[(sign * (heights - h_end) > 0) & (sign * (heights - h_end) <= delta)]
+        flat = ring @ kept[this].frame[:2].T
+        inside = beyond[_inside(points[beyond] @ kept[this].frame[:2].T, flat)]
+        if len(inside) < NORMAL_NEIGHBOURS:
+            continue
+        cap_h = float(np.median(points[inside] @ axis))
+        step = cap_h - h_end
+        # Linear extrapolation of the end ring from the ring before it, at equal theta.
+        n_this, n_prev = len(ring), len(before)
+        prev_same = before[:: n_prev // n_this] if n_prev % n_this == 0 else None
+        if prev_same is not None and len(prev_same) == n_this:
+            slope = (ring - prev_same) / (h_end - float(before[0] @ axis))
+            new = ring + step * (slope - (slope @ axis)[:, None] * axis) + step * axis
+            centre = ring.mean(axis=0)
+            shrink = np.linalg.norm(new - new.mean(axis=0), axis=1) / np.maximum(
+                np.linalg.norm(ring - centre, axis=1), TOL.zero)
+            if not np.all((shrink > 0.5) & (shrink < 2.0)):
+                new = ring + step * axis
+        else:
+            new = ring + step * axis
+        rings.insert(0 if end == 0 else len(rings), new)
+        notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {abs(step):.4g} to the "
+                     f"median height of {len(inside)} cap points")
+    return rings, notes
+
+
+def _largest_perimeter(loops_per_section) -> float:
+    """Largest convex-hull perimeter over all loops (a noise-robust length), scene units."""
+    from scipy.spatial import ConvexHull
+
+    best = 0.0
+    for loops in loops_per_section:
+        for loop in loops:
+            flat = loop.points @ loop.frame[:2].T
+            try:
+                best = max(best, float(ConvexHull(flat).area))  # 2-D "area" is the perimeter
+            except Exception:  # noqa: BLE001 - degenerate (collinear) loop: skip its length
+                continue
+    return best
