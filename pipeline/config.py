@@ -15,7 +15,7 @@ from __future__ import annotations
 import copy
 import os
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 
@@ -103,7 +103,7 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
             if not isinstance(value, Mapping):
                 raise InputError(f"{origin}: {dotted} must be a table, got {value!r}")
             if dotted in _FREE:  # free-form table: deep-merge without checks
-                _deep_update(default, value)
+                deep_update(default, value)
             else:
                 _merge(default, value, origin, f"{dotted}.")
             continue
@@ -117,23 +117,24 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
         base[key] = converted
 
 
-def _deep_update(base: dict, update: Mapping) -> None:
+def deep_update(base: dict, update: Mapping) -> None:
+    """Merge nested ``update`` into ``base`` in place (no checks)."""
     for key, value in update.items():
         if isinstance(value, Mapping) and isinstance(base.get(key), dict):
-            _deep_update(base[key], value)
+            deep_update(base[key], value)
         else:
             base[key] = copy.deepcopy(value)
 
 
-def resolve(config_file: str | os.PathLike | None = None,
+def resolve(config_file: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
             assignments: Iterable[str] = (),
             overrides: Mapping | None = None) -> dict:
     """Resolve the configuration: defaults, ``config_file``, ``overrides``, then ``--set``.
 
     Parameters
     ----------
-    config_file : path, optional
-        TOML file with the same sections as ``defaults.toml``.
+    config_file : path or sequence of paths, optional
+        TOML file(s) with the same sections as ``defaults.toml``, applied in order.
     assignments : iterable of str
         ``"section.key=value"`` strings from ``--set``.
     overrides : mapping, optional
@@ -145,8 +146,9 @@ def resolve(config_file: str | os.PathLike | None = None,
         The full parameter set, every section present.
     """
     config = defaults()
-    if config_file is not None:
-        _merge(config, load_file(config_file), str(config_file))
+    files = [config_file] if isinstance(config_file, str | os.PathLike) else (config_file or [])
+    for path in files:
+        _merge(config, load_file(path), str(path))
     if overrides:
         _merge(config, overrides, "batch manifest")
     for text in assignments:

@@ -1,0 +1,170 @@
+"""``photosurf batch``: many inputs, one workspace each, the objects run as tasks.
+
+Batch manifest (TOML; paths relative to the manifest's folder)::
+
+    config = "params.toml"          # optional: parameters for every object
+    [set]                           # optional: overrides for every object
+    sections = { count = 30 }
+
+    [[object]]
+    name = "vase"                   # workspace OUTDIR/vase (default: the input's stem)
+    input = "scenes/vase.toml"      # or: inputs = ["left.png", "right.png"]
+    kind = "scene"                  # optional, as --kind
+    rig = "rig.yml"                 # optional, as --rig
+    set = { curves = { smoothing = 4.0 } }   # optional, this object only
+
+Parameters resolve as: defaults, ``--config``, the manifest's ``config``,
+its ``[set]``, the object's ``set``, then ``--set``.  Each object is one task
+on the executor (in-process by default, Dask with ``--scheduler``); an object
+that fails is reported and the others go on.  ``OUTDIR/batch.json`` lists
+every object's status and workspace.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import sys
+import tomllib
+from pathlib import Path
+
+from pipeline import config as config_mod
+from pipeline import progress
+from pipeline.cmd_run import add_config_arguments
+from pipeline.errors import InputError
+from pipeline.stages import KINDS, STAGE_ORDER
+
+HELP = "run the pipeline on many inputs listed in a TOML manifest (Dask with --scheduler)"
+_OBJECT_KEYS = {"name", "input", "inputs", "kind", "rig", "set"}
+_TOP_KEYS = {"config", "set", "object"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.epilog = __doc__.split("\n", 2)[2]
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("manifest", metavar="MANIFEST.toml", help="batch manifest")
+    parser.add_argument("--out", required=True, metavar="OUTDIR",
+                        help="folder of the workspaces (OUTDIR/<name>)")
+    add_config_arguments(parser)
+    parser.add_argument("--to", dest="stop", choices=STAGE_ORDER, metavar="STAGE",
+                        help="last stage to run for every object")
+    parser.add_argument("--json", action="store_true",
+                        help="print a machine-readable summary (JSON) on stdout")
+
+
+def read_manifest(path: str | os.PathLike) -> list[dict]:
+    """Read a batch manifest into task dicts (paths made absolute, names unique).
+
+    Raises
+    ------
+    FileNotFoundError, InputError
+        Missing file, invalid TOML, an unknown key, an object without input,
+        a duplicate name.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such batch manifest")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: invalid TOML: {exc}") from exc
+    unknown = set(data) - _TOP_KEYS
+    if unknown:
+        raise InputError(f"{path}: unknown key {sorted(unknown)[0]!r} "
+                         f"(known: {', '.join(sorted(_TOP_KEYS))})")
+    objects = data.get("object")
+    if not isinstance(objects, list) or not objects:
+        raise InputError(f"{path}: no [[object]] entries")
+    base = path.parent
+    common_config = str(base / data["config"]) if "config" in data else None
+    common_set = data.get("set", {})
+    if not isinstance(common_set, dict):
+        raise InputError(f"{path}: set must be a table, got {common_set!r}")
+    tasks, names = [], set()
+    for number, obj in enumerate(objects, 1):
+        where = f"{path}: object {number}"
+        if not isinstance(obj, dict):
+            raise InputError(f"{where}: must be a table")
+        unknown = set(obj) - _OBJECT_KEYS
+        if unknown:
+            raise InputError(f"{where}: unknown key {sorted(unknown)[0]!r} "
+                             f"(known: {', '.join(sorted(_OBJECT_KEYS))})")
+        if ("input" in obj) == ("inputs" in obj):
+            raise InputError(f"{where}: give input = \"...\" or inputs = [...] (exactly one)")
+        inputs = [obj["input"]] if "input" in obj else obj["inputs"]
+        if not isinstance(inputs, list) or not all(isinstance(i, str) for i in inputs):
+            raise InputError(f"{where}: inputs must be a list of paths, got {inputs!r}")
+        if obj.get("kind") is not None and obj["kind"] not in KINDS:
+            raise InputError(f"{where}: kind {obj['kind']!r}: choose one of {', '.join(KINDS)}")
+        name = str(obj.get("name") or Path(inputs[0]).stem)
+        if not name or "/" in name or name.startswith("."):
+            raise InputError(f"{where}: name {name!r} must be a plain folder name")
+        if name in names:
+            raise InputError(f"{where}: duplicate name {name!r} (set name = \"...\")")
+        names.add(name)
+        overrides = copy.deepcopy(common_set)
+        config_mod.deep_update(overrides, obj.get("set", {}))
+        tasks.append({"name": name, "inputs": [str(base / i) for i in inputs],
+                      "kind": obj.get("kind"),
+                      "rig": str(base / obj["rig"]) if obj.get("rig") else None,
+                      "config_files": [c for c in (common_config,) if c],
+                      "overrides": overrides})
+    return tasks
+
+
+def run_object(task: dict) -> dict:
+    """Run one object of a batch (a task: module-level, picklable, returns a small dict).
+
+    ``task`` holds ``name``, ``inputs``, ``kind``, ``rig``, ``outdir``,
+    ``config_files``, ``overrides`` and ``assignments``.  Errors a user can fix
+    are returned as ``{"status": "failed", "error": ...}``, not raised, so
+    that one bad object does not stop the batch.
+    """
+    from pipeline.stages import run_pipeline
+
+    progress.set_quiet(True)  # many objects at once: no interleaved bars
+    result = {"name": task["name"], "outdir": task["outdir"]}
+    try:
+        config = config_mod.resolve(task["config_files"], task["assignments"],
+                                    overrides=task["overrides"])
+        summary = run_pipeline(task["inputs"], task["outdir"], config, kind=task["kind"],
+                               rig=task["rig"], stop=task.get("stop"))
+    except (InputError, ValueError, OSError) as exc:
+        return {**result, "status": "failed", "error": str(exc) or type(exc).__name__}
+    return {**result, "status": "done", **summary.to_dict()}
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.executor import get_executor
+    from pipeline.workspace import Workspace, write_text
+
+    progress.set_quiet(args.quiet or args.json)
+    tasks = read_manifest(args.manifest)
+    base_config = config_mod.resolve(args.config, args.assignments)  # fail early, once
+    ws = Workspace(args.out)
+    for task in tasks:
+        task["outdir"] = str(ws.root / task["name"])
+        task["config_files"] = ([args.config] if args.config else []) + task["config_files"]
+        task["assignments"] = list(args.assignments)
+        task["stop"] = args.stop
+        config_mod.resolve(task["config_files"], task["assignments"], task["overrides"])
+    scheduler = args.scheduler or base_config["executor"]["scheduler"]
+    with get_executor(scheduler, base_config["executor"]["workers"]) as executor:
+        results = executor.map(run_object, tasks)
+    summary = {"manifest": str(args.manifest), "outdir": str(ws.root), "objects": results}
+    write_text(ws.root / "batch.json", json.dumps(summary, indent=1) + "\n")
+    failed = [r for r in results if r["status"] != "done"]
+    if args.json:
+        json.dump(summary, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    elif not args.quiet:
+        for r in results:
+            note = r.get("error", "") or r.get("report") or ""
+            print(f"  {r['name']:<20} {r['status']:<8} {note}")
+        print(f"photosurf batch: {len(results) - len(failed)} of {len(results)} objects done "
+              f"-> {ws.root}")
+    for r in failed:
+        print(f"photosurf batch: error: {r['name']}: {r['error']}", file=sys.stderr)
+    return 2 if failed else 0
