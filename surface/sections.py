@@ -315,7 +315,10 @@ def _assign(points, heights, frame, h0, delta, count, thickness) -> list[Section
     k = np.clip(np.rint((heights - h0) / delta), 0, count - 1).astype(np.int64)
     plane_h = h0 + k * delta
     offset = heights - plane_h
-    keep = np.abs(offset) <= thickness
+    if thickness >= 0.5 * delta * (1.0 - TOL.planar_rel):
+        keep = np.ones(len(points), bool)  # slabs tile the extent: rounding must not drop ends
+    else:
+        keep = np.abs(offset) <= thickness
     idx = np.flatnonzero(keep)
     k_kept = k[idx]
     order = np.argsort(k_kept, kind="stable")
