@@ -34,6 +34,9 @@ class Tolerance:
     #: Gauss-Newton triangulation stops when every step is below this times the
     #: mean camera distance from the camera centroid.
     triangulation_step_rel: float = 1e-10
+    #: Isotropic σ floor (px) added to each LSM match covariance before triangulation,
+    #: so that an epipolar-constrained (rank-1) covariance stays positive definite.
+    match_cov_floor_px: float = 1e-3
 
 
 TOL = Tolerance()
