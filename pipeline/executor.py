@@ -82,11 +82,13 @@ class DaskExecutor:
         of ``n_workers`` processes (one thread each) is started on 127.0.0.1.
     n_workers : int
         Workers of the local cluster.
+    timeout : str
+        How long to try to reach ``address``.
     """
 
     name = "dask"
 
-    def __init__(self, address: str | None = None, n_workers: int = 2):
+    def __init__(self, address: str | None = None, n_workers: int = 2, timeout: str = "10s"):
         quiet_dask()
         from distributed import Client, LocalCluster
 
@@ -95,10 +97,10 @@ class DaskExecutor:
             if address is None:
                 self._cluster = LocalCluster(
                     n_workers=int(n_workers), threads_per_worker=1, processes=True,
-                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
+                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.CRITICAL)
                 self.client = Client(self._cluster)
             else:
-                self.client = Client(address, timeout="10s")
+                self.client = Client(address, timeout=timeout)
         except (OSError, TimeoutError) as exc:
             if self._cluster is not None:
                 self._cluster.close()

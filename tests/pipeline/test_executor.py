@@ -1,0 +1,116 @@
+"""Executors: the in-process default and Dask (LocalCluster of 2 worker processes) agree."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline import cli
+from pipeline.cmd_batch import read_manifest
+from pipeline.errors import InputError
+from pipeline.executor import DaskExecutor, LocalExecutor, get_executor
+from pipeline.workspace import sha256_file
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _square_sum(seed: int, scale: float = 1.0) -> tuple[int, float]:
+    values = np.random.default_rng(seed).normal(size=1000) * scale
+    return os.getpid(), float(np.sum(values ** 2))
+
+
+def test_local_executor_keeps_order_and_kwargs():
+    serial = LocalExecutor().map(_square_sum, range(6), scale=2.0)
+    threaded = LocalExecutor(workers=2).map(_square_sum, range(6), scale=2.0)
+    assert [v for _, v in serial] == [v for _, v in threaded]
+    assert {pid for pid, _ in serial} == {os.getpid()}  # in this process
+    # E[sum x^2] = 1000 * scale^2 = 4000; 6 sigma of a chi-square(1000) * 4 is ~1900
+    assert all(abs(v - 4000) < 1900 for _, v in serial)
+
+
+@pytest.mark.parametrize("scheduler", ["bogus", "tcp://", "local-cluster:x", "http://a:1"])
+def test_bad_scheduler_is_one_line_error(scheduler):
+    with pytest.raises(InputError, match="--scheduler"):
+        get_executor(scheduler)
+
+
+def test_unreachable_scheduler_is_one_line_error():
+    with pytest.raises(InputError, match=r"--scheduler tcp://127.0.0.1:9: cannot connect"):
+        DaskExecutor("tcp://127.0.0.1:9", timeout="1s")
+
+
+def _outputs(workspace: Path) -> dict[str, str]:
+    """Every stage's recorded output hashes (the report, stamped with the time, left out)."""
+    manifest = json.loads((workspace / "manifest.json").read_text())
+    found = {}
+    for name, rec in manifest["stages"].items():
+        if name != "report":
+            found.update(rec.get("outputs", {}))
+    return found
+
+
+def test_dask_local_cluster_gives_identical_results(tmp_path, capfd):
+    with get_executor("local-cluster:2") as ex:
+        assert isinstance(ex, DaskExecutor)
+        results = ex.map(_square_sum, range(6), scale=2.0)
+    local = LocalExecutor().map(_square_sum, range(6), scale=2.0)
+    assert [v for _, v in results] == [v for _, v in local]
+    assert os.getpid() not in {pid for pid, _ in results}  # ran in worker processes
+    # a batch of objects as tasks: same files as the in-process default
+    manifest = tmp_path / "batch.toml"
+    small = ("scene = { overrides = { cameras = { width = 96, height = 72, focal_px = 124.8 }, "
+             "shape = { triangles = 3000 }, render = { supersample = 1 } } }")
+    manifest.write_text(
+        f"[set]\n{small}\n"
+        f'[[object]]\ninput = "{ROOT}/fixtures/scenes/vase.toml"\n'
+        f'[[object]]\ninput = "{ROOT}/fixtures/scenes/cylinder.toml"\n')
+    assert [t["name"] for t in read_manifest(manifest)] == ["vase", "cylinder"]
+    capfd.readouterr()
+    for out, extra in (("local", []), ("dask", ["--scheduler", "local-cluster:2"])):
+        status = cli.main(["batch", str(manifest), "--out", str(tmp_path / out), "-q",
+                           "--to", "scene", *extra])
+        assert status == 0
+    err = capfd.readouterr().err
+    assert err == "", err  # quiet: no dask warnings about ports, dashboards or the network
+    for name in ("vase", "cylinder"):
+        local_files = _outputs(tmp_path / "local" / name)
+        assert local_files, "the batch produced no outputs"
+        assert _outputs(tmp_path / "dask" / name) == local_files
+        for rel, digest in local_files.items():
+            assert sha256_file(tmp_path / "dask" / name / rel) == digest
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[[object]]\nname = 'a'\n", "give input"),
+    ("[[object]]\ninput = 'x.toml'\ncolour = 1\n", "unknown key 'colour'"),
+    ("[[object]]\ninput = 'a/x.toml'\n[[object]]\ninput = 'b/x.toml'\n", "duplicate name 'x'"),
+    ("title = 'x'\n", "unknown key 'title'"),
+    ("[[object]\n", "invalid TOML"),
+    ("", r"no \[\[object\]\] entries"),
+])
+def test_batch_manifest_errors(tmp_path, text, message):
+    path = tmp_path / "m.toml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message):
+        read_manifest(path)
+
+
+def test_batch_failed_object_does_not_stop_the_others(tmp_path, capfd):
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(
+        "[[object]]\nname = 'missing'\ninput = 'nowhere.ply'\n"
+        f'[[object]]\ninput = "{ROOT}/fixtures/scenes/vase.toml"\n'
+        "set = { scene = { overrides = { cameras = { width = 64, height = 48, "
+        "focal_px = 83.2 }, shape = { triangles = 2000 }, render = { supersample = 1 } } } }\n")
+    status = cli.main(["batch", str(manifest), "--out", str(tmp_path / "out"), "--to", "scene",
+                       "-q"])
+    assert status == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert err == [f"photosurf batch: error: missing: {tmp_path}/nowhere.ply: no such file "
+                   "or folder"]
+    summary = json.loads((tmp_path / "out" / "batch.json").read_text())
+    assert [o["status"] for o in summary["objects"]] == ["failed", "done"]
