@@ -122,7 +122,7 @@ class _Table:
 
     def take(self, key: str, kind: str, default=_REQUIRED, choices=None, positive=False,
              nonneg=False, length=None):
-        """Return the value of ``key`` converted to ``kind`` (float, int, bool, str, vector, matrix)."""
+        """Value of ``key`` as ``kind`` (float, int, bool, str, vector, matrix), range-checked."""
         self.used.add(key)
         if key not in self.table:
             if default is _REQUIRED:
@@ -611,8 +611,9 @@ def shape_mesh(shape: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if shape["kind"] == "revolution":
         vertices, triangles, corner = revolution_mesh(shape)
     else:
-        from pipeline.mesh_io import read_mesh
         from scipy.spatial.transform import Rotation
+
+        from pipeline.mesh_io import read_mesh
 
         vertices, triangles = read_mesh(shape["path"])
         vertices = vertices * shape["scale"]
