@@ -1,0 +1,177 @@
+"""``photosurf sections``: a point cloud -> a closed, Delaunay-stitched triangle mesh.
+
+The cloud is cut into planar sections perpendicular to ``--axis``, each
+section's points are organised into ordered loops, a closed Catmull-Rom curve
+is fitted to every loop at smoothing level ``--smoothing`` and resampled
+with N points on odd sections and 2N on even ones, and adjacent rings are
+stitched by the direction criterion, Lawson-flipped to Delaunay and capped
+(:func:`surface.stitch.surface_from_points` does all of it; this module only
+reads, writes and reports).
+
+Inputs: ``.ply`` (vertices), ``.xyz`` / ``.csv`` / ``.txt`` (the first three
+numeric columns are x y z; one header line and ``#`` comments are skipped),
+``.npz`` (an array ``points`` of shape (N, 3), or the only (N, 3) array).
+Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+HELP = "point cloud -> planar sections -> Catmull-Rom rings -> closed Delaunay-stitched mesh"
+
+CLOUD_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npz")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("cloud", metavar="CLOUD",
+                        help="point cloud (" + " ".join(CLOUD_SUFFIXES) + ")")
+    parser.add_argument("--out", required=True, metavar="MESH",
+                        help="output mesh (.ply .obj .stl .gltf .off)")
+    parser.add_argument("--axis", default="z", metavar="z|x|y|auto|X,Y,Z",
+                        help="slicing axis: a coordinate axis, 'auto' (principal axis of the "
+                             "cloud) or a vector (default z)")
+    parser.add_argument("--sections", type=int, default=None, metavar="K",
+                        help="number of sections (default: two point spacings apart)")
+    parser.add_argument("--n", type=int, default=None, metavar="N",
+                        help="ring points on odd sections, 2N on even ones (default: as far "
+                             "apart as the sections, from the largest loop perimeter)")
+    parser.add_argument("--smoothing", type=float, default=8.0, metavar="S",
+                        help="data points per curve control point: noise sigma becomes about "
+                             "sigma/sqrt(S); <= 1 interpolates (default 8)")
+    parser.add_argument("--open-ends", action="store_true",
+                        help="do not cap the first and last sections")
+    # Reserved: the Bezier smoothing step adds ``--smooth`` here (and its use in run()
+    # after the stitched mesh is built, see _smooth_hook).
+
+
+def parse_axis(text: str):
+    """``"z"``, ``"auto"`` ... as is; ``"X,Y,Z"`` -> (3,) float64; else InputError."""
+    name = text.strip().lower()
+    if name in ("x", "y", "z", "auto"):
+        return name
+    parts = [p for p in name.replace(";", ",").split(",") if p.strip()]
+    try:
+        vec = np.array([float(p) for p in parts])
+    except ValueError:
+        vec = None
+    if vec is None or vec.shape != (3,) or not np.all(np.isfinite(vec)):
+        raise InputError(f"--axis must be x, y, z, auto or three numbers X,Y,Z, got {text!r}")
+    if np.linalg.norm(vec) == 0:
+        raise InputError(f"--axis must have non-zero length, got {text!r}")
+    return vec
+
+
+def read_points(path: str | Path) -> np.ndarray:
+    """Read a cloud's points ``(N, 3) float64`` from PLY, XYZ/CSV/TXT or NPZ.
+
+    TODO: switch to ``pipeline.cloud_io.read_cloud`` once it lands (the
+    matching engineer's reader); this is the stand-in.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such point cloud file")
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise InputError(f"{path}: unknown point cloud format {suffix!r} "
+                         f"(expected one of {', '.join(CLOUD_SUFFIXES)})")
+    try:
+        from pipeline import cloud_io  # preferred when present
+    except ImportError:
+        cloud_io = None
+    if cloud_io is not None:
+        cloud = cloud_io.read_cloud(path)
+        cloud = cloud[0] if isinstance(cloud, tuple) else getattr(cloud, "points", cloud)
+        return np.asarray(cloud, dtype=np.float64)
+    if suffix == ".ply":
+        import open3d as o3d
+
+        points = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=np.float64)
+    elif suffix == ".npz":
+        with np.load(path) as data:
+            if "points" in data:
+                points = data["points"]
+            else:
+                shaped = [k for k in data.files if data[k].ndim == 2 and data[k].shape[1] == 3]
+                if len(shaped) != 1:
+                    raise InputError(f"{path}: no 'points' array (and not exactly one (N, 3) "
+                                     f"array among {data.files})")
+                points = data[shaped[0]]
+    else:
+        points = _read_text(path)
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(f"{path}: points must have shape (N, 3), got {points.shape}")
+    return points
+
+
+def _read_text(path: Path) -> np.ndarray:
+    rows = []
+    with open(path, encoding="utf-8", errors="replace") as handle:
+        for number, line in enumerate(handle, start=1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            fields = text.replace(",", " ").replace(";", " ").split()
+            try:
+                rows.append([float(v) for v in fields[:3]])
+            except ValueError:
+                if rows:  # a header is allowed only before the data
+                    raise InputError(f"{path}:{number}: not a number in {line.strip()!r}") from None
+                continue
+            if len(fields) < 3:
+                raise InputError(f"{path}:{number}: need x y z, got {line.strip()!r}")
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.mesh_io import MESH_SUFFIXES, write_mesh
+    from surface.stitch import surface_from_points
+
+    out = Path(args.out)
+    if out.suffix.lower() not in MESH_SUFFIXES:
+        raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
+                         f"(choose one of {', '.join(MESH_SUFFIXES)})")
+    if args.sections is not None and args.sections < 2:
+        raise InputError(f"--sections must be >= 2, got {args.sections}")
+    if args.n is not None and args.n < 3:
+        raise InputError(f"--n must be >= 3, got {args.n}")
+    if not (np.isfinite(args.smoothing) and args.smoothing >= 0):
+        raise InputError(f"--smoothing must be a number >= 0, got {args.smoothing}")
+    axis = parse_axis(args.axis)
+    points = read_points(args.cloud)
+    if len(points) == 0:
+        raise InputError(f"{args.cloud}: the point cloud is empty")
+    if not np.all(np.isfinite(points)):
+        bad = int(np.count_nonzero(~np.all(np.isfinite(points), axis=1)))
+        raise InputError(f"{args.cloud}: {bad} points have NaN/inf coordinates")
+    start = time.perf_counter()
+    try:
+        result = surface_from_points(points, axis=axis, sections=args.sections, n=args.n,
+                                     smoothing=args.smoothing, close_ends=not args.open_ends)
+    except ValueError as exc:
+        raise InputError(f"{args.cloud}: {exc}") from exc
+    vertices, triangles = _smooth_hook(args, result.vertices, result.triangles)
+    write_mesh(out, vertices, triangles)
+    seconds = time.perf_counter() - start
+    if not args.quiet:
+        rings = len(np.unique(result.section_of_vertex))
+        state = "closed" if result.closed else "open"
+        print(f"photosurf sections: {len(points)} points -> {rings} sections, "
+              f"{len(triangles)} triangles, {state}, {seconds:.2f} s -> {out}")
+        if args.verbose:
+            for message in result.messages:
+                print(f"  note: {message}")
+    return 0
+
+
+def _smooth_hook(args: argparse.Namespace, vertices: np.ndarray,
+                 triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Place for the Bezier step's ``--smooth``: return the mesh to write (unchanged here)."""
+    return vertices, triangles

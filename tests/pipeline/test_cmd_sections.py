@@ -1,0 +1,126 @@
+"""``photosurf sections``: cloud files in, a closed mesh out; bad input -> one line, exit 2."""
+
+import numpy as np
+import pytest
+
+from pipeline.cli import main
+from pipeline.mesh_io import read_mesh
+from surface import metrics as M
+
+SIGMA = 0.002
+
+
+def vase_truth(n_theta=256, n_z=192):
+    """Closed vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], flat caps (fan to the centres)."""
+    z = np.linspace(0.0, 3.0, n_z)
+    theta = 2 * np.pi * np.arange(n_theta) / n_theta
+    r = 1.0 + 0.3 * np.sin(2.0 * z)
+    v = np.stack([np.outer(r, np.cos(theta)), np.outer(r, np.sin(theta)),
+                  np.repeat(z[:, None], n_theta, 1)], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_z - 1), np.arange(n_theta), indexing="ij")
+    a = (i * n_theta + j).ravel()
+    b = (i * n_theta + (j + 1) % n_theta).ravel()
+    faces = [np.stack([a, b, b + n_theta], 1), np.stack([a, b + n_theta, a + n_theta], 1)]
+    bottom, top = len(v), len(v) + 1
+    v = np.vstack([v, [[0, 0, 0], [0, 0, 3.0]]])
+    ring = np.arange(n_theta)
+    nxt = (ring + 1) % n_theta
+    last = (n_z - 1) * n_theta
+    faces += [np.stack([np.full(n_theta, bottom), nxt, ring], 1),
+              np.stack([np.full(n_theta, top), last + ring, last + nxt], 1)]
+    return v, np.vstack(faces)
+
+
+@pytest.fixture(scope="module")
+def vase():
+    v, f = vase_truth()
+    rng = np.random.default_rng(7)
+    points = M.sample_mesh(v, f, count=8000, seed=7) + rng.normal(0.0, SIGMA, (8000, 3))
+    return v, f, points
+
+
+def test_truth_mesh_is_a_closed_vase():
+    v, f = vase_truth()
+    topo = M.mesh_topology(v, f)
+    assert topo["closed"] and topo["oriented"] and topo["euler"] == 2
+    assert topo["signed_volume"] > 0
+
+
+@pytest.mark.parametrize("suffix", [".xyz", ".npz", ".ply", ".csv"])
+def test_cloud_formats_give_a_closed_mesh_near_the_truth(vase, tmp_path, suffix, capsys):
+    v, f, points = vase
+    path = tmp_path / f"vase{suffix}"
+    if suffix == ".xyz":
+        np.savetxt(path, points)
+    elif suffix == ".csv":
+        np.savetxt(path, points, delimiter=",", header="x,y,z", comments="")
+    elif suffix == ".npz":
+        np.savez(path, points=points)
+    else:
+        import open3d as o3d
+
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        assert o3d.io.write_point_cloud(str(path), cloud)
+    out = tmp_path / "mesh.ply"
+    assert main(["sections", str(path), "--out", str(out)]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("photosurf sections: 8000 points") and "closed" in line
+    vertices, triangles = read_mesh(out)
+    topo = M.mesh_topology(vertices, triangles)
+    assert topo["closed"] and topo["oriented"] and topo["components"] == 1
+    scores = M.compare_meshes(vertices, triangles, v, f, tau=0.005, count=20000)
+    # The raw points lie sqrt(2/pi) sigma = 0.8 sigma from the truth on average; the
+    # smoothed surface must be closer than the points it came from.
+    assert scores["chamfer"] < 0.8 * SIGMA
+    assert scores["fscore"] > 0.9
+
+
+def test_options_axis_vector_sections_n(vase, tmp_path, capsys):
+    _, _, points = vase
+    path = tmp_path / "vase.npz"
+    np.savez(path, cloud=points)  # the only (N, 3) array, not named 'points'
+    out = tmp_path / "mesh.obj"
+    assert main(["sections", str(path), "--out", str(out), "--axis", "0,0,2",
+                 "--sections", "12", "--n", "20", "--smoothing", "4", "--open-ends"]) == 0
+    assert "12 sections" in capsys.readouterr().out
+    vertices, triangles = read_mesh(out)
+    # 12 rings of 20/40 points, no caps: 11 strips of 60 triangles.
+    assert len(triangles) == 11 * 60
+    assert M.mesh_topology(vertices, triangles)["boundary_edges"] == 20 + 40
+
+
+def _fails(capsys, argv, *needles):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("photosurf sections: error:")
+    for needle in needles:
+        assert needle in err, err
+
+
+def test_bad_input_one_line_exit_2(vase, tmp_path, capsys):
+    out = tmp_path / "mesh.ply"
+    good = tmp_path / "good.xyz"
+    np.savetxt(good, vase[2][:2000])
+    _fails(capsys, ["sections", str(tmp_path / "none.ply"), "--out", str(out)], "none.ply")
+    bad_suffix = tmp_path / "cloud.las"
+    bad_suffix.write_text("1 2 3\n")
+    _fails(capsys, ["sections", str(bad_suffix), "--out", str(out)], "cloud.las", "format")
+    empty = tmp_path / "empty.xyz"
+    empty.write_text("x y z\n")
+    _fails(capsys, ["sections", str(empty), "--out", str(out)], "empty.xyz", "empty")
+    nan = tmp_path / "nan.xyz"
+    nan.write_text("0 0 0\n1 nan 2\n")
+    _fails(capsys, ["sections", str(nan), "--out", str(out)], "nan.xyz", "NaN")
+    flat = tmp_path / "flat.xyz"
+    np.savetxt(flat, np.column_stack([np.random.default_rng(0).random((500, 2)), np.zeros(500)]))
+    _fails(capsys, ["sections", str(flat), "--out", str(out)], "flat.xyz", "one plane")
+    garbage = tmp_path / "garbage.xyz"
+    garbage.write_text("1 2 3\n4 five 6\n")
+    _fails(capsys, ["sections", str(garbage), "--out", str(out)], "garbage.xyz:2")
+    _fails(capsys, ["sections", str(good), "--out", str(out), "--axis", "0,0,0"], "non-zero")
+    _fails(capsys, ["sections", str(good), "--out", str(out), "--axis", "up"], "--axis")
+    _fails(capsys, ["sections", str(good), "--out", str(tmp_path / "m.xyz")], "m.xyz")
+    _fails(capsys, ["sections", str(good), "--out", str(out), "--sections", "1"], "--sections")
+    # Nothing half-written is left behind.
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".mesh")]
