@@ -17,13 +17,14 @@ How each part is made robust and vectorised:
 
 * **Loops (clusters).**  The Euclidean minimum spanning tree of the section
   (a subgraph of its Delaunay triangulation, so ``O(M log M)``) is cut at
-  edges longer than the link distance ``ℓ = (ln M + 6)·g``, where
+  edges longer than the link distance ``ℓ = 2·(ln M + 6)·g``, where
   ``g = median(MST edge)/ln 2`` is the mean gap between neighbours along a
   curve.  For ``M`` points spread at random along a curve the gaps are
   exponential with mean g, the largest is about ``g·(ln M + 0.58)`` and
-  exceeds ``ℓ`` with probability ≈ e⁻⁶ ≈ 0.25 %; separate loops closer than
-  ℓ are merged.  Components with fewer than ``min_points`` points are
-  outliers.
+  exceeds ``(ln M + 6)·g`` with probability ≈ e⁻⁶ ≈ 0.25 %; the factor 2
+  allows the density to vary twofold along a loop (e.g. an ellipse sampled
+  uniformly in angle).  Separate loops closer than ℓ are merged.
+  Components with fewer than ``min_points`` points are outliers.
 * **Outliers.**  For every point a quadratic ``y = a + b x + c x²`` is fitted,
   in the principal frame of its ``k`` nearest neighbours (itself excluded),
   by batched least squares; its residual ``r`` is its distance from the
@@ -31,7 +32,9 @@ How each part is made robust and vectorised:
   the fit, = σ for Gaussian noise) a point is an outlier when
   ``|r| > max(threshold·σ̂, g/2)``; the floor ``g/2`` keeps noise-free data
   intact (an offset below half the point gap cannot be told from sampling).
-  Two passes, so a cluster of outliers does not shield its members.
+  The first pass fits every point's neighbours as they are; the second
+  refits from the points the first kept and decides again for every point,
+  so good points whose neighbourhood held an outlier are readmitted.
 * **Order.**  The loop is reduced to centres of a grid of cell size
   ``h = max(3 g, 6 σ̂, D/128)`` (D the loop's diameter), which are ordered by
   a closed tour: the shorter of the θ order and a depth-first walk of their
@@ -65,6 +68,8 @@ __all__ = ["Loop", "SectionSkippedWarning", "organise", "organise_all"]
 _MAD_TO_SIGMA = 1.4826
 #: ln(1/p) for a false split probability p ≈ 0.25 % of a loop by the link distance.
 _SPLIT_LOG_ODDS = 6.0
+#: Density variation along a loop that the link distance tolerates.
+_DENSITY_RATIO = 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,7 +140,7 @@ def organise(
     section : Section
     link_distance : float, optional
         Points farther apart than this (scene units) along the minimum
-        spanning tree belong to different loops.  Default ``(ln M + 6)·g``
+        spanning tree belong to different loops.  Default ``2·(ln M + 6)·g``
         (module notes).
     outlier_threshold : float
         Outlier cut in robust standard deviations of the distance from the
@@ -242,7 +247,11 @@ def _clusters(uv: np.ndarray, link_distance, scale):
     lengths = tree.data
     gap = float(np.median(lengths)) / math.log(2.0) if lengths.size else scale
     gap = max(gap, TOL.zero * scale)
-    link = gap * (math.log(len(uv)) + _SPLIT_LOG_ODDS) if link_distance is None else link_distance
+    link = (
+        _DENSITY_RATIO * gap * (math.log(len(uv)) + _SPLIT_LOG_ODDS)
+        if link_distance is None
+        else link_distance
+    )
     keep = lengths <= link
     n = len(uv)
     cut = coo_matrix((lengths[keep], (tree.row[keep], tree.col[keep])), shape=(n, n))
@@ -273,11 +282,18 @@ def _replace(loop: Loop, **changes) -> Loop:
 
 
 # ----------------------------------------------------------------------------- outliers
-def _local_residuals(uv: np.ndarray, k: int) -> np.ndarray:
-    """Distance ``(M,)`` of each point from a quadratic fitted to its k nearest neighbours."""
-    k = min(k, len(uv) - 1)
-    _, nbr = cKDTree(uv).query(uv, k=k + 1)
-    near = uv[nbr[:, 1:]]  # (M, k, 2), self excluded
+def _local_residuals(uv: np.ndarray, reference: np.ndarray, k: int) -> np.ndarray:
+    """Distance ``(M,)`` of each point from a quadratic fitted to its k nearest references.
+
+    ``reference`` ``(R,)`` indexes the points the fits may use; a point never
+    uses itself.
+    """
+    k = min(k, len(reference) - 1)
+    _, nbr = cKDTree(uv[reference]).query(uv, k=k + 1)
+    nbr = reference[nbr]  # (M, k + 1) point indices
+    is_self = nbr == np.arange(len(uv))[:, None]
+    is_self[~is_self.any(axis=1), -1] = True  # not a reference: drop the farthest instead
+    near = uv[nbr[~is_self].reshape(len(uv), k)]  # (M, k, 2)
     mean = near.mean(axis=1)  # (M, 2)
     centred = near - mean[:, None, :]
     cov = np.einsum("mki,mkj->mij", centred, centred)  # (M, 2, 2)
@@ -299,19 +315,19 @@ def _local_residuals(uv: np.ndarray, k: int) -> np.ndarray:
 
 
 def _reject(uv: np.ndarray, gap: float, threshold: float, k: int) -> tuple[np.ndarray, float]:
-    """Mask ``(M,)`` of kept points and the robust noise σ̂ (two passes)."""
+    """Mask ``(M,)`` of kept points and the robust noise σ̂ (two passes, module notes)."""
     keep = np.ones(len(uv), bool)
     sigma = 0.0
     for _ in range(2):
-        idx = np.flatnonzero(keep)
-        if len(idx) <= 4:
+        reference = np.flatnonzero(keep)
+        if len(reference) <= 4:
             break
-        resid = _local_residuals(uv[idx], k)
-        sigma = _MAD_TO_SIGMA * float(np.median(resid))
-        bad = resid > max(threshold * sigma, 0.5 * gap)
-        if not bad.any():
+        resid = _local_residuals(uv, reference, k)
+        sigma = _MAD_TO_SIGMA * float(np.median(resid[reference]))
+        new_keep = resid <= max(threshold * sigma, 0.5 * gap)
+        if np.array_equal(new_keep, keep):
             break
-        keep[idx[bad]] = False
+        keep = new_keep
     return keep, sigma
 
 
