@@ -146,9 +146,19 @@ class Stage:
 
 
 def missing_modules(modules: Sequence[str]) -> list[str]:
-    """Names in ``modules`` that cannot be imported (not written yet)."""
+    """Names in ``modules`` that cannot be imported (not written yet).
+
+    An entry is ``"package.module"`` or ``"package.module:attribute"``;
+    ``"a|b"`` is satisfied by either alternative.
+    """
     missing = []
     for name in modules:
+        if "|" in name:  # alternatives: missing only when none is there
+            options = name.split("|")
+            gone = missing_modules(options)
+            if len(gone) == len(options):
+                missing.append(gone[0])
+            continue
         module, _, attr = name.partition(":")
         try:
             mod = importlib.import_module(module)
@@ -556,29 +566,53 @@ def _acquire(ctx: StageContext) -> dict:
     if kind == "scene":
         kind = "stereo" if _scene_layout(ctx) == "stereo" else "folder"
     if kind == "cloud":
-        from pipeline import cloud_io
-
-        cloud = cloud_io.read_cloud(ctx.inputs[0])
-        return _save_cloud(ctx, *_cloud_arrays(cloud))
+        return _save_cloud(ctx, *_read_cloud(ctx.inputs[0]))
     if kind == "stereo":
         if ctx.kind == "scene":
             left, right = folder_images(ctx.stage_path("scene"))[:2]
             rig = ctx.stage_path("scene", "cameras.yml")
         else:
             left, right, rig = stereo_inputs(ctx.inputs, ctx.rig)
-        from matching import pair
-
-        cloud = pair.reconstruct_pair(left, right, rig, **_acquire_kwargs(ctx))
-        return _save_cloud(ctx, *_cloud_arrays(cloud))
+        return _save_cloud(ctx, *_stereo_cloud(left, right, rig, ctx.params["acquire"]))
     from pipeline import multiview
 
     folder = ctx.stage_path("scene") if ctx.kind == "scene" else ctx.inputs[0]
-    cloud = multiview.acquire_folder(folder, executor=ctx.executor, **_acquire_kwargs(ctx))
+    cloud = multiview.acquire_folder(folder, executor=ctx.executor, **ctx.params["acquire"])
     return _save_cloud(ctx, *_cloud_arrays(cloud))
 
 
-def _acquire_kwargs(ctx: StageContext) -> dict:
-    return dict(ctx.params["acquire"])
+def _read_image(path: Path):
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise InputError(f"{path}: not a readable image")
+    return image
+
+
+def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> tuple:
+    """``matching.pair.reconstruct_pair`` on two image files and a rig file."""
+    from matching.cameras import read_rig
+    from matching.pair import reconstruct_pair
+
+    rig = read_rig(rig_path)
+    options = dict(params)
+    max_reproj = options.pop("max_reprojection_px") or None
+    result = reconstruct_pair(_read_image(left), _read_image(right), rig,
+                              max_reprojection_px=max_reproj, **options)
+    colours = result.colours
+    return result.points, colours, result.sigma
+
+
+def _read_cloud(path: Path) -> tuple:
+    """Points (and colours, sigma when the file has them) of a cloud file."""
+    if not missing_modules(["pipeline.cloud_io:read_cloud"]):
+        from pipeline import cloud_io
+
+        return _cloud_arrays(cloud_io.read_cloud(path))
+    from pipeline.cmd_sections import read_points  # stand-in reader until cloud_io lands
+
+    return read_points(path), None, None
 
 
 def _cloud_arrays(cloud) -> tuple:
@@ -593,8 +627,8 @@ def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
     if kind == "scene":
         meta = ws.stage_dir("scene")
         kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
-    return {"cloud": ("pipeline.cloud_io:read_cloud",),
-            "stereo": ("matching.pair:reconstruct_pair",),
+    return {"cloud": ("pipeline.cloud_io:read_cloud|pipeline.cmd_sections:read_points",),
+            "stereo": ("matching.pair:reconstruct_pair", "matching.cameras:read_rig"),
             "folder": ("pipeline.multiview:acquire_folder",)}.get(kind, ())
 
 
