@@ -67,10 +67,10 @@ class Lighting:
     """
 
     albedo: tuple[float, float, float] = (0.62, 0.66, 0.74)  # a light blue-grey
-    ambient: float = 0.15
-    key: float = 0.65
-    fill: float = 0.20
-    specular: float = 0.12
+    ambient: float = 0.10
+    key: float = 0.72
+    fill: float = 0.18
+    specular: float = 0.18
     shininess: float = 40.0
     #: Key light direction in the camera frame (x right, y down, z forward),
     #: pointing from the surface towards the light: above-left, behind the eye.
