@@ -1,0 +1,351 @@
+r"""A stereo pair to matched points and 3D points with per-point precision.
+
+The pair-level pipeline, reused by the multi-view stage:
+
+1. **select** the best-textured pixel of every ``spacing`` x ``spacing`` cell of the
+   left image (:func:`matching.seeds.select_points`);
+2. **approximate** its right-image position: rectification + SGBM for a calibrated
+   pair, SGBM on the images for an already rectified pair
+   (:mod:`matching.seeds`);
+3. **refine** by least-squares matching in the *original* images
+   (:func:`matching.lsm.lsm_match`, Gruen 1985), optionally constrained to the
+   local epipolar direction (always for a rectified pair: horizontal);
+4. **triangulate** (:func:`matching.triangulate.triangulate_pair`) with the LSM
+   covariance, giving each 3D point its σ.
+
+Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
+0-7 of :class:`matching.lsm.Status`, then
+
+====  ====================  ==================================================
+8     ``no_approximation``  SGBM gave no disparity there (occlusion, no overlap)
+9     ``triangulation``     rejected by triangulation (behind a camera, large
+                            reprojection error, ill-conditioned)
+====  ====================  ==================================================
+
+References
+----------
+.. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image
+   matching technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14(3) (1985).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from matching.lsm import (
+    DEFAULT_INTERPOLATION,
+    STATUS_NAMES,
+    Status,
+    lsm_match,
+    prepare_image,
+)
+from matching.seeds import approximate_calibrated, approximate_rectified, select_points
+from matching.validate import TOL
+
+NO_APPROXIMATION = 8
+TRIANGULATION = 9
+#: Every pair status code -> name (LSM's codes 0-7, then 8 and 9).
+PAIR_STATUS_NAMES = {**STATUS_NAMES, NO_APPROXIMATION: "no_approximation",
+                     TRIANGULATION: "triangulation"}
+
+
+@dataclass(frozen=True)
+class PairMatches:
+    """Matched candidates of a pair (arrays over the N candidates).
+
+    Attributes
+    ----------
+    x_left : (N, 2) float64
+        Template centres in the left image (integer pixels), px.
+    x_right : (N, 2) float64
+        Matched positions in the right image, px (NaN where no LSM result).
+    approx : (N, 2) float64
+        The approximations LSM started from, px (NaN: none).
+    cov : (N, 2, 2) float64
+        Covariance of ``x_right`` relative to ``x_left`` (σ0²(AᵀA)⁻¹), px².
+    sigma : (N,) float64
+        sqrt(trace(cov) / 2), px.
+    sigma0 : (N,) float64
+        LSM residual σ, grey levels.
+    correlation : (N,) float64
+    iterations : (N,) int32
+    affine : (N, 6) float64
+        ``a0 a1 a2 b0 b1 b2``.
+    radiometric : (N, 2) float64
+        ``r0 r1`` (offset, gain).
+    texture : (N,) float64
+        Template λ_min of the structure tensor, grey levels²/px².
+    status : (N,) uint8
+        Codes of :data:`PAIR_STATUS_NAMES`.
+    rectified : bool
+        The images were given rectified (rows correspond).
+    image_size : (int, int)
+        Left image (width, height), px.
+    """
+
+    x_left: np.ndarray
+    x_right: np.ndarray
+    approx: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    sigma0: np.ndarray
+    correlation: np.ndarray
+    iterations: np.ndarray
+    affine: np.ndarray
+    radiometric: np.ndarray
+    texture: np.ndarray
+    status: np.ndarray
+    rectified: bool
+    image_size: tuple[int, int]
+
+    def __len__(self) -> int:
+        return len(self.x_left)
+
+    @property
+    def accepted(self) -> np.ndarray:
+        """(N,) bool: status ok."""
+        return self.status == Status.OK
+
+    def status_counts(self) -> dict[str, int]:
+        """Number of candidates per status name (zero counts left out)."""
+        codes, counts = np.unique(self.status, return_counts=True)
+        return {PAIR_STATUS_NAMES[int(c)]: int(n) for c, n in zip(codes, counts, strict=True)}
+
+    def disparity_map(self) -> np.ndarray:
+        """(H, W) float32 ``x_left - x_right`` at the accepted left pixels, NaN elsewhere."""
+        w, h = self.image_size
+        out = np.full((h, w), np.nan, np.float32)
+        ok = self.accepted
+        xi = self.x_left[ok].astype(np.intp)
+        out[xi[:, 1], xi[:, 0]] = self.x_left[ok, 0] - self.x_right[ok, 0]
+        return out
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """Every array field, plus ``status_names`` (for ``np.savez``)."""
+        out = {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+        out["status_names"] = np.array([PAIR_STATUS_NAMES[k] for k in sorted(PAIR_STATUS_NAMES)])
+        return out
+
+
+def _grey(image, name: str) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        img = img[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR
+    if img.ndim != 2:
+        raise ValueError(f"{name} must be a grey (H, W) or colour (H, W, 3) image, "
+                         f"got shape {img.shape}")
+    if min(img.shape) < 32:
+        raise ValueError(f"{name} is too small to match: {img.shape[1]}x{img.shape[0]} px")
+    return np.asarray(img, dtype=np.float64)
+
+
+def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacing: int = 4,
+               patch: int = 15, interpolation: str = DEFAULT_INTERPOLATION,
+               epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
+               sgbm_block: int = 5, **lsm_options) -> PairMatches:
+    """Match a stereo pair densely by LSM.
+
+    Parameters
+    ----------
+    left_img, right_img : (H, W) or (H, W, 3) array_like
+        The images (colour is converted to grey, OpenCV's BGR order).
+    rig : matching.cameras.StereoRig, optional
+        Calibration; required unless ``rectified``.
+    rectified : bool
+        The images are already rectified (corresponding points share a row).
+    spacing : int
+        One candidate per ``spacing`` x ``spacing`` cell, px.
+    patch : int
+        LSM patch side, px (odd).
+    interpolation : {"bilinear", "bicubic", "spline"}
+        LSM resampler.
+    epipolar : bool, optional
+        Constrain the LSM shift to the epipolar direction (default: yes for a
+        rectified pair, no for a calibrated one, whose y-parallax then checks the
+        calibration in the triangulation's χ² test).
+    min_texture_snr : float
+        Texture threshold factor (:func:`matching.seeds.select_points`).
+    mask : (H, W) bool, optional
+        Only left pixels where true are candidates.
+    sgbm_block : int
+        SGBM block side, px.
+    **lsm_options
+        Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
+
+    Returns
+    -------
+    PairMatches
+
+    Raises
+    ------
+    ValueError
+        Images of different sizes or not matching the rig, no rig and not rectified,
+        no overlap between the views.
+    """
+    left = _grey(left_img, "left image")
+    right = _grey(right_img, "right image")
+    if rig is None and not rectified:
+        raise ValueError("give a rig (calibrated pair) or rectified=True")
+    if rectified and left.shape != right.shape:
+        raise ValueError(f"images must have the same size, got left {left.shape[1]}x"
+                         f"{left.shape[0]} and right {right.shape[1]}x{right.shape[0]}")
+    if rig is not None and not rectified:
+        for name, img, cam in (("left", left, rig.left), ("right", right, rig.right)):
+            if (img.shape[1], img.shape[0]) != cam.size:
+                raise ValueError(f"{name} image is {img.shape[1]}x{img.shape[0]} px but the rig's "
+                                 f"{name} camera is {cam.size[0]}x{cam.size[1]} px")
+    epipolar = rectified if epipolar is None else bool(epipolar)
+    cand = select_points(left, spacing=spacing, patch=patch, min_texture_snr=min_texture_snr,
+                         mask=mask)
+    n = len(cand.points)
+    status = np.full(n, Status.TEXTURELESS, np.uint8)
+    out = {
+        "x_right": np.full((n, 2), np.nan), "approx": np.full((n, 2), np.nan),
+        "cov": np.full((n, 2, 2), np.nan), "sigma": np.full(n, np.nan),
+        "sigma0": np.full(n, np.nan), "correlation": np.full(n, np.nan),
+        "iterations": np.zeros(n, np.int32), "affine": np.full((n, 6), np.nan),
+        "radiometric": np.full((n, 2), np.nan),
+    }
+    textured = np.flatnonzero(cand.textured)
+    if len(textured):
+        pts = cand.points[textured]
+        if rectified:
+            approx = approximate_rectified(left, right, pts, block=sgbm_block)
+        else:
+            approx = approximate_calibrated(rig, left, right, pts, block=sgbm_block)
+        has = np.isfinite(approx.x_right).all(1) & np.isfinite(approx.direction).all(1)
+        status[textured[~has]] = NO_APPROXIMATION
+        out["approx"][textured] = approx.x_right
+        idx = textured[has]
+        if len(idx):
+            res = lsm_match(prepare_image(left, interpolation),
+                            prepare_image(right, interpolation), cand.points[idx],
+                            approx.x_right[has], patch=patch, interpolation=interpolation,
+                            direction=approx.direction[has] if epipolar else None,
+                            min_texture_snr=min_texture_snr, **lsm_options)
+            status[idx] = res.status
+            out["x_right"][idx] = res.position
+            out["cov"][idx] = res.cov
+            out["sigma"][idx] = res.sigma
+            out["sigma0"][idx] = res.sigma0
+            out["correlation"][idx] = res.correlation
+            out["iterations"][idx] = res.iterations
+            out["affine"][idx] = res.affine
+            out["radiometric"][idx] = res.radiometric
+    return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
+                       rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
+                       **out)
+
+
+@dataclass(frozen=True)
+class PairReconstruction:
+    """3D points of the accepted matches of a pair (arrays over the M points).
+
+    Attributes
+    ----------
+    points : (M, 3) float64, scene units
+    colours : (M, 3) uint8
+        RGB sampled from the left image at ``x_left``.
+    sigma : (M,) float64, scene units
+        σ along the worst-determined direction (triangulation covariance).
+    cov : (M, 3, 3) float64, scene units²
+    x_left, x_right : (M, 2) float64, px
+    cov_2d : (M, 2, 2) float64, px²
+        LSM covariance of the match.
+    sigma_px, sigma0, correlation : (M,) float64
+    iterations : (M,) int32
+    reprojection_error : (M,) float64, px
+    matches : PairMatches
+        All candidates, their status updated with ``triangulation`` rejections.
+    index : (M,) int64
+        Index of each point among ``matches``.
+    """
+
+    points: np.ndarray
+    colours: np.ndarray
+    sigma: np.ndarray
+    cov: np.ndarray
+    x_left: np.ndarray
+    x_right: np.ndarray
+    cov_2d: np.ndarray
+    sigma_px: np.ndarray
+    sigma0: np.ndarray
+    correlation: np.ndarray
+    iterations: np.ndarray
+    reprojection_error: np.ndarray
+    matches: PairMatches
+    index: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def per_point(self) -> dict[str, np.ndarray]:
+        """Every per-point array (for ``np.savez``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name != "matches"}
+
+
+def _colours(image, x_left) -> np.ndarray:
+    img = np.asarray(image)
+    xi = np.rint(x_left).astype(np.intp)
+    if img.ndim == 2:
+        grey = np.clip(np.rint(img[xi[:, 1], xi[:, 0]]), 0, 255).astype(np.uint8)
+        return np.repeat(grey[:, None], 3, axis=1)
+    bgr = img[xi[:, 1], xi[:, 0], :3]
+    return np.clip(np.rint(bgr[:, ::-1].astype(np.float64)), 0, 255).astype(np.uint8)
+
+
+def reconstruct_pair(left_img, right_img, rig, *, colour_image=None,
+                     max_reprojection_px: float | None = None, **match_options
+                     ) -> PairReconstruction:
+    """Match a calibrated pair (:func:`match_pair`) and triangulate the accepted matches.
+
+    Parameters
+    ----------
+    left_img, right_img : (H, W) or (H, W, 3) array_like
+        Images (colour in OpenCV's BGR order).
+    rig : matching.cameras.StereoRig
+    colour_image : (H, W, 3) array_like, optional
+        BGR image for the point colours (default: ``left_img``).
+    max_reprojection_px : float, optional
+        Also reject points whose RMS reprojection error exceeds this.
+    **match_options
+        Passed to :func:`match_pair`.
+
+    Returns
+    -------
+    PairReconstruction
+
+    Notes
+    -----
+    LSM's covariance is that of the *relative* position (both images' noise is in
+    σ0); it is split evenly between the two observations, plus an isotropic floor of
+    ``TOL.match_cov_floor_px``² so that the epipolar-constrained (rank 1) covariance
+    stays positive definite.
+    """
+    from matching.triangulate import triangulate_pair
+
+    if rig is None:
+        raise ValueError("reconstruct_pair needs a rig (calibrated cameras)")
+    matches = match_pair(left_img, right_img, rig, rectified=False, **match_options)
+    ok = np.flatnonzero(matches.accepted)
+    cov = 0.5 * matches.cov[ok] + TOL.match_cov_floor_px**2 * np.eye(2)
+    tri = triangulate_pair(rig.left, rig.right, matches.x_left[ok], matches.x_right[ok],
+                           cov_left=cov, cov_right=cov, refine=True,
+                           max_reprojection_px=max_reprojection_px)
+    status = matches.status.copy()
+    status[ok[~tri.valid]] = TRIANGULATION
+    matches = PairMatches(**{**{f.name: getattr(matches, f.name) for f in fields(matches)},
+                             "status": status})
+    keep = ok[tri.valid]
+    colours = _colours(left_img if colour_image is None else colour_image,
+                       matches.x_left[keep])
+    return PairReconstruction(
+        points=tri.points[tri.valid], colours=colours, sigma=tri.sigma[tri.valid],
+        cov=tri.cov[tri.valid], x_left=matches.x_left[keep], x_right=matches.x_right[keep],
+        cov_2d=matches.cov[keep], sigma_px=matches.sigma[keep], sigma0=matches.sigma0[keep],
+        correlation=matches.correlation[keep], iterations=matches.iterations[keep],
+        reprojection_error=tri.reprojection_error[tri.valid], matches=matches,
+        index=keep.astype(np.int64))

@@ -1,0 +1,432 @@
+r"""Point selection and approximate correspondences for least-squares matching.
+
+Texture.  A template is worth matching when its smallest structure-tensor
+eigenvalue is well above what image noise alone produces (Shi & Tomasi 1994):
+
+.. math::
+
+    S = \frac{1}{n}\sum_{patch} \nabla f \nabla f^\mathsf{T}, \qquad
+    \lambda_{min}(S) \ge k \, \sigma_n^2 / 2 ,
+
+with central-difference gradients (the noise of one has variance
+:math:`\sigma_n^2/2`), :math:`\sigma_n` Immerkaer's noise estimate and
+:math:`k` = ``min_texture_snr`` -- the same test and units as
+:func:`matching.lsm.lsm_match`, so a selected point is never rejected there as
+textureless.  The best point of every ``spacing`` x ``spacing`` cell is kept.
+
+Approximations.  A calibrated pair is rectified (``cv2.stereoRectify``, Bouguet's
+method) and ``cv2.StereoSGBM`` (Hirschmüller 2008) computes a coarse disparity
+map on the rectified images.  Its disparity range comes from the data: SIFT
+matches between the rectified images (ratio test, rows agreeing within 2 px)
+give the 1st-99th percentile disparity plus a margin.  A selected left pixel is
+mapped into the rectified left image exactly (``cv2.undistortPoints`` with R1,
+P1), shifted by the SGBM disparity, and mapped back into the *original* right
+image exactly (rectified ray -> R2ᵀ -> ``cv2.projectPoints`` with the right
+camera's distortion).  LSM then refines in the original images, so the
+template is never resampled (its noise stays white, which is what σ0²(AᵀA)⁻¹
+assumes); the local epipolar direction is given for the optional constraint.
+
+References
+----------
+.. [1] J. Shi, C. Tomasi, "Good features to track", CVPR (1994).
+.. [2] H. Hirschmüller, "Stereo processing by semiglobal matching and mutual
+   information", IEEE TPAMI 30(2), 328-341 (2008).
+.. [3] J.-Y. Bouguet, Camera Calibration Toolbox for Matlab (stereo rectification).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from matching.lsm import estimate_noise
+from matching.validate import TOL, check_shape
+
+#: cv2.undistortPoints iterates 5 times by default (1e-3 px errors at strong distortion).
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Grid of candidate template centres.
+
+    Attributes
+    ----------
+    points : (N, 2) float64
+        Integer pixel positions (x, y) in the image, px.
+    texture : (N,) float64
+        λ_min of the mean structure tensor over the patch, grey levels²/px².
+    textured : (N,) bool
+        ``texture >= threshold``.
+    threshold : float
+        ``min_texture_snr * noise**2 / 2``.
+    noise : float
+        Image noise σ used, grey levels.
+    """
+
+    points: np.ndarray
+    texture: np.ndarray
+    textured: np.ndarray
+    threshold: float
+    noise: float
+
+
+def texture_map(image, patch: int = 15) -> np.ndarray:
+    """λ_min of the mean structure tensor over a ``patch`` x ``patch`` window at every pixel.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey image.
+    patch : int
+        Window side, px.
+
+    Returns
+    -------
+    (H, W) float64, grey levels² / px²; the border (patch/2 + 1 px) is 0.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    gx = np.zeros_like(img)
+    gy = np.zeros_like(img)
+    gx[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
+    gy[1:-1, :] = 0.5 * (img[2:, :] - img[:-2, :])
+    box = lambda a: cv2.boxFilter(a, cv2.CV_64F, (patch, patch), normalize=True,  # noqa: E731
+                                  borderType=cv2.BORDER_REPLICATE)
+    sxx, syy, sxy = box(gx * gx), box(gy * gy), box(gx * gy)
+    lam = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+    border = patch // 2 + 1
+    out = np.zeros_like(lam)
+    out[border:-border, border:-border] = lam[border:-border, border:-border]
+    return out
+
+
+def select_points(image, spacing: int = 4, patch: int = 15, min_texture_snr: float = 2.0,
+                  noise: float | None = None, margin: int | None = None,
+                  mask=None) -> Candidates:
+    """The best-textured pixel of every ``spacing`` x ``spacing`` cell.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey template (left) image.
+    spacing : int
+        Cell side, px (1 = every pixel).
+    patch : int
+        LSM patch side, px.
+    min_texture_snr : float
+        Threshold factor k of the module docstring (same as ``lsm_match``'s).
+    noise : float, optional
+        Image noise σ, grey levels (default: Immerkaer's estimate).
+    margin : int, optional
+        Cells closer than this to the border are skipped (default patch/2 + 2).
+    mask : (H, W) bool, optional
+        Only pixels where ``mask`` is true may be chosen.
+
+    Returns
+    -------
+    Candidates
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"image must be a 2-D grey image, got shape {img.shape}")
+    if not (int(spacing) == spacing and spacing >= 1):
+        raise ValueError(f"spacing must be a positive integer, got {spacing!r}")
+    spacing = int(spacing)
+    sigma = estimate_noise(img) if noise is None else float(noise)
+    lam = texture_map(img, patch)
+    margin = patch // 2 + 2 if margin is None else int(margin)
+    h, w = img.shape
+    score = np.full_like(lam, -1.0)
+    score[margin:h - margin, margin:w - margin] = lam[margin:h - margin, margin:w - margin]
+    if mask is not None:
+        mask = check_shape(mask, "(H, W)", "mask", dtype=bool)
+        if mask.shape != img.shape:
+            raise ValueError(f"mask must have the image's shape {img.shape}, got {mask.shape}")
+        score[~mask] = -1.0
+    ny, nx = h // spacing, w // spacing
+    cells = score[:ny * spacing, :nx * spacing].reshape(ny, spacing, nx, spacing)
+    cells = cells.transpose(0, 2, 1, 3).reshape(ny, nx, spacing * spacing)
+    best = cells.argmax(axis=2)
+    best_score = np.take_along_axis(cells, best[..., None], axis=2)[..., 0]
+    cy, cx = np.mgrid[0:ny, 0:nx]
+    ys = cy * spacing + best // spacing
+    xs = cx * spacing + best % spacing
+    keep = best_score >= 0.0
+    points = np.column_stack([xs[keep], ys[keep]]).astype(np.float64)
+    texture = best_score[keep]
+    threshold = max(min_texture_snr * 0.5 * sigma**2, TOL.zero)
+    return Candidates(points=points, texture=texture, textured=texture > threshold,
+                      threshold=float(threshold), noise=sigma)
+
+
+# --------------------------------------------------------------------------------------
+# rectification
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """Bouguet rectification of a calibrated pair (``cv2.stereoRectify``).
+
+    Attributes
+    ----------
+    R1, R2 : (3, 3) float64
+        Rotations original camera -> rectified camera (left, right).
+    P1, P2 : (3, 4) float64
+        Rectified projection matrices (common K, ``P2[0, 3] = f * Tx``).
+    Q : (4, 4) float64
+        Disparity-to-depth matrix.
+    size : (int, int)
+        Rectified image (width, height), px.
+    maps_left, maps_right : tuple of (H, W) float32
+        ``cv2.remap`` maps rectified pixel -> original pixel.
+    """
+
+    R1: np.ndarray
+    R2: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
+    Q: np.ndarray
+    size: tuple[int, int]
+    maps_left: tuple[np.ndarray, np.ndarray]
+    maps_right: tuple[np.ndarray, np.ndarray]
+
+
+def _dist(cam) -> np.ndarray:
+    return cam.dist if cam.dist.size else np.zeros(5)
+
+
+def rectify(rig, alpha: float = 0.0) -> Rectification:
+    """Rectify a :class:`matching.cameras.StereoRig` (left and right images of one size).
+
+    Parameters
+    ----------
+    rig : StereoRig
+    alpha : float
+        ``cv2.stereoRectify`` free scaling (0: only valid pixels, 1: all pixels).
+
+    Raises
+    ------
+    ValueError
+        When the baseline is zero (no stereo).
+    """
+    left, right = rig.left, rig.right
+    if rig.baseline < TOL.zero:
+        raise ValueError("rig has a zero baseline: the two cameras coincide")
+    size = left.size
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        left.K, _dist(left), right.K, _dist(right), size, rig.R, rig.T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha)
+    maps_l = cv2.initUndistortRectifyMap(left.K, _dist(left), R1, P1, size, cv2.CV_32FC1)
+    maps_r = cv2.initUndistortRectifyMap(right.K, _dist(right), R2, P2, size, cv2.CV_32FC1)
+    return Rectification(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q, size=size, maps_left=maps_l,
+                         maps_right=maps_r)
+
+
+def rectify_images(rect: Rectification, left, right, interpolation=cv2.INTER_CUBIC):
+    """Resample both images into the rectified frame (``cv2.remap``)."""
+    out = []
+    for img, maps in ((left, rect.maps_left), (right, rect.maps_right)):
+        out.append(cv2.remap(np.asarray(img, dtype=np.float32), maps[0], maps[1],
+                             interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0))
+    return out[0], out[1]
+
+
+def left_to_rectified(rect: Rectification, camera, points) -> np.ndarray:
+    """Original left pixels (N, 2) -> rectified left pixels (N, 2), exact (undistortPoints)."""
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    if len(points) == 0:
+        return points.copy()
+    out = cv2.undistortPoints(points.reshape(-1, 1, 2), camera.K, _dist(camera), R=rect.R1,
+                              P=rect.P1, criteria=_UNDISTORT_CRITERIA)
+    return out.reshape(-1, 2)
+
+
+def rectified_to_original(rect: Rectification, camera, points, which: str = "right"):
+    """Rectified pixels (N, 2) -> original (distorted) pixels (N, 2) of ``camera``, exact.
+
+    The rectified pixel's ray is rotated back by Rᵀ (R1 or R2) and projected with the
+    camera's K and distortion.
+    """
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    R, P = (rect.R2, rect.P2) if which == "right" else (rect.R1, rect.P1)
+    if len(points) == 0:
+        return points.copy()
+    k = P[:3, :3]
+    rays = np.column_stack([(points[:, 0] - k[0, 2]) / k[0, 0],
+                            (points[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(points))])
+    rays = rays @ R  # R^T ray, row-wise
+    out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.K,
+                               _dist(camera))
+    return out.reshape(-1, 2)
+
+
+# --------------------------------------------------------------------------------------
+# coarse dense matching
+# --------------------------------------------------------------------------------------
+
+
+def _to_uint8(img) -> np.ndarray:
+    return np.clip(np.asarray(img, dtype=np.float64) + 0.5, 0, 255).astype(np.uint8)
+
+
+def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, int]:
+    """Disparity search range (min, count) of a rectified pair from SIFT matches.
+
+    Parameters
+    ----------
+    left_rect, right_rect : (H, W) array_like
+        Rectified grey images.
+    min_matches : int
+        Fewer row-consistent matches than this means the views do not overlap.
+
+    Returns
+    -------
+    (min_disparity, num_disparities) : (int, int)
+        ``num_disparities`` a multiple of 16 (SGBM's requirement); the range covers the
+        1st-99th percentile of the matched disparities widened by 25 % and 8 px.
+
+    Raises
+    ------
+    ValueError
+        ``"no overlap ..."`` when too few matches are found.
+    """
+    sift = cv2.SIFT_create(nfeatures=4000)
+    kl, dl = sift.detectAndCompute(_to_uint8(left_rect), None)
+    kr, dr = sift.detectAndCompute(_to_uint8(right_rect), None)
+    disp = np.zeros(0)
+    if dl is not None and dr is not None and len(kl) >= 2 and len(kr) >= 2:
+        pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(dl, dr, k=2)
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+        if good:
+            pl = np.array([kl[m.queryIdx].pt for m in good])
+            pr = np.array([kr[m.trainIdx].pt for m in good])
+            rows = np.abs(pl[:, 1] - pr[:, 1]) < 2.0
+            disp = (pl[:, 0] - pr[:, 0])[rows]
+    if len(disp) < min_matches:
+        raise ValueError(f"no overlap between the two images: {len(disp)} row-consistent "
+                         f"feature matches after rectification (need {min_matches})")
+    lo, hi = np.percentile(disp, [1, 99])
+    pad = 0.25 * (hi - lo) + 8.0
+    dmin = int(np.floor(lo - pad))
+    count = int(np.ceil((hi + pad - dmin) / 16.0)) * 16
+    return dmin, max(count, 16)
+
+
+def sgbm_disparity(left_rect, right_rect, min_disparity: int, num_disparities: int,
+                   block: int = 5) -> np.ndarray:
+    """Coarse disparity of a rectified pair by ``cv2.StereoSGBM`` (3-way mode).
+
+    Parameters
+    ----------
+    left_rect, right_rect : (H, W) array_like
+        Rectified grey images.
+    min_disparity, num_disparities : int
+        Search range (``num_disparities`` a multiple of 16), px.
+    block : int
+        Matching block side, px; P1 = 8 block², P2 = 32 block² (OpenCV's recommendation
+        for one channel).
+
+    Returns
+    -------
+    (H, W) float32
+        Disparity x_left - x_right, px; NaN where SGBM found none.
+    """
+    sgbm = cv2.StereoSGBM_create(minDisparity=int(min_disparity),
+                                 numDisparities=int(num_disparities), blockSize=block,
+                                 P1=8 * block * block, P2=32 * block * block,
+                                 disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100,
+                                 speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    raw = sgbm.compute(_to_uint8(left_rect), _to_uint8(right_rect)).astype(np.float32) / 16.0
+    raw[raw < min_disparity] = np.nan
+    return raw
+
+
+def sample_disparity(disparity, points) -> np.ndarray:
+    """Disparity at rectified positions (N, 2): nearest pixel, NaN outside or invalid."""
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    h, w = disparity.shape
+    xi = np.rint(points[:, 0])
+    yi = np.rint(points[:, 1])
+    inside = np.isfinite(xi) & np.isfinite(yi) & (xi >= 0) & (yi >= 0) & (xi < w) & (yi < h)
+    out = np.full(len(points), np.nan)
+    out[inside] = disparity[yi[inside].astype(np.intp), xi[inside].astype(np.intp)]
+    return out
+
+
+@dataclass(frozen=True)
+class Approximations:
+    """Approximate right-image positions of left points.
+
+    Attributes
+    ----------
+    x_right : (N, 2) float64
+        Approximate position in the original right image, px (NaN: none).
+    direction : (N, 2) float64
+        Unit tangent of the epipolar curve in the right image at ``x_right``.
+    x_left_rect : (N, 2) float64
+        Left points in the rectified frame, px.
+    disparity : (H, W) float32
+        The coarse SGBM disparity map (rectified frame), NaN where none.
+    range : (int, int)
+        (min_disparity, num_disparities) used.
+    """
+
+    x_right: np.ndarray
+    direction: np.ndarray
+    x_left_rect: np.ndarray
+    disparity: np.ndarray
+    range: tuple[int, int]
+
+
+def approximate_rectified(left_rect, right_rect, points, block: int = 5) -> Approximations:
+    """Approximations for left points of an already rectified pair (rows correspond)."""
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    dmin, count = disparity_range(left_rect, right_rect)
+    disp = sgbm_disparity(left_rect, right_rect, dmin, count, block)
+    d = sample_disparity(disp, points)
+    x_right = np.column_stack([points[:, 0] - d, points[:, 1]])
+    direction = np.broadcast_to([1.0, 0.0], points.shape).copy()
+    return Approximations(x_right=x_right, direction=direction, x_left_rect=points.copy(),
+                          disparity=disp, range=(dmin, count))
+
+
+def approximate_calibrated(rig, left, right, points, rect: Rectification | None = None,
+                           block: int = 5) -> Approximations:
+    """Approximations for left points of a calibrated pair through rectification + SGBM.
+
+    Parameters
+    ----------
+    rig : StereoRig
+    left, right : (H, W) array_like
+        Original grey images.
+    points : (N, 2) array_like
+        Left-image pixels, px.
+    rect : Rectification, optional
+        Precomputed :func:`rectify` of ``rig``.
+    block : int
+        SGBM block side, px.
+
+    Returns
+    -------
+    Approximations
+        ``x_right`` in the original right image (exact mapping through the rectification).
+    """
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    rect = rectify(rig) if rect is None else rect
+    left_r, right_r = rectify_images(rect, left, right)
+    dmin, count = disparity_range(left_r, right_r)
+    disp = sgbm_disparity(left_r, right_r, dmin, count, block)
+    xl_rect = left_to_rectified(rect, rig.left, points)
+    d = sample_disparity(disp, xl_rect)
+    xr_rect = np.column_stack([xl_rect[:, 0] - d, xl_rect[:, 1]])
+    x_right = rectified_to_original(rect, rig.right, xr_rect)
+    # local epipolar tangent: image of a 1 px step along the rectified row
+    ahead = rectified_to_original(rect, rig.right, xr_rect + [1.0, 0.0])
+    direction = ahead - x_right
+    norm = np.linalg.norm(direction, axis=1, keepdims=True)
+    direction = np.where(norm > TOL.zero, direction / np.where(norm > 0, norm, 1.0), np.nan)
+    return Approximations(x_right=x_right, direction=direction, x_left_rect=xl_rect,
+                          disparity=disp, range=(dmin, count))

@@ -1,0 +1,268 @@
+"""Point-cloud files: binary PLY with a per-point ``sigma``, XYZ/CSV text, NPZ.
+
+PLY (written here with numpy structured arrays, because open3d cannot write custom
+vertex properties)::
+
+    ply
+    format binary_little_endian 1.0
+    comment photosurf point cloud
+    element vertex N
+    property double x / y / z          scene units
+    property uchar red / green / blue  (when colours are given)
+    property float sigma               scene units (when sigma is given)
+    end_header
+
+Readers: our PLY and any other binary/ASCII vertex-only or mesh PLY (through
+open3d, which drops unknown properties), text ``.xyz`` / ``.txt`` / ``.csv`` with
+columns ``x y z [extra ...]`` (whitespace or comma separated, ``#`` comments, an
+optional header line), and ``.npz`` with ``points`` (and optionally ``colours``,
+``sigma``).  Writes are atomic (:func:`pipeline.atomic.atomic_file`).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.atomic import atomic_file
+from pipeline.errors import InputError
+
+SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npz")
+
+
+@dataclass(frozen=True)
+class Cloud:
+    """A point cloud read from a file.
+
+    Attributes
+    ----------
+    points : (N, 3) float64, scene units
+    colours : (N, 3) uint8 or None
+    sigma : (N,) float64 or None, scene units
+    extra : (N, K) float64 or None
+        Further columns of a text file.
+    """
+
+    points: np.ndarray
+    colours: np.ndarray | None = None
+    sigma: np.ndarray | None = None
+    extra: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @property
+    def colors(self) -> np.ndarray | None:
+        """Alias of ``colours`` (open3d's spelling)."""
+        return self.colours
+
+
+def _check(points, colours, sigma):
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+    n = len(points)
+    if colours is not None:
+        colours = np.asarray(colours)
+        if colours.shape != (n, 3):
+            raise ValueError(f"colours must have shape ({n}, 3), got {colours.shape}")
+        colours = np.clip(colours, 0, 255).astype(np.uint8)
+    if sigma is not None:
+        sigma = np.asarray(sigma, dtype=np.float64)
+        if sigma.shape != (n,):
+            raise ValueError(f"sigma must have shape ({n},), got {sigma.shape}")
+    return points, colours, sigma
+
+
+def write_ply(path: str | os.PathLike, points, colours=None, sigma=None) -> Path:
+    """Write a binary little-endian PLY with x y z [red green blue] [sigma].
+
+    Parameters
+    ----------
+    path : path-like
+    points : (N, 3) float64, scene units
+    colours : (N, 3) uint8, optional
+    sigma : (N,) float, optional, scene units (stored as float32)
+    """
+    points, colours, sigma = _check(points, colours, sigma)
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    header = ["ply", "format binary_little_endian 1.0", "comment photosurf point cloud",
+              f"element vertex {len(points)}", "property double x", "property double y",
+              "property double z"]
+    if colours is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+        header += ["property uchar red", "property uchar green", "property uchar blue"]
+    if sigma is not None:
+        fields += [("sigma", "<f4")]
+        header += ["property float sigma"]
+    header += ["end_header"]
+    data = np.empty(len(points), dtype=np.dtype(fields))
+    data["x"], data["y"], data["z"] = points.T
+    if colours is not None:
+        data["red"], data["green"], data["blue"] = colours.T
+    if sigma is not None:
+        data["sigma"] = sigma
+    path = Path(path)
+    with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(data.tobytes())
+    return path
+
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "<i2",
+              "int16": "<i2", "ushort": "<u2", "uint16": "<u2", "int": "<i4", "int32": "<i4",
+              "uint": "<u4", "uint32": "<u4", "float": "<f4", "float32": "<f4",
+              "double": "<f8", "float64": "<f8"}
+
+
+def _parse_header(path: Path):
+    """(format, vertex count, [(name, dtype)], header bytes, only-vertex flag) or None."""
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise InputError(f"{path}: not a PLY file (no 'ply' magic / end_header)")
+    stop = head.index(b"\n", end) + 1
+    lines = head[:stop].decode("ascii", "replace").splitlines()
+    fmt, count, props, element, elements = None, 0, [], None, []
+    for line in lines:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "format":
+            fmt = words[1]
+        elif words[0] == "element":
+            element = words[1]
+            elements.append(element)
+            if element == "vertex":
+                count = int(words[2])
+        elif words[0] == "property" and element == "vertex":
+            if words[1] == "list" or words[1] not in _PLY_TYPES:
+                return None
+            props.append((words[-1], _PLY_TYPES[words[1]]))
+    return fmt, count, props, stop, elements == ["vertex"]
+
+
+def read_ply(path: str | os.PathLike) -> Cloud:
+    """Read a PLY point cloud (ours with ``sigma``, or any other through open3d)."""
+    path = Path(path)
+    parsed = _parse_header(path)
+    if parsed is not None:
+        fmt, count, props, offset, vertex_only = parsed
+        names = [p[0] for p in props]
+        if fmt == "binary_little_endian" and vertex_only and {"x", "y", "z"} <= set(names):
+            dtype = np.dtype(props)
+            raw = path.read_bytes()[offset:]
+            if len(raw) < dtype.itemsize * count:
+                raise InputError(f"{path}: truncated PLY ({len(raw)} bytes of vertex data, "
+                                 f"expected {dtype.itemsize * count})")
+            data = np.frombuffer(raw, dtype=dtype, count=count)
+            points = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
+            colours = (np.column_stack([data["red"], data["green"], data["blue"]])
+                       .astype(np.uint8) if {"red", "green", "blue"} <= set(names) else None)
+            sigma = data["sigma"].astype(np.float64) if "sigma" in names else None
+            return Cloud(points, colours, sigma)
+    import open3d as o3d
+
+    pcd = o3d.io.read_point_cloud(str(path))
+    points = np.asarray(pcd.points, dtype=np.float64)
+    if len(points) == 0:
+        raise InputError(f"{path}: no points in this PLY file")
+    colours = (np.clip(np.rint(np.asarray(pcd.colors) * 255), 0, 255).astype(np.uint8)
+               if pcd.has_colors() else None)
+    return Cloud(points, colours)
+
+
+def read_text(path: str | os.PathLike) -> Cloud:
+    """Read ``x y z [extra ...]`` rows (whitespace or commas; ``#`` comments; header ok)."""
+    path = Path(path)
+    rows = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for number, line in enumerate(fh, 1):
+            text = line.split("#", 1)[0].replace(",", " ").strip()
+            if not text:
+                continue
+            try:
+                rows.append([float(v) for v in text.split()])
+            except ValueError:
+                if not rows and number <= 2:  # a header line
+                    continue
+                raise InputError(f"{path}:{number}: not numbers: {line.strip()[:60]!r}") from None
+    if not rows:
+        raise InputError(f"{path}: no points")
+    width = len(rows[0])
+    bad = next((i for i, r in enumerate(rows) if len(r) != width), None)
+    if width < 3 or bad is not None:
+        raise InputError(f"{path}: every row needs the same number (>= 3) of columns "
+                         f"x y z [extra]; got {width} then {len(rows[bad]) if bad else width}")
+    data = np.array(rows, dtype=np.float64)
+    if not np.isfinite(data[:, :3]).all():
+        raise InputError(f"{path}: non-finite coordinates")
+    return Cloud(data[:, :3], extra=data[:, 3:] if width > 3 else None)
+
+
+def read_npz(path: str | os.PathLike) -> Cloud:
+    """Read ``points`` (and ``colours``, ``sigma`` if present) from an ``.npz``."""
+    path = Path(path)
+    with np.load(path) as data:
+        if "points" not in data:
+            raise InputError(f"{path}: no 'points' array (has {sorted(data.files)})")
+        points = np.asarray(data["points"], dtype=np.float64)
+        colours = data["colours"] if "colours" in data else None
+        sigma = data["sigma"] if "sigma" in data else None
+    try:
+        points, colours, sigma = _check(points, colours, sigma)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    return Cloud(points, colours, sigma)
+
+
+def read_cloud(path: str | os.PathLike) -> Cloud:
+    """Read a point cloud by suffix: .ply, .xyz/.txt/.csv, .npz."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, expected a point-cloud file")
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        return read_ply(path)
+    if suffix in (".xyz", ".txt", ".csv"):
+        return read_text(path)
+    if suffix == ".npz":
+        return read_npz(path)
+    raise InputError(f"{path}: unknown point-cloud format {suffix!r} (expected one of "
+                     f"{', '.join(SUFFIXES)})")
+
+
+def write_cloud(path: str | os.PathLike, points, colours=None, sigma=None) -> Path:
+    """Write a point cloud by suffix: .ply (binary), .xyz/.csv/.txt (text), .npz."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        return write_ply(path, points, colours, sigma)
+    points, colours, sigma = _check(points, colours, sigma)
+    if suffix == ".npz":
+        arrays = {"points": points}
+        if colours is not None:
+            arrays["colours"] = colours
+        if sigma is not None:
+            arrays["sigma"] = sigma
+        with atomic_file(path) as tmp:
+            np.savez(tmp, **arrays)
+        return path
+    if suffix in (".xyz", ".txt", ".csv"):
+        cols = [points] + ([colours.astype(np.float64)] if colours is not None else []) + \
+            ([sigma[:, None]] if sigma is not None else [])
+        names = "x y z" + (" red green blue" if colours is not None else "") + \
+            (" sigma" if sigma is not None else "")
+        sep = "," if suffix == ".csv" else " "
+        with atomic_file(path) as tmp:
+            np.savetxt(tmp, np.hstack(cols), fmt="%.10g", delimiter=sep,
+                       header=names.replace(" ", sep))
+        return path
+    raise InputError(f"{path}: unknown point-cloud format {suffix!r} (expected one of "
+                     f"{', '.join(SUFFIXES)})")
