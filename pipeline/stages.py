@@ -56,6 +56,15 @@ class StageError(InputError):
     """A stage failed; the message names the stage and the cause (one line)."""
 
 
+class StageSkipped(Exception):  # noqa: N818 - a signal, not an error
+    """Raised by a stage that cannot apply to this data; the run goes on without it.
+
+    The message says why (a named warning in the manifest, the summary and the
+    report); stages that need this one are blocked, stages that only read it
+    when present go on.
+    """
+
+
 # --------------------------------------------------------------------------- stages
 @dataclass
 class StageContext:
@@ -401,15 +410,16 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
                 result = _run_one(stage, index, lo, hi, ws, config, external, input_paths,
                                   kind, rig_path, executor, force, unusable)
                 results.append(result)
-                if result.status in ("not available", "blocked", "failed"):
+                if result.status in ("not available", "blocked", "failed", "skipped"):
                     unusable[stage.name] = result.status
                 if lo <= index <= hi:
                     bar.update(1)
                 log.info("%s: %s%s", stage.name, result.status,
                          f" in {result.seconds:.2f} s" if result.status == "done" else "")
-                if result.status == "failed":
-                    raise StageError(f"stage {stage.name} failed: {result.reason}") \
-                        from result.error
+    # a failure blocks what depends on it; the report still shows the run, then the error
+    failed = next((r for r in results if r.status == "failed"), None)
+    if failed is not None:
+        raise StageError(f"stage {failed.name} failed: {failed.reason}") from failed.error
     return RunSummary(Path(outdir), kind, results)
 
 
@@ -451,6 +461,10 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
                                rig, executor)
             info = stage.func(ctx) or {}
             _publish_permissions(Path(tmp))
+    except StageSkipped as exc:
+        log.warning("%s: skipped: %s", stage.name, exc)
+        ws.set_record(stage.name, {"status": "skipped", "reason": str(exc)})
+        return StageResult(stage.name, "skipped", time.perf_counter() - t0, str(exc))
     except Exception as exc:  # one line for the user; -v shows the chain
         seconds = time.perf_counter() - t0
         log.debug("stage %s failed:\n%s", stage.name, traceback.format_exc())
@@ -772,7 +786,16 @@ def _smooth(ctx: StageContext) -> dict:
     from surface import bezier
 
     vertices, triangles = read_mesh(ctx.stage_path("stitch", "mesh.ply"))
-    surface = bezier.control_net(vertices, triangles)
+    try:
+        surface = bezier.control_net(vertices, triangles)
+    except ValueError as exc:
+        from surface.metrics import mesh_topology
+
+        border = mesh_topology(vertices, triangles)["boundary_edges"]
+        if border:  # an open stitched mesh (e.g. one stereo pair sees one side only)
+            raise StageSkipped(f"the stitched mesh is open ({border} border edges) and the "
+                               f"Bezier construction refused it: {exc}") from exc
+        raise
     v, t, n = bezier.tessellate(surface, level=ctx.params["smooth"]["level"])
     write_mesh(ctx.out / "surface.ply", v, t, normals=n)
     domain_vertices, domain_triangles = surface.domain_mesh
@@ -788,18 +811,25 @@ def _export(ctx: StageContext) -> dict:
     from pipeline import export
     from pipeline.mesh_io import read_mesh
 
-    vertices, triangles = read_mesh(ctx.stage_path("smooth", "surface.ply"))
-    normals = _ply_normals(ctx.stage_path("smooth", "surface.ply"))
+    smooth = ctx.has_output("smooth")
+    source = ctx.stage_path("smooth", "surface.ply") if smooth else \
+        ctx.stage_path("stitch", "mesh.ply")
+    if not smooth:
+        log.warning("export: no smooth surface (%s); exporting the stitched mesh",
+                    (ctx.workspace.record("smooth") or {}).get("reason", "smooth did not run"))
+    vertices, triangles = read_mesh(source)
+    normals = _ply_normals(source) if smooth else None
     written = []
     for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):
         path = ctx.out / f"surface.{str(fmt).lower().lstrip('.')}"
         export.export_mesh(path, vertices, triangles, normals=normals)
         written.append(path.name)
-    with np.load(ctx.stage_path("smooth", "control_net.npz")) as net:
-        export.write_control_net(ctx.out / "surface.npz", net["control_points"], net["index"],
-                                 net["source_face"])
-    written.append("surface.npz")
-    return {"files": written}
+    if smooth:
+        with np.load(ctx.stage_path("smooth", "control_net.npz")) as net:
+            export.write_control_net(ctx.out / "surface.npz", net["control_points"],
+                                     net["index"], net["source_face"])
+        written.append("surface.npz")
+    return {"files": written, "source": "smooth surface" if smooth else "stitched mesh"}
 
 
 def _ply_normals(path: Path):
@@ -832,7 +862,7 @@ STAGES: list[Stage] = [
           modules=("surface.stitch:stitch_rings",)),
     Stage("smooth", _smooth, params=("smooth",), needs=("stitch",),
           modules=("surface.bezier:control_net", "surface.bezier:tessellate")),
-    Stage("export", _export, params=("export",), needs=("smooth",),
+    Stage("export", _export, params=("export",), needs=("stitch",), optional_needs=("smooth",),
           modules=("pipeline.export:export_mesh", "pipeline.export:write_control_net")),
     Stage("report", _report, params=("report",), target="report.html",
           optional_needs=("scene", "acquire", "sections", "curves", "stitch", "smooth"),
