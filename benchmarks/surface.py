@@ -1,0 +1,253 @@
+"""Surface reconstruction from a noisy vase cloud: stitched sections vs open3d's peers.
+
+Truth: the vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], closed by flat caps,
+meshed finely (1024 angles x 768 heights; the chord sagitta, 1.3 (pi/1024)^2/2
+~ 6e-6, is far below the noise).  Cloud: ``--points`` (default 50 000)
+area-uniform samples of the truth plus isotropic Gaussian noise sigma = 0.002
+per coordinate, seeded.
+
+Methods, timed from the raw points to a mesh in the same process (normals
+estimated and oriented inside the peers' timings, since they need them and
+the stitched method does not):
+
+* ``stitched``     ``surface.stitch.surface_from_points`` with its defaults;
+* ``poisson-8/9``  screened Poisson (open3d, depth 8 and 9), normals by PCA of
+  30 neighbours, oriented by ``orient_normals_consistent_tangent_plane(30)``;
+  no density trimming;
+* ``ball-pivoting`` open3d, radii 1, 2, 4 x the mean nearest-neighbour distance;
+* ``alpha-2s``/``alpha-4s`` open3d alpha shapes with alpha = 2 and 4 point spacings.
+
+Scores (``surface.metrics.compare_meshes``): both meshes sampled uniformly by
+area with 100 000 points each; accuracy = mean distance from the
+reconstruction's samples to the truth mesh, completeness = from the truth's
+samples to the reconstruction mesh (exact point-to-triangle distances),
+Chamfer = their mean, F-score at tau = 0.005, Hausdorff; closed and the
+number of edge-connected components from ``mesh_topology``.
+
+Then the scaling of time with the number of points (10^4, 10^5, 10^6;
+``--quick`` stops at 10^5) for the stitched method and Poisson depth 8.
+
+To add a method (e.g. "stitched + Bezier smoothed") write a function
+``points -> dict(vertices=..., triangles=..., **notes)`` and append
+``(name, function)`` to ``METHODS``.
+
+Run: ``.venv/bin/python benchmarks/surface.py [--quick] [--json PATH]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from surface import metrics  # noqa: E402
+from surface.sections import point_spacing  # noqa: E402
+from surface.stitch import surface_from_points  # noqa: E402
+
+SIGMA = 0.002
+TAU = 0.005
+SAMPLES = 100_000
+SEED = 0
+
+
+# ----------------------------------------------------------------------------- truth and cloud
+def vase_truth(n_theta: int = 1024, n_z: int = 768) -> tuple[np.ndarray, np.ndarray]:
+    """Closed vase mesh: side grid plus fan caps, outward, ``(V, 3)``, ``(F, 3)``."""
+    z = np.linspace(0.0, 3.0, n_z)
+    theta = 2 * np.pi * np.arange(n_theta) / n_theta
+    r = 1.0 + 0.3 * np.sin(2.0 * z)
+    v = np.stack([np.outer(r, np.cos(theta)), np.outer(r, np.sin(theta)),
+                  np.repeat(z[:, None], n_theta, 1)], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_z - 1), np.arange(n_theta), indexing="ij")
+    a = (i * n_theta + j).ravel()
+    b = (i * n_theta + (j + 1) % n_theta).ravel()
+    faces = [np.stack([a, b, b + n_theta], 1), np.stack([a, b + n_theta, a + n_theta], 1)]
+    bottom, top = len(v), len(v) + 1
+    v = np.vstack([v, [[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]])
+    ring = np.arange(n_theta)
+    nxt = (ring + 1) % n_theta
+    last = (n_z - 1) * n_theta
+    faces += [np.stack([np.full(n_theta, bottom), nxt, ring], 1),
+              np.stack([np.full(n_theta, top), last + ring, last + nxt], 1)]
+    return v, np.vstack(faces).astype(np.int64)
+
+
+def vase_cloud(truth: tuple[np.ndarray, np.ndarray], count: int, sigma: float = SIGMA,
+               seed: int = SEED) -> np.ndarray:
+    """``count`` area-uniform samples of the truth plus N(0, sigma^2) per coordinate."""
+    rng = np.random.default_rng(seed)
+    points = metrics.sample_mesh(*truth, count=count, seed=seed)
+    return points + rng.normal(0.0, sigma, points.shape)
+
+
+# ----------------------------------------------------------------------------- methods
+def run_stitched(points: np.ndarray) -> dict:
+    result = surface_from_points(points, axis="z")
+    return {"vertices": result.vertices, "triangles": result.triangles,
+            "sections": int(len(np.unique(result.section_of_vertex))),
+            "flips": result.flips, "delaunay_fraction": result.delaunay_fraction}
+
+
+def _o3d_cloud(points: np.ndarray, normals: bool):
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if normals:
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=30))
+        cloud.orient_normals_consistent_tangent_plane(30)
+    return cloud
+
+
+def _from_o3d(mesh) -> dict:
+    return {"vertices": np.asarray(mesh.vertices, dtype=np.float64),
+            "triangles": np.asarray(mesh.triangles, dtype=np.int64)}
+
+
+def run_poisson(points: np.ndarray, depth: int) -> dict:
+    import open3d as o3d
+
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+        _o3d_cloud(points, normals=True), depth=depth)
+    return _from_o3d(mesh)
+
+
+def run_ball_pivoting(points: np.ndarray) -> dict:
+    import open3d as o3d
+
+    cloud = _o3d_cloud(points, normals=True)
+    spacing = float(np.mean(cloud.compute_nearest_neighbor_distance()))
+    radii = o3d.utility.DoubleVector([spacing, 2 * spacing, 4 * spacing])
+    return _from_o3d(o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(cloud, radii))
+
+
+def run_alpha(points: np.ndarray, spacings: float) -> dict:
+    import open3d as o3d
+
+    alpha = spacings * point_spacing(points)
+    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(
+        _o3d_cloud(points, normals=False), alpha)
+    return {**_from_o3d(mesh), "alpha": alpha}
+
+
+METHODS = [
+    ("stitched", run_stitched),
+    ("poisson-8", lambda p: run_poisson(p, 8)),
+    ("poisson-9", lambda p: run_poisson(p, 9)),
+    ("ball-pivoting", run_ball_pivoting),
+    ("alpha-2s", lambda p: run_alpha(p, 2.0)),
+    ("alpha-4s", lambda p: run_alpha(p, 4.0)),
+]
+
+
+# ----------------------------------------------------------------------------- evaluation
+def evaluate(name: str, method, points: np.ndarray, truth, samples: int = SAMPLES) -> dict:
+    """Time one method and score its mesh against the truth."""
+    start = time.perf_counter()
+    out = method(points)
+    seconds = time.perf_counter() - start
+    vertices, triangles = out.pop("vertices"), out.pop("triangles")
+    row = {"method": name, "seconds": seconds, "triangles": int(len(triangles))}
+    if len(triangles) == 0:
+        return {**row, "closed": False, "components": 0, **out}
+    topo = metrics.mesh_topology(vertices, triangles)
+    scores = metrics.compare_meshes(vertices, triangles, *truth, tau=TAU, count=samples,
+                                    seed=SEED)
+    return {**row, "accuracy": scores["accuracy"], "completeness": scores["completeness"],
+            "chamfer": scores["chamfer"], "fscore": scores["fscore"],
+            "hausdorff": scores["hausdorff"], "closed": bool(topo["closed"]),
+            "components": int(topo["components"]), "oriented": bool(topo["oriented"]),
+            "boundary_edges": int(topo["boundary_edges"]), **out}
+
+
+def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[dict]:
+    """Seconds (and Chamfer) of each method at each cloud size."""
+    rows = []
+    for size in sizes:
+        points = vase_cloud(truth, size, seed=SEED + 1)
+        for name, method in methods:
+            row = evaluate(name, method, points, truth, samples=min(SAMPLES, 4 * size))
+            rows.append({"points": size, "method": name, "seconds": row["seconds"],
+                         "triangles": row["triangles"], "chamfer": row.get("chamfer"),
+                         "closed": row["closed"], "components": row["components"]})
+            chamfer = row.get("chamfer", float("nan"))
+            print(f"  {size:>8d} points  {name:<10s} {row['seconds']:7.2f} s  "
+                  f"{row['triangles']:>8d} triangles  Chamfer {chamfer:.5f}", flush=True)
+    return rows
+
+
+def print_table(rows: list[dict]) -> None:
+    head = (f"{'method':<14s}{'seconds':>8s}{'triangles':>10s}{'accuracy':>10s}"
+            f"{'complete':>10s}{'Chamfer':>10s}{'F@.005':>8s}{'Hausdorff':>10s}"
+            f"{'closed':>7s}{'comps':>6s}")
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(f"{r['method']:<14s}{r['seconds']:8.2f}{r['triangles']:10d}"
+              f"{r.get('accuracy', np.nan):10.5f}{r.get('completeness', np.nan):10.5f}"
+              f"{r.get('chamfer', np.nan):10.5f}{r.get('fscore', np.nan):8.3f}"
+              f"{r.get('hausdorff', np.nan):10.4f}{'yes' if r['closed'] else 'no':>7s}"
+              f"{r['components']:6d}")
+
+
+def goals(rows: list[dict]) -> dict:
+    """The issue's goals for the stitched mesh against Poisson depth 8."""
+    by = {r["method"]: r for r in rows}
+    s, p = by.get("stitched"), by.get("poisson-8")
+    if s is None or p is None:
+        return {}
+    return {"chamfer_le_poisson8": bool(s["chamfer"] <= p["chamfer"]),
+            "one_closed_component": bool(s["closed"] and s["components"] == 1),
+            "faster_than_poisson8": bool(s["seconds"] < p["seconds"])}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="scaling up to 10^5 points only")
+    parser.add_argument("--points", type=int, default=50_000, help="cloud size of the table")
+    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "surface.json"),
+                        help="where to write the results")
+    parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
+    args = parser.parse_args(argv)
+
+    import open3d as o3d
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    truth = vase_truth()
+    points = vase_cloud(truth, args.points)
+    print(f"vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], flat caps: {args.points} points, "
+          f"sigma = {SIGMA}, tau = {TAU}, {SAMPLES} samples per mesh")
+    rows = []
+    for name, method in METHODS:
+        rows.append(evaluate(name, method, points, truth))
+        print(f"  {name}: {rows[-1]['seconds']:.2f} s", flush=True)
+    print()
+    print_table(rows)
+    verdict = goals(rows)
+    for key, ok in verdict.items():
+        print(f"goal {key}: {'PASS' if ok else 'FAIL'}")
+    scale_rows = []
+    if not args.no_scaling:
+        sizes = [10_000, 100_000] + ([] if args.quick else [1_000_000])
+        print("\nscaling:")
+        scale_rows = scaling(truth, sizes, [m for m in METHODS if m[0] in ("stitched",
+                                                                          "poisson-8")])
+    result = {"benchmark": "surface", "points": args.points, "sigma": SIGMA, "tau": TAU,
+              "samples": SAMPLES, "seed": SEED, "quick": bool(args.quick), "methods": rows,
+              "goals": verdict, "scaling": scale_rows,
+              "open3d": o3d.__version__, "numpy": np.__version__}
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1, default=float) + "\n")
+    print(f"\nwritten {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
