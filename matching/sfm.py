@@ -1,0 +1,390 @@
+r"""Cameras and poses of an image folder by structure from motion (pycolmap, CPU).
+
+Incremental SfM [1]_ minimises the reprojection error over all intrinsics,
+poses and sparse points,
+
+.. math::  \min_{K, R_i, t_i, X_j} \sum_{(i,j)}
+           \rho\big(\lVert x_{ij} - \pi(K, R_i, t_i; X_j)\rVert^2\big),
+
+starting from SIFT features [2]_ matched exhaustively (small sets) or
+sequentially (large, ordered sets) and verified by two-view geometry.  The
+solution is defined up to a similarity :math:`X \mapsto s R X + t`
+(7 degrees of freedom): the scale is arbitrary unless a known distance fixes
+it, and comparing with another frame takes a similarity alignment, estimated
+here in closed form by Umeyama's method [3]_:
+
+.. math::  \Sigma = \tfrac1n \sum (y_i - \mu_y)(x_i - \mu_x)^T = U D V^T,\quad
+           R = U S V^T,\quad s = \operatorname{tr}(D S) / \sigma_x^2,\quad
+           t = \mu_y - s R \mu_x,
+
+with :math:`S = \mathrm{diag}(1, 1, \operatorname{sign}\det U \det V)`.
+
+COLMAP's pixel origin is the corner of the top-left pixel; cameras are
+returned in OpenCV's convention (see :mod:`matching.cameras`).
+
+References
+----------
+.. [1] J. L. Schönberger and J.-M. Frahm, "Structure-from-Motion Revisited",
+   CVPR (2016).
+.. [2] D. G. Lowe, "Distinctive Image Features from Scale-Invariant
+   Keypoints", IJCV 60(2) (2004).
+.. [3] S. Umeyama, "Least-Squares Estimation of Transformation Parameters
+   Between Two Point Patterns", IEEE TPAMI 13(4), 376-380 (1991).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from matching.cameras import Camera, cameras_from_pycolmap
+from matching.validate import TOL, check_shape
+
+__all__ = [
+    "SfmResult",
+    "run_sfm",
+    "list_images",
+    "umeyama",
+    "transform_cameras",
+    "fix_scale",
+    "align_to_reference",
+]
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm", ".pgm", ".webp")
+MATCHERS = ("auto", "exhaustive", "sequential")
+#: "auto" matches exhaustively up to this many images: n(n-1)/2 pairs, ~1200
+#: pairs at 50 images, a few minutes of SIFT matching on 2 cores.
+EXHAUSTIVE_MAX_IMAGES = 50
+
+
+@dataclass(frozen=True, eq=False)
+class SfmResult:
+    """Cameras, sparse points and a report of an SfM run.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        Registered images, sorted by name, OpenCV convention.
+    points : (N, 3) float64
+        Sparse points, in the same (arbitrary unless fixed) frame and scale.
+    track_length : (N,) int64
+        Number of images observing each point.
+    colors : (N, 3) uint8
+        RGB colour of each point.
+    registered : list of str
+        Names of the registered images.
+    unregistered : list of str
+        Images given but not registered (never silently dropped).
+    ignored : list of str
+        Files in the folder that are not images by suffix.
+    mean_reprojection_error_px : float
+    scale : float
+        Factor applied to COLMAP's frame (1.0: the scale is arbitrary).
+    scale_fixed : bool
+        True once a known distance or a reference frame fixed the scale.
+    matcher : str
+        "exhaustive" or "sequential".
+    """
+
+    cameras: list[Camera]
+    points: np.ndarray
+    track_length: np.ndarray
+    colors: np.ndarray
+    registered: list[str]
+    unregistered: list[str]
+    ignored: list[str] = field(default_factory=list)
+    mean_reprojection_error_px: float = float("nan")
+    scale: float = 1.0
+    scale_fixed: bool = False
+    matcher: str = "exhaustive"
+
+    def report(self) -> dict:
+        """Plain-type summary for logs and JSON."""
+        return {
+            "registered": len(self.registered),
+            "unregistered": list(self.unregistered),
+            "ignored": list(self.ignored),
+            "sparse_points": int(len(self.points)),
+            "mean_track_length": float(np.mean(self.track_length)) if len(self.points) else 0.0,
+            "mean_reprojection_error_px": float(self.mean_reprojection_error_px),
+            "scale_factor": float(self.scale),
+            "scale": "fixed" if self.scale_fixed else "arbitrary (similarity gauge of SfM)",
+            "matcher": self.matcher,
+        }
+
+
+# --------------------------------------------------------------- similarity
+def umeyama(src, dst, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991).
+
+    Parameters
+    ----------
+    src, dst : (N, 3) float64
+        Corresponding points, N >= 3, not all on one line.
+    with_scale : bool
+        Estimate s; otherwise s = 1 (rigid motion).
+
+    Returns
+    -------
+    s : float
+    R : (3, 3) float64, det +1
+    t : (3,) float64
+    """
+    src = check_shape(src, "(N, 3)", "src", dtype=np.float64)
+    dst = check_shape(dst, "(N, 3)", "dst", dtype=np.float64)
+    if len(src) != len(dst):
+        raise ValueError(f"src and dst must have the same length, got {len(src)} and {len(dst)}")
+    if len(src) < 3:
+        raise ValueError(f"umeyama needs at least 3 point pairs, got {len(src)}")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - mu_s, dst - mu_d
+    var_s = np.mean(np.sum(a * a, axis=1))
+    sigma = b.T @ a / len(src)  # (3, 3) cross-covariance
+    U, D, Vt = np.linalg.svd(sigma)
+    if var_s <= TOL.zero or D[1] <= TOL.zero * max(D[0], TOL.zero):
+        raise ValueError("umeyama: the points are (nearly) collinear or coincident; the "
+                         "rotation is not determined")
+    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0])
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(D) @ S) / var_s) if with_scale else 1.0
+    return s, R, mu_d - s * R @ mu_s
+
+
+def transform_cameras(cameras: Sequence[Camera], s: float, R, t) -> list[Camera]:
+    """Cameras after the world moved by ``X' = s R X + t`` (they see the same pixels).
+
+    With :math:`X = R^T (X' - t) / s`, the camera frame scaled by s gives
+    :math:`R_c' = R_c R^T` and :math:`t_c' = s\\,t_c - R_c' t`.
+    """
+    R = check_shape(R, "(3, 3)", "R", dtype=np.float64)
+    t = check_shape(t, "(3,)", "t", dtype=np.float64)
+    if not s > 0:
+        raise ValueError(f"scale s must be positive, got {s}")
+    out = []
+    for cam in cameras:
+        R_new = cam.R @ R.T
+        out.append(replace(cam, R=R_new, t=s * cam.t - R_new @ t))
+    return out
+
+
+def _transform_result(result: SfmResult, s: float, R, t, scale_fixed: bool) -> SfmResult:
+    points = s * result.points @ np.asarray(R).T + t if len(result.points) else result.points
+    return replace(result, cameras=transform_cameras(result.cameras, s, R, t), points=points,
+                   scale=result.scale * s, scale_fixed=scale_fixed)
+
+
+def fix_scale(result: SfmResult, name_a: str, name_b: str, distance: float) -> SfmResult:
+    """Scale the reconstruction so that the centres of two images are ``distance`` apart."""
+    if not distance > 0:
+        raise ValueError(f"known distance must be positive, got {distance}")
+    by_name = {cam.name: cam for cam in result.cameras}
+    for name in (name_a, name_b):
+        if name not in by_name:
+            raise ValueError(f"known distance: image {name!r} is not registered "
+                             f"(registered: {', '.join(result.registered)})")
+    d = np.linalg.norm(by_name[name_a].center - by_name[name_b].center)
+    if d <= TOL.zero:
+        raise ValueError(f"known distance: {name_a} and {name_b} have the same centre")
+    return _transform_result(result, distance / d, np.eye(3), np.zeros(3), True)
+
+
+def align_to_reference(result: SfmResult, reference: Sequence[Camera],
+                       with_scale: bool = True) -> tuple[SfmResult, float]:
+    """Align an SfM result to reference cameras by their centres (matched by name).
+
+    Returns
+    -------
+    aligned : SfmResult
+    rms : float
+        RMS distance between aligned and reference centres, reference units.
+    """
+    ref = {cam.name: cam for cam in reference}
+    pairs = [(cam.center, ref[cam.name].center) for cam in result.cameras if cam.name in ref]
+    if len(pairs) < 3:
+        raise ValueError(f"need at least 3 registered images with a reference camera, got "
+                         f"{len(pairs)}")
+    src, dst = (np.array(v) for v in zip(*pairs, strict=True))
+    s, R, t = umeyama(src, dst, with_scale)
+    rms = float(np.sqrt(np.mean(np.sum((s * src @ R.T + t - dst) ** 2, axis=1))))
+    return _transform_result(result, s, R, t, True), rms
+
+
+# --------------------------------------------------------------- SfM run
+def list_images(folder: str | os.PathLike) -> tuple[list[str], list[str]]:
+    """Image names (by suffix, sorted) and the other file names of a folder."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise FileNotFoundError(f"{folder}: no such folder")
+    if not folder.is_dir():
+        raise NotADirectoryError(f"{folder}: not a folder")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    images = [p.name for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    others = [p.name for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
+    return images, others
+
+
+def _check_images(folder: Path, names: list[str]) -> set[tuple[int, int]]:
+    sizes = set()
+    for name in names:
+        image = cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise ValueError(f"{folder / name}: not a readable image")
+        sizes.add((image.shape[1], image.shape[0]))
+    return sizes
+
+
+@contextlib.contextmanager
+def _quiet_colmap() -> Iterator[None]:
+    import pycolmap
+
+    previous = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 2 if log.getEffectiveLevel() > logging.DEBUG else previous
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = previous
+
+
+def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = None,
+            image_names: Sequence[str] | None = None, matcher: str = "auto",
+            single_camera: bool | None = None, camera_model: str = "SIMPLE_RADIAL",
+            known_distance: tuple[str, str, float] | None = None,
+            num_threads: int | None = None, seed: int = 0) -> SfmResult:
+    """Recover intrinsics and poses of the images in a folder with pycolmap on the CPU.
+
+    Parameters
+    ----------
+    image_dir : path
+        Folder of images (by suffix: png, jpg, tif, bmp, ppm, pgm, webp).
+    work_dir : path, optional
+        Where the feature database and the sparse model (``sparse/``, COLMAP
+        binary) are kept; default a temporary folder, removed afterwards.
+    image_names : sequence of str, optional
+        Use only these images of the folder.
+    matcher : {"auto", "exhaustive", "sequential"}
+        "auto": exhaustive up to ``EXHAUSTIVE_MAX_IMAGES`` images, else
+        sequential (images ordered by name, as a walk-around sequence).
+    single_camera : bool, optional
+        One shared camera for all images (one physical camera, fixed zoom).
+        Default: True when all images have the same size.
+    camera_model : str
+        COLMAP model: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV.
+    known_distance : (name_a, name_b, distance), optional
+        Fix the scale: the centres of these two images are ``distance`` apart.
+    num_threads : int, optional
+        Default: all cores.
+    seed : int
+        Random seed of the mapper (RANSAC), for repeatable runs.
+
+    Returns
+    -------
+    SfmResult
+        The largest reconstruction; images outside it are listed as unregistered.
+
+    Raises
+    ------
+    FileNotFoundError, NotADirectoryError
+        No such folder.
+    ValueError
+        Fewer than 2 images, unreadable image, unknown matcher/model, mixed
+        sizes with ``single_camera=True``, or no image registered.
+    """
+    import pycolmap
+
+    image_dir = Path(image_dir)
+    names, others = list_images(image_dir)
+    if image_names is not None:
+        missing = sorted(set(image_names) - set(names))
+        if missing:
+            raise ValueError(f"{image_dir}: no image(s) {', '.join(missing)}")
+        names = [n for n in names if n in set(image_names)]
+    if len(names) < 2:
+        raise ValueError(f"{image_dir}: SfM needs at least 2 images, found {len(names)}"
+                         + (f" (other files: {', '.join(others[:5])})" if others else ""))
+    if matcher not in MATCHERS:
+        raise ValueError(f"matcher must be one of {', '.join(MATCHERS)}, got {matcher!r}")
+    models = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+    if camera_model not in models:
+        raise ValueError(f"camera_model must be one of {', '.join(models)}, got {camera_model!r}")
+    sizes = _check_images(image_dir, names)
+    if single_camera is None:
+        single_camera = len(sizes) == 1
+    elif single_camera and len(sizes) > 1:
+        raise ValueError(f"{image_dir}: single_camera but the images have {len(sizes)} sizes: "
+                         f"{sorted(sizes)}")
+    if matcher == "auto":
+        matcher = "exhaustive" if len(names) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
+    threads = int(num_threads) if num_threads else (os.cpu_count() or 1)
+
+    with contextlib.ExitStack() as stack:
+        if work_dir is None:
+            work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="photosurf-sfm-")))
+        else:
+            work = Path(work_dir)
+            work.mkdir(parents=True, exist_ok=True)
+        stack.enter_context(_quiet_colmap())
+        database = work / "database.db"
+        database.unlink(missing_ok=True)
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = camera_model
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = threads
+        mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+        pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=mode,
+                                  reader_options=reader, extraction_options=extraction,
+                                  device=pycolmap.Device.cpu)
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = threads
+        if matcher == "exhaustive":
+            pycolmap.match_exhaustive(database, matching_options=matching,
+                                      device=pycolmap.Device.cpu)
+        else:
+            pycolmap.match_sequential(database, matching_options=matching,
+                                      device=pycolmap.Device.cpu)
+        sparse = work / "sparse"
+        sparse.mkdir(exist_ok=True)
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = threads
+        options.random_seed = seed
+        reconstructions = pycolmap.incremental_mapping(database, image_dir, sparse,
+                                                       options=options)
+    if not reconstructions:
+        raise ValueError(f"{image_dir}: SfM registered no image ({len(names)} images; too "
+                         "little texture or overlap for SIFT matches?)")
+    best = max(reconstructions.values(), key=lambda r: r.num_reg_images())
+    result = _result_from(best, names, others, matcher)
+    if len(reconstructions) > 1:
+        log.warning("SfM split the images into %d models; kept the largest (%d images)",
+                    len(reconstructions), len(result.registered))
+    if result.unregistered:
+        log.warning("SfM did not register %d image(s): %s", len(result.unregistered),
+                    ", ".join(result.unregistered))
+    if known_distance is not None:
+        result = fix_scale(result, *known_distance)
+    return result
+
+
+def _result_from(reconstruction, names: list[str], others: list[str], matcher: str) -> SfmResult:
+    cameras = cameras_from_pycolmap(reconstruction)
+    registered = [cam.name for cam in cameras]
+    points3d = list(reconstruction.points3D.values())
+    points = np.array([p.xyz for p in points3d], dtype=np.float64).reshape(-1, 3)
+    track = np.array([p.track.length() for p in points3d], dtype=np.int64)
+    colors = np.array([p.color for p in points3d], dtype=np.uint8).reshape(-1, 3)
+    return SfmResult(cameras=cameras, points=points, track_length=track, colors=colors,
+                     registered=registered,
+                     unregistered=[n for n in names if n not in set(registered)],
+                     ignored=list(others),
+                     mean_reprojection_error_px=float(
+                         reconstruction.compute_mean_reprojection_error()),
+                     matcher=matcher)
