@@ -105,9 +105,11 @@ def test_all_views_register_and_stray_is_named(sfm_result):
 def test_poses_match_truth_after_similarity(scene_folder, sfm_result):
     """Aligned centres within 1 % of the ring radius, orientations within 0.5°, f within 1 %.
 
-    SIFT keypoints are located to ~0.1-0.2 px on these noise-free renders
-    (COLMAP reports the mean reprojection error), i.e. ~1e-3 of the 300 px
-    focal length; the pose and focal errors scale alike, so 1 % is a 10x margin.
+    SIFT keypoints are located to ~0.2 px on these aliased 320x240 renders
+    (COLMAP's mean reprojection error), ~1e-3 of the 300 px focal length.
+    Measured: centres 0.12 % of the radius, angles <= 0.25°, f -0.5 % (the
+    focal length trades off against SIMPLE_RADIAL's k over this narrow field
+    of view), so the bounds leave a margin of about 2x.
     """
     _, truth = scene_folder
     aligned, rms = align_to_reference(sfm_result, truth)
