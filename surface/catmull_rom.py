@@ -31,10 +31,14 @@ Smoothing level (a priori): ``smoothing`` is the number of data points per
 control point.  A noisy ordered section of M points is reduced to
 ``n = max(4, round(M/smoothing))`` control points by linear least squares
 with the Catmull-Rom basis itself (the curve is linear in its control
-points), the data parametrised by the arc length of a moving average of
-width ``smoothing``.  Each control point then averages about ``smoothing``
-points, so the curve's noise is about ``σ/√smoothing`` for point noise σ and
-the noise does not become wiggles.  ``smoothing ≤ 1`` interpolates the points.
+points), plus a light fairness term on third differences of the control
+points that keeps the system regular across gaps.  The data are parametrised
+by arc length along a moving average of ``max(smoothing, √M)`` points, each
+point placed at its own foot on it.  Each control point then averages about
+``smoothing`` points, so the curve's noise is about ``σ/√smoothing`` for point
+noise σ (measured: 0.93–1.1 × that on a noisy circle) and the noise does not
+become wiggles; the shape bias stays below 1e-7 of the radius on a circle at
+8 points per control point.  ``smoothing ≤ 1`` interpolates the points.
 
 References
 ----------
@@ -76,8 +80,8 @@ _ALPHA = {"uniform": 0.0, "centripetal": 0.5, "chordal": 1.0}
 _BISECT_STEPS = 64
 #: Dense samples per segment for arc length (chord error ~ (h/64)^2 κ).
 _ARC_SAMPLES = 64
-#: Foot-point parameter corrections in the least-squares fit.
-_PARAM_ROUNDS = 2
+#: Weight of the third-difference fairness term relative to one data point (see _least_squares).
+_FAIRNESS = 1e-2
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,14 +229,13 @@ class ClosedCurve:
             uv = self.to_plane(self.evaluate(start + tau))
             return direction[:, 0] * uv[:, 1] - direction[:, 1] * uv[:, 0]
 
-        f_lo = f(lo)
+        # invariant f(lo) <= 0 < f(hi) (the ray's angle lies between the segment's
+        # ends); comparing with 0, not the sign at lo, keeps a ray through a knot exact
         for _ in range(_BISECT_STEPS):
             mid = 0.5 * (lo + hi)
-            f_mid = f(mid)
-            same = np.sign(f_mid) == np.sign(f_lo)
-            lo = np.where(same, mid, lo)
-            f_lo = np.where(same, f_mid, f_lo)
-            hi = np.where(same, hi, mid)
+            below = f(mid) <= 0
+            lo = np.where(below, mid, lo)
+            hi = np.where(below, hi, mid)
         return start + 0.5 * (lo + hi)
 
     def resample_arclength(self, n: int, theta0: float = 0.0) -> np.ndarray:
@@ -265,16 +268,15 @@ class ClosedCurve:
         best = crossing[np.argmax(along[crossing])]
         seg_t = t_dense[[best]]
         step = t_dense[1] - t_dense[0]
-        lo, hi = np.zeros(1), np.full(1, step)
-        c_lo = cross[[best]]
-        for _ in range(_BISECT_STEPS):
+        lo, hi = 0.0, float(step)
+        for _ in range(_BISECT_STEPS):  # invariant cross(lo) <= 0 < cross(hi)
             mid = 0.5 * (lo + hi)
-            q = self.to_plane(self.evaluate(seg_t + mid))
-            c_mid = d[0] * q[:, 1] - d[1] * q[:, 0]
-            same = np.sign(c_mid) == np.sign(c_lo)
-            lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
-            c_lo = np.where(same, c_mid, c_lo)
-        return float(seg_t[0] + 0.5 * (lo[0] + hi[0]))
+            q = self.to_plane(self.evaluate(seg_t + mid))[0]
+            if d[0] * q[1] - d[1] * q[0] <= 0:
+                lo = mid
+            else:
+                hi = mid
+        return float(seg_t[0] + 0.5 * (lo + hi))
 
     # ------------------------------------------------------------------ local update
     def update_point(self, index: int, new_point) -> ClosedCurve:
@@ -422,7 +424,10 @@ def fit(
     if n_ctrl == m:
         ctrl = pts
     else:
-        ctrl = _least_squares(pts, n_ctrl, window=int(round(smoothing)))
+        # parameter window: at least sqrt(M) points, so the moving average's step
+        # noise √2·σ/w stays below the point gap even where σ exceeds the gap
+        window = max(int(round(smoothing)), int(np.ceil(np.sqrt(m))))
+        ctrl = _least_squares(pts, n_ctrl, window=window)
     uv = (ctrl - centroid) @ frame[:2].T
     area = 0.5 * np.sum(uv[:, 0] * np.roll(uv[:, 1], -1) - np.roll(uv[:, 0], -1) * uv[:, 1])
     if area < 0:
@@ -431,37 +436,21 @@ def fit(
 
 
 def _least_squares(pts: np.ndarray, n_ctrl: int, window: int) -> np.ndarray:
-    """Control points ``(n_ctrl, 3)`` minimising Σ|Q(t_j) − x_j|².
+    """Control points ``(n_ctrl, 3)`` minimising Σ|Q(t_j) − x_j|² + λ·Σ|Δ³P_i|².
 
-    The data parameters start at the arc length of a moving average, then
-    each of ``_PARAM_ROUNDS`` rounds moves every ``t_j`` to the foot of
-    ``x_j`` on the current curve (one Newton step on ``½|Q(t) − x_j|²``) and
-    solves again: with fixed parameters a least-squares curve is pulled
-    tangentially and loses shape (a circle's radius shrinks by ~1e-4 at 56
-    control points), with foot-point parameters the residuals are normal to
-    the curve, as noise is.
-    """
-    t = _data_parameters(pts, window, n_ctrl)
-    ctrl = _solve_control(pts, t, n_ctrl)
-    for _ in range(_PARAM_ROUNDS):
-        spline = _build(ctrl, "uniform", np.eye(3), np.zeros(3)).spline
-        resid = spline(t) - pts
-        d1, d2 = spline(t, 1), spline(t, 2)
-        slope = np.einsum("mi,mi->m", resid, d1)
-        curvature = np.einsum("mi,mi->m", d1, d1) + np.einsum("mi,mi->m", resid, d2)
-        step = -slope / np.maximum(curvature, TOL.zero)
-        t = np.mod(t + np.clip(step, -0.5, 0.5), n_ctrl)
-        ctrl = _solve_control(pts, t, n_ctrl)
-    return ctrl
-
-
-def _solve_control(pts: np.ndarray, t: np.ndarray, n_ctrl: int) -> np.ndarray:
-    """Least-squares control points for fixed parameters (sparse normal equations).
-
-    A tiny second-difference ridge (``TOL.ridge_rel`` relative) keeps the
-    system regular where a gap leaves a control point without data.
+    Parameters ``t_j`` from :func:`_data_parameters`; the system is sparse
+    (4 basis functions per row) and solved by sparse LU.  The fairness term
+    on third differences of the control points (weight ``λ = 0.01`` × the mean
+    diagonal of ``AᵀA``, i.e. 1 % of one data point's pull) vanishes on
+    control polygons that are locally quadratic in the index, so it barely
+    biases smooth sections (a circle at 8 points per control point: 4e-8
+    relative) but keeps the fit regular where random gaps leave a control
+    point with little data: at 2 points per control point the curve's error
+    drops from 45σ to 0.7σ.  (Foot-point re-parametrisation was tried and
+    dropped: on noisy data it lets the curve chase the noise, 2× worse.)
     """
     m = len(pts)
+    t = _data_parameters(pts, window, n_ctrl)
     seg = np.minimum(np.floor(t).astype(np.int64), n_ctrl - 1)
     weights = _basis(t - seg)  # (m, 4)
     cols = (seg[:, None] + np.arange(-1, 3)) % n_ctrl
@@ -469,17 +458,16 @@ def _solve_control(pts: np.ndarray, t: np.ndarray, n_ctrl: int) -> np.ndarray:
         (weights.ravel(), (np.repeat(np.arange(m), 4), cols.ravel())), shape=(m, n_ctrl)
     )
     normal = (design.T @ design).tocsc()
-    ridge = TOL.ridge_rel * normal.diagonal().mean()
-    second = _periodic_second_difference(n_ctrl)
-    system = (normal + ridge * (second.T @ second)).tocsc()
+    fair = _periodic_third_difference(n_ctrl)
+    system = (normal + _FAIRNESS * normal.diagonal().mean() * (fair.T @ fair)).tocsc()
     return np.asarray(spsolve(system, design.T @ pts)).reshape(n_ctrl, 3)
 
 
-def _periodic_second_difference(n: int) -> sparse.csc_matrix:
-    """``(n, n)`` matrix of ``P_{j−1} − 2 P_j + P_{j+1}`` with cyclic indices."""
-    rows = np.repeat(np.arange(n), 3)
-    cols = (rows + np.tile([-1, 0, 1], n)) % n
-    vals = np.tile([1.0, -2.0, 1.0], n)
+def _periodic_third_difference(n: int) -> sparse.csc_matrix:
+    """``(n, n)`` matrix of ``−P_{j−1} + 3P_j − 3P_{j+1} + P_{j+2}`` with cyclic indices."""
+    rows = np.repeat(np.arange(n), 4)
+    cols = (rows + np.tile([-1, 0, 1, 2], n)) % n
+    vals = np.tile([-1.0, 3.0, -3.0, 1.0], n)
     return sparse.csc_matrix((vals, (rows, cols)), shape=(n, n))
 
 

@@ -1,0 +1,309 @@
+"""Tests of surface.catmull_rom: closed Catmull-Rom curves, smoothing, resampling.
+
+Exact identities (interpolation, C1 at the knots, agreement with the matrix
+form of eq. (3,5), locality of an update) hold to rounding: a few dozen
+floating-point operations on coordinates of size ~1, so 1e-12.  Statistical
+claims state their bound where they are made.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from surface.catmull_rom import (
+    M_CR,
+    ClosedCurve,
+    fit,
+    fit_loop,
+    predict_ring,
+    predict_sections,
+    ring_size,
+)
+from surface.sections import Section
+from surface.topology import organise
+from tests.surface.test_topology import c_shape
+
+FRAME = np.eye(3)
+
+
+def polygon(n: int, seed: int = 0, z: float = 0.0) -> np.ndarray:
+    """A star-shaped random polygon (n, 3) around the origin, counter-clockwise."""
+    rng = np.random.default_rng(seed)
+    phi = np.sort(rng.uniform(0, 2 * np.pi, n))
+    r = rng.uniform(0.7, 1.3, n)
+    return np.c_[r * np.cos(phi), r * np.sin(phi), np.full(n, z)]
+
+
+def paper_q(points: np.ndarray, i: int, t: float) -> np.ndarray:
+    """Eq. (3,5) literally: ½·[t³ t² t 1]·M_CR·[P_{i−3} … P_i]ᵀ, indices cyclic."""
+    n = len(points)
+    block = points[[(i - 3) % n, (i - 2) % n, (i - 1) % n, i % n]]
+    return 0.5 * np.array([t**3, t**2, t, 1.0]) @ M_CR @ block
+
+
+# ----------------------------------------------------------------------------- exact form
+def test_curve_interpolates_its_control_points():
+    pts = polygon(11)
+    curve = ClosedCurve.from_control_points(pts)
+    np.testing.assert_allclose(curve.evaluate(np.arange(11)), pts, atol=1e-12)
+    np.testing.assert_allclose(curve.evaluate(11.0), pts[0], atol=1e-12)  # closed
+
+
+def test_curve_equals_the_matrix_form_of_eq_3_5():
+    pts = polygon(9, seed=1) + [0.0, 0.0, 0.5]
+    curve = ClosedCurve.from_control_points(pts)
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        i = int(rng.integers(0, 9))  # paper's segment i runs from P_{i−2} to P_{i−1}
+        t = float(rng.uniform(0, 1))
+        global_t = (i - 2) % 9 + t
+        np.testing.assert_allclose(curve.evaluate(global_t), paper_q(pts, i, t), atol=1e-12)
+
+
+def test_uniform_tangents_are_central_differences():
+    pts = polygon(7, seed=3)
+    curve = ClosedCurve.from_control_points(pts)
+    central = 0.5 * (np.roll(pts, -1, axis=0) - np.roll(pts, 1, axis=0))
+    np.testing.assert_allclose(curve.derivative(np.arange(7)), central, atol=1e-12)
+
+
+@pytest.mark.parametrize("parametrisation", ["uniform", "centripetal", "chordal"])
+def test_curve_is_c1_at_the_knots(parametrisation):
+    pts = polygon(10, seed=4)
+    curve = ClosedCurve.from_control_points(pts, parametrisation)
+    coeffs = curve.segment_coefficients()  # (4, n, 3), powers 3, 2, 1, 0 of (t − t_j)
+    h = np.diff(curve.knots)
+    # value and first derivative at the right end of segment j ...
+    end_value = coeffs[0] * h[:, None] ** 3 + coeffs[1] * h[:, None] ** 2 + coeffs[2] * h[:, None]
+    end_value += coeffs[3]
+    end_slope = 3 * coeffs[0] * h[:, None] ** 2 + 2 * coeffs[1] * h[:, None] + coeffs[2]
+    # ... equal those at the left end of segment j + 1 (cyclic)
+    np.testing.assert_allclose(end_value, np.roll(coeffs[3], -1, axis=0), atol=1e-12)
+    np.testing.assert_allclose(end_slope, np.roll(coeffs[2], -1, axis=0), atol=1e-12)
+
+
+def test_centripetal_tangent_is_barry_goldman():
+    pts = polygon(8, seed=5)
+    curve = ClosedCurve.from_control_points(pts, "centripetal")
+    d = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1) ** 0.5
+    np.testing.assert_allclose(np.diff(curve.knots), d, rtol=1e-14)
+    j = 3
+    p0, p1, p2 = pts[j - 1], pts[j], pts[j + 1]
+    expect = (p1 - p0) / d[j - 1] - (p2 - p0) / (d[j - 1] + d[j]) + (p2 - p1) / d[j]
+    np.testing.assert_allclose(curve.tangents[j], expect, atol=1e-12)
+
+
+@pytest.mark.parametrize("parametrisation", ["uniform", "centripetal"])
+def test_moving_one_point_changes_only_four_segments(parametrisation):
+    n, j = 12, 0  # j = 0 checks the cyclic wrap
+    curve = ClosedCurve.from_control_points(polygon(n, seed=6), parametrisation)
+    moved = curve.update_point(j, curve.control_points[j] + [0.2, -0.1, 0.05])
+    # uniform: bitwise; centripetal: the knots are a cumulative sum, so the other
+    # segments' coefficients may differ by rounding of their breakpoints (1e-12)
+    diff = np.abs(moved.segment_coefficients() - curve.segment_coefficients()).max(axis=(0, 2))
+    changed = diff > (0.0 if parametrisation == "uniform" else 1e-12)
+    expect = np.zeros(n, bool)
+    expect[[(j - 2) % n, (j - 1) % n, j, (j + 1) % n]] = True  # segments P_{j−2} … P_{j+2}
+    assert np.array_equal(changed, expect)
+    if parametrisation == "uniform":  # same parameter for every other point: identical curve
+        far = np.linspace(3.0, 9.0, 50)
+        np.testing.assert_array_equal(moved.evaluate(far), curve.evaluate(far))
+
+
+# ----------------------------------------------------------------------------- smoothing
+def noisy_circle(m: int, sigma: float, seed: int = 0, radius: float = 1.0):
+    rng = np.random.default_rng(seed)
+    phi = np.sort(rng.uniform(0, 2 * np.pi, m))
+    pts = np.c_[radius * np.cos(phi), radius * np.sin(phi), np.zeros(m)]
+    pts[:, :2] += rng.normal(0, sigma, (m, 2))
+    return pts
+
+
+def radial_rms(curve: ClosedCurve, radius: float = 1.0) -> float:
+    q = curve.evaluate(np.linspace(0, curve.period, 20_000, endpoint=False))
+    return float(np.sqrt(np.mean((np.hypot(q[:, 0], q[:, 1]) - radius) ** 2)))
+
+
+def test_smoothing_level_reduces_noise():
+    # A least-squares curve with n control points through M points: the fitted
+    # values' mean variance is σ²·n/M (trace of the hat matrix), so the normal
+    # error is ≈ σ/√smoothing; bound 1.5× that, and "well below σ".
+    sigma, m = 0.01, 2000
+    pts = noisy_circle(m, sigma)
+    for smoothing in (2, 4, 16, 32):
+        curve = fit(pts, smoothing, frame=FRAME, centroid=np.zeros(3))
+        assert curve.n == round(m / smoothing)
+        assert radial_rms(curve) < 1.5 * sigma / math.sqrt(smoothing)
+    assert radial_rms(fit(pts, 16, frame=FRAME, centroid=np.zeros(3))) < 0.4 * sigma
+
+
+def test_noise_free_fit_is_close_to_exact():
+    # uniform Catmull-Rom through n points of a unit circle errs by ≈ 0.023·(2π/n)⁴
+    # (Taylor expansion of the midpoint formula (−P0 + 9P1 + 9P2 − P3)/16): 4e-6 at
+    # n = 56 at the midpoints; least squares on random points stays within 2× that
+    # (measured ~6e-8: the fit spreads the error, the interpolant concentrates it).
+    pts = noisy_circle(450, 0.0, seed=1)
+    curve = fit(pts, 8, frame=FRAME, centroid=np.zeros(3))
+    assert curve.n == 56
+    assert radial_rms(curve) < 2 * 0.0234 * (2 * math.pi / 56) ** 4
+
+
+def test_smoothing_at_most_one_interpolates_the_points():
+    pts = polygon(20, seed=7)
+    curve = fit(pts, 1, frame=FRAME)
+    np.testing.assert_allclose(curve.control_points, pts)
+
+
+def test_fit_orients_counter_clockwise():
+    pts = polygon(30, seed=8)[::-1]  # clockwise input
+    curve = fit(pts, 2, frame=FRAME)
+    assert curve.signed_area() > 0
+
+
+# ----------------------------------------------------------------------------- resampling
+def ellipse_curve(n_ctrl: int = 200, a: float = 2.0, b: float = 1.0) -> ClosedCurve:
+    phi = np.linspace(0, 2 * np.pi, n_ctrl, endpoint=False)
+    pts = np.c_[a * np.cos(phi), b * np.sin(phi), np.zeros(n_ctrl)]
+    return ClosedCurve.from_control_points(pts, frame=FRAME, centroid=np.zeros(3))
+
+
+def test_resample_theta_hits_the_requested_angles_exactly():
+    curve = ellipse_curve()
+    for n, theta0 in ((16, 0.0), (33, 0.4)):
+        ring = curve.resample_theta(n, theta0)
+        want = theta0 + 2 * np.pi * np.arange(n) / n
+        got = np.arctan2(ring[:, 1], ring[:, 0])
+        err = np.mod(got - want + np.pi, 2 * np.pi) - np.pi
+        assert np.max(np.abs(err)) < 1e-12
+        # and the points are on the ellipse (200 control points: CR error ~1e-6)
+        assert np.max(np.abs((ring[:, 0] / 2) ** 2 + ring[:, 1] ** 2 - 1)) < 1e-5
+
+
+def test_resample_theta_refuses_a_non_star_shaped_curve():
+    t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
+    # a closed curve winding twice about its centroid is not star-shaped
+    pts = np.c_[np.cos(2 * t) * (1 + 0.3 * np.cos(t)), np.sin(2 * t) * (1 + 0.3 * np.cos(t)), 0 * t]
+    curve = ClosedCurve.from_control_points(pts, frame=FRAME)
+    assert not curve.is_star_shaped()
+    with pytest.raises(ValueError, match="not star-shaped"):
+        curve.resample_theta(10)
+
+
+def test_resample_arclength_is_equally_spaced_from_theta0():
+    curve = ellipse_curve()
+    ring = curve.resample_arclength(64, theta0=0.0)
+    step = np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1)
+    # equal arc length s ⇒ chord s·(1 − (κ s)²/24): κ on this ellipse spans
+    # [b/a², a/b²] = [0.25, 2], so the chords vary by < (2 s)²/24 relative
+    s = step.mean()
+    assert np.ptp(step) / s < (2 * s) ** 2 / 24
+    np.testing.assert_allclose(ring[0], [2.0, 0.0, 0.0], atol=1e-9)  # starts on the θ0 ray
+    x, y = ring[:, 0], ring[:, 1]
+    assert np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # counter-clockwise
+
+
+# ----------------------------------------------------------------------------- prediction
+def circle_section(sid: int, m: int = 120, seed: int = 0) -> Section:
+    rng = np.random.default_rng(seed + sid)
+    phi = rng.uniform(0, 2 * np.pi, m)
+    h = 0.1 * sid
+    pts = np.c_[(1 + h) * np.cos(phi), (1 + h) * np.sin(phi), np.full(m, h)]
+    return Section(h, pts, np.array([0.0, 0.0, h]), FRAME, sid, np.arange(m))
+
+
+def test_predict_sections_gives_n_and_2n_points_at_equal_theta():
+    loops = [organise(circle_section(k))[0] for k in range(4)]
+    rings = predict_sections(loops, 10, smoothing=4)
+    assert [len(r) for r in rings] == [10, 20, 10, 20]
+    assert [ring_size(k, 10) for k in range(4)] == [10, 20, 10, 20]
+    for k, (ring, loop) in enumerate(zip(rings, loops, strict=True)):
+        rel = ring - loop.centroid
+        got = np.mod(np.arctan2(rel[:, 1], rel[:, 0]), 2 * np.pi)
+        want = 2 * np.pi * np.arange(len(ring)) / len(ring)
+        assert np.max(np.abs(np.mod(got - want + np.pi, 2 * np.pi) - np.pi)) < 1e-12
+        np.testing.assert_allclose(ring[:, 2], 0.1 * k, atol=1e-12)  # on the section plane
+
+
+def test_predict_sections_mirrors_several_loops():
+    loop = organise(circle_section(0))[0]
+    rings = predict_sections([loop, [loop, loop]], 6, smoothing=4)
+    assert rings[0].shape == (6, 3)
+    assert isinstance(rings[1], list) and [r.shape for r in rings[1]] == [(12, 3), (12, 3)]
+
+
+def test_predict_ring_of_a_non_star_shaped_loop_uses_arc_length():
+    uv, _ = c_shape(600, np.random.default_rng(9))
+    pts = np.c_[uv, np.zeros(600)]
+    loop = organise(Section(0.0, pts, np.zeros(3), FRAME, 0, np.arange(600)))[0]
+    assert not loop.star_shaped
+    curve = fit_loop(loop, 4)
+    assert not curve.is_star_shaped()
+    ring = predict_ring(loop, 40, smoothing=4)
+    step = np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1)
+    # equal arc steps s ≈ 0.31, curvature ≤ 1/0.35 (the C's round ends): chord
+    # s·(1 − (κ s)²/24) ⇒ chords equal within (s/0.35)²/24 ≈ 3.2 %
+    s = step.mean()
+    assert np.ptp(step) / s < (s / 0.35) ** 2 / 24
+    # the θ = π ray from the centroid crosses the inner and the outer arc: the ring
+    # starts on the outermost crossing, the outer arc x = −1.35 (within CR error)
+    start = curve.resample_arclength(40, theta0=np.pi)[0]
+    assert abs(start[1] - loop.centroid[1]) < 1e-9 and start[0] < loop.centroid[0]
+    assert start[0] == pytest.approx(-math.sqrt(1.35**2 - loop.centroid[1] ** 2), abs=1e-3)
+    # the θ = 0 ray escapes through the C's opening: start at the θ closest to 0
+    rel = ring[0] - loop.centroid
+    dense = curve.evaluate(np.linspace(0, curve.period, 20_000)) - loop.centroid
+    closest = np.abs(np.arctan2(dense[:, 1], dense[:, 0])).min()
+    assert abs(math.atan2(rel[1], rel[0])) == pytest.approx(closest, abs=1e-3)
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: ClosedCurve.from_control_points(np.zeros((3, 3))), "at least 4"),
+        (lambda: ClosedCurve.from_control_points(polygon(5), "bezier"), "parametrisation"),
+        (lambda: fit(np.full((10, 3), np.nan)), "NaN/inf"),
+        (lambda: fit(polygon(3)), "at least 4"),
+        (lambda: fit(polygon(10), -1.0), "smoothing"),
+        (lambda: fit(np.zeros((10, 3)), 2.0, frame=FRAME), "coincide"),
+        (lambda: ClosedCurve.from_control_points(polygon(5)).update_point(9, [0, 0, 0]), "index"),
+        (lambda: ClosedCurve.from_control_points(polygon(5)).resample_theta(0), "n must"),
+        (lambda: predict_sections([], 0), "n must"),
+    ],
+)
+def test_bad_input_raises_a_named_value_error(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+# ----------------------------------------------------------------------------- properties
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(4, 40), t=st.floats(-50, 50))
+def test_closure_the_curve_is_periodic(seed, n, t):
+    curve = ClosedCurve.from_control_points(polygon(n, seed))
+    np.testing.assert_allclose(curve.evaluate(t + curve.period), curve.evaluate(t), atol=1e-10)
+    np.testing.assert_allclose(curve.derivative(t + curve.period), curve.derivative(t), atol=1e-9)
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    shift=st.tuples(st.floats(-100, 100), st.floats(-100, 100), st.floats(-100, 100)),
+    angle=st.floats(0, 2 * np.pi),
+)
+def test_fit_commutes_with_rigid_motions(seed, shift, angle):
+    pts = noisy_circle(200, 0.01, seed=seed)
+    c, s = math.cos(angle), math.sin(angle)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    base = fit(pts, 8, frame=FRAME, centroid=np.zeros(3))
+    moved = fit(pts @ rot.T + shift, 8, frame=FRAME, centroid=np.asarray(shift))
+    np.testing.assert_allclose(
+        moved.control_points,
+        base.control_points @ rot.T + shift,
+        atol=1e-9 * (1 + np.abs(shift).max()),
+    )
