@@ -626,6 +626,8 @@ def read_stereo_calibration(intrinsics: str | os.PathLike, extrinsics: str | os.
         fs.release()
     D1 = np.zeros(0) if D1 is None else D1.reshape(-1)
     D2 = np.zeros(0) if D2 is None else D2.reshape(-1)
+    if np.abs(R.T @ R - np.eye(3)).max() < TOL.rotation_text_digits:
+        R = _nearest_rotation(R)  # a hand-edited file may carry few digits
     try:
         left = Camera(K1, D1, np.eye(3), np.zeros(3), width, height, "left")
     except ValueError as exc:
@@ -633,8 +635,9 @@ def read_stereo_calibration(intrinsics: str | os.PathLike, extrinsics: str | os.
     try:
         right = Camera(K2, D2, R, T, width, height, "right")
     except ValueError as exc:
-        raise _camera_error(intrinsics if "R" not in str(exc) else extrinsics,
-                            "M2/D2/R/T", exc) from None
+        from_extrinsics = str(exc).startswith(("R ", "t "))
+        raise _camera_error(extrinsics if from_extrinsics else intrinsics,
+                            "R/T" if from_extrinsics else "M2/D2", exc) from None
     return StereoRig(left, right)
 
 
