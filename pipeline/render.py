@@ -45,6 +45,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Sequence
@@ -85,10 +86,14 @@ FILL = 0.92
 #: Default elevation of the two rows of the contact sheet, degrees.
 ELEVATION_DEG = 25.0
 
-# Moreland's cool-warm diverging map [3], sRGB anchors at 0, 1/4, 1/2, 3/4, 1.
-_COOLWARM = np.array([[0.2298, 0.2987, 0.7537], [0.5529, 0.6901, 0.9955],
-                      [0.8650, 0.8650, 0.8650], [0.9566, 0.5983, 0.4773],
-                      [0.7057, 0.0156, 0.1502]])
+# Moreland's cool-warm diverging map [3]: its end colours (sRGB 8-bit) and the
+# Msh magnitude of its white midpoint.
+_COOL, _WARM, _MID_M = (59, 76, 192), (180, 4, 38), 88.0
+# D65 white in XYZ and the sRGB -> XYZ matrix (IEC 61966-2-1).
+_D65 = np.array([0.95047, 1.0, 1.08883])
+_SRGB_TO_XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
+                         [0.2126729, 0.7151522, 0.0721750],
+                         [0.0193339, 0.1191920, 0.9503041]])
 
 
 # --------------------------------------------------------------------------- cameras
@@ -300,12 +305,66 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
 # --------------------------------------------------------------------------- error colours
 
 
+def _lab_f(t):
+    return np.where(t > (6 / 29) ** 3, np.cbrt(t), t / (3 * (6 / 29) ** 2) + 4 / 29)
+
+
+def _lab_finv(f):
+    return np.where(f > 6 / 29, f**3, 3 * (6 / 29) ** 2 * (f - 4 / 29))
+
+
+def _srgb_to_msh(rgb: np.ndarray) -> np.ndarray:
+    """sRGB [0, 1] -> CIELAB (D65) -> Moreland's polar (M, s, h) [3]_."""
+    f = _lab_f(_linear(rgb) @ _SRGB_TO_XYZ.T / _D65)
+    lab = np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]),
+                    200 * (f[..., 1] - f[..., 2])], axis=-1)
+    m = np.linalg.norm(lab, axis=-1)
+    return np.stack([m, np.arccos(lab[..., 0] / m), np.arctan2(lab[..., 2], lab[..., 1])], -1)
+
+
+def _msh_to_srgb(msh: np.ndarray) -> np.ndarray:
+    m, s, h = msh[..., 0], msh[..., 1], msh[..., 2]
+    lab_l, lab_a, lab_b = m * np.cos(s), m * np.sin(s) * np.cos(h), m * np.sin(s) * np.sin(h)
+    fy = (lab_l + 16) / 116
+    xyz = _D65 * np.stack([_lab_finv(fy + lab_a / 500), _lab_finv(fy),
+                           _lab_finv(fy - lab_b / 200)], axis=-1)
+    return _srgb(xyz @ np.linalg.inv(_SRGB_TO_XYZ).T)
+
+
+@functools.cache
+def _coolwarm_table(size: int = 257) -> np.ndarray:
+    """Moreland's diverging interpolation in Msh through a white midpoint [3]_, (size, 3)."""
+    cool, warm = (_srgb_to_msh(np.asarray(c, dtype=np.float64) / 255.0) for c in (_COOL, _WARM))
+    mid = max(cool[0], warm[0], _MID_M)
+
+    def spin(saturated, m_unsat):
+        # hue shift so the unsaturated end bends towards the white point (paper eq. 7)
+        m, s, h = saturated
+        turn = s * np.sqrt(m_unsat**2 - m**2) / (m * np.sin(s))
+        return h + turn if h > -np.pi / 3 else h - turn
+
+    x = np.linspace(0.0, 1.0, size)
+    lower, w = x < 0.5, np.where(x < 0.5, 2 * x, 2 * x - 1)[:, None]
+    start = np.where(lower[:, None], cool, [mid, 0.0, 0.0])
+    end = np.where(lower[:, None], [mid, 0.0, spin(cool, mid)], warm)
+    start[~lower, 2] = spin(warm, mid)
+    table = _msh_to_srgb((1 - w) * start + w * end)
+    table.flags.writeable = False
+    return table
+
+
 def coolwarm(values: np.ndarray) -> np.ndarray:
-    """Moreland's diverging map [3]_: ``values`` in [0, 1] -> (M, 3) sRGB in [0, 1]."""
-    x = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0) * (len(_COOLWARM) - 1)
-    lo = np.minimum(x.astype(np.int64), len(_COOLWARM) - 2)
+    """Moreland's cool-warm diverging map [3]_: ``values`` in [0, 1] -> (M, 3) sRGB in [0, 1].
+
+    Blue (59, 76, 192) at 0, white-grey (≈ 221, 221, 221) at 0.5, red
+    (180, 4, 38) at 1, interpolated in Moreland's Msh space (perceptually
+    even, no Mach bands), tabulated at 257 entries and interpolated linearly.
+    """
+    table = _coolwarm_table()
+    x = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0) * (len(table) - 1)
+    lo = np.minimum(x.astype(np.int64), len(table) - 2)
     w = (x - lo)[..., None]
-    return (1 - w) * _COOLWARM[lo] + w * _COOLWARM[lo + 1]
+    return (1 - w) * table[lo] + w * table[lo + 1]
 
 
 def viridis(values: np.ndarray) -> np.ndarray:

@@ -244,3 +244,18 @@ def test_lighting_never_reaches_background_white():
     light = Lighting()
     brightest = max(light.albedo) * (light.ambient + light.key + light.fill) + light.specular
     assert brightest < 1.0
+
+
+def test_coolwarm_is_morelands_map():
+    # Moreland (2009) table / matplotlib's "coolwarm": ends (59, 76, 192) and
+    # (180, 4, 38), grey (221, 221, 221) at 0.5, (141, 176, 254) at 0.25 and
+    # (244, 154, 123) at 0.75 (8-bit, so ±1.5 levels).
+    values = coolwarm(np.array([0.0, 0.25, 0.5, 0.75, 1.0])) * 255
+    expected = [[59, 76, 192], [141, 176, 254], [221, 221, 221], [244, 154, 123], [180, 4, 38]]
+    np.testing.assert_allclose(values, expected, atol=1.5)
+    # perceptual lightness rises to the middle and falls after it: no Mach band
+    from pipeline.render import _srgb_to_msh
+
+    msh = _srgb_to_msh(coolwarm(np.linspace(0, 1, 101)))
+    lightness = msh[:, 0] * np.cos(msh[:, 1])
+    assert np.all(np.diff(lightness[:51]) > 0) and np.all(np.diff(lightness[50:]) < 0)
