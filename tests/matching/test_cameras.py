@@ -307,3 +307,13 @@ def test_projection_txt(tmp_path, cameras):
     (tmp_path / "bad_par.txt").write_text("a.png 1 2 3\n")
     with pytest.raises(ValueError, match="bad_par.txt:1"):
         read_projection_txt(tmp_path / "bad_par.txt", 640, 480)
+
+
+def test_colmap_binary_through_pycolmap(tmp_path, cameras):
+    write_colmap_text(tmp_path / "text", cameras)
+    (tmp_path / "bin").mkdir()
+    pycolmap.Reconstruction(str(tmp_path / "text")).write_binary(str(tmp_path / "bin"))
+    assert (tmp_path / "bin" / "cameras.bin").exists()
+    back = {cam.name: cam for cam in read_cameras(tmp_path / "bin")}
+    for cam in cameras:
+        assert back[cam.name].allclose(cam, atol=1e-12)
