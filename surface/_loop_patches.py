@@ -364,6 +364,27 @@ def _spoke_share_rows(n: int, i: int) -> np.ndarray:
     return np.array(rows)
 
 
+def _patch_data_map(n: int):
+    """Per-patch pieces of the ring problem.
+
+    Returns ``local`` (28, 29): patch i's net at the reference as a function of
+    ``d_i = [p_v, N_i]`` (fixed rows exact, free rows = continuation of N_i),
+    ``free`` (28,) bool, and the spoke-0 constraint rows split into the part
+    acting on patch 0 (``left``) and on patch n - 1 (``right``), (11, 28) each.
+    """
+    from surface.bezier import _blossom_matrix
+
+    v_exp = _index_table(DEGREE)[:, 0]
+    extend = _blossom_matrix(_NEIGHBOUR_TO_RING)  # (28, 28): N-frame net -> ring frame
+    local = np.zeros((28, 29))
+    local[:, 1:] = extend
+    local[v_exp == 6] = 0.0
+    local[v_exp == 6, 0] = 1.0
+    free = (v_exp >= 2) & (v_exp <= 5)
+    rows = np.concatenate([_spoke_share_rows(n, 0), _spoke_g1_rows(n, 0)])  # (11, 28 n)
+    return local, free, rows[:, :28], rows[:, 28 * (n - 1):]
+
+
 @cache
 def ring_operator(n: int) -> np.ndarray:
     """Linear map from the data of a valence-n vertex to its n sextic ring patches.
@@ -377,32 +398,55 @@ def ring_operator(n: int) -> np.ndarray:
     continuation of N_i.  Free: the rows with v-exponent 2..5, set to the
     least-squares nearest to the continuation of N_i subject to spoke sharing
     and Loop's G1 condition on every spoke (see ``bezier``'s module notes).
-    """
-    from surface.bezier import _blossom_matrix
 
-    idx = _index_table(DEGREE)
-    n_data = 1 + 28 * n
-    extend = _blossom_matrix(_NEIGHBOUR_TO_RING)  # (28, 28): N-frame net -> ring frame
-    reference = np.zeros((28 * n, n_data))
-    for i in range(n):
-        reference[28 * i:28 * i + 28, 1 + 28 * i:1 + 28 * i + 28] = extend
-    v_exp = np.tile(idx[:, 0], n)
-    fixed_map = reference.copy()
-    fixed_map[v_exp == 6] = 0.0
-    fixed_map[v_exp == 6, 0] = 1.0
-    fixed = (v_exp <= 1) | (v_exp == 6)
-    free = ~fixed
-    constraints = np.concatenate([np.concatenate([_spoke_share_rows(n, i), _spoke_g1_rows(n, i)])
-                                  for i in range(n)])
-    a_free = constraints[:, free]
-    b_data = -constraints[:, fixed] @ fixed_map[fixed]
-    z_ref = reference[free]
-    a_pinv = np.linalg.pinv(a_free, rcond=1e-10)
-    z = z_ref + a_pinv @ (b_data - a_free @ z_ref)
-    operator = fixed_map.copy()
-    operator[free] = z
+    The constraint system is block-circulant (spoke j couples patches j and
+    j - 1 identically), so a discrete Fourier transform splits the minimum-norm
+    problem into n independent 11 x 14 problems, one per frequency (Parseval:
+    the norm and the constraints decouple).  The operator is equivariant under
+    rotation of the ring, so only patch 0's rows are solved and the others
+    are cyclic shifts.
+    """
+    local, free, left, right = _patch_data_map(n)
+    a0, a1 = left[:, free], right[:, free]  # (11, 14): spoke j on patches j and j - 1
+    k = np.arange(n)
+    omega = np.exp(-2j * np.pi * k / n)  # omega^{-k}
+    symbols = a0[None] + a1[None] * omega[:, None, None]  # (n, 11, 14)
+    inverses = np.linalg.pinv(symbols, rcond=1e-10)  # (n, 14, 11)
+    # Q_j = (1/n) sum_k B_k omega^{-jk}: patch 0's response to spoke j's residual
+    phases = np.exp(-2j * np.pi * np.outer(k, k) / n)  # [j, k]
+    q = np.real(np.einsum("jk,kab->jab", phases, inverses)) / n  # (n, 14, 11)
+    k0, k1 = left @ local, right @ local  # residual of spoke j: -(k0 d_j + k1 d_{j-1})
+    patch0 = np.zeros((28, 1 + 28 * n))
+    patch0[:, 0] = local[:, 0]
+    patch0[:, 1:29] = local[:, 1:]
+    q_next = np.roll(q, -1, axis=0)  # Q_{j+1}: d_j is spoke j+1's "previous" data
+    patch0[free, 0] -= np.einsum("jab,b->a", q, k0[:, 0] + k1[:, 0])
+    coupling = -(np.einsum("jab,bc->jac", q, k0[:, 1:])
+                 + np.einsum("jab,bc->jac", q_next, k1[:, 1:]))  # (n, 14, 28)
+    patch0[free, 1:] += coupling.transpose(1, 0, 2).reshape(int(free.sum()), 28 * n)
+    blocks = patch0[:, 1:].reshape(28, n, 28)
+    operator = np.empty((n, 28, 1 + 28 * n))
+    operator[:, :, 0] = patch0[:, 0]
+    for i in range(n):  # patch i sees N_j as patch 0 sees N_{j-i}
+        operator[i, :, 1:] = np.roll(blocks, i, axis=1).reshape(28, 28 * n)
+    operator = operator.reshape(28 * n, 1 + 28 * n)
     operator.flags.writeable = False
     return operator
+
+
+def ring_operator_dense(n: int) -> np.ndarray:
+    """The same operator from one dense minimum-norm solve (reference for tests)."""
+    local, free_patch, _, _ = _patch_data_map(n)
+    full = np.zeros((28 * n, 1 + 28 * n))
+    for i in range(n):
+        full[28 * i:28 * i + 28, 0] = local[:, 0]
+        full[28 * i:28 * i + 28, 1 + 28 * i:29 + 28 * i] = local[:, 1:]
+    free = np.tile(free_patch, n)
+    constraints = np.concatenate([np.concatenate([_spoke_share_rows(n, i), _spoke_g1_rows(n, i)])
+                                  for i in range(n)])
+    correction = np.linalg.pinv(constraints[:, free], rcond=1e-10) @ (-constraints @ full)
+    full[free] += correction
+    return full
 
 
 # ----------------------------------------------------------------------------- the surface

@@ -422,3 +422,23 @@ def test_source_face_maps_patches_to_control_faces(surfaces):
     centroid = vertices[tris].mean(axis=1)[surface.source_face]
     edge = np.linalg.norm(vertices[tris[:, 0]] - vertices[tris[:, 1]], axis=1).max()
     assert np.linalg.norm(centre - centroid, axis=1).max() < edge
+
+
+# ----------------------------------------------------------------------------- ring operator
+@pytest.mark.parametrize("n", [3, 4, 5, 7, 8, 12])
+def test_fourier_ring_solve_equals_the_dense_minimum_norm_solve(n):
+    assert np.abs(lp.ring_operator(n) - lp.ring_operator_dense(n)).max() < 1e-11
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 7, 8, 9, 16])
+def test_ring_operator_meets_every_constraint_for_any_data(n):
+    """Spoke sharing and G1 rows hold for arbitrary data, except the one row per
+    spoke that involves data only (G1 at the regular end, t = 1), which the
+    box-spline neighbours satisfy by construction."""
+    operator = lp.ring_operator(n)
+    rows = np.concatenate([np.concatenate([lp._spoke_share_rows(n, i), lp._spoke_g1_rows(n, i)])
+                           for i in range(n)])
+    data = np.random.default_rng(n).normal(size=(operator.shape[1], 3))
+    residual = (rows @ operator @ data).reshape(n, 11, 3)
+    assert np.abs(residual[:, :10]).max() < 1e-10
+    assert np.allclose(operator.sum(axis=1), 1.0, atol=1e-12)  # affine invariance
