@@ -220,23 +220,26 @@ class ClosedCurve:
         return self.evaluate(t)
 
     def _ray_roots(self, seg: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        """Global parameter where each ray meets its segment (bisection, vectorised)."""
+        """Global parameter where each ray meets its segment (bisection, vectorised).
+
+        On segment ``s`` the curve is the cubic ``Σ_k c_k τ^(3−k)`` (``spline.c``);
+        ``f(τ) = cross(d, Q(τ) − C)`` is then a scalar cubic evaluated by Horner's
+        rule, so each bisection step is a few array operations on the rays.
+        """
+        coeffs = self.spline.c[:, seg, :] @ self.frame[:2].T  # (4, n, 2) in the plane
+        coeffs[3] -= (self.centroid @ self.frame[:2].T)[None, :]
+        cubic = direction[None, :, 0] * coeffs[:, :, 1] - direction[None, :, 1] * coeffs[:, :, 0]
         lo = np.zeros(len(seg))
         hi = np.diff(self.knots)[seg]
-        start = self.knots[seg]
-
-        def f(tau):
-            uv = self.to_plane(self.evaluate(start + tau))
-            return direction[:, 0] * uv[:, 1] - direction[:, 1] * uv[:, 0]
-
         # invariant f(lo) <= 0 < f(hi) (the ray's angle lies between the segment's
         # ends); comparing with 0, not the sign at lo, keeps a ray through a knot exact
         for _ in range(_BISECT_STEPS):
             mid = 0.5 * (lo + hi)
-            below = f(mid) <= 0
+            f_mid = ((cubic[0] * mid + cubic[1]) * mid + cubic[2]) * mid + cubic[3]
+            below = f_mid <= 0
             lo = np.where(below, mid, lo)
             hi = np.where(below, hi, mid)
-        return start + 0.5 * (lo + hi)
+        return self.knots[seg] + 0.5 * (lo + hi)
 
     def resample_arclength(self, n: int, theta0: float = 0.0) -> np.ndarray:
         """``n`` points at equal arc length, counter-clockwise, ``(n, 3)``.
@@ -360,9 +363,11 @@ def _data_parameters(points: np.ndarray, window: int, n_ctrl: int) -> np.ndarray
     """
     m = len(points)
     window = int(min(max(window, 1), m))
-    if window > 1:
-        kernel_idx = (np.arange(m)[:, None] + np.arange(window) - window // 2) % m
-        smooth = points[kernel_idx].mean(axis=1)  # circular moving average
+    if window > 1:  # circular moving average by a cumulative sum, O(M)
+        half = window // 2
+        padded = np.concatenate([points[m - half :], points, points[: window - half]])
+        csum = np.concatenate([np.zeros((1, 3)), np.cumsum(padded, axis=0)])
+        smooth = (csum[window : window + m] - csum[:m]) / window
     else:
         smooth = points
     step = np.linalg.norm(np.roll(smooth, -1, axis=0) - smooth, axis=1)

@@ -214,6 +214,14 @@ def test_bad_parameters_raise(kwargs, match):
         organise(make_section(ellipse(20, np.random.default_rng(0))), **kwargs)
 
 
+def test_duplicate_points_stay_in_their_loop():
+    uv = ellipse(200, np.random.default_rng(6))
+    uv = np.vstack([uv, uv[:50]])  # 50 exact duplicates (qhull drops them from its triangles)
+    loop = organise(make_section(uv))[0]
+    assert len(loop.outliers) == 0 and len(loop) == 250
+    assert loop.star_shaped
+
+
 def test_collinear_points_do_not_crash():
     uv = np.c_[np.linspace(0, 1, 30), np.zeros(30)]
     with warnings.catch_warnings():
