@@ -122,6 +122,9 @@ def main(argv=None) -> int:
                         help="triangles of the test sphere (default 1e6, --quick 5e4)")
     parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "export.json"))
     args = parser.parse_args(argv)
+    import open3d as o3d
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # open3d's GLB warning
     count = args.triangles or (50_000 if args.quick else 1_000_000)
     repeats = 1 if args.quick else 3
     vertices, triangles, normals = _sphere(count)

@@ -519,8 +519,13 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
     pairs, cells, rows, cols = _layout(views)
-    normals = vertex_normals(vertices, triangles) if normals is None else _unit(
-        check_shape(normals, "(V, 3)", "normals", dtype=np.float64))
+    if normals is None:
+        normals = vertex_normals(vertices, triangles)
+    else:
+        normals = _unit(check_shape(normals, "(V, 3)", "normals", dtype=np.float64))
+        if len(normals) != len(vertices) or not np.all(np.isfinite(normals)):
+            raise ValueError(f"normals must be finite, one per vertex ({len(vertices)}), "
+                             f"got {len(normals)}")
 
     values = colormap = legend = None
     if truth is not None:

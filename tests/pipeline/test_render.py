@@ -259,3 +259,9 @@ def test_coolwarm_is_morelands_map():
     msh = _srgb_to_msh(coolwarm(np.linspace(0, 1, 101)))
     lightness = msh[:, 0] * np.cos(msh[:, 1])
     assert np.all(np.diff(lightness[:51]) > 0) and np.all(np.diff(lightness[50:]) < 0)
+
+
+def test_given_normals_must_match_vertices():
+    vertices, triangles = _sphere(resolution=10)
+    with pytest.raises(ValueError, match="normals must be finite, one per vertex"):
+        render_mesh(vertices, triangles, normals=vertices[:5])
