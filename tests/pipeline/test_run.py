@@ -1,0 +1,201 @@
+"""``photosurf run`` end to end: resumable after kill -9, reruns skip, one-line errors, --json.
+
+The input is a small noisy cloud on the analytic vase r(z) = 1 + 0.3 sin 2z
+(the surface benchmarks' shape), so that every stage from acquisition to the
+report runs in a few seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.workspace import sha256_file
+
+ROOT = Path(__file__).resolve().parents[2]
+PHOTOSURF = [sys.executable, "-m", "pipeline.cli"]
+SMALL = ["--set", "report.samples=2000", "--set", "report.width=96", "--set", "report.height=72"]
+
+
+@pytest.fixture(scope="module")
+def cloud(tmp_path_factory) -> Path:
+    rng = np.random.default_rng(0)
+    n = 3000
+    z = rng.uniform(0, 3, n)
+    theta = rng.uniform(0, 2 * np.pi, n)
+    r = 1 + 0.3 * np.sin(2 * z)
+    points = np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
+    path = tmp_path_factory.mktemp("cloud") / "vase.xyz"
+    np.savetxt(path, points + rng.normal(0, 0.002, (n, 3)))
+    return path
+
+
+class Result:
+    def __init__(self, returncode, stdout, stderr):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+@pytest.fixture()
+def cli_run(capfd):
+    """``photosurf ARGS`` in this process (no interpreter start-up), with its exit and output."""
+    from pipeline import cli
+
+    def run(*args, check=True):
+        capfd.readouterr()
+        try:
+            code = cli.main([str(a) for a in args])
+        except SystemExit as exc:  # --help
+            code = exc.code
+        out, err = capfd.readouterr()
+        if check:
+            assert code == 0, err
+        return Result(code, out, err)
+
+    return run
+
+
+def photosurf(*args, check=True, **kw) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([*PHOTOSURF, *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=300, **kw)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def results(workspace: Path) -> dict[str, str]:
+    """Content digest of every output except the report (it is stamped with the time).
+
+    ``.npz`` files are compared by their arrays: ``numpy.savez`` (used by the
+    control-net writer) stamps zip members with the current time.
+    """
+    manifest = json.loads((workspace / "manifest.json").read_text())
+    digests = {}
+    for name, rec in manifest["stages"].items():
+        if name == "report":
+            continue
+        assert rec["status"] == "done", (name, rec)
+        for rel in rec["outputs"]:
+            path = workspace / rel
+            if path.suffix == ".npz":
+                with np.load(path) as data:
+                    digests[rel] = {k: data[k].tobytes().hex()[:64] + str(data[k].shape)
+                                    for k in sorted(data.files)}
+            else:
+                digests[rel] = sha256_file(path)
+    return digests
+
+
+def _kill_when_started(args, stage: str, delay: float) -> None:
+    """Start ``photosurf run``, SIGKILL it ``delay`` s after ``stage`` starts."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([*PHOTOSURF, *map(str, args), "-v"], stderr=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, text=True, cwd=ROOT, env=env)
+    try:
+        for line in proc.stderr:
+            if f"{stage}: started" in line:
+                time.sleep(delay)
+                os.kill(proc.pid, signal.SIGKILL)
+                break
+        proc.wait(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stderr.close()
+    assert proc.returncode == -signal.SIGKILL, f"photosurf ended before {stage} was killed"
+
+
+def test_kill_9_then_rerun_gives_the_uninterrupted_result(cloud, tmp_path, cli_run):
+    reference = tmp_path / "reference"
+    cli_run("run", cloud, "--out", reference, *SMALL)  # uninterrupted, in this process
+    expected = results(reference)
+    assert {"stitch/mesh.ply", "smooth/surface.ply", "export/surface.ply"} <= set(expected)
+
+    work = tmp_path / "work"
+    args = ["run", cloud, "--out", work, *SMALL]
+    _kill_when_started(args, "stitch", 0.2)   # inside the stitching
+    _kill_when_started(args, "smooth", 0.5)   # resumed, then killed again while smoothing
+    manifest = json.loads((work / "manifest.json").read_text())
+    assert manifest["stages"]["curves"]["status"] == "done"
+    assert manifest["stages"].get("export", {}).get("status") != "done"
+    proc = photosurf(*args, "--json")
+    summary = json.loads(proc.stdout)
+    status = {s["name"]: s["status"] for s in summary["stages"]}
+    # what finished before the kills is reused, the rest runs
+    assert status["sections"] == status["curves"] == "up to date"
+    assert status["export"] == status["report"] == "done"
+    assert results(work) == expected
+    leftovers = [p.name for p in work.iterdir() if p.name.startswith(".") and p.name != ".lock"]
+    assert leftovers == []
+
+
+def test_rerun_skips_and_a_parameter_reruns_only_downstream(cloud, tmp_path, cli_run):
+    photosurf = cli_run
+    out = tmp_path / "ws"
+    photosurf("run", cloud, "--out", out, *SMALL, "--to", "stitch")
+    first = results(out)
+    proc = photosurf("run", cloud, "--out", out, *SMALL, "--to", "stitch", "--json")
+    status = {s["name"]: s["status"] for s in json.loads(proc.stdout)["stages"]}
+    assert status == {"acquire": "up to date", "sections": "up to date",
+                      "curves": "up to date", "stitch": "up to date",
+                      "smooth": "outside range", "export": "outside range",
+                      "report": "outside range"}
+    proc = photosurf("run", cloud, "--out", out, *SMALL, "--to", "stitch", "--json",
+                     "--set", "curves.smoothing=4")
+    status = {s["name"]: s["status"] for s in json.loads(proc.stdout)["stages"]}
+    assert [status[n] for n in ("acquire", "sections", "curves", "stitch")] == \
+        ["up to date", "up to date", "done", "done"]
+    second = results(out)
+    assert second["sections/sections.npz"] == first["sections/sections.npz"]
+    assert second["stitch/mesh.ply"] != first["stitch/mesh.ply"]
+    config = (out / "config.toml").read_text()
+    assert "smoothing = 4.0" in config
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["stages"]["curves"]["params"] == {
+        "curves": {"n": 0, "smoothing": 4.0, "parametrisation": "uniform",
+                   "outlier_threshold": 4.0}}
+    assert {"numpy", "open3d", "python"} <= set(manifest["versions"])
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "missing.ply", "--out", "{out}"], "missing.ply: no such file or folder"),
+    (["run", "{cloud}", "--out", "{out}", "--set", "curves.smoothnes=2"],
+     "unknown parameter 'curves.smoothnes'"),
+    (["run", "{cloud}", "--out", "{cloud}"], "--out must be a folder, found a file"),
+    (["run", "{cloud}", "--out", "{out}", "--config", "nope.toml"], "nope.toml: no such config"),
+    (["run", "{cloud}", "--out", "{out}", "--from", "smooth"], "stage acquire has no outputs"),
+    (["run", "{cloud}", "{cloud}", "--out", "{out}"], "a stereo pair needs two image files"),
+    (["run", "{cloud}", "--out", "{out}", "--set", "sections.count=1"],
+     "stage sections failed: sections: only 1 non-empty sections"),
+])
+def test_errors_are_one_line_exit_2(cloud, tmp_path, args, message, cli_run):
+    args = [a.format(cloud=cloud, out=tmp_path / "o") for a in args]
+    proc = cli_run(*args, check=False)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"photosurf {args[0]}: error: "), proc.stderr
+    assert message in lines[0]
+
+
+def test_quiet_and_no_terminal_means_no_progress_output(cloud, tmp_path, cli_run):
+    # stderr is captured to a file here (not a terminal), as under cron, CI or a batch system
+    proc = cli_run("run", cloud, "--out", tmp_path / "o", *SMALL, "--to", "sections", "-q")
+    assert proc.stdout == "" and proc.stderr == ""
+    proc = cli_run("run", cloud, "--out", tmp_path / "o2", *SMALL, "--to", "sections")
+    assert "\r" not in proc.stderr and "it/s" not in proc.stderr  # no bars into a pipe
+    assert "sections" in proc.stdout
+
+
+def test_help_is_complete(cli_run):
+    text = cli_run("run", "--help").stdout
+    for option in ("--out", "--kind", "--rig", "--config", "--set", "--from", "--to", "--json",
+                   "--scheduler", "--force", "scene", "stereo", "folder", "cloud"):
+        assert option in text
