@@ -79,8 +79,9 @@ __all__ = [
 ]
 
 #: cv2.undistortPoints stops after 5 iterations by default (errors of ~1e-3 px
-#: under strong distortion); these criteria give ~1e-13 px.
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
+#: under strong distortion); OpenCV's eps is the reprojection error in px,
+#: so these criteria stop at ~1e-12 px.
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 _VALID_DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
 _FORMAT_TAG = "photosurf-cameras"
 

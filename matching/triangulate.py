@@ -349,14 +349,6 @@ def _normal_equations(cameras, obs, seen, weights, points, active):
     return H, g, energy, sq_sum, behind
 
 
-def _condition_number(H: np.ndarray) -> np.ndarray:
-    """Condition numbers (M,) of symmetric positive semi-definite (M, 3, 3); inf if singular."""
-    eig = np.linalg.eigvalsh(H)  # ascending
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cond = eig[:, -1] / eig[:, 0]
-    return np.where((eig[:, 0] > 0) & np.isfinite(cond), cond, np.inf)
-
-
 def _solve_3x3(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Solve H s = g for (M, 3, 3) symmetric H by the adjugate; zero step where H is singular.
 
@@ -401,15 +393,17 @@ def _assess(cameras, obs, seen, weights, points, n_views, reject_p, max_reprojec
     cov = np.full((n, 3, 3), np.nan)
     chi2_value = np.full(n, np.nan)
     chi2_value[finite] = energy
-    cond = np.full(n, np.inf)
-    cond[finite] = _condition_number(H)
-    well = cond < TOL.triangulation_cond_max
-    cov_finite = np.full((int(finite.sum()), 3, 3), np.nan)
+    # one eigen-decomposition of H gives both the condition number and σ:
+    # the eigenvalues of cov = H⁻¹ are the reciprocals of H's
+    eig = np.linalg.eigvalsh(H)  # (M, 3) ascending
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond_h = np.where(eig[:, 0] > 0, eig[:, -1] / eig[:, 0], np.inf)
+    well = np.zeros(n, dtype=bool)
+    well[finite] = np.isfinite(cond_h) & (cond_h < TOL.triangulation_cond_max)
     ok_h = well[finite]
-    cov_finite[ok_h] = np.linalg.inv(H[ok_h])
-    cov[finite] = cov_finite
+    cov[well] = np.linalg.inv(H[ok_h])
     sigma = np.full(n, np.nan)
-    sigma[well] = np.sqrt(np.linalg.eigvalsh(cov[well])[:, -1])
+    sigma[well] = 1.0 / np.sqrt(eig[ok_h, 0])
 
     rms = np.full(n, np.nan)
     rms[finite] = np.sqrt(sq_finite / n_views[finite])
@@ -419,7 +413,8 @@ def _assess(cameras, obs, seen, weights, points, n_views, reject_p, max_reprojec
     large = np.zeros(n, dtype=bool)
     if reject_p is not None:
         dof = np.maximum(2 * n_views - 3, 1)
-        large |= chi2_value > chi2.ppf(reject_p, dof)
+        levels, inverse = np.unique(dof, return_inverse=True)
+        large |= chi2_value > chi2.ppf(reject_p, levels)[inverse]
     if max_reprojection_px is not None:
         large |= rms > max_reprojection_px
 
