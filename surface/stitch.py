@@ -591,6 +591,9 @@ NORMAL_NEIGHBOURS = 12
 #: (an end cap, a pole) and sliding the point to its plane would move it more
 #: than twice its height offset.
 MIN_WALL_SINE = 0.5
+#: Cap points count for the cap height when inside the end contour shrunk by
+#: this factor about its centroid (keeps the wall's own points out).
+CAP_INSET = 0.9
 
 
 def _pca_normals(cloud: np.ndarray, query: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
@@ -618,6 +621,9 @@ def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray
     nearly parallel to the plane (``sqrt(t·a) < MIN_WALL_SINE``) are left out
     of the contour and returned as *cap points*.
 
+    The first and last sections keep only the points on the inner side of
+    their planes.
+
     Returns
     -------
     sections : list of Section
@@ -632,8 +638,10 @@ def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray
         return slices, np.zeros(0, np.int64)
     index = np.concatenate(members)
     normals = _pca_normals(points, points[index])
+    nonempty = [k for k, section in enumerate(slices) if len(section)]
+    first, last = nonempty[0], nonempty[-1]
     out, capped, start = [], [], 0
-    for section in slices:
+    for k, section in enumerate(slices):
         m = len(section)
         if m == 0:
             out.append(section)
@@ -647,6 +655,13 @@ def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray
         tangent = axis - an[:, None] * n                           # (m, 3)
         ta = 1.0 - an**2
         wall = ta >= MIN_WALL_SINE**2
+        # The end sections keep only the inner half of their slab: beyond the end
+        # planes the neighbourhoods straddle the rim and the cap, so normals and
+        # slides are wrong there; those points go to the cap-height estimate.
+        if k == first:
+            wall &= delta >= 0
+        if k == last:
+            wall &= delta <= 0
         slid = x[wall] - (delta[wall] / ta[wall])[:, None] * tangent[wall]
         slid -= (slid @ axis - section.height)[:, None] * axis     # exactly on the plane
         capped.append(section.source_index[~wall])
@@ -762,41 +777,71 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
 
 def _extend_ends(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
                  delta: float) -> tuple[list, list[str]]:
-    """Add an end ring at each end's cap height (see ``surface_from_points``)."""
+    """Add an end section at each end's cap height (see ``surface_from_points``).
+
+    Every loop of an end section is moved to the median height of the cap
+    points inside it and extrapolated from the nearest loop of the section
+    before; an end is left as it is when one of its loops has fewer than
+    ``NORMAL_NEIGHBOURS`` cap points inside.
+    """
     rings = list(rings)
     notes = []
-    axis = kept[0].frame[2]
+    frame = kept[0].frame
+    axis = frame[2]
     candidates = cap_points if len(cap_points) else np.arange(len(points))
     heights = points[candidates] @ axis
     for end, (this, prev, sign) in enumerate(((0, 1, -1.0), (-1, -2, 1.0))):
-        ring, before = rings[this], rings[prev]
-        if not isinstance(ring, np.ndarray) or not isinstance(before, np.ndarray):
-            continue  # several loops at an end: cap where the sections stop
+        ends = [rings[this]] if isinstance(rings[this], np.ndarray) else list(rings[this])
+        befores = [rings[prev]] if isinstance(rings[prev], np.ndarray) else list(rings[prev])
         h_end = kept[this].height
-        beyond = candidates[(sign * (heights - h_end) > 0) & (sign * (heights - h_end) <= delta)]
-        flat = ring @ kept[this].frame[:2].T
-        inside = beyond[_inside(points[beyond] @ kept[this].frame[:2].T, flat)]
-        if len(inside) < NORMAL_NEIGHBOURS:
+        offset = sign * (heights - h_end)
+        beyond = candidates[(offset > 0) & (offset <= delta)]
+        beyond_flat = points[beyond] @ frame[:2].T
+        centres = np.array([b.mean(axis=0) @ frame[:2].T for b in befores])
+        new_rings, counts = [], []
+        for ring in ends:
+            flat = ring @ frame[:2].T
+            flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
+            inside = beyond[_inside(beyond_flat, flat)]
+            counts.append(len(inside))
+            if len(inside) < NORMAL_NEIGHBOURS:
+                break
+            step = float(np.median(points[inside] @ axis)) - h_end
+            nearest = int(np.argmin(np.linalg.norm(centres - flat.mean(axis=0), axis=1)))
+            new_rings.append(_extrapolate_ring(ring, befores[nearest], step, axis))
+        if len(new_rings) < len(ends):
             continue
-        cap_h = float(np.median(points[inside] @ axis))
-        step = cap_h - h_end
-        # Linear extrapolation of the end ring from the ring before it, at equal theta.
-        n_this, n_prev = len(ring), len(before)
-        prev_same = before[:: n_prev // n_this] if n_prev % n_this == 0 else None
-        if prev_same is not None and len(prev_same) == n_this:
-            slope = (ring - prev_same) / (h_end - float(before[0] @ axis))
-            new = ring + step * (slope - (slope @ axis)[:, None] * axis) + step * axis
-            centre = ring.mean(axis=0)
-            shrink = np.linalg.norm(new - new.mean(axis=0), axis=1) / np.maximum(
-                np.linalg.norm(ring - centre, axis=1), TOL.zero)
-            if not np.all((shrink > 0.5) & (shrink < 2.0)):
-                new = ring + step * axis
-        else:
-            new = ring + step * axis
-        rings.insert(0 if end == 0 else len(rings), new)
-        notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {abs(step):.4g} to the "
-                     f"median height of {len(inside)} cap points")
+        rings.insert(0 if end == 0 else len(rings),
+                     new_rings[0] if len(new_rings) == 1 else new_rings)
+        moved = np.mean([abs(float((r - e).mean(axis=0) @ axis))
+                         for r, e in zip(new_rings, ends, strict=True)])
+        notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {moved:.4g} to the "
+                     f"median height of {sum(counts)} cap points")
     return rings, notes
+
+
+def _extrapolate_ring(ring: np.ndarray, before: np.ndarray, step: float,
+                      axis: np.ndarray) -> np.ndarray:
+    """``ring`` moved ``step`` along the axis, extrapolated linearly from ``before``.
+
+    Ring point j sits at θ = 2πj/n, so the ring before is read at the
+    fractional index ``j n_before / n``.  Falls back to a straight move when
+    the extrapolation would shrink or stretch the ring more than 2x (near a
+    pole, where the wall turns into the cap).
+    """
+    n_this, n_prev = len(ring), len(before)
+    u = np.arange(n_this) * (n_prev / n_this)
+    i0 = np.floor(u).astype(np.int64)
+    w = (u - i0)[:, None]
+    prev_same = (1 - w) * before[i0 % n_prev] + w * before[(i0 + 1) % n_prev]
+    gap = float((ring.mean(axis=0) - before.mean(axis=0)) @ axis)
+    slope = (ring - prev_same) / gap
+    new = ring + step * (slope - (slope @ axis)[:, None] * axis) + step * axis
+    stretch = np.linalg.norm(new - new.mean(axis=0), axis=1) / np.maximum(
+        np.linalg.norm(ring - ring.mean(axis=0), axis=1), TOL.zero)
+    if not np.all((stretch > 0.5) & (stretch < 2.0)):
+        new = ring + step * axis
+    return new
 
 
 def _largest_perimeter(loops_per_section) -> float:
