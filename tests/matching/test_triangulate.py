@@ -5,8 +5,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from matching.cameras import Camera
+from matching.sfm import transform_cameras
 from matching.triangulate import (
     BEHIND_CAMERA,
     ILL_CONDITIONED,
@@ -195,3 +198,24 @@ def test_rotation_conventions_with_opencv():
     np.testing.assert_allclose((Xh[:3] / Xh[3]).T, X, atol=1e-6)
     result = triangulate_pair(cams[0], cams[1], xl, xr)
     np.testing.assert_allclose(result.points, X, atol=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(rotvec=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+       scale=st.floats(1e-2, 1e2), shift=st.lists(st.floats(-100, 100), min_size=3, max_size=3))
+def test_similarity_invariance(rotvec, scale, shift):
+    """Moving the world by X' = sRX + t moves the triangulated points the same way,
+    scales σ by s, and leaves the pixel residuals unchanged (a gauge freedom)."""
+    cams = ring_cameras(3, dist=(-0.1, 0.01, 0.0, 0.0))
+    rng = np.random.default_rng(11)
+    X = scene_points(rng, 40)
+    obs = np.stack([c.project(X) for c in cams], axis=1) + rng.normal(scale=0.3, size=(40, 3, 2))
+    R = cv2.Rodrigues(np.array(rotvec))[0]
+    t = np.array(shift)
+    moved = transform_cameras(cams, scale, R, t)
+    a = triangulate_multiview(cams, obs)
+    b = triangulate_multiview(moved, obs)
+    np.testing.assert_allclose(b.points, scale * a.points @ R.T + t, rtol=0,
+                               atol=1e-7 * max(scale, 1.0) * (1 + np.abs(t).max()))
+    np.testing.assert_allclose(b.sigma, scale * a.sigma, rtol=1e-6)
+    np.testing.assert_allclose(b.reprojection_error, a.reprojection_error, atol=1e-7)
