@@ -214,7 +214,10 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     jobs = ["surface", "sections", "truth"]
     for job in track(jobs, "report"):
         if job == "surface" and final is not None:
-            parts.append(_surface_section(final, params, info, read_mesh))
+            parts.append(_surface_section(root, final, params, info, read_mesh))
+        elif job == "surface" and truth is not None:  # nothing reconstructed yet: the scene
+            parts.append(_surface_section(root, ("truth mesh of the scene (no surface yet)",
+                                                 truth_path), params, info, read_mesh))
         elif job == "sections":
             parts.append(_sections_section(root))
         elif job == "truth" and truth is not None:
@@ -225,7 +228,7 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     return info
 
 
-def _surface_section(final, params, info, read_mesh) -> str:
+def _surface_section(root: Path, final, params, info, read_mesh) -> str:
     from pipeline.render import render_mesh
     from surface.metrics import mesh_topology
 
@@ -235,7 +238,7 @@ def _surface_section(final, params, info, read_mesh) -> str:
     sheet = render_mesh(vertices, triangles, views=6, size=size)
     rows = []
     for name, rel in MESHES:
-        mesh_path = path.parents[1] / rel
+        mesh_path = root / rel
         if mesh_path.is_file():
             v, t = (vertices, triangles) if mesh_path == path else read_mesh(mesh_path)
             topo = mesh_topology(v, t)
@@ -243,9 +246,9 @@ def _surface_section(final, params, info, read_mesh) -> str:
             rows.append([name, topo["vertices"], topo["faces"], topo["closed"], topo["oriented"],
                          topo["components"], topo["boundary_edges"], topo["nonmanifold_edges"]])
     table = _table(rows, ["mesh", "vertices", "faces", "closed", "oriented", "components",
-                          "boundary edges", "non-manifold edges"])
+                          "boundary edges", "non-manifold edges"]) if rows else ""
     return (f"<section><h2>Surface</h2>{_figure(png_data_uri(sheet), f'{label}: six views')}"
-            f"<h3>Topology</h3>{table}</section>")
+            f"{'<h3>Topology</h3>' if rows else ''}{table}</section>")
 
 
 def _sections_section(root: Path) -> str:

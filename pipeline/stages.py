@@ -407,6 +407,7 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
         unusable: dict[str, str] = {}  # stage -> why its outputs cannot be used downstream
         with progress.bar(total=hi - lo + 1, desc="photosurf run", unit="stage") as bar:
             for index, stage in enumerate(plan_stages):
+                bar.set_description_str(f"photosurf run: {stage.name}")
                 result = _run_one(stage, index, lo, hi, ws, config, external, input_paths,
                                   kind, rig_path, executor, force, unusable)
                 results.append(result)

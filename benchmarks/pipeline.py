@@ -1,0 +1,169 @@
+"""End-to-end figures of ``photosurf run`` and of the Dask executor.
+
+1. Time per stage of the default demo (``fixtures/scenes/vase.toml``, as
+   ``make demo`` runs it), read from the workspace manifest, and the peak
+   resident memory of the process (``resource.getrusage``: ``ru_maxrss``).
+2. Dask ``LocalCluster`` (2 worker processes) against the in-process default
+   on a batch of independent objects (noisy vase clouds, cloud → stitched and
+   smoothed surface), the figure issue 7 asks for on view pairs until the
+   multi-view stage exists: wall time of the tasks alone (cluster already up)
+   and including the cluster's start-up, and whether the outputs are
+   identical.
+
+Usage::
+
+    .venv/bin/python benchmarks/pipeline.py [--quick] [--json PATH]
+
+``--quick`` renders the demo at 320×240 and uses 4 smaller objects.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline import config as config_mod  # noqa: E402
+from pipeline import progress  # noqa: E402
+from pipeline.cmd_batch import run_object  # noqa: E402
+from pipeline.executor import DaskExecutor, LocalExecutor  # noqa: E402
+from pipeline.stages import run_pipeline  # noqa: E402
+
+
+def peak_rss_mib() -> float:
+    """Peak resident set size of this process so far, MiB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def demo(workdir: Path, quick: bool) -> dict:
+    """Run the default demo in this process; per-stage seconds and status."""
+    assignments = ["scene.overrides.cameras.width=320", "scene.overrides.cameras.height=240",
+                   "scene.overrides.cameras.focal_px=416"] if quick else []
+    config = config_mod.resolve(None, assignments)
+    t0 = time.perf_counter()
+    error = None
+    try:
+        run_pipeline([ROOT / "fixtures" / "scenes" / "vase.toml"], workdir / "demo", config)
+    except ValueError as exc:  # a stage failed: report it with the timings we have
+        error = str(exc)
+    total = time.perf_counter() - t0
+    manifest = json.loads((workdir / "demo" / "manifest.json").read_text())
+    stages = {name: {"status": rec.get("status"), "seconds": rec.get("seconds"),
+                     **({"reason": rec["reason"]} if rec.get("reason") else {})}
+              for name, rec in manifest["stages"].items()}
+    return {"recipe": "fixtures/scenes/vase.toml", "quick": quick, "total_seconds": total,
+            "stages": stages, "error": error, "peak_rss_mib": peak_rss_mib()}
+
+
+def _cloud(path: Path, seed: int, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(0, 3, n)
+    theta = rng.uniform(0, 2 * np.pi, n)
+    r = 1 + 0.3 * np.sin(2 * z)
+    points = np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
+    np.savetxt(path, points + rng.normal(0, 0.002, (n, 3)))
+
+
+def _tasks(workdir: Path, label: str, count: int, n_points: int) -> list[dict]:
+    tasks = []
+    for k in range(count):
+        cloud = workdir / f"object_{k}.xyz"
+        if not cloud.exists():
+            _cloud(cloud, k, n_points)
+        tasks.append({"name": f"object_{k}", "inputs": [str(cloud)], "kind": "cloud",
+                      "rig": None, "outdir": str(workdir / label / f"object_{k}"),
+                      "config_files": [], "assignments": ["report.samples=5000"],
+                      "overrides": {}, "stop": "export"})
+    return tasks
+
+
+def _outputs(outdir: str) -> dict:
+    manifest = json.loads((Path(outdir) / "manifest.json").read_text())
+    return {rel: digest for name, rec in manifest["stages"].items()
+            if name in ("acquire", "sections", "curves", "stitch", "smooth")
+            for rel, digest in rec.get("outputs", {}).items()}
+
+
+def dask_speedup(workdir: Path, quick: bool) -> dict:
+    """In-process vs LocalCluster(2) on a batch of independent objects."""
+    count, n_points = (4, 3000) if quick else (8, 8000)
+    local_tasks = _tasks(workdir, "local", count, n_points)
+    t0 = time.perf_counter()
+    local = LocalExecutor().map(run_object, local_tasks)
+    t_local = time.perf_counter() - t0
+
+    dask_tasks = _tasks(workdir, "dask", count, n_points)
+    t0 = time.perf_counter()
+    with DaskExecutor(None, n_workers=2) as ex:
+        t_up = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        remote = ex.map(run_object, dask_tasks)
+        t_tasks = time.perf_counter() - t1
+    t_total = time.perf_counter() - t0
+    identical = all(_outputs(a["outdir"]) == _outputs(b["outdir"])
+                    for a, b in zip(local, remote, strict=True))
+    return {"objects": count, "points_per_object": n_points, "cpu_count": os.cpu_count(),
+            "in_process_seconds": t_local, "dask_tasks_seconds": t_tasks,
+            "dask_startup_seconds": t_up, "dask_total_seconds": t_total,
+            "speedup_tasks": t_local / t_tasks, "speedup_with_startup": t_local / t_total,
+            "identical_outputs": identical,
+            "failed": [r["name"] for r in local + remote if r["status"] != "done"]}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="small demo images, fewer objects")
+    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "pipeline.json"),
+                        metavar="PATH", help="where to write the figures")
+    args = parser.parse_args(argv)
+    progress.set_quiet(True)
+    workdir = Path(tempfile.mkdtemp(prefix="photosurf-bench-"))
+    try:
+        figures = {"demo": demo(workdir, args.quick)}
+        figures["dask"] = dask_speedup(workdir, args.quick)
+        figures["ring_24_views"] = {"status": "not available",
+                                    "reason": "the multi-view acquisition (issue 6) has not "
+                                              "landed"}
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+
+    d = figures["demo"]
+    print(f"Default demo ({d['recipe']}{', quick' if args.quick else ''}): "
+          f"{d['total_seconds']:.2f} s, peak RSS {d['peak_rss_mib']:.0f} MiB")
+    print(f"  {'stage':<10} {'seconds':>9}  status")
+    for name, rec in d["stages"].items():
+        secs = f"{rec['seconds']:.2f}" if rec.get("seconds") is not None else ""
+        note = f" ({rec['reason']})" if rec.get("reason") else ""
+        print(f"  {name:<10} {secs:>9}  {rec['status']}{note}")
+    if d["error"]:
+        print(f"  error: {d['error']}")
+    k = figures["dask"]
+    print(f"\nBatch of {k['objects']} objects ({k['points_per_object']} points each, cloud -> "
+          f"export), {k['cpu_count']} cores")
+    print(f"  {'executor':<28} {'seconds':>9} {'speed-up':>9}")
+    print(f"  {'in-process (default)':<28} {k['in_process_seconds']:9.2f} {1.0:9.2f}")
+    print(f"  {'Dask LocalCluster(2) tasks':<28} {k['dask_tasks_seconds']:9.2f} "
+          f"{k['speedup_tasks']:9.2f}")
+    print(f"  {'  + cluster start-up':<28} {k['dask_total_seconds']:9.2f} "
+          f"{k['speedup_with_startup']:9.2f}")
+    print(f"  identical outputs: {k['identical_outputs']}")
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(figures, indent=1) + "\n")
+    print(f"\nwrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
