@@ -8,9 +8,8 @@ stitched by the direction criterion, Lawson-flipped to Delaunay and capped
 (:func:`surface.stitch.surface_from_points` does all of it; this module only
 reads, writes and reports).
 
-Inputs: ``.ply`` (vertices), ``.xyz`` / ``.csv`` / ``.txt`` (the first three
-numeric columns are x y z; one header line and ``#`` comments are skipped),
-``.npz`` (an array ``points`` of shape (N, 3), or the only (N, 3) array).
+Inputs: the point-cloud files of :mod:`pipeline.cloud_io` -- ``.ply``,
+``.xyz`` / ``.txt`` / ``.csv`` (columns x y z [extra]), ``.npz`` (``points``).
 Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.
 """
 
@@ -26,7 +25,7 @@ from pipeline.errors import InputError
 
 HELP = "point cloud -> planar sections -> Catmull-Rom rings -> closed Delaunay-stitched mesh"
 
-CLOUD_SUFFIXES = (".ply", ".xyz", ".csv", ".txt", ".npz")
+CLOUD_SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -69,65 +68,10 @@ def parse_axis(text: str):
 
 
 def read_points(path: str | Path) -> np.ndarray:
-    """Read a cloud's points ``(N, 3) float64`` from PLY, XYZ/CSV/TXT or NPZ.
+    """The points ``(N, 3) float64`` of a cloud file (``pipeline.cloud_io.read_cloud``)."""
+    from pipeline import cloud_io
 
-    TODO: switch to ``pipeline.cloud_io.read_cloud`` once it lands (the
-    matching engineer's reader); this is the stand-in.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such point cloud file")
-    suffix = path.suffix.lower()
-    if suffix not in CLOUD_SUFFIXES:
-        raise InputError(f"{path}: unknown point cloud format {suffix!r} "
-                         f"(expected one of {', '.join(CLOUD_SUFFIXES)})")
-    try:
-        from pipeline import cloud_io  # preferred when present
-    except ImportError:
-        cloud_io = None
-    if cloud_io is not None:
-        cloud = cloud_io.read_cloud(path)
-        cloud = cloud[0] if isinstance(cloud, tuple) else getattr(cloud, "points", cloud)
-        return np.asarray(cloud, dtype=np.float64)
-    if suffix == ".ply":
-        import open3d as o3d
-
-        points = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=np.float64)
-    elif suffix == ".npz":
-        with np.load(path) as data:
-            if "points" in data:
-                points = data["points"]
-            else:
-                shaped = [k for k in data.files if data[k].ndim == 2 and data[k].shape[1] == 3]
-                if len(shaped) != 1:
-                    raise InputError(f"{path}: no 'points' array (and not exactly one (N, 3) "
-                                     f"array among {data.files})")
-                points = data[shaped[0]]
-    else:
-        points = _read_text(path)
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise InputError(f"{path}: points must have shape (N, 3), got {points.shape}")
-    return points
-
-
-def _read_text(path: Path) -> np.ndarray:
-    rows = []
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        for number, line in enumerate(handle, start=1):
-            text = line.split("#", 1)[0].strip()
-            if not text:
-                continue
-            fields = text.replace(",", " ").replace(";", " ").split()
-            try:
-                rows.append([float(v) for v in fields[:3]])
-            except ValueError:
-                if rows:  # a header is allowed only before the data
-                    raise InputError(f"{path}:{number}: not a number in {line.strip()!r}") from None
-                continue
-            if len(fields) < 3:
-                raise InputError(f"{path}:{number}: need x y z, got {line.strip()!r}")
-    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+    return np.asarray(cloud_io.read_cloud(path).points, dtype=np.float64)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -78,7 +78,7 @@ def test_cloud_formats_give_a_closed_mesh_near_the_truth(vase, tmp_path, suffix,
 def test_options_axis_vector_sections_n(vase, tmp_path, capsys):
     _, _, points = vase
     path = tmp_path / "vase.npz"
-    np.savez(path, cloud=points)  # the only (N, 3) array, not named 'points'
+    np.savez(path, points=points)
     out = tmp_path / "mesh.obj"
     assert main(["sections", str(path), "--out", str(out), "--axis", "0,0,2",
                  "--sections", "12", "--n", "20", "--smoothing", "4", "--open-ends"]) == 0
@@ -107,16 +107,19 @@ def test_bad_input_one_line_exit_2(vase, tmp_path, capsys):
     _fails(capsys, ["sections", str(bad_suffix), "--out", str(out)], "cloud.las", "format")
     empty = tmp_path / "empty.xyz"
     empty.write_text("x y z\n")
-    _fails(capsys, ["sections", str(empty), "--out", str(out)], "empty.xyz", "empty")
+    _fails(capsys, ["sections", str(empty), "--out", str(out)], "empty.xyz", "no points")
     nan = tmp_path / "nan.xyz"
     nan.write_text("0 0 0\n1 nan 2\n")
-    _fails(capsys, ["sections", str(nan), "--out", str(out)], "nan.xyz", "NaN")
+    _fails(capsys, ["sections", str(nan), "--out", str(out)], "nan.xyz", "non-finite")
     flat = tmp_path / "flat.xyz"
     np.savetxt(flat, np.column_stack([np.random.default_rng(0).random((500, 2)), np.zeros(500)]))
     _fails(capsys, ["sections", str(flat), "--out", str(out)], "flat.xyz", "one plane")
     garbage = tmp_path / "garbage.xyz"
     garbage.write_text("1 2 3\n4 five 6\n")
     _fails(capsys, ["sections", str(garbage), "--out", str(out)], "garbage.xyz:2")
+    npz = tmp_path / "other.npz"
+    np.savez(npz, cloud=np.ones((10, 3)))
+    _fails(capsys, ["sections", str(npz), "--out", str(out)], "other.npz", "points")
     _fails(capsys, ["sections", str(good), "--out", str(out), "--axis", "0,0,0"], "non-zero")
     _fails(capsys, ["sections", str(good), "--out", str(out), "--axis", "up"], "--axis")
     _fails(capsys, ["sections", str(good), "--out", str(tmp_path / "m.xyz")], "m.xyz")
