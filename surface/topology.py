@@ -214,27 +214,30 @@ def _skip(section: Section, why: str) -> None:
 
 # ----------------------------------------------------------------------------- clusters
 def _graph_edges(uv: np.ndarray) -> np.ndarray:
-    """Candidate edges ``(E, 2)`` containing the Euclidean MST.
+    """Candidate edges ``(E, 2)``, each once, containing the Euclidean MST.
 
     The Delaunay edges contain it; qhull leaves duplicate points out of every
-    triangle, so each point's two nearest neighbours are added (a duplicate then
-    joins its twin).  Collinear or too few points: the 8-nearest-neighbour graph.
+    triangle (``coplanar``), so each of those is joined to its nearest
+    triangulated vertex.  Collinear or too few points: the 8-nearest-neighbour
+    graph.
     """
     n = len(uv)
-    k = min(2 if n > 8 else 8, n - 1)
-    _, nbr = cKDTree(uv).query(uv, k=k + 1)
-    edges = [np.stack([np.repeat(np.arange(n), k), nbr[:, 1:].ravel()], axis=1)]
     try:
-        simplices = Delaunay(uv).simplices  # (T, 3)
-        edges += [simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]]
+        tri = Delaunay(uv)
     except (QhullError, ValueError):  # collinear or too few points
         k = min(8, n - 1)
         _, nbr = cKDTree(uv).query(uv, k=k + 1)
-        edges.append(np.stack([np.repeat(np.arange(n), k), nbr[:, 1:].ravel()], axis=1))
-    edges = np.sort(np.concatenate(edges), axis=1)
-    edges = edges[edges[:, 0] != edges[:, 1]]
-    key = np.unique(edges[:, 0].astype(np.int64) * n + edges[:, 1])  # 1-D unique is fast
-    return np.stack([key // n, key % n], axis=1)
+        edges = np.sort(np.stack([np.repeat(np.arange(n), k), nbr[:, 1:].ravel()], axis=1), axis=1)
+        edges = edges[edges[:, 0] != edges[:, 1]]
+        key = np.unique(edges[:, 0].astype(np.int64) * n + edges[:, 1])
+        return np.stack([key // n, key % n], axis=1)
+    indptr, neighbours = tri.vertex_neighbor_vertices  # CSR adjacency, both directions
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    once = rows < neighbours
+    edges = np.stack([rows[once], neighbours[once]], axis=1)
+    if len(tri.coplanar):
+        edges = np.concatenate([edges, tri.coplanar[:, [0, 2]]])
+    return edges
 
 
 def _mst(uv: np.ndarray, scale: float):
