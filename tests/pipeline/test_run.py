@@ -199,3 +199,17 @@ def test_help_is_complete(cli_run):
     for option in ("--out", "--kind", "--rig", "--config", "--set", "--from", "--to", "--json",
                    "--scheduler", "--force", "scene", "stereo", "folder", "cloud"):
         assert option in text
+
+
+def test_progress_bars_when_watched(cloud, tmp_path, cli_run, monkeypatch):
+    from pipeline import progress
+
+    # as on a terminal (forced), with every bar shown at once instead of after 1 s
+    monkeypatch.setenv("PHOTOSURF_PROGRESS", "1")
+    monkeypatch.setattr(progress, "DELAY", 0.0)
+    proc = cli_run("run", cloud, "--out", tmp_path / "o", *SMALL, "--to", "curves")
+    assert "photosurf run: curves" in proc.stderr  # the run's bar names the running stage
+    assert "curves: loops" in proc.stderr          # and a stage's own bar (one per section)
+    monkeypatch.setenv("PHOTOSURF_PROGRESS", "0")
+    proc = cli_run("run", cloud, "--out", tmp_path / "o2", *SMALL, "--to", "curves")
+    assert proc.stderr == ""
