@@ -18,7 +18,7 @@ show every facet.  Lights are fixed to the camera (a key light above-left, a
 fill light right), so every view of the sheet is lit alike; surfaces are lit
 from both sides.  Anti-aliasing: each view is cast at ``supersample``× the
 resolution and reduced with ``cv2.INTER_AREA`` (a box filter over the
-sub-pixels), which the raycaster alone does not provide.
+sub-pixels, in linear light), which the raycaster alone does not provide.
 
 Cameras follow the OpenCV convention (``x_c = R X + t``, pixel centres at
 integer coordinates, y down); the world's +z axis is up in every view.  The
@@ -293,13 +293,15 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
         value = np.einsum("mc,mc->m", bary, vertex_values[corners])
         albedo = _linear(colormap(value))
     colour = _shade(normal, view_dirs, albedo, R, lighting, specular=vertex_values is None)
+    # Sub-pixels are averaged in linear light (a pixel's light is the sum of
+    # its parts), then encoded.
     image = np.empty((hit.size, 3))
-    image[:] = np.asarray(background, dtype=np.float64) / 255.0
-    image[hit] = _srgb(colour)
+    image[:] = _linear(np.asarray(background, dtype=np.float64) / 255.0)
+    image[hit] = np.clip(colour, 0.0, 1.0)
     image = image.reshape(height * supersample, width * supersample, 3).astype(np.float32)
     if supersample > 1:
         image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
-    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(_srgb(image) * 255.0), 0, 255).astype(np.uint8)
 
 
 # --------------------------------------------------------------------------- error colours
