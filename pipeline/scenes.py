@@ -93,6 +93,8 @@ class SceneTolerance:
     min_coverage: float = 0.01
     #: Denominator guard in the float64 ray/triangle refinement.
     zero: float = 1e-300
+    #: Rounding slack on recipe sums that must not exceed 1 (ambient + diffuse).
+    recipe_slack: float = 1e-12
 
 
 TOL = SceneTolerance()
@@ -378,8 +380,7 @@ def _validate_texture(table: _Table) -> dict:
     return texture
 
 
-def _per_view(table: _Table, key: str, n_views: int, default: float, seed_stream: int,
-              positive: bool = False):
+def _per_view(table: _Table, key: str, n_views: int, default: float, positive: bool = False):
     """A per-view list from ``key`` (number or list) or ``key_range`` (uniform, seeded later)."""
     range_key = f"{key}_range"
     if table.has(key) and table.has(range_key):
@@ -407,10 +408,13 @@ def _validate_lighting(table: _Table, n_views: int) -> dict:
                 "ambient": table.take("ambient", "float", 0.3, nonneg=True),
                 "diffuse": table.take("diffuse", "float", 0.7, nonneg=True),
                 "background": table.take("background", "float", 20.0, nonneg=True)}
-    if lighting["ambient"] + lighting["diffuse"] > 1.0 + 1e-12:
+    if lighting["ambient"] + lighting["diffuse"] > 1.0 + TOL.recipe_slack:
         raise table.error("diffuse", "ambient + diffuse must not exceed 1")
-    lighting.update(_per_view(table, "gain", n_views, 1.0, 1, positive=True))
-    lighting.update(_per_view(table, "offset", n_views, 0.0, 2))
+    if lighting["background"] > 255:
+        raise table.error("background", f"is a grey level in 0..255, got "
+                          f"{lighting['background']:g}")
+    lighting.update(_per_view(table, "gain", n_views, 1.0, positive=True))
+    lighting.update(_per_view(table, "offset", n_views, 0.0))
     table.done()
     return lighting
 
@@ -1089,9 +1093,10 @@ def _check_visibility(scene: Scene, source: str, key: str) -> None:
             raise InputError(f"{source}: field cameras.{key}: {cam.name} lies inside the "
                              f"object's bounding sphere (radius "
                              f"{scene.derived['bounding_radius']:.4g})")
-        step = max(1, min(cam.width, cam.height) // 48)
-        ys, xs = np.mgrid[0: cam.height: step, 0: cam.width: step]
-        pixels = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+        # a grid spanning the whole image area, corners included (where distortion is worst)
+        xs, ys = np.meshgrid(np.linspace(-0.5, cam.width - 0.5, 64),
+                             np.linspace(-0.5, cam.height - 0.5, 48))
+        pixels = np.stack([xs.ravel(), ys.ravel()], 1)
         try:
             origin, directions = pixel_rays(cam, pixels)
         except InputError as exc:
