@@ -303,6 +303,35 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active)
     return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
 
 
+def _independent_flips(f1: np.ndarray, f2: np.ndarray, excess: np.ndarray,
+                       new_keys: np.ndarray, n_faces: int) -> np.ndarray:
+    """A maximal set of candidate flips no two of which share a face or a new edge.
+
+    Rounds of "each face keeps its largest-excess candidate" (ranks are
+    unique, so the global best always wins): winners are taken, candidates
+    touching a winner's faces are dropped, and the rest compete again.
+    """
+    rank = np.empty(len(f1), np.int64)
+    rank[np.argsort(excess, kind="stable")] = np.arange(len(f1))
+    taken = np.zeros(n_faces, bool)
+    alive = np.ones(len(f1), bool)
+    chosen = []
+    while alive.any():
+        live = np.flatnonzero(alive)
+        best = np.full(n_faces, -1, np.int64)
+        np.maximum.at(best, f1[live], rank[live])
+        np.maximum.at(best, f2[live], rank[live])
+        win = live[(best[f1[live]] == rank[live]) & (best[f2[live]] == rank[live])]
+        chosen.append(win)
+        taken[f1[win]] = True
+        taken[f2[win]] = True
+        alive &= ~(taken[f1] | taken[f2])
+    chosen = np.concatenate(chosen)
+    # Two flips must not create the same new edge.
+    _, first = np.unique(new_keys[chosen], return_index=True)
+    return chosen[first]
+
+
 def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarray | None = None,
                    fixed_edges: np.ndarray | None = None,
                    max_normal_change: float = MAX_NORMAL_CHANGE,
@@ -325,7 +354,8 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
     max_sweeps : int
         Upper bound on sweeps.  Every sweep flips, at once, a set of
         non-Delaunay edges no two of which share a face (for each face the
-        candidate with the largest angle excess).  After the first sweep only
+        candidate with the largest angle excess, repeated until the set is
+        maximal).  After the first sweep only
         edges of faces changed by the previous sweep are examined (a flip can
         only spoil the four edges of its own quad); a last full sweep
         confirms the fixed point.
@@ -356,16 +386,7 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
                 return tri, total, True
             active = everything  # confirm with a full sweep
             continue
-        # Independent set: every face keeps its largest-excess candidate (unique ranks).
-        rank = np.empty(len(f1), np.int64)
-        rank[np.argsort(excess, kind="stable")] = np.arange(len(f1))
-        best = np.full(len(tri), -1, np.int64)
-        np.maximum.at(best, f1, rank)
-        np.maximum.at(best, f2, rank)
-        win = (best[f1] == rank) & (best[f2] == rank)
-        # Two winners must not create the same new edge.
-        _, first = np.unique(new_keys[win], return_index=True)
-        chosen = np.flatnonzero(win)[first]
+        chosen = _independent_flips(f1, f2, excess, new_keys, len(tri))
         tri[f1[chosen]] = new1[chosen]
         tri[f2[chosen]] = new2[chosen]
         total += len(chosen)
@@ -597,16 +618,16 @@ CAP_INSET = 0.9
 
 
 def _pca_normals(cloud: np.ndarray, query: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
-    """Unit normals ``(Q, 3)`` at ``query`` points: least-variance axis of k neighbours."""
-    from scipy.spatial import cKDTree
+    """Unit normals ``(Q, 3)`` at ``cloud[query]``: least-variance axis of k nearest points.
 
-    k = min(k, len(cloud))
-    _, idx = cKDTree(cloud).query(query, k=k)
-    nbrs = cloud[idx.reshape(len(query), k)]                       # (Q, k, 3)
-    centred = nbrs - nbrs.mean(axis=1, keepdims=True)
-    cov = np.einsum("qki,qkj->qij", centred, centred)              # (Q, 3, 3)
-    _, vecs = np.linalg.eigh(cov)
-    return vecs[:, :, 0]
+    open3d's ``estimate_normals`` (the same PCA, multithreaded C++) on the
+    whole cloud; the sign is arbitrary (only ``(a·n)²`` and ``(a·n) n`` are used).
+    """
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=min(k, len(cloud))))
+    return np.asarray(pcd.normals)[query]
 
 
 def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]:
@@ -637,7 +658,7 @@ def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray
     if not members:
         return slices, np.zeros(0, np.int64)
     index = np.concatenate(members)
-    normals = _pca_normals(points, points[index])
+    normals = _pca_normals(points, index)
     nonempty = [k for k, section in enumerate(slices) if len(section)]
     first, last = nonempty[0], nonempty[-1]
     out, capped, start = [], [], 0
