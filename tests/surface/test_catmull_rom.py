@@ -153,6 +153,16 @@ def test_noise_free_fit_is_close_to_exact():
     assert radial_rms(curve) < 2 * 0.0234 * (2 * math.pi / 56) ** 4
 
 
+def test_auto_smoothing_picks_a_level_that_beats_the_noise():
+    # GCV on a noisy circle: smooth enough to stay well below σ, the level recorded
+    sigma = 0.01
+    pts = noisy_circle(2000, sigma, seed=4)
+    curve = fit(pts, "auto", frame=FRAME, centroid=np.zeros(3))
+    assert curve.smoothing >= 8
+    assert radial_rms(curve) < 1.5 * sigma / math.sqrt(curve.smoothing)
+    assert radial_rms(curve) < 0.3 * sigma
+
+
 def test_smoothing_at_most_one_interpolates_the_points():
     pts = polygon(20, seed=7)
     curve = fit(pts, 1, frame=FRAME)
@@ -270,6 +280,7 @@ def test_predict_ring_of_a_non_star_shaped_loop_uses_arc_length():
         (lambda: fit(np.full((10, 3), np.nan)), "NaN/inf"),
         (lambda: fit(polygon(3)), "at least 4"),
         (lambda: fit(polygon(10), -1.0), "smoothing"),
+        (lambda: fit(polygon(10), "lots"), "smoothing"),
         (lambda: fit(np.zeros((10, 3)), 2.0, frame=FRAME), "coincide"),
         (lambda: ClosedCurve.from_control_points(polygon(5)).update_point(9, [0, 0, 0]), "index"),
         (lambda: ClosedCurve.from_control_points(polygon(5)).resample_theta(0), "n must"),
