@@ -9,8 +9,9 @@ area-uniform with Gaussian noise σ = 0.002.  Figures, one process:
   RMS of the predicted ring points' radius against the analytic r(h);
 * **curve fit** (50 000 points, the same sections): the ring RMS against the
   analytic radius and the seconds for Catmull-Rom least squares at several
-  smoothing levels, side by side with the peers: the paper's unsmoothed curve
-  (Catmull-Rom through every point, ``smoothing=1``) and scipy's periodic
+  smoothing levels and ``smoothing="auto"`` (GCV), side by side with the
+  peers: the paper's unsmoothed curve (Catmull-Rom through every point,
+  ``smoothing=1``) and scipy's periodic
   smoothing spline ``splprep(per=1, s=M·σ̂²)`` with σ̂ the loop's robust noise.
 
 Run: ``.venv/bin/python benchmarks/sections.py [--quick] [--json PATH]``
@@ -109,7 +110,7 @@ def curve_fit(n_points: int = 50_000) -> list[dict]:
     sections = slice_sections(pts, "z")
     loops = single_loops(organise_all(sections))
     rows = []
-    methods = [(f"catmull-rom LS, smoothing {s}", s) for s in (4, 8, 16, 32)]
+    methods = [(f"catmull-rom LS, smoothing {s}", s) for s in (4, 8, 16, 32, "auto")]
     methods.insert(0, ("catmull-rom through every point (paper, unsmoothed)", 1))
     for name, smoothing in methods:
         t0 = time.perf_counter()
