@@ -237,10 +237,9 @@ def test_any_ring_counts_close_the_surface(counts, seed):
     rng = np.random.default_rng(seed)
     rings = []
     for k, n_k in enumerate(counts):
-        theta = np.sort(rng.uniform(0, 2 * np.pi, n_k))
-        theta = theta[np.r_[True, np.diff(theta) > 1e-3]]
-        if len(theta) < 3:
-            theta = 2 * np.pi * np.arange(3) / 3
+        # Jittered angles, random start: every angular gap < 2 pi 1.4 / 3 < pi, so the
+        # ring is star-shaped about the axis (a simple polygon, as real sections are).
+        theta = 2 * np.pi * (np.arange(n_k) + rng.uniform(0, 0.4, n_k)) / n_k + rng.uniform(0, 6)
         r = radius(0.4 * k) * (1 + 0.1 * rng.uniform(-1, 1, len(theta)))
         rings.append(np.stack([r * np.cos(theta), r * np.sin(theta), np.full(len(theta), 0.4 * k)],
                               axis=1))
