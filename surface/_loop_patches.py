@@ -24,12 +24,13 @@ DEGREE = 6
 # ----------------------------------------------------------------------------- topology
 @dataclass(frozen=True)
 class HalfEdges:
-    """Half-edge view of a closed, oriented 2-manifold triangle mesh."""
+    """Half-edge view of an oriented 2-manifold triangle mesh (``twin = -1`` on borders)."""
 
     triangles: np.ndarray  # (F, 3) int64
-    twin: np.ndarray  # (3F,) int64
-    valence: np.ndarray  # (V,) int64, 0 for unused vertices
-    first_out: np.ndarray  # (V,) one outgoing half-edge per vertex (-1 if unused)
+    twin: np.ndarray  # (3F,) int64, -1 for a border half-edge
+    valence: np.ndarray  # (V,) int64: triangles around the vertex (0 if unused)
+    first_out: np.ndarray  # (V,) one outgoing half-edge (the border one on a border), -1 if unused
+    on_border: np.ndarray  # (V,) bool
 
     @property
     def origin(self) -> np.ndarray:
@@ -48,8 +49,9 @@ def next_half_edge(h: np.ndarray) -> np.ndarray:
     return 3 * (h // 3) + (h + 1) % 3
 
 
-def build_half_edges(n_vertices: int, triangles: np.ndarray) -> HalfEdges:
-    """Half-edges of a closed oriented manifold mesh, or ``ValueError`` naming the defect."""
+def build_half_edges(n_vertices: int, triangles: np.ndarray,
+                     allow_border: bool = False) -> HalfEdges:
+    """Half-edges of an oriented manifold mesh, or ``ValueError`` naming the defect."""
     tris = triangles
     if tris.size and (tris.min() < 0 or tris.max() >= n_vertices):
         raise ValueError(f"triangles index vertices outside 0..{n_vertices - 1} "
@@ -77,14 +79,23 @@ def build_half_edges(n_vertices: int, triangles: np.ndarray) -> HalfEdges:
     twin_key = dest * n_vertices + origin
     pos = np.minimum(np.searchsorted(sorted_key, twin_key), len(key) - 1)
     found = sorted_key[pos] == twin_key
-    if not np.all(found):
-        raise ValueError(f"triangles has {int((~found).sum())} border edges; the Bezier "
-                         "construction needs a closed mesh (close borders first, e.g. end caps)")
-    twin = order[pos]
+    if not allow_border and not np.all(found):
+        raise ValueError(f"triangles has {int((~found).sum())} border edges; this step needs "
+                         "a closed mesh")
+    twin = np.where(found, order[pos], -1)
+    border = twin < 0
+    out_count = np.bincount(origin[border], minlength=n_vertices)
+    in_count = np.bincount(dest[border], minlength=n_vertices)
+    if np.any(out_count > 1) or np.any(in_count > 1):
+        bad = np.flatnonzero((out_count > 1) | (in_count > 1))
+        raise ValueError(f"triangles is non-manifold at {len(bad)} border vertices "
+                         f"(first: vertex {int(bad[0])} lies on the border twice)")
     valence = np.bincount(origin, minlength=n_vertices)
     first_out = np.full(n_vertices, -1, dtype=np.int64)
     first_out[origin[::-1]] = np.arange(len(origin))[::-1]
-    mesh = HalfEdges(tris, twin, valence, first_out)
+    first_out[origin[border]] = np.flatnonzero(border)
+    on_border = out_count > 0
+    mesh = HalfEdges(tris, twin, valence, first_out, on_border)
     _check_vertex_manifold(mesh)
     return mesh
 
@@ -105,16 +116,22 @@ def ring_half_edges(mesh: HalfEdges, start: np.ndarray, steps: int) -> np.ndarra
 
 
 def _check_vertex_manifold(mesh: HalfEdges) -> None:
-    """Each vertex's outgoing half-edges must form one fan (no bow-ties)."""
+    """Each vertex's triangles must form one fan (no bow-ties).
+
+    Walks counter-clockwise from ``first_out``: around an interior vertex
+    until it comes back, from a border vertex's border half-edge until the
+    walk leaves the mesh; either way it must meet every triangle at the vertex.
+    """
     used = np.flatnonzero(mesh.valence > 0)
     h = mesh.first_out[used]
     start = h.copy()
     steps = np.zeros(len(used), dtype=np.int64)
     open_ = np.ones(len(used), dtype=bool)
     for _ in range(int(mesh.valence.max(initial=0))):
-        h = np.where(open_, rotate_ccw(mesh, h), h)
+        step = rotate_ccw(mesh, np.maximum(h, 0))
+        h = np.where(open_, step, h)
         steps += open_
-        open_ &= h != start
+        open_ &= (h != start) & (h >= 0)
     bad = steps != mesh.valence[used]
     if np.any(bad):
         raise ValueError(f"triangles is non-manifold at {int(bad.sum())} vertices "
@@ -141,30 +158,43 @@ def limit_positions(mesh: HalfEdges, points: np.ndarray) -> np.ndarray:
 
 
 def loop_subdivide(mesh: HalfEdges, points: np.ndarray):
-    """One step of Loop subdivision of a closed mesh.
+    """One step of Loop subdivision (with Loop's boundary rules on borders).
 
-    Returns ``(points (V + E, D), triangles (4F, 3))``; new vertex ``V + e`` sits
-    on undirected edge ``e`` (numbered by the half-edge with ``h < twin[h]``);
-    children ``4f .. 4f + 3`` of face f are its corner triangles at
-    ``tri[0], tri[1], tri[2]`` and the centre ``(m12, m20, m01)``.
+    Interior: edge points ``3/8 (a + b) + 1/8 (c + d)``, vertex points
+    ``(1 - n beta) v + beta sum(w)``.  Border: edge points ``(a + b) / 2`` and
+    vertex points ``3/4 v + 1/8 (p + q)`` (the cubic B-spline of the border
+    polygon).  Returns ``(points (V + E, D), triangles (4F, 3))``; new vertex
+    ``V + e`` sits on undirected edge ``e``; children ``4f .. 4f + 3`` of face
+    f are its corner triangles at ``tri[0], tri[1], tri[2]`` and the centre
+    ``(m12, m20, m01)``.
     """
     tris = mesh.triangles
     n_vertices = len(points)
     h = np.arange(3 * len(tris))
-    primary = h < mesh.twin
+    primary = (h < mesh.twin) | (mesh.twin < 0)
     edge_of = np.empty(len(h), dtype=np.int64)
     edge_of[primary] = np.arange(int(primary.sum()))
-    edge_of[mesh.twin[primary]] = edge_of[primary]
+    paired = primary & (mesh.twin >= 0)
+    edge_of[mesh.twin[paired]] = edge_of[paired]
     hp = h[primary]
+    inner = mesh.twin[hp] >= 0
     opposite = tris.ravel()[prev_half_edge(hp)]
-    opposite_twin = tris.ravel()[prev_half_edge(mesh.twin[hp])]
-    edge_points = (3.0 / 8.0) * (points[mesh.origin[hp]] + points[mesh.dest[hp]]) \
-        + (1.0 / 8.0) * (points[opposite] + points[opposite_twin])
+    opposite_twin = tris.ravel()[prev_half_edge(np.maximum(mesh.twin[hp], 0))]
+    ends = points[mesh.origin[hp]] + points[mesh.dest[hp]]
+    edge_points = np.where(inner[:, None],
+                           (3.0 / 8.0) * ends + (1.0 / 8.0) * (points[opposite]
+                                                               + points[opposite_twin]),
+                           0.5 * ends)
     n = np.maximum(mesh.valence, 1)
     beta = loop_beta(n)
     ring_sum = np.zeros_like(points)
     np.add.at(ring_sum, mesh.origin, points[mesh.dest])
     vertex_points = (1.0 - n * beta)[:, None] * points + beta[:, None] * ring_sum
+    border = np.flatnonzero(mesh.twin < 0)
+    if len(border):
+        start, end = mesh.origin[border], mesh.dest[border]
+        vertex_points[start] = 0.75 * points[start] + 0.125 * points[end]
+        np.add.at(vertex_points, end, 0.125 * points[start])
     mid = n_vertices + edge_of.reshape(-1, 3)  # (F, 3): m01, m12, m20
     a, b, c = tris.T
     m01, m12, m20 = mid.T
@@ -172,6 +202,32 @@ def loop_subdivide(mesh: HalfEdges, points: np.ndarray):
         np.stack([a, m01, m20], 1), np.stack([m01, b, m12], 1),
         np.stack([m20, m12, c], 1), np.stack([m12, m20, m01], 1)], axis=1).reshape(-1, 3)
     return np.concatenate([vertex_points, edge_points]), children
+
+
+def add_ghost_layer(mesh: HalfEdges, points: np.ndarray):
+    """Close every border vertex's fan with one ring of ghost triangles.
+
+    Border half-edge ``a -> b`` with opposite vertex c gets the ghost
+    ``g = a + b - c`` (c reflected through the edge midpoint: the regular
+    grid continued) and the triangle ``(b, a, g)``; each border vertex a,
+    between the ghosts of its incoming and outgoing border edges, gets
+    ``(a, g_in, g_out)``.  Returns the extended ``(points, triangles)``; the
+    input faces keep their indices, the new border runs through the ghosts.
+    """
+    tris = mesh.triangles
+    border = np.flatnonzero(mesh.twin < 0)
+    a, b = mesh.origin[border], mesh.dest[border]
+    c = tris.ravel()[prev_half_edge(border)]
+    ghost = len(points) + np.arange(len(border))
+    ghost_points = points[a] + points[b] - points[c]
+    ghost_of_out = np.full(len(points), -1)
+    ghost_of_in = np.full(len(points), -1)
+    ghost_of_out[a] = ghost
+    ghost_of_in[b] = ghost
+    edge_tris = np.stack([b, a, ghost], axis=1)
+    corner_tris = np.stack([a, ghost_of_in[a], ghost_of_out[a]], axis=1)
+    return (np.concatenate([points, ghost_points]),
+            np.concatenate([tris, edge_tris, corner_tris]))
 
 
 #: Barycentric corners of the children of the midpoint split (Loop's order).
@@ -474,52 +530,69 @@ def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray) -> n
     from surface.bezier import elevate
 
     stencil = box_spline_stencil(mesh, faces)
-    quartic = np.einsum("qs,fsd->fqd", BOX_SPLINE_QUARTIC, points[stencil])
+    quartic = np.matmul(BOX_SPLINE_QUARTIC, points[stencil])  # (R, 15, 3)
     return elevate(quartic, DEGREE)
 
 
 def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
-                       control_points: np.ndarray) -> None:
-    """Fill the ring patches of every irregular vertex, one batch per valence."""
-    irregular = np.flatnonzero((mesh.valence != 6) & (mesh.valence > 0))
-    for n in np.unique(mesh.valence[irregular]):
+                       control_points: np.ndarray, computed: np.ndarray,
+                       centres_wanted: np.ndarray) -> None:
+    """Fill the ring patches of the wanted irregular vertices, one batch per valence."""
+    for n in np.unique(mesh.valence[centres_wanted]):
         n = int(n)
-        centres = irregular[mesh.valence[irregular] == n]
+        centres = centres_wanted[mesh.valence[centres_wanted] == n]
         spokes = ring_half_edges(mesh, mesh.first_out[centres], n)  # (Vn, n): v -> w_i
         across = mesh.twin[next_half_edge(spokes)]  # w_{i+1} -> w_i in N_i
+        if np.any(across < 0) or not np.all(computed[across // 3]):
+            raise RuntimeError("an irregular vertex's neighbour patch is not regular")
         neighbour = np.empty((len(centres), n, 28, 3))
         for c in range(3):
             sel = across % 3 == c
             neighbour[sel] = control_points[across[sel] // 3][:, corner_rotation(c)]
         data = np.concatenate([limit[centres][:, None, :],
                                neighbour.reshape(len(centres), 28 * n, 3)], axis=1)
-        rings = np.einsum("md,vdk->vmk", ring_operator(n), data).reshape(-1, 28, 3)
+        rings = np.matmul(ring_operator(n), data).reshape(-1, 28, 3)  # (Vn n, 28, 3)
         spokes = spokes.ravel()
         for c in range(3):
             sel = spokes % 3 == c
             out = np.empty((int(sel.sum()), 28, 3))
             out[:, corner_rotation(c)] = rings[sel]
             control_points[spokes[sel] // 3] = out
+        computed[spokes // 3] = True
 
 
 def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     """Control nets over the once-refined mesh; see ``bezier.control_net``.
 
     Returns ``(control_points (4F, 28, 3), source_face (4F,), refined vertices,
-    refined triangles (4F, 3))``.
+    refined triangles (4F, 3))``.  A mesh with borders is first extended by two
+    ghost layers (:func:`add_ghost_layer`) so that every input vertex is
+    interior; only the patches of the input faces are returned.
     """
     if len(triangles) == 0:
         raise ValueError("triangles is empty")
-    mesh0 = build_half_edges(len(vertices), triangles)
+    build_half_edges(len(vertices), triangles, allow_border=True)  # index/orientation checks
     vertices, triangles = _compact(vertices, triangles)
-    mesh0 = build_half_edges(len(vertices), triangles)
     _check_areas(vertices, triangles)
-    points, tris = loop_subdivide(mesh0, vertices)
-    source = np.repeat(np.arange(len(triangles)), 4)
-    mesh = build_half_edges(len(points), tris)
-    control_points = np.empty((len(tris), 28, 3))
-    regular = np.all(mesh.valence[tris] == 6, axis=1)
+    n_faces, n_vertices = len(triangles), len(vertices)
+    mesh0 = build_half_edges(n_vertices, triangles, allow_border=True)
+    points, tris = vertices, triangles
+    if mesh0.on_border.any():
+        for _ in range(2):
+            points, tris = add_ghost_layer(mesh0, points)
+            mesh0 = build_half_edges(len(points), tris, allow_border=True)
+    points, tris = loop_subdivide(mesh0, points)
+    mesh = build_half_edges(len(points), tris, allow_border=True)
+    control_points = np.zeros((len(tris), 28, 3))
+    inner6 = (mesh.valence == 6) & ~mesh.on_border
+    regular = np.all(inner6[tris], axis=1)
     control_points[regular] = regular_patches(mesh, points, np.flatnonzero(regular))
     limit = limit_positions(mesh, points)
-    _irregular_patches(mesh, points, limit, control_points)
-    return control_points, source, points, tris
+    centres = np.flatnonzero(~inner6[:n_vertices])  # input vertices are interior here
+    _irregular_patches(mesh, points, limit, control_points, regular.copy(), centres)
+    kept = 4 * n_faces  # children of the input faces come first
+    used = np.zeros(len(points), dtype=bool)
+    used[tris[:kept].ravel()] = True
+    remap = np.cumsum(used) - 1
+    source = np.repeat(np.arange(n_faces), 4)
+    return control_points[:kept], source, points[used], remap[tris[:kept]]

@@ -63,8 +63,28 @@ Construction (what :func:`control_net` does)
    box spline where n = 6 (the reference then satisfies every constraint).
    The spoke curves come out of degree <= 5 rather than Loop's quartics.
 
-Borders are not supported: a control mesh with border edges raises
-``ValueError`` (close it first, e.g. with the section stage's end caps).
+Borders (documented boundary rule)
+----------------------------------
+A control mesh with borders is first closed off by two layers of ghost
+triangles: a border edge ``a -> b`` whose triangle has third vertex c gets the
+ghost ``g = a + b - c`` (c reflected through the edge midpoint, i.e. the
+regular grid continued; an affine rule, so affine invariance and planarity
+survive) and the triangle ``(b, a, g)``; every border vertex's fan is closed by
+``(a, g_in, g_out)``.  The second layer does the same to the first, so that
+every input vertex and every neighbour patch the construction reads is
+interior.  The ghost layer's own border follows Loop's boundary rules in the
+refinement (edge midpoint, vertex ``3/4 v + 1/8 (p + q)``).  Only the patches
+of the input faces are returned: the surface is G1 across every interior edge
+and ends at the border edges (it does not interpolate the border polygon).
+On a straight border of a regular grid this is exactly the box spline of the
+continued grid; at sharp border corners with few triangles (a convex-hull
+corner of a random Delaunay triangulation) the reflected ghosts can overlap
+and the surface may fold near that corner — close or regularise such borders
+first.
+
+Other input: non-manifold edges or vertices, inconsistent orientation,
+out-of-range indices, NaN/inf and zero-area triangles raise ``ValueError``;
+vertices used by no triangle are ignored.
 
 References
 ----------
@@ -351,7 +371,7 @@ def elevate(control_points, to_degree: int = DEGREE) -> np.ndarray:
         raise ValueError(f"control_points has {net.shape[-2]} points per net: not a "
                          f"triangular net of degree <= {to_degree}")
     for d in range(degree, to_degree):
-        net = np.einsum("mn,...nd->...md", _elevation_matrix(d), net)
+        net = np.matmul(_elevation_matrix(d), net)
     return net
 
 
@@ -563,8 +583,8 @@ def control_net(vertices, triangles) -> BezierSurface:
     ----------
     vertices : (V, 3) array_like, scene units
     triangles : (F, 3) int array_like
-        Counter-clockwise seen from outside, closed 2-manifold.  Vertices used
-        by no triangle are ignored.
+        Counter-clockwise seen from outside, 2-manifold (closed or with
+        borders).
 
     Returns
     -------
@@ -575,8 +595,12 @@ def control_net(vertices, triangles) -> BezierSurface:
     ------
     ValueError
         Non-finite vertices, out-of-range indices, non-manifold edges or
-        vertices, inconsistent orientation, border edges, degenerate
-        (zero-area) triangles.
+        vertices, inconsistent orientation, degenerate (zero-area) triangles.
+
+    Notes
+    -----
+    Borders are allowed and handled by the ghost-layer rule of the module
+    notes; vertices used by no triangle are dropped before refinement.
     """
     from surface._loop_patches import build_surface
 

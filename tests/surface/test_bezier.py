@@ -355,10 +355,91 @@ def test_tessellate_needs_the_domain_triangles(surfaces):
 
 
 # ----------------------------------------------------------------------------- bad input
-def test_rejects_border_edges():
-    vertices, tris = octahedron()
-    with pytest.raises(ValueError, match="border edges"):
-        bz.control_net(vertices, tris[1:])
+def planar_disk(seed: int = 0, n: int = 60):
+    """A random Delaunay triangulation of the square, in the plane z = 0."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1, 1, size=(n, 2))
+    tris = Delaunay(points).simplices.astype(np.int64)
+    a, b, c = (points[tris[:, i]] for i in range(3))
+    clockwise = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    tris[clockwise] = tris[clockwise][:, ::-1]
+    return np.c_[points, np.zeros(n)], tris
+
+
+def open_meshes():
+    sphere_v, sphere_t = icosphere(2)
+    hemisphere = (sphere_v, sphere_t[np.all(sphere_v[sphere_t][:, :, 2] > -0.1, axis=1)])
+    band_v, band_t = band_mesh()
+    tube = (band_v, band_t[np.all(band_t < len(band_v) - 2, axis=1)])  # poles removed
+    return {"hemisphere": hemisphere, "tube": tube, "disk": planar_disk(),
+            "triangle": (np.eye(3), np.array([[0, 1, 2]]))}
+
+
+@pytest.mark.parametrize("name", ["hemisphere", "tube", "disk", "triangle"])
+def test_bordered_meshes_are_g1_across_interior_edges(name):
+    vertices, tris = open_meshes()[name]
+    surface = bz.control_net(vertices, tris)
+    assert len(surface.control_points) == 4 * len(tris)
+    assert np.all(np.isfinite(surface.control_points))
+    gap, angle = bz.edge_continuity(surface.control_points, surface.domain_mesh[1])
+    assert gap <= 1e-12 * _size(vertices)
+    assert angle <= 1e-9
+
+
+def hex_disk(radius: int = 4, jitter: float = 0.0, seed: int = 0):
+    """A hexagon of the regular triangular grid in the plane z = 0, optionally jittered."""
+    ids, points, tris = {}, [], []
+    for q in range(-radius, radius + 1):
+        for r in range(-radius, radius + 1):
+            if abs(q + r) <= radius:
+                ids[(q, r)] = len(points)
+                points.append((q + 0.5 * r, r * np.sqrt(3) / 2))
+    for q, r in ids:
+        for tri in (((q, r), (q + 1, r), (q, r + 1)), ((q + 1, r), (q + 1, r + 1), (q, r + 1))):
+            if all(x in ids for x in tri):
+                tris.append([ids[x] for x in tri])
+    points = np.array(points) + np.random.default_rng(seed).uniform(-jitter, jitter,
+                                                                    (len(points), 2))
+    return np.c_[points, np.zeros(len(points))], np.array(tris, dtype=np.int64)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.lists(st.floats(-2, 2), min_size=12, max_size=12), st.integers(0, 5))
+def test_planar_control_mesh_gives_a_planar_surface(values, seed):
+    """Any plane, any (even badly shaped) triangulation: ghosts and patches are
+    affine combinations of points of the plane."""
+    vertices, tris = planar_disk(seed)
+    frame = np.array(values[:9]).reshape(3, 3) + 3 * np.eye(3)
+    plane = vertices @ frame.T + np.array(values[9:])
+    normal = np.cross(frame[:, 0], frame[:, 1])
+    normal /= np.linalg.norm(normal)
+    surface = bz.control_net(plane, tris)
+    offset = (surface.control_points - np.array(values[9:])) @ normal
+    assert np.abs(offset).max() < 1e-12 * _size(plane)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.15])
+def test_planar_grid_surface_keeps_its_orientation(jitter):
+    """On a (jittered) grid disk the flat surface does not fold: every normal is +z."""
+    vertices, tris = hex_disk(4, jitter)
+    surface = bz.control_net(vertices, tris)
+    bary, _, _ = bz._grid(4)
+    assert bz.normals(surface.control_points, bary)[..., 2].min() > 1 - 1e-12
+
+
+def test_border_tessellation_is_consistent_and_open():
+    vertices, tris = open_meshes()["tube"]
+    surface = bz.control_net(vertices, tris)
+    tess_v, tess_t, _ = bz.tessellate(surface, 2)
+    directed = tess_t[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    keys = directed[:, 0] * len(tess_v) + directed[:, 1]
+    assert len(np.unique(keys)) == len(keys)
+    border = ~np.isin(directed[:, 1] * len(tess_v) + directed[:, 0], keys)
+    # the removed caps leave border loops of 6 and 12 control edges; refinement
+    # halves each, level 2 cuts each half in 4
+    assert border.sum() == 2 * 4 * (6 + 12)
 
 
 def test_rejects_inconsistent_orientation():
