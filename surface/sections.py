@@ -37,8 +37,10 @@ References
 
 from __future__ import annotations
 
+import io
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -347,6 +349,9 @@ def _assign(points, heights, frame, h0, delta, count, thickness) -> list[Section
 
 # ----------------------------------------------------------------------------- sectioned data
 _SPLIT = re.compile(r"[,;\s]+")
+_DELIMS = re.compile(r"[,;\t]")
+_COMMENT = re.compile(r"#[^\n]*")
+_FIRST_LINE = re.compile(r"^[ \r]*\S[^\n]*", re.MULTILINE)
 
 
 def read_sectioned(path, axis="z", tolerance: float | None = None) -> list[Section]:
@@ -386,11 +391,15 @@ def read_sectioned(path, axis="z", tolerance: float | None = None) -> list[Secti
     if isinstance(axis, str) and axis.strip().lower() == "auto":
         raise ValueError("read_sectioned: axis must be 'x', 'y', 'z' or a vector, not 'auto'")
     axis_vec = resolve_axis(axis)
-    rows, line_no = _parse_table(path)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    rows = _parse_table_fast(text)
+    if rows is None:  # malformed somewhere: the line-by-line reader names the line
+        rows, _ = _parse_table(path, text)
     if rows.shape[1] == 4:
         ids = rows[:, 3]
         bad = np.flatnonzero(ids != np.round(ids))
         if bad.size:
+            _, line_no = _parse_table(path, text)
             raise ValueError(
                 f"{path}:{line_no[bad[0]]}: section id must be an integer, got {ids[bad[0]]!r}"
             )
@@ -408,9 +417,37 @@ def read_sectioned(path, axis="z", tolerance: float | None = None) -> list[Secti
     return _sections_from_groups(rows[:, :3], group, axis_vec)
 
 
-def _parse_table(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``(N, 3|4)`` of a text table and each row's 1-based line number."""
-    text = path.read_text(encoding="utf-8", errors="replace")
+def _parse_table_fast(text: str) -> np.ndarray | None:
+    """Rows ``(N, 3|4)`` by numpy's C reader, or None if anything is off.
+
+    Delimiters become spaces, comments go, one header line of names is
+    dropped; ragged rows, non-numbers, NaN/inf, a wrong column count or no
+    rows at all return None so that :func:`_parse_table` reports the line.
+    """
+    cleaned = _DELIMS.sub(" ", _COMMENT.sub("", text))
+    start = _FIRST_LINE.search(cleaned)
+    if start is None:
+        return None
+    first = start.group(0).split()
+    if all(re.fullmatch(r"[A-Za-z_][\w.]*", t) for t in first):
+        cleaned = cleaned[start.end() :]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "empty input" is reported as None below
+            rows = np.loadtxt(io.StringIO(cleaned), dtype=np.float64, ndmin=2)
+    except ValueError:
+        return None
+    if rows.size == 0 or rows.shape[1] not in (3, 4) or not np.all(np.isfinite(rows)):
+        return None
+    return rows
+
+
+def _parse_table(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``(N, 3|4)`` of a text table and each row's 1-based line number.
+
+    The careful reader, line by line: every malformed line raises a
+    ``ValueError`` naming the file and the line.
+    """
     lines = text.splitlines()
     values, numbers, width = [], [], None
     header_allowed = True
