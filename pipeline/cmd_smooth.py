@@ -1,4 +1,4 @@
-"""``photosurf smooth``: a closed triangle mesh -> Loop's G1 sextic Bézier surface.
+"""``photosurf smooth``: a triangle mesh -> Loop's G1 sextic Bézier surface.
 
 The mesh is the control mesh of ``surface.bezier.control_net`` (refined once,
 so ``P = 4 F`` patches), tessellated at ``--level L`` (each patch edge cut into
@@ -22,7 +22,7 @@ from pathlib import Path
 
 from pipeline.errors import InputError
 
-HELP = "smooth a closed triangle mesh into Loop's G1 sextic Bezier surface (mesh + control net)"
+HELP = "smooth a triangle mesh into Loop's G1 sextic Bezier surface (mesh + control net)"
 
 #: G1 is checked at this many points per interior patch edge (ends included).
 EDGE_SAMPLES = 9
@@ -37,8 +37,9 @@ def _default_level() -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from pipeline.export import EXPORT_SUFFIXES
 
-    parser.add_argument("mesh", metavar="MESH", help="closed, oriented triangle mesh "
-                        "(.ply .obj .stl .off .gltf .glb): the control mesh")
+    parser.add_argument("mesh", metavar="MESH", help="oriented 2-manifold triangle mesh, "
+                        "closed for a watertight result (.ply .obj .stl .off .gltf .glb): "
+                        "the control mesh")
     parser.add_argument("--out", required=True, metavar="OUT",
                         help=f"tessellated surface ({' '.join(EXPORT_SUFFIXES)}); the control "
                              "net is written beside it as OUT.npz")
@@ -58,7 +59,8 @@ def smooth_to_files(vertices, triangles, out, level: int | None = None,
     ----------
     vertices : (V, 3) float64
     triangles : (F, 3) int64
-        Closed, oriented 2-manifold control mesh.
+        Oriented 2-manifold control mesh (closed gives a watertight surface;
+        borders as far as ``surface.bezier.control_net`` accepts them).
     out : path-like
         Mesh file (suffix one of ``pipeline.export.EXPORT_SUFFIXES``); the
         control net goes to ``out`` with suffix ``.npz``.  Both appear

@@ -97,13 +97,11 @@ def _closed_tetra_pair():
     return vertices, triangles
 
 
-def _open_cylinder():
-    theta = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    ring = np.column_stack([np.cos(theta), np.sin(theta), np.zeros(12)])
-    vertices = np.concatenate([ring, ring + [0, 0, 1]])
-    j = np.arange(12)
-    triangles = np.concatenate([np.column_stack([j, (j + 1) % 12, 12 + (j + 1) % 12]),
-                                np.column_stack([j, 12 + (j + 1) % 12, 12 + j])])
+def _flipped_icosahedron():
+    """A closed icosahedron with one triangle turned inside out (unoriented)."""
+    vertices, triangles = _icosphere(0)
+    triangles = triangles.copy()
+    triangles[0] = triangles[0, ::-1]
     return vertices, triangles
 
 
@@ -111,7 +109,7 @@ def _open_cylinder():
     ("missing", r"missing\.ply: no such mesh file"),
     ("garbage", r"garbage\.ply: no triangles could be read"),
     ("nonmanifold", r"nonmanifold\.ply: cannot build the Bezier surface: .*non-manifold"),
-    ("open", r"open\.ply: cannot build the Bezier surface: .*border"),
+    ("unoriented", r"unoriented\.ply: cannot build the Bezier surface: .*oriented"),
     ("suffix", r"out\.xyz: cannot write mesh format '\.xyz'"),
     ("level", r"--level must be in 0\.\.8, got 12"),
 ])
@@ -123,8 +121,10 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capfd, case, messag
         src.write_text("ply\nthis is not a mesh\n")
     elif case == "nonmanifold":
         write_mesh(src, *_closed_tetra_pair())
-    elif case in ("open", "suffix", "level"):
-        write_mesh(src, *_open_cylinder() if case == "open" else _icosphere(0))
+    elif case == "unoriented":
+        write_mesh(src, *_flipped_icosahedron())
+    elif case in ("suffix", "level"):
+        write_mesh(src, *_icosphere(0))
     capfd.readouterr()
     outdir = tmp_path / "out"
     out = outdir / ("out.xyz" if case == "suffix" else "out.ply")
