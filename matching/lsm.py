@@ -151,17 +151,18 @@ _FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
-def _weights(t, kind, w, dw):
-    """Fill the 4 tap weights (offsets -1, 0, 1, 2) and their derivatives for frac ``t``."""
+def _weights(t, kind, w, dw, grad):
+    """The 4 tap weights (offsets -1, 0, 1, 2) for frac ``t``; derivatives if ``grad``."""
     if kind == 0:  # bilinear
         w[0] = 0.0
         w[1] = 1.0 - t
         w[2] = t
         w[3] = 0.0
-        dw[0] = 0.0
-        dw[1] = -1.0
-        dw[2] = 1.0
-        dw[3] = 0.0
+        if grad:
+            dw[0] = 0.0
+            dw[1] = -1.0
+            dw[2] = 1.0
+            dw[3] = 0.0
     elif kind == 1:  # Keys cubic convolution, a = -0.5
         t2 = t * t
         t3 = t2 * t
@@ -169,10 +170,11 @@ def _weights(t, kind, w, dw):
         w[1] = 1.5 * t3 - 2.5 * t2 + 1.0
         w[2] = -1.5 * t3 + 2.0 * t2 + 0.5 * t
         w[3] = 0.5 * t3 - 0.5 * t2
-        dw[0] = -1.5 * t2 + 2.0 * t - 0.5
-        dw[1] = 4.5 * t2 - 5.0 * t
-        dw[2] = -4.5 * t2 + 4.0 * t + 0.5
-        dw[3] = 1.5 * t2 - t
+        if grad:
+            dw[0] = -1.5 * t2 + 2.0 * t - 0.5
+            dw[1] = 4.5 * t2 - 5.0 * t
+            dw[2] = -4.5 * t2 + 4.0 * t + 0.5
+            dw[3] = 1.5 * t2 - t
     else:  # cubic B-spline on prefiltered coefficients
         s = 1.0 - t
         t2 = t * t
@@ -181,10 +183,11 @@ def _weights(t, kind, w, dw):
         w[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
         w[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
         w[3] = t3 / 6.0
-        dw[0] = -0.5 * s * s
-        dw[1] = 1.5 * t2 - 2.0 * t
-        dw[2] = -1.5 * t2 + t + 0.5
-        dw[3] = 0.5 * t2
+        if grad:
+            dw[0] = -0.5 * s * s
+            dw[1] = 1.5 * t2 - 2.0 * t
+            dw[2] = -1.5 * t2 + t + 0.5
+            dw[3] = 0.5 * t2
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
@@ -192,8 +195,8 @@ def _sample(img, u, v, kind, wx, dwx, wy, dwy, grad, out):
     """Interpolate ``img`` at (u, v); ``out = [value, d/du, d/dv]`` (gradients if ``grad``)."""
     x0 = int(np.floor(u))
     y0 = int(np.floor(v))
-    _weights(u - x0, kind, wx, dwx)
-    _weights(v - y0, kind, wy, dwy)
+    _weights(u - x0, kind, wx, dwx, grad)
+    _weights(v - y0, kind, wy, dwy, grad)
     val = 0.0
     gu = 0.0
     gv = 0.0
@@ -216,21 +219,24 @@ def _sample(img, u, v, kind, wx, dwx, wy, dwy, grad, out):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
-def _inside(p, half, width, height):
-    """True when the warped patch and its 4x4 interpolation support lie in the image."""
-    for sx in (-half, half):
-        for sy in (-half, half):
-            u = p[0] + p[1] * sx + p[2] * sy
-            v = p[3] + p[4] * sx + p[5] * sy
+def _inside(p, q, half, width, height):
+    """True when the warped patch and its 4x4 interpolation support lie in the image.
+
+    Checked at the corners, edge midpoints and centre (exact for the affine warp; the
+    fixed quadratic terms are small enough that these bound the footprint).
+    """
+    for sx in (-half, 0, half):
+        for sy in (-half, 0, half):
+            u = p[0] + p[1] * sx + p[2] * sy + q[0] * sx * sx + q[1] * sx * sy + q[2] * sy * sy
+            v = p[3] + p[4] * sx + p[5] * sy + q[3] * sx * sx + q[4] * sx * sy + q[5] * sy * sy
             if not (u >= 1.0 and v >= 1.0 and u < width - 2.0 and v < height - 2.0):
                 return False
     return True
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _cholesky_solve(a, b, m, x):
-    """Solve the SPD system ``a[:m, :m] x = b[:m]`` in place of ``x``; False if not SPD."""
-    lo = np.empty((8, 8))
+def _cholesky_factor(a, m, lo):
+    """Lower Cholesky factor of the SPD ``a[:m, :m]`` into ``lo``; False if not SPD."""
     for i in range(m):
         for j in range(i + 1):
             s = a[i, j]
@@ -242,6 +248,12 @@ def _cholesky_solve(a, b, m, x):
                 lo[i, i] = np.sqrt(s)
             else:
                 lo[i, j] = s / lo[j, j]
+    return True
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _cholesky_back(lo, b, m, x):
+    """Solve ``lo lo^T x = b`` (forward then back substitution)."""
     for i in range(m):
         s = b[i]
         for k in range(i):
@@ -252,7 +264,48 @@ def _cholesky_solve(a, b, m, x):
         for k in range(i + 1, m):
             s -= lo[k, i] * x[k]
         x[i] = s / lo[i, i]
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _cholesky_solve(a, b, m, x):
+    """Solve the SPD system ``a[:m, :m] x = b[:m]`` in place of ``x``; False if not SPD."""
+    lo = np.empty((8, 8))
+    if not _cholesky_factor(a, m, lo):
+        return False
+    _cholesky_back(lo, b, m, x)
     return True
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _ic_step(p, y, delta):
+    """delta = T(p)^{-T} y: shifts and affine columns by A = [[a1, a2], [b1, b2]], radiometry."""
+    for k in range(3):
+        delta[k] = p[1] * y[k] + p[2] * y[3 + k]
+        delta[3 + k] = p[4] * y[k] + p[5] * y[3 + k]
+    delta[7] = p[7] * y[7]
+    delta[6] = y[6] + p[6] * y[7]
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _ic_constrained(tmat, hmat, c, d, tt, nmat, rhs, nred, bred):
+    """Reduced normal equations of the template-gradient Jacobian, shift along ``d``."""
+    for i in range(8):
+        for j in range(8):
+            s = 0.0
+            for k in range(8):
+                s += tmat[i, k] * hmat[k, j]
+            tt[i, j] = s
+    for i in range(8):
+        s = 0.0
+        for k in range(8):
+            s += tmat[i, k] * c[k]
+        rhs[i] = s
+        for j in range(8):
+            s = 0.0
+            for k in range(8):
+                s += tt[i, k] * tmat[j, k]
+            nmat[i, j] = s
+    _reduce(nmat, rhs, d, True, nred, bred)
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
@@ -381,7 +434,7 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _ic_rhs(gimg, p, half, kind, fv, fx, fy, c):
+def _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c):
     """c = sum j v over the patch with v = f - r0 - r1 g(W(x)) (values only)."""
     wx = np.empty(4)
     dwx = np.empty(4)
@@ -393,8 +446,8 @@ def _ic_rhs(gimg, p, half, kind, fv, fx, fy, c):
     n = 0
     for iy in range(-half, half + 1):
         for ix in range(-half, half + 1):
-            u = p[0] + p[1] * ix + p[2] * iy
-            v = p[3] + p[4] * ix + p[5] * iy
+            u = p[0] + p[1] * ix + p[2] * iy + q[0] * ix * ix + q[1] * ix * iy + q[2] * iy * iy
+            v = p[3] + p[4] * ix + p[5] * iy + q[3] * ix * ix + q[4] * ix * iy + q[5] * iy * iy
             _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
             res = fv[n] - p[6] - p[7] * out[0]
             rx = fx[n] * res
@@ -411,7 +464,7 @@ def _ic_rhs(gimg, p, half, kind, fv, fx, fy, c):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _exact_normals(gimg, p, half, kind, fv, nmat, rhs, stats):
+def _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats):
     """Exact forward-additive normal equations at p; stats = [vtv, sf, sg, sff, sgg, sfg]."""
     wx = np.empty(4)
     dwx = np.empty(4)
@@ -428,8 +481,8 @@ def _exact_normals(gimg, p, half, kind, fv, nmat, rhs, stats):
     n = 0
     for iy in range(-half, half + 1):
         for ix in range(-half, half + 1):
-            u = p[0] + p[1] * ix + p[2] * iy
-            v = p[3] + p[4] * ix + p[5] * iy
+            u = p[0] + p[1] * ix + p[2] * iy + q[0] * ix * ix + q[1] * ix * iy + q[2] * iy * iy
+            v = p[3] + p[4] * ix + p[5] * iy + q[3] * ix * ix + q[4] * ix * iy + q[5] * iy * iy
             _sample(gimg, u, v, kind, wx, dwx, wy, dwy, True, out)
             gval = out[0]
             gu = p[7] * out[1]
@@ -460,8 +513,9 @@ def _exact_normals(gimg, p, half, kind, fv, nmat, rhs, stats):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _solve_point(fimg, fraw, gimg, centre, approx, direction, constrained, half, kind, max_iter,
-                 tol, max_shift, det_min, min_texture, p_out, cov_out, sig0_out, corr_out):
+def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrained, half,
+                 kind, max_iter, tol, max_shift, det_min, min_texture, p_out, cov_out, sig0_out,
+                 corr_out):
     """Gauss-Newton LSM for one patch; returns (status, iterations, converged)."""
     npix = (2 * half + 1) ** 2
     fh, fw = fimg.shape
@@ -485,15 +539,10 @@ def _solve_point(fimg, fraw, gimg, centre, approx, direction, constrained, half,
         return 7, 0, False
     d = direction
     p = np.empty(8)
-    p[0] = approx[0]
-    p[1] = 1.0
-    p[2] = 0.0
-    p[3] = approx[1]
-    p[4] = 0.0
-    p[5] = 1.0
-    p[6] = 0.0
-    p[7] = 1.0
-    # initial radiometry from the patch means/stds would bias nothing; start at identity
+    for k in range(8):
+        p[k] = init[k]
+    hlo = np.empty((8, 8))
+    h_spd = constrained or _cholesky_factor(hmat, 8, hlo)
     tmat = np.empty((8, 8))
     tt = np.empty((8, 8))
     nmat = np.empty((8, 8))
@@ -509,32 +558,22 @@ def _solve_point(fimg, fraw, gimg, centre, approx, direction, constrained, half,
     status = 0
     while it < max_iter:
         it += 1
-        if not _inside(p, half, gw, gh):
+        if not _inside(p, q, half, gw, gh):
             return 6, it, False
         if not _mixing(p, tmat):
             return 4, it, False
-        _ic_rhs(gimg, p, half, kind, fv, fx, fy, c)
-        # N = T H T^T, rhs = T c
-        for i in range(8):
-            for j in range(8):
-                s = 0.0
-                for k in range(8):
-                    s += tmat[i, k] * hmat[k, j]
-                tt[i, j] = s
-        for i in range(8):
-            s = 0.0
-            for k in range(8):
-                s += tmat[i, k] * c[k]
-            rhs[i] = s
-            for j in range(8):
-                s = 0.0
-                for k in range(8):
-                    s += tt[i, k] * tmat[j, k]
-                nmat[i, j] = s
-        m = _reduce(nmat, rhs, d, constrained, nred, bred)
-        if not _cholesky_solve(nred, bred, m, xred):
-            return 7, it, False
-        _expand(xred, d, constrained, delta)
+        _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c)
+        if not constrained:
+            # delta = T^{-T} H^{-1} c, with T^{-T} in closed form (module docstring)
+            if not h_spd:
+                return 7, it, False
+            _cholesky_back(hlo, c, 8, xred)
+            _ic_step(p, xred, delta)
+        else:
+            _ic_constrained(tmat, hmat, c, d, tt, nmat, rhs, nred, bred)
+            if not _cholesky_solve(nred, bred, 7, xred):
+                return 7, it, False
+            _expand(xred, d, constrained, delta)
         for i in range(8):
             p[i] += delta[i]
         if not np.isfinite(p[0] + p[3]):
@@ -547,10 +586,10 @@ def _solve_point(fimg, fraw, gimg, centre, approx, direction, constrained, half,
     det = p[1] * p[5] - p[2] * p[4]
     if not (det > det_min and det < 1.0 / det_min and p[7] > det_min):
         status = 4
-    if not _inside(p, half, gw, gh):
+    if not _inside(p, q, half, gw, gh):
         return 6, it, converged
     # final exact forward-additive step: its normal matrix gives the covariance
-    _exact_normals(gimg, p, half, kind, fv, nmat, rhs, stats)
+    _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats)
     m = _reduce(nmat, rhs, d, constrained, nred, bred)
     if not _cholesky_solve(nred, bred, m, xred):
         return 7, it, False
@@ -598,15 +637,15 @@ def _solve_point(fimg, fraw, gimg, centre, approx, direction, constrained, half,
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FM, error_model="numpy")
-def _lsm_batch(fimg, fraw, gimg, centres, approx, directions, constrained, half, kind, max_iter,
-               tol, max_shift, det_min, min_texture, params, cov, sigma0, corr, status, iters,
-               conv):
+def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constrained, half,
+               kind, max_iter, tol, max_shift, det_min, min_texture, params, cov, sigma0, corr,
+               status, iters, conv):
     n = centres.shape[0]
     for i in numba.prange(n):
-        s, it, cv = _solve_point(fimg, fraw, gimg, centres[i], approx[i], directions[i],
-                                 constrained, half, kind, max_iter, tol, max_shift, det_min,
-                                 min_texture,
-                                 params[i], cov[i], sigma0[i:i + 1], corr[i:i + 1])
+        s, it, cv = _solve_point(fimg, fraw, gimg, centres[i], approx[i], init[i], quad[i],
+                                 directions[i], constrained, half, kind, max_iter, tol,
+                                 max_shift, det_min, min_texture, params[i], cov[i],
+                                 sigma0[i:i + 1], corr[i:i + 1])
         status[i] = s
         iters[i] = it
         conv[i] = cv
@@ -688,7 +727,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               max_iter: int = 20, shift_stop_px: float | None = None,
               max_shift_px: float | None = None, noise_sigma: float | None = None,
               sigma0_factor: float = 2.5, min_correlation: float = 0.7,
-              min_texture_snr: float = 2.0) -> LSMResult:
+              min_texture_snr: float = 2.0, initial=None, quadratic=None) -> LSMResult:
     """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
 
     Parameters
@@ -729,6 +768,16 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     min_correlation : float
         Reject when the correlation coefficient is below this (default 0.7: the
         signal explains under half the patch variance).
+    initial : (N, 8) array_like, optional
+        Starting ``a0 a1 a2 b0 b1 b2 r0 r1`` (default: ``approx``, identity, 0, 1); the
+        pull-in test still measures from ``approx``.
+    quadratic : (N, 6) array_like, optional
+        Fixed (not estimated) second-order warp terms ``(qu_xx, qu_xy, qu_yy, qv_xx,
+        qv_xy, qv_yy)`` added to the affine map: ``u += qu_xx x² + qu_xy x y + qu_yy y²``
+        and likewise ``v``, px/px².  An affine fit of a curved mapping is biased by about
+        ``<x²>(qu_xx + qu_yy)`` (18.7 px² x curvature for a 15 px patch);
+        :func:`second_order_terms` estimates these terms from the neighbours' affine
+        parameters.
     min_texture_snr : float
         Reject as textureless when the smaller eigenvalue of the template's mean
         structure tensor is below ``min_texture_snr`` x σ_n²/2 (σ_n²/2 = what noise of
@@ -777,12 +826,23 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         dirs /= norm[:, None]
     else:
         dirs = np.zeros_like(points)
+    n = len(points)
+    if initial is None:
+        init = np.zeros((n, 8))
+        init[:, [0, 3]] = approx
+        init[:, [1, 5, 7]] = 1.0
+    else:
+        init = check_shape(initial, "(N, 8)", "initial", dtype=np.float64)
+    quad = (np.zeros((n, 6)) if quadratic is None else
+            check_shape(quadratic, "(N, 6)", "quadratic", dtype=np.float64))
+    if len(init) != n or len(quad) != n:
+        raise ValueError(f"initial and quadratic must have {n} rows, got {len(init)} and "
+                         f"{len(quad)}")
     tol = TOL.lsm_shift_stop_px if shift_stop_px is None else float(shift_stop_px)
     max_shift = 0.25 * patch if max_shift_px is None else float(max_shift_px)
     fimg, gimg = fprep.values, gprep.values
     noise_f = fprep.noise
     min_texture = max(min_texture_snr * 0.5 * noise_f**2, TOL.zero)
-    n = len(points)
     params = np.full((n, 8), np.nan)
     cov = np.full((n, 2, 2), np.nan)
     sigma0 = np.full(n, np.nan)
@@ -790,14 +850,16 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     status = np.zeros(n, np.uint8)
     iters = np.zeros(n, np.int32)
     conv = np.zeros(n, np.bool_)
-    finite = np.isfinite(points).all(1) & np.isfinite(approx).all(1)
+    finite = (np.isfinite(points).all(1) & np.isfinite(approx).all(1)
+              & np.isfinite(init).all(1) & np.isfinite(quad).all(1))
     status[~finite] = Status.NO_CONVERGENCE
     idx = np.flatnonzero(finite)
     if len(idx):
         sub = [params[idx], cov[idx], sigma0[idx], corr[idx], status[idx], iters[idx],
                conv[idx]]
         _lsm_batch(fimg, fprep.raw, gimg, np.ascontiguousarray(points[idx]),
-                   np.ascontiguousarray(approx[idx]), np.ascontiguousarray(dirs[idx]),
+                   np.ascontiguousarray(approx[idx]), np.ascontiguousarray(init[idx]),
+                   np.ascontiguousarray(quad[idx]), np.ascontiguousarray(dirs[idx]),
                    constrained, patch // 2, _KIND[interpolation], int(max_iter), tol,
                    max_shift, TOL.affine_det_min, min_texture, *sub)
         for full, part in zip((params, cov, sigma0, corr, status, iters, conv), sub,
