@@ -35,24 +35,35 @@ How each part is made robust and vectorised:
   The first pass fits every point's neighbours as they are; the second
   refits from the points the first kept and decides again for every point,
   so good points whose neighbourhood held an outlier are readmitted.
-* **Order.**  The loop is reduced to centres of a grid of cell size
-  ``h = max(3 g, 6 σ̂, D/128)`` (D the loop's diameter), which are ordered by
-  a closed tour: the shorter of the θ order and a depth-first walk of their
-  minimum spanning tree, improved by best-improvement 2-opt (the gain of
-  every pair of edges in one array operation per move) until no move
-  shortens it.  The loop is star-shaped when θ increases strictly along the
-  counter-clockwise tour (the two orders agree); then the points are ordered
-  by θ, as in the method.  Otherwise each point is projected onto the tour
-  polyline and ordered by the arc length of its foot point (the
-  nearest-neighbour chain).  ``closed`` is False when the tour has to jump a
-  gap longer than ℓ.
+* **Order.**  The loop is reduced to centres (means) of the points in the
+  cells of a grid of size ``h = max(3 g, 6 σ̂, D/128)`` (D the loop's
+  diameter): about one centre per three gaps, wider than the noise band,
+  so the centres form a thin chain without side branches.  They are joined
+  by a closed tour: the θ order (or, when it jumps more than ``3h``, the
+  shorter of it and a depth-first walk of their minimum spanning tree),
+  improved by best-improvement 2-opt until no move shortens it (candidate
+  moves from a k-d tree, every candidate's gain in one array operation).
+  The loop is star-shaped when θ increases along the counter-clockwise tour
+  (the θ order and the nearest-neighbour order agree), up to fall-backs
+  below the angle ``2h/R`` of two cells (grid jitter, not a fold); then its
+  points are ordered by θ, as in the method.  Otherwise each point is
+  projected onto the tour polyline and ordered by the arc length of its
+  foot point: the nearest-neighbour chain.  ``closed`` is False when the
+  tour has to jump a gap longer than ℓ.
+
+  Why not a greedy nearest-neighbour chain over the points themselves: in a
+  noisy band (σ comparable with the gap) it zigzags across the band, strands
+  points and closes with long jumps, and it is a Python loop per point; an
+  MST walk alone backtracks along every short side branch of the band.  The
+  centre tour has neither problem, and projecting M points onto it is one
+  vectorised k-d tree query.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -182,7 +193,8 @@ def organise(
         return []
     labels, gap, link = _clusters(uv, link_distance, scale)
     sizes = np.bincount(labels)
-    loops_members = [np.flatnonzero(labels == c) for c in np.argsort(-sizes, kind="stable")]
+    by_label = np.split(np.argsort(labels, kind="stable"), np.cumsum(sizes)[:-1])
+    loops_members = [by_label[c] for c in np.argsort(-sizes, kind="stable")]
     stray = np.concatenate([m for m in loops_members if len(m) < min_points] + [np.empty(0, int)])
     loops = []
     for members in loops_members:
@@ -281,15 +293,9 @@ def _attach_stray(loops: list[Loop], uv: np.ndarray, stray: np.ndarray) -> list[
     for i, lp in enumerate(loops):
         mine = stray[owner[nearest] == i]
         if mine.size:
-            lp = _replace(lp, outliers=np.sort(np.concatenate([lp.outliers, mine])))
+            lp = replace(lp, outliers=np.sort(np.concatenate([lp.outliers, mine])))
         out.append(lp)
     return out
-
-
-def _replace(loop: Loop, **changes) -> Loop:
-    from dataclasses import replace
-
-    return replace(loop, **changes)
 
 
 # ----------------------------------------------------------------------------- outliers
