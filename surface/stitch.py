@@ -49,7 +49,8 @@ from surface.metrics import delaunay_fraction, edge_table, face_normals, mesh_to
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
-           "axis_frame"]
+           "axis_frame", "surface_from_points", "slide_to_planes", "extend_ends",
+           "largest_perimeter"]
 
 #: Default largest turn of a face normal a flip may cause (radians).  A flip on
 #: a smooth patch re-triangulates it and turns normals by about the local
@@ -76,7 +77,8 @@ class StitchResult:
         ``2 * s`` for the strip between sections ``s`` and ``s + 1``,
         ``-1`` bottom cap, ``-2`` top cap (``-3`` any other cap).
     section_of_vertex : (V,) int64
-        Section index of each vertex.
+        Section index of each vertex, counted from the lowest section along
+        the axis (the input order, or its reverse if the input runs down).
     loop_of_vertex : (V,) int64
         Loop index (within its section) of each vertex.
     open_interfaces : tuple of int
@@ -630,7 +632,7 @@ def _pca_normals(cloud: np.ndarray, query: np.ndarray, k: int = NORMAL_NEIGHBOUR
     return np.asarray(pcd.normals)[query]
 
 
-def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]:
+def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]:
     """Move each section's points to its plane along the surface, not along the axis.
 
     A point at height offset ``δ = a·x − h`` on a wall of normal ``n`` lies on
@@ -644,6 +646,14 @@ def _slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray
 
     The first and last sections keep only the points on the inner side of
     their planes.
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+        The whole cloud (normals are estimated from it).
+    slices : list of Section
+        From :func:`surface.sections.slice_sections` on ``points`` (their
+        ``source_index`` rows into ``points`` are used).
 
     Returns
     -------
@@ -762,7 +772,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         if thickness is None:
             slices = slice_sections(pts, axis=slices[0].frame[2], count=len(slices),
                                     thickness=delta / 2)
-        slices, cap_points = _slide_to_planes(pts, slices)
+        slices, cap_points = slide_to_planes(pts, slices)
     messages = []
     kept, loops = [], []
     with warnings.catch_warnings(record=True) as caught:
@@ -781,12 +791,12 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
                          "stitching needs at least 2 (too few points or sections?)")
     if n is None:
         gaps = np.abs(np.diff([section.height for section in kept]))
-        n = max(4, int(np.ceil(_largest_perimeter(loops) / float(gaps.min()))))
+        n = max(4, int(np.ceil(largest_perimeter(loops) / float(gaps.min()))))
     # A lone loop is passed as itself, so its ring comes back as one (n_k, 3) array.
     rings = predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
                              smoothing=smoothing)
     if extend_ends and close_ends:
-        rings, notes = _extend_ends(rings, kept, pts, cap_points, delta)
+        rings, notes = extend_ends(rings, kept, pts, cap_points, delta)
         messages += notes
     result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip)
     if messages:
@@ -796,7 +806,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     return result
 
 
-def _extend_ends(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
+def extend_ends(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
                  delta: float) -> tuple[list, list[str]]:
     """Add an end section at each end's cap height (see ``surface_from_points``).
 
@@ -804,6 +814,28 @@ def _extend_ends(rings: list, kept: list, points: np.ndarray, cap_points: np.nda
     points inside it and extrapolated from the nearest loop of the section
     before; an end is left as it is when one of its loops has fewer than
     ``NORMAL_NEIGHBOURS`` cap points inside.
+
+    Parameters
+    ----------
+    rings : list
+        ``catmull_rom.predict_sections`` output, one entry per kept section
+        (an ``(n_k, 3)`` array or a list of them).
+    kept : list of Section
+        The sections the rings come from (heights and frame).
+    points : (P, 3) float64
+        The cloud.
+    cap_points : (C,) int64
+        Candidate cap points (``slide_to_planes``); empty means every point.
+    delta : float
+        Section spacing: cap points are looked for within ``delta`` beyond
+        each end plane.
+
+    Returns
+    -------
+    rings : list
+        With one section added at each end that has cap points.
+    notes : list of str
+        One line per moved end.
     """
     rings = list(rings)
     notes = []
@@ -865,7 +897,7 @@ def _extrapolate_ring(ring: np.ndarray, before: np.ndarray, step: float,
     return new
 
 
-def _largest_perimeter(loops_per_section) -> float:
+def largest_perimeter(loops_per_section) -> float:
     """Largest convex-hull perimeter over all loops (a noise-robust length), scene units."""
     from scipy.spatial import ConvexHull
 
@@ -878,3 +910,7 @@ def _largest_perimeter(loops_per_section) -> float:
             except Exception:  # noqa: BLE001 - degenerate (collinear) loop: skip its length
                 continue
     return best
+
+
+#: Former private name, used by ``pipeline.stages`` (kept as an alias).
+_largest_perimeter = largest_perimeter
