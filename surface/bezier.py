@@ -113,6 +113,7 @@ __all__ = [
     "N_CONTROL",
     "BezierSurface",
     "bernstein_matrix",
+    "chord_error_bound",
     "control_index",
     "control_net",
     "corner_normals",
@@ -123,6 +124,7 @@ __all__ = [
     "normals",
     "subdivide",
     "tessellate",
+    "tessellation_level",
 ]
 
 
@@ -487,6 +489,66 @@ def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray) ->
     start = base + n_edges * max(m - 1, 0)
     gid[:, inner] = start + np.arange(n_patches)[:, None] * n_inner + np.arange(n_inner)[None, :]
     return gid
+
+
+# ----------------------------------------------------------------------------- a-priori level
+def chord_error_bound(control_points) -> np.ndarray:
+    """Upper bound of the distance between each patch and its flat tessellation at level 0.
+
+    For ``x = sum_i l_i v_i`` in a triangle, Taylor's formula about x gives
+    ``P(x) - sum_i l_i P(v_i) = -sum_i l_i int_0^1 (1 - s) D^2_{v_i - x} P ds``.
+    Writing ``v_i - x = sum_j l_j (v_i - v_j)``, the second derivative of a
+    degree-n Bézier patch along it is at most ``n (n - 1) M2``, with ``M2`` the
+    largest (mixed) second difference ``b_{a+e_j+e_k} - b_{a+e_i+e_k} -
+    b_{a+e_i+e_j} + b_{a+2e_i}`` of the net; hence the chord error is at most
+    ``n (n - 1) M2 / 2``.  A level-L tessellation shrinks the parameter
+    directions by ``2^-L``, so its error is at most this times ``4^-L``.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+
+    Returns
+    -------
+    (P,) float64, scene units
+    """
+    cp = _check_control_points(control_points)
+    low = index_table(DEGREE - 2)
+    worst = np.zeros(len(cp))
+    eye = np.eye(3, dtype=np.int64)
+    for i in range(3):
+        for j in range(3):
+            for k in range(j, 3):
+                terms = [(eye[j] + eye[k], 1.0), (eye[i] + eye[k], -1.0),
+                         (eye[i] + eye[j], -1.0), (2 * eye[i], 1.0)]
+                diff = sum(w * cp[:, control_index(*(low + step).T)] for step, w in terms)
+                worst = np.maximum(worst, np.linalg.norm(diff, axis=-1).max(axis=1))
+    return 0.5 * DEGREE * (DEGREE - 1) * worst
+
+
+def tessellation_level(control_points, tolerance: float, max_level: int = 8) -> int:
+    """Smallest tessellation level whose chord error is at most ``tolerance`` (a priori).
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+    tolerance : float
+        Largest allowed distance between the tessellation and the surface,
+        scene units (e.g. a fraction of the section spacing or the point noise).
+    max_level : int
+        Cap (a level-8 tessellation has 65536 triangles per patch).
+
+    Returns
+    -------
+    int
+        ``ceil(log4(max chord_error_bound / tolerance))`` clipped to ``0..max_level``.
+    """
+    if not np.isfinite(tolerance) or tolerance <= 0:
+        raise ValueError(f"tolerance must be a positive number, got {tolerance}")
+    bound = float(chord_error_bound(control_points).max(initial=0.0))
+    if bound <= tolerance:
+        return 0
+    return int(min(max_level, np.ceil(np.log(bound / tolerance) / np.log(4.0))))
 
 
 # ----------------------------------------------------------------------------- continuity report

@@ -523,3 +523,27 @@ def test_ring_operator_meets_every_constraint_for_any_data(n):
     residual = (rows @ operator @ data).reshape(n, 11, 3)
     assert np.abs(residual[:, :10]).max() < 1e-10
     assert np.allclose(operator.sum(axis=1), 1.0, atol=1e-12)  # affine invariance
+
+
+# ----------------------------------------------------------------------------- a-priori level
+@pytest.mark.parametrize("name", ["icosphere", "band"])
+def test_chord_error_bound_holds_and_the_chosen_level_meets_the_tolerance(surfaces, name):
+    (vertices, _), surface = surfaces[name]
+    cp = surface.control_points
+    tolerance = 1e-3 * _size(vertices)
+    level = bz.tessellation_level(cp, tolerance)
+    assert 0 < level <= 8
+    bound = bz.chord_error_bound(cp).max() / 4 ** level
+    assert bound <= tolerance
+    # observed: centroids and edge midpoints of every level-L sub-triangle
+    sub = cp
+    for _ in range(level):
+        sub = bz.subdivide(sub)
+    probes = np.array([[1, 1, 1], [2, 1, 1], [1, 2, 1], [1, 1, 2], [1, 1, 0], [0, 1, 1],
+                       [1, 0, 1]]) / np.array([[3], [4], [4], [4], [2], [2], [2]])
+    flat = np.einsum("sc,pcd->psd", probes, sub[:, [0, 21, 27]])  # corners b600, b060, b006
+    error = np.linalg.norm(bz.evaluate(sub, probes) - flat, axis=-1).max()
+    assert error <= bound
+    assert error > bound / 1000  # the bound is not vacuous
+    with pytest.raises(ValueError, match="tolerance"):
+        bz.tessellation_level(cp, 0.0)
