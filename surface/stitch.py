@@ -49,7 +49,7 @@ from surface.metrics import delaunay_fraction, edge_table, face_normals, mesh_to
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
-           "axis_frame", "surface_from_points", "slide_to_planes", "extend_ends",
+           "axis_frame", "surface_from_points", "slide_to_planes", "extend_to_caps",
            "largest_perimeter"]
 
 #: Default largest turn of a face normal a flip may cause (radians).  A flip on
@@ -796,7 +796,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     rings = predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
                              smoothing=smoothing)
     if extend_ends and close_ends:
-        rings, notes = extend_ends(rings, kept, pts, cap_points, delta)
+        rings, notes = extend_to_caps(rings, kept, pts, cap_points, delta)
         messages += notes
     result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip)
     if messages:
@@ -806,7 +806,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     return result
 
 
-def extend_ends(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
+def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
                  delta: float) -> tuple[list, list[str]]:
     """Add an end section at each end's cap height (see ``surface_from_points``).
 
