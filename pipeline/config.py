@@ -23,8 +23,9 @@ import tomli_w
 
 from pipeline.errors import InputError
 
-#: Keys whose value may be a string or a list/number (e.g. ``axis = "auto"`` or ``[0, 0, 1]``).
-FLEXIBLE = frozenset({"sections.axis"})
+#: Keys whose value may be a string or a list/number (``axis = "auto"`` or ``[0, 0, 1]``,
+#: ``smoothing = "auto"`` or ``8.0``).
+FLEXIBLE = frozenset({"sections.axis", "curves.smoothing"})
 
 
 def defaults() -> dict:
@@ -108,7 +109,8 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
                 _merge(default, value, origin, f"{dotted}.")
             continue
         if dotted in FLEXIBLE:
-            base[key] = value
+            ok, converted = _type_ok(default, value)
+            base[key] = converted if ok else value
             continue
         ok, converted = _type_ok(default, value)
         if not ok:

@@ -621,13 +621,9 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
 
 def _read_cloud(path: Path) -> tuple:
     """Points (and colours, sigma when the file has them) of a cloud file."""
-    if not missing_modules(["pipeline.cloud_io:read_cloud"]):
-        from pipeline import cloud_io
+    from pipeline import cloud_io
 
-        return _cloud_arrays(cloud_io.read_cloud(path))
-    from pipeline.cmd_sections import read_points  # stand-in reader until cloud_io lands
-
-    return read_points(path), None, None
+    return _cloud_arrays(cloud_io.read_cloud(path))
 
 
 def _cloud_arrays(cloud) -> tuple:
@@ -635,14 +631,15 @@ def _cloud_arrays(cloud) -> tuple:
     if isinstance(cloud, tuple):
         return (tuple(cloud) + (None, None))[:3]
     get = cloud.get if isinstance(cloud, Mapping) else lambda k, d=None: getattr(cloud, k, d)
-    return get("points"), get("colors"), get("sigma")
+    colours = get("colours")
+    return get("points"), get("colors") if colours is None else colours, get("sigma")
 
 
 def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
     if kind == "scene":
         meta = ws.stage_dir("scene")
         kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
-    return {"cloud": ("pipeline.cloud_io:read_cloud|pipeline.cmd_sections:read_points",),
+    return {"cloud": ("pipeline.cloud_io:read_cloud",),
             "stereo": ("matching.pair:reconstruct_pair", "matching.cameras:read_rig"),
             "folder": ("pipeline.multiview:acquire_folder",)}.get(kind, ())
 
