@@ -1073,6 +1073,8 @@ def build_scene(recipe: dict, source: str = "<recipe>") -> Scene:
     offsets = _draw_per_view(lighting, "offset", n, _seeded(recipe["seed"], 3))
     derived = {"centre": centre.tolist(), "bounding_radius": bound, key: distance,
                "pixel_footprint": footprint, "texture_wavelength": list(wavelength),
+               "texture_frequencies": texture.frequencies.tolist(),  # cycles / unit
+               "texture_phases": texture.phases.tolist(),  # turns
                "gains": gains.tolist(), "offsets": offsets.tolist(),
                "vertices": len(vertices), "triangles": len(triangles)}
     if cams["layout"] == "stereo":
