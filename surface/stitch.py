@@ -770,8 +770,10 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     cap_points = np.zeros(0, np.int64)
     if projection == "surface" and len(slices) > 1:
         if thickness is None:
-            slices = slice_sections(pts, axis=slices[0].frame[2], count=len(slices),
-                                    thickness=delta / 2)
+            # Same planes, slabs widened to tile the cloud (every point used once).
+            slices = slice_sections(pts, axis=slices[0].frame[2],
+                                    count=None if spacing is not None else len(slices),
+                                    spacing=spacing, thickness=delta / 2)
         slices, cap_points = slide_to_planes(pts, slices)
     messages = []
     kept, loops = [], []
