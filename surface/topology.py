@@ -81,6 +81,10 @@ _MAD_TO_SIGMA = 1.4826
 _SPLIT_LOG_ODDS = 6.0
 #: Density variation along a loop that the link distance tolerates.
 _DENSITY_RATIO = 2.0
+#: Longest MST edges tried as bridges between two closed loops.
+_SPLIT_TRIES = 2
+#: Angular sectors a closed loop must fill about its centroid (bridge test).
+_SECTORS = 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -270,16 +274,58 @@ def _clusters(uv: np.ndarray, link_distance, scale):
     lengths = tree.data
     gap = float(np.median(lengths)) / math.log(2.0) if lengths.size else scale
     gap = max(gap, TOL.zero * scale)
-    link = (
-        _DENSITY_RATIO * gap * (math.log(len(uv)) + _SPLIT_LOG_ODDS)
-        if link_distance is None
-        else link_distance
-    )
-    keep = lengths <= link
     n = len(uv)
+    if link_distance is not None:
+        link = float(link_distance)
+    else:
+        link = _DENSITY_RATIO * gap * (math.log(n) + _SPLIT_LOG_ODDS)
+    keep = lengths <= link
+    if link_distance is None:
+        keep &= ~_closed_splits(uv, tree, keep, gap, link)
     cut = coo_matrix((lengths[keep], (tree.row[keep], tree.col[keep])), shape=(n, n))
     _, labels = connected_components(cut, directed=False)
     return labels, gap, float(link)
+
+
+def _closed_splits(uv, tree, keep, gap, link) -> np.ndarray:
+    """MST edges ``(E,) bool`` that join two closed loops (e.g. nested rings).
+
+    Gap statistics cannot part two loops a few gaps apart (a cup's inner and
+    outer wall): the bridge is only slightly longer than the largest gaps
+    along one loop.  So the few longest kept edges beyond the expected largest
+    gap ``g·(ln M + 0.58)`` are tried: an edge is cut when both sides are
+    wider than ℓ and each surrounds its own centroid (points in all 16
+    angular sectors about it).  Cutting a loop's own gap instead leaves two
+    open arcs, and the shorter one cannot surround its centroid.  (Nested
+    loops that are not star-shaped, or closer than the largest gap along
+    them, stay merged.)
+    """
+    n = len(uv)
+    lengths = tree.data
+    bridges = np.zeros(len(lengths), bool)
+    expected_max = gap * (math.log(n) + 0.58)
+    candidates = np.flatnonzero(keep & (lengths > expected_max))
+    candidates = candidates[np.argsort(-lengths[candidates])][:_SPLIT_TRIES]
+    for edge in candidates:
+        trial = keep & ~bridges
+        trial[edge] = False
+        graph = coo_matrix((lengths[trial], (tree.row[trial], tree.col[trial])), shape=(n, n))
+        _, labels = connected_components(graph, directed=False)
+        sides = [uv[labels == labels[tree.row[edge]]], uv[labels == labels[tree.col[edge]]]]
+        if all(_is_closed_loop(side, link) for side in sides):
+            bridges[edge] = True
+    return bridges
+
+
+def _is_closed_loop(uv: np.ndarray, link: float) -> bool:
+    """A side wider than ℓ that surrounds its centroid: every one of 16 sectors holds a point."""
+    if len(uv) < _SECTORS or float(np.ptp(uv, axis=0).max()) <= link:
+        return False
+    rel = uv - uv.mean(axis=0)
+    sector = (
+        np.mod(np.arctan2(rel[:, 1], rel[:, 0]), 2 * np.pi) * (_SECTORS / (2 * np.pi))
+    ).astype(np.int64)
+    return bool(np.all(np.bincount(np.minimum(sector, _SECTORS - 1), minlength=_SECTORS) > 0))
 
 
 def _attach_stray(loops: list[Loop], uv: np.ndarray, stray: np.ndarray) -> list[Loop]:

@@ -153,6 +153,24 @@ def test_two_separate_circles_are_two_loops():
         assert np.array_equal(np.sort(lp.indices), members)
 
 
+def test_nested_rings_ten_gaps_apart_are_two_loops():
+    # the inner and outer wall of a cup: radii 1 and 0.8, 300 points each (mean
+    # gap 0.021, largest ≈ 0.13 by exponential gap statistics): the MST bridge
+    # (≥ 0.19) is barely longer than the largest gaps, so only the closedness of
+    # both sides tells the two loops apart
+    rng = np.random.default_rng(7)
+    phi = rng.uniform(0, 2 * np.pi, 600)
+    radius = np.where(np.arange(600) < 300, 1.0, 0.8)
+    uv = np.c_[radius * np.cos(phi), radius * np.sin(phi)] + rng.normal(0, 0.003, (600, 2))
+    loops = organise(make_section(uv))
+    assert len(loops) == 2
+    members = sorted(np.sort(lp.indices)[0] for lp in loops)
+    assert members == [0, 300]
+    for lp in loops:
+        assert len(lp) == 300 and lp.star_shaped and lp.closed
+        assert np.all((lp.indices < 300) == (lp.indices[0] < 300))
+
+
 # ----------------------------------------------------------------------------- outliers
 def test_injected_outliers_are_removed():
     rng = np.random.default_rng(5)
