@@ -147,8 +147,12 @@ class ClosedCurve:
             raise ValueError(
                 f"parametrisation must be one of {sorted(_ALPHA)}, got {parametrisation!r}"
             )
-        frame = _plane_frame(pts) if frame is None else np.asarray(frame, dtype=np.float64)
-        centroid = pts.mean(axis=0) if centroid is None else np.asarray(centroid, np.float64)
+        if frame is None:
+            frame = _plane_frame(pts)
+        frame = check_shape(frame, "(3, 3)", "frame", np.float64)
+        if centroid is None:
+            centroid = pts.mean(axis=0)
+        centroid = check_shape(centroid, "(3,)", "centroid", np.float64)
         return _build(pts.copy(), parametrisation, frame, centroid)
 
     @property
