@@ -759,7 +759,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
 
     from surface.catmull_rom import predict_sections
     from surface.sections import slice_sections
-    from surface.topology import organise
+    from surface.topology import SectionSkippedWarning, organise
 
     if projection not in ("surface", "axis"):
         raise ValueError(f"projection must be 'surface' or 'axis', got {projection!r}")
@@ -778,13 +778,17 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     messages = []
     kept, loops = [], []
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+        warnings.simplefilter("always", SectionSkippedWarning)
         for section in slices:
             found = organise(section) if len(section) else []
             if found:
                 kept.append(section)
                 loops.append(found)
-    messages += [str(w.message) for w in caught]
+    for w in caught:  # skipped sections become messages; anything else is passed on
+        if issubclass(w.category, SectionSkippedWarning):
+            messages.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if len(slices) - len(kept):
         messages.append(f"{len(slices) - len(kept)} of {len(slices)} sections had no loop "
                         "and were skipped")
