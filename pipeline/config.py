@@ -28,6 +28,14 @@ from pipeline.errors import InputError
 FLEXIBLE = frozenset({"sections.axis", "curves.smoothing"})
 
 
+#: Parameters that take one of a fixed set of words (lists: every element must be one).
+CHOICES = {
+    "acquire.interpolation": ("bilinear", "bicubic", "spline"),
+    "curves.parametrisation": ("uniform", "centripetal", "chordal"),
+    "export.formats": ("ply", "obj", "stl", "gltf", "glb"),
+}
+
+
 def defaults() -> dict:
     """The parsed ``pipeline/defaults.toml`` (a fresh copy)."""
     text = resources.files("pipeline").joinpath("defaults.toml").read_text(encoding="utf-8")
@@ -116,6 +124,12 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
         if not ok:
             raise InputError(f"{origin}: {dotted} must be {type(default).__name__} "
                              f"(like {default!r}), got {value!r}")
+        allowed = CHOICES.get(dotted)
+        if allowed is not None:
+            for word in converted if isinstance(converted, list) else [converted]:
+                if word not in allowed:
+                    raise InputError(f"{origin}: {dotted} {word!r}: choose from "
+                                     f"{', '.join(allowed)}")
         base[key] = converted
 
 

@@ -516,6 +516,7 @@ def _jsonable(value):
 # functions of matching/, surface/ and the pipeline's I/O modules.
 # Intermediate files (all written byte-reproducibly):
 #   acquire/cloud.npz     points (N,3) float64, colors (N,3) uint8, sigma (N,) float64
+#                         (NaN when unknown); acquire/cloud.ply the same for viewers
 #   sections/sections.npz points (P,3), offsets (K+1,), heights (K,), section_id (K,),
 #                         origin (K,3), frame (3,3), source_index (P,)
 #   curves/curves.npz     points (Q,3) of the resampled closed rings, offsets (R+1,),
@@ -571,6 +572,10 @@ def _save_cloud(ctx: StageContext, points, colors=None, sigma=None) -> dict:
               else np.asarray(colors).astype(np.uint8).reshape(-1, 3))
     sigma = np.full(len(points), np.nan) if sigma is None else np.asarray(sigma, np.float64)
     save_npz(ctx.out / "cloud.npz", points=points, colors=colors, sigma=sigma)
+    if not missing_modules(["pipeline.cloud_io:write_ply"]):  # for viewers (MeshLab, CloudCompare)
+        from pipeline.cloud_io import write_ply
+
+        write_ply(ctx.out / "cloud.ply", points, colors, sigma)
     finite = sigma[np.isfinite(sigma)]
     return {"points": len(points),
             **({"sigma_median": float(np.median(finite))} if finite.size else {})}

@@ -215,6 +215,8 @@ def test_config_resolution(tmp_path):
     ("smooth.level=2.5", r"smooth.level must be int"),
     ("stitch.caps=1", r"stitch.caps must be bool"),
     ("smoothlevel", r"expected section.key=value"),
+    ("curves.parametrisation=wobbly", r"'wobbly': choose from uniform, centripetal, chordal"),
+    ('export.formats=["ply", "docx"]', r"'docx': choose from ply, obj, stl, gltf, glb"),
 ])
 def test_config_errors_name_the_key(assignment, message):
     with pytest.raises(InputError, match=message):
