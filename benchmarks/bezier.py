@@ -79,6 +79,7 @@ def run(quick: bool) -> dict:
     tess_time, (tv, tt, _) = _best(lambda: bz.tessellate(surface, level), repeat)
     g1_time, (gap, angle) = _best(
         lambda: bz.edge_continuity(surface.control_points, surface.domain_mesh[1], 9), 1)
+    vertex_angle = _vertex_angle(surface)
     valence = np.bincount(tris.ravel())
     size = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     result = {
@@ -90,12 +91,25 @@ def run(quick: bool) -> dict:
         "tessellation": {"level": level, "triangles": len(tt), "vertices": len(tv),
                          "seconds": tess_time, "triangles_per_s": len(tt) / tess_time},
         "g1": {"samples_per_edge": 9, "max_gap": gap, "max_gap_rel": gap / size,
-               "max_angle_rad": angle, "seconds": g1_time},
+               "max_angle_rad": angle, "max_vertex_angle_rad": vertex_angle,
+               "seconds": g1_time},
         "peers": {},
     }
     result["peers"]["open3d_subdivide_loop"] = _open3d_peer(vertices, tris, level + 1, repeat)
     result["peers"]["bezier_package"] = _bezier_peer(surface.control_points, level)
     return result
+
+
+def _vertex_angle(surface) -> float:
+    """Largest angle between the corner normals of the patches meeting at a vertex."""
+    tris = surface.domain_mesh[1]
+    corner = bz.corner_normals(surface.control_points).reshape(-1, 3)
+    vertex = tris.ravel()
+    first = np.zeros((int(tris.max()) + 1, 3))
+    first[vertex[::-1]] = corner[::-1]
+    ref = first[vertex]
+    angle = np.arctan2(np.linalg.norm(np.cross(corner, ref), axis=1), np.sum(corner * ref, axis=1))
+    return float(angle.max())
 
 
 def _open3d_peer(vertices, tris, steps: int, repeat: int) -> dict:
@@ -137,7 +151,8 @@ def table(result: dict) -> str:
         ("construction (warm)", f"{c['patches_per_s_warm']:,.0f} patches/s ({c['warm_s']:.3f} s)"),
         (f"tessellate level {t['level']}",
          f"{t['triangles_per_s']:,.0f} triangles/s ({t['triangles']:,} in {t['seconds']:.3f} s)"),
-        ("G1 largest angle", f"{g['max_angle_rad']:.2e} rad"),
+        ("G1 largest angle (edges)", f"{g['max_angle_rad']:.2e} rad"),
+        ("G1 largest angle (vertices)", f"{g['max_vertex_angle_rad']:.2e} rad"),
         ("G1 largest gap", f"{g['max_gap']:.2e} ({g['max_gap_rel']:.1e} x size)"),
         (f"peer open3d subdivide_loop({o3['steps']})",
          f"{o3['triangles_per_s']:,.0f} triangles/s ({o3['triangles']:,})"),

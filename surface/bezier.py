@@ -244,21 +244,47 @@ def evaluate(control_points, bary) -> np.ndarray:
         Bernstein matrix times the control array.
     """
     cp = _check_control_points(control_points)
-    basis = bernstein_matrix(bary, DEGREE)
-    return np.einsum("sn,pnd->psd", basis, cp, optimize=True)
+    return _apply(bernstein_matrix(bary, DEGREE), cp).transpose(1, 0, 2)
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    length = np.sqrt(np.einsum("...d,...d->...", vectors, vectors))[..., None]
     return vectors / np.maximum(length, TOL.zero)
 
 
+@cache
+def _derivative_operators(degree: int = DEGREE) -> tuple[np.ndarray, np.ndarray]:
+    """``(N', N)`` matrices mapping a net to its two derivative nets (see _derivative_nets)."""
+    du, dv = _derivative_nets(np.eye(len(index_table(degree)))[:, :, None].transpose(2, 0, 1))
+    return du[0], dv[0]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _apply(basis: np.ndarray, cp: np.ndarray) -> np.ndarray:
+    """``(S, N) x (P, N, 3) -> (S, P, 3)`` (sample-major) as one GEMM, not P small ones."""
+    flat = cp.transpose(1, 0, 2).reshape(cp.shape[1], -1)  # (N, 3P)
+    return (basis @ flat).reshape(len(basis), cp.shape[0], 3)
+
+
+def _points_and_normals_sp(cp: np.ndarray, bary: np.ndarray):
+    """Points and unit normals, ``(S, P, 3)`` each, from one stacked GEMM."""
+    du, dv = _derivative_operators()
+    low = _bernstein(bary, DEGREE - 1)
+    stacked = np.concatenate([_bernstein(bary, DEGREE), low @ du, low @ dv])  # (3S, 28)
+    out = _apply(stacked, cp)
+    n = len(bary)
+    return out[:n], _unit(_cross(out[n:2 * n], out[2 * n:]))
+
+
 def _normals(cp: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    du, dv = _derivative_nets(cp)
-    basis = _bernstein(bary, DEGREE - 1)
-    tu = np.einsum("sn,pnd->psd", basis, du, optimize=True)
-    tv = np.einsum("sn,pnd->psd", basis, dv, optimize=True)
-    return _unit(np.cross(tu, tv))
+    return _points_and_normals_sp(cp, bary)[1].transpose(1, 0, 2)
 
 
 def normals(control_points, bary) -> np.ndarray:
@@ -446,8 +472,7 @@ def tessellate(control_points, level: int, triangles=None):
         raise ValueError(f"level must be in 0..10, got {level}")
     segments = 2 ** level
     bary, local_tris, grid_idx = _grid(segments)
-    points = np.einsum("sn,pnd->psd", _bernstein(bary, DEGREE), cp, optimize=True)
-    vertex_normals = _normals(cp, bary)
+    points, vertex_normals = _points_and_normals_sp(cp, bary)  # (S, P, 3)
     gid = _global_sample_ids(tris, segments, grid_idx)  # (P, S)
     used = np.zeros(int(gid.max()) + 1, dtype=bool)
     used[gid] = True
@@ -456,8 +481,9 @@ def tessellate(control_points, level: int, triangles=None):
     n_vertices = int(used.sum())
     vertices = np.empty((n_vertices, 3))
     out_normals = np.empty((n_vertices, 3))
-    vertices[gid.ravel()] = points.reshape(-1, 3)
-    out_normals[gid.ravel()] = vertex_normals.reshape(-1, 3)
+    sample_major = gid.T.ravel()
+    vertices[sample_major] = points.reshape(-1, 3)
+    out_normals[sample_major] = vertex_normals.reshape(-1, 3)
     faces = gid[:, local_tris]  # (P, 4**level, 3)
     return vertices, faces.reshape(-1, 3), out_normals
 
