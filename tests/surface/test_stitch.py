@@ -341,3 +341,19 @@ def test_surface_from_points_bad_input(vase_cloud, points, kwargs, match):
     points = vase_cloud[2] if points is None else points
     with pytest.raises(ValueError, match=match):
         surface_from_points(points, **kwargs)
+
+
+def test_flip_guard_refuses_large_normal_changes():
+    # A valley along ab: c and d raised 0.3 on either side.  The opposite angles are
+    # 108 deg each (sum 216 > 180, not Delaunay); the flip to cd turns the faces'
+    # normals by atan(0.3 / 0.5) = 31 deg from the old mean normal (+z).
+    v = np.array([[0, 0, 0], [1.0, 0, 0], [0.5, 0.2, 0.3], [0.5, -0.2, 0.3]])
+    t = np.array([[0, 1, 2], [1, 0, 3]])
+    flipped, flips, _ = delaunay_flips(v, t)
+    assert flips == 1 and {frozenset(f) for f in flipped.tolist()} == {
+        frozenset((2, 0, 3)), frozenset((3, 1, 2))}
+    assert np.all(M.face_normals(v, flipped)[:, 2] > 0)  # still facing +z
+    _, flips, _ = delaunay_flips(v, t, max_normal_change=np.radians(25))
+    assert flips == 0
+    _, flips, _ = delaunay_flips(v, t, max_normal_change=np.radians(35))
+    assert flips == 1
