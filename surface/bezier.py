@@ -107,6 +107,8 @@ from surface.validate import TOL, check_finite, check_shape
 
 DEGREE = 6
 N_CONTROL = (DEGREE + 1) * (DEGREE + 2) // 2  # 28
+#: Samples x patches evaluated at once in tessellate (~150 MB of work arrays).
+_CHUNK_ROWS = 2 ** 21
 
 __all__ = [
     "DEGREE",
@@ -472,7 +474,6 @@ def tessellate(control_points, level: int, triangles=None):
         raise ValueError(f"level must be in 0..10, got {level}")
     segments = 2 ** level
     bary, local_tris, grid_idx = _grid(segments)
-    points, vertex_normals = _points_and_normals_sp(cp, bary)  # (S, P, 3)
     gid = _global_sample_ids(tris, segments, grid_idx)  # (P, S)
     used = np.zeros(int(gid.max()) + 1, dtype=bool)
     used[gid] = True
@@ -481,9 +482,12 @@ def tessellate(control_points, level: int, triangles=None):
     n_vertices = int(used.sum())
     vertices = np.empty((n_vertices, 3))
     out_normals = np.empty((n_vertices, 3))
-    sample_major = gid.T.ravel()
-    vertices[sample_major] = points.reshape(-1, 3)
-    out_normals[sample_major] = vertex_normals.reshape(-1, 3)
+    chunk = max(1, _CHUNK_ROWS // len(bary))  # bounds the (3S, chunk, 3) work arrays
+    for start in range(0, len(cp), chunk):
+        points, vertex_normals = _points_and_normals_sp(cp[start:start + chunk], bary)
+        sample_major = gid[start:start + chunk].T.ravel()
+        vertices[sample_major] = points.reshape(-1, 3)
+        out_normals[sample_major] = vertex_normals.reshape(-1, 3)
     faces = gid[:, local_tris]  # (P, 4**level, 3)
     return vertices, faces.reshape(-1, 3), out_normals
 

@@ -547,3 +547,12 @@ def test_chord_error_bound_holds_and_the_chosen_level_meets_the_tolerance(surfac
     assert error > bound / 1000  # the bound is not vacuous
     with pytest.raises(ValueError, match="tolerance"):
         bz.tessellation_level(cp, 0.0)
+
+
+def test_tessellation_in_chunks_equals_one_pass(surfaces, monkeypatch):
+    _, surface = surfaces["band"]
+    whole = bz.tessellate(surface, 2)
+    monkeypatch.setattr(bz, "_CHUNK_ROWS", 100)  # 6 patches per chunk
+    chunked = bz.tessellate(surface, 2)
+    for a, b in zip(whole, chunked, strict=True):
+        assert np.array_equal(a, b)
