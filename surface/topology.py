@@ -349,31 +349,37 @@ def _local_residuals(uv: np.ndarray, reference: np.ndarray, k: int) -> np.ndarra
     """Distance ``(M,)`` of each point from a quadratic fitted to its k nearest references.
 
     ``reference`` ``(R,)`` indexes the points the fits may use; a point never
-    uses itself.
+    uses itself.  The 3×3 normal equations of ``y = a + b x + c x²`` are built
+    from power sums of the neighbours' local coordinates and solved batched.
     """
     k = min(k, len(reference) - 1)
+    m = len(uv)
     _, nbr = cKDTree(uv[reference]).query(uv, k=k + 1)
     nbr = reference[nbr]  # (M, k + 1) point indices
-    is_self = nbr == np.arange(len(uv))[:, None]
+    is_self = nbr == np.arange(m)[:, None]
     is_self[~is_self.any(axis=1), -1] = True  # not a reference: drop the farthest instead
-    near = uv[nbr[~is_self].reshape(len(uv), k)]  # (M, k, 2)
+    near = uv[nbr[~is_self].reshape(m, k)]  # (M, k, 2)
     mean = near.mean(axis=1)  # (M, 2)
-    centred = near - mean[:, None, :]
-    cov = np.einsum("mki,mkj->mij", centred, centred)  # (M, 2, 2)
-    angle = 0.5 * np.arctan2(2 * cov[:, 0, 1], cov[:, 0, 0] - cov[:, 1, 1])
-    tangent = np.stack([np.cos(angle), np.sin(angle)], axis=1)  # (M, 2)
-    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
-    x = np.einsum("mki,mi->mk", centred, tangent)  # (M, k) along the local curve
-    y = np.einsum("mki,mi->mk", centred, normal)
-    spread = np.maximum(np.sqrt(np.mean(x**2, axis=1)), TOL.zero)  # scale for conditioning
-    xs = x / spread[:, None]
-    basis = np.stack([np.ones_like(xs), xs, xs**2], axis=2)  # (M, k, 3)
-    gram = np.einsum("mki,mkj->mij", basis, basis)
-    gram += TOL.ridge_rel * np.eye(3) * np.trace(gram, axis1=1, axis2=2)[:, None, None]
-    coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", basis, y)[..., None])[..., 0]
-    own = uv - mean
-    x0 = np.einsum("mi,mi->m", own, tangent) / spread
-    y0 = np.einsum("mi,mi->m", own, normal)
+    du = near[:, :, 0] - mean[:, :1]  # (M, k)
+    dv = near[:, :, 1] - mean[:, 1:]
+    angle = 0.5 * np.arctan2(2 * np.sum(du * dv, axis=1), np.sum(du * du - dv * dv, axis=1))
+    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    x = du * cos + dv * sin  # (M, k) along the local curve
+    y = dv * cos - du * sin  # across it
+    spread = np.maximum(np.sqrt(np.mean(x**2, axis=1)), TOL.zero)[:, None]  # conditioning
+    x /= spread
+    x2 = x * x
+    s1, s2, s3, s4 = x.sum(axis=1), x2.sum(axis=1), (x2 * x).sum(axis=1), (x2 * x2).sum(axis=1)
+    s0 = np.full(m, float(k))
+    gram = np.stack(
+        [np.stack([s0, s1, s2], 1), np.stack([s1, s2, s3], 1), np.stack([s2, s3, s4], 1)], 1
+    )  # (M, 3, 3)
+    gram += TOL.ridge_rel * (s0 + s2 + s4)[:, None, None] * np.eye(3)
+    rhs = np.stack([y.sum(axis=1), (x * y).sum(axis=1), (x2 * y).sum(axis=1)], axis=1)
+    coef = np.linalg.solve(gram, rhs[..., None])[..., 0]
+    own_u, own_v = uv[:, 0] - mean[:, 0], uv[:, 1] - mean[:, 1]
+    x0 = (own_u * cos[:, 0] + own_v * sin[:, 0]) / spread[:, 0]
+    y0 = own_v * cos[:, 0] - own_u * sin[:, 0]
     return np.abs(y0 - (coef[:, 0] + coef[:, 1] * x0 + coef[:, 2] * x0**2))
 
 
