@@ -380,6 +380,10 @@ def _open_fs(path: Path) -> cv2.FileStorage:
         raise ValueError(f"{path}: not a readable OpenCV FileStorage file ({reason})") from None
     if not fs.isOpened():
         raise ValueError(f"{path}: not a readable OpenCV FileStorage file")
+    root = fs.root()
+    if not (root.isMap() or root.empty() or root.isNone()):  # e.g. a truncated file: a string
+        fs.release()
+        raise ValueError(f"{path}: not a readable OpenCV FileStorage file (no top-level map)")
     return fs
 
 
@@ -389,14 +393,17 @@ def _read_mat(node, path: Path, label: str, shape: tuple[int, ...] | None = None
         if optional:
             return None
         raise ValueError(f"{path}: missing field {label}")
-    if node.isSeq():
-        mat = np.array([node.at(i).real() for i in range(node.size())], dtype=np.float64)
-    elif node.isReal() or node.isInt():
-        mat = np.array([node.real()])
-    else:
-        mat = node.mat()
-        if mat is None:  # an empty opencv-matrix (rows or cols 0)
-            mat = np.zeros(0)
+    try:
+        if node.isSeq():
+            mat = np.array([node.at(i).real() for i in range(node.size())], dtype=np.float64)
+        elif node.isReal() or node.isInt():
+            mat = np.array([node.real()])
+        else:
+            mat = node.mat()
+            if mat is None:  # an empty opencv-matrix (rows or cols 0)
+                mat = np.zeros(0)
+    except (cv2.error, SystemError):  # a malformed opencv-matrix (no dt, short data ...)
+        raise ValueError(f"{path}: field {label} is not a readable matrix") from None
     mat = np.asarray(mat, dtype=np.float64)
     if shape is not None:
         if mat.size != int(np.prod(shape)):
@@ -415,6 +422,14 @@ def _read_scalar(node, path: Path, label: str, optional: bool = False):
     if node.isString():
         return node.string()
     return node.real()
+
+
+def _read_int(node, path: Path, label: str) -> int:
+    """An integer field; ``ValueError`` naming the file and field for anything else."""
+    value = _read_scalar(node, path, label)
+    if isinstance(value, str) or not np.isfinite(value) or value != int(value):
+        raise ValueError(f"{path}: field {label} must be an integer, got {value!r}")
+    return int(value)
 
 
 def _has(fs: cv2.FileStorage, key: str) -> bool:
@@ -502,13 +517,15 @@ def _read_view(fs: cv2.FileStorage, path: Path, key: str) -> Camera:
     node = fs.getNode(key)
     if node.empty() or node.isNone():
         raise ValueError(f"{path}: missing field {key}")
+    if not node.isMap():
+        raise ValueError(f"{path}: field {key} must be a map (name, width, height, K, dist, R, t)")
     label = lambda f: f"{key}.{f}"
     K = _read_mat(node.getNode("K"), path, label("K"), (3, 3))
     dist = _read_mat(node.getNode("dist"), path, label("dist"), optional=True)
     R = _read_mat(node.getNode("R"), path, label("R"), (3, 3))
     t = _read_mat(node.getNode("t"), path, label("t"), (3,))
-    width = _read_scalar(node.getNode("width"), path, label("width"))
-    height = _read_scalar(node.getNode("height"), path, label("height"))
+    width = _read_int(node.getNode("width"), path, label("width"))
+    height = _read_int(node.getNode("height"), path, label("height"))
     name = _read_scalar(node.getNode("name"), path, label("name"), optional=True) or ""
     try:
         return Camera(K, np.zeros(0) if dist is None else dist.reshape(-1), R, t,
@@ -540,7 +557,8 @@ def read_cameras_yml(path: str | os.PathLike) -> list[Camera]:
     fs = _open_fs(path)
     try:
         n_views = _read_scalar(fs.getNode("n_views"), path, "n_views")
-        if isinstance(n_views, str) or n_views < 1 or int(n_views) != n_views:
+        if isinstance(n_views, str) or not np.isfinite(n_views) or n_views < 1 or \
+                int(n_views) != n_views:
             raise ValueError(f"{path}: n_views must be a positive integer, got {n_views!r}")
         return [_read_view(fs, path, f"view_{i:02d}") for i in range(int(n_views))]
     finally:
@@ -557,8 +575,8 @@ def _read_rig_yml(path: Path) -> StereoRig:
     fs = _open_fs(path)
     try:
         if _has(fs, "rig_left"):
-            i = int(_read_scalar(fs.getNode("rig_left"), path, "rig_left"))
-            j = int(_read_scalar(fs.getNode("rig_right"), path, "rig_right"))
+            i = _read_int(fs.getNode("rig_left"), path, "rig_left")
+            j = _read_int(fs.getNode("rig_right"), path, "rig_right")
         elif len(cameras) == 2:
             i, j = 0, 1
         else:
@@ -851,6 +869,8 @@ def _parse_colmap_cameras(path: Path) -> dict[int, tuple]:
             raise ValueError(f"{where}: malformed number in {line.strip()!r}") from None
         if params.size != n_params:
             raise ValueError(f"{where}: {model} needs {n_params} parameters, got {params.size}")
+        if not np.all(np.isfinite(params)):
+            raise ValueError(f"{where}: non-finite parameter in {line.strip()!r}")
         fx, fy, cx, cy, dist = convert(params)
         K = np.array([[fx, 0.0, cx - _COLMAP_PIXEL_SHIFT], [0.0, fy, cy - _COLMAP_PIXEL_SHIFT],
                       [0.0, 0.0, 1.0]])
@@ -900,6 +920,10 @@ def read_colmap_text(folder: str | os.PathLike) -> list[Camera]:
             camera_id = int(fields[8])
         except ValueError:
             raise ValueError(f"{where}: malformed number in {line.strip()!r}") from None
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(t))):
+            raise ValueError(f"{where}: non-finite pose in {line.strip()!r}")
+        if np.linalg.norm(q) < TOL.zero:
+            raise ValueError(f"{where}: quaternion QW QX QY QZ is zero")
         if camera_id not in intrinsics:
             raise ValueError(f"{where}: CAMERA_ID {camera_id} not in {cam_path}")
         K, dist, width, height = intrinsics[camera_id]
@@ -1000,6 +1024,8 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
             values = np.array([float(v) for v in fields[1:]])
         except ValueError:
             raise ValueError(f"{path}:{number}: malformed number in {line.strip()!r}") from None
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"{path}:{number}: non-finite number in {line.strip()!r}")
         rows.append((number, fields[0], values))
     if not rows:
         raise ValueError(f"{path}: no camera lines")
