@@ -594,11 +594,50 @@ def _acquire(ctx: StageContext) -> dict:
         else:
             left, right, rig = stereo_inputs(ctx.inputs, ctx.rig)
         return _save_cloud(ctx, *_stereo_cloud(left, right, rig, ctx.params["acquire"]))
-    from pipeline import multiview
-
     folder = ctx.stage_path("scene") if ctx.kind == "scene" else ctx.inputs[0]
-    cloud = multiview.acquire_folder(folder, executor=ctx.executor, **ctx.params["acquire"])
-    return _save_cloud(ctx, *_cloud_arrays(cloud))
+    cloud, info = _multiview_cloud(folder, ctx)
+    return {**_save_cloud(ctx, *_cloud_arrays(cloud)), **info}
+
+
+def _folder_cameras(folder: Path, images: list[Path]) -> tuple[list, dict]:
+    """Cameras of an image folder, in image order: a camera file of the folder, else SfM."""
+    from matching.cameras import read_cameras
+
+    for candidate in (folder / "cameras.yml", folder / "cameras.yaml", folder / "sparse"):
+        if candidate.exists():
+            cameras, source = read_cameras(candidate), candidate.name
+            break
+    else:
+        from matching.sfm import run_sfm
+
+        result = run_sfm(images[0].parent, image_names=[p.name for p in images])
+        if result.unregistered:
+            log.warning("acquire: %d image(s) not registered by SfM: %s",
+                        len(result.unregistered), ", ".join(result.unregistered))
+        cameras, source = result.cameras, "pycolmap SfM"
+    by_name = {c.name: c for c in cameras}
+    ordered = [by_name.get(p.stem) or by_name.get(p.name) for p in images]
+    if any(c is None for c in ordered):
+        if len(cameras) != len(images):
+            missing = [p.name for p, c in zip(images, ordered, strict=True) if c is None]
+            raise InputError(f"{folder}: no camera for image(s) {', '.join(missing[:5])} "
+                             f"({len(cameras)} cameras from {source}, {len(images)} images)")
+        ordered = list(cameras)  # unnamed cameras: same order as the sorted images
+    return ordered, {"cameras": source}
+
+
+def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
+    """``matching.multiview.reconstruct_multiview`` on a folder; view pairs on the executor."""
+    from matching.multiview import reconstruct_multiview
+
+    images = folder_images(folder)
+    cameras, info = _folder_cameras(folder, images)
+    options = {k: v for k, v in ctx.params["acquire"].items() if k != "max_reprojection_px"}
+    cloud = reconstruct_multiview([_read_image(p) for p in images], cameras,
+                                  map_func=ctx.executor.map, **options)
+    info.update(views=len(images), pairs=len(cloud.pairs),
+                **{f"reason_{k}": v for k, v in cloud.reason_counts.items()})
+    return cloud, info
 
 
 def _read_image(path: Path):
@@ -646,7 +685,8 @@ def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
         kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
     return {"cloud": ("pipeline.cloud_io:read_cloud",),
             "stereo": ("matching.pair:reconstruct_pair", "matching.cameras:read_rig"),
-            "folder": ("pipeline.multiview:acquire_folder",)}.get(kind, ())
+            "folder": ("matching.multiview:reconstruct_multiview", "matching.cameras:read_cameras",
+                       "matching.sfm:run_sfm")}.get(kind, ())
 
 
 def _load_cloud(ctx: StageContext):
@@ -711,11 +751,17 @@ def _curves(ctx: StageContext) -> dict:
 
     p = ctx.params["curves"]
     sections = _load_sections(ctx)
+    # catmull_rom.fit averages `smoothing` points per control point over a circular window
+    # of that width: a loop needs more points than the window (a 4-point closed cubic at least)
+    smoothing = p["smoothing"]
+    min_points = p["min_loop_points"] or (
+        max(4, int(np.floor(smoothing)) + 1) if isinstance(smoothing, int | float) else 4)
     kept, loops = [], []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", topology.SectionSkippedWarning)
         for section in ctx.track(sections, "loops", unit="section"):
-            found = topology.organise(section, outlier_threshold=p["outlier_threshold"])
+            found = topology.organise(section, outlier_threshold=p["outlier_threshold"],
+                                      min_points=min_points)
             if found:
                 kept.append(section)
                 loops.append(found)
