@@ -554,5 +554,7 @@ def test_tessellation_in_chunks_equals_one_pass(surfaces, monkeypatch):
     whole = bz.tessellate(surface, 2)
     monkeypatch.setattr(bz, "_CHUNK_ROWS", 100)  # 6 patches per chunk
     chunked = bz.tessellate(surface, 2)
-    for a, b in zip(whole, chunked, strict=True):
-        assert np.array_equal(a, b)
+    assert np.array_equal(whole[1], chunked[1])  # same triangles, same vertex ids
+    # same points up to the GEMM's blocking (rounding only)
+    assert np.abs(whole[0] - chunked[0]).max() < 1e-14
+    assert np.abs(whole[2] - chunked[2]).max() < 1e-14
