@@ -295,7 +295,10 @@ def slice_sections(
     else:
         s = point_spacing(points)
         if s <= 0:
-            raise ValueError("points all coincide: cannot derive a section spacing")
+            raise ValueError(
+                "points have no distinct nearest neighbours (duplicates only): cannot derive "
+                "a section spacing from the density; pass count or spacing"
+            )
         count = max(1, int(round(extent / (2.0 * s))))
         delta = extent / count
     if thickness is None:
