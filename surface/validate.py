@@ -26,11 +26,9 @@ class Tolerance:
     #: Relative height tolerance (x bounding-box diagonal) grouping points of
     #: already-sectioned data into one section (sections.read_sectioned).
     section_group_rel: float = 1e-6
-    #: Absolute tolerance on a curve parameter u in [0, 1] when intersecting
-    #: rays with curve segments (catmull_rom.resample_theta).
-    param: float = 1e-9
-    #: Relative weight of the second-difference ridge in least-squares curve
-    #: fits (catmull_rom.fit): regularises gaps, negligible elsewhere.
+    #: Relative ridge added to the batched 3x3 normal equations of local
+    #: quadratic fits (topology outlier rejection): regular when neighbours
+    #: coincide, negligible elsewhere.
     ridge_rel: float = 1e-9
     #: Radians: an opposite-angle sum counts as Delaunay up to pi + angle
     #: (co-circular quads, e.g. N-to-N stitching of a cylinder, sum to pi exactly).
