@@ -1,0 +1,815 @@
+r"""All-round multi-view acquisition: view pairs, multi-image consistency, one merged cloud.
+
+A ring of calibrated views is turned into one cloud in four steps.
+
+1. **View pairs.**  For views :math:`i, j` with centres :math:`C_i, C_j` and the
+   scene centre :math:`S` (least-squares intersection of the optical axes), the
+   baseline-to-depth ratio :math:`b/d = \lVert C_i - C_j\rVert / \tfrac12(\lVert
+   C_i - S\rVert + \lVert C_j - S\rVert)` and the angle between the optical axes
+   decide: a pair is usable when ``min_ratio <= b/d <= max_ratio`` and the angle is
+   at most ``max_angle_deg``; each view keeps its ``partners`` usable partners whose
+   ratio is closest to ``target_ratio`` (1:4, the stereo recipe's base/distance).
+2. **Pair reconstruction.**  Each pair is rectified (Bouguet, ``cv2.stereoRectify``
+   *without* the zero-disparity constraint, ``alpha = 1``, so that a convergent pair
+   keeps the object in both rectified frames) and matched by
+   :func:`matching.pair.match_pair` (SGBM approximations, horizontal epipolar LSM);
+   the accepted matches are triangulated in the rectified cameras
+   (:func:`matching.triangulate.triangulate_pair`).
+3. **Multi-image consistency** (in the spirit of MPGC, Gruen & Baltsavias 1988 [1]_).
+   Every pair point :math:`X` is projected into the further views :math:`k`.  It is
+   *visible* in :math:`k` when it lies in front of the camera, inside the image by the
+   LSM half-patch plus 3 px, the surface normal (PCA of the 12 nearest pair points)
+   faces :math:`k` within ``max_incidence_deg``, and it passes a **depth test against
+   every pair's points**: all points are splatted into a z-buffer of view :math:`k`,
+   minimum-filtered over a window of ``2 spacing + 1`` px (the splat spacing), and
+   :math:`X` is occluded if its depth exceeds the buffer by more than
+   :math:`w\,(z/f)\tan\theta_{max} + 3\sigma_X` (the depth change of a surface at the
+   largest accepted incidence across the window, plus the point's own 3 σ).  The
+   template of view :math:`i` is then LSM-matched into the ``check_views`` visible
+   views nearest to :math:`i` (all points of a view in one batch): the approximation
+   is the reprojection :math:`\pi_k(X)`, the initial affine the local-plane mapping
+   :math:`i \to k` (rays of the template's unit pixel steps cut the tangent plane and
+   are projected into :math:`k`).  A match is *consistent* when the Mahalanobis
+   distance of the matched position from :math:`\pi_k(X)`, with covariance
+   :math:`J_k \Sigma_X J_k^T + \Sigma_{LSM}`, passes the :math:`\chi^2_2` test at
+   ``reject_p``.  Points with at least one consistent further view are triangulated
+   from all their consistent views (:func:`matching.triangulate.triangulate_multiview`)
+   and get its smaller σ.
+4. **Merge.**  The pairs' clouds are concatenated; points of *different* pairs closer
+   than half the point spacing (median nearest-neighbour distance within a pair; a
+   ``scipy.spatial.cKDTree`` radius search) are one surface sample and are fused by
+   σ-weighted averaging (weights :math:`1/\sigma^2`, :math:`\sigma = (\sum
+   \sigma_i^{-2})^{-1/2}`, views OR-ed, colours averaged); finally a statistical outlier
+   removal (Rusu et al. 2008 [2]_) drops points whose mean distance to their
+   ``sor_neighbours`` nearest neighbours exceeds the mean of that quantity by
+   ``sor_std`` standard deviations.
+
+Per-point reasons (:data:`REASON_NAMES`), for every triangulated pair point:
+
+====  ======================  ===================================================
+0     ``multiview``           confirmed in >= 1 further view, multi-view triangulated
+1     ``pair_only``           no further view sees it (kept with the pair's σ only
+                              with ``keep_unchecked``)
+2     ``no_further_match``    visible in further views, every LSM there failed
+3     ``inconsistent``        LSM matched in a further view, but off the reprojection
+4     ``triangulation``       rejected by the multi-view triangulation
+5     ``outlier``             removed by the statistical outlier filter (merge)
+====  ======================  ===================================================
+
+Codes 2-5 are rejected (2 only when ``require_confirmation``), 1 unless
+``keep_unchecked``.
+
+Views that saw a point are stored as a dense ``(N, V)`` bool matrix (``views``; V
+the number of cameras, column order of ``cameras``); the pair a point came from is
+``pair (N,)`` (index into ``pairs``), ``-1`` for points fused from several pairs.
+
+References
+----------
+.. [1] A. Gruen, E. Baltsavias, "Geometrically constrained multiphoto matching",
+   Photogrammetric Engineering and Remote Sensing 54(5), 633-641 (1988).
+.. [2] R. B. Rusu, Z. C. Marton, N. Blodow, M. Dolha, M. Beetz, "Towards 3D point
+   cloud based object maps for household environments", Robotics and Autonomous
+   Systems 56(11), 927-941 (2008).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from scipy.stats import chi2
+
+from matching.cameras import Camera, StereoRig
+from matching.lsm import DEFAULT_INTERPOLATION, lsm_match, prepare_image
+from matching.pair import match_pair
+from matching.seeds import Rectification, rectify_images
+from matching.triangulate import triangulate_multiview, triangulate_pair
+from matching.validate import TOL
+
+__all__ = [
+    "REASON_NAMES",
+    "PairCloud",
+    "MultiViewCloud",
+    "scene_centre",
+    "select_pairs",
+    "rectify_pair",
+    "reconstruct_view_pair",
+    "check_consistency",
+    "merge_clouds",
+    "reconstruct_multiview",
+]
+
+MULTIVIEW, PAIR_ONLY, NO_FURTHER_MATCH, INCONSISTENT, TRIANGULATION, OUTLIER = range(6)
+#: Reason code -> name (module docstring).
+REASON_NAMES = {MULTIVIEW: "multiview", PAIR_ONLY: "pair_only",
+                NO_FURTHER_MATCH: "no_further_match", INCONSISTENT: "inconsistent",
+                TRIANGULATION: "triangulation", OUTLIER: "outlier"}
+#: Nearest pair points for the PCA normal (12: a 3x3 grid ring plus slack).
+_NORMAL_NEIGHBOURS = 12
+#: Image margin beyond the LSM half-patch for a further view, px (interpolation support).
+_BORDER_PX = 3
+
+
+# --------------------------------------------------------------------------- data
+@dataclass(frozen=True, eq=False)
+class PairCloud:
+    """Triangulated points of one view pair (arrays over its M points).
+
+    Attributes
+    ----------
+    pair : (int, int)
+        View indices (left, right) into the camera list.
+    points : (M, 3) float64, scene units
+    cov : (M, 3, 3) float64, scene units²
+    sigma : (M,) float64, scene units (worst direction)
+    x_template : (M, 2) float64, px
+        Template centres in the rectified left image (integer pixels).
+    x_right : (M, 2) float64, px
+        Matches in the rectified right image.
+    cov_2d : (M, 2, 2) float64, px²
+        Observation covariance used for both rectified observations.
+    cameras : (Camera, Camera)
+        The rectified left and right cameras (pinhole, no distortion).
+    template : (H, W) float64
+        The rectified left grey image (LSM templates of the consistency step).
+    status_counts : dict
+        Candidates per :data:`matching.pair.PAIR_STATUS_NAMES` name.
+    seconds : float
+        Wall time of the pair.
+    """
+
+    pair: tuple[int, int]
+    points: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    x_template: np.ndarray
+    x_right: np.ndarray
+    cov_2d: np.ndarray
+    cameras: tuple[Camera, Camera]
+    template: np.ndarray
+    status_counts: dict = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+@dataclass(frozen=True, eq=False)
+class MultiViewCloud:
+    """The merged all-round cloud.
+
+    Attributes
+    ----------
+    points : (N, 3) float64, scene units
+    colours : (N, 3) uint8, RGB
+    sigma : (N,) float64, scene units
+    views : (N, V) bool
+        Which cameras saw (matched) each point.
+    pair : (N,) int64
+        Index into ``pairs`` of the pair the point came from; -1 when fused from several.
+    pairs : list of (int, int)
+    reason_counts : dict
+        Pair points per :data:`REASON_NAMES` name (before merging; ``outlier`` after).
+    stats : dict
+        Counts and timings (``pair_seconds``, ``consistency_seconds``, ``merge_seconds``,
+        ``fused``, ``median_sigma_pair``, ``median_sigma_multiview`` ...).
+    """
+
+    points: np.ndarray
+    colours: np.ndarray
+    sigma: np.ndarray
+    views: np.ndarray
+    pair: np.ndarray
+    pairs: list
+    reason_counts: dict
+    stats: dict
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+# --------------------------------------------------------------------------- pairs
+def scene_centre(cameras: Sequence[Camera]) -> np.ndarray:
+    """(3,) least-squares intersection of the optical axes.
+
+    Minimises :math:`\\sum_v \\lVert (I - a_v a_v^T)(S - C_v)\\rVert^2` over S, with
+    :math:`a_v` the unit optical axis (third row of R) and :math:`C_v` the centre.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 cameras, or (nearly) parallel axes (no convergence point).
+    """
+    if len(cameras) < 2:
+        raise ValueError(f"cameras: need at least 2, got {len(cameras)}")
+    axes = np.stack([cam.R[2] for cam in cameras])  # (V, 3)
+    centres = np.stack([cam.center for cam in cameras])
+    proj = np.eye(3) - axes[:, :, None] * axes[:, None, :]  # (V, 3, 3)
+    A = proj.sum(axis=0)
+    b = np.einsum("vij,vj->i", proj, centres)
+    w = np.linalg.eigvalsh(A)
+    if w[0] < TOL.axes_min_eig * len(cameras):
+        raise ValueError("cameras: optical axes are (nearly) parallel; no scene centre "
+                         "(give pairs explicitly)")
+    return np.linalg.solve(A, b)
+
+
+def select_pairs(cameras: Sequence[Camera], *, min_ratio: float = 0.1,
+                 max_ratio: float = 0.6, target_ratio: float = 0.25,
+                 max_angle_deg: float = 40.0, partners: int = 2) -> list[tuple[int, int]]:
+    """View pairs by baseline-to-depth ratio and viewing angle (module docstring, step 1).
+
+    Parameters
+    ----------
+    cameras : sequence of V Camera
+    min_ratio, max_ratio : float
+        Usable baseline/depth range (below: depth too poorly determined; above: the
+        views differ too much for area matching).
+    target_ratio : float
+        Preferred ratio.
+    max_angle_deg : float
+        Largest angle between the optical axes, degrees.
+    partners : int
+        Partners kept per view (2: both ring neighbours).
+
+    Returns
+    -------
+    list of (left, right)
+        Unique pairs, sorted; ``right``'s centre lies to the right of ``left``'s
+        (positive x in the left camera frame), as rectification expects.
+    """
+    if not 0 < min_ratio <= target_ratio <= max_ratio:
+        raise ValueError(f"need 0 < min_ratio <= target_ratio <= max_ratio, got {min_ratio}, "
+                         f"{target_ratio}, {max_ratio}")
+    if partners < 1:
+        raise ValueError(f"partners must be >= 1, got {partners}")
+    centre = scene_centre(cameras)
+    centres = np.stack([cam.center for cam in cameras])
+    axes = np.stack([cam.R[2] for cam in cameras])
+    depth = np.linalg.norm(centres - centre, axis=1)
+    base = np.linalg.norm(centres[:, None] - centres[None], axis=2)  # (V, V)
+    ratio = base / (0.5 * (depth[:, None] + depth[None]))
+    angle = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
+    usable = (ratio >= min_ratio) & (ratio <= max_ratio) & (angle <= max_angle_deg)
+    np.fill_diagonal(usable, False)
+    pairs = set()
+    for i in range(len(cameras)):
+        cand = np.flatnonzero(usable[i])
+        best = cand[np.argsort(np.abs(ratio[i, cand] - target_ratio), kind="stable")]
+        for j in best[:partners]:
+            x_in_i = cameras[i].to_camera(centres[j][None])[0, 0]
+            pairs.add((i, int(j)) if x_in_i > 0 else (int(j), i))
+    return sorted(pairs)
+
+
+def rectify_pair(left: Camera, right: Camera) -> tuple[Rectification, Camera, Camera]:
+    """Bouguet rectification keeping a convergent pair's overlap in view.
+
+    ``cv2.stereoRectify`` without ``CALIB_ZERO_DISPARITY`` (each rectified principal
+    point centres its own view) and ``alpha = 1`` (no source pixel is cut away).
+
+    Returns
+    -------
+    rect : matching.seeds.Rectification
+    left_rect, right_rect : Camera
+        The rectified pinhole cameras in the world frame (``P1``/``P2`` composed with
+        the left camera's pose), no distortion.
+    """
+    rig = StereoRig(left, right)
+
+    def dist(cam):
+        return cam.dist if cam.dist.size else np.zeros(5)
+
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        left.K, dist(left), right.K, dist(right), left.size, rig.R, rig.T.reshape(3, 1),
+        flags=0, alpha=1.0)
+    maps_l = cv2.initUndistortRectifyMap(left.K, dist(left), R1, P1, left.size, cv2.CV_32FC1)
+    maps_r = cv2.initUndistortRectifyMap(right.K, dist(right), R2, P2, left.size,
+                                         cv2.CV_32FC1)
+    rect = Rectification(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q, size=left.size, maps_left=maps_l,
+                         maps_right=maps_r)
+    pose = np.eye(4)
+    pose[:3, :3] = R1 @ left.R
+    pose[:3, 3] = R1 @ left.t
+    w, h = left.size
+    cam_l = Camera.from_projection(P1 @ pose, w, h, name=left.name)
+    cam_r = Camera.from_projection(P2 @ pose, w, h, name=right.name)
+    return rect, cam_l, cam_r
+
+
+def _grey(image) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = img[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR
+    return np.asarray(img, dtype=np.float64)
+
+
+def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
+                          pair: tuple[int, int] = (0, 1), **match_options) -> PairCloud:
+    """Rectify, match (:func:`matching.pair.match_pair`) and triangulate one view pair.
+
+    Parameters
+    ----------
+    left_image, right_image : (H, W) or (H, W, 3) array_like
+        Original images (colour in BGR order), of the cameras' sizes.
+    left, right : Camera
+    pair : (int, int)
+        Their indices (stored in the result).
+    **match_options
+        Passed to :func:`matching.pair.match_pair` (``spacing``, ``patch``,
+        ``interpolation``, ``min_correlation`` ...).
+
+    Returns
+    -------
+    PairCloud
+    """
+    start = time.perf_counter()
+    for name, img, cam in (("left_image", left_image, left), ("right_image", right_image, right)):
+        shape = np.shape(img)
+        if len(shape) < 2 or (shape[1], shape[0]) != cam.size:
+            got = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
+            raise ValueError(f"{name} ({cam.name}) is {got} px but its camera is "
+                             f"{cam.size[0]}x{cam.size[1]} px")
+    rect, cam_l, cam_r = rectify_pair(left, right)
+    grey_l, grey_r = rectify_images(rect, _grey(left_image), _grey(right_image))
+    valid = cv2.remap(np.ones(left.size[::-1], np.float32), *rect.maps_left,
+                      cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    options = {k: v for k, v in match_options.items() if k != "epipolar"}
+    matches = match_pair(grey_l, grey_r, rectified=True, mask=valid, **options)
+    ok = np.flatnonzero(matches.accepted)
+    cov2 = 0.5 * matches.cov[ok] + TOL.match_cov_floor_px**2 * np.eye(2)
+    tri = triangulate_pair(cam_l, cam_r, matches.x_left[ok], matches.x_right[ok],
+                           cov_left=cov2, cov_right=cov2, refine=True)
+    keep = tri.valid
+    return PairCloud(pair=(int(pair[0]), int(pair[1])), points=tri.points[keep],
+                     cov=tri.cov[keep], sigma=tri.sigma[keep],
+                     x_template=matches.x_left[ok][keep], x_right=matches.x_right[ok][keep],
+                     cov_2d=cov2[keep], cameras=(cam_l, cam_r),
+                     template=np.asarray(grey_l, dtype=np.float64),
+                     status_counts=matches.status_counts(),
+                     seconds=time.perf_counter() - start)
+
+
+# --------------------------------------------------------------------------- consistency
+def _normals(points: np.ndarray, towards: np.ndarray) -> np.ndarray:
+    """(M, 3) unit PCA normals of the nearest pair points, oriented towards ``towards``."""
+    k = min(_NORMAL_NEIGHBOURS, len(points))
+    if k < 3:
+        return np.full_like(points, np.nan)
+    _, idx = cKDTree(points).query(points, k=k)
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)  # (M, k, 3)
+    _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))
+    n = vec[:, :, 0]
+    flip = np.einsum("mi,mi->m", n, towards - points) < 0
+    n[flip] *= -1
+    return n
+
+
+def zbuffer(camera: Camera, points: np.ndarray, window: int) -> np.ndarray:
+    """(H, W) nearest depth of ``points`` splatted into ``camera``, min-filtered.
+
+    Parameters
+    ----------
+    camera : Camera
+    points : (N, 3) float64
+    window : int
+        Side of the minimum filter, px (the splat spacing, so that the samples'
+        gaps are closed).
+
+    Returns
+    -------
+    (H, W) float64, scene units; +inf where no point falls.
+    """
+    w, h = camera.size
+    buf = np.full(h * w, np.inf)
+    depth = camera.depth(points)
+    front = depth > 0
+    x = np.rint(camera.project(points[front])).astype(np.int64)
+    inside = (x[:, 0] >= 0) & (x[:, 0] < w) & (x[:, 1] >= 0) & (x[:, 1] < h)
+    np.minimum.at(buf, x[inside, 1] * w + x[inside, 0], depth[front][inside])
+    return ndimage.minimum_filter(buf.reshape(h, w), size=int(window), mode="nearest")
+
+
+def _plane_affine(cam_t: Camera, cam_k: Camera, x_t: np.ndarray, X: np.ndarray,
+                  normal: np.ndarray) -> np.ndarray:
+    """(M, 2, 2) Jacobian of the template-pixel -> view-k mapping through the tangent plane."""
+    out = np.empty((len(X), 2, 2))
+    base = cam_k.project(X)
+    for col, step in enumerate(([1.0, 0.0], [0.0, 1.0])):
+        origin, d = cam_t.ray(x_t + step)
+        denom = np.einsum("mi,mi->m", d, normal)
+        s = np.einsum("mi,mi->m", X - origin, normal) / np.where(np.abs(denom) > TOL.zero,
+                                                                 denom, np.nan)
+        out[:, :, col] = cam_k.project(origin + s[:, None] * d) - base
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Consistency:
+    """Outcome of the consistency check of one pair (arrays over its M points).
+
+    Attributes
+    ----------
+    points, cov, sigma : (M, 3), (M, 3, 3), (M,) float64
+        Multi-view result where ``reason == MULTIVIEW``, the pair's otherwise.
+    reason : (M,) int8, codes of :data:`REASON_NAMES`.
+    views : (M, V) bool
+    checked : (M,) int64, further views LSM was tried in.
+    seconds : float
+    """
+
+    points: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    reason: np.ndarray
+    views: np.ndarray
+    checked: np.ndarray
+    seconds: float = 0.0
+
+
+def _visible(cloud: PairCloud, cam_k: Camera, zbuf: np.ndarray, normals: np.ndarray,
+             patch: int, window: int, max_incidence_deg: float) -> tuple[np.ndarray, ...]:
+    """Visibility of the pair's points in view k: (mask, projections, incidence cosine)."""
+    X = cloud.points
+    depth = cam_k.depth(X)
+    x = cam_k.project(X)
+    w, h = cam_k.size
+    border = patch // 2 + _BORDER_PX
+    inside = ((depth > 0) & (x[:, 0] >= border) & (x[:, 0] <= w - 1 - border)
+              & (x[:, 1] >= border) & (x[:, 1] <= h - 1 - border))
+    to_cam = cam_k.center - X
+    cos_inc = np.einsum("mi,mi->m", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
+    ok = inside & (cos_inc >= np.cos(np.radians(max_incidence_deg)))
+    xi = np.rint(np.where(ok[:, None], x, 0)).astype(np.int64)
+    front = zbuf[xi[:, 1], xi[:, 0]]
+    slope = np.tan(np.radians(max_incidence_deg))
+    margin = window * depth / cam_k.K[0, 0] * slope + 3.0 * cloud.sigma
+    ok &= depth <= front + margin
+    return ok, x, cos_inc
+
+
+def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
+                      zbuffers: dict, *, check_views: int = 2, patch: int = 15,
+                      spacing: int = 4, interpolation: str = DEFAULT_INTERPOLATION,
+                      max_incidence_deg: float = 60.0, reject_p: float = 0.999,
+                      require_confirmation: bool = True, **lsm_options) -> Consistency:
+    """Confirm a pair's points in further views by LSM and re-triangulate them (step 3).
+
+    Parameters
+    ----------
+    cloud : PairCloud
+    cameras : sequence of V Camera
+        All cameras (original, with distortion).
+    images : dict int -> matching.lsm.PreparedImage
+        Grey images of (at least) the views that may be checked, prepared for
+        ``interpolation`` (:func:`matching.lsm.prepare_image`, once per view).
+    zbuffers : dict int -> (H, W) float64
+        :func:`zbuffer` of every pair's points for those views.
+    check_views : int
+        Further views tried per point (visible ones nearest to the template view).
+    patch, spacing, interpolation : as :func:`matching.pair.match_pair`.
+    max_incidence_deg : float
+        Largest angle between the surface normal and the direction to view k.
+    reject_p : float
+        Probability of the χ² tests (consistency and triangulation).
+    require_confirmation : bool
+        Reject points visible in further views that no LSM confirmed.
+    **lsm_options
+        Passed to :func:`matching.lsm.lsm_match` (``min_correlation`` ...).
+
+    Returns
+    -------
+    Consistency
+    """
+    start = time.perf_counter()
+    i, j = cloud.pair
+    n_views = len(cameras)
+    m = len(cloud)
+    cam_t = cloud.cameras[0]
+    views = np.zeros((m, n_views), bool)
+    views[:, [i, j]] = True
+    reason = np.full(m, PAIR_ONLY, np.int8)
+    if m == 0:
+        return Consistency(cloud.points, cloud.cov, cloud.sigma, reason, views,
+                           np.zeros(0, np.int64), time.perf_counter() - start)
+    normals = _normals(cloud.points, cameras[i].center)
+    window = 2 * spacing + 1
+    centre_i = cameras[i].center
+    # views facing away from the template view (axes > 2 max_incidence apart) cannot see
+    # a point that view i sees within max_incidence
+    axis_i = cameras[i].R[2]
+    facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
+    others = [k for k in range(n_views) if k not in (i, j) and k in images
+              and float(cameras[k].R[2] @ axis_i) >= facing]
+    # nearest further views first (by centre distance to view i)
+    others.sort(key=lambda k: float(np.linalg.norm(cameras[k].center - centre_i)))
+    obs = np.full((m, n_views, 2), np.nan)
+    cov = np.full((m, n_views, 2, 2), np.nan)
+    obs[:, i] = cloud.x_template  # the rectified cameras stand in for views i and j below
+    obs[:, j] = cloud.x_right
+    cov[:, i] = cloud.cov_2d
+    cov[:, j] = cloud.cov_2d
+    tried = np.zeros(m, np.int64)
+    matched = np.zeros(m, bool)
+    confirmed = np.zeros(m, np.int64)
+    template = prepare_image(cloud.template, interpolation)
+    bound = chi2.ppf(reject_p, 2)
+    for k in others:
+        need = tried < check_views
+        if not need.any():
+            break
+        vis, x_pred, _ = _visible(cloud, cameras[k], zbuffers[k], normals, patch, window,
+                                  max_incidence_deg)
+        idx = np.flatnonzero(need & vis)
+        if len(idx) == 0:
+            continue
+        tried[idx] += 1
+        affine = _plane_affine(cam_t, cameras[k], cloud.x_template[idx], cloud.points[idx],
+                               normals[idx])
+        good_aff = np.all(np.isfinite(affine), axis=(1, 2))
+        idx, affine = idx[good_aff], affine[good_aff]
+        init = np.zeros((len(idx), 8))
+        init[:, [0, 3]] = x_pred[idx]
+        init[:, [1, 2]] = affine[:, 0]
+        init[:, [4, 5]] = affine[:, 1]
+        init[:, 7] = 1.0
+        res = lsm_match(template, images[k],
+                        cloud.x_template[idx], x_pred[idx], patch=patch,
+                        interpolation=interpolation, initial=init, **lsm_options)
+        ok = res.accepted
+        matched[idx[ok]] = True
+        _, jac = cameras[k].project(cloud.points[idx], with_jacobian=True)
+        s_pred = jac @ cloud.cov[idx] @ np.swapaxes(jac, 1, 2) + res.cov
+        s_pred += TOL.match_cov_floor_px**2 * np.eye(2)
+        d = res.position - x_pred[idx]
+        with np.errstate(invalid="ignore"):
+            d2 = np.einsum("mi,mij,mj->m", d, np.linalg.inv(np.where(
+                np.isfinite(s_pred), s_pred, np.eye(2))), d)
+        agree = ok & (d2 <= bound)
+        hit = idx[agree]
+        obs[hit, k] = res.position[agree]
+        cov[hit, k] = 0.5 * res.cov[agree] + TOL.match_cov_floor_px**2 * np.eye(2)
+        views[hit, k] = True
+        confirmed[hit] += 1
+    reason[(tried > 0) & ~matched] = NO_FURTHER_MATCH
+    reason[matched & (confirmed == 0)] = INCONSISTENT
+    multi = confirmed > 0
+    points, pcov, sigma = cloud.points.copy(), cloud.cov.copy(), cloud.sigma.copy()
+    if multi.any():
+        cams = list(cameras)
+        cams[i], cams[j] = cloud.cameras
+        tri = triangulate_multiview(cams, obs[multi], np.where(
+            np.isfinite(cov[multi]), cov[multi], np.eye(2)), reject_p=reject_p)
+        idx = np.flatnonzero(multi)
+        reason[idx] = np.where(tri.valid, MULTIVIEW, TRIANGULATION)
+        good = idx[tri.valid]
+        points[good] = tri.points[tri.valid]
+        pcov[good] = tri.cov[tri.valid]
+        sigma[good] = tri.sigma[tri.valid]
+    if not require_confirmation:
+        reason[reason == NO_FURTHER_MATCH] = PAIR_ONLY
+    return Consistency(points, pcov, sigma, reason, views, tried,
+                       time.perf_counter() - start)
+
+
+# --------------------------------------------------------------------------- merge
+def _colours(points: np.ndarray, views: np.ndarray, cameras: Sequence[Camera],
+             colour_images: dict) -> np.ndarray:
+    """(N, 3) uint8 RGB from the first view that saw each point."""
+    out = np.zeros((len(points), 3), np.uint8)
+    first = np.argmax(views, axis=1)
+    for v in np.unique(first):
+        if v not in colour_images:
+            continue
+        sel = np.flatnonzero(first == v)
+        img = np.asarray(colour_images[v])
+        x = np.rint(cameras[v].project(points[sel])).astype(np.int64)
+        x[:, 0] = np.clip(x[:, 0], 0, img.shape[1] - 1)
+        x[:, 1] = np.clip(x[:, 1], 0, img.shape[0] - 1)
+        px = img[x[:, 1], x[:, 0]]
+        if img.ndim == 2:
+            px = np.repeat(px[:, None], 3, axis=1)
+        else:
+            px = px[:, :3][:, ::-1]  # BGR -> RGB
+        out[sel] = np.clip(px, 0, 255).astype(np.uint8)
+    return out
+
+
+def merge_clouds(points: np.ndarray, sigma: np.ndarray, views: np.ndarray,
+                 source: np.ndarray, colours: np.ndarray, *, radius: float | None = None,
+                 sor_neighbours: int = 16, sor_std: float = 3.0) -> dict:
+    """Fuse duplicates from different pairs and remove statistical outliers (step 4).
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    sigma : (N,) float64
+    views : (N, V) bool
+    source : (N,) int64
+        Pair index of each point.
+    colours : (N, 3) uint8
+    radius : float, optional
+        Fusion radius, scene units (default: half the median nearest-neighbour
+        distance among points of one pair).
+    sor_neighbours : int
+        Neighbours of the statistical outlier removal (0 disables it).
+    sor_std : float
+        Threshold in standard deviations of the mean neighbour distance.
+
+    Returns
+    -------
+    dict
+        ``points, sigma, views, pair, colours`` (merged), ``fused`` (points absorbed),
+        ``outliers`` (removed), ``radius``.
+    """
+    n = len(points)
+    if n == 0:
+        return {"points": points, "sigma": sigma, "views": views, "pair": source,
+                "colours": colours, "fused": 0, "outliers": 0, "radius": 0.0}
+    tree = cKDTree(points)
+    if radius is None:
+        d, nb = tree.query(points, k=min(8, n))
+        same = source[nb] == source[:, None]
+        same[:, 0] = False
+        nearest = np.where(same, d, np.inf).min(axis=1)
+        finite = nearest[np.isfinite(nearest)]
+        radius = 0.5 * float(np.median(finite)) if finite.size else 0.0
+    labels = np.arange(n)
+    if radius > 0:
+        links = tree.query_pairs(radius, output_type="ndarray")
+        links = links[source[links[:, 0]] != source[links[:, 1]]]
+        graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(n, n))
+        _, labels = connected_components(graph, directed=False)
+    n_groups = int(labels.max()) + 1
+    weight = 1.0 / np.maximum(sigma, TOL.zero) ** 2
+    wsum = np.bincount(labels, weight, n_groups)
+    merged = np.stack([np.bincount(labels, weight * points[:, a], n_groups)
+                       for a in range(3)], axis=1) / wsum[:, None]
+    size = np.bincount(labels, minlength=n_groups)
+    col = np.stack([np.bincount(labels, colours[:, a].astype(np.float64), n_groups)
+                    for a in range(3)], axis=1) / size[:, None]
+    mviews = np.zeros((n_groups, views.shape[1]), bool)
+    np.logical_or.at(mviews, labels, views)
+    pair = np.full(n_groups, -1, np.int64)
+    pair[labels] = source  # any member; reset where groups mix pairs below
+    first = np.full(n_groups, -1, np.int64)
+    first[labels[::-1]] = source[::-1]
+    mixed = np.bincount(labels, (source != first[labels]).astype(np.float64), n_groups) > 0
+    pair[mixed] = -1
+    out = {"points": merged, "sigma": 1.0 / np.sqrt(wsum), "views": mviews, "pair": pair,
+           "colours": np.clip(np.rint(col), 0, 255).astype(np.uint8),
+           "fused": int(n - n_groups), "radius": float(radius)}
+    keep = _statistical_inliers(merged, sor_neighbours, sor_std)
+    out = {k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in out.items()}
+    out["outliers"] = int(np.count_nonzero(~keep))
+    return out
+
+
+def _statistical_inliers(points: np.ndarray, k: int, n_std: float) -> np.ndarray:
+    """(N,) bool: mean distance to the k nearest neighbours within mean + n_std std."""
+    if k <= 0 or len(points) <= k:
+        return np.ones(len(points), bool)
+    d, _ = cKDTree(points).query(points, k=k + 1)
+    mean_d = d[:, 1:].mean(axis=1)
+    return mean_d <= mean_d.mean() + n_std * mean_d.std()
+
+
+# --------------------------------------------------------------------------- driver
+def _pair_task(item: dict) -> PairCloud:
+    return reconstruct_view_pair(item["left_image"], item["right_image"], item["left"],
+                                 item["right"], item["pair"], **item["options"])
+
+
+def _consistency_task(item: dict) -> Consistency:
+    return check_consistency(item["cloud"], item["cameras"], item["images"],
+                             item["zbuffers"], **item["options"])
+
+
+_MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "sgbm_block",
+               "max_iter", "shift_stop_px", "sigma0_factor", "min_correlation")
+_LSM_KEYS = ("max_iter", "shift_stop_px", "sigma0_factor", "min_correlation",
+             "min_texture_snr")
+
+
+def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
+                          pairs: Sequence[tuple[int, int]] | None = None,
+                          map_func: Callable | None = None, check_views: int = 2,
+                          max_incidence_deg: float = 60.0, reject_p: float = 0.999,
+                          require_confirmation: bool = True,
+                          keep_unchecked: bool | None = None, sor_neighbours: int = 16,
+                          sor_std: float = 3.0, pair_options: dict | None = None,
+                          **match_options) -> MultiViewCloud:
+    """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
+
+    Parameters
+    ----------
+    images : sequence of V (H, W) or (H, W, 3) array_like
+        Images in camera order (colour in BGR order).
+    cameras : sequence of V Camera
+    pairs : sequence of (int, int), optional
+        View pairs (default :func:`select_pairs` with ``pair_options``).
+    map_func : callable, optional
+        ``map_func(func, items) -> list``, e.g. ``executor.map`` of
+        :mod:`pipeline.executor` (default: a plain loop).
+    check_views, max_incidence_deg, reject_p, require_confirmation :
+        As :func:`check_consistency`.
+    keep_unchecked : bool, optional
+        Keep ``pair_only`` points (no further view sees them).  Default: only when
+        there are fewer than 3 views (nothing to check against); on a ring every
+        surface point a pair sees is seen by a neighbour too, and the unchecked ones
+        are mostly silhouette mismatches.
+    sor_neighbours, sor_std :
+        As :func:`merge_clouds`.
+    pair_options : dict, optional
+        Keyword arguments of :func:`select_pairs`.
+    **match_options
+        ``spacing``, ``patch``, ``interpolation``, ``min_correlation``,
+        ``sigma0_factor``, ``max_iter``, ``shift_stop_px``, ``min_texture_snr``,
+        ``sgbm_block`` (:func:`matching.pair.match_pair`).
+
+    Returns
+    -------
+    MultiViewCloud
+    """
+    cameras = list(cameras)
+    if len(images) != len(cameras):
+        raise ValueError(f"images: got {len(images)} images for {len(cameras)} cameras")
+    if len(cameras) < 2:
+        raise ValueError(f"cameras: need at least 2 views, got {len(cameras)}")
+    for v, (img, cam) in enumerate(zip(images, cameras, strict=True)):
+        shape = np.shape(img)
+        if len(shape) < 2 or (shape[1], shape[0]) != cam.size:
+            got = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
+            raise ValueError(f"images[{v}] ({cam.name or v}) is {got} px but its camera is "
+                             f"{cam.size[0]}x{cam.size[1]} px")
+    unknown = set(match_options) - set(_MATCH_KEYS)
+    if unknown:
+        raise ValueError(f"unknown matching option(s) {sorted(unknown)}; choose from "
+                         f"{', '.join(_MATCH_KEYS)}")
+    if map_func is None:
+        def map_func(func, items):
+            return [func(item) for item in items]
+    pairs = select_pairs(cameras, **(pair_options or {})) if pairs is None else [
+        (int(a), int(b)) for a, b in pairs]
+    if not pairs:
+        raise ValueError("cameras: no view pair has a usable baseline-to-depth ratio and "
+                         "viewing angle")
+    t0 = time.perf_counter()
+    clouds = map_func(_pair_task, [
+        {"left_image": images[a], "right_image": images[b], "left": cameras[a],
+         "right": cameras[b], "pair": (a, b), "options": match_options} for a, b in pairs])
+    t1 = time.perf_counter()
+    patch = int(match_options.get("patch", 15))
+    spacing = int(match_options.get("spacing", 4))
+    all_points = np.concatenate([c.points for c in clouds]) if clouds else np.zeros((0, 3))
+    window = 2 * spacing + 1
+    zbuffers = {v: zbuffer(cameras[v], all_points, window) for v in range(len(cameras))}
+    interpolation = match_options.get("interpolation", DEFAULT_INTERPOLATION)
+    grey = {v: prepare_image(_grey(images[v]), interpolation) for v in range(len(cameras))}
+    options = {"check_views": check_views, "patch": patch, "spacing": spacing,
+               "interpolation": interpolation,
+               "max_incidence_deg": max_incidence_deg, "reject_p": reject_p,
+               "require_confirmation": require_confirmation,
+               **{k: v for k, v in match_options.items() if k in _LSM_KEYS}}
+    checks = map_func(_consistency_task, [
+        {"cloud": c, "cameras": cameras, "images": grey, "zbuffers": zbuffers,
+         "options": options} for c in clouds])
+    t2 = time.perf_counter()
+    reasons = np.concatenate([c.reason for c in checks]) if checks else np.zeros(0, np.int8)
+    if keep_unchecked is None:
+        keep_unchecked = len(cameras) < 3
+    keep = np.isin(reasons, (MULTIVIEW, PAIR_ONLY) if keep_unchecked else (MULTIVIEW,))
+    points = np.concatenate([c.points for c in checks])[keep]
+    sigma = np.concatenate([c.sigma for c in checks])[keep]
+    views = np.concatenate([c.views for c in checks])[keep]
+    source = np.concatenate([np.full(len(c.reason), p, np.int64)
+                             for p, c in enumerate(checks)])[keep]
+    colours = _colours(points, views, cameras, dict(enumerate(images)))
+    merged = merge_clouds(points, sigma, views, source, colours,
+                          sor_neighbours=sor_neighbours, sor_std=sor_std)
+    t3 = time.perf_counter()
+    counts = {REASON_NAMES[c]: int(np.count_nonzero(reasons == c)) for c in REASON_NAMES}
+    counts[REASON_NAMES[OUTLIER]] = merged["outliers"]
+    is_multi = reasons[keep] == MULTIVIEW
+    stats = {
+        "views": len(cameras), "pairs": len(pairs),
+        "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
+        "fused": merged["fused"], "fusion_radius": merged["radius"],
+        "points": int(len(merged["points"])),
+        "median_sigma_pair": float(np.median(np.concatenate([c.sigma for c in clouds])))
+        if len(all_points) else float("nan"),
+        "median_sigma_multiview": float(np.median(sigma[is_multi])) if is_multi.any()
+        else float("nan"),
+        "pair_seconds": t1 - t0, "consistency_seconds": t2 - t1, "merge_seconds": t3 - t2,
+        "seconds_per_pair": (t2 - t0) / len(pairs), "seconds": t3 - t0,
+    }
+    return MultiViewCloud(points=merged["points"], colours=merged["colours"],
+                          sigma=merged["sigma"], views=merged["views"], pair=merged["pair"],
+                          pairs=list(pairs), reason_counts=counts, stats=stats)
