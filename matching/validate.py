@@ -37,6 +37,9 @@ class Tolerance:
     #: Isotropic σ floor (px) added to each LSM match covariance before triangulation,
     #: so that an epipolar-constrained (rank-1) covariance stays positive definite.
     match_cov_floor_px: float = 1e-3
+    #: Smallest eigenvalue, per camera, of sum(I - a a^T) over the optical axes a for
+    #: their least-squares intersection to count as defined (~1e-3 rad spread).
+    axes_min_eig: float = 1e-6
 
 
 TOL = Tolerance()
