@@ -203,6 +203,30 @@ def test_patches_share_one_tangent_plane_at_every_vertex(surfaces, name):
     assert _angle(corner, first[vertex]).max() <= 1e-9
 
 
+def random_hull(seed: int):
+    """Convex hull of random points on an ellipsoid: valences 3..11, sliver triangles."""
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(int(rng.integers(60, 200)), 3))
+    points = points / np.linalg.norm(points, axis=1, keepdims=True) * rng.uniform(0.5, 2, 3)
+    tris = ConvexHull(points).simplices.astype(np.int64)
+    corner = points[tris]
+    normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    inward = np.sum(normal * points[tris].mean(axis=1), axis=1) < 0
+    tris[inward] = tris[inward][:, ::-1]
+    return points, tris
+
+
+@pytest.mark.parametrize("seed", [0, 8, 15])
+def test_g1_on_random_convex_hulls(seed):
+    vertices, tris = random_hull(seed)
+    surface = bz.control_net(vertices, tris)
+    gap, angle = bz.edge_continuity(surface.control_points, surface.domain_mesh[1], samples=9)
+    assert gap <= 1e-12 * _size(vertices)
+    assert angle <= 1e-9
+
+
 def test_band_mesh_has_valences_4_6_8():
     n = 6
     vertices, tris = band_mesh(n=n, sections=6)
