@@ -525,19 +525,43 @@ def _check_areas(vertices: np.ndarray, triangles: np.ndarray) -> None:
                          f"(first: face {int(np.argmax(bad))})")
 
 
-def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Sextic nets of regular faces: box-spline quartic, degree-elevated. ``(R, 28, 3)``."""
+def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray):
+    """Nets of regular faces: the box-spline quartic ``(R, 15, 3)`` and its sextic elevation."""
     from surface.bezier import elevate
 
     stencil = box_spline_stencil(mesh, faces)
     quartic = np.matmul(BOX_SPLINE_QUARTIC, points[stencil])  # (R, 15, 3)
-    return elevate(quartic, DEGREE)
+    return quartic, elevate(quartic, DEGREE)
 
 
-def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
+@cache
+def ring_operator_quartic(n: int) -> np.ndarray:
+    """:func:`ring_operator` acting on the neighbours' quartic nets, ``(28 n, 1 + 15 n)``.
+
+    The neighbours are box-spline patches, i.e. elevated quartics, so composing
+    with the elevation halves the data (and the matrix product) per vertex.
+    """
+    from surface.bezier import elevate
+
+    elevation = elevate(np.eye(15), DEGREE)  # (28, 15)
+    full = ring_operator(n)
+    out = np.empty((28 * n, 1 + 15 * n))
+    out[:, 0] = full[:, 0]
+    blocks = full[:, 1:].reshape(28 * n, n, 28)
+    out[:, 1:] = (blocks @ elevation).reshape(28 * n, 15 * n)
+    out.flags.writeable = False
+    return out
+
+
+def _irregular_patches(mesh: HalfEdges, limit: np.ndarray, quartic: np.ndarray,
                        control_points: np.ndarray, computed: np.ndarray,
                        centres_wanted: np.ndarray) -> None:
-    """Fill the ring patches of the wanted irregular vertices, one batch per valence."""
+    """Fill the ring patches of the wanted irregular vertices, one batch per valence.
+
+    ``quartic`` holds the box-spline quartic nets of the regular faces
+    (``computed`` marks them); the ring patches are written into
+    ``control_points``.
+    """
     for n in np.unique(mesh.valence[centres_wanted]):
         n = int(n)
         centres = centres_wanted[mesh.valence[centres_wanted] == n]
@@ -545,13 +569,15 @@ def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
         across = mesh.twin[next_half_edge(spokes)]  # w_{i+1} -> w_i in N_i
         if np.any(across < 0) or not np.all(computed[across // 3]):
             raise RuntimeError("an irregular vertex's neighbour patch is not regular")
-        neighbour = np.empty((len(centres), n, 28, 3))
+        neighbour = np.empty((n, 15, len(centres), 3))  # data-major for one GEMM
         for c in range(3):
-            sel = across % 3 == c
-            neighbour[sel] = control_points[across[sel] // 3][:, corner_rotation(c)]
-        data = np.concatenate([limit[centres][:, None, :],
-                               neighbour.reshape(len(centres), 28 * n, 3)], axis=1)
-        rings = np.matmul(ring_operator(n), data).reshape(-1, 28, 3)  # (Vn n, 28, 3)
+            sel = (across % 3 == c).T  # (n, Vn)
+            nets = quartic[across.T[sel] // 3][:, corner_rotation(c, 4)]  # (m, 15, 3)
+            neighbour.transpose(0, 2, 1, 3)[sel] = nets
+        flat = np.concatenate([limit[centres][None], neighbour.reshape(15 * n, len(centres), 3)])
+        # (28n, 1+15n) x (1+15n, 3 Vn): all vertices of this valence at once
+        rings = ring_operator_quartic(n) @ flat.reshape(1 + 15 * n, -1)
+        rings = rings.reshape(n, 28, len(centres), 3).transpose(2, 0, 1, 3).reshape(-1, 28, 3)
         spokes = spokes.ravel()
         for c in range(3):
             sel = spokes % 3 == c
@@ -584,12 +610,14 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     points, tris = loop_subdivide(mesh0, points)
     mesh = build_half_edges(len(points), tris, allow_border=True)
     control_points = np.zeros((len(tris), 28, 3))
+    quartic = np.zeros((len(tris), 15, 3))
     inner6 = (mesh.valence == 6) & ~mesh.on_border
     regular = np.all(inner6[tris], axis=1)
-    control_points[regular] = regular_patches(mesh, points, np.flatnonzero(regular))
+    quartic[regular], control_points[regular] = regular_patches(mesh, points,
+                                                                np.flatnonzero(regular))
     limit = limit_positions(mesh, points)
     centres = np.flatnonzero(~inner6[:n_vertices])  # input vertices are interior here
-    _irregular_patches(mesh, points, limit, control_points, regular.copy(), centres)
+    _irregular_patches(mesh, limit, quartic, control_points, regular.copy(), centres)
     kept = 4 * n_faces  # children of the input faces come first
     used = np.zeros(len(points), dtype=bool)
     used[tris[:kept].ravel()] = True
