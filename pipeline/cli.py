@@ -38,8 +38,9 @@ COMMANDS = [
     "batch",
 ]
 
-USER_ERRORS = (InputError, ValueError, FileNotFoundError, NotADirectoryError,
-               IsADirectoryError, PermissionError)
+#: Errors printed as one line with exit status 2.  ``OSError`` covers what the
+#: system refuses (a missing file, --out under a regular file, a full disk ...).
+USER_ERRORS = (InputError, ValueError, OSError)
 
 
 def _load(name: str):
@@ -82,20 +83,35 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1 else
                                               logging.INFO if args.verbose else logging.WARNING)
     logging.basicConfig(level=level, format="photosurf: %(message)s")
+    _quiet_opencv(args.verbose)
     try:
         status = args._module.run(args)
     except USER_ERRORS as exc:
         if args.verbose:
             traceback.print_exc()
         message = str(exc) or type(exc).__name__
-        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
-            message = f"{exc.filename}: {exc.strerror or message}"
+        if isinstance(exc, OSError) and exc.filename and exc.strerror:
+            message = f"{exc.filename}: {exc.strerror}"  # not "[Errno 17] File exists: '...'"
+            if isinstance(exc, FileExistsError):  # mkdir of an output folder over a file
+                message += " (a file is where a folder is needed)"
         print(f"photosurf {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"photosurf {args.command}: interrupted", file=sys.stderr)
         return 130
     return int(status or 0)
+
+
+def _quiet_opencv(verbose: int) -> None:
+    """OpenCV's decoders log to stderr themselves ("[ WARN:0] grfmt_png ..."); the error
+    line is ours, so keep them quiet unless -v."""
+    try:
+        import cv2
+    except ImportError:  # pragma: no cover - OpenCV is a dependency
+        return
+    logging_api = cv2.utils.logging
+    logging_api.setLogLevel(logging_api.LOG_LEVEL_INFO if verbose
+                            else logging_api.LOG_LEVEL_SILENT)
 
 
 if __name__ == "__main__":

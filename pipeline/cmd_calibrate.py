@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _expand(pattern: str, side: str) -> list[Path]:
-    paths = sorted(Path(p) for p in glob.glob(pattern))
+    paths = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_file())
     if not paths and Path(pattern).is_dir():
         raise InputError(f"{pattern}: is a folder; give a glob such as '{pattern}/*.png'")
     if not paths:

@@ -26,6 +26,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pipeline.cli import USER_ERRORS, main
+from pipeline.errors import InputError
+
+#: What a reader may raise on bad input (the CLI prints these as one line, exit 2).
+READER_ERRORS = (InputError, ValueError, FileNotFoundError, IsADirectoryError,
+                 NotADirectoryError, PermissionError)
 
 # --------------------------------------------------------------------------- shared helpers
 
@@ -87,7 +92,7 @@ def raises_naming(func, path, *args, **kwargs):
     """Call a reader; it may succeed, else it must raise a user error naming ``path``."""
     try:
         return func(*args, **kwargs)
-    except USER_ERRORS as exc:
+    except READER_ERRORS as exc:
         assert str(Path(path).name) in str(exc), f"{type(exc).__name__} does not name {path}: {exc}"
         return exc
 
@@ -722,7 +727,7 @@ def test_recipe_bad_fields(edit):
         try:
             recipe = load_recipe(path)
             build_scene(recipe, source=str(path))
-        except USER_ERRORS as exc:
+        except READER_ERRORS as exc:
             assert path.name in str(exc), exc
             assert key in str(exc) or "TOML" in str(exc) or table in str(exc), exc
         else:
@@ -822,8 +827,5 @@ def test_batch_manifest_wrong_types(tmp_path, body):
 
 def test_every_user_error_type_is_handled_by_the_cli():
     """The exception types these readers raise are exactly what the CLI turns into one line."""
-    from pipeline.errors import InputError
-
-    for exc in (InputError, ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
-                PermissionError):
+    for exc in READER_ERRORS:
         assert issubclass(exc, USER_ERRORS)
