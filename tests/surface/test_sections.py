@@ -248,6 +248,18 @@ def test_read_sectioned_names_file_and_line(tmp_path, text, match):
         read_sectioned(path)
 
 
+def test_fast_and_careful_readers_agree(tmp_path):
+    # the numpy reader is the fast path; the line-by-line one only names bad lines
+    from surface.sections import _parse_table, _parse_table_fast
+
+    text = "x;y;z;id\n# survey\n1,2,3,0  # tail\n4;5;6;1\r\n\n7\t8\t9\t1\n"
+    fast = _parse_table_fast(text)
+    careful, lines = _parse_table(tmp_path / "t.csv", text)
+    np.testing.assert_array_equal(fast, careful)
+    assert lines.tolist() == [3, 4, 6]
+    assert _parse_table_fast("0 0 0\n1 1\n") is None  # ragged: the careful reader decides
+
+
 def test_read_sectioned_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing.csv"):
         read_sectioned(tmp_path / "missing.csv")
