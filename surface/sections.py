@@ -90,7 +90,7 @@ class Section:
     section_id : int
         Index of the section, 0 at the lowest height.
     source_index : (M,) int64
-        Row of each point in the input cloud (``-1`` when unknown).
+        Row of each point in the input cloud (empty when not given).
     """
 
     height: float
