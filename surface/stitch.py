@@ -644,8 +644,11 @@ def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]
     nearly parallel to the plane (``sqrt(t·a) < MIN_WALL_SINE``) are left out
     of the contour and returned as *cap points*.
 
-    The first and last sections keep only the points on the inner side of
-    their planes.
+    A section whose slab holds more cap points than wall points lies in a
+    cap (a shelf) and is emptied; at the ends the test looks at the inner
+    half-slab only, and sections outside the outermost walled ones (end
+    planes inside a noisy end face) are emptied too.  The first and last
+    sections keep only their wall points on the inner side of their planes.
 
     Parameters
     ----------
@@ -669,23 +672,46 @@ def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]
         return slices, np.zeros(0, np.int64)
     index = np.concatenate(members)
     normals = _pca_normals(points, index)
+    # Pass 1: which slab points lie on walls, and which sections lie in a cap.
+    walls, deltas, start = [], [], 0
+    for section in slices:
+        n = normals[start:start + len(section)]
+        start += len(section)
+        walls.append(1.0 - (n @ section.frame[2]) ** 2 >= MIN_WALL_SINE**2)
+        deltas.append(points[section.source_index] @ section.frame[2] - section.height)
+
+    def walled(k: int, side: np.ndarray) -> bool:
+        # Mostly wall points among those considered: a contour, not a cap.
+        return bool(side.any()) and float(walls[k][side].mean()) >= 0.5
+
     nonempty = [k for k, section in enumerate(slices) if len(section)]
-    first, last = nonempty[0], nonempty[-1]
+    # End sections: the outermost whose inner half-slab is mostly wall (when the end
+    # planes fall inside a noisy end face, the sections there are caps, not contours).
+    first = next((k for k in nonempty if walled(k, deltas[k] >= 0)), None)
+    last = next((k for k in reversed(nonempty) if walled(k, deltas[k] <= 0)), None)
+    if first is None or last is None or first > last:
+        return slices, np.concatenate(members).astype(np.int64)
+    for k in nonempty:
+        # Outside the ends, and any slab mostly of cap points (a shelf): no contour.
+        whole = np.ones(len(slices[k]), bool)
+        if k < first or k > last or (first < k < last and not walled(k, whole)):
+            walls[k] = np.zeros(len(slices[k]), bool)
+    # Pass 2: slide the wall points.
     out, capped, start = [], [], 0
     for k, section in enumerate(slices):
         m = len(section)
+        n = normals[start:start + m]
+        start += m
         if m == 0:
             out.append(section)
             continue
         x = points[section.source_index]
-        n = normals[start:start + m]
-        start += m
         axis = section.frame[2]
-        delta = x @ axis - section.height                          # (m,)
         an = n @ axis
         tangent = axis - an[:, None] * n                           # (m, 3)
         ta = 1.0 - an**2
-        wall = ta >= MIN_WALL_SINE**2
+        wall = walls[k].copy()
+        delta = deltas[k]
         # The end sections keep only the inner half of their slab: beyond the end
         # planes the neighbourhoods straddle the rim and the cap, so normals and
         # slides are wrong there; those points go to the cap-height estimate.
@@ -833,7 +859,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
     cap_points : (C,) int64
         Candidate cap points (``slide_to_planes``); empty means every point.
     delta : float
-        Section spacing: cap points are looked for within ``delta`` beyond
+        Section spacing: cap points are looked for within ``2 delta`` beyond
         each end plane.
 
     Returns
@@ -854,7 +880,8 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         befores = [rings[prev]] if isinstance(rings[prev], np.ndarray) else list(rings[prev])
         h_end = kept[this].height
         offset = sign * (heights - h_end)
-        beyond = candidates[(offset > 0) & (offset <= delta)]
+        # Within two spacings: a section emptied as a cap may lie in between.
+        beyond = candidates[(offset > 0) & (offset <= 2 * delta)]
         beyond_flat = points[beyond] @ frame[:2].T
         centres = np.array([b.mean(axis=0) @ frame[:2].T for b in befores])
         new_rings, counts = [], []
