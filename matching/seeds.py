@@ -294,7 +294,8 @@ def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, i
     -------
     (min_disparity, num_disparities) : (int, int)
         ``num_disparities`` a multiple of 16 (SGBM's requirement); the range covers the
-        1st-99th percentile of the matched disparities widened by 25 % and 8 px.
+        2nd-98th percentile of the disparities of mutual SIFT matches (Lowe's ratio test
+        0.75 both ways, rows within 2 px) widened by 25 % and 8 px, clipped to the width.
 
     Raises
     ------
@@ -306,21 +307,32 @@ def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, i
     kr, dr = sift.detectAndCompute(_to_uint8(right_rect), None)
     disp = np.zeros(0)
     if dl is not None and dr is not None and len(kl) >= 2 and len(kr) >= 2:
-        pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(dl, dr, k=2)
-        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
-        if good:
-            pl = np.array([kl[m.queryIdx].pt for m in good])
-            pr = np.array([kr[m.trainIdx].pt for m in good])
+        matcher = cv2.BFMatcher(cv2.NORM_L2)
+        fwd = _ratio_matches(matcher.knnMatch(dl, dr, k=2))
+        bwd = _ratio_matches(matcher.knnMatch(dr, dl, k=2))
+        mutual = [(q, t) for q, t in fwd.items() if bwd.get(t) == q]
+        if mutual:
+            pl = np.array([kl[q].pt for q, _ in mutual])
+            pr = np.array([kr[t].pt for _, t in mutual])
             rows = np.abs(pl[:, 1] - pr[:, 1]) < 2.0
             disp = (pl[:, 0] - pr[:, 0])[rows]
     if len(disp) < min_matches:
         raise ValueError(f"no overlap between the two images: {len(disp)} row-consistent "
                          f"feature matches after rectification (need {min_matches})")
-    lo, hi = np.percentile(disp, [1, 99])
+    lo, hi = np.percentile(disp, [2, 98])
     pad = 0.25 * (hi - lo) + 8.0
-    dmin = int(np.floor(lo - pad))
-    count = int(np.ceil((hi + pad - dmin) / 16.0)) * 16
-    return dmin, max(count, 16)
+    width = np.shape(left_rect)[1]
+    # SGBM needs x - d inside the image for some x: keep the range within the width
+    dmin = int(max(np.floor(lo - pad), -(width - 32)))
+    dmax = min(hi + pad, width - 32)
+    count = int(np.ceil((dmax - dmin) / 16.0)) * 16
+    return dmin, int(np.clip(count, 16, max(16, (width - 16) // 16 * 16)))
+
+
+def _ratio_matches(pairs, ratio: float = 0.75) -> dict[int, int]:
+    """query -> train index of Lowe's ratio-test survivors."""
+    return {p[0].queryIdx: p[0].trainIdx for p in pairs
+            if len(p) == 2 and p[0].distance < ratio * p[1].distance}
 
 
 def sgbm_disparity(left_rect, right_rect, min_disparity: int, num_disparities: int,
