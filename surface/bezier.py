@@ -528,16 +528,13 @@ def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray) ->
 
 # ----------------------------------------------------------------------------- a-priori level
 def chord_error_bound(control_points) -> np.ndarray:
-    """Upper bound of the distance between each patch and its flat tessellation at level 0.
+    """Upper bound of the distance between each patch and its flat triangle (level 0).
 
-    For ``x = sum_i l_i v_i`` in a triangle, Taylor's formula about x gives
-    ``P(x) - sum_i l_i P(v_i) = -sum_i l_i int_0^1 (1 - s) D^2_{v_i - x} P ds``.
-    Writing ``v_i - x = sum_j l_j (v_i - v_j)``, the second derivative of a
-    degree-n Bézier patch along it is at most ``n (n - 1) M2``, with ``M2`` the
-    largest (mixed) second difference ``b_{a+e_j+e_k} - b_{a+e_i+e_k} -
-    b_{a+e_i+e_j} + b_{a+2e_i}`` of the net; hence the chord error is at most
-    ``n (n - 1) M2 / 2``.  A level-L tessellation shrinks the parameter
-    directions by ``2^-L``, so its error is at most this times ``4^-L``.
+    With ``L`` the linear interpolant of the three corners, linear precision
+    of the Bernstein basis (``sum_a B_a(u) a / n = u``) gives
+    ``P(u) - L(u) = sum_a B_a(u) (b_a - L(a / n))``, a convex combination, so
+    ``|P - L| <= max_a |b_a - L(a / n)|``: the largest distance of a control
+    point from the flat triangle's point at the same Greville abscissa.
 
     Parameters
     ----------
@@ -548,6 +545,23 @@ def chord_error_bound(control_points) -> np.ndarray:
     (P,) float64, scene units
     """
     cp = _check_control_points(control_points)
+    return _net_deviation(cp)
+
+
+def _net_deviation(cp: np.ndarray) -> np.ndarray:
+    greville = index_table() / DEGREE  # (28, 3)
+    flat = np.matmul(greville, cp[:, [0, 21, 27]])  # corners b600, b060, b006
+    return np.sqrt(np.einsum("pnd,pnd->pn", cp - flat, cp - flat)).max(axis=1)
+
+
+def _second_difference_bound(cp: np.ndarray) -> np.ndarray:
+    """``n (n - 1) M2 / 2`` per patch: bounds the chord error and shrinks by 4 per level.
+
+    Taylor's formula about ``x = sum_i l_i v_i`` gives ``P(x) - L(x) =
+    -sum_i l_i int_0^1 (1 - s) D^2_{v_i - x} P ds``; along ``v_i - x =
+    sum_j l_j (v_i - v_j)`` the second derivative is at most ``n (n - 1) M2``
+    with ``M2`` the largest (mixed) second difference of the net.
+    """
     low = index_table(DEGREE - 2)
     worst = np.zeros(len(cp))
     eye = np.eye(3, dtype=np.int64)
@@ -561,8 +575,19 @@ def chord_error_bound(control_points) -> np.ndarray:
     return 0.5 * DEGREE * (DEGREE - 1) * worst
 
 
+#: Largest number of sub-patches tessellation_level subdivides while searching.
+_LEVEL_BUDGET = 2 ** 17
+
+
 def tessellation_level(control_points, tolerance: float, max_level: int = 8) -> int:
-    """Smallest tessellation level whose chord error is at most ``tolerance`` (a priori).
+    """Smallest tessellation level whose chord error is guaranteed <= ``tolerance``.
+
+    Decided from the control nets before tessellating: patches whose
+    :func:`chord_error_bound` exceeds the tolerance are split by de Casteljau
+    and checked again, level by level (only the offending ones).  If that
+    would exceed ``_LEVEL_BUDGET`` sub-patches, the remaining levels come from
+    the second-difference bound ``n (n - 1) M2 / 2 / 4^L`` of the offending
+    nets instead (also rigorous, more conservative).
 
     Parameters
     ----------
@@ -576,14 +601,22 @@ def tessellation_level(control_points, tolerance: float, max_level: int = 8) -> 
     Returns
     -------
     int
-        ``ceil(log4(max chord_error_bound / tolerance))`` clipped to ``0..max_level``.
+        Level in ``0..max_level``.
     """
+    cp = _check_control_points(control_points)
     if not np.isfinite(tolerance) or tolerance <= 0:
         raise ValueError(f"tolerance must be a positive number, got {tolerance}")
-    bound = float(chord_error_bound(control_points).max(initial=0.0))
-    if bound <= tolerance:
-        return 0
-    return int(min(max_level, np.ceil(np.log(bound / tolerance) / np.log(4.0))))
+    level = 0
+    while level < max_level:
+        bad = _net_deviation(cp) > tolerance
+        if not bad.any():
+            return level
+        if 4 * int(bad.sum()) > _LEVEL_BUDGET:
+            bound = float(_second_difference_bound(cp[bad]).max())
+            return int(min(max_level, level + np.ceil(np.log(bound / tolerance) / np.log(4.0))))
+        cp = subdivide(cp[bad])
+        level += 1
+    return max_level
 
 
 # ----------------------------------------------------------------------------- continuity report

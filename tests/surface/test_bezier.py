@@ -550,25 +550,46 @@ def test_ring_operator_meets_every_constraint_for_any_data(n):
 
 
 # ----------------------------------------------------------------------------- a-priori level
-@pytest.mark.parametrize("name", ["icosphere", "band"])
+PROBES = np.array([[1, 1, 1], [2, 1, 1], [1, 2, 1], [1, 1, 2], [1, 1, 0], [0, 1, 1],
+                   [1, 0, 1]]) / np.array([[3], [4], [4], [4], [2], [2], [2]])
+
+
+def _chord_error(nets):
+    """Observed distance patch <-> flat corner triangle at centroids and edge midpoints."""
+    flat = np.einsum("sc,pcd->psd", PROBES, nets[:, [0, 21, 27]])  # corners b600, b060, b006
+    return np.linalg.norm(bz.evaluate(nets, PROBES) - flat, axis=-1).max(axis=1)
+
+
+@pytest.mark.parametrize("name", ["icosphere", "cube"])
 def test_chord_error_bound_holds_and_the_chosen_level_meets_the_tolerance(surfaces, name):
     (vertices, _), surface = surfaces[name]
     cp = surface.control_points
     tolerance = 1e-3 * _size(vertices)
     level = bz.tessellation_level(cp, tolerance)
     assert 0 < level <= 8
-    bound = bz.chord_error_bound(cp).max() / 4 ** level
-    assert bound <= tolerance
-    # observed: centroids and edge midpoints of every level-L sub-triangle
-    sub = cp
+    coarser, sub = None, cp
     for _ in range(level):
+        coarser, sub = sub, bz.subdivide(sub)
+    bound = bz.chord_error_bound(sub)
+    observed = _chord_error(sub)
+    assert np.all(observed <= bound * (1 + 1e-12))
+    assert bound.max() <= tolerance
+    assert observed.max() > bound.max() / 10  # tight, not vacuous
+    assert bz.chord_error_bound(coarser).max() > tolerance  # one level less would not do
+
+
+def test_second_difference_fallback_is_rigorous_and_coarser(surfaces, monkeypatch):
+    (vertices, _), surface = surfaces["octahedron"]
+    cp = surface.control_points
+    tolerance = 1e-3 * _size(vertices)
+    exact = bz.tessellation_level(cp, tolerance)
+    monkeypatch.setattr(bz, "_LEVEL_BUDGET", 1)  # fall back at once
+    fallback = bz.tessellation_level(cp, tolerance)
+    assert fallback >= exact
+    sub = cp
+    for _ in range(fallback):
         sub = bz.subdivide(sub)
-    probes = np.array([[1, 1, 1], [2, 1, 1], [1, 2, 1], [1, 1, 2], [1, 1, 0], [0, 1, 1],
-                       [1, 0, 1]]) / np.array([[3], [4], [4], [4], [2], [2], [2]])
-    flat = np.einsum("sc,pcd->psd", probes, sub[:, [0, 21, 27]])  # corners b600, b060, b006
-    error = np.linalg.norm(bz.evaluate(sub, probes) - flat, axis=-1).max()
-    assert error <= bound
-    assert error > bound / 1000  # the bound is not vacuous
+    assert _chord_error(sub).max() <= tolerance
     with pytest.raises(ValueError, match="tolerance"):
         bz.tessellation_level(cp, 0.0)
 
