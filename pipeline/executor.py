@@ -15,6 +15,12 @@ returns the results in order::
   ``"local-cluster:N"``), bound to 127.0.0.1 with the dashboard off so that an
   offline machine is not probed (dask/distributed#8559).
 
+Results are bit-identical to the in-process default: the local cluster's
+workers keep this process's BLAS/OpenMP threading (Dask would pin them to one
+thread, and BLAS then sums in another order).  Workers of a remote cluster
+should be started with the same ``OMP_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS``
+as the client for the same guarantee; otherwise results agree to rounding.
+
 Tasks are the objects of a batch and the view pairs of an image folder; each
 result is a small summary, the big arrays stay in files, so memory is bounded
 by the tasks in flight, not by the batch.
@@ -101,7 +107,7 @@ class DaskExecutor:
                 self.client = Client(self._cluster)
             else:
                 self.client = Client(address, timeout=timeout)
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, RuntimeError) as exc:
             if self._cluster is not None:
                 self._cluster.close()
             raise InputError(f"--scheduler {address or 'local-cluster'}: cannot connect "
@@ -135,7 +141,19 @@ class DaskExecutor:
 def quiet_dask() -> None:
     """Keep dask off the network and the terminal (no dashboard, errors only)."""
     import dask
+    import distributed  # noqa: F401 - loads its config defaults, which are edited below
 
+    # Dask pins OMP/MKL/OpenBLAS to one thread in the workers it spawns; BLAS then sums
+    # in another order than in this process and results differ in the last bits.  Keep the
+    # workers' threading as here so that a task gives the same bytes wherever it runs.
+    # (dask.config.set merges tables, so the pins are removed from the table itself.)
+    environ = dask.config.config.setdefault("distributed", {}).setdefault(
+        "nanny", {}).setdefault("pre-spawn-environ", {})
+    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        if name in os.environ:
+            environ[name] = os.environ[name]
+        else:
+            environ.pop(name, None)
     dask.config.set({"distributed.scheduler.dashboard.enabled": False,
                      "distributed.dashboard.link": "",
                      "distributed.admin.system-monitor.gil.enabled": False,
