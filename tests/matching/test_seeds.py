@@ -18,7 +18,7 @@ from matching.seeds import (
     select_points,
     texture_map,
 )
-from tests.matching.test_lsm import texture_coefficients, sample
+from tests.matching.test_lsm import sample, texture_coefficients
 
 
 def test_texture_map_of_sinusoids_is_analytic():

@@ -1,0 +1,159 @@
+"""Tests of matching.pair on a textured plane seen by a distorted, convergent rig.
+
+The plane Z = 3 carries a band-limited texture; each image is rendered by casting the
+ray of every (distorted) pixel centre onto the plane and sampling the texture there,
+so the correspondence is exact: left pixel -> ray -> plane point -> right projection.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from matching.cameras import Camera, StereoRig
+from matching.lsm import Status
+from matching.pair import PAIR_STATUS_NAMES, match_pair, reconstruct_pair
+from tests.matching.test_lsm import sample, texture_coefficients
+
+W, H, Z = 320, 240, 3.0
+
+
+def make_rig():
+    K = np.array([[400.0, 0, 159.5], [0, 400.0, 119.5], [0, 0, 1]])
+    a = np.deg2rad(6.0)
+    R = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])
+    dist = np.array([-0.05, 0.01, 0.0, 0.0, 0.0])
+    left = Camera(K, dist, np.eye(3), np.zeros(3), W, H, "left")
+    right = Camera(K, dist, R, np.array([-0.45, 0.0, 0.02]), W, H, "right")
+    return StereoRig(left, right)
+
+
+def plane_point(cam, pixels):
+    origin, ray = cam.ray(pixels)
+    return origin + ((Z - origin[:, 2]) / ray[:, 2])[:, None] * ray
+
+
+def render(cam, coef, gain=1.0, offset=0.0, noise=0.0, seed=0):
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    P = plane_point(cam, np.column_stack([xs.ravel(), ys.ravel()]))
+    img = sample(coef, 80 + 50 * P[:, 0], 80 + 50 * P[:, 1]).reshape(H, W)
+    img = gain * img + offset
+    return img + np.random.default_rng(seed).normal(0, noise, img.shape)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rig = make_rig()
+    coef = texture_coefficients(160, blur=1.2, seed=9)
+    left = render(rig.left, coef, noise=2.0, seed=1)
+    right = render(rig.right, coef, gain=1.1, offset=-8.0, noise=2.0, seed=2)
+    return rig, left, right
+
+
+def truth_right(rig, x_left):
+    return rig.right.project(plane_point(rig.left, x_left))
+
+
+def test_match_pair_against_exact_correspondence(scene):
+    rig, left, right = scene
+    m = match_pair(left, right, rig, spacing=6)
+    ok = m.accepted
+    inside = np.all((truth_right(rig, m.x_left) > 12) & (truth_right(rig, m.x_left)
+                                                        < [W - 12, H - 12]), axis=1)
+    assert ok[inside].mean() > 0.9, m.status_counts()
+    err = m.x_right[ok] - truth_right(rig, m.x_left[ok])
+    rms = np.sqrt(np.mean(err**2))
+    reported = np.sqrt(np.mean(m.sigma[ok] ** 2))
+    # the size follows from the texture: this smooth one (σ ≈ 3 px) gives ~0.03 px
+    assert rms < 0.05, (rms, reported)
+    # σ reported within ±25 % of the actual RMS (~300 points: the RMS itself is good
+    # to 1/sqrt(2 * 600) = 3 %)
+    assert 0.75 < rms / reported < 1.25, (rms, reported)
+    assert np.median(m.radiometric[ok, 1]) == pytest.approx(1 / 1.1, rel=0.02)
+    assert set(m.status_counts()) <= set(PAIR_STATUS_NAMES.values())
+
+
+def test_epipolar_constraint_keeps_points_on_the_line(scene):
+    rig, left, right = scene
+    free = match_pair(left, right, rig, spacing=10)
+    fixed = match_pair(left, right, rig, spacing=10, epipolar=True)
+    ok = fixed.accepted & free.accepted
+    assert ok.sum() > 100
+    # constrained: the shift only moves along the direction -> rank-1 covariance
+    det = np.linalg.det(fixed.cov[ok])
+    np.testing.assert_allclose(det, 0.0, atol=1e-12)
+    err = fixed.x_right[ok] - truth_right(rig, fixed.x_left[ok])
+    assert np.sqrt(np.mean(err**2)) < 0.03
+
+
+def test_reconstruct_pair_points_on_the_plane(scene):
+    rig, left, right = scene
+    rec = reconstruct_pair(left, right, rig, spacing=6)
+    assert len(rec) > 200
+    assert rec.points.shape == (len(rec), 3) and rec.colours.dtype == np.uint8
+    dz = rec.points[:, 2] - Z
+    # σ is the worst direction's; for a near fronto-parallel plane that is depth ~ z.
+    # the RMS depth error agrees with the RMS reported σ within ±30 %
+    ratio = np.sqrt(np.mean(dz**2)) / np.sqrt(np.mean(rec.sigma**2))
+    assert 0.7 < ratio < 1.3, ratio
+    # expected size: σ_z = z² σ_d / (f B) with σ_d ~ 0.02 px -> ~1e-3 scene units
+    assert np.sqrt(np.mean(dz**2)) < 3e-3
+    assert (rec.reprojection_error < 0.2).all()
+    np.testing.assert_array_equal(rec.matches.status[rec.index], Status.OK)
+    keys = rec.per_point()
+    assert "matches" not in keys and all(len(v) == len(rec) for v in keys.values())
+
+
+def test_textureless_and_occluded_regions_are_rejected():
+    rig = make_rig()
+    coef = texture_coefficients(160, blur=1.2, seed=9)
+    left = render(rig.left, coef, noise=2.0, seed=1)
+    right = render(rig.right, coef, noise=2.0, seed=2)
+    left[:, :100] = 90.0 + np.random.default_rng(3).normal(0, 2.0, (H, 100))
+    # "occluder" in the right image: a foreign texture where the truth would land
+    other = texture_coefficients(160, blur=1.2, seed=77)
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    right[80:160, 180:260] = sample(other, xs, ys)[80:160, 180:260]
+    m = match_pair(left, right, rig, spacing=6)
+    flat = m.x_left[:, 0] + 8 < 100
+    assert (m.status[flat] == Status.TEXTURELESS).all()
+    t = truth_right(rig, m.x_left)
+    hidden = (t[:, 0] > 190) & (t[:, 0] < 250) & (t[:, 1] > 90) & (t[:, 1] < 150)
+    assert hidden.sum() > 20
+    assert not m.accepted[hidden].any(), m.status[hidden]
+    assert m.accepted[~hidden & ~flat].mean() > 0.6
+
+
+def test_rectified_pair_disparity_map():
+    coef = texture_coefficients(200, seed=4)
+    ys, xs = np.mgrid[0:120, 0:180].astype(np.float64)
+    disparity = 9.0 + 0.02 * xs  # a slanted plane: d varies across the image
+    rng = np.random.default_rng(0)
+    left = sample(coef, xs + 10, ys + 10) + rng.normal(0, 2.0, xs.shape)
+    # x_right = x - d(x): the right image at u shows the left content at x with x - d = u
+    x_of_u = (xs + 9.0) / (1 - 0.02)
+    right = sample(coef, x_of_u + 10, ys + 10) + rng.normal(0, 2.0, xs.shape)
+    m = match_pair(left, right, rectified=True, spacing=4)
+    dmap = m.disparity_map()
+    assert dmap.shape == (120, 180) and dmap.dtype == np.float32
+    have = np.isfinite(dmap)
+    assert have.sum() == m.accepted.sum() > 300
+    err = dmap[have] - disparity[have]
+    assert np.sqrt(np.mean(err**2)) < 0.03
+    np.testing.assert_array_equal(m.x_right[m.accepted, 1], m.x_left[m.accepted, 1])
+
+
+def test_bad_input():
+    rig = make_rig()
+    img = np.random.default_rng(0).normal(100, 20, (H, W))
+    with pytest.raises(ValueError, match="same size"):
+        match_pair(img, img[:, :-1], rectified=True)
+    with pytest.raises(ValueError, match="rig's right camera is 320x240"):
+        match_pair(img, img[:-10], rig)
+    with pytest.raises(ValueError, match="give a rig"):
+        match_pair(img, img)
+    with pytest.raises(ValueError, match="grey"):
+        match_pair(np.zeros((H, W, 2)), img, rig)
+    flat = np.full((H, W), 50.0)
+    m = match_pair(flat, flat, rig)
+    assert (m.status == Status.TEXTURELESS).all() and not m.accepted.any()
