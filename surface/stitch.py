@@ -270,11 +270,22 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active)
 
     Returns ``(f1, f2, new f1, new f2, excess, new edge keys)``; the cheap
     tests run first so that angles and normals are computed for few edges.
+    The edge table is built over the faces sharing a vertex with an active
+    face only: both faces of an edge touching an active face are among them,
+    and so is any existing edge ``cd`` (it lies in a face around ``c`` or
+    ``d``, one of which is a vertex of an active face), so the existence test
+    stays exact while late sweeps cost little.
     """
     n_v = len(vertices)
-    table = edge_table(triangles)
+    if active.all():
+        sub = np.arange(len(triangles))
+    else:
+        touched = np.zeros(n_v, bool)
+        touched[triangles[active]] = True
+        sub = np.flatnonzero(touched[triangles].any(axis=1))
+    table = edge_table(triangles[sub])
     edge_ids, faces, corners = table.edge_faces()
-    f1, f2 = faces[:, 0], faces[:, 1]
+    f1, f2 = sub[faces[:, 0]], sub[faces[:, 1]]
     k1, k2 = corners[:, 0], corners[:, 1]
     edge_keys = _edge_keys(table.edges, n_v)  # sorted: edges are in (lo, hi) order
     a = triangles[f1, k1]
