@@ -30,6 +30,14 @@ All faces are counter-clockwise seen from outside: the side normal
 rings run counter-clockwise about the axis and ``b`` lies above ``a``; the
 bottom cap faces :math:`-\mathbf{axis}`, the top cap :math:`+\mathbf{axis}`.
 
+From points (:func:`surface_from_points`): slice, then move every slab
+point to its plane along the local surface rather than along the axis
+(:func:`slide_to_planes`: on a wall of slope r' an axial projection adds
+noise of size r'·(slab half-width); sliding on the tangent plane leaves
+O(κδ²)), organise, fit and predict the rings, move the end sections to the
+median height of the cap points beyond them (:func:`extend_to_caps`: the
+section planes stop half a spacing inside the data), stitch.
+
 References
 ----------
 .. [1] C. L. Lawson, "Software for C1 surface interpolation", in Mathematical
