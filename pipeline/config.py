@@ -23,10 +23,13 @@ import tomli_w
 
 from pipeline.errors import InputError
 
-#: Keys whose value may be a string or a list/number (``axis = "auto"`` or ``[0, 0, 1]``,
-#: ``smoothing = "auto"`` or ``8.0``).
-FLEXIBLE = frozenset({"sections.axis", "curves.smoothing"})
-
+#: Keys that take a value of the default's type *or* one of these words (``axis`` also a
+#: vector ``[x, y, z]``): ``axis = "auto"``, ``smoothing = "auto"``, ``level = "auto"``.
+FLEXIBLE = {
+    "sections.axis": ("x", "y", "z", "auto"),
+    "curves.smoothing": ("auto",),
+    "smooth.level": ("auto",),
+}
 
 #: Parameters that take one of a fixed set of words (lists: every element must be one).
 CHOICES = {
@@ -118,6 +121,14 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
             continue
         if dotted in FLEXIBLE:
             ok, converted = _type_ok(default, value)
+            ok = ok and not isinstance(default, str)  # a word must be one of the words
+            vector = (isinstance(value, list) and len(value) == 3 and
+                      all(isinstance(v, int | float) and not isinstance(v, bool) for v in value))
+            if not (ok or value in FLEXIBLE[dotted] or (dotted == "sections.axis" and vector)):
+                words = " or ".join(repr(w) for w in FLEXIBLE[dotted])
+                kind = "[x, y, z] or " if dotted == "sections.axis" else \
+                    f"{type(default).__name__} (like {default!r}) or "
+                raise InputError(f"{origin}: {dotted} must be {kind}{words}, got {value!r}")
             base[key] = converted if ok else value
             continue
         ok, converted = _type_ok(default, value)

@@ -845,13 +845,35 @@ def _smooth(ctx: StageContext) -> dict:
             raise StageSkipped(f"the stitched mesh is open ({border} border edges) and the "
                                f"Bezier construction refused it: {exc}") from exc
         raise
-    v, t, n = bezier.tessellate(surface, level=ctx.params["smooth"]["level"])
+    level = ctx.params["smooth"]["level"]
+    if level == "auto":  # finest detail the data can vouch for: the chord error <= tolerance
+        level = bezier.tessellation_level(surface.control_points, _smooth_tolerance(ctx),
+                                          max_level=3)
+    v, t, n = bezier.tessellate(surface, level=int(level))
     write_mesh(ctx.out / "surface.ply", v, t, normals=n)
     domain_vertices, domain_triangles = surface.domain_mesh
     save_npz(ctx.out / "control_net.npz", control_points=surface.control_points,
              index=bezier.index_table(), source_face=surface.source_face,
              domain_vertices=domain_vertices, domain_triangles=domain_triangles)
-    return {"patches": len(surface.control_points), "vertices": len(v), "triangles": len(t)}
+    return {"patches": len(surface.control_points), "level": int(level), "vertices": len(v),
+            "triangles": len(t)}
+
+
+def _smooth_tolerance(ctx: StageContext) -> float:
+    """Chord tolerance of ``smooth.level = "auto"``: given, else the cloud's median sigma,
+    else 5 % of the section spacing (scene units): the surface between two sections is
+    only known to the scale of their spacing, finer facets would show no more."""
+    import numpy as np
+
+    given = float(ctx.params["smooth"]["tolerance"])
+    if given > 0:
+        return given
+    sigma = _load_cloud(ctx)["sigma"]
+    sigma = sigma[np.isfinite(sigma) & (sigma > 0)]
+    if sigma.size:
+        return float(np.median(sigma))
+    with np.load(ctx.stage_path("sections", "sections.npz")) as d:
+        return 0.05 * float(np.median(np.diff(d["heights"])))
 
 
 def _export(ctx: StageContext) -> dict:
@@ -910,7 +932,9 @@ STAGES: list[Stage] = [
     Stage("stitch", _stitch, params=("stitch",), needs=("curves",),
           modules=("surface.stitch:stitch_rings",)),
     Stage("smooth", _smooth, params=("smooth",), needs=("stitch",),
-          modules=("surface.bezier:control_net", "surface.bezier:tessellate")),
+          optional_needs=("acquire", "sections"),
+          modules=("surface.bezier:control_net", "surface.bezier:tessellate",
+                   "surface.bezier:tessellation_level")),
     Stage("export", _export, params=("export",), needs=("stitch",), optional_needs=("smooth",),
           modules=("pipeline.export:export_mesh", "pipeline.export:write_control_net")),
     Stage("report", _report, params=("report",), target="report.html",
