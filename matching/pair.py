@@ -17,7 +17,8 @@ Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
 0-7 of :class:`matching.lsm.Status`, then
 
 ====  ====================  ==================================================
-8     ``no_approximation``  SGBM gave no disparity there (occlusion, no overlap)
+8     ``no_approximation``  SGBM gave no disparity at the point or somewhere under
+                            its patch (background, occlusion, silhouette)
 9     ``triangulation``     rejected by triangulation (behind a camera, large
                             reprojection error, ill-conditioned)
 ====  ====================  ==================================================
@@ -218,9 +219,10 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
     if len(textured):
         pts = cand.points[textured]
         if rectified:
-            approx = approximate_rectified(left, right, pts, block=sgbm_block)
+            approx = approximate_rectified(left, right, pts, block=sgbm_block, patch=patch)
         else:
-            approx = approximate_calibrated(rig, left, right, pts, block=sgbm_block)
+            approx = approximate_calibrated(rig, left, right, pts, block=sgbm_block,
+                                            patch=patch)
         has = np.isfinite(approx.x_right).all(1) & np.isfinite(approx.direction).all(1)
         status[textured[~has]] = NO_APPROXIMATION
         out["approx"][textured] = approx.x_right

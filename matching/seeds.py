@@ -401,12 +401,38 @@ class Approximations:
     range: tuple[int, int]
 
 
-def approximate_rectified(left_rect, right_rect, points, block: int = 5) -> Approximations:
-    """Approximations for left points of an already rectified pair (rows correspond)."""
+def _patch_probes(points, patch: int) -> np.ndarray:
+    """(N, 9, 2): the centre, corners and edge midpoints of each patch."""
+    half = patch // 2
+    offsets = np.array([(dx, dy) for dy in (-half, 0, half) for dx in (-half, 0, half)],
+                       dtype=np.float64)
+    return points[:, None, :] + offsets[None, :, :]
+
+
+def _disparity_over_patch(disp, probes_rect) -> np.ndarray:
+    """Disparity at the centre probe; NaN when any probe of the patch has none.
+
+    LSM assumes one smooth surface under the patch: a patch reaching into a region
+    SGBM left unmatched (background, an occlusion, a silhouette) breaks that.
+    """
+    n = probes_rect.shape[0]
+    d = sample_disparity(disp, probes_rect.reshape(-1, 2)).reshape(n, 9)
+    centre = d[:, 4].copy()
+    centre[~np.isfinite(d).all(axis=1)] = np.nan
+    return centre
+
+
+def approximate_rectified(left_rect, right_rect, points, block: int = 5,
+                          patch: int = 15) -> Approximations:
+    """Approximations for left points of an already rectified pair (rows correspond).
+
+    ``patch``: LSM patch side; a point gets no approximation when SGBM has no disparity
+    at any of its patch's corners, edge midpoints or centre.
+    """
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
     dmin, count = disparity_range(left_rect, right_rect)
     disp = sgbm_disparity(left_rect, right_rect, dmin, count, block)
-    d = sample_disparity(disp, points)
+    d = _disparity_over_patch(disp, _patch_probes(points, patch))
     x_right = np.column_stack([points[:, 0] - d, points[:, 1]])
     direction = np.broadcast_to([1.0, 0.0], points.shape).copy()
     return Approximations(x_right=x_right, direction=direction, x_left_rect=points.copy(),
@@ -414,7 +440,7 @@ def approximate_rectified(left_rect, right_rect, points, block: int = 5) -> Appr
 
 
 def approximate_calibrated(rig, left, right, points, rect: Rectification | None = None,
-                           block: int = 5) -> Approximations:
+                           block: int = 5, patch: int = 15) -> Approximations:
     """Approximations for left points of a calibrated pair through rectification + SGBM.
 
     Parameters
@@ -428,6 +454,9 @@ def approximate_calibrated(rig, left, right, points, rect: Rectification | None 
         Precomputed :func:`rectify` of ``rig``.
     block : int
         SGBM block side, px.
+    patch : int
+        LSM patch side, px: no approximation where SGBM has no disparity at any of the
+        patch's corners, edge midpoints or centre.
 
     Returns
     -------
@@ -439,8 +468,10 @@ def approximate_calibrated(rig, left, right, points, rect: Rectification | None 
     left_r, right_r = rectify_images(rect, left, right)
     dmin, count = disparity_range(left_r, right_r)
     disp = sgbm_disparity(left_r, right_r, dmin, count, block)
-    xl_rect = left_to_rectified(rect, rig.left, points)
-    d = sample_disparity(disp, xl_rect)
+    probes = left_to_rectified(rect, rig.left, _patch_probes(points, patch).reshape(-1, 2))
+    probes = probes.reshape(len(points), 9, 2)
+    xl_rect = probes[:, 4]
+    d = _disparity_over_patch(disp, probes)
     xr_rect = np.column_stack([xl_rect[:, 0] - d, xl_rect[:, 1]])
     x_right = rectified_to_original(rect, rig.right, xr_rect)
     # local epipolar tangent: image of a 1 px step along the rectified row
