@@ -379,7 +379,13 @@ def subdivide(control_points) -> np.ndarray:
         ``(m12, m20, m01)``; each exactly reparametrises its part of the parent.
     """
     cp = _check_control_points(control_points)
-    children = np.einsum("cmn,pnd->pcmd", _subdivision_matrices(), cp, optimize=True)
+    return _subdivide(cp)
+
+
+def _subdivide(cp: np.ndarray) -> np.ndarray:
+    stacked = _subdivision_matrices().reshape(4 * N_CONTROL, N_CONTROL)
+    children = _apply(stacked, cp)  # (4 * 28, P, 3)
+    children = children.reshape(4, N_CONTROL, len(cp), 3).transpose(2, 0, 1, 3)
     return children.reshape(-1, N_CONTROL, 3)
 
 
@@ -548,10 +554,25 @@ def chord_error_bound(control_points) -> np.ndarray:
     return _net_deviation(cp)
 
 
-def _net_deviation(cp: np.ndarray) -> np.ndarray:
+@cache
+def _deviation_operator() -> np.ndarray:
+    """``(28, 28)``: net minus the flat triangle of its corners at the Greville abscissae."""
     greville = index_table() / DEGREE  # (28, 3)
-    flat = np.matmul(greville, cp[:, [0, 21, 27]])  # corners b600, b060, b006
-    return np.sqrt(np.einsum("pnd,pnd->pn", cp - flat, cp - flat)).max(axis=1)
+    pick = np.zeros((3, N_CONTROL))
+    pick[[0, 1, 2], [0, 21, 27]] = 1.0  # corners b600, b060, b006
+    operator = np.eye(N_CONTROL) - greville @ pick
+    operator.flags.writeable = False
+    return operator
+
+
+def _net_deviation(cp: np.ndarray) -> np.ndarray:
+    return _net_deviation_sp(cp.transpose(1, 0, 2))
+
+
+def _net_deviation_sp(nets: np.ndarray) -> np.ndarray:
+    """Chord bound of sample-major nets ``(28, P, 3)`` -> ``(P,)``."""
+    diff = (_deviation_operator() @ nets.reshape(N_CONTROL, -1)).reshape(nets.shape)
+    return np.sqrt(np.einsum("npd,npd->np", diff, diff)).max(axis=0)
 
 
 def _second_difference_bound(cp: np.ndarray) -> np.ndarray:
@@ -606,15 +627,19 @@ def tessellation_level(control_points, tolerance: float, max_level: int = 8) -> 
     cp = _check_control_points(control_points)
     if not np.isfinite(tolerance) or tolerance <= 0:
         raise ValueError(f"tolerance must be a positive number, got {tolerance}")
+    nets = cp.transpose(1, 0, 2)  # (28, P, 3): sample-major, one GEMM per level
+    split = _subdivision_matrices().reshape(4 * N_CONTROL, N_CONTROL)
     level = 0
     while level < max_level:
-        bad = _net_deviation(cp) > tolerance
+        bad = _net_deviation_sp(nets) > tolerance
         if not bad.any():
             return level
-        if 4 * int(bad.sum()) > _LEVEL_BUDGET:
-            bound = float(_second_difference_bound(cp[bad]).max())
+        offending = nets[:, bad]  # (28, B, 3)
+        if 4 * len(offending[0]) > _LEVEL_BUDGET:
+            bound = float(_second_difference_bound(offending.transpose(1, 0, 2)).max())
             return int(min(max_level, level + np.ceil(np.log(bound / tolerance) / np.log(4.0))))
-        cp = subdivide(cp[bad])
+        children = (split @ offending.reshape(N_CONTROL, -1)).reshape(4, N_CONTROL, -1, 3)
+        nets = children.transpose(1, 0, 2, 3).reshape(N_CONTROL, -1, 3)
         level += 1
     return max_level
 
