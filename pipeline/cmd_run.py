@@ -8,7 +8,7 @@ import sys
 
 from pipeline import config as config_mod
 from pipeline import progress
-from pipeline.stages import KINDS, STAGE_ORDER, run_pipeline
+from pipeline.stages import KINDS, STAGE_ORDER, StageError, run_pipeline
 
 HELP = "run the whole pipeline (scene/stereo pair/image folder/point cloud -> surface + report)"
 
@@ -61,6 +61,21 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: executor.scheduler of the config)")
 
 
+def failure_summary(outdir: str, error: str) -> dict:
+    """The ``--json`` summary of a run that stopped on a failed stage (from its manifest)."""
+    from pathlib import Path
+
+    manifest = Path(outdir) / "manifest.json"
+    stages = json.loads(manifest.read_text())["stages"] if manifest.is_file() else {}
+    report = Path(outdir) / "report.html"
+    return {"outdir": str(outdir), "error": error, "manifest": str(manifest),
+            "report": str(report) if report.is_file() else None,
+            "stages": [{"name": name, "status": stages[name].get("status"),
+                        **({"reason": stages[name]["reason"]} if "reason" in stages[name]
+                           else {})}
+                       for name in STAGE_ORDER if name in stages]}
+
+
 def run(args: argparse.Namespace) -> int:
     from pipeline.executor import get_executor
 
@@ -68,9 +83,15 @@ def run(args: argparse.Namespace) -> int:
     config = config_mod.resolve(args.config, args.assignments)
     scheduler = args.scheduler or config["executor"]["scheduler"]
     with get_executor(scheduler, config["executor"]["workers"]) as executor:
-        summary = run_pipeline(args.inputs, args.out, config, kind=args.kind, rig=args.rig,
-                               start=args.start, stop=args.stop, force=args.force,
-                               executor=executor)
+        try:
+            summary = run_pipeline(args.inputs, args.out, config, kind=args.kind, rig=args.rig,
+                                   start=args.start, stop=args.stop, force=args.force,
+                                   executor=executor)
+        except StageError as exc:  # the CLI prints the one-line error; JSON readers get it too
+            if args.json:
+                json.dump(failure_summary(args.out, str(exc)), sys.stdout, indent=1)
+                sys.stdout.write("\n")
+            raise
     if args.json:
         json.dump(summary.to_dict(), sys.stdout, indent=1)
         sys.stdout.write("\n")

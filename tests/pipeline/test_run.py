@@ -185,6 +185,17 @@ def test_errors_are_one_line_exit_2(cloud, tmp_path, args, message, cli_run):
     assert message in lines[0]
 
 
+def test_json_on_a_failed_run(cloud, tmp_path, cli_run):
+    proc = cli_run("run", cloud, "--out", tmp_path / "o", *SMALL, "--json",
+                   "--set", "sections.count=1", check=False)
+    assert proc.returncode == 2
+    summary = json.loads(proc.stdout)
+    assert summary["error"].startswith("stage sections failed: ")
+    status = {s["name"]: s["status"] for s in summary["stages"]}
+    assert status["acquire"] == "done" and status["sections"] == "failed"
+    assert status["curves"] == "blocked" and status["report"] == "done"
+
+
 def test_quiet_and_no_terminal_means_no_progress_output(cloud, tmp_path, cli_run):
     # stderr is captured to a file here (not a terminal), as under cron, CI or a batch system
     proc = cli_run("run", cloud, "--out", tmp_path / "o", *SMALL, "--to", "sections", "-q")
