@@ -637,7 +637,8 @@ def tessellation_level(control_points, tolerance: float, max_level: int = 8) -> 
         offending = nets[:, bad]  # (28, B, 3)
         if 4 * len(offending[0]) > _LEVEL_BUDGET:
             bound = float(_second_difference_bound(offending.transpose(1, 0, 2)).max())
-            return int(min(max_level, level + np.ceil(np.log(bound / tolerance) / np.log(4.0))))
+            more = np.ceil(np.log(max(bound / tolerance, 1.0)) / np.log(4.0))
+            return int(min(max_level, level + more))
         children = (split @ offending.reshape(N_CONTROL, -1)).reshape(4, N_CONTROL, -1, 3)
         nets = children.transpose(1, 0, 2, 3).reshape(N_CONTROL, -1, 3)
         level += 1
