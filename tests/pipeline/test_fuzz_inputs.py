@@ -161,7 +161,7 @@ NONFINITE = st.sampled_from([math.nan, math.inf, -math.inf])
 
 
 def mutate_number(text: str, index: int, value: str) -> str:
-    """Replace the ``index``-th number token of a data line ``data: [ ... ]`` list with ``value``."""
+    """Replace the ``index``-th number of ``text`` (an opencv-matrix block) with ``value``."""
     import re
 
     tokens = list(re.finditer(r"(?<![\w.])-?\d+\.\d*(?:e-?\d+)?|(?<![\w.])-?\d+\.(?!\w)", text))
@@ -199,7 +199,7 @@ def test_rig_nonfinite_K_is_an_error_naming_the_field(entry, view, value, suffix
 @given(kind=st.sampled_from(["zero_fx", "zero_fy", "zero_row", "all_zero", "bottom", "negative"]),
        view=st.sampled_from(["view_00", "view_01"]))
 def test_rig_singular_or_invalid_K(kind, view):
-    from matching.cameras import Camera, StereoRig, read_rig
+    from matching.cameras import read_rig
 
     rig = make_rig()
     K = np.array(rig.left.K)
@@ -711,11 +711,11 @@ supersample = 1
 def test_recipe_bad_fields(edit):
     """Each bad field: an error naming the recipe file and the field (or, for fields the
     recipe validator cannot judge alone, the scene builder)."""
-    from pipeline.scenes import build_scene, load_recipe
-
     import tomllib
 
     import tomli_w
+
+    from pipeline.scenes import build_scene, load_recipe
 
     dotted, value = edit
     table, _, key = dotted.rpartition(".")
@@ -754,8 +754,8 @@ def test_recipe_missing_things(tmp_path, case):
     elif case in ("mesh_path_missing", "mesh_no_path"):
         shape = '[shape]\nkind = "mesh"\n' + ('path = "nowhere.ply"\n'
                                               if case == "mesh_path_missing" else "")
-        path.write_text(GOOD_RECIPE.replace(GOOD_RECIPE.split("[cameras]")[0].split("seed = 1\n")[1],
-                                            shape))
+        old_shape = GOOD_RECIPE.split("[cameras]")[0].split("seed = 1\n")[1]
+        path.write_text(GOOD_RECIPE.replace(old_shape, shape))
     elif case == "binary":
         path.write_bytes(b"\xff\xfe\x00 = 1\n")
     elif case == "folder":
@@ -775,8 +775,10 @@ def test_recipe_missing_things(tmp_path, case):
 @given(body=st.sampled_from([
     "", "[[object]]\n", "[[object]]\nname = \"a\"\n", "object = 3\n", "[object]\ninput = \"x\"\n",
     "[[object]]\ninput = \"a.toml\"\ninputs = [\"b.toml\"]\n", "[[object]]\ninputs = [1, 2]\n",
-    "[[object]]\ninput = \"a.toml\"\nkind = \"video\"\n", "[[object]]\ninput = \"a.toml\"\ncolour = 1\n",
-    "[[object]]\ninput = \"a.toml\"\nname = \"../x\"\n", "[[object]]\ninput = \"a.toml\"\nname = \".h\"\n",
+    "[[object]]\ninput = \"a.toml\"\nkind = \"video\"\n",
+    "[[object]]\ninput = \"a.toml\"\ncolour = 1\n",
+    "[[object]]\ninput = \"a.toml\"\nname = \"../x\"\n",
+    "[[object]]\ninput = \"a.toml\"\nname = \".h\"\n",
     "[[object]]\ninput = \"a.toml\"\n[[object]]\ninput = \"a.toml\"\n",
     "set = 3\n[[object]]\ninput = \"a.toml\"\n", "typo = 1\n[[object]]\ninput = \"a.toml\"\n",
     "[[object]\ninput = \"a.toml\"\n", "[[object]]\ninput = a.toml\n", "\xff\xfe",
@@ -829,3 +831,69 @@ def test_every_user_error_type_is_handled_by_the_cli():
     """The exception types these readers raise are exactly what the CLI turns into one line."""
     for exc in READER_ERRORS:
         assert issubclass(exc, USER_ERRORS)
+
+
+@fuzz(20)
+@given(small=st.integers(1, 3), which=st.integers(0, 3), seed=st.integers(0, 100))
+def test_section_with_fewer_than_4_points_is_a_named_warning(small, which, seed):
+    """Issue 4: a section with fewer than 4 points is skipped with a named warning
+    (``SectionSkippedWarning`` naming the section), the others are kept."""
+    from surface.sections import SectionSkippedWarning, read_sectioned
+    from surface.topology import organise_all
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    for sid in range(4):
+        n = small if sid == which else 40
+        theta = rng.uniform(0, 2 * np.pi, n)
+        rows += [f"{np.cos(a):.6f},{np.sin(a):.6f},{0.5 * sid},{sid}" for a in theta]
+    with scratch() as tmp:
+        path = tmp / "contours.csv"
+        path.write_text("x,y,z,id\n" + "\n".join(rows) + "\n")
+        sections = read_sectioned(path)
+        with pytest.warns(SectionSkippedWarning) as caught:
+            loops = organise_all(sections)
+    skipped = [i for i, found in enumerate(loops) if not found]
+    assert skipped == [which]
+    assert any(f"section {sections[which].section_id}" in str(w.message) for w in caught)
+
+
+# =========================================================================== image folders (SfM)
+
+
+@pytest.mark.parametrize("case", ["missing", "a_file", "empty", "one_image", "only_text_files",
+                                  "garbage_png", "textureless", "tiny_images", "names_missing"])
+def test_sfm_bad_folders(tmp_path, case):
+    """Issue 6: an empty folder, fewer than 2 images, non-image files, a folder where SfM
+    registers nothing: a ValueError / FileNotFoundError naming the folder or file."""
+    from matching.sfm import run_sfm
+
+    folder = tmp_path / "images"
+    kwargs = {}
+    if case == "a_file":
+        folder.write_text("x")
+    elif case != "missing":
+        folder.mkdir()
+    if case == "one_image":
+        write_png(folder / "a.png", textured(64, 48, 1))
+        (folder / "notes.txt").write_text("x")
+    elif case == "only_text_files":
+        for name in ("a.txt", "b.csv", "c"):
+            (folder / name).write_text("x")
+    elif case == "garbage_png":
+        write_png(folder / "a.png", textured(64, 48, 1))
+        (folder / "b.png").write_text("not a png")
+    elif case == "textureless":
+        for i in range(3):
+            write_png(folder / f"{i}.png", np.full((48, 64), 100, np.uint8))
+    elif case == "tiny_images":
+        for i in range(3):
+            write_png(folder / f"{i}.png", textured(4, 4, i))
+    elif case == "names_missing":
+        for i in range(2):
+            write_png(folder / f"{i}.png", textured(64, 48, i))
+        kwargs["image_names"] = ["0.png", "zz.png"]
+    message = must_fail(run_sfm, folder if case != "garbage_png" else folder / "b.png", folder,
+                        num_threads=1, **kwargs)
+    if case == "names_missing":
+        assert "zz.png" in message
