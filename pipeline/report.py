@@ -207,7 +207,8 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     params = config.get("report", {})
     manifest = json.loads((root / "manifest.json").read_text(encoding="utf-8"))
     truth_path = root / "scene" / "truth" / "mesh.ply"
-    truth = read_mesh(truth_path) if truth_path.is_file() else None
+    scene_done = manifest.get("stages", {}).get("scene", {}).get("status") == "done"
+    truth = read_mesh(truth_path) if scene_done and truth_path.is_file() else None
     final = _final_mesh(root)
     parts: list[str] = []
     info: dict = {}

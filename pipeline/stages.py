@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import logging
 import os
+import shutil
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
@@ -393,6 +394,13 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
         for p in input_paths + ([rig_path] if rig_path else []):
             external.update({f"input:{p.resolve()}/{k}": v for k, v in hash_tree(p, p).items()}
                             if p.is_dir() else {f"input:{p.resolve()}": sha256_file(p)})
+        for stale in [n for n in ws.manifest["stages"] if n not in names]:
+            # a stage of another input kind (e.g. the scene of an earlier recipe run):
+            # its outputs must not be mistaken for this input's
+            log.info("%s: removed, not a stage of this %s input", stale, kind)
+            ws.forget(stale)
+            if stale in STAGE_ORDER and ws.stage_dir(stale).is_dir():
+                shutil.rmtree(ws.stage_dir(stale))
         write_text(ws.root / CONFIG, config_mod.dumps(config))
         ws.manifest.update({
             "photosurf": __version__, "kind": kind,

@@ -232,3 +232,11 @@ def test_config_file_errors(tmp_path):
         config_mod.resolve(bad)
     with pytest.raises(FileNotFoundError, match="no such config file"):
         config_mod.resolve(tmp_path / "none.toml")
+
+
+def test_stages_of_another_input_kind_are_forgotten(toy_input, tmp_path):
+    out = tmp_path / "ws"
+    _run(toy_input, out)
+    _run(toy_input, out, stages=TOY[:2])  # e.g. a cloud after a scene: no "scene" stage
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["stages"]) == {"first", "second"}
