@@ -55,6 +55,7 @@ import json
 import math
 import os
 import struct
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -328,7 +329,19 @@ def read_glb(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarra
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such GLB file")
     data = path.read_bytes()
-    document, blob = _glb_chunks(path, data)
+    try:
+        return _read_glb_document(path, *_glb_chunks(path, data))
+    except InputError:
+        raise
+    except (KeyError, IndexError, TypeError, AttributeError, ValueError, struct.error) as exc:
+        # a document that lies (missing tables, wrong types, offsets past the data)
+        raise InputError(f"{path}: malformed glTF document ({type(exc).__name__}: "
+                         f"{exc})") from None
+
+
+def _read_glb_document(path: Path, document, blob: bytes):
+    if not isinstance(document, dict):
+        raise InputError(f"{path}: the glTF JSON chunk is not an object")
     vertices, triangles, normals = [], [], []
     for mesh in document.get("meshes", []):
         for prim in mesh.get("primitives", []):
@@ -387,6 +400,8 @@ def _accessor(path: Path, document: dict, blob: bytes, index: int) -> np.ndarray
                          f"{accessor['componentType']}")
     start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
     count = accessor["count"] * width
+    if not all(isinstance(n, int) and n >= 0 for n in (start, count)):
+        raise InputError(f"{path}: accessor {index}: offsets and count must be integers >= 0")
     end = start + count * np.dtype(dtype).itemsize
     if end > view.get("byteOffset", 0) + view["byteLength"] or end > len(blob):
         raise InputError(f"{path}: accessor {index} runs past its buffer view")
@@ -541,8 +556,8 @@ def read_control_net(path: str | os.PathLike) -> ControlNet:
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {name: npz[name] for name in npz.files}
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable .npz ({exc})") from exc
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{path}: not a readable .npz ({exc or type(exc).__name__})") from exc
     if str(arrays.get("format", "")) != CONTROL_NET_FORMAT:
         raise InputError(f"{path}: not a photosurf control net (format "
                          f"{str(arrays.get('format', 'missing'))!r})")

@@ -897,3 +897,110 @@ def test_sfm_bad_folders(tmp_path, case):
                         num_threads=1, **kwargs)
     if case == "names_missing":
         assert "zz.png" in message
+
+
+# =========================================================================== GLB and control nets
+
+GLB_FIELDS = [("accessors", 0, "count"), ("accessors", 0, "componentType"),
+              ("accessors", 0, "type"), ("accessors", 0, "bufferView"),
+              ("accessors", 0, "byteOffset"), ("accessors", 1, "count"),
+              ("bufferViews", 0, "byteLength"), ("bufferViews", 0, "byteOffset"),
+              ("bufferViews", 0, "buffer"), ("meshes", 0, "primitives"), ("accessors",),
+              ("bufferViews",), ("meshes",)]
+
+
+def _glb_bytes(document: dict, blob: bytes) -> bytes:
+    import json
+    import struct
+
+    text = json.dumps(document).encode()
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    return (struct.pack("<III", 0x46546C67, 2, total) + struct.pack("<II", len(text), 0x4E4F534A)
+            + text + struct.pack("<II", len(blob), 0x004E4942) + blob)
+
+
+@fuzz(40)
+@given(field=st.sampled_from(GLB_FIELDS),
+       value=st.sampled_from([None, -1, 0, 7, 10**9, "x", "VEC2", [], {}, 1.5, True, 5126]),
+       delete=st.booleans())
+def test_glb_malformed_document(field, value, delete):
+    """A GLB whose JSON lies (counts, offsets, types, missing tables): read, or an error
+    naming the file -- never a KeyError/IndexError/TypeError traceback."""
+    import json
+    import struct
+
+    from pipeline.export import read_glb, write_glb
+
+    v, t = tetra_mesh()
+    with scratch() as tmp:
+        path = write_glb(tmp / "mesh.glb", v, t)
+        data = path.read_bytes()
+        json_len = struct.unpack_from("<I", data, 12)[0]
+        document = json.loads(data[20:20 + json_len])
+        blob = data[20 + json_len + 8:]
+        node = document
+        for key in field[:-1]:
+            node = node[key]
+        if delete and isinstance(node, dict):
+            node.pop(field[-1], None)
+        elif isinstance(node, dict):
+            node[field[-1]] = value
+        else:
+            node[field[-1]] = value
+        path.write_bytes(_glb_bytes(document, blob))
+        result = raises_naming(read_glb, path, path)
+        if not isinstance(result, Exception):
+            vertices, triangles, _ = result
+            assert triangles.size == 0 or triangles.max() < len(vertices)
+
+
+@fuzz(40)
+@given(cut=st.integers(0, 2000), flip=st.integers(0, 2000), byte=st.integers(0, 255))
+def test_glb_truncated_or_flipped(cut, flip, byte):
+    from pipeline.export import read_glb, write_glb
+
+    v, t = tetra_mesh()
+    with scratch() as tmp:
+        path = write_glb(tmp / "mesh.glb", v, t)
+        data = bytearray(path.read_bytes())
+        data[flip % len(data)] = byte
+        path.write_bytes(bytes(data[: len(data) - cut % len(data)]) if cut else bytes(data))
+        result = raises_naming(read_glb, path, path)
+        if not isinstance(result, Exception):
+            vertices, triangles, _ = result
+            assert triangles.size == 0 or triangles.max() < len(vertices)
+
+
+@pytest.mark.parametrize("case", ["empty", "not_zip", "no_format", "wrong_version",
+                                  "bad_control_points", "bad_index", "pickled", "truncated"])
+def test_control_net_malformed(tmp_path, case):
+    from pipeline.export import CONTROL_NET_FORMAT, CONTROL_NET_VERSION, read_control_net
+
+    path = tmp_path / "net.npz"
+    good = {"format": np.array(CONTROL_NET_FORMAT), "format_version": np.array(CONTROL_NET_VERSION),
+            "control_points": np.zeros((2, 28, 3)), "source_face": np.zeros(2, np.int64)}
+    from surface.bezier import index_table
+
+    good["index"] = index_table()
+    if case == "empty":
+        path.write_bytes(b"")
+    elif case == "not_zip":
+        path.write_bytes(b"PK\x03\x04garbage" * 4)
+    elif case == "truncated":
+        np.savez(path, **good)
+        path.write_bytes(path.read_bytes()[:200])
+    else:
+        arrays = dict(good)
+        if case == "no_format":
+            del arrays["format"]
+        elif case == "wrong_version":
+            arrays["format_version"] = np.array(99)
+        elif case == "bad_control_points":
+            arrays["control_points"] = np.zeros((2, 27, 3))
+        elif case == "bad_index":
+            arrays["index"] = np.zeros((28, 3), np.int64)
+        elif case == "pickled":
+            arrays["control_points"] = np.array([None, 1], dtype=object)
+        np.savez(path, **arrays)
+    must_fail(read_control_net, path, path)
