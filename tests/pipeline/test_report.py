@@ -48,7 +48,8 @@ def _workspace(tmp_path):
              origin=np.array([s.origin for s in sections]), frame=sections[0].frame)
     manifest = {"kind": "scene", "photosurf": "test", "inputs": [{"path": "vase.toml"}],
                 "versions": {"numpy": np.__version__},
-                "stages": {"stitch": {"status": "done", "seconds": 0.5,
+                "stages": {"scene": {"status": "done", "seconds": 1.0},
+                           "stitch": {"status": "done", "seconds": 0.5,
                                       "params": {"stitch": {"caps": True}}},
                            "smooth": {"status": "not available",
                                       "reason": "surface.bezier not there yet"}}}
