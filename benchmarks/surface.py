@@ -8,7 +8,7 @@ per coordinate, seeded.
 
 Methods, timed from the raw points to a mesh in the same process (normals
 estimated and oriented inside the peers' timings, since they need them and
-the stitched method does not):
+the stitched method does not; the table's "normals" column is that share):
 
 * ``stitched``     ``surface.stitch.surface_from_points`` with its defaults;
 * ``poisson-8/9``  screened Poisson (open3d, depth 8 and 9), normals by PCA of
@@ -100,13 +100,15 @@ def run_stitched(points: np.ndarray) -> dict:
 
 
 def _o3d_cloud(points: np.ndarray, normals: bool):
+    """open3d cloud (with estimated, oriented normals) and the seconds the normals took."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    start = time.perf_counter()
     if normals:
         cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=30))
         cloud.orient_normals_consistent_tangent_plane(30)
-    return cloud
+    return cloud, time.perf_counter() - start
 
 
 def _from_o3d(mesh) -> dict:
@@ -117,18 +119,19 @@ def _from_o3d(mesh) -> dict:
 def run_poisson(points: np.ndarray, depth: int) -> dict:
     import open3d as o3d
 
-    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-        _o3d_cloud(points, normals=True), depth=depth)
-    return _from_o3d(mesh)
+    cloud, normals_seconds = _o3d_cloud(points, normals=True)
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth)
+    return {**_from_o3d(mesh), "normals_seconds": normals_seconds}
 
 
 def run_ball_pivoting(points: np.ndarray) -> dict:
     import open3d as o3d
 
-    cloud = _o3d_cloud(points, normals=True)
+    cloud, normals_seconds = _o3d_cloud(points, normals=True)
     spacing = float(np.mean(cloud.compute_nearest_neighbor_distance()))
     radii = o3d.utility.DoubleVector([spacing, 2 * spacing, 4 * spacing])
-    return _from_o3d(o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(cloud, radii))
+    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(cloud, radii)
+    return {**_from_o3d(mesh), "normals_seconds": normals_seconds}
 
 
 def run_alpha(points: np.ndarray, spacings: float) -> dict:
@@ -136,7 +139,7 @@ def run_alpha(points: np.ndarray, spacings: float) -> dict:
 
     alpha = spacings * point_spacing(points)
     mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(
-        _o3d_cloud(points, normals=False), alpha)
+        _o3d_cloud(points, normals=False)[0], alpha)
     return {**_from_o3d(mesh), "alpha": alpha}
 
 
@@ -178,6 +181,7 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
         for name, method in methods:
             row = evaluate(name, method, points, truth, samples=min(SAMPLES, 4 * size))
             rows.append({"points": size, "method": name, "seconds": row["seconds"],
+                         "normals_seconds": row.get("normals_seconds"),
                          "triangles": row["triangles"], "chamfer": row.get("chamfer"),
                          "closed": row["closed"], "components": row["components"]})
             chamfer = row.get("chamfer", float("nan"))
@@ -187,13 +191,14 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
 
 
 def print_table(rows: list[dict]) -> None:
-    head = (f"{'method':<14s}{'seconds':>8s}{'triangles':>10s}{'accuracy':>10s}"
+    head = (f"{'method':<14s}{'seconds':>8s}{'normals':>8s}{'triangles':>10s}{'accuracy':>10s}"
             f"{'complete':>10s}{'Chamfer':>10s}{'F@.005':>8s}{'Hausdorff':>10s}"
             f"{'closed':>7s}{'comps':>6s}")
     print(head)
     print("-" * len(head))
     for r in rows:
-        print(f"{r['method']:<14s}{r['seconds']:8.2f}{r['triangles']:10d}"
+        normals = f"{r['normals_seconds']:8.2f}" if "normals_seconds" in r else f"{'-':>8s}"
+        print(f"{r['method']:<14s}{r['seconds']:8.2f}{normals}{r['triangles']:10d}"
               f"{r.get('accuracy', np.nan):10.5f}{r.get('completeness', np.nan):10.5f}"
               f"{r.get('chamfer', np.nan):10.5f}{r.get('fscore', np.nan):8.3f}"
               f"{r.get('hausdorff', np.nan):10.4f}{'yes' if r['closed'] else 'no':>7s}"
