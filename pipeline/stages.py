@@ -3,13 +3,20 @@
     scene → acquire → sections → curves → stitch → smooth → export → report
 
 Each stage is a function ``f(ctx) -> dict`` that reads its upstream stages'
-files (``ctx.input_path(stage, name)``) and writes its own into ``ctx.out``
+files (``ctx.stage_path(stage, name)``) and writes its own into ``ctx.out``
 (a temporary folder renamed to ``OUTDIR/<stage>`` only when the function
 returns: :mod:`pipeline.workspace`).  The returned dict (counts, metrics) is
-stored in the manifest.  No algorithm lives here: every stage calls the public
-functions of ``matching``, ``surface`` and the pipeline's I/O modules, and a
-stage whose module has not been written yet is reported as *not available*
-(with the module's name), not as a traceback.
+stored in the manifest.  Statuses: ``done``, ``up to date`` (skipped: same
+inputs, parameters and outputs), ``not available`` (its module is not
+there), ``skipped`` (it cannot apply to this data, with the reason: e.g. no
+Bezier smoothing of an open mesh), ``blocked`` (a stage it needs did not
+run), ``failed`` (an error: the run stops after the report with a one-line
+message), ``outside range`` (``--from`` / ``--to``).
+
+No algorithm lives here: every stage calls the public functions of
+``matching``, ``surface`` and the pipeline's I/O modules, and a stage whose
+module has not been written yet is reported as *not available* (with the
+module's name), not as a traceback.
 
 The stage functions are the small adapters at the end of this module
 (``_scene``, ``_acquire`` ...), listed in :data:`STAGES`; the plan for an
@@ -927,7 +934,6 @@ def _report(ctx: StageContext) -> dict:
                         track=lambda items, desc="": ctx.track(items, desc))
 
 
-_SURFACE_STAGES = ("stitch", "smooth")
 STAGES: list[Stage] = [
     Stage("scene", _scene, params=("scene",), external=True, modules=("pipeline.scenes",)),
     Stage("acquire", _acquire, params=("acquire",), external=True,
