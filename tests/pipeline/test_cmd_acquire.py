@@ -1,0 +1,157 @@
+"""``photosurf acquire``: a folder of ring views -> PLY + NPZ; every bad input exits 2, one line."""
+
+from __future__ import annotations
+
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from matching.cameras import read_cameras, write_cameras_yml
+from pipeline.cli import main
+from pipeline.cloud_io import read_ply
+
+ARC = 5  # views 0..4 of the 24-view ring; each point is checked in a further view
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory, fixtures_dir):
+    from pipeline.scenes import render_scene
+
+    out = tmp_path_factory.mktemp("acq") / "scene"
+    render_scene(fixtures_dir / "scenes" / "vase_ring_small.toml", out, progress=False)
+    return out
+
+
+@pytest.fixture()
+def arc(scene, tmp_path):
+    """A folder with the first ARC images and a cameras.yml holding all 24 cameras."""
+    folder = tmp_path / "arc"
+    folder.mkdir()
+    for k in range(ARC):
+        shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
+    shutil.copy(scene / "cameras.yml", folder)
+    return folder
+
+
+def _error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_acquire_writes_a_cloud_with_views(arc, tmp_path, capsys):
+    out = tmp_path / "out" / "cloud.ply"
+    assert main(["acquire", str(arc), "--out", str(out), "--spacing", "6"]) == 0
+    summary = capsys.readouterr().out
+    # the neighbours (k, k+1), plus (0, 2) and (2, 4): the end views' second partner
+    # (b/d 0.52 <= 0.6, 30 deg <= 40) when there is no neighbour on their other side
+    assert "5 views" in summary and "6 pairs" in summary and str(out) in summary
+    cloud = read_ply(out)
+    with np.load(out.with_suffix(".npz")) as data:
+        assert np.allclose(data["points"], cloud.points)
+        views, names = data["views"], list(data["view_names"])
+        assert views.shape == (len(cloud), ARC) and views.sum(1).min() >= 3
+        assert names == [f"view_{k:02d}.png" for k in range(ARC)]
+        assert data["pairs"].tolist() == [[0, 1], [0, 2], [1, 2], [2, 3], [2, 4], [3, 4]]
+        assert "multiview" in list(data["reason_names"])
+    assert len(cloud) > 1000 and cloud.sigma is not None and np.all(cloud.sigma > 0)
+    # on the vase r(z) = 1 + 0.3 sin 2z: the radial error is the distance to the truth up
+    # to the profile slope (|r'| <= 0.6); the multi-view sigma is ~6e-4 (tests/matching)
+    r = np.hypot(cloud.points[:, 0], cloud.points[:, 1])
+    radial = r - (1 + 0.3 * np.sin(2 * cloud.points[:, 2]))
+    assert np.median(np.abs(radial)) < 2e-3
+
+
+def test_acquire_with_explicit_cameras_and_an_images_subfolder(scene, tmp_path, capsys):
+    folder = tmp_path / "set"
+    (folder / "images").mkdir(parents=True)
+    for k in range(3):
+        shutil.copy(scene / "images" / f"view_{k:02d}.png", folder / "images")
+    out = tmp_path / "c.ply"
+    cams = tmp_path / "elsewhere.yml"
+    shutil.copy(scene / "cameras.yml", cams)
+    assert main(["acquire", str(folder), "--out", str(out), "--cameras", str(cams),
+                 "--spacing", "8"]) == 0
+    assert "3 views" in capsys.readouterr().out and out.is_file()
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "one_image", "not_images", "unreadable",
+                                  "mixed_sizes", "camera_size", "no_camera_for_image",
+                                  "bad_out"])
+def test_bad_input_exits_2_with_one_line(case, scene, tmp_path, capsys):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    out = tmp_path / "out.ply"
+    args = None
+    img = cv2.imread(str(scene / "images" / "view_00.png"), cv2.IMREAD_UNCHANGED)
+    if case == "missing":
+        folder = tmp_path / "nope"
+        expect = "no such folder"
+    elif case == "empty":
+        expect = "empty folder"
+    elif case == "one_image":
+        cv2.imwrite(str(folder / "a.png"), img)
+        expect = "need at least 2 images, found 1"
+    elif case == "not_images":
+        (folder / "notes.txt").write_text("hello")
+        expect = "no image files"
+    elif case == "unreadable":
+        cv2.imwrite(str(folder / "a.png"), img)
+        (folder / "b.png").write_bytes(b"not a png")
+        expect = "b.png: not a readable image"
+    elif case == "mixed_sizes":
+        cv2.imwrite(str(folder / "a.png"), img)
+        cv2.imwrite(str(folder / "b.png"), img[:200])
+        expect = "different sizes"
+    elif case == "camera_size":
+        cv2.imwrite(str(folder / "view_00.png"), img)
+        cv2.imwrite(str(folder / "view_01.png"), img[:200])
+        shutil.copy(scene / "cameras.yml", folder)
+        expect = "view_01.png: image is 320x200 px but its camera"
+    elif case == "no_camera_for_image":
+        cv2.imwrite(str(folder / "view_00.png"), img)
+        cv2.imwrite(str(folder / "other.png"), img)
+        shutil.copy(scene / "cameras.yml", folder)
+        expect = "no camera for image(s) other.png"
+    else:
+        for k in range(2):
+            shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
+        out = tmp_path / "out.xyz"
+        expect = "--out must end in .ply"
+    args = args or ["acquire", str(folder), "--out", str(out)]
+    assert main(args) == 2
+    line = _error_line(capsys)
+    assert line.startswith("photosurf acquire: error:") and expect in line, line
+    assert not out.exists() and not out.with_suffix(".npz").exists()
+    assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # no temp left
+
+
+def test_sfm_that_registers_nothing_exits_2(tmp_path, capsys):
+    folder = tmp_path / "noise"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(3):  # flat grey: no SIFT feature, nothing to register
+        cv2.imwrite(str(folder / f"{k}.png"),
+                    np.full((120, 160), 128, np.uint8) + rng.integers(0, 2, (120, 160),
+                                                                      dtype=np.uint8))
+    out = tmp_path / "c.ply"
+    assert main(["acquire", str(folder), "--out", str(out)]) == 2
+    line = _error_line(capsys)
+    assert "registered" in line and str(folder) in line, line
+    assert not out.exists()
+
+
+def test_cameras_written_for_a_subset_are_matched_by_name(scene, tmp_path):
+    from pipeline.cmd_acquire import load_folder
+
+    folder = tmp_path / "sub"
+    folder.mkdir()
+    cams = read_cameras(scene / "cameras.yml")
+    for k in (3, 7):
+        shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
+    write_cameras_yml(folder / "cameras.yml", cams[::-1])  # any order
+    loaded = load_folder(folder)
+    assert [c.name for c in loaded["cameras"]] == ["view_03.png", "view_07.png"]
+    assert loaded["cameras"][1].allclose(cams[7])
