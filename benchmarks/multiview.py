@@ -1,0 +1,197 @@
+"""Multi-view acquisition of the 24-view vase ring: photosurf vs pycolmap's sparse model.
+
+One run, side by side, on ``fixtures/scenes/vase_ring.toml`` (1024x768; ``--quick``:
+``vase_ring_small.toml``, 320x240):
+
+* ``photosurf``        :func:`matching.multiview.reconstruct_multiview` with the known
+  cameras: points, RMS distance to the truth mesh, seconds per view pair and in total;
+* ``photosurf-sfm``    the same with pycolmap's cameras aligned to the truth by a
+  similarity (Umeyama on the camera centres, :func:`matching.sfm.align_to_reference`);
+* ``pycolmap-sparse``  pycolmap's own reconstruction of the same images (SIFT, exhaustive
+  matching, incremental mapping, triangulated sparse points), aligned the same way;
+* ``surface``          the photosurf cloud -> ``surface.stitch.surface_from_points`` ->
+  Loop's sextic patches (``surface.bezier``) tessellated at level 2: Chamfer distance to
+  the truth (``surface.metrics.compare_meshes``) and the time of the whole folder ->
+  surface (acquisition + surface).
+
+Goals (issue 6): photosurf >= 20x the sparse points with <= 0.5x its RMS error; the folder
+-> smooth surface in <= 60 s on this 2-core machine; surface Chamfer <= 0.1 % of the
+object's height.
+
+    .venv/bin/python benchmarks/multiview.py [--quick] [--json PATH] [--scene DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from matching.cameras import read_cameras  # noqa: E402
+from matching.multiview import reconstruct_multiview  # noqa: E402
+from matching.sfm import align_to_reference, run_sfm  # noqa: E402
+from pipeline.mesh_io import read_mesh  # noqa: E402
+from surface import metrics  # noqa: E402
+
+SAMPLES = 100_000
+SEED = 0
+LEVEL = 2
+
+
+def _images(folder: Path, cameras) -> list:
+    import cv2
+
+    return [cv2.imread(str(folder / "images" / c.name), cv2.IMREAD_UNCHANGED) for c in cameras]
+
+
+def _rms(points: np.ndarray, truth) -> float:
+    if len(points) == 0:
+        return float("nan")
+    d = metrics.point_mesh_distance(points, *truth)
+    return float(np.sqrt(np.mean(d**2)))
+
+
+def run_photosurf(name: str, images, cameras, truth, spacing: int) -> tuple[dict, object]:
+    start = time.perf_counter()
+    cloud = reconstruct_multiview(images, cameras, spacing=spacing)
+    seconds = time.perf_counter() - start
+    st = cloud.stats
+    row = {"method": name, "points": len(cloud), "rms": _rms(cloud.points, truth),
+           "seconds": seconds, "seconds_per_pair": seconds / st["pairs"], "pairs": st["pairs"],
+           "median_sigma": float(np.median(cloud.sigma)),
+           "median_sigma_pair": st["median_sigma_pair"],
+           "median_sigma_multiview": st["median_sigma_multiview"],
+           "pair_seconds": st["pair_seconds"], "consistency_seconds": st["consistency_seconds"],
+           "merge_seconds": st["merge_seconds"], "fused": st["fused"],
+           "reasons": cloud.reason_counts}
+    return row, cloud
+
+
+def run_sparse(folder: Path, cameras, truth, work: Path):
+    start = time.perf_counter()
+    sfm = run_sfm(folder / "images", work_dir=work)
+    seconds = time.perf_counter() - start
+    aligned, centre_rms = align_to_reference(sfm, cameras)
+    row = {"method": "pycolmap-sparse", "points": int(len(aligned.points)),
+           "rms": _rms(aligned.points, truth), "seconds": seconds,
+           "registered": len(sfm.registered), "unregistered": list(sfm.unregistered),
+           "camera_centre_rms": centre_rms,
+           "mean_reprojection_error_px": sfm.mean_reprojection_error_px}
+    return row, aligned
+
+
+def run_surface(points: np.ndarray, truth, height: float) -> dict:
+    from surface import bezier
+    from surface.stitch import surface_from_points
+
+    start = time.perf_counter()
+    stitched = surface_from_points(points, axis="z")
+    surf = bezier.control_net(stitched.vertices, stitched.triangles)
+    vertices, triangles, _ = bezier.tessellate(surf, LEVEL)
+    seconds = time.perf_counter() - start
+    scores = metrics.compare_meshes(vertices, triangles, *truth, tau=0.001 * height,
+                                    count=SAMPLES, seed=SEED)
+    return {"method": "surface", "seconds": seconds, "closed": bool(stitched.closed),
+            "control_triangles": int(len(stitched.triangles)),
+            "chamfer": float(scores["chamfer"]), "accuracy": float(scores["accuracy"]),
+            "completeness": float(scores["completeness"]),
+            "chamfer_rel_height": float(scores["chamfer"]) / height}
+
+
+def print_table(rows: list[dict]) -> None:
+    print(f"{'method':18s}{'points':>9s}{'RMS':>11s}{'seconds':>9s}{'s/pair':>8s}"
+          f"{'Chamfer':>11s}")
+    for r in rows:
+        cells = [_cell(r, "points", 9, "d"), _cell(r, "rms", 11, ".6f"),
+                 _cell(r, "seconds", 9, ".1f"), _cell(r, "seconds_per_pair", 8, ".2f"),
+                 _cell(r, "chamfer", 11, ".6f")]
+        print(f"{r['method']:18s}" + "".join(cells))
+
+
+def _cell(row: dict, key: str, width: int, fmt: str) -> str:
+    value = row.get(key)
+    return f"{value:>{width}{fmt}}" if isinstance(value, int | float) else " " * width
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the 320x240 ring")
+    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "multiview.json"))
+    parser.add_argument("--scene", default=None,
+                        help="an already rendered scene folder (photosurf synth) to reuse")
+    parser.add_argument("--spacing", type=int, default=4, help="candidate spacing, px")
+    args = parser.parse_args(argv)
+
+    import open3d as o3d
+
+    from pipeline.scenes import render_scene
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    recipe = ROOT / "fixtures" / "scenes" / ("vase_ring_small.toml" if args.quick
+                                             else "vase_ring.toml")
+    with tempfile.TemporaryDirectory(prefix="photosurf-mv-") as tmp:
+        tmp = Path(tmp)
+        folder = Path(args.scene) if args.scene else tmp / "scene"
+        if not args.scene:
+            start = time.perf_counter()
+            render_scene(recipe, folder, progress=False)
+            print(f"rendered {recipe.name} in {time.perf_counter() - start:.0f} s", flush=True)
+        cameras = read_cameras(folder / "cameras.yml")
+        images = _images(folder, cameras)
+        truth = read_mesh(folder / "truth" / "mesh.ply")[:2]
+        height = float(np.ptp(truth[0][:, 2]))
+        w, h = cameras[0].size
+        print(f"{len(cameras)} views {w}x{h}; object height {height:g}", flush=True)
+
+        known, cloud = run_photosurf("photosurf", images, cameras, truth, args.spacing)
+        print(f"  photosurf: {known['seconds']:.1f} s", flush=True)
+        surface = run_surface(cloud.points, truth, height)
+        surface["folder_to_surface_seconds"] = known["seconds"] + surface["seconds"]
+        print(f"  surface: {surface['seconds']:.1f} s", flush=True)
+        sparse, aligned = run_sparse(folder, cameras, truth, tmp / "sfm")
+        print(f"  pycolmap: {sparse['seconds']:.1f} s", flush=True)
+        by_name = {c.name: c for c in aligned.cameras}
+        rows = [known, sparse, surface]
+        if all(c.name in by_name for c in cameras):
+            with_sfm, _ = run_photosurf("photosurf-sfm", images,
+                                        [by_name[c.name] for c in cameras], truth,
+                                        args.spacing)
+            rows.insert(1, with_sfm)
+        else:
+            print(f"  photosurf-sfm skipped: SfM left out {', '.join(sparse['unregistered'])}")
+    print()
+    print_table(rows)
+    sfm_row = next((r for r in rows if r["method"] == "photosurf-sfm"), None)
+    goals = {
+        "points_ge_20x_sparse": known["points"] >= 20 * sparse["points"],
+        "rms_le_half_sparse": known["rms"] <= 0.5 * sparse["rms"],
+        "folder_to_surface_le_60s": surface["folder_to_surface_seconds"] <= 60.0,
+        "chamfer_le_0.1pct_height": surface["chamfer_rel_height"] <= 0.001,
+        "sfm_poses_rms_le_2x_known": (sfm_row is not None and sfm_row["rms"] <= 2 * known["rms"]),
+    }
+    print(f"\npoints ratio {known['points'] / max(sparse['points'], 1):.1f}x, RMS ratio "
+          f"{known['rms'] / sparse['rms']:.2f}, folder -> surface "
+          f"{surface['folder_to_surface_seconds']:.1f} s, Chamfer "
+          f"{100 * surface['chamfer_rel_height']:.3f} % of the height")
+    for key, ok in goals.items():
+        print(f"goal {key}: {'PASS' if ok else 'FAIL'}")
+    result = {"benchmark": "multiview", "recipe": recipe.name, "views": len(cameras),
+              "image_size": [w, h], "spacing": args.spacing, "quick": bool(args.quick),
+              "rows": rows, "goals": goals, "samples": SAMPLES, "level": LEVEL}
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1, default=float) + "\n")
+    print(f"\nwritten {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
