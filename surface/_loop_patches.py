@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
+import scipy.linalg
 
 from surface.validate import TOL
 
@@ -239,7 +240,8 @@ CHILD_CORNERS = np.array([
 ])
 
 
-def subdivide_tracked(points: np.ndarray, triangles: np.ndarray, steps: int):
+def subdivide_tracked(points: np.ndarray, triangles: np.ndarray, steps: int,
+                      allow_border: bool = False):
     """``steps`` Loop steps, tracking where each new face lies in its root face.
 
     Returns ``(points, triangles, root_face (F',), corner_bary (F', 3, 3))``:
@@ -249,7 +251,7 @@ def subdivide_tracked(points: np.ndarray, triangles: np.ndarray, steps: int):
     root = np.arange(len(triangles))
     bary = np.broadcast_to(np.eye(3), (len(triangles), 3, 3)).copy()
     for _ in range(steps):
-        mesh = build_half_edges(len(points), triangles)
+        mesh = build_half_edges(len(points), triangles, allow_border=allow_border)
         points, triangles = loop_subdivide(mesh, points)
         bary = np.einsum("cij,fjd->fcid", CHILD_CORNERS, bary).reshape(-1, 3, 3)
         root = np.repeat(root, 4)
@@ -420,89 +422,140 @@ def _spoke_share_rows(n: int, i: int) -> np.ndarray:
     return np.array(rows)
 
 
-def _patch_data_map(n: int):
-    """Per-patch pieces of the ring problem.
+# ----------------------------------------------------------------------------- Loop-limit reference
+def _ring_template(n: int) -> tuple[int, np.ndarray]:
+    """Valence-n vertex with its two rings, the local control mesh of its ring patches.
 
-    Returns ``local`` (28, 29): patch i's net at the reference as a function of
-    ``d_i = [p_v, N_i]`` (fixed rows exact, free rows = continuation of N_i),
-    ``free`` (28,) bool, and the spoke-0 constraint rows split into the part
-    acting on patch 0 (``left``) and on patch n - 1 (``right``), (11, 28) each.
+    Vertices: ``v = 0``, ``w_j = 1 + j``, ``x_j = 1 + n + j`` (apex of the
+    regular neighbour ``N_j = (w_{j+1}, w_j, x_j)``), ``y_j = 1 + 2n + j``
+    (between ``x_{j-1}`` and ``x_j`` around ``w_j``).  Ring faces come first.
+    Each ring patch's Loop limit depends on these ``3n + 1`` points only
+    (its ``n + 6``-point control mesh).
     """
-    from surface.bezier import _blossom_matrix
+    j = np.arange(n)
+    w, x, y = 1 + j, 1 + n + j, 1 + 2 * n + j
+    w_next, x_prev = np.roll(w, -1), np.roll(x, 1)
+    tris = np.concatenate([np.stack([np.zeros(n, dtype=np.int64), w, w_next], 1),
+                           np.stack([w_next, w, x], 1),
+                           np.stack([w, x_prev, y], 1),
+                           np.stack([w, y, x], 1)])
+    return 3 * n + 1, tris
+
+
+@cache
+def _limit_samples(n: int, steps: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Barycentric samples ``(S, 3)`` of ring patch 0 and Loop's limit there ``(S, 3n+1)``.
+
+    Exact limit points (Loop's limit mask after ``steps`` subdivisions of the
+    template with unit-vector "positions"), as weights of the local vertices.
+    """
+    n_local, tris = _ring_template(n)
+    points, sub, root, bary = subdivide_tracked(np.eye(n_local), tris, steps, allow_border=True)
+    limit = limit_positions(build_half_edges(len(points), sub, allow_border=True), points)
+    mine = root == 0
+    vertex, where = np.unique(sub[mine].ravel(), return_index=True)
+    return bary[mine].reshape(-1, 3)[where], limit[vertex]
+
+
+def _rotate_local(n: int, shift: int) -> np.ndarray:
+    """Column permutation taking patch 0's local weights to patch ``shift``'s."""
+    j = np.arange(n)
+    perm = np.empty(3 * n + 1, dtype=np.int64)
+    perm[0] = 0
+    for block in range(3):
+        perm[1 + block * n + j] = 1 + block * n + (j + shift) % n
+    return perm
+
+
+def _ring_problem(n: int):
+    """Pieces of the valence-n fit: per-patch start nets, weights and spoke rows.
+
+    Data columns: ``[p_v | N_0 .. N_{n-1} quartic nets (15 each) | 3n + 1
+    local vertices]``.  Returns ``start (n, 28, D)`` -- each patch's net with
+    its fixed rows exact and its free rows the unconstrained least-squares
+    fit to Loop's limit --, ``free (28,)``, ``weight (14, 14) = G_u^T G_u``,
+    and the spoke-0 rows ``left``, ``right`` (11, 28).
+    """
+    from surface.bezier import _blossom_matrix, bernstein_matrix, elevate
 
     v_exp = _index_table(DEGREE)[:, 0]
-    extend = _blossom_matrix(_NEIGHBOUR_TO_RING)  # (28, 28): N-frame net -> ring frame
-    local = np.zeros((28, 29))
-    local[:, 1:] = extend
-    local[v_exp == 6] = 0.0
-    local[v_exp == 6, 0] = 1.0
     free = (v_exp >= 2) & (v_exp <= 5)
+    n_local = 3 * n + 1
+    n_data = 1 + 15 * n + n_local
+    continuation = _blossom_matrix(_NEIGHBOUR_TO_RING) @ elevate(np.eye(15), DEGREE)  # (28, 15)
+    bary, limit0 = _limit_samples(n)
+    basis = bernstein_matrix(bary)  # (S, 28)
+    fit_u, fit_f = basis[:, free], basis[:, ~free]
+    weight = fit_u.T @ fit_u
+    start = np.zeros((n, 28, n_data))
+    for i in range(n):
+        start[i, v_exp == 6, 0] = 1.0
+        outer = v_exp <= 1
+        start[i][np.ix_(outer, 1 + 15 * i + np.arange(15))] = continuation[outer]
+        target = np.zeros((len(bary), n_data))
+        target[:, 1 + 15 * n + _rotate_local(n, i)] = limit0
+        target -= fit_f @ start[i, ~free]
+        start[i, free] = np.linalg.solve(weight, fit_u.T @ target)
     rows = np.concatenate([_spoke_share_rows(n, 0), _spoke_g1_rows(n, 0)])  # (11, 28 n)
-    return local, free, rows[:, :28], rows[:, 28 * (n - 1):]
+    return start, free, weight, rows[:, :28], rows[:, 28 * (n - 1):]
 
 
 @cache
 def ring_operator(n: int) -> np.ndarray:
     """Linear map from the data of a valence-n vertex to its n sextic ring patches.
 
-    Data (columns): ``[p_v, N_0 (28), ..., N_{n-1} (28)]`` -- Loop's limit
-    point of v and the nets of the regular neighbours across the outer edges,
-    each in the frame (w_{i+1}, w_i, x_i).  Output (rows): the n nets of the
-    ring patches ``(v, w_i, w_{i+1})``, ``28 i + index``.
+    Data (columns): ``[p_v, N_0 .. N_{n-1}, local]`` -- Loop's limit point of
+    v, the quartic nets of the regular neighbours across the outer edges (each
+    in the frame (w_{i+1}, w_i, x_i)), and the 3n + 1 local control vertices of
+    :func:`_ring_template`.  Output (rows): the n nets of the ring patches
+    ``(v, w_i, w_{i+1})``, ``28 i + index``.
 
     Fixed: ``b_600 = p_v``; the two rows nearest the outer edge are the C1
-    continuation of N_i.  Free: the rows with v-exponent 2..5, set to the
-    least-squares nearest to the continuation of N_i subject to spoke sharing
-    and Loop's G1 condition on every spoke (see ``bezier``'s module notes).
+    continuation of N_i.  Free: the rows with v-exponent 2..5, the
+    least-squares fit to Loop's limit surface at 45 points of each patch,
+    subject to spoke sharing and Loop's G1 condition on every spoke.
 
-    The constraint system is block-circulant (spoke j couples patches j and
-    j - 1 identically), so a discrete Fourier transform splits the minimum-norm
-    problem into n independent 11 x 14 problems, one per frequency (Parseval:
-    the norm and the constraints decouple).  The operator is equivariant under
-    rotation of the ring, so only patch 0's rows are solved and the others
-    are cyclic shifts.
+    The constraints are block-circulant (spoke j couples patches j and j - 1
+    identically) and the fit weight ``W`` is the same for every patch, so a
+    discrete Fourier transform over the ring splits the weighted minimum-norm
+    correction into n independent 11 x 14 problems (Parseval).
     """
-    local, free, left, right = _patch_data_map(n)
-    a0, a1 = left[:, free], right[:, free]  # (11, 14): spoke j on patches j and j - 1
-    k = np.arange(n)
-    omega = np.exp(-2j * np.pi * k / n)  # omega^{-k}
-    symbols = a0[None] + a1[None] * omega[:, None, None]  # (n, 11, 14)
-    inverses = np.linalg.pinv(symbols, rcond=1e-10)  # (n, 14, 11)
-    # Q_j = (1/n) sum_k B_k omega^{-jk}: patch 0's response to spoke j's residual
-    phases = np.exp(-2j * np.pi * np.outer(k, k) / n)  # [j, k]
-    q = np.real(np.einsum("jk,kab->jab", phases, inverses)) / n  # (n, 14, 11)
-    k0, k1 = left @ local, right @ local  # residual of spoke j: -(k0 d_j + k1 d_{j-1})
-    patch0 = np.zeros((28, 1 + 28 * n))
-    patch0[:, 0] = local[:, 0]
-    patch0[:, 1:29] = local[:, 1:]
-    q_next = np.roll(q, -1, axis=0)  # Q_{j+1}: d_j is spoke j+1's "previous" data
-    patch0[free, 0] -= np.einsum("jab,b->a", q, k0[:, 0] + k1[:, 0])
-    coupling = -(np.einsum("jab,bc->jac", q, k0[:, 1:])
-                 + np.einsum("jab,bc->jac", q_next, k1[:, 1:]))  # (n, 14, 28)
-    patch0[free, 1:] += coupling.transpose(1, 0, 2).reshape(int(free.sum()), 28 * n)
-    blocks = patch0[:, 1:].reshape(28, n, 28)
-    operator = np.empty((n, 28, 1 + 28 * n))
-    operator[:, :, 0] = patch0[:, 0]
-    for i in range(n):  # patch i sees N_j as patch 0 sees N_{j-i}
-        operator[i, :, 1:] = np.roll(blocks, i, axis=1).reshape(28, 28 * n)
-    operator = operator.reshape(28 * n, 1 + 28 * n)
+    start, free, weight, left, right = _ring_problem(n)
+    a0, a1 = left[:, free], right[:, free]
+    values, vectors = np.linalg.eigh(weight)
+    w_inv_half = (vectors / np.sqrt(values)) @ vectors.T
+    omega = np.exp(-2j * np.pi * np.arange(n) / n)  # omega^{-k}
+    symbols = (a0[None] + a1[None] * omega[:, None, None]) @ w_inv_half  # (n, 11, 14)
+    solve = w_inv_half @ np.linalg.pinv(symbols, rcond=1e-10)  # (n, 14, 11)
+    residual = -(np.einsum("ab,ibd->iad", left, start)
+                 + np.einsum("ab,ibd->iad", right, np.roll(start, 1, axis=0)))  # (n, 11, D)
+    spectrum = np.einsum("kab,kbd->kad", solve, np.fft.fft(residual, axis=0))
+    operator = start.copy()
+    operator[:, free] += np.fft.ifft(spectrum, axis=0).real
+    operator = operator.reshape(28 * n, -1)
     operator.flags.writeable = False
     return operator
 
 
 def ring_operator_dense(n: int) -> np.ndarray:
-    """The same operator from one dense minimum-norm solve (reference for tests)."""
-    local, free_patch, _, _ = _patch_data_map(n)
-    full = np.zeros((28 * n, 1 + 28 * n))
-    for i in range(n):
-        full[28 * i:28 * i + 28, 0] = local[:, 0]
-        full[28 * i:28 * i + 28, 1 + 28 * i:29 + 28 * i] = local[:, 1:]
-    free = np.tile(free_patch, n)
+    """The same fit by a dense null-space solve (a reference for the tests)."""
+    start, free, weight, _, _ = _ring_problem(n)
     constraints = np.concatenate([np.concatenate([_spoke_share_rows(n, i), _spoke_g1_rows(n, i)])
                                   for i in range(n)])
-    correction = np.linalg.pinv(constraints[:, free], rcond=1e-10) @ (-constraints @ full)
-    full[free] += correction
-    return full
+    mask = np.tile(free, n)
+    a_free = constraints[:, mask]
+    keep = np.abs(a_free).sum(axis=1) > 0  # drop the rows on data only
+    a_free = a_free[keep]
+    flat = start.reshape(28 * n, -1)
+    rhs = -(constraints[keep] @ flat)  # correction must satisfy a_free @ dz = rhs
+    particular = np.linalg.pinv(a_free, rcond=1e-10) @ rhs
+    null = scipy.linalg.null_space(a_free, rcond=1e-10)
+    metric = np.kron(np.eye(n), weight)
+    reduced = null.T @ metric @ null
+    y = -np.linalg.solve(reduced, null.T @ metric @ particular)
+    out = flat.copy()
+    out[mask] += particular + null @ y
+    return out
 
 
 # ----------------------------------------------------------------------------- the surface
@@ -534,27 +587,8 @@ def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray):
     return quartic, elevate(quartic, DEGREE)
 
 
-@cache
-def ring_operator_quartic(n: int) -> np.ndarray:
-    """:func:`ring_operator` acting on the neighbours' quartic nets, ``(28 n, 1 + 15 n)``.
-
-    The neighbours are box-spline patches, i.e. elevated quartics, so composing
-    with the elevation halves the data (and the matrix product) per vertex.
-    """
-    from surface.bezier import elevate
-
-    elevation = elevate(np.eye(15), DEGREE)  # (28, 15)
-    full = ring_operator(n)
-    out = np.empty((28 * n, 1 + 15 * n))
-    out[:, 0] = full[:, 0]
-    blocks = full[:, 1:].reshape(28 * n, n, 28)
-    out[:, 1:] = (blocks @ elevation).reshape(28 * n, 15 * n)
-    out.flags.writeable = False
-    return out
-
-
-def _irregular_patches(mesh: HalfEdges, limit: np.ndarray, quartic: np.ndarray,
-                       control_points: np.ndarray, computed: np.ndarray,
+def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
+                       quartic: np.ndarray, control_points: np.ndarray, computed: np.ndarray,
                        centres_wanted: np.ndarray) -> None:
     """Fill the ring patches of the wanted irregular vertices, one batch per valence.
 
@@ -562,6 +596,7 @@ def _irregular_patches(mesh: HalfEdges, limit: np.ndarray, quartic: np.ndarray,
     (``computed`` marks them); the ring patches are written into
     ``control_points``.
     """
+    dest = mesh.dest
     for n in np.unique(mesh.valence[centres_wanted]):
         n = int(n)
         centres = centres_wanted[mesh.valence[centres_wanted] == n]
@@ -569,14 +604,18 @@ def _irregular_patches(mesh: HalfEdges, limit: np.ndarray, quartic: np.ndarray,
         across = mesh.twin[next_half_edge(spokes)]  # w_{i+1} -> w_i in N_i
         if np.any(across < 0) or not np.all(computed[across // 3]):
             raise RuntimeError("an irregular vertex's neighbour patch is not regular")
+        to_apex = next_half_edge(across)  # w_i -> x_i
+        local = np.concatenate([centres[:, None], dest[spokes], dest[to_apex],
+                                dest[next_half_edge(mesh.twin[to_apex])]], axis=1)  # v, w, x, y
         neighbour = np.empty((n, 15, len(centres), 3))  # data-major for one GEMM
         for c in range(3):
             sel = (across % 3 == c).T  # (n, Vn)
             nets = quartic[across.T[sel] // 3][:, corner_rotation(c, 4)]  # (m, 15, 3)
             neighbour.transpose(0, 2, 1, 3)[sel] = nets
-        flat = np.concatenate([limit[centres][None], neighbour.reshape(15 * n, len(centres), 3)])
-        # (28n, 1+15n) x (1+15n, 3 Vn): all vertices of this valence at once
-        rings = ring_operator_quartic(n) @ flat.reshape(1 + 15 * n, -1)
+        flat = np.concatenate([limit[centres][None], neighbour.reshape(15 * n, len(centres), 3),
+                               points[local.T]])
+        # (28n, D) x (D, 3 Vn): all vertices of this valence at once
+        rings = ring_operator(n) @ flat.reshape(len(flat), -1)
         rings = rings.reshape(n, 28, len(centres), 3).transpose(2, 0, 1, 3).reshape(-1, 28, 3)
         spokes = spokes.ravel()
         for c in range(3):
@@ -617,7 +656,7 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
                                                                 np.flatnonzero(regular))
     limit = limit_positions(mesh, points)
     centres = np.flatnonzero(~inner6[:n_vertices])  # input vertices are interior here
-    _irregular_patches(mesh, limit, quartic, control_points, regular.copy(), centres)
+    _irregular_patches(mesh, points, limit, quartic, control_points, regular.copy(), centres)
     kept = 4 * n_faces  # children of the input faces come first
     used = np.zeros(len(points), dtype=bool)
     used[tris[:kept].ravel()] = True

@@ -55,18 +55,20 @@ Construction (what :func:`control_net` does)
    **Difference from Loop's paper:** Loop gives the remaining Bézier points
    by explicit formulas (quartic boundary curves, then the interior); those
    formulas are not reproduced here.  Instead the free points (the inner
-   five rows of every patch around the vertex) are the least-squares closest,
-   in control-point space, to the polynomial continuation of the
-   neighbouring box-spline patches, subject to exactly the constraints above.
-   The solution is a fixed linear map per valence, solved once (the
-   constraints are block-circulant around the vertex, so a discrete Fourier
-   transform splits them into n small minimum-norm problems) and applied to
-   all vertices of that valence in one matrix product; it is affine
-   invariant, and where n = 6 it returns the box spline (the reference then
-   meets every constraint).  The spoke curves come out of degree <= 5 rather
-   than Loop's quartics, and near an irregular vertex the surface is close to,
-   not equal to, the Loop limit surface (measured: at most 1.3 % of the
-   control edge length on a subdivided cube, 0.4 % on an icosphere).
+   five rows of every patch around the vertex) are the least-squares fit to
+   Loop's subdivision limit surface at 45 points of each patch (exact limit
+   points from Loop's limit mask on a template of the vertex's two rings),
+   subject to exactly the constraints above.  The solution is a fixed linear
+   map per valence of the local data, solved once (the constraints are
+   block-circulant around the vertex, so a discrete Fourier transform splits
+   them into n small weighted minimum-norm problems) and applied to all
+   vertices of that valence in one matrix product; it is affine invariant,
+   and where n = 6 it returns the box spline (which then meets every
+   constraint and fits the limit exactly).  The spoke curves come out of
+   degree <= 5 rather than Loop's quartics, and near an irregular vertex the
+   surface is close to, not equal to, the Loop limit surface (measured: at
+   most 0.6 % of the control edge length on a subdivided cube, 0.2 % on an
+   icosphere).
 
 Borders (documented boundary rule)
 ----------------------------------

@@ -603,3 +603,46 @@ def test_tessellation_in_chunks_equals_one_pass(surfaces, monkeypatch):
     # same points up to the GEMM's blocking (rounding only)
     assert np.abs(whole[0] - chunked[0]).max() < 1e-13 * _size(whole[0])
     assert _angle(whole[2], chunked[2]).max() < 1e-9  # normals: cancellation in P_u x P_v
+
+
+def test_ring_construction_returns_the_box_spline_at_a_regular_vertex():
+    """Pushing a valence-6 vertex through the irregular-vertex path (gathering,
+    Loop-limit template, G1 solve) must give back the box-spline patches."""
+    vertices, tris = icosphere(2)
+    surface = bz.control_net(vertices, tris)
+    dom_v, dom_t = surface.domain_mesh
+    mesh = lp.build_half_edges(len(dom_v), dom_t)
+    inner6 = mesh.valence == 6
+    regular = np.all(inner6[dom_t], axis=1)
+    # a valence-6 vertex whose 2-ring is regular: all faces touching its ring are regular
+    ring_ok = np.ones(len(dom_v), dtype=bool)
+    np.logical_and.at(ring_ok, dom_t.ravel(), np.repeat(regular, 3))
+    neighbour_ok = ring_ok.copy()
+    np.logical_and.at(neighbour_ok, mesh.origin, ring_ok[mesh.dest])
+    centre = np.flatnonzero(inner6 & neighbour_ok)[:3]
+    assert len(centre) == 3
+    quartic = np.zeros((len(dom_t), 15, 3))
+    nets = np.zeros((len(dom_t), 28, 3))
+    quartic[regular], nets[regular] = lp.regular_patches(mesh, dom_v, np.flatnonzero(regular))
+    rebuilt = nets.copy()
+    around = np.any(np.isin(dom_t, centre), axis=1)
+    rebuilt[around] = 0.0  # forget the ring patches; the ring path must rebuild them
+    limit = lp.limit_positions(mesh, dom_v)
+    lp._irregular_patches(mesh, dom_v, limit, quartic, rebuilt, regular.copy(), centre)
+    assert around.sum() == 18
+    assert np.abs(rebuilt - nets).max() < 1e-12 * _size(vertices)
+
+
+@pytest.mark.parametrize("name, limit", [("cube", 0.01), ("icosphere", 0.005)])
+def test_irregular_patches_stay_close_to_the_loop_limit(surfaces, name, limit):
+    """Near irregular vertices the patches are the G1-constrained least-squares
+    fit to Loop's limit surface: within a small fraction of the control edge
+    (measured 0.6 % on the cube, 0.2 % on the icosphere)."""
+    (vertices, tris), surface = surfaces[name]
+    dom_v, dom_t = surface.domain_mesh
+    fine_v, fine_t, root, bary = lp.subdivide_tracked(dom_v, dom_t, 2)
+    exact = _loop_limit(fine_v, fine_t)[fine_t.ravel()]
+    got = np.einsum("sn,snd->sd", bz.bernstein_matrix(bary.reshape(-1, 3)),
+                    surface.control_points[np.repeat(root, 3)])
+    edge = np.linalg.norm(vertices[tris[:, 0]] - vertices[tris[:, 1]], axis=1).mean()
+    assert np.linalg.norm(got - exact, axis=1).max() < limit * edge
