@@ -487,15 +487,19 @@ def _ring_problem(n: int):
     basis = bernstein_matrix(bary)  # (S, 28)
     fit_u, fit_f = basis[:, free], basis[:, ~free]
     weight = fit_u.T @ fit_u
+    fit = np.linalg.solve(weight, fit_u.T)  # (14, S): unconstrained least squares
+    outer = v_exp <= 1
+    fixed_start = np.zeros((28, 16))  # fixed rows as functions of [p_v, N_i (15)]
+    fixed_start[v_exp == 6, 0] = 1.0
+    fixed_start[outer, 1:] = continuation[outer]
+    free_from_fixed = -fit @ fit_f @ fixed_start[~free]  # (14, 16)
+    free_from_local = fit @ limit0  # (14, 3n + 1)
     start = np.zeros((n, 28, n_data))
-    for i in range(n):
-        start[i, v_exp == 6, 0] = 1.0
-        outer = v_exp <= 1
-        start[i][np.ix_(outer, 1 + 15 * i + np.arange(15))] = continuation[outer]
-        target = np.zeros((len(bary), n_data))
-        target[:, 1 + 15 * n + _rotate_local(n, i)] = limit0
-        target -= fit_f @ start[i, ~free]
-        start[i, free] = np.linalg.solve(weight, fit_u.T @ target)
+    for i in range(n):  # patch i: its own neighbour block, its rotation of the local data
+        cols = np.concatenate([[0], 1 + 15 * i + np.arange(15)])
+        start[i][:, cols] = fixed_start
+        start[i][np.ix_(free, cols)] = free_from_fixed
+        start[i][np.ix_(free, 1 + 15 * n + _rotate_local(n, i))] = free_from_local
     rows = np.concatenate([_spoke_share_rows(n, 0), _spoke_g1_rows(n, 0)])  # (11, 28 n)
     return start, free, weight, rows[:, :28], rows[:, 28 * (n - 1):]
 
