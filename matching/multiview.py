@@ -205,6 +205,11 @@ class MultiViewCloud:
     def __len__(self) -> int:
         return len(self.points)
 
+    @property
+    def colors(self) -> np.ndarray:
+        """Alias of ``colours`` (open3d's spelling, what ``pipeline.stages`` reads)."""
+        return self.colours
+
 
 # --------------------------------------------------------------------------- pairs
 def scene_centre(cameras: Sequence[Camera]) -> np.ndarray:
