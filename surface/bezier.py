@@ -735,7 +735,7 @@ class BezierSurface:
 
 
 def control_net(vertices, triangles) -> BezierSurface:
-    """Loop's G1 sextic Bézier surface over a closed triangle mesh.
+    """Loop's G1 sextic Bézier surface over a triangle mesh (closed or bordered).
 
     Parameters
     ----------
