@@ -615,10 +615,18 @@ def _acquire(ctx: StageContext) -> dict:
 
 
 def _folder_cameras(folder: Path, images: list[Path]) -> tuple[list, dict]:
-    """Cameras of an image folder, in image order: a camera file of the folder, else SfM."""
+    """Cameras of an image folder, in image order: a camera file, else pycolmap SfM.
+
+    Camera files looked for in the folder (and its ``images/``): ``cameras.yml``
+    (photosurf/OpenCV), ``cameras.txt`` (per-image projection matrices), ``sparse/``
+    (a COLMAP model).  Cameras are paired with images by name (stem), else by order.
+    """
     from matching.cameras import read_cameras
 
-    for candidate in (folder / "cameras.yml", folder / "cameras.yaml", folder / "sparse"):
+    places = dict.fromkeys([folder, images[0].parent])  # the folder, or its images/ folder
+    candidates = [place / name for place in places
+                  for name in ("cameras.yml", "cameras.yaml", "cameras.txt", "sparse")]
+    for candidate in candidates:
         if candidate.exists():
             cameras, source = read_cameras(candidate), candidate.name
             break
