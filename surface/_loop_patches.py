@@ -208,27 +208,57 @@ def loop_subdivide(mesh: HalfEdges, points: np.ndarray):
 def add_ghost_layer(mesh: HalfEdges, points: np.ndarray):
     """Close every border vertex's fan with one ring of ghost triangles.
 
-    Border half-edge ``a -> b`` with opposite vertex c gets the ghost
-    ``g = a + b - c`` (c reflected through the edge midpoint: the regular
-    grid continued) and the triangle ``(b, a, g)``; each border vertex a,
-    between the ghosts of its incoming and outgoing border edges, gets
-    ``(a, g_in, g_out)``.  Returns the extended ``(points, triangles)``; the
-    input faces keep their indices, the new border runs through the ghosts.
+    The rule continues the regular grid (all weights affine):
+
+    * border half-edge ``a -> b`` with opposite vertex c gets the ghost
+      ``g = a + b - c`` (c reflected through the edge midpoint) and the
+      triangle ``(b, a, g)``;
+    * a border vertex a with k triangles, between the ghosts ``g_in`` of its
+      incoming and ``g_out`` of its outgoing border edge, gets ``(a, g_in,
+      g_out)`` if k >= 3; if k = 2 (neighbours b, c, p counter-clockwise) the
+      extra ghost ``2a - c`` splits that triangle in two; if k = 1 the extra
+      ghosts ``2a - b`` and ``2a - p`` split it in three -- on the regular
+      grid these are exactly the missing grid neighbours, and a border vertex
+      with k <= 3 ends up with valence 6.
+
+    Returns the extended ``(points, triangles)``; the input faces keep their
+    indices, the new border runs through the ghosts.
     """
     tris = mesh.triangles
     border = np.flatnonzero(mesh.twin < 0)
     a, b = mesh.origin[border], mesh.dest[border]
     c = tris.ravel()[prev_half_edge(border)]
     ghost = len(points) + np.arange(len(border))
-    ghost_points = points[a] + points[b] - points[c]
+    new_points = [points, points[a] + points[b] - points[c]]
     ghost_of_out = np.full(len(points), -1)
     ghost_of_in = np.full(len(points), -1)
     ghost_of_out[a] = ghost
     ghost_of_in[b] = ghost
-    edge_tris = np.stack([b, a, ghost], axis=1)
-    corner_tris = np.stack([a, ghost_of_in[a], ghost_of_out[a]], axis=1)
-    return (np.concatenate([points, ghost_points]),
-            np.concatenate([tris, edge_tris, corner_tris]))
+    new_tris = [tris, np.stack([b, a, ghost], axis=1)]
+    corner = a  # one per border vertex (each has one outgoing border half-edge)
+    k = mesh.valence[corner]
+    g_in, g_out = ghost_of_in[corner], ghost_of_out[corner]
+    wide = k >= 3
+    new_tris.append(np.stack([corner[wide], g_in[wide], g_out[wide]], axis=1))
+    first = len(points) + len(border)
+    two = np.flatnonzero(k == 2)
+    middle = mesh.dest[rotate_ccw(mesh, mesh.first_out[corner[two]])]
+    extra = first + np.arange(len(two))
+    new_points.append(2.0 * points[corner[two]] - points[middle])
+    new_tris += [np.stack([corner[two], g_in[two], extra], axis=1),
+                 np.stack([corner[two], extra, g_out[two]], axis=1)]
+    one = np.flatnonzero(k == 1)
+    first += len(two)
+    h_b = first + np.arange(len(one))
+    h_p = first + len(one) + np.arange(len(one))
+    out_edge = mesh.first_out[corner[one]]
+    far_b, far_p = mesh.dest[out_edge], tris.ravel()[prev_half_edge(out_edge)]
+    new_points += [2.0 * points[corner[one]] - points[far_b],
+                   2.0 * points[corner[one]] - points[far_p]]
+    new_tris += [np.stack([corner[one], g_in[one], h_b], axis=1),
+                 np.stack([corner[one], h_b, h_p], axis=1),
+                 np.stack([corner[one], h_p, g_out[one]], axis=1)]
+    return np.concatenate(new_points), np.concatenate(new_tris)
 
 
 #: Barycentric corners of the children of the midpoint split (Loop's order).

@@ -77,17 +77,20 @@ triangles: a border edge ``a -> b`` whose triangle has third vertex c gets the
 ghost ``g = a + b - c`` (c reflected through the edge midpoint, i.e. the
 regular grid continued; an affine rule, so affine invariance and planarity
 survive) and the triangle ``(b, a, g)``; every border vertex's fan is closed by
-``(a, g_in, g_out)``.  The second layer does the same to the first, so that
+``(a, g_in, g_out)``, split by the point reflections through a of its interior
+neighbours where the vertex has only one or two triangles (a grid corner: the
+missing grid neighbours, so the vertex gets valence 6 as on the grid).  The
+second layer does the same to the first, so that
 every input vertex and every neighbour patch the construction reads is
 interior.  The ghost layer's own border follows Loop's boundary rules in the
 refinement (edge midpoint, vertex ``3/4 v + 1/8 (p + q)``).  Only the patches
 of the input faces are returned: the surface is G1 across every interior edge
 and ends at the border edges (it does not interpolate the border polygon).
 On a straight border of a regular grid this is exactly the box spline of the
-continued grid; at sharp border corners with few triangles (a convex-hull
-corner of a random Delaunay triangulation) the reflected ghosts can overlap
-and the surface may fold near that corner — close or regularise such borders
-first.
+continued grid (corners included); where the border triangles are slivers
+or sharp (the convex hull of a random Delaunay triangulation) the reflected
+ghosts can overlap and the surface may fold near the border -- still G1 and
+finite, but close or regularise such borders first.
 
 Other input: non-manifold edges or vertices, inconsistent orientation,
 out-of-range indices, NaN/inf and zero-area triangles raise ``ValueError``;
