@@ -52,14 +52,21 @@ def _load(name: str):
         raise
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors, like every other photosurf error."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="photosurf",
         description="Photographs to a smooth, watertight surface: least-squares matching, "
         "planar sections, Catmull-Rom curves, Delaunay stitching, Loop's sextic Bezier patches.",
     )
     parser.add_argument("--version", action="version", version=f"photosurf {__version__}")
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument("-v", "--verbose", action="count", default=0,
                         help="more output (-vv for debug); tracebacks on error")
     common.add_argument("-q", "--quiet", action="store_true", help="only errors")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import glob
 import logging
+import math
 from pathlib import Path
 
 import cv2
@@ -61,7 +62,7 @@ def _read_gray(path: Path):
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.square > 0:
+    if not (math.isfinite(args.square) and args.square > 0):
         raise InputError(f"--square must be positive, got {args.square}")
     pattern = parse_pattern(args.pattern)
     lefts, rights = _expand(args.left, "left"), _expand(args.right, "right")
