@@ -248,7 +248,9 @@ def _quiet_colmap() -> Iterator[None]:
     import pycolmap
 
     previous = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2 if log.getEffectiveLevel() > logging.DEBUG else previous
+    # 3 = FATAL only: COLMAP's own ERROR lines ("Failed to create any sparse model") are
+    # reported by run_sfm's ValueError, as one line; -vv (DEBUG) shows them all.
+    pycolmap.logging.minloglevel = 3 if log.getEffectiveLevel() > logging.DEBUG else previous
     try:
         yield
     finally:

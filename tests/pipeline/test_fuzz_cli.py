@@ -941,3 +941,61 @@ def test_match_options_not_validated(pair, tmp_path, capfd, command, option):
     argv = [*_base_argv(command, tmp_path, pair), option]
     out = Path(argv[argv.index("--out") + 1])
     fails_cleanly(capfd, argv, option.split("=")[0], out=out, also=[out.with_suffix(".npz")])
+
+
+# =========================================================================== acquire (image folder)
+
+ACQUIRE_CASES = ["missing", "a_file", "empty", "one_image", "only_text", "unreadable_image",
+                 "too_small", "different_sizes", "cameras_missing_image", "cameras_nan",
+                 "cameras_garbage", "cameras_flag_missing", "textureless_sfm"]
+
+
+@pytest.mark.parametrize("case", ACQUIRE_CASES)
+def test_acquire_bad_folders(tmp_path, capfd, case):
+    """Issue 6's bad input through ``photosurf acquire``: one line, exit 2, no cloud."""
+    from matching.cameras import write_cameras_yml
+
+    folder = tmp_path / "views"
+    extra, needle = [], "views"
+    if case == "a_file":
+        folder.write_text("x")
+    elif case != "missing":
+        folder.mkdir()
+    rig = make_rig(W, H)
+    if case in ("one_image", "unreadable_image", "different_sizes", "cameras_missing_image",
+                "cameras_nan", "cameras_garbage", "cameras_flag_missing"):
+        write_png(folder / "left.png", textured(W, H, 1))
+        write_png(folder / "right.png", textured(W, H, 2))
+    if case == "one_image":
+        (folder / "right.png").unlink()
+        (folder / "notes.txt").write_text("x")
+    elif case == "only_text":
+        (folder / "a.txt").write_text("x")
+    elif case == "unreadable_image":
+        (folder / "right.png").write_bytes(b"\x89PNG\r\n\x1a\n")
+        needle = "right.png"
+    elif case == "too_small":
+        for i in range(3):
+            write_png(folder / f"{i}.png", textured(16, 12, i))
+        needle = "0.png"
+    elif case == "different_sizes":
+        write_png(folder / "right.png", textured(W + 16, H, 2))
+    elif case == "cameras_missing_image":
+        write_png(folder / "third.png", textured(W, H, 3))
+        write_cameras_yml(folder / "cameras.yml", [rig.left, rig.right])
+        needle = "third.png"
+    elif case == "cameras_nan":
+        write_rig_unchecked(folder / "cameras.yml", rig,
+                            {"view_01": {"t": np.array([[math.nan], [0], [0]])}})
+        needle = "cameras.yml"
+    elif case == "cameras_garbage":
+        (folder / "cameras.yml").write_bytes(b"%YAML 1.2\n---\nview_00: [\n")
+        needle = "cameras.yml"
+    elif case == "cameras_flag_missing":
+        extra, needle = ["--cameras", tmp_path / "nowhere.yml"], "nowhere.yml"
+    elif case == "textureless_sfm":
+        for i in range(3):
+            write_png(folder / f"{i}.png", np.full((H, W), 90, np.uint8))
+    out = tmp_path / "cloud.ply"
+    fails_cleanly(capfd, ["acquire", folder, "--out", out, *extra], needle, out=out,
+                  also=[out.with_suffix(".npz")])
