@@ -412,18 +412,26 @@ def test_bordered_meshes_are_g1_across_interior_edges(name):
     assert angle <= 1e-9
 
 
-def hex_disk(radius: int = 4, jitter: float = 0.0, seed: int = 0):
-    """A hexagon of the regular triangular grid in the plane z = 0, optionally jittered."""
+def hex_disk(radius: int = 4, jitter: float = 0.0, seed: int = 0, shape: str = "hexagon"):
+    """A hexagon (or triangle) of the regular triangular grid in the plane z = 0.
+
+    Hexagon corners have two triangles, triangle corners one; ``jitter``
+    moves the points uniformly by up to that much.
+    """
     ids, points, tris = {}, [], []
     for q in range(-radius, radius + 1):
         for r in range(-radius, radius + 1):
-            if abs(q + r) <= radius:
+            inside = abs(q + r) <= radius if shape == "hexagon" else q >= 0 and r >= 0 \
+                and q + r <= radius
+            if inside:
                 ids[(q, r)] = len(points)
                 points.append((q + 0.5 * r, r * np.sqrt(3) / 2))
-    for q, r in ids:
-        for tri in (((q, r), (q + 1, r), (q, r + 1)), ((q + 1, r), (q + 1, r + 1), (q, r + 1))):
-            if all(x in ids for x in tri):
-                tris.append([ids[x] for x in tri])
+    for q in range(-radius - 1, radius + 1):
+        for r in range(-radius - 1, radius + 1):
+            for tri in (((q, r), (q + 1, r), (q, r + 1)),
+                        ((q + 1, r), (q + 1, r + 1), (q, r + 1))):
+                if all(x in ids for x in tri):
+                    tris.append([ids[x] for x in tri])
     points = np.array(points) + np.random.default_rng(seed).uniform(-jitter, jitter,
                                                                     (len(points), 2))
     return np.c_[points, np.zeros(len(points))], np.array(tris, dtype=np.int64)
@@ -646,3 +654,16 @@ def test_irregular_patches_stay_close_to_the_loop_limit(surfaces, name, limit):
                     surface.control_points[np.repeat(root, 3)])
     edge = np.linalg.norm(vertices[tris[:, 0]] - vertices[tris[:, 1]], axis=1).mean()
     assert np.linalg.norm(got - exact, axis=1).max() < limit * edge
+
+
+@pytest.mark.parametrize("shape, corner", [("hexagon", 2), ("triangle", 1)])
+def test_border_rule_continues_a_regular_grid_exactly(shape, corner):
+    """On a flat regular grid the ghosts (corners included) continue the
+    lattice, so by linear precision every patch is its flat domain triangle."""
+    vertices, tris = hex_disk(3, shape=shape)
+    assert np.bincount(np.bincount(tris.ravel()))[corner] > 0  # corners with 2 or 1 triangles
+    surface = bz.control_net(vertices, tris)
+    dom_v, dom_t = surface.domain_mesh
+    bary = np.random.default_rng(7).dirichlet([1, 1, 1], size=12)
+    want = np.einsum("sc,pcd->psd", bary, dom_v[dom_t])
+    assert np.abs(bz.evaluate(surface.control_points, bary) - want).max() < 1e-12
