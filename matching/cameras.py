@@ -645,7 +645,7 @@ def read_stereo_calibration(intrinsics: str | os.PathLike, extrinsics: str | os.
         fs.release()
     D1 = np.zeros(0) if D1 is None else D1.reshape(-1)
     D2 = np.zeros(0) if D2 is None else D2.reshape(-1)
-    if np.abs(R.T @ R - np.eye(3)).max() < TOL.rotation_text_digits:
+    if _few_digits_rotation(R):
         R = _nearest_rotation(R)  # a hand-edited file may carry few digits
     try:
         left = Camera(K1, D1, np.eye(3), np.zeros(3), width, height, "left")
@@ -985,6 +985,13 @@ def read_colmap(folder: str | os.PathLike) -> list[Camera]:
 
 
 # ------------------------------------------------------------ projection matrices
+def _few_digits_rotation(R: np.ndarray) -> bool:
+    """A rotation printed with few digits (orthonormal within the text precision, det > 0):
+    snapping it is safe.  A reflection (det -1) is not a rotation; it is left to fail."""
+    return bool(np.abs(R.T @ R - np.eye(3)).max() < TOL.rotation_text_digits
+                and np.linalg.det(R) > 0)
+
+
 def _nearest_rotation(R: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(R)
     return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
@@ -1039,7 +1046,7 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
     cameras = []
     for number, name, values in rows:
         K, R, t = values[:9].reshape(3, 3), values[9:18].reshape(3, 3), values[18:]
-        if np.abs(R.T @ R - np.eye(3)).max() < TOL.rotation_text_digits:
+        if _few_digits_rotation(R):
             R = _nearest_rotation(R)
         try:
             cameras.append(Camera(K / K[2, 2] if K[2, 2] else K, np.zeros(0), R, t, width,

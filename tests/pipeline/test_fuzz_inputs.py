@@ -1004,3 +1004,75 @@ def test_control_net_malformed(tmp_path, case):
             arrays["control_points"] = np.array([None, 1], dtype=object)
         np.savez(path, **arrays)
     must_fail(read_control_net, path, path)
+
+
+# =========================================================================== OpenCV sample files
+
+
+def _write_opencv_pair(folder: Path, breaks: dict, image_size=(64, 48)) -> Path:
+    """OpenCV's stereo_calib sample output: intrinsics.yml (M1 D1 M2 D2), extrinsics.yml (R T)."""
+    import cv2
+
+    rig = make_rig(*image_size)
+    fields = {"M1": rig.left.K, "D1": rig.left.dist.reshape(1, -1), "M2": rig.right.K,
+              "D2": rig.right.dist.reshape(1, -1), "R": rig.R, "T": rig.T.reshape(3, 1)}
+    fields.update(breaks)
+    for name, keys in (("intrinsics.yml", ("M1", "D1", "M2", "D2")),
+                       ("extrinsics.yml", ("R", "T"))):
+        fs = cv2.FileStorage(str(folder / name), cv2.FILE_STORAGE_WRITE)
+        for key in keys:
+            if fields[key] is not None:
+                fs.write(key, np.asarray(fields[key], dtype=np.float64))
+        fs.release()
+    return folder / "intrinsics.yml"
+
+
+OPENCV_BREAKS = {
+    "nan_M1": {"M1": np.full((3, 3), math.nan)}, "singular_M2": {"M2": np.zeros((3, 3))},
+    "missing_M2": {"M2": None}, "missing_T": {"T": None}, "missing_R": {"R": None},
+    "reflection_R": {"R": np.diag([1.0, 1.0, -1.0])}, "scaled_R": {"R": 3 * np.eye(3)},
+    "inf_T": {"T": np.array([[math.inf], [0.0], [0.0]])},
+    "short_D1": {"D1": np.zeros((1, 3))}, "M1_2x2": {"M1": np.eye(2)},
+    "M1_negative_f": {"M1": np.diag([-100.0, 100.0, 1.0])},
+}
+
+
+@pytest.mark.parametrize("case", sorted(OPENCV_BREAKS))
+@pytest.mark.parametrize("which", ["intrinsics", "extrinsics"])
+def test_opencv_calibration_files_broken(tmp_path, case, which):
+    from matching.cameras import read_rig
+
+    intrinsics = _write_opencv_pair(tmp_path, OPENCV_BREAKS[case])
+    path = intrinsics if which == "intrinsics" else tmp_path / "extrinsics.yml"
+    message = str(raises_naming(read_rig, "trinsics.yml", path, width=64, height=48))
+    assert "trinsics.yml" in message, message  # names one of the two files
+
+
+@pytest.mark.parametrize("case", ["no_size", "image_missing", "image_garbage", "no_extrinsics"])
+def test_opencv_calibration_files_without_size_or_partner(tmp_path, case):
+    from matching.cameras import read_rig
+
+    intrinsics = _write_opencv_pair(tmp_path, {})
+    kwargs = {}
+    if case == "image_missing":
+        kwargs["image"] = tmp_path / "left.png"
+    elif case == "image_garbage":
+        (tmp_path / "left.png").write_text("no")
+        kwargs["image"] = tmp_path / "left.png"
+    elif case == "no_extrinsics":
+        (tmp_path / "extrinsics.yml").unlink()
+        kwargs = {"width": 64, "height": 48}
+    result = raises_naming(read_rig, "png" if "image_" in case else "yml", intrinsics, **kwargs)
+    assert isinstance(result, Exception)
+
+
+@pytest.mark.parametrize("R", [[1, 0, 0, 0, 1, 0, 0, 0, -1], [0, 1, 0, 1, 0, 0, 0, 0, 1],
+                               [1, 0, 0, 0, 1, 0, 0, 0, 1.5], [0] * 9])
+def test_projection_txt_reflection_or_non_rotation(tmp_path, R):
+    """A reflection printed in a projection file is not snapped to some rotation."""
+    from matching.cameras import read_projection_txt
+
+    path = tmp_path / "par.txt"
+    values = [100, 0, 31.5, 0, 100, 23.5, 0, 0, 1, *R, 0, 0, 1]
+    path.write_text("1\nim0.png " + " ".join(str(v) for v in values) + "\n")
+    must_fail(read_projection_txt, path, path, 64, 48)
