@@ -999,3 +999,57 @@ def test_acquire_bad_folders(tmp_path, capfd, case):
     out = tmp_path / "cloud.ply"
     fails_cleanly(capfd, ["acquire", folder, "--out", out, *extra], needle, out=out,
                   also=[out.with_suffix(".npz")])
+
+
+# =========================================================================== random bytes everywhere
+
+RANDOM_TARGETS = {
+    "synth": [".toml"], "sections": [".ply", ".xyz", ".csv", ".txt"],
+    "smooth": [".ply", ".obj", ".stl", ".off", ".gltf", ".glb"],
+    "render": [".ply", ".obj", ".stl", ".off", ".gltf", ".glb"],
+    "match": [".yml", ".xml", ".json"], "stereo": [".yml", ".yaml"], "calibrate": [".png"],
+    "acquire": [".yml", ".txt"], "batch": [".toml"],
+}  # sections .npz: test_sections_unreadable_clouds (xfail, pipeline/cloud_io.py)
+
+
+@fuzz(80)
+@given(data=st.data(), command=st.sampled_from(sorted(RANDOM_TARGETS)),
+       payload=st.one_of(st.binary(max_size=120),
+                         st.text(alphabet=st.characters(codec="utf-8"), max_size=80).map(
+                             lambda t: t.encode("utf-8")),
+                         st.sampled_from([b"ply\n", b"solid x\n", b"v 0 0 0\n", b"OFF\n1 1 0\n",
+                                          b"glTF", b"%YAML 1.2\n---\n", b"<?xml", b"[[object]]",
+                                          b"\x89PNG\r\n\x1a\n", b"n_views: 2\n", b"# c\n1 2\n"])))
+def test_random_bytes_as_any_input(pair, capfd, data, command, payload):
+    """Whatever the bytes: exit 2 and one line naming the file (or a complete output)."""
+    suffix = data.draw(st.sampled_from(RANDOM_TARGETS[command]), label="suffix")
+    with scratch() as tmp:
+        bad = tmp / f"input{suffix}"
+        bad.write_bytes(payload)
+        out = tmp / {"synth": "scene", "sections": "m.ply", "smooth": "s.ply", "render": "v.png",
+                     "match": "o", "stereo": "c.ply", "calibrate": "rig.yml",
+                     "acquire": "c.ply", "batch": "ws"}[command]
+        if command in ("synth", "sections", "smooth", "render", "batch"):
+            argv = [command, bad, "--out", out] + (["--size", "64x48", "--views", "1"]
+                                                   if command == "render" else [])
+        elif command in ("match", "stereo"):
+            argv = [command, pair["left"], pair["right"], "--rig", bad, "--out", out]
+        elif command == "calibrate":
+            argv = [command, str(tmp / "input*.png"), str(pair["right"]), "--square", "0.02",
+                    "--out", out]
+        else:
+            folder = tmp / "views"
+            folder.mkdir()
+            write_png(folder / "a.png", textured(W, H, 1))
+            write_png(folder / "b.png", textured(W, H, 2))
+            argv = [command, folder, "--cameras", bad, "--out", out]
+        status, lines = run_cli(capfd, argv)
+        if status == 0:
+            assert out.exists() and leftovers(out) == []
+            return
+        assert status == 2 and len(lines) == 1, lines
+        assert bad.name in lines[0] or (command == "calibrate" and "input" in lines[0]), lines[0]
+        if command != "batch":
+            assert_nothing_written(out, out.with_suffix(".npz"))
+        else:
+            assert not out.exists()
