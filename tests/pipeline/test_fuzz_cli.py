@@ -1001,7 +1001,7 @@ def test_acquire_bad_folders(tmp_path, capfd, case):
                   also=[out.with_suffix(".npz")])
 
 
-# =========================================================================== random bytes everywhere
+# ================================================================ random bytes everywhere
 
 RANDOM_TARGETS = {
     "synth": [".toml"], "sections": [".ply", ".xyz", ".csv", ".txt"],
