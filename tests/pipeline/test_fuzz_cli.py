@@ -1053,3 +1053,20 @@ def test_random_bytes_as_any_input(pair, capfd, data, command, payload):
             assert_nothing_written(out, out.with_suffix(".npz"))
         else:
             assert not out.exists()
+
+
+@pytest.mark.parametrize("case", ["missing", "folder"])
+@pytest.mark.parametrize("command", ["run", "batch"])
+def test_config_file_missing_or_folder(tmp_path, capfd, case, command):
+    from pipeline.cloud_io import write_cloud
+
+    config = tmp_path / "params.toml"
+    if case == "folder":
+        config.mkdir()
+    target = write_cloud(tmp_path / "cloud.xyz", cylinder_points(100))
+    if command == "batch":
+        target = tmp_path / "batch.toml"
+        target.write_text('[[object]]\ninput = "cloud.xyz"\n')
+    out = tmp_path / "ws"
+    fails_cleanly(capfd, [command, target, "--out", out, "--config", config], "params.toml")
+    assert not out.exists()
