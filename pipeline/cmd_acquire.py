@@ -52,6 +52,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch", type=int, default=15, help="LSM patch side, odd (default 15)")
     parser.add_argument("--check-views", type=int, default=2,
                         help="further views each point is LSM-checked in (default 2)")
+    parser.add_argument("--sfm-camera-model", default="SIMPLE_RADIAL",
+                        choices=("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"),
+                        help="COLMAP camera model when poses come from SfM (default "
+                             "SIMPLE_RADIAL; SIMPLE_PINHOLE for distortion-free images: on a "
+                             "narrow field k1 trades against the focal length)")
     parser.add_argument("--scheduler", default=None,
                         help="Dask scheduler (tcp://HOST:PORT or local-cluster[:N]); "
                              "default in-process")
@@ -117,7 +122,8 @@ def _match_cameras(cams: list, names: list[str], source: Path) -> list:
 
 
 def load_folder(folder: str | Path, cameras: str | None = None,
-                sfm_work_dir: str | Path | None = None) -> dict:
+                sfm_work_dir: str | Path | None = None,
+                camera_model: str = "SIMPLE_RADIAL") -> dict:
     """Images and cameras of a folder (module docstring), checked.
 
     Returns
@@ -154,7 +160,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
                              "cameras to say so (give --cameras)")
         from matching.sfm import run_sfm
 
-        result = run_sfm(where, work_dir=sfm_work_dir, image_names=names)
+        result = run_sfm(where, work_dir=sfm_work_dir, image_names=names,
+                         camera_model=camera_model)
         if len(result.registered) < 2:
             raise InputError(f"{where}: SfM registered {len(result.registered)} of "
                              f"{len(names)} images; need 2")
@@ -173,7 +180,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
 
 # --------------------------------------------------------------------------- work
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
-                   check_views: int = 2, **options):
+                   check_views: int = 2, camera_model: str = "SIMPLE_RADIAL", **options):
     """Image folder -> :class:`matching.multiview.MultiViewCloud` (plus what was loaded).
 
     Parameters
@@ -184,6 +191,8 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     executor : pipeline.executor executor, optional
         Its ``map`` runs the view pairs (default: in-process loop).
     check_views : int
+    camera_model : str
+        COLMAP camera model for SfM (only used without cameras).
     **options
         ``[acquire]`` options of pipeline/defaults.toml; the matching ones are passed
         on (``max_reprojection_px`` has no multi-view meaning and is ignored).
@@ -196,7 +205,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     """
     from matching.multiview import reconstruct_multiview
 
-    loaded = load_folder(folder, cameras)
+    loaded = load_folder(folder, cameras, camera_model=camera_model)
     match = {k: v for k, v in options.items() if k in _MATCH_KEYS}
     map_func = None if executor is None else executor.map
     try:
@@ -243,7 +252,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--check-views {args.check_views}: must be >= 1")
     with get_executor(args.scheduler) as executor:
         cloud = acquire_folder(args.folder, args.cameras, executor=executor,
-                               check_views=args.check_views, spacing=args.spacing,
+                               check_views=args.check_views,
+                               camera_model=args.sfm_camera_model, spacing=args.spacing,
                                patch=args.patch)
     write_outputs(out, cloud)
     if not getattr(args, "quiet", False):
