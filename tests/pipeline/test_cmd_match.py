@@ -73,16 +73,20 @@ def test_stereo_cloud_against_truth_mesh(vase, tmp_path):
     mesh = o3d.io.read_triangle_mesh(str(vase / "truth" / "mesh.ply"))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    dist = scene.compute_distance(o3d.core.Tensor(cloud.points.astype(np.float32))).numpy()
-    # a handful of patches straddling the silhouette (their centre pixel is background)
-    # survive: < 1 % beyond 6σ
-    far = dist > 6 * cloud.sigma
-    assert np.mean(far) < 0.01
-    # σ is along the worst direction (depth); the distance to the surface is along the
-    # normal, at most that: the RMS distance is at most ~1.5x the RMS σ
-    rms_dist = np.sqrt(np.mean(dist[~far] ** 2))
-    rms_sigma = np.sqrt(np.mean(cloud.sigma[~far] ** 2))
-    assert rms_dist < 1.5 * rms_sigma, (rms_dist, rms_sigma)
+    query = o3d.core.Tensor(cloud.points.astype(np.float32))
+    dist = scene.compute_distance(query).numpy()
+    normal = scene.compute_closest_points(query)["primitive_normals"].numpy().astype(float)
+    # the distance to the surface is along its normal: compare with σ along the normal
+    sigma_n = np.sqrt(np.einsum("ni,nij,nj->n", normal, extra["cov"], normal))
+    # a handful of patches straddling the silhouette (background in the patch) survive:
+    # < 1 % beyond 6σ (σ of the worst direction)
+    assert np.mean(dist > 6 * cloud.sigma) < 0.01
+    # median |d| / σ_n = 0.674 for a Gaussian with the reported σ; the 2D error on the
+    # vase is ~1.2x its σ (benchmarks/matching.py: foreshortened rim): accept 0.7-1.6
+    ratio = np.median(dist / sigma_n) / 0.6745
+    assert 0.7 < ratio < 1.6, ratio
+    # absolute size: z² σ_d / (f B) with σ_d ~ 0.05 px, z ~ 7, f = 520, B = 1.76 -> ~2e-3
+    assert np.median(dist) < 2e-3
 
 
 def _rectified_pair(disparity=7.4, size=(120, 160), seed=4):
