@@ -147,12 +147,11 @@ def dask_speedup(workdir: Path, quick: bool) -> dict:
 def _images_and_cameras(scene: Path):
     import cv2
 
-    from matching.cameras import read_cameras
+    from pipeline.stages import _folder_cameras, folder_images
 
-    names = sorted((scene / "images").glob("*.png"))
-    by_name = {c.name: c for c in read_cameras(scene / "cameras.yml")}
-    return ([cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in names],
-            [by_name[p.stem] for p in names])
+    names = folder_images(scene)
+    cameras, _ = _folder_cameras(scene, names)  # as photosurf run pairs them
+    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in names], cameras
 
 
 def pair_speedup(workdir: Path, n_pairs: int = 12) -> dict:
@@ -190,12 +189,18 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     progress.set_quiet(True)
     workdir = Path(tempfile.mkdtemp(prefix="photosurf-bench-"))
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figures: dict = {}
+    steps = [("demo", lambda: demo(workdir, "fixtures/scenes/vase.toml", args.quick, "demo")),
+             ("ring_24_views", lambda: demo(workdir, "fixtures/scenes/vase_ring.toml",
+                                            args.quick, "ring")),
+             ("dask_pairs", lambda: pair_speedup(workdir)),
+             ("dask", lambda: dask_speedup(workdir, args.quick))]
     try:
-        figures = {"demo": demo(workdir, "fixtures/scenes/vase.toml", args.quick, "demo")}
-        figures["ring_24_views"] = demo(workdir, "fixtures/scenes/vase_ring.toml", args.quick,
-                                        "ring")
-        figures["dask_pairs"] = pair_speedup(workdir)
-        figures["dask"] = dask_speedup(workdir, args.quick)
+        for key, step in steps:
+            figures[key] = step()
+            out.write_text(json.dumps(figures, indent=1) + "\n")  # keep what is measured
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
 
@@ -229,9 +234,6 @@ def main(argv=None) -> int:
     print(f"  {'  + cluster start-up':<28} {k['dask_total_seconds']:9.2f} "
           f"{k['speedup_with_startup']:9.2f}")
     print(f"  identical outputs: {k['identical_outputs']}")
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(figures, indent=1) + "\n")
     print(f"\nwrote {out}")
     return 0
 
