@@ -291,7 +291,7 @@ def test_rig_missing_matrix(field, view, suffix):
             assert f"{view}.{field}" in message
 
 
-@fuzz(40)
+@fuzz(60)
 @given(cut=st.floats(0.0, 0.97), suffix=st.sampled_from([".yml", ".xml"]))
 def test_rig_truncated(cut, suffix):
     """A truncated rig file reads back identical (only whitespace lost) or is an error."""
@@ -308,7 +308,7 @@ def test_rig_truncated(cut, suffix):
             assert result.left.allclose(rig.left) and result.right.allclose(rig.right)
 
 
-@fuzz(40)
+@fuzz(60)
 @given(data=st.binary(max_size=200), suffix=st.sampled_from([".yml", ".xml", ".yaml", ".json"]),
        prefix=st.sampled_from([b"", b"%YAML 1.2\n---\n", b"<?xml version=\"1.0\"?>\n",
                                b"n_views: 2\nview_00:\n  K: [", b"{\"n_views\": "]))
