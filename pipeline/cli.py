@@ -98,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         message = str(exc) or type(exc).__name__
         if isinstance(exc, OSError) and exc.filename and exc.strerror:
-            message = f"{exc.filename}: {exc.strerror}"  # not "[Errno 17] File exists: '...'"
+            # not "[Errno 21] ...: 'tmp' -> 'out'": a rename names the user's path (filename2)
+            message = f"{exc.filename2 or exc.filename}: {exc.strerror}"
             if isinstance(exc, FileExistsError):  # mkdir of an output folder over a file
                 message += " (a file is where a folder is needed)"
         print(f"photosurf {args.command}: error: {message}", file=sys.stderr)

@@ -606,6 +606,10 @@ def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.
         raise InputError(f"{path}: cannot export mesh format {suffix!r} "
                          f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
     net_path = path.with_suffix(".npz")
+    for target in (path, net_path):  # a rename over a folder fails after the other landed
+        if target.is_dir():
+            raise InputError(f"{target}: is a folder; the surface and its control net are "
+                             "files")
     vertices, triangles, normals, _ = _check_mesh(vertices, triangles, normals)
     if normals is None:
         normals = vertex_normals(vertices, triangles)
