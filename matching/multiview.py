@@ -102,7 +102,7 @@ except ImportError:  # pragma: no cover - older matching.lsm: affine-only matche
 from matching.pair import match_pair
 from matching.seeds import Rectification, rectify_images
 from matching.triangulate import triangulate_multiview, triangulate_pair
-from matching.validate import TOL
+from matching.validate import TOL, check_shape
 
 __all__ = [
     "REASON_NAMES",
@@ -709,7 +709,20 @@ def merge_clouds(points: np.ndarray, sigma: np.ndarray, views: np.ndarray,
         ``points, sigma, views, pair, colours`` (merged), ``fused`` (points absorbed),
         ``outliers`` (removed), ``radius``.
     """
+    points = check_shape(points, "(N, 3)", "points", dtype=np.float64)
     n = len(points)
+    sigma = check_shape(sigma, "(N,)", "sigma", dtype=np.float64)
+    views = check_shape(views, "(N, V)", "views", dtype=bool)
+    source = check_shape(source, "(N,)", "source", dtype=np.int64)
+    colours = check_shape(colours, "(N, 3)", "colours")
+    for name, arr in (("sigma", sigma), ("views", views), ("source", source),
+                      ("colours", colours)):
+        if len(arr) != n:
+            raise ValueError(f"{name} has {len(arr)} rows for {n} points")
+    if n and not np.all(np.isfinite(points)):
+        raise ValueError("points contains NaN/inf values")
+    if n and not np.all(sigma > 0):
+        raise ValueError(f"sigma must be positive, got min {float(np.min(sigma)):g}")
     if n == 0:
         return {"points": points, "sigma": sigma, "views": views, "pair": source,
                 "colours": colours, "fused": 0, "outliers": 0, "radius": 0.0}

@@ -120,6 +120,17 @@ def test_merge_fuses_duplicates_by_sigma_weights():
     assert np.all(out["pair"] == -1)
 
 
+def test_merge_checks_its_arrays():
+    pts = np.zeros((4, 3))
+    ok = (np.ones(4), np.ones((4, 2), bool), np.zeros(4, np.int64), np.zeros((4, 3), np.uint8))
+    with pytest.raises(ValueError, match=r"points must have shape \(N, 3\)"):
+        merge_clouds(np.zeros((4, 2)), *ok)
+    with pytest.raises(ValueError, match="sigma has 3 rows for 4 points"):
+        merge_clouds(pts, np.ones(3), *ok[1:])
+    with pytest.raises(ValueError, match="sigma must be positive"):
+        merge_clouds(pts, np.zeros(4), *ok[1:])
+
+
 def test_merge_keeps_one_pairs_neighbours_apart_and_drops_off_surface_points():
     rng = np.random.default_rng(1)
     # a jittered grid, like matched points (one per spacing x spacing cell)
