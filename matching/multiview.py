@@ -858,6 +858,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
             got = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
             raise ValueError(f"images[{v}] ({cam.name or v}) is {got} px but its camera is "
                              f"{cam.size[0]}x{cam.size[1]} px")
+    if int(check_views) < 1:
+        raise ValueError(f"check_views must be >= 1, got {check_views}")
+    if not 0.0 < max_incidence_deg < 90.0:
+        raise ValueError(f"max_incidence_deg must lie in (0, 90), got {max_incidence_deg}")
+    if not 0.0 < reject_p < 1.0:
+        raise ValueError(f"reject_p must lie in (0, 1), got {reject_p}")
     unknown = set(match_options) - set(_MATCH_KEYS)
     if unknown:
         raise ValueError(f"unknown matching option(s) {sorted(unknown)}; choose from "

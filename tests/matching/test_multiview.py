@@ -232,6 +232,10 @@ def test_bad_input(ring):
         reconstruct_multiview([images[0], images[1][:100]], cams[:2])
     with pytest.raises(ValueError, match="unknown matching option"):
         reconstruct_multiview(images[:3], cams[:3], spacng=4)
+    with pytest.raises(ValueError, match="max_incidence_deg must lie in"):
+        reconstruct_multiview(images[:3], cams[:3], max_incidence_deg=90.0)
+    with pytest.raises(ValueError, match="check_views must be >= 1"):
+        reconstruct_multiview(images[:3], cams[:3], check_views=0)
 
 
 def _halved(cam: Camera) -> Camera:
