@@ -19,10 +19,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pipeline.cli import main
 from tests.pipeline.test_fuzz_inputs import (
     GOOD_RECIPE,
     assert_nothing_written,
+    call_main,
     cylinder_points,
     fails_cleanly,
     fuzz,
@@ -45,7 +45,7 @@ LAST_STDOUT: list[str] = [""]
 
 def run_cli(capfd, argv) -> tuple[int, list[str]]:
     capfd.readouterr()
-    status = main([str(a) for a in argv])
+    status = call_main(argv)
     captured = capfd.readouterr()
     LAST_STDOUT[0] = captured.out
     assert "Traceback" not in captured.err, captured.err
@@ -916,7 +916,7 @@ def test_bad_options_one_line(pair, capfd, data, command):
         argv = [*argv, f"{option}={value}"]
         capfd.readouterr()
         try:
-            status = main([str(a) for a in argv])
+            status = call_main(argv)
         except SystemExit as exc:  # argparse: type/choices errors
             status = exc.code
         err = capfd.readouterr().err

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import tempfile
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -67,6 +68,22 @@ def assert_nothing_written(out: Path, *also: Path) -> None:
     assert leftovers(out) == [], f"temporaries left beside {out}: {leftovers(out)}"
 
 
+def call_main(argv) -> int:
+    """``main(argv)``; Python warnings other than photosurf's own named ones fail the test.
+
+    Under pytest a warning is recorded, not printed; the real program would print it on
+    stderr (two more lines), so an anonymous ``RuntimeWarning`` (a division by zero on
+    bad input) breaks the one-line rule.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        status = main([str(a) for a in argv])
+    foreign = [f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in caught
+               if w.category.__module__.split(".")[0] not in ("surface", "matching", "pipeline")]
+    assert not foreign, "warnings on stderr besides the error line:\n" + "\n".join(foreign)
+    return status
+
+
 def fails_cleanly(capfd, argv, *needles, out=None, also=()) -> str:
     """Run the CLI in-process; assert exit 2 and exactly one stderr line holding ``needles``.
 
@@ -74,7 +91,7 @@ def fails_cleanly(capfd, argv, *needles, out=None, also=()) -> str:
     open3d) printing their own diagnostics would fail the one-line rule.
     """
     capfd.readouterr()
-    status = main([str(a) for a in argv])
+    status = call_main(argv)
     err = capfd.readouterr().err
     lines = [line for line in err.splitlines() if line.strip()]
     assert "Traceback" not in err, err
