@@ -209,7 +209,7 @@ def test_rig_nonfinite_K_is_an_error_naming_the_field(entry, view, value, suffix
         path.write_text(head + view + tail[:k_start] + block + tail[k_end:])
         for reader in (read_rig, read_cameras):
             message = must_fail(reader, path, path)
-            assert f"{view}.K" in message or "K" in message
+            assert f"{view}.K" in message, message
 
 
 @fuzz(25)
@@ -746,7 +746,7 @@ def test_recipe_bad_fields(edit):
             build_scene(recipe, source=str(path))
         except READER_ERRORS as exc:
             assert path.name in str(exc), exc
-            assert key in str(exc) or "TOML" in str(exc) or table in str(exc), exc
+            assert key in str(exc) or (table and f"field {table}" in str(exc)), exc
         else:
             pytest.fail(f"recipe with {dotted} = {value} was accepted")
 
