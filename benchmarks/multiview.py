@@ -118,7 +118,11 @@ def run_surface(points: np.ndarray, truth, height: float) -> dict:
     from surface.stitch import surface_from_points
 
     start = time.perf_counter()
-    stitched = surface_from_points(points, axis="z")
+    try:
+        stitched = surface_from_points(points, axis="z")
+    except ValueError as exc:  # surface's failure, reported in the table, not a crash
+        return {"method": "surface", "seconds": time.perf_counter() - start,
+                "error": f"surface_from_points: {exc}", "chamfer_rel_height": float("nan")}
     surf = bezier.control_net(stitched.vertices, stitched.triangles)
     vertices, triangles, _ = bezier.tessellate(surf, LEVEL)
     seconds = time.perf_counter() - start
@@ -154,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scene", default=None,
                         help="an already rendered scene folder (photosurf synth) to reuse")
     parser.add_argument("--spacing", type=int, default=4, help="candidate spacing, px")
+    parser.add_argument("--cloud-out", default=None,
+                        help="also save photosurf's cloud (known cameras) to this .npz")
     args = parser.parse_args(argv)
 
     import open3d as o3d
@@ -179,9 +185,12 @@ def main(argv: list[str] | None = None) -> int:
 
         known, cloud = run_photosurf("photosurf", images, cameras, truth, args.spacing)
         print(f"  photosurf: {known['seconds']:.1f} s", flush=True)
+        if args.cloud_out:
+            np.savez(args.cloud_out, points=cloud.points, sigma=cloud.sigma, views=cloud.views,
+                     colours=cloud.colours)
         surface = run_surface(cloud.points, truth, height)
         surface["folder_to_surface_seconds"] = known["seconds"] + surface["seconds"]
-        print(f"  surface: {surface['seconds']:.1f} s", flush=True)
+        print(f"  surface: {surface['seconds']:.1f} s {surface.get('error', '')}", flush=True)
         sparse, aligned = run_sparse(folder, cameras, truth, tmp / "sfm")
         print(f"  pycolmap: {sparse['seconds']:.1f} s", flush=True)
         by_name = {c.name: c for c in aligned.cameras}
