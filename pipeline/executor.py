@@ -118,8 +118,10 @@ class DaskExecutor:
         items = list(items)
         if not items:
             return []
-        # pure=False: every item is its own task even if two items are equal
-        futures = self.client.map(func, items, pure=False, **kwargs)
+        # Items (view pairs carry their images) go to the workers as data, not inside the
+        # task graph; pure=False: every item is its own task even if two items are equal.
+        data = self.client.scatter(items, hash=False)
+        futures = self.client.map(func, data, pure=False, **kwargs)
         return self.client.gather(futures)
 
     def close(self) -> None:
@@ -163,6 +165,7 @@ def quiet_dask() -> None:
                  "distributed.utils_perf"):
         logging.getLogger(name).setLevel(logging.ERROR)
     warnings.filterwarnings("ignore", message=".*Port .* is already in use.*")
+    warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
     os.environ.setdefault("DASK_DISTRIBUTED__SCHEDULER__DASHBOARD__ENABLED", "False")
 
 
