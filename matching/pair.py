@@ -191,6 +191,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
         Images of different sizes or not matching the rig, no rig and not rectified,
         no overlap between the views.
     """
+    if not (isinstance(patch, int | np.integer) and patch >= 5 and patch % 2 == 1):
+        raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
+    if not (isinstance(spacing, int | np.integer) and spacing >= 1):
+        raise ValueError(f"spacing must be a positive integer, got {spacing!r}")
+    corr = lsm_options.get("min_correlation", 0.7)
+    if not (np.isfinite(corr) and -1.0 <= corr <= 1.0):
+        raise ValueError(f"min_correlation must be in [-1, 1], got {corr!r}")
     left = _grey(left_img, "left image")
     right = _grey(right_img, "right image")
     if rig is None and not rectified:

@@ -138,7 +138,12 @@ def _parse_header(path: Path):
             element = words[1]
             elements.append(element)
             if element == "vertex":
-                count = int(words[2])
+                try:
+                    count = int(words[2])
+                except (IndexError, ValueError):
+                    raise InputError(f"{path}: bad PLY line {line!r}") from None
+                if count < 0:
+                    raise InputError(f"{path}: negative vertex count {count}")
         elif words[0] == "property" and element == "vertex":
             if words[1] == "list" or words[1] not in _PLY_TYPES:
                 return None
@@ -164,7 +169,7 @@ def read_ply(path: str | os.PathLike) -> Cloud:
             colours = (np.column_stack([data["red"], data["green"], data["blue"]])
                        .astype(np.uint8) if {"red", "green", "blue"} <= set(names) else None)
             sigma = data["sigma"].astype(np.float64) if "sigma" in names else None
-            return Cloud(points, colours, sigma)
+            return Cloud(_finite(points, path), colours, sigma)
     import open3d as o3d
 
     pcd = o3d.io.read_point_cloud(str(path))
@@ -173,7 +178,14 @@ def read_ply(path: str | os.PathLike) -> Cloud:
         raise InputError(f"{path}: no points in this PLY file")
     colours = (np.clip(np.rint(np.asarray(pcd.colors) * 255), 0, 255).astype(np.uint8)
                if pcd.has_colors() else None)
-    return Cloud(points, colours)
+    return Cloud(_finite(points, path), colours)
+
+
+def _finite(points: np.ndarray, path: Path) -> np.ndarray:
+    if not np.isfinite(points).all():
+        bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
+        raise InputError(f"{path}: {bad} points with non-finite coordinates")
+    return points
 
 
 def read_text(path: str | os.PathLike) -> Cloud:
@@ -206,18 +218,25 @@ def read_text(path: str | os.PathLike) -> Cloud:
 
 def read_npz(path: str | os.PathLike) -> Cloud:
     """Read ``points`` (and ``colours``, ``sigma`` if present) from an ``.npz``."""
+    import zipfile
+
     path = Path(path)
-    with np.load(path) as data:
-        if "points" not in data:
-            raise InputError(f"{path}: no 'points' array (has {sorted(data.files)})")
-        points = np.asarray(data["points"], dtype=np.float64)
-        colours = data["colours"] if "colours" in data else None
-        sigma = data["sigma"] if "sigma" in data else None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "points" not in data:
+                raise InputError(f"{path}: no 'points' array (has {sorted(data.files)})")
+            points = np.asarray(data["points"], dtype=np.float64)
+            colours = data["colours"] if "colours" in data else None
+            sigma = data["sigma"] if "sigma" in data else None
+    except InputError:
+        raise
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, TypeError) as exc:
+        raise InputError(f"{path}: not a readable .npz point cloud ({exc})") from None
     try:
         points, colours, sigma = _check(points, colours, sigma)
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return Cloud(points, colours, sigma)
+    return Cloud(_finite(points, path), colours, sigma)
 
 
 def read_cloud(path: str | os.PathLike) -> Cloud:

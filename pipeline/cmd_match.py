@@ -38,6 +38,17 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
 
 
 def match_options(args: argparse.Namespace) -> dict:
+    """The matching keyword arguments, checked (``InputError`` naming the option)."""
+    import math
+
+    if args.patch < 5 or args.patch % 2 == 0:
+        raise InputError(f"--patch must be an odd integer >= 5, got {args.patch}")
+    if args.spacing < 1:
+        raise InputError(f"--spacing must be a positive integer, got {args.spacing}")
+    if args.max_iter < 1:
+        raise InputError(f"--max-iter must be a positive integer, got {args.max_iter}")
+    if not (math.isfinite(args.min_correlation) and -1.0 <= args.min_correlation <= 1.0):
+        raise InputError(f"--min-correlation must be in [-1, 1], got {args.min_correlation}")
     return {"spacing": args.spacing, "patch": args.patch, "interpolation": args.interpolation,
             "epipolar": args.epipolar, "max_iter": args.max_iter,
             "min_correlation": args.min_correlation}
@@ -52,9 +63,15 @@ def read_image(path: str | Path) -> np.ndarray:
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, expected an image")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from pipeline.mesh_io import quiet_native_stderr
+
+    with quiet_native_stderr():  # libpng prints its own diagnostics on fd 2
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise InputError(f"{path}: not a readable image")
+    if min(image.shape[:2]) < 32:
+        raise InputError(f"{path}: image is too small to match: {image.shape[1]}x"
+                         f"{image.shape[0]} px (at least 32x32)")
     return image
 
 
@@ -75,6 +92,15 @@ def read_rig_for(path: str, left_image: str):
     except (ValueError, OSError) as exc:
         message = str(exc)
         raise InputError(message if str(path) in message else f"{path}: {message}") from None
+
+
+def check_rig_size(rig, images, paths) -> None:
+    """Each image must have its camera's size (the rig's calibration is per pixel)."""
+    for label, image, cam, path in zip(("left", "right"), images, (rig.left, rig.right), paths,
+                                       strict=True):
+        if (image.shape[1], image.shape[0]) != cam.size:
+            raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]} px but the "
+                             f"rig's {label} camera is {cam.size[0]}x{cam.size[1]} px")
 
 
 def summary(matches) -> str:
@@ -105,9 +131,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from matching.pair import match_pair
 
+    options = match_options(args)
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise InputError(f"{args.out}: is a file; --out must name a folder")
     left, right = read_pair(args.left, args.right)
     rig = None if args.rectified else read_rig_for(args.rig, args.left)
-    matches = match_pair(left, right, rig, rectified=args.rectified, **match_options(args))
+    if rig is not None:
+        check_rig_size(rig, (left, right), (args.left, args.right))
+    matches = match_pair(left, right, rig, rectified=args.rectified, **options)
     check_some_matched(matches, args.left)
     with atomic_dir(args.out) as tmp:
         np.savez(tmp / "matches.npz", **matches.as_dict())

@@ -19,6 +19,7 @@ from pipeline.atomic import atomic_file
 from pipeline.cloud_io import write_ply
 from pipeline.cmd_match import (
     add_match_options,
+    check_rig_size,
     check_some_matched,
     match_options,
     read_pair,
@@ -46,9 +47,13 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".ply":
         raise InputError(f"{out}: --out must end in .ply")
+    for target in (out, out.with_suffix(".npz")):
+        if target.is_dir():
+            raise InputError(f"{target}: is a folder; --out must name a file")
+    options = match_options(args)
     left, right = read_pair(args.left, args.right, need_same_size=False)
     rig = read_rig_for(args.rig, args.left)
-    options = match_options(args)
+    check_rig_size(rig, (left, right), (args.left, args.right))
     options.pop("epipolar")
     rec = reconstruct_pair(left, right, rig, epipolar=args.epipolar,
                            max_reprojection_px=args.max_reprojection, **options)
@@ -56,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     per_point = rec.per_point()
     per_point["status"] = rec.matches.status
     per_point["status_names"] = np.array([PAIR_STATUS_NAMES[k] for k in sorted(PAIR_STATUS_NAMES)])
-    with atomic_file(out) as tmp_ply, atomic_file(out.with_suffix(".npz")) as tmp_npz:
+    # the .ply (inner) is renamed first: if that fails the .npz is never renamed
+    with atomic_file(out.with_suffix(".npz")) as tmp_npz, atomic_file(out) as tmp_ply:
         np.savez(tmp_npz, **per_point)
         write_ply(tmp_ply, rec.points, rec.colours, rec.sigma)
     if not getattr(args, "quiet", False):
