@@ -1059,7 +1059,10 @@ def build_scene(recipe: dict, source: str = "<recipe>") -> Scene:
         distance = cams[key]
     else:
         sample = vertices[:: max(1, len(vertices) // 4000)]
-        distance = _fit_distance(cams, centre, sample, bound)
+        try:
+            distance = _fit_distance(cams, centre, sample, bound)
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None
     cameras = make_cameras(cams, centre, distance)
     footprint = float(np.mean([np.linalg.norm(c.center - centre) / c.K[0, 0] for c in cameras]))
     tex = recipe["texture"]

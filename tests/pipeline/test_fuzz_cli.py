@@ -236,14 +236,10 @@ RECIPE_BREAKS = [
 ]
 
 
-SCENES_FIT_NO_FILE = pytest.mark.xfail(strict=True, reason=(
-    "pipeline/scenes.py: _fit_distance raises InputError('field cameras.fill: no camera "
-    "distance fits the object') without the recipe file name (build_scene knows `source`)"))
-
 
 @pytest.mark.parametrize(("field", "value", "needle"), [
     pytest.param(*case, id=f"{case[0]}={case[1]}",
-                 marks=[SCENES_FIT_NO_FILE] if case[0] == "cameras.convergence_deg" else [])
+                 marks=[])
     for case in RECIPE_BREAKS])
 def test_synth_bad_recipe_writes_nothing(tmp_path, capfd, field, value, needle):
     import tomllib
@@ -629,19 +625,13 @@ def _outputs(pair: dict, tmp: Path, parent: Path) -> dict:
     }
 
 
-ATOMIC_DIR_OVER_FILE = pytest.mark.xfail(strict=True, reason=(
-    "pipeline/atomic.py: atomic_dir(replace=True) swaps an existing regular FILE at --out for "
-    "the new folder (the user's file is deleted, exit 0); it should refuse: '--out must be a "
-    "folder, found a file' as pipeline.workspace.Workspace does"))
-
 
 def _unwritable_cases():
     for command in ("synth", "match", "stereo", "sections", "smooth", "render", "run"):
         for depth in ("under_file", "deeper_under_file", "is_a_file"):
             if depth == "is_a_file" and command not in ("synth", "match", "run"):
                 continue  # a file output replaces an existing file, by design
-            marks = [ATOMIC_DIR_OVER_FILE] if depth == "is_a_file" and command != "run" else []
-            yield pytest.param(command, depth, marks=marks, id=f"{command}-{depth}")
+            yield pytest.param(command, depth, id=f"{command}-{depth}")
 
 
 @pytest.mark.parametrize(("command", "depth"), list(_unwritable_cases()))
