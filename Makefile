@@ -44,7 +44,7 @@ setup: $(STAMP)
 	@$(MAKE) --no-print-directory sysdeps
 
 demo: setup
-	$(VENV)/bin/photosurf run fixtures/scenes/vase.toml --out $(OUT)
+	$(VENV)/bin/photosurf run fixtures/scenes/vase_ring.toml --out $(OUT)
 
 test: setup sysdeps-test
 	$(PY) -m pytest -n 2 -q
