@@ -1014,7 +1014,9 @@ def second_order_terms(points, affine, valid=None, radius_px: float = 12.0,
     over the accepted neighbours within ``radius_px``:
     ``u_xx = da1/dx``, ``u_xy = (da1/dy + da2/dx)/2``, ``u_yy = da2/dy`` (and ``v`` from
     ``b1 b2``), giving ``quadratic = (u_xx/2, u_xy, u_yy/2, v_xx/2, v_xy, v_yy/2)`` for
-    :func:`lsm_match`.
+    :func:`lsm_match`.  Each term is shrunk by ``max(0, 1 - (se/q)²)``, se its standard
+    error from the plane fits' residuals, so that a curvature the neighbours do not
+    resolve adds no noise.
 
     Parameters
     ----------
@@ -1067,6 +1069,21 @@ def second_order_terms(points, affine, valid=None, radius_px: float = 12.0,
     b1x, b1y, b2x, b2y = grad[:, 0, 2], grad[:, 1, 2], grad[:, 0, 3], grad[:, 1, 3]
     quad = np.column_stack([0.5 * a1x, 0.5 * (a1y + a2x), 0.5 * a2y,
                             0.5 * b1x, 0.5 * (b1y + b2x), 0.5 * b2y])
+    # standard errors from the plane fits' residuals; each term is shrunk by
+    # max(0, 1 - (se/q)^2) so that a curvature the neighbours cannot resolve adds no noise
+    resid = values - np.einsum("mki,mif->mkf", design, coef)  # (M, k, 4)
+    dof = np.maximum(use.sum(1) - 3, 1)[:, None]
+    s2 = np.einsum("mk,mkf->mf", w, resid**2) / dof  # (M, 4)
+    inv = np.zeros_like(normal)
+    inv[enough] = np.linalg.inv(normal[enough])
+    var_dx, var_dy = inv[:, 1, 1][:, None] * s2, inv[:, 2, 2][:, None] * s2  # (M, 4)
+    se = np.column_stack([
+        0.5 * np.sqrt(var_dx[:, 0]), 0.5 * np.sqrt(var_dy[:, 0] + var_dx[:, 1]),
+        0.5 * np.sqrt(var_dy[:, 1]), 0.5 * np.sqrt(var_dx[:, 2]),
+        0.5 * np.sqrt(var_dy[:, 2] + var_dx[:, 3]), 0.5 * np.sqrt(var_dy[:, 3])])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shrink = np.clip(1.0 - (se / quad) ** 2, 0.0, 1.0)
+    quad = np.where(np.isfinite(shrink), quad * shrink, 0.0)
     quad[~enough] = 0.0
     out[query] = quad
     return out

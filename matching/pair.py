@@ -176,7 +176,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
     second_order : bool
         Run LSM twice: the second pass adds the fixed second-order warp terms that
         :func:`matching.lsm.second_order_terms` derives from the first pass's affine
-        parameters within ``max(12, 3 spacing)`` px (removes the curvature bias of an
+        parameters within ``max(20, 5 spacing)`` px (removes the curvature bias of an
         affine patch fit: 0.023 px -> 0.001 px on the noise-free vase, 15 px patches).
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
@@ -244,7 +244,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
             res = lsm_match(fprep, gprep, points, start, **options)
             if second_order and res.accepted.sum() >= 8:
                 quad = second_order_terms(points, res.affine, res.accepted,
-                                          radius_px=max(12.0, 3.0 * spacing))
+                                          radius_px=max(20.0, 5.0 * spacing))
                 init = np.column_stack([res.affine, res.radiometric])
                 fresh = ~np.isfinite(init).all(1)
                 init[fresh] = 0.0
