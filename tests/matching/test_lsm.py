@@ -15,7 +15,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from matching.lsm import STATUS_NAMES, Status, estimate_noise, lsm_match, prepare_image
+from matching.lsm import (
+    STATUS_NAMES,
+    Status,
+    estimate_noise,
+    lsm_match,
+    prepare_image,
+    second_order_terms,
+)
 
 OVERSAMPLE = 4
 A_TRUE = np.array([[1.03, 0.04], [-0.02, 0.97]])
@@ -308,3 +315,30 @@ def test_monte_carlo_precision_template_vs_search_jacobian():
     assert ratio["search"] > 1.3, ratio
     assert np.sqrt(np.mean(np.square(found["search"]))) > np.sqrt(
         np.mean(np.square(found["template"])))
+
+
+def test_second_order_terms_remove_the_curvature_bias():
+    """Right image = left seen through u = x + c (x - x0)², v = y (no noise).
+
+    An affine 15x15 fit is biased by c <x²> = c · 18.67 px² in u (0.019 px for
+    c = 1e-3); the neighbours' a1 field gives u_xx = 2c, the second pass removes the bias.
+    """
+    size, c, x0 = 160, 1e-3, 80.0
+    coef = texture_coefficients(size, seed=21)
+    ys, xs = np.mgrid[0:size, 0:size].astype(np.float64)
+    f = sample(coef, xs, ys)
+    # inverse of u = x + c (x - x0)^2 on the right image's pixel grid
+    src_x = x0 + (-1 + np.sqrt(1 + 4 * c * (xs - x0))) / (2 * c)
+    g = sample(coef, src_x, ys)
+    pts = grid_points(size, 4, margin=25)
+    truth = np.column_stack([pts[:, 0] + c * (pts[:, 0] - x0) ** 2, pts[:, 1]])
+    first = lsm_match(f, g, pts, start_near(truth, 0.5))
+    bias = np.mean(first.position[first.accepted, 0] - truth[first.accepted, 0])
+    assert bias == pytest.approx(c * 56 / 3, rel=0.15)  # <x²> = 7·8/3 for x in -7..7
+    quad = second_order_terms(pts, first.affine, first.accepted, radius_px=16)
+    inner = first.accepted & (np.abs(pts - 80) < 40).all(1)
+    np.testing.assert_allclose(quad[inner, 0], c, rtol=0.1)  # qu_xx = u_xx / 2 = c
+    assert np.abs(quad[inner, 1:]).max() < 1e-4
+    second = lsm_match(f, g, pts, start_near(truth, 0.5), quadratic=quad)
+    err = second.position[inner] - truth[inner]
+    assert np.abs(err.mean(0)).max() < 0.002
