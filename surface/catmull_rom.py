@@ -374,7 +374,9 @@ def _data_parameters(points: np.ndarray, window: int, n_ctrl: int) -> np.ndarray
     be the window's mean position, off by ~√window gaps).
     """
     m = len(points)
-    window = int(min(max(window, 1), m))
+    # At most half the loop: a window of the whole loop averages every point to
+    # the centroid (a zero-length polyline) even when the points are distinct.
+    window = int(min(max(window, 1), max(1, m // 2)))
     if window > 1:  # circular moving average by a cumulative sum, O(M)
         half = window // 2
         padded = np.concatenate([points[m - half :], points, points[: window - half]])
@@ -430,6 +432,10 @@ def fit(
     check_finite(pts, "points")
     if len(pts) < 4:
         raise ValueError(f"points needs at least 4 points to fit a closed curve, got {len(pts)}")
+    if parametrisation not in _ALPHA:
+        raise ValueError(
+            f"parametrisation must be one of {sorted(_ALPHA)}, got {parametrisation!r}"
+        )
     if isinstance(smoothing, str):
         if smoothing != "auto":
             raise ValueError(f"smoothing must be a number >= 0 or 'auto', got {smoothing!r}")

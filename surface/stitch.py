@@ -58,7 +58,8 @@ from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
            "axis_frame", "surface_from_points", "slide_to_planes", "extend_to_caps",
-           "largest_perimeter"]
+           "largest_perimeter", "SlicedCloud", "slice_cloud", "organise_sections",
+           "ring_count", "section_rings"]
 
 #: Default largest turn of a face normal a flip may cause (radians).  A flip on
 #: a smooth patch re-triangulates it and turns normals by about the local
@@ -745,12 +746,172 @@ def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]
     return out, np.concatenate(capped).astype(np.int64)
 
 
+@dataclass(frozen=True)
+class SlicedCloud:
+    """Sections of a cloud ready for organising (:func:`slice_cloud`).
+
+    Attributes
+    ----------
+    sections : list of Section
+        Every section plane in height order (some may be empty), their points
+        on the plane (slid along the surface with ``projection="surface"``).
+    cap_cloud : (C, 3) float64
+        The points an end cap may be moved to (:func:`extend_to_caps`): the
+        slab points left out as cap points, or the whole cloud when there are
+        none (``projection="axis"``).
+    spacing : float
+        Distance Δ between the section planes, scene units (0 for one section).
+    """
+
+    sections: list
+    cap_cloud: np.ndarray
+    spacing: float
+
+
+def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
+                spacing: float | None = None, thickness: float | None = None,
+                projection: str = "surface") -> SlicedCloud:
+    """Step 1 of :func:`surface_from_points`: slice, then move points to their planes.
+
+    Parameters are those of :func:`surface_from_points`.
+
+    Returns
+    -------
+    SlicedCloud
+    """
+    from surface.sections import slice_sections
+
+    if projection not in ("surface", "axis"):
+        raise ValueError(f"projection must be 'surface' or 'axis', got {projection!r}")
+    slices = slice_sections(points, axis=axis, count=sections, spacing=spacing,
+                            thickness=thickness)
+    pts = np.asarray(points, dtype=np.float64)
+    delta = abs(slices[1].height - slices[0].height) if len(slices) > 1 else 0.0
+    cap_points = np.zeros(0, np.int64)
+    if projection == "surface" and len(slices) > 1:
+        if thickness is None:
+            # Same planes, slabs widened to tile the cloud (every point used once).
+            slices = slice_sections(pts, axis=slices[0].frame[2],
+                                    count=None if spacing is not None else len(slices),
+                                    spacing=spacing, thickness=delta / 2)
+        slices, cap_points = slide_to_planes(pts, slices)
+    cap_cloud = pts[cap_points] if len(cap_points) else pts
+    return SlicedCloud(list(slices), cap_cloud, float(delta))
+
+
+def organise_sections(sections: Sequence, **organise_options) -> tuple[list, list, list[str]]:
+    """Step 2 of :func:`surface_from_points`: the loops of every section.
+
+    Parameters
+    ----------
+    sections : sequence of Section
+        In height order (empty ones are skipped).
+    **organise_options
+        Passed to :func:`surface.topology.organise` (``outlier_threshold``,
+        ``min_points`` ...).
+
+    Returns
+    -------
+    kept : list of Section
+        The sections with at least one loop.
+    loops : list of list of Loop
+        Their loops.
+    messages : list of str
+        One per skipped section (``SectionSkippedWarning``), and a count.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two sections with a loop.
+    """
+    import warnings
+
+    from surface.topology import SectionSkippedWarning, organise
+
+    messages, kept, loops = [], [], []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SectionSkippedWarning)
+        for section in sections:
+            found = organise(section, **organise_options) if len(section) else []
+            if found:
+                kept.append(section)
+                loops.append(found)
+    for w in caught:  # skipped sections become messages; anything else is passed on
+        if issubclass(w.category, SectionSkippedWarning):
+            messages.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if len(sections) - len(kept):
+        messages.append(f"{len(sections) - len(kept)} of {len(sections)} sections had no loop "
+                        "and were skipped")
+    if len(kept) < 2:
+        raise ValueError(f"points gave {len(kept)} section(s) with a closed loop; "
+                         "stitching needs at least 2 (too few points or sections?)")
+    return kept, loops, messages
+
+
+def ring_count(kept: Sequence, loops: Sequence) -> int:
+    """Default N: ``ceil(P_max / Δ)``, ring points as far apart as the sections.
+
+    ``P_max`` is the largest loop perimeter (:func:`largest_perimeter`) and Δ
+    the smallest gap between the sections ``kept`` (at least 4).
+    """
+    gaps = np.abs(np.diff([section.height for section in kept]))
+    return max(4, int(np.ceil(largest_perimeter(loops) / float(gaps.min()))))
+
+
+def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
+                  smoothing: float | str = 8.0, parametrisation: str = "uniform",
+                  cap_cloud: np.ndarray | None = None, spacing: float = 0.0,
+                  ) -> tuple[list, list[str]]:
+    """Step 3 of :func:`surface_from_points`: fit and predict the rings, extend the ends.
+
+    Parameters
+    ----------
+    kept, loops
+        From :func:`organise_sections`.
+    n : int, optional
+        Ring points on odd sections (default :func:`ring_count`).
+    smoothing, parametrisation
+        Passed to :func:`surface.catmull_rom.predict_sections`.
+    cap_cloud : (C, 3) float64, optional
+        :attr:`SlicedCloud.cap_cloud`; when given (and ``spacing > 0``) the
+        end sections are moved to the cap points (:func:`extend_to_caps`).
+    spacing : float
+        Section spacing Δ (:attr:`SlicedCloud.spacing`).
+
+    Returns
+    -------
+    rings : list
+        One entry per section (an ``(n_k, 3)`` array, or a list of them for
+        several loops), plus the extended ends.
+    messages : list of str
+    """
+    from surface.catmull_rom import predict_sections
+
+    if n is None:
+        n = ring_count(kept, loops)
+    # A lone loop is passed as itself, so its ring comes back as one (n_k, 3) array.
+    rings = predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
+                             smoothing=smoothing, parametrisation=parametrisation)
+    messages: list[str] = []
+    if cap_cloud is not None and spacing > 0:
+        cloud = np.asarray(cap_cloud, dtype=np.float64)
+        rings, messages = extend_to_caps(rings, kept, cloud, np.arange(len(cloud)), spacing)
+    return rings, messages
+
+
 def surface_from_points(points: np.ndarray, axis="z", sections: int | None = None,
                         spacing: float | None = None, thickness: float | None = None,
                         n: int | None = None, smoothing: float = 8.0,
                         projection: str = "surface", extend_ends: bool = True,
                         close_ends: bool = True, flip: bool = True) -> StitchResult:
     """Unorganised points to a stitched mesh: slice → organise → fit/predict → stitch.
+
+    The steps are public (:func:`slice_cloud`, :func:`organise_sections`,
+    :func:`section_rings`, :func:`stitch_rings`) so that a pipeline can store
+    what is between them; run in this order with the same parameters they
+    give this function's mesh exactly.
 
     Parameters
     ----------
@@ -800,55 +961,13 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         Bad cloud or parameters (from the steps), an unknown projection, or
         fewer than two sections with a loop.
     """
-    import warnings
-
-    from surface.catmull_rom import predict_sections
-    from surface.sections import slice_sections
-    from surface.topology import SectionSkippedWarning, organise
-
-    if projection not in ("surface", "axis"):
-        raise ValueError(f"projection must be 'surface' or 'axis', got {projection!r}")
-    slices = slice_sections(points, axis=axis, count=sections, spacing=spacing,
-                            thickness=thickness)
-    pts = np.asarray(points, dtype=np.float64)
-    delta = abs(slices[1].height - slices[0].height) if len(slices) > 1 else 0.0
-    cap_points = np.zeros(0, np.int64)
-    if projection == "surface" and len(slices) > 1:
-        if thickness is None:
-            # Same planes, slabs widened to tile the cloud (every point used once).
-            slices = slice_sections(pts, axis=slices[0].frame[2],
-                                    count=None if spacing is not None else len(slices),
-                                    spacing=spacing, thickness=delta / 2)
-        slices, cap_points = slide_to_planes(pts, slices)
-    messages = []
-    kept, loops = [], []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", SectionSkippedWarning)
-        for section in slices:
-            found = organise(section) if len(section) else []
-            if found:
-                kept.append(section)
-                loops.append(found)
-    for w in caught:  # skipped sections become messages; anything else is passed on
-        if issubclass(w.category, SectionSkippedWarning):
-            messages.append(str(w.message))
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if len(slices) - len(kept):
-        messages.append(f"{len(slices) - len(kept)} of {len(slices)} sections had no loop "
-                        "and were skipped")
-    if len(kept) < 2:
-        raise ValueError(f"points gave {len(kept)} section(s) with a closed loop; "
-                         "stitching needs at least 2 (too few points or sections?)")
-    if n is None:
-        gaps = np.abs(np.diff([section.height for section in kept]))
-        n = max(4, int(np.ceil(largest_perimeter(loops) / float(gaps.min()))))
-    # A lone loop is passed as itself, so its ring comes back as one (n_k, 3) array.
-    rings = predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
-                             smoothing=smoothing)
-    if extend_ends and close_ends:
-        rings, notes = extend_to_caps(rings, kept, pts, cap_points, delta)
-        messages += notes
+    sliced = slice_cloud(points, axis=axis, sections=sections, spacing=spacing,
+                         thickness=thickness, projection=projection)
+    kept, loops, messages = organise_sections(sliced.sections)
+    rings, notes = section_rings(kept, loops, n, smoothing=smoothing,
+                                 cap_cloud=sliced.cap_cloud if extend_ends and close_ends
+                                 else None, spacing=sliced.spacing)
+    messages += notes
     result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip)
     if messages:
         from dataclasses import replace

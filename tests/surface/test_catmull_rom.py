@@ -281,6 +281,7 @@ def test_predict_ring_of_a_non_star_shaped_loop_uses_arc_length():
         (lambda: fit(polygon(3)), "at least 4"),
         (lambda: fit(polygon(10), -1.0), "smoothing"),
         (lambda: fit(polygon(10), "lots"), "smoothing"),
+        (lambda: fit(polygon(10), parametrisation="bezier"), "centripetal"),
         (lambda: fit(np.zeros((10, 3)), 2.0, frame=FRAME), "coincide"),
         (lambda: ClosedCurve.from_control_points(polygon(5)).update_point(9, [0, 0, 0]), "index"),
         (lambda: ClosedCurve.from_control_points(polygon(5)).resample_theta(0), "n must"),
@@ -290,6 +291,21 @@ def test_predict_ring_of_a_non_star_shaped_loop_uses_arc_length():
 def test_bad_input_raises_a_named_value_error(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+@pytest.mark.parametrize("m", [4, 5, 6, 8, 9, 12, 16])
+@pytest.mark.parametrize("parametrisation", ["uniform", "centripetal", "chordal"])
+def test_fit_small_loop_with_large_smoothing(m, parametrisation):
+    # A loop with no more points than the smoothing window (8) used to fail with
+    # "points all coincide": the window averaged the whole loop to its centroid.
+    theta = 2 * np.pi * np.arange(m) / m
+    pts = np.stack([np.cos(theta), np.sin(theta), np.zeros(m)], axis=1)
+    curve = fit(pts, 8.0, frame=FRAME, parametrisation=parametrisation)
+    assert len(curve.control_points) >= 4  # the fewest a closed cubic needs
+    dense = curve.evaluate(np.linspace(0.0, curve.period, 400, endpoint=False))
+    # Four to six control points on a unit circle: the least-squares curve stays
+    # within the chord sagitta of a square, 1 - cos(pi/4) = 0.29, of the circle.
+    assert np.abs(np.linalg.norm(dense[:, :2], axis=1) - 1.0).max() < 0.3
 
 
 # ----------------------------------------------------------------------------- properties
