@@ -31,7 +31,8 @@ linearisation, :math:`J^\mathsf{T}J = T H T^\mathsf{T}` (``jacobian="template"``
 default).  ``jacobian="search"`` adds Gruen's textbook final step, one exact
 forward-additive Gauss-Newton step with the resampled search-image gradients,
 and reports :math:`\sigma_0^2 (A^\mathsf{T}A)^{-1}` of that step.  Measured
-(Monte Carlo, 300 noise draws per patch, ``tests/matching/test_lsm.py``): with
+(Monte Carlo: 300 noise draws on 3 patches of a 15-grey-level texture; 120 in
+``tests/matching/test_lsm.py``): with
 noise in the search image the search-gradient solution errs 1.5-2.3x its
 reported σ and 20-30 % more than the template-gradient one, whose σ is right
 within 5 %: the noise of the resampled gradients correlates with the resampled
