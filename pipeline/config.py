@@ -35,6 +35,7 @@ FLEXIBLE = {
 CHOICES = {
     "acquire.interpolation": ("bilinear", "bicubic", "spline"),
     "curves.parametrisation": ("uniform", "centripetal", "chordal"),
+    "sections.projection": ("surface", "axis"),
     "export.formats": ("ply", "obj", "stl", "gltf", "glb"),
 }
 

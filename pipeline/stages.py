@@ -532,11 +532,12 @@ def _jsonable(value):
 # Intermediate files (all written byte-reproducibly):
 #   acquire/cloud.npz     points (N,3) float64, colors (N,3) uint8, sigma (N,) float64
 #                         (NaN when unknown); acquire/cloud.ply the same for viewers
-#   sections/sections.npz points (P,3), offsets (K+1,), heights (K,), section_id (K,),
-#                         origin (K,3), frame (3,3), source_index (P,)
+#   sections/sections.npz points (P,3) on their planes, offsets (K+1,), heights (K,),
+#                         section_id (K,), origin (K,3), frame (3,3), source_index (P,),
+#                         cap_cloud (C,3) the points an end cap may move to, spacing ()
 #   curves/curves.npz     points (Q,3) of the resampled closed rings, offsets (R+1,),
 #                         section (R,), loop (R,), heights (R,), axis (3,)
-#                         (R rings; a section may hold several loops)
+#                         (R rings; a section may hold several loops), frame (3,3)
 #   stitch/mesh.ply       the stitched mesh; stitch/stitch.json its notes
 #   smooth/surface.ply    the tessellated Bezier surface with its exact normals
 #   smooth/control_net.npz control_points (P,28,3), index (28,3), source_face (P,),
@@ -720,21 +721,23 @@ def _load_cloud(ctx: StageContext):
 
 
 def _sections(ctx: StageContext) -> dict:
+    """``surface.stitch.slice_cloud``: slice and move the slab points to their planes."""
     import warnings
 
     import numpy as np
 
     from pipeline.workspace import save_npz
     from surface import sections as sections_mod
+    from surface import stitch
 
     p = ctx.params["sections"]
     points = _load_cloud(ctx)["points"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
-        sections = sections_mod.slice_sections(
-            points, axis=p["axis"], count=p["count"] or None, spacing=p["spacing"] or None,
-            thickness=p["thickness"] or None)
-    kept = [s for s in sections if len(s) > 0]
+        sliced = stitch.slice_cloud(
+            points, axis=p["axis"], sections=p["count"] or None, spacing=p["spacing"] or None,
+            thickness=p["thickness"] or None, projection=p["projection"])
+    kept = [s for s in sliced.sections if len(s) > 0]
     if len(kept) < 2:
         raise InputError(f"sections: only {len(kept)} non-empty sections; need at least 2 "
                          "(set sections.count or sections.spacing)")
@@ -744,59 +747,54 @@ def _sections(ctx: StageContext) -> dict:
              heights=np.array([s.height for s in kept]),
              section_id=np.array([s.section_id for s in kept], np.int64),
              origin=np.array([s.origin for s in kept]), frame=kept[0].frame,
-             source_index=np.concatenate([s.source_index for s in kept]).astype(np.int64))
+             source_index=np.concatenate([s.source_index for s in kept]).astype(np.int64),
+             cap_cloud=sliced.cap_cloud, spacing=np.float64(sliced.spacing))
     warned = [str(w.message) for w in caught]
     for message in warned:
         log.warning("sections: %s", message)
-    return {"sections": len(kept), "empty": len(sections) - len(kept), "warnings": warned}
+    return {"sections": len(kept), "empty": len(sliced.sections) - len(kept),
+            "spacing": sliced.spacing, "cap_points": len(sliced.cap_cloud),
+            "warnings": warned}
 
 
-def _load_sections(ctx: StageContext) -> list:
+def _load_sections(ctx: StageContext) -> tuple[list, object, float]:
+    """The sections of ``sections.npz``, its cap cloud ``(C, 3)`` and the section spacing."""
     import numpy as np
 
     from surface.sections import Section
 
     with np.load(ctx.stage_path("sections", "sections.npz")) as d:
         off = d["offsets"]
-        return [Section(height=float(d["heights"][k]), points=d["points"][off[k]:off[k + 1]],
-                        origin=d["origin"][k], frame=d["frame"], section_id=int(d["section_id"][k]),
-                        source_index=d["source_index"][off[k]:off[k + 1]])
-                for k in range(len(off) - 1)]
+        sections = [Section(height=float(d["heights"][k]), points=d["points"][off[k]:off[k + 1]],
+                            origin=d["origin"][k], frame=d["frame"],
+                            section_id=int(d["section_id"][k]),
+                            source_index=d["source_index"][off[k]:off[k + 1]])
+                    for k in range(len(off) - 1)]
+        return sections, d["cap_cloud"], float(d["spacing"])
 
 
 def _curves(ctx: StageContext) -> dict:
-    import warnings
-
+    """``surface.stitch.organise_sections`` then ``section_rings`` (fit, predict, extend)."""
     import numpy as np
 
     from pipeline.workspace import save_npz
-    from surface import catmull_rom, topology
+    from surface import stitch
 
     p = ctx.params["curves"]
-    sections = _load_sections(ctx)
-    # catmull_rom.fit averages `smoothing` points per control point over a circular window
-    # of that width: a loop needs more points than the window (a 4-point closed cubic at least)
-    smoothing = p["smoothing"]
-    min_points = p["min_loop_points"] or (
-        max(4, int(np.floor(smoothing)) + 1) if isinstance(smoothing, int | float) else 4)
-    kept, loops = [], []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", topology.SectionSkippedWarning)
-        for section in ctx.track(sections, "loops", unit="section"):
-            found = topology.organise(section, outlier_threshold=p["outlier_threshold"],
-                                      min_points=min_points)
-            if found:
-                kept.append(section)
-                loops.append(found)
-    skipped = [str(w.message) for w in caught]
-    for message in skipped:
+    sections, _, _ = _load_sections(ctx)
+    options = {"outlier_threshold": p["outlier_threshold"]}
+    if p["min_loop_points"]:
+        options["min_points"] = p["min_loop_points"]
+    try:
+        kept, loops, messages = stitch.organise_sections(
+            ctx.track(sections, "loops", total=len(sections), unit="section"), **options)
+    except ValueError as exc:
+        raise InputError(f"curves: {exc} (set sections.count)") from exc
+    rings = stitch.section_rings(kept, loops, p["n"] or None, smoothing=p["smoothing"],
+                                 parametrisation=p["parametrisation"])
+    for message in messages:
         log.warning("curves: %s", message)
-    if len(kept) < 2:
-        raise InputError(f"curves: {len(kept)} section(s) with a closed loop; stitching needs "
-                         "at least 2 (too few points, or set sections.count)")
-    n = p["n"] or _default_ring_count(kept, loops)
-    rings = catmull_rom.predict_sections(loops, n, smoothing=p["smoothing"],
-                                         parametrisation=p["parametrisation"])
+    axis = kept[0].frame[2]
     flat, sec, loop_ids = [], [], []
     for s_index, item in enumerate(rings):
         for lp, ring in enumerate([item] if getattr(item, "ndim", 0) == 2 else list(item)):
@@ -806,49 +804,62 @@ def _curves(ctx: StageContext) -> dict:
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in flat])]).astype(np.int64)
     save_npz(ctx.out / "curves.npz", points=np.concatenate(flat), offsets=offsets,
              section=np.array(sec, np.int64), loop=np.array(loop_ids, np.int64),
-             heights=np.array([kept[k].height for k in sec]), axis=kept[0].frame[2])
+             heights=np.array([kept[k].height for k in sec]), axis=axis, frame=kept[0].frame)
+    n = p["n"] or stitch.ring_count(kept, loops)
     return {"rings": len(flat), "n": int(n), "points": int(offsets[-1]),
-            "sections_without_loop": len(sections) - len(kept), "warnings": skipped}
+            "sections_without_loop": len(sections) - len(kept), "warnings": messages}
 
 
-def _default_ring_count(sections: list, loops: list) -> int:
-    """N from the data: ring points as far apart as the sections (``surface.stitch``'s rule)."""
+def _load_rings(ctx: StageContext) -> tuple[list, list]:
+    """Rings of ``curves.npz`` per section (a list of loops each) and the sections'
+    planes as ``Section`` objects without points (height and frame)."""
     import numpy as np
 
-    from surface import stitch
-
-    delta = float(np.min(np.abs(np.diff([s.height for s in sections]))))
-    return max(4, int(np.ceil(stitch._largest_perimeter(loops) / delta)))
-
-
-def _load_rings(ctx: StageContext) -> tuple[list, object]:
-    import numpy as np
+    from surface.sections import Section
 
     with np.load(ctx.stage_path("curves", "curves.npz")) as d:
-        off, sec = d["offsets"], d["section"]
+        off, sec, frame = d["offsets"], d["section"], d["frame"]
         rings: list[list] = []
+        planes = []
         for k in range(len(off) - 1):
             if k == 0 or sec[k] != sec[k - 1]:
                 rings.append([])
+                planes.append(Section(height=float(d["heights"][k]), points=np.zeros((0, 3)),
+                                      origin=np.zeros(3), frame=frame, section_id=len(planes)))
             rings[-1].append(d["points"][off[k]:off[k + 1]])
-        return rings, d["axis"]
+        return rings, planes
 
 
 def _stitch(ctx: StageContext) -> dict:
+    """``surface.stitch.extend_to_caps`` (end rings to the cap points), then ``stitch_rings``."""
     import json
 
-    from pipeline.mesh_io import write_mesh
-    from surface.stitch import stitch_rings
+    import numpy as np
 
-    rings, axis = _load_rings(ctx)
-    result = stitch_rings(rings, axis, close_ends=ctx.params["stitch"]["caps"])
+    from pipeline.mesh_io import write_mesh
+    from surface import stitch
+
+    p = ctx.params["stitch"]
+    rings, planes = _load_rings(ctx)
+    # a lone loop as itself, as surface.stitch.surface_from_points passes it
+    rings = [item[0] if len(item) == 1 else item for item in rings]
+    notes_ends = []
+    if p["caps"] and p["extend_ends"]:
+        _, cap_cloud, spacing = _load_sections(ctx)
+        if spacing > 0:
+            rings, notes_ends = stitch.extend_to_caps(rings, planes, cap_cloud,
+                                                      np.arange(len(cap_cloud)), spacing)
+    result = stitch.stitch_rings(rings, planes[0].frame[2], close_ends=p["caps"])
     write_mesh(ctx.out / "mesh.ply", result.vertices, result.triangles)
-    notes = {"closed": bool(result.closed), "messages": list(result.messages),
+    messages = notes_ends + list(result.messages)
+    notes = {"closed": bool(result.closed), "messages": messages,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
              "delaunay_fraction": float(result.delaunay_fraction)}
     write_text(ctx.out / "stitch.json", json.dumps(notes, indent=1, sort_keys=True) + "\n")
     for message in result.messages:
         log.warning("stitch: %s", message)
+    for message in notes_ends:
+        log.info("stitch: %s", message)
     return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
 
 
@@ -947,12 +958,11 @@ STAGES: list[Stage] = [
     Stage("acquire", _acquire, params=("acquire",), external=True,
           optional_needs=("scene",)),
     Stage("sections", _sections, params=("sections",), needs=("acquire",),
-          modules=("surface.sections:slice_sections",)),
+          modules=("surface.stitch:slice_cloud",)),
     Stage("curves", _curves, params=("curves",), needs=("sections",),
-          modules=("surface.topology:organise", "surface.catmull_rom:predict_sections",
-                   "surface.stitch:_largest_perimeter")),
-    Stage("stitch", _stitch, params=("stitch",), needs=("curves",),
-          modules=("surface.stitch:stitch_rings",)),
+          modules=("surface.stitch:organise_sections", "surface.stitch:section_rings")),
+    Stage("stitch", _stitch, params=("stitch",), needs=("curves", "sections"),
+          modules=("surface.stitch:stitch_rings", "surface.stitch:extend_to_caps")),
     Stage("smooth", _smooth, params=("smooth",), needs=("stitch",),
           optional_needs=("acquire", "sections"),
           modules=("surface.bezier:control_net", "surface.bezier:tessellate",

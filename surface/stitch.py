@@ -48,7 +48,7 @@ References
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -799,13 +799,14 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
     return SlicedCloud(list(slices), cap_cloud, float(delta))
 
 
-def organise_sections(sections: Sequence, **organise_options) -> tuple[list, list, list[str]]:
+def organise_sections(sections: Iterable, **organise_options) -> tuple[list, list, list[str]]:
     """Step 2 of :func:`surface_from_points`: the loops of every section.
 
     Parameters
     ----------
-    sections : sequence of Section
-        In height order (empty ones are skipped).
+    sections : iterable of Section
+        In height order (empty ones are skipped); iterated once (a progress
+        bar may wrap it).
     **organise_options
         Passed to :func:`surface.topology.organise` (``outlier_threshold``,
         ``min_points`` ...).
@@ -828,10 +829,11 @@ def organise_sections(sections: Sequence, **organise_options) -> tuple[list, lis
 
     from surface.topology import SectionSkippedWarning, organise
 
-    messages, kept, loops = [], [], []
+    messages, kept, loops, total = [], [], [], 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SectionSkippedWarning)
         for section in sections:
+            total += 1
             found = organise(section, **organise_options) if len(section) else []
             if found:
                 kept.append(section)
@@ -841,8 +843,8 @@ def organise_sections(sections: Sequence, **organise_options) -> tuple[list, lis
             messages.append(str(w.message))
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if len(sections) - len(kept):
-        messages.append(f"{len(sections) - len(kept)} of {len(sections)} sections had no loop "
+    if total - len(kept):
+        messages.append(f"{total - len(kept)} of {total} sections had no loop "
                         "and were skipped")
     if len(kept) < 2:
         raise ValueError(f"points gave {len(kept)} section(s) with a closed loop; "
@@ -861,10 +863,8 @@ def ring_count(kept: Sequence, loops: Sequence) -> int:
 
 
 def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
-                  smoothing: float | str = 8.0, parametrisation: str = "uniform",
-                  cap_cloud: np.ndarray | None = None, spacing: float = 0.0,
-                  ) -> tuple[list, list[str]]:
-    """Step 3 of :func:`surface_from_points`: fit and predict the rings, extend the ends.
+                  smoothing: float | str = 8.0, parametrisation: str = "uniform") -> list:
+    """Step 3 of :func:`surface_from_points`: fit and predict the rings.
 
     Parameters
     ----------
@@ -874,31 +874,21 @@ def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
         Ring points on odd sections (default :func:`ring_count`).
     smoothing, parametrisation
         Passed to :func:`surface.catmull_rom.predict_sections`.
-    cap_cloud : (C, 3) float64, optional
-        :attr:`SlicedCloud.cap_cloud`; when given (and ``spacing > 0``) the
-        end sections are moved to the cap points (:func:`extend_to_caps`).
-    spacing : float
-        Section spacing Δ (:attr:`SlicedCloud.spacing`).
 
     Returns
     -------
-    rings : list
-        One entry per section (an ``(n_k, 3)`` array, or a list of them for
-        several loops), plus the extended ends.
-    messages : list of str
+    list
+        One entry per section: an ``(n_k, 3)`` array, or a list of them for
+        several loops.  Step 4 is :func:`extend_to_caps`, step 5
+        :func:`stitch_rings`.
     """
     from surface.catmull_rom import predict_sections
 
     if n is None:
         n = ring_count(kept, loops)
     # A lone loop is passed as itself, so its ring comes back as one (n_k, 3) array.
-    rings = predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
-                             smoothing=smoothing, parametrisation=parametrisation)
-    messages: list[str] = []
-    if cap_cloud is not None and spacing > 0:
-        cloud = np.asarray(cap_cloud, dtype=np.float64)
-        rings, messages = extend_to_caps(rings, kept, cloud, np.arange(len(cloud)), spacing)
-    return rings, messages
+    return predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
+                            smoothing=smoothing, parametrisation=parametrisation)
 
 
 def surface_from_points(points: np.ndarray, axis="z", sections: int | None = None,
@@ -909,9 +899,9 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     """Unorganised points to a stitched mesh: slice → organise → fit/predict → stitch.
 
     The steps are public (:func:`slice_cloud`, :func:`organise_sections`,
-    :func:`section_rings`, :func:`stitch_rings`) so that a pipeline can store
-    what is between them; run in this order with the same parameters they
-    give this function's mesh exactly.
+    :func:`section_rings`, :func:`extend_to_caps`, :func:`stitch_rings`) so
+    that a pipeline can store what is between them; run in this order with
+    the same parameters they give this function's mesh exactly.
 
     Parameters
     ----------
@@ -964,10 +954,11 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     sliced = slice_cloud(points, axis=axis, sections=sections, spacing=spacing,
                          thickness=thickness, projection=projection)
     kept, loops, messages = organise_sections(sliced.sections)
-    rings, notes = section_rings(kept, loops, n, smoothing=smoothing,
-                                 cap_cloud=sliced.cap_cloud if extend_ends and close_ends
-                                 else None, spacing=sliced.spacing)
-    messages += notes
+    rings = section_rings(kept, loops, n, smoothing=smoothing)
+    if extend_ends and close_ends:
+        cap = sliced.cap_cloud
+        rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing)
+        messages += notes
     result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip)
     if messages:
         from dataclasses import replace

@@ -209,7 +209,7 @@ def test_config_resolution(tmp_path):
 
 @pytest.mark.parametrize("assignment, message", [
     ("sections.cuont=3",
-     r"unknown parameter 'sections.cuont' \(known: axis, count, spacing, thickness\)"),
+     r"unknown parameter 'sections.cuont' \(known: axis, count, projection, spacing, thickness\)"),
     ("nosuch.key=3", r"unknown section 'nosuch'"),
     ("smooth.level=high", r"smooth.level must be int \(like 1\) or 'auto', got 'high'"),
     ("smooth.level=2.5", r"smooth.level must be int"),

@@ -1,0 +1,68 @@
+"""The surface stages of ``photosurf run`` (sections → curves → stitch) against
+``surface.stitch.surface_from_points``: the same steps, so the same mesh.
+
+The cloud is the stitch tests' noisy vase r(z) = 1 + 0.3 sin 2z (σ = 0.002),
+given as an ``.npz`` point cloud.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.mesh_io import read_mesh
+from surface import metrics as M
+from tests.surface.test_stitch import SIGMA, vase_truth
+
+
+@pytest.fixture(scope="module")
+def vase(tmp_path_factory):
+    v, f = vase_truth()
+    rng = np.random.default_rng(11)
+    points = M.sample_mesh(v, f, count=6000, seed=11) + rng.normal(0.0, SIGMA, (6000, 3))
+    path = tmp_path_factory.mktemp("cloud") / "vase.npz"
+    np.savez(path, points=points)
+    return v, f, points, path
+
+
+def _run(path, out, *sets):
+    from pipeline import cli
+
+    args = ["run", str(path), "--out", str(out), "--to", "stitch"]
+    for s in sets:
+        args += ["--set", s]
+    assert cli.main(args) == 0
+
+
+@pytest.mark.parametrize(("sets", "kwargs"), [
+    ((), {}),
+    (("sections.count=24", "curves.smoothing=4.0"), {"sections": 24, "smoothing": 4.0}),
+])
+def test_stages_give_the_mesh_of_surface_from_points(vase, tmp_path, sets, kwargs):
+    from surface.stitch import surface_from_points
+
+    v, f, points, path = vase
+    _run(path, tmp_path / "out", *sets)
+    vertices, triangles = read_mesh(tmp_path / "out" / "stitch" / "mesh.ply")
+    expected = surface_from_points(points, **kwargs)
+    # One implementation: the stages store what lies between the steps, nothing else.
+    assert vertices.shape == expected.vertices.shape
+    np.testing.assert_allclose(vertices, expected.vertices, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(triangles, expected.triangles)
+    scores = M.compare_meshes(vertices, triangles, v, f, tau=0.005, count=20000)
+    # As in tests/surface/test_stitch.py: the raw points lie sqrt(2/pi) σ = 0.8 σ
+    # from the truth on average; the surface averages many points, so it is closer.
+    assert scores["chamfer"] < 0.8 * SIGMA
+
+
+def test_axis_projection_without_extension_is_worse(vase, tmp_path):
+    v, f, points, path = vase
+    _run(path, tmp_path / "out", "sections.projection=axis", "stitch.extend_ends=false")
+    vertices, triangles = read_mesh(tmp_path / "out" / "stitch" / "mesh.ply")
+    from surface.stitch import surface_from_points
+
+    expected = surface_from_points(points, projection="axis", extend_ends=False)
+    np.testing.assert_allclose(vertices, expected.vertices, rtol=0, atol=1e-12)
+    worse = M.compare_meshes(vertices, triangles, v, f, tau=0.005, count=20000)
+    # the caps sit half a section spacing inside the truth: above the raw points' 0.8 σ
+    assert worse["chamfer"] > 0.8 * SIGMA
