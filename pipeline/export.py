@@ -64,6 +64,7 @@ import numpy as np
 from pipeline.atomic import atomic_file
 from pipeline.errors import InputError
 from pipeline.mesh_io import to_open3d
+from pipeline.workspace import write_npz_to
 from surface.validate import TOL, check_finite, check_shape
 
 #: Suffixes :func:`export_mesh` writes.
@@ -537,7 +538,7 @@ def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index
         raise InputError(f"{path}: the control net is written as .npz")
     arrays = _net_arrays(control_points, index, source_face, domain_mesh)
     with atomic_file(path) as tmp:
-        np.savez(tmp, **arrays)
+        write_npz_to(tmp, **arrays)  # byte-reproducible (np.savez stamps the time)
     return path
 
 
@@ -618,5 +619,5 @@ def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.
         tmp_mesh = stack.enter_context(atomic_file(path))
         tmp_net = stack.enter_context(atomic_file(net_path))
         _write_mesh_to(tmp_mesh, suffix, vertices, triangles, normals, None)
-        np.savez(tmp_net, **arrays)
+        write_npz_to(tmp_net, **arrays)  # byte-reproducible (np.savez stamps the time)
     return path, net_path

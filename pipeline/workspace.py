@@ -97,15 +97,22 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
     date 1980-01-01 so that the same arrays always give the same file.
     """
     path = Path(path)
-    with atomic_file(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
+    with atomic_file(path) as tmp:
+        write_npz_to(tmp, **arrays)
+        _usual_mode(tmp)
+    return path
+
+
+def write_npz_to(path: str | os.PathLike, **arrays: np.ndarray) -> None:
+    """The bytes of :func:`save_npz` written straight to ``path`` (not atomic: for a
+    temporary the caller renames, e.g. one of several files that land together)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
         for name, value in arrays.items():
             buffer = io.BytesIO()
             np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.external_attr = 0o644 << 16
             zf.writestr(info, buffer.getvalue())
-        _usual_mode(tmp)
-    return path
 
 
 def _usual_mode(path: Path) -> None:
