@@ -78,10 +78,13 @@ def read_manifest(path: str | os.PathLike) -> list[dict]:
     if not isinstance(objects, list) or not objects:
         raise InputError(f"{path}: no [[object]] entries")
     base = path.parent
+    if "config" in data and not isinstance(data["config"], str):
+        raise InputError(f"{path}: config must be a path (a string), got {data['config']!r}")
     common_config = str(base / data["config"]) if "config" in data else None
     common_set = data.get("set", {})
     if not isinstance(common_set, dict):
         raise InputError(f"{path}: set must be a table, got {common_set!r}")
+    config_mod.resolve(overrides=common_set, overrides_origin=f"{path}: [set]")
     tasks, names = [], set()
     for number, obj in enumerate(objects, 1):
         where = f"{path}: object {number}"
@@ -96,6 +99,13 @@ def read_manifest(path: str | os.PathLike) -> list[dict]:
         inputs = [obj["input"]] if "input" in obj else obj["inputs"]
         if not isinstance(inputs, list) or not all(isinstance(i, str) for i in inputs):
             raise InputError(f"{where}: inputs must be a list of paths, got {inputs!r}")
+        if obj.get("rig") is not None and not isinstance(obj["rig"], str):
+            raise InputError(f"{where}: rig must be a path (a string), got {obj['rig']!r}")
+        if obj.get("name") is not None and not isinstance(obj["name"], str):
+            raise InputError(f"{where}: name must be a string, got {obj['name']!r}")
+        if not isinstance(obj.get("set", {}), dict):
+            raise InputError(f"{where}: set must be a table, got {obj['set']!r}")
+        config_mod.resolve(overrides=obj.get("set", {}), overrides_origin=f"{where}: set")
         if obj.get("kind") is not None and obj["kind"] not in KINDS:
             raise InputError(f"{where}: kind {obj['kind']!r}: choose one of {', '.join(KINDS)}")
         name = str(obj.get("name") or Path(inputs[0]).stem)
@@ -110,7 +120,7 @@ def read_manifest(path: str | os.PathLike) -> list[dict]:
                       "kind": obj.get("kind"),
                       "rig": str(base / obj["rig"]) if obj.get("rig") else None,
                       "config_files": [c for c in (common_config,) if c],
-                      "overrides": overrides})
+                      "overrides": overrides, "overrides_origin": str(path)})
     return tasks
 
 
@@ -128,7 +138,9 @@ def run_object(task: dict) -> dict:
     result = {"name": task["name"], "outdir": task["outdir"]}
     try:
         config = config_mod.resolve(task["config_files"], task["assignments"],
-                                    overrides=task["overrides"])
+                                    overrides=task["overrides"],
+                                    overrides_origin=task.get("overrides_origin",
+                                                              "batch manifest"))
         summary = run_pipeline(task["inputs"], task["outdir"], config, kind=task["kind"],
                                rig=task["rig"], stop=task.get("stop"))
     except (InputError, ValueError, OSError) as exc:
@@ -149,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
         task["config_files"] = ([args.config] if args.config else []) + task["config_files"]
         task["assignments"] = list(args.assignments)
         task["stop"] = args.stop
-        config_mod.resolve(task["config_files"], task["assignments"], task["overrides"])
+        config_mod.resolve(task["config_files"], task["assignments"], task["overrides"],
+                           task["overrides_origin"])
     scheduler = args.scheduler or base_config["executor"]["scheduler"]
     with get_executor(scheduler, base_config["executor"]["workers"]) as executor:
         results = executor.map(run_object, tasks)

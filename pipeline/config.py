@@ -4,8 +4,9 @@ Every parameter of ``photosurf run`` has its default in ``pipeline/defaults.toml
 (one place).  A config file (``--config FILE``) and command-line assignments
 (``--set section.key=value``, the value written as a TOML value: ``3``,
 ``0.5``, ``true``, ``"auto"``, ``[1, 0, 0]``; a bare word is taken as a
-string) override it.  Unknown sections or keys and values of the wrong type
-are errors naming the key and the value, so that a typo never passes silently.
+string) override it.  Unknown sections or keys, values of the wrong type and
+values out of range (:data:`RANGES`) are errors naming the key and the value,
+so that a typo never passes silently and never creates a workspace.
 A table whose default is empty (``{}``) is free-form: any key is accepted there
 (used for the scene-recipe overrides).
 """
@@ -13,6 +14,7 @@ A table whose default is empty (``{}``) is free-form: any key is accepted there
 from __future__ import annotations
 
 import copy
+import math
 import os
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
@@ -38,6 +40,51 @@ CHOICES = {
     "sections.projection": ("surface", "axis"),
     "export.formats": ("ply", "obj", "stl", "gltf", "glb"),
 }
+
+
+def _positive(v) -> bool:
+    return math.isfinite(v) and v > 0
+
+
+def _non_negative(v) -> bool:
+    return math.isfinite(v) and v >= 0
+
+
+#: Ranges checked when a value is set (a word of FLEXIBLE passes): key -> (test, wording).
+#: Checked up front so that an invalid configuration never creates a workspace.
+RANGES = {
+    "acquire.patch": (lambda v: v >= 3 and v % 2 == 1, "an odd integer >= 3"),
+    "acquire.spacing": (lambda v: v >= 1, ">= 1"),
+    "acquire.max_iter": (lambda v: v >= 1, ">= 1"),
+    "acquire.shift_stop_px": (_positive, "> 0"),
+    "acquire.min_correlation": (lambda v: -1 <= v <= 1, "in [-1, 1]"),
+    "acquire.sigma0_factor": (_positive, "> 0"),
+    "acquire.min_texture_snr": (_non_negative, ">= 0"),
+    "acquire.max_reprojection_px": (_non_negative, ">= 0 (0: off)"),
+    "sections.count": (lambda v: v == 0 or v >= 2, ">= 2 (0: from the point density)"),
+    "sections.spacing": (_non_negative, "> 0 (0: from the point density)"),
+    "sections.thickness": (_non_negative, "> 0 (0: from the spacing)"),
+    "curves.n": (lambda v: v == 0 or v >= 4, ">= 4 (0: from the data)"),
+    "curves.smoothing": (_non_negative, ">= 0 or 'auto'"),
+    "curves.outlier_threshold": (_positive, "> 0"),
+    "curves.min_loop_points": (lambda v: v == 0 or v >= 4, ">= 4 (0: the default, 4)"),
+    "smooth.level": (lambda v: 0 <= v <= 6, "0..6 or 'auto'"),
+    "smooth.tolerance": (_non_negative, ">= 0 (0: from the data)"),
+    "report.width": (lambda v: v >= 16, ">= 16 pixels"),
+    "report.height": (lambda v: v >= 16, ">= 16 pixels"),
+    "report.tau_rel": (_positive, "> 0"),
+    "report.samples": (lambda v: v >= 100, ">= 100"),
+    "executor.workers": (lambda v: v >= 1, ">= 1"),
+}
+
+
+def _check_range(dotted: str, value, origin: str) -> None:
+    rule = RANGES.get(dotted)
+    if rule is None or isinstance(value, str | bool) or not isinstance(value, int | float):
+        return
+    test, wording = rule
+    if not test(value):
+        raise InputError(f"{origin}: {dotted} must be {wording}, got {value!r}")
 
 
 def defaults() -> dict:
@@ -131,6 +178,7 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
                     f"{type(default).__name__} (like {default!r}) or "
                 raise InputError(f"{origin}: {dotted} must be {kind}{words}, got {value!r}")
             base[key] = converted if ok else value
+            _check_range(dotted, base[key], origin)
             continue
         ok, converted = _type_ok(default, value)
         if not ok:
@@ -142,6 +190,7 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
                 if word not in allowed:
                     raise InputError(f"{origin}: {dotted} {word!r}: choose from "
                                      f"{', '.join(allowed)}")
+        _check_range(dotted, converted, origin)
         base[key] = converted
 
 
@@ -156,7 +205,8 @@ def deep_update(base: dict, update: Mapping) -> None:
 
 def resolve(config_file: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
             assignments: Iterable[str] = (),
-            overrides: Mapping | None = None) -> dict:
+            overrides: Mapping | None = None,
+            overrides_origin: str = "batch manifest") -> dict:
     """Resolve the configuration: defaults, ``config_file``, ``overrides``, then ``--set``.
 
     Parameters
@@ -167,6 +217,8 @@ def resolve(config_file: str | os.PathLike | Sequence[str | os.PathLike] | None 
         ``"section.key=value"`` strings from ``--set``.
     overrides : mapping, optional
         A nested dict applied after the file (used by ``photosurf batch``).
+    overrides_origin : str
+        Where ``overrides`` come from, for error messages (the manifest's path).
 
     Returns
     -------
@@ -178,7 +230,7 @@ def resolve(config_file: str | os.PathLike | Sequence[str | os.PathLike] | None 
     for path in files:
         _merge(config, load_file(path), str(path))
     if overrides:
-        _merge(config, overrides, "batch manifest")
+        _merge(config, overrides, overrides_origin)
     for text in assignments:
         path, value = parse_assignment(text)
         nested: dict = {}

@@ -421,10 +421,20 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
         ws.save()
         unusable: dict[str, str] = {}  # stage -> why its outputs cannot be used downstream
         with progress.bar(total=hi - lo + 1, desc="photosurf run", unit="stage") as bar:
+            failed_stage = None
             for index, stage in enumerate(plan_stages):
                 bar.set_description_str(f"photosurf run: {stage.name}")
-                result = _run_one(stage, index, lo, hi, ws, config, external, input_paths,
-                                  kind, rig_path, executor, force, unusable)
+                if failed_stage and stage.name != "report" and lo <= index <= hi:
+                    # the run stops at a failure (only the report still shows it): no
+                    # later stage runs and none logs about what is missing
+                    reason = f"{failed_stage} failed"
+                    ws.set_record(stage.name, {"status": "blocked", "reason": reason})
+                    result = StageResult(stage.name, "blocked", reason=reason)
+                else:
+                    result = _run_one(stage, index, lo, hi, ws, config, external, input_paths,
+                                      kind, rig_path, executor, force, unusable)
+                if result.status == "failed" and failed_stage is None:
+                    failed_stage = stage.name
                 results.append(result)
                 if result.status in ("not available", "blocked", "failed", "skipped"):
                     unusable[stage.name] = result.status
@@ -667,7 +677,10 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
 def _read_image(path: Path):
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from pipeline.mesh_io import quiet_native_stderr
+
+    with quiet_native_stderr():  # libpng prints its own diagnostics on fd 2
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise InputError(f"{path}: not a readable image")
     return image

@@ -104,10 +104,6 @@ def test_match_stereo_broken_image(pair, capfd, how, cut, seed, which, command):
         assert_nothing_written(out, out.with_suffix(".npz"))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "pipeline/cmd_match.py: read_image: libpng itself prints 'libpng error: bad adaptive filter "
-    "value' on file descriptor 2 before our error line (wrap cv2.imread in "
-    "pipeline.mesh_io.quiet_native_stderr); pipeline/stages.py _read_image likewise"))
 @pytest.mark.parametrize("command", ["match", "stereo"])
 def test_match_stereo_corrupt_png_data(pair, tmp_path, capfd, command):
     left = tmp_path / "left.png"
@@ -387,17 +383,9 @@ def test_sections_degenerate_clouds(tmp_path, capfd, case, suffix, axis):
 
 
 def _unreadable_cloud_cases():
-    reasons = {
-        "empty": "pipeline/cloud_io.py: read_npz on an empty .npz: np.load raises EOFError "
-                 "(traceback)",
-        "garbage": "pipeline/cloud_io.py: read_npz on a non-zip .npz: np.load's 'This file "
-                   "contains pickled (object) data ...' without the file name",
-    }
     for suffix in (".xyz", ".csv", ".ply", ".npz"):
         for case in ("nan", "inf", "empty", "garbage", "unknown_suffix", "missing"):
-            marks = ([pytest.mark.xfail(strict=True, reason=reasons[case])]
-                     if suffix == ".npz" and case in reasons else [])
-            yield pytest.param(case, suffix, marks=marks, id=f"{suffix}-{case}")
+            yield pytest.param(case, suffix, id=f"{suffix}-{case}")
 
 
 @pytest.mark.parametrize(("case", "suffix"), list(_unreadable_cloud_cases()))
@@ -699,15 +687,8 @@ BATCH_BREAKS = [
 ]
 
 
-BATCH_SET_NO_FILE = pytest.mark.xfail(strict=True, reason=(
-    "pipeline/config.py + pipeline/cmd_batch.py: a bad key in the manifest's [set] is reported "
-    "as 'batch manifest: unknown parameter ...' without the manifest's path (resolve() takes "
-    "no origin for overrides)"))
-
-
 @pytest.mark.parametrize(("body", "needle"), [
-    pytest.param(body, needle, id=needle, marks=[BATCH_SET_NO_FILE] if needle == "cuont" else [])
-    for body, needle in BATCH_BREAKS])
+    pytest.param(body, needle, id=needle) for body, needle in BATCH_BREAKS])
 def test_broken_batch_manifest_writes_nothing(tmp_path, capfd, body, needle):
     from pipeline.cloud_io import write_cloud
 
@@ -750,15 +731,12 @@ REAL = [
 ]
 
 
-RUN_LOGS_BEFORE_ERROR = pytest.mark.xfail(strict=True, reason=(
-    "pipeline/stages.py: after a stage fails, run_pipeline goes on and the export stage logs "
-    "'photosurf: export: no smooth surface (...)' on stderr before the error line: two lines"))
 REAL.append(pytest.param(
     "run", lambda d: [d / "c.xyz", "--out", d / "ws", "--set", "smooth.level=99", "--to",
                       "export"],
     lambda d: (d / "c.xyz").write_text("\n".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in
                                                  cylinder_points(400, seed=2)) + "\n"),
-    "level", marks=RUN_LOGS_BEFORE_ERROR, id="run-stage-fails"))
+    "level", id="run-stage-fails"))
 
 
 @pytest.mark.parametrize(("command", "args", "make", "needle"), REAL,
@@ -824,13 +802,6 @@ def test_match_stereo_odd_images(pair, capfd, dtype, channels, content, seed, co
             assert_nothing_written(out, out.with_suffix(".npz"))
 
 
-PAIR_NO_FILE = pytest.mark.xfail(strict=True, reason=(
-    "matching/pair.py raises 'left image is too small to match: WxH px' / 'left image is WxH "
-    "px but the rig's left camera is ...' and pipeline/cmd_match.py (match and stereo) passes "
-    "it on without the image's path"))
-
-
-@PAIR_NO_FILE
 @pytest.mark.parametrize("size", [(1, 1), (12, 9)], ids=["1x1", "12x9"])
 @pytest.mark.parametrize("command", ["match", "match-rectified", "stereo"])
 def test_match_stereo_images_too_small_or_not_the_rigs_size(pair, tmp_path, capfd, size,
@@ -851,7 +822,7 @@ BAD_OPTIONS = {
     "sections": [("--axis", ["0,0,0", "up", "1,2", "nan,0,1", "inf,0,0"]),
                  ("--sections", ["1", "0", "-3", "x"]), ("--n", ["2", "0", "x"]),
                  ("--smoothing", ["-1", "nan", "inf", "x"])],
-    # --patch 0/-3 and --min-correlation nan/2/inf: test_match_options_not_validated (xfail)
+    # --patch 0/-3 and --min-correlation nan/2/inf: test_match_options_not_validated
     "match": [("--spacing", ["0", "-1", "x"]), ("--patch", ["4", "1", "x"]),
               ("--max-iter", ["0", "-1"]), ("--interpolation", ["cubic"])],
     "stereo": [("--max-reprojection", ["-1", "0", "nan"]), ("--spacing", ["0", "-2"]),
@@ -921,10 +892,6 @@ def test_bad_options_one_line(pair, capfd, data, command):
         assert_nothing_written(out, out.with_suffix(".npz"))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "pipeline/cmd_match.py / matching/pair.py: --patch 0 or negative reaches cv2.boxFilter "
-    "(cv2.error traceback); --min-correlation nan, 2 or inf is not checked against [-1, 1] "
-    "and ends as a misleading 'no point could be matched'"))
 @pytest.mark.parametrize("option", ["--patch=0", "--patch=-3", "--min-correlation=nan",
                                     "--min-correlation=2", "--min-correlation=inf"])
 @pytest.mark.parametrize("command", ["match", "stereo"])
@@ -1063,12 +1030,7 @@ def test_config_file_missing_or_folder(tmp_path, capfd, case, command):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("command", [
-    pytest.param("stereo", marks=pytest.mark.xfail(strict=True, reason=(
-        "pipeline/cmd_stereo.py: the nested atomic_file(out) / atomic_file(out.npz) rename the "
-        ".npz first; when the .ply rename then fails (--out is a folder) the .npz is left "
-        "alone: not 'both or neither'"))),
-    "sections", "smooth", "render"])
+@pytest.mark.parametrize("command", ["stereo", "sections", "smooth", "render"])
 def test_out_file_is_an_existing_folder(pair, tmp_path, capfd, command):
     """--out names a folder where a file is to be written: one line, the folder untouched,
     no temporary left beside it (the write happens last, after all the work)."""

@@ -484,23 +484,10 @@ def test_cloud_text_wrong_columns(rows, suffix):
             assert len(result.points) > 0
 
 
-CLOUD_IO_NONFINITE = pytest.mark.xfail(strict=True, reason=(
-    "pipeline/cloud_io.py: read_ply / read_npz accept NaN/inf coordinates "
-    "(read_text rejects them: 'non-finite coordinates')"))
-CLOUD_IO_EMPTY_NPZ = pytest.mark.xfail(strict=True, reason=(
-    "pipeline/cloud_io.py: read_npz on an empty file raises EOFError from np.load "
-    "(a traceback through the CLI)"))
-
-
 def _cloud_cases():
     for case in ("empty_file", "no_points", "nan", "inf"):
         for suffix in (".ply", ".xyz", ".csv", ".npz"):
-            marks = []
-            if case in ("nan", "inf") and suffix in (".ply", ".npz"):
-                marks = [CLOUD_IO_NONFINITE]
-            elif case == "empty_file" and suffix == ".npz":
-                marks = [CLOUD_IO_EMPTY_NPZ]
-            yield pytest.param(case, suffix, marks=marks, id=f"{case}-{suffix}")
+            yield pytest.param(case, suffix, id=f"{case}-{suffix}")
 
 
 @pytest.mark.parametrize(("case", "suffix"), list(_cloud_cases()))
@@ -526,13 +513,7 @@ def test_cloud_empty_or_nonfinite(tmp_path, suffix, case):
 
 
 @pytest.mark.parametrize("case", [
-    "no_points_key", "wrong_shape", "colour_shape", "sigma_shape",
-    pytest.param("object_array", marks=pytest.mark.xfail(strict=True, reason=(
-        "pipeline/cloud_io.py: read_npz lets np.load's 'Object arrays cannot be loaded when "
-        "allow_pickle=False' through without the file name"))),
-    pytest.param("not_zip", marks=pytest.mark.xfail(strict=True, reason=(
-        "pipeline/cloud_io.py: read_npz on a corrupt .npz raises zipfile.BadZipFile "
-        "(a traceback through the CLI)"))),
+    "no_points_key", "wrong_shape", "colour_shape", "sigma_shape", "object_array", "not_zip",
 ])
 def test_cloud_bad_npz(tmp_path, case):
     from pipeline.cloud_io import read_cloud
@@ -814,9 +795,6 @@ def test_batch_manifest_broken(body, junk):
             assert all(isinstance(t["inputs"], list) for t in result)
 
 
-@pytest.mark.xfail(strict=True, reason="pipeline/cloud_io.py: _parse_header accepts 'element "
-                   "vertex -4'; np.frombuffer(count=-4) then raises a ValueError without the "
-                   "file name")
 def test_cloud_ply_negative_vertex_count(tmp_path):
     from pipeline.cloud_io import read_cloud
 
@@ -827,14 +805,11 @@ def test_cloud_ply_negative_vertex_count(tmp_path):
 
 
 @pytest.mark.parametrize("body", [
-    pytest.param("[[object]]\ninput = \"a.toml\"\nset = 5\n", id="object-set-not-table",
-                 marks=pytest.mark.xfail(strict=True, reason=(
-                     "pipeline/cmd_batch.py: read_manifest: an object's set = 5 reaches "
-                     "config.deep_update: AttributeError 'int' object has no attribute 'items'"))),
-    pytest.param("[[object]]\ninput = \"a.toml\"\nrig = 5\n", id="object-rig-not-string",
-                 marks=pytest.mark.xfail(strict=True, reason=(
-                     "pipeline/cmd_batch.py: read_manifest: rig = 5 -> TypeError "
-                     "(PosixPath / int)"))),
+    pytest.param("[[object]]\ninput = \"a.toml\"\nset = 5\n", id="object-set-not-table"),
+    pytest.param("[[object]]\ninput = \"a.toml\"\nrig = 5\n", id="object-rig-not-string"),
+    pytest.param("config = 5\n[[object]]\ninput = \"a.toml\"\n", id="config-not-string"),
+    pytest.param("[[object]]\ninput = \"a.toml\"\nset = { smooth = { level = 99 } }\n",
+                 id="object-set-out-of-range"),
 ])
 def test_batch_manifest_wrong_types(tmp_path, body):
     from pipeline.cmd_batch import read_manifest

@@ -174,6 +174,8 @@ def test_rerun_skips_and_a_parameter_reruns_only_downstream(cloud, tmp_path, cli
     (["run", "{cloud}", "--out", "{out}", "--from", "smooth"], "stage acquire has no outputs"),
     (["run", "{cloud}", "{cloud}", "--out", "{out}"], "a stereo pair needs two image files"),
     (["run", "{cloud}", "--out", "{out}", "--set", "sections.count=1"],
+     "--set sections.count=1: sections.count must be >= 2"),
+    (["run", "{cloud}", "--out", "{out}", "--set", "sections.spacing=100.0"],
      "stage sections failed: sections: only 1 non-empty sections"),
 ])
 def test_errors_are_one_line_exit_2(cloud, tmp_path, args, message, cli_run):
@@ -187,7 +189,7 @@ def test_errors_are_one_line_exit_2(cloud, tmp_path, args, message, cli_run):
 
 def test_json_on_a_failed_run(cloud, tmp_path, cli_run):
     proc = cli_run("run", cloud, "--out", tmp_path / "o", *SMALL, "--json",
-                   "--set", "sections.count=1", check=False)
+                   "--set", "sections.spacing=100.0", check=False)
     assert proc.returncode == 2
     summary = json.loads(proc.stdout)
     assert summary["error"].startswith("stage sections failed: ")

@@ -66,3 +66,44 @@ def test_axis_projection_without_extension_is_worse(vase, tmp_path):
     worse = M.compare_meshes(vertices, triangles, v, f, tau=0.005, count=20000)
     # the caps sit half a section spacing inside the truth: above the raw points' 0.8 σ
     assert worse["chamfer"] > 0.8 * SIGMA
+
+
+def test_a_failed_stage_stops_the_run_without_more_messages(vase, tmp_path, capfd,
+                                                            monkeypatch):
+    """After a failure only the report runs: export must not log "no smooth surface"
+    before the one error line (the CLI promises one line)."""
+    from pipeline import cli
+    from surface import bezier
+
+    def broken(*args, **kwargs):
+        raise ValueError("broken on purpose")
+
+    monkeypatch.setattr(bezier, "control_net", broken)
+    out = tmp_path / "out"
+    code = cli.main(["run", str(vase[3]), "--out", str(out), "--to", "export"])
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert code == 2
+    assert len(lines) == 1 and "smooth failed" in lines[0] and "broken on purpose" in lines[0]
+    import json
+
+    stages = json.loads((out / "manifest.json").read_text())["stages"]
+    assert stages["export"]["status"] == "blocked"
+    assert stages["export"]["reason"] == "smooth failed"
+
+
+@pytest.mark.parametrize(("setting", "needle"), [
+    ("smooth.level=99", "smooth.level must be 0..6"),
+    ("sections.count=1", "sections.count must be >= 2"),
+    ("sections.spacing=-0.1", "sections.spacing must be > 0"),
+    ("curves.smoothing=nan", "curves.smoothing must be >= 0"),
+    ("acquire.patch=4", "acquire.patch must be an odd integer"),
+])
+def test_out_of_range_parameters_fail_before_the_workspace(vase, tmp_path, capfd, setting,
+                                                          needle):
+    from pipeline import cli
+
+    out = tmp_path / "out"
+    code = cli.main(["run", str(vase[3]), "--out", str(out), "--set", setting])
+    err = capfd.readouterr().err
+    assert code == 2 and needle in err and f"--set {setting}" in err, err
+    assert not out.exists()
