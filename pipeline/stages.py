@@ -795,9 +795,8 @@ def _curves(ctx: StageContext) -> dict:
 
     p = ctx.params["curves"]
     sections, _, _ = _load_sections(ctx)
-    options = {"outlier_threshold": p["outlier_threshold"]}
-    if p["min_loop_points"]:
-        options["min_points"] = p["min_loop_points"]
+    options = {"outlier_threshold": p["outlier_threshold"],
+               "min_points": p["min_loop_points"] or stitch.min_loop_points(p["smoothing"])}
     try:
         kept, loops, messages = stitch.organise_sections(
             ctx.track(sections, "loops", total=len(sections), unit="section"), **options)

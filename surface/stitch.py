@@ -59,7 +59,7 @@ from surface.validate import TOL, check_finite, check_shape
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
            "axis_frame", "surface_from_points", "slide_to_planes", "extend_to_caps",
            "largest_perimeter", "SlicedCloud", "slice_cloud", "organise_sections",
-           "ring_count", "section_rings"]
+           "ring_count", "section_rings", "min_loop_points"]
 
 #: Default largest turn of a face normal a flip may cause (radians).  A flip on
 #: a smooth patch re-triangulates it and turns normals by about the local
@@ -809,12 +809,18 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
         bar may wrap it).
     **organise_options
         Passed to :func:`surface.topology.organise` (``outlier_threshold``,
-        ``min_points`` ...).
+        ``min_points`` ...; :func:`surface_from_points` gives
+        ``min_points=min_loop_points(smoothing)``).
+
+    Notes
+    -----
+    An inner section whose number of loops differs from both its neighbours'
+    (which agree) is dropped with a message (:func:`_drop_one_section_splits`).
 
     Returns
     -------
     kept : list of Section
-        The sections with at least one loop.
+        The sections with at least one loop (less one-section splits).
     loops : list of list of Loop
         Their loops.
     messages : list of str
@@ -843,6 +849,8 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
             messages.append(str(w.message))
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    kept, loops, notes = _drop_one_section_splits(kept, loops)
+    messages += notes
     if total - len(kept):
         messages.append(f"{total - len(kept)} of {total} sections had no loop "
                         "and were skipped")
@@ -850,6 +858,39 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
         raise ValueError(f"points gave {len(kept)} section(s) with a closed loop; "
                          "stitching needs at least 2 (too few points or sections?)")
     return kept, loops, messages
+
+
+def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[str]]:
+    """Drop inner sections whose number of loops differs from both neighbours' (equal).
+
+    A loop that splits (or two that merge) for one section only, between
+    neighbours that agree, is below what the section spacing resolves: a
+    feature that thin cannot be stitched anyway, and in measured clouds it is
+    nearly always a gap in the data (a ring broken into arcs where the
+    acquisition missed a patch).  Keeping it leaves the surface open on both
+    sides; dropping it stitches the neighbours to each other.
+    """
+    counts = [len(found) for found in loops]
+    drop = {k for k in range(1, len(kept) - 1)
+            if counts[k - 1] == counts[k + 1] != counts[k]}
+    notes = [f"section {kept[k].section_id} at height {kept[k].height:.6g} skipped: "
+             f"{counts[k]} loop(s) between sections of {counts[k - 1]} (a one-section split "
+             "or merge: a gap in the data at this section spacing)" for k in sorted(drop)]
+    keep = [k for k in range(len(kept)) if k not in drop]
+    return [kept[k] for k in keep], [loops[k] for k in keep], notes
+
+
+def min_loop_points(smoothing: float | str) -> int:
+    """Fewest points a loop needs: more than one smoothing window, and at least 4.
+
+    A loop with no more points than ``smoothing`` holds less than one control
+    point's worth of data: its curve would be the minimal 4-point closed cubic
+    fitted to noise (typically a few stray points beyond an end of the cloud).
+    ``"auto"`` (chosen per loop) needs only the 4 a closed cubic needs.
+    """
+    if isinstance(smoothing, str):
+        return 4
+    return max(4, int(np.floor(smoothing)) + 1)
 
 
 def ring_count(kept: Sequence, loops: Sequence) -> int:
@@ -953,7 +994,8 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     """
     sliced = slice_cloud(points, axis=axis, sections=sections, spacing=spacing,
                          thickness=thickness, projection=projection)
-    kept, loops, messages = organise_sections(sliced.sections)
+    kept, loops, messages = organise_sections(sliced.sections,
+                                              min_points=min_loop_points(smoothing))
     rings = section_rings(kept, loops, n, smoothing=smoothing)
     if extend_ends and close_ends:
         cap = sliced.cap_cloud

@@ -374,3 +374,22 @@ def test_surface_from_points_noisy_ends():
     assert_closed_oriented(result)
     scores = M.compare_meshes(result.vertices, result.triangles, v, f, tau=0.005, count=20000)
     assert scores["chamfer"] < 0.5 * sigma
+
+
+def test_surface_from_points_bridges_a_one_section_gap(vase_cloud):
+    """Two wedges missing from one section's slab break its ring into two arcs (two
+    "loops" between one-loop neighbours): the section is dropped and the surface closed."""
+    from surface.stitch import slice_cloud, surface_from_points
+
+    v, f, points = vase_cloud
+    sliced = slice_cloud(points)
+    section = sliced.sections[len(sliced.sections) // 2]
+    theta = np.degrees(np.arctan2(points[:, 1], points[:, 0]))
+    in_slab = np.abs(points[:, 2] - section.height) < sliced.spacing / 2
+    wedge = (np.abs(theta - 40) < 30) | (np.abs(theta + 120) < 30)  # arcs of 60°
+    holed = points[~(in_slab & wedge)]
+    result = surface_from_points(holed)
+    assert any("one-section split" in m for m in result.messages), result.messages
+    assert_closed_oriented(result)
+    scores = M.compare_meshes(result.vertices, result.triangles, v, f, tau=0.005, count=20000)
+    assert scores["chamfer"] < 0.8 * SIGMA  # as the whole cloud (test_surface_from_points_vase)
