@@ -30,7 +30,8 @@ A ring of calibrated views is turned into one cloud in four steps.
    :math:`w\,(z/f)\tan\theta_{max} + 3\sigma_X` (the depth change of a surface at the
    largest accepted incidence across the window, plus the point's own 3 σ).  The
    template of view :math:`i` is then LSM-matched into the ``check_views`` visible
-   views nearest to :math:`i` (all points of a view in one batch): the approximation
+   views nearest to :math:`i` (all points of a view in one batch; at most
+   ``2 check_views + 2`` further views are considered per pair): the approximation
    is the reprojection :math:`\pi_k(X)`, the initial affine the local-plane mapping
    :math:`i \to k` (rays of the template's unit pixel steps cut the tangent plane and
    are projected into :math:`k`).  A match is *consistent* when the Mahalanobis
@@ -791,6 +792,23 @@ def _statistical_inliers(points: np.ndarray, k: int, n_std: float) -> np.ndarray
 
 
 # --------------------------------------------------------------------------- driver
+def _further_views(cameras: Sequence[Camera], pair: tuple[int, int], count: int,
+                   max_incidence_deg: float) -> list[int]:
+    """The ``count`` views nearest to the pair's left view that may see its points.
+
+    Bounds what a consistency task carries (images and z-buffers travel to Dask workers):
+    the check tries the nearest views first and stops after ``check_views`` per point, so
+    ``2 check_views + 2`` leaves room for the views a point is hidden from.
+    """
+    i, j = pair
+    axis_i = cameras[i].R[2]
+    facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
+    others = [k for k in range(len(cameras)) if k not in (i, j)
+              and float(cameras[k].R[2] @ axis_i) >= facing]
+    others.sort(key=lambda k: float(np.linalg.norm(cameras[k].center - cameras[i].center)))
+    return others[:count]
+
+
 def _pair_task(item: dict) -> PairCloud:
     return reconstruct_view_pair(item["left_image"], item["right_image"], item["left"],
                                  item["right"], item["pair"], **item["options"])
@@ -893,9 +911,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                "max_incidence_deg": max_incidence_deg, "reject_p": reject_p,
                "require_confirmation": require_confirmation,
                **{k: v for k, v in match_options.items() if k in _LSM_KEYS}}
-    checks = map_func(_consistency_task, [
-        {"cloud": c, "cameras": cameras, "images": grey, "zbuffers": zbuffers,
-         "options": options} for c in clouds])
+    items = []
+    for c in clouds:
+        near = _further_views(cameras, c.pair, 2 * check_views + 2, max_incidence_deg)
+        items.append({"cloud": c, "cameras": cameras, "images": {k: grey[k] for k in near},
+                      "zbuffers": {k: zbuffers[k] for k in near}, "options": options})
+    checks = map_func(_consistency_task, items)
     t2 = time.perf_counter()
     reasons = np.concatenate([c.reason for c in checks]) if checks else np.zeros(0, np.int8)
     if keep_unchecked is None:
