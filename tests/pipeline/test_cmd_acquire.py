@@ -155,3 +155,19 @@ def test_cameras_written_for_a_subset_are_matched_by_name(scene, tmp_path):
     loaded = load_folder(folder)
     assert [c.name for c in loaded["cameras"]] == ["view_03.png", "view_07.png"]
     assert loaded["cameras"][1].allclose(cams[7])
+
+
+def test_dask_scheduler_gives_the_in_process_cloud(scene, tmp_path, capsys):
+    folder = tmp_path / "three"
+    folder.mkdir()
+    for k in range(3):
+        shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
+    shutil.copy(scene / "cameras.yml", folder)
+    local, dask = tmp_path / "local.ply", tmp_path / "dask.ply"
+    assert main(["acquire", str(folder), "--out", str(local), "--spacing", "8"]) == 0
+    assert main(["acquire", str(folder), "--out", str(dask), "--spacing", "8",
+                 "--scheduler", "local-cluster:1"]) == 0
+    a, b = read_ply(local), read_ply(dask)
+    # the same tasks in another process: the same arrays (LSM is per-point deterministic)
+    assert len(a) == len(b) > 100
+    assert np.allclose(a.points, b.points, atol=1e-9)
