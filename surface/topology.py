@@ -57,6 +57,14 @@ How each part is made robust and vectorised:
   MST walk alone backtracks along every short side branch of the band.  The
   centre tour has neither problem, and projecting M points onto it is one
   vectorised k-d tree query.
+* **Degenerate sections.**  Points on one straight line enclose no area, so
+  they are no closed curve: a section (or a cluster) whose width across its
+  principal direction, ``ptp(n·(x − C))`` with ``n`` the eigenvector of the
+  smallest eigenvalue of the 2×2 covariance, is at most ``TOL.planar_rel``
+  times its diameter is skipped.  This is what a flat cloud cut along an
+  axis lying in its plane gives (an oblique axis projects the slab's points
+  along the axis, off the line: a band as wide as the slab, left to the
+  loop statistics).
 """
 
 from __future__ import annotations
@@ -195,6 +203,10 @@ def organise(
     if scale <= TOL.zero:
         _skip(section, "all points coincide")
         return []
+    if _is_collinear(uv):
+        _skip(section, f"all {len(pts)} points lie on one line (no closed curve: a flat cloud "
+                       "cut across its plane)")
+        return []
     labels, gap, link = _clusters(uv, link_distance, scale)
     sizes = np.bincount(labels)
     by_label = np.split(np.argsort(labels, kind="stable"), np.cumsum(sizes)[:-1])
@@ -218,6 +230,20 @@ def organise(
 def organise_all(sections, **kwargs) -> list[list[Loop]]:
     """:func:`organise` every section; a list of loops per section (possibly empty)."""
     return [organise(section, **kwargs) for section in sections]
+
+
+def _is_collinear(uv: np.ndarray) -> bool:
+    """True when ``(M, 2)`` points lie on one line: width ≤ ``TOL.planar_rel``·diameter.
+
+    The width is the extent along the minor principal direction (module notes);
+    the diameter the largest coordinate extent.  Coincident points count as
+    collinear.
+    """
+    centred = uv - uv.mean(axis=0)
+    _, vecs = np.linalg.eigh(centred.T @ centred)  # ascending eigenvalues
+    width = float(np.ptp(centred @ vecs[:, 0]))
+    diameter = float(np.ptp(uv, axis=0).max())
+    return width <= TOL.planar_rel * max(diameter, TOL.zero)
 
 
 def _skip(section: Section, why: str) -> None:
@@ -554,6 +580,8 @@ def _organise_loop(section, uv_all, members, gap, link, threshold, k, min_points
     if len(kept) < min_points:
         return None
     uv_kept = uv_all[kept]
+    if _is_collinear(uv_kept):
+        return None
     diameter = float(np.ptp(uv_kept, axis=0).max())
     cell = max(3.0 * gap, 6.0 * sigma, diameter / 128.0, TOL.zero)
     order, star, closed = _order_loop(uv_kept, cell, link)
