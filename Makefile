@@ -4,6 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.photosurf-installed
 OUT    ?= out
+BENCH_ARGS ?=
 
 .PHONY: setup sysdeps sysdeps-test demo test bench lint clean
 
@@ -51,7 +52,7 @@ test: setup sysdeps-test
 
 bench: setup
 	@mkdir -p benchmarks/results
-	@for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --json benchmarks/results/$$(basename $$b .py).json || exit 1; done
+	@for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b $(BENCH_ARGS) --json benchmarks/results/$$(basename $$b .py).json || exit 1; done
 
 lint: setup
 	$(VENV)/bin/ruff check matching surface pipeline tests benchmarks
