@@ -49,7 +49,7 @@ References
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -790,13 +790,48 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
     cap_points = np.zeros(0, np.int64)
     if projection == "surface" and len(slices) > 1:
         if thickness is None:
-            # Same planes, slabs widened to tile the cloud (every point used once).
-            slices = slice_sections(pts, axis=slices[0].frame[2],
-                                    count=None if spacing is not None else len(slices),
-                                    spacing=spacing, thickness=delta / 2)
+            # Slabs widened to tile the cloud (every point used once), over the extent of
+            # its dense part: sparse tails (stray points beyond the ends) would otherwise
+            # place the end planes outside the surface.
+            axis_vector = slices[0].frame[2]
+            dense = np.flatnonzero(_dense_extent(pts @ axis_vector, delta))
+            heights = pts[dense] @ axis_vector
+            count = None if spacing is not None else len(slices)
+            step = spacing if spacing is not None else (
+                float(heights.max() - heights.min()) / count)  # slice_sections' Δ
+            slices = slice_sections(pts[dense], axis=axis_vector, count=count,
+                                    spacing=spacing, thickness=step / 2)
+            slices = [replace(s, source_index=dense[s.source_index]) for s in slices]
+            delta = abs(slices[1].height - slices[0].height) if len(slices) > 1 else delta
         slices, cap_points = slide_to_planes(pts, slices)
     cap_cloud = pts[cap_points] if len(cap_points) else pts
     return SlicedCloud(list(slices), cap_cloud, float(delta))
+
+
+#: A tail bin (half a section spacing wide) holding less than this share of the median
+#: bin's points lies beyond the surface's end: stray points, not a slab of wall.  A wall
+#: ending inside a bin still fills its share of it; a flat end face is a dense spike.
+SPARSE_TAIL = 0.25
+
+
+def _dense_extent(heights: np.ndarray, delta: float) -> np.ndarray:
+    """Mask ``(P,)`` of the points between the sparse tails of the height histogram.
+
+    Bins of width Δ/2; from each end, the run of bins with fewer than
+    ``SPARSE_TAIL`` × the median non-empty bin's count is cut off.
+    """
+    lo, hi = float(heights.min()), float(heights.max())
+    if delta <= 0 or hi - lo <= delta:
+        return np.ones(len(heights), bool)
+    edges = np.arange(lo, hi + delta / 2, delta / 2)
+    edges[-1] = max(edges[-1], hi)
+    counts, edges = np.histogram(heights, bins=edges)
+    full = counts >= SPARSE_TAIL * np.median(counts[counts > 0])
+    if not full.any():
+        return np.ones(len(heights), bool)
+    first = int(np.argmax(full))
+    last = len(full) - 1 - int(np.argmax(full[::-1]))
+    return (heights >= edges[first]) & (heights <= edges[last + 1])
 
 
 def organise_sections(sections: Iterable, **organise_options) -> tuple[list, list, list[str]]:
@@ -1055,15 +1090,24 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         beyond = candidates[(offset > 0) & (offset <= 2 * delta)]
         beyond_flat = points[beyond] @ frame[:2].T
         centres = np.array([b.mean(axis=0) @ frame[:2].T for b in befores])
+        # No cap seen (an open end, or a cap the cameras missed): the wall points in the
+        # outer half-slab run on to the end of the data; for points spread evenly over
+        # [0, e] beyond the plane the median offset is e/2, so the end is 2 x the median.
+        outer = offset[(offset > 0) & (offset <= delta / 2)]
+        end_step = (sign * 2.0 * float(np.median(outer))
+                    if len(outer) >= NORMAL_NEIGHBOURS else None)
         new_rings, counts = [], []
         for ring in ends:
             flat = ring @ frame[:2].T
             flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
             inside = beyond[_inside(beyond_flat, flat)]
             counts.append(len(inside))
-            if len(inside) < NORMAL_NEIGHBOURS:
+            if len(inside) >= NORMAL_NEIGHBOURS:
+                step = float(np.median(points[inside] @ axis)) - h_end
+            elif end_step is not None:
+                step = end_step
+            else:
                 break
-            step = float(np.median(points[inside] @ axis)) - h_end
             nearest = int(np.argmin(np.linalg.norm(centres - flat.mean(axis=0), axis=1)))
             new_rings.append(_extrapolate_ring(ring, befores[nearest], step, axis))
         if len(new_rings) < len(ends):
@@ -1072,8 +1116,13 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                      new_rings[0] if len(new_rings) == 1 else new_rings)
         moved = np.mean([abs(float((r - e).mean(axis=0) @ axis))
                          for r, e in zip(new_rings, ends, strict=True)])
-        notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {moved:.4g} to the "
-                     f"median height of {sum(counts)} cap points")
+        if min(counts) >= NORMAL_NEIGHBOURS:
+            notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {moved:.4g} to the "
+                         f"median height of {sum(counts)} cap points")
+        else:
+            notes.append(f"{'bottom' if end == 0 else 'top'} end extended {moved:.4g} to the "
+                         f"end of the wall points (no cap points: twice the median offset of "
+                         f"{len(outer)} points beyond the end plane)")
     return rings, notes
 
 

@@ -393,3 +393,31 @@ def test_surface_from_points_bridges_a_one_section_gap(vase_cloud):
     assert_closed_oriented(result)
     scores = M.compare_meshes(result.vertices, result.triangles, v, f, tau=0.005, count=20000)
     assert scores["chamfer"] < 0.8 * SIGMA  # as the whole cloud (test_surface_from_points_vase)
+
+
+def test_surface_from_points_open_ends_reach_the_end_of_the_walls():
+    """Walls only (a ring of cameras sees no cap) and a few stray points beyond the ends:
+    the end planes are placed on the dense part of the cloud, and each end ring is moved
+    to where the wall points stop (2 x the median offset of the outer half-slab points)."""
+    from surface.sections import slice_sections
+    from surface.stitch import surface_from_points
+
+    v, f = vase_truth()
+    walls = f[:-2 * 256]  # vase_truth's two cap fans (n_theta = 256 faces each) are last
+    rng = np.random.default_rng(5)
+    points = M.sample_mesh(v, walls, count=6000, seed=5) + rng.normal(0.0, SIGMA, (6000, 3))
+    stray = np.column_stack([rng.normal(0.0, 0.5, (8, 2)),
+                             np.r_[rng.uniform(-0.1, -0.01, 4), rng.uniform(3.01, 3.1, 4)]])
+    points = np.vstack([points, stray])
+    delta = abs(np.diff([s.height for s in slice_sections(points)[:2]])[0])
+    result = surface_from_points(points)
+    assert_closed_oriented(result)
+    assert sum("end extended" in m for m in result.messages) == 2, result.messages
+    # The end estimate from ~100 points spread over delta/2 has a spread of about
+    # (delta/2)/sqrt(100) = delta/20; the planes alone stop delta/2 inside the walls.
+    z = result.vertices[:, 2]
+    assert abs(z.min() - 0.0) < delta / 4 and abs(z.max() - 3.0) < delta / 4
+    scores = M.compare_meshes(result.vertices, result.triangles, v, f, tau=0.005, count=20000)
+    plain = surface_from_points(points, projection="axis", extend_ends=False)
+    worse = M.compare_meshes(plain.vertices, plain.triangles, v, f, tau=0.005, count=20000)
+    assert scores["chamfer"] < 0.5 * worse["chamfer"]
