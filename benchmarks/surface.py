@@ -15,7 +15,20 @@ the stitched method does not; the table's "normals" column is that share):
   30 neighbours, oriented by ``orient_normals_consistent_tangent_plane(30)``;
   no density trimming;
 * ``ball-pivoting`` open3d, radii 1, 2, 4 x the mean nearest-neighbour distance;
-* ``alpha-2s``/``alpha-4s`` open3d alpha shapes with alpha = 2 and 4 point spacings.
+* ``alpha-2s``/``alpha-4s`` open3d alpha shapes with alpha = 2 and 4 point spacings;
+* ``stitched+bezier`` the stitched mesh (as ``stitched``) smoothed into Loop's
+  G1 sextic Bezier surface (``surface.bezier.control_net``, 4 patches per
+  stitched triangle) and tessellated by ``surface.bezier.tessellate`` at the
+  pipeline's default level ``smooth.level`` of ``pipeline/defaults.toml``
+  (level 1: 4 triangles per patch).  Its time is the back end's, sections +
+  stitch + smooth + tessellate; the G1 check (``edge_continuity``, largest
+  normal angle and gap over all interior patch edges, 9 samples each) runs
+  after the clock stops.  Rates: patches per second of ``control_net`` and
+  tessellated triangles per second of ``tessellate`` (wall clock).
+
+Every method gets wall seconds (``time.perf_counter``) and CPU seconds of this
+process (``time.process_time``, all threads summed): on a loaded machine the
+wall clock includes other jobs' time, so compare the CPU column.
 
 Scores (``surface.metrics.compare_meshes``): both meshes sampled uniformly by
 area with 100 000 points each; accuracy = mean distance from the
@@ -51,7 +64,8 @@ sys.path.insert(0, str(ROOT))
 # method's timing includes an import.
 import surface.catmull_rom  # noqa: E402, F401
 import surface.topology  # noqa: E402, F401
-from surface import metrics  # noqa: E402
+from pipeline.config import defaults  # noqa: E402
+from surface import bezier, metrics  # noqa: E402
 from surface.sections import point_spacing  # noqa: E402
 from surface.stitch import surface_from_points  # noqa: E402
 
@@ -97,6 +111,34 @@ def run_stitched(points: np.ndarray) -> dict:
     return {"vertices": result.vertices, "triangles": result.triangles,
             "sections": int(len(np.unique(result.section_of_vertex))),
             "flips": result.flips, "delaunay_fraction": result.delaunay_fraction}
+
+
+def run_stitched_bezier(points: np.ndarray, level: int | None = None) -> dict:
+    """Stitched mesh -> Loop's sextic Bezier patches -> tessellation (``level``
+    default: the pipeline's ``smooth.level``); stage times in the notes."""
+    level = int(defaults()["smooth"]["level"]) if level is None else int(level)
+    clocks = [(time.perf_counter(), time.process_time())]
+    stitched = surface_from_points(points, axis="z")
+    clocks.append((time.perf_counter(), time.process_time()))
+    smooth = bezier.control_net(stitched.vertices, stitched.triangles)
+    clocks.append((time.perf_counter(), time.process_time()))
+    vertices, triangles, _ = bezier.tessellate(smooth, level=level)
+    clocks.append((time.perf_counter(), time.process_time()))
+    wall = np.diff([c[0] for c in clocks])
+    cpu = np.diff([c[1] for c in clocks])
+    # The G1 check is a measurement, not part of the back end: its time is excluded.
+    check_start = (time.perf_counter(), time.process_time())
+    gap, angle = bezier.edge_continuity(smooth.control_points, smooth.domain_mesh[1])
+    excluded = (time.perf_counter() - check_start[0], time.process_time() - check_start[1])
+    patches = len(smooth.control_points)
+    return {"vertices": vertices, "triangles": triangles, "level": level,
+            "stitched_triangles": int(len(stitched.triangles)), "patches": patches,
+            "stitch_seconds": float(wall[0]), "smooth_seconds": float(wall[1]),
+            "tessellate_seconds": float(wall[2]), "stitch_cpu_seconds": float(cpu[0]),
+            "smooth_cpu_seconds": float(cpu[1]), "tessellate_cpu_seconds": float(cpu[2]),
+            "patches_per_second": patches / float(wall[1]),
+            "triangles_per_second": len(triangles) / float(wall[2]),
+            "g1_angle": angle, "g1_gap": gap, "excluded_seconds": excluded}
 
 
 def _o3d_cloud(points: np.ndarray, normals: bool):
@@ -150,17 +192,22 @@ METHODS = [
     ("ball-pivoting", run_ball_pivoting),
     ("alpha-2s", lambda p: run_alpha(p, 2.0)),
     ("alpha-4s", lambda p: run_alpha(p, 4.0)),
+    ("stitched+bezier", run_stitched_bezier),
 ]
 
 
 # ----------------------------------------------------------------------------- evaluation
 def evaluate(name: str, method, points: np.ndarray, truth, samples: int = SAMPLES) -> dict:
     """Time one method and score its mesh against the truth."""
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     out = method(points)
     seconds = time.perf_counter() - start
+    cpu_seconds = time.process_time() - cpu_start
+    excluded = out.pop("excluded_seconds", (0.0, 0.0))  # checks run inside the method
+    seconds, cpu_seconds = seconds - excluded[0], cpu_seconds - excluded[1]
     vertices, triangles = out.pop("vertices"), out.pop("triangles")
-    row = {"method": name, "seconds": seconds, "triangles": int(len(triangles))}
+    row = {"method": name, "seconds": seconds, "cpu_seconds": cpu_seconds,
+           "triangles": int(len(triangles))}
     if len(triangles) == 0:
         return {**row, "closed": False, "components": 0, **out}
     topo = metrics.mesh_topology(vertices, triangles)
@@ -181,24 +228,26 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
         for name, method in methods:
             row = evaluate(name, method, points, truth, samples=min(SAMPLES, 4 * size))
             rows.append({"points": size, "method": name, "seconds": row["seconds"],
+                         "cpu_seconds": row["cpu_seconds"],
                          "normals_seconds": row.get("normals_seconds"),
                          "triangles": row["triangles"], "chamfer": row.get("chamfer"),
                          "closed": row["closed"], "components": row["components"]})
             chamfer = row.get("chamfer", float("nan"))
-            print(f"  {size:>8d} points  {name:<10s} {row['seconds']:7.2f} s  "
+            print(f"  {size:>8d} points  {name:<10s} {row['seconds']:7.2f} s "
+                  f"({row['cpu_seconds']:7.2f} s CPU)  "
                   f"{row['triangles']:>8d} triangles  Chamfer {chamfer:.5f}", flush=True)
     return rows
 
 
 def print_table(rows: list[dict]) -> None:
-    head = (f"{'method':<14s}{'seconds':>8s}{'normals':>8s}{'triangles':>10s}{'accuracy':>10s}"
-            f"{'complete':>10s}{'Chamfer':>10s}{'F@.005':>8s}{'Hausdorff':>10s}"
+    head = (f"{'method':<16s}{'seconds':>8s}{'CPU s':>8s}{'normals':>8s}{'triangles':>10s}"
+            f"{'accuracy':>10s}{'complete':>10s}{'Chamfer':>10s}{'F@.005':>8s}{'Hausdorff':>10s}"
             f"{'closed':>7s}{'comps':>6s}")
     print(head)
     print("-" * len(head))
     for r in rows:
         normals = f"{r['normals_seconds']:8.2f}" if "normals_seconds" in r else f"{'-':>8s}"
-        print(f"{r['method']:<14s}{r['seconds']:8.2f}{normals}{r['triangles']:10d}"
+        print(f"{r['method']:<16s}{r['seconds']:8.2f}{r['cpu_seconds']:8.2f}{normals}{r['triangles']:10d}"
               f"{r.get('accuracy', np.nan):10.5f}{r.get('completeness', np.nan):10.5f}"
               f"{r.get('chamfer', np.nan):10.5f}{r.get('fscore', np.nan):8.3f}"
               f"{r.get('hausdorff', np.nan):10.4f}{'yes' if r['closed'] else 'no':>7s}"
@@ -206,14 +255,48 @@ def print_table(rows: list[dict]) -> None:
 
 
 def goals(rows: list[dict]) -> dict:
-    """The issue's goals for the stitched mesh against Poisson depth 8."""
+    """The issues' goals against Poisson depth 8: the stitched mesh (issue 4) and
+    the Bezier-smoothed surface (issue 5, keys ``bezier_*``)."""
     by = {r["method"]: r for r in rows}
-    s, p = by.get("stitched"), by.get("poisson-8")
-    if s is None or p is None:
+    s, p, b = by.get("stitched"), by.get("poisson-8"), by.get("stitched+bezier")
+    if p is None:
         return {}
-    return {"chamfer_le_poisson8": bool(s["chamfer"] <= p["chamfer"]),
-            "one_closed_component": bool(s["closed"] and s["components"] == 1),
-            "faster_than_poisson8": bool(s["seconds"] < p["seconds"])}
+    verdict = {}
+    if s is not None:
+        verdict.update({"chamfer_le_poisson8": bool(s["chamfer"] <= p["chamfer"]),
+                        "one_closed_component": bool(s["closed"] and s["components"] == 1),
+                        "faster_than_poisson8": bool(s["seconds"] < p["seconds"])})
+    if b is not None and "chamfer" in b:
+        verdict.update({
+            "bezier_chamfer_le_half_poisson8": bool(b["chamfer"] <= 0.5 * p["chamfer"]),
+            "bezier_fscore_ge_0.995": bool(b["fscore"] >= 0.995),
+            "bezier_one_closed_component": bool(b["closed"] and b["components"] == 1),
+            "bezier_time_le_poisson8": bool(b["seconds"] <= p["seconds"]),
+            "bezier_cpu_time_le_poisson8": bool(b["cpu_seconds"] <= p["cpu_seconds"]),
+            "bezier_triangles_per_second_ge_1e6": bool(b["triangles_per_second"] >= 1e6)})
+    return verdict
+
+
+def print_bezier(rows: list[dict]) -> None:
+    """The smoothed row's stage times, rates and G1 figures against Poisson depth 8."""
+    by = {r["method"]: r for r in rows}
+    b, p = by.get("stitched+bezier"), by.get("poisson-8")
+    if b is None:
+        return
+    print(f"\nstitched+bezier (level {b['level']}): {b['stitched_triangles']} stitched "
+          f"triangles -> {b['patches']} patches -> {b['triangles']} triangles")
+    print(f"  back end {b['seconds']:.2f} s wall / {b['cpu_seconds']:.2f} s CPU = sections+stitch "
+          f"{b['stitch_seconds']:.2f}/{b['stitch_cpu_seconds']:.2f} + smooth "
+          f"{b['smooth_seconds']:.2f}/{b['smooth_cpu_seconds']:.2f} + tessellate "
+          f"{b['tessellate_seconds']:.2f}/{b['tessellate_cpu_seconds']:.2f}")
+    print(f"  construction {b['patches_per_second']:.0f} patches/s, tessellation "
+          f"{b['triangles_per_second']:.3g} triangles/s")
+    print(f"  G1 over all interior patch edges: largest normal angle {b['g1_angle']:.3g} rad, "
+          f"largest gap {b['g1_gap']:.3g}")
+    if p is not None and "chamfer" in b:
+        print(f"  Chamfer {b['chamfer']:.5f} vs 0.5 x Poisson-8 {0.5 * p['chamfer']:.5f}; "
+              f"time {b['seconds']:.2f} s ({b['cpu_seconds']:.2f} s CPU) vs Poisson-8 "
+              f"{p['seconds']:.2f} s ({p['cpu_seconds']:.2f} s CPU)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -223,6 +306,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "surface.json"),
                         help="where to write the results")
     parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
+    parser.add_argument("--methods", nargs="+", choices=[m[0] for m in METHODS],
+                        help="run only these methods (default: all)")
     args = parser.parse_args(argv)
 
     import open3d as o3d
@@ -234,10 +319,13 @@ def main(argv: list[str] | None = None) -> int:
           f"sigma = {SIGMA}, tau = {TAU}, {SAMPLES} samples per mesh")
     rows = []
     for name, method in METHODS:
+        if args.methods and name not in args.methods:
+            continue
         rows.append(evaluate(name, method, points, truth))
         print(f"  {name}: {rows[-1]['seconds']:.2f} s", flush=True)
     print()
     print_table(rows)
+    print_bezier(rows)
     verdict = goals(rows)
     for key, ok in verdict.items():
         print(f"goal {key}: {'PASS' if ok else 'FAIL'}")
@@ -246,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
         sizes = [10_000, 100_000] + ([] if args.quick else [1_000_000])
         print("\nscaling:")
         scale_rows = scaling(truth, sizes, [m for m in METHODS if m[0] in ("stitched",
-                                                                          "poisson-8")])
+                                                                          "poisson-8")
+                                            and (not args.methods or m[0] in args.methods)])
     result = {"benchmark": "surface", "points": args.points, "sigma": SIGMA, "tau": TAU,
               "samples": SAMPLES, "seed": SEED, "quick": bool(args.quick), "methods": rows,
               "goals": verdict, "scaling": scale_rows,
