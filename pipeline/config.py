@@ -67,7 +67,7 @@ RANGES = {
     "curves.n": (lambda v: v == 0 or v >= 4, ">= 4 (0: from the data)"),
     "curves.smoothing": (_non_negative, ">= 0 or 'auto'"),
     "curves.outlier_threshold": (_positive, "> 0"),
-    "curves.min_loop_points": (lambda v: v == 0 or v >= 4, ">= 4 (0: the default, 4)"),
+    "curves.min_loop_points": (lambda v: v == 0 or v >= 4, ">= 4 (0: from curves.smoothing)"),
     "smooth.level": (lambda v: 0 <= v <= 6, "0..6 or 'auto'"),
     "smooth.tolerance": (_non_negative, ">= 0 (0: from the data)"),
     "report.width": (lambda v: v >= 16, ">= 16 pixels"),
