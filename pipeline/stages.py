@@ -625,52 +625,20 @@ def _acquire(ctx: StageContext) -> dict:
     return {**_save_cloud(ctx, *_cloud_arrays(cloud)), **info}
 
 
-def _folder_cameras(folder: Path, images: list[Path]) -> tuple[list, dict]:
-    """Cameras of an image folder, in image order: a camera file, else pycolmap SfM.
-
-    Camera files looked for in the folder (and its ``images/``): ``cameras.yml``
-    (photosurf/OpenCV), ``cameras.txt`` (per-image projection matrices), ``sparse/``
-    (a COLMAP model).  Cameras are paired with images by name (stem), else by order.
-    """
-    from matching.cameras import read_cameras
-
-    places = dict.fromkeys([folder, images[0].parent])  # the folder, or its images/ folder
-    candidates = [place / name for place in places
-                  for name in ("cameras.yml", "cameras.yaml", "cameras.txt", "sparse")]
-    for candidate in candidates:
-        if candidate.exists():
-            cameras, source = read_cameras(candidate), candidate.name
-            break
-    else:
-        from matching.sfm import run_sfm
-
-        result = run_sfm(images[0].parent, image_names=[p.name for p in images])
-        if result.unregistered:
-            log.warning("acquire: %d image(s) not registered by SfM: %s",
-                        len(result.unregistered), ", ".join(result.unregistered))
-        cameras, source = result.cameras, "pycolmap SfM"
-    by_name = {c.name: c for c in cameras}
-    ordered = [by_name.get(p.stem) or by_name.get(p.name) for p in images]
-    if any(c is None for c in ordered):
-        if len(cameras) != len(images):
-            missing = [p.name for p, c in zip(images, ordered, strict=True) if c is None]
-            raise InputError(f"{folder}: no camera for image(s) {', '.join(missing[:5])} "
-                             f"({len(cameras)} cameras from {source}, {len(images)} images)")
-        ordered = list(cameras)  # unnamed cameras: same order as the sorted images
-    return ordered, {"cameras": source}
-
-
 def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
-    """``matching.multiview.reconstruct_multiview`` on a folder; view pairs on the executor."""
-    from matching.multiview import reconstruct_multiview
+    """``pipeline.cmd_acquire.acquire_folder`` (the same loading, checks and method as
+    ``photosurf acquire``); view pairs on the executor."""
+    from pipeline.cmd_acquire import acquire_folder
 
-    images = folder_images(folder)
-    cameras, info = _folder_cameras(folder, images)
-    options = {k: v for k, v in ctx.params["acquire"].items() if k != "max_reprojection_px"}
-    cloud = reconstruct_multiview([_read_image(p) for p in images], cameras,
-                                  map_func=ctx.executor.map, **options)
-    info.update(views=len(images), pairs=len(cloud.pairs),
-                **{f"reason_{k}": v for k, v in cloud.reason_counts.items()})
+    cloud = acquire_folder(folder, executor=ctx.executor, **ctx.params["acquire"])
+    stats = cloud.stats
+    if stats.get("unregistered"):
+        log.warning("acquire: %d image(s) not registered by SfM: %s",
+                    len(stats["unregistered"]), ", ".join(stats["unregistered"]))
+    source = stats.get("camera_source")
+    info = {"cameras": "pycolmap SfM" if source == "sfm" else Path(str(source)).name,
+            "views": len(stats.get("view_names", [])), "pairs": len(cloud.pairs),
+            **{f"reason_{k}": v for k, v in cloud.reason_counts.items()}}
     return cloud, info
 
 
@@ -722,8 +690,8 @@ def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
         kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
     return {"cloud": ("pipeline.cloud_io:read_cloud",),
             "stereo": ("matching.pair:reconstruct_pair", "matching.cameras:read_rig"),
-            "folder": ("matching.multiview:reconstruct_multiview", "matching.cameras:read_cameras",
-                       "matching.sfm:run_sfm")}.get(kind, ())
+            "folder": ("pipeline.cmd_acquire:acquire_folder",
+                       "matching.multiview:reconstruct_multiview")}.get(kind, ())
 
 
 def _load_cloud(ctx: StageContext):
