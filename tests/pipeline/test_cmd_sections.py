@@ -6,37 +6,13 @@ import pytest
 from pipeline.cli import main
 from pipeline.mesh_io import read_mesh
 from surface import metrics as M
-
-SIGMA = 0.002
-
-
-def vase_truth(n_theta=256, n_z=192):
-    """Closed vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], flat caps (fan to the centres)."""
-    z = np.linspace(0.0, 3.0, n_z)
-    theta = 2 * np.pi * np.arange(n_theta) / n_theta
-    r = 1.0 + 0.3 * np.sin(2.0 * z)
-    v = np.stack([np.outer(r, np.cos(theta)), np.outer(r, np.sin(theta)),
-                  np.repeat(z[:, None], n_theta, 1)], axis=-1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_z - 1), np.arange(n_theta), indexing="ij")
-    a = (i * n_theta + j).ravel()
-    b = (i * n_theta + (j + 1) % n_theta).ravel()
-    faces = [np.stack([a, b, b + n_theta], 1), np.stack([a, b + n_theta, a + n_theta], 1)]
-    bottom, top = len(v), len(v) + 1
-    v = np.vstack([v, [[0, 0, 0], [0, 0, 3.0]]])
-    ring = np.arange(n_theta)
-    nxt = (ring + 1) % n_theta
-    last = (n_z - 1) * n_theta
-    faces += [np.stack([np.full(n_theta, bottom), nxt, ring], 1),
-              np.stack([np.full(n_theta, top), last + ring, last + nxt], 1)]
-    return v, np.vstack(faces)
+from tests._vase import SIGMA, noisy_cloud, vase_truth
 
 
 @pytest.fixture(scope="module")
 def vase():
     v, f = vase_truth()
-    rng = np.random.default_rng(7)
-    points = M.sample_mesh(v, f, count=8000, seed=7) + rng.normal(0.0, SIGMA, (8000, 3))
-    return v, f, points
+    return v, f, noisy_cloud(v, f, 8000, seed=7)
 
 
 def test_truth_mesh_is_a_closed_vase():

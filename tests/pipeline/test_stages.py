@@ -12,14 +12,13 @@ import pytest
 
 from pipeline.mesh_io import read_mesh
 from surface import metrics as M
-from tests.surface.test_stitch import SIGMA, vase_truth
+from tests._vase import SIGMA, noisy_cloud, vase_truth
 
 
 @pytest.fixture(scope="module")
 def vase(tmp_path_factory):
     v, f = vase_truth()
-    rng = np.random.default_rng(11)
-    points = M.sample_mesh(v, f, count=6000, seed=11) + rng.normal(0.0, SIGMA, (6000, 3))
+    points = noisy_cloud(v, f, 6000, seed=11)
     path = tmp_path_factory.mktemp("cloud") / "vase.npz"
     np.savez(path, points=points)
     return v, f, points, path

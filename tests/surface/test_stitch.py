@@ -9,12 +9,9 @@ from scipy.spatial import Delaunay
 
 from surface import metrics as M
 from surface.stitch import cap_triangles, delaunay_flips, stitch_rings, zip_rings
+from tests._vase import SIGMA, noisy_cloud, radius, vase_truth
 
 Z_AXIS = np.array([0.0, 0.0, 1.0])
-
-
-def radius(z):
-    return 1.0 + 0.3 * np.sin(2.0 * z)
 
 
 def vase_rings(sections, n, double=True, a=1.0, b=1.0, twist=0.0, centre=(0.0, 0.0)):
@@ -264,36 +261,10 @@ def _contours(result):
 
 
 # ----------------------------------------------------------------------------- from points
-def vase_truth(n_theta=256, n_z=192):
-    """Closed vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], flat caps (fans to the centres)."""
-    z = np.linspace(0.0, 3.0, n_z)
-    theta = 2 * np.pi * np.arange(n_theta) / n_theta
-    r = radius(z)
-    v = np.stack([np.outer(r, np.cos(theta)), np.outer(r, np.sin(theta)),
-                  np.repeat(z[:, None], n_theta, 1)], axis=-1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_z - 1), np.arange(n_theta), indexing="ij")
-    a = (i * n_theta + j).ravel()
-    b = (i * n_theta + (j + 1) % n_theta).ravel()
-    faces = [np.stack([a, b, b + n_theta], 1), np.stack([a, b + n_theta, a + n_theta], 1)]
-    bottom, top = len(v), len(v) + 1
-    v = np.vstack([v, [[0, 0, 0], [0, 0, 3.0]]])
-    ring = np.arange(n_theta)
-    nxt = (ring + 1) % n_theta
-    last = (n_z - 1) * n_theta
-    faces += [np.stack([np.full(n_theta, bottom), nxt, ring], 1),
-              np.stack([np.full(n_theta, top), last + ring, last + nxt], 1)]
-    return v, np.vstack(faces)
-
-
-SIGMA = 0.002
-
-
 @pytest.fixture(scope="module")
 def vase_cloud():
     v, f = vase_truth()
-    rng = np.random.default_rng(11)
-    points = M.sample_mesh(v, f, count=6000, seed=11) + rng.normal(0.0, SIGMA, (6000, 3))
-    return v, f, points
+    return v, f, noisy_cloud(v, f, 6000, seed=11)
 
 
 def test_surface_from_points_vase(vase_cloud):
@@ -368,8 +339,7 @@ def test_surface_from_points_noisy_ends():
 
     v, f = vase_truth()
     sigma = 0.012
-    rng = np.random.default_rng(2)
-    points = M.sample_mesh(v, f, count=10_000, seed=2) + rng.normal(0.0, sigma, (10_000, 3))
+    points = noisy_cloud(v, f, 10_000, seed=2, sigma=sigma)
     result = surface_from_points(points)
     assert_closed_oriented(result)
     scores = M.compare_meshes(result.vertices, result.triangles, v, f, tau=0.005, count=20000)
