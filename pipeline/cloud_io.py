@@ -29,6 +29,7 @@ import numpy as np
 
 from pipeline.atomic import atomic_file
 from pipeline.errors import InputError
+from pipeline.workspace import write_npz_to
 
 SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npz")
 
@@ -271,7 +272,7 @@ def write_cloud(path: str | os.PathLike, points, colours=None, sigma=None) -> Pa
         if sigma is not None:
             arrays["sigma"] = sigma
         with atomic_file(path) as tmp:
-            np.savez(tmp, **arrays)
+            write_npz_to(tmp, **arrays)  # byte-reproducible (np.savez stamps the time)
         return path
     if suffix in (".xyz", ".txt", ".csv"):
         cols = [points] + ([colours.astype(np.float64)] if colours is not None else []) + \

@@ -17,6 +17,7 @@ import numpy as np
 
 from pipeline.atomic import atomic_dir
 from pipeline.errors import InputError
+from pipeline.workspace import write_npz_to
 
 HELP = "least-squares matching of a stereo pair (calibrated or rectified) -> matches.npz"
 
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     matches = match_pair(left, right, rig, rectified=args.rectified, **options)
     check_some_matched(matches, args.left)
     with atomic_dir(args.out) as tmp:
-        np.savez(tmp / "matches.npz", **matches.as_dict())
+        write_npz_to(tmp / "matches.npz", **matches.as_dict())  # byte-reproducible
         if args.rectified:
             np.save(tmp / "disparity.npy", matches.disparity_map())
     if not getattr(args, "quiet", False):

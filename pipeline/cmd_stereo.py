@@ -27,6 +27,7 @@ from pipeline.cmd_match import (
     summary,
 )
 from pipeline.errors import InputError
+from pipeline.workspace import write_npz_to
 
 HELP = "calibrated stereo pair -> point cloud (PLY with per-point sigma, plus .npz)"
 
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     per_point["status_names"] = np.array([PAIR_STATUS_NAMES[k] for k in sorted(PAIR_STATUS_NAMES)])
     # the .ply (inner) is renamed first: if that fails the .npz is never renamed
     with atomic_file(out.with_suffix(".npz")) as tmp_npz, atomic_file(out) as tmp_ply:
-        np.savez(tmp_npz, **per_point)
+        write_npz_to(tmp_npz, **per_point)  # byte-reproducible (np.savez stamps the time)
         write_ply(tmp_ply, rec.points, rec.colours, rec.sigma)
     if not getattr(args, "quiet", False):
         print(f"{summary(rec.matches)}; {len(rec)} points triangulated (median sigma "
