@@ -46,8 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "sigma/sqrt(S); <= 1 interpolates (default 8)")
     parser.add_argument("--open-ends", action="store_true",
                         help="do not cap the first and last sections")
-    # Reserved: the Bezier smoothing step adds ``--smooth`` here (and its use in run()
-    # after the stitched mesh is built, see _smooth_hook).
 
 
 def parse_axis(text: str):
@@ -101,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
                                      smoothing=args.smoothing, close_ends=not args.open_ends)
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
-    vertices, triangles = _smooth_hook(args, result.vertices, result.triangles)
+    vertices, triangles = result.vertices, result.triangles
     write_mesh(out, vertices, triangles)
     seconds = time.perf_counter() - start
     if not args.quiet:
@@ -113,9 +111,3 @@ def run(args: argparse.Namespace) -> int:
             for message in result.messages:
                 print(f"  note: {message}")
     return 0
-
-
-def _smooth_hook(args: argparse.Namespace, vertices: np.ndarray,
-                 triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Place for the Bezier step's ``--smooth``: return the mesh to write (unchanged here)."""
-    return vertices, triangles
