@@ -13,7 +13,6 @@ import pytest
 
 from pipeline.mesh_io import write_mesh
 from pipeline.report import build_report, sections_plot
-from pipeline.stages import _sections as sections_stage  # noqa: F401  (the adapter under test)
 from pipeline.workspace import save_npz
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
