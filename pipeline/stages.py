@@ -744,14 +744,16 @@ def _load_sections(ctx: StageContext) -> tuple[list, object, float]:
 
     from surface.sections import Section
 
-    with np.load(ctx.stage_path("sections", "sections.npz")) as d:
-        off = d["offsets"]
-        sections = [Section(height=float(d["heights"][k]), points=d["points"][off[k]:off[k + 1]],
-                            origin=d["origin"][k], frame=d["frame"],
-                            section_id=int(d["section_id"][k]),
-                            source_index=d["source_index"][off[k]:off[k + 1]])
-                    for k in range(len(off) - 1)]
-        return sections, d["cap_cloud"], float(d["spacing"])
+    # read each member once: NpzFile[key] decodes the whole array on every access
+    with np.load(ctx.stage_path("sections", "sections.npz")) as npz:
+        d = {key: npz[key] for key in npz.files}
+    off = d["offsets"]
+    sections = [Section(height=float(d["heights"][k]), points=d["points"][off[k]:off[k + 1]],
+                        origin=d["origin"][k], frame=d["frame"].copy(),
+                        section_id=int(d["section_id"][k]),
+                        source_index=d["source_index"][off[k]:off[k + 1]])
+                for k in range(len(off) - 1)]
+    return sections, d["cap_cloud"], float(d["spacing"])
 
 
 def _curves(ctx: StageContext) -> dict:
@@ -797,17 +799,19 @@ def _load_rings(ctx: StageContext) -> tuple[list, list]:
 
     from surface.sections import Section
 
-    with np.load(ctx.stage_path("curves", "curves.npz")) as d:
-        off, sec, frame = d["offsets"], d["section"], d["frame"]
-        rings: list[list] = []
-        planes = []
-        for k in range(len(off) - 1):
-            if k == 0 or sec[k] != sec[k - 1]:
-                rings.append([])
-                planes.append(Section(height=float(d["heights"][k]), points=np.zeros((0, 3)),
-                                      origin=np.zeros(3), frame=frame, section_id=len(planes)))
-            rings[-1].append(d["points"][off[k]:off[k + 1]])
-        return rings, planes
+    # read each member once: NpzFile[key] decodes the whole array on every access
+    with np.load(ctx.stage_path("curves", "curves.npz")) as npz:
+        d = {key: npz[key] for key in npz.files}
+    off, sec, frame = d["offsets"], d["section"], d["frame"]
+    rings: list[list] = []
+    planes = []
+    for k in range(len(off) - 1):
+        if k == 0 or sec[k] != sec[k - 1]:
+            rings.append([])
+            planes.append(Section(height=float(d["heights"][k]), points=np.zeros((0, 3)),
+                                  origin=np.zeros(3), frame=frame, section_id=len(planes)))
+        rings[-1].append(d["points"][off[k]:off[k + 1]])
+    return rings, planes
 
 
 def _stitch(ctx: StageContext) -> dict:
