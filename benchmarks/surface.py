@@ -84,41 +84,12 @@ from surface import bezier, metrics  # noqa: E402
 from surface.fitting import interpolating_control_mesh  # noqa: E402
 from surface.sections import point_spacing  # noqa: E402
 from surface.stitch import surface_from_points  # noqa: E402
+from tests._vase import noisy_cloud, vase_truth  # noqa: E402  (the tests' vase, finer here)
 
 SIGMA = 0.002
 TAU = 0.005
 SAMPLES = 100_000
 SEED = 0
-
-
-# ----------------------------------------------------------------------------- truth and cloud
-def vase_truth(n_theta: int = 1024, n_z: int = 768) -> tuple[np.ndarray, np.ndarray]:
-    """Closed vase mesh: side grid plus fan caps, outward, ``(V, 3)``, ``(F, 3)``."""
-    z = np.linspace(0.0, 3.0, n_z)
-    theta = 2 * np.pi * np.arange(n_theta) / n_theta
-    r = 1.0 + 0.3 * np.sin(2.0 * z)
-    v = np.stack([np.outer(r, np.cos(theta)), np.outer(r, np.sin(theta)),
-                  np.repeat(z[:, None], n_theta, 1)], axis=-1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_z - 1), np.arange(n_theta), indexing="ij")
-    a = (i * n_theta + j).ravel()
-    b = (i * n_theta + (j + 1) % n_theta).ravel()
-    faces = [np.stack([a, b, b + n_theta], 1), np.stack([a, b + n_theta, a + n_theta], 1)]
-    bottom, top = len(v), len(v) + 1
-    v = np.vstack([v, [[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]])
-    ring = np.arange(n_theta)
-    nxt = (ring + 1) % n_theta
-    last = (n_z - 1) * n_theta
-    faces += [np.stack([np.full(n_theta, bottom), nxt, ring], 1),
-              np.stack([np.full(n_theta, top), last + ring, last + nxt], 1)]
-    return v, np.vstack(faces).astype(np.int64)
-
-
-def vase_cloud(truth: tuple[np.ndarray, np.ndarray], count: int, sigma: float = SIGMA,
-               seed: int = SEED) -> np.ndarray:
-    """``count`` area-uniform samples of the truth plus N(0, sigma^2) per coordinate."""
-    rng = np.random.default_rng(seed)
-    points = metrics.sample_mesh(*truth, count=count, seed=seed)
-    return points + rng.normal(0.0, sigma, points.shape)
 
 
 # ----------------------------------------------------------------------------- methods
@@ -249,7 +220,7 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
     """Seconds (and Chamfer) of each method at each cloud size."""
     rows = []
     for size in sizes:
-        points = vase_cloud(truth, size, seed=SEED + 1)
+        points = noisy_cloud(*truth, size, seed=SEED + 1, sigma=SIGMA)
         for name, method in methods:
             row = evaluate(name, method, points, truth, samples=min(SAMPLES, 4 * size))
             rows.append({"points": size, "method": name, "seconds": row["seconds"],
@@ -347,8 +318,8 @@ def main(argv: list[str] | None = None) -> int:
     import open3d as o3d
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
-    truth = vase_truth()
-    points = vase_cloud(truth, args.points)
+    truth = vase_truth(n_theta=1024, n_z=768)  # chord sagitta ~6e-6, far below the noise
+    points = noisy_cloud(*truth, args.points, seed=SEED, sigma=SIGMA)
     print(f"vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], flat caps: {args.points} points, "
           f"sigma = {SIGMA}, tau = {TAU}, {SAMPLES} samples per mesh")
     rows = []

@@ -1,8 +1,8 @@
 """Shared test support: the analytic vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], and its noisy cloud.
 
 Used by the stitch, sections-command and run-stage tests (one generator, so they test
-the same surface).  ``benchmarks/surface.py`` keeps its own finer copy because
-``tests`` is not importable from a benchmark script run by path.
+the same surface) and by ``benchmarks/surface.py`` (at 1024 x 768; it puts the
+repository root on ``sys.path``).
 """
 
 import numpy as np
@@ -40,7 +40,7 @@ def vase_truth(n_theta=256, n_z=192):
     last = (n_z - 1) * n_theta
     faces += [np.stack([np.full(n_theta, bottom), nxt, ring], 1),
               np.stack([np.full(n_theta, top), last + ring, last + nxt], 1)]
-    return v, np.vstack(faces)
+    return v, np.vstack(faces).astype(np.int64)
 
 
 def noisy_cloud(v, f, count, seed, sigma=SIGMA):
