@@ -232,8 +232,10 @@ class Camera:
         if len(X) == 0:
             empty = np.zeros((0, 2))
             return (empty, np.zeros((0, 2, 3))) if with_jacobian else empty
-        x, jac = cv2.projectPoints(X.reshape(-1, 1, 3), self.rvec, self.t, self.K,
-                                   self._dist_or_none())
+        # rotate here, not through cv2's rvec: cv2.Rodrigues(R) loses ~1e-8 rad for
+        # rotations near pi (1e-5 px at f = 800), R X + t is exact to rounding
+        x, jac = cv2.projectPoints(self.to_camera(X).reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
+                                   self.K, self._dist_or_none())
         x = x.reshape(-1, 2)
         if not with_jacobian:
             return x

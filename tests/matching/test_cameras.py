@@ -79,6 +79,17 @@ def test_projection_matches_P_without_distortion(cameras):
     np.testing.assert_allclose(cam.P @ np.append(cam.center, 1.0), 0.0, atol=1e-9)
 
 
+def test_projection_exact_for_rotations_near_pi():
+    # cv2.Rodrigues(R) -> rvec loses ~1e-8 rad for angles near pi (~1e-5 px here); the
+    # projection must not go through it: K (R X + t) to rounding (~1e-12 px)
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    R = cv2.Rodrigues(axis * (np.pi - 1e-7))[0]
+    cam = Camera(K0, np.zeros(0), R, np.array([0.1, -0.2, 0.3]), 640, 480, "pi.png")
+    X = points_in_front(cam, np.random.default_rng(5))
+    xh = (X @ R.T + cam.t) @ K0.T
+    np.testing.assert_allclose(cam.project(X), xh[:, :2] / xh[:, 2:], rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("index", [0, 1, 2])
 def test_undistort_inverts_projection(cameras, index):
     """Undistorted pixels are the pinhole projection K (x/z, y/z) to ~1e-9 px."""
