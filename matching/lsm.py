@@ -1057,9 +1057,11 @@ def second_order_terms(points, affine, valid=None, radius_px: float = 12.0,
     dxy = np.where(use[..., None], points[nb] - points[query][:, None, :], 0.0)  # (M, k, 2)
     w = use.astype(np.float64)
     design = np.concatenate([np.ones_like(dxy[..., :1]), dxy], axis=2)  # (M, k, 3)
-    normal = np.einsum("mk,mki,mkj->mij", w, design, design)  # (M, 3, 3)
+    # batched products (matmul) rather than three-operand einsums: ~10x faster
+    wdesign_t = np.swapaxes(w[..., None] * design, 1, 2)  # (M, 3, k)
+    normal = wdesign_t @ design  # (M, 3, 3)
     values = fields[nb]  # (M, k, 4)
-    rhs = np.einsum("mk,mki,mkf->mif", w, design, values)  # (M, 3, 4)
+    rhs = wdesign_t @ values  # (M, 3, 4)
     enough = use.sum(1) >= min_neighbours
     det = np.linalg.det(normal)
     enough &= det > TOL.zero * np.maximum(normal[:, 0, 0], 1.0) ** 3
@@ -1072,9 +1074,9 @@ def second_order_terms(points, affine, valid=None, radius_px: float = 12.0,
                             0.5 * b1x, 0.5 * (b1y + b2x), 0.5 * b2y])
     # standard errors from the plane fits' residuals; each term is shrunk by
     # max(0, 1 - (se/q)^2) so that a curvature the neighbours cannot resolve adds no noise
-    resid = values - np.einsum("mki,mif->mkf", design, coef)  # (M, k, 4)
+    resid = values - design @ coef  # (M, k, 4)
     dof = np.maximum(use.sum(1) - 3, 1)[:, None]
-    s2 = np.einsum("mk,mkf->mf", w, resid**2) / dof  # (M, 4)
+    s2 = (w[:, None, :] @ resid**2)[:, 0, :] / dof  # (M, 4)
     inv = np.zeros_like(normal)
     inv[enough] = np.linalg.inv(normal[enough])
     var_dx, var_dy = inv[:, 1, 1][:, None] * s2, inv[:, 2, 2][:, None] * s2  # (M, 4)

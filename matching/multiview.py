@@ -87,7 +87,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -463,7 +462,10 @@ def zbuffer(camera: Camera, points: np.ndarray, window: int) -> np.ndarray:
     x = np.rint(camera.project(points[front])).astype(np.int64)
     inside = (x[:, 0] >= 0) & (x[:, 0] < w) & (x[:, 1] >= 0) & (x[:, 1] < h)
     np.minimum.at(buf, x[inside, 1] * w + x[inside, 0], depth[front][inside])
-    return ndimage.minimum_filter(buf.reshape(h, w), size=int(window), mode="nearest")
+    # a square minimum filter is a grey erosion (OpenCV's is ~4x faster than ndimage's;
+    # BORDER_REPLICATE is ndimage's mode="nearest", the result is identical)
+    return cv2.erode(buf.reshape(h, w), np.ones((int(window), int(window)), np.uint8),
+                     borderType=cv2.BORDER_REPLICATE)
 
 
 def _plane_affine(cam_t: Camera, cam_k: Camera, x_t: np.ndarray, X: np.ndarray,

@@ -280,6 +280,10 @@ def _to_uint8(img) -> np.ndarray:
     return np.clip(np.asarray(img, dtype=np.float64) + 0.5, 0, 255).astype(np.uint8)
 
 
+#: Rectified images wider than this find their SIFT disparity range at half resolution.
+_SIFT_FULL_RES_PX = 640
+
+
 def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, int]:
     """Disparity search range (min, count) of a rectified pair from SIFT matches.
 
@@ -295,7 +299,8 @@ def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, i
     (min_disparity, num_disparities) : (int, int)
         ``num_disparities`` a multiple of 16 (SGBM's requirement); the range covers the
         2nd-98th percentile of the disparities of mutual SIFT matches (Lowe's ratio test
-        0.75 both ways, rows within 2 px) widened by 25 % and 8 px, clipped to the width.
+        0.75 both ways, rows within 2 px) widened by 25 % and 8 px, clipped to the width;
+        features are detected at half resolution in images wider than 640 px.
 
     Raises
     ------
@@ -303,8 +308,16 @@ def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, i
         ``"no overlap ..."`` when too few matches are found.
     """
     sift = cv2.SIFT_create(nfeatures=4000)
-    kl, dl = sift.detectAndCompute(_to_uint8(left_rect), None)
-    kr, dr = sift.detectAndCompute(_to_uint8(right_rect), None)
+    # the range is padded by 8 px + 25 %: features found at 1/scale of the resolution
+    # (scale 2 above _SIFT_FULL_RES_PX columns, SIFT's cost falls ~4x) locate it to
+    # ~scale/2 px, well inside the pad
+    scale = 2 if np.shape(left_rect)[1] > _SIFT_FULL_RES_PX else 1
+    small = [_to_uint8(img) for img in (left_rect, right_rect)]
+    if scale > 1:
+        small = [cv2.resize(img, None, fx=1.0 / scale, fy=1.0 / scale,
+                            interpolation=cv2.INTER_AREA) for img in small]
+    kl, dl = sift.detectAndCompute(small[0], None)
+    kr, dr = sift.detectAndCompute(small[1], None)
     disp = np.zeros(0)
     if dl is not None and dr is not None and len(kl) >= 2 and len(kr) >= 2:
         matcher = cv2.BFMatcher(cv2.NORM_L2)
@@ -312,8 +325,9 @@ def disparity_range(left_rect, right_rect, min_matches: int = 8) -> tuple[int, i
         bwd = _ratio_matches(matcher.knnMatch(dr, dl, k=2))
         mutual = [(q, t) for q, t in fwd.items() if bwd.get(t) == q]
         if mutual:
-            pl = np.array([kl[q].pt for q, _ in mutual])
-            pr = np.array([kr[t].pt for _, t in mutual])
+            # INTER_AREA pixel centres: x_full = scale (x_small + 1/2) - 1/2
+            pl = scale * (np.array([kl[q].pt for q, _ in mutual]) + 0.5) - 0.5
+            pr = scale * (np.array([kr[t].pt for _, t in mutual]) + 0.5) - 0.5
             rows = np.abs(pl[:, 1] - pr[:, 1]) < 2.0
             disp = (pl[:, 0] - pr[:, 0])[rows]
     if len(disp) < min_matches:
