@@ -93,7 +93,7 @@ from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from matching.cameras import Camera, StereoRig
-from matching.lsm import DEFAULT_INTERPOLATION, lsm_match, prepare_image
+from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, lsm_match, prepare_image
 
 try:  # the LSM engineer's neighbour-based second-order terms (newer than lsm_match's option)
     from matching.lsm import second_order_terms
@@ -154,6 +154,9 @@ class PairCloud:
         Candidates per :data:`matching.pair.PAIR_STATUS_NAMES` name.
     seconds : float
         Wall time of the pair.
+    prepared_template : matching.lsm.PreparedImage, optional
+        ``template`` already prepared for LSM (the consistency step reuses it when its
+        interpolation matches instead of refiltering).
     """
 
     pair: tuple[int, int]
@@ -167,6 +170,7 @@ class PairCloud:
     template: np.ndarray
     status_counts: dict = field(default_factory=dict)
     seconds: float = 0.0
+    prepared_template: PreparedImage | None = None
 
     def __len__(self) -> int:
         return len(self.points)
@@ -358,11 +362,14 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     valid = cv2.remap(np.ones(left.size[::-1], np.float32), *rect.maps_left,
                       cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
     options = {k: v for k, v in match_options.items() if k != "epipolar"}
-    matches = match_pair(grey_l, grey_r, rectified=True, mask=valid, **options)
+    # both rectified images are prepared (spline prefilter, noise) once for all LSM passes
+    interpolation = options.get("interpolation", DEFAULT_INTERPOLATION)
+    prep_l, prep_r = prepare_image(grey_l, interpolation), prepare_image(grey_r, interpolation)
+    matches = match_pair(prep_l, prep_r, rectified=True, mask=valid, **options)
     near_edge = _near_textureless(matches, int(options.get("patch", 15)), valid.shape)
     ok = np.flatnonzero(matches.accepted & ~near_edge)
     x_right, cov_lsm = matches.x_right[ok], matches.cov[ok]
-    refined = _second_order_pass(grey_l, grey_r, matches.x_left, matches.affine,
+    refined = _second_order_pass(prep_l, prep_r, matches.x_left, matches.affine,
                                  matches.radiometric, matches.accepted & ~near_edge,
                                  x_right, (1.0, 0.0),
                                  options)
@@ -377,7 +384,7 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
                      cov=tri.cov[keep], sigma=tri.sigma[keep],
                      x_template=matches.x_left[ok][keep], x_right=x_right[keep],
                      cov_2d=cov2[keep], cameras=(cam_l, cam_r),
-                     template=np.asarray(grey_l, dtype=np.float64),
+                     template=prep_l.raw, prepared_template=prep_l,
                      status_counts={**matches.status_counts(),
                                     "silhouette": int(np.count_nonzero(matches.accepted
                                                                        & near_edge))},
@@ -590,7 +597,9 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     tried = np.zeros(m, np.int64)
     matched = np.zeros(m, bool)
     confirmed = np.zeros(m, np.int64)
-    template = prepare_image(cloud.template, interpolation)
+    template = cloud.prepared_template
+    if template is None or template.interpolation != interpolation:
+        template = prepare_image(cloud.template, interpolation)
     bound = chi2.ppf(reject_p, 2)
     for k in others:
         need = tried < check_views

@@ -38,6 +38,7 @@ import numpy as np
 from matching.lsm import (
     DEFAULT_INTERPOLATION,
     STATUS_NAMES,
+    PreparedImage,
     Status,
     lsm_match,
     prepare_image,
@@ -151,8 +152,9 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
 
     Parameters
     ----------
-    left_img, right_img : (H, W) or (H, W, 3) array_like
-        The images (colour is converted to grey, OpenCV's BGR order).
+    left_img, right_img : (H, W) or (H, W, 3) array_like, or matching.lsm.PreparedImage
+        The images (colour is converted to grey, OpenCV's BGR order); a
+        :class:`~matching.lsm.PreparedImage` for ``interpolation`` is not refiltered.
     rig : matching.cameras.StereoRig, optional
         Calibration; required unless ``rectified``.
     rectified : bool
@@ -198,8 +200,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
     corr = lsm_options.get("min_correlation", 0.7)
     if not (np.isfinite(corr) and -1.0 <= corr <= 1.0):
         raise ValueError(f"min_correlation must be in [-1, 1], got {corr!r}")
-    left = _grey(left_img, "left image")
-    right = _grey(right_img, "right image")
+    # PreparedImage inputs (same interpolation) are used as they are, not refiltered
+    preps = [img if isinstance(img, PreparedImage) and img.interpolation == interpolation
+             else None for img in (left_img, right_img)]
+    left = _grey(left_img.raw if isinstance(left_img, PreparedImage) else left_img,
+                 "left image")
+    right = _grey(right_img.raw if isinstance(right_img, PreparedImage) else right_img,
+                  "right image")
     if rig is None and not rectified:
         raise ValueError("give a rig (calibrated pair) or rectified=True")
     if rectified and left.shape != right.shape:
@@ -235,8 +242,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
         out["approx"][textured] = approx.x_right
         idx = textured[has]
         if len(idx):
-            fprep = prepare_image(left, interpolation)
-            gprep = prepare_image(right, interpolation)
+            fprep = preps[0] if preps[0] is not None else prepare_image(left, interpolation)
+            gprep = preps[1] if preps[1] is not None else prepare_image(right, interpolation)
             points, start = cand.points[idx], approx.x_right[has]
             direction = approx.direction[has] if epipolar else None
             options = dict(patch=patch, interpolation=interpolation, direction=direction,
