@@ -740,6 +740,79 @@ def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constr
         conv[i] = cv
 
 
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def _second_order_kernel(points, fields, centres, nb, use, min_neighbours, det_tol, out):
+    """Per centre: plane fits of the 4 affine fields over its neighbours -> shrunk terms.
+
+    Normal equations of ``field = c0 + c1 dx + c2 dy`` (3x3, inverted by the adjugate),
+    residual variances, standard errors of the slopes and the shrinkage of
+    :func:`second_order_terms`; rows with too few neighbours or a singular fit stay 0.
+    """
+    m, k = nb.shape
+    for r in numba.prange(m):
+        a = np.zeros((3, 3))
+        b = np.zeros((3, 4))
+        cnt = 0
+        for t in range(k):
+            if not use[r, t]:
+                continue
+            j = nb[r, t]
+            d0, d1, d2 = 1.0, points[j, 0] - centres[r, 0], points[j, 1] - centres[r, 1]
+            a[0, 0] += d0 * d0
+            a[0, 1] += d0 * d1
+            a[0, 2] += d0 * d2
+            a[1, 1] += d1 * d1
+            a[1, 2] += d1 * d2
+            a[2, 2] += d2 * d2
+            for f in range(4):
+                v = fields[j, f]
+                b[0, f] += d0 * v
+                b[1, f] += d1 * v
+                b[2, f] += d2 * v
+            cnt += 1
+        a[1, 0], a[2, 0], a[2, 1] = a[0, 1], a[0, 2], a[1, 2]
+        c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+        c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+        c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+        det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+        if cnt < min_neighbours or not det > det_tol * max(a[0, 0], 1.0) ** 3:
+            continue
+        inv = np.empty((3, 3))
+        inv[0, 0] = c00 / det
+        inv[1, 0] = c01 / det
+        inv[2, 0] = c02 / det
+        inv[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
+        inv[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) / det
+        inv[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) / det
+        inv[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
+        inv[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
+        inv[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
+        coef = inv @ b  # (3, 4)
+        s2 = np.zeros(4)
+        for t in range(k):
+            if not use[r, t]:
+                continue
+            j = nb[r, t]
+            d1, d2 = points[j, 0] - centres[r, 0], points[j, 1] - centres[r, 1]
+            for f in range(4):
+                e = fields[j, f] - (coef[0, f] + d1 * coef[1, f] + d2 * coef[2, f])
+                s2[f] += e * e
+        dof = max(cnt - 3, 1)
+        vx = inv[1, 1] * s2 / dof  # variances of d(field)/dx, d(field)/dy
+        vy = inv[2, 2] * s2 / dof
+        q = (0.5 * coef[1, 0], 0.5 * (coef[2, 0] + coef[1, 1]), 0.5 * coef[2, 1],
+             0.5 * coef[1, 2], 0.5 * (coef[2, 2] + coef[1, 3]), 0.5 * coef[2, 3])
+        se = (0.5 * np.sqrt(vx[0]), 0.5 * np.sqrt(vy[0] + vx[1]), 0.5 * np.sqrt(vy[1]),
+              0.5 * np.sqrt(vx[2]), 0.5 * np.sqrt(vy[2] + vx[3]), 0.5 * np.sqrt(vy[3]))
+        for c in range(6):
+            if q[c] == 0.0:
+                continue
+            ratio = se[c] / q[c]
+            shrink = min(max(1.0 - ratio * ratio, 0.0), 1.0)
+            if np.isfinite(shrink):
+                out[r, c] = q[c] * shrink
+
+
 # --------------------------------------------------------------------------------------
 # public API
 # --------------------------------------------------------------------------------------
@@ -1054,39 +1127,10 @@ def second_order_terms(points, affine, valid=None, radius_px: float = 12.0,
     dist, nb = tree.query(points[query], k=k, distance_upper_bound=radius_px)
     use = np.isfinite(dist)  # (M, k)
     nb = idx_ok[np.where(use, nb, 0)]
-    dxy = np.where(use[..., None], points[nb] - points[query][:, None, :], 0.0)  # (M, k, 2)
-    w = use.astype(np.float64)
-    design = np.concatenate([np.ones_like(dxy[..., :1]), dxy], axis=2)  # (M, k, 3)
-    # batched products (matmul) rather than three-operand einsums: ~10x faster
-    wdesign_t = np.swapaxes(w[..., None] * design, 1, 2)  # (M, 3, k)
-    normal = wdesign_t @ design  # (M, 3, 3)
-    values = fields[nb]  # (M, k, 4)
-    rhs = wdesign_t @ values  # (M, 3, 4)
-    enough = use.sum(1) >= min_neighbours
-    det = np.linalg.det(normal)
-    enough &= det > TOL.zero * np.maximum(normal[:, 0, 0], 1.0) ** 3
-    coef = np.zeros_like(rhs)
-    coef[enough] = np.linalg.solve(normal[enough], rhs[enough])
-    grad = coef[:, 1:, :]  # (M, 2, 4): d(field)/dx, d(field)/dy
-    a1x, a1y, a2x, a2y = grad[:, 0, 0], grad[:, 1, 0], grad[:, 0, 1], grad[:, 1, 1]
-    b1x, b1y, b2x, b2y = grad[:, 0, 2], grad[:, 1, 2], grad[:, 0, 3], grad[:, 1, 3]
-    quad = np.column_stack([0.5 * a1x, 0.5 * (a1y + a2x), 0.5 * a2y,
-                            0.5 * b1x, 0.5 * (b1y + b2x), 0.5 * b2y])
-    # standard errors from the plane fits' residuals; each term is shrunk by
-    # max(0, 1 - (se/q)^2) so that a curvature the neighbours cannot resolve adds no noise
-    resid = values - design @ coef  # (M, k, 4)
-    dof = np.maximum(use.sum(1) - 3, 1)[:, None]
-    s2 = (w[:, None, :] @ resid**2)[:, 0, :] / dof  # (M, 4)
-    inv = np.zeros_like(normal)
-    inv[enough] = np.linalg.inv(normal[enough])
-    var_dx, var_dy = inv[:, 1, 1][:, None] * s2, inv[:, 2, 2][:, None] * s2  # (M, 4)
-    se = np.column_stack([
-        0.5 * np.sqrt(var_dx[:, 0]), 0.5 * np.sqrt(var_dy[:, 0] + var_dx[:, 1]),
-        0.5 * np.sqrt(var_dy[:, 1]), 0.5 * np.sqrt(var_dx[:, 2]),
-        0.5 * np.sqrt(var_dy[:, 2] + var_dx[:, 3]), 0.5 * np.sqrt(var_dy[:, 3])])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        shrink = np.clip(1.0 - (se / quad) ** 2, 0.0, 1.0)
-    quad = np.where(np.isfinite(shrink), quad * shrink, 0.0)
-    quad[~enough] = 0.0
+    quad = np.zeros((len(nb), 6))
+    # one numba pass per centre (the stacked numpy products were ~0.2 s per 12k points)
+    _second_order_kernel(points, np.ascontiguousarray(fields), points[query],
+                         np.ascontiguousarray(nb, dtype=np.int64), use, int(min_neighbours),
+                         TOL.zero, quad)
     out[query] = quad
     return out
