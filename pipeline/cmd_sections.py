@@ -10,7 +10,11 @@ reads, writes and reports).
 
 Inputs: the point-cloud files of :mod:`pipeline.cloud_io` -- ``.ply``,
 ``.xyz`` / ``.txt`` / ``.csv`` (columns x y z [extra]), ``.npz`` (``points``).
-Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.
+Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.  With
+``--smooth`` the stitched mesh becomes the control mesh of the G1 sextic Bézier
+surface (:func:`pipeline.cmd_smooth.smooth_to_files`): ``--out`` then receives the
+tessellated smooth surface and ``OUT.npz`` its control net, so cloud -> smooth
+surface is one command.
 """
 
 from __future__ import annotations
@@ -46,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "sigma/sqrt(S); <= 1 interpolates (default 8)")
     parser.add_argument("--open-ends", action="store_true",
                         help="do not cap the first and last sections")
+    parser.add_argument("--smooth", action="store_true",
+                        help="write the G1 sextic Bezier surface over the stitched mesh instead "
+                             "(control net beside it as OUT.npz; needs a closed mesh)")
+    parser.add_argument("--level", type=int, default=None, metavar="L",
+                        help="with --smooth: tessellation level, 4^L triangles per patch "
+                             "(default: the pipeline's smooth.level)")
 
 
 def parse_axis(text: str):
@@ -77,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
     from surface.stitch import surface_from_points
 
     out = Path(args.out)
+    if args.level is not None and not args.smooth:
+        raise InputError("--level needs --smooth")
+    if args.smooth:
+        from pipeline.export import EXPORT_SUFFIXES as MESH_SUFFIXES  # noqa: N811
     if out.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
                          f"(choose one of {', '.join(MESH_SUFFIXES)})")
@@ -100,13 +114,29 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
     vertices, triangles = result.vertices, result.triangles
-    write_mesh(out, vertices, triangles)
+    smooth = None
+    if args.smooth:
+        if not result.closed:
+            raise InputError(f"{args.cloud}: the stitched mesh is open "
+                             f"({'; '.join(result.messages) or 'open ends'}): --smooth needs a "
+                             "closed mesh (drop --open-ends, or smooth the mesh with "
+                             "'photosurf smooth')")
+        from pipeline.cmd_smooth import smooth_to_files
+
+        smooth = smooth_to_files(vertices, triangles, out, level=args.level,
+                                 source=str(args.cloud))
+    else:
+        write_mesh(out, vertices, triangles)
     seconds = time.perf_counter() - start
     if not args.quiet:
         rings = len(np.unique(result.section_of_vertex))
         state = "closed" if result.closed else "open"
         print(f"photosurf sections: {len(points)} points -> {rings} sections, "
               f"{len(triangles)} triangles, {state}, {seconds:.2f} s -> {out}")
+        if smooth is not None:
+            print(f"  smooth: {smooth['patches']} patches, {smooth['triangles']} triangles at "
+                  f"level {smooth['level']}, G1 max angle {smooth['g1_angle']:.1e} rad, "
+                  f"control net {smooth['control_net']}")
         if args.verbose:
             for message in result.messages:
                 print(f"  note: {message}")

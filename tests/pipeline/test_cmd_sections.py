@@ -103,3 +103,39 @@ def test_bad_input_one_line_exit_2(vase, tmp_path, capsys):
     # Nothing half-written is left behind.
     assert not out.exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".mesh")]
+
+
+def test_smooth_gives_a_watertight_g1_surface_near_the_truth(vase, tmp_path, capsys):
+    """``--smooth``: cloud -> Bezier surface in one command, control net beside it."""
+    v, f, points = vase
+    path = tmp_path / "vase.npz"
+    np.savez(path, points=points)
+    out = tmp_path / "smooth.ply"
+    assert main(["sections", str(path), "--out", str(out), "--smooth", "--level", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "smooth:" in text and "level 1" in text
+    net = np.load(out.with_suffix(".npz"))
+    assert net["control_points"].shape[1:] == (28, 3)
+    vertices, triangles = read_mesh(out)
+    topo = M.mesh_topology(vertices, triangles)
+    assert topo["closed"] and topo["oriented"] and topo["components"] == 1
+    # 4 patches per stitched triangle (one Loop refinement), 4^1 triangles per patch.
+    assert len(triangles) == 4 * len(net["control_points"])
+    scores = M.compare_meshes(vertices, triangles, v, f, tau=0.005, count=20000)
+    # The G1 surface rounds the vase's two 90-degree rims over about one control edge, and
+    # at 8 000 points the control mesh is coarse: measured 0.0021 (1.05 sigma; the stitched
+    # mesh is < 0.8 sigma, benchmarks/surface.py gives 0.00056 at 50 000 points). 1.5 sigma
+    # still catches a broken construction: one misplaced patch costs far more than sigma.
+    assert scores["chamfer"] < 1.5 * SIGMA
+    assert scores["fscore"] > 0.9
+
+
+def test_smooth_refuses_an_open_mesh_and_level_without_smooth(vase, tmp_path, capsys):
+    _, _, points = vase
+    path = tmp_path / "vase.npz"
+    np.savez(path, points=points)
+    out = tmp_path / "smooth.ply"
+    _fails(capsys, ["sections", str(path), "--out", str(out), "--smooth", "--open-ends"],
+           "vase.npz", "open")
+    assert not out.exists() and not out.with_suffix(".npz").exists()
+    _fails(capsys, ["sections", str(path), "--out", str(out), "--level", "2"], "--level")
