@@ -892,7 +892,27 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
     if len(kept) < 2:
         raise ValueError(f"points gave {len(kept)} section(s) with a closed loop; "
                          "stitching needs at least 2 (too few points or sections?)")
+    _refuse_open_arcs(loops)
     return kept, loops, messages
+
+
+def _refuse_open_arcs(loops: list) -> None:
+    """Raise when most sections are open arcs, not closed contours.
+
+    ``Loop.closed`` is False when the ordered points have a gap longer than
+    the link distance (surface/topology.py): the data covers only part of the
+    section.  A hole here and there is a data gap the curve may bridge, but
+    when most sections are arcs the points do not go round the object (one
+    stereo pair sees one side) and closing every arc into a loop would make a
+    surface that is silently wrong; the section method needs contours all round.
+    """
+    first = [section_loops[0] for section_loops in loops]
+    open_count = sum(not loop.closed for loop in first)
+    if 2 * open_count > len(first):
+        raise ValueError(
+            f"{open_count} of {len(first)} sections are open arcs, not closed contours: "
+            "the points do not go all round the object (a single stereo pair sees one "
+            "side); the section method needs views all round it")
 
 
 def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[str]]:

@@ -391,3 +391,16 @@ def test_surface_from_points_open_ends_reach_the_end_of_the_walls():
     plain = surface_from_points(points, projection="axis", extend_ends=False)
     worse = M.compare_meshes(plain.vertices, plain.triangles, v, f, tau=0.005, count=20000)
     assert scores["chamfer"] < 0.5 * worse["chamfer"]
+
+
+def test_one_sided_cloud_is_refused_not_closed_into_a_wrong_solid():
+    """Half the vase (what one stereo pair sees): every section is an open arc."""
+    from surface.stitch import surface_from_points
+
+    v, f = vase_truth()
+    points = noisy_cloud(v, f, 8000, seed=3)
+    half = points[points[:, 0] > 0.2]  # a 130-degree-or-so arc of every section
+    with pytest.raises(ValueError, match="open arcs"):
+        surface_from_points(half, axis="z")
+    # the whole cloud, from the same generator, is accepted and closed
+    assert surface_from_points(points, axis="z").closed
