@@ -86,6 +86,21 @@ _ARC_SAMPLES = 64
 _FAIRNESS = 1e-2
 
 
+def _check_curve_input(points, name: str, parametrisation: str) -> np.ndarray:
+    """``(n, 3)`` finite float64 points, n >= 4 (a closed cubic needs 4), and a known
+    parametrisation; ``ValueError`` naming ``name`` otherwise."""
+    pts = check_shape(points, "(N, 3)", name, dtype=np.float64)
+    check_finite(pts, name)
+    if len(pts) < 4:
+        raise ValueError(f"{name} needs at least 4 points to make a closed curve, got {len(pts)}")
+    if parametrisation not in _ALPHA:
+        raise ValueError(
+            f"parametrisation must be one of {sorted(_ALPHA)}, got {parametrisation!r}"
+        )
+    return pts
+
+
+
 @dataclass(frozen=True, eq=False)
 class ClosedCurve:
     """A closed Catmull-Rom curve in a section plane.
@@ -139,14 +154,7 @@ class ClosedCurve:
         ``frame`` defaults to a frame whose axis is the normal of the points'
         best-fit plane; ``centroid`` to the control points' mean.
         """
-        pts = check_shape(control_points, "(N, 3)", "control_points", dtype=np.float64)
-        check_finite(pts, "control_points")
-        if len(pts) < 4:
-            raise ValueError(f"control_points needs at least 4 points, got {len(pts)}")
-        if parametrisation not in _ALPHA:
-            raise ValueError(
-                f"parametrisation must be one of {sorted(_ALPHA)}, got {parametrisation!r}"
-            )
+        pts = _check_curve_input(control_points, "control_points", parametrisation)
         if frame is None:
             frame = _plane_frame(pts)
         frame = check_shape(frame, "(3, 3)", "frame", np.float64)
@@ -428,14 +436,7 @@ def fit(
         Control points oriented counter-clockwise seen from ``+frame[2]``;
         ``curve.smoothing`` is the level used.
     """
-    pts = check_shape(points, "(M, 3)", "points", dtype=np.float64)
-    check_finite(pts, "points")
-    if len(pts) < 4:
-        raise ValueError(f"points needs at least 4 points to fit a closed curve, got {len(pts)}")
-    if parametrisation not in _ALPHA:
-        raise ValueError(
-            f"parametrisation must be one of {sorted(_ALPHA)}, got {parametrisation!r}"
-        )
+    pts = _check_curve_input(points, "points", parametrisation)
     if isinstance(smoothing, str):
         if smoothing != "auto":
             raise ValueError(f"smoothing must be a number >= 0 or 'auto', got {smoothing!r}")
