@@ -42,6 +42,8 @@ from pipeline.workspace import (
     CONFIG,
     MANIFEST,
     Workspace,
+    code_hash,
+    function_imports,
     hash_tree,
     package_versions,
     sha256_file,
@@ -328,8 +330,12 @@ def plan(kind: str) -> list[Stage]:
     return list(stages)
 
 
-def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str]) -> dict[str, str]:
+def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str],
+                  modules: Sequence[str] = ()) -> dict[str, str]:
     hashes: dict[str, str] = dict(external) if stage.external else {}
+    # the code is an input too: an upgraded photosurf reruns the stages it changes
+    code = [m.partition(":")[0] for alt in modules for m in alt.split("|")]
+    hashes["code"] = code_hash(code + list(function_imports(stage.func)), shallow=[__name__])
     for upstream in stage.needs + stage.optional_needs:
         outputs = ws.outputs_of(upstream)
         if outputs:
@@ -471,7 +477,7 @@ def _run_one(stage: Stage, index: int, lo: int, hi: int, ws: Workspace, config: 
         return StageResult(stage.name, "not available", reason=reason)
     params = _stage_params(stage, config)
     params_sha = sha256_json(params)
-    inputs = _input_hashes(stage, ws, external)
+    inputs = _input_hashes(stage, ws, external, modules)
     if not force and ws.up_to_date(stage.name, inputs, params_sha):
         rec = ws.record(stage.name) or {}
         return StageResult(stage.name, "up to date", reason="", info=rec.get("info", {}))

@@ -25,9 +25,12 @@ Layout::
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import fcntl
+import functools
 import hashlib
+import importlib.util
 import io
 import json
 import os
@@ -35,7 +38,7 @@ import platform
 import re
 import shutil
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from importlib import metadata
 from pathlib import Path
 
@@ -76,6 +79,109 @@ def hash_tree(root: str | os.PathLike, relative_to: str | os.PathLike) -> dict[s
         return {root.relative_to(base).as_posix(): sha256_file(root)}
     return {p.relative_to(base).as_posix(): sha256_file(p)
             for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+#: Top-level packages whose source is hashed into the stages' inputs.
+OWN_PACKAGES = ("matching", "surface", "pipeline")
+
+
+@functools.cache
+def _module_file(name: str) -> Path | None:
+    """Source file of one of photosurf's own modules (None if not ours or missing)."""
+    if name.partition(".")[0] not in OWN_PACKAGES:
+        return None
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+        return None
+    return Path(spec.origin)
+
+
+@functools.cache
+def _own_imports(path: Path) -> tuple[str, ...]:
+    """photosurf modules imported anywhere in ``path`` (also inside functions)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            # ``from package import module`` names a module, not an attribute
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return tuple(sorted(n for n in names if _module_file(n) is not None))
+
+
+def function_imports(func) -> tuple[str, ...]:
+    """photosurf modules imported by a module-level function of ours, and by the
+    module-level functions of the same module it calls (at any depth) — the
+    lazy imports of a stage function and its helpers."""
+    path = _module_file(func.__module__)
+    if path is None:
+        return ()
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    defs = {node.name: node for node in tree.body
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))}
+    seen, todo, names = set(), [func.__name__], set()
+    while todo:
+        name = todo.pop()
+        if name in seen or name not in defs:
+            continue
+        seen.add(name)
+        for node in ast.walk(defs[name]):
+            if isinstance(node, ast.Name) and node.id in defs:
+                todo.append(node.id)
+            elif isinstance(node, ast.Import):
+                names.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names.add(node.module)
+                names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return tuple(sorted(n for n in names if _module_file(n) is not None))
+
+
+def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path]:
+    """Source files of ``modules`` and of every photosurf module they import.
+
+    The import closure is followed statically (``ast``), through imports at any
+    depth (also inside functions), limited to photosurf's own packages
+    (third-party code is covered by :func:`package_versions`); a package's
+    ``__init__`` counts for each of its modules.  ``shallow`` modules are taken
+    without following their imports (the stage runner, which imports every
+    stage's code lazily).
+    """
+    files: set[Path] = set()
+    todo = list(modules)
+    while todo:
+        name = todo.pop()
+        path = _module_file(name)
+        if path is None or path in files:
+            continue
+        files.add(path)
+        parent = name.rpartition(".")[0]
+        todo.extend([parent] if parent else [])
+        todo.extend(_own_imports(path))
+    files.update(p for p in map(_module_file, shallow) if p is not None)
+    return sorted(files)
+
+
+def code_hash(modules: Iterable[str], shallow: Iterable[str] = ()) -> str:
+    """SHA-256 over the sources :func:`code_files` names (path and content).
+
+    Part of every stage's inputs: a stage whose code changed (an upgraded
+    photosurf) is out of date, while an unrelated change — say to the report —
+    does not rerun acquisition.
+    """
+    root = Path(__file__).resolve().parents[1]
+    record = {}
+    for path in code_files(modules, shallow):
+        try:
+            key = path.resolve().relative_to(root).as_posix()
+        except ValueError:
+            key = path.name
+        record[key] = sha256_file(path)
+    return sha256_json(record)
 
 
 def package_versions() -> dict[str, str]:

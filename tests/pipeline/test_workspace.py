@@ -240,3 +240,37 @@ def test_stages_of_another_input_kind_are_forgotten(toy_input, tmp_path):
     _run(toy_input, out, stages=TOY[:2])  # e.g. a cloud after a scene: no "scene" stage
     manifest = json.loads((out / "manifest.json").read_text())
     assert set(manifest["stages"]) == {"first", "second"}
+
+
+def test_code_closure_follows_own_imports_only():
+    from pipeline.workspace import code_files
+
+    names = {p.relative_to(p.parents[1]).as_posix() for p in code_files(["surface.bezier"])}
+    assert {"surface/bezier.py", "surface/_loop_patches.py", "surface/__init__.py"} <= names
+    assert not any(n.startswith(("matching/", "pipeline/")) for n in names)
+    names = {p.relative_to(p.parents[1]).as_posix() for p in code_files(["matching.pair"])}
+    assert {"matching/lsm.py", "matching/seeds.py", "matching/triangulate.py"} <= names
+    assert not any(n.startswith("surface/") for n in names)
+
+
+def test_code_change_reruns_the_stage_that_uses_it(toy_input, tmp_path, monkeypatch):
+    """An upgraded photosurf: the source of a module a stage calls changes."""
+    from pipeline import workspace
+
+    source = tmp_path / "toy_code.py"
+    source.write_text("SCALE = 1\n")
+    real = workspace._module_file
+    monkeypatch.setattr(workspace, "_module_file",
+                        lambda name: source if name == "pipeline._toy_code" else real(name))
+    stages = [TOY[0],
+              Stage("second", _second, params=("toy2",), needs=("first",),
+                    modules=("pipeline._toy_code|pipeline.errors",)),
+              TOY[2]]
+    out = tmp_path / "ws"
+    _run(toy_input, out, stages=stages)
+    assert CALLS == ["first", "second", "third"]
+    _run(toy_input, out, stages=stages)
+    assert CALLS == []
+    source.write_text("SCALE = 2\n")
+    _run(toy_input, out, stages=stages)
+    assert CALLS == ["second"]  # same output bytes: third stays up to date
