@@ -102,9 +102,13 @@ def _module_file(name: str) -> Path | None:
 @functools.cache
 def _own_imports(path: Path) -> tuple[str, ...]:
     """photosurf modules imported anywhere in ``path`` (also inside functions)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    return _imported(ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))))
+
+
+def _imported(nodes) -> tuple[str, ...]:
+    """photosurf modules named by the import statements among ``nodes``."""
     names = set()
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -124,21 +128,16 @@ def function_imports(func) -> tuple[str, ...]:
     tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
     defs = {node.name: node for node in tree.body
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))}
-    seen, todo, names = set(), [func.__name__], set()
+    seen, todo, nodes = set(), [func.__name__], []
     while todo:
         name = todo.pop()
         if name in seen or name not in defs:
             continue
         seen.add(name)
-        for node in ast.walk(defs[name]):
-            if isinstance(node, ast.Name) and node.id in defs:
-                todo.append(node.id)
-            elif isinstance(node, ast.Import):
-                names.update(alias.name for alias in node.names)
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names.add(node.module)
-                names.update(f"{node.module}.{alias.name}" for alias in node.names)
-    return tuple(sorted(n for n in names if _module_file(n) is not None))
+        nodes.extend(ast.walk(defs[name]))
+        todo.extend(n.id for n in ast.walk(defs[name])
+                    if isinstance(n, ast.Name) and n.id in defs)
+    return _imported(nodes)
 
 
 def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path]:
