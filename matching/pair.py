@@ -21,6 +21,8 @@ Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
                             its patch (background, occlusion, silhouette)
 9     ``triangulation``     rejected by triangulation (behind a camera, large
                             reprojection error, ill-conditioned)
+10    ``imprecise``         σ of the match beyond the median σ of the accepted
+                            matches + 4 x 1.4826 MAD (``max_sigma_mad_k``)
 ====  ====================  ==================================================
 
 References
@@ -38,20 +40,27 @@ import numpy as np
 from matching.lsm import (
     DEFAULT_INTERPOLATION,
     STATUS_NAMES,
+    LSMResult,
     PreparedImage,
     Status,
     lsm_match,
     prepare_image,
     second_order_terms,
 )
-from matching.seeds import approximate_calibrated, approximate_rectified, select_points
-from matching.validate import TOL
+from matching.seeds import (
+    approximate_calibrated,
+    approximate_rectified,
+    select_points,
+    shift_precision,
+)
+from matching.validate import TOL, check_shape
 
 NO_APPROXIMATION = 8
 TRIANGULATION = 9
-#: Every pair status code -> name (LSM's codes 0-7, then 8 and 9).
+IMPRECISE = 10
+#: Every pair status code -> name (LSM's codes 0-7, then 8-10).
 PAIR_STATUS_NAMES = {**STATUS_NAMES, NO_APPROXIMATION: "no_approximation",
-                     TRIANGULATION: "triangulation"}
+                     TRIANGULATION: "triangulation", IMPRECISE: "imprecise"}
 
 
 @dataclass(frozen=True)
@@ -78,6 +87,8 @@ class PairMatches:
         ``a0 a1 a2 b0 b1 b2``.
     radiometric : (N, 2) float64
         ``r0 r1`` (offset, gain).
+    patch : (N,) int32
+        Patch side the final match used, px (0: not matched).
     texture : (N,) float64
         Template λ_min of the structure tensor, grey levels²/px².
     status : (N,) uint8
@@ -98,6 +109,7 @@ class PairMatches:
     iterations: np.ndarray
     affine: np.ndarray
     radiometric: np.ndarray
+    patch: np.ndarray
     texture: np.ndarray
     status: np.ndarray
     rectified: bool
@@ -147,7 +159,9 @@ def _grey(image, name: str) -> np.ndarray:
 def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacing: int = 4,
                patch: int = 15, interpolation: str = DEFAULT_INTERPOLATION,
                epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
-               sgbm_block: int = 5, second_order: bool = True, **lsm_options) -> PairMatches:
+               sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,
+               max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
+               **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -180,6 +194,17 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
         :func:`matching.lsm.second_order_terms` derives from the first pass's affine
         parameters within ``max(20, 5 spacing)`` px (removes the curvature bias of an
         affine patch fit: 0.023 px -> 0.001 px on the noise-free vase, 15 px patches).
+    adaptive_patch : bool
+        Second pass with a patch grown, where the first pass's σ is worse than the
+        image's median, to the smallest side whose predicted σ reaches that median
+        (:func:`adaptive_sides`; Gruen's "adaptive" patch).  Default on.
+    max_patch : int, optional
+        Largest grown side, px (odd; default: the largest odd side with at most twice
+        the pixels of ``patch``, 21 for 15).
+    max_sigma_mad_k : float or None
+        Reject (``imprecise``) accepted matches whose σ exceeds the median σ of the
+        accepted matches by more than k robust spreads (1.4826 MAD); default 4, as the
+        σ0 test; None: no precision test.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -197,6 +222,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
         raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
     if not (isinstance(spacing, int | np.integer) and spacing >= 1):
         raise ValueError(f"spacing must be a positive integer, got {spacing!r}")
+    if max_patch is not None and not (isinstance(max_patch, int | np.integer)
+                                      and max_patch >= patch and max_patch % 2 == 1):
+        raise ValueError(f"max_patch must be an odd integer >= patch ({patch}), "
+                         f"got {max_patch!r}")
+    if max_sigma_mad_k is not None and not (np.isfinite(max_sigma_mad_k)
+                                            and max_sigma_mad_k > 0):
+        raise ValueError(f"max_sigma_mad_k must be positive or None, got {max_sigma_mad_k!r}")
     corr = lsm_options.get("min_correlation", 0.7)
     if not (np.isfinite(corr) and -1.0 <= corr <= 1.0):
         raise ValueError(f"min_correlation must be in [-1, 1], got {corr!r}")
@@ -227,7 +259,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
         "cov": np.full((n, 2, 2), np.nan), "sigma": np.full(n, np.nan),
         "sigma0": np.full(n, np.nan), "correlation": np.full(n, np.nan),
         "iterations": np.zeros(n, np.int32), "affine": np.full((n, 6), np.nan),
-        "radiometric": np.full((n, 2), np.nan),
+        "radiometric": np.full((n, 2), np.nan), "patch": np.zeros(n, np.int32),
     }
     textured = np.flatnonzero(cand.textured)
     if len(textured):
@@ -249,17 +281,19 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
             options = dict(patch=patch, interpolation=interpolation, direction=direction,
                            min_texture_snr=min_texture_snr, **lsm_options)
             res = lsm_match(fprep, gprep, points, start, **options)
-            if second_order and res.accepted.sum() >= 8:
-                quad = second_order_terms(points, res.affine, res.accepted,
-                                          radius_px=max(20.0, 5.0 * spacing))
-                init = np.column_stack([res.affine, res.radiometric])
-                fresh = ~np.isfinite(init).all(1)
-                init[fresh] = 0.0
-                init[fresh, 0], init[fresh, 3] = start[fresh, 0], start[fresh, 1]
-                init[fresh, 1] = init[fresh, 5] = init[fresh, 7] = 1.0
-                res = lsm_match(fprep, gprep, points, start, initial=init, quadratic=quad,
-                                **options)
+            sides = np.full(len(points), patch, np.int32)
+            if (second_order or adaptive_patch) and res.accepted.sum() >= 8:
+                quad = (second_order_terms(points, res.affine, res.accepted,
+                                           radius_px=max(20.0, 5.0 * spacing))
+                        if second_order else None)
+                if adaptive_patch:
+                    sides = adaptive_sides(left, points, res.sigma, res.accepted, patch,
+                                           max_patch, noise=fprep.noise)
+                res = _rematch(fprep, gprep, points, start, res, quad, sides, options)
             status[idx] = res.status
+            out["patch"][idx] = sides
+            if max_sigma_mad_k is not None:
+                status[idx[_imprecise(res, max_sigma_mad_k)]] = IMPRECISE
             out["x_right"][idx] = res.position
             out["cov"][idx] = res.cov
             out["sigma"][idx] = res.sigma
@@ -271,6 +305,115 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
     return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
                        rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
                        **out)
+
+
+def default_max_patch(patch: int) -> int:
+    """Largest odd side with at most twice the pixels of ``patch`` (15 -> 21)."""
+    side = int(np.floor(np.sqrt(2.0) * patch))
+    side -= 1 - side % 2
+    while side * side > 2 * patch * patch:
+        side -= 2
+    return max(side, int(patch))
+
+
+def adaptive_sides(image, points, sigma, accepted, patch: int = 15,
+                   max_patch: int | None = None, noise: float | None = None) -> np.ndarray:
+    """Patch side per point that brings its predicted σ to the image's median (Gruen).
+
+    Target: τ = the median σ of the accepted first-pass matches (``patch`` sides).  A
+    point with σ > τ gets the smallest odd side s in ``patch + 2, ..., max_patch``
+    with σ (p_s / p_patch) <= τ, p the structure-tensor prediction of
+    :func:`matching.seeds.shift_precision` (the ratio carries the texture the larger
+    window adds; σ carries the measured σ0 and the affine unknowns); ``max_patch``
+    when none reaches τ.  Others, and points not accepted, keep ``patch``.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Template image, grey levels.
+    points : (N, 2) array_like
+        Integer template centres, px.
+    sigma : (N,) array_like
+        First-pass σ, px.
+    accepted : (N,) bool
+        First-pass acceptance.
+    patch : int
+        First-pass side, px.
+    max_patch : int, optional
+        Largest side (default :func:`default_max_patch`).
+    noise : float, optional
+        Template noise σ, grey levels (default: Immerkaer's estimate).
+
+    Returns
+    -------
+    (N,) int32, px
+    """
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    sigma = np.asarray(sigma, dtype=np.float64)
+    accepted = np.asarray(accepted, dtype=bool)
+    top = default_max_patch(patch) if max_patch is None else int(max_patch)
+    if top < patch or top % 2 == 0:
+        raise ValueError(f"max_patch must be an odd integer >= patch ({patch}), got {max_patch!r}")
+    sides = np.full(len(points), patch, np.int32)
+    ladder = list(range(patch, top + 1, 2))
+    good = accepted & np.isfinite(sigma)
+    if len(ladder) < 2 or not good.any():
+        return sides
+    tau = float(np.median(sigma[good]))
+    worse = np.flatnonzero(good & (sigma > tau))
+    pred = shift_precision(image, points[worse], ladder, noise=noise)  # (S, M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        est = sigma[worse] * pred / pred[0]
+    reach = est <= tau  # NaN (window outside the image) and inf never reach
+    first = np.where(reach.any(0), reach.argmax(0), len(ladder) - 1)
+    # a side whose window leaves the image is not used: fall back to the largest inside
+    inside = np.isfinite(pred)
+    last_inside = len(ladder) - 1 - np.argmax(inside[::-1], axis=0)
+    first = np.minimum(first, last_inside)
+    sides[worse] = np.asarray(ladder, np.int32)[first]
+    return sides
+
+
+def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options
+             ) -> LSMResult:
+    """Second LSM pass from the first pass's solution, one call per patch side."""
+    n = len(points)
+    init = np.column_stack([first.affine, first.radiometric])
+    fresh = ~np.isfinite(init).all(1)
+    init[fresh] = 0.0
+    init[fresh, 0], init[fresh, 3] = start[fresh, 0], start[fresh, 1]
+    init[fresh, 1] = init[fresh, 5] = init[fresh, 7] = 1.0
+    quad = np.zeros((n, 6)) if quad is None else quad
+    direction = options.get("direction")
+    arrays = {"position": np.full((n, 2), np.nan), "affine": np.full((n, 6), np.nan),
+              "radiometric": np.full((n, 2), np.nan), "converged": np.zeros(n, bool),
+              "iterations": np.zeros(n, np.int32), "sigma0": np.full(n, np.nan),
+              "cov": np.full((n, 2, 2), np.nan), "correlation": np.full(n, np.nan),
+              "status": np.zeros(n, np.uint8)}
+    reference = first.noise_sigma0
+    for side in np.unique(sides):  # a few sides: one batched call each
+        sel = np.flatnonzero(sides == side)
+        opts = {**options, "patch": int(side)}
+        if direction is not None:
+            opts["direction"] = np.broadcast_to(direction, (n, 2))[sel]
+        res = lsm_match(fprep, gprep, points[sel], start[sel], initial=init[sel],
+                        quadratic=quad[sel], **opts)
+        for name in arrays:
+            arrays[name][sel] = getattr(res, name)
+        if side == options["patch"]:
+            reference = res.noise_sigma0
+    return LSMResult(noise_sigma0=reference, **arrays)
+
+
+def _imprecise(res: LSMResult, k: float) -> np.ndarray:
+    """(N,) bool: accepted with σ > median + k 1.4826 MAD of the accepted σ (>= 30 of them)."""
+    ok = res.accepted & np.isfinite(res.sigma)
+    if ok.sum() < 30:
+        return np.zeros(len(ok), bool)
+    sig = res.sigma[ok]
+    med = float(np.median(sig))
+    limit = med + k * 1.4826 * float(np.median(np.abs(sig - med)))
+    return ok & (res.sigma > limit)
 
 
 @dataclass(frozen=True)

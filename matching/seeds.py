@@ -32,6 +32,9 @@ References
 .. [2] H. Hirschmüller, "Stereo processing by semiglobal matching and mutual
    information", IEEE TPAMI 30(2), 328-341 (2008).
 .. [3] J.-Y. Bouguet, Camera Calibration Toolbox for Matlab (stereo rectification).
+.. [4] W. Förstner, E. Gülch, "A fast operator for detection and precise location of
+   distinct points, corners and centres of circular features", ISPRS Intercommission
+   Conference on Fast Processing of Photogrammetric Data, Interlaken, 281-305 (1987).
 """
 
 from __future__ import annotations
@@ -159,6 +162,114 @@ def select_points(image, spacing: int = 4, patch: int = 15, min_texture_snr: flo
     threshold = max(min_texture_snr * 0.5 * sigma**2, TOL.zero)
     return Candidates(points=points, texture=texture, textured=texture > threshold,
                       threshold=float(threshold), noise=sigma)
+
+
+def structure_tensors(image, points, sides) -> np.ndarray:
+    """Sums of the gradient products over square windows of several sides at each point.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey image, grey levels.
+    points : (N, 2) array_like
+        Integer window centres (x, y), px.
+    sides : sequence of int
+        Odd window sides, px.
+
+    Returns
+    -------
+    (S, N, 3) float64
+        ``(sum fx², sum fy², sum fx fy)`` over each window (central-difference
+        gradients, grey levels²/px²); NaN where a window comes closer than 1 px to the
+        image border.
+
+    Notes
+    -----
+    One integral image per product (``cv2.integral``), so any number of sides costs one
+    pass over the image plus four look-ups per point and side.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    gx = np.zeros_like(img)
+    gy = np.zeros_like(img)
+    gx[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
+    gy[1:-1, :] = 0.5 * (img[2:, :] - img[:-2, :])
+    sums = [cv2.integral(prod, sdepth=cv2.CV_64F) for prod in (gx * gx, gy * gy, gx * gy)]
+    h, w = img.shape
+    xi = np.rint(points[:, 0]).astype(np.intp)
+    yi = np.rint(points[:, 1]).astype(np.intp)
+    out = np.full((len(sides), len(points), 3), np.nan)
+    for k, side in enumerate(sides):
+        half = int(side) // 2
+        x0, y0, x1, y1 = xi - half, yi - half, xi + half + 1, yi + half + 1
+        # one pixel to spare: the window's central differences need their neighbours
+        inside = (x0 >= 1) & (y0 >= 1) & (x1 <= w - 1) & (y1 <= h - 1)
+        x0, y0, x1, y1 = (c[inside] for c in (x0, y0, x1, y1))
+        for c, table in enumerate(sums):
+            out[k, inside, c] = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
+    return out
+
+
+def shift_precision(image, points, sides, noise: float | None = None) -> np.ndarray:
+    r"""Predicted σ of the matched shift per unit σ0, for several patch sides (Förstner).
+
+    The shift part of the LSM normal matrix is the structure tensor of the template,
+    :math:`N = \sum \nabla f \nabla f^\mathsf{T}`, less its expected noise part
+    :math:`n \sigma_n^2/2 \, I` (n pixels, central differences); its inverse is
+    Förstner's error ellipse of the point, and
+    :math:`\sqrt{\operatorname{tr} N^{-1} / 2} = 1/\sqrt{2 w}`,
+    :math:`w = \det N / \operatorname{tr} N` the interest operator's weight [4]_.
+    Times the residual σ0 of a match, it predicts the σ that :func:`matching.lsm.lsm_match`
+    reports before the affine unknowns are added (they raise it by a factor that barely
+    depends on the side, so ratios between sides carry over).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey template image, grey levels.
+    points : (N, 2) array_like
+        Integer template centres, px.
+    sides : sequence of int
+        Odd patch sides, px.
+    noise : float, optional
+        Image noise σ_n, grey levels (default: Immerkaer's estimate).
+
+    Returns
+    -------
+    (S, N) float64
+        px per grey level of σ0; ``inf`` where the noise-free tensor is not positive
+        definite, NaN where the patch leaves the image.
+    """
+    sigma = estimate_noise(np.asarray(image, dtype=np.float64)) if noise is None else noise
+    st = structure_tensors(image, points, sides)
+    area = np.asarray([int(s) ** 2 for s in sides], dtype=np.float64)[:, None]
+    sxx = st[..., 0] - area * 0.5 * sigma**2
+    syy = st[..., 1] - area * 0.5 * sigma**2
+    sxy = st[..., 2]
+    det = sxx * syy - sxy**2
+    trace = sxx + syy
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where((det > TOL.zero) & (sxx > 0), np.sqrt(0.5 * trace / det), np.inf)
+    out[~np.isfinite(st).all(-1)] = np.nan
+    return out
+
+
+def forstner(image, points, patch: int = 15) -> tuple[np.ndarray, np.ndarray]:
+    """Förstner's interest operator at ``points``: weight w and roundness q [4]_.
+
+    ``w = det N / tr N`` (grey levels²/px², the size of the inverse error ellipse) and
+    ``q = 4 det N / tr² N`` in [0, 1] (1: circular ellipse), N the structure tensor
+    summed over the ``patch`` x ``patch`` window.
+
+    Returns
+    -------
+    w, q : (N,) float64
+    """
+    st = structure_tensors(image, points, [patch])[0]
+    det = st[:, 0] * st[:, 1] - st[:, 2] ** 2
+    trace = st[:, 0] + st[:, 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return det / trace, 4.0 * det / trace**2
 
 
 # --------------------------------------------------------------------------------------
