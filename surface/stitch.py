@@ -59,7 +59,8 @@ from surface.validate import TOL, check_finite, check_shape
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
            "axis_frame", "surface_from_points", "slide_to_planes", "extend_to_caps",
            "largest_perimeter", "SlicedCloud", "slice_cloud", "organise_sections",
-           "ring_count", "section_rings", "min_loop_points"]
+           "ring_count", "section_rings", "min_loop_points", "section_noise",
+           "support_distance"]
 
 #: Default largest turn of a face normal a flip may cause (radians).  A flip on
 #: a smooth patch re-triangulates it and turns normals by about the local
@@ -486,10 +487,208 @@ def _pairs(loops_a: list[np.ndarray], loops_b: list[np.ndarray]) -> list[tuple[i
             if rows[i] == 1 and cols[j] == 1]
 
 
+# --------------------------------------------------------------------------- support rings
+#: A ring where the section profile turns by more than this (radians) is a crease
+#: candidate.  Rings placed as far apart along the profile as around it
+#: (:func:`ring_count`) sample a smooth surface with turns of Δκ per ring, far
+#: below 30° wherever the sampling resolves the surface; a turn this large at one
+#: ring is an edge the sampling did not resolve (a rim, a shoulder).
+SHARP_TURN = np.pi / 6
+
+
+def _read_at(ring: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """The closest point of the closed polygon ``other`` to each point of ``ring``: ``(n, 3)``.
+
+    The neighbour ring seen from a ring point along the section profile (rings
+    need not start at the same angle: their starts differ by up to a spacing).
+    The closest vertex (k-d tree), then the closest point on its two edges.
+    """
+    from scipy.spatial import cKDTree
+
+    m = len(other)
+    nearest = cKDTree(other).query(ring)[1]
+    best = other[nearest]
+    best_d = np.linalg.norm(ring - best, axis=1)
+    for step in (-1, 1):
+        a, b = other[nearest], other[(nearest + step) % m]
+        ab = b - a
+        t = np.einsum("ij,ij->i", ring - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab),
+                                                               TOL.zero)
+        foot = a + np.clip(t, 0.0, 1.0)[:, None] * ab
+        d = np.linalg.norm(ring - foot, axis=1)
+        closer = d < best_d
+        best[closer], best_d[closer] = foot[closer], d[closer]
+    return best
+
+
+def _nearest_loop(loop: np.ndarray, loops: list, frame: np.ndarray) -> np.ndarray:
+    """The loop of ``loops`` whose centroid is nearest ``loop``'s in the section plane."""
+    centres = np.array([lp.mean(axis=0) @ frame[:2].T for lp in loops])
+    k = int(np.argmin(np.linalg.norm(centres - loop.mean(axis=0) @ frame[:2].T, axis=1)))
+    return loops[k]
+
+
+def support_distance(legs_a: np.ndarray, legs_b: np.ndarray, sigma: float) -> float:
+    r"""Distance of the support rings at a ring whose profile legs are ``legs_a``, ``legs_b``.
+
+    A G1 spline surface over a control polygon with a corner of turn α and
+    legs of length ``h`` passes the corner at :math:`h \sin(\alpha/2)/3` from it
+    (cubic B-spline limit :math:`(P_{-1} + 4P_0 + P_1)/6`; Loop's limit mask
+    agrees at valence 6).  Support (holding) rings at distance ``d`` on both
+    legs shrink that to :math:`d \sin(\alpha/2)/3`; ``d`` is chosen so that it
+    is ``sigma``, the noise of the points the ring was fitted to, which the
+    data cannot resolve anyway: :math:`d = 3\sigma/\sin(\alpha/2)`, at most half
+    the shorter leg (so the support lies between the rings).
+
+    Parameters
+    ----------
+    legs_a, legs_b : (n, 3) float64
+        From each ring point to its neighbour along the profile on either side
+        (for an end ring, one leg runs into the cap).
+    sigma : float
+        Noise σ̂ of the section points, scene units (≥ 0).
+
+    Returns
+    -------
+    float
+        ``d`` in scene units, or 0 where no support is needed: a median turn
+        below :data:`SHARP_TURN`, or a rounding ``h sin(α/2)/3`` already within
+        ``sigma`` (``h`` the median shorter leg).
+    """
+    la, lb = np.linalg.norm(legs_a, axis=1), np.linalg.norm(legs_b, axis=1)
+    cos = np.einsum("ij,ij->i", legs_a, legs_b) / np.maximum(la * lb, TOL.zero)
+    turn = float(np.median(np.pi - np.arccos(np.clip(cos, -1.0, 1.0))))
+    h = float(np.median(np.minimum(la, lb)))
+    rounding = h * np.sin(turn / 2) / 3
+    if turn < SHARP_TURN or rounding <= sigma:
+        return 0.0
+    return float(min(3.0 * sigma / np.sin(turn / 2), h / 2))
+
+
+def _support(sections: list, frame: np.ndarray, sigma: float,
+             close_ends: bool) -> tuple[list, dict, list[str]]:
+    """Support rings where the profile turns sharply (:func:`support_distance`).
+
+    At an inner ring (sections with one loop each on both sides) two rings are
+    added, at ``d`` towards each neighbour ring.  At a capped end ring one is
+    added on the wall, at ``d`` towards the next ring, and the cap gets an inner
+    ring at ``d`` from the rim (returned as ``cap_inset[(end, loop)] = d`` for
+    :func:`stitch_rings` to build, the cap being in the rim's plane).
+
+    Returns
+    -------
+    sections : list of list of (n, 3)
+        With the wall supports inserted (heights stay monotone: ``d`` is at
+        most half a leg).
+    cap_inset : dict
+        ``(0 | -1, loop) -> d`` for the bottom / top caps.
+    notes : list of str
+    """
+    count = len(sections)
+    before: dict[int, list] = {}
+    after: dict[int, list] = {}
+    cap_inset: dict = {}
+    notes = []
+    for s in range(count):
+        end = 0 if s == 0 else (-1 if s == count - 1 else None)
+        if end is None and not (len(sections[s - 1]) == len(sections[s]) == len(sections[s + 1])
+                                == 1):
+            continue
+        for lp, ring in enumerate(sections[s]):
+            if end is None:
+                legs_a = _read_at(ring, sections[s - 1][0]) - ring
+            elif close_ends:
+                legs_a = ring.mean(axis=0) - ring     # into the cap, towards its centre
+            else:
+                continue
+            other = sections[s + 1] if end in (None, 0) else sections[s - 1]
+            legs_b = _read_at(ring, _nearest_loop(ring, other, frame)) - ring
+            d = support_distance(legs_a, legs_b, sigma)
+            if d <= 0:
+                continue
+            unit_b = legs_b / np.maximum(np.linalg.norm(legs_b, axis=1), TOL.zero)[:, None]
+            wall = ring + d * unit_b
+            if end is None:
+                unit_a = legs_a / np.maximum(np.linalg.norm(legs_a, axis=1), TOL.zero)[:, None]
+                before.setdefault(s, []).append(ring + d * unit_a)
+                after.setdefault(s, []).append(wall)
+            else:
+                (after if end == 0 else before).setdefault(s, []).append(wall)
+                cap_inset[(end, lp)] = d
+            notes.append(f"section {s} loop {lp}: support rings at {d:.3g} (profile turn "
+                         "sharper than a G1 surface over the ring spacing can follow)")
+    out = []
+    for s in range(count):
+        if s in before and len(before[s]) == len(sections[s]):
+            out.append(before[s])
+        out.append(sections[s])
+        if s in after and len(after[s]) == len(sections[s]):
+            out.append(after[s])
+    return out, cap_inset, notes
+
+
+#: Smallest angle (degrees) of the triangles inside a cap with support rings
+#: (Shewchuk's Triangle, ``q``): the ear-clipped cap of a ring of n points has
+#: slivers of ~180°/n whose Bezier patches have near-singular Jacobians, where
+#: normals lose digits (measured 1.7e-8 rad across an edge that is G1 exactly).
+CAP_MIN_ANGLE = 25.0
+
+
+def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained quality Delaunay triangulation of a closed planar contour.
+
+    The contour's points and edges are kept as they are (no point added on
+    them); points are added inside until every angle is at least
+    :data:`CAP_MIN_ANGLE` and no triangle is larger than an equilateral one
+    on the contour's mean edge.
+
+    Parameters
+    ----------
+    ring2d : (n, 2) float64
+        The contour, counter-clockwise, in the section plane's coordinates.
+    outward_up : bool
+        As in :func:`cap_triangles`.
+
+    Returns
+    -------
+    added : (k, 2) float64
+        The points added inside, plane coordinates.
+    triangles : (m, 3) int64
+        Over the contour's ``0 .. n-1`` then the added ``n .. n+k-1``.
+    """
+    import triangle
+
+    n = len(ring2d)
+    centre = ring2d.mean(axis=0)
+    pts = ring2d - centre
+    edge = float(np.mean(np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)))
+    segments = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
+    out = triangle.triangulate({"vertices": pts, "segments": segments},
+                               f"pYq{CAP_MIN_ANGLE:g}a{np.sqrt(3) / 4 * edge**2:.17g}")
+    verts = np.asarray(out["vertices"], np.float64)
+    tri = np.asarray(out["triangles"], np.int64)
+    if len(verts) < n or not np.allclose(verts[:n], pts, rtol=0, atol=TOL.zero * (1 + edge)):
+        raise ValueError("cap triangulation moved the contour's points")  # not expected with Y
+    p = verts[tri]
+    twice = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
+             - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
+    flip = (twice < 0) if outward_up else (twice > 0)
+    tri[flip] = tri[flip][:, ::-1]
+    return verts[n:] + centre, tri
+
+
+def _inset_ring(ring: np.ndarray, d: float) -> np.ndarray:
+    """``ring`` moved ``d`` towards its centroid (in its plane): the cap's support ring."""
+    to_centre = ring.mean(axis=0) - ring
+    length = np.maximum(np.linalg.norm(to_centre, axis=1), TOL.zero)[:, None]
+    return ring + np.minimum(d, 0.5 * length) * to_centre / length
+
+
 # --------------------------------------------------------------------------- the public entry
 def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                  constrain_contours: bool = True,
-                 max_normal_change: float = MAX_NORMAL_CHANGE) -> StitchResult:
+                 max_normal_change: float = MAX_NORMAL_CHANGE,
+                 support_sigma: float | None = None) -> StitchResult:
     """Stitch closed section rings into an oriented triangle mesh.
 
     Parameters
@@ -513,6 +712,16 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         unconstrained Delaunay criterion on the whole side surface).
     max_normal_change : float
         Fold-over limit for a flip, radians (see :func:`delaunay_flips`).
+    support_sigma : float, optional
+        Noise σ̂ of the points the rings were fitted to (scene units).  Given,
+        support (holding) rings are added where the section profile turns
+        sharply (:func:`support_distance`): at a capped end one ring on the wall
+        and one inside the cap, at an inner ring one on each side, at
+        ``d = 3σ̂/sin(α/2)`` from the ring, so that a G1 surface over the mesh
+        (Loop's, ``surface.bezier``) rounds the edge by about σ̂ instead of a
+        third of the ring spacing.  They lie on the stitched polyhedron (on
+        the strip's legs and in the cap plane), so the mesh's shape is kept.
+        None: no support rings (the paper's mesh).
 
     Returns
     -------
@@ -543,6 +752,13 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     elif not np.all(steps > 0):
         raise ValueError("rings must be ordered along the axis (heights strictly monotone), "
                          f"got heights {np.round(heights, 6).tolist()}")
+    cap_inset: dict = {}
+    messages: list[str] = []
+    if support_sigma is not None:
+        if not (np.isfinite(support_sigma) and support_sigma >= 0):
+            raise ValueError(f"support_sigma must be a finite number >= 0, got {support_sigma!r}")
+        sections, cap_inset, notes = _support(sections, frame, float(support_sigma), close_ends)
+        messages += notes
 
     # Vertices: every loop in counter-clockwise order about the axis.
     vertices, sec_of, loop_of, params, offsets, planar = [], [], [], [], [], []
@@ -562,7 +778,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             loop_of.append(np.full(len(pts), lp))
             count += len(pts)
     vertices = np.vstack(vertices)
-    faces, region, fixed, messages, open_ifaces = [], [], [], [], []
+    faces, region, fixed, open_ifaces = [], [], [], []
 
     for s in range(len(sections) - 1):
         pairs = _pairs(planar[s], planar[s + 1])
@@ -587,14 +803,45 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
 
     if close_ends:
-        for s, label, up in ((0, -1, False), (len(sections) - 1, -2, True)):
+        extra = []
+        for s, end, label, up in ((0, 0, -1, False), (len(sections) - 1, -1, -2, True)):
             for lp, flat in enumerate(planar[s]):
+                start = offsets[s][lp]
+                if (end, lp) in cap_inset:  # support ring inside the cap, an annulus to it
+                    inner = _inset_ring(vertices[start:start + len(flat)], cap_inset[(end, lp)])
+                    inner_start = count + sum(len(x) for x in extra)
+                    extra.append(inner)
+                    sec_of.append(np.full(len(inner), s))
+                    loop_of.append(np.full(len(inner), lp))
+                    inner_flat = inner @ frame[:2].T
+                    inner_param = _ring_order_and_parameter(inner_flat)[1]
+                    lower, upper = ((inner_param, params[s][lp]) if end == 0
+                                    else (params[s][lp], inner_param))
+                    local = zip_rings(lower, upper)
+                    n_lo = len(lower)
+                    lo_start, up_start = ((inner_start, start) if end == 0
+                                          else (start, inner_start))
+                    faces.append(np.where(local < n_lo, local + lo_start,
+                                          local - n_lo + up_start))
+                    region.append(np.full(len(local), label))
+                    idx = inner_start + np.arange(len(inner))
+                    fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
+                    added, cap = _quality_cap(inner_flat, outward_up=up)
+                    height = float(np.mean(inner @ frame[2]))
+                    extra.append(added @ frame[:2] + height * frame[2])
+                    sec_of.append(np.full(len(added), s))
+                    loop_of.append(np.full(len(added), lp))
+                    faces.append(cap + inner_start)  # added points follow the inner ring
+                    region.append(np.full(len(cap), label))
+                    continue
                 cap = cap_triangles(flat, outward_up=up)
                 if len(cap) != len(flat) - 2:
                     messages.append(f"cap of section {s} loop {lp}: {len(cap)} triangles for "
                                     f"{len(flat)} points (contour not simple); cap incomplete")
-                faces.append(cap + offsets[s][lp])
+                faces.append(cap + start)
                 region.append(np.full(len(cap), label))
+        if extra:
+            vertices = np.vstack([vertices] + extra)
 
     triangles = np.vstack(faces).astype(np.int64) if faces else np.zeros((0, 3), np.int64)
     region = np.concatenate(region).astype(np.int64) if region else np.zeros(0, np.int64)
@@ -987,11 +1234,33 @@ def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
                             smoothing=smoothing, parametrisation=parametrisation)
 
 
+def section_noise(loops: Sequence) -> float:
+    """Noise σ̂ of the section points: the median of the loops' ``Loop.noise``.
+
+    ``Loop.noise`` is 1.4826 × the median residual of a loop's points about a
+    local quadratic (``surface.topology``), a robust σ of the points across
+    the curve; the median over loops ignores the odd ragged section.
+
+    Parameters
+    ----------
+    loops : sequence of sequence of Loop
+        From :func:`organise_sections`.
+
+    Returns
+    -------
+    float
+        Scene units (0 for noise-free points).
+    """
+    noise = [float(lp.noise) for section in loops for lp in section]
+    return float(np.median(noise)) if noise else 0.0
+
+
 def surface_from_points(points: np.ndarray, axis="z", sections: int | None = None,
                         spacing: float | None = None, thickness: float | None = None,
                         n: int | None = None, smoothing: float = 8.0,
                         projection: str = "surface", extend_ends: bool = True,
-                        close_ends: bool = True, flip: bool = True) -> StitchResult:
+                        close_ends: bool = True, flip: bool = True,
+                        support: bool = True) -> StitchResult:
     """Unorganised points to a stitched mesh: slice → organise → fit/predict → stitch.
 
     The steps are public (:func:`slice_cloud`, :func:`organise_sections`,
@@ -1035,6 +1304,10 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         Cap the first and last sections.
     flip : bool
         Lawson flips.
+    support : bool
+        Support rings where the profile turns sharply (``stitch_rings``'s
+        ``support_sigma`` = :func:`section_noise` of the loops), so that the
+        G1 surface built over the mesh keeps rims sharp to the noise level.
 
     Returns
     -------
@@ -1056,7 +1329,8 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         cap = sliced.cap_cloud
         rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing)
         messages += notes
-    result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip)
+    result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip,
+                          support_sigma=section_noise(loops) if support else None)
     if messages:
         from dataclasses import replace
 
