@@ -553,7 +553,8 @@ def _jsonable(value):
 #                         cap_cloud (C,3) the points an end cap may move to, spacing ()
 #   curves/curves.npz     points (Q,3) of the resampled closed rings, offsets (R+1,),
 #                         section (R,), loop (R,), heights (R,), axis (3,)
-#                         (R rings; a section may hold several loops), frame (3,3)
+#                         (R rings; a section may hold several loops), frame (3,3),
+#                         noise () the section points' sigma (surface.stitch.section_noise)
 #   stitch/mesh.ply       the stitched mesh; stitch/stitch.json its notes
 #   smooth/surface.ply    the tessellated Bezier surface with its exact normals
 #   smooth/control_net.npz control_points (P,28,3), index (28,3), source_face (P,),
@@ -770,15 +771,16 @@ def _curves(ctx: StageContext) -> dict:
     from surface import stitch
 
     p = ctx.params["curves"]
+    smoothing = p["smoothing"] or "auto"  # 0: from the data (as the other "0:" keys)
     sections, _, _ = _load_sections(ctx)
     options = {"outlier_threshold": p["outlier_threshold"],
-               "min_points": p["min_loop_points"] or stitch.min_loop_points(p["smoothing"])}
+               "min_points": p["min_loop_points"] or stitch.min_loop_points(smoothing)}
     try:
         kept, loops, messages = stitch.organise_sections(
             ctx.track(sections, "loops", total=len(sections), unit="section"), **options)
     except ValueError as exc:
         raise InputError(f"curves: {exc} (set sections.count)") from exc
-    rings = stitch.section_rings(kept, loops, p["n"] or None, smoothing=p["smoothing"],
+    rings = stitch.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
                                  parametrisation=p["parametrisation"])
     for message in messages:
         log.warning("curves: %s", message)
@@ -792,15 +794,17 @@ def _curves(ctx: StageContext) -> dict:
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in flat])]).astype(np.int64)
     save_npz(ctx.out / "curves.npz", points=np.concatenate(flat), offsets=offsets,
              section=np.array(sec, np.int64), loop=np.array(loop_ids, np.int64),
-             heights=np.array([kept[k].height for k in sec]), axis=axis, frame=kept[0].frame)
+             heights=np.array([kept[k].height for k in sec]), axis=axis, frame=kept[0].frame,
+             noise=np.float64(stitch.section_noise(loops)))
     n = p["n"] or stitch.ring_count(kept, loops)
     return {"rings": len(flat), "n": int(n), "points": int(offsets[-1]),
             "sections_without_loop": len(sections) - len(kept), "warnings": messages}
 
 
-def _load_rings(ctx: StageContext) -> tuple[list, list]:
-    """Rings of ``curves.npz`` per section (a list of loops each) and the sections'
-    planes as ``Section`` objects without points (height and frame)."""
+def _load_rings(ctx: StageContext) -> tuple[list, list, float | None]:
+    """Rings of ``curves.npz`` per section (a list of loops each), the sections'
+    planes as ``Section`` objects without points (height and frame), and the
+    section points' noise sigma (None in a curves.npz written before it was stored)."""
     import numpy as np
 
     from surface.sections import Section
@@ -817,11 +821,12 @@ def _load_rings(ctx: StageContext) -> tuple[list, list]:
             planes.append(Section(height=float(d["heights"][k]), points=np.zeros((0, 3)),
                                   origin=np.zeros(3), frame=frame, section_id=len(planes)))
         rings[-1].append(d["points"][off[k]:off[k + 1]])
-    return rings, planes
+    return rings, planes, (float(d["noise"]) if "noise" in d else None)
 
 
 def _stitch(ctx: StageContext) -> dict:
-    """``surface.stitch.extend_to_caps`` (end rings to the cap points), then ``stitch_rings``."""
+    """``surface.stitch.extend_to_caps`` (end rings to the cap points), then ``stitch_rings``
+    (with support rings at sharp profile turns when ``stitch.support``)."""
     import json
 
     import numpy as np
@@ -830,7 +835,7 @@ def _stitch(ctx: StageContext) -> dict:
     from surface import stitch
 
     p = ctx.params["stitch"]
-    rings, planes = _load_rings(ctx)
+    rings, planes, noise = _load_rings(ctx)
     # a lone loop as itself, as surface.stitch.surface_from_points passes it
     rings = [item[0] if len(item) == 1 else item for item in rings]
     notes_ends = []
@@ -839,7 +844,9 @@ def _stitch(ctx: StageContext) -> dict:
         if spacing > 0:
             rings, notes_ends = stitch.extend_to_caps(rings, planes, cap_cloud,
                                                       np.arange(len(cap_cloud)), spacing)
-    result = stitch.stitch_rings(rings, planes[0].frame[2], close_ends=p["caps"])
+    support = noise if p["support"] and noise is not None else None
+    result = stitch.stitch_rings(rings, planes[0].frame[2], close_ends=p["caps"],
+                                 support_sigma=support)
     write_mesh(ctx.out / "mesh.ply", result.vertices, result.triangles)
     messages = notes_ends + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
