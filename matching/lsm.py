@@ -723,7 +723,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     return status, it + 1, converged
 
 
-@numba.njit(parallel=True, cache=True, fastmath=_FM, error_model="numpy")
+@numba.njit(parallel=True, nogil=True, cache=True, fastmath=_FM, error_model="numpy")
 def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constrained, half,
                kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
                grad_noise_var, params, cov, sigma0, corr, status, iters, conv):
@@ -740,7 +740,7 @@ def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constr
         conv[i] = cv
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy")
+@numba.njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def _second_order_kernel(points, fields, centres, nb, use, min_neighbours, det_tol, out):
     """Per centre: plane fits of the 4 affine fields over its neighbours -> shrunk terms.
 
