@@ -289,7 +289,14 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
                 if adaptive_patch:
                     sides = adaptive_sides(left, points, res.sigma, res.accepted, patch,
                                            max_patch, noise=fprep.noise)
-                res = _rematch(fprep, gprep, points, start, res, quad, sides, options)
+                second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
+                # a grown search window that leaves the image: back to the base patch
+                out_grown = (second.status == Status.OUTSIDE_IMAGE) & (sides != patch)
+                if out_grown.any():
+                    sides[out_grown] = patch
+                    second = _rematch(fprep, gprep, points, start, res, quad, sides,
+                                      options, only=out_grown, into=second)
+                res = second
             status[idx] = res.status
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
@@ -368,15 +375,18 @@ def adaptive_sides(image, points, sigma, accepted, patch: int = 15,
     first = np.where(reach.any(0), reach.argmax(0), len(ladder) - 1)
     # a side whose window leaves the image is not used: fall back to the largest inside
     inside = np.isfinite(pred)
-    last_inside = len(ladder) - 1 - np.argmax(inside[::-1], axis=0)
-    first = np.minimum(first, last_inside)
+    last_inside = np.where(inside.any(0), len(ladder) - 1 - np.argmax(inside[::-1], axis=0), 0)
+    first = np.where(np.isfinite(pred[0]), np.minimum(first, last_inside), 0)
     sides[worse] = np.asarray(ladder, np.int32)[first]
     return sides
 
 
-def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options
-             ) -> LSMResult:
-    """Second LSM pass from the first pass's solution, one call per patch side."""
+def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options,
+             only=None, into: LSMResult | None = None) -> LSMResult:
+    """Second LSM pass from the first pass's solution, one call per patch side.
+
+    ``only`` (N,) bool: re-match just these points, the others copied from ``into``.
+    """
     n = len(points)
     init = np.column_stack([first.affine, first.radiometric])
     fresh = ~np.isfinite(init).all(1)
@@ -390,9 +400,12 @@ def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options
               "iterations": np.zeros(n, np.int32), "sigma0": np.full(n, np.nan),
               "cov": np.full((n, 2, 2), np.nan), "correlation": np.full(n, np.nan),
               "status": np.zeros(n, np.uint8)}
-    reference = first.noise_sigma0
-    for side in np.unique(sides):  # a few sides: one batched call each
-        sel = np.flatnonzero(sides == side)
+    if into is not None:
+        arrays = {name: np.array(getattr(into, name)) for name in arrays}
+    reference = first.noise_sigma0 if into is None else into.noise_sigma0
+    todo = np.ones(n, bool) if only is None else np.asarray(only, bool)
+    for side in np.unique(sides[todo]):  # a few sides: one batched call each
+        sel = np.flatnonzero((sides == side) & todo)
         opts = {**options, "patch": int(side)}
         if direction is not None:
             opts["direction"] = np.broadcast_to(direction, (n, 2))[sel]
@@ -400,7 +413,7 @@ def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options
                         quadratic=quad[sel], **opts)
         for name in arrays:
             arrays[name][sel] = getattr(res, name)
-        if side == options["patch"]:
+        if side == options["patch"] and only is None:
             reference = res.noise_sigma0
     return LSMResult(noise_sigma0=reference, **arrays)
 

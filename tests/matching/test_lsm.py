@@ -342,3 +342,31 @@ def test_second_order_terms_remove_the_curvature_bias():
     second = lsm_match(f, g, pts, start_near(truth, 0.5), quadratic=quad)
     err = second.position[inner] - truth[inner]
     assert np.abs(err.mean(0)).max() < 0.002
+
+
+def test_second_order_terms_use_every_neighbour_within_the_radius():
+    """The plane fits take all valid neighbours within ``radius_px`` (a 2 px grid holds
+    ~314 within 20 px), not a fixed nearest few: with a linear a1 field plus white noise
+    of σ, the slope da1/dx from N points of spread s has standard error σ / (s sqrt(N)),
+    and the terms equal an explicit least-squares plane fit over the ball."""
+    rng = np.random.default_rng(4)
+    ys, xs = np.mgrid[0:120:2, 0:120:2].astype(np.float64)
+    pts = np.column_stack([xs.ravel(), ys.ravel()])
+    slope, noise = 2e-3, 1e-3
+    affine = np.zeros((len(pts), 6))
+    affine[:, 1] = 1.0 + slope * pts[:, 0] + noise * rng.standard_normal(len(pts))
+    affine[:, 5] = 1.0 + noise * rng.standard_normal(len(pts))
+    radius = 20.0
+    quad = second_order_terms(pts, affine, radius_px=radius)
+    centre = np.flatnonzero((np.abs(pts - 60) < 10).all(1))
+    for i in centre[:5]:
+        ball = np.linalg.norm(pts - pts[i], axis=1) < radius  # cKDTree: strictly within
+        design = np.column_stack([np.ones(ball.sum()), pts[ball] - pts[i]])
+        coef = np.linalg.lstsq(design, affine[ball, 1], rcond=None)[0]
+        resid = affine[ball, 1] - design @ coef
+        se = np.sqrt(np.linalg.inv(design.T @ design)[1, 1] * resid @ resid
+                     / (ball.sum() - 3))
+        shrink = max(0.0, 1 - (se / coef[1]) ** 2)
+        np.testing.assert_allclose(quad[i, 0], 0.5 * coef[1] * shrink, rtol=1e-9)
+    # a ball of ~314 points: se(slope) ~ 1e-3 / (10 px sqrt(314)) = 6e-6, 0.3 % of 2e-3
+    np.testing.assert_allclose(quad[centre, 0], slope / 2, rtol=0.03)
