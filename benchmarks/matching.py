@@ -12,8 +12,12 @@ correspondence: RMS error over the inliers (|error| <= 1 px), outlier share
 
 * **LSM** (``matching.lsm``, 15x15, cubic-spline resampling, 6 affine + 2
   radiometric unknowns, started from the SGBM approximations): one pass, and the
-  two-pass pair pipeline with second-order terms (``matching.pair``).  Speed of the
-  kernel alone (wall clock and per CPU-second x 2 cores, robust to a loaded machine).
+  two-pass pair pipeline with second-order terms (``matching.pair``) -- by default with
+  the adaptive patch (15..21 px where the 15x15 σ is worse than the image's median)
+  and the precision test (``imprecise``: σ > median + 4 x 1.4826 MAD), next to the
+  same pipeline with a fixed 15x15 patch and no precision test, each with its
+  coverage (accepted / candidates with truth).  Speed of the kernel alone (wall clock
+  and per CPU-second x 2 cores, robust to a loaded machine).
 * **cv2.findTransformECC** (MOTION_AFFINE), one call per patch, ``gaussFiltSize`` 1
   and 5 (default), started from the same approximations.
 * **cv2.calcOpticalFlowPyrLK** (15x15 window, initial flow = approximations).
@@ -49,7 +53,7 @@ sys.path.insert(0, str(ROOT))
 
 from matching.cameras import read_rig  # noqa: E402
 from matching.lsm import lsm_match, prepare_image  # noqa: E402
-from matching.pair import match_pair  # noqa: E402
+from matching.pair import PAIR_STATUS_NAMES, match_pair  # noqa: E402
 from matching.seeds import approximate_calibrated, rectify, rectify_images, select_points  # noqa: E402
 
 OUTLIER_PX = 1.0
@@ -277,28 +281,44 @@ def vase(scene_dir: Path, quick: bool):
                        "accepted": float(ok.mean()), "points_per_cpu_s_x2": 2 * n / cpu,
                        "points_per_cpu_s": n / cpu,
                        "rms_px_along_epipolar": epipolar_rms(res.position, truth, direction, ok)}))
-    # LSM pair pipeline (two passes, second-order terms) on the same points
-    t0 = time.perf_counter()
-    pair = match_pair(left, right, rig, spacing=4)
-    pair_wall = time.perf_counter() - t0
-    index = {tuple(p): i for i, p in enumerate(pair.x_left.astype(int).tolist())}
-    sel = np.array([index[tuple(p)] for p in pts.astype(int).tolist()])
-    pok = pair.accepted[sel]
-    ppos = np.where(pok[:, None], pair.x_right[sel], np.nan)
-    p_actual = float(np.sqrt(np.mean((pair.x_right[sel][pok] - truth[pok]) ** 2)))
-    p_reported = float(np.sqrt(np.mean(pair.sigma[sel][pok] ** 2)))
-    a1 = pair.affine[sel][pok][:, 1]
-    plain = np.abs(np.log(np.abs(a1))) < np.log(1.3)
-    p_plain = float(np.sqrt(np.mean((pair.x_right[sel][pok][plain] - truth[pok][plain]) ** 2)))
-    rows.append(score("LSM pair (2 passes + 2nd order)", ppos, truth, pair_wall,
-                      len(pair), {"reported_sigma_px": p_reported,
-                                  "actual_over_reported": p_actual / p_reported,
-                                  "accepted": float(pok.mean()),
-                                  "rms_px_scale_within_1.3": p_plain,
-                                  "share_scale_within_1.3": float(plain.mean()),
-                                  "rms_px_along_epipolar": epipolar_rms(
-                                      pair.x_right[sel], truth, direction, pok),
-                                  "note": "points/s = all candidates / whole pair time"}))
+    # LSM pair pipeline on the same points: the default (adaptive patch + precision
+    # test) and, side by side, without them (fixed 15x15, every converged match kept)
+    variants = (("LSM pair (2 passes + 2nd order)", {}),
+                ("LSM pair, fixed 15x15, no precision test",
+                 {"adaptive_patch": False, "max_sigma_mad_k": None}),
+                ("LSM pair, adaptive, no precision test", {"max_sigma_mad_k": None}))
+    pair_default = None
+    for name, options in variants:
+        t0 = time.perf_counter()
+        pair = match_pair(left, right, rig, spacing=4, **options)
+        pair_wall = time.perf_counter() - t0
+        pair_default = pair if pair_default is None else pair_default
+        index = {tuple(p): i for i, p in enumerate(pair.x_left.astype(int).tolist())}
+        sel = np.array([index[tuple(p)] for p in pts.astype(int).tolist()])
+        pok = pair.accepted[sel]
+        ppos = np.where(pok[:, None], pair.x_right[sel], np.nan)
+        p_actual = float(np.sqrt(np.mean((pair.x_right[sel][pok] - truth[pok]) ** 2)))
+        p_reported = float(np.sqrt(np.mean(pair.sigma[sel][pok] ** 2)))
+        a1 = pair.affine[sel][pok][:, 1]
+        plain = np.abs(np.log(np.abs(a1))) < np.log(1.3)
+        p_plain = float(np.sqrt(np.mean((pair.x_right[sel][pok][plain]
+                                         - truth[pok][plain]) ** 2)))
+        sides, counts = np.unique(pair.patch[sel][pok], return_counts=True)
+        rows.append(score(name, ppos, truth, pair_wall, len(pair), {
+            "reported_sigma_px": p_reported, "actual_over_reported": p_actual / p_reported,
+            "accepted": float(pok.mean()), "accepted_points": int(pok.sum()),
+            "candidates_with_truth": int(len(pok)),
+            "rejected": {str(k): int(v) for k, v in
+                         zip(*np.unique([PAIR_STATUS_NAMES[int(c)]
+                                         for c in pair.status[sel][~pok]],
+                                        return_counts=True), strict=True)},
+            "patch_sides": {int(a): int(b) for a, b in zip(sides, counts, strict=True)},
+            "rms_px_scale_within_1.3": p_plain,
+            "share_scale_within_1.3": float(plain.mean()),
+            "rms_px_along_epipolar": epipolar_rms(pair.x_right[sel], truth, direction, pok),
+            "note": "points/s = all candidates / whole pair time"}))
+        if pair is pair_default:
+            d3_direction = epipolar_rms(pair.x_right[sel], truth, direction, pok)
     # peers
     left8, right8 = left, right
     res_lk, wall_lk, _ = timed(lk, left8, right8, pts, start)
@@ -311,8 +331,7 @@ def vase(scene_dir: Path, quick: bool):
         rows.append(score(f"cv2.findTransformECC gauss={gauss} (per patch)", out, truth[pick],
                           wall_e, m, {"points_per_cpu_s": m / cpu_e}))
     rows.append(rectified_lsm(rig, L, R, corr))
-    d3 = distance_3d(scene_dir, rig, pair, epipolar_rms(pair.x_right[sel], truth, direction,
-                                                        pok))
+    d3 = distance_3d(scene_dir, rig, pair_default, d3_direction)
     return rows, d3, {"candidates": len(cand.points), "evaluated_points": n,
                       "image": [int(left.shape[1]), int(left.shape[0])]}
 
@@ -334,6 +353,9 @@ def main(argv=None) -> int:
     ecc1 = by["cv2.findTransformECC gauss=1 (per patch)"]
     goals = {
         "lsm_rms_le_0.03px": pair["rms_px"] <= 0.03,
+        "lsm_coverage_loss_le_25pct_vs_fixed_patch": (
+            pair["accepted_points"] >= 0.75 * by["LSM pair, fixed 15x15, no precision test"][
+                "accepted_points"]),
         "sigma_within_25pct": abs(pair["actual_over_reported"] - 1) <= 0.25,
         "lsm_ge_50k_points_per_s": lsm["points_per_s"] >= 50000,
         "lsm_ge_50k_points_per_cpu_s_x2": lsm["points_per_cpu_s_x2"] >= 50000,
@@ -345,13 +367,25 @@ def main(argv=None) -> int:
     print(f"vase {info['image'][0]}x{info['image'][1]}, {info['evaluated_points']} points "
           f"with truth (of {info['candidates']} candidates); outlier = |error| > {OUTLIER_PX} px")
     print(f"{'method':44s} {'RMS px':>8s} {'epipolar':>8s} {'outliers':>9s} {'points/s':>10s} "
-          f"{'sigma ratio':>11s}")
+          f"{'sigma ratio':>11s} {'accepted':>9s}")
     for r in rows:
         ratio = r.get("actual_over_reported")
         along = r.get("rms_px_along_epipolar")
+        acc = r.get("accepted")
         print(f"{r['method']:44s} {r['rms_px']:8.4f} "
               f"{'' if along is None else f'{along:8.4f}':>8s} {100 * r['outliers']:8.2f}% "
-              f"{r['points_per_s']:10.0f} {'' if ratio is None else f'{ratio:11.2f}'}")
+              f"{r['points_per_s']:10.0f} {'' if ratio is None else f'{ratio:11.2f}'} "
+              f"{'' if acc is None else f'{100 * acc:8.1f}%'}")
+    fixed = by["LSM pair, fixed 15x15, no precision test"]
+    print(f"coverage (LSM pair): {pair['accepted_points']} accepted of "
+          f"{pair['candidates_with_truth']} candidates with truth "
+          f"({100 * pair['accepted']:.1f} %; fixed 15x15 without the precision test: "
+          f"{fixed['accepted_points']}, {100 * fixed['accepted']:.1f} %); rejected: "
+          f"{pair['rejected']}; patch sides of the accepted: {pair['patch_sides']}")
+    lost = 1 - pair["accepted_points"] / fixed["accepted_points"]
+    if lost > 0.25:
+        print(f"NOTE: the adaptive patch + precision test drop {100 * lost:.0f} % of the "
+              "points the fixed patch accepts")
     print(f"LSM kernel per CPU-second x 2 cores: {lsm['points_per_cpu_s_x2']:.0f} points/s; "
           f"per CPU-second LSM {lsm['points_per_cpu_s']:.0f}, ECC gauss=1 "
           f"{ecc1['points_per_cpu_s']:.0f} "
