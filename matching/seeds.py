@@ -14,6 +14,15 @@ with central-difference gradients (the noise of one has variance
 :func:`matching.lsm.lsm_match`, so a selected point is never rejected there as
 textureless.  The best point of every ``spacing`` x ``spacing`` cell is kept.
 
+Precision.  :func:`shift_precision` predicts the σ of a match per unit σ0 from the
+same tensor summed over a patch, less its noise part (Förstner's error ellipse,
+:math:`1/\sqrt{2w}`, :math:`w = \det N / \operatorname{tr} N`, Förstner & Gülch
+1987), for any set of patch sides at once (integral images); :func:`forstner` gives the
+interest operator's w and roundness q.  The selection itself stays the texture test:
+selecting by w or q only buys precision by dropping points (on the vase, q >= 0.75
+keeps 81 % of the points for 0.0371 -> 0.0364 px RMS); :mod:`matching.pair` uses the
+prediction instead to grow the patch where the precision is poor.
+
 Approximations.  A calibrated pair is rectified (``cv2.stereoRectify``, Bouguet's
 method) and ``cv2.StereoSGBM`` (Hirschmüller 2008) computes a coarse disparity
 map on the rectified images.  Its disparity range comes from the data: SIFT
