@@ -81,8 +81,10 @@ References
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -148,15 +150,15 @@ class PairCloud:
         Observation covariance used for both rectified observations.
     cameras : (Camera, Camera)
         The rectified left and right cameras (pinhole, no distortion).
-    template : (H, W) float64
-        The rectified left grey image (LSM templates of the consistency step).
     status_counts : dict
         Candidates per :data:`matching.pair.PAIR_STATUS_NAMES` name.
     seconds : float
         Wall time of the pair.
-    prepared_template : matching.lsm.PreparedImage, optional
-        ``template`` already prepared for LSM (the consistency step reuses it when its
-        interpolation matches instead of refiltering).
+
+    Notes
+    -----
+    No image is kept (memory stays bounded by the points, not by the views): the
+    consistency step re-rectifies the left image (:func:`rectified_template`).
     """
 
     pair: tuple[int, int]
@@ -167,10 +169,8 @@ class PairCloud:
     x_right: np.ndarray
     cov_2d: np.ndarray
     cameras: tuple[Camera, Camera]
-    template: np.ndarray
     status_counts: dict = field(default_factory=dict)
     seconds: float = 0.0
-    prepared_template: PreparedImage | None = None
 
     def __len__(self) -> int:
         return len(self.points)
@@ -367,15 +367,11 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     prep_l, prep_r = prepare_image(grey_l, interpolation), prepare_image(grey_r, interpolation)
     matches = match_pair(prep_l, prep_r, rectified=True, mask=valid, **options)
     near_edge = _near_textureless(matches, int(options.get("patch", 15)), valid.shape)
+    # match_pair's second pass already carries the second-order terms of its first pass's
+    # affine field; a third pass (terms re-estimated from the second) moved the matches by
+    # a median 0.002 px, 0.15 of their sigma, on the 1024x768 ring: not worth its cost
     ok = np.flatnonzero(matches.accepted & ~near_edge)
     x_right, cov_lsm = matches.x_right[ok], matches.cov[ok]
-    refined = _second_order_pass(prep_l, prep_r, matches.x_left, matches.affine,
-                                 matches.radiometric, matches.accepted & ~near_edge,
-                                 x_right, (1.0, 0.0),
-                                 options)
-    if refined is not None:
-        good, x_right, cov_lsm = refined
-        ok, x_right, cov_lsm = ok[good], x_right[good], cov_lsm[good]
     cov2 = 0.5 * cov_lsm + TOL.match_cov_floor_px**2 * np.eye(2)
     tri = triangulate_pair(cam_l, cam_r, matches.x_left[ok], x_right,
                            cov_left=cov2, cov_right=cov2, refine=True)
@@ -384,11 +380,23 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
                      cov=tri.cov[keep], sigma=tri.sigma[keep],
                      x_template=matches.x_left[ok][keep], x_right=x_right[keep],
                      cov_2d=cov2[keep], cameras=(cam_l, cam_r),
-                     template=prep_l.raw, prepared_template=prep_l,
                      status_counts={**matches.status_counts(),
                                     "silhouette": int(np.count_nonzero(matches.accepted
                                                                        & near_edge))},
                      seconds=time.perf_counter() - start)
+
+
+def rectified_template(left_image, left: Camera, right: Camera,
+                       interpolation: str = DEFAULT_INTERPOLATION) -> PreparedImage:
+    """The rectified left grey image of a pair, prepared for LSM (consistency templates).
+
+    The same rectification and resampling as :func:`reconstruct_view_pair` (so the same
+    pixels); recomputed where needed (~30 ms at 1024x768) instead of kept per pair.
+    """
+    rect, _, _ = rectify_pair(left, right)
+    grey = cv2.remap(np.asarray(_grey(left_image), dtype=np.float32), *rect.maps_left,
+                     cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return prepare_image(grey, interpolation)
 
 
 def _near_textureless(matches, patch: int, shape: tuple[int, int]) -> np.ndarray:
@@ -433,6 +441,36 @@ def _second_order_pass(template, search, points, affine, radiometric, accepted, 
 
 
 # --------------------------------------------------------------------------- consistency
+def _project(camera: Camera, X: np.ndarray, with_jacobian: bool = False):
+    """:meth:`Camera.project` in numpy for a camera without distortion.
+
+    ``x = (K X_c)_{1,2} / (K X_c)_3`` with ``X_c = R X + t``; the Jacobian is
+    ``(K_{1,2} - x K_3) R / (K X_c)_3``.  Agrees with ``cv2.projectPoints`` to rounding
+    (~1e-13 px) at a third of its cost, which the consistency step paid ~50 times per
+    pair.  Cameras with distortion go through :meth:`Camera.project`.
+
+    Parameters
+    ----------
+    camera : Camera
+    X : (N, 3) float64, scene units
+    with_jacobian : bool
+
+    Returns
+    -------
+    x : (N, 2) float64, px
+    J : (N, 2, 3) float64, px per scene unit (only if ``with_jacobian``)
+    """
+    if camera.has_distortion:
+        return camera.project(X, with_jacobian=with_jacobian)
+    h = (X @ camera.R.T + camera.t) @ camera.K.T  # (N, 3) homogeneous pixels
+    x = h[:, :2] / h[:, 2:3]
+    if not with_jacobian:
+        return x
+    K = camera.K
+    jac = (K[None, :2, :] - x[:, :, None] * K[None, 2:3, :]) / h[:, 2, None, None]  # (N, 2, 3)
+    return x, jac @ camera.R
+
+
 def _normals(points: np.ndarray, towards: np.ndarray) -> np.ndarray:
     """(M, 3) unit PCA normals of the nearest pair points, oriented towards ``towards``."""
     k = min(_NORMAL_NEIGHBOURS, len(points))
@@ -466,7 +504,7 @@ def zbuffer(camera: Camera, points: np.ndarray, window: int) -> np.ndarray:
     buf = np.full(h * w, np.inf)
     depth = camera.depth(points)
     front = depth > 0
-    x = np.rint(camera.project(points[front])).astype(np.int64)
+    x = np.rint(_project(camera, points[front])).astype(np.int64)
     inside = (x[:, 0] >= 0) & (x[:, 0] < w) & (x[:, 1] >= 0) & (x[:, 1] < h)
     np.minimum.at(buf, x[inside, 1] * w + x[inside, 0], depth[front][inside])
     # a square minimum filter is a grey erosion (OpenCV's is ~4x faster than ndimage's;
@@ -479,13 +517,13 @@ def _plane_affine(cam_t: Camera, cam_k: Camera, x_t: np.ndarray, X: np.ndarray,
                   normal: np.ndarray) -> np.ndarray:
     """(M, 2, 2) Jacobian of the template-pixel -> view-k mapping through the tangent plane."""
     out = np.empty((len(X), 2, 2))
-    base = cam_k.project(X)
+    base = _project(cam_k, X)
     for col, step in enumerate(([1.0, 0.0], [0.0, 1.0])):
         origin, d = cam_t.ray(x_t + step)
         denom = np.einsum("mi,mi->m", d, normal)
         s = np.einsum("mi,mi->m", X - origin, normal) / np.where(np.abs(denom) > TOL.zero,
                                                                  denom, np.nan)
-        out[:, :, col] = cam_k.project(origin + s[:, None] * d) - base
+        out[:, :, col] = _project(cam_k, origin + s[:, None] * d) - base
     return out
 
 
@@ -517,7 +555,7 @@ def _visible(cloud: PairCloud, cam_k: Camera, zbuf: np.ndarray, normals: np.ndar
     """Visibility of the pair's points in view k: (mask, projections, incidence cosine)."""
     X = cloud.points
     depth = cam_k.depth(X)
-    x = cam_k.project(X)
+    x = _project(cam_k, X)
     w, h = cam_k.size
     border = patch // 2 + _BORDER_PX
     inside = ((depth > 0) & (x[:, 0] >= border) & (x[:, 0] <= w - 1 - border)
@@ -534,7 +572,8 @@ def _visible(cloud: PairCloud, cam_k: Camera, zbuf: np.ndarray, normals: np.ndar
 
 
 def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
-                      zbuffers: dict, *, check_views: int = 2, patch: int = 15,
+                      zbuffers: dict, template: PreparedImage, *, check_views: int = 2,
+                      patch: int = 15,
                       spacing: int = 4, interpolation: str = DEFAULT_INTERPOLATION,
                       max_incidence_deg: float = 60.0, reject_p: float = 0.999,
                       require_confirmation: bool = True, **lsm_options) -> Consistency:
@@ -548,8 +587,10 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     images : dict int -> matching.lsm.PreparedImage
         Grey images of (at least) the views that may be checked, prepared for
         ``interpolation`` (:func:`matching.lsm.prepare_image`, once per view).
-    zbuffers : dict int -> (H, W) float64
+    zbuffers : dict int -> (H, W) float
         :func:`zbuffer` of every pair's points for those views.
+    template : matching.lsm.PreparedImage
+        The pair's rectified left image (:func:`rectified_template`).
     check_views : int
         Further views tried per point (visible ones nearest to the template view).
     patch, spacing, interpolation : as :func:`matching.pair.match_pair`.
@@ -597,9 +638,8 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     tried = np.zeros(m, np.int64)
     matched = np.zeros(m, bool)
     confirmed = np.zeros(m, np.int64)
-    template = cloud.prepared_template
-    if template is None or template.interpolation != interpolation:
-        template = prepare_image(cloud.template, interpolation)
+    if template.interpolation != interpolation:
+        template = prepare_image(template.raw, interpolation)
     bound = chi2.ppf(reject_p, 2)
     for k in others:
         need = tried < check_views
@@ -636,7 +676,7 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
             position, lsm_cov = position.copy(), lsm_cov.copy()
             position[sub[good]], lsm_cov[sub[good]] = pos2[good], cov2[good]
         matched[idx[ok]] = True
-        _, jac = cameras[k].project(cloud.points[idx], with_jacobian=True)
+        _, jac = _project(cameras[k], cloud.points[idx], with_jacobian=True)
         s_pred = jac @ cloud.cov[idx] @ np.swapaxes(jac, 1, 2) + lsm_cov
         s_pred += TOL.match_cov_floor_px**2 * np.eye(2)
         d = position - x_pred[idx]
@@ -672,16 +712,14 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
 
 # --------------------------------------------------------------------------- merge
 def _colours(points: np.ndarray, views: np.ndarray, cameras: Sequence[Camera],
-             colour_images: dict) -> np.ndarray:
-    """(N, 3) uint8 RGB from the first view that saw each point."""
+             colour_image: Callable) -> np.ndarray:
+    """(N, 3) uint8 RGB from the first view that saw each point (``colour_image(v)``)."""
     out = np.zeros((len(points), 3), np.uint8)
     first = np.argmax(views, axis=1)
     for v in np.unique(first):
-        if v not in colour_images:
-            continue
         sel = np.flatnonzero(first == v)
-        img = np.asarray(colour_images[v])
-        x = np.rint(cameras[v].project(points[sel])).astype(np.int64)
+        img = np.asarray(colour_image(int(v)))
+        x = np.rint(_project(cameras[v], points[sel])).astype(np.int64)
         x[:, 0] = np.clip(x[:, 0], 0, img.shape[1] - 1)
         x[:, 1] = np.clip(x[:, 1], 0, img.shape[0] - 1)
         px = img[x[:, 1], x[:, 0]]
@@ -820,14 +858,91 @@ def _further_views(cameras: Sequence[Camera], pair: tuple[int, int], count: int,
     return others[:count]
 
 
+@dataclass(frozen=True)
+class _View:
+    """One view's image, read on use from a lazily loading image sequence.
+
+    Tasks carry this (the sequence names files; it pickles small) instead of the pixels,
+    so that an image is in memory only while a task uses it.
+    """
+
+    images: Sequence
+    index: int
+
+    def load(self) -> np.ndarray:
+        return np.asarray(self.images[self.index])
+
+
+def _image(ref) -> np.ndarray:
+    return ref.load() if isinstance(ref, _View) else ref
+
+
 def _pair_task(item: dict) -> PairCloud:
-    return reconstruct_view_pair(item["left_image"], item["right_image"], item["left"],
-                                 item["right"], item["pair"], **item["options"])
+    return reconstruct_view_pair(_image(item["left_image"]), _image(item["right_image"]),
+                                 item["left"], item["right"], item["pair"], **item["options"])
 
 
 def _consistency_task(item: dict) -> Consistency:
-    return check_consistency(item["cloud"], item["cameras"], item["images"],
-                             item["zbuffers"], **item["options"])
+    cloud = item["cloud"]
+    i, j = cloud.pair
+    template = rectified_template(_image(item["template_image"]), item["cameras"][i],
+                                  item["cameras"][j], item["options"]["interpolation"])
+    res = check_consistency(cloud, item["cameras"], item["images"], item["zbuffers"],
+                            template, **item["options"])
+    # what the merge needs, compactly: no covariances, the view flags packed in bits
+    return Consistency(points=res.points, cov=np.zeros((0, 3, 3)), sigma=res.sigma,
+                       reason=res.reason, views=np.packbits(res.views, axis=1),
+                       checked=res.checked, seconds=res.seconds)
+
+
+def _view_task(item: dict) -> tuple[PreparedImage, np.ndarray]:
+    """A further view's grey image prepared for LSM and its z-buffer of all pair points."""
+    grey = prepare_image(_grey(_image(item["image"])), item["interpolation"])
+    return grey, zbuffer(item["camera"], item["points"], item["window"])
+
+
+def _kernels_release_gil() -> bool:
+    """True when matching.lsm's numba kernels are compiled with ``nogil=True``."""
+    from matching import lsm
+
+    kernels = [getattr(lsm, name, None) for name in ("_lsm_batch", "_second_order_kernel")]
+    return all(getattr(k, "targetoptions", {}).get("nogil", False) for k in kernels)
+
+
+def _thread_map(workers: int) -> Callable:
+    """``map(func, items)`` on ``workers`` threads of this process, results in order.
+
+    View pairs are independent and much of a pair's time is serial (SIFT, SGBM,
+    rectification, numpy), so two pairs at once keep two cores busy where one pair's
+    numba ``prange`` kernels alone leave them half idle.  When the kernels release the
+    GIL each thread runs them on one numba thread (``numba.set_num_threads`` is
+    per thread), else they keep numba's default and the other threads overlap them with
+    GIL-free OpenCV/numpy work.  Results do not depend on the thread count (every
+    kernel works per point).
+    """
+    def run(func, items):
+        items = list(items)
+        if workers <= 1 or len(items) < 2:
+            return [func(item) for item in items]
+        single = _kernels_release_gil()
+
+        def call(item):
+            if single:
+                import numba
+
+                numba.set_num_threads(1)
+            return func(item)
+
+        with ThreadPoolExecutor(min(workers, len(items))) as pool:
+            return list(pool.map(call, items))
+    return run
+
+
+def _default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
 
 
 _MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "sgbm_block",
@@ -836,9 +951,15 @@ _LSM_KEYS = ("max_iter", "shift_stop_px", "sigma0_factor", "min_correlation",
              "min_texture_snr")
 
 
+def _image_shape(images: Sequence, v: int) -> tuple:
+    shapes = getattr(images, "shapes", None)
+    return tuple(shapes[v]) if shapes is not None else np.shape(images[v])
+
+
 def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                           pairs: Sequence[tuple[int, int]] | None = None,
-                          map_func: Callable | None = None, check_views: int = 2,
+                          map_func: Callable | None = None, workers: int | None = None,
+                          chunk_pairs: int = 8, check_views: int = 2,
                           max_incidence_deg: float = 60.0, reject_p: float = 0.999,
                           require_confirmation: bool = True,
                           keep_unchecked: bool | None = None, sor_neighbours: int = 16,
@@ -849,13 +970,24 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     Parameters
     ----------
     images : sequence of V (H, W) or (H, W, 3) array_like
-        Images in camera order (colour in BGR order).
+        Images in camera order (colour in BGR order).  A sequence with a true ``lazy``
+        attribute (and ``shapes``, the V image shapes) reads an image on item access,
+        e.g. :class:`pipeline.cmd_acquire.FolderImages`: tasks then carry the sequence
+        and a view index, and an image is in memory only while a task uses it.
     cameras : sequence of V Camera
     pairs : sequence of (int, int), optional
         View pairs (default :func:`select_pairs` with ``pair_options``).
     map_func : callable, optional
         ``map_func(func, items) -> list``, e.g. ``executor.map`` of
-        :mod:`pipeline.executor` (default: a plain loop).
+        :mod:`pipeline.executor` (default: ``workers`` threads of this process).
+    workers : int, optional
+        Threads for the view pairs and consistency checks when ``map_func`` is not
+        given, and for the per-view preparation always (default: the usable cores).
+    chunk_pairs : int
+        Consistency checks are mapped ``chunk_pairs`` pairs at a time (pairs in the
+        given order: neighbours on a ring); only the views those pairs check in are
+        prepared (grey image + z-buffer) and held, so memory is bounded by a chunk's
+        views, not by all V.
     check_views, max_incidence_deg, reject_p, require_confirmation :
         As :func:`check_consistency`.
     keep_unchecked : bool, optional
@@ -875,14 +1007,16 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     Returns
     -------
     MultiViewCloud
+        Identical whatever ``map_func``, ``workers`` and ``chunk_pairs`` (every task is
+        deterministic and independent of the others).
     """
     cameras = list(cameras)
     if len(images) != len(cameras):
         raise ValueError(f"images: got {len(images)} images for {len(cameras)} cameras")
     if len(cameras) < 2:
         raise ValueError(f"cameras: need at least 2 views, got {len(cameras)}")
-    for v, (img, cam) in enumerate(zip(images, cameras, strict=True)):
-        shape = np.shape(img)
+    for v, cam in enumerate(cameras):
+        shape = _image_shape(images, v)
         if len(shape) < 2 or (shape[1], shape[0]) != cam.size:
             got = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
             raise ValueError(f"images[{v}] ({cam.name or v}) is {got} px but its camera is "
@@ -893,13 +1027,22 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         raise ValueError(f"max_incidence_deg must lie in (0, 90), got {max_incidence_deg}")
     if not 0.0 < reject_p < 1.0:
         raise ValueError(f"reject_p must lie in (0, 1), got {reject_p}")
+    workers = _default_workers() if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if int(chunk_pairs) < 1:
+        raise ValueError(f"chunk_pairs must be >= 1, got {chunk_pairs}")
     unknown = set(match_options) - set(_MATCH_KEYS)
     if unknown:
         raise ValueError(f"unknown matching option(s) {sorted(unknown)}; choose from "
                          f"{', '.join(_MATCH_KEYS)}")
-    if map_func is None:
-        def map_func(func, items):
-            return [func(item) for item in items]
+    local_map = _thread_map(workers)
+    map_func = local_map if map_func is None else map_func
+    lazy = bool(getattr(images, "lazy", False))
+
+    def ref(v: int):
+        return _View(images, v) if lazy else images[v]
+
     pairs = select_pairs(cameras, **(pair_options or {})) if pairs is None else [
         (int(a), int(b)) for a, b in pairs]
     if not pairs:
@@ -907,27 +1050,46 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                          "viewing angle")
     t0 = time.perf_counter()
     clouds = map_func(_pair_task, [
-        {"left_image": images[a], "right_image": images[b], "left": cameras[a],
+        {"left_image": ref(a), "right_image": ref(b), "left": cameras[a],
          "right": cameras[b], "pair": (a, b), "options": match_options} for a, b in pairs])
     t1 = time.perf_counter()
     patch = int(match_options.get("patch", 15))
     spacing = int(match_options.get("spacing", 4))
     all_points = np.concatenate([c.points for c in clouds]) if clouds else np.zeros((0, 3))
+    median_sigma_pair = (float(np.median(np.concatenate([c.sigma for c in clouds])))
+                         if len(all_points) else float("nan"))
     window = 2 * spacing + 1
-    zbuffers = {v: zbuffer(cameras[v], all_points, window) for v in range(len(cameras))}
     interpolation = match_options.get("interpolation", DEFAULT_INTERPOLATION)
-    grey = {v: prepare_image(_grey(images[v]), interpolation) for v in range(len(cameras))}
     options = {"check_views": check_views, "patch": patch, "spacing": spacing,
                "interpolation": interpolation,
                "max_incidence_deg": max_incidence_deg, "reject_p": reject_p,
                "require_confirmation": require_confirmation,
                **{k: v for k, v in match_options.items() if k in _LSM_KEYS}}
-    items = []
-    for c in clouds:
-        near = _further_views(cameras, c.pair, 2 * check_views + 2, max_incidence_deg)
-        items.append({"cloud": c, "cameras": cameras, "images": {k: grey[k] for k in near},
-                      "zbuffers": {k: zbuffers[k] for k in near}, "options": options})
-    checks = map_func(_consistency_task, items)
+    near = [_further_views(cameras, pr, 2 * check_views + 2, max_incidence_deg)
+            for pr in pairs]
+    chunks = [range(s, min(s + int(chunk_pairs), len(pairs)))
+              for s in range(0, len(pairs), int(chunk_pairs))]
+    view_data: dict = {}
+    checks: list = []
+    prepared_views = 0
+    for c, chunk in enumerate(chunks):
+        need = sorted({k for p in chunk for k in near[p]})
+        missing = [k for k in need if k not in view_data]
+        prepared_views += len(missing)
+        view_data.update(zip(missing, local_map(_view_task, [
+            {"image": ref(k), "camera": cameras[k], "points": all_points,
+             "window": window, "interpolation": interpolation} for k in missing]),
+            strict=True))
+        checks += map_func(_consistency_task, [
+            {"cloud": clouds[p], "cameras": cameras, "template_image": ref(pairs[p][0]),
+             "images": {k: view_data[k][0] for k in near[p]},
+             "zbuffers": {k: view_data[k][1] for k in near[p]}, "options": options}
+            for p in chunk])
+        for p in chunk:
+            clouds[p] = None  # the pair's points live on in its check
+        later = {k for p in chunks[c + 1] for k in near[p]} if c + 1 < len(chunks) else set()
+        view_data = {k: d for k, d in view_data.items() if k in later}
+    del view_data, all_points
     t2 = time.perf_counter()
     reasons = np.concatenate([c.reason for c in checks]) if checks else np.zeros(0, np.int8)
     if keep_unchecked is None:
@@ -935,10 +1097,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     keep = np.isin(reasons, (MULTIVIEW, PAIR_ONLY) if keep_unchecked else (MULTIVIEW,))
     points = np.concatenate([c.points for c in checks])[keep]
     sigma = np.concatenate([c.sigma for c in checks])[keep]
-    views = np.concatenate([c.views for c in checks])[keep]
+    views = np.unpackbits(np.concatenate([c.views for c in checks])[keep], axis=1,
+                          count=len(cameras)).astype(bool)
     source = np.concatenate([np.full(len(c.reason), p, np.int64)
                              for p, c in enumerate(checks)])[keep]
-    colours = _colours(points, views, cameras, dict(enumerate(images)))
+    del checks
+    colours = _colours(points, views, cameras, lambda v: _image(ref(v)))
     merged = merge_clouds(points, sigma, views, source, colours,
                           sor_neighbours=sor_neighbours, sor_std=sor_std)
     t3 = time.perf_counter()
@@ -950,10 +1114,10 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
         "fused": merged["fused"], "fusion_radius": merged["radius"],
         "points": int(len(merged["points"])),
-        "median_sigma_pair": float(np.median(np.concatenate([c.sigma for c in clouds])))
-        if len(all_points) else float("nan"),
+        "median_sigma_pair": median_sigma_pair,
         "median_sigma_multiview": float(np.median(sigma[is_multi])) if is_multi.any()
         else float("nan"),
+        "prepared_views": prepared_views, "workers": workers,
         "pair_seconds": t1 - t0, "consistency_seconds": t2 - t1, "merge_seconds": t3 - t2,
         "seconds_per_pair": (t2 - t0) / len(pairs), "seconds": t3 - t0,
     }

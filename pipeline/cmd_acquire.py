@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -83,19 +83,59 @@ def _image_dir(folder: Path) -> tuple[Path, list[str], list[str]]:
                      f"{', '.join(others[:5])}{' ...' if len(others) > 5 else ''}")
 
 
-def read_images(where: Path, names: list[str]) -> list[np.ndarray]:
-    """Every image (grey or BGR); ``InputError`` naming the first unreadable file."""
+def read_image(path: Path) -> np.ndarray:
+    """One image (grey or BGR, uint8); ``InputError`` naming an unreadable file."""
     import cv2
 
-    images = []
-    for name in names:
-        image = cv2.imread(str(where / name), cv2.IMREAD_UNCHANGED)
-        if image is None or image.ndim not in (2, 3) or min(image.shape[:2]) < 32:
-            raise InputError(f"{where / name}: not a readable image (or smaller than 32x32 px)")
-        if image.dtype != np.uint8:
-            image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-        images.append(image)
-    return images
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.ndim not in (2, 3) or min(image.shape[:2]) < 32:
+        raise InputError(f"{path}: not a readable image (or smaller than 32x32 px)")
+    if image.dtype != np.uint8:
+        image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return image
+
+
+def read_images(where: Path, names: list[str]) -> list[np.ndarray]:
+    """Every image (grey or BGR); ``InputError`` naming the first unreadable file."""
+    return [read_image(where / name) for name in names]
+
+
+class FolderImages(Sequence):
+    """The images of a folder, read from disk on item access (bounded memory).
+
+    Every file is read once on construction to check it and record its shape, then
+    dropped; ``images[v]`` reads it again.  Pickles as its paths (a Dask task carries
+    the file names, not the pixels).  :func:`matching.multiview.reconstruct_multiview`
+    recognises it by ``lazy`` and ``shapes``.
+
+    Parameters
+    ----------
+    where : Path
+        The folder.
+    names : list of str
+        Image file names, in camera order.
+    """
+
+    lazy = True
+
+    def __init__(self, where: Path, names: list[str]):
+        self.paths = [Path(where) / name for name in names]
+        self.shapes = [read_image(path).shape for path in self.paths]
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        return read_image(self.paths[index])
+
+    def subset(self, indices: list[int]) -> FolderImages:
+        """The images at ``indices`` (no file is read again)."""
+        out = object.__new__(FolderImages)
+        out.paths = [self.paths[i] for i in indices]
+        out.shapes = [self.shapes[i] for i in indices]
+        return out
 
 
 def _camera_source(folder: Path, where: Path, cameras: str | None) -> Path | None:
@@ -129,7 +169,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     Returns
     -------
     dict
-        ``images`` (list of arrays), ``cameras`` (list of Camera, same order), ``names``,
+        ``images`` (:class:`FolderImages`, read on access), ``cameras`` (list of
+        Camera, same order), ``names``,
         ``camera_source`` (path or ``"sfm"``), ``ignored`` (other files),
         ``unregistered`` (images SfM could not place, left out), ``sfm`` (its report).
     """
@@ -139,8 +180,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     where, names, others = _image_dir(folder)
     if len(names) < 2:
         raise InputError(f"{where}: need at least 2 images, found {len(names)} ({names[0]})")
-    images = read_images(where, names)
-    sizes = {(img.shape[1], img.shape[0]) for img in images}
+    images = FolderImages(where, names)
+    sizes = {(shape[1], shape[0]) for shape in images.shapes}
     source = _camera_source(folder, where, cameras)
     out = {"ignored": others, "unregistered": [], "sfm": None}
     if source is not None:
@@ -149,9 +190,9 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         except ValueError as exc:
             raise InputError(f"{source}: {exc}") from None
         cams = _match_cameras(cams, names, source)
-        for name, img, cam in zip(names, images, cams, strict=True):
-            if (img.shape[1], img.shape[0]) != cam.size:
-                raise InputError(f"{where / name}: image is {img.shape[1]}x{img.shape[0]} px but "
+        for name, shape, cam in zip(names, images.shapes, cams, strict=True):
+            if (shape[1], shape[0]) != cam.size:
+                raise InputError(f"{where / name}: image is {shape[1]}x{shape[0]} px but "
                                  f"its camera in {source} is {cam.size[0]}x{cam.size[1]} px")
         out["camera_source"] = str(source)
     else:
@@ -167,7 +208,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
                              f"{len(names)} images; need 2")
         keep = [n for n in names if n in set(result.registered)]
         by_name = {c.name: c for c in result.cameras}
-        images = [images[names.index(n)] for n in keep]
+        images = images.subset([names.index(n) for n in keep])
         cams = [by_name[n] for n in keep]
         out.update(camera_source="sfm", unregistered=list(result.unregistered),
                    sfm=result.report())
@@ -189,7 +230,9 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     cameras : path, optional
         Camera file (default: found in the folder, else SfM).
     executor : pipeline.executor executor, optional
-        Its ``map`` runs the view pairs (default: in-process loop).
+        A Dask executor's ``map`` runs the view pairs and consistency checks as tasks;
+        in process (default, or a ``LocalExecutor``) they run on one thread per usable
+        core (:func:`matching.multiview.reconstruct_multiview`'s ``workers``).
     check_views : int
     camera_model : str
         COLMAP camera model for SfM (only used without cameras).
@@ -207,7 +250,9 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
 
     loaded = load_folder(folder, cameras, camera_model=camera_model)
     match = {k: v for k, v in options.items() if k in _MATCH_KEYS}
-    map_func = None if executor is None else executor.map
+    from pipeline.executor import LocalExecutor
+
+    map_func = None if executor is None or isinstance(executor, LocalExecutor) else executor.map
     try:
         cloud = reconstruct_multiview(loaded["images"], loaded["cameras"], map_func=map_func,
                                       check_views=check_views, **match)
