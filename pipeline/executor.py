@@ -21,6 +21,16 @@ thread, and BLAS then sums in another order).  Workers of a remote cluster
 should be started with the same ``OMP_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS``
 as the client for the same guarantee; otherwise results agree to rounding.
 
+The workers must also run the *same code*: a worker imports photosurf when it
+starts, so a source file edited (or photosurf upgraded) after this process
+imported it gives the workers other code and other numbers — the likely cause
+of the 12 view pairs that differed between Dask and the in-process run at
+1024x768 in session 1 (measured while ``matching/lsm.py`` was being edited in the
+shared tree; the same comparison is bit-identical on a fixed tree).
+:meth:`DaskExecutor.map` therefore compares :func:`code_fingerprint` (a hash of
+the code objects this process actually loaded) with each worker's before
+submitting, and refuses with one line naming the modules that differ.
+
 Tasks are the objects of a batch and the view pairs of an image folder; each
 result is a small summary, the big arrays stay in files, so memory is bounded
 by the tasks in flight, not by the batch.
@@ -28,9 +38,14 @@ by the tasks in flight, not by the batch.
 
 from __future__ import annotations
 
+import hashlib
+import importlib.machinery
+import inspect
 import logging
 import os
 import re
+import sys
+import types
 import warnings
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
@@ -118,11 +133,30 @@ class DaskExecutor:
         items = list(items)
         if not items:
             return []
+        self.check_code(func)
         # Items (view pairs carry their images) go to the workers as data, not inside the
         # task graph; pure=False: every item is its own task even if two items are equal.
         data = self.client.scatter(items, hash=False)
         futures = self.client.map(func, data, pure=False, **kwargs)
         return self.client.gather(futures)
+
+    def check_code(self, func: Callable | None = None) -> None:
+        """``InputError`` unless every worker loaded the code this process runs.
+
+        Compares :func:`code_fingerprint` of the project's loaded modules (and
+        ``func``'s module) here and on each worker (which imports them if needed).
+        """
+        names = project_modules(func)
+        here = code_fingerprint(names)
+        there = self.client.run(code_fingerprint, names)
+        for worker, digests in there.items():
+            differ = sorted(n for n in names if digests.get(n) != here.get(n))
+            if differ:
+                raise InputError(
+                    f"--scheduler {self.address}: worker {worker} runs other code than this "
+                    f"process for {', '.join(differ[:4])}{' ...' if len(differ) > 4 else ''} "
+                    "(a source file changed since this process imported it, or the workers "
+                    "have another photosurf); restart so both load the same files")
 
     def close(self) -> None:
         self.client.close()
@@ -138,6 +172,84 @@ class DaskExecutor:
     def describe(self) -> str:
         workers = len(self.client.scheduler_info().get("workers", {}))
         return f"dask {self.address} ({workers} workers)"
+
+
+#: Packages whose code must be the same in the client and the workers.
+PROJECT_PACKAGES = ("matching", "surface", "pipeline")
+
+
+def project_modules(func: Callable | None = None) -> list[str]:
+    """Loaded modules of :data:`PROJECT_PACKAGES`, plus ``func``'s module, sorted."""
+    names = {name for name in sys.modules
+             if name.split(".")[0] in PROJECT_PACKAGES and sys.modules[name] is not None}
+    module = sys.modules.get(getattr(func, "__module__", None) or "")
+    # a plain source module only: pytest's assertion rewriting (say) compiles test modules
+    # to other code than a worker's plain import, and __main__ is not importable there
+    loader = getattr(getattr(module, "__spec__", None), "loader", None)
+    if module is not None and module.__name__ != "__main__" and isinstance(
+            loader, importlib.machinery.SourceFileLoader):
+        names.add(module.__name__)
+    return sorted(names)
+
+
+def _code_objects(module) -> list:
+    """Code objects of the functions and methods defined in ``module``, by qualified name."""
+    found = {}
+    for name, value in vars(module).items():
+        members = [(name, value)]
+        if inspect.isclass(value):
+            members += [(f"{name}.{k}", v) for k, v in vars(value).items()]
+        for qualname, obj in members:
+            obj = getattr(obj, "py_func", obj)  # numba dispatchers keep the Python function
+            obj = getattr(obj, "__func__", obj)  # static/class methods
+            code = getattr(obj, "__code__", None)
+            if code is not None and getattr(obj, "__module__", None) == module.__name__:
+                found[qualname] = code
+    return [found[k] for k in sorted(found)]
+
+
+def _feed(digest, value) -> None:
+    """Hash a code object (bytecode, names, constants, nested code) independently of
+    the process: set constants are hashed sorted (their order follows the per-process
+    string hash seed, so marshal's bytes would differ between processes)."""
+    if isinstance(value, types.CodeType):
+        digest.update(value.co_code)
+        digest.update(repr((value.co_names, value.co_varnames, value.co_freevars,
+                            value.co_cellvars)).encode())
+        for const in value.co_consts:
+            _feed(digest, const)
+    elif isinstance(value, tuple):
+        digest.update(b"(")
+        for item in value:
+            _feed(digest, item)
+        digest.update(b")")
+    elif isinstance(value, frozenset):
+        digest.update(repr(sorted(repr(item) for item in value)).encode())
+    else:
+        digest.update(repr(value).encode())
+
+
+def code_fingerprint(names: list[str]) -> dict[str, str]:
+    """SHA-256 per module of the code this process loaded (imports missing ones).
+
+    Hashes the code objects of each module's functions and methods (what
+    runs, as loaded, not the file on disk now); a module that cannot be imported
+    maps to ``"unimportable"``.
+    """
+    import importlib
+
+    out = {}
+    for name in names:
+        try:
+            module = importlib.import_module(name)
+        except Exception:  # noqa: BLE001 - reported as a difference
+            out[name] = "unimportable"
+            continue
+        digest = hashlib.sha256()
+        for code in _code_objects(module):
+            _feed(digest, code)
+        out[name] = digest.hexdigest()
+    return out
 
 
 def quiet_dask() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +119,67 @@ def test_batch_failed_object_does_not_stop_the_others(tmp_path, capfd):
                    "or folder"]
     summary = json.loads((tmp_path / "out" / "batch.json").read_text())
     assert [o["status"] for o in summary["objects"]] == ["failed", "done"]
+
+
+def test_dask_refuses_workers_that_run_other_code(tmp_path, monkeypatch):
+    """A source file edited after this process imported it: the workers (which import it
+    when they start) would run other code; the executor says so instead of returning
+    other numbers (the session-1 cause of Dask != in-process on the 1024x768 ring)."""
+    module = tmp_path / "photosurf_probe_mod.py"
+    module.write_text("def value(x):\n    return x + 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        p for p in (str(tmp_path), os.environ.get("PYTHONPATH")) if p))
+    import photosurf_probe_mod
+
+    try:
+        with DaskExecutor(None, n_workers=1) as ex:
+            assert ex.map(photosurf_probe_mod.value, [1, 2]) == [2, 3]  # same code: runs
+        # another length than the first text, so no stale bytecode cache can hide it
+        module.write_text("def value(x):\n    return x + 1000\n")
+        with DaskExecutor(None, n_workers=1) as ex:
+            with pytest.raises(InputError, match=r"other code .*photosurf_probe_mod"):
+                ex.map(photosurf_probe_mod.value, [1, 2])
+    finally:
+        sys.modules.pop("photosurf_probe_mod", None)
+
+
+def test_code_fingerprint_is_the_same_in_a_fresh_process():
+    """The fingerprint hashes code, not process state (set constants follow the per-process
+    string hash seed; marshal's bytes would differ)."""
+    import subprocess
+
+    import matching.multiview  # noqa: F401 - loaded here and in the child alike
+    from pipeline.executor import code_fingerprint, project_modules
+
+    names = [n for n in project_modules() if n.startswith(("matching", "pipeline.executor"))]
+    here = code_fingerprint(names)
+    script = ("import json, sys; from pipeline.executor import code_fingerprint; "
+              f"print(json.dumps(code_fingerprint({names!r})))")
+    env = {**os.environ, "PYTHONHASHSEED": "12345"}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True, cwd=ROOT, env=env).stdout
+    assert json.loads(out) == here
+
+
+@pytest.mark.slow
+def test_dask_view_pairs_identical_to_in_process_at_1024x768():
+    """View pairs + consistency checks of the 1024x768 vase ring through LocalCluster(2)
+    give the in-process (threaded) cloud bit for bit.  Full size matters: above 640 px
+    the SIFT disparity range is found at half resolution, and OpenCV/numba split their
+    work by image size and thread count (session 1 saw a difference only at 1024x768)."""
+    from matching.multiview import reconstruct_multiview, select_pairs
+    from pipeline.scenes import build_scene, load_recipe, render_view
+
+    scene = build_scene(load_recipe(ROOT / "fixtures" / "scenes" / "vase_ring.toml"))
+    views = range(5)  # an arc of the 24-view ring: 2 pairs, each with further views
+    images = [render_view(scene, k)[0] for k in views]
+    cameras = [scene.cameras[k] for k in views]
+    pairs = select_pairs(cameras)[1:3]
+    local = reconstruct_multiview(images, cameras, pairs=pairs)
+    with DaskExecutor(None, n_workers=2) as ex:
+        remote = reconstruct_multiview(images, cameras, pairs=pairs, map_func=ex.map)
+    assert len(local) > 5000
+    for name in ("points", "sigma", "views", "pair", "colours"):
+        assert np.array_equal(getattr(local, name), getattr(remote, name)), name
+    assert local.reason_counts == remote.reason_counts
