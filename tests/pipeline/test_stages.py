@@ -36,6 +36,9 @@ def _run(path, out, *sets):
 @pytest.mark.parametrize(("sets", "kwargs"), [
     ((), {}),
     (("sections.count=24", "curves.smoothing=4.0"), {"sections": 24, "smoothing": 4.0}),
+    # session 1's mesh: fixed smoothing, no support rings (the defaults: 0 = "auto", support)
+    (("curves.smoothing=8.0", "stitch.support=false"), {"smoothing": 8.0, "support": False}),
+    (("curves.smoothing=auto",), {}),
 ])
 def test_stages_give_the_mesh_of_surface_from_points(vase, tmp_path, sets, kwargs):
     from surface.stitch import surface_from_points
@@ -106,3 +109,21 @@ def test_out_of_range_parameters_fail_before_the_workspace(vase, tmp_path, capfd
     err = capfd.readouterr().err
     assert code == 2 and needle in err and f"--set {setting}" in err, err
     assert not out.exists()
+
+
+def test_curves_store_the_noise_and_stitch_adds_support_rings_at_the_rims(vase, tmp_path):
+    """curves.npz carries the section points' sigma (surface.stitch.section_noise: the
+    robust spread across the curve, ~ the cloud's sigma = 0.002 per coordinate, between
+    0.8 and 1.5 of it with the local-quadratic misfit of 6000 points); the stitch stage
+    adds support rings at the two 90° rims and nowhere else, and not with support off."""
+    import json
+
+    v, f, points, path = vase
+    _run(path, tmp_path / "out")
+    with np.load(tmp_path / "out" / "curves" / "curves.npz") as curves:
+        assert 0.8 * SIGMA <= float(curves["noise"]) <= 1.5 * SIGMA
+    notes = json.loads((tmp_path / "out" / "stitch" / "stitch.json").read_text())
+    assert sum("support rings" in m for m in notes["messages"]) == 2
+    _run(path, tmp_path / "off", "stitch.support=false")
+    notes = json.loads((tmp_path / "off" / "stitch" / "stitch.json").read_text())
+    assert not any("support rings" in m for m in notes["messages"])
