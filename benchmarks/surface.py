@@ -29,7 +29,20 @@ the stitched method does not; the table's "normals" column is that share):
   ``surface.fitting.interpolating_control_mesh`` of the stitched mesh (control
   vertices whose Loop limit positions are the stitched vertices, one sparse
   solve; counted in the smooth stage), so it passes through the stitched
-  vertices instead of shrinking away from them.
+  vertices instead of shrinking away from them;
+* ``stitched-before`` / ``stitched+bezier-before`` session 1's settings (``BEFORE``:
+  curve smoothing fixed at 8 points per control point, no support rings), the
+  "before" of issue 5's Chamfer fix measured in the same run.  The defaults
+  (``stitched``, ``stitched+bezier``) choose the curve smoothing per loop by GCV
+  and add support rings at the two 90° rims (``surface.stitch.support_distance``).
+
+The ``rim`` column is the mean distance from the truth's samples within
+``RIM_BAND`` = 0.05 of a rim (z = 0, z = 3) to the reconstruction, where a G1
+surface without support rings rounds the edge off.
+
+After the scaling, unless ``--no-shapes``: before/after on other shapes
+(``SHAPES``: cylinder and elliptic cylinder with flat caps, an amphora-like
+profile, a capsule with domed ends), 2000 points per unit area, sigma = 0.002.
 
 Every method gets wall seconds (``time.perf_counter``) and CPU seconds of this
 process (``time.process_time``, all threads summed): on a loaded machine the
@@ -53,13 +66,13 @@ Run: ``.venv/bin/python benchmarks/surface.py [--quick] [--json PATH]
 [--methods NAME ...]`` (``--methods`` runs only the named rows, e.g.
 ``--methods poisson-8 stitched+bezier --no-scaling``).
 
-Measured (2026-11-22, full run, 2 shared cores; wall / CPU seconds):
-stitched 1.75 / 1.19 s, Chamfer 0.00042; poisson-8 9.41 / 6.83 s, 0.00076;
-stitched+bezier 2.45 / 2.23 s, Chamfer 0.00056 (goal <= 0.5 x poisson-8 =
-0.00038 missed: the 90-degree rim is rounded off and the caps bend, +0.00015
-of accuracy; the side gains from the smoothing despite Loop's shrinkage of
--0.00009), F 0.996, one closed component, G1 angle 4.3e-11 rad, 1.26e5
-patches/s, 1.8e6 triangles/s at level 1.
+Measured (2026-11-22 session 2, full run, 2 shared cores at load 4-5; wall / CPU s):
+poisson-8 6.74 / 5.85 s, Chamfer 0.00076; stitched 1.44 / 1.50 s, 0.00029 (before:
+0.00042); stitched+bezier 6.13 / 3.65 s, Chamfer 0.00032 <= 0.5 x poisson-8 = 0.00038
+(goal met; before: 0.00056, NOT met), rim band 0.00022 (before 0.00095), F 1.000, one
+closed component, G1 angle 3.4e-11 rad, tessellation 1.14e6 triangles/s.  Other shapes,
+smooth Chamfer before -> after: cylinder 0.00051 -> 0.00025, ellipse 0.00107 -> 0.00037,
+amphora 0.00055 -> 0.00034, capsule 0.00288 -> 0.00274 (domed ends get flat caps).
 """
 
 from __future__ import annotations
