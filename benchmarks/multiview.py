@@ -87,14 +87,28 @@ def _rms_icp(points: np.ndarray, truth, iterations: int = 5) -> float:
     return _rms(current, truth)
 
 
+def uptime() -> str:
+    """The load averages (1, 5, 15 min) of the shared machine, as ``uptime`` prints them."""
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+
+
 def run_photosurf(name: str, images, cameras, truth, spacing: int) -> tuple[dict, object]:
+    """``images`` a folder: ``photosurf acquire``'s path (images read from disk lazily)."""
+    load_before, cpu0 = uptime(), time.process_time()
     start = time.perf_counter()
-    cloud = reconstruct_multiview(images, cameras, spacing=spacing)
+    if isinstance(images, Path):
+        from pipeline.cmd_acquire import acquire_folder
+
+        cloud = acquire_folder(images, spacing=spacing)
+    else:
+        cloud = reconstruct_multiview(images, cameras, spacing=spacing)
     seconds = time.perf_counter() - start
     st = cloud.stats
     row = {"method": name, "points": len(cloud), "rms": _rms(cloud.points, truth),
            "median": _median(cloud.points, truth),
-           "seconds": seconds, "seconds_per_pair": seconds / st["pairs"], "pairs": st["pairs"],
+           "seconds": seconds, "cpu_seconds": time.process_time() - cpu0,
+           "load_before": load_before, "load_after": uptime(), "workers": st.get("workers"),
+           "seconds_per_pair": seconds / st["pairs"], "pairs": st["pairs"],
            "median_sigma": float(np.median(cloud.sigma)),
            "median_sigma_pair": st["median_sigma_pair"],
            "median_sigma_multiview": st["median_sigma_multiview"],
@@ -122,9 +136,12 @@ def run_sparse(folder: Path, cameras, truth, work: Path):
 
 
 def run_surface(points: np.ndarray, truth, height: float) -> dict:
+    """Sections -> curves -> stitch -> smooth (Loop's patches, tessellated): the stages of
+    ``photosurf run`` after acquisition, through the same public steps."""
     from surface import bezier
     from surface.stitch import surface_from_points
 
+    load_before, cpu0 = uptime(), time.process_time()
     start = time.perf_counter()
     note = ""
     try:
@@ -142,9 +159,12 @@ def run_surface(points: np.ndarray, truth, height: float) -> dict:
     surf = bezier.control_net(stitched.vertices, stitched.triangles)
     vertices, triangles, _ = bezier.tessellate(surf, LEVEL)
     seconds = time.perf_counter() - start
+    cpu = time.process_time() - cpu0
     scores = metrics.compare_meshes(vertices, triangles, *truth, tau=0.001 * height,
                                     count=SAMPLES, seed=SEED)
-    return {"method": "surface", "seconds": seconds, "closed": bool(stitched.closed),
+    return {"method": "surface", "seconds": seconds, "cpu_seconds": cpu,
+            "load_before": load_before, "load_after": uptime(),
+            "closed": bool(stitched.closed),
             **({"note": note} if note else {}),
             "control_triangles": int(len(stitched.triangles)),
             "chamfer": float(scores["chamfer"]), "accuracy": float(scores["accuracy"]),
@@ -154,14 +174,16 @@ def run_surface(points: np.ndarray, truth, height: float) -> dict:
 
 def print_table(rows: list[dict]) -> None:
     print(f"{'method':18s}{'points':>9s}{'RMS':>11s}{'RMS icp':>11s}{'median':>11s}"
-          f"{'seconds':>9s}"
-          f"{'s/pair':>8s}{'Chamfer':>11s}")
+          f"{'seconds':>9s}{'CPU s':>8s}"
+          f"{'s/pair':>8s}{'Chamfer':>11s}  load (1/5/15 min) before -> after")
     for r in rows:
         cells = [_cell(r, "points", 9, "d"), _cell(r, "rms", 11, ".6f"),
                  _cell(r, "rms_icp", 11, ".6f"), _cell(r, "median", 11, ".6f"),
-                 _cell(r, "seconds", 9, ".1f"), _cell(r, "seconds_per_pair", 8, ".2f"),
+                 _cell(r, "seconds", 9, ".1f"), _cell(r, "cpu_seconds", 8, ".1f"),
+                 _cell(r, "seconds_per_pair", 8, ".2f"),
                  _cell(r, "chamfer", 11, ".6f")]
-        print(f"{r['method']:18s}" + "".join(cells))
+        load = f"  {r['load_before']} -> {r['load_after']}" if "load_before" in r else ""
+        print(f"{r['method']:18s}" + "".join(cells) + load)
 
 
 def _cell(row: dict, key: str, width: int, fmt: str) -> str:
@@ -175,7 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "multiview.json"))
     parser.add_argument("--scene", default=None,
                         help="an already rendered scene folder (photosurf synth) to reuse")
-    parser.add_argument("--spacing", type=int, default=4, help="candidate spacing, px")
+    parser.add_argument("--spacing", type=int, default=4,
+                        help="candidate spacing, px (default 4, photosurf's default)")
     parser.add_argument("--cloud-out", default=None,
                         help="also save photosurf's cloud (known cameras) to this .npz")
     args = parser.parse_args(argv)
@@ -201,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         w, h = cameras[0].size
         print(f"{len(cameras)} views {w}x{h}; object height {height:g}", flush=True)
 
-        known, cloud = run_photosurf("photosurf", images, cameras, truth, args.spacing)
+        # photosurf acquire's own path: the folder, images read as tasks need them
+        known, cloud = run_photosurf("photosurf", folder, cameras, truth, args.spacing)
         print(f"  photosurf: {known['seconds']:.1f} s", flush=True)
         if args.cloud_out:
             np.savez(args.cloud_out, points=cloud.points, sigma=cloud.sigma, views=cloud.views,
@@ -225,6 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_table(rows)
     sfm_row = next((r for r in rows if r["method"] == "photosurf-sfm"), None)
+    # folder -> smooth surface: acquisition (images read from the folder, cameras given)
+    # + sections, curves, stitching and Loop's patches; not the scene rendering (the
+    # folder is the input), the pycolmap peer, the export or the report
     goals = {
         "points_ge_20x_sparse": known["points"] >= 20 * sparse["points"],
         "rms_le_half_sparse": known["rms"] <= 0.5 * sparse["rms"],
@@ -234,11 +261,14 @@ def main(argv: list[str] | None = None) -> int:
                                       and sfm_row["rms_icp"] <= 2 * known["rms"]),
     }
     print(f"\npoints ratio {known['points'] / max(sparse['points'], 1):.1f}x, RMS ratio "
-          f"{known['rms'] / sparse['rms']:.2f}, folder -> surface "
-          f"{surface['folder_to_surface_seconds']:.1f} s, Chamfer "
+          f"{known['rms'] / sparse['rms']:.3f}, folder -> smooth surface "
+          f"{surface['folder_to_surface_seconds']:.1f} s (acquire {known['seconds']:.1f} s + "
+          f"sections..smooth {surface['seconds']:.1f} s; CPU "
+          f"{known['cpu_seconds'] + surface['cpu_seconds']:.1f} s on {known['workers']} "
+          f"threads; load {known['load_before']} -> {surface['load_after']}), Chamfer "
           f"{100 * surface['chamfer_rel_height']:.3f} % of the height")
     for key, ok in goals.items():
-        print(f"goal {key}: {'PASS' if ok else 'FAIL'}")
+        print(f"goal {key}: {'met' if ok else 'NOT met'}")
     result = {"benchmark": "multiview", "recipe": recipe.name, "views": len(cameras),
               "image_size": [w, h], "spacing": args.spacing, "quick": bool(args.quick),
               "rows": rows, "goals": goals, "samples": SAMPLES, "level": LEVEL}

@@ -128,6 +128,8 @@ REASON_NAMES = {MULTIVIEW: "multiview", PAIR_ONLY: "pair_only",
 _NORMAL_NEIGHBOURS = 12
 #: Image margin beyond the LSM half-patch for a further view, px (interpolation support).
 _BORDER_PX = 3
+#: Rows per block of the outlier filter's neighbourhood arrays (bounded working memory).
+_SOR_BLOCK = 65536
 
 
 # --------------------------------------------------------------------------- data
@@ -629,12 +631,17 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
               and float(cameras[k].R[2] @ axis_i) >= facing]
     # nearest further views first (by centre distance to view i)
     others.sort(key=lambda k: float(np.linalg.norm(cameras[k].center - centre_i)))
-    obs = np.full((m, n_views, 2), np.nan)
-    cov = np.full((m, n_views, 2, 2), np.nan)
-    obs[:, i] = cloud.x_template  # the rectified cameras stand in for views i and j below
-    obs[:, j] = cloud.x_right
-    cov[:, i] = cloud.cov_2d
-    cov[:, j] = cloud.cov_2d
+    # observations only in the views that can take part (the pair and its further views,
+    # in camera order): (M, len(cols), ...) instead of (M, V, ...) keeps a task's memory
+    # independent of the number of views
+    cols = sorted({i, j, *others})
+    col = {v: c for c, v in enumerate(cols)}
+    obs = np.full((m, len(cols), 2), np.nan)
+    cov = np.full((m, len(cols), 2, 2), np.nan)
+    obs[:, col[i]] = cloud.x_template  # the rectified cameras stand in for views i and j
+    obs[:, col[j]] = cloud.x_right
+    cov[:, col[i]] = cloud.cov_2d
+    cov[:, col[j]] = cloud.cov_2d
     tried = np.zeros(m, np.int64)
     matched = np.zeros(m, bool)
     confirmed = np.zeros(m, np.int64)
@@ -685,8 +692,8 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                 np.isfinite(s_pred), s_pred, np.eye(2))), d)
         agree = ok & (d2 <= bound)
         hit = idx[agree]
-        obs[hit, k] = position[agree]
-        cov[hit, k] = 0.5 * lsm_cov[agree] + TOL.match_cov_floor_px**2 * np.eye(2)
+        obs[hit, col[k]] = position[agree]
+        cov[hit, col[k]] = 0.5 * lsm_cov[agree] + TOL.match_cov_floor_px**2 * np.eye(2)
         views[hit, k] = True
         confirmed[hit] += 1
     reason[(tried > 0) & ~matched] = NO_FURTHER_MATCH
@@ -694,8 +701,8 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     multi = confirmed > 0
     points, pcov, sigma = cloud.points.copy(), cloud.cov.copy(), cloud.sigma.copy()
     if multi.any():
-        cams = list(cameras)
-        cams[i], cams[j] = cloud.cameras
+        cams = [cameras[v] for v in cols]
+        cams[col[i]], cams[col[j]] = cloud.cameras
         tri = triangulate_multiview(cams, obs[multi], np.where(
             np.isfinite(cov[multi]), cov[multi], np.eye(2)), reject_p=reject_p)
         idx = np.flatnonzero(multi)
@@ -829,13 +836,23 @@ def _statistical_inliers(points: np.ndarray, k: int, n_std: float) -> np.ndarray
     """
     if k <= 0 or len(points) <= k:
         return np.ones(len(points), bool)
-    d, nb = cKDTree(points).query(points, k=k + 1)
-    mean_d = d[:, 1:].mean(axis=1)
-    keep = mean_d <= n_std * np.median(mean_d[nb[:, 1:]], axis=1)
-    nbp = points[nb[:, 1:]]  # (N, k, 3)
-    centred = nbp - nbp.mean(axis=1, keepdims=True)
-    _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    resid = np.abs(np.einsum("ni,ni->n", points - nbp.mean(axis=1), vec[:, :, 0]))
+    tree = cKDTree(points)
+    mean_d = np.empty(len(points))
+    resid = np.empty(len(points))
+    nbs = []
+    # in blocks of rows: the (block, k, 3) neighbourhoods, not (N, k, 3) at once (~1 KB a
+    # point), so the working memory does not grow with the cloud; rows are independent
+    for lo in range(0, len(points), _SOR_BLOCK):
+        rows = slice(lo, lo + _SOR_BLOCK)
+        d, nb = tree.query(points[rows], k=k + 1)
+        mean_d[rows] = d[:, 1:].mean(axis=1)
+        nbs.append(nb[:, 1:].astype(np.int32))
+        nbp = points[nb[:, 1:]]  # (B, k, 3)
+        mean_nb = nbp.mean(axis=1)
+        centred = nbp - mean_nb[:, None]
+        _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+        resid[rows] = np.abs(np.einsum("ni,ni->n", points[rows] - mean_nb, vec[:, :, 0]))
+    keep = mean_d <= n_std * np.median(mean_d[np.concatenate(nbs)], axis=1)
     scale = 1.4826 * np.median(np.abs(resid - np.median(resid)))
     return keep & (resid <= np.median(resid) + 2.0 * n_std * max(scale, TOL.zero))
 
