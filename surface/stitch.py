@@ -696,6 +696,13 @@ def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.n
         The points added inside, plane coordinates.
     triangles : (m, 3) int64
         Over the contour's ``0 .. n-1`` then the added ``n .. n+k-1``.
+
+    Raises
+    ------
+    ValueError
+        The contour is not simple (self-intersecting, or repeated points): the
+        triangles do not cover its shoelace area exactly once, or a contour
+        point is not a corner.
     """
     import triangle
 
@@ -706,13 +713,18 @@ def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.n
     segments = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
     out = triangle.triangulate({"vertices": pts, "segments": segments},
                                f"pYq{CAP_MIN_ANGLE:g}")
-    verts = np.asarray(out["vertices"], np.float64)
-    tri = np.asarray(out["triangles"], np.int64)
-    if len(verts) < n or not np.allclose(verts[:n], pts, rtol=0, atol=TOL.zero * (1 + edge)):
-        raise ValueError("cap triangulation moved the contour's points")  # not expected with Y
+    verts = np.asarray(out.get("vertices", np.zeros((0, 2))), np.float64)
+    tri = np.asarray(out.get("triangles", np.zeros((0, 3))), np.int64).reshape(-1, 3)
+    if (len(verts) < n or not np.allclose(verts[:n], pts, rtol=0, atol=TOL.zero * (1 + edge))
+            or len(np.unique(tri[tri < n])) < n):
+        raise ValueError("the contour's points are not all corners of the triangulation")
     p = verts[tri]
     twice = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
              - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
+    x, y = pts[:, 0], pts[:, 1]
+    polygon = 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+    if abs(0.5 * float(np.abs(twice).sum()) - polygon) > TOL.planar_rel * (1.0 + polygon) * n:
+        raise ValueError("contour is not simple (triangles do not cover its area once)")
     flip = (twice < 0) if outward_up else (twice > 0)
     tri[flip] = tri[flip][:, ::-1]
     return verts[n:] + centre, tri
@@ -848,13 +860,22 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         for s, end, label, up in ((0, 0, -1, False), (len(sections) - 1, -1, -2, True)):
             for lp, flat in enumerate(planar[s]):
                 start = offsets[s][lp]
+                inset = None
                 if (end, lp) in cap_inset:  # support ring inside the cap, an annulus to it
                     inner = _inset_ring(vertices[start:start + len(flat)], cap_inset[(end, lp)])
-                    inner_start = count + sum(len(x) for x in extra)
-                    extra.append(inner)
-                    sec_of.append(np.full(len(inner), s))
-                    loop_of.append(np.full(len(inner), lp))
                     inner_flat = inner @ frame[:2].T
+                    try:
+                        inset = inner, inner_flat, *_quality_cap(inner_flat, outward_up=up)
+                    except ValueError as exc:  # the inset contour is not simple
+                        messages.append(f"cap of section {s} loop {lp}: no support ring inside "
+                                        f"the cap ({exc})")
+                if inset is not None:
+                    inner, inner_flat, added, cap = inset
+                    inner_start = count + sum(len(x) for x in extra)
+                    height = float(np.mean(inner @ frame[2]))
+                    extra += [inner, added @ frame[:2] + height * frame[2]]
+                    sec_of.append(np.full(len(inner) + len(added), s))
+                    loop_of.append(np.full(len(inner) + len(added), lp))
                     inner_param = _ring_order_and_parameter(inner_flat)[1]
                     lower, upper = ((inner_param, params[s][lp]) if end == 0
                                     else (params[s][lp], inner_param))
@@ -867,11 +888,6 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                     region.append(np.full(len(local), label))
                     idx = inner_start + np.arange(len(inner))
                     fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
-                    added, cap = _quality_cap(inner_flat, outward_up=up)
-                    height = float(np.mean(inner @ frame[2]))
-                    extra.append(added @ frame[:2] + height * frame[2])
-                    sec_of.append(np.full(len(added), s))
-                    loop_of.append(np.full(len(added), lp))
                     faces.append(cap + inner_start)  # added points follow the inner ring
                     region.append(np.full(len(cap), label))
                     continue
