@@ -6,6 +6,8 @@ distance functions are known, plus a noisy cylinder cloud end to end.
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from surface import bezier
 from surface import metrics as M
@@ -180,3 +182,29 @@ def test_noisy_cylinder_cloud_keeps_its_rims():
     print(f"rim band mean distance: {means[True]:.5f} with supports, {means[False]:.5f} without")
     assert means[True] <= sigma
     assert means[False] >= 2 * means[True]
+
+
+@settings(max_examples=15, deadline=None)
+@given(counts=st.lists(st.integers(6, 40), min_size=2, max_size=6),
+       radii=st.lists(st.floats(0.3, 1.5), min_size=6, max_size=6),
+       sigma=st.floats(0.0, 0.05))
+def test_supports_keep_any_ring_stack_closed_and_oriented(counts, radii, sigma):
+    """Whatever the ring counts, radii (sharp profile turns included) and sigma, the
+    supported mesh is closed, oriented, one component, with positive volume."""
+    z = np.arange(len(counts)) * 0.3
+    rings = [ring(zz, n, radii[k]) for k, (zz, n) in enumerate(zip(z, counts, strict=True))]
+    result = stitch_rings(rings, Z_AXIS, support_sigma=sigma)
+    topo = M.mesh_topology(result.vertices, result.triangles)
+    assert topo["closed"] and topo["oriented"] and topo["components"] == 1
+    assert M.signed_volume(result.vertices, result.triangles) > 0
+
+
+def test_quality_cap_refuses_a_self_intersecting_contour():
+    from surface.stitch import _quality_cap
+
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    added, tri = _quality_cap(np.stack([np.cos(t), np.sin(t)], 1), outward_up=True)
+    # a convex 40-gon: Euler for a disc, V - E + F = 1, all triangles counter-clockwise
+    assert len(tri) == 40 + 2 * len(added) - 2
+    with pytest.raises(ValueError, match="not simple"):
+        _quality_cap(np.stack([np.sin(2 * t), np.sin(t)], 1), outward_up=True)
