@@ -848,14 +848,14 @@ def _stitch(ctx: StageContext) -> dict:
     result = stitch.stitch_rings(rings, planes[0].frame[2], close_ends=p["caps"],
                                  support_sigma=support)
     write_mesh(ctx.out / "mesh.ply", result.vertices, result.triangles)
-    messages = notes_ends + list(result.messages)
+    messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
              "delaunay_fraction": float(result.delaunay_fraction)}
     write_text(ctx.out / "stitch.json", json.dumps(notes, indent=1, sort_keys=True) + "\n")
     for message in result.messages:
         log.warning("stitch: %s", message)
-    for message in notes_ends:
+    for message in notes_ends + list(result.notes):
         log.info("stitch: %s", message)
     return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
 

@@ -127,6 +127,9 @@ class StitchResult:
     delaunay_fraction : float
         Share of flippable edges (not a contour, both faces in one region)
         meeting the local Delaunay criterion after the flips.
+    notes : tuple of str
+        Informational lines that are not problems: the support rings added
+        (``support_sigma``).
     """
 
     vertices: np.ndarray
@@ -139,6 +142,7 @@ class StitchResult:
     open_interfaces: tuple[int, ...] = ()
     flips: int = 0
     delaunay_fraction: float = 1.0
+    notes: tuple[str, ...] = ()
 
 
 # --------------------------------------------------------------------------- frames and parameters
@@ -807,11 +811,11 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                          f"got heights {np.round(heights, 6).tolist()}")
     cap_inset: dict = {}
     messages: list[str] = []
+    notes: list[str] = []
     if support_sigma is not None:
         if not (np.isfinite(support_sigma) and support_sigma >= 0):
             raise ValueError(f"support_sigma must be a finite number >= 0, got {support_sigma!r}")
         sections, cap_inset, notes = _support(sections, frame, float(support_sigma), close_ends)
-        messages += notes
 
     # Vertices: every loop in counter-clockwise order about the axis.
     vertices, sec_of, loop_of, params, offsets, planar = [], [], [], [], [], []
@@ -927,6 +931,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         open_interfaces=tuple(open_ifaces),
         flips=int(flips),
         delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
+        notes=tuple(notes),
     )
 
 

@@ -82,7 +82,7 @@ def test_cylinder_rim_is_kept_to_the_noise(sigma):
     topo = M.mesh_topology(supported.vertices, supported.triangles)
     assert topo["closed"] and topo["oriented"] and topo["components"] == 1
     assert len(supported.vertices) > len(plain.vertices)
-    assert sum("support rings" in m for m in supported.messages) == 2  # the two rims only
+    assert sum("support rings" in m for m in supported.notes) == 2  # the two rims only
     surface, v, t = smooth(supported)
     assert cylinder_distance(v).max() <= sigma
     _, v0, _ = smooth(plain)
@@ -122,7 +122,7 @@ def test_a_kink_between_sections_gets_supports_on_both_sides():
     rings = [ring(zz, 96, rr) for zz, rr in zip(z, rad, strict=True)]
     sigma = 0.002
     supported = stitch_rings(rings, Z_AXIS, support_sigma=sigma)
-    inner = [m for m in supported.messages if "support rings" in m and "section 10 " in m]
+    inner = [m for m in supported.notes if "support rings" in m and "section 10 " in m]
     assert len(inner) == 1
     assert len(np.unique(supported.section_of_vertex)) == len(rings) + 2 + 2  # kink + both rims
     _, v, _ = smooth(supported, level=2)
