@@ -622,15 +622,13 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                            np.zeros(0, np.int64), time.perf_counter() - start)
     normals = _normals(cloud.points, cameras[i].center)
     window = 2 * spacing + 1
-    centre_i = cameras[i].center
     # views facing away from the template view (axes > 2 max_incidence apart) cannot see
     # a point that view i sees within max_incidence
     axis_i = cameras[i].R[2]
     facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
-    others = [k for k in range(n_views) if k not in (i, j) and k in images
-              and float(cameras[k].R[2] @ axis_i) >= facing]
-    # nearest further views first (by centre distance to view i)
-    others.sort(key=lambda k: float(np.linalg.norm(cameras[k].center - centre_i)))
+    others = _check_order(cameras, (i, j), [
+        k for k in range(n_views) if k not in (i, j) and k in images
+        and float(cameras[k].R[2] @ axis_i) >= facing])
     # observations only in the views that can take part (the pair and its further views,
     # in camera order): (M, len(cols), ...) instead of (M, V, ...) keeps a task's memory
     # independent of the number of views
@@ -869,10 +867,31 @@ def _further_views(cameras: Sequence[Camera], pair: tuple[int, int], count: int,
     i, j = pair
     axis_i = cameras[i].R[2]
     facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
-    others = [k for k in range(len(cameras)) if k not in (i, j)
-              and float(cameras[k].R[2] @ axis_i) >= facing]
-    others.sort(key=lambda k: float(np.linalg.norm(cameras[k].center - cameras[i].center)))
-    return others[:count]
+    return _check_order(cameras, pair, [k for k in range(len(cameras)) if k not in (i, j)
+                                        and float(cameras[k].R[2] @ axis_i) >= facing])[:count]
+
+
+def _check_order(cameras: Sequence[Camera], pair: tuple[int, int],
+                 candidates: list[int]) -> list[int]:
+    """Further views in the order the consistency check tries them.
+
+    Nearest to the template view first, but views closer than half the pair's baseline
+    to either pair view go last: such a view adds less parallax than the pair itself, so
+    a wrong depth reprojects almost where it should (a weak check) and the multi-view
+    triangulation gains little.  On a dense ring (72 views, pairs 3 views apart) the
+    nearest views lie *inside* the pair's baseline; on the 24-view ring every
+    neighbour qualifies and the order is the plain nearest-first one.
+    """
+    i, j = pair
+    ci, cj = cameras[i].center, cameras[j].center
+    half_base = 0.5 * float(np.linalg.norm(ci - cj))
+
+    def key(k):
+        ck = cameras[k].center
+        weak = min(np.linalg.norm(ck - ci), np.linalg.norm(ck - cj)) < half_base
+        return (bool(weak), float(np.linalg.norm(ck - ci)))
+
+    return sorted(candidates, key=key)
 
 
 @dataclass(frozen=True)
