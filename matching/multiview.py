@@ -31,7 +31,9 @@ A ring of calibrated views is turned into one cloud in four steps.
    largest accepted incidence across the window, plus the point's own 3 σ).  The
    template of view :math:`i` is then LSM-matched into the ``check_views`` visible
    views nearest to :math:`i` (all points of a view in one batch; at most
-   ``2 check_views + 2`` further views are considered per pair): the approximation
+   ``2 check_views + 2`` further views are considered per pair; views closer than half
+   the pair's baseline to either pair view add little parallax and are tried last):
+   the approximation
    is the reprojection :math:`\pi_k(X)`, the initial affine the local-plane mapping
    :math:`i \to k` (rays of the template's unit pixel steps cut the tangent plane and
    are projected into :math:`k`).  A match is *consistent* when the Mahalanobis
@@ -50,6 +52,15 @@ A ring of calibrated views is turned into one cloud in four steps.
    their neighbours' mean distances, and points farther from their neighbours' PCA
    plane than ``2 sor_std`` robust standard deviations of that distance (silhouette
    mismatches lie off the surface without being isolated).
+
+**Execution and memory.**  View pairs, and then the consistency checks, are
+independent tasks: in this process they run on one thread per core (the numba LSM
+kernels release the GIL and run single-threaded in each), or on any ``map_func`` (a
+Dask executor's).  No task keeps an image: a pair task reads its two images (from a
+lazily loading sequence, see :func:`reconstruct_multiview`), a check re-rectifies its
+template image, and the further views' prepared grey images and z-buffers exist only
+for the chunk of ``chunk_pairs`` pairs that checks in them.  The results do not depend
+on the number of threads or on where tasks run.
 
 Per-point reasons (:data:`REASON_NAMES`), for every triangulated pair point:
 
