@@ -66,13 +66,15 @@ Run: ``.venv/bin/python benchmarks/surface.py [--quick] [--json PATH]
 [--methods NAME ...]`` (``--methods`` runs only the named rows, e.g.
 ``--methods poisson-8 stitched+bezier --no-scaling``).
 
-Measured (2026-11-22 session 2, full run, 2 shared cores at load 4-5; wall / CPU s):
-poisson-8 6.74 / 5.85 s, Chamfer 0.00076; stitched 1.44 / 1.50 s, 0.00029 (before:
-0.00042); stitched+bezier 6.13 / 3.65 s, Chamfer 0.00032 <= 0.5 x poisson-8 = 0.00038
+Measured (2026-11-22 session 2, ``--no-scaling``, 2 shared cores at load 1-4; wall / CPU s):
+poisson-8 6.11 / 7.44 s, Chamfer 0.00076; stitched 1.31 / 1.36 s, 0.00029 (before:
+0.00042); stitched+bezier 2.50 / 2.45 s, Chamfer 0.00032 <= 0.5 x poisson-8 = 0.00038
 (goal met; before: 0.00056, NOT met), rim band 0.00022 (before 0.00095), F 1.000, one
-closed component, G1 angle 3.4e-11 rad, tessellation 1.14e6 triangles/s.  Other shapes,
-smooth Chamfer before -> after: cylinder 0.00051 -> 0.00025, ellipse 0.00107 -> 0.00037,
-amphora 0.00055 -> 0.00034, capsule 0.00288 -> 0.00274 (domed ends get flat caps).
+closed component, G1 angle 3.4e-11 rad, 1.9e5 patches/s, 1.14e6 triangles/s.  Other
+shapes, smooth Chamfer before -> after: cylinder 0.00051 -> 0.00025, ellipse 0.00107 ->
+0.00037, amphora 0.00055 -> 0.00034, capsule 0.00288 -> 0.00274 (domed ends get flat
+caps).  Scaling (full run, load 4-5): 10^6 points stitched 45.0 / 31.4 s, Chamfer
+0.00012; poisson-8 142.0 / 98.4 s, 0.00035.
 """
 
 from __future__ import annotations
