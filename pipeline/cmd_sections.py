@@ -2,7 +2,8 @@
 
 The cloud is cut into planar sections perpendicular to ``--axis``, each
 section's points are organised into ordered loops, a closed Catmull-Rom curve
-is fitted to every loop at smoothing level ``--smoothing`` and resampled
+is fitted to every loop at smoothing level ``--smoothing`` (by default chosen
+per loop from its own residuals, by generalised cross-validation) and resampled
 with N points on odd sections and 2N on even ones, and adjacent rings are
 stitched by the direction criterion, Lawson-flipped to Delaunay and capped
 (:func:`surface.stitch.surface_from_points` does all of it; this module only
@@ -45,9 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n", type=int, default=None, metavar="N",
                         help="ring points on odd sections, 2N on even ones (default: as far "
                              "apart as the sections, from the largest loop perimeter)")
-    parser.add_argument("--smoothing", type=float, default=8.0, metavar="S",
+    parser.add_argument("--smoothing", default="auto", metavar="S|auto",
                         help="data points per curve control point: noise sigma becomes about "
-                             "sigma/sqrt(S); <= 1 interpolates (default 8)")
+                             "sigma/sqrt(S); <= 1 interpolates; 'auto' (default) chooses it per "
+                             "loop by generalised cross-validation of its own residuals")
     parser.add_argument("--open-ends", action="store_true",
                         help="do not cap the first and last sections")
     parser.add_argument("--smooth", action="store_true",
@@ -98,8 +100,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--sections must be >= 2, got {args.sections}")
     if args.n is not None and args.n < 3:
         raise InputError(f"--n must be >= 3, got {args.n}")
-    if not (np.isfinite(args.smoothing) and args.smoothing >= 0):
-        raise InputError(f"--smoothing must be a number >= 0, got {args.smoothing}")
+    smoothing = _smoothing(args.smoothing)
     axis = parse_axis(args.axis)
     points = read_points(args.cloud)
     if len(points) == 0:
@@ -110,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         result = surface_from_points(points, axis=axis, sections=args.sections, n=args.n,
-                                     smoothing=args.smoothing, close_ends=not args.open_ends)
+                                     smoothing=smoothing, close_ends=not args.open_ends)
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
     vertices, triangles = result.vertices, result.triangles
@@ -141,3 +142,16 @@ def run(args: argparse.Namespace) -> int:
             for message in result.messages:
                 print(f"  note: {message}")
     return 0
+
+
+def _smoothing(text: str) -> float | str:
+    """``--smoothing``: ``auto`` or a finite number >= 0."""
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (np.isfinite(value) and value >= 0):
+        raise InputError(f"--smoothing must be 'auto' or a number >= 0, got {text!r}")
+    return value
