@@ -166,13 +166,11 @@ def dask_speedup(workdir: Path, quick: bool) -> dict:
 
 
 def _images_and_cameras(scene: Path):
-    import cv2
+    """The folder as ``photosurf run`` loads it: images read lazily, cameras by name."""
+    from pipeline.cmd_acquire import load_folder
 
-    from pipeline.stages import _folder_cameras, folder_images
-
-    names = folder_images(scene)
-    cameras, _ = _folder_cameras(scene, names)  # as photosurf run pairs them
-    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in names], cameras
+    loaded = load_folder(scene)
+    return loaded["images"], loaded["cameras"]
 
 
 def pair_speedup(workdir: Path, n_pairs: int = 12) -> dict:
@@ -229,7 +227,14 @@ image = np.random.default_rng(0).uniform(0, 255, (64, 64))
 points = np.array([[32.0, 32.0], [30.0, 30.0]])
 lsm_match(image, image, points, points)  # numba kernels loaded, as in any acquisition
 second_order_terms(points, np.zeros((2, 6)))
-out = {"load_before": " ".join(open("/proc/loadavg").read().split()[:3])}
+def status_mib(key):
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024
+out = {"load_before": " ".join(open("/proc/loadavg").read().split()[:3]),
+       "imports_peak_rss_mib": status_mib("VmHWM"), "rss_before_mib": status_mib("VmRSS")}
+with open("/proc/self/clear_refs", "w") as f:
+    f.write("5")  # reset the peak (VmHWM) to the current RSS: the acquisition's own peak
 if sys.argv[2] != "imports":
     t, c = time.perf_counter(), time.process_time()
     cloud = acquire_folder(sys.argv[2])
@@ -239,7 +244,8 @@ if sys.argv[2] != "imports":
                cloud_mib=sum(a.nbytes for a in (cloud.points, cloud.colours, cloud.sigma,
                                                 cloud.views, cloud.pair)) / 2**20)
 out["load_after"] = " ".join(open("/proc/loadavg").read().split()[:3])
-out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+out["peak_rss_mib"] = status_mib("VmHWM")
+out["max_rss_process_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps(out))
 """
 
@@ -253,7 +259,12 @@ def _acquire_in_child(folder: str) -> dict:
 
 
 def memory(workdir: Path, quick: bool) -> dict:
-    """Peak RSS of ``photosurf acquire`` on a 24- and a 72-view ring, fresh processes."""
+    """Peak RSS of ``photosurf acquire`` on a 24- and a 72-view ring, fresh processes.
+
+    Each child imports photosurf and loads the numba kernels, resets its peak-RSS mark
+    (``/proc/self/clear_refs``), runs the acquisition and reports the peak (``VmHWM``):
+    ``beyond`` = peak - RSS before the acquisition - the final cloud's arrays.
+    """
     from pipeline.scenes import load_recipe, render_scene
 
     small = ({"cameras": {"width": 256, "height": 192, "focal_px": 332.8},
@@ -269,10 +280,11 @@ def memory(workdir: Path, quick: bool) -> dict:
                                  {**small, "cameras": {**small.get("cameras", {}), "n": n}})
             render_scene(recipe, folder, progress=False)
         run = _acquire_in_child(str(folder))
-        run["beyond_imports_and_cloud_mib"] = (run["peak_rss_mib"] - base["peak_rss_mib"]
+        run["beyond_imports_and_cloud_mib"] = (run["peak_rss_mib"] - run["rss_before_mib"]
                                                - run["cloud_mib"])
         runs[str(n)] = run
-    return {"imports_peak_rss_mib": base["peak_rss_mib"], "runs": runs}
+    return {"imports_rss_mib": base["rss_before_mib"],
+            "imports_peak_rss_mib": base["imports_peak_rss_mib"], "runs": runs}
 
 
 def main(argv=None) -> int:
@@ -340,8 +352,9 @@ def main(argv=None) -> int:
           f"{k['speedup_with_startup']:9.2f}")
     print(f"  identical outputs: {k['identical_outputs']}")
     m = figures["memory"]
-    print(f"\nPeak memory of photosurf acquire (fresh process; imports + kernels alone "
-          f"{m['imports_peak_rss_mib']:.0f} MiB)")
+    print(f"\nPeak memory of photosurf acquire (fresh process; after imports + kernels "
+          f"{m['imports_rss_mib']:.0f} MiB resident, {m['imports_peak_rss_mib']:.0f} MiB "
+          "peak while importing)")
     print(f"  {'views':>5} {'pairs':>5} {'points':>8} {'peak MiB':>9} {'cloud MiB':>9} "
           f"{'beyond MiB':>10} {'seconds':>8} {'CPU s':>7}  load")
     for n, r in m["runs"].items():
