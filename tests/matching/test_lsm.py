@@ -370,3 +370,60 @@ def test_second_order_terms_use_every_neighbour_within_the_radius():
         np.testing.assert_allclose(quad[i, 0], 0.5 * coef[1] * shrink, rtol=1e-9)
     # a ball of ~314 points: se(slope) ~ 1e-3 / (10 px sqrt(314)) = 6e-6, 0.3 % of 2e-3
     np.testing.assert_allclose(quad[centre, 0], slope / 2, rtol=0.03)
+
+
+def _second_order_reference(points, affine, valid, radius, cap=512, min_neighbours=6):
+    """The cKDTree formulation: the nearest <= cap valid points strictly within radius,
+    one explicit least-squares plane per field, the terms' shrinkage - point by point."""
+    from scipy.spatial import cKDTree
+
+    fields = affine[:, [1, 2, 4, 5]]
+    ok = np.isfinite(fields).all(1) & np.isfinite(points).all(1) & valid
+    idx = np.flatnonzero(ok)
+    out = np.zeros((len(points), 6))
+    dist, nb = cKDTree(points[idx]).query(np.nan_to_num(points), k=min(cap, len(idx)),
+                                          distance_upper_bound=radius)
+    for i in np.flatnonzero(np.isfinite(points).all(1)):
+        ball = idx[nb[i][np.isfinite(dist[i])]]
+        if len(ball) < min_neighbours:
+            continue
+        design = np.column_stack([np.ones(len(ball)), points[ball] - points[i]])
+        coef, *_ = np.linalg.lstsq(design, fields[ball], rcond=None)  # (3, 4)
+        resid = fields[ball] - design @ coef
+        inv = np.linalg.inv(design.T @ design)
+        s2 = (resid ** 2).sum(0) / max(len(ball) - 3, 1)
+        vx, vy = inv[1, 1] * s2, inv[2, 2] * s2
+        q = 0.5 * np.array([coef[1, 0], coef[2, 0] + coef[1, 1], coef[2, 1],
+                            coef[1, 2], coef[2, 2] + coef[1, 3], coef[2, 3]])
+        se = 0.5 * np.sqrt([vx[0], vy[0] + vx[1], vy[1], vx[2], vy[2] + vx[3], vy[3]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            shrink = np.clip(1 - (se / q) ** 2, 0, 1)
+        out[i] = np.where(np.isfinite(shrink), q * shrink, 0.0)
+    return out
+
+
+@pytest.mark.parametrize("step, jitter, radius", [(4, True, 22.5), (3, False, 15.0),
+                                                  (1, False, 16.0)])
+def test_second_order_terms_grid_hash_equals_the_kdtree_ball(step, jitter, radius):
+    """The grid-hash ball search gives the terms of the cKDTree formulation: integer
+    grid points put neighbours exactly on the radius (strictly-within excludes them),
+    invalid and NaN points are skipped as neighbours, NaN centres give 0, and a 1 px
+    grid holds ~680 valid points within 16 px, over the 512 cap (nearest 512 kept).  Only the
+    arithmetic differs (normal equations vs lstsq): agreement to 1e-10 of the terms'
+    scale, where one neighbour more or less moves a slope by ~1/N of its noise, ~1e-4."""
+    rng = np.random.default_rng(step)
+    ys, xs = np.mgrid[0:40 * step:step, 0:36 * step:step].astype(np.float64)
+    pts = np.column_stack([xs.ravel(), ys.ravel()])
+    if jitter:  # candidates are the best pixel of each cell: anywhere inside it
+        pts += rng.integers(0, step, pts.shape)
+    affine = np.zeros((len(pts), 6))
+    affine[:, [1, 5]] = 1.0
+    affine[:, [1, 2, 4, 5]] += (1e-3 * pts[:, [0]] * [1, -0.5, 0.2, 0.7] / step
+                                + 1e-3 * rng.standard_normal((len(pts), 4)))
+    valid = rng.random(len(pts)) < 0.85
+    pts[rng.integers(0, len(pts), 5)] = np.nan
+    affine[rng.integers(0, len(pts), 5), 2] = np.nan
+    quad = second_order_terms(pts, affine, valid, radius_px=radius)
+    ref = _second_order_reference(pts, affine, valid, radius)
+    assert np.count_nonzero(ref) > 0.5 * ref.size  # most terms resolved (not shrunk to 0)
+    np.testing.assert_allclose(quad, ref, rtol=0, atol=1e-10 * np.abs(ref).max())
