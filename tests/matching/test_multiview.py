@@ -161,6 +161,25 @@ def test_pair_matching_error_against_the_truth(ring):
     assert np.sqrt(np.mean(err[ok] ** 2)) < 0.08
 
 
+def test_pair_uses_fixed_patches_unless_asked(ring):
+    """reconstruct_view_pair matches at the fixed patch by default (the further-view check
+    re-matches at that patch anyway); adaptive_patch / max_patch / max_sigma_mad_k reach
+    match_pair from reconstruct_multiview, whose option check knows them."""
+    cams, images = ring["cameras"], ring["images"]
+    default = reconstruct_view_pair(images[0], images[1], cams[0], cams[1], (0, 1))
+    fixed = reconstruct_view_pair(images[0], images[1], cams[0], cams[1], (0, 1),
+                                  adaptive_patch=False)
+    np.testing.assert_array_equal(default.points, fixed.points)
+    adaptive = reconstruct_view_pair(images[0], images[1], cams[0], cams[1], (0, 1),
+                                     adaptive_patch=True, max_patch=21)
+    assert adaptive.status_counts != fixed.status_counts  # the option took effect
+    no_test = reconstruct_view_pair(images[0], images[1], cams[0], cams[1], (0, 1),
+                                    max_sigma_mad_k=None)
+    assert len(no_test) >= len(fixed)  # without the 'imprecise' test nothing more is cut
+    with pytest.raises(ValueError, match="max_patch must be an odd integer"):
+        reconstruct_multiview(images[:3], cams[:3], pairs=[(0, 1)], max_patch=16)
+
+
 def _true_right(truth, pc) -> np.ndarray:
     cl, cr = pc.cameras
     origin, direction = cl.ray(pc.x_template)
