@@ -41,7 +41,14 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[test]"
 	@touch $(STAMP)
 
-setup: $(STAMP)
+# numba kernels compiled once into their on-disk cache (pipeline/warmup.py says why);
+# redone when the kernels' sources change
+WARM   := $(VENV)/.photosurf-kernels
+$(WARM): $(STAMP) matching/lsm.py matching/multiview.py pipeline/scenes.py
+	$(PY) -m pipeline.warmup
+	@touch $(WARM)
+
+setup: $(STAMP) $(WARM)
 	@$(MAKE) --no-print-directory sysdeps
 
 demo: setup

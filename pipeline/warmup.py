@@ -1,0 +1,54 @@
+"""Compile photosurf's numba kernels once, at set-up, into numba's on-disk cache.
+
+``python -m pipeline.warmup`` renders 4 views of the small vase ring
+(``vase_ring_small.toml``) and runs the multi-view acquisition and a stereo match over it, so
+every ``cache=True`` kernel of :mod:`matching.lsm` (and the scene renderer's)
+is compiled and written to ``__pycache__``.  Two reasons:
+
+* the first real run does not pay the compilation;
+* every later process — this one, threads, Dask workers — then loads the same
+  machine code.  Measured in a fresh clone: a process that compiled the kernels
+  itself and Dask workers that loaded them from the cache it wrote gave clouds
+  that differed in the last bits (same points; ``test_executor``'s 1024×768
+  identity test failed), while with a warm cache they are bit-identical.  The
+  cause inside numba was not found; warming the cache at set-up removes it.
+
+``make setup`` (and so ``make demo`` / ``make test``) runs it after installing and
+whenever the kernels' sources change; it prints one line.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def warm_up() -> float:
+    """Compile and cache the kernels; returns the seconds it took."""
+    from matching.multiview import reconstruct_multiview, select_pairs
+    from pipeline.scenes import build_scene, load_recipe, render_view
+
+    start = time.perf_counter()
+    recipe = load_recipe(ROOT / "fixtures" / "scenes" / "vase_ring_small.toml")
+    scene = build_scene(recipe)
+    views = range(4)
+    images = [render_view(scene, k)[0] for k in views]
+    cameras = [scene.cameras[k] for k in views]
+    pairs = select_pairs(cameras)[:2]
+    reconstruct_multiview(images, cameras, pairs=pairs)
+    # the stereo path's adaptive patch (multi-view matches at the fixed patch)
+    reconstruct_multiview(images, cameras, pairs=pairs[:1], adaptive_patch=True)
+    return time.perf_counter() - start
+
+
+def main() -> int:
+    seconds = warm_up()
+    print(f"photosurf setup: numba kernels compiled and cached ({seconds:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
