@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -25,15 +26,19 @@ def scene(tmp_path_factory, fixtures_dir):
     return out
 
 
-@pytest.fixture()
-def arc(scene, tmp_path):
-    """A folder with the first ARC images and a cameras.yml holding all 24 cameras."""
-    folder = tmp_path / "arc"
+def _views_folder(scene: Path, folder: Path, count: int) -> Path:
+    """``folder`` with the scene's first ``count`` images and its cameras.yml (all cameras)."""
     folder.mkdir()
-    for k in range(ARC):
+    for k in range(count):
         shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
     shutil.copy(scene / "cameras.yml", folder)
     return folder
+
+
+@pytest.fixture()
+def arc(scene, tmp_path):
+    """A folder with the first ARC images and a cameras.yml holding all 24 cameras."""
+    return _views_folder(scene, tmp_path / "arc", ARC)
 
 
 def _error_line(capsys) -> str:
@@ -159,11 +164,7 @@ def test_cameras_written_for_a_subset_are_matched_by_name(scene, tmp_path):
 
 
 def test_dask_scheduler_gives_the_in_process_cloud(scene, tmp_path, capsys):
-    folder = tmp_path / "three"
-    folder.mkdir()
-    for k in range(3):
-        shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
-    shutil.copy(scene / "cameras.yml", folder)
+    folder = _views_folder(scene, tmp_path / "three", 3)
     local, dask = tmp_path / "local.ply", tmp_path / "dask.ply"
     assert main(["acquire", str(folder), "--out", str(local), "--spacing", "8"]) == 0
     assert main(["acquire", str(folder), "--out", str(dask), "--spacing", "8",
@@ -177,11 +178,7 @@ def test_dask_scheduler_gives_the_in_process_cloud(scene, tmp_path, capsys):
 def test_outputs_are_byte_reproducible(scene, tmp_path, capsys):
     # write_outputs goes through workspace.write_npz_to (fixed zip dates): two runs of the
     # same folder give the same .npz bytes; np.savez would stamp the clock into each member.
-    folder = tmp_path / "two"
-    folder.mkdir()
-    for k in range(2):
-        shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
-    shutil.copy(scene / "cameras.yml", folder)
+    folder = _views_folder(scene, tmp_path / "two", 2)
     first, second = tmp_path / "a.ply", tmp_path / "b.ply"
     assert main(["acquire", str(folder), "--out", str(first), "--spacing", "8"]) == 0
     time.sleep(2.1)  # zip dates have 2 s resolution
