@@ -39,7 +39,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -50,6 +49,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from _common import print_goals, write_result  # noqa: E402
 
 from matching.cameras import read_rig  # noqa: E402
 from matching.lsm import lsm_match, prepare_image  # noqa: E402
@@ -404,13 +405,9 @@ def main(argv=None) -> int:
         print(f"{r['noise']:5.1f} {r['interpolation']:>9s} {r['jacobian']:>9s} "
               f"{r['rms_px']:8.4f} {r['reported_px']:9.4f} {r['points_per_s']:9.0f} "
               f"{r['points_per_cpu_s']:9.0f}")
-    for k, v in goals.items():
-        print(f"goal {k}: {'met' if v else 'NOT met'}")
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"info": info, "quick": args.quick, "methods": rows, "3d": d3,
-                               "synthetic": synth, "goals": goals}, indent=2) + "\n")
-    print(f"wrote {out}")
+    print_goals(goals)
+    write_result(args.json, {"info": info, "quick": args.quick, "methods": rows, "3d": d3,
+                             "synthetic": synth, "goals": goals})
     return 0
 
 

@@ -26,7 +26,6 @@ object's height.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -36,6 +35,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from _common import print_goals, uptime, write_result  # noqa: E402
 
 from matching.cameras import read_cameras  # noqa: E402
 from matching.multiview import reconstruct_multiview  # noqa: E402
@@ -85,11 +86,6 @@ def _rms_icp(points: np.ndarray, truth, iterations: int = 5) -> float:
         s, R, t = umeyama(points, closest["points"].numpy().astype(np.float64))
         current = s * points @ R.T + t
     return _rms(current, truth)
-
-
-def uptime() -> str:
-    """The load averages (1, 5, 15 min) of the shared machine, as ``uptime`` prints them."""
-    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def run_photosurf(name: str, images, cameras, truth, spacing: int) -> tuple[dict, object]:
@@ -267,15 +263,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{known['cpu_seconds'] + surface['cpu_seconds']:.1f} s on {known['workers']} "
           f"threads; load {known['load_before']} -> {surface['load_after']}), Chamfer "
           f"{100 * surface['chamfer_rel_height']:.3f} % of the height")
-    for key, ok in goals.items():
-        print(f"goal {key}: {'met' if ok else 'NOT met'}")
+    print_goals(goals)
     result = {"benchmark": "multiview", "recipe": recipe.name, "views": len(cameras),
               "image_size": [w, h], "spacing": args.spacing, "quick": bool(args.quick),
               "rows": rows, "goals": goals, "samples": SAMPLES, "level": LEVEL}
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1, default=float) + "\n")
-    print(f"\nwritten {out}")
+    write_result(args.json, result)
     return 0
 
 

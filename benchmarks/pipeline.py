@@ -46,16 +46,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _common import uptime  # noqa: E402
+
 from pipeline import config as config_mod  # noqa: E402
 from pipeline import progress  # noqa: E402
 from pipeline.cmd_batch import run_object  # noqa: E402
 from pipeline.executor import DaskExecutor, LocalExecutor  # noqa: E402
 from pipeline.stages import STAGE_ORDER, run_pipeline  # noqa: E402
-
-
-def uptime() -> str:
-    """Load averages (1, 5, 15 min), as ``uptime`` prints them."""
-    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def children_cpu() -> float:

@@ -80,7 +80,6 @@ caps).  Scaling (full run, load 4-5): 10^6 points stitched 45.0 / 31.4 s, Chamfe
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -89,6 +88,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from _common import print_goals, write_result  # noqa: E402
 
 # The stitched method's modules are imported here, as open3d is, so that no
 # method's timing includes an import.
@@ -447,8 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     print_table(rows)
     print_bezier(rows)
     verdict = goals(rows)
-    for key, ok in verdict.items():
-        print(f"goal {key}: {'met' if ok else 'NOT met'}")
+    print_goals(verdict)
     shape_rows = [] if args.no_shapes else other_shapes()
     scale_rows = []
     if not args.no_scaling:
@@ -461,10 +461,7 @@ def main(argv: list[str] | None = None) -> int:
               "samples": SAMPLES, "seed": SEED, "quick": bool(args.quick), "methods": rows,
               "goals": verdict, "scaling": scale_rows, "shapes": shape_rows,
               "open3d": o3d.__version__, "numpy": np.__version__}
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1, default=float) + "\n")
-    print(f"\nwritten {out}")
+    write_result(args.json, result)
     return 0
 
 
