@@ -1451,7 +1451,6 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         # Within two spacings: a section emptied as a cap may lie in between.
         beyond = candidates[(offset > 0) & (offset <= 2 * delta)]
         beyond_flat = points[beyond] @ frame[:2].T
-        centres = np.array([b.mean(axis=0) @ frame[:2].T for b in befores])
         # No cap seen (an open end, or a cap the cameras missed): the wall points in the
         # outer half-slab run on to the end of the data; for points spread evenly over
         # [0, e] beyond the plane the median offset is e/2, so the end is 2 x the median.
@@ -1470,8 +1469,8 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                 step = end_step
             else:
                 break
-            nearest = int(np.argmin(np.linalg.norm(centres - flat.mean(axis=0), axis=1)))
-            new_rings.append(_extrapolate_ring(ring, befores[nearest], step, axis))
+            new_rings.append(_extrapolate_ring(ring, _nearest_loop(ring, befores, frame), step,
+                                               axis))
         if len(new_rings) < len(ends):
             continue
         rings.insert(0 if end == 0 else len(rings),
