@@ -919,6 +919,20 @@ def prepare_image(image, interpolation: str = DEFAULT_INTERPOLATION) -> Prepared
     return PreparedImage(values=values, raw=img, noise=noise, interpolation=interpolation)
 
 
+def robust_upper_limit(values: np.ndarray, k: float, dof: int) -> float:
+    """``median + k·s`` of a population of σ-like values (σ0 or σ of LSM matches).
+
+    ``s`` is the larger of the robust spread 1.4826·MAD and the spread the
+    values' own estimation error gives, ``median/sqrt(2·dof)`` (the chi
+    distribution of a σ estimated with ``dof`` degrees of freedom), so that a
+    population whose values differ only by that error loses nothing.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    med = float(np.median(values))
+    spread = max(1.4826 * float(np.median(np.abs(values - med))), med / np.sqrt(2.0 * dof))
+    return med + k * spread
+
+
 def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               interpolation: str = DEFAULT_INTERPOLATION, direction=None,
               max_iter: int = 20, shift_stop_px: float | None = None,
@@ -1097,11 +1111,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         ref = float(np.hypot(fprep.noise, gprep.noise))
     limit = sigma0_factor * ref
     if good.sum() >= 30:
-        med = float(np.median(sigma0[good]))
         dof = (patch * patch) - (7 if constrained else 8)
-        spread = max(1.4826 * float(np.median(np.abs(sigma0[good] - med))),
-                     med / np.sqrt(2.0 * dof))
-        limit = min(limit, med + sigma0_mad_k * spread)
+        limit = min(limit, robust_upper_limit(sigma0[good], sigma0_mad_k, dof))
     ok = status == Status.OK
     status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
     ok = status == Status.OK

@@ -87,6 +87,7 @@ from matching.lsm import (
     Status,
     lsm_match,
     prepare_image,
+    robust_upper_limit,
     second_order_terms,
 )
 from matching.seeds import (
@@ -470,11 +471,7 @@ def _imprecise(res: LSMResult, k: float, patch: int) -> np.ndarray:
     ok = res.accepted & np.isfinite(res.sigma)
     if ok.sum() < 30:
         return np.zeros(len(ok), bool)
-    sig = res.sigma[ok]
-    med = float(np.median(sig))
-    spread = max(1.4826 * float(np.median(np.abs(sig - med))),
-                 med / np.sqrt(2.0 * (patch * patch - 8)))
-    return ok & (res.sigma > med + k * spread)
+    return ok & (res.sigma > robust_upper_limit(res.sigma[ok], k, patch * patch - 8))
 
 
 @dataclass(frozen=True)
