@@ -23,10 +23,10 @@ as the client for the same guarantee; otherwise results agree to rounding.
 
 The workers must also run the *same code*: a worker imports photosurf when it
 starts, so a source file edited (or photosurf upgraded) after this process
-imported it gives the workers other code and other numbers — the likely cause
-of the 12 view pairs that differed between Dask and the in-process run at
-1024x768 in session 1 (measured while ``matching/lsm.py`` was being edited in the
-shared tree; the same comparison is bit-identical on a fixed tree).
+imported it gives the workers other code and other numbers.  (The other cause
+of clouds that differ between Dask and the in-process run, found in a fresh
+clone: numba kernels compiled in this process and loaded from the cache by the
+workers differ in the last bits; ``pipeline.warmup`` compiles them at set-up.)
 :meth:`DaskExecutor.map` therefore compares :func:`code_fingerprint` (a hash of
 the code objects this process actually loaded) with each worker's before
 submitting, and refuses with one line naming the modules that differ.
@@ -51,6 +51,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 
 from pipeline.errors import InputError
+from pipeline.workspace import OWN_PACKAGES
 
 _ADDRESS = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s]+$")
 _LOCAL_CLUSTER = re.compile(r"^local-cluster(?::(\d+))?$")
@@ -174,14 +175,10 @@ class DaskExecutor:
         return f"dask {self.address} ({workers} workers)"
 
 
-#: Packages whose code must be the same in the client and the workers.
-PROJECT_PACKAGES = ("matching", "surface", "pipeline")
-
-
 def project_modules(func: Callable | None = None) -> list[str]:
-    """Loaded modules of :data:`PROJECT_PACKAGES`, plus ``func``'s module, sorted."""
+    """Loaded modules of :data:`pipeline.workspace.OWN_PACKAGES`, plus ``func``'s module, sorted."""
     names = {name for name in sys.modules
-             if name.split(".")[0] in PROJECT_PACKAGES and sys.modules[name] is not None}
+             if name.split(".")[0] in OWN_PACKAGES and sys.modules[name] is not None}
     module = sys.modules.get(getattr(func, "__module__", None) or "")
     # a plain source module only: pytest's assertion rewriting (say) compiles test modules
     # to other code than a worker's plain import, and __main__ is not importable there
