@@ -15,6 +15,14 @@ def vase():
     return v, f, noisy_cloud(v, f, 8000, seed=7)
 
 
+@pytest.fixture()
+def vase_npz(vase, tmp_path):
+    """The vase cloud as ``tmp_path/vase.npz`` (``points``)."""
+    path = tmp_path / "vase.npz"
+    np.savez(path, points=vase[2])
+    return path
+
+
 def _assert_closed_one_piece_near(vertices, triangles, v, f, chamfer_bound):
     """Closed, oriented, one component; Chamfer to the truth below the bound, F@0.005 > 0.9."""
     topo = M.mesh_topology(vertices, triangles)
@@ -56,10 +64,8 @@ def test_cloud_formats_give_a_closed_mesh_near_the_truth(vase, tmp_path, suffix,
     _assert_closed_one_piece_near(vertices, triangles, v, f, 0.8 * SIGMA)
 
 
-def test_options_axis_vector_sections_n(vase, tmp_path, capsys):
-    _, _, points = vase
-    path = tmp_path / "vase.npz"
-    np.savez(path, points=points)
+def test_options_axis_vector_sections_n(vase_npz, tmp_path, capsys):
+    path = vase_npz
     out = tmp_path / "mesh.obj"
     assert main(["sections", str(path), "--out", str(out), "--axis", "0,0,2",
                  "--sections", "12", "--n", "20", "--smoothing", "4", "--open-ends"]) == 0
@@ -110,11 +116,10 @@ def test_bad_input_one_line_exit_2(vase, tmp_path, capsys):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".mesh")]
 
 
-def test_smooth_gives_a_watertight_g1_surface_near_the_truth(vase, tmp_path, capsys):
+def test_smooth_gives_a_watertight_g1_surface_near_the_truth(vase, vase_npz, tmp_path, capsys):
     """``--smooth``: cloud -> Bezier surface in one command, control net beside it."""
-    v, f, points = vase
-    path = tmp_path / "vase.npz"
-    np.savez(path, points=points)
+    v, f, _ = vase
+    path = vase_npz
     out = tmp_path / "smooth.ply"
     assert main(["sections", str(path), "--out", str(out), "--smooth", "--level", "1"]) == 0
     text = capsys.readouterr().out
@@ -132,10 +137,8 @@ def test_smooth_gives_a_watertight_g1_surface_near_the_truth(vase, tmp_path, cap
     _assert_closed_one_piece_near(vertices, triangles, v, f, 0.8 * SIGMA)
 
 
-def test_smooth_refuses_an_open_mesh_and_level_without_smooth(vase, tmp_path, capsys):
-    _, _, points = vase
-    path = tmp_path / "vase.npz"
-    np.savez(path, points=points)
+def test_smooth_refuses_an_open_mesh_and_level_without_smooth(vase_npz, tmp_path, capsys):
+    path = vase_npz
     out = tmp_path / "smooth.ply"
     _fails(capsys, ["sections", str(path), "--out", str(out), "--smooth", "--open-ends"],
            "vase.npz", "open")
