@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cache
 
+import numba
 import numpy as np
 import scipy.linalg
 
@@ -84,9 +85,17 @@ def build_half_edges(n_vertices: int, triangles: np.ndarray,
         raise ValueError(f"triangles has {int((~found).sum())} border edges; this step needs "
                          "a closed mesh")
     twin = np.where(found, order[pos], -1)
+    mesh = _with_vertex_tables(n_vertices, tris, twin)
+    _check_vertex_manifold(mesh)
+    return mesh
+
+
+def _with_vertex_tables(n_vertices: int, tris: np.ndarray, twin: np.ndarray) -> HalfEdges:
+    """The per-vertex tables of :class:`HalfEdges` from faces and twins (border check)."""
+    origin = tris.ravel()
     border = twin < 0
     out_count = np.bincount(origin[border], minlength=n_vertices)
-    in_count = np.bincount(dest[border], minlength=n_vertices)
+    in_count = np.bincount(tris[:, [1, 2, 0]].ravel()[border], minlength=n_vertices)
     if np.any(out_count > 1) or np.any(in_count > 1):
         bad = np.flatnonzero((out_count > 1) | (in_count > 1))
         raise ValueError(f"triangles is non-manifold at {len(bad)} border vertices "
@@ -95,10 +104,35 @@ def build_half_edges(n_vertices: int, triangles: np.ndarray,
     first_out = np.full(n_vertices, -1, dtype=np.int64)
     first_out[origin[::-1]] = np.arange(len(origin))[::-1]
     first_out[origin[border]] = np.flatnonzero(border)
-    on_border = out_count > 0
-    mesh = HalfEdges(tris, twin, valence, first_out, on_border)
-    _check_vertex_manifold(mesh)
-    return mesh
+    return HalfEdges(tris, twin, valence, first_out, out_count > 0)
+
+
+def refined_half_edges(coarse: HalfEdges, n_vertices: int, children: np.ndarray) -> HalfEdges:
+    """Half-edges of :func:`loop_subdivide`'s refined mesh, read off the coarse ones.
+
+    Equal to ``build_half_edges(n_vertices, children, allow_border=True)`` without its
+    sort: coarse half-edge ``3f + c`` is split into ``3 (4f + c) + c`` (from its origin)
+    and ``3 (4f + c + 1) + c`` (to its end), so the halves of a coarse twin pair are
+    twins crosswise; the three inner edges of face f pair the corner children with the
+    centre child ``4f + 3``.  The refinement of a manifold mesh is manifold, so the
+    fan check is not repeated.
+    """
+    n_faces = len(coarse.triangles)
+    face = np.arange(n_faces)[:, None]
+    corner = np.arange(3)[None, :]
+    first = 3 * (4 * face + corner) + corner  # (F, 3)
+    second = 3 * (4 * face + (corner + 1) % 3) + corner
+    coarse_twin = coarse.twin.reshape(n_faces, 3)
+    other, other_corner = coarse_twin // 3, coarse_twin % 3
+    border = coarse_twin < 0
+    twin = np.empty(12 * n_faces, dtype=np.int64)
+    twin[first] = np.where(border, -1, 3 * (4 * other + (other_corner + 1) % 3) + other_corner)
+    twin[second] = np.where(border, -1, 3 * (4 * other + other_corner) + other_corner)
+    base = 12 * face.ravel()
+    for child, local in ((0, 1), (1, 2), (2, 0)):  # inner edge <-> centre child, same slot
+        twin[base + 3 * child + local] = base + 9 + local
+        twin[base + 9 + local] = base + 3 * child + local
+    return _with_vertex_tables(n_vertices, children, twin)
 
 
 def rotate_ccw(mesh: HalfEdges, h: np.ndarray) -> np.ndarray:
@@ -153,9 +187,22 @@ def limit_positions(mesh: HalfEdges, points: np.ndarray) -> np.ndarray:
     """
     n = np.maximum(mesh.valence, 1)
     chi = 1.0 / (3.0 / (8.0 * loop_beta(n)) + n)
-    ring_sum = np.zeros_like(points)
-    np.add.at(ring_sum, mesh.origin, points[mesh.dest])
+    ring_sum = _ring_sum(mesh, points)
     return (1.0 - n * chi)[:, None] * points + chi[:, None] * ring_sum
+
+
+def _ring_sum(mesh: HalfEdges, points: np.ndarray) -> np.ndarray:
+    """``(V, D)`` sum of each vertex's neighbours over its outgoing half-edges.
+
+    One ``bincount`` per column adds in half-edge order, as ``np.add.at`` would
+    (the same sums bit for bit), without its per-element overhead.
+    """
+    origin, dest = mesh.origin, mesh.dest
+    n_vertices = len(points)
+    out = np.empty(points.shape)
+    for d in range(points.shape[1]):
+        out[:, d] = np.bincount(origin, weights=points[dest, d], minlength=n_vertices)
+    return out
 
 
 def loop_subdivide(mesh: HalfEdges, points: np.ndarray):
@@ -188,8 +235,7 @@ def loop_subdivide(mesh: HalfEdges, points: np.ndarray):
                            0.5 * ends)
     n = np.maximum(mesh.valence, 1)
     beta = loop_beta(n)
-    ring_sum = np.zeros_like(points)
-    np.add.at(ring_sum, mesh.origin, points[mesh.dest])
+    ring_sum = _ring_sum(mesh, points)
     vertex_points = (1.0 - n * beta)[:, None] * points + beta[:, None] * ring_sum
     border = np.flatnonzero(mesh.twin < 0)
     if len(border):
@@ -612,52 +658,107 @@ def _check_areas(vertices: np.ndarray, triangles: np.ndarray) -> None:
                          f"(first: face {int(np.argmax(bad))})")
 
 
-def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray):
-    """Nets of regular faces: the box-spline quartic ``(R, 15, 3)`` and its sextic elevation."""
+@cache
+def _coordinate_operator(matrix_key: str) -> np.ndarray:
+    """``kron(M, I_3).T``: applies an ``(N, K)`` net map to patch-major ``(P, K * 3)`` rows.
+
+    ``(P, K, 3) -> (P, N, 3)`` then is one GEMM ``(P, 3K) x (3K, 3N)`` with no
+    transposed copies (the zero blocks cost flops, not memory traffic).
+    """
     from surface.bezier import elevate
 
+    matrix = BOX_SPLINE_QUARTIC if matrix_key == "quartic" else elevate(BOX_SPLINE_QUARTIC, DEGREE)
+    operator = np.kron(matrix, np.eye(3)).T
+    operator.flags.writeable = False
+    return operator
+
+
+def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray):
+    """Nets of regular faces: the box-spline quartic ``(R, 15, 3)`` and its sextic elevation.
+
+    The sextic comes straight from the stencil through the elevated box-spline
+    matrix (the same linear map as elevating the quartic, up to rounding).
+    """
     stencil = box_spline_stencil(mesh, faces)
-    quartic = np.matmul(BOX_SPLINE_QUARTIC, points[stencil])  # (R, 15, 3)
-    return quartic, elevate(quartic, DEGREE)
+    gathered = points[stencil].reshape(len(faces), -1)  # (R, 36) patch-major
+    quartic = (gathered @ _coordinate_operator("quartic")).reshape(len(faces), 15, 3)
+    sextic = (gathered @ _coordinate_operator("sextic")).reshape(len(faces), N_SEXTIC, 3)
+    return quartic, sextic
+
+
+N_SEXTIC = 28
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_neighbour_nets(quartic, quartic_row, across, rotation, out):  # pragma: no cover
+    """``out[15 i + p, v] = quartic[row of across[v, i]'s face, rotation[corner, p]]``.
+
+    ``out`` ``(15 n, Vn, 3)``: the quartic neighbour nets of a valence class in the
+    data-major layout of the ring operator's GEMM, each relabelled to start at the
+    corner where the half-edge ``across`` leaves.
+    """
+    n_vertices, n = across.shape
+    for v in range(n_vertices):
+        for i in range(n):
+            h = across[v, i]
+            row = quartic_row[h // 3]
+            corner = h % 3
+            for p in range(15):
+                src = rotation[corner, p]
+                for d in range(3):
+                    out[15 * i + p, v, d] = quartic[row, src, d]
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_ring_nets(rings, spokes, rotation, control_points):  # pragma: no cover
+    """``control_points[face of spoke, rotation[corner, p]] = rings[i, p, v]``.
+
+    ``rings`` ``(n, 28, Vn, 3)`` is the GEMM's output; spoke ``v -> w_i`` is half-edge
+    ``3 f + c`` of its patch, whose net is stored from corner 0, not from v.
+    """
+    n_vertices, n = spokes.shape
+    for v in range(n_vertices):
+        for i in range(n):
+            h = spokes[v, i]
+            face = h // 3
+            corner = h % 3
+            for p in range(N_SEXTIC):
+                dst = rotation[corner, p]
+                for d in range(3):
+                    control_points[face, dst, d] = rings[i, p, v, d]
 
 
 def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
-                       quartic: np.ndarray, control_points: np.ndarray, computed: np.ndarray,
-                       centres_wanted: np.ndarray) -> None:
+                       quartic: np.ndarray, quartic_row: np.ndarray,
+                       control_points: np.ndarray, centres_wanted: np.ndarray) -> None:
     """Fill the ring patches of the wanted irregular vertices, one batch per valence.
 
-    ``quartic`` holds the box-spline quartic nets of the regular faces
-    (``computed`` marks them); the ring patches are written into
-    ``control_points``.
+    ``quartic`` ``(R, 15, 3)`` holds the box-spline quartic nets of the regular
+    faces, ``quartic_row`` ``(F,)`` each face's row there (-1: not regular); the
+    ring patches are written into ``control_points`` ``(F, 28, 3)``.
     """
     dest = mesh.dest
+    rotation4 = np.stack([corner_rotation(c, 4) for c in range(3)])
+    rotation6 = np.stack([corner_rotation(c) for c in range(3)])
     for n in np.unique(mesh.valence[centres_wanted]):
         n = int(n)
         centres = centres_wanted[mesh.valence[centres_wanted] == n]
         spokes = ring_half_edges(mesh, mesh.first_out[centres], n)  # (Vn, n): v -> w_i
         across = mesh.twin[next_half_edge(spokes)]  # w_{i+1} -> w_i in N_i
-        if np.any(across < 0) or not np.all(computed[across // 3]):
+        if np.any(across < 0) or np.any(quartic_row[across // 3] < 0):
             raise RuntimeError("an irregular vertex's neighbour patch is not regular")
         to_apex = next_half_edge(across)  # w_i -> x_i
         local = np.concatenate([centres[:, None], dest[spokes], dest[to_apex],
                                 dest[next_half_edge(mesh.twin[to_apex])]], axis=1)  # v, w, x, y
-        neighbour = np.empty((n, 15, len(centres), 3))  # data-major for one GEMM
-        for c in range(3):
-            sel = (across % 3 == c).T  # (n, Vn)
-            nets = quartic[across.T[sel] // 3][:, corner_rotation(c, 4)]  # (m, 15, 3)
-            neighbour.transpose(0, 2, 1, 3)[sel] = nets
-        flat = np.concatenate([limit[centres][None], neighbour.reshape(15 * n, len(centres), 3),
-                               points[local.T]])
+        n_data = 1 + 15 * n + local.shape[1]
+        flat = np.empty((n_data, len(centres), 3))  # data-major for one GEMM
+        flat[0] = limit[centres]
+        _gather_neighbour_nets(quartic, quartic_row, across, rotation4, flat[1:1 + 15 * n])
+        flat[1 + 15 * n:] = points[local.T]
         # (28n, D) x (D, 3 Vn): all vertices of this valence at once
-        rings = ring_operator(n) @ flat.reshape(len(flat), -1)
-        rings = rings.reshape(n, 28, len(centres), 3).transpose(2, 0, 1, 3).reshape(-1, 28, 3)
-        spokes = spokes.ravel()
-        for c in range(3):
-            sel = spokes % 3 == c
-            out = np.empty((int(sel.sum()), 28, 3))
-            out[:, corner_rotation(c)] = rings[sel]
-            control_points[spokes[sel] // 3] = out
-        computed[spokes // 3] = True
+        rings = ring_operator(n) @ flat.reshape(n_data, -1)
+        _scatter_ring_nets(rings.reshape(n, N_SEXTIC, len(centres), 3), spokes, rotation6,
+                           control_points)
 
 
 def build_surface(vertices: np.ndarray, triangles: np.ndarray):
@@ -670,27 +771,32 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     """
     if len(triangles) == 0:
         raise ValueError("triangles is empty")
-    build_half_edges(len(vertices), triangles, allow_border=True)  # index/orientation checks
+    checked = build_half_edges(len(vertices), triangles, allow_border=True)  # index/orientation
+    n_given = len(vertices)
     vertices, triangles = _compact(vertices, triangles)
     _check_areas(vertices, triangles)
     n_faces, n_vertices = len(triangles), len(vertices)
-    mesh0 = build_half_edges(n_vertices, triangles, allow_border=True)
+    # nothing dropped: the mesh just checked is the compacted one
+    mesh0 = checked if n_vertices == n_given else build_half_edges(n_vertices, triangles,
+                                                                     allow_border=True)
     points, tris = vertices, triangles
     if mesh0.on_border.any():
         for _ in range(2):
             points, tris = add_ghost_layer(mesh0, points)
             mesh0 = build_half_edges(len(points), tris, allow_border=True)
     points, tris = loop_subdivide(mesh0, points)
-    mesh = build_half_edges(len(points), tris, allow_border=True)
-    control_points = np.zeros((len(tris), 28, 3))
-    quartic = np.zeros((len(tris), 15, 3))
+    mesh = refined_half_edges(mesh0, len(points), tris)
+    # every patch the input faces keep is written below (regular or ring patch);
+    # ghost-layer patches far from the input may stay unset and are dropped
+    control_points = np.empty((len(tris), N_SEXTIC, 3))
     inner6 = (mesh.valence == 6) & ~mesh.on_border
-    regular = np.all(inner6[tris], axis=1)
-    quartic[regular], control_points[regular] = regular_patches(mesh, points,
-                                                                np.flatnonzero(regular))
+    regular = np.flatnonzero(np.all(inner6[tris], axis=1))
+    quartic, control_points[regular] = regular_patches(mesh, points, regular)
+    quartic_row = np.full(len(tris), -1, dtype=np.int64)
+    quartic_row[regular] = np.arange(len(regular))
     limit = limit_positions(mesh, points)
     centres = np.flatnonzero(~inner6[:n_vertices])  # input vertices are interior here
-    _irregular_patches(mesh, points, limit, quartic, control_points, regular.copy(), centres)
+    _irregular_patches(mesh, points, limit, quartic, quartic_row, control_points, centres)
     kept = 4 * n_faces  # children of the input faces come first
     used = np.zeros(len(points), dtype=bool)
     used[tris[:kept].ravel()] = True

@@ -629,14 +629,15 @@ def test_ring_construction_returns_the_box_spline_at_a_regular_vertex():
     np.logical_and.at(neighbour_ok, mesh.origin, ring_ok[mesh.dest])
     centre = np.flatnonzero(inner6 & neighbour_ok)[:3]
     assert len(centre) == 3
-    quartic = np.zeros((len(dom_t), 15, 3))
     nets = np.zeros((len(dom_t), 28, 3))
-    quartic[regular], nets[regular] = lp.regular_patches(mesh, dom_v, np.flatnonzero(regular))
+    quartic, nets[regular] = lp.regular_patches(mesh, dom_v, np.flatnonzero(regular))
+    quartic_row = np.full(len(dom_t), -1)
+    quartic_row[regular] = np.arange(int(regular.sum()))
     rebuilt = nets.copy()
     around = np.any(np.isin(dom_t, centre), axis=1)
     rebuilt[around] = 0.0  # forget the ring patches; the ring path must rebuild them
     limit = lp.limit_positions(mesh, dom_v)
-    lp._irregular_patches(mesh, dom_v, limit, quartic, rebuilt, regular.copy(), centre)
+    lp._irregular_patches(mesh, dom_v, limit, quartic, quartic_row, rebuilt, centre)
     assert around.sum() == 18
     assert np.abs(rebuilt - nets).max() < 1e-12 * _size(vertices)
 
