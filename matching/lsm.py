@@ -107,9 +107,10 @@ class LSMResult:
     Attributes
     ----------
     position : (N, 2) float64
-        Matched position of the template centre in the search image, px.
+        Matched position of the template centre (or of the eccentric template pixel
+        ``lsm_match``'s ``offset`` names) in the search image, px.
     affine : (N, 6) float64
-        ``a0 a1 a2 b0 b1 b2`` (``a0, b0`` = ``position``).
+        ``a0 a1 a2 b0 b1 b2`` (``a0, b0``: the template centre's position).
     radiometric : (N, 2) float64
         ``r0`` (offset, grey levels), ``r1`` (gain).
     converged : (N,) bool
@@ -126,6 +127,10 @@ class LSMResult:
         :class:`Status` code (``STATUS_NAMES`` gives the names).
     noise_sigma0 : float
         The reference σ0 the ``SIGMA0_TOO_LARGE`` test used, grey levels.
+    window_cov : (N, 2, 2) float64 or None
+        With eccentric windows (``lsm_match``'s ``offset``): the covariance of the
+        window centre's shift, px² (the window's own precision, before the transfer to
+        the offset pixel); None: ``cov`` is the centre's.
     """
 
     position: np.ndarray
@@ -138,6 +143,7 @@ class LSMResult:
     correlation: np.ndarray
     status: np.ndarray
     noise_sigma0: float
+    window_cov: np.ndarray | None = None
 
     @property
     def accepted(self) -> np.ndarray:
@@ -148,6 +154,13 @@ class LSMResult:
     def sigma(self) -> np.ndarray:
         """(N,) float64: RMS of the two position σ's, sqrt(trace(cov)/2), px."""
         return np.sqrt(np.maximum(np.trace(self.cov, axis1=1, axis2=2), 0.0) / 2.0)
+
+    @property
+    def window_sigma(self) -> np.ndarray:
+        """(N,) float64: :attr:`sigma` of the window centre (= ``sigma`` without
+        eccentric windows), px: the matching precision the texture gives."""
+        cov = self.cov if self.window_cov is None else self.window_cov
+        return np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0) / 2.0)
 
 
 # --------------------------------------------------------------------------------------
@@ -560,8 +573,11 @@ def _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats):
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrained, half,
                  kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-                 grad_noise_var, p_out, cov_out, sig0_out, corr_out):
-    """Gauss-Newton LSM for one patch; returns (status, iterations, converged)."""
+                 grad_noise_var, offset, p_out, cov_out, wcov_out, sig0_out, corr_out):
+    """Gauss-Newton LSM for one patch; returns (status, iterations, converged).
+
+    ``cov_out``: covariance of the warped template pixel ``offset`` (relative to the
+    centre); ``wcov_out``: of the window centre (the shift (a0, b0))."""
     npix = (2 * half + 1) ** 2
     fh, fw = fimg.shape
     gh, gw = gimg.shape
@@ -679,37 +695,48 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         for i in range(m):
             for j in range(m):
                 ncred[i, j] = nred[i, j]
-    shift_cols = (0, 0) if constrained else (0, 3)
-    xs = np.zeros((2, 8))
+    # the warped pixel (u, v) = (a0 + a1 ox + a2 oy, b0 + b1 ox + b2 oy) (+ fixed terms):
+    # its gradients g_u, g_v in the (reduced) unknowns, covariance sigma0^2 g^T Nc^-1 g
+    # rows 0-1: the centre (o = 0), rows 2-3: the pixel at ``offset``
+    ox = offset[0]
+    oy = offset[1]
+    grads = np.zeros((4, 8))
+    for r in range(2):
+        o_x = ox if r == 1 else 0.0
+        o_y = oy if r == 1 else 0.0
+        if constrained:  # unknowns s, a1, a2, b1, b2, r0, r1 with (a0, b0) = s d
+            grads[2 * r, 0] = d[0]
+            grads[2 * r, 1] = o_x
+            grads[2 * r, 2] = o_y
+            grads[2 * r + 1, 0] = d[1]
+            grads[2 * r + 1, 3] = o_x
+            grads[2 * r + 1, 4] = o_y
+        else:
+            grads[2 * r, 0] = 1.0
+            grads[2 * r, 1] = o_x
+            grads[2 * r, 2] = o_y
+            grads[2 * r + 1, 3] = 1.0
+            grads[2 * r + 1, 4] = o_x
+            grads[2 * r + 1, 5] = o_y
+    xs = np.zeros((4, 8))
     unit = np.zeros(8)
     col = np.empty(8)
-    for a in range(2):
+    for a in range(4):
         for i in range(8):
-            unit[i] = 0.0
-        unit[shift_cols[a]] = 1.0
+            unit[i] = grads[a, i]
         if not _cholesky_solve(ncred, unit, m, col):
             return 7, it, False
         for i in range(m):
             xs[a, i] = col[i]
-    cs = np.empty((2, 2))
     for a in range(2):
         for b in range(2):
             acc = 0.0
+            acw = 0.0
             for i in range(m):
-                for j in range(m):
-                    acc += xs[a, i] * ncred[i, j] * xs[b, j]
-            cs[a, b] = sig0sq * acc
-    if constrained:
-        var_s = cs[0, 0]
-        cov_out[0, 0] = var_s * d[0] * d[0]
-        cov_out[0, 1] = var_s * d[0] * d[1]
-        cov_out[1, 0] = var_s * d[0] * d[1]
-        cov_out[1, 1] = var_s * d[1] * d[1]
-    else:
-        cov_out[0, 0] = cs[0, 0]
-        cov_out[0, 1] = cs[0, 1]
-        cov_out[1, 0] = cs[1, 0]
-        cov_out[1, 1] = cs[1, 1]
+                acw += grads[a, i] * xs[b, i]
+                acc += grads[2 + a, i] * xs[2 + b, i]
+            cov_out[a, b] = sig0sq * acc
+            wcov_out[a, b] = sig0sq * acw
     sf = stats[1] / npix
     sg = stats[2] / npix
     vf = stats[3] / npix - sf * sf
@@ -726,14 +753,15 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
 @numba.njit(parallel=True, nogil=True, cache=True, fastmath=_FM, error_model="numpy")
 def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constrained, half,
                kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-               grad_noise_var, params, cov, sigma0, corr, status, iters, conv):
+               grad_noise_var, offsets, params, cov, wcov, sigma0, corr, status, iters,
+               conv):
     n = centres.shape[0]
     for i in numba.prange(n):
         s, it, cv = _solve_point(fimg, fraw, gimg, centres[i], approx[i], init[i], quad[i],
                                  directions[i], constrained, half, kind, exact_final,
                                  max_iter, tol,
                                  max_shift, det_min, min_texture, grad_noise_var,
-                                 params[i], cov[i],
+                                 offsets[i], params[i], cov[i], wcov[i],
                                  sigma0[i:i + 1], corr[i:i + 1])
         status[i] = s
         iters[i] = it
@@ -940,7 +968,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               sigma0_factor: float = 2.5, sigma0_mad_k: float = 4.0,
               min_correlation: float = 0.7,
               min_texture_snr: float = 2.0, initial=None, quadratic=None,
-              jacobian: str = "template", noise_correction: bool = True) -> LSMResult:
+              jacobian: str = "template", noise_correction: bool = True,
+              offset=None) -> LSMResult:
     """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
 
     Parameters
@@ -1003,10 +1032,15 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         σ_n alone gives a central-difference gradient), σ_n = Immerkaer's estimate for
         the template image (and never below ``TOL.zero``).
 
-    Returns
-    -------
-    LSMResult
-        Positions, affine and radiometric parameters, precision and a status per point.
+    offset : (N, 2) array_like, optional
+        Eccentric windows: report the match of the template pixel ``points + offset``
+        (px, inside the patch: ``|offset| <= patch // 2`` per axis) instead of the
+        centre's -- its position through the estimated warp, (a0 + a1 ox + a2 oy,
+        b0 + b1 ox + b2 oy) plus the fixed second-order terms, and its covariance
+        σ0² gᵀ N⁻¹ g with g the gradient of that position in the unknowns (the affine
+        unknowns' uncertainty grows it with |o|).  A point near a depth or texture edge
+        is matched with a window moved off the edge (shiftable windows); ``approx``
+        stays the approximation of the window's centre.  Default: the centres.
 
     jacobian : {"template", "search"}
         Jacobian of the final linearisation (module docstring): the template-gradient
@@ -1019,6 +1053,11 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         normal matrix of the noise-free template.  Without it σ0² N⁻¹ is too small on
         weak texture: measured actual/reported 1.11 at SNR 5 and 1.3 at SNR 2.7 (SNR =
         λ_min / (σ_n²/2)), against 0.98 and 0.97 with it.  Exact for integer centres.
+
+    Returns
+    -------
+    LSMResult
+        Positions, affine and radiometric parameters, precision and a status per point.
 
     Notes
     -----
@@ -1070,6 +1109,16 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     if len(init) != n or len(quad) != n:
         raise ValueError(f"initial and quadratic must have {n} rows, got {len(init)} and "
                          f"{len(quad)}")
+    if offset is None:
+        offs = np.zeros((n, 2))
+    else:
+        offs = check_shape(offset, "(N, 2)", "offset", dtype=np.float64)
+        if len(offs) != n:
+            raise ValueError(f"offset must have {n} rows, got {len(offs)}")
+        if not (np.isfinite(offs).all() and np.abs(offs).max(initial=0.0) <= patch // 2):
+            raise ValueError(f"offset must be finite and inside the patch (|offset| <= "
+                             f"{patch // 2} px per axis), got up to "
+                             f"{np.abs(offs).max(initial=0.0):g}")
     tol = TOL.lsm_shift_stop_px if shift_stop_px is None else float(shift_stop_px)
     max_shift = 0.25 * patch if max_shift_px is None else float(max_shift_px)
     fimg, gimg = fprep.values, gprep.values
@@ -1079,6 +1128,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     grad_noise_var = 0.5 * template_noise**2 if noise_correction else 0.0
     params = np.full((n, 8), np.nan)
     cov = np.full((n, 2, 2), np.nan)
+    wcov = np.full((n, 2, 2), np.nan)
     sigma0 = np.full(n, np.nan)
     corr = np.full(n, np.nan)
     status = np.zeros(n, np.uint8)
@@ -1089,15 +1139,16 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     status[~finite] = Status.NO_CONVERGENCE
     idx = np.flatnonzero(finite)
     if len(idx):
-        sub = [params[idx], cov[idx], sigma0[idx], corr[idx], status[idx], iters[idx],
-               conv[idx]]
+        sub = [params[idx], cov[idx], wcov[idx], sigma0[idx], corr[idx], status[idx],
+               iters[idx], conv[idx]]
         _lsm_batch(fimg, fprep.raw, gimg, np.ascontiguousarray(points[idx]),
                    np.ascontiguousarray(approx[idx]), np.ascontiguousarray(init[idx]),
                    np.ascontiguousarray(quad[idx]), np.ascontiguousarray(dirs[idx]),
                    constrained, patch // 2, _KIND[interpolation], jacobian == "search",
                    int(max_iter), tol,
-                   max_shift, TOL.affine_det_min, min_texture, grad_noise_var, *sub)
-        for full, part in zip((params, cov, sigma0, corr, status, iters, conv), sub,
+                   max_shift, TOL.affine_det_min, min_texture, grad_noise_var,
+                   np.ascontiguousarray(offs[idx]), *sub)
+        for full, part in zip((params, cov, wcov, sigma0, corr, status, iters, conv), sub,
                               strict=True):
             full[idx] = part
     good = status == Status.OK
@@ -1117,10 +1168,18 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
     ok = status == Status.OK
     status[ok & ~(corr >= min_correlation)] = Status.LOW_CORRELATION
-    return LSMResult(position=params[:, [0, 3]], affine=params[:, :6],
+    position = params[:, [0, 3]]
+    if offset is not None:
+        ox, oy = offs[:, 0], offs[:, 1]
+        position = position + np.column_stack([
+            params[:, 1] * ox + params[:, 2] * oy
+            + quad[:, 0] * ox * ox + quad[:, 1] * ox * oy + quad[:, 2] * oy * oy,
+            params[:, 4] * ox + params[:, 5] * oy
+            + quad[:, 3] * ox * ox + quad[:, 4] * ox * oy + quad[:, 5] * oy * oy])
+    return LSMResult(position=position, affine=params[:, :6],
                      radiometric=params[:, 6:], converged=conv, iterations=iters,
                      sigma0=sigma0, cov=cov, correlation=corr, status=status,
-                     noise_sigma0=float(ref))
+                     noise_sigma0=float(ref), window_cov=wcov if offset is not None else None)
 
 
 #: Cap on the neighbours of one plane fit in :func:`second_order_terms` (cost bound:

@@ -44,6 +44,9 @@ References
 .. [4] W. Förstner, E. Gülch, "A fast operator for detection and precise location of
    distinct points, corners and centres of circular features", ISPRS Intercommission
    Conference on Fast Processing of Photogrammetric Data, Interlaken, 281-305 (1987).
+.. [5] A. F. Bobick, S. S. Intille, "Large occlusion stereo", IJCV 33(3), 181-200 (1999).
+.. [6] A. Fusiello, V. Roberto, E. Trucco, "Efficient stereo with multiple windowing",
+   CVPR, 858-863 (1997).
 """
 
 from __future__ import annotations
@@ -171,6 +174,129 @@ def select_points(image, spacing: int = 4, patch: int = 15, min_texture_snr: flo
     threshold = max(min_texture_snr * 0.5 * sigma**2, TOL.zero)
     return Candidates(points=points, texture=texture, textured=texture > threshold,
                       threshold=float(threshold), noise=sigma)
+
+
+#: Window side of the fine texture test that locates the edge of an untextured region
+#: (:func:`window_offsets`), px: the smallest window whose structure tensor still
+#: tells 2-D texture from noise (25 gradients); the edge is found to half of it.
+EDGE_SCALE_PX = 5
+
+
+def window_offsets(candidates: Candidates, image, patch: int = 15,
+                   spacing: int = 4, mask=None, valid=None) -> tuple[np.ndarray, np.ndarray]:
+    """Eccentric windows: move each template window off textureless cells (shiftable windows).
+
+    A candidate's window that reaches into an untextured region (uniform background
+    beyond a silhouette or a rim, an untextured part of the object) straddles an
+    edge: the pixels beyond it do not move with the surface, and the match slides
+    along the edge.  The region is located at two scales: the ``spacing`` cells of
+    the candidates that failed the texture test (``patch`` window) mark it, and the
+    pixels that fail the same test over an ``EDGE_SCALE_PX`` window and are connected
+    to such a cell trace its boundary to a couple of pixels; grown by half that
+    window (the test's own reach), they are the pixels *off* the textured surface.
+    A window holding such a pixel, a pixel without an approximation (``valid``) or a
+    masked one is moved by the smallest integer offset ``o`` (Euclidean length;
+    ``|o| <= patch // 2`` per axis, so the point stays in its window) that clears
+    them all and keeps the window inside the image (LSM's margin); LSM then matches
+    that window and transfers the point through the estimated warp (``lsm_match``'s
+    ``offset = -o``).  A candidate itself off the surface gets no eccentric window
+    (the transfer would extrapolate the surface beyond its edge).  Weakly textured
+    parts of the object that no failed cell touches are not affected.  The idea of
+    the shiftable / multiple windows of area-based stereo near depth
+    discontinuities (Bobick & Intille 1999; Fusiello, Roberto & Trucco 1997).
+
+    Parameters
+    ----------
+    candidates : Candidates
+        :func:`select_points`'s grid (same ``spacing`` and ``patch``).
+    image : (H, W) array_like
+        The grey template image.
+    patch : int
+        Window side, px (odd).
+    spacing : int
+        Candidate cell side, px.
+    mask : (H, W) bool, optional
+        Pixels a window may cover (default all).
+    valid : (H, W) bool, optional
+        Pixels where the approximations have a disparity
+        (:func:`disparity_valid_left`): windows avoid the others as well, and a
+        candidate on such a pixel (beyond the object) gets no eccentric window.
+
+    Returns
+    -------
+    offset : (N, 2) float64
+        Window centre minus candidate, px (0 where the centred window is clear, or
+        where no offset clears it).
+    edge : (N,) bool
+        A textured candidate no window within the patch clears: its window straddles
+        the edge.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"image must be a 2-D grey image, got shape {img.shape}")
+    h, w = img.shape
+    half = patch // 2
+    pts = np.asarray(candidates.points, dtype=np.intp).reshape(-1, 2)
+    n = len(pts)
+    bad = np.zeros((h, w), np.float32)
+    if mask is not None:
+        mask = check_shape(mask, "(H, W)", "mask", dtype=bool)
+        if mask.shape != (h, w):
+            raise ValueError(f"mask must have the image's shape {(h, w)}, got {mask.shape}")
+        bad[~mask] = 1.0
+    if valid is not None:
+        valid = check_shape(valid, "(H, W)", "valid", dtype=bool)
+        if valid.shape != (h, w):
+            raise ValueError(f"valid must have the image's shape {(h, w)}, got {valid.shape}")
+        bad[~valid] = 1.0
+    off_surface = np.zeros((h, w), bool)
+    flat = pts[~np.asarray(candidates.textured, bool)]
+    if len(flat):
+        cells = np.zeros((-(-h // spacing), -(-w // spacing)), np.uint8)
+        cells[flat[:, 1] // spacing, flat[:, 0] // spacing] = 1
+        up = np.repeat(np.repeat(cells, spacing, axis=0), spacing, axis=1)[:h, :w] > 0
+        fine = texture_map(img, EDGE_SCALE_PX) < candidates.threshold
+        rim = EDGE_SCALE_PX // 2 + 1  # texture_map's border is unknown, not flat
+        fine[:rim] = fine[-rim:] = False
+        fine[:, :rim] = fine[:, -rim:] = False
+        _, labels = cv2.connectedComponents(fine.astype(np.uint8), connectivity=8)
+        touched = np.unique(labels[up & fine])
+        region = np.isin(labels, touched[touched > 0]) | up
+        off_surface = cv2.dilate(region.astype(np.uint8),
+                                 np.ones((EDGE_SCALE_PX, EDGE_SCALE_PX), np.uint8)) > 0
+        bad[off_surface] = 1.0
+    count = cv2.boxFilter(bad, -1, (patch, patch), normalize=False,
+                          borderType=cv2.BORDER_CONSTANT)
+    clear = count < 0.5
+    # LSM's inside test for the template window: cx - half >= 1, cx + half < w - 2
+    inside = np.zeros((h, w), bool)
+    inside[half + 1:max(h - half - 2, half + 1), half + 1:max(w - half - 2, half + 1)] = True
+    clear &= inside
+    offset = np.zeros((n, 2))
+    edge = np.zeros(n, bool)
+    if n == 0:
+        return offset, edge
+    blocked = ~clear[pts[:, 1], pts[:, 0]]
+    textured = np.asarray(candidates.textured, bool)
+    off_object = off_surface[pts[:, 1], pts[:, 0]]
+    if valid is not None:
+        off_object |= ~valid[pts[:, 1], pts[:, 0]]
+    todo = np.flatnonzero(blocked & textured & ~off_object)
+    if len(todo):
+        oy, ox = np.mgrid[-half:half + 1, -half:half + 1]
+        order = np.lexsort((np.arctan2(oy.ravel(), ox.ravel()), ox.ravel()**2 + oy.ravel()**2))
+        offs = np.column_stack([ox.ravel(), oy.ravel()])[order]  # (S, 2), nearest first
+        xs = pts[todo, 0][:, None] + offs[None, :, 0]
+        ys = pts[todo, 1][:, None] + offs[None, :, 1]
+        valid = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+        ok = np.zeros(xs.shape, bool)
+        ok[valid] = clear[ys[valid], xs[valid]]
+        found = ok.any(axis=1)
+        first = ok.argmax(axis=1)
+        offset[todo[found]] = offs[first[found]]
+        edge[todo[~found]] = True
+    edge |= blocked & textured & off_object
+    return offset, edge
 
 
 def structure_tensors(image, points, sides) -> np.ndarray:
@@ -556,16 +682,43 @@ def _disparity_over_patch(disp, probes_rect) -> np.ndarray:
     return centre
 
 
+def disparity_valid_left(approx: Approximations, shape: tuple[int, int], rig=None,
+                         rect: Rectification | None = None) -> np.ndarray:
+    """(H, W) bool: the left image's pixels where SGBM found a disparity.
+
+    For a rectified pair the map itself; for a calibrated one each original left pixel
+    is taken to the rectified frame (:func:`left_to_rectified`, the exact inverse of
+    the rectification maps) and looked up there (nearest pixel).
+    """
+    valid = np.isfinite(approx.disparity)
+    h, w = int(shape[0]), int(shape[1])
+    if rig is None:
+        return valid[:h, :w] if valid.shape == (h, w) else np.pad(
+            valid, ((0, max(h - valid.shape[0], 0)), (0, max(w - valid.shape[1], 0))))[:h, :w]
+    rect = rectify(rig) if rect is None else rect
+    ys, xs = np.mgrid[0:h, 0:w]
+    grid = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    r = left_to_rectified(rect, rig.left, grid).reshape(h, w, 2).astype(np.float32)
+    return cv2.remap(valid.astype(np.uint8), r[..., 0], r[..., 1], cv2.INTER_NEAREST,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+
+
 def approximate_rectified(left_rect, right_rect, points, block: int = 5,
-                          patch: int = 15) -> Approximations:
+                          patch: int = 15, reuse: Approximations | None = None
+                          ) -> Approximations:
     """Approximations for left points of an already rectified pair (rows correspond).
 
     ``patch``: LSM patch side; a point gets no approximation when SGBM has no disparity
-    at any of its patch's corners, edge midpoints or centre.
+    at any of its patch's corners, edge midpoints or centre.  ``reuse``: an earlier
+    result for the same pair, whose disparity map is sampled instead of running SGBM
+    again.
     """
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
-    dmin, count = disparity_range(left_rect, right_rect)
-    disp = sgbm_disparity(left_rect, right_rect, dmin, count, block)
+    if reuse is not None:
+        disp, (dmin, count) = reuse.disparity, reuse.range
+    else:
+        dmin, count = disparity_range(left_rect, right_rect)
+        disp = sgbm_disparity(left_rect, right_rect, dmin, count, block)
     d = _disparity_over_patch(disp, _patch_probes(points, patch))
     x_right = np.column_stack([points[:, 0] - d, points[:, 1]])
     direction = np.broadcast_to([1.0, 0.0], points.shape).copy()
@@ -574,7 +727,8 @@ def approximate_rectified(left_rect, right_rect, points, block: int = 5,
 
 
 def approximate_calibrated(rig, left, right, points, rect: Rectification | None = None,
-                           block: int = 5, patch: int = 15) -> Approximations:
+                           block: int = 5, patch: int = 15,
+                           reuse: Approximations | None = None) -> Approximations:
     """Approximations for left points of a calibrated pair through rectification + SGBM.
 
     Parameters
@@ -591,6 +745,9 @@ def approximate_calibrated(rig, left, right, points, rect: Rectification | None 
     patch : int
         LSM patch side, px: no approximation where SGBM has no disparity at any of the
         patch's corners, edge midpoints or centre.
+    reuse : Approximations, optional
+        An earlier result for the same pair and ``rect``: its disparity map is sampled
+        instead of rectifying and running SGBM again.
 
     Returns
     -------
@@ -599,9 +756,12 @@ def approximate_calibrated(rig, left, right, points, rect: Rectification | None 
     """
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
     rect = rectify(rig) if rect is None else rect
-    left_r, right_r = rectify_images(rect, left, right)
-    dmin, count = disparity_range(left_r, right_r)
-    disp = sgbm_disparity(left_r, right_r, dmin, count, block)
+    if reuse is not None:
+        disp, (dmin, count) = reuse.disparity, reuse.range
+    else:
+        left_r, right_r = rectify_images(rect, left, right)
+        dmin, count = disparity_range(left_r, right_r)
+        disp = sgbm_disparity(left_r, right_r, dmin, count, block)
     probes = left_to_rectified(rect, rig.left, _patch_probes(points, patch).reshape(-1, 2))
     probes = probes.reshape(len(points), 9, 2)
     xl_rect = probes[:, 4]

@@ -427,3 +427,52 @@ def test_second_order_terms_grid_hash_equals_the_kdtree_ball(step, jitter, radiu
     ref = _second_order_reference(pts, affine, valid, radius)
     assert np.count_nonzero(ref) > 0.5 * ref.size  # most terms resolved (not shrunk to 0)
     np.testing.assert_allclose(quad, ref, rtol=0, atol=1e-10 * np.abs(ref).max())
+
+
+# ------------------------------------------------------------------ eccentric windows
+def test_eccentric_window_transfers_its_pixel_without_noise(clean_pair):
+    """A window centred at c + o reports the warp of its pixel c: the truth A c + b."""
+    f, g = clean_pair
+    pts = grid_points(160, 10, margin=30)
+    o = np.random.default_rng(5).integers(-7, 8, pts.shape).astype(np.float64)
+    r = lsm_match(f, g, pts + o, start_near(truth_of(pts + o)), offset=-o)
+    assert r.accepted.all(), np.bincount(r.status)
+    # the affine is exact here: the transfer adds only the affine estimate's own
+    # zero-noise error (2e-3 px on the shift, ~4e-4 on a1..b2, times |o| <= 7√2 px;
+    # measured 6.4e-3 at most)
+    assert np.abs(r.position - truth_of(pts)).max() < 8e-3
+    zero = lsm_match(f, g, pts + o, start_near(truth_of(pts + o)), offset=np.zeros_like(o))
+    plain = lsm_match(f, g, pts + o, start_near(truth_of(pts + o)))
+    np.testing.assert_array_equal(zero.position, plain.position)
+    np.testing.assert_allclose(zero.cov, plain.cov, rtol=1e-9, atol=1e-18)
+
+
+def test_eccentric_window_sigma_grows_and_stays_right(noisy_pair):
+    """Noise 2: the transferred pixel's error agrees with its reported σ (±25 %), which
+    grows with |o| as the affine unknowns' share predicts: per axis var(a0) + ox² var(a1)
+    + oy² var(a2), i.e. sqrt(1 + |o|²/<x²>) for an isotropic texture, <x²> = 18.67 px²
+    for 15 px: 2.5 at o = (7, -7))."""
+    f, g = noisy_pair
+    pts = grid_points(240, 4, margin=30)
+    o = np.tile([7.0, -7.0], (len(pts), 1))
+    r = lsm_match(f, g, pts + o, start_near(truth_of(pts + o)), offset=-o)
+    c = lsm_match(f, g, pts + o, start_near(truth_of(pts + o)))
+    ok = r.accepted & c.accepted
+    assert ok.mean() > 0.97
+    err = r.position[ok] - truth_of(pts)[ok]
+    actual, reported = np.sqrt(np.mean(err**2)), np.sqrt(np.mean(r.sigma[ok] ** 2))
+    assert 0.75 < actual / reported < 1.25, (actual, reported)
+    ratio = np.median(r.sigma[ok] / c.sigma[ok])
+    assert 2.1 < ratio < 2.9, ratio
+    # the window's own precision is the centred match's
+    np.testing.assert_allclose(r.window_sigma[ok], c.sigma[ok], rtol=1e-9)
+    assert c.window_cov is None and np.array_equal(c.window_sigma, c.sigma, equal_nan=True)
+
+
+def test_eccentric_window_offset_outside_the_patch_refused(clean_pair):
+    f, g = clean_pair
+    pts = grid_points(160, 40, margin=40)
+    with pytest.raises(ValueError, match="offset"):
+        lsm_match(f, g, pts, truth_of(pts), offset=np.full(pts.shape, 8.0))
+    with pytest.raises(ValueError, match="offset"):
+        lsm_match(f, g, pts, truth_of(pts), offset=np.zeros((1, 2)))

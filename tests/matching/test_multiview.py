@@ -155,10 +155,21 @@ def test_pair_matching_error_against_the_truth(ring):
     err = pc.x_right[:, 0] - x_true[:, 0]
     ok = np.isfinite(err)
     assert ok.mean() > 0.99  # every template's ray meets the vase
-    # measured with the second-order pass: median 0.003 px, RMS 0.04 px (affine only:
-    # median 0.08 px, the curvature bias); bounds at 3x and 2x
-    assert abs(np.median(err[ok])) < 0.01
-    assert np.sqrt(np.mean(err[ok] ** 2)) < 0.08
+    centred = ok & np.all(pc.offset == 0, axis=1)
+    # measured with the second-order pass: median 0.003 px, RMS 0.035-0.04 px (affine
+    # only: median 0.08 px, the curvature bias); bounds at 3x and 2x
+    assert abs(np.median(err[centred])) < 0.01
+    assert np.sqrt(np.mean(err[centred] ** 2)) < 0.08
+    # eccentric windows (moved off the background onto the vase near rims and contours):
+    # a minority, transferred through a warp fitted 7 px away, so their errors exceed
+    # σ more than the centred ones' (measured: 20 % of the points, error/σ 3.2 against
+    # 1.5 at this 320x240 size; 7 %, 1.74 against 1.39 at 1024x768) -- bounded here at
+    # 1.5x what was measured; the further-view check rejects what is off
+    ecc = ok & ~centred
+    assert 0 < ecc.sum() < 0.3 * ok.sum()
+    sigma = np.sqrt(2.0 * pc.cov_2d[:, 0, 0])  # cov_2d = cov / 2 + floor
+    assert np.sqrt(np.mean((err[ecc] / sigma[ecc]) ** 2)) < 4.8
+    assert np.sqrt(np.mean((err[centred] / sigma[centred]) ** 2)) < 2.3
 
 
 def test_pair_uses_fixed_patches_unless_asked(ring):
@@ -198,6 +209,23 @@ def test_cloud_covers_the_vase_all_round(cloud):
         slab = np.abs(p[:, 2] - z) < 0.1
         counts = np.bincount((theta[slab] // 5).astype(int), minlength=72)
         assert counts.min() >= 1, f"z = {z}: empty 5-degree sectors {np.flatnonzero(counts == 0)}"
+
+
+def test_cloud_reaches_the_rims_and_not_beyond(ring, cloud):
+    """Eccentric windows: points up to the rims z = 0 and z = 3, none past them.
+
+    One pixel on the vase is ``d / f`` (d: camera distance from the axis): 0.019 at
+    320x240.  Measured: 101 points above z = 2.95 (2.7 px below the rim) with eccentric
+    windows against 9 without (the silhouette rule dropped every window reaching past
+    the rim, so the points stopped half a window short); the extreme points lie 0.5 px
+    inside the top rim and 0.8 px below the bottom one.
+    """
+    cam = ring["cameras"][0]
+    px = np.hypot(*cam.center[:2]) / cam.K[0, 0]
+    z = cloud.points[:, 2]
+    assert np.count_nonzero(z > 3.0 - 3.0 * px) >= 50
+    assert np.count_nonzero(z < 3.0 * px) >= 50
+    assert z.max() < 3.0 + 1.5 * px and z.min() > -1.5 * px
 
 
 def test_cloud_accuracy_within_the_matching_error_prediction(ring, cloud):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from matching.cameras import Camera, StereoRig
+from matching.pair import match_pair
 from matching.seeds import (
     approximate_calibrated,
     approximate_rectified,
@@ -17,6 +18,7 @@ from matching.seeds import (
     rectify,
     select_points,
     texture_map,
+    window_offsets,
 )
 from tests.matching.test_lsm import sample, texture_coefficients
 
@@ -252,3 +254,62 @@ def test_shift_precision_predicts_the_lsm_sigma_ratio_between_sides():
     dev = measured / predicted
     assert 0.9 < np.median(dev) < 1.02, np.median(dev)
     assert np.quantile(np.abs(dev - 1), 0.9) < 0.2
+
+
+# ------------------------------------------------------------------ eccentric windows
+RIM_ROW = 70  # rows above are uniform background (20 grey levels + noise) in both views
+
+
+def _rim_pair(noise=2.0):
+    left, right = _shifted_pair(noise=noise)
+    rng = np.random.default_rng(7)
+    for img in (left, right):
+        img[:RIM_ROW] = 20.0 + rng.normal(0, noise, img[:RIM_ROW].shape)
+    return left, right
+
+
+def test_window_offsets_move_windows_off_the_background():
+    left, _ = _rim_pair()
+    cand = select_points(left, spacing=4, patch=15)
+    offset, edge = window_offsets(cand, left, patch=15, spacing=4)
+    y = cand.points[:, 1]
+    moved = np.any(offset != 0, axis=1)
+    # windows whose centred 15 px square reaches above the rim are moved down, mostly
+    # straight (the nearest clear window; a few px sideways near the image border and
+    # where the texture next to the edge is weak), and then end at most 2 px above the
+    # rim (the fine 5 px texture test finds the edge to half its window)
+    band = cand.textured & (y >= RIM_ROW) & (y < RIM_ROW + 7)
+    assert band.sum() >= 40 and moved[band].all()
+    assert (offset[band, 1] > 0).all() and (np.abs(offset[band, 0]) <= 3).all()
+    assert np.mean(offset[band, 0] == 0) > 0.8
+    top = y[moved] + offset[moved, 1] - 7
+    assert top.min() >= RIM_ROW - 2
+    # points off the surface (in the background beyond the edge) get no window
+    assert (y[moved] >= RIM_ROW - 2).all()
+    far = y < RIM_ROW - 3
+    assert not moved[far].any() and not (cand.textured[far] & ~edge[far]).any()
+    # windows clear of the background are left where they are
+    assert not moved[y >= RIM_ROW + 9].any()
+    assert np.abs(offset).max() <= 7
+
+
+def test_match_pair_eccentric_windows_reach_the_rim_accurately():
+    """A fronto-parallel plane: the warp is a pure shift, so the transfer is exact and
+    the eccentric points err only by noise, scaled by their larger reported σ."""
+    left, right = _rim_pair()
+    m = match_pair(left, right, rectified=True, eccentric=True)
+    ok = m.accepted
+    err = (m.x_left[:, 0] - m.x_right[:, 0]) - 12.3
+    ecc = ok & np.any(m.offset != 0, axis=1)
+    centred = ok & ~ecc
+    y = m.x_left[:, 1]
+    assert np.count_nonzero(ecc & (y < RIM_ROW + 3)) >= 20  # within 3 px of the rim
+    assert not (ok & (y < RIM_ROW - 2)).any()
+    sig = m.sigma
+    # error/σ ~ 1 for both (Gaussian RMS; bound 1.5 for a few hundred points, and the
+    # σ0 test's sampling), eccentric σ larger (the affine unknowns' share)
+    for sel in (ecc, centred):
+        assert np.sqrt(np.mean((err[sel] / sig[sel]) ** 2)) < 1.5
+    assert np.median(sig[ecc]) > 1.3 * np.median(sig[centred])
+    plain = match_pair(left, right, rectified=True)
+    assert not np.any(plain.offset) and not plain.edge.any()
