@@ -687,6 +687,10 @@ def regular_patches(mesh: HalfEdges, points: np.ndarray, faces: np.ndarray):
 
 
 N_SEXTIC = 28
+#: Patches per batch of the patch GEMMs: ~20 MB work arrays, below glibc's largest mmap
+#: threshold (32 MB), so batches reuse their memory; fresh pages (first touch) cost
+#: more than the arithmetic on the dense meshes this is for.
+_CHUNK_FACES = 2 ** 15
 
 
 @numba.njit(cache=True, nogil=True)
@@ -750,15 +754,21 @@ def _irregular_patches(mesh: HalfEdges, points: np.ndarray, limit: np.ndarray,
         to_apex = next_half_edge(across)  # w_i -> x_i
         local = np.concatenate([centres[:, None], dest[spokes], dest[to_apex],
                                 dest[next_half_edge(mesh.twin[to_apex])]], axis=1)  # v, w, x, y
-        n_data = 1 + 15 * n + local.shape[1]
-        flat = np.empty((n_data, len(centres), 3))  # data-major for one GEMM
-        flat[0] = limit[centres]
-        _gather_neighbour_nets(quartic, quartic_row, across, rotation4, flat[1:1 + 15 * n])
-        flat[1 + 15 * n:] = points[local.T]
-        # (28n, D) x (D, 3 Vn): all vertices of this valence at once
-        rings = ring_operator(n) @ flat.reshape(n_data, -1)
-        _scatter_ring_nets(rings.reshape(n, N_SEXTIC, len(centres), 3), spokes, rotation6,
-                           control_points)
+        operator = ring_operator(n)
+        n_data = operator.shape[1]
+        batch = max(1, _CHUNK_FACES // n)  # about _CHUNK_FACES ring patches per GEMM
+        for start in range(0, len(centres), batch):
+            part = slice(start, start + batch)
+            count = len(centres[part])
+            flat = np.empty((n_data, count, 3))  # data-major for one GEMM
+            flat[0] = limit[centres[part]]
+            _gather_neighbour_nets(quartic, quartic_row, across[part], rotation4,
+                                   flat[1:1 + 15 * n])
+            flat[1 + 15 * n:] = points[local[part].T]
+            # (28n, D) x (D, 3 count): a batch of vertices of this valence at once
+            rings = operator @ flat.reshape(n_data, -1)
+            _scatter_ring_nets(rings.reshape(n, N_SEXTIC, count, 3), spokes[part], rotation6,
+                               control_points)
 
 
 def build_surface(vertices: np.ndarray, triangles: np.ndarray):
@@ -791,7 +801,11 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     control_points = np.empty((len(tris), N_SEXTIC, 3))
     inner6 = (mesh.valence == 6) & ~mesh.on_border
     regular = np.flatnonzero(np.all(inner6[tris], axis=1))
-    quartic, control_points[regular] = regular_patches(mesh, points, regular)
+    quartic = np.empty((len(regular), 15, 3))
+    for start in range(0, len(regular), _CHUNK_FACES):
+        faces = regular[start:start + _CHUNK_FACES]
+        quartic[start:start + len(faces)], control_points[faces] = regular_patches(
+            mesh, points, faces)
     quartic_row = np.full(len(tris), -1, dtype=np.int64)
     quartic_row[regular] = np.arange(len(regular))
     limit = limit_positions(mesh, points)

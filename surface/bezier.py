@@ -111,14 +111,17 @@ from dataclasses import dataclass
 from functools import cache
 from math import factorial
 
+import numba
 import numpy as np
 
 from surface.validate import TOL, check_finite, check_shape
 
 DEGREE = 6
 N_CONTROL = (DEGREE + 1) * (DEGREE + 2) // 2  # 28
-#: Samples x patches evaluated at once in tessellate (~150 MB of work arrays).
-_CHUNK_ROWS = 2 ** 21
+#: Samples x patches evaluated at once in tessellate: ~5 MB work arrays, far below glibc's
+#: largest mmap threshold (32 MB), so the chunks reuse their memory instead of faulting
+#: fresh pages in each time.
+_CHUNK_ROWS = 2 ** 16
 
 __all__ = [
     "DEGREE",
@@ -285,12 +288,16 @@ def _apply(basis: np.ndarray, cp: np.ndarray) -> np.ndarray:
     return (basis @ flat).reshape(len(basis), cp.shape[0], 3)
 
 
-def _points_and_normals_sp(cp: np.ndarray, bary: np.ndarray):
-    """Points and unit normals, ``(S, P, 3)`` each, from one stacked GEMM."""
+def _points_and_derivatives_basis(bary: np.ndarray) -> np.ndarray:
+    """``(3S, 28)``: rows giving the points, ``P_u`` and ``P_v`` at the samples."""
     du, dv = _derivative_operators()
     low = _bernstein(bary, DEGREE - 1)
-    stacked = np.concatenate([_bernstein(bary, DEGREE), low @ du, low @ dv])  # (3S, 28)
-    out = _apply(stacked, cp)
+    return np.concatenate([_bernstein(bary, DEGREE), low @ du, low @ dv])
+
+
+def _points_and_normals_sp(cp: np.ndarray, bary: np.ndarray):
+    """Points and unit normals, ``(S, P, 3)`` each, from one stacked GEMM."""
+    out = _apply(_points_and_derivatives_basis(bary), cp)
     n = len(bary)
     return out[:n], _unit(_cross(out[n:2 * n], out[2 * n:]))
 
@@ -493,19 +500,47 @@ def tessellate(control_points, level: int, triangles=None):
     gid = _global_sample_ids(tris, segments, grid_idx)  # (P, S)
     used = np.zeros(int(gid.max()) + 1, dtype=bool)
     used[gid] = True
-    remap = np.cumsum(used) - 1
-    gid = remap[gid]
     n_vertices = int(used.sum())
+    if n_vertices < len(used):  # domain vertices no patch uses: close the gaps
+        gid = (np.cumsum(used) - 1)[gid]
     vertices = np.empty((n_vertices, 3))
     out_normals = np.empty((n_vertices, 3))
+    stacked = _points_and_derivatives_basis(bary)
     chunk = max(1, _CHUNK_ROWS // len(bary))  # bounds the (3S, chunk, 3) work arrays
     for start in range(0, len(cp), chunk):
-        points, vertex_normals = _points_and_normals_sp(cp[start:start + chunk], bary)
-        sample_major = gid[start:start + chunk].T.ravel()
-        vertices[sample_major] = points.reshape(-1, 3)
-        out_normals[sample_major] = vertex_normals.reshape(-1, 3)
-    faces = gid[:, local_tris]  # (P, 4**level, 3)
+        _store_points_and_normals(_apply(stacked, cp[start:start + chunk]),
+                                  gid[start:start + chunk], TOL.zero, vertices, out_normals)
+    faces = np.take(gid, local_tris.ravel(), axis=1)  # (P, 4**level * 3)
     return vertices, faces.reshape(-1, 3), out_normals
+
+
+@numba.njit(cache=True, nogil=True)
+def _store_points_and_normals(out, gid, zero, vertices, normals):  # pragma: no cover
+    """Write points and unit normals of a chunk to their welded vertex ids.
+
+    ``out`` ``(3S, P, 3)``: points, ``P_u`` and ``P_v`` at S samples of P patches
+    (:func:`_points_and_derivatives_basis`); ``gid`` ``(P, S)``.  Samples are written
+    sample-major (s outer, then p), so where patches share a vertex the last of them in
+    that order gives it, as a sample-major fancy assignment would.  The normal is
+    ``normalise(P_u x P_v)`` with the length floored at ``zero`` (see :func:`_unit`).
+    """
+    n_samples = out.shape[0] // 3
+    for s in range(n_samples):
+        for p in range(out.shape[1]):
+            g = gid[p, s]
+            ux, uy, uz = (out[n_samples + s, p, 0], out[n_samples + s, p, 1],
+                          out[n_samples + s, p, 2])
+            vx, vy, vz = (out[2 * n_samples + s, p, 0], out[2 * n_samples + s, p, 1],
+                          out[2 * n_samples + s, p, 2])
+            nx = uy * vz - uz * vy
+            ny = uz * vx - ux * vz
+            nz = ux * vy - uy * vx
+            length = max(np.sqrt(nx * nx + ny * ny + nz * nz), zero)
+            for d in range(3):
+                vertices[g, d] = out[s, p, d]
+            normals[g, 0] = nx / length
+            normals[g, 1] = ny / length
+            normals[g, 2] = nz / length
 
 
 def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray) -> np.ndarray:
