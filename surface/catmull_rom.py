@@ -53,7 +53,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
+import numba
 import numpy as np
 from scipy import sparse
 from scipy.interpolate import CubicHermiteSpline
@@ -375,6 +377,16 @@ def _basis(u: np.ndarray) -> np.ndarray:
 def _data_parameters(points: np.ndarray, window: int, n_ctrl: int) -> np.ndarray:
     """Parameters ``(M,)`` in [0, n_ctrl) proportional to arc length along the loop.
 
+    ``n_ctrl · arc / total`` modulo ``n_ctrl`` with ``arc, total`` from
+    :func:`_arc_parameters`.
+    """
+    arc, total = _arc_parameters(points, window)
+    return np.mod(n_ctrl * arc / total, n_ctrl)
+
+
+def _arc_parameters(points: np.ndarray, window: int) -> tuple[np.ndarray, float]:
+    """Arc length ``(M,)`` of each point's foot along the smoothed loop, and its length.
+
     The arc length is measured on a circular moving average ``s_j`` of width
     ``window`` (noise would inflate it), and each point is placed at its own
     foot on that polyline to first order, ``cum_j + (x_j − s_j)·T_j`` with
@@ -400,7 +412,7 @@ def _data_parameters(points: np.ndarray, window: int, n_ctrl: int) -> np.ndarray
     tangent = np.roll(smooth, -1, axis=0) - np.roll(smooth, 1, axis=0)
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1), TOL.zero)[:, None]
     arc = cum + np.einsum("mi,mi->m", points - smooth, tangent)
-    return np.mod(n_ctrl * arc / total, n_ctrl)
+    return arc, total
 
 
 def fit(
@@ -449,10 +461,16 @@ def fit(
         centroid = pts.mean(axis=0)
     centroid = check_shape(centroid, "(3,)", "centroid", np.float64)
     m = len(pts)
+    fitted = {}
     if smoothing == "auto":
-        smoothing = choose_smoothing(pts, frame)
+        smoothing, fitted = _choose_smoothing(pts, frame)
     n_ctrl = m if smoothing <= 1 else max(4, min(m, int(round(m / smoothing))))
-    ctrl = pts if n_ctrl == m else _least_squares(pts, n_ctrl, smoothing)[0]
+    if n_ctrl == m:
+        ctrl = pts
+    elif smoothing in fitted:  # GCV fitted this level already (same points, same n)
+        ctrl = fitted[smoothing]
+    else:
+        ctrl = _least_squares(pts, n_ctrl, smoothing)[0]
     uv = (ctrl - centroid) @ frame[:2].T
     area = 0.5 * np.sum(uv[:, 0] * np.roll(uv[:, 1], -1) - np.roll(uv[:, 0], -1) * uv[:, 1])
     if area < 0:
@@ -491,22 +509,31 @@ def choose_smoothing(points: np.ndarray, frame: np.ndarray) -> float:
     .. [3] P. Craven and G. Wahba, "Smoothing noisy data with spline
        functions", Numerische Mathematik 31 (1979) 377–403.
     """
+    return _choose_smoothing(points, frame)[0]
+
+
+def _choose_smoothing(points: np.ndarray, frame: np.ndarray) -> tuple[float, dict]:
+    """:func:`choose_smoothing`, and the control points ``{s: (n, 3)}`` it fitted."""
     m = len(points)
     ladder = [4.0 * 2**k for k in range(32) if m / (4.0 * 2**k) >= 8]
     if not ladder:  # too few points to cross-validate: the least smoothing above, as
-        return max(1.0, min(4.0, m / 4.0))  # far as 4 control points allow
-    scores = {s: _gcv(points, s, frame) for s in ladder}
+        return max(1.0, min(4.0, m / 4.0)), {}  # far as 4 control points allow
+    arcs, fitted = {}, {}  # the arc parameters depend on the window only: shared
+    scores = {s: _gcv(points, s, frame, arcs, fitted) for s in ladder}
     best = min(scores, key=scores.get)
     for s in (best / math.sqrt(2), best * math.sqrt(2)):
         if s >= 4.0 and m / s >= 8:  # below 4 the noise stays (see above)
-            scores[s] = _gcv(points, s, frame)
-    return float(min(scores, key=scores.get))
+            scores[s] = _gcv(points, s, frame, arcs, fitted)
+    return float(min(scores, key=scores.get)), fitted
 
 
-def _gcv(points: np.ndarray, smoothing: float, frame: np.ndarray) -> float:
+def _gcv(points: np.ndarray, smoothing: float, frame: np.ndarray, arcs: dict | None = None,
+         fitted: dict | None = None) -> float:
     m = len(points)
     n_ctrl = max(4, min(m, int(round(m / smoothing))))
-    ctrl, t = _least_squares(points, n_ctrl, smoothing)
+    ctrl, t = _least_squares(points, n_ctrl, smoothing, arcs)
+    if fitted is not None:
+        fitted[smoothing] = ctrl
     spline = _build(ctrl, "uniform", frame, np.zeros(3)).spline
     resid = (points - spline(t)) @ frame[:2].T  # (m, 2)
     tangent = spline(t, 1) @ frame[:2].T
@@ -516,7 +543,7 @@ def _gcv(points: np.ndarray, smoothing: float, frame: np.ndarray) -> float:
     return m * rss / max(m - n_ctrl, 1) ** 2
 
 
-def _least_squares(pts: np.ndarray, n_ctrl: int, smoothing: float):
+def _least_squares(pts: np.ndarray, n_ctrl: int, smoothing: float, arcs: dict | None = None):
     """Control points ``(n_ctrl, 3)`` minimising Σ|Q(t_j) − x_j|² + λ·Σ|Δ³P_i|², and t.
 
     Parameters ``t_j`` from :func:`_data_parameters`; the system is sparse
@@ -534,17 +561,99 @@ def _least_squares(pts: np.ndarray, n_ctrl: int, smoothing: float):
     # parameter window: at least sqrt(M) points, so the moving average's step
     # noise √2·σ/w stays below the point gap even where σ exceeds the gap
     window = max(int(round(smoothing)), int(np.ceil(np.sqrt(m))))
-    t = _data_parameters(pts, window, n_ctrl)
+    if arcs is None:
+        t = _data_parameters(pts, window, n_ctrl)
+    else:  # memo {window: (arc, total)} of _arc_parameters, shared by the GCV candidates
+        if window not in arcs:
+            arcs[window] = _arc_parameters(pts, window)
+        arc, total = arcs[window]
+        t = np.mod(n_ctrl * arc / total, n_ctrl)
     seg = np.minimum(np.floor(t).astype(np.int64), n_ctrl - 1)
     weights = _basis(t - seg)  # (m, 4)
     cols = (seg[:, None] + np.arange(-1, 3)) % n_ctrl
-    design = sparse.csr_matrix(
-        (weights.ravel(), (np.repeat(np.arange(m), 4), cols.ravel())), shape=(m, n_ctrl)
-    )
-    normal = (design.T @ design).tocsc()
-    fair = _periodic_third_difference(n_ctrl)
-    system = (normal + _FAIRNESS * normal.diagonal().mean() * (fair.T @ fair)).tocsc()
-    return np.asarray(spsolve(system, design.T @ pts)).reshape(n_ctrl, 3), t
+    # AᵀA and Aᵀx of the sparse design matrix A (row j: weights at cols[j]), adding every
+    # entry's terms in point order, as scipy's sparse products do
+    if n_ctrl > 6:
+        # band storage: entry (i, j) at [j, (i − j + 3) mod n], |i − j| ≤ 3 cyclically
+        normal = np.zeros((n_ctrl, 7))
+        rhs = np.zeros((n_ctrl, 3))
+        _normal_equations_band(cols, weights, pts, normal, rhs)
+        system = normal + _FAIRNESS * normal[:, 3].mean() * _third_difference_band(n_ctrl)
+        rows, order = _band_rows(n_ctrl)
+        return _solve_band(np.take_along_axis(system, order, axis=1), rows, rhs), t
+    rhs = np.stack([np.bincount(cols.ravel(), (weights * pts[:, d, None]).ravel(),
+                                minlength=n_ctrl) for d in range(3)], axis=1)
+    products = (weights[:, :, None] * weights[:, None, :]).ravel()
+    if n_ctrl <= 6:  # the band wraps onto itself: dense
+        normal = np.bincount((cols[:, :, None] * n_ctrl + cols[:, None, :]).ravel(), products,
+                             minlength=n_ctrl * n_ctrl).reshape(n_ctrl, n_ctrl)
+        system = normal + _FAIRNESS * np.diagonal(normal).mean() * _third_difference_gram(n_ctrl)
+        rows, cols_all = _cyclic_band(n_ctrl)
+    return _solve_band(system[rows, cols_all], rows, rhs), t
+
+
+@numba.njit(cache=True, nogil=True)
+def _normal_equations_band(cols, weights, pts, normal, rhs):  # pragma: no cover
+    """Accumulate ``AᵀA`` (band storage ``(n, 7)``) and ``Aᵀx`` ``(n, 3)``, point by point.
+
+    Row j of A holds ``weights[j]`` at ``cols[j]`` (four distinct columns, n > 6).
+    """
+    n = normal.shape[0]
+    for k in range(cols.shape[0]):
+        for a in range(4):
+            i = cols[k, a]
+            w = weights[k, a]
+            for d in range(3):
+                rhs[i, d] += w * pts[k, d]
+            for b in range(4):
+                j = cols[k, b]
+                normal[j, (i - j + 3) % n] += w * weights[k, b]
+
+
+@lru_cache(maxsize=64)
+def _third_difference_gram(n: int) -> np.ndarray:
+    """Dense ``DᵀD`` ``(n, n)`` of :func:`_periodic_third_difference` (integers, exact)."""
+    fair = _periodic_third_difference(n)
+    gram = (fair.T @ fair).toarray()
+    gram.flags.writeable = False
+    return gram
+
+
+@lru_cache(maxsize=64)
+def _third_difference_band(n: int) -> np.ndarray:
+    """``DᵀD`` in band storage ``(n, 7)`` (n > 6): entry (i, j) at ``[j, (i − j + 3) mod n]``."""
+    j = np.arange(n)[:, None]
+    band = _third_difference_gram(n)[(j + np.arange(-3, 4)) % n, j]
+    band.flags.writeable = False
+    return band
+
+
+@lru_cache(maxsize=64)
+def _band_rows(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``(n, 7)`` of band column j in ascending order, and their band slots (n > 6)."""
+    rows = (np.arange(n)[:, None] + np.arange(-3, 4)[None, :]) % n
+    order = np.argsort(rows, axis=1)
+    return np.take_along_axis(rows, order, axis=1), order
+
+
+@lru_cache(maxsize=64)
+def _cyclic_band(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every (row, column) of a narrow ring (n <= 6): ``(n, n)`` each, rows ascending."""
+    rows = np.broadcast_to(np.arange(n)[None, :], (n, n))
+    return rows, rows.T
+
+
+def _solve_band(values: np.ndarray, rows: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve the cyclic band system whose column j holds ``values[j]`` at ``rows[j]``.
+
+    Sparse LU (SuperLU) on the CSC matrix of the non-zeros; like scipy's sparse sums
+    and products, exact zeros are not stored.
+    """
+    n = len(values)
+    nonzero = values != 0
+    indptr = np.concatenate([[0], np.cumsum(nonzero.sum(axis=1))])
+    system = sparse.csc_matrix((values[nonzero], rows[nonzero], indptr), shape=(n, n))
+    return np.asarray(spsolve(system, rhs)).reshape(n, 3)
 
 
 def _periodic_third_difference(n: int) -> sparse.csc_matrix:
