@@ -319,7 +319,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacin
                                  f"{name} camera is {cam.size[0]}x{cam.size[1]} px")
     epipolar = rectified if epipolar is None else bool(epipolar)
     cand = select_points(left, spacing=spacing, patch=patch, min_texture_snr=min_texture_snr,
-                         mask=mask)
+                         mask=mask, noise=None if preps[0] is None else preps[0].noise)
     n = len(cand.points)
     offset, edge = np.zeros((n, 2)), np.zeros(n, bool)
     status = np.full(n, Status.TEXTURELESS, np.uint8)
