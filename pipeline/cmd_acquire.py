@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
 #: Options of ``[acquire]`` (pipeline/defaults.toml) that matching.multiview takes.
 _MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "max_iter",
-               "shift_stop_px", "sigma0_factor", "min_correlation")
+               "shift_stop_px", "sigma0_factor", "min_correlation", "eccentric")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,6 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spacing", type=int, default=4,
                         help="one candidate per SPACING x SPACING pixels (default 4)")
     parser.add_argument("--patch", type=int, default=15, help="LSM patch side, odd (default 15)")
+    parser.add_argument("--no-eccentric", dest="eccentric", action="store_false",
+                        help="keep LSM windows centred near untextured regions (background "
+                             "past a rim): those points are then dropped instead of "
+                             "matched with the window moved onto the surface")
     parser.add_argument("--check-views", type=int, default=2,
                         help="further views each point is LSM-checked in (default 2)")
     parser.add_argument("--sfm-camera-model", default="SIMPLE_RADIAL",
@@ -302,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
         cloud = acquire_folder(args.folder, args.cameras, executor=executor,
                                check_views=args.check_views,
                                camera_model=args.sfm_camera_model, spacing=args.spacing,
-                               patch=args.patch)
+                               patch=args.patch, eccentric=args.eccentric)
     write_outputs(out, cloud)
     if not getattr(args, "quiet", False):
         st = cloud.stats

@@ -668,6 +668,7 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
 
     rig = read_rig(rig_path)
     options = dict(params)
+    options.pop("eccentric", None)  # image folders only (defaults.toml)
     max_reproj = options.pop("max_reprojection_px") or None
     result = reconstruct_pair(_read_image(left), _read_image(right), rig,
                               max_reprojection_px=max_reproj, **options)

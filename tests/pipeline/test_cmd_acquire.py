@@ -70,6 +70,19 @@ def test_acquire_writes_a_cloud_with_views(arc, tmp_path, capsys):
     assert np.median(np.abs(radial)) < 2e-3
 
 
+def test_no_eccentric_drops_the_points_near_the_rims(arc, tmp_path, capsys):
+    """--no-eccentric: windows reaching past a rim are dropped, not moved onto the vase,
+    so the cloud stops a few pixels short of z = 3 (one pixel is 0.019 at 320x240)."""
+    tops = {}
+    for flag in ([], ["--no-eccentric"]):
+        out = tmp_path / f"out{len(flag)}" / "cloud.ply"
+        assert main(["acquire", str(arc), "--out", str(out), "--spacing", "6", *flag]) == 0
+        tops[bool(flag)] = read_ply(out).points[:, 2].max()
+    capsys.readouterr()
+    # measured: 2.989 with eccentric windows (0.6 px short), 2.939 without (3.2 px)
+    assert tops[False] > 2.975 and tops[True] < tops[False] - 0.03
+
+
 def test_acquire_with_explicit_cameras_and_an_images_subfolder(scene, tmp_path, capsys):
     folder = tmp_path / "set"
     (folder / "images").mkdir(parents=True)
