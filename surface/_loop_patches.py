@@ -779,6 +779,8 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     ghost layers (:func:`add_ghost_layer`) so that every input vertex is
     interior; only the patches of the input faces are returned.
     """
+    from surface.bezier import _empty_pages
+
     if len(triangles) == 0:
         raise ValueError("triangles is empty")
     checked = build_half_edges(len(vertices), triangles, allow_border=True)  # index/orientation
@@ -798,10 +800,10 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     mesh = refined_half_edges(mesh0, len(points), tris)
     # every patch the input faces keep is written below (regular or ring patch);
     # ghost-layer patches far from the input may stay unset and are dropped
-    control_points = np.empty((len(tris), N_SEXTIC, 3))
+    control_points = _empty_pages((len(tris), N_SEXTIC, 3))
     inner6 = (mesh.valence == 6) & ~mesh.on_border
     regular = np.flatnonzero(np.all(inner6[tris], axis=1))
-    quartic = np.empty((len(regular), 15, 3))
+    quartic = _empty_pages((len(regular), 15, 3))
     for start in range(0, len(regular), _CHUNK_FACES):
         faces = regular[start:start + _CHUNK_FACES]
         quartic[start:start + len(faces)], control_points[faces] = regular_patches(

@@ -668,3 +668,21 @@ def test_border_rule_continues_a_regular_grid_exactly(shape, corner):
     bary = np.random.default_rng(7).dirichlet([1, 1, 1], size=12)
     want = np.einsum("sc,pcd->psd", bary, dom_v[dom_t])
     assert np.abs(bz.evaluate(surface.control_points, bary) - want).max() < 1e-12
+
+
+def test_large_outputs_are_plain_writable_arrays(monkeypatch):
+    """_empty_pages maps big arrays itself; they behave as np.empty's (and outlive views)."""
+    monkeypatch.setattr(bz, "_PAGES_MIN_BYTES", 1024)
+    big = bz._empty_pages((100, 28, 3))
+    small = bz._empty_pages((2, 3), np.int64)
+    assert big.shape == (100, 28, 3) and big.dtype == np.float64 and big.flags.writeable
+    assert small.dtype == np.int64 and small.flags.owndata  # below the threshold: np.empty
+    big[:] = 2.0
+    view = big[10:20]
+    del big
+    assert np.all(view == 2.0)
+    surface = bz.control_net(*icosphere(1))
+    whole = bz.tessellate(surface, 1)
+    monkeypatch.setattr(bz, "_PAGES_MIN_BYTES", 2 ** 40)
+    again = bz.tessellate(surface, 1)
+    assert all(np.array_equal(x, y) for x, y in zip(whole, again, strict=True))
