@@ -429,9 +429,11 @@ def _reject(uv: np.ndarray, gap: float, threshold: float, k: int) -> tuple[np.nd
 # ----------------------------------------------------------------------------- order
 def _grid_centres(uv: np.ndarray, cell: float) -> np.ndarray:
     """Mean ``(C, 2)`` of the points in each occupied grid cell."""
-    key = np.floor((uv - uv.min(axis=0)) / cell).astype(np.int64)
-    _, inverse = np.unique(key, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
+    key = np.floor((uv - uv.min(axis=0)) / cell).astype(np.int64)  # (M, 2), >= 0
+    # one int64 per cell, in the lexicographic order of (row, column): the same cells,
+    # numbered as np.unique(key, axis=0) numbers them, without its structured sort
+    flat = key[:, 0] * (int(key[:, 1].max()) + 1) + key[:, 1]
+    _, inverse = np.unique(flat, return_inverse=True)
     count = np.bincount(inverse)
     sums = np.stack([np.bincount(inverse, uv[:, d]) for d in range(2)], axis=1)
     return sums / count[:, None]
@@ -494,12 +496,44 @@ def _centre_tour(centres: np.ndarray, theta_order: np.ndarray, cell: float) -> n
     ring = centres[tour]
     if np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1).max() > 3.0 * cell:
         # θ order jumps (a fold): try a depth-first walk of the minimum spanning tree
-        dist = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
-        tree = minimum_spanning_tree(np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero)))
+        tree = _centre_mst(centres)
         walk, _ = depth_first_order(tree, i_start=int(theta_order[0]), directed=False)
         if len(walk) == n and _tour_length(centres, walk) < _tour_length(centres, tour):
             tour = walk
     return _two_opt(centres, np.asarray(tour))
+
+
+def _centre_mst(centres: np.ndarray):
+    """Minimum spanning tree of the complete graph on the centres (sparse, edges i < j).
+
+    The Euclidean MST lies in the Delaunay graph (an MST edge has no other point
+    in its closed diametral disk), so the tree is taken over the Delaunay edges,
+    ``O(n log n)`` instead of sorting all ``n²`` pairs.  The edges keep the
+    complete graph's weights, orientation (row < column) and row-major order,
+    so Kruskal's stable tie-breaking, and hence the tree and any walk of it,
+    are the complete graph's.  Near-coincident or collinear centres take the
+    complete graph.
+    """
+    n = len(centres)
+    tree = None
+    try:
+        tri = Delaunay(centres)
+    except (QhullError, ValueError):  # collinear or too few centres
+        tri = None
+    if tri is not None and len(tri.coplanar) == 0:
+        indptr, neighbours = tri.vertex_neighbor_vertices
+        rows = np.repeat(np.arange(n), np.diff(indptr))
+        once = rows < neighbours
+        a, b = rows[once], neighbours[once]
+        length = np.linalg.norm(centres[a] - centres[b], axis=1)
+        # the complete graph floors lengths at TOL.zero x its diameter (<= the box diagonal)
+        floor = TOL.zero * max(float(np.linalg.norm(np.ptp(centres, axis=0))), TOL.zero)
+        if length.min() > floor:
+            tree = minimum_spanning_tree(coo_matrix((length, (a, b)), shape=(n, n)).tocsr())
+    if tree is None:
+        dist = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
+        tree = minimum_spanning_tree(np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero)))
+    return tree
 
 
 def _is_star(ring_rel: np.ndarray, cell: float) -> bool:

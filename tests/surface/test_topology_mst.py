@@ -1,0 +1,54 @@
+"""topology._centre_mst: the Delaunay-edge MST equals the complete graph's, ties included.
+
+Kruskal in scipy breaks weight ties by the edges' row-major position; the
+Delaunay subgraph keeps the complete graph's orientation (row < column) and
+order, so tree, stored order and depth-first walk must come out identical.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import depth_first_order, minimum_spanning_tree
+
+from surface import topology
+from surface.validate import TOL
+
+
+def _dense_tree(points):
+    dist = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    return minimum_spanning_tree(np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero)))
+
+
+def _assert_same_tree(points):
+    got, want = topology._centre_mst(points), _dense_tree(points)
+    assert np.array_equal(got.indptr, want.indptr)
+    assert np.array_equal(got.indices, want.indices)
+    assert np.array_equal(got.data, want.data)
+    for start in (0, len(points) // 2):
+        assert np.array_equal(depth_first_order(got, start, directed=False)[0],
+                              depth_first_order(want, start, directed=False)[0])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_random_fold_shaped_centres(seed):
+    rng = np.random.default_rng(seed)
+    phi = np.sort(rng.uniform(0, 2 * np.pi, 300))
+    radius = 1.0 + 0.4 * np.sin(5 * phi)  # a star with deep folds
+    points = np.stack([radius * np.cos(phi), radius * np.sin(phi)], axis=1)
+    _assert_same_tree(points + rng.normal(scale=0.01, size=points.shape))
+
+
+@pytest.mark.parametrize("shape", [(6, 7), (12, 3)])
+def test_grid_with_many_equal_distances(shape):
+    """Every edge of a grid ties with many others: the tie-break must be the dense one."""
+    i, j = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    points = np.stack([i.ravel(), j.ravel()], axis=1).astype(np.float64)
+    _assert_same_tree(points[np.random.default_rng(1).permutation(len(points))])
+
+
+def test_collinear_and_coincident_centres_take_the_complete_graph():
+    line = np.stack([np.linspace(0, 1, 20), np.zeros(20)], axis=1)
+    _assert_same_tree(line)
+    twice = np.concatenate([line[:5] + [0, 1], line[:5] + [0, 1]])  # coincident pairs
+    _assert_same_tree(np.concatenate([twice, [[0.5, 3.0], [0.2, -1.0]]]))
