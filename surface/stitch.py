@@ -308,6 +308,29 @@ def _member(sorted_keys: np.ndarray, query: np.ndarray) -> np.ndarray:
     return sorted_keys[pos] == query
 
 
+def _interior_edge_faces(triangles: np.ndarray, n_vertices: int):
+    """``metrics.edge_table(triangles).edge_faces()`` and the sorted edge keys, in one sort.
+
+    Returns ``(edge ids (I,), faces (I, 2), corners (I, 2), keys (E,))``: the edges
+    with exactly two faces, numbered in the order of their keys ``lo·V + hi``, their
+    two faces in half-edge order and the corner each starts at, and every edge's
+    key (ascending).  One stable sort of the half-edge keys gives both the edge
+    numbering and each edge's half-edges in order (the table sorts twice).
+    """
+    start = triangles.ravel()
+    end = np.roll(triangles, -1, axis=1).ravel()  # half-edge 3f + c: corner c -> c + 1
+    keys = _edge_keys(np.stack([start, end], axis=1), n_vertices)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    first = np.flatnonzero(np.concatenate([[True], sorted_keys[1:] != sorted_keys[:-1]]))
+    counts = np.diff(np.append(first, len(sorted_keys)))
+    interior = np.flatnonzero(counts == 2)
+    slot0, slot1 = order[first[interior]], order[first[interior] + 1]
+    faces = np.stack([slot0 // 3, slot1 // 3], axis=1)
+    corners = np.stack([slot0 % 3, slot1 % 3], axis=1)
+    return interior, faces, corners, sorted_keys[first]
+
+
 def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active):
     """One sweep's non-Delaunay, legal flips among edges touching ``active`` faces.
 
@@ -326,11 +349,9 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active)
         touched = np.zeros(n_v, bool)
         touched[triangles[active]] = True
         sub = np.flatnonzero(touched[triangles].any(axis=1))
-    table = edge_table(triangles[sub])
-    edge_ids, faces, corners = table.edge_faces()
+    edge_ids, faces, corners, edge_keys = _interior_edge_faces(triangles[sub], n_v)
     f1, f2 = sub[faces[:, 0]], sub[faces[:, 1]]
     k1, k2 = corners[:, 0], corners[:, 1]
-    edge_keys = _edge_keys(table.edges, n_v)  # sorted: edges are in (lo, hi) order
     a = triangles[f1, k1]
     b = triangles[f1, (k1 + 1) % 3]
     keep = ((active[f1] | active[f2])
