@@ -519,21 +519,26 @@ def tessellate(control_points, level: int, triangles=None):
         raise ValueError(f"level must be in 0..10, got {level}")
     segments = 2 ** level
     bary, local_tris, grid_idx = _grid(segments)
-    gid = _global_sample_ids(tris, segments, grid_idx)  # (P, S)
-    used = np.zeros(int(gid.max()) + 1, dtype=bool)
-    used[gid] = True
+    layout = _SampleLayout.of(tris, segments, grid_idx)
+    used = np.ones(layout.n_ids, dtype=bool)
+    used[:layout.n_domain] = False
+    used[tris] = True
     n_vertices = int(used.sum())
-    if n_vertices < len(used):  # domain vertices no patch uses: close the gaps
-        gid = (np.cumsum(used) - 1)[gid]
+    # domain vertices no patch uses leave gaps in the ids: close them
+    remap = np.cumsum(used) - 1 if n_vertices < len(used) else None
     vertices = _empty_pages((n_vertices, 3))
     out_normals = _empty_pages((n_vertices, 3))
+    faces = _empty_pages((len(tris), local_tris.size), np.int64)  # (P, 4**level * 3)
     stacked = _points_and_derivatives_basis(bary)
     chunk = max(1, _CHUNK_ROWS // len(bary))  # bounds the (3S, chunk, 3) work arrays
     for start in range(0, len(cp), chunk):
-        _store_points_and_normals(_apply(stacked, cp[start:start + chunk]),
-                                  gid[start:start + chunk], TOL.zero, vertices, out_normals)
-    faces = np.take(gid, local_tris.ravel(), axis=1,  # (P, 4**level * 3)
-                    out=_empty_pages((len(gid), local_tris.size), np.int64))
+        part = slice(start, start + chunk)
+        gid = _global_sample_ids(tris[part], segments, grid_idx, layout, part)  # (chunk, S)
+        if remap is not None:
+            gid = remap[gid]
+        _store_points_and_normals(_apply(stacked, cp[part]), gid, TOL.zero, vertices,
+                                  out_normals)
+        np.take(gid, local_tris.ravel(), axis=1, out=faces[part])
     return vertices, faces.reshape(-1, 3), out_normals
 
 
@@ -566,22 +571,50 @@ def _store_points_and_normals(out, gid, zero, vertices, normals):  # pragma: no 
             normals[g, 2] = nz / length
 
 
-def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class _SampleLayout:
+    """Numbering of the welded tessellation vertices (see :func:`_global_sample_ids`)."""
+
+    n_domain: int  # domain vertex ids 0 .. n_domain - 1 (the corners)
+    edge_id: np.ndarray  # (P, 3) undirected edge of each patch edge
+    forward: np.ndarray  # (P, 3) patch edge runs from the lower vertex id
+    n_edges: int
+    n_inner: int  # interior samples per patch
+    n_ids: int  # ids in all: corners, then edge samples, then interior samples
+
+    @classmethod
+    def of(cls, tris: np.ndarray, segments: int, grid_idx: np.ndarray) -> _SampleLayout:
+        edge_id, n_edges, forward = _edge_ids(tris)
+        n_domain = int(tris.max()) + 1
+        n_inner = int(np.all(grid_idx > 0, axis=1).sum())
+        n_ids = n_domain + n_edges * max(segments - 1, 0) + len(tris) * n_inner
+        return cls(n_domain, edge_id, forward, n_edges, n_inner, n_ids)
+
+
+def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray,
+                       layout: _SampleLayout | None = None,
+                       rows: slice = slice(None)) -> np.ndarray:
     """Global vertex id of every (patch, sample): corners by domain vertex,
     edge samples by (undirected edge, position from the lower vertex id),
-    interior samples per patch."""
+    interior samples per patch.
+
+    ``tris`` are the patches ``rows`` of the mesh whose ``layout`` is given
+    (default: the whole mesh), so that the ids can be made a chunk at a time.
+    """
+    if layout is None:
+        layout = _SampleLayout.of(tris, segments, grid_idx)
     n_patches = len(tris)
-    n_vertices = int(tris.max()) + 1
-    edge_id, n_edges, forward = _edge_ids(tris)
+    first = rows.start or 0
+    edge_id, forward = layout.edge_id[rows], layout.forward[rows]
     a, b, c = grid_idx.T
     m = segments
-    gid = _empty_pages((n_patches, len(grid_idx)), np.int64)
+    gid = np.empty((n_patches, len(grid_idx)), dtype=np.int64)
     # corners
     for corner, mask in enumerate([a == m, b == m, c == m]):
         gid[:, mask] = tris[:, corner:corner + 1]
     # edge-interior samples: edge 0 (c == 0, position b from corner 0), edge 1
     # (a == 0, position c from corner 1), edge 2 (b == 0, position a from corner 2)
-    base = n_vertices
+    base = layout.n_domain
     for edge, (mask, pos) in enumerate([((c == 0) & (a > 0) & (b > 0), b),
                                          ((a == 0) & (b > 0) & (c > 0), c),
                                          ((b == 0) & (c > 0) & (a > 0), a)]):
@@ -589,9 +622,10 @@ def _global_sample_ids(tris: np.ndarray, segments: int, grid_idx: np.ndarray) ->
         along = np.where(forward[:, edge:edge + 1], pos, m - pos)
         gid[:, mask] = base + edge_id[:, edge:edge + 1] * (m - 1) + along - 1
     inner = (a > 0) & (b > 0) & (c > 0)
-    n_inner = int(inner.sum())
-    start = base + n_edges * max(m - 1, 0)
-    gid[:, inner] = start + np.arange(n_patches)[:, None] * n_inner + np.arange(n_inner)[None, :]
+    n_inner = layout.n_inner
+    start = base + layout.n_edges * max(m - 1, 0)
+    patch = first + np.arange(n_patches)
+    gid[:, inner] = start + patch[:, None] * n_inner + np.arange(n_inner)[None, :]
     return gid
 
 

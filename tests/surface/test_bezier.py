@@ -686,3 +686,17 @@ def test_large_outputs_are_plain_writable_arrays(monkeypatch):
     monkeypatch.setattr(bz, "_PAGES_MIN_BYTES", 2 ** 40)
     again = bz.tessellate(surface, 1)
     assert all(np.array_equal(x, y) for x, y in zip(whole, again, strict=True))
+
+
+@pytest.mark.parametrize("level", [0, 2])
+def test_tessellation_closes_gaps_in_the_domain_vertex_ids(surfaces, level, monkeypatch):
+    """Unused domain vertex ids are skipped (ids made a chunk at a time, as one pass)."""
+    _, surface = surfaces["icosphere"]
+    cp, tris = surface.control_points, surface.domain_mesh[1]
+    dense = bz.tessellate(cp, level, tris)
+    monkeypatch.setattr(bz, "_CHUNK_ROWS", 50)  # several chunks
+    gapped = bz.tessellate(cp, level, 2 * tris + 5)  # same order, ids with gaps
+    assert np.array_equal(dense[1], gapped[1])
+    # the chunked GEMM may round differently (see test_tessellation_in_chunks_equals_one_pass)
+    assert np.abs(dense[0] - gapped[0]).max() < 1e-13 * _size(dense[0])
+    assert _angle(dense[2], gapped[2]).max() < 1e-9
