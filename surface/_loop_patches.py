@@ -12,7 +12,7 @@ only Python loops run over ring positions (<= max valence) and valence classes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import numba
 import numpy as np
@@ -38,9 +38,12 @@ class HalfEdges:
     def origin(self) -> np.ndarray:
         return self.triangles.ravel()
 
-    @property
+    @cached_property
     def dest(self) -> np.ndarray:
-        return self.triangles[:, [1, 2, 0]].ravel()
+        # computed once (read-only): the patch construction reads it a dozen times
+        dest = self.triangles[:, [1, 2, 0]].ravel()
+        dest.flags.writeable = False
+        return dest
 
 
 def prev_half_edge(h: np.ndarray) -> np.ndarray:
