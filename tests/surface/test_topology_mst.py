@@ -52,3 +52,31 @@ def test_collinear_and_coincident_centres_take_the_complete_graph():
     _assert_same_tree(line)
     twice = np.concatenate([line[:5] + [0, 1], line[:5] + [0, 1]])  # coincident pairs
     _assert_same_tree(np.concatenate([twice, [[0.5, 3.0], [0.2, -1.0]]]))
+
+
+def _qhull_mst(uv, monkeypatch):
+    with monkeypatch.context() as patch:
+        patch.setattr(topology, "_triangle_edges", lambda uv: None)  # the qhull graph
+        return topology._mst(uv, float(np.ptp(uv, axis=0).max()))
+
+
+@pytest.mark.parametrize("case", ["noisy ring", "grid ties", "duplicates", "collinear"])
+def test_section_mst_from_triangle_equals_qhull(case, monkeypatch):
+    rng = np.random.default_rng(7)
+    if case == "noisy ring":
+        phi = rng.uniform(0, 2 * np.pi, 800)
+        uv = np.stack([np.cos(phi), 0.6 * np.sin(phi)], 1) + rng.normal(scale=0.01, size=(800, 2))
+    elif case == "grid ties":
+        i, j = np.meshgrid(np.arange(9), np.arange(7), indexing="ij")
+        uv = np.stack([i.ravel(), j.ravel()], 1).astype(np.float64)
+    elif case == "duplicates":  # Triangle drops them: qhull's path joins them instead
+        uv = rng.normal(size=(200, 2))
+        uv = np.concatenate([uv, uv[:5]])
+    else:
+        uv = np.stack([np.linspace(0, 1, 30), np.linspace(0, 2, 30)], 1)
+    if case in ("duplicates", "collinear"):
+        assert topology._triangle_edges(uv) is None
+    got = topology._mst(uv, float(np.ptp(uv, axis=0).max()))
+    want = _qhull_mst(uv, monkeypatch)
+    assert np.array_equal(got.row, want.row) and np.array_equal(got.col, want.col)
+    assert np.array_equal(got.data, want.data)
