@@ -65,3 +65,15 @@ def test_auto_smoothing_reuses_the_chosen_fit_exactly():
     auto = cr.fit(pts, "auto")
     again = cr.fit(pts, auto.smoothing)  # refits at the chosen level from scratch
     assert np.array_equal(auto.control_points, again.control_points)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_uniform_evaluation_is_scipys_spline_to_the_bit(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 300))
+    ctrl = rng.normal(size=(n, 3)) * rng.uniform(0.01, 10.0)
+    t = np.concatenate([rng.uniform(0, n, 2000), [0.0, 1.0, n - 1.0, n - 1e-12, float(n)]])
+    spline = cr._build(ctrl, "uniform", np.eye(3), np.zeros(3)).spline
+    position, derivative = cr._uniform_points_and_derivatives(ctrl, t)
+    assert np.array_equal(position, spline(t))
+    assert np.array_equal(derivative, spline(t, 1))
