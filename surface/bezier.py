@@ -442,17 +442,16 @@ def _empty_pages(shape, dtype=np.float64) -> np.ndarray:
     as on this project's machines) that first write costs 2-4x a plain anonymous
     mapping's (measured: 2.4 GB in 2.9-5.8 s against 1.2-2.0 s).  The arrays here
     are written once and streamed, so huge pages buy nothing back.  The mapping is
-    freed with the last array that uses it.  It is a shared anonymous mapping
-    (fewer first-touch faults than a private one in the tessellation: 0.9-1.4 s
-    of kernel time against 1.7-2.0 s on the s3 cloud), so a process forked while
-    such an array lives shares its pages with the parent instead of copying them
-    on write: do not write into these arrays from a forked child.
+    freed with the last array that uses it.  The mapping is private (copy-on-write
+    after a fork, like any numpy array): a shared one faulted in faster here
+    (0.9-1.4 s of kernel time against 1.7-2.0 s in the s3 tessellation) but would
+    let a forked child write into its parent's surface.
     """
     dtype = np.dtype(dtype)
     nbytes = int(np.prod(shape)) * dtype.itemsize
-    if nbytes < _PAGES_MIN_BYTES or not hasattr(mmap, "MAP_SHARED"):  # (not on Windows)
+    if nbytes < _PAGES_MIN_BYTES or not hasattr(mmap, "MAP_PRIVATE"):  # (not on Windows)
         return np.empty(shape, dtype)
-    pages = mmap.mmap(-1, nbytes, flags=mmap.MAP_SHARED | mmap.MAP_ANONYMOUS)
+    pages = mmap.mmap(-1, nbytes, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
     return np.frombuffer(pages, dtype).reshape(shape)
 
 
