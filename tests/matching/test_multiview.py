@@ -245,6 +245,23 @@ def test_cloud_accuracy_within_the_matching_error_prediction(ring, cloud):
     assert len(cloud) > 10000
 
 
+def test_geometric_second_order_terms_match_the_matched_ones(ring):
+    """Further views' second-order terms from the local-plane mappings (one LSM pass,
+    the default) against those of a first affine-only pass (two passes): as many points
+    confirmed, as accurate (measured here on views 0-5, pairs (1, 2), (3, 4): 1 719
+    points, RMS 0.00172 geometric against 1 708, 0.00175 matched; 1024x768 ring at
+    spacing 3: 0.000228 against 0.000226)."""
+    cams, images = ring["cameras"][:6], ring["images"][:6]
+    out = {}
+    for mode in ("geometric", "matched"):
+        c = reconstruct_multiview(images, cams, pairs=[(1, 2), (3, 4)], second_order=mode)
+        out[mode] = (len(c), np.sqrt(np.mean(_distance(ring["truth"], c.points) ** 2)))
+    assert out["geometric"][0] >= 0.97 * out["matched"][0]
+    assert out["geometric"][1] <= 1.15 * out["matched"][1]
+    with pytest.raises(ValueError, match="second_order must be"):
+        reconstruct_multiview(images, cams, pairs=[(1, 2)], second_order="affine")
+
+
 def test_multiview_sigma_is_smaller_and_honest(ring, cloud):
     st = cloud.stats
     # three or more rays instead of two: measured 0.00065 against 0.0019
