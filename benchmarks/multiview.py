@@ -193,8 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "multiview.json"))
     parser.add_argument("--scene", default=None,
                         help="an already rendered scene folder (photosurf synth) to reuse")
-    parser.add_argument("--spacing", type=int, default=4,
-                        help="candidate spacing, px (default 4, photosurf's default)")
+    parser.add_argument("--spacing", type=int, default=3,
+                        help="candidate spacing, px (default 3, photosurf's default)")
     parser.add_argument("--cloud-out", default=None,
                         help="also save photosurf's cloud (known cameras) to this .npz")
     args = parser.parse_args(argv)

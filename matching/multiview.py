@@ -121,7 +121,7 @@ try:  # the LSM engineer's neighbour-based second-order terms (newer than lsm_ma
 except ImportError:  # pragma: no cover - older matching.lsm: affine-only matches
     second_order_terms = None
 from matching.pair import match_pair
-from matching.seeds import Rectification, rectify_images
+from matching.seeds import DEFAULT_SPACING, Rectification, rectify_images
 from matching.triangulate import triangulate_multiview, triangulate_pair
 from matching.validate import TOL, check_shape
 
@@ -636,7 +636,8 @@ def _visible(cloud: PairCloud, cam_k: Camera, zbuf: np.ndarray, normals: np.ndar
 def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                       zbuffers: dict, template: PreparedImage, *, check_views: int = 2,
                       patch: int = 15,
-                      spacing: int = 4, interpolation: str = DEFAULT_INTERPOLATION,
+                      spacing: int = DEFAULT_SPACING,
+                      interpolation: str = DEFAULT_INTERPOLATION,
                       max_incidence_deg: float = 60.0, reject_p: float = 0.999,
                       require_confirmation: bool = True, second_order: str = "geometric",
                       **lsm_options) -> Consistency:
@@ -1188,7 +1189,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
          "right": cameras[b], "pair": (a, b), "options": match_options} for a, b in pairs])
     t1 = time.perf_counter()
     patch = int(match_options.get("patch", 15))
-    spacing = int(match_options.get("spacing", 4))
+    spacing = int(match_options.get("spacing", DEFAULT_SPACING))
     all_points = np.concatenate([c.points for c in clouds]) if clouds else np.zeros((0, 3))
     median_sigma_pair = (float(np.median(np.concatenate([c.sigma for c in clouds])))
                          if len(all_points) else float("nan"))

@@ -91,6 +91,7 @@ from matching.lsm import (
     second_order_terms,
 )
 from matching.seeds import (
+    DEFAULT_SPACING,
     approximate_calibrated,
     approximate_rectified,
     disparity_valid_left,
@@ -212,7 +213,8 @@ def _grey(image, name: str) -> np.ndarray:
     return np.asarray(img, dtype=np.float64)
 
 
-def match_pair(left_img, right_img, rig=None, *, rectified: bool = False, spacing: int = 4,
+def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
+               spacing: int = DEFAULT_SPACING,
                patch: int = 15, interpolation: str = DEFAULT_INTERPOLATION,
                epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
                sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,

@@ -47,8 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cameras", metavar="FILE", default=None,
                         help="cameras (cameras.yml, COLMAP model, projection-matrix .txt); "
                              "default FOLDER/cameras.yml or FOLDER/sparse, else pycolmap SfM")
-    parser.add_argument("--spacing", type=int, default=4,
-                        help="one candidate per SPACING x SPACING pixels (default 4)")
+    parser.add_argument("--spacing", type=int, default=3,
+                        help="one candidate per SPACING x SPACING pixels (default 3)")
     parser.add_argument("--patch", type=int, default=15, help="LSM patch side, odd (default 15)")
     parser.add_argument("--no-eccentric", dest="eccentric", action="store_false",
                         help="keep LSM windows centred near untextured regions (background "

@@ -24,8 +24,8 @@ HELP = "least-squares matching of a stereo pair (calibrated or rectified) -> mat
 
 def add_match_options(parser: argparse.ArgumentParser) -> None:
     """Matching options shared by ``photosurf match`` and ``photosurf stereo``."""
-    parser.add_argument("--spacing", type=int, default=4,
-                        help="one candidate per SPACING x SPACING pixels (default 4)")
+    parser.add_argument("--spacing", type=int, default=3,
+                        help="one candidate per SPACING x SPACING pixels (default 3)")
     parser.add_argument("--patch", type=int, default=15,
                         help="LSM patch side in pixels, odd (default 15)")
     parser.add_argument("--interpolation", choices=("bilinear", "bicubic", "spline"),
