@@ -1,9 +1,10 @@
 """Compile photosurf's numba kernels once, at set-up, into numba's on-disk cache.
 
 ``python -m pipeline.warmup`` renders 4 views of the small vase ring
-(``vase_ring_small.toml``) and runs the multi-view acquisition and a stereo match over it, so
-every ``cache=True`` kernel of :mod:`matching.lsm` (and the scene renderer's)
-is compiled and written to ``__pycache__``.  Two reasons:
+(``vase_ring_small.toml``) and runs the multi-view acquisition and a stereo match over it, and
+the surface back end over a small noisy vase cloud, so every ``cache=True``
+kernel (matching, the scene renderer, the curve fits, Loop's patches, the
+tessellation) is compiled and written to ``__pycache__``.  Two reasons:
 
 * the first real run does not pay the compilation;
 * every later process — this one, threads, Dask workers — then loads the same
@@ -23,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -41,6 +44,17 @@ def warm_up() -> float:
     reconstruct_multiview(images, cameras, pairs=pairs)
     # the stereo path's adaptive patch (multi-view matches at the fixed patch)
     reconstruct_multiview(images, cameras, pairs=pairs[:1], adaptive_patch=True)
+    # the surface kernels (curve fits, Loop's patches, tessellation) on a noisy vase cloud
+    from surface import bezier
+    from surface.stitch import surface_from_points
+
+    rng = np.random.default_rng(0)
+    z = rng.uniform(0.0, 3.0, 4000)
+    theta = rng.uniform(0.0, 2 * np.pi, 4000)
+    r = 1.0 + 0.3 * np.sin(2.0 * z)
+    cloud = np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
+    stitched = surface_from_points(cloud + rng.normal(0.0, 0.002, cloud.shape), axis="z")
+    bezier.tessellate(bezier.control_net(stitched.vertices, stitched.triangles), 1)
     return time.perf_counter() - start
 
 
