@@ -146,8 +146,9 @@ class PairMatches:
         textureless cell (:func:`matching.seeds.window_offsets`); ``x_right`` and
         ``cov`` are then ``x_left``'s, transferred through the warp.
     edge : (N,) bool
-        The window still holds a textureless cell (no offset within the patch clears
-        it): it straddles a silhouette or an untextured region.
+        The window still reaches into an untextured region or unmatched pixels (no
+        offset within the patch clears it, or ``eccentric`` is off): it straddles a
+        silhouette, a rim or an untextured region.
     rectified : bool
         The images were given rectified (rows correspond).
     image_size : (int, int)
@@ -345,11 +346,16 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
 
         approx = approximate(cand.points[textured])
         x_right, direction_all = approx.x_right.copy(), approx.direction.copy()
+        # windows reaching into an untextured region or pixels SGBM left unmatched
+        # (background, occlusions): moved off them and approximated at their new centres
+        # (eccentric), else only flagged (``edge``)
+        # (the SGBM map of a calibrated pair is taken back to the left image only when
+        # windows are moved: its full-grid undistortion costs ~1 s at 1024x768)
+        valid = (disparity_valid_left(approx, left.shape, None if rectified else rig, rect)
+                 if rectified or eccentric else None)
+        offset, edge = window_offsets(cand, left, patch, spacing, mask, valid,
+                                      move=eccentric)
         if eccentric:
-            # windows moved off textureless cells and off pixels SGBM left unmatched
-            # (background, occlusions), then approximated at their new centres
-            valid = disparity_valid_left(approx, left.shape, None if rectified else rig, rect)
-            offset, edge = window_offsets(cand, left, patch, spacing, mask, valid)
             moved = np.flatnonzero(np.any(offset[textured] != 0.0, axis=1))
             if len(moved):
                 again = approximate(cand.points[textured[moved]] + offset[textured[moved]],

@@ -192,7 +192,7 @@ EDGE_SCALE_PX = 5
 
 def window_offsets(candidates: Candidates, image, patch: int = 15,
                    spacing: int = DEFAULT_SPACING, mask=None,
-                   valid=None) -> tuple[np.ndarray, np.ndarray]:
+                   valid=None, move: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Eccentric windows: move each template window off textureless cells (shiftable windows).
 
     A candidate's window that reaches into an untextured region (uniform background
@@ -230,6 +230,9 @@ def window_offsets(candidates: Candidates, image, patch: int = 15,
         Pixels where the approximations have a disparity
         (:func:`disparity_valid_left`): windows avoid the others as well, and a
         candidate on such a pixel (beyond the object) gets no eccentric window.
+    move : bool
+        False: no window is moved; ``edge`` then flags every textured candidate whose
+        centred window is blocked (the windows a caller should not trust).
 
     Returns
     -------
@@ -290,6 +293,8 @@ def window_offsets(candidates: Candidates, image, patch: int = 15,
     off_object = off_surface[pts[:, 1], pts[:, 0]]
     if valid is not None:
         off_object |= ~valid[pts[:, 1], pts[:, 0]]
+    if not move:
+        return offset, blocked & textured
     todo = np.flatnonzero(blocked & textured & ~off_object)
     if len(todo):
         oy, ox = np.mgrid[-half:half + 1, -half:half + 1]

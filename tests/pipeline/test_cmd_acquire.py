@@ -79,8 +79,9 @@ def test_no_eccentric_drops_the_points_near_the_rims(arc, tmp_path, capsys):
         assert main(["acquire", str(arc), "--out", str(out), "--spacing", "6", *flag]) == 0
         tops[bool(flag)] = read_ply(out).points[:, 2].max()
     capsys.readouterr()
-    # measured: 2.989 with eccentric windows (0.6 px short), 2.939 without (3.2 px)
-    assert tops[False] > 2.975 and tops[True] < tops[False] - 0.03
+    # measured: 2.989 with eccentric windows (0.6 px short), 2.856 without (7.6 px: every
+    # window reaching past the rim is dropped as a straddler)
+    assert tops[False] > 2.975 and tops[True] < tops[False] - 0.05
 
 
 def test_acquire_with_explicit_cameras_and_an_images_subfolder(scene, tmp_path, capsys):
