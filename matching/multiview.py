@@ -143,6 +143,8 @@ MULTIVIEW, PAIR_ONLY, NO_FURTHER_MATCH, INCONSISTENT, TRIANGULATION, OUTLIER = r
 REASON_NAMES = {MULTIVIEW: "multiview", PAIR_ONLY: "pair_only",
                 NO_FURTHER_MATCH: "no_further_match", INCONSISTENT: "inconsistent",
                 TRIANGULATION: "triangulation", OUTLIER: "outlier"}
+#: Where a further view's second-order warp terms come from (:func:`check_consistency`).
+SECOND_ORDER_MODES = ("geometric", "matched")
 #: Nearest pair points for the PCA normal (12: a 3x3 grid ring plus slack).
 _NORMAL_NEIGHBOURS = 12
 #: Image margin beyond the LSM half-patch for a further view, px (interpolation support).
@@ -419,6 +421,7 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     tri = triangulate_pair(cam_l, cam_r, matches.x_left[ok], x_right,
                            cov_left=cov2, cov_right=cov2, refine=True)
     keep = tri.valid
+    offset = matches.offset[ok][keep]
     return PairCloud(pair=(int(pair[0]), int(pair[1])), points=tri.points[keep],
                      cov=tri.cov[keep], sigma=tri.sigma[keep],
                      x_template=matches.x_left[ok][keep], x_right=x_right[keep],
@@ -427,9 +430,8 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
                                     "silhouette": int(np.count_nonzero(matches.accepted
                                                                        & near_edge)),
                                     "eccentric": int(np.count_nonzero(
-                                        np.any(matches.offset[ok][keep] != 0, axis=1)))},
-                     seconds=time.perf_counter() - start,
-                     offset=matches.offset[ok][keep])
+                                        np.any(offset != 0, axis=1)))},
+                     seconds=time.perf_counter() - start, offset=offset)
 
 
 def rectified_template(left_image, left: Camera, right: Camera,
@@ -472,12 +474,13 @@ def _second_order_pass(template, search, points, affine, radiometric, accepted, 
 
 # --------------------------------------------------------------------------- consistency
 def _project(camera: Camera, X: np.ndarray, with_jacobian: bool = False):
-    """:meth:`Camera.project` in numpy for a camera without distortion.
+    """:meth:`Camera.project` for a camera without distortion, in one numba pass.
 
-    ``x = (K X_c)_{1,2} / (K X_c)_3`` with ``X_c = R X + t``; the Jacobian is
+    ``x = (P [X 1])_{1,2} / (P [X 1])_3`` with ``P = K [R | t]``; the Jacobian is
     ``(K_{1,2} - x K_3) R / (K X_c)_3``.  Agrees with ``cv2.projectPoints`` to rounding
-    (~1e-13 px) at a third of its cost, which the consistency step paid ~50 times per
-    pair.  Cameras with distortion go through :meth:`Camera.project`.
+    (~1e-12 px); the consistency step projects every pair point ~50 times per pair
+    (cv2: ~3x the cost, numpy's two skinny matmuls ~7 CPU s of a spacing-3 ring).
+    Cameras with distortion go through :meth:`Camera.project`.
 
     Parameters
     ----------
@@ -493,10 +496,9 @@ def _project(camera: Camera, X: np.ndarray, with_jacobian: bool = False):
     if camera.has_distortion:
         return camera.project(X, with_jacobian=with_jacobian)
     X = np.ascontiguousarray(X, dtype=np.float64)
-    P = np.ascontiguousarray(camera.K @ np.column_stack([camera.R, camera.t]))
     h = np.empty((len(X), 3))
-    _homogeneous(X, P, h)  # (N, 3) homogeneous pixels, one pass (numpy's two skinny
-    x = h[:, :2] / h[:, 2:3]  # matmuls cost ~7 s a ring, this ~1)
+    _homogeneous(X, np.ascontiguousarray(camera.P), h)  # (N, 3) homogeneous pixels
+    x = h[:, :2] / h[:, 2:3]
     if not with_jacobian:
         return x
     K = camera.K
@@ -567,8 +569,8 @@ def zbuffer(camera: Camera, points: np.ndarray, window: int) -> np.ndarray:
         inside = (x[:, 0] >= 0) & (x[:, 0] < w) & (x[:, 1] >= 0) & (x[:, 1] < h)
         np.minimum.at(buf, x[inside, 1] * w + x[inside, 0], depth[front][inside])
     else:  # one pass: project, keep the nearest depth per pixel (K's last row is 0 0 1)
-        P = np.ascontiguousarray(camera.K @ np.column_stack([camera.R, camera.t]))
-        _splat_nearest(np.ascontiguousarray(points, dtype=np.float64), P, int(w), int(h), buf)
+        _splat_nearest(np.ascontiguousarray(points, dtype=np.float64),
+                       np.ascontiguousarray(camera.P), int(w), int(h), buf)
     # a square minimum filter is a grey erosion (OpenCV's is ~4x faster than ndimage's;
     # BORDER_REPLICATE is ndimage's mode="nearest", the result is identical)
     return cv2.erode(buf.reshape(h, w), np.ones((int(window), int(window)), np.uint8),
@@ -681,8 +683,9 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     -------
     Consistency
     """
-    if second_order not in ("geometric", "matched"):
-        raise ValueError(f"second_order must be 'geometric' or 'matched', got {second_order!r}")
+    if second_order not in SECOND_ORDER_MODES:
+        raise ValueError(f"second_order must be one of {SECOND_ORDER_MODES}, "
+                         f"got {second_order!r}")
     start = time.perf_counter()
     i, j = cloud.pair
     n_views = len(cameras)
@@ -748,23 +751,18 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         init[:, [1, 2]] = affine[:, 0]
         init[:, [4, 5]] = affine[:, 1]
         init[:, 7] = 1.0
-        if second_order == "geometric":
+        quad = None
+        if second_order == "geometric":  # the terms of the local-plane mappings' field
             aff6 = np.zeros((len(idx), 6))
             aff6[:, [1, 2]], aff6[:, [4, 5]] = affine[:, 0], affine[:, 1]
             quad = second_order_terms(centres[idx], aff6, radius_px=1.5 * patch)
-            res = lsm_match(template, images[k], centres[idx], approx, patch=patch,
-                            interpolation=interpolation, initial=init, offset=off,
-                            quadratic=quad, **lsm_options)
-            refined = None
-        else:
-            res = lsm_match(template, images[k],
-                            centres[idx], approx, patch=patch,
-                            interpolation=interpolation, initial=init, offset=off, **lsm_options)
-            refined = _second_order_pass(template, images[k], centres[idx], res.affine,
-                                         res.radiometric, res.accepted,
-                                         res.affine[res.accepted][:, [0, 3]], None,
-                                         {"patch": patch, "interpolation": interpolation,
-                                          **lsm_options}, offset=off)
+        res = lsm_match(template, images[k], centres[idx], approx, patch=patch,
+                        interpolation=interpolation, initial=init, offset=off,
+                        quadratic=quad, **lsm_options)
+        refined = None if quad is not None else _second_order_pass(
+            template, images[k], centres[idx], res.affine, res.radiometric, res.accepted,
+            res.affine[res.accepted][:, [0, 3]], None,
+            {"patch": patch, "interpolation": interpolation, **lsm_options}, offset=off)
         ok, position, lsm_cov = res.accepted, res.position, res.cov
         if refined is not None:
             good, pos2, cov2 = refined
@@ -1156,8 +1154,9 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                              f"{cam.size[0]}x{cam.size[1]} px")
     if int(check_views) < 1:
         raise ValueError(f"check_views must be >= 1, got {check_views}")
-    if second_order not in ("geometric", "matched"):
-        raise ValueError(f"second_order must be 'geometric' or 'matched', got {second_order!r}")
+    if second_order not in SECOND_ORDER_MODES:
+        raise ValueError(f"second_order must be one of {SECOND_ORDER_MODES}, "
+                         f"got {second_order!r}")
     if not 0.0 < max_incidence_deg < 90.0:
         raise ValueError(f"max_incidence_deg must lie in (0, 90), got {max_incidence_deg}")
     if not 0.0 < reject_p < 1.0:

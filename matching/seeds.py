@@ -706,9 +706,10 @@ def disparity_valid_left(approx: Approximations, shape: tuple[int, int], rig=Non
     """
     valid = np.isfinite(approx.disparity)
     h, w = int(shape[0]), int(shape[1])
-    if rig is None:
-        return valid[:h, :w] if valid.shape == (h, w) else np.pad(
-            valid, ((0, max(h - valid.shape[0], 0)), (0, max(w - valid.shape[1], 0))))[:h, :w]
+    if rig is None:  # SGBM ran on the left image itself
+        if valid.shape != (h, w):
+            raise ValueError(f"the disparity map is {valid.shape}, the left image {(h, w)}")
+        return valid
     rect = rectify(rig) if rect is None else rect
     ys, xs = np.mgrid[0:h, 0:w]
     grid = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
