@@ -606,12 +606,12 @@ def _least_squares(pts: np.ndarray, n_ctrl: int, smoothing: float, arcs: dict | 
         return _solve_band(np.take_along_axis(system, order, axis=1), rows, rhs), t
     rhs = np.stack([np.bincount(cols.ravel(), (weights * pts[:, d, None]).ravel(),
                                 minlength=n_ctrl) for d in range(3)], axis=1)
+    # n_ctrl <= 6: the band wraps onto itself, a dense system
     products = (weights[:, :, None] * weights[:, None, :]).ravel()
-    if n_ctrl <= 6:  # the band wraps onto itself: dense
-        normal = np.bincount((cols[:, :, None] * n_ctrl + cols[:, None, :]).ravel(), products,
-                             minlength=n_ctrl * n_ctrl).reshape(n_ctrl, n_ctrl)
-        system = normal + _FAIRNESS * np.diagonal(normal).mean() * _third_difference_gram(n_ctrl)
-        rows, cols_all = _cyclic_band(n_ctrl)
+    normal = np.bincount((cols[:, :, None] * n_ctrl + cols[:, None, :]).ravel(), products,
+                         minlength=n_ctrl * n_ctrl).reshape(n_ctrl, n_ctrl)
+    system = normal + _FAIRNESS * np.diagonal(normal).mean() * _third_difference_gram(n_ctrl)
+    rows, cols_all = _cyclic_band(n_ctrl)
     return _solve_band(system[rows, cols_all], rows, rhs), t
 
 
