@@ -11,7 +11,7 @@ One run, side by side, on ``fixtures/scenes/vase_ring.toml`` (1024x768; ``--quic
   truth points, 5 rounds, as the Tanks and Temples evaluation does);
 * ``pycolmap-sparse``  pycolmap's own reconstruction of the same images (SIFT, exhaustive
   matching, incremental mapping, triangulated sparse points), aligned the same way;
-* ``surface``          the photosurf cloud -> ``surface.stitch.surface_from_points`` ->
+* ``surface``          the photosurf cloud -> ``surface.reconstruct.surface_from_points`` ->
   Loop's sextic patches (``surface.bezier``) tessellated at level 2: Chamfer distance to
   the truth (``surface.metrics.compare_meshes``) and the time of the whole folder ->
   surface (acquisition + surface).
@@ -135,7 +135,7 @@ def run_surface(points: np.ndarray, truth, height: float) -> dict:
     """Sections -> curves -> stitch -> smooth (Loop's patches, tessellated): the stages of
     ``photosurf run`` after acquisition, through the same public steps."""
     from surface import bezier
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     load_before, cpu0 = uptime(), time.process_time()
     start = time.perf_counter()

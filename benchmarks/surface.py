@@ -10,7 +10,7 @@ Methods, timed from the raw points to a mesh in the same process (normals
 estimated and oriented inside the peers' timings, since they need them and
 the stitched method does not; the table's "normals" column is that share):
 
-* ``stitched``     ``surface.stitch.surface_from_points`` with its defaults;
+* ``stitched``     ``surface.reconstruct.surface_from_points`` with its defaults;
 * ``poisson-8/9``  screened Poisson (open3d, depth 8 and 9), normals by PCA of
   30 neighbours, oriented by ``orient_normals_consistent_tangent_plane(30)``;
   no density trimming;
@@ -98,8 +98,8 @@ import surface.topology  # noqa: E402, F401
 from pipeline.config import defaults  # noqa: E402
 from surface import bezier, metrics  # noqa: E402
 from surface.fitting import interpolating_control_mesh  # noqa: E402
+from surface.reconstruct import surface_from_points  # noqa: E402
 from surface.sections import point_spacing  # noqa: E402
-from surface.stitch import surface_from_points  # noqa: E402
 from tests._vase import noisy_cloud, vase_truth  # noqa: E402  (the tests' vase, finer here)
 
 SIGMA = 0.002

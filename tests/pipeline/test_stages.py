@@ -1,5 +1,5 @@
 """The surface stages of ``photosurf run`` (sections → curves → stitch) against
-``surface.stitch.surface_from_points``: the same steps, so the same mesh.
+``surface.reconstruct.surface_from_points``: the same steps, so the same mesh.
 
 The cloud is the stitch tests' noisy vase r(z) = 1 + 0.3 sin 2z (σ = 0.002),
 given as an ``.npz`` point cloud.
@@ -41,7 +41,7 @@ def _run(path, out, *sets):
     (("curves.smoothing=auto",), {}),
 ])
 def test_stages_give_the_mesh_of_surface_from_points(vase, tmp_path, sets, kwargs):
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     v, f, points, path = vase
     _run(path, tmp_path / "out", *sets)
@@ -61,7 +61,7 @@ def test_axis_projection_without_extension_is_worse(vase, tmp_path):
     v, f, points, path = vase
     _run(path, tmp_path / "out", "sections.projection=axis", "stitch.extend_ends=false")
     vertices, triangles = read_mesh(tmp_path / "out" / "stitch" / "mesh.ply")
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     expected = surface_from_points(points, projection="axis", extend_ends=False)
     np.testing.assert_allclose(vertices, expected.vertices, rtol=0, atol=1e-12)

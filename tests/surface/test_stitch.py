@@ -268,7 +268,7 @@ def vase_cloud():
 
 
 def test_surface_from_points_vase(vase_cloud):
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     v, f, points = vase_cloud
     result = surface_from_points(points)
@@ -287,7 +287,7 @@ def test_surface_from_points_vase(vase_cloud):
 
 
 def test_surface_from_points_two_solids(vase_cloud):
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     _, _, points = vase_cloud
     both = np.vstack([points - [1.8, 0, 0], points + [1.8, 0, 0]])
@@ -307,7 +307,7 @@ def test_surface_from_points_two_solids(vase_cloud):
      "one plane"),
 ])
 def test_surface_from_points_bad_input(vase_cloud, points, kwargs, match):
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     points = vase_cloud[2] if points is None else points
     with pytest.raises(ValueError, match=match):
@@ -335,7 +335,7 @@ def test_surface_from_points_noisy_ends():
     # the extremes at about -4 sigma = -0.048) fall inside the noisy end faces.  The
     # mesh must still be one closed solid, closer to the truth than the points
     # (0.8 sigma); the plain axial projection without end handling is not (1.1 sigma).
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     v, f = vase_truth()
     sigma = 0.012
@@ -349,7 +349,7 @@ def test_surface_from_points_noisy_ends():
 def test_surface_from_points_bridges_a_one_section_gap(vase_cloud):
     """Two wedges missing from one section's slab break its ring into two arcs (two
     "loops" between one-loop neighbours): the section is dropped and the surface closed."""
-    from surface.stitch import slice_cloud, surface_from_points
+    from surface.reconstruct import slice_cloud, surface_from_points
 
     v, f, points = vase_cloud
     sliced = slice_cloud(points)
@@ -369,8 +369,8 @@ def test_surface_from_points_open_ends_reach_the_end_of_the_walls():
     """Walls only (a ring of cameras sees no cap) and a few stray points beyond the ends:
     the end planes are placed on the dense part of the cloud, and each end ring is moved
     to where the wall points stop (2 x the median offset of the outer half-slab points)."""
+    from surface.reconstruct import surface_from_points
     from surface.sections import slice_sections
-    from surface.stitch import surface_from_points
 
     v, f = vase_truth()
     walls = f[:-2 * 256]  # vase_truth's two cap fans (n_theta = 256 faces each) are last
@@ -395,7 +395,7 @@ def test_surface_from_points_open_ends_reach_the_end_of_the_walls():
 
 def test_one_sided_cloud_is_refused_not_closed_into_a_wrong_solid():
     """Half the vase (what one stereo pair sees): every section is an open arc."""
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     v, f = vase_truth()
     points = noisy_cloud(v, f, 8000, seed=3)

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from surface import bezier
 from surface import metrics as M
-from surface.stitch import SUPPORT_MIN_SHARE, stitch_rings, support_distance, surface_from_points
+from surface.reconstruct import surface_from_points
+from surface.stitch import SUPPORT_MIN_SHARE, stitch_rings, support_distance
 
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 HEIGHT = 2.0
@@ -161,7 +162,7 @@ def test_noisy_cylinder_cloud_keeps_its_rims():
     smooth surface built with supports is on average within sigma of the truth; without
     them Loop's surface rounds the rim by about Delta sin 45°/3 (Delta the section
     spacing) and the band's mean distance is several times larger."""
-    from surface.stitch import slice_cloud
+    from surface.reconstruct import slice_cloud
     from tests._vase import noisy_cloud
 
     truth_rings = [ring(z, 256) for z in np.linspace(0.0, HEIGHT, 65)]
