@@ -44,7 +44,7 @@ $(STAMP): pyproject.toml
 # numba kernels compiled once into their on-disk cache (pipeline/warmup.py says why);
 # redone when the kernels' sources change
 WARM   := $(VENV)/.photosurf-kernels
-$(WARM): $(STAMP) matching/lsm.py matching/multiview.py pipeline/scenes.py \
+$(WARM): $(STAMP) matching/lsm.py matching/second_order.py matching/multiview.py pipeline/scenes.py \
          surface/catmull_rom.py surface/_loop_patches.py surface/bezier.py
 	$(PY) -m pipeline.warmup
 	@touch $(WARM)

@@ -132,7 +132,7 @@ def rectified_lsm(rig, L, R, corr):
     """
     from scipy import ndimage
 
-    from matching.lsm import second_order_terms
+    from matching.second_order import second_order_terms
     from matching.seeds import approximate_rectified, rectified_to_original
 
     rect = rectify(rig)

@@ -219,7 +219,8 @@ import json, resource, sys, time
 sys.path.insert(0, sys.argv[1])
 import numpy as np
 import matching.multiview, pipeline.stages
-from matching.lsm import lsm_match, second_order_terms
+from matching.lsm import lsm_match
+from matching.second_order import second_order_terms
 from pipeline.cmd_acquire import acquire_folder
 image = np.random.default_rng(0).uniform(0, 255, (64, 64))
 points = np.array([[32.0, 32.0], [30.0, 30.0]])

@@ -14,7 +14,7 @@ A ring of calibrated views is turned into one cloud in four steps.
    keeps the object in both rectified frames) and matched by
    :func:`matching.pair.match_pair` (SGBM approximations, horizontal epipolar LSM),
    then re-matched with second-order warp terms estimated from the neighbours' affine
-   parameters (:func:`matching.lsm.second_order_terms`: an affine fit of a curved
+   parameters (:func:`matching.second_order.second_order_terms`: an affine fit of a curved
    mapping is biased).  A template window reaching into an untextured region
    (background beyond a rim or a silhouette) is moved onto the surface and the point
    transferred through the estimated warp (*eccentric windows*,
@@ -115,12 +115,8 @@ from scipy.stats import chi2
 
 from matching.cameras import Camera, StereoRig
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, lsm_match, prepare_image
-
-try:  # the LSM engineer's neighbour-based second-order terms (newer than lsm_match's option)
-    from matching.lsm import second_order_terms
-except ImportError:  # pragma: no cover - older matching.lsm: affine-only matches
-    second_order_terms = None
 from matching.pair import match_pair
+from matching.second_order import second_order_terms
 from matching.seeds import DEFAULT_SPACING, Rectification, rectify_images
 from matching.triangulate import triangulate_multiview, triangulate_pair
 from matching.validate import TOL, check_shape
@@ -452,13 +448,13 @@ def _second_order_pass(template, search, points, affine, radiometric, accepted, 
     """Re-match accepted points with second-order warp terms from their neighbours.
 
     An affine patch fit of a curved mapping is biased by ~``<x²>(u_xx + u_yy)``
-    (``matching.lsm.second_order_terms``); on the 320x240 test ring this is 0.08 px of
+    (``matching.second_order.second_order_terms``); on the 320x240 test ring this is 0.08 px of
     disparity for a 15 px patch and falls to 0.003 px after this pass.  Returns
     ``(kept (K,) bool, position (K, 2), cov (K, 2, 2))`` over the K accepted points,
     or None when the terms are not available.  ``points`` are the window centres;
     ``offset`` (N, 2), as ``lsm_match``'s, names the pixel reported.
     """
-    if second_order_terms is None or not np.any(accepted):
+    if not np.any(accepted):
         return None
     idx = np.flatnonzero(accepted)
     radius = 1.5 * int(options.get("patch", 15))  # neighbours within ~a patch and a half
@@ -668,7 +664,7 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         Reject points visible in further views that no LSM confirmed.
     second_order : {"geometric", "matched"}
         Where the second-order warp terms of a further view come from: ``"geometric"``
-        (default) fits them (:func:`matching.lsm.second_order_terms`) to the
+        (default) fits them (:func:`matching.second_order.second_order_terms`) to the
         local-plane mappings i -> k of the neighbouring pair points, known before any
         matching, so one LSM pass suffices; ``"matched"`` fits them to the affine
         parameters of a first, affine-only LSM pass and matches again.  Measured on the
@@ -1029,10 +1025,11 @@ def _view_task(item: dict) -> tuple[PreparedImage, np.ndarray]:
 
 
 def _kernels_release_gil() -> bool:
-    """True when matching.lsm's numba kernels are compiled with ``nogil=True``."""
-    from matching import lsm
+    """True when the LSM and second-order numba kernels are compiled with ``nogil=True``."""
+    from matching import lsm, second_order
 
-    kernels = [getattr(lsm, name, None) for name in ("_lsm_batch", "_second_order_kernel")]
+    kernels = [getattr(lsm, "_lsm_batch", None),
+               getattr(second_order, "_second_order_kernel", None)]
     return all(getattr(k, "targetoptions", {}).get("nogil", False) for k in kernels)
 
 

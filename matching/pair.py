@@ -88,8 +88,8 @@ from matching.lsm import (
     lsm_match,
     prepare_image,
     robust_upper_limit,
-    second_order_terms,
 )
+from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
     approximate_calibrated,
@@ -250,7 +250,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         SGBM block side, px.
     second_order : bool
         Run LSM twice: the second pass adds the fixed second-order warp terms that
-        :func:`matching.lsm.second_order_terms` derives from the first pass's affine
+        :func:`matching.second_order.second_order_terms` derives from the first pass's affine
         parameters within ``max(20, 5 spacing)`` px (removes the curvature bias of an
         affine patch fit: 0.023 px -> 0.001 px on the noise-free vase, 15 px patches).
     adaptive_patch : bool
