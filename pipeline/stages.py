@@ -929,8 +929,10 @@ def _export(ctx: StageContext) -> dict:
         written.append(path.name)
     if smooth:
         with np.load(ctx.stage_path("smooth", "control_net.npz")) as net:
+            domain = (net["domain_vertices"], net["domain_triangles"]) \
+                if "domain_triangles" in net.files else None
             export.write_control_net(ctx.out / "surface.npz", net["control_points"],
-                                     net["index"], net["source_face"])
+                                     net["index"], net["source_face"], domain_mesh=domain)
         written.append("surface.npz")
     return {"files": written, "source": "smooth surface" if smooth else "stitched mesh"}
 

@@ -206,7 +206,7 @@ def test_control_net_round_trip_and_linear_precision(tmp_path):
     np.testing.assert_array_equal(net.control_points, control_points)
     np.testing.assert_array_equal(net.index, index)
     np.testing.assert_array_equal(net.source_face, np.arange(5) * 2)
-    assert net.format_version == 1
+    assert net.format_version == 2
     with np.load(path, allow_pickle=False) as raw:  # plain numpy can read every field
         assert str(raw["format"]) == CONTROL_NET_FORMAT and int(raw["degree"]) == 6
     # Bernstein polynomials reproduce linear functions: S(r,s,t) = r a + s b + t c.
@@ -215,6 +215,63 @@ def test_control_net_round_trip_and_linear_precision(tmp_path):
     np.testing.assert_allclose(net.evaluate(bary), expected, atol=1e-14)
     # corner (6,0,0) interpolates the first control point
     np.testing.assert_allclose(net.evaluate(np.eye(3))[:, 0], corners[:, 0], atol=1e-15)
+
+
+def _bezier_sphere():
+    """Loop's surface over a UV sphere: shared boundary rows, irregular poles."""
+    import open3d as o3d
+
+    from surface import bezier
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, 8)
+    return bezier.control_net(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+
+
+def test_control_net_v2_shares_boundary_points_and_rebuilds_bit_for_bit(tmp_path):
+    from surface.bezier import index_table
+
+    surface = _bezier_sphere()
+    cp, (dv, dt) = surface.control_points, surface.domain_mesh
+    n_edges = len(dt) * 3 // 2  # closed mesh: each edge in two patches
+    expected = len(dv) + 5 * n_edges + 10 * len(dt)  # corners, edge rows, interiors
+    for domain in ((dv, dt), None):  # by topology, and by exact equality
+        path = write_control_net(tmp_path / "v2.npz", cp, index_table(), surface.source_face,
+                                 domain_mesh=domain)
+        net = read_control_net(path)
+        assert net.format_version == 2 and len(net.points) == expected
+        assert net.control_points.tobytes() == cp.tobytes()  # bit for bit
+    # the same surface in version 1 is read as well, and is larger
+    v1 = write_control_net(tmp_path / "v1.npz", cp, index_table(), surface.source_face,
+                           domain_mesh=(dv, dt), version=1)
+    old = read_control_net(v1)
+    assert old.format_version == 1 and old.points is None
+    assert old.control_points.tobytes() == cp.tobytes()
+    assert path.stat().st_size < 0.85 * v1.stat().st_size
+
+
+def test_control_net_v2_keeps_points_that_differ_in_the_last_bit(tmp_path):
+    from surface.bezier import index_table
+
+    surface = _bezier_sphere()
+    cp = surface.control_points.copy()
+    cp[0, 1, 0] = np.nextafter(cp[0, 1, 0], np.inf)  # an edge point, now one ulp off its twin
+    path = write_control_net(tmp_path / "v2.npz", cp, index_table(), surface.source_face,
+                             domain_mesh=surface.domain_mesh)
+    assert read_control_net(path).control_points.tobytes() == cp.tobytes()
+
+
+def test_control_net_v2_rejects_bad_patch_indices(tmp_path):
+    from surface.bezier import index_table
+
+    surface = _bezier_sphere()
+    path = write_control_net(tmp_path / "v2.npz", surface.control_points, index_table())
+    with np.load(path) as raw:
+        fields = dict(raw)
+    fields["patches"] = fields["patches"].copy()
+    fields["patches"][3, 4] = len(fields["points"])
+    np.savez(tmp_path / "bad.npz", **fields)
+    with pytest.raises(InputError, match="bad.npz: patches must index rows"):
+        read_control_net(tmp_path / "bad.npz")
 
 
 def test_control_net_evaluate_matches_direct_bernstein_sum():

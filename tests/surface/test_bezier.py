@@ -700,3 +700,20 @@ def test_tessellation_closes_gaps_in_the_domain_vertex_ids(surfaces, level, monk
     # the chunked GEMM may round differently (see test_tessellation_in_chunks_equals_one_pass)
     assert np.abs(dense[0] - gapped[0]).max() < 1e-13 * _size(dense[0])
     assert _angle(dense[2], gapped[2]).max() < 1e-9
+
+
+def test_shared_boundary_control_points_are_bit_identical():
+    # Neighbouring patches are built from different stencils; control_net makes the
+    # copies of every shared boundary control point one value (control_point_ids).
+    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, 10)
+    surface = bz.control_net(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+    ids, count = bz.control_point_ids(surface.domain_mesh[1])
+    flat, flat_ids = surface.control_points.reshape(-1, 3), ids.ravel()
+    first = np.full(count, -1)
+    first[flat_ids[::-1]] = np.arange(len(flat_ids))[::-1]
+    assert flat[first[flat_ids]].tobytes() == flat.tobytes()
+    # each interior id belongs to one patch, an edge id to two, a corner to its fan
+    uses = np.bincount(flat_ids, minlength=count)
+    n_vertices = len(surface.domain_mesh[0])
+    assert np.all(uses[n_vertices:count - 10 * len(ids)] == 2)
+    assert np.all(uses[count - 10 * len(ids):] == 1)
