@@ -93,7 +93,7 @@ def run_photosurf(name: str, images, cameras, truth, spacing: int) -> tuple[dict
     load_before, cpu0 = uptime(), time.process_time()
     start = time.perf_counter()
     if isinstance(images, Path):
-        from pipeline.cmd_acquire import acquire_folder
+        from pipeline.acquisition import acquire_folder
 
         cloud = acquire_folder(images, spacing=spacing)
     else:

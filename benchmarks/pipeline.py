@@ -51,8 +51,9 @@ from _common import uptime  # noqa: E402
 from pipeline import config as config_mod  # noqa: E402
 from pipeline import progress  # noqa: E402
 from pipeline.cmd_batch import run_object  # noqa: E402
+from pipeline.engine import run_pipeline  # noqa: E402
 from pipeline.executor import DaskExecutor, LocalExecutor  # noqa: E402
-from pipeline.stages import STAGE_ORDER, run_pipeline  # noqa: E402
+from pipeline.plan import STAGE_ORDER  # noqa: E402
 
 
 def children_cpu() -> float:
@@ -122,7 +123,7 @@ def _warm_up() -> None:
     """Import what a task needs, once per worker process."""
     import open3d  # noqa: F401
 
-    import pipeline.stages  # noqa: F401
+    import pipeline.engine  # noqa: F401
     import surface.bezier  # noqa: F401
     import surface.catmull_rom  # noqa: F401
     import surface.stitch  # noqa: F401
@@ -165,7 +166,7 @@ def dask_speedup(workdir: Path, quick: bool) -> dict:
 
 def _images_and_cameras(scene: Path):
     """The folder as ``photosurf run`` loads it: images read lazily, cameras by name."""
-    from pipeline.cmd_acquire import load_folder
+    from pipeline.inputs import load_folder
 
     loaded = load_folder(scene)
     return loaded["images"], loaded["cameras"]
@@ -218,10 +219,10 @@ _ACQUIRE_CHILD = r"""
 import json, resource, sys, time
 sys.path.insert(0, sys.argv[1])
 import numpy as np
-import matching.multiview, pipeline.stages
+import matching.multiview, pipeline.engine
 from matching.lsm import lsm_match
 from matching.second_order import second_order_terms
-from pipeline.cmd_acquire import acquire_folder
+from pipeline.acquisition import acquire_folder
 image = np.random.default_rng(0).uniform(0, 255, (64, 64))
 points = np.array([[32.0, 32.0], [30.0, 30.0]])
 lsm_match(image, image, points, points)  # numba kernels loaded, as in any acquisition

@@ -1097,7 +1097,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     images : sequence of V (H, W) or (H, W, 3) array_like
         Images in camera order (colour in BGR order).  A sequence with a true ``lazy``
         attribute (and ``shapes``, the V image shapes) reads an image on item access,
-        e.g. :class:`pipeline.cmd_acquire.FolderImages`: tasks then carry the sequence
+        e.g. :class:`pipeline.inputs.FolderImages`: tasks then carry the sequence
         and a view index, and an image is in memory only while a task uses it.
     cameras : sequence of V Camera
     pairs : sequence of (int, int), optional

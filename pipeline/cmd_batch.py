@@ -34,7 +34,7 @@ from pipeline import config as config_mod
 from pipeline import progress
 from pipeline.cmd_run import add_config_arguments
 from pipeline.errors import InputError
-from pipeline.stages import KINDS, STAGE_ORDER
+from pipeline.plan import KINDS, STAGE_ORDER
 
 HELP = "run the pipeline on many inputs listed in a TOML manifest (Dask with --scheduler)"
 _OBJECT_KEYS = {"name", "input", "inputs", "kind", "rig", "set"}
@@ -132,7 +132,7 @@ def run_object(task: dict) -> dict:
     are returned as ``{"status": "failed", "error": ...}``, not raised, so
     that one bad object does not stop the batch.
     """
-    from pipeline.stages import run_pipeline
+    from pipeline.engine import run_pipeline
 
     progress.set_quiet(True)  # many objects at once: no interleaved bars
     result = {"name": task["name"], "outdir": task["outdir"]}

@@ -8,7 +8,8 @@ import sys
 
 from pipeline import config as config_mod
 from pipeline import progress
-from pipeline.stages import KINDS, STAGE_ORDER, StageError, run_pipeline
+from pipeline.engine import StageError, run_pipeline
+from pipeline.plan import KINDS, STAGE_ORDER
 
 HELP = "run the whole pipeline (scene/stereo pair/image folder/point cloud -> surface + report)"
 

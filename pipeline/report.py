@@ -181,7 +181,7 @@ def _final_mesh(root: Path) -> tuple[str, Path] | None:
 
 
 def build_report(root: str | Path, config: Mapping, out_html: str | Path,
-                 track=lambda items, desc="": items) -> dict:
+                 track=lambda items, desc="": items, order=()) -> dict:
     """Write the report of the workspace ``root`` to ``out_html``; return its key figures.
 
     Parameters
@@ -195,6 +195,9 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
         Where to write (the caller renames it into place).
     track : callable
         Progress wrapper ``track(iterable, desc)``.
+    order : sequence of str
+        Stage names in run order (the run's plan); the stages table lists them so,
+        then any others by name (default: the manifest's order).
 
     Returns
     -------
@@ -223,7 +226,7 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
             parts.append(_sections_section(root))
         elif job == "truth" and truth is not None:
             parts.append(_truth_section(root, final, truth, params, info, read_mesh))
-    parts.append(_run_section(manifest))
+    parts.append(_run_section(manifest, order))
     page = _page(manifest, "\n".join(p for p in parts if p))
     Path(out_html).write_text(page, encoding="utf-8")
     return info
@@ -299,11 +302,10 @@ def _truth_section(root, final, truth, params, info, read_mesh) -> str:
     return f"<section><h2>Against the truth</h2>{''.join(blocks)}{table}{note}</section>"
 
 
-def _run_section(manifest: Mapping) -> str:
-    from pipeline.stages import STAGE_ORDER
-
+def _run_section(manifest: Mapping, order=()) -> str:
     recorded = manifest.get("stages", {})
-    order = [n for n in STAGE_ORDER if n in recorded] + sorted(set(recorded) - set(STAGE_ORDER))
+    order = list(order or recorded)
+    order = [n for n in order if n in recorded] + sorted(set(recorded) - set(order))
     stages = {name: recorded[name] for name in order}
     rows = []
     for name, rec in stages.items():

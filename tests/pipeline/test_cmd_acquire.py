@@ -164,7 +164,7 @@ def test_sfm_that_registers_nothing_exits_2(tmp_path, capsys):
 
 
 def test_cameras_written_for_a_subset_are_matched_by_name(scene, tmp_path):
-    from pipeline.cmd_acquire import load_folder
+    from pipeline.inputs import load_folder
 
     folder = tmp_path / "sub"
     folder.mkdir()

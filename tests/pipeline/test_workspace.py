@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from pipeline import config as config_mod
+from pipeline.engine import StageError, missing_modules, run_pipeline
 from pipeline.errors import InputError
-from pipeline.stages import Stage, StageError, detect_kind, missing_modules, run_pipeline
+from pipeline.inputs import detect_kind
+from pipeline.plan import Stage
 from pipeline.workspace import Workspace, save_npz, sha256_file
 
 CALLS: list[str] = []

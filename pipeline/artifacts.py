@@ -1,0 +1,244 @@
+"""The workspace's intermediate files: each one's writer and reader side by side.
+
+``photosurf run`` keeps what lies between its stages in ``OUTDIR/<stage>/`` (COLMAP keeps
+its model files the same way: one module, a writer and a reader per file).  Every
+``.npz`` is written byte-reproducibly (:func:`pipeline.workspace.save_npz`: fixed zip
+dates), so the same arrays give the same file and the same hash.
+
+==========================  =============================================================
+file                        arrays (shapes; lengths in scene units)
+==========================  =============================================================
+``acquire/cloud.npz``       ``points`` (N,3) float64, ``colors`` (N,3) uint8, ``sigma`` (N,)
+                            float64 (NaN when unknown); ``acquire/cloud.ply`` the same
+                            for viewers (:func:`pipeline.cloud_io.write_ply`)
+``sections/sections.npz``   ``points`` (P,3) on their planes, ``offsets`` (K+1,) int64,
+                            ``heights`` (K,), ``section_id`` (K,) int64, ``origin`` (K,3),
+                            ``frame`` (3,3), ``source_index`` (P,) int64, ``cap_cloud`` (C,3)
+                            the points an end cap may move to, ``spacing`` ()
+``curves/curves.npz``       ``points`` (Q,3) of the resampled closed rings, ``offsets``
+                            (R+1,), ``section`` (R,), ``loop`` (R,), ``heights`` (R,),
+                            ``axis`` (3,), ``frame`` (3,3), ``noise`` () the section
+                            points' sigma (:func:`surface.stitch.section_noise`); R rings,
+                            a section may hold several loops
+``stitch/mesh.ply``         the stitched mesh (:func:`pipeline.mesh_io.write_mesh`);
+``stitch/stitch.json``      its notes (closed, messages, open interfaces, flips ...)
+``smooth/surface.ply``      the tessellated Bézier surface with its exact normals
+``smooth/control_net.npz``  ``control_points`` (P,28,3), ``index`` (28,3), ``source_face``
+                            (P,), ``domain_vertices``, ``domain_triangles`` (the refined
+                            control mesh)
+``export/surface.*``        the surface in every export format; ``export/surface.npz``
+                            the control net in :mod:`pipeline.export`'s format
+==========================  =============================================================
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.workspace import save_npz, write_text
+
+CLOUD = "cloud.npz"
+CLOUD_PLY = "cloud.ply"
+SECTIONS = "sections.npz"
+CURVES = "curves.npz"
+MESH = "mesh.ply"
+STITCH_NOTES = "stitch.json"
+SURFACE = "surface.ply"
+CONTROL_NET = "control_net.npz"
+
+
+def _members(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz``, each read once (``NpzFile[key]`` decodes on every access)."""
+    with np.load(path) as npz:
+        return {key: npz[key] for key in npz.files}
+
+
+# --------------------------------------------------------------------------- cloud
+def write_cloud(folder: str | os.PathLike, points, colors=None,
+                sigma=None) -> dict[str, np.ndarray]:
+    """``folder/cloud.npz`` and ``folder/cloud.ply`` (for viewers: MeshLab, CloudCompare).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like
+    colors : (N, 3) array_like, optional
+        0..255 (cast to uint8); zeros when absent.
+    sigma : (N,) array_like, optional
+        Per-point standard deviation, scene units; NaN when absent.
+
+    Returns
+    -------
+    dict
+        The arrays as written (``points``, ``colors``, ``sigma``).
+    """
+    from pipeline.cloud_io import write_ply
+
+    folder = Path(folder)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    colors = (np.zeros((len(points), 3), np.uint8) if colors is None
+              else np.asarray(colors).astype(np.uint8).reshape(-1, 3))
+    sigma = np.full(len(points), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+    save_npz(folder / CLOUD, points=points, colors=colors, sigma=sigma)
+    write_ply(folder / CLOUD_PLY, points, colors, sigma)
+    return {"points": points, "colors": colors, "sigma": sigma}
+
+
+def read_cloud(folder: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The arrays of ``folder/cloud.npz`` (``points``, ``colors``, ``sigma``)."""
+    return _members(Path(folder) / CLOUD)
+
+
+# --------------------------------------------------------------------------- sections
+def write_sections(folder: str | os.PathLike, sections: Sequence, cap_cloud: np.ndarray,
+                   spacing: float) -> Path:
+    """``folder/sections.npz`` from non-empty :class:`surface.sections.Section` objects.
+
+    Parameters
+    ----------
+    sections : sequence of Section
+        Each with ``points`` (n_k, 3), ``height``, ``section_id``, ``origin`` (3,),
+        ``frame`` (3, 3) (one frame for all: the first one is stored),
+        ``source_index`` (n_k,).
+    cap_cloud : (C, 3) float64
+    spacing : float
+        Distance between adjacent section planes, scene units.
+    """
+    offsets = np.concatenate([[0], np.cumsum([len(s) for s in sections])]).astype(np.int64)
+    return save_npz(Path(folder) / SECTIONS,
+                    points=np.concatenate([s.points for s in sections]), offsets=offsets,
+                    heights=np.array([s.height for s in sections]),
+                    section_id=np.array([s.section_id for s in sections], np.int64),
+                    origin=np.array([s.origin for s in sections]), frame=sections[0].frame,
+                    source_index=np.concatenate([s.source_index for s in sections]
+                                                ).astype(np.int64),
+                    cap_cloud=cap_cloud, spacing=np.float64(spacing))
+
+
+def read_sections(folder: str | os.PathLike) -> tuple[list, np.ndarray, float]:
+    """The sections of ``folder/sections.npz``, its cap cloud ``(C, 3)`` and the spacing."""
+    from surface.sections import Section
+
+    d = _members(Path(folder) / SECTIONS)
+    off = d["offsets"]
+    sections = [Section(height=float(d["heights"][k]), points=d["points"][off[k]:off[k + 1]],
+                        origin=d["origin"][k], frame=d["frame"].copy(),
+                        section_id=int(d["section_id"][k]),
+                        source_index=d["source_index"][off[k]:off[k + 1]])
+                for k in range(len(off) - 1)]
+    return sections, d["cap_cloud"], float(d["spacing"])
+
+
+def section_heights(folder: str | os.PathLike) -> np.ndarray:
+    """The section planes' heights ``(K,)`` of ``folder/sections.npz`` (no points read)."""
+    with np.load(Path(folder) / SECTIONS) as d:
+        return d["heights"]
+
+
+# --------------------------------------------------------------------------- curves
+def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
+                 noise: float) -> tuple[int, int]:
+    """``folder/curves.npz``: the rings of each section, flattened.
+
+    Parameters
+    ----------
+    rings : sequence
+        Per section, one ``(n, 3)`` ring or a list of rings (several loops).
+    sections : sequence of Section
+        The sections the rings belong to (same order): their heights and frame.
+    noise : float
+        The section points' sigma, scene units.
+
+    Returns
+    -------
+    (int, int)
+        Number of rings and of ring points written.
+    """
+    flat, sec, loop_ids = [], [], []
+    for s_index, item in enumerate(rings):
+        for lp, ring in enumerate([item] if getattr(item, "ndim", 0) == 2 else list(item)):
+            flat.append(np.asarray(ring, np.float64))
+            sec.append(s_index)
+            loop_ids.append(lp)
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in flat])]).astype(np.int64)
+    frame = sections[0].frame
+    save_npz(Path(folder) / CURVES, points=np.concatenate(flat), offsets=offsets,
+             section=np.array(sec, np.int64), loop=np.array(loop_ids, np.int64),
+             heights=np.array([sections[k].height for k in sec]), axis=frame[2], frame=frame,
+             noise=np.float64(noise))
+    return len(flat), int(offsets[-1])
+
+
+def read_curves(folder: str | os.PathLike) -> tuple[list, list, float | None]:
+    """Rings of ``folder/curves.npz`` per section (a list of loops each), the sections'
+    planes as ``Section`` objects without points (height and frame), and the section
+    points' noise sigma (None in a curves.npz written before it was stored)."""
+    from surface.sections import Section
+
+    d = _members(Path(folder) / CURVES)
+    off, sec, frame = d["offsets"], d["section"], d["frame"]
+    rings: list[list] = []
+    planes = []
+    for k in range(len(off) - 1):
+        if k == 0 or sec[k] != sec[k - 1]:
+            rings.append([])
+            planes.append(Section(height=float(d["heights"][k]), points=np.zeros((0, 3)),
+                                  origin=np.zeros(3), frame=frame, section_id=len(planes)))
+        rings[-1].append(d["points"][off[k]:off[k + 1]])
+    return rings, planes, (float(d["noise"]) if "noise" in d else None)
+
+
+# --------------------------------------------------------------------------- stitch
+def write_stitched(folder: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
+                   notes: Mapping) -> None:
+    """``folder/mesh.ply`` and its notes ``folder/stitch.json`` (sorted keys, one space)."""
+    from pipeline.mesh_io import write_mesh
+
+    write_mesh(Path(folder) / MESH, vertices, triangles)
+    write_text(Path(folder) / STITCH_NOTES, json.dumps(notes, indent=1, sort_keys=True) + "\n")
+
+
+def read_stitched(folder: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``(vertices, triangles, notes)`` of ``folder/mesh.ply`` and ``stitch.json``."""
+    from pipeline.mesh_io import read_mesh
+
+    vertices, triangles = read_mesh(Path(folder) / MESH)
+    notes_path = Path(folder) / STITCH_NOTES
+    notes = json.loads(notes_path.read_text(encoding="utf-8")) if notes_path.is_file() else {}
+    return vertices, triangles, notes
+
+
+# --------------------------------------------------------------------------- smooth
+def write_smooth(folder: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
+                 normals: np.ndarray, surface) -> None:
+    """``folder/surface.ply`` (with its exact normals) and ``folder/control_net.npz``.
+
+    ``surface`` is a :class:`surface.bezier.BezierSurface` (``control_points``,
+    ``source_face``, ``domain_mesh``).
+    """
+    from pipeline.mesh_io import write_mesh
+    from surface import bezier
+
+    folder = Path(folder)
+    write_mesh(folder / SURFACE, vertices, triangles, normals=normals)
+    domain_vertices, domain_triangles = surface.domain_mesh
+    save_npz(folder / CONTROL_NET, control_points=surface.control_points,
+             index=bezier.index_table(), source_face=surface.source_face,
+             domain_vertices=domain_vertices, domain_triangles=domain_triangles)
+
+
+def read_control_net(folder: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The arrays of ``folder/control_net.npz``."""
+    return _members(Path(folder) / CONTROL_NET)
+
+
+def read_ply_normals(path: str | os.PathLike) -> np.ndarray | None:
+    """The vertex normals ``(V, 3)`` stored in a PLY mesh (None if it has none)."""
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    return np.asarray(mesh.vertex_normals, np.float64) if mesh.has_vertex_normals() else None

@@ -1,0 +1,420 @@
+"""The engine of ``photosurf run``: runs a plan of stages in a workspace, resumably.
+
+Each stage (:class:`pipeline.plan.Stage`) is a function ``f(ctx) -> dict`` that reads
+its upstream stages' files (``ctx.stage_path(stage, name)``) and writes its own into
+``ctx.out`` (a temporary folder renamed to ``OUTDIR/<stage>`` only when the function
+returns: :mod:`pipeline.workspace`).  The returned dict (counts, metrics) is stored in
+the manifest.  Statuses: ``done``, ``up to date`` (skipped: same inputs, parameters and
+outputs), ``not available`` (its module is not there), ``skipped`` (it cannot apply to
+this data, with the reason: e.g. no Bezier smoothing of an open mesh), ``blocked`` (a
+stage it needs did not run), ``failed`` (an error: the run stops after the report with
+a one-line message), ``outside range`` (``--from`` / ``--to``).
+
+A stage is up to date when the hashes of its inputs — the run's external inputs if it
+reads them, its upstream stages' outputs, the source of its code — and of its
+parameters equal the recorded ones and its outputs are still there untouched.
+
+No algorithm lives here and no stage: the plan (which stages, in which order) is
+:mod:`pipeline.plan`, the stage functions are :mod:`pipeline.stages`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+import shutil
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pipeline import __version__, progress
+from pipeline.atomic import atomic_dir, atomic_file
+from pipeline.errors import InputError, StageSkipped
+from pipeline.inputs import detect_kind, folder_images
+from pipeline.plan import STAGE_ORDER, Stage, plan
+from pipeline.workspace import (
+    CONFIG,
+    MANIFEST,
+    Workspace,
+    code_hash,
+    function_imports,
+    hash_tree,
+    package_versions,
+    sha256_file,
+    sha256_json,
+    write_text,
+)
+
+log = logging.getLogger("photosurf")
+
+
+class StageError(InputError):
+    """A stage failed; the message names the stage and the cause (one line)."""
+
+
+@dataclass
+class StageContext:
+    """What a stage function sees.
+
+    Attributes
+    ----------
+    name : str
+        The stage's name.
+    workspace : Workspace
+    out : Path
+        Where the stage writes (a temporary folder, or a temporary file for
+        single-file stages); renamed into place when the stage returns.
+    params : dict
+        The stage's configuration sections, ``{section: {key: value}}``.
+    config : dict
+        The whole resolved configuration (read-only by convention).
+    inputs : list of Path
+        The run's external inputs (INPUT, or LEFT RIGHT).
+    kind : str
+        The input kind.
+    rig : Path or None
+    executor : object
+        A :mod:`pipeline.executor` executor for independent tasks.
+    plan : tuple of str
+        The names of the run's stages, in run order.
+    """
+
+    name: str
+    workspace: Workspace
+    out: Path
+    params: dict
+    config: dict
+    inputs: list[Path]
+    kind: str
+    rig: Path | None = None
+    executor: object = None
+    plan: tuple[str, ...] = ()
+
+    def stage_path(self, stage: str, name: str = "") -> Path:
+        """``OUTDIR/<stage>/<name>``: an upstream stage's output."""
+        return self.workspace.stage_dir(stage) / name if name else self.workspace.stage_dir(stage)
+
+    def has_output(self, stage: str) -> bool:
+        return bool(self.workspace.outputs_of(stage))
+
+    def track(self, iterable, desc: str = "", total: int | None = None, unit: str = "it"):
+        return progress.track(iterable, desc=f"{self.name}: {desc}" if desc else self.name,
+                              total=total, unit=unit)
+
+
+@dataclass
+class StageResult:
+    name: str
+    status: str  # done | skipped (up to date) | not available | blocked | outside range | failed
+    seconds: float = 0.0
+    reason: str = ""
+    info: dict = field(default_factory=dict)
+    error: BaseException | None = None
+
+
+@dataclass
+class RunSummary:
+    outdir: Path
+    kind: str
+    stages: list[StageResult]
+
+    @property
+    def ok(self) -> bool:
+        return all(s.status != "failed" for s in self.stages)
+
+    def to_dict(self) -> dict:
+        report = self.outdir / "report.html"
+        return {
+            "outdir": str(self.outdir),
+            "kind": self.kind,
+            "manifest": str(self.outdir / MANIFEST),
+            "report": str(report) if report.is_file() else None,
+            "stages": [{"name": s.name, "status": s.status, "seconds": round(s.seconds, 4),
+                        **({"reason": s.reason} if s.reason else {}),
+                        **({"info": s.info} if s.info else {})} for s in self.stages],
+        }
+
+    def table(self) -> str:
+        width = max(len(s.name) for s in self.stages)
+        lines = []
+        for s in self.stages:
+            secs = f"{s.seconds:8.2f} s" if s.status == "done" else " " * 10
+            note = f"  ({s.reason})" if s.reason else ""
+            lines.append(f"  {s.name:<{width}}  {secs}  {s.status}{note}")
+        return "\n".join(lines)
+
+
+def missing_modules(modules: Sequence[str]) -> list[str]:
+    """Names in ``modules`` that cannot be imported (not written yet).
+
+    An entry is ``"package.module"`` or ``"package.module:attribute"``;
+    ``"a|b"`` is satisfied by either alternative.
+    """
+    missing = []
+    for name in modules:
+        if "|" in name:  # alternatives: missing only when none is there
+            options = name.split("|")
+            gone = missing_modules(options)
+            if len(gone) == len(options):
+                missing.append(gone[0])
+            continue
+        module, _, attr = name.partition(":")
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name and (module == exc.name or module.startswith(exc.name + ".")):
+                missing.append(module)
+                continue
+            raise
+        if attr and not hasattr(mod, attr):
+            missing.append(f"{module}.{attr}")
+    return missing
+
+
+@dataclass
+class _Run:
+    """The state of one ``run_pipeline`` call, shared by every stage it runs.
+
+    ``lo`` / ``hi`` are the plan indices of ``--from`` / ``--to``; ``external`` the
+    hashes of the run's external inputs; ``unusable`` maps a stage whose outputs cannot
+    be used downstream to its status.
+    """
+
+    workspace: Workspace
+    config: dict
+    inputs: list[Path]
+    kind: str
+    rig: Path | None
+    executor: object
+    force: bool
+    lo: int
+    hi: int
+    plan: tuple[str, ...]
+    external: dict[str, str] = field(default_factory=dict)
+    unusable: dict[str, str] = field(default_factory=dict)
+
+
+def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
+    if kind == "scene":
+        meta = ws.stage_dir("scene")
+        kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
+    return {"cloud": ("pipeline.cloud_io:read_cloud",),
+            "stereo": ("matching.pair:reconstruct_pair", "matching.cameras:read_rig"),
+            "folder": ("pipeline.acquisition:acquire_folder",
+                       "matching.multiview:reconstruct_multiview")}.get(kind, ())
+
+
+def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str],
+                  modules: Sequence[str] = ()) -> dict[str, str]:
+    hashes: dict[str, str] = dict(external) if stage.external else {}
+    # the code is an input too: an upgraded photosurf reruns the stages it changes
+    code = [m.partition(":")[0] for alt in modules for m in alt.split("|")]
+    hashes["code"] = code_hash(code + list(function_imports(stage.func)),
+                               shallow=[stage.func.__module__])
+    for upstream in stage.needs + stage.optional_needs:
+        outputs = ws.outputs_of(upstream)
+        if outputs:
+            hashes[f"{upstream}/"] = sha256_json(outputs)
+    return hashes
+
+
+def _stage_params(stage: Stage, config: Mapping) -> dict:
+    return {section: config.get(section, {}) for section in stage.params}
+
+
+def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike, config: dict,
+                 kind: str | None = None, rig: str | os.PathLike | None = None,
+                 start: str | None = None, stop: str | None = None, force: bool = False,
+                 executor=None, stages: Sequence[Stage] | None = None) -> RunSummary:
+    """Run (or resume) the pipeline on ``inputs`` into the workspace ``outdir``.
+
+    Parameters
+    ----------
+    inputs : sequence of path
+        INPUT, or LEFT RIGHT for a stereo pair.
+    outdir : path
+        The workspace folder.
+    config : dict
+        The resolved configuration (:func:`pipeline.config.resolve`).
+    kind : str, optional
+        Force the input kind (one of :data:`pipeline.inputs.KINDS`).
+    rig : path, optional
+        Stereo rig file.
+    start, stop : str, optional
+        First and last stage to run (``--from`` / ``--to``); stages before
+        ``start`` must have run already.
+    force : bool
+        Rerun the chosen stages even when up to date.
+    executor : optional
+        Executor for independent tasks (default: in-process).
+    stages : sequence of Stage, optional
+        Replace the plan (tests).
+
+    Returns
+    -------
+    RunSummary
+    """
+    from pipeline import config as config_mod
+    from pipeline.executor import LocalExecutor
+
+    input_paths = [Path(p) for p in inputs]
+    rig_path = Path(rig) if rig is not None else None
+    if rig_path is not None and not rig_path.is_file():
+        raise FileNotFoundError(f"{rig_path}: no such rig file")
+    kind = detect_kind(input_paths, rig_path, kind) if stages is None else (kind or "custom")
+    plan_stages = list(stages) if stages is not None else plan(kind)
+    names = [s.name for s in plan_stages]
+    for label, value in (("--from", start), ("--to", stop)):
+        if value is not None and value not in names:
+            raise InputError(f"{label} {value!r}: choose one of {', '.join(names)}")
+    lo = names.index(start) if start else 0
+    hi = names.index(stop) if stop else len(names) - 1
+    if lo > hi:
+        raise InputError(f"--from {start} comes after --to {stop}")
+
+    ws = Workspace(outdir)
+    run = _Run(ws, config, input_paths, kind, rig_path, executor or LocalExecutor(), force,
+               lo, hi, tuple(names))
+    results: list[StageResult] = []
+    with ws.lock():
+        for name in ws.clean_temporaries([s.output for s in plan_stages] + [MANIFEST, CONFIG]):
+            log.info("removed %s, left by an interrupted run", name)
+        for p in input_paths + ([rig_path] if rig_path else []):
+            run.external.update({f"input:{p.resolve()}/{k}": v
+                                 for k, v in hash_tree(p, p).items()}
+                                if p.is_dir() else {f"input:{p.resolve()}": sha256_file(p)})
+        for stale in [n for n in ws.manifest["stages"] if n not in names]:
+            # a stage of another input kind (e.g. the scene of an earlier recipe run):
+            # its outputs must not be mistaken for this input's
+            log.info("%s: removed, not a stage of this %s input", stale, kind)
+            ws.forget(stale)
+            if stale in STAGE_ORDER and ws.stage_dir(stale).is_dir():
+                shutil.rmtree(ws.stage_dir(stale))
+        write_text(ws.root / CONFIG, config_mod.dumps(config))
+        ws.manifest.update({
+            "photosurf": __version__, "kind": kind,
+            "inputs": [{"path": str(p), "sha256": sha256_file(p) if p.is_file() else
+                        sha256_json(hash_tree(p, p))} for p in input_paths],
+            "rig": ({"path": str(rig_path), "sha256": sha256_file(rig_path)}
+                    if rig_path else None),
+            "versions": package_versions(), "config": config,
+            "config_sha256": sha256_json(config),
+        })
+        ws.save()
+        with progress.bar(total=hi - lo + 1, desc="photosurf run", unit="stage") as bar:
+            failed_stage = None
+            for index, stage in enumerate(plan_stages):
+                bar.set_description_str(f"photosurf run: {stage.name}")
+                if failed_stage and stage.name != "report" and lo <= index <= hi:
+                    # the run stops at a failure (only the report still shows it): no
+                    # later stage runs and none logs about what is missing
+                    reason = f"{failed_stage} failed"
+                    ws.set_record(stage.name, {"status": "blocked", "reason": reason})
+                    result = StageResult(stage.name, "blocked", reason=reason)
+                else:
+                    result = _run_one(run, index, stage)
+                if result.status == "failed" and failed_stage is None:
+                    failed_stage = stage.name
+                results.append(result)
+                if result.status in ("not available", "blocked", "failed", "skipped"):
+                    run.unusable[stage.name] = result.status
+                if lo <= index <= hi:
+                    bar.update(1)
+                log.info("%s: %s%s", stage.name, result.status,
+                         f" in {result.seconds:.2f} s" if result.status == "done" else "")
+    # a failure blocks what depends on it; the report still shows the run, then the error
+    failed = next((r for r in results if r.status == "failed"), None)
+    if failed is not None:
+        raise StageError(f"stage {failed.name} failed: {failed.reason}") from failed.error
+    return RunSummary(Path(outdir), kind, results)
+
+
+def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
+    """Run (or skip) the plan's ``index``-th stage; record its status in the manifest."""
+    ws = run.workspace
+    blocked = [n for n in stage.needs if n in run.unusable]
+    modules = stage.modules + (_acquire_modules(run.kind, ws) if stage.name == "acquire"
+                               else ())
+    if not run.lo <= index <= run.hi:
+        if index < run.lo and not ws.outputs_of(stage.name) and stage.name != "report":
+            raise InputError(f"--from: stage {stage.name} has no outputs in {ws.root} yet; "
+                             "run the earlier stages first (drop --from)")
+        status = "done before" if ws.outputs_of(stage.name) else "outside range"
+        return StageResult(stage.name, status if index < run.lo else "outside range")
+    if blocked:
+        reason = f"needs {', '.join(blocked)}"
+        ws.set_record(stage.name, {"status": "blocked", "reason": reason})
+        return StageResult(stage.name, "blocked", reason=reason)
+    missing = missing_modules(modules)
+    if missing:
+        reason = f"{', '.join(missing)} not there yet"
+        ws.set_record(stage.name, {"status": "not available", "reason": reason})
+        return StageResult(stage.name, "not available", reason=reason)
+    params = _stage_params(stage, run.config)
+    params_sha = sha256_json(params)
+    inputs = _input_hashes(stage, ws, run.external, modules)
+    if not run.force and ws.up_to_date(stage.name, inputs, params_sha):
+        rec = ws.record(stage.name) or {}
+        return StageResult(stage.name, "up to date", reason="", info=rec.get("info", {}))
+    ws.forget(stage.name)  # from here until the new record, the stage counts as not run
+    log.info("%s: started", stage.name)
+    target = ws.root / stage.output
+    started = time.time()
+    t0 = time.perf_counter()
+    try:
+        holder = atomic_file(target) if stage.is_file else atomic_dir(target)
+        with holder as tmp:
+            ctx = StageContext(stage.name, ws, Path(tmp), params, run.config, run.inputs,
+                               run.kind, run.rig, run.executor, run.plan)
+            info = stage.func(ctx) or {}
+            _publish_permissions(Path(tmp))
+    except StageSkipped as exc:
+        log.warning("%s: skipped: %s", stage.name, exc)
+        ws.set_record(stage.name, {"status": "skipped", "reason": str(exc)})
+        return StageResult(stage.name, "skipped", time.perf_counter() - t0, str(exc))
+    except Exception as exc:  # one line for the user; -v shows the chain
+        seconds = time.perf_counter() - t0
+        log.debug("stage %s failed:\n%s", stage.name, traceback.format_exc())
+        reason = f"{exc}" if type(exc) in (InputError, ValueError, StageError) or \
+            isinstance(exc, OSError) else \
+            f"{type(exc).__name__}: {exc}"
+        ws.set_record(stage.name, {"status": "failed", "reason": reason,
+                                   "seconds": round(seconds, 4), "started": started})
+        return StageResult(stage.name, "failed", seconds, reason, error=exc)
+    seconds = time.perf_counter() - t0
+    outputs = hash_tree(target, ws.root)
+    ws.set_record(stage.name, {
+        "status": "done", "inputs": inputs, "params": params, "params_sha256": params_sha,
+        "outputs": outputs, "seconds": round(seconds, 4), "started": started,
+        "finished": time.time(), "info": _jsonable(info),
+    })
+    return StageResult(stage.name, "done", seconds, info=_jsonable(info))
+
+
+def _publish_permissions(path: Path) -> None:
+    """Give a stage's outputs the user's usual modes (temporary names are created 0600/0700)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    paths = [path] + (list(path.rglob("*")) if path.is_dir() else [])
+    for p in paths:
+        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~umask)
+
+
+def _jsonable(value):
+    """Numbers and arrays in stage info as plain JSON types."""
+    import numpy as np
+
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    return value

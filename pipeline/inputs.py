@@ -1,0 +1,354 @@
+"""What photosurf reads from the user: input kinds, images, image folders, stereo rigs.
+
+One set of rules for every command that reads images (``photosurf run``, ``match``,
+``stereo``, ``acquire``):
+
+* an image file is one of :data:`IMAGE_SUFFIXES`; hidden files (``.name``) are not images;
+* :func:`read_image` reads it as OpenCV does (``IMREAD_UNCHANGED``: grey or BGR), refuses
+  a missing file, a folder, an undecodable file and one smaller than
+  :data:`MIN_IMAGE_PX` on a side (a least-squares patch of 15 px with its search margin
+  does not fit), and maps other depths (16-bit, float) onto 0..255 ``uint8`` by their
+  own range (``cv2.NORM_MINMAX``), since matching works on 8-bit grey levels;
+* a folder's images are its image files, or those of ``FOLDER/images``, sorted by name
+  (:func:`folder_images`);
+* :func:`detect_kind` tells a scene recipe, a stereo pair, an image folder and a cloud
+  apart (:data:`KINDS`).
+
+:func:`load_folder` loads an image folder with its cameras (a camera file, the folder's
+``cameras.yml`` / COLMAP ``sparse`` model, else pycolmap SfM) for
+:mod:`pipeline.acquisition`.  Every refusal is an :class:`~pipeline.errors.InputError`
+(or ``FileNotFoundError``) whose one line names the file.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: Input kinds ``photosurf run`` knows (``--kind`` takes these).
+KINDS = ("scene", "stereo", "folder", "cloud")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
+CLOUD_SUFFIXES = (".ply", ".xyz", ".csv", ".npz", ".txt", ".pts")
+RIG_NAMES = ("rig.yml", "rig.yaml", "cameras.yml", "cameras.yaml", "extrinsics.yml")
+#: Smallest image side read (pixels): a 15 px LSM patch and its search margin.
+MIN_IMAGE_PX = 32
+
+
+# --------------------------------------------------------------------------- images
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """One image file as ``(H, W)`` grey or ``(H, W, 3|4)`` BGR ``uint8`` (module rules).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    InputError
+        A folder, an undecodable file, or an image smaller than :data:`MIN_IMAGE_PX`.
+    """
+    import cv2
+
+    from pipeline.mesh_io import quiet_native_stderr
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, expected an image")
+    with quiet_native_stderr():  # libpng prints its own diagnostics on fd 2
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.ndim not in (2, 3):
+        raise InputError(f"{path}: not a readable image")
+    if min(image.shape[:2]) < MIN_IMAGE_PX:
+        raise InputError(f"{path}: image is too small to match: {image.shape[1]}x"
+                         f"{image.shape[0]} px (at least {MIN_IMAGE_PX}x{MIN_IMAGE_PX})")
+    if image.dtype != np.uint8:
+        image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return image
+
+
+def read_pair(left: str | os.PathLike, right: str | os.PathLike,
+              need_same_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Both images of a stereo pair (:func:`read_image`), optionally of one size."""
+    images = read_image(left), read_image(right)
+    if need_same_size and images[0].shape[:2] != images[1].shape[:2]:
+        (h1, w1), (h2, w2) = images[0].shape[:2], images[1].shape[:2]
+        raise InputError(f"{right}: image is {w2}x{h2} px but {left} is {w1}x{h1} px; "
+                         "the pair must have one size")
+    return images
+
+
+def read_rig_for(path: str | os.PathLike, left_image: str | os.PathLike | None = None):
+    """:func:`matching.cameras.read_rig`, its errors as one line naming the file."""
+    from matching.cameras import read_rig
+
+    try:
+        return read_rig(path, image=left_image)
+    except (ValueError, OSError) as exc:
+        message = str(exc)
+        raise InputError(message if str(path) in message else f"{path}: {message}") from None
+
+
+def check_rig_size(rig, images, paths) -> None:
+    """Each image must have its camera's size (the rig's calibration is per pixel)."""
+    for label, image, cam, path in zip(("left", "right"), images, (rig.left, rig.right), paths,
+                                       strict=True):
+        if (image.shape[1], image.shape[0]) != cam.size:
+            raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]} px but the "
+                             f"rig's {label} camera is {cam.size[0]}x{cam.size[1]} px")
+
+
+# --------------------------------------------------------------------------- folders
+def _image_files(where: Path) -> tuple[list[str], list[str]]:
+    """Image names and other (visible) file names of one folder, sorted."""
+    files = sorted(p for p in where.iterdir() if p.is_file() and not p.name.startswith("."))
+    images = [p.name for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    return images, [p.name for p in files if p.name not in images]
+
+
+def folder_images(folder: str | os.PathLike) -> list[Path]:
+    """Image files of ``folder`` (or of ``folder/images``), sorted by name; [] if none."""
+    folder = Path(folder)
+    for where in (folder, folder / "images"):
+        if where.is_dir():
+            images, _ = _image_files(where)
+            if images:
+                return [where / name for name in images]
+    return []
+
+
+def image_dir(folder: str | os.PathLike) -> tuple[Path, list[str], list[str]]:
+    """The folder holding the images, the image names and the other file names.
+
+    Raises ``FileNotFoundError`` / ``NotADirectoryError`` / ``InputError`` (empty
+    folder, no image files) naming the folder.
+    """
+    folder = Path(folder)
+    if not folder.exists():
+        raise FileNotFoundError(f"{folder}: no such folder")
+    if not folder.is_dir():
+        raise NotADirectoryError(f"{folder}: not a folder")
+    for where in (folder, folder / "images"):
+        if where.is_dir():
+            images, others = _image_files(where)
+            if images:
+                return where, images, others
+    others = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+    if not others:
+        raise InputError(f"{folder}: empty folder (no images)")
+    raise InputError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)}); found "
+                     f"{', '.join(others[:5])}{' ...' if len(others) > 5 else ''}")
+
+
+def read_images(where: Path, names: list[str]) -> list[np.ndarray]:
+    """Every image (:func:`read_image`); the error names the first unreadable file."""
+    return [read_image(Path(where) / name) for name in names]
+
+
+class FolderImages(Sequence):
+    """The images of a folder, read from disk on item access (bounded memory).
+
+    Every file is read once on construction to check it and record its shape, then
+    dropped; ``images[v]`` reads it again.  Pickles as its paths (a Dask task carries
+    the file names, not the pixels).  :func:`matching.multiview.reconstruct_multiview`
+    recognises it by ``lazy`` and ``shapes``.
+
+    Parameters
+    ----------
+    where : Path
+        The folder.
+    names : list of str
+        Image file names, in camera order.
+    """
+
+    lazy = True
+
+    def __init__(self, where: Path, names: list[str]):
+        self.paths = [Path(where) / name for name in names]
+        self.shapes = [read_image(path).shape for path in self.paths]
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        return read_image(self.paths[index])
+
+    def subset(self, indices: list[int]) -> FolderImages:
+        """The images at ``indices`` (no file is read again)."""
+        out = object.__new__(FolderImages)
+        out.paths = [self.paths[i] for i in indices]
+        out.shapes = [self.shapes[i] for i in indices]
+        return out
+
+
+def _camera_source(folder: Path, where: Path, cameras: str | None) -> Path | None:
+    if cameras is not None:
+        path = Path(cameras)
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such camera file")
+        return path
+    for base in dict.fromkeys((folder, where)):
+        for name in ("cameras.yml", "cameras.yaml", "sparse"):
+            if (base / name).exists():
+                return base / name
+    return None
+
+
+def _match_cameras(cams: list, names: list[str], source: Path) -> list:
+    by_name = {Path(c.name).name: c for c in cams if c.name}
+    if all(n in by_name for n in names):
+        return [by_name[n] for n in names]
+    missing = [n for n in names if n not in by_name]
+    raise InputError(f"{source}: no camera for image(s) {', '.join(missing[:5])}"
+                     f"{' ...' if len(missing) > 5 else ''} ({len(cams)} cameras: "
+                     f"{', '.join(sorted(by_name)[:3])}{' ...' if len(by_name) > 3 else ''})")
+
+
+def load_folder(folder: str | Path, cameras: str | None = None,
+                sfm_work_dir: str | Path | None = None,
+                camera_model: str = "SIMPLE_RADIAL") -> dict:
+    """Images and cameras of an image folder, checked.
+
+    Cameras come from ``cameras`` (any format :func:`matching.cameras.read_cameras`
+    reads), else ``FOLDER/cameras.yml`` or the COLMAP model ``FOLDER/sparse``, else
+    pycolmap SfM (:func:`matching.sfm.run_sfm`, in its arbitrary similarity frame);
+    they are matched to the images by file name.
+
+    Returns
+    -------
+    dict
+        ``images`` (:class:`FolderImages`, read on access), ``cameras`` (list of
+        Camera, same order), ``names``,
+        ``camera_source`` (path or ``"sfm"``), ``ignored`` (other files),
+        ``unregistered`` (images SfM could not place, left out), ``sfm`` (its report).
+    """
+    from matching.cameras import read_cameras
+
+    folder = Path(folder)
+    where, names, others = image_dir(folder)
+    if len(names) < 2:
+        raise InputError(f"{where}: need at least 2 images, found {len(names)} ({names[0]})")
+    images = FolderImages(where, names)
+    sizes = {(shape[1], shape[0]) for shape in images.shapes}
+    source = _camera_source(folder, where, cameras)
+    out = {"ignored": others, "unregistered": [], "sfm": None}
+    if source is not None:
+        try:
+            cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)))
+        except ValueError as exc:
+            raise InputError(f"{source}: {exc}") from None
+        cams = _match_cameras(cams, names, source)
+        for name, shape, cam in zip(names, images.shapes, cams, strict=True):
+            if (shape[1], shape[0]) != cam.size:
+                raise InputError(f"{where / name}: image is {shape[1]}x{shape[0]} px but "
+                                 f"its camera in {source} is {cam.size[0]}x{cam.size[1]} px")
+        out["camera_source"] = str(source)
+    else:
+        if len(sizes) > 1:
+            raise InputError(f"{where}: images of different sizes {sorted(sizes)} and no "
+                             "cameras to say so (give --cameras)")
+        from matching.sfm import run_sfm
+
+        result = run_sfm(where, work_dir=sfm_work_dir, image_names=names,
+                         camera_model=camera_model)
+        if len(result.registered) < 2:
+            raise InputError(f"{where}: SfM registered {len(result.registered)} of "
+                             f"{len(names)} images; need 2")
+        keep = [n for n in names if n in set(result.registered)]
+        by_name = {c.name: c for c in result.cameras}
+        images = images.subset([names.index(n) for n in keep])
+        cams = [by_name[n] for n in keep]
+        out.update(camera_source="sfm", unregistered=list(result.unregistered),
+                   sfm=result.report())
+        if result.unregistered:
+            log.warning("SfM did not register %s; left out", ", ".join(result.unregistered))
+        names = keep
+    out.update(images=images, cameras=cams, names=names)
+    return out
+
+
+# --------------------------------------------------------------------------- kinds
+def detect_kind(inputs: Sequence[str | os.PathLike], rig: str | os.PathLike | None = None,
+                kind: str | None = None) -> str:
+    """Tell what INPUT is: ``scene`` recipe, ``stereo`` pair, image ``folder`` or ``cloud``.
+
+    Rules: two inputs are a stereo pair (LEFT RIGHT, with ``--rig``); a
+    ``.toml`` file is a scene recipe; a point-cloud suffix (.ply .xyz .csv .npz
+    .txt .pts) is a cloud; a folder with exactly two images and a rig/camera
+    file (or ``--rig``) is a stereo pair, with more images an image folder.
+    ``kind`` (``--kind``) overrides the detection but is still checked.
+    """
+    paths = [Path(p) for p in inputs]
+    if not paths or len(paths) > 2:
+        raise InputError(f"INPUT: expected one input or LEFT RIGHT, got {len(paths)} paths")
+    for p in paths:
+        if not p.exists():
+            raise FileNotFoundError(f"{p}: no such file or folder")
+    if kind is not None and kind not in KINDS:
+        raise InputError(f"--kind {kind!r}: choose one of {', '.join(KINDS)}")
+    if len(paths) == 2:
+        if kind not in (None, "stereo"):
+            raise InputError(f"--kind {kind}: two inputs (LEFT RIGHT) can only be a stereo pair")
+        for p in paths:
+            if not p.is_file() or p.suffix.lower() not in IMAGE_SUFFIXES:
+                raise InputError(f"{p}: a stereo pair needs two image files "
+                                 f"({', '.join(IMAGE_SUFFIXES)})")
+        if rig is None:
+            raise InputError(f"{paths[0]} {paths[1]}: a stereo pair needs --rig RIG.yml")
+        return "stereo"
+    path = paths[0]
+    if kind is not None:
+        detected = kind
+    elif path.is_file() and path.suffix.lower() == ".toml":
+        detected = "scene"
+    elif path.is_file() and path.suffix.lower() in CLOUD_SUFFIXES:
+        detected = "cloud"
+    elif path.is_dir():
+        images = folder_images(path)
+        if len(images) == 2 and (rig is not None or folder_rig(path) is not None):
+            detected = "stereo"
+        elif len(images) >= 2:
+            detected = "folder"
+        else:
+            raise InputError(f"{path}: folder holds {len(images)} images; need 2 (stereo, with a "
+                             "rig file) or more (image folder)")
+    else:
+        raise InputError(f"{path}: cannot tell what this is (expected a scene recipe .toml, a "
+                         f"point cloud {'/'.join(CLOUD_SUFFIXES)}, or a folder of images); "
+                         "force it with --kind")
+    if detected == "scene" and not path.is_file():
+        raise InputError(f"{path}: --kind scene needs a recipe .toml file")
+    if detected == "cloud" and not path.is_file():
+        raise InputError(f"{path}: --kind cloud needs a point-cloud file")
+    if detected in ("stereo", "folder") and not path.is_dir():
+        raise InputError(f"{path}: --kind {detected} needs a folder of images (or LEFT RIGHT)")
+    return detected
+
+
+def folder_rig(folder: Path) -> Path | None:
+    """The rig/camera file of a stereo folder (:data:`RIG_NAMES`), or None."""
+    for name in RIG_NAMES:
+        if (Path(folder) / name).is_file():
+            return Path(folder) / name
+    return None
+
+
+def stereo_inputs(inputs: Sequence[Path], rig: Path | None) -> tuple[Path, Path, Path]:
+    """``(left, right, rig)`` for a stereo input given as LEFT RIGHT or as a folder."""
+    if len(inputs) == 2:
+        left, right = inputs
+    else:
+        left, right = folder_images(inputs[0])[:2]
+        rig = rig or folder_rig(inputs[0])
+    if rig is None:
+        raise InputError(f"{inputs[0]}: no rig file (give --rig RIG.yml)")
+    return Path(left), Path(right), Path(rig)

@@ -1,0 +1,53 @@
+"""The stereo-pair options and summaries shared by ``photosurf match`` and ``photosurf stereo``
+(commands do not import each other: both import this)."""
+
+from __future__ import annotations
+
+import argparse
+
+from pipeline.errors import InputError
+
+
+def add_match_options(parser: argparse.ArgumentParser) -> None:
+    """Matching options shared by ``photosurf match`` and ``photosurf stereo``."""
+    parser.add_argument("--spacing", type=int, default=3,
+                        help="one candidate per SPACING x SPACING pixels (default 3)")
+    parser.add_argument("--patch", type=int, default=15,
+                        help="LSM patch side in pixels, odd (default 15)")
+    parser.add_argument("--interpolation", choices=("bilinear", "bicubic", "spline"),
+                        default="spline", help="search-image resampler (default spline)")
+    parser.add_argument("--epipolar", action=argparse.BooleanOptionalAction, default=None,
+                        help="constrain the shift to the epipolar line (default: only for "
+                             "--rectified)")
+    parser.add_argument("--max-iter", type=int, default=20, help="Gauss-Newton iterations")
+    parser.add_argument("--min-correlation", type=float, default=0.7,
+                        help="reject matches below this correlation (default 0.7)")
+
+
+def match_options(args: argparse.Namespace) -> dict:
+    """The matching keyword arguments, checked (``InputError`` naming the option)."""
+    import math
+
+    if args.patch < 5 or args.patch % 2 == 0:
+        raise InputError(f"--patch must be an odd integer >= 5, got {args.patch}")
+    if args.spacing < 1:
+        raise InputError(f"--spacing must be a positive integer, got {args.spacing}")
+    if args.max_iter < 1:
+        raise InputError(f"--max-iter must be a positive integer, got {args.max_iter}")
+    if not (math.isfinite(args.min_correlation) and -1.0 <= args.min_correlation <= 1.0):
+        raise InputError(f"--min-correlation must be in [-1, 1], got {args.min_correlation}")
+    return {"spacing": args.spacing, "patch": args.patch, "interpolation": args.interpolation,
+            "epipolar": args.epipolar, "max_iter": args.max_iter,
+            "min_correlation": args.min_correlation}
+
+
+def summary(matches) -> str:
+    counts = matches.status_counts()
+    rejected = ", ".join(f"{k} {v}" for k, v in counts.items() if k != "ok")
+    return (f"{counts.get('ok', 0)} of {len(matches)} candidates matched "
+            f"({rejected or 'none rejected'})")
+
+
+def check_some_matched(matches, left: str) -> None:
+    if not matches.accepted.any():
+        raise InputError(f"{left}: no point could be matched: {summary(matches)}")
