@@ -13,9 +13,9 @@ Inputs: the point-cloud files of :mod:`pipeline.cloud_io` -- ``.ply``,
 ``.xyz`` / ``.txt`` / ``.csv`` (columns x y z [extra]), ``.npz`` (``points``).
 Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.  With
 ``--smooth`` the stitched mesh becomes the control mesh of the G1 sextic Bézier
-surface (:func:`pipeline.cmd_smooth.smooth_to_files`): ``--out`` then receives the
-tessellated smooth surface and ``OUT.npz`` its control net, so cloud -> smooth
-surface is one command.
+surface (:func:`pipeline.smoothing.smooth_to_files`, as in ``photosurf smooth``):
+``--out`` then receives the tessellated smooth surface and ``OUT.npz`` its control
+net, so cloud -> smooth surface is one command.
 """
 
 from __future__ import annotations
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
                              f"({'; '.join(result.messages) or 'open ends'}): --smooth needs a "
                              "closed mesh (drop --open-ends, or smooth the mesh with "
                              "'photosurf smooth')")
-        from pipeline.cmd_smooth import smooth_to_files
+        from pipeline.smoothing import smooth_to_files
 
         smooth = smooth_to_files(vertices, triangles, out, level=args.level,
                                  source=str(args.cloud))

@@ -6,6 +6,9 @@ so ``P = 4 F`` patches), tessellated at ``--level L`` (each patch edge cut into
 normals to ``OUT`` (.ply .obj .stl .gltf .glb) and the control net beside it as
 ``OUT`` with suffix ``.npz`` (``pipeline.export`` documents that format).
 
+A thin command over :func:`pipeline.smoothing.smooth_to_files` (the smoothing of
+``photosurf sections --smooth`` and of ``photosurf run``'s smooth stage too).
+
 Default level: the pipeline's ``smooth.level`` (``pipeline/defaults.toml``),
 one setting for ``photosurf run`` and ``photosurf smooth``.  It is chosen a
 priori: the refinement halves the control mesh's edge h₀ and level L cuts a
@@ -24,18 +27,10 @@ from pipeline.errors import InputError
 
 HELP = "smooth a triangle mesh into Loop's G1 sextic Bezier surface (mesh + control net)"
 
-#: G1 is checked at this many points per interior patch edge (ends included).
-EDGE_SAMPLES = 9
-
-
-def _default_level() -> int:
-    from pipeline.config import defaults
-
-    return int(defaults()["smooth"]["level"])
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from pipeline.export import EXPORT_SUFFIXES
+    from pipeline.smoothing import default_level
 
     parser.add_argument("mesh", metavar="MESH", help="oriented 2-manifold triangle mesh, "
                         "closed for a watertight result (.ply .obj .stl .off .gltf .glb): "
@@ -45,70 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "net is written beside it as OUT.npz")
     parser.add_argument("--level", type=int, default=None, metavar="L",
                         help="tessellation level: 4^L triangles per patch, 4 patches per input "
-                             f"triangle (default {_default_level()}, the pipeline's smooth.level)")
-
-
-def smooth_to_files(vertices, triangles, out, level: int | None = None,
-                    source: str = "control mesh") -> dict:
-    """Build the Bézier surface over a control mesh; write ``out`` and ``out.npz``.
-
-    The reusable core of this command (``photosurf sections --smooth`` can
-    call it on the stitched mesh).
-
-    Parameters
-    ----------
-    vertices : (V, 3) float64
-    triangles : (F, 3) int64
-        Oriented 2-manifold control mesh (closed gives a watertight surface;
-        borders as far as ``surface.bezier.control_net`` accepts them).
-    out : path-like
-        Mesh file (suffix one of ``pipeline.export.EXPORT_SUFFIXES``); the
-        control net goes to ``out`` with suffix ``.npz``.  Both appear
-        together or not at all.
-    level : int, optional
-        Tessellation level (default: the pipeline's ``smooth.level``).
-    source : str
-        Name of the input used in error messages (e.g. its path).
-
-    Returns
-    -------
-    dict
-        ``patches``, ``vertices``, ``triangles``, ``level``, ``g1_angle``
-        (radians), ``gap`` (scene units), ``mesh`` and ``control_net`` paths.
-
-    Raises
-    ------
-    InputError
-        Bad output name or level, or a control mesh the construction rejects
-        (non-manifold, unoriented, bordered, degenerate).
-    """
-    from pipeline.export import EXPORT_SUFFIXES, export_surface
-    from surface import bezier
-
-    out = Path(out)
-    level = _default_level() if level is None else int(level)
-    if out.suffix.lower() not in EXPORT_SUFFIXES:
-        raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
-                         f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
-    if not 0 <= level <= 8:
-        raise InputError(f"--level must be in 0..8, got {level}")
-    try:
-        surface = bezier.control_net(vertices, triangles)
-    except ValueError as exc:
-        raise InputError(f"{source}: cannot build the Bezier surface: {exc}") from exc
-    tess_vertices, tess_triangles, tess_normals = bezier.tessellate(surface, level)
-    gap, angle = bezier.edge_continuity(surface.control_points, surface.domain_mesh[1],
-                                        samples=EDGE_SAMPLES)
-    mesh_out, net_out = export_surface(out, tess_vertices, tess_triangles, tess_normals,
-                                       surface.control_points, bezier.index_table(),
-                                       surface.source_face, surface.domain_mesh)
-    return {"patches": len(surface.control_points), "vertices": len(tess_vertices),
-            "triangles": len(tess_triangles), "level": level, "g1_angle": angle, "gap": gap,
-            "mesh": mesh_out, "control_net": net_out}
+                             f"triangle (default {default_level()}, the pipeline's smooth.level)")
 
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.mesh_io import read_mesh_with_normals, weld_vertices
+    from pipeline.smoothing import EDGE_SAMPLES, smooth_to_files
 
     mesh_path = Path(args.mesh)
     if Path(args.out).suffix.lower() == ".npz":

@@ -219,13 +219,16 @@ def stitch(ctx: StageContext) -> dict:
 
 
 def smooth(ctx: StageContext) -> dict:
-    """``surface.bezier.control_net`` over the stitched mesh, tessellated."""
+    """``pipeline.smoothing.smooth_mesh`` over the stitched mesh (the one smoothing path,
+    with its G1 report: ``g1_angle`` radians, ``gap`` scene units)."""
     from pipeline.mesh_io import read_mesh
-    from surface import bezier
+    from pipeline.smoothing import smooth_mesh
 
     vertices, triangles = read_mesh(ctx.stage_path("stitch", artifacts.MESH))
+    level = ctx.params["smooth"]["level"]
     try:
-        surface = bezier.control_net(vertices, triangles)
+        smoothed = smooth_mesh(vertices, triangles, level,
+                               _smooth_tolerance(ctx) if level == "auto" else None)
     except ValueError as exc:
         from surface.metrics import mesh_topology
 
@@ -234,14 +237,9 @@ def smooth(ctx: StageContext) -> dict:
             raise StageSkipped(f"the stitched mesh is open ({border} border edges) and the "
                                f"Bezier construction refused it: {exc}") from exc
         raise
-    level = ctx.params["smooth"]["level"]
-    if level == "auto":  # finest detail the data can vouch for: the chord error <= tolerance
-        level = bezier.tessellation_level(surface.control_points, _smooth_tolerance(ctx),
-                                          max_level=3)
-    v, t, n = bezier.tessellate(surface, level=int(level))
-    artifacts.write_smooth(ctx.out, v, t, n, surface)
-    return {"patches": len(surface.control_points), "level": int(level), "vertices": len(v),
-            "triangles": len(t)}
+    artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
+                           smoothed.surface)
+    return smoothed.info()
 
 
 def _smooth_tolerance(ctx: StageContext) -> float:

@@ -1,0 +1,157 @@
+"""A triangle mesh -> Loop's G1 sextic Bézier surface, tessellated, with its G1 report.
+
+One smoothing path for ``photosurf smooth``, ``photosurf sections --smooth`` and the
+smooth stage of ``photosurf run``: :func:`smooth_mesh` builds the surface over the mesh
+as its control mesh (:func:`surface.bezier.control_net`: C. Loop, "Smooth spline
+surfaces over irregular meshes", SIGGRAPH 1994; the mesh refined once, ``P = 4 F``
+sextic triangular patches), tessellates it at level L (each patch edge cut
+into ``2**L`` segments, :func:`surface.bezier.tessellate`) and measures G1 continuity
+across every interior patch edge (:func:`surface.bezier.edge_continuity`: the largest
+position gap and normal angle at :data:`EDGE_SAMPLES` points per edge);
+:func:`smooth_to_files` writes the tessellation and its control net
+(:func:`pipeline.export.export_surface`).
+
+Level: the refinement halves the control mesh's edge h₀ and level L cuts a patch edge
+into 2^L, so the flat triangles have edges h = h₀/2^(L+1) and deviate from the exact
+surface by about the sagitta κh²/8 — 4× less per level.  ``"auto"`` picks the coarsest
+level whose chord error is within a tolerance
+(:func:`surface.bezier.tessellation_level`, at most 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+#: G1 is checked at this many points per interior patch edge (ends included).
+EDGE_SAMPLES = 9
+#: Largest level ``"auto"`` chooses (4^3 = 64 triangles per patch).
+MAX_AUTO_LEVEL = 3
+
+
+@dataclass
+class Smoothed:
+    """A smoothed mesh.
+
+    Attributes
+    ----------
+    surface : surface.bezier.BezierSurface
+        The exact surface (``control_points`` (P, 28, 3), ``source_face``,
+        ``domain_mesh``).
+    vertices : (V, 3) float64
+    triangles : (T, 3) int64
+    normals : (V, 3) float64
+        The exact unit normals of the tessellation.
+    level : int
+    gap : float
+        Largest position gap across patch edges, scene units.
+    g1_angle : float
+        Largest normal angle across patch edges, radians.
+    """
+
+    surface: object
+    vertices: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray
+    level: int
+    gap: float
+    g1_angle: float
+
+    def info(self) -> dict:
+        """Counts and the G1 figures (for the manifest and the command's summary)."""
+        return {"patches": len(self.surface.control_points), "level": self.level,
+                "vertices": len(self.vertices), "triangles": len(self.triangles),
+                "g1_angle": self.g1_angle, "gap": self.gap}
+
+
+def default_level() -> int:
+    """The pipeline's ``smooth.level`` (pipeline/defaults.toml) as an integer level."""
+    from pipeline.config import defaults
+
+    return int(defaults()["smooth"]["level"])
+
+
+def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
+                tolerance: float | None = None) -> Smoothed:
+    """Build, tessellate and check the Bézier surface over a control mesh.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+        Oriented 2-manifold control mesh (closed gives a watertight surface).
+    level : int or "auto"
+        Tessellation level; ``"auto"`` needs ``tolerance``.
+    tolerance : float, optional
+        Chord tolerance of ``"auto"``, scene units.
+
+    Raises
+    ------
+    ValueError
+        A control mesh :func:`surface.bezier.control_net` rejects.
+    """
+    from surface import bezier
+
+    surface = bezier.control_net(vertices, triangles)
+    if level == "auto":  # finest detail the data can vouch for: the chord error <= tolerance
+        level = bezier.tessellation_level(surface.control_points, tolerance,
+                                          max_level=MAX_AUTO_LEVEL)
+    level = int(level)
+    v, t, n = bezier.tessellate(surface, level=level)
+    gap, angle = bezier.edge_continuity(surface.control_points, surface.domain_mesh[1],
+                                        samples=EDGE_SAMPLES)
+    return Smoothed(surface, v, t, n, level, float(gap), float(angle))
+
+
+def smooth_to_files(vertices, triangles, out, level: int | None = None,
+                    source: str = "control mesh") -> dict:
+    """:func:`smooth_mesh`, then write ``out`` and ``out.npz`` (the control net).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    out : path-like
+        Mesh file (suffix one of ``pipeline.export.EXPORT_SUFFIXES``); the
+        control net goes to ``out`` with suffix ``.npz``.  Both appear
+        together or not at all.
+    level : int, optional
+        Tessellation level (default: the pipeline's ``smooth.level``).
+    source : str
+        Name of the input used in error messages (e.g. its path).
+
+    Returns
+    -------
+    dict
+        :meth:`Smoothed.info` plus the ``mesh`` and ``control_net`` paths.
+
+    Raises
+    ------
+    InputError
+        Bad output name or level, or a control mesh the construction rejects
+        (non-manifold, unoriented, bordered, degenerate).
+    """
+    from pipeline.export import EXPORT_SUFFIXES, export_surface
+    from surface import bezier
+
+    out = Path(out)
+    level = default_level() if level is None else int(level)
+    if out.suffix.lower() not in EXPORT_SUFFIXES:
+        raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
+                         f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
+    if not 0 <= level <= 8:
+        raise InputError(f"--level must be in 0..8, got {level}")
+    try:
+        smoothed = smooth_mesh(vertices, triangles, level)
+    except ValueError as exc:
+        raise InputError(f"{source}: cannot build the Bezier surface: {exc}") from exc
+    surface = smoothed.surface
+    mesh_out, net_out = export_surface(out, smoothed.vertices, smoothed.triangles,
+                                       smoothed.normals, surface.control_points,
+                                       bezier.index_table(), surface.source_face,
+                                       surface.domain_mesh)
+    return {**smoothed.info(), "mesh": mesh_out, "control_net": net_out}
