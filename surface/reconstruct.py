@@ -293,6 +293,8 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     kept, loops, notes = _drop_one_section_splits(kept, loops)
     messages += notes
+    kept, loops, notes = _drop_tangles(kept, loops)
+    messages += notes
     if total - len(kept):
         messages.append(f"{total - len(kept)} of {total} sections had no loop "
                         "and were skipped")
@@ -340,6 +342,72 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
              "or merge: a gap in the data at this section spacing)" for k in sorted(drop)]
     keep = [k for k in range(len(kept)) if k not in drop]
     return [kept[k] for k in keep], [loops[k] for k in keep], notes
+
+
+def _tangle(planar: list) -> int | None:
+    """The first section to drop so that the loop graph has no knot, or None.
+
+    A knot is a ``complex`` event (loops of two sections relating many-to-many)
+    or a split or merge whose loop cannot be cut along bridges into one
+    counter-clockwise sub-loop per branch (``stitch._bridge_split``).  Both
+    happen where a branch meets a body at a grazing angle and its loop flickers
+    between separate and merged from one section to the next: a loop missing
+    from one section.  The section dropped is the one of the single loop of a
+    split or merge, the upper one of a many-to-many (the lower at the end).
+    """
+    from surface.loop_graph import loop_graph
+    from surface.stitch import _bridge_split
+
+    graph = loop_graph(planar)
+    last = len(planar) - 1
+    for event in graph.events:
+        s = event.section
+        if event.kind == "complex":
+            return s + 1 if s + 1 < last else s
+        if event.kind in ("split", "merge"):
+            single_s = s if event.kind == "split" else s + 1
+            single = event.lower[0] if event.kind == "split" else event.upper[0]
+            many_s, many = (s + 1, event.upper) if event.kind == "split" else (s, event.lower)
+            ring = planar[single_s][single]
+            try:
+                _bridge_split(np.arange(len(ring)), ring, [planar[many_s][k] for k in many],
+                              len(ring))
+            except ValueError:
+                return single_s
+    return None
+
+
+def _drop_tangles(kept: list, loops: list, rings: list | None = None):
+    """Drop sections whose loops knot the loop graph (:func:`_tangle`), one at a time.
+
+    Tested on the loops' ordered points, or on ``rings`` (``section_rings``
+    output, dropped alongside) when given.  Returns ``kept, loops, notes`` or,
+    with rings, ``kept, loops, rings, notes``.
+    """
+    notes = []
+    kept, loops = list(kept), list(loops)
+    rings = None if rings is None else list(rings)
+    if any(len(found) > 1 for found in loops):
+        frame = kept[0].frame
+        for _ in range(len(kept)):
+            if len(kept) <= 2:
+                break
+            if rings is None:
+                planar = [[lp.points @ frame[:2].T for lp in found] for found in loops]
+            else:
+                planar = [[r @ frame[:2].T for r in ([item] if isinstance(item, np.ndarray)
+                                                     else item)] for item in rings]
+            k = _tangle(planar)
+            if k is None:
+                break
+            notes.append(f"section {kept[k].section_id} at height {kept[k].height:.6g} "
+                         f"skipped: its {len(loops[k])} loop(s) do not correspond to its "
+                         "neighbours' as splits, merges or continuations (a branch flickering "
+                         "between separate and merged at this section spacing)")
+            del kept[k], loops[k]
+            if rings is not None:
+                del rings[k]
+    return (kept, loops, notes) if rings is None else (kept, loops, rings, notes)
 
 
 def min_loop_points(smoothing: float | str) -> int:
@@ -491,12 +559,15 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     kept, loops, messages = organise_sections(sliced.sections,
                                               min_points=min_loop_points(smoothing))
     rings = section_rings(kept, loops, n, smoothing=smoothing)
+    kept, loops, rings, notes = _drop_tangles(kept, loops, rings)
+    messages += notes
     if extend_ends and close_ends:
         cap = sliced.cap_cloud
         rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing)
         messages += notes
     result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip,
-                          support_sigma=section_noise(loops) if support else None)
+                          support_sigma=section_noise(loops) if support else None,
+                          cap_points=sliced.cap_cloud)
     if messages:
         from dataclasses import replace
 

@@ -74,6 +74,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from surface.loop_graph import LoopGraph, loop_graph, nesting
 from surface.metrics import delaunay_fraction, edge_table, face_normals, mesh_topology
 from surface.validate import TOL, check_finite, check_shape
 
@@ -118,7 +119,10 @@ class StitchResult:
         meeting the local Delaunay criterion after the flips.
     notes : tuple of str
         Informational lines that are not problems: the support rings added
-        (``support_sigma``).
+        (``support_sigma``), the branch points tiled.
+    graph : LoopGraph or None
+        How the loops of adjacent sections correspond (``surface.loop_graph``),
+        over the sections as stitched (support rings included).
     """
 
     vertices: np.ndarray
@@ -132,6 +136,7 @@ class StitchResult:
     flips: int = 0
     delaunay_fraction: float = 1.0
     notes: tuple[str, ...] = ()
+    graph: LoopGraph | None = None
 
 
 # --------------------------------------------------------------------------- frames and parameters
@@ -244,8 +249,9 @@ def zip_rings(param_lower: np.ndarray, param_upper: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- caps
-def cap_triangles(ring2d: np.ndarray, outward_up: bool) -> np.ndarray:
-    """Ear-clipping triangulation of a closed planar contour.
+def cap_triangles(ring2d: np.ndarray, outward_up: bool,
+                  holes: Sequence[np.ndarray] = ()) -> np.ndarray:
+    """Ear-clipping triangulation of a closed planar contour, with holes.
 
     Parameters
     ----------
@@ -254,17 +260,24 @@ def cap_triangles(ring2d: np.ndarray, outward_up: bool) -> np.ndarray:
     outward_up : bool
         Orient faces counter-clockwise in (e1, e2) (normal ``+axis``) if True,
         clockwise (normal ``-axis``) otherwise.
+    holes : sequence of (n_h, 2) float64
+        Contours inside ``ring2d`` bounding holes of the cap (an annulus for a
+        rim between a wall's outer and inner loop).
 
     Returns
     -------
     (m, 3) int64
-        Faces over ``0 .. n-1``; ``m == n - 2`` for a simple polygon (fewer
+        Faces over ``0 .. n-1`` then each hole's points in turn;
+        ``m == n + Σ n_h - 2 + 2 h`` for a simple polygon with h holes (fewer
         when earcut meets a self-intersecting contour).
     """
     import mapbox_earcut
 
-    pts = np.ascontiguousarray(ring2d - ring2d.mean(axis=0), dtype=np.float64)
-    flat = mapbox_earcut.triangulate_float64(pts, np.array([len(pts)], dtype=np.uint32))
+    rings = [np.asarray(ring2d, np.float64)] + [np.asarray(h, np.float64) for h in holes]
+    centre = rings[0].mean(axis=0)
+    pts = np.ascontiguousarray(np.vstack(rings) - centre, dtype=np.float64)
+    ends = np.cumsum([len(r) for r in rings]).astype(np.uint32)
+    flat = mapbox_earcut.triangulate_float64(pts, ends)
     tri = np.asarray(flat, dtype=np.int64).reshape(-1, 3)
     if len(tri) == 0:
         return tri
@@ -511,23 +524,161 @@ def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return np.count_nonzero(straddle & (x < x_cross), axis=1) % 2 == 1
 
 
-def _overlap(loops_a: list[np.ndarray], loops_b: list[np.ndarray]) -> np.ndarray:
-    """``(m, n)`` bool: the projections of loop i and loop j overlap."""
-    out = np.zeros((len(loops_a), len(loops_b)), bool)
-    for i, pa in enumerate(loops_a):
-        for j, pb in enumerate(loops_b):
-            out[i, j] = bool(_inside(pa, pb).any() or _inside(pb, pa).any())
-    return out
+# --------------------------------------------------------------------------- branch points
+def _best_window(label: np.ndarray) -> tuple[int, int]:
+    """The cyclic arc ``[i0, i1)`` (``i1`` may exceed n: it wraps) best matching ``label``.
+
+    Minimises the disagreements ``#(not label in the arc) + #(label outside it)``:
+    with ``g(i) = i - 2 S(i)`` (``S`` the prefix count of ``label``) a window
+    ``[i0, i1)`` costs ``T + g(i1) - g(i0)``, minimised in one pass by a running
+    maximum of ``g``; a wrapping arc is the complement of a window of ``~label``.
+    """
+    n = len(label)
+    best = None
+    for flip in (False, True):
+        lab = ~label if flip else label
+        g = np.arange(n + 1) - 2 * np.concatenate([[0], np.cumsum(lab)])
+        run_max = np.maximum.accumulate(g)
+        i0_of = np.maximum.accumulate(np.where(g == run_max, np.arange(n + 1), 0))
+        cost = int(lab.sum()) + g[1:] - run_max[:-1]
+        i1 = int(np.argmin(cost)) + 1
+        i0 = int(i0_of[i1 - 1])
+        if best is None or cost[i1 - 1] < best[0]:
+            best = (cost[i1 - 1], (i1, i0 + n) if flip else (i0, i1))
+    return best[1]
 
 
-def _pairs(loops_a: list[np.ndarray], loops_b: list[np.ndarray]) -> list[tuple[int, int]]:
-    """Loop pairs to stitch: one-to-one overlaps (any single pair is stitched)."""
-    if len(loops_a) == 1 and len(loops_b) == 1:
-        return [(0, 0)]
-    over = _overlap(loops_a, loops_b)
-    rows, cols = over.sum(axis=1), over.sum(axis=0)
-    return [(int(i), int(j)) for i, j in zip(*np.nonzero(over), strict=True)
-            if rows[i] == 1 and cols[j] == 1]
+def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
+                  base: int) -> tuple[list, np.ndarray, list]:
+    """Split one loop into one sub-loop per child loop along straight bridges.
+
+    The loop's points are labelled by their nearest child loop (in the plane);
+    the child taken first owns the cyclic arc that best matches its labels
+    (:func:`_best_window`), and the loop is cut along the chord between the
+    arc's two ends, sampled at the loop's point spacing: the sub-loop is the
+    arc closed by the chord, the remainder the rest of the loop closed by the
+    same chord the other way, which is split again among the other children.
+    Every chord edge thus borders two sub-loops traversed in opposite
+    directions, so the strips to the children meet along it in a manifold
+    saddle (the bridge construction of contour tiling).
+
+    Parameters
+    ----------
+    ring_idx : (n,) int64
+        Global vertex indices of the loop, counter-clockwise.
+    ring_flat : (n, 2) float64
+        Its points in the section plane.
+    children : list of (m_k, 2) float64
+        The child loops of the adjacent section, in the plane.
+    base : int
+        Global index of the first new (bridge) vertex.
+
+    Returns
+    -------
+    subs : list of (n_k,) int64
+        Global indices of each child's sub-loop, counter-clockwise.
+    new_flat : (B, 2) float64
+        The bridge points added (global indices ``base ..``).
+    bridge : list of (b, 2) int64
+        The bridge edges (contour constraints).
+
+    Raises
+    ------
+    ValueError
+        A child owns fewer than two points of the loop.
+    """
+    from scipy.spatial import cKDTree
+
+    spacing = float(np.median(np.linalg.norm(np.roll(ring_flat, -1, axis=0) - ring_flat,
+                                             axis=1)))
+    trees = [cKDTree(c) for c in children]
+    new_flat: list[np.ndarray] = []
+    bridges = []
+    subs, sub_flats = [], []
+    idx, flat = np.asarray(ring_idx), np.asarray(ring_flat)
+    left = list(range(len(children)))
+    order = []
+    for _ in range(len(children) - 1):
+        # Peel the child nearest to the fewest points first: a small branch (a handle)
+        # owns one arc of the loop, while the loop's main body may own several.
+        dist = np.stack([trees[m].query(flat)[0] for m in left])
+        owner = np.argmin(dist, axis=0)
+        pick = int(np.argmin(np.bincount(owner, minlength=len(left))))
+        k = left.pop(pick)
+        order.append(k)
+        label = owner == pick
+        n = len(idx)
+        i0, i1 = _best_window(label)
+        if i1 - i0 < 2 or n - (i1 - i0) < 2:
+            raise ValueError(f"child loop {k} is nearest to {int(label.sum())} of the {n} points")
+        arc = np.arange(i0, i1 + 1) % n          # includes the far end v = arc[-1]
+        rest = np.arange(i1, i0 + n + 1) % n      # from v round to u = arc[0]
+        u, v = flat[arc[0]], flat[arc[-1]]
+        m = max(int(round(float(np.linalg.norm(v - u)) / max(spacing, TOL.zero))) - 1, 0)
+        t = np.arange(1, m + 1) / (m + 1)
+        pts = v + t[:, None] * (u - v)            # from v towards u
+        new_idx = base + sum(len(x) for x in new_flat) + np.arange(m)
+        new_flat.append(pts)
+        path = np.concatenate([[idx[arc[-1]]], new_idx, [idx[arc[0]]]])   # v -> u
+        bridges.append(np.stack([path[:-1], path[1:]], axis=1))
+        subs.append(np.concatenate([idx[arc], new_idx]))
+        sub_flats.append(np.vstack([flat[arc], pts]))
+        idx = np.concatenate([idx[rest], new_idx[::-1]])
+        flat = np.vstack([flat[rest], pts[::-1]])
+    subs.append(idx)
+    sub_flats.append(flat)
+    for sub_flat in sub_flats:   # each sub-loop must stay counter-clockwise and simple
+        x, y = sub_flat[:, 0], sub_flat[:, 1]
+        if float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)) <= 0:
+            raise ValueError("a bridge crosses its loop (a sub-loop runs clockwise)")
+    order.append(left[0])
+    by_child = [subs[order.index(k)] for k in range(len(children))]
+    added = np.vstack(new_flat) if new_flat else np.zeros((0, 2))
+    return by_child, added, bridges
+
+
+#: Fewest cap points inside a loop that place its cap (a plane fit needs 3; the
+#: median of a dozen is robust to a few wall points leaking in).
+CAP_MIN_POINTS = 12
+#: Cap points count for a loop's cap when inside its contour shrunk by this factor
+#: about its centroid, and outside its holes grown by the inverse (keeps walls out).
+CAP_SHRINK = 0.9
+
+
+def _scaled(ring2d: np.ndarray, factor: float) -> np.ndarray:
+    centre = ring2d.mean(axis=0)
+    return centre + factor * (ring2d - centre)
+
+
+def _cap_step(outer2d, holes2d, height, up, cap_points, frame, base_heights) -> float:
+    """Axial offset from a loop's plane to the median height of the cap points over it.
+
+    Looks between ``height`` and the next section plane in the cap's direction
+    (``up``: above), at the points inside ``outer2d`` (shrunk by
+    :data:`CAP_SHRINK`) and outside every hole (grown by its inverse); 0 when
+    fewer than :data:`CAP_MIN_POINTS` are there.
+    """
+    pts = np.asarray(cap_points, np.float64)
+    if len(pts) == 0:
+        return 0.0
+    h = pts @ frame[2]
+    beyond = base_heights[base_heights > height + TOL.zero] if up else \
+        base_heights[base_heights < height - TOL.zero]
+    if len(beyond):
+        limit = float(beyond.min() if up else beyond.max())
+    else:
+        limit = height + (1 if up else -1) * 2 * float(np.median(np.abs(np.diff(base_heights))))
+    lo, hi = (height, limit) if up else (limit, height)
+    near = np.flatnonzero((h > lo) & (h < hi))
+    if len(near) < CAP_MIN_POINTS:
+        return 0.0
+    flat = pts[near] @ frame[:2].T
+    keep = _inside(flat, _scaled(outer2d, CAP_SHRINK))
+    for hole in holes2d:
+        keep &= ~_inside(flat, _scaled(hole, 1 / CAP_SHRINK))
+    if np.count_nonzero(keep) < CAP_MIN_POINTS:
+        return 0.0
+    return float(np.median(h[near[keep]])) - height
 
 
 # --------------------------------------------------------------------------- support rings
@@ -570,10 +721,20 @@ def _read_at(ring: np.ndarray, other: np.ndarray) -> np.ndarray:
 
 
 def _nearest_loop(loop: np.ndarray, loops: list, frame: np.ndarray) -> np.ndarray:
-    """The loop of ``loops`` whose centroid is nearest ``loop``'s in the section plane."""
-    centres = np.array([lp.mean(axis=0) @ frame[:2].T for lp in loops])
-    k = int(np.argmin(np.linalg.norm(centres - loop.mean(axis=0) @ frame[:2].T, axis=1)))
-    return loops[k]
+    """The loop of ``loops`` most like ``loop`` in the section plane.
+
+    Nearest by centroid distance plus the difference of the mean radii about the
+    centroids, so that of a wall's concentric outer and inner loops the one of
+    the same size is taken.
+    """
+    def centre_radius(lp):
+        flat = lp @ frame[:2].T
+        c = flat.mean(axis=0)
+        return c, float(np.mean(np.linalg.norm(flat - c, axis=1)))
+
+    c0, r0 = centre_radius(loop)
+    cost = [float(np.linalg.norm(c - c0)) + abs(r - r0) for c, r in map(centre_radius, loops)]
+    return loops[int(np.argmin(cost))]
 
 
 def support_distance(legs_a: np.ndarray, legs_b: np.ndarray, sigma: float,
@@ -648,7 +809,14 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
         if end is None and not (len(sections[s - 1]) == len(sections[s]) == len(sections[s + 1])
                                 == 1):
             continue
+        nested = np.zeros(len(sections[s]), bool)
+        if len(sections[s]) > 1:  # a wall's loops (a rim): no disk cap, no support
+            depth, parent = nesting([ring @ frame[:2].T for ring in sections[s]])
+            nested = depth > 0
+            nested[parent[parent >= 0]] = True
         for lp, ring in enumerate(sections[s]):
+            if nested[lp]:
+                continue
             if end is None:
                 legs_a = _read_at(ring, sections[s - 1][0]) - ring
             elif close_ends:
@@ -755,7 +923,8 @@ def _inset_ring(ring: np.ndarray, d: float) -> np.ndarray:
 def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                  constrain_contours: bool = True,
                  max_normal_change: float = MAX_NORMAL_CHANGE,
-                 support_sigma: float | None = None) -> StitchResult:
+                 support_sigma: float | None = None,
+                 cap_points: np.ndarray | None = None) -> StitchResult:
     """Stitch closed section rings into an oriented triangle mesh.
 
     Parameters
@@ -789,6 +958,13 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         third of the ring spacing.  They lie on the stitched polyhedron (on
         the strip's legs and in the cap plane), so the mesh's shape is kept.
         None: no support rings (the paper's mesh).
+    cap_points : (C, 3) float64, optional
+        Points of the surfaces facing along the axis (``reconstruct.slice_cloud``'s
+        cap cloud).  A loop that appears or vanishes between two sections (a
+        mug's floor under its inner wall, a branch's end) is capped at the median
+        height of the cap points inside it between its section and the next
+        (at least ``CAP_MIN_POINTS`` of them), its wall carried on straight to
+        that height; without them, or too few, the cap lies in the loop's plane.
 
     Returns
     -------
@@ -822,6 +998,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     cap_inset: dict = {}
     messages: list[str] = []
     notes: list[str] = []
+    base_heights = heights.copy()     # the sections' own planes (support rings come between)
     if support_sigma is not None:
         if not (np.isfinite(support_sigma) and support_sigma >= 0):
             raise ValueError(f"support_sigma must be a finite number >= 0, got {support_sigma!r}")
@@ -847,20 +1024,80 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     vertices = np.vstack(vertices)
     faces, region, fixed, open_ifaces = [], [], [], []
 
-    for s in range(len(sections) - 1):
-        pairs = _pairs(planar[s], planar[s + 1])
-        if len(pairs) < max(len(sections[s]), len(sections[s + 1])):
+    indices = [[offsets[s][lp] + np.arange(len(flat)) for lp, flat in enumerate(loops)]
+               for s, loops in enumerate(planar)]
+    heights_all = np.array([np.mean([lp @ frame[2] for lp in loops]) for loops in sections])
+    graph = loop_graph(planar, spacing=float(np.median(np.diff(heights_all))))
+    dropped = set(graph.spurious)
+    for s, i in sorted(dropped):
+        notes.append(f"section {s} loop {i}: dropped as noise (a loop related to no loop of "
+                     "either neighbour section, narrower than two section spacings)")
+    cap_requests: dict[tuple[int, bool], list[int]] = {}
+    extra_vertices: list[np.ndarray] = []
+    flip_label: list[int] = []
+
+    def add_faces(tri: np.ndarray, label: int, flip_as: int | None = None) -> None:
+        faces.append(tri)
+        region.append(np.full(len(tri), label))
+        flip_label.append(label if flip_as is None else flip_as)
+
+    for event in graph.events:
+        s = event.section
+        if event.kind in ("appear", "vanish"):
+            where, up = (s + 1, False) if event.kind == "appear" else (s, True)
+            loop = event.upper[0] if event.kind == "appear" else event.lower[0]
+            cap_requests.setdefault((where, up), []).append(loop)
+            continue
+        if event.kind == "complex":
             open_ifaces.append(s)
             messages.append(
-                f"sections {s} and {s + 1}: {len(sections[s])} and {len(sections[s + 1])} loops, "
-                f"{len(pairs)} stitched one-to-one; the surface is left open there "
-                "(loops split, merge, appear or vanish)")
-        for i, j in pairs:
-            local = zip_rings(params[s][i], params[s + 1][j])
-            n_a = len(params[s][i])
-            glob = np.where(local < n_a, local + offsets[s][i], local - n_a + offsets[s + 1][j])
-            faces.append(glob)
-            region.append(np.full(len(glob), 2 * s))
+                f"sections {s} and {s + 1}: loops {list(event.lower)} and {list(event.upper)} "
+                "correspond many-to-many; the surface is left open there")
+            continue
+        if event.kind == "one-to-one":
+            pieces = [(indices[s][event.lower[0]], params[s][event.lower[0]],
+                       indices[s + 1][event.upper[0]], params[s + 1][event.upper[0]])]
+        else:
+            single_s, single = (s, event.lower[0]) if event.kind == "split" else (
+                s + 1, event.upper[0])
+            many_s = s + 1 if event.kind == "split" else s
+            many = event.upper if event.kind == "split" else event.lower
+            base = count + sum(len(x) for x in extra_vertices)
+            try:
+                subs, new_flat, bridge = _bridge_split(
+                    indices[single_s][single], planar[single_s][single],
+                    [planar[many_s][k] for k in many], base)
+            except ValueError as exc:
+                open_ifaces.append(s)
+                messages.append(f"sections {s} and {s + 1}: the {event.kind} of loops "
+                                f"{list(event.lower)} into {list(event.upper)} could not be "
+                                f"tiled ({exc}); the surface is left open there")
+                continue
+            height = float(np.mean(vertices[indices[single_s][single]] @ frame[2]))
+            if len(new_flat):
+                extra_vertices.append(new_flat @ frame[:2] + height * frame[2])
+                sec_of.append(np.full(len(new_flat), single_s))
+                loop_of.append(np.full(len(new_flat), single))
+            all_flat = np.vstack([vertices @ frame[:2].T] + [x @ frame[:2].T
+                                                              for x in extra_vertices])
+            fixed.extend(bridge)
+            pieces = []
+            for k, sub in zip(many, subs, strict=True):
+                sub_param = _ring_order_and_parameter(all_flat[sub])[1]
+                mine = (indices[many_s][k], params[many_s][k])
+                pieces.append((sub, sub_param, *mine) if event.kind == "split"
+                              else (*mine, sub, sub_param))
+            notes.append(f"sections {s} and {s + 1}: {event.kind} of loop(s) "
+                         f"{list(event.lower)} into {list(event.upper)}, tiled with "
+                         f"{len(bridge)} bridge edge(s)")
+        for low_idx, low_param, up_idx, up_param in pieces:
+            local = zip_rings(low_param, up_param)
+            n_a = len(low_param)
+            glob = np.where(local < n_a, low_idx[np.minimum(local, n_a - 1)],
+                            up_idx[np.maximum(local - n_a, 0)])
+            if event.depth % 2:
+                glob = glob[:, ::-1]        # a hole: outward is towards its centre
+            add_faces(glob, 2 * s)
     for s, loops in enumerate(planar):
         if not constrain_contours and 0 < s < len(planar) - 1:
             continue
@@ -868,26 +1105,40 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             n = len(flat)
             idx = offsets[s][lp] + np.arange(n)
             fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
+    if extra_vertices:
+        vertices = np.vstack([vertices] + extra_vertices)
+        count = len(vertices)
 
-    if close_ends:
-        extra = []
-        for s, end, label, up in ((0, 0, -1, False), (len(sections) - 1, -1, -2, True)):
-            for lp, flat in enumerate(planar[s]):
-                start = offsets[s][lp]
-                inset = None
-                if (end, lp) in cap_inset:  # support ring inside the cap, an annulus to it
-                    inner = _inset_ring(vertices[start:start + len(flat)], cap_inset[(end, lp)])
-                    inner_flat = inner @ frame[:2].T
-                    try:
-                        inset = inner, inner_flat, *_quality_cap(inner_flat, outward_up=up)
-                    except ValueError as exc:  # the inset contour is not simple
-                        messages.append(f"cap of section {s} loop {lp}: no support ring inside "
-                                        f"the cap ({exc})")
-                if inset is not None:
-                    inner, inner_flat, added, cap = inset
-                    inner_start = count + sum(len(x) for x in extra)
+    last = len(sections) - 1
+    other_caps = 0
+    for (s, up), loops_here in sorted(cap_requests.items()):
+        end = 0 if (s == 0 and not up) else (-1 if (s == last and up) else None)
+        if end is not None and not close_ends:
+            continue
+        requested = set(loops_here)
+        parents = graph.parent[s]
+        for lp in sorted(requested):
+            if parents[lp] in requested:
+                continue  # a hole of a cap: triangulated with it
+            holes = [k for k in sorted(requested) if parents[k] == lp]
+            face_up = up != bool(graph.depth[s][lp] % 2)
+            label = -1 if end == 0 else (-2 if end == -1 else -3)
+            flip_as = label if end is not None else -10 - other_caps
+            other_caps += end is None
+            flat = planar[s][lp]
+            start = offsets[s][lp]
+            if end is not None and not holes and (end, lp) in cap_inset:
+                inner = _inset_ring(vertices[start:start + len(flat)], cap_inset[(end, lp)])
+                inner_flat = inner @ frame[:2].T
+                try:
+                    added, cap = _quality_cap(inner_flat, outward_up=face_up)
+                except ValueError as exc:  # the inset contour is not simple
+                    messages.append(f"cap of section {s} loop {lp}: no support ring inside "
+                                    f"the cap ({exc})")
+                else:
+                    inner_start = len(vertices)
                     height = float(np.mean(inner @ frame[2]))
-                    extra += [inner, added @ frame[:2] + height * frame[2]]
+                    vertices = np.vstack([vertices, inner, added @ frame[:2] + height * frame[2]])
                     sec_of.append(np.full(len(inner) + len(added), s))
                     loop_of.append(np.full(len(inner) + len(added), lp))
                     inner_param = _ring_order_and_parameter(inner_flat)[1]
@@ -897,28 +1148,53 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                     n_lo = len(lower)
                     lo_start, up_start = ((inner_start, start) if end == 0
                                           else (start, inner_start))
-                    faces.append(np.where(local < n_lo, local + lo_start,
-                                          local - n_lo + up_start))
-                    region.append(np.full(len(local), label))
+                    add_faces(np.where(local < n_lo, local + lo_start, local - n_lo + up_start),
+                              label)
                     idx = inner_start + np.arange(len(inner))
                     fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
-                    faces.append(cap + inner_start)  # added points follow the inner ring
-                    region.append(np.full(len(cap), label))
+                    add_faces(cap + inner_start, label)  # added points follow the inner ring
                     continue
-                cap = cap_triangles(flat, outward_up=up)
-                if len(cap) != len(flat) - 2:
-                    messages.append(f"cap of section {s} loop {lp}: {len(cap)} triangles for "
-                                    f"{len(flat)} points (contour not simple); cap incomplete")
-                faces.append(cap + start)
-                region.append(np.full(len(cap), label))
-        if extra:
-            vertices = np.vstack([vertices] + extra)
+            rings_here = [indices[s][lp]] + [indices[s][k] for k in holes]
+            step = (_cap_step(planar[s][lp], [planar[s][k] for k in holes],
+                              float(heights_all[s]), up, cap_points, frame, base_heights)
+                    if end is None and cap_points is not None else 0.0)
+            if step != 0.0:  # carry the walls on to the cap height, cap there
+                moved = []
+                for k, ring_idx in zip([lp] + holes, rings_here, strict=True):
+                    new_idx = len(vertices) + np.arange(len(ring_idx))
+                    vertices = np.vstack([vertices, vertices[ring_idx] + step * frame[2]])
+                    sec_of.append(np.full(len(ring_idx), s))
+                    loop_of.append(np.full(len(ring_idx), k))
+                    lower, upper = (ring_idx, new_idx) if step > 0 else (new_idx, ring_idx)
+                    local = zip_rings(params[s][k], params[s][k])
+                    n_k = len(ring_idx)
+                    glob = np.where(local < n_k, lower[np.minimum(local, n_k - 1)],
+                                    upper[np.maximum(local - n_k, 0)])
+                    add_faces(glob[:, ::-1] if graph.depth[s][k] % 2 else glob, -3,
+                              -10 - other_caps)
+                    fixed.append(np.stack([new_idx, np.roll(new_idx, -1)], axis=1))
+                    moved.append(new_idx)
+                other_caps += 1
+                rings_here = moved
+                notes.append(f"cap of section {s} loop {lp} moved {step:.4g} along the axis to "
+                             "the median height of the cap points inside it")
+            cap = cap_triangles(flat, outward_up=face_up,
+                                holes=[planar[s][k] for k in holes])
+            expected = sum(len(r) for r in rings_here) - 2 + 2 * len(holes)
+            if len(cap) != expected:
+                messages.append(f"cap of section {s} loop {lp}: {len(cap)} triangles for "
+                                f"{expected} expected (contour not simple); cap incomplete")
+            add_faces(np.concatenate(rings_here)[cap], label, flip_as)
 
     triangles = np.vstack(faces).astype(np.int64) if faces else np.zeros((0, 3), np.int64)
     region = np.concatenate(region).astype(np.int64) if region else np.zeros(0, np.int64)
     fixed = np.vstack(fixed)
     flips = 0
-    flip_region = region if constrain_contours else np.where(region >= 0, 0, region)
+    flip_region = (np.concatenate([np.full(len(f), lab) for f, lab in zip(faces, flip_label,
+                                                                        strict=True)])
+                   if faces else region)
+    if not constrain_contours:
+        flip_region = np.where(flip_region >= 0, 0, flip_region)
     if flip and len(triangles):
         triangles, flips, converged = delaunay_flips(vertices, triangles, flip_region, fixed,
                                                      max_normal_change=max_normal_change)
@@ -942,6 +1218,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         flips=int(flips),
         delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
         notes=tuple(notes),
+        graph=graph,
     )
 
 

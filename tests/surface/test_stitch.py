@@ -192,21 +192,27 @@ def test_two_loops_per_section_give_two_closed_solids():
     assert_closed_oriented(stitch_rings(swapped, Z_AXIS), components=2)
 
 
-def test_split_is_left_open_and_reported():
-    # One loop on sections 0-3, two loops on 4-7 (a trunk splitting into two branches).
+def test_split_is_tiled_into_one_closed_surface():
+    # One loop on sections 0-3, two loops on 4-7 (a trunk splitting into two branches):
+    # the trunk's last ring is cut along a bridge into one sub-ring per branch, so the
+    # surface is one closed, oriented, edge-manifold sphere (Euler characteristic 2).
     trunk = vase_rings(8, 16, a=2.5)
     left = vase_rings(8, 16, centre=(-1.2, 0.0))
     right = vase_rings(8, 16, centre=(1.2, 0.0))
     rings = trunk[:4] + [[left[k], right[k]] for k in range(4, 8)]
     result = stitch_rings(rings, Z_AXIS)
-    assert not result.closed
-    assert result.open_interfaces == (3,)
-    assert any("left open" in m for m in result.messages)
-    topo = M.mesh_topology(*_mesh(result))
-    assert topo["edge_manifold"] and topo["oriented"]
-    # The open boundary is exactly the three contours at the split.
-    n3, n4 = len(trunk[3]), len(left[4]) + len(right[4])
-    assert topo["boundary_edges"] == n3 + n4
+    topo = assert_closed_oriented(result, components=1)
+    assert topo["euler"] == 2
+    assert result.open_interfaces == ()
+    splits = [e for e in result.graph.events if e.kind == "split"]
+    assert [(e.section, e.lower, e.upper) for e in splits] == [(3, (0,), (0, 1))]
+    # The bridge is a chord across the trunk ring in its plane: the saddle's new points
+    # lie on section 3, between the branches (|x| below the trunk's radius).
+    new = result.vertices[sum(len(r) if isinstance(r, np.ndarray) else sum(map(len, r))
+                              for r in rings):]
+    assert len(new) > 0
+    assert np.allclose(new[:, 2], trunk[3][0, 2], atol=1e-12)
+    assert np.all(np.hypot(new[:, 0], new[:, 1]) < 2.5 * (1 + 0.3))
 
 
 # ----------------------------------------------------------------------------- bad input
