@@ -1,0 +1,119 @@
+"""Each workspace file of ``pipeline.artifacts``: what its writer writes, its reader reads back.
+
+Round trips with exact equality (the files store float64 as is), plus the byte
+reproducibility the up-to-date rule relies on: the same arrays give the same bytes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import artifacts
+from pipeline.workspace import sha256_file
+
+
+def _sections(rng, frame):
+    from surface.sections import Section
+
+    out = []
+    start = 0
+    for k, n in enumerate((5, 7, 4)):
+        out.append(Section(height=0.5 * k, points=rng.normal(size=(n, 3)),
+                           origin=rng.normal(size=3), frame=frame, section_id=k + 2,
+                           source_index=np.arange(start, start + n, dtype=np.int64)))
+        start += n
+    return out
+
+
+@pytest.fixture()
+def rng():
+    return np.random.default_rng(3)
+
+
+@pytest.fixture()
+def frame():
+    q, _ = np.linalg.qr(np.random.default_rng(4).normal(size=(3, 3)))
+    return q
+
+
+def test_cloud_round_trip_and_defaults(tmp_path, rng):
+    points = rng.normal(size=(50, 3))
+    colors = rng.integers(0, 256, (50, 3))
+    sigma = rng.uniform(0.001, 0.01, 50)
+    artifacts.write_cloud(tmp_path, points, colors, sigma)
+    back = artifacts.read_cloud(tmp_path)
+    np.testing.assert_array_equal(back["points"], points)
+    np.testing.assert_array_equal(back["colors"], colors.astype(np.uint8))
+    np.testing.assert_array_equal(back["sigma"], sigma)
+    from pipeline.cloud_io import read_cloud
+
+    ply = read_cloud(tmp_path / artifacts.CLOUD_PLY)  # the viewers' copy says the same
+    np.testing.assert_array_equal(ply.points, points)
+    # without colours and sigma: black points of unknown sigma (NaN)
+    (tmp_path / "bare").mkdir()
+    artifacts.write_cloud(tmp_path / "bare", points)
+    bare = artifacts.read_cloud(tmp_path / "bare")
+    assert bare["colors"].dtype == np.uint8 and not bare["colors"].any()
+    assert np.isnan(bare["sigma"]).all()
+
+
+def test_sections_round_trip_is_byte_reproducible(tmp_path, rng, frame):
+    sections = _sections(rng, frame)
+    cap = rng.normal(size=(9, 3))
+    artifacts.write_sections(tmp_path, sections, cap, 0.5)
+    first = sha256_file(tmp_path / artifacts.SECTIONS)
+    artifacts.write_sections(tmp_path, sections, cap, 0.5)
+    assert sha256_file(tmp_path / artifacts.SECTIONS) == first
+    back, cap_back, spacing = artifacts.read_sections(tmp_path)
+    assert spacing == 0.5
+    np.testing.assert_array_equal(cap_back, cap)
+    assert len(back) == len(sections)
+    for a, b in zip(back, sections, strict=True):
+        assert (a.height, a.section_id) == (b.height, b.section_id)
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.origin, b.origin)
+        np.testing.assert_array_equal(a.frame, frame)
+        np.testing.assert_array_equal(a.source_index, b.source_index)
+    np.testing.assert_array_equal(artifacts.section_heights(tmp_path), [0.0, 0.5, 1.0])
+
+
+def test_curves_round_trip_with_several_loops(tmp_path, rng, frame):
+    sections = _sections(rng, frame)
+    # section 1 holds two loops (a list), the others one ring each
+    rings = [rng.normal(size=(6, 3)), [rng.normal(size=(12, 3)), rng.normal(size=(5, 3))],
+             rng.normal(size=(6, 3))]
+    assert artifacts.write_curves(tmp_path, rings, sections, 0.002) == (4, 29)
+    back, planes, noise = artifacts.read_curves(tmp_path)
+    assert noise == 0.002
+    assert [len(item) for item in back] == [1, 2, 1]
+    np.testing.assert_array_equal(back[0][0], rings[0])
+    np.testing.assert_array_equal(back[1][1], rings[1][1])
+    assert [p.height for p in planes] == [s.height for s in sections]
+    np.testing.assert_array_equal(planes[0].frame, frame)
+
+
+def test_stitched_and_smooth_round_trip(tmp_path):
+    import open3d as o3d
+
+    from pipeline.mesh_io import read_mesh
+    from surface import bezier
+
+    sphere = o3d.geometry.TriangleMesh.create_icosahedron()  # closed, outward, 20 faces
+    vertices = np.asarray(sphere.vertices, np.float64)
+    triangles = np.asarray(sphere.triangles, np.int64)
+    notes = {"closed": True, "messages": ["a", "b"], "flips": 3}
+    artifacts.write_stitched(tmp_path, vertices, triangles, notes)
+    v, t, back = artifacts.read_stitched(tmp_path)
+    np.testing.assert_array_equal(v, vertices)
+    np.testing.assert_array_equal(t, triangles)
+    assert back == notes
+    surface = bezier.control_net(vertices, triangles)
+    tv, tt, tn = bezier.tessellate(surface, level=1)
+    artifacts.write_smooth(tmp_path, tv, tt, tn, surface)
+    net = artifacts.read_control_net(tmp_path)
+    np.testing.assert_array_equal(net["control_points"], surface.control_points)
+    np.testing.assert_array_equal(net["domain_triangles"], surface.domain_mesh[1])
+    np.testing.assert_array_equal(read_mesh(tmp_path / artifacts.SURFACE)[1], tt)
+    np.testing.assert_allclose(artifacts.read_ply_normals(tmp_path / artifacts.SURFACE), tn,
+                               rtol=0, atol=1e-12)
