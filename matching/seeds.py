@@ -274,8 +274,11 @@ def window_offsets(candidates: Candidates, image, patch: int = 15,
         _, labels = cv2.connectedComponents(fine.astype(np.uint8), connectivity=8)
         touched = np.unique(labels[up & fine])
         region = np.isin(labels, touched[touched > 0]) | up
-        off_surface = cv2.dilate(region.astype(np.uint8),
-                                 np.ones((EDGE_SCALE_PX, EDGE_SCALE_PX), np.uint8)) > 0
+        # grown by the test's reach: a 5 px window of central differences reads pixels
+        # up to 5 // 2 + 1 = 3 px from its centre (a 5 px kernel, reach 2, left a 1 px
+        # gap at a rim where a candidate could sit off the surface unflagged)
+        reach = 2 * (EDGE_SCALE_PX // 2 + 1) + 1
+        off_surface = cv2.dilate(region.astype(np.uint8), np.ones((reach, reach), np.uint8)) > 0
         bad[off_surface] = 1.0
     count = cv2.boxFilter(bad, -1, (patch, patch), normalize=False,
                           borderType=cv2.BORDER_CONSTANT)

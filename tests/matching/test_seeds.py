@@ -277,10 +277,15 @@ def test_window_offsets_move_windows_off_the_background():
     # windows whose centred 15 px square reaches above the rim are moved down, mostly
     # straight (the nearest clear window; a few px sideways near the image border and
     # where the texture next to the edge is weak), and then end at most 2 px above the
-    # rim (the fine 5 px texture test finds the edge to half its window)
+    # rim (the fine 5 px texture test finds the edge to half its window); a candidate
+    # within the test's reach (3 px) of where it traced the edge counts as off the
+    # surface and is flagged instead (2 of 101 here, 1 px inside the rim); that 3 px
+    # growth also moves one window 5 px sideways where the traced edge bulges
     band = cand.textured & (y >= RIM_ROW) & (y < RIM_ROW + 7)
-    assert band.sum() >= 40 and moved[band].all()
-    assert (offset[band, 1] > 0).all() and (np.abs(offset[band, 0]) <= 3).all()
+    assert band.sum() >= 40 and (moved[band] | edge[band]).all()
+    assert np.mean(edge[band]) <= 0.05
+    band &= moved
+    assert (offset[band, 1] > 0).all() and (np.abs(offset[band, 0]) <= 5).all()
     assert np.mean(offset[band, 0] == 0) > 0.8
     top = y[moved] + offset[moved, 1] - 7
     assert top.min() >= RIM_ROW - 2
