@@ -6,7 +6,7 @@ is fitted to every loop at smoothing level ``--smoothing`` (by default chosen
 per loop from its own residuals, by generalised cross-validation) and resampled
 with N points on odd sections and 2N on even ones, and adjacent rings are
 stitched by the direction criterion, Lawson-flipped to Delaunay and capped
-(:func:`surface.stitch.surface_from_points` does all of it; this module only
+(:func:`surface.reconstruct.surface_from_points` does all of it; this module only
 reads, writes and reports).
 
 Inputs: the point-cloud files of :mod:`pipeline.cloud_io` -- ``.ply``,
@@ -86,7 +86,7 @@ def read_points(path: str | Path) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.mesh_io import MESH_SUFFIXES, write_mesh
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     out = Path(args.out)
     if args.level is not None and not args.smooth:
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     if args.smooth:
         if not result.closed:
             raise InputError(f"{args.cloud}: the stitched mesh is open "
-                             f"({'; '.join(result.messages) or 'open ends'}): --smooth needs a "
+                             f"({result.problem_line()}): --smooth needs a "
                              "closed mesh (drop --open-ends, or smooth the mesh with "
                              "'photosurf smooth')")
         from pipeline.smoothing import smooth_to_files

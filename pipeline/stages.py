@@ -136,11 +136,11 @@ def _cloud_arrays(cloud) -> tuple:
 
 # --------------------------------------------------------------------------- surface
 def sections(ctx: StageContext) -> dict:
-    """``surface.stitch.slice_cloud``: slice and move the slab points to their planes."""
+    """``surface.reconstruct.slice_cloud``: slice and move the slab points to their planes."""
     import warnings
 
+    from surface import reconstruct as st
     from surface import sections as sections_mod
-    from surface import stitch as st
 
     p = ctx.params["sections"]
     points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
@@ -157,14 +157,17 @@ def sections(ctx: StageContext) -> dict:
     warned = [str(w.message) for w in caught]
     for message in warned:
         log.warning("sections: %s", message)
+    for message in sliced.notes:  # axis = "auto": the axis chosen and why
+        log.info("sections: %s", message)
     return {"sections": len(kept), "empty": len(sliced.sections) - len(kept),
             "spacing": sliced.spacing, "cap_points": len(sliced.cap_cloud),
-            "warnings": warned}
+            "warnings": warned, "notes": list(sliced.notes)}
 
 
 def curves(ctx: StageContext) -> dict:
-    """``surface.stitch.organise_sections`` then ``section_rings`` (fit, predict, extend)."""
-    from surface import stitch as st
+    """``surface.reconstruct.organise_sections`` then ``section_rings`` (fit, predict) and
+    ``untangle`` (sections whose rings knot the loop graph dropped)."""
+    from surface import reconstruct as st
 
     p = ctx.params["curves"]
     smoothing = p["smoothing"] or "auto"  # 0: from the data (as the other "0:" keys)
@@ -178,6 +181,8 @@ def curves(ctx: StageContext) -> dict:
         raise InputError(f"curves: {exc} (set sections.count)") from exc
     rings = st.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
                              parametrisation=p["parametrisation"])
+    kept, loops, rings, untangled = st.untangle(kept, loops, rings)
+    messages += untangled
     for message in messages:
         log.warning("curves: %s", message)
     n_rings, n_points = artifacts.write_curves(ctx.out, rings, kept, st.section_noise(loops))
@@ -187,30 +192,35 @@ def curves(ctx: StageContext) -> dict:
 
 
 def stitch(ctx: StageContext) -> dict:
-    """``surface.stitch.extend_to_caps`` (end rings to the cap points), then ``stitch_rings``
-    (with support rings at sharp profile turns when ``stitch.support``)."""
+    """``surface.reconstruct.extend_to_caps`` (end rings to the cap points), then
+    ``surface.stitch.stitch_rings`` (with support rings at sharp profile turns when
+    ``stitch.support``; inner caps at their cap points' height); stitch.json holds the
+    loop graph."""
     import numpy as np
 
+    from surface import reconstruct as rc
     from surface import stitch as st
 
     p = ctx.params["stitch"]
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
-    # a lone loop as itself, as surface.stitch.surface_from_points passes it
+    # a lone loop as itself, as surface.reconstruct.surface_from_points passes it
     rings = [item[0] if len(item) == 1 else item for item in rings]
     notes_ends = []
-    if p["caps"] and p["extend_ends"]:
-        _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
-        if spacing > 0:
-            rings, notes_ends = st.extend_to_caps(rings, planes, cap_cloud,
-                                                  np.arange(len(cap_cloud)), spacing)
+    _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
+    if p["caps"] and p["extend_ends"] and spacing > 0:
+        rings, notes_ends = rc.extend_to_caps(rings, planes, cap_cloud,
+                                              np.arange(len(cap_cloud)), spacing)
     support = noise if p["support"] and noise is not None else None
     result = st.stitch_rings(rings, planes[0].frame[2], close_ends=p["caps"],
-                             support_sigma=support)
+                             support_sigma=support, cap_points=cap_cloud)
     messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
-             "delaunay_fraction": float(result.delaunay_fraction)}
-    artifacts.write_stitched(ctx.out, result.vertices, result.triangles, notes)
+             "delaunay_fraction": float(result.delaunay_fraction),
+             "branch_events": result.graph.counts() if result.graph else {}}
+    artifacts.write_stitched(ctx.out, result.vertices, result.triangles,
+                             {**notes, "loop_graph": result.graph.to_json() if result.graph
+                              else None})
     for message in result.messages:
         log.warning("stitch: %s", message)
     for message in notes_ends + list(result.notes):

@@ -46,7 +46,7 @@ def warm_up() -> float:
     reconstruct_multiview(images, cameras, pairs=pairs[:1], adaptive_patch=True)
     # the surface kernels (curve fits, Loop's patches, tessellation) on a noisy vase cloud
     from surface import bezier
-    from surface.stitch import surface_from_points
+    from surface.reconstruct import surface_from_points
 
     rng = np.random.default_rng(0)
     z = rng.uniform(0.0, 3.0, 4000)

@@ -32,7 +32,7 @@ from surface.validate import TOL
 
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
-           "min_loop_points", "section_noise"]
+           "min_loop_points", "section_noise", "untangle", "choose_axis"]
 
 #: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
 NORMAL_NEIGHBOURS = 12
@@ -173,6 +173,7 @@ class SlicedCloud:
     sections: list
     cap_cloud: np.ndarray
     spacing: float
+    notes: tuple[str, ...] = ()
 
 
 def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
@@ -190,6 +191,10 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
 
     if projection not in ("surface", "axis"):
         raise ValueError(f"projection must be 'surface' or 'axis', got {projection!r}")
+    notes: tuple[str, ...] = ()
+    if isinstance(axis, str) and axis.strip().lower() == "auto":
+        axis, why = choose_axis(points, sections=sections, spacing=spacing)
+        notes = (why,)
     slices = slice_sections(points, axis=axis, count=sections, spacing=spacing,
                             thickness=thickness)
     pts = np.asarray(points, dtype=np.float64)
@@ -212,7 +217,89 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
             delta = abs(slices[1].height - slices[0].height) if len(slices) > 1 else delta
         slices, cap_points = slide_to_planes(pts, slices)
     cap_cloud = pts[cap_points] if len(cap_points) else pts
-    return SlicedCloud(list(slices), cap_cloud, float(delta))
+    return SlicedCloud(list(slices), cap_cloud, float(delta), notes)
+
+
+#: Points of the cloud the axis trials of :func:`choose_axis` slice (a random subset:
+#: the loops' count and correspondence need the sections' shape, not their detail).
+AXIS_TRIAL_POINTS = 60_000
+
+
+def choose_axis(points: np.ndarray, sections: int | None = None,
+                spacing: float | None = None) -> tuple[np.ndarray, str]:
+    r"""``axis="auto"``: the principal axis that resolves the shape's topology best.
+
+    The section method rebuilds surfaces that run along the axis (walls) from
+    their contours, and surfaces facing along it (caps) only as flat fills
+    between contours; and it sees a handle only if the sections resolve it.
+    Each of the cloud's three principal axes (PCA) is tried:
+
+    1. sliced (:func:`slice_cloud`, on at most :data:`AXIS_TRIAL_POINTS`
+       points), organised and related by the loop graph, which gives the
+       Euler characteristic of the surface the sections describe,
+       :math:`\chi = C - \sum (k - 1)` over its C caps (loops appearing or
+       vanishing) and its splits and merges into k loops; an unresolved
+       handle only raises χ, so the smallest χ found is the shape's;
+    2. among the axes reaching that χ, the one with the smallest share of cap
+       points (PCA normals within 60° of the axis, ``MIN_WALL_SINE``) wins.
+
+    A mug: along its height χ = 0 with its floor and rims as caps (~20 % of
+    its area); across, the handle is resolved too but a third of the walls
+    face the axis; along the handle's axis the handle hole is missed (χ = 2).
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+    sections, spacing
+        As for :func:`slice_cloud`.
+
+    Returns
+    -------
+    axis : (3,) float64
+        Unit axis, signed as ``sections.principal_axis`` signs it.
+    reason : str
+        One line: the axis chosen and every candidate's χ and cap share.
+    """
+    from surface.loop_graph import loop_graph
+    from surface.sections import _orient
+
+    pts = np.asarray(points, dtype=np.float64)
+    centred = pts - pts.mean(axis=0)
+    _, vecs = np.linalg.eigh(centred.T @ centred)
+    candidates = [_orient(vecs[:, k]) for k in (2, 1, 0)]
+    rng = np.random.default_rng(0)
+    trial = pts if len(pts) <= AXIS_TRIAL_POINTS else pts[
+        np.sort(rng.choice(len(pts), AXIS_TRIAL_POINTS, replace=False))]
+    normals = _pca_normals(trial, np.arange(len(trial)))
+    chis, shares = [], []
+    for axis in candidates:
+        shares.append(float(np.mean(1.0 - (normals @ axis) ** 2 < MIN_WALL_SINE**2)))
+        try:
+            sliced = slice_cloud(trial, axis=axis, sections=sections, spacing=spacing)
+            _, loops, _ = organise_sections(sliced.sections, min_points=4)
+            graph = loop_graph([[lp.points @ lp.frame[:2].T for lp in found] for found in loops],
+                               spacing=sliced.spacing)
+            chi = 0.0
+            for event in graph.events:
+                if event.kind in ("appear", "vanish"):
+                    chi += 1
+                elif event.kind in ("split", "merge"):
+                    chi -= len(event.lower) + len(event.upper) - 2
+                elif event.kind == "complex":
+                    chi = float("inf")
+            chis.append(chi)
+        except ValueError:
+            chis.append(float("inf"))
+    finite = [c for c in chis if np.isfinite(c)]
+    best_chi = min(finite) if finite else float("inf")
+    pool = [k for k in range(3) if chis[k] == best_chi] or [0]
+    best = min(pool, key=lambda k: (shares[k], k))
+    listed = "; ".join(f"{np.round(a, 3).tolist()}: chi {c:g}, caps {100 * f:.0f} %"
+                       for a, c, f in zip(candidates, chis, shares, strict=True))
+    reason = (f"axis auto: {np.round(candidates[best], 4).tolist()}, of the principal axes "
+              f"resolving the most topology (smallest Euler characteristic chi of the "
+              f"sections' loop graph) the one with the fewest points on caps ({listed})")
+    return candidates[best], reason
 
 
 #: A tail bin (half a section spacing wide) holding less than this share of the median
@@ -293,7 +380,7 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     kept, loops, notes = _drop_one_section_splits(kept, loops)
     messages += notes
-    kept, loops, notes = _drop_tangles(kept, loops)
+    kept, loops, notes = untangle(kept, loops)
     messages += notes
     if total - len(kept):
         messages.append(f"{total - len(kept)} of {total} sections had no loop "
@@ -377,7 +464,7 @@ def _tangle(planar: list) -> int | None:
     return None
 
 
-def _drop_tangles(kept: list, loops: list, rings: list | None = None):
+def untangle(kept: list, loops: list, rings: list | None = None):
     """Drop sections whose loops knot the loop graph (:func:`_tangle`), one at a time.
 
     Tested on the loops' ordered points, or on ``rings`` (``section_rings``
@@ -501,7 +588,9 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     points : (P, 3) float64
         The cloud, scene units.
     axis : {"z", "x", "y", "auto"} or (3,) array_like
-        Slicing axis (:func:`surface.sections.slice_sections`).
+        Slicing axis (:func:`surface.sections.slice_sections`); ``"auto"`` is the
+        principal axis with the fewest branch events (:func:`choose_axis`, its
+        reason the first message).
     sections : int, optional
         Number of sections K (default from the point spacing, see
         ``sections.slice_sections``).
@@ -558,8 +647,9 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
                          thickness=thickness, projection=projection)
     kept, loops, messages = organise_sections(sliced.sections,
                                               min_points=min_loop_points(smoothing))
+    messages = list(sliced.notes) + messages
     rings = section_rings(kept, loops, n, smoothing=smoothing)
-    kept, loops, rings, notes = _drop_tangles(kept, loops, rings)
+    kept, loops, rings, notes = untangle(kept, loops, rings)
     messages += notes
     if extend_ends and close_ends:
         cap = sliced.cap_cloud

@@ -123,6 +123,10 @@ class StitchResult:
     graph : LoopGraph or None
         How the loops of adjacent sections correspond (``surface.loop_graph``),
         over the sections as stitched (support rings included).
+    problems : tuple of str
+        The messages that say why the mesh is not one closed edge-manifold
+        surface (interfaces left open, incomplete caps, non-manifold edges,
+        inconsistent orientation); :meth:`problem_line` summarises them.
     """
 
     vertices: np.ndarray
@@ -137,6 +141,19 @@ class StitchResult:
     delaunay_fraction: float = 1.0
     notes: tuple[str, ...] = ()
     graph: LoopGraph | None = None
+    problems: tuple[str, ...] = ()
+
+    def problem_line(self) -> str:
+        """The first problem and a count of the others, in one short line.
+
+        For a refusal: ``"sections 15 and 16: ...; and 3 more problems (-v lists
+        them)"``; the whole list is in ``problems`` (and in ``messages``).
+        """
+        if not self.problems:
+            return "open ends" if not self.closed else "no problem"
+        more = len(self.problems) - 1
+        return self.problems[0] + (f"; and {more} more problem{'s' * (more > 1)} "
+                                   "(-v lists them)" if more else "")
 
 
 # --------------------------------------------------------------------------- frames and parameters
@@ -988,7 +1005,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     sections = _as_sections(rings)
     if len(sections) < 2:
         raise ValueError(f"rings must hold at least 2 sections, got {len(sections)}")
-    heights = np.array([np.mean([lp @ frame[2] for lp in loops]) for loops in sections])
+    heights = np.array([np.mean(np.concatenate([lp @ frame[2] for lp in loops])) for loops in sections])
     steps = np.diff(heights)
     if np.all(steps < 0):
         sections, heights = sections[::-1], heights[::-1]
@@ -999,6 +1016,11 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     messages: list[str] = []
     notes: list[str] = []
     base_heights = heights.copy()     # the sections' own planes (support rings come between)
+    problems: list[str] = []
+
+    def problem(text: str) -> None:  # a reason the surface is not one closed manifold
+        messages.append(text)
+        problems.append(text)
     if support_sigma is not None:
         if not (np.isfinite(support_sigma) and support_sigma >= 0):
             raise ValueError(f"support_sigma must be a finite number >= 0, got {support_sigma!r}")
@@ -1026,7 +1048,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
 
     indices = [[offsets[s][lp] + np.arange(len(flat)) for lp, flat in enumerate(loops)]
                for s, loops in enumerate(planar)]
-    heights_all = np.array([np.mean([lp @ frame[2] for lp in loops]) for loops in sections])
+    heights_all = np.array([np.mean(np.concatenate([lp @ frame[2] for lp in loops])) for loops in sections])
     graph = loop_graph(planar, spacing=float(np.median(np.diff(heights_all))))
     dropped = set(graph.spurious)
     for s, i in sorted(dropped):
@@ -1050,7 +1072,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             continue
         if event.kind == "complex":
             open_ifaces.append(s)
-            messages.append(
+            problem(
                 f"sections {s} and {s + 1}: loops {list(event.lower)} and {list(event.upper)} "
                 "correspond many-to-many; the surface is left open there")
             continue
@@ -1069,7 +1091,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                     [planar[many_s][k] for k in many], base)
             except ValueError as exc:
                 open_ifaces.append(s)
-                messages.append(f"sections {s} and {s + 1}: the {event.kind} of loops "
+                problem(f"sections {s} and {s + 1}: the {event.kind} of loops "
                                 f"{list(event.lower)} into {list(event.upper)} could not be "
                                 f"tiled ({exc}); the surface is left open there")
                 continue
@@ -1182,7 +1204,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                                 holes=[planar[s][k] for k in holes])
             expected = sum(len(r) for r in rings_here) - 2 + 2 * len(holes)
             if len(cap) != expected:
-                messages.append(f"cap of section {s} loop {lp}: {len(cap)} triangles for "
+                problem(f"cap of section {s} loop {lp}: {len(cap)} triangles for "
                                 f"{expected} expected (contour not simple); cap incomplete")
             add_faces(np.concatenate(rings_here)[cap], label, flip_as)
 
@@ -1202,9 +1224,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             messages.append(f"Lawson flips stopped after the sweep limit ({flips} flips)")
     topo = mesh_topology(vertices, triangles)
     if topo["nonmanifold_edges"]:
-        messages.append(f"{topo['nonmanifold_edges']} non-manifold edges")
+        problem(f"{topo['nonmanifold_edges']} non-manifold edges")
     if not topo["oriented"]:
-        messages.append("faces are not consistently oriented")
+        problem("faces are not consistently oriented")
     mask = _flippable_edges(triangles, flip_region, fixed, len(vertices))
     return StitchResult(
         vertices=vertices,
@@ -1219,6 +1241,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
         notes=tuple(notes),
         graph=graph,
+        problems=tuple(problems),
     )
 
 

@@ -152,3 +152,33 @@ def test_loops_g1_smoothing_runs_on_a_genus_2_surface():
     assert genus(topo) == 2
     _, angle = bezier.edge_continuity(smooth.control_points, smooth.domain_mesh[1], samples=3)
     assert angle < 1e-8   # G1 to rounding (measured 4e-10 rad), as on a tube
+
+
+def test_axis_auto_finds_the_amphoras_height_in_a_rotated_cloud():
+    """Along its height the sections resolve both handles (Euler characteristic -2 of
+    the loop graph); across, a handle seen end-on is missed (chi >= 0)."""
+    from surface.reconstruct import choose_axis
+
+    rotation, _ = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))
+    points = S.sample("amphora", POINTS, seed=2) @ rotation.T
+    axis, reason = choose_axis(points)
+    assert abs(float(axis @ rotation[:, 2])) > np.cos(np.radians(10))
+    assert "chi -2" in reason and reason.startswith("axis auto:")
+
+
+def test_a_refusal_names_the_first_problem_and_counts_the_rest():
+    from surface.stitch import StitchResult
+
+    empty = np.zeros((0, 3))
+    one = StitchResult(empty, empty.astype(np.int64), closed=False, problems=("first",))
+    assert one.problem_line() == "first"
+    three = StitchResult(empty, empty.astype(np.int64), closed=False,
+                         problems=("first", "second", "third"))
+    assert three.problem_line() == "first; and 2 more problems (-v lists them)"
+    # A tangle: small A's best partner is C, C's is big B, B's is D (A-C, C-B, B-D kept,
+    # a 2:2 component): left open, one problem.
+    lower = [circle(40, 0.2, cx=-0.6, z=0.0), circle(60, 0.6, cx=0.4, z=0.0)]
+    upper = [circle(40, 0.35, cx=-0.3, z=0.1), circle(40, 0.3, cx=0.7, z=0.1)]
+    result = stitch_rings([lower, upper], Z)
+    assert not result.closed
+    assert len(result.problems) == 1 and "many-to-many" in result.problem_line()
