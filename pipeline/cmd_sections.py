@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
                   f"level {smooth['level']}, G1 max angle {smooth['g1_angle']:.1e} rad, "
                   f"control net {smooth['control_net']}")
         if args.verbose:
-            for message in result.messages:
+            for message in result.messages + result.notes:  # notes: branch points, supports
                 print(f"  note: {message}")
     return 0
 

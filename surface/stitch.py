@@ -598,6 +598,12 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
         The bridge points added (global indices ``base ..``).
     bridge : list of (b, 2) int64
         The bridge edges (contour constraints).
+    dip : (B,) float64
+        ``4 t (1 - t)`` at each bridge point's position t along its chord: the
+        caller lowers the chord by ``dip`` × half the gap to the children's
+        section (the saddle lies between the two sections, at half the gap
+        on average, and the surface under a chord dips towards it as a
+        parabola to second order).
 
     Raises
     ------
@@ -611,7 +617,7 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
     trees = [cKDTree(c) for c in children]
     new_flat: list[np.ndarray] = []
     bridges = []
-    subs, sub_flats = [], []
+    subs, sub_flats, dips = [], [], []
     idx, flat = np.asarray(ring_idx), np.asarray(ring_flat)
     left = list(range(len(children)))
     order = []
@@ -636,6 +642,7 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
         pts = v + t[:, None] * (u - v)            # from v towards u
         new_idx = base + sum(len(x) for x in new_flat) + np.arange(m)
         new_flat.append(pts)
+        dips.append(4 * t * (1 - t))
         path = np.concatenate([[idx[arc[-1]]], new_idx, [idx[arc[0]]]])   # v -> u
         bridges.append(np.stack([path[:-1], path[1:]], axis=1))
         subs.append(np.concatenate([idx[arc], new_idx]))
@@ -651,7 +658,7 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
     order.append(left[0])
     by_child = [subs[order.index(k)] for k in range(len(children))]
     added = np.vstack(new_flat) if new_flat else np.zeros((0, 2))
-    return by_child, added, bridges
+    return by_child, added, bridges, np.concatenate(dips) if dips else np.zeros(0)
 
 
 #: Fewest cap points inside a loop that place its cap (a plane fit needs 3; the
@@ -1005,7 +1012,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     sections = _as_sections(rings)
     if len(sections) < 2:
         raise ValueError(f"rings must hold at least 2 sections, got {len(sections)}")
-    heights = np.array([np.mean(np.concatenate([lp @ frame[2] for lp in loops])) for loops in sections])
+    heights = np.array([np.mean(np.concatenate([lp @ frame[2] for lp in loops]))
+                        for loops in sections])
     steps = np.diff(heights)
     if np.all(steps < 0):
         sections, heights = sections[::-1], heights[::-1]
@@ -1048,7 +1056,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
 
     indices = [[offsets[s][lp] + np.arange(len(flat)) for lp, flat in enumerate(loops)]
                for s, loops in enumerate(planar)]
-    heights_all = np.array([np.mean(np.concatenate([lp @ frame[2] for lp in loops])) for loops in sections])
+    heights_all = np.array([np.mean(np.concatenate([lp @ frame[2] for lp in loops]))
+                            for loops in sections])
     graph = loop_graph(planar, spacing=float(np.median(np.diff(heights_all))))
     dropped = set(graph.spurious)
     for s, i in sorted(dropped):
@@ -1086,7 +1095,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             many = event.upper if event.kind == "split" else event.lower
             base = count + sum(len(x) for x in extra_vertices)
             try:
-                subs, new_flat, bridge = _bridge_split(
+                subs, new_flat, bridge, dip = _bridge_split(
                     indices[single_s][single], planar[single_s][single],
                     [planar[many_s][k] for k in many], base)
             except ValueError as exc:
@@ -1096,8 +1105,11 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                                 f"tiled ({exc}); the surface is left open there")
                 continue
             height = float(np.mean(vertices[indices[single_s][single]] @ frame[2]))
+            other = float(np.mean(np.concatenate([vertices[indices[many_s][k]] @ frame[2]
+                                                  for k in many])))
             if len(new_flat):
-                extra_vertices.append(new_flat @ frame[:2] + height * frame[2])
+                extra_vertices.append(new_flat @ frame[:2] + (
+                    height + 0.5 * (other - height) * dip)[:, None] * frame[2])
                 sec_of.append(np.full(len(new_flat), single_s))
                 loop_of.append(np.full(len(new_flat), single))
             all_flat = np.vstack([vertices @ frame[:2].T] + [x @ frame[:2].T

@@ -5,6 +5,8 @@ Unit tests on analytic rings (exact circles), then procedural shapes with exact 
 closed surface.
 """
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -78,7 +80,8 @@ def test_spurious_small_loop_is_dropped_and_a_grazing_overlap_pruned():
 def test_bridge_split_gives_one_counter_clockwise_subloop_per_child():
     ring = circle(48, 1.0)
     children = [circle(30, 0.4, cx=-0.55), circle(30, 0.4, cx=0.55)]
-    subs, added, bridges = _bridge_split(np.arange(48), ring, children, 48)
+    subs, added, bridges, dip = _bridge_split(np.arange(48), ring, children, 48)
+    assert len(dip) == len(added) and np.all((dip > 0) & (dip <= 1))
     flat = np.vstack([ring, added])
     for sub, child in zip(subs, children, strict=True):
         p = flat[sub]
@@ -122,20 +125,26 @@ def test_hole_that_appears_gets_a_floor_cap_facing_into_it():
 POINTS = 30_000
 
 
+@functools.cache
+def from_points(name: str, seed: int = 3):
+    from surface.reconstruct import surface_from_points
+
+    return surface_from_points(S.sample(name, POINTS, seed=seed), axis="z")
+
+
+# The mug is tests/pipeline/test_cmd_sections.py's (through the command line).
 @pytest.mark.parametrize("name, chamfer", [
-    ("torus", 0.004), ("pants", 0.002), ("mug", 0.012), ("amphora", 0.006), ("vase", 0.005)])
+    ("torus", 0.004), ("pants", 0.002), ("amphora", 0.006), ("vase", 0.005)])
 def test_shape_from_points_is_one_closed_surface_of_its_genus(name, chamfer):
     """Closed, oriented, edge-manifold, one component, genus exact; Chamfer within a
     bound of a fraction of the section spacing (~0.04-0.07 here: the walls are within
-    noise, the error is where branches meet at grazing angles, O(spacing))."""
-    from surface.reconstruct import surface_from_points
-
-    points = S.sample(name, POINTS, seed=3)
-    result = surface_from_points(points, axis="z")
+    noise, the error is where branches meet the sections at grazing angles and at the
+    torus' poles, O(spacing); measured 0.0008-0.003)."""
+    result = from_points(name)
     topo = M.mesh_topology(result.vertices, result.triangles)
     assert topo["oriented"] and topo["edge_manifold"] and topo["degenerate_faces"] == 0
     assert genus(topo) == S.genus(name)
-    assert result.open_interfaces == ()
+    assert result.open_interfaces == () and result.problems == ()
     scores = S.score(name, result.vertices, result.triangles, count=10_000)
     assert scores["chamfer"] < chamfer
     assert scores["fscore"] > 0.8
@@ -143,11 +152,10 @@ def test_shape_from_points_is_one_closed_surface_of_its_genus(name, chamfer):
 
 def test_loops_g1_smoothing_runs_on_a_genus_2_surface():
     from surface import bezier
-    from surface.reconstruct import surface_from_points
 
-    result = surface_from_points(S.sample("amphora", POINTS, seed=5), axis="z")
+    result = from_points("amphora")
     smooth = bezier.control_net(result.vertices, result.triangles)
-    vertices, triangles, _ = bezier.tessellate(smooth, level=2)
+    vertices, triangles, _ = bezier.tessellate(smooth, level=1)
     topo = M.mesh_topology(vertices, triangles)
     assert genus(topo) == 2
     _, angle = bezier.edge_continuity(smooth.control_points, smooth.domain_mesh[1], samples=3)
