@@ -909,7 +909,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               min_correlation: float = 0.7,
               min_texture_snr: float = 2.0, initial=None, quadratic=None,
               jacobian: str = "template", noise_correction: bool = True,
-              offset=None) -> LSMResult:
+              offset=None, sigma0_population=None) -> LSMResult:
     """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
 
     Parameters
@@ -993,6 +993,12 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         normal matrix of the noise-free template.  Without it σ0² N⁻¹ is too small on
         weak texture: measured actual/reported 1.11 at SNR 5 and 1.3 at SNR 2.7 (SNR =
         λ_min / (σ_n²/2)), against 0.98 and 0.97 with it.  Exact for integer centres.
+
+    sigma0_population : (M,) array_like, optional
+        σ0 of accepted matches of the same images and patch made elsewhere (e.g. the
+        seeds of a region-growing front, :mod:`matching.grow`): the σ0 test then takes
+        its reference (median) and robust limit from them and from this call's
+        converged points together, so that a small batch is judged like a large one.
 
     Returns
     -------
@@ -1092,18 +1098,22 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                               strict=True):
             full[idx] = part
     good = status == Status.OK
+    population = sigma0[good]
+    if sigma0_population is not None:
+        extra = np.asarray(sigma0_population, dtype=np.float64).ravel()
+        population = np.concatenate([population, extra[np.isfinite(extra)]])
     if noise_sigma is not None:
         # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
         gain = float(np.median(params[good, 7])) if good.any() else 1.0
         ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
-    elif good.sum() >= 30:
-        ref = float(np.median(sigma0[good]))
+    elif len(population) >= 30:
+        ref = float(np.median(population))
     else:
         ref = float(np.hypot(fprep.noise, gprep.noise))
     limit = sigma0_factor * ref
-    if good.sum() >= 30:
+    if len(population) >= 30:
         dof = (patch * patch) - (7 if constrained else 8)
-        limit = min(limit, robust_upper_limit(sigma0[good], sigma0_mad_k, dof))
+        limit = min(limit, robust_upper_limit(population, sigma0_mad_k, dof))
     ok = status == Status.OK
     status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
     ok = status == Status.OK

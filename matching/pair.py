@@ -79,6 +79,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from matching.grow import grow_matches
 from matching.lsm import (
     DEFAULT_INTERPOLATION,
     STATUS_NAMES,
@@ -220,7 +221,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
                sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,
                max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
-               eccentric: bool = False, **lsm_options) -> PairMatches:
+               eccentric: bool = False, grow: bool = True, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -276,6 +277,11 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         further view to confirm them; :func:`matching.multiview.reconstruct_view_pair`
         turns it on (its points reach a rim to within about a pixel instead of half
         a window).
+    grow : bool
+        Region growing (:func:`matching.grow.grow_matches`, Otto & Chau 1989): candidates
+        without an SGBM approximation, or whose SGBM start failed, are matched from the
+        affine warps of their accepted neighbours (default on); off: they stay
+        ``no_approximation`` / their first status.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -363,20 +369,36 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 x_right[moved], direction_all[moved] = again.x_right, again.direction
         centres = cand.points + offset  # window centres
         has = np.isfinite(x_right).all(1) & np.isfinite(direction_all).all(1)
-        status[textured[~has]] = NO_APPROXIMATION
+        x_right[~has] = np.nan
+        if grow:
+            idx = textured
+        else:
+            status[textured[~has]] = NO_APPROXIMATION
+            idx = textured[has]
         out["approx"][textured] = x_right
-        idx = textured[has]
         if len(idx):
             fprep = preps[0] if preps[0] is not None else prepare_image(left, interpolation)
             gprep = preps[1] if preps[1] is not None else prepare_image(right, interpolation)
-            points, start = centres[idx], x_right[has]
+            sub = has if not grow else np.ones(len(textured), bool)
+            points, start = centres[idx], x_right[sub]
             shifted = np.any(offset[idx] != 0.0, axis=1)
-            direction = direction_all[has] if epipolar else None
+            direction = _fill_directions(points, direction_all[sub]) if epipolar else None
             options = dict(patch=patch, interpolation=interpolation, direction=direction,
                            min_texture_snr=min_texture_snr, **lsm_options)
             if shifted.any():
                 options["offset"] = -offset[idx]
             res = lsm_match(fprep, gprep, points, start, **options)
+            if grow and res.accepted.any():
+                # approximations from accepted neighbours (their affine warps) for the
+                # candidates SGBM gave none, or whose SGBM start failed
+                growth = grow_matches(
+                    fprep, gprep, points, res, start,
+                    candidates=res.status != Status.TEXTURELESS, same_row=bool(rectified),
+                    **{k: v for k, v in options.items() if k not in ("radius_px",)})
+                res, start = growth.result, growth.approx
+                out["approx"][idx] = start
+            if grow:
+                unapproximated = ~np.isfinite(start).all(1)
             sides = np.full(len(points), patch, np.int32)
             if (second_order or adaptive_patch) and res.accepted.sum() >= 8:
                 quad = (second_order_terms(points, res.affine, res.accepted,
@@ -396,6 +418,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                                       options, only=out_grown, into=second)
                 res = second
             status[idx] = res.status
+            if grow:
+                status[idx[unapproximated]] = NO_APPROXIMATION
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch)]] = IMPRECISE
@@ -410,6 +434,23 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
                        rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
                        offset=offset, edge=edge, **out)
+
+
+def _fill_directions(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Epipolar directions with the missing ones (no approximation) from the nearest
+    point that has one (a rectified pair's are all (1, 0)); (1, 0) when none has."""
+    direction = np.array(direction, dtype=np.float64)
+    good = np.isfinite(direction).all(1)
+    if good.all():
+        return direction
+    if not good.any():
+        direction[:] = (1.0, 0.0)
+        return direction
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(points[good]).query(points[~good])
+    direction[~good] = direction[good][nearest]
+    return direction
 
 
 def default_max_patch(patch: int) -> int:
