@@ -5,14 +5,17 @@ its upstream stages' files (``ctx.stage_path(stage, name)``) and writes its own 
 ``ctx.out`` (a temporary folder renamed to ``OUTDIR/<stage>`` only when the function
 returns: :mod:`pipeline.workspace`).  The returned dict (counts, metrics) is stored in
 the manifest.  Statuses: ``done``, ``up to date`` (skipped: same inputs, parameters and
-outputs), ``not available`` (its module is not there), ``skipped`` (it cannot apply to
-this data, with the reason: e.g. no Bezier smoothing of an open mesh), ``blocked`` (a
-stage it needs did not run), ``failed`` (an error: the run stops after the report with
-a one-line message), ``outside range`` (``--from`` / ``--to``).
+outputs), ``skipped`` (it cannot apply to this data, with the reason: e.g. no Bezier
+smoothing of an open mesh), ``blocked`` (a stage it needs did not run), ``failed`` (an
+error: the run stops after the report with a one-line message), ``outside range``
+(``--from`` / ``--to``).
 
 A stage is up to date when the hashes of its inputs — the run's external inputs if it
 reads them, its upstream stages' outputs, the source of its code — and of its
-parameters equal the recorded ones and its outputs are still there untouched.
+parameters equal the recorded ones and its outputs are still there untouched.  Its code
+is the source of the modules it declares (:meth:`pipeline.plan.Stage.code_modules`),
+followed through their imports (:func:`pipeline.workspace.code_hash`), and of the
+module holding its function: where an import statement sits cannot change what reruns.
 
 No algorithm lives here and no stage: the plan (which stages, in which order) is
 :mod:`pipeline.plan`, the stage functions are :mod:`pipeline.stages`.
@@ -20,7 +23,6 @@ No algorithm lives here and no stage: the plan (which stages, in which order) is
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import shutil
@@ -33,14 +35,13 @@ from pathlib import Path
 from pipeline import __version__, progress
 from pipeline.atomic import atomic_dir, atomic_file
 from pipeline.errors import InputError, StageSkipped
-from pipeline.inputs import detect_kind, folder_images
+from pipeline.inputs import detect_kind
 from pipeline.plan import STAGE_ORDER, Stage, plan
 from pipeline.workspace import (
     CONFIG,
     MANIFEST,
     Workspace,
     code_hash,
-    function_imports,
     hash_tree,
     package_versions,
     sha256_file,
@@ -108,7 +109,7 @@ class StageContext:
 @dataclass
 class StageResult:
     name: str
-    status: str  # done | skipped (up to date) | not available | blocked | outside range | failed
+    status: str  # done | up to date | skipped | blocked | failed | done before | outside range
     seconds: float = 0.0
     reason: str = ""
     info: dict = field(default_factory=dict)
@@ -147,33 +148,6 @@ class RunSummary:
         return "\n".join(lines)
 
 
-def missing_modules(modules: Sequence[str]) -> list[str]:
-    """Names in ``modules`` that cannot be imported (not written yet).
-
-    An entry is ``"package.module"`` or ``"package.module:attribute"``;
-    ``"a|b"`` is satisfied by either alternative.
-    """
-    missing = []
-    for name in modules:
-        if "|" in name:  # alternatives: missing only when none is there
-            options = name.split("|")
-            gone = missing_modules(options)
-            if len(gone) == len(options):
-                missing.append(gone[0])
-            continue
-        module, _, attr = name.partition(":")
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name and (module == exc.name or module.startswith(exc.name + ".")):
-                missing.append(module)
-                continue
-            raise
-        if attr and not hasattr(mod, attr):
-            missing.append(f"{module}.{attr}")
-    return missing
-
-
 @dataclass
 class _Run:
     """The state of one ``run_pipeline`` call, shared by every stage it runs.
@@ -197,22 +171,12 @@ class _Run:
     unusable: dict[str, str] = field(default_factory=dict)
 
 
-def _acquire_modules(kind: str, ws: Workspace) -> tuple[str, ...]:
-    if kind == "scene":
-        meta = ws.stage_dir("scene")
-        kind = "stereo" if len(folder_images(meta)) == 2 else "folder"
-    return {"cloud": ("pipeline.cloud_io:read_cloud",),
-            "stereo": ("matching.pair:reconstruct_pair", "matching.cameras:read_rig"),
-            "folder": ("pipeline.acquisition:acquire_folder",
-                       "matching.multiview:reconstruct_multiview")}.get(kind, ())
-
-
 def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str],
-                  modules: Sequence[str] = ()) -> dict[str, str]:
+                  kind: str) -> dict[str, str]:
     hashes: dict[str, str] = dict(external) if stage.external else {}
-    # the code is an input too: an upgraded photosurf reruns the stages it changes
-    code = [m.partition(":")[0] for alt in modules for m in alt.split("|")]
-    hashes["code"] = code_hash(code + list(function_imports(stage.func)),
+    # the code is an input too: an upgraded photosurf reruns the stages it changes.  The
+    # stage functions' module imports every stage's code, so it is taken alone (shallow).
+    hashes["code"] = code_hash(stage.code_modules(kind, ws.root),
                                shallow=[stage.func.__module__])
     for upstream in stage.needs + stage.optional_needs:
         outputs = ws.outputs_of(upstream)
@@ -319,7 +283,7 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
                 if result.status == "failed" and failed_stage is None:
                     failed_stage = stage.name
                 results.append(result)
-                if result.status in ("not available", "blocked", "failed", "skipped"):
+                if result.status in ("blocked", "failed", "skipped"):
                     run.unusable[stage.name] = result.status
                 if lo <= index <= hi:
                     bar.update(1)
@@ -336,8 +300,6 @@ def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
     """Run (or skip) the plan's ``index``-th stage; record its status in the manifest."""
     ws = run.workspace
     blocked = [n for n in stage.needs if n in run.unusable]
-    modules = stage.modules + (_acquire_modules(run.kind, ws) if stage.name == "acquire"
-                               else ())
     if not run.lo <= index <= run.hi:
         if index < run.lo and not ws.outputs_of(stage.name) and stage.name != "report":
             raise InputError(f"--from: stage {stage.name} has no outputs in {ws.root} yet; "
@@ -348,14 +310,9 @@ def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
         reason = f"needs {', '.join(blocked)}"
         ws.set_record(stage.name, {"status": "blocked", "reason": reason})
         return StageResult(stage.name, "blocked", reason=reason)
-    missing = missing_modules(modules)
-    if missing:
-        reason = f"{', '.join(missing)} not there yet"
-        ws.set_record(stage.name, {"status": "not available", "reason": reason})
-        return StageResult(stage.name, "not available", reason=reason)
     params = _stage_params(stage, run.config)
     params_sha = sha256_json(params)
-    inputs = _input_hashes(stage, ws, run.external, modules)
+    inputs = _input_hashes(stage, ws, run.external, run.kind)
     if not run.force and ws.up_to_date(stage.name, inputs, params_sha):
         rec = ws.record(stage.name) or {}
         return StageResult(stage.name, "up to date", reason="", info=rec.get("info", {}))

@@ -334,6 +334,26 @@ def detect_kind(inputs: Sequence[str | os.PathLike], rig: str | os.PathLike | No
     return detected
 
 
+def scene_source(scene_dir: str | os.PathLike) -> str:
+    """What a rendered scene folder is as an input: ``"stereo"`` (a pair) or ``"folder"``.
+
+    The recipe's camera layout in ``scene.json`` decides; without one, two images are a
+    stereo pair and more an image folder.
+    """
+    import json
+
+    scene_dir = Path(scene_dir)
+    meta = scene_dir / "scene.json"
+    layout = None
+    if meta.is_file():
+        recipe = json.loads(meta.read_text(encoding="utf-8"))
+        layout = recipe.get("cameras", {}).get("layout") or recipe.get("recipe", {}).get(
+            "cameras", {}).get("layout")
+    if not layout:
+        layout = "stereo" if len(folder_images(scene_dir)) == 2 else "ring"
+    return "stereo" if str(layout) == "stereo" else "folder"
+
+
 def folder_rig(folder: Path) -> Path | None:
     """The rig/camera file of a stereo folder (:data:`RIG_NAMES`), or None."""
     for name in RIG_NAMES:

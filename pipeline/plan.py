@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline import stages as fn
-from pipeline.inputs import KINDS
+from pipeline.inputs import KINDS, scene_source
 
 __all__ = ["KINDS", "STAGES", "STAGE_ORDER", "Stage", "plan"]
 
@@ -36,7 +36,14 @@ class Stage:
     needs : tuple of str
         Upstream stages whose outputs it reads (their hashes are its inputs).
     modules : tuple of str
-        Modules it calls; if one cannot be imported the stage is *not available*.
+        The photosurf modules whose code decides its output (those it calls, and those
+        holding the names it uses); their source, followed through their imports, is
+        hashed into the stage's inputs (:meth:`code_modules`), so that an upgrade reruns
+        the stages it changes.  ``tests/pipeline/test_plan.py`` checks the list against
+        what the stage function imports.
+    kind_modules : tuple of (str, tuple of str)
+        More modules for some input kinds (``(kind, modules)`` pairs; a rendered scene
+        counts as the kind :func:`pipeline.inputs.scene_source` says).
     external : bool
         Whether it reads the run's external inputs (their hashes are its inputs).
     target : str
@@ -54,6 +61,14 @@ class Stage:
     external: bool = False
     target: str = ""
     optional_needs: tuple[str, ...] = ()
+    kind_modules: tuple[tuple[str, tuple[str, ...]], ...] = ()
+
+    def code_modules(self, kind: str, root: str | Path) -> tuple[str, ...]:
+        """The modules whose code the stage runs on input ``kind`` in the workspace ``root``."""
+        by_kind = dict(self.kind_modules)
+        if kind == "scene" and "scene" not in by_kind:
+            kind = scene_source(Path(root) / "scene")
+        return self.modules + tuple(by_kind.get(kind, ()))
 
     @property
     def output(self) -> str:
@@ -64,25 +79,32 @@ class Stage:
         return bool(Path(self.output).suffix)
 
 
+#: What every stage function runs besides its own imports: ``pipeline.stages`` itself
+#: (hashed alone) imports these at module level.
+_ADAPTERS = ("pipeline.artifacts", "pipeline.errors", "pipeline.inputs", "pipeline.progress")
+
 STAGES: list[Stage] = [
-    Stage("scene", fn.scene, params=("scene",), external=True, modules=("pipeline.scenes",)),
+    Stage("scene", fn.scene, params=("scene",), external=True,
+          modules=_ADAPTERS + ("pipeline.scenes",)),
     Stage("acquire", fn.acquire, params=("acquire",), external=True,
-          optional_needs=("scene",)),
+          optional_needs=("scene",), modules=_ADAPTERS,
+          kind_modules=(("cloud", ("pipeline.cloud_io",)),
+                        ("stereo", ("matching.pair", "matching.cameras")),
+                        ("folder", ("pipeline.acquisition",)))),
     Stage("sections", fn.sections, params=("sections",), needs=("acquire",),
-          modules=("surface.reconstruct:slice_cloud",)),
+          modules=_ADAPTERS + ("surface.reconstruct", "surface.sections")),
     Stage("curves", fn.curves, params=("curves",), needs=("sections",),
-          modules=("surface.reconstruct:organise_sections", "surface.reconstruct:section_rings")),
+          modules=_ADAPTERS + ("surface.reconstruct",)),
     Stage("stitch", fn.stitch, params=("stitch",), needs=("curves", "sections"),
-          modules=("surface.stitch:stitch_rings", "surface.reconstruct:extend_to_caps")),
+          modules=_ADAPTERS + ("surface.reconstruct", "surface.stitch")),
     Stage("smooth", fn.smooth, params=("smooth",), needs=("stitch",),
           optional_needs=("acquire", "sections"),
-          modules=("pipeline.smoothing:smooth_mesh", "surface.bezier:control_net",
-                   "surface.bezier:edge_continuity")),
+          modules=_ADAPTERS + ("pipeline.mesh_io", "pipeline.smoothing", "surface.metrics")),
     Stage("export", fn.export, params=("export",), needs=("stitch",), optional_needs=("smooth",),
-          modules=("pipeline.export:export_mesh", "pipeline.export:write_control_net")),
+          modules=_ADAPTERS + ("pipeline.export", "pipeline.mesh_io")),
     Stage("report", fn.report, params=("report",), target="report.html",
           optional_needs=("scene", "acquire", "sections", "curves", "stitch", "smooth"),
-          modules=("pipeline.render:render_mesh", "surface.metrics:compare_meshes")),
+          modules=_ADAPTERS + ("pipeline.report",)),
 ]
 assert tuple(s.name for s in STAGES) == STAGE_ORDER
 

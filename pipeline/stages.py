@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from pipeline import artifacts, progress
 from pipeline.errors import InputError, StageSkipped
-from pipeline.inputs import folder_images, read_image, stereo_inputs
+from pipeline.inputs import folder_images, read_image, scene_source, stereo_inputs
 
 if TYPE_CHECKING:
     from pipeline.engine import StageContext
@@ -40,27 +40,11 @@ def scene(ctx: StageContext) -> dict:
     return {"views": len(list((ctx.out / "images").glob("*.png")))}
 
 
-def _scene_layout(ctx: StageContext) -> str:
-    """``stereo`` or ``ring``: how the rendered scene's cameras are laid out."""
-    meta = ctx.stage_path("scene", "scene.json")
-    if meta.is_file():
-        import json
-
-        recipe = json.loads(meta.read_text(encoding="utf-8"))
-        layout = recipe.get("cameras", {}).get("layout") or recipe.get("recipe", {}).get(
-            "cameras", {}).get("layout")
-        if layout:
-            return str(layout)
-    return "stereo" if len(folder_images(ctx.stage_path("scene"))) == 2 else "ring"
-
-
 # --------------------------------------------------------------------------- acquire
 def acquire(ctx: StageContext) -> dict:
     """The input's point cloud: read (cloud), matched (stereo pair) or acquired from
     an image folder (:func:`pipeline.acquisition.acquire_folder`)."""
-    kind = ctx.kind
-    if kind == "scene":
-        kind = "stereo" if _scene_layout(ctx) == "stereo" else "folder"
+    kind = scene_source(ctx.stage_path("scene")) if ctx.kind == "scene" else ctx.kind
     if kind == "cloud":
         return _save_cloud(ctx, *_read_cloud(ctx.inputs[0]))
     if kind == "stereo":
@@ -139,14 +123,14 @@ def sections(ctx: StageContext) -> dict:
     """``surface.reconstruct.slice_cloud``: slice and move the slab points to their planes."""
     import warnings
 
-    from surface import reconstruct as st
+    from surface import reconstruct as rc
     from surface import sections as sections_mod
 
     p = ctx.params["sections"]
     points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
-        sliced = st.slice_cloud(
+        sliced = rc.slice_cloud(
             points, axis=p["axis"], sections=p["count"] or None, spacing=p["spacing"] or None,
             thickness=p["thickness"] or None, projection=p["projection"])
     kept = [s for s in sliced.sections if len(s) > 0]
@@ -167,26 +151,26 @@ def sections(ctx: StageContext) -> dict:
 def curves(ctx: StageContext) -> dict:
     """``surface.reconstruct.organise_sections`` then ``section_rings`` (fit, predict) and
     ``untangle`` (sections whose rings knot the loop graph dropped)."""
-    from surface import reconstruct as st
+    from surface import reconstruct as rc
 
     p = ctx.params["curves"]
     smoothing = p["smoothing"] or "auto"  # 0: from the data (as the other "0:" keys)
     sliced, _, _ = artifacts.read_sections(ctx.stage_path("sections"))
     options = {"outlier_threshold": p["outlier_threshold"],
-               "min_points": p["min_loop_points"] or st.min_loop_points(smoothing)}
+               "min_points": p["min_loop_points"] or rc.min_loop_points(smoothing)}
     try:
-        kept, loops, messages = st.organise_sections(
+        kept, loops, messages = rc.organise_sections(
             ctx.track(sliced, "loops", total=len(sliced), unit="section"), **options)
     except ValueError as exc:
         raise InputError(f"curves: {exc} (set sections.count)") from exc
-    rings = st.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
+    rings = rc.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
                              parametrisation=p["parametrisation"])
-    kept, loops, rings, untangled = st.untangle(kept, loops, rings)
+    kept, loops, rings, untangled = rc.untangle(kept, loops, rings)
     messages += untangled
     for message in messages:
         log.warning("curves: %s", message)
-    n_rings, n_points = artifacts.write_curves(ctx.out, rings, kept, st.section_noise(loops))
-    n = p["n"] or st.ring_count(kept, loops)
+    n_rings, n_points = artifacts.write_curves(ctx.out, rings, kept, rc.section_noise(loops))
+    n = p["n"] or rc.ring_count(kept, loops)
     return {"rings": n_rings, "n": int(n), "points": n_points,
             "sections_without_loop": len(sliced) - len(kept), "warnings": messages}
 

@@ -118,28 +118,6 @@ def _imported(nodes) -> tuple[str, ...]:
     return tuple(sorted(n for n in names if _module_file(n) is not None))
 
 
-def function_imports(func) -> tuple[str, ...]:
-    """photosurf modules imported by a module-level function of ours, and by the
-    module-level functions of the same module it calls (at any depth) — the
-    lazy imports of a stage function and its helpers."""
-    path = _module_file(func.__module__)
-    if path is None:
-        return ()
-    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-    defs = {node.name: node for node in tree.body
-            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))}
-    seen, todo, nodes = set(), [func.__name__], []
-    while todo:
-        name = todo.pop()
-        if name in seen or name not in defs:
-            continue
-        seen.add(name)
-        nodes.extend(ast.walk(defs[name]))
-        todo.extend(n.id for n in ast.walk(defs[name])
-                    if isinstance(n, ast.Name) and n.id in defs)
-    return _imported(nodes)
-
-
 def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path]:
     """Source files of ``modules`` and of every photosurf module they import.
 
@@ -147,8 +125,8 @@ def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path
     depth (also inside functions), limited to photosurf's own packages
     (third-party code is covered by :func:`package_versions`); a package's
     ``__init__`` counts for each of its modules.  ``shallow`` modules are taken
-    without following their imports (the stage runner, which imports every
-    stage's code lazily).
+    without following their imports (``pipeline.stages``, which imports every
+    stage's code).
     """
     files: set[Path] = set()
     todo = list(modules)
