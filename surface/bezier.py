@@ -141,6 +141,7 @@ __all__ = [
     "normals",
     "share_boundaries",
     "subdivide",
+    "tensor_product_nets",
     "tessellate",
     "tessellation_level",
 ]
@@ -936,3 +937,111 @@ def share_boundaries(control_points: np.ndarray, triangles: np.ndarray) -> float
         change = max(change, float(np.abs(canonical - flat[part]).max(initial=0.0)))
         flat[part] = canonical
     return change
+
+
+# ----------------------------------------------------------------------------- tensor-product form
+@cache
+def _quad_matrix(corner: int) -> np.ndarray:
+    """See :func:`_corner_quad_matrix`; the other corners by relabelling the net."""
+    if corner == 0:
+        return _corner_quad_matrix()
+    # corner c of the net is corner 0 of the net relabelled (c, c + 1, c + 2) -> (0, 1, 2):
+    # its point (i', j', k') is the original point whose exponent at corner c is i', ...
+    multi = index_table()
+    original = np.roll(multi, corner, axis=1)  # (i', j', k') -> exponents at (0, 1, 2)
+    columns = control_index(original[:, 0], original[:, 1], original[:, 2])
+    out = np.empty_like(_corner_quad_matrix())
+    out[:, columns] = _corner_quad_matrix()
+    out.flags.writeable = False
+    return out
+
+
+@cache
+def _corner_quad_matrix() -> np.ndarray:
+    """``(49, 28)`` map from a sextic triangular net to the degree (6, 6) tensor-product
+    net of its quadrilateral at ``corner`` (corner, edge midpoint, centroid, edge midpoint).
+
+    The quadrilateral is the image of the unit square under the bilinear map
+    ``x(u, v) = (1-u)(1-v) e_c + u(1-v) m_{c,c+1} + u v g + (1-u) v m_{c,c+2}``
+    (barycentric), so ``P(x(u, v))`` is a polynomial of degree 6 in u and in v,
+    i.e. exactly a tensor-product Bézier patch.  Its net is found by
+    interpolation at the 7 x 7 grid ``(a/6, b/6)`` in exact rational arithmetic
+    (``fractions.Fraction``), so the matrix is exact to the last bit of each
+    entry and its zeros are zeros (a quadrilateral's boundary row on the
+    triangle's edge depends on that edge's 7 control points only).
+    Row ``7 k + l`` is the pole of u-index k and v-index l.
+    """
+    from fractions import Fraction
+
+    def bernstein1(k, x):
+        return Fraction(factorial(DEGREE), factorial(k) * factorial(DEGREE - k)) \
+            * x ** k * (1 - x) ** (DEGREE - k)
+
+    eye = [[Fraction(int(a == b)) for b in range(3)] for a in range(3)]
+    half = Fraction(1, 2)
+    e_c, e_next, e_prev = eye[0], eye[1], eye[2]
+    m_next = [half * (a + b) for a, b in zip(e_c, e_next, strict=True)]
+    m_prev = [half * (a + b) for a, b in zip(e_c, e_prev, strict=True)]
+    centroid = [Fraction(1, 3)] * 3
+    nodes = [Fraction(a, DEGREE) for a in range(DEGREE + 1)]
+    multi = index_table()
+    weights = [Fraction(factorial(DEGREE), factorial(i) * factorial(j) * factorial(k))
+               for i, j, k in multi.tolist()]
+    values = []  # (49, 28): the triangle's Bernstein basis at the grid's images
+    for u in nodes:
+        for v in nodes:
+            bary = [(1 - u) * (1 - v) * a + u * (1 - v) * b + u * v * c + (1 - u) * v * d
+                    for a, b, c, d in zip(e_c, m_next, centroid, m_prev, strict=True)]
+            values.append([w * bary[0] ** i * bary[1] ** j * bary[2] ** k
+                           for w, (i, j, k) in zip(weights, multi.tolist(), strict=True)])
+    # 1-D Bernstein collocation matrix and its inverse (Gauss-Jordan on fractions)
+    n = DEGREE + 1
+    aug = [[bernstein1(k, x) for k in range(n)] + [Fraction(int(r == c)) for c in range(n)]
+           for r, x in enumerate(nodes)]
+    for col in range(n):
+        pivot = next(r for r in range(col, n) if aug[r][col] != 0)
+        aug[col], aug[pivot] = aug[pivot], aug[col]
+        scale = aug[col][col]
+        aug[col] = [x / scale for x in aug[col]]
+        for r in range(n):
+            if r != col and aug[r][col] != 0:
+                factor = aug[r][col]
+                aug[r] = [x - factor * y for x, y in zip(aug[r], aug[col], strict=True)]
+    inverse = [row[n:] for row in aug]
+    out = np.zeros((n, n, N_CONTROL))
+    for m in range(N_CONTROL):  # C = V^-1 X V^-T for each basis function's grid values X
+        half_way = [[sum(inverse[k][a] * values[n * a + b][m] for a in range(n))
+                     for b in range(n)] for k in range(n)]
+        for k in range(n):
+            for l in range(n):
+                out[k, l, m] = float(sum(half_way[k][b] * inverse[l][b] for b in range(n)))
+    out = out.reshape(n * n, N_CONTROL)
+    out.flags.writeable = False
+    return out
+
+
+def tensor_product_nets(control_points) -> np.ndarray:
+    """Each sextic triangular patch as three degree (6, 6) tensor-product Bézier patches.
+
+    The triangle is split at its centroid and edge midpoints into three
+    quadrilaterals, one per corner; each is exactly a non-degenerate
+    tensor-product patch (:func:`_quad_matrix`), the form CAD kernels and STEP
+    store (``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 with Bézier knots).
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+
+    Returns
+    -------
+    (P, 3, 7, 7, 3) float64
+        ``out[p, c, k, l]`` is the pole ``(k, l)`` of the quadrilateral at corner
+        ``c`` of patch ``p``: u runs from the corner to the midpoint of edge
+        ``c -> c + 1``, v to the midpoint of edge ``c -> c + 2``, so
+        ``dS/du x dS/dv`` points the way the triangle's normal does (outward for
+        a counter-clockwise domain triangle); ``(6, 6)`` is the centroid.
+    """
+    cp = _check_control_points(control_points)
+    stacked = np.concatenate([_quad_matrix(c) for c in range(3)])  # (147, 28)
+    out = _apply(stacked, cp)  # (147, P, 3)
+    return out.reshape(3, 7, 7, len(cp), 3).transpose(3, 0, 1, 2, 4)
