@@ -175,28 +175,42 @@ def curves(ctx: StageContext) -> dict:
             "sections_without_loop": len(sliced) - len(kept), "warnings": messages}
 
 
-def stitch(ctx: StageContext) -> dict:
-    """``surface.reconstruct.extend_to_caps`` (end rings to the cap points), then
-    ``surface.stitch.stitch_rings`` (with support rings at sharp profile turns when
-    ``stitch.support``; inner caps at their cap points' height); stitch.json holds the
-    loop graph."""
+def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float):
+    """``(rings, planes) -> (StitchResult, notes)`` with the stitch stage's rules: end rings
+    moved to the cap points (``stitch.extend_ends``), caps, support rings at sharp rims
+    (``stitch.support``), inner caps at their cap points' height; ``notes`` are the end
+    extension's."""
     import numpy as np
 
     from surface import reconstruct as rc
     from surface import stitch as st
 
+    support = noise if params["support"] and noise is not None else None
+
+    def build(rings, ring_planes):
+        # a lone loop as itself, as surface.reconstruct.surface_from_points passes it
+        rings = [item[0] if isinstance(item, list) and len(item) == 1 else item
+                 for item in rings]
+        notes_ends = []
+        if params["caps"] and params["extend_ends"] and spacing > 0:
+            rings, notes_ends = rc.extend_to_caps(rings, ring_planes, cap_cloud,
+                                                  np.arange(len(cap_cloud)), spacing)
+        result = st.stitch_rings(rings, planes[0].frame[2], close_ends=params["caps"],
+                                 support_sigma=support, cap_points=cap_cloud)
+        return result, notes_ends
+
+    return build
+
+
+def stitch(ctx: StageContext) -> dict:
+    """``surface.reconstruct.extend_to_caps`` (end rings to the cap points), then
+    ``surface.stitch.stitch_rings`` (with support rings at sharp profile turns when
+    ``stitch.support``; inner caps at their cap points' height); stitch.json holds the
+    loop graph."""
     p = ctx.params["stitch"]
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
-    # a lone loop as itself, as surface.reconstruct.surface_from_points passes it
-    rings = [item[0] if len(item) == 1 else item for item in rings]
-    notes_ends = []
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
-    if p["caps"] and p["extend_ends"] and spacing > 0:
-        rings, notes_ends = rc.extend_to_caps(rings, planes, cap_cloud,
-                                              np.arange(len(cap_cloud)), spacing)
-    support = noise if p["support"] and noise is not None else None
-    result = st.stitch_rings(rings, planes[0].frame[2], close_ends=p["caps"],
-                             support_sigma=support, cap_points=cap_cloud)
+    result, notes_ends = _stitcher(p, planes, noise, cap_cloud, spacing)(rings, planes)
     messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
@@ -212,16 +226,59 @@ def stitch(ctx: StageContext) -> dict:
     return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
 
 
+def _sized_control_mesh(ctx: StageContext, vertices, triangles):
+    """``surface.sizing.size_control_mesh`` of the curves' rings (``smooth.size``): the
+    thinned stitched mesh whose interpolating surface is within ``smooth.size_tolerance``
+    (0: the section points' noise σ̂) of the stitched mesh; ``None`` when not asked or
+    not possible (no noise estimate, an open mesh), with the reason logged."""
+    from surface import sizing
+
+    p = ctx.params["smooth"]
+    if not p["size"] or not ctx.has_output("curves") or not ctx.has_output("sections"):
+        return None
+    rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
+    tolerance = float(p["size_tolerance"]) or (noise or 0.0)
+    _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
+    if tolerance <= 0 or spacing <= 0:
+        log.info("smooth: no sizing (no noise estimate or section spacing); the stitched "
+                 "mesh is the control mesh")
+        return None
+    build = _stitcher(ctx.params["stitch"], planes, noise, cap_cloud, spacing)
+
+    def mesh(thin_rings, thin_planes):
+        result, _ = build(thin_rings, thin_planes)
+        if not result.closed:
+            raise ValueError("the thinned rings stitch to an open mesh")
+        return result.vertices, result.triangles
+
+    return sizing.size_control_mesh(rings, planes, spacing, mesh, (vertices, triangles),
+                                    tolerance)
+
+
 def smooth(ctx: StageContext) -> dict:
-    """``pipeline.smoothing.smooth_mesh`` over the stitched mesh (the one smoothing path,
-    with its G1 report: ``g1_angle`` radians, ``gap`` scene units)."""
+    """``pipeline.smoothing.smooth_mesh`` over the control mesh (the one smoothing path,
+    with its G1 report: ``g1_angle`` radians, ``gap`` scene units).  The control mesh is
+    the stitched mesh thinned by ``surface.sizing`` (``smooth.size``), its vertices
+    interpolated except at sharp rims (``smooth.interpolate``:
+    ``surface.sizing.interpolating_control``)."""
     from pipeline.mesh_io import read_mesh
     from pipeline.smoothing import smooth_mesh
+    from surface.sizing import interpolating_control
 
     vertices, triangles = read_mesh(ctx.stage_path("stitch", artifacts.MESH))
     level = ctx.params["smooth"]["level"]
+    info: dict = {}
     try:
-        smoothed = smooth_mesh(vertices, triangles, level,
+        sized = _sized_control_mesh(ctx, vertices, triangles)
+        if sized is not None:
+            vertices, triangles = sized.vertices, sized.triangles
+            info = {"size_step": sized.step, "size_n": sized.n,
+                    "size_deviation": sized.deviation, "size_tolerance": sized.tolerance,
+                    "control_triangles": len(triangles)}
+        control = vertices
+        if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back
+            control = interpolating_control(vertices, triangles)
+        smoothed = smooth_mesh(control, triangles, level,
                                _smooth_tolerance(ctx) if level == "auto" else None)
     except ValueError as exc:
         from surface.metrics import mesh_topology
@@ -233,7 +290,7 @@ def smooth(ctx: StageContext) -> dict:
         raise
     artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
                            smoothed.surface)
-    return smoothed.info()
+    return {**smoothed.info(), **info}
 
 
 def _smooth_tolerance(ctx: StageContext) -> float:
@@ -266,13 +323,23 @@ def export(ctx: StageContext) -> dict:
                     (ctx.workspace.record("smooth") or {}).get("reason", "smooth did not run"))
     vertices, triangles = read_mesh(source)
     normals = artifacts.read_ply_normals(source) if smoothed else None
+    net = artifacts.read_control_net(ctx.stage_path("smooth")) if smoothed else None
     written = []
     for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):
-        path = ctx.out / f"surface.{str(fmt).lower().lstrip('.')}"
-        export_mod.export_mesh(path, vertices, triangles, normals=normals)
+        fmt = str(fmt).lower().lstrip(".")
+        path = ctx.out / f"surface.{fmt}"
+        if fmt in ("step", "iges"):  # the exact surface as a CAD solid (pipeline.step)
+            if net is None or "domain_triangles" not in net:
+                log.warning("export: no smooth surface, so no %s file (CAD needs the exact "
+                            "patches)", fmt.upper())
+                continue
+            from pipeline.step import write_cad
+
+            write_cad(path, net["control_points"], net["domain_triangles"])
+        else:
+            export_mod.export_mesh(path, vertices, triangles, normals=normals)
         written.append(path.name)
     if smoothed:
-        net = artifacts.read_control_net(ctx.stage_path("smooth"))
         domain = (net["domain_vertices"], net["domain_triangles"]) \
             if "domain_triangles" in net else None
         export_mod.write_control_net(ctx.out / "surface.npz", net["control_points"],

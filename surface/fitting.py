@@ -67,7 +67,7 @@ from scipy.sparse.linalg import spsolve
 
 from surface.validate import check_finite, check_shape
 
-__all__ = ["interpolating_control_mesh", "limit_matrix", "limit_positions"]
+__all__ = ["interpolating_control_mesh", "limit_matrix", "limit_positions", "sharp_vertices"]
 
 
 def _adjacency(triangles: np.ndarray, count: int) -> sp.csr_matrix:
@@ -132,7 +132,33 @@ def limit_positions(vertices, triangles) -> np.ndarray:
     return limit_matrix(t, len(v)) @ v
 
 
-def interpolating_control_mesh(vertices, triangles) -> np.ndarray:
+def sharp_vertices(vertices, triangles, angle: float = np.pi / 6, rings: int = 1) -> np.ndarray:
+    """Vertices on or next to a sharp edge (dihedral angle above ``angle``), ``(V,) bool``.
+
+    ``rings`` grows the set by that many one-rings.  These are where an interpolating
+    G1 surface overshoots (a crease, or a rim held by support rings a noise width
+    away): :func:`interpolating_control_mesh` can keep them as they are.
+    """
+    v, t = _check_mesh(vertices, triangles)
+    normal = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    half = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    face = np.tile(np.arange(len(t)), 3)
+    key = np.sort(half, axis=1)
+    key = key[:, 0] * len(v) + key[:, 1]
+    order = np.argsort(key, kind="stable")
+    pair = key[order][1:] == key[order][:-1]
+    a, b = order[:-1][pair], order[1:][pair]  # the two half-edges of an interior edge
+    cos = np.einsum("ij,ij->i", normal[face[a]], normal[face[b]])
+    sharp = np.zeros(len(v), dtype=bool)
+    sharp[half[a[cos < np.cos(angle)]].ravel()] = True
+    adjacency = _adjacency(t, len(v)) if rings else None
+    for _ in range(int(rings)):
+        sharp |= (adjacency @ sharp.astype(np.float64)) > 0
+    return sharp
+
+
+def interpolating_control_mesh(vertices, triangles, keep=None) -> np.ndarray:
     """Control vertices whose Loop limit positions are ``vertices``.
 
     Parameters
@@ -141,6 +167,9 @@ def interpolating_control_mesh(vertices, triangles) -> np.ndarray:
         Target positions (e.g. the stitched mesh, whose vertices lie on the data).
     triangles : (F, 3) int array_like
         Closed, 2-manifold, every vertex used; the connectivity of the result.
+    keep : (V,) bool array_like, optional
+        Vertices that stay as they are (e.g. :func:`sharp_vertices`): the surface
+        approximates them and interpolates the others.
 
     Returns
     -------
@@ -158,7 +187,17 @@ def interpolating_control_mesh(vertices, triangles) -> np.ndarray:
     """
     v, t = _check_mesh(vertices, triangles)
     matrix = limit_matrix(t, len(v))
-    solution = np.asarray(spsolve(matrix.tocsc(), v))
+    if keep is not None and np.any(keep):
+        # kept vertices stay control vertices; the others interpolate: M_ff X_f = P_f - M_fk P_k
+        keep = np.asarray(keep, dtype=bool)
+        free = np.flatnonzero(~keep)
+        solution = v.copy()
+        if len(free):
+            rhs = v[free] - matrix[free][:, np.flatnonzero(keep)] @ v[keep]
+            part = np.asarray(spsolve(matrix[free][:, free].tocsc(), rhs)).reshape(-1, 3)
+            solution[free] = part
+    else:
+        solution = np.asarray(spsolve(matrix.tocsc(), v))
     if solution.shape != v.shape or not np.all(np.isfinite(solution)):
         raise ValueError("triangles: the Loop limit-position system of this mesh is singular "
                          "(no control mesh interpolates the vertices)")

@@ -119,3 +119,34 @@ def test_write_cad_refuses_unknown_suffix_and_mismatched_arrays(tmp_path, ellips
     with pytest.raises(ValueError, match="one row per patch"):
         step.write_cad(tmp_path / "a.step", cp, tris[:-1])
     assert list(tmp_path.iterdir()) == []
+
+
+def test_run_exports_a_step_solid_of_the_sized_surface(tmp_path):
+    """photosurf run on a small noisy vase cloud with export.formats = ["ply", "step"]."""
+    import json
+
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    from pipeline import cli
+
+    rng = np.random.default_rng(0)
+    n = 3000
+    z = rng.uniform(0, 3, n)
+    theta = rng.uniform(0, 2 * np.pi, n)
+    r = 1 + 0.3 * np.sin(2 * z)
+    cloud = tmp_path / "vase.xyz"
+    np.savetxt(cloud, np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
+               + rng.normal(0, 0.002, (n, 3)))
+    out = tmp_path / "run"
+    code = cli.main(["run", str(cloud), "--out", str(out), "--to", "export", "-q",
+                     "--set", 'export.formats=["ply", "step"]',
+                     "--set", "smooth.size_tolerance=0.005"])  # coarse: a quick STEP
+    assert code == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    smooth = manifest["stages"]["smooth"]["info"]
+    assert smooth["size_step"] >= 1 and smooth["patches"] == 4 * smooth["control_triangles"]
+    assert manifest["stages"]["export"]["info"]["files"] == ["surface.ply", "surface.step",
+                                                             "surface.npz"]
+    shape = step.read_cad_solid(out / "export" / "surface.step")
+    assert BRepCheck_Analyzer(shape).IsValid()
+    assert sum(1 for _ in _faces(shape)) == 3 * smooth["patches"]

@@ -1,0 +1,114 @@
+"""surface.sizing: thinning the dense rings into a control mesh sized by the data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from surface import bezier, sizing
+from surface import metrics as M
+from surface.fitting import interpolating_control_mesh, limit_positions, sharp_vertices
+from surface.sections import Section
+from surface.stitch import stitch_rings
+
+
+def radius(z):
+    return 1.0 + 0.3 * np.sin(2.0 * z)
+
+
+def vase_rings(sections: int = 61, n: int = 240):
+    """Noise-free rings of the vase r = 1 + 0.3 sin 2z, z in [0, 3], N / 2N points."""
+    heights = np.linspace(0.0, 3.0, sections)
+    rings = []
+    for k, z in enumerate(heights):
+        count = n if k % 2 == 0 else 2 * n
+        theta = 2.0 * np.pi * np.arange(count) / count
+        rings.append(np.column_stack([radius(z) * np.cos(theta), radius(z) * np.sin(theta),
+                                      np.full(count, z)]))
+    planes = [Section(height=float(z), points=np.zeros((0, 3)), origin=np.zeros(3),
+                      frame=np.eye(3), section_id=k) for k, z in enumerate(heights)]
+    return rings, planes, float(heights[1] - heights[0])
+
+
+def build(rings, planes):
+    result = stitch_rings(rings, np.array([0.0, 0.0, 1.0]), close_ends=True,
+                          support_sigma=1e-4)
+    assert result.closed
+    return result.vertices, result.triangles
+
+
+def truth_distance(points):
+    """Distance to the capped vase, to first order (radial on the wall, axial on caps)."""
+    r = np.hypot(points[:, 0], points[:, 1])
+    z = np.clip(points[:, 2], 0.0, 3.0)
+    wall = np.abs(r - radius(z)) / np.sqrt(1.0 + (0.6 * np.cos(2.0 * z)) ** 2)
+    cap = np.minimum(np.abs(points[:, 2]), np.abs(points[:, 2] - 3.0))
+    inside_cap = r < radius(z)
+    return np.where(inside_cap, np.minimum(wall, cap), np.maximum(wall, 0.0))
+
+
+def test_resample_ring_stays_on_the_curve():
+    # a periodic cubic through 240 points of an ellipse: its error, ~h^4 kappa^3 / 384
+    # with h = 2 pi / 240, is ~1e-9; resampled points must lie on the ellipse to 1e-7
+    t = 2.0 * np.pi * np.arange(240) / 240
+    ring = np.column_stack([1.5 * np.cos(t), 0.7 * np.sin(t), np.zeros_like(t)])
+    out = sizing.resample_ring(ring, 37)
+    assert out.shape == (37, 3)
+    np.testing.assert_allclose(out[0], ring[0], atol=1e-15)  # the first point stays
+    np.testing.assert_allclose((out[:, 0] / 1.5) ** 2 + (out[:, 1] / 0.7) ** 2, 1.0, atol=1e-7)
+    with pytest.raises(ValueError, match="count must be >= 3"):
+        sizing.resample_ring(ring, 2)
+
+
+@pytest.mark.parametrize("count,step", [(189, 7), (20, 3), (5, 9), (2, 4), (50, 1)])
+def test_kept_sections_are_graded_towards_the_ends(count, step):
+    keep = sizing.kept_sections(count, step)
+    gaps = np.diff(keep)
+    assert keep[0] == 0 and keep[-1] == count - 1
+    assert np.all(gaps >= 1) and np.all(gaps <= step)
+    assert keep[:2] == [0, 1] and keep[-2:] == [count - 2, count - 1]  # rims stay dense
+
+
+def test_interpolation_keeps_the_kept_vertices_and_interpolates_the_others():
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh.create_box().subdivide_midpoint(2)
+    v, t = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    keep = sharp_vertices(v, t, rings=0)
+    # the box's vertices on its edges are the sharp ones; faces' interiors are flat
+    on_edge = np.sum((np.abs(v) < 1e-12) | (np.abs(v - 1) < 1e-12), axis=1) >= 2
+    np.testing.assert_array_equal(keep, on_edge)
+    x = interpolating_control_mesh(v, t, keep=keep)
+    np.testing.assert_array_equal(x[keep], v[keep])
+    np.testing.assert_allclose(limit_positions(x, t)[~keep], v[~keep], atol=1e-10)
+
+
+def test_sized_vase_is_coarser_and_within_tolerance():
+    rings, planes, spacing = vase_rings()
+    dense = build(rings, planes)
+    tolerance = 2e-4
+    sized = sizing.size_control_mesh(rings, planes, spacing, build, dense, tolerance)
+    assert sized.step > 1 and 0 < sized.n < 240
+    assert len(sized.triangles) < len(dense[1]) / 4
+    assert sized.deviation <= tolerance
+    assert [c["deviation"] for c in sized.tried if "deviation" in c][-1] == sized.deviation
+    # the smooth surface over the thinned mesh is as close to the truth as the one over
+    # the dense mesh, to the tolerance (wall and caps; the rims are supported)
+    surface, _ = sizing.smooth_deviation(sized.vertices, sized.triangles, dense[0][:10])
+    v, t, _ = bezier.tessellate(surface, 2)
+    dense_surface, _ = sizing.smooth_deviation(*dense, dense[0][:10])
+    dv, dt, _ = bezier.tessellate(dense_surface, 1)
+    sample = M.sample_mesh(v, t, count=20000, seed=1)
+    dense_sample = M.sample_mesh(dv, dt, count=20000, seed=1)
+    assert truth_distance(sample).mean() <= truth_distance(dense_sample).mean() + tolerance
+
+
+def test_size_control_mesh_checks_its_input():
+    rings, planes, spacing = vase_rings(5, 24)
+    dense = build(rings, planes)
+    with pytest.raises(ValueError, match="tolerance must be a positive"):
+        sizing.size_control_mesh(rings, planes, spacing, build, dense, 0.0)
+    with pytest.raises(ValueError, match="spacing must be a positive"):
+        sizing.size_control_mesh(rings, planes, -1.0, build, dense, 1e-3)
+    with pytest.raises(ValueError, match="at least two sections"):
+        sizing.size_control_mesh(rings[:1], planes[:1], spacing, build, dense, 1e-3)
