@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["SizedMesh", "coarsen_rings", "interpolating_control", "kept_sections",
+           "sized_from_points",
            "resample_ring", "size_control_mesh", "smooth_deviation"]
 
 #: Points round the largest ring of the coarsest candidate.
@@ -316,3 +317,51 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         h /= H_RATIO
     return SizedMesh(dense_vertices, dense_triangles.astype(np.int64), 1, 0, 0.0, tolerance,
                      tried)
+
+
+def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = None,
+                      smoothing: float | str = "auto", support: bool = True):
+    """Cloud -> dense stitched mesh -> sized control mesh, the steps of
+    ``surface.reconstruct.surface_from_points`` with its defaults, then
+    :func:`size_control_mesh` (what ``photosurf run``'s smooth stage does).
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+    axis : as ``surface_from_points``
+    tolerance : float, optional
+        Default: the section points' noise σ̂ (``reconstruct.section_noise``).
+    smoothing, support
+        As ``surface_from_points``.
+
+    Returns
+    -------
+    (SizedMesh, StitchResult)
+        The sized control mesh and the dense stitched mesh.
+    """
+    from surface import reconstruct as rc
+    from surface.stitch import stitch_rings
+
+    sliced = rc.slice_cloud(points, axis=axis)
+    kept, loops, _ = rc.organise_sections(sliced.sections,
+                                          min_points=rc.min_loop_points(smoothing))
+    rings = rc.section_rings(kept, loops, None, smoothing=smoothing)
+    kept, loops, rings, _ = rc.untangle(kept, loops, rings)
+    noise = rc.section_noise(loops)
+    cap = sliced.cap_cloud
+
+    def build(ring_list, planes):
+        extended, _ = rc.extend_to_caps(ring_list, planes, cap, np.arange(len(cap)),
+                                        sliced.spacing)
+        result = stitch_rings(extended, kept[0].frame[2], close_ends=True,
+                              support_sigma=noise if support else None, cap_points=cap)
+        if not result.closed:
+            raise ValueError("the thinned rings stitch to an open mesh")
+        return result
+
+    dense = build(rings, kept)
+    tol = float(tolerance) if tolerance else noise
+    sized = size_control_mesh(rings, kept, sliced.spacing,
+                              lambda r, p: (lambda s: (s.vertices, s.triangles))(build(r, p)),
+                              (dense.vertices, dense.triangles), tol)
+    return sized, dense
