@@ -1,18 +1,35 @@
 """Write-then-rename, so that no reader ever sees a half-written output.
 
 ``atomic_file(path)`` yields a temporary path beside ``path``; on success it is
-renamed over ``path``, on error removed.  ``atomic_dir(path)`` does the same
-for a whole output folder (the folder appears complete or not at all).
+renamed over ``path``, on error (a full disk, a signal) removed.
+``atomic_dir(path)`` does the same for a whole output folder (the folder
+appears complete or not at all).
+
+An output folder named by the user (``synth --out DIR``, ``match --out DIR``)
+is given a ``kind``: then photosurf never deletes a file it did not write.
+A new folder is made as above, with a marker file :data:`MARKER` listing the
+files it holds; an existing folder is accepted only when it is empty or holds
+that marker for the same kind, and then only the files the marker lists are
+replaced or removed -- anything else in the folder (a user's notes, the
+recipe) stays, and a new file whose name is taken by one of them is refused
+before anything moves.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import secrets
 import shutil
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+from pipeline.errors import InputError
+
+#: The marker file of a photosurf output folder: ``{"kind": ..., "files": [...]}``.
+MARKER = ".photosurf-output.json"
+_TMP_PREFIX = ".photosurf-tmp."
 
 
 def _umask() -> int:
@@ -30,11 +47,11 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = _temp_name(path.parent, f".{path.stem}.", path.suffix)
     try:
-        yield tmp
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        with _naming(path):
+            yield tmp
         if not tmp.exists() or tmp.stat().st_size == 0:
             raise OSError(f"{path}: writer produced no output")
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
@@ -43,30 +60,201 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
-@contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike, replace: bool = True) -> Iterator[Path]:
-    """Yield a temporary folder beside ``path``; move it to ``path`` on success.
+def _temp_name(folder: Path, prefix: str, suffix: str = "") -> Path:
+    """A fresh temporary name in ``folder``, chosen *before* anything is created.
 
-    With ``replace`` an existing ``path`` is swapped out only after the new
-    folder is complete.
+    ``tempfile.mkstemp``/``mkdtemp`` create the entry and only then return its
+    name; a signal arriving in between (SIGTERM during a run) would leave an
+    entry nobody knows.  Here the caller holds the name first and removes the
+    entry in its ``finally`` whatever happens after.
+    """
+    for _ in range(100):
+        candidate = folder / f"{prefix}{secrets.token_hex(4)}{suffix}"
+        if not os.path.lexists(candidate):
+            return candidate
+    raise FileExistsError(f"{folder}: no free temporary name")
+
+
+@contextlib.contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """A failed write (ENOSPC, EFBIG, EIO) that names no file names the output."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
+        raise
+
+
+def _own_files(root: Path) -> list[str]:
+    """Relative paths of the regular files and links under ``root`` (not the marker)."""
+    found = []
+    for folder, dirs, files in os.walk(root):
+        base = Path(folder).relative_to(root)
+        found.extend((base / name).as_posix() for name in files)
+        found.extend((base / name).as_posix() for name in dirs
+                     if os.path.islink(os.path.join(folder, name)))
+    return sorted(f for f in found if f != MARKER)
+
+
+def output_dir_state(path: str | os.PathLike, kind: str) -> list[str] | None:
+    """What an output folder holds before photosurf writes ``kind`` into it.
+
+    Returns
+    -------
+    None
+        Nothing at ``path`` (the folder will be created).
+    list of str
+        The files photosurf wrote there before (empty for an empty folder).
+
+    Raises
+    ------
+    NotADirectoryError
+        ``path`` is a file.
+    InputError
+        A folder holding files photosurf did not write, or another kind's output.
     """
     path = Path(path)
+    if not os.path.lexists(path):
+        return None
+    if not path.is_dir():
+        raise NotADirectoryError(f"{path}: the output must be a folder, found a file")
+    entries = [e for e in os.listdir(path) if not e.startswith(_TMP_PREFIX)]
+    if not entries:
+        return []
+    marker = path / MARKER
+    if not marker.is_file() or marker.is_symlink():
+        shown = ", ".join(repr(e) for e in sorted(entries)[:2])
+        raise InputError(f"{path}: the folder exists and holds {len(entries)} entries photosurf "
+                         f"did not write ({shown}{', ...' if len(entries) > 2 else ''}); "
+                         "choose a new or empty folder (nothing was changed)")
+    try:
+        record = json.loads(marker.read_text(encoding="utf-8"))
+        files = record["files"]
+        if not (isinstance(files, list) and all(isinstance(f, str) for f in files)):
+            raise TypeError
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        raise InputError(f"{marker}: damaged photosurf output marker; choose a new folder "
+                         "(nothing was changed)") from None
+    if record.get("kind") != kind:
+        raise InputError(f"{path}: holds a photosurf {record.get('kind')!r} output, not a "
+                         f"{kind!r} one; choose another folder (nothing was changed)")
+    safe = [f for f in files if not Path(f).is_absolute() and ".." not in Path(f).parts]
+    return safe
+
+
+def _write_marker(folder: Path, kind: str, files: list[str]) -> None:
+    data = json.dumps({"kind": kind, "files": files}, indent=1) + "\n"
+    tmp = _temp_name(folder, f"{_TMP_PREFIX}marker.")
+    try:
+        with open(tmp, "x", encoding="utf-8") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, folder / MARKER)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+
+
+def _merge_into(path: Path, tmp: Path, previous: list[str], kind: str) -> None:
+    """Move ``tmp``'s files into the existing folder ``path``, replacing only ``previous``."""
+    new = _own_files(tmp)
+    owned = set(previous)
+    for rel in new:  # every conflict found before anything moves
+        dest = path / rel
+        for parent in list(Path(rel).parents)[-2::-1]:  # outermost first, "." excluded
+            where = path / parent
+            if where.is_symlink() or (where.exists() and not where.is_dir()):
+                raise InputError(f"{where}: is in the way of {rel} and photosurf did not write "
+                                 "it (nothing was changed)")
+        if os.path.lexists(dest) and (rel not in owned or dest.is_dir()):
+            raise InputError(f"{dest}: exists and photosurf did not write it; choose a new "
+                             "or empty folder (nothing was changed)")
+    for rel in new:
+        dest = path / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp / rel, dest)
+    stale = sorted(owned - set(new), reverse=True)
+    for rel in stale:
+        dest = path / rel
+        if dest.is_symlink() or dest.is_file():
+            dest.unlink()
+    for rel in stale + new:  # folders that only held photosurf's files
+        for parent in Path(rel).parents:
+            if parent == Path("."):
+                break
+            with contextlib.suppress(OSError):
+                (path / parent).rmdir()  # only succeeds when empty
+    _write_marker(path, kind, new)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike, replace: bool = True,
+               kind: str | None = None) -> Iterator[Path]:
+    """Yield a temporary folder; on success its content becomes ``path``.
+
+    Parameters
+    ----------
+    path : path-like
+        The output folder.
+    replace : bool
+        Without ``kind``: an existing ``path`` is swapped out only after the
+        new folder is complete (the workspace's own stage folders).
+    kind : str, optional
+        A user-named output folder of this kind (``"synth"``, ``"match"``):
+        see the module docstring -- an existing folder must be empty or an
+        output of the same kind, and only photosurf's own files in it change.
+        ``path`` may then be the current folder (``--out .``).
+    """
+    path = Path(path)
+    if kind is not None:
+        previous = output_dir_state(path, kind)
+        if previous is not None:  # an existing folder: fill it file by file
+            tmp = _temp_name(path, _TMP_PREFIX)
+            try:
+                os.mkdir(tmp, 0o700)
+                with _naming(path):
+                    yield tmp
+                _publish(tmp)
+                _merge_into(path, tmp, output_dir_state(path, kind) or [], kind)
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+            return
     if path.exists() and not path.is_dir():
         raise NotADirectoryError(f"{path}: the output must be a folder, found a file")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    tmp = _temp_name(path.parent, f".{path.name}.")
     try:
-        yield tmp
+        os.mkdir(tmp, 0o700)
+        with _naming(path):
+            yield tmp
+        if kind is not None:
+            _write_marker(tmp, kind, _own_files(tmp))
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; give the usual folder mode
         if path.exists():
-            if not replace:
+            if not replace or kind is not None:
                 raise FileExistsError(f"{path}: already exists")
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
-            os.replace(path, old / "x")
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
+            old = _temp_name(path.parent, f".{path.name}.old.")
+            try:
+                os.mkdir(old, 0o700)
+                os.replace(path, old / "x")
+                os.replace(tmp, path)
+            finally:
+                shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _publish(folder: Path) -> None:
+    """The user's usual modes on a temporary tree (mkdtemp/mkstemp make 0700/0600)."""
+    mask = _umask()
+    for root, dirs, files in os.walk(folder):
+        for name in dirs:
+            os.chmod(os.path.join(root, name), 0o777 & ~mask)
+        for name in files:
+            full = os.path.join(root, name)
+            if not os.path.islink(full):
+                os.chmod(full, 0o666 & ~mask)

@@ -10,19 +10,33 @@ Each subcommand lives in its own module ``pipeline/cmd_<name>.py`` exposing
 Errors a user can fix (bad input, missing file, invalid recipe) are raised as
 ``ValueError`` / ``FileNotFoundError`` / :class:`pipeline.errors.InputError`
 and printed here as one line, ``photosurf CMD: error: ...``, with exit
-status 2.  ``-v`` also prints the traceback.
+status 2.  ``-v`` also prints the traceback.  Every message is escaped
+(:func:`pipeline.guards.escape`: a newline or a terminal escape sequence in a
+file name cannot split the line or reach the terminal raw).
+
+SIGINT, SIGTERM and SIGHUP end a command the same way: the work unwinds (every
+temporary of :mod:`pipeline.atomic` is removed), one line ``photosurf CMD:
+interrupted (SIGTERM)`` is printed and the exit status is 128 + the signal
+number (130, 143, 129).  ``photosurf`` without a command prints its usage on
+stderr with exit status 2.  ``--allow-large`` lifts the limits of
+:mod:`pipeline.limits` (as ``PHOTOSURF_ALLOW_LARGE=1``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
+import signal
 import sys
+import threading
 import traceback
 
 from pipeline import __version__
 from pipeline.errors import InputError
+from pipeline.guards import escape
 
 #: Subcommands in the order ``--help`` lists them.
 COMMANDS = [
@@ -56,7 +70,36 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line usage errors, like every other photosurf error."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {escape(message)} (see {self.prog} --help)\n")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the main thread so the work unwinds as for Ctrl-C."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _signals_unwind():
+    """SIGTERM/SIGHUP raise :class:`Terminated` for the duration (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        with contextlib.suppress(ValueError, OSError):
+            saved[sig] = signal.signal(sig, _raise_terminated)
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
         "planar sections, Catmull-Rom curves, Delaunay stitching, Loop's sextic Bezier patches.",
     )
     parser.add_argument("--version", action="version", version=f"photosurf {__version__}")
+    parser.add_argument("--allow-large", action="store_true",
+                        help="lift the documented size limits (pipeline/limits.py; also "
+                             "PHOTOSURF_ALLOW_LARGE=1)")
     common = _Parser(add_help=False)
     common.add_argument("-v", "--verbose", action="count", default=0,
                         help="more output (-vv for debug); tracebacks on error")
@@ -85,14 +131,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        parser.print_help()
+        parser.print_usage(sys.stderr)
+        print("photosurf: error: a command is required (see photosurf --help)", file=sys.stderr)
         return 2
+    if args.allow_large:
+        from pipeline.limits import ALLOW_ENV
+
+        os.environ[ALLOW_ENV] = "1"  # inherited by worker processes too
     level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1 else
                                               logging.INFO if args.verbose else logging.WARNING)
     logging.basicConfig(level=level, format="photosurf: %(message)s")
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(_escape_record)
     _quiet_opencv(args.verbose)
     try:
-        status = args._module.run(args)
+        with _signals_unwind():
+            status = args._module.run(args)
     except USER_ERRORS as exc:
         if args.verbose:
             traceback.print_exc()
@@ -102,12 +156,27 @@ def main(argv: list[str] | None = None) -> int:
             message = f"{exc.filename2 or exc.filename}: {exc.strerror}"
             if isinstance(exc, FileExistsError):  # mkdir of an output folder over a file
                 message += " (a file is where a folder is needed)"
-        print(f"photosurf {args.command}: error: {message}", file=sys.stderr)
+        print(f"photosurf {args.command}: error: {escape(message)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"photosurf {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except RecursionError:  # a structure nested past Python's limit, wherever it was read
+        if args.verbose:
+            traceback.print_exc()
+        print(f"photosurf {args.command}: error: input nested too deeply", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"photosurf {args.command}: interrupted ({signal.Signals(signum).name})",
+              file=sys.stderr)
+        return 128 + int(signum)
     return int(status or 0)
+
+
+def _escape_record(record: logging.LogRecord) -> bool:
+    """Log lines are escaped like errors (a file name's newline stays inside its line);
+    debug records keep their layout (tracebacks)."""
+    if record.levelno > logging.DEBUG:
+        record.msg, record.args = escape(record.getMessage()), ()
+    return True
 
 
 def _quiet_opencv(verbose: int) -> None:

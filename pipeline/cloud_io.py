@@ -145,6 +145,9 @@ def _parse_header(path: Path):
                     raise InputError(f"{path}: bad PLY line {line!r}") from None
                 if count < 0:
                     raise InputError(f"{path}: negative vertex count {count}")
+                from pipeline import limits
+
+                limits.check("file.elements", count, where=f"{path}: vertex count {count}")
         elif words[0] == "property" and element == "vertex":
             if words[1] == "list" or words[1] not in _PLY_TYPES:
                 return None
@@ -173,7 +176,12 @@ def read_ply(path: str | os.PathLike) -> Cloud:
             return Cloud(_finite(points, path), colours, sigma)
     import open3d as o3d
 
-    pcd = o3d.io.read_point_cloud(str(path))
+    from pipeline.guards import native_stderr
+    from pipeline.mesh_io import check_header_counts
+
+    check_header_counts(path)  # a header claiming 10^9 points is refused before reading
+    with native_stderr():  # RPly's own lines
+        pcd = o3d.io.read_point_cloud(str(path))
     points = np.asarray(pcd.points, dtype=np.float64)
     if len(points) == 0:
         raise InputError(f"{path}: no points in this PLY file")
@@ -183,10 +191,12 @@ def read_ply(path: str | os.PathLike) -> Cloud:
 
 
 def _finite(points: np.ndarray, path: Path) -> np.ndarray:
+    from pipeline.guards import check_coordinates
+
     if not np.isfinite(points).all():
         bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
         raise InputError(f"{path}: {bad} points with non-finite coordinates")
-    return points
+    return check_coordinates(points, str(path))
 
 
 def read_text(path: str | os.PathLike) -> Cloud:
@@ -214,7 +224,7 @@ def read_text(path: str | os.PathLike) -> Cloud:
     data = np.array(rows, dtype=np.float64)
     if not np.isfinite(data[:, :3]).all():
         raise InputError(f"{path}: non-finite coordinates")
-    return Cloud(data[:, :3], extra=data[:, 3:] if width > 3 else None)
+    return Cloud(_finite(data[:, :3], path), extra=data[:, 3:] if width > 3 else None)
 
 
 def read_npz(path: str | os.PathLike) -> Cloud:
@@ -226,9 +236,13 @@ def read_npz(path: str | os.PathLike) -> Cloud:
         with np.load(path, allow_pickle=False) as data:
             if "points" not in data:
                 raise InputError(f"{path}: no 'points' array (has {sorted(data.files)})")
-            points = np.asarray(data["points"], dtype=np.float64)
-            colours = data["colours"] if "colours" in data else None
-            sigma = data["sigma"] if "sigma" in data else None
+            arrays = {k: data[k] for k in ("points", "colours", "sigma") if k in data}
+        for name, array in arrays.items():  # a cast would drop parts silently
+            if array.dtype.kind not in "biuf":
+                raise InputError(f"{path}: '{name}' holds {array.dtype} values, expected "
+                                 "real numbers")
+        points = np.asarray(arrays["points"], dtype=np.float64)
+        colours, sigma = arrays.get("colours"), arrays.get("sigma")
     except InputError:
         raise
     except (zipfile.BadZipFile, EOFError, ValueError, OSError, TypeError) as exc:
@@ -242,11 +256,14 @@ def read_npz(path: str | os.PathLike) -> Cloud:
 
 def read_cloud(path: str | os.PathLike) -> Cloud:
     """Read a point cloud by suffix: .ply, .xyz/.txt/.csv, .npz."""
+    from pipeline.guards import regular_file
+
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, expected a point-cloud file")
+    regular_file(path, "point-cloud file")  # no FIFO, device or socket
     suffix = path.suffix.lower()
     if suffix == ".ply":
         return read_ply(path)

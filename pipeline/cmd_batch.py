@@ -136,6 +136,10 @@ def run_object(task: dict) -> dict:
 
     progress.set_quiet(True)  # many objects at once: no interleaved bars
     result = {"name": task["name"], "outdir": task["outdir"]}
+    if os.path.islink(task["outdir"]):  # never write an object's workspace through a link
+        return {**result, "status": "failed",
+                "error": f"{task['outdir']}: is a symbolic link; photosurf does not follow "
+                         "links inside OUTDIR (remove it or rename the object)"}
     try:
         config = config_mod.resolve(task["config_files"], task["assignments"],
                                     overrides=task["overrides"],
@@ -178,6 +182,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {r['name']:<20} {r['status']:<8} {note}")
         print(f"photosurf batch: {len(results) - len(failed)} of {len(results)} objects done "
               f"-> {ws.root}")
-    for r in failed:
-        print(f"photosurf batch: error: {r['name']}: {r['error']}", file=sys.stderr)
+    if failed:  # one line, whatever the number of failures; batch.json lists each
+        from pipeline.guards import escape
+
+        first = failed[0]
+        more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+        print(f"photosurf batch: error: {len(failed)} of {len(results)} objects failed "
+              f"(see {ws.root / 'batch.json'}): {escape(first['name'])}: "
+              f"{escape(first['error'])}{more}", file=sys.stderr)
     return 2 if failed else 0

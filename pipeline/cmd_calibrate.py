@@ -30,6 +30,13 @@ example:
 
 log = logging.getLogger(__name__)
 
+#: The board's extent (square x largest corner count) must survive float32 squaring:
+#: OpenCV stores the object points as float32 (range 1.2e-38 .. 3.4e38).
+BOARD_EXTENT = (1e-18, 1e18)
+#: A calibrated baseline below this many squares is a zero baseline: the board's own
+#: corners are located to ~0.1 px, a far larger share of a square than this.
+MIN_BASELINE_SQUARES = 1e-3
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.epilog = EPILOG
@@ -55,23 +62,36 @@ def _expand(pattern: str, side: str) -> list[Path]:
 
 
 def _read_gray(path: Path):
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(f"{path}: not a readable image")
-    return image
+    from pipeline.guards import read_image
+
+    return read_image(path, cv2.IMREAD_GRAYSCALE)  # regular file, format, size limit
 
 
 def run(args: argparse.Namespace) -> int:
+    from pipeline import limits
+    from pipeline.guards import check_output
+
     if not (math.isfinite(args.square) and args.square > 0):
         raise InputError(f"--square must be positive, got {args.square}")
     pattern = parse_pattern(args.pattern)
+    limits.check("calibrate.corners", pattern[0] * pattern[1], where=f"--pattern {args.pattern}")
+    extent = args.square * max(pattern)
+    if not BOARD_EXTENT[0] <= extent <= BOARD_EXTENT[1]:
+        raise InputError(f"--square {args.square:g}: the board spans {extent:.3g}; OpenCV "
+                         "takes it as float32 and squares it, so it must lie in "
+                         f"[{BOARD_EXTENT[0]:g}, {BOARD_EXTENT[1]:g}]")
     lefts, rights = _expand(args.left, "left"), _expand(args.right, "right")
     if len(lefts) != len(rights):
         raise InputError(f"{len(lefts)} left images ({args.left}) but {len(rights)} right "
                          f"images ({args.right}); they must pair up")
+    same = [a for a, b in zip(lefts, rights, strict=True) if a.resolve() == b.resolve()]
+    if same:
+        raise InputError(f"{same[0]}: is both a left and a right image (the globs name the "
+                         "same files); each pair needs two cameras")
     out = Path(args.out)
     if out.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
         raise InputError(f"--out {out}: must end in .yml, .yaml, .xml or .json")
+    check_output(out, [*lefts, *rights])
     left_images = [_read_gray(p) for p in lefts]
     right_images = [_read_gray(p) for p in rights]
     names = [f"{a.name}/{b.name}" for a, b in zip(lefts, rights, strict=True)]
@@ -86,6 +106,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.left} / {args.right}: {exc}") from None
     for message in result.skipped.values():
         log.warning("skipped %s", message)
+    if not result.rig.baseline > MIN_BASELINE_SQUARES * args.square:
+        raise InputError(f"{args.left} / {args.right}: the calibrated cameras are "
+                         f"{result.rig.baseline:.3g} apart, under {MIN_BASELINE_SQUARES:g} of "
+                         "a square: the left and right images were taken from one place "
+                         "(zero baseline), no rig is written")
     extra = {"rms_px": result.rms_px, "rms_left_px": result.rms_left_px,
              "rms_right_px": result.rms_right_px, "n_pairs": len(result.used),
              "pattern": f"{pattern[0]}x{pattern[1]}", "square": float(args.square)}

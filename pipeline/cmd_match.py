@@ -40,17 +40,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from matching.pair import match_pair
+    from pipeline.atomic import output_dir_state
+    from pipeline.guards import check_output
 
     options = match_options(args)
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise InputError(f"{args.out}: is a file; --out must name a folder")
+    check_output(args.out, [args.left, args.right, args.rig], folder=True)
+    output_dir_state(args.out, "match")  # refused before matching, not after
     left, right = read_pair(args.left, args.right)
     rig = None if args.rectified else read_rig_for(args.rig, args.left)
     if rig is not None:
         check_rig_size(rig, (left, right), (args.left, args.right))
     matches = match_pair(left, right, rig, rectified=args.rectified, **options)
     check_some_matched(matches, args.left)
-    with atomic_dir(args.out) as tmp:
+    with atomic_dir(args.out, kind="match") as tmp:
         write_npz_to(tmp / "matches.npz", **matches.as_dict())  # byte-reproducible
         if args.rectified:
             np.save(tmp / "disparity.npy", matches.disparity_map())

@@ -69,6 +69,13 @@ def run(args: argparse.Namespace) -> int:
     if args.error_range is not None and (args.truth is None or not args.error_range > 0):
         raise InputError("--range needs --truth and a positive distance, got "
                          f"{args.error_range}")
+    from pipeline import limits
+    from pipeline.guards import check_output
+
+    check_output(out, [args.mesh, args.truth])
+    # the sheet is rendered at 2x2 supersampling (pipeline.render)
+    limits.check("render.pixels", 4 * args.size[0] * args.size[1], where=f"--size "
+                 f"{args.size[0]}x{args.size[1]} (x4 samples)")
     vertices, triangles, normals = read_mesh_with_normals(args.mesh)
     truth = None
     error_range = None

@@ -96,10 +96,22 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
                          f"(choose one of {', '.join(MESH_SUFFIXES)})")
+    from pipeline import limits
+    from pipeline.guards import check_cloud_shape, check_output
+
     if args.sections is not None and args.sections < 2:
         raise InputError(f"--sections must be >= 2, got {args.sections}")
     if args.n is not None and args.n < 3:
         raise InputError(f"--n must be >= 3, got {args.n}")
+    if args.sections is not None:
+        limits.check("sections.count", args.sections, where="--sections")
+    if args.n is not None:
+        limits.check("ring.points", args.n, where="--n")
+    if args.sections is not None and args.n is not None:  # odd rings n, even 2n: ~3n per gap
+        limits.check("mesh.triangles", 3 * args.n * args.sections, where="--sections x --n")
+    targets = [out] + ([out.with_suffix(".npz")] if args.smooth else [])
+    for target in targets:
+        check_output(target, [args.cloud])
     smoothing = _smoothing(args.smoothing)
     axis = parse_axis(args.axis)
     points = read_points(args.cloud)
@@ -108,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
     if not np.all(np.isfinite(points)):
         bad = int(np.count_nonzero(~np.all(np.isfinite(points), axis=1)))
         raise InputError(f"{args.cloud}: {bad} points have NaN/inf coordinates")
+    check_cloud_shape(points, str(args.cloud))
     start = time.perf_counter()
     try:
         result = surface_from_points(points, axis=axis, sections=args.sections, n=args.n,

@@ -44,12 +44,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pipeline.guards import check_output
     from pipeline.mesh_io import read_mesh_with_normals, weld_vertices
     from pipeline.smoothing import EDGE_SAMPLES, smooth_to_files
 
     mesh_path = Path(args.mesh)
     if Path(args.out).suffix.lower() == ".npz":
         raise InputError(f"{args.out}: the control net takes the .npz name; choose a mesh format")
+    for target in (args.out, Path(args.out).with_suffix(".npz")):
+        check_output(target, [mesh_path])
     vertices, triangles, _ = read_mesh_with_normals(mesh_path)
     if mesh_path.suffix.lower() == ".stl":
         vertices, triangles = weld_vertices(vertices, triangles)

@@ -41,9 +41,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".ply":
         raise InputError(f"{out}: --out must end in .ply")
+    from pipeline.guards import check_output
+
     for target in (out, out.with_suffix(".npz")):
         if target.is_dir():
             raise InputError(f"{target}: is a folder; --out must name a file")
+        check_output(target, [args.left, args.right, args.rig])
     options = match_options(args)
     left, right = read_pair(args.left, args.right, need_same_size=False)
     rig = read_rig_for(args.rig, args.left)

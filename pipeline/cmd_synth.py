@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import tomllib
 
 from pipeline.errors import InputError
 
@@ -24,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recipe", nargs="?", default=str(DEFAULT_RECIPE), metavar="RECIPE",
                         help="scene recipe (TOML); default: the vase, fixtures/scenes/vase.toml")
     parser.add_argument("--out", required=True, metavar="OUTDIR",
-                        help="output folder (replaced as a whole on success)")
+                        help="output folder: new, empty, or an earlier synth output (only "
+                             "the files photosurf wrote there are replaced)")
     parser.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
                         dest="overrides",
                         help="override a recipe field, value in TOML syntax "
@@ -35,14 +35,12 @@ def parse_override(text: str) -> tuple[str, object]:
     """``"cameras.width=320"`` -> ``("cameras.width", 320)``; a bare word stays a string."""
     if "=" not in text:
         raise InputError(f"--set {text!r}: expected TABLE.KEY=VALUE")
+    from pipeline.config import parse_value
+
     key, raw = (part.strip() for part in text.split("=", 1))
     if not key:
         raise InputError(f"--set {text!r}: empty key")
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw
-    return key, value
+    return key, parse_value(raw, f"--set {key}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,8 +48,15 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.scenes import load_recipe, render_scene
 
     progress.set_quiet(args.quiet)
+    from pipeline.atomic import output_dir_state
+    from pipeline.guards import check_output, regular_file
+
     overrides = dict(parse_override(text) for text in args.overrides)
+    regular_file(args.recipe, "recipe file")
     recipe = load_recipe(args.recipe, overrides=overrides)
+    mesh = recipe["shape"].get("path")
+    check_output(args.out, [args.recipe, mesh], folder=True)
+    output_dir_state(args.out, "synth")  # refused before rendering, not after
     outdir = render_scene(recipe, args.out, progress=not args.quiet, source=args.recipe)
     log.info("wrote %s", outdir)
     return 0

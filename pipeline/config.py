@@ -19,7 +19,6 @@ import os
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
 from importlib import resources
-from pathlib import Path
 
 import tomli_w
 
@@ -79,6 +78,16 @@ RANGES = {
 }
 
 
+#: Parameters whose size has a documented limit (:mod:`pipeline.limits`): key -> limit key.
+LIMITED = {
+    "acquire.max_iter": "iterations",
+    "sections.count": "sections.count",
+    "curves.n": "ring.points",
+    "executor.workers": "workers",
+    "report.samples": "file.elements",
+}
+
+
 def _check_range(dotted: str, value, origin: str) -> None:
     rule = RANGES.get(dotted)
     if rule is None or isinstance(value, str | bool) or not isinstance(value, int | float):
@@ -86,6 +95,14 @@ def _check_range(dotted: str, value, origin: str) -> None:
     test, wording = rule
     if not test(value):
         raise InputError(f"{origin}: {dotted} must be {wording}, got {value!r}")
+    if dotted in LIMITED:
+        from pipeline import limits
+
+        limits.check(LIMITED[dotted], value, where=f"{origin}: {dotted}")
+    if dotted in ("report.width", "report.height"):
+        from pipeline import limits
+
+        limits.check("render.pixels", 4 * value * value, where=f"{origin}: {dotted} (squared)")
 
 
 def defaults() -> dict:
@@ -96,15 +113,9 @@ def defaults() -> dict:
 
 def load_file(path: str | os.PathLike) -> dict:
     """Read a TOML config file; errors name the file and the TOML problem."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such config file")
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text TOML file ({exc.reason})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: invalid TOML: {exc}") from exc
+    from pipeline.guards import load_toml
+
+    return load_toml(path, "config file")
 
 
 def parse_assignment(text: str) -> tuple[list[str], object]:
@@ -119,12 +130,31 @@ def parse_assignment(text: str) -> tuple[list[str], object]:
     path = [part.strip() for part in key.strip().split(".")]
     if len(path) < 2 or not all(path):
         raise InputError(f"--set {text!r}: the key must be section.key (e.g. sections.count=24)")
+    return path, parse_value(raw, f"--set {key.strip()}")
+
+
+def parse_value(raw: str, origin: str):
+    """One TOML value (``3``, ``0.5``, ``true``, ``"auto"``, ``[1, 0, 0]``); a bare word is
+    kept as a string.
+
+    The text must be exactly one value: a line break (which could start a new
+    table or key and inject it into the configuration) or a value followed by
+    more TOML is an ``InputError`` naming ``origin`` (the key).
+    """
+    if any(c in raw for c in "\n\r\x00") or not raw.strip().isprintable():
+        raise InputError(f"{origin}: the value must be one TOML value on one line, got {raw!r}")
     raw = raw.strip()
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
+        parsed = tomllib.loads(f"v = {raw}")
     except tomllib.TOMLDecodeError:
-        value = raw
-    return path, value
+        if any(c in raw for c in "=[]{}\"'"):  # TOML syntax that did not parse: not a word
+            raise InputError(f"{origin}: not a TOML value: {raw!r}") from None
+        return raw
+    except RecursionError:
+        raise InputError(f"{origin}: the value is nested too deeply") from None
+    if list(parsed) != ["v"]:
+        raise InputError(f"{origin}: the value must be one TOML value, got {raw!r}")
+    return parsed["v"]
 
 
 def _type_ok(default, value) -> tuple[bool, object]:

@@ -291,10 +291,17 @@ def get_executor(scheduler: str | None = None, workers: int = 1):
         Threads of the in-process executor.
     """
     if scheduler in (None, "", "local"):
+        from pipeline import limits
+
+        limits.check_positive("executor.workers", int(workers), "workers")
         return LocalExecutor(workers)
     match = _LOCAL_CLUSTER.match(scheduler)
     if match:
-        return DaskExecutor(None, int(match.group(1) or 2))
+        from pipeline import limits
+
+        n_workers = int(match.group(1) or 2)
+        limits.check_positive(f"--scheduler {scheduler}: workers", n_workers, "workers")
+        return DaskExecutor(None, n_workers)
     if _ADDRESS.match(scheduler):
         return DaskExecutor(scheduler)
     raise InputError(f"--scheduler {scheduler!r}: expected tcp://HOST:PORT, local-cluster[:N] "

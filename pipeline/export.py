@@ -68,7 +68,6 @@ import numpy as np
 
 from pipeline.atomic import atomic_file
 from pipeline.errors import InputError
-from pipeline.mesh_io import to_open3d
 from pipeline.workspace import write_npz_to
 from surface.validate import TOL, check_finite, check_shape
 
@@ -201,16 +200,12 @@ def _write_mesh_to(tmp: Path, suffix: str, vertices, triangles, normals, colors)
 
 
 def _write_open3d_to(tmp: Path, suffix: str, vertices, triangles, normals, colors) -> None:
-    import open3d as o3d
+    # PLY/STL by photosurf's own checked writers, glTF by open3d with its result and
+    # fd-2 lines checked (pipeline.mesh_io.write_mesh_to): a full disk is an error
+    from pipeline.mesh_io import write_mesh_to
 
-    mesh = to_open3d(vertices, triangles, normals, colors)
-    if suffix == ".stl":
-        mesh.compute_triangle_normals()  # STL stores one normal per facet
-    ok = o3d.io.write_triangle_mesh(str(tmp), mesh, write_ascii=False,
-                                    write_vertex_normals=suffix != ".stl",
-                                    write_vertex_colors=colors is not None)
-    if not ok:
-        raise OSError(f"{tmp}: open3d could not write the {suffix} mesh")
+    write_mesh_to(tmp, suffix, vertices, triangles, None if suffix == ".stl" else normals,
+                  colors)
 
 
 def _write_obj_to(tmp: Path, vertices, triangles, normals) -> None:

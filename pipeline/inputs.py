@@ -55,15 +55,16 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """
     import cv2
 
-    from pipeline.mesh_io import quiet_native_stderr
+    from pipeline import guards
 
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, expected an image")
-    with quiet_native_stderr():  # libpng prints its own diagnostics on fd 2
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    # a regular file, its format by signature, its header size within the limits (before
+    # decoding), libpng's own lines captured
+    image = guards.read_image(path)
     if image is None or image.ndim not in (2, 3):
         raise InputError(f"{path}: not a readable image")
     if min(image.shape[:2]) < MIN_IMAGE_PX:
@@ -76,8 +77,19 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
 def read_pair(left: str | os.PathLike, right: str | os.PathLike,
               need_same_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Both images of a stereo pair (:func:`read_image`), optionally of one size."""
+    """Both images of a stereo pair (:func:`read_image`), optionally of one size.
+
+    One image twice (the same file, or identical textured pixels) is refused: a pair
+    of one view has a zero baseline.
+    """
+    if os.path.realpath(left) == os.path.realpath(right):
+        raise InputError(f"{right}: is the left image {left} again; a stereo pair needs two "
+                         "views (zero baseline)")
     images = read_image(left), read_image(right)
+    if images[0].shape == images[1].shape and np.array_equal(images[0], images[1]) and \
+            images[0].min() != images[0].max():  # (a blank pair: the matcher says why)
+        raise InputError(f"{right}: is the same picture as {left} (identical pixels); a "
+                         "stereo pair needs two views (zero baseline)")
     if need_same_size and images[0].shape[:2] != images[1].shape[:2]:
         (h1, w1), (h2, w2) = images[0].shape[:2], images[1].shape[:2]
         raise InputError(f"{right}: image is {w2}x{h2} px but {left} is {w1}x{h1} px; "
@@ -86,14 +98,19 @@ def read_pair(left: str | os.PathLike, right: str | os.PathLike,
 
 
 def read_rig_for(path: str | os.PathLike, left_image: str | os.PathLike | None = None):
-    """:func:`matching.cameras.read_rig`, its errors as one line naming the file."""
+    """:func:`matching.cameras.read_rig`, its errors as one line naming the file; then
+    :func:`pipeline.guards.check_rig` (format, version, consistency, finite values, baseline)."""
     from matching.cameras import read_rig
+    from pipeline.guards import check_rig, regular_file
 
+    regular_file(path, "rig file")
     try:
-        return read_rig(path, image=left_image)
+        rig = read_rig(path, image=left_image)
     except (ValueError, OSError) as exc:
         message = str(exc)
         raise InputError(message if str(path) in message else f"{path}: {message}") from None
+    check_rig(rig, path)
+    return rig
 
 
 def check_rig_size(rig, images, paths) -> None:

@@ -34,6 +34,9 @@ def match_options(args: argparse.Namespace) -> dict:
         raise InputError(f"--spacing must be a positive integer, got {args.spacing}")
     if args.max_iter < 1:
         raise InputError(f"--max-iter must be a positive integer, got {args.max_iter}")
+    from pipeline import limits
+
+    limits.check("iterations", args.max_iter, where="--max-iter")
     if not (math.isfinite(args.min_correlation) and -1.0 <= args.min_correlation <= 1.0):
         raise InputError(f"--min-correlation must be in [-1, 1], got {args.min_correlation}")
     return {"spacing": args.spacing, "patch": args.patch, "interpolation": args.interpolation,

@@ -581,13 +581,13 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     path : path-like, suffix ``.png``
     image : (H, W, 3) uint8, RGB
     """
-    import cv2
+    from pipeline.guards import write_image
 
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: renders are written as .png")
     image = check_shape(image, "(H, W, 3)", "image")
-    with atomic_file(path) as tmp:
-        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image[:, :, ::-1])):
-            raise OSError(f"{path}: OpenCV could not write the PNG")
+
+    with atomic_file(path) as tmp:  # encoded in memory, written and checked by Python
+        write_image(tmp, np.ascontiguousarray(image[:, :, ::-1]))
     return path

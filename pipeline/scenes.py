@@ -63,7 +63,6 @@ import copy
 import json
 import math
 import os
-import tomllib
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -73,6 +72,7 @@ import numba
 import numpy as np
 
 from matching.cameras import Camera, StereoRig, write_cameras_yml, write_colmap_text
+from pipeline import limits
 from pipeline.errors import InputError
 
 #: Default recipe shipped with the project.
@@ -243,15 +243,10 @@ def load_recipe(path: str | os.PathLike = DEFAULT_RECIPE, overrides: Mapping | N
         ``"FILE: field shape.profile: ..."`` for invalid TOML, an unknown or
         missing field, a value of the wrong type or range.
     """
+    from pipeline.guards import load_toml
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such recipe file")
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text TOML file ({exc.reason})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: invalid TOML: {exc}") from None
+    raw = load_toml(path, "recipe file")  # regular file, bounded size and nesting
     if overrides:
         raw = _deep_merge(raw, overrides)
     return validate_recipe(raw, source=str(path), base_dir=path.parent)
@@ -271,6 +266,7 @@ def validate_recipe(raw: Mapping, source: str = "<recipe>",
                                       Path(base_dir) if base_dir is not None else Path.cwd())
     recipe["texture"] = _validate_texture(top.sub("texture") or _Table(source, "texture", {}))
     recipe["cameras"] = _validate_cameras(top.sub("cameras", required=True))
+    limits.check_recipe(recipe, source)  # views and image size before any per-view table
     recipe["lighting"] = _validate_lighting(top.sub("lighting") or _Table(source, "lighting", {}),
                                             _view_count(recipe["cameras"]))
     noise = top.sub("noise") or _Table(source, "noise", {})
@@ -280,6 +276,7 @@ def validate_recipe(raw: Mapping, source: str = "<recipe>",
     recipe["render"] = {"supersample": render.take("supersample", "int", 3, positive=True)}
     render.done()
     top.done()
+    limits.check_recipe(recipe, source)  # every size of the recipe, before anything is built
     return recipe
 
 
@@ -1273,9 +1270,9 @@ def render_scene(recipe_or_path: dict | str | os.PathLike, outdir: str | os.Path
     source : str, optional
         Name used in error messages and ``scene.json`` for a recipe given as a dict.
     """
-    import cv2
 
     from pipeline.atomic import atomic_dir
+    from pipeline.guards import write_image
     from pipeline.mesh_io import write_mesh
 
     if isinstance(recipe_or_path, Mapping):
@@ -1286,15 +1283,14 @@ def render_scene(recipe_or_path: dict | str | os.PathLike, outdir: str | os.Path
         recipe = load_recipe(recipe_or_path)
     scene = build_scene(recipe, source)
     outdir = Path(outdir)
-    with atomic_dir(outdir) as tmp:
+    with atomic_dir(outdir, kind="synth") as tmp:  # never deletes files it did not write
         (tmp / "images").mkdir()
         (tmp / "truth").mkdir()
         first_points = None
         for index in _views(scene, progress):
             image, depth, points = render_view(scene, index)
             name = scene.cameras[index].name
-            if not cv2.imwrite(str(tmp / "images" / name), image):
-                raise OSError(f"{outdir}: could not write images/{name}")
+            write_image(tmp / "images" / name, image)
             np.save(tmp / "truth" / f"depth_{index:02d}.npy", depth)
             if index == 0:
                 first_points = points

@@ -96,6 +96,13 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     """
     from surface import bezier
 
+    from pipeline import limits
+
+    # Loop's refinement makes 4 patches per control triangle, level L 4^L triangles each:
+    # refused before the control net is built ("auto" is bounded by MAX_AUTO_LEVEL)
+    finest = MAX_AUTO_LEVEL if level == "auto" else int(level)
+    limits.check("smooth.triangles", 4 * len(triangles) * 4 ** finest,
+                 where=f"level {finest} on {len(triangles)} control triangles")
     surface = bezier.control_net(vertices, triangles)
     if level == "auto":  # finest detail the data can vouch for: the chord error <= tolerance
         level = bezier.tessellation_level(surface.control_points, tolerance,

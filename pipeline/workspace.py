@@ -214,6 +214,39 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     return path
 
 
+def _damaged(path: Path, what: str) -> InputError:
+    return InputError(f"{path}: workspace is damaged ({what}); remove {MANIFEST} to rerun "
+                      "every stage, or choose a new --out")
+
+
+#: Types of a stage record's fields (others are free: ``info``, ``params``).
+_RECORD_TYPES = {"status": str, "reason": str, "inputs": dict, "outputs": dict,
+                 "params_sha256": str, "seconds": (int, float), "started": (int, float),
+                 "finished": (int, float), "info": dict, "params": dict}
+
+
+def _check_manifest(path: Path, data: dict) -> None:
+    """Every field the workspace reads has the type it reads it as."""
+    stages = data["stages"]
+    if not isinstance(stages, dict):
+        raise _damaged(path, f"'stages' is a {type(stages).__name__}, not an object")
+    for name, record in stages.items():
+        if not isinstance(record, dict):
+            raise _damaged(path, f"stage {name!r} is a {type(record).__name__}, not an object")
+        for field, kind in _RECORD_TYPES.items():
+            if field in record and (not isinstance(record[field], kind)
+                                    or isinstance(record[field], bool)):
+                raise _damaged(path, f"stage {name!r}: {field} is "
+                                     f"{type(record[field]).__name__}")
+        for field in ("inputs", "outputs"):
+            table = record.get(field, {})
+            if not all(isinstance(k, str) and isinstance(v, str) for k, v in table.items()):
+                raise _damaged(path, f"stage {name!r}: {field} must map names to hashes")
+            if field == "outputs" and any(Path(k).is_absolute() or ".." in Path(k).parts
+                                          for k in table):
+                raise _damaged(path, f"stage {name!r}: an output outside the workspace")
+
+
 class Workspace:
     """A run's output folder and its manifest.
 
@@ -245,15 +278,23 @@ class Workspace:
     def _load(self) -> dict:
         path = self.manifest_path
         fresh = {"manifest_version": MANIFEST_VERSION, "stages": {}}
-        if not path.is_file():
+        if not os.path.lexists(path):
             return fresh
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return fresh  # unreadable manifest: rebuild everything (written atomically, so rare)
-        if not isinstance(data, dict) or data.get("manifest_version") != MANIFEST_VERSION:
-            return fresh
+            from pipeline.guards import regular_file
+
+            data = json.loads(regular_file(path, "workspace manifest").read_text(
+                encoding="utf-8"))
+        except (OSError, ValueError, RecursionError) as exc:
+            what = "nested too deeply" if isinstance(exc, RecursionError) else \
+                "not readable JSON"
+            raise _damaged(path, what) from None
+        if not isinstance(data, dict):
+            raise _damaged(path, f"a JSON {type(data).__name__}, not an object")
+        if data.get("manifest_version") != MANIFEST_VERSION:
+            return fresh  # another format version: every stage reruns
         data.setdefault("stages", {})
+        _check_manifest(path, data)
         return data
 
     def save(self) -> None:
@@ -319,14 +360,37 @@ class Workspace:
 
     @contextlib.contextmanager
     def lock(self) -> Iterator[None]:
-        """Hold an exclusive lock on ``OUTDIR/.lock`` (released by the OS even on kill -9)."""
-        fh = open(self.root / ".lock", "w")  # noqa: SIM115 - held for the block
+        """Hold an exclusive lock on ``OUTDIR/.lock`` (released by the OS even on kill -9).
+
+        Both kinds of Unix lock are taken, because on Linux they do not see each
+        other: ``flock`` (BSD) and ``fcntl``/``lockf`` (POSIX record locks, also
+        what NFS honours).  Another process holding either one -- a second
+        photosurf, or any tool using ``lockf`` -- makes this run refuse.  The
+        file then names the holder (``pid host``) for the message.
+        """
+        path = self.root / ".lock"
+        if path.is_symlink():
+            raise InputError(f"{path}: is a symbolic link; photosurf does not follow it")
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        fh = os.fdopen(fd, "r+")
         try:
             try:
                 fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError as exc:
+                fcntl.lockf(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:  # BlockingIOError, or EACCES/EAGAIN from lockf
+                holder = fh.read(200).strip()
+                who = f" (held by {holder})" if holder else ""
                 raise InputError(f"{self.root}: another photosurf run is using this "
-                                 "output folder") from exc
-            yield
+                                 f"output folder{who}") from exc
+            fh.seek(0)
+            fh.truncate()
+            fh.write(f"pid {os.getpid()} host {platform.node()}\n")
+            fh.flush()
+            try:
+                yield
+            finally:
+                with contextlib.suppress(OSError):
+                    fh.seek(0)
+                    fh.truncate()
         finally:
             fh.close()

@@ -37,7 +37,8 @@ def test_match_against_rendered_correspondence(vase, tmp_path):
     out = tmp_path / "m"
     assert main(["match", *_args(vase), "--rig", str(vase / "cameras.yml"), "--out",
                  str(out), "-q"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["matches.npz"]  # no disparity: not rectified
+    # no disparity (not rectified); the marker lists the files photosurf wrote there
+    assert sorted(p.name for p in out.iterdir()) == [".photosurf-output.json", "matches.npz"]
     m = np.load(out / "matches.npz")
     ok = m["status"] == 0
     xl = m["x_left"][ok].astype(int)

@@ -115,8 +115,8 @@ def test_batch_failed_object_does_not_stop_the_others(tmp_path, capfd):
                        "-q"])
     assert status == 2
     err = capfd.readouterr().err.strip().splitlines()
-    assert err == [f"photosurf batch: error: missing: {tmp_path}/nowhere.ply: no such file "
-                   "or folder"]
+    assert err == [f"photosurf batch: error: 1 of 2 objects failed (see {tmp_path}/out/"
+                   f"batch.json): missing: {tmp_path}/nowhere.ply: no such file or folder"]
     summary = json.loads((tmp_path / "out" / "batch.json").read_text())
     assert [o["status"] for o in summary["objects"]] == ["failed", "done"]
 

@@ -367,7 +367,7 @@ def test_same_recipe_gives_byte_identical_files(tmp_path):
     first = scenes.render_scene(recipe, tmp_path / "a", progress=False)
     second = scenes.render_scene(recipe, tmp_path / "b", progress=False)
     files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
-    assert len(files) == 11
+    assert len(files) == 12  # 11 outputs and the marker listing them (pipeline.atomic.MARKER)
     for name in files:
         assert (first / name).read_bytes() == (second / name).read_bytes(), name
     # the resolved recipe in scene.json renders the same scene again

@@ -1,0 +1,230 @@
+"""Refusal time and peak memory of the oversized and hostile requests of issue 17.
+
+Each row runs the real program, ``python -m pipeline.cli ...``, as a child
+process and reads its wall time and peak resident memory (``os.wait4``: the
+child's own ``ru_maxrss``, i.e. RUSAGE_CHILDREN of that one child).  Every
+request must be refused (exit status 2, one line on stderr) in under 2 s and
+500 MB; before issue 17 these requests crashed (``sections`` on a 1e300 cloud:
+exit -11), printed tracebacks, or ran until killed by time or memory.
+
+The peer row is ``photosurf --help`` in the same way: the interpreter and the
+imports every command pays before it can refuse anything.
+
+Run: ``.venv/bin/python benchmarks/limits.py [--quick] [--json PATH]``
+(default JSON: ``benchmarks/results/limits.json``; ``--quick`` runs a third of
+the rows).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+RECIPE = """\
+seed = 1
+[shape]
+kind = "revolution"
+profile = [[0.0, 1.0], [1.0, 1.2], [2.0, 0.9]]
+triangles = 2000
+[cameras]
+layout = "stereo"
+width = 48
+height = 40
+[render]
+supersample = 1
+"""
+
+
+def _inputs(tmp: Path) -> dict:
+    """Small valid inputs plus the hostile files the requests name."""
+    import cv2
+    import open3d as o3d
+
+    from matching.cameras import Camera, StereoRig, write_rig
+    from pipeline.cloud_io import write_cloud
+    from pipeline.mesh_io import write_mesh
+
+    rng = np.random.default_rng(0)
+    theta, z = rng.uniform(0, 2 * np.pi, 600), rng.uniform(0, 2, 600)
+    cylinder = np.column_stack([np.cos(theta), np.sin(theta), z])
+    files = {"cloud": write_cloud(tmp / "cloud.xyz", cylinder),
+             "huge_cloud": write_cloud(tmp / "huge.ply", cylinder * 1e300)}
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 81)  # 25 920 triangles
+    files["mesh"] = write_mesh(tmp / "sphere26k.ply", np.asarray(sphere.vertices),
+                               np.asarray(sphere.triangles))
+    with np.errstate(all="ignore"):  # its normals overflow: the point of the file
+        files["huge_mesh"] = write_mesh(tmp / "huge_mesh.ply",
+                                        np.asarray(sphere.vertices) * 1e200,
+                                        np.asarray(sphere.triangles), compute_normals=False)
+    (tmp / "claims.off").write_text("OFF\n1000000000 1 0\n0 0 0\n")
+    files["off"] = tmp / "claims.off"
+    image = np.clip(rng.normal(128, 40, (48, 64)), 0, 255).astype(np.uint8)
+    cv2.imwrite(str(tmp / "left.png"), image)
+    cv2.imwrite(str(tmp / "right.png"), np.roll(image, -3, axis=1))
+    files["left"], files["right"] = tmp / "left.png", tmp / "right.png"
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
+    R, _ = cv2.Rodrigues(np.array([0.0, 0.1, 0.0]))
+    rig = StereoRig(Camera(K, np.zeros(5), np.eye(3), np.zeros(3), 64, 48, "left"),
+                    Camera(K, np.zeros(5), R, np.array([-0.2, 0, 0]), 64, 48, "right"))
+    write_rig(tmp / "rig.yml", rig)
+    files["rig"] = tmp / "rig.yml"
+    ihdr = struct.pack(">IIBBBBB", 100_000, 100_000, 8, 0, 0, 0, 0)
+    (tmp / "claims.png").write_bytes(b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" +
+                                     ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr)) +
+                                     b"\x00" * 64)
+    files["big_png"] = tmp / "claims.png"
+    os.mkfifo(tmp / "pipe.xyz")
+    files["fifo"] = tmp / "pipe.xyz"
+    for name, extra in (("views", '[cameras]\nlayout = "ring"\nwidth = 48\nheight = 40\n'
+                                  "n = 1000000000\n"),
+                        ("ring2", '[cameras]\nlayout = "ring"\nwidth = 48\nheight = 40\nn = 8\n'
+                                  "[cameras.second_ring]\nn = 100000000\nelevation_deg = 40.0\n"),
+                        ("pixels", '[cameras]\nlayout = "stereo"\nwidth = 1000000\n'
+                                   "height = 1000000\n"),
+                        ("supersample", ""), ("components", ""), ("triangles", ""),
+                        ("nested", "")):
+        text = RECIPE
+        if extra:
+            text = text.split("[cameras]")[0] + extra + "[render]\nsupersample = 1\n"
+        if name == "supersample":
+            text = text.replace("supersample = 1", "supersample = 1000000")
+        if name == "components":
+            text += "[texture]\ncomponents = 1000000000\n"
+        if name == "triangles":
+            text = text.replace("triangles = 2000", "triangles = 1000000000000")
+        if name == "nested":
+            text += "x = " + "[" * 5000 + "]" * 5000 + "\n"
+        (tmp / f"{name}.toml").write_text(text)
+        files[f"recipe_{name}"] = tmp / f"{name}.toml"
+    (tmp / "ok.toml").write_text(RECIPE)
+    files["recipe"] = tmp / "ok.toml"
+    return files
+
+
+def _cases(f: dict, out: Path) -> list[tuple[str, list]]:
+    pair = [f["left"], f["right"], "--rig", f["rig"]]
+    return [
+        ("sections --sections 1e9", ["sections", f["cloud"], "--out", out / "m.ply",
+                                     "--sections", "1000000000"]),
+        ("sections --n 1e9", ["sections", f["cloud"], "--out", out / "m.ply", "--n",
+                              "1000000000"]),
+        ("sections cloud |x| ~ 1e300", ["sections", f["huge_cloud"], "--out", out / "m.ply"]),
+        ("sections FIFO input", ["sections", f["fifo"], "--out", out / "m.ply"]),
+        ("synth cameras.n = 1e9", ["synth", f["recipe_views"], "--out", out / "s"]),
+        ("synth second_ring.n = 1e8", ["synth", f["recipe_ring2"], "--out", out / "s"]),
+        ("synth width = height = 1e6", ["synth", f["recipe_pixels"], "--out", out / "s"]),
+        ("synth shape.triangles = 1e12", ["synth", f["recipe_triangles"], "--out", out / "s"]),
+        ("synth render.supersample = 1e6", ["synth", f["recipe_supersample"], "--out",
+                                            out / "s"]),
+        ("synth texture.components = 1e9", ["synth", f["recipe_components"], "--out",
+                                            out / "s"]),
+        ("synth TOML nested 5000 deep", ["synth", f["recipe_nested"], "--out", out / "s"]),
+        ("synth --set cameras.n=1e9", ["synth", f["recipe"], "--out", out / "s", "--set",
+                                       "cameras.layout=ring", "--set", "cameras.n=1000000000"]),
+        ("run --set sections.count=1e9", ["run", f["cloud"], "--out", out / "w", "--set",
+                                          "sections.count=1000000000"]),
+        ("run --scheduler local-cluster:100000", ["run", f["cloud"], "--out", out / "w",
+                                                  "--scheduler", "local-cluster:100000"]),
+        ("run --scheduler local-cluster:0", ["run", f["cloud"], "--out", out / "w",
+                                             "--scheduler", "local-cluster:0"]),
+        ("match --max-iter 1e9", ["match", *pair, "--out", out / "m", "--max-iter",
+                                  "1000000000"]),
+        ("match PNG header 100000x100000", ["match", f["big_png"], f["right"], "--rig", f["rig"],
+                                            "--out", out / "m"]),
+        ("stereo PNG header 100000x100000", ["stereo", f["big_png"], f["right"], "--rig",
+                                             f["rig"], "--out", out / "c.ply"]),
+        ("match /dev/zero as a view", ["match", "/dev/zero", f["right"], "--rig", f["rig"],
+                                       "--out", out / "m"]),
+        ("smooth --level 6, 26k triangles", ["smooth", f["mesh"], "--out", out / "s.ply",
+                                             "--level", "6"]),
+        ("smooth OFF header 1e9 vertices", ["smooth", f["off"], "--out", out / "s.ply"]),
+        ("render mesh |x| ~ 1e200", ["render", f["huge_mesh"], "--out", out / "r.png"]),
+        ("calibrate --pattern 100000x100000", ["calibrate", str(f["left"]), str(f["right"]),
+                                               "--pattern", "100000x100000", "--square", "0.02",
+                                               "--out", out / "rig.yml"]),
+        ("calibrate --square 1e308", ["calibrate", str(f["left"]), str(f["right"]), "--square",
+                                      "1e308", "--out", out / "rig.yml"]),
+    ]
+
+
+def _measure(argv: list, timeout: float = 60.0) -> dict:
+    """Run ``photosurf ARGV`` as a child; its wall time, peak RSS, status and stderr."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env.pop("PHOTOSURF_ALLOW_LARGE", None)
+    with tempfile.TemporaryFile() as err:
+        start = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *map(str, argv)],
+                                stdout=subprocess.DEVNULL, stderr=err, env=env)
+        deadline = start + timeout
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.perf_counter() > deadline:
+                proc.kill()
+                pid, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(0.005)
+        seconds = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        lines = [ln for ln in err.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+    return {"status": proc.returncode, "seconds": round(seconds, 3),
+            "cpu_s": round(usage.ru_utime + usage.ru_stime, 3),
+            "peak_mb": round(usage.ru_maxrss / 1024, 1), "lines": len(lines),
+            "message": lines[0] if lines else ""}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="a third of the rows")
+    parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "limits.json"))
+    args = parser.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="limits-") as name:
+        tmp = Path(name)
+        files = _inputs(tmp)
+        (tmp / "out").mkdir()
+        cases = _cases(files, tmp / "out")
+        if args.quick:
+            cases = cases[::3]
+        peer = _measure(["--help"])
+        rows.append({"request": "peer: photosurf --help (start-up)", **peer})
+        for label, command in cases:
+            rows.append({"request": label, **_measure(command)})
+    width = max(len(r["request"]) for r in rows)
+    print(f"{'request':<{width}}  status  wall s  CPU s  peak MB  lines  message")
+    for r in rows:
+        message = r["message"].split(": error: ", 1)[-1][:60]
+        print(f"{r['request']:<{width}}  {r['status']:>6}  {r['seconds']:>6.2f}  "
+              f"{r['cpu_s']:>5.2f}  {r['peak_mb']:>7.0f}  {r['lines']:>5}  {message}")
+    refused = [r for r in rows[1:] if r["status"] == 2 and r["lines"] == 1]
+    worst_s = max(r["seconds"] for r in rows[1:])
+    worst_cpu = max(r["cpu_s"] for r in rows[1:])
+    worst_mb = max(r["peak_mb"] for r in rows[1:])
+    print(f"{len(refused)} of {len(rows) - 1} refused in one line; slowest {worst_s:.2f} s wall "
+          f"({worst_cpu:.2f} s CPU), largest {worst_mb:.0f} MB (start-up alone "
+          f"{peer['seconds']:.2f} s wall, {peer['cpu_s']:.2f} s CPU, {peer['peak_mb']:.0f} MB)")
+    path = Path(args.json)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"rows": rows, "refused": len(refused), "cases": len(rows) - 1,
+                                "slowest_s": worst_s, "slowest_cpu_s": worst_cpu,
+                                "largest_mb": worst_mb}, indent=1) + "\n")
+    return 0 if len(refused) == len(rows) - 1 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,536 @@
+"""Checks at the door: files that are what they say, outputs that cannot destroy inputs.
+
+Every reader of user files calls these before it opens anything, wherever the
+reader lives (``pipeline.cloud_io``, ``pipeline.mesh_io``, the image readers,
+the TOML readers), so that
+
+* only regular files are read (:func:`regular_file`): a FIFO, ``/dev/zero`` or
+  another device would block or read forever;
+* an image is checked by content, not by name (:func:`image_format`): the
+  signature must be one of the formats photosurf reads and agree with the
+  suffix, and its width and height are read from the header
+  (:func:`image_header_size`) and checked against :mod:`pipeline.limits`
+  *before* the decoder allocates them;
+* TOML is read with its nesting bounded (:func:`load_toml`: ``tomllib`` recurses
+  once per level, so a file nested thousands deep is a ``RecursionError``);
+* coordinates are finite and small enough for float64 geometry
+  (:func:`check_coordinates`, :data:`MAX_COORDINATE`);
+* an output never is, holds or lies inside an input of the same command
+  (:func:`check_output`);
+* third-party libraries writing to file descriptor 2 are captured
+  (:func:`native_stderr`), so the CLI's error stays one line;
+* names printed in messages are escaped (:func:`escape`): a newline, a control
+  character or a terminal escape sequence in a file name is shown as ``\\n``,
+  ``\\x1b``, never sent raw to the terminal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import struct
+import tempfile
+import tomllib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+#: Largest |coordinate| accepted, in scene units.  Geometry forms products of up
+#: to six coordinates (the squared norm of a cross product is a 4th power, a squared
+#: volume or a 3x3 determinant of such products a 6th); with |x| <= 1e50 the 6th
+#: power is 1e300, below float64's largest 1.8e308, so none of them overflows.
+#: Measured on a 600-point cylinder: scaled by 1e49 ``photosurf sections`` gives the
+#: very mesh of scale 1 (776 triangles); by 1e99 ``numpy.linalg.norm`` overflows
+#: and the mesh changes (732); by 1e300 Shewchuk's Triangle (called by
+#: ``surface.topology._triangle_edges`` for each section's MST graph) crashed the
+#: process with a segmentation fault (exit -11, nothing on stderr).
+MAX_COORDINATE = 1e50
+
+#: Smallest extent accepted relative to the largest |coordinate|: below this the
+#: coordinates carry fewer than ~6 significant digits of shape (float64 has 15.9).
+MIN_RELATIVE_EXTENT = 1e-10
+
+
+# --------------------------------------------------------------------------- names
+
+
+def escape(text: object) -> str:
+    """``text`` with every non-printable character as a Python escape (``\\n``, ``\\x1b``).
+
+    Printable text (letters of any script, spaces) is unchanged; a backslash is
+    kept as it is.  Used for every message the CLI prints, so that a file named
+    ``"a\\nb"`` or holding ``"\\x1b[2J"`` cannot split the error line or drive the
+    terminal.
+    """
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+# --------------------------------------------------------------------------- files
+
+_KIND_NAMES = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def regular_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` as a ``Path`` if it is a regular file (symlinks followed), else an error.
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing at ``path``.
+    IsADirectoryError
+        A folder.
+    InputError
+        A FIFO, a device or a socket: reading it could block or never end.
+    """
+    path = Path(path)
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such {what if what.endswith('file') else 'file'}"
+                                ) from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read this {what} ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise IsADirectoryError(f"{path}: is a folder, expected a {what}")
+    if not stat.S_ISREG(info.st_mode):
+        kind = next((name for test, name in _KIND_NAMES if test(info.st_mode)), "not a file")
+        raise InputError(f"{path}: is {kind}, not a regular {what}; photosurf reads only "
+                         "regular files")
+    return path
+
+
+def read_bytes(path: str | os.PathLike, what: str = "file", limit: int | None = None) -> bytes:
+    """The bytes of a regular file, refusing one larger than ``limit`` bytes."""
+    path = regular_file(path, what)
+    if limit is not None:
+        size = path.stat().st_size
+        if size > limit:
+            raise InputError(f"{path}: {size} bytes is too large for a {what} "
+                             f"(at most {limit} bytes)")
+    return path.read_bytes()
+
+
+#: A TOML file (config, recipe, batch manifest) larger than this is refused unread.
+MAX_TOML_BYTES = 16 << 20
+
+
+def load_toml(path: str | os.PathLike, what: str = "TOML file") -> dict:
+    """Parse a TOML file; every failure is an ``InputError`` naming the file.
+
+    Covers a file that is not text, invalid TOML, and nesting deep enough to
+    exhaust ``tomllib``'s recursion (``RecursionError``).
+    """
+    path = Path(path)
+    data = read_bytes(path, what, MAX_TOML_BYTES)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text TOML file ({exc.reason})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: invalid TOML: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{path}: invalid TOML: nested too deeply") from None
+
+
+# --------------------------------------------------------------------------- images
+
+#: Image formats photosurf reads (OpenCV decodes them): name -> (signatures, suffixes).
+IMAGE_FORMATS = {
+    "PNG": ((b"\x89PNG\r\n\x1a\n",), (".png",)),
+    "JPEG": ((b"\xff\xd8\xff",), (".jpg", ".jpeg", ".jpe")),
+    "TIFF": ((b"II*\x00", b"MM\x00*"), (".tif", ".tiff")),
+    "BMP": ((b"BM",), (".bmp", ".dib")),
+    "PNM": ((b"P1", b"P2", b"P3", b"P4", b"P5", b"P6"), (".pbm", ".pgm", ".ppm", ".pnm")),
+    "WebP": ((b"RIFF",), (".webp",)),
+}
+#: Formats recognised only to name them in the refusal.
+_OTHER_FORMATS = ((b"GIF87a", "GIF"), (b"GIF89a", "GIF"), (b"%PDF", "PDF"), (b"PK\x03\x04", "ZIP"),
+                  (b"\x1f\x8b", "gzip"), (b"ply", "PLY"), (b"<?xml", "XML"))
+
+
+def image_format(path: str | os.PathLike, head: bytes | None = None) -> str:
+    """The format of an image file by its signature; ``InputError`` when photosurf cannot
+    read it or when its suffix names another image format (a GIF named ``.png``)."""
+    path = Path(path)
+    if head is None:
+        with open(regular_file(path, "image"), "rb") as fh:
+            head = fh.read(32)
+    found = next((name for name, (magics, _) in IMAGE_FORMATS.items()
+                  if any(head.startswith(m) for m in magics)), None)
+    if found == "WebP" and head[8:12] != b"WEBP":
+        found = None
+    if found is None:
+        other = next((name for magic, name in _OTHER_FORMATS if head.startswith(magic)), None)
+        kind = f"a {other} file" if other else "no known image signature"
+        raise InputError(f"{path}: not a readable image ({kind}; photosurf reads "
+                         f"{', '.join(IMAGE_FORMATS)})")
+    suffix = path.suffix.lower()
+    claimed = next((name for name, (_, suffixes) in IMAGE_FORMATS.items()
+                    if suffix in suffixes), None)
+    if claimed is not None and claimed != found:
+        raise InputError(f"{path}: named {suffix} but the content is a {found} image")
+    return found
+
+
+def _jpeg_size(fh) -> tuple[int, int] | None:
+    """(width, height) from the first SOF marker of a JPEG stream (ITU T.81 B.2.2)."""
+    fh.seek(2)
+    for _ in range(10000):  # markers before the frame header; bounded
+        byte = fh.read(1)
+        while byte == b"\xff":
+            byte = fh.read(1)
+        if not byte:
+            return None
+        marker = byte[0]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            continue
+        length_bytes = fh.read(2)
+        if len(length_bytes) < 2:
+            return None
+        length = struct.unpack(">H", length_bytes)[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            frame = fh.read(5)
+            if len(frame) < 5:
+                return None
+            height, width = struct.unpack(">HH", frame[1:5])
+            return width, height
+        fh.seek(length - 2, os.SEEK_CUR)
+    return None
+
+
+def _tiff_size(fh, head: bytes) -> tuple[int, int] | None:
+    """(width, height) from the first IFD of a TIFF (tags 256, 257)."""
+    order = "<" if head.startswith(b"II") else ">"
+    fh.seek(4)
+    offset = struct.unpack(order + "I", fh.read(4))[0]
+    fh.seek(offset)
+    count_bytes = fh.read(2)
+    if len(count_bytes) < 2:
+        return None
+    size = {}
+    for _ in range(min(struct.unpack(order + "H", count_bytes)[0], 4096)):
+        entry = fh.read(12)
+        if len(entry) < 12:
+            break
+        tag, kind = struct.unpack(order + "HH", entry[:4])
+        if tag in (256, 257):
+            value = struct.unpack(order + ("H" if kind == 3 else "I"),
+                                  entry[8:10] if kind == 3 else entry[8:12])[0]
+            size[tag] = value
+    return (size[256], size[257]) if len(size) == 2 else None
+
+
+def image_header_size(path: str | os.PathLike) -> tuple[str, tuple[int, int] | None]:
+    """``(format, (width, height))`` read from the file header, without decoding.
+
+    ``(width, height)`` is ``None`` where the header does not say (a truncated
+    file; the decoder will then refuse it).  Formats: PNG (IHDR), JPEG (SOF),
+    TIFF (first IFD), BMP (BITMAPINFOHEADER), PNM (the text header), WebP (VP8/VP8L/VP8X).
+    """
+    path = regular_file(path, "image")
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+        fmt = image_format(path, head)
+        size = None
+        if fmt == "PNG" and head[12:16] == b"IHDR":
+            size = struct.unpack(">II", head[16:24])
+        elif fmt == "JPEG":
+            size = _jpeg_size(fh)
+        elif fmt == "TIFF":
+            size = _tiff_size(fh, head)
+        elif fmt == "BMP" and len(head) >= 26:
+            width, height = struct.unpack("<ii", head[18:26])
+            size = (abs(width), abs(height))
+        elif fmt == "PNM":
+            words = head[2:].split()
+            numbers = [w for w in words if w.isdigit()][:2]
+            size = tuple(int(n) for n in numbers) if len(numbers) == 2 else None
+        elif fmt == "WebP":
+            chunk = head[12:16]
+            if chunk == b"VP8X" and len(head) >= 30:
+                size = (1 + int.from_bytes(head[24:27], "little"),
+                        1 + int.from_bytes(head[27:30], "little"))
+            elif chunk == b"VP8 " and len(head) >= 30:
+                w, h = struct.unpack("<HH", head[26:30])
+                size = (w & 0x3FFF, h & 0x3FFF)
+            elif chunk == b"VP8L" and len(head) >= 25:
+                bits = int.from_bytes(head[21:25], "little")
+                size = (1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF))
+    return fmt, (tuple(int(v) for v in size) if size else None)
+
+
+def check_image_file(path: str | os.PathLike) -> tuple[int, int] | None:
+    """Regular file, a readable format, and its header size within ``image.pixels``.
+
+    Returns the header's ``(width, height)`` (``None`` if the header does not say).
+    """
+    from pipeline import limits
+
+    _, size = image_header_size(path)
+    if size is not None:
+        width, height = size
+        if width <= 0 or height <= 0:
+            raise InputError(f"{path}: the header says {width}x{height} px")
+        limits.check("image.pixels", width * height, where=f"{path}: {width}x{height} px")
+    return size
+
+
+def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray:
+    """Decode an image with OpenCV after :func:`check_image_file`; libpng's and
+    libjpeg's own lines are captured.  ``InputError`` when it cannot be decoded."""
+    import cv2
+
+    check_image_file(path)
+    with native_stderr():
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED if flags is None else flags)
+    if image is None:
+        raise InputError(f"{path}: not a readable image")
+    return image
+
+
+# --------------------------------------------------------------------------- numbers
+
+
+def check_coordinates(points: np.ndarray, name: str, what: str = "coordinates") -> np.ndarray:
+    """Refuse non-finite values or ``|x| > MAX_COORDINATE``; return ``points`` unchanged.
+
+    Parameters
+    ----------
+    points : (N, 3) float64 (any shape works)
+    name : str
+        The file or field named in the message.
+    """
+    points = np.asarray(points)
+    if np.iscomplexobj(points):
+        raise InputError(f"{name}: {what} are complex numbers ({points.dtype})")
+    if points.size == 0:
+        return points
+    finite = np.isfinite(points)
+    if not finite.all():
+        rows = int(np.count_nonzero(~finite.reshape(len(points), -1).all(axis=1))) \
+            if points.ndim > 1 else int(np.count_nonzero(~finite))
+        raise InputError(f"{name}: {rows} {'points have' if points.ndim > 1 else 'values are'} "
+                         f"NaN/inf {what}")
+    largest = float(np.abs(points).max())
+    if largest > MAX_COORDINATE:
+        raise InputError(f"{name}: {what} up to {largest:.3g}: beyond {MAX_COORDINATE:.0e}, "
+                         "where products of coordinates overflow float64")
+    return points
+
+
+def check_cloud_shape(points: np.ndarray, name: str) -> None:
+    """Refuse a cloud that spans no volume: all points equal, on a line, or too small
+    against its distance from the origin for float64 to resolve its shape.
+
+    The test is on the singular values s1 >= s2 >= s3 of the centred points: a
+    line has s2 ~ 0, so every section of it is a point and no closed surface
+    exists (1000 collinear points used to give a "closed" 2164-triangle mesh).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 4:
+        return
+    centre = points.mean(axis=0)
+    extent = float(np.ptp(points, axis=0).max())
+    scale = max(float(np.abs(centre).max()), extent)
+    if extent == 0 or extent < MIN_RELATIVE_EXTENT * scale:
+        raise InputError(f"{name}: degenerate cloud: every point at the same place "
+                         f"(extent {extent:.3g} at distance {scale:.3g})")
+    sample = points[:: max(1, len(points) // 200_000)] - centre
+    singular = np.linalg.svd(sample / extent, compute_uv=False)
+    if singular[1] <= 1e-9 * singular[0]:
+        raise InputError(f"{name}: degenerate cloud: all {len(points)} points lie on one line "
+                         "(no surface passes through them)")
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+def _resolved(path: str | os.PathLike) -> Path:
+    return Path(os.path.abspath(path)).resolve()
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    return child == parent or parent in child.parents
+
+
+def check_output(out: str | os.PathLike, inputs: Iterable[str | os.PathLike | None],
+                 folder: bool = False, option: str = "--out") -> None:
+    """Refuse an output that is, holds or lies inside one of ``inputs``.
+
+    Parameters
+    ----------
+    out : path
+        The output file, or folder when ``folder``.
+    inputs : paths
+        The command's input files and folders (``None`` entries skipped).
+    folder : bool
+        ``out`` is a folder: an input anywhere inside it is refused as well.
+    """
+    target = _resolved(out)
+    for item in inputs:
+        if item is None:
+            continue
+        source = _resolved(item)
+        same = target == source
+        if not same and os.path.exists(out) and os.path.exists(item):
+            with contextlib.suppress(OSError):
+                same = os.path.samefile(out, item)
+        if same:
+            raise InputError(f"{option} {out}: is the input {item}; choose another output")
+        if folder and _inside(source, target):
+            raise InputError(f"{option} {out}: holds the input {item}; choose another folder")
+        if _inside(target, source):
+            raise InputError(f"{option} {out}: lies inside the input {item}; choose another "
+                             "output")
+
+
+# --------------------------------------------------------------------------- native stderr
+
+
+class Captured:
+    """What a native library wrote to file descriptor 2 inside :func:`native_stderr`."""
+
+    text: str = ""
+
+
+@contextlib.contextmanager
+def native_stderr() -> Iterator[Captured]:
+    """Capture C-level writes to file descriptor 2 (open3d's RPly, libpng, tinyobj).
+
+    ``VerbosityLevel`` and ``cv2.setLogLevel`` do not reach every native line;
+    this redirects the descriptor itself (``os.dup2``) to a temporary file and
+    restores it on exit.  The captured text is on the yielded object's
+    ``text`` after the block (writers check it for failure lines); it is
+    printed again only with ``PHOTOSURF_NATIVE_STDERR=1``.
+    """
+    captured = Captured()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no fd 2 (embedded interpreter): nothing to capture
+        yield captured
+        return
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield captured
+            finally:
+                os.dup2(saved, 2)
+                sink.seek(0)
+                captured.text = sink.read(1 << 20).decode("utf-8", "replace")
+        if captured.text and os.environ.get("PHOTOSURF_NATIVE_STDERR"):
+            os.write(2, captured.text.encode())
+    finally:
+        os.close(saved)
+
+
+# --------------------------------------------------------------------------- writes
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Encode ``image`` in memory by ``path``'s suffix (OpenCV) and write the bytes ourselves.
+
+    ``cv2.imwrite`` hands the file to libpng, whose write errors (a full disk)
+    are printed on fd 2 and may still return ``True``; here a failed write is
+    the ``OSError`` of Python's own ``write``.  Not atomic: for a temporary
+    the caller renames (:func:`pipeline.atomic.atomic_file`, ``atomic_dir``).
+    """
+    import cv2
+
+    path = Path(path)
+    with native_stderr():
+        ok, buffer = cv2.imencode(path.suffix or ".png", image)
+    if not ok:
+        raise OSError(f"{path}: could not encode the image as {path.suffix or '.png'}")
+    with open(path, "wb") as fh:
+        fh.write(buffer.tobytes())
+    return path
+
+
+# --------------------------------------------------------------------------- rigs
+
+#: Versions of the photosurf ``cameras.yml`` format this code reads.
+RIG_VERSIONS = (1,)
+
+
+def _fs_node(fs, key: str):
+    node = fs.getNode(key)
+    return None if node.empty() or node.isNone() else node
+
+
+def check_rig(rig, path: str | os.PathLike) -> None:
+    """Refuse a stereo rig photosurf cannot triangulate with, or whose file contradicts itself.
+
+    * a photosurf ``cameras.yml`` must say ``format: photosurf-cameras`` and a
+      known ``version`` (:data:`RIG_VERSIONS`); its redundant ``rig_R``/``rig_T``
+      must be finite and agree with the two views' poses (``R_r R_l^T``,
+      ``t_r - R t_l``) to 1e-6 of their size -- a file edited in one place only
+      is inconsistent;
+    * every camera value within :data:`MAX_COORDINATE`;
+    * a baseline that is not (near) zero: at most 1e-9 of the centres' distance
+      from the origin (float64 keeps ~16 digits, so such a baseline is the
+      rounding of equal centres) is refused, as is an exact zero.
+    """
+    import cv2
+
+    path = Path(path)
+    for label, cam in (("left", rig.left), ("right", rig.right)):
+        for name in ("K", "dist", "R", "t"):
+            check_coordinates(getattr(cam, name), f"{path}: {label} camera", f"{name} values")
+    fs = None
+    with native_stderr():
+        try:
+            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        except (cv2.error, SystemError):
+            fs = None
+    if fs is not None and fs.isOpened():
+        try:
+            _check_rig_fields(fs, rig, path)
+        finally:
+            fs.release()
+    scale = max(float(np.linalg.norm(rig.left.center)), float(np.linalg.norm(rig.right.center)))
+    if rig.baseline == 0 or rig.baseline <= 1e-9 * scale:
+        raise InputError(f"{path}: the two cameras are at the same place (baseline "
+                         f"{rig.baseline:.3g}); a stereo rig needs a baseline")
+
+
+def _check_rig_fields(fs, rig, path: Path) -> None:
+    import cv2
+
+    if _fs_node(fs, "n_views") is None:
+        return  # OpenCV's intrinsics/extrinsics files: no format tag of ours
+    fmt = _fs_node(fs, "format")
+    if fmt is not None and (not fmt.isString() or fmt.string() != "photosurf-cameras"):
+        shown = fmt.string() if fmt.isString() else fmt.real()
+        raise InputError(f"{path}: format {shown!r} is not photosurf-cameras")
+    version = _fs_node(fs, "version")
+    if version is not None:
+        value = version.string() if version.isString() else version.real()
+        if value not in RIG_VERSIONS:
+            raise InputError(f"{path}: version {value!r} of the cameras format is not one this "
+                             f"photosurf reads ({', '.join(map(str, RIG_VERSIONS))})")
+    for key, expected in (("rig_R", rig.R), ("rig_T", rig.T)):
+        node = _fs_node(fs, key)
+        if node is None:
+            continue
+        try:
+            value = np.asarray(node.mat(), dtype=np.float64)
+        except (cv2.error, SystemError, TypeError):
+            raise InputError(f"{path}: field {key} is not a readable matrix") from None
+        if value.size != expected.size or not np.all(np.isfinite(value)):
+            raise InputError(f"{path}: field {key} must be {expected.size} finite numbers, got "
+                             f"{value.ravel().tolist()}")
+        size = max(1.0, float(np.abs(expected).max()))
+        if np.abs(value.reshape(expected.shape) - expected).max() > 1e-6 * size:
+            raise InputError(f"{path}: inconsistent rig: {key} does not match the two views' "
+                             "poses")

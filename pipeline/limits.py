@@ -1,0 +1,206 @@
+"""Documented limits on every size a user can set, checked before anything is allocated.
+
+A request past a limit is refused in one line naming the key, the value and
+its estimated cost::
+
+    photosurf sections: error: --sections: sections.count = 1000000000 is past the
+    limit 100000 (estimated 8e+02 GB, 2.8e+04 h); ... (--allow-large or
+    PHOTOSURF_ALLOW_LARGE=1 lifts the limits)
+
+``photosurf --allow-large COMMAND ...`` (or the environment variable
+``PHOTOSURF_ALLOW_LARGE=1``, inherited by Dask workers) lifts every limit for
+a machine that can afford the request.  The estimates are linear cost models,
+cost = value x (bytes, seconds) per unit, with per-unit figures of this
+code's own arrays (the memory of the arrays the step allocates per unit, the
+time per unit of the step on one 2020s core); they are orders of magnitude,
+meant to say *why* a request is refused.
+
+Each limit is chosen so that a request at the limit still fits a 24 GB
+machine; the defaults and the shipped fixtures are far below every one
+(``tests/pipeline/test_hostile.py`` checks that the demo recipe and the
+defaults pass).
+
+=====================  ===========  ============================================
+key                    limit        what is counted
+=====================  ===========  ============================================
+image.pixels           1e8          width x height of one input image (header)
+synth.views            1000         cameras.n + cameras.second_ring.n
+synth.pixels           1e8          width x height x supersample^2 of one view
+synth.rays             1e10         views x synth.pixels
+synth.triangles        2e7          shape.triangles (revolution mesh)
+texture.components     4096         texture.components (sinusoids per point)
+render.supersample     16           render.supersample
+render.pixels          1e8          photosurf render: width x height x 4 (2x2 AA)
+sections.count         1e5          --sections / sections.count
+ring.points            1e5          --n / curves.n (odd sections; 2n on even)
+mesh.triangles         5e7          stitched mesh: about 3 x sections x n
+smooth.triangles       5e7          tessellation: 4 F x 4^level
+iterations             1000         --max-iter / acquire.max_iter
+workers                64           local-cluster:N / executor.workers
+file.elements          1e8          vertex or face count in a PLY/OFF header
+calibrate.corners      1e4          --pattern COLSxROWS inner corners
+=====================  ===========  ============================================
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from pipeline.errors import InputError
+
+#: Environment variable that lifts every limit (``photosurf --allow-large`` sets it).
+ALLOW_ENV = "PHOTOSURF_ALLOW_LARGE"
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One documented limit: the largest value, and the cost of one unit.
+
+    Attributes
+    ----------
+    key : str
+    maximum : float
+    bytes_each : float
+        Memory per unit, bytes (the arrays the step allocates per unit).
+    seconds_each : float
+        Time per unit on one core, seconds.
+    unit : str
+        What one unit is, for the message.
+    """
+
+    key: str
+    maximum: float
+    bytes_each: float
+    seconds_each: float
+    unit: str
+
+
+_TABLE = (
+    # decoded image (3 B), grey float64 (8), gradients/pyramids/LSM maps (~60)
+    Limit("image.pixels", 1e8, 72, 2e-6, "pixel"),
+    # each view: an image, a depth map (float32) and its truth at the default 640x480 x 9
+    Limit("synth.views", 1000, 640 * 480 * 9 * 100, 640 * 480 * 9 * 1e-6, "view"),
+    # one ray: origin/direction float32 (24 B), hit t/ids/uv/normal (40 B), float64 shading (~90)
+    Limit("synth.pixels", 1e8, 150, 1e-6, "ray"),
+    Limit("synth.rays", 1e10, 0, 1e-6, "ray"),
+    # vertices, corner normals (72 B), open3d's BVH (~150 B)
+    Limit("synth.triangles", 2e7, 250, 2e-6, "triangle"),
+    # per ray per component: one sinusoid (~10 ns), float64 sums
+    Limit("texture.components", 4096, 640 * 480 * 9 * 8, 640 * 480 * 9 * 1e-8, "component"),
+    Limit("render.supersample", 16, 640 * 480 * 150, 640 * 480 * 1e-6, "supersample^2"),
+    # float64 RGB, depth, normals of each sample
+    Limit("render.pixels", 1e8, 80, 2e-7, "pixel"),
+    # per section: a slab of points, a loop graph, a curve fit (~1 ms)
+    Limit("sections.count", 1e5, 8e5, 1e-3, "section"),
+    Limit("ring.points", 1e5, 1e5, 1e-4, "ring point"),
+    # vertices (24 B / 2 per triangle), faces (24 B), flips/edge tables (~50 B)
+    Limit("mesh.triangles", 5e7, 90, 1e-6, "triangle"),
+    # vertices, normals (48 B / 2), faces (24 B), welding ids (~40 B)
+    Limit("smooth.triangles", 5e7, 90, 3e-7, "triangle"),
+    # one Gauss-Newton iteration over every candidate of a 1024x768 pair at spacing 3
+    Limit("iterations", 1000, 0, 0.05, "iteration"),
+    # one Dask worker process (interpreter, numpy, open3d, numba)
+    Limit("workers", 64, 3e8, 2.0, "worker"),
+    # a vertex or face: float64 x 3 or int64 x 3 plus open3d's copy
+    Limit("file.elements", 1e8, 48, 2e-7, "element"),
+    # OpenCV's chessboard search grows with the corners and the image
+    Limit("calibrate.corners", 1e4, 1e4, 1e-3, "corner"),
+)
+
+#: Every limit by key (the table of the module docstring).
+LIMITS = {limit.key: limit for limit in _TABLE}
+
+
+class LimitError(InputError):
+    """A request past a documented limit (one line: key, value, estimated cost)."""
+
+
+def allowed() -> bool:
+    """True when ``PHOTOSURF_ALLOW_LARGE`` lifts the limits."""
+    return os.environ.get(ALLOW_ENV, "").strip().lower() not in ("", "0", "no", "false")
+
+
+def _amount(value: float, unit: str) -> str:
+    for size, name in ((1e12, "T"), (1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if value >= size:
+            return f"{value / size:.3g} {name}{unit}"
+    return f"{value:.3g} {unit}"
+
+
+def _duration(seconds: float) -> str:
+    if seconds >= 86400:
+        return f"{seconds / 86400:.3g} days"
+    if seconds >= 3600:
+        return f"{seconds / 3600:.3g} h"
+    if seconds >= 60:
+        return f"{seconds / 60:.3g} min"
+    return f"{seconds:.3g} s"
+
+
+def estimate(key: str, value: float) -> str:
+    """The estimated cost of ``value`` units of ``key``: ``"8 GB, 3 h"``."""
+    limit = LIMITS[key]
+    parts = []
+    if limit.bytes_each:
+        parts.append(_amount(value * limit.bytes_each, "B"))
+    if limit.seconds_each:
+        parts.append(_duration(value * limit.seconds_each))
+    return ", ".join(parts) or "unbounded"
+
+
+def check(key: str, value: float, where: str | None = None) -> None:
+    """Refuse ``value`` of ``key`` past its limit (unless :func:`allowed`).
+
+    Parameters
+    ----------
+    key : str
+        A key of :data:`LIMITS`.
+    value : int or float
+        The requested amount (already multiplied out: pixels, triangles ...).
+    where : str, optional
+        The file or option the value came from, leading the message.
+
+    Raises
+    ------
+    LimitError
+        ``"WHERE: KEY = VALUE is past the limit MAX (estimated COST); ..."``.
+    """
+    limit = LIMITS[key]
+    if value <= limit.maximum or allowed():
+        return
+    shown = f"{int(value)}" if float(value).is_integer() else f"{value:.6g}"
+    prefix = f"{where}: " if where else ""
+    raise LimitError(f"{prefix}{key} = {shown} is past the limit {limit.maximum:g} "
+                     f"(estimated {estimate(key, value)}); --allow-large or "
+                     f"{ALLOW_ENV}=1 lifts the limits")
+
+
+def check_positive(option: str, value: int, key: str, minimum: int = 1) -> None:
+    """``value`` at least ``minimum`` and within ``key``'s limit (option-named errors)."""
+    if value < minimum:
+        raise InputError(f"{option} must be at least {minimum}, got {value}")
+    check(key, value, where=option)
+
+
+def check_recipe(recipe: dict, source: str) -> None:
+    """The sizes of a (partly) validated scene recipe: views, pixels, rays, triangles,
+    texture components, supersampling -- before any array is made."""
+    cams = recipe.get("cameras")
+    render = recipe.get("render", {})
+    supersample = int(render.get("supersample", 1))
+    check("render.supersample", supersample, where=f"{source}: render.supersample")
+    if cams:
+        views = 2 if cams["layout"] == "stereo" else \
+            cams["n"] + cams.get("second_ring", {}).get("n", 0)
+        check("synth.views", views, where=f"{source}: cameras.n (+ second_ring.n)")
+        pixels = cams["width"] * cams["height"] * supersample ** 2
+        check("synth.pixels", pixels,
+              where=f"{source}: cameras.width x cameras.height x render.supersample^2")
+        check("synth.rays", pixels * views, where=f"{source}: views x pixels per view")
+    shape = recipe.get("shape", {})
+    if "triangles" in shape:
+        check("synth.triangles", shape["triangles"], where=f"{source}: shape.triangles")
+    texture = recipe.get("texture", {})
+    if "components" in texture:
+        check("texture.components", texture["components"], where=f"{source}: texture.components")

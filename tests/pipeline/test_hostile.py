@@ -1,0 +1,608 @@
+"""Hostile and extreme input (issue 17): no crash, no hang, no silent success, no lost data.
+
+One section per kind of the issue; each case runs the real command (in-process,
+stderr captured at file-descriptor level, or as a real process where the case
+needs one: a file-size limit, a signal, a lock held by another process) and
+asserts exit status 2 (128 + signal for a signal), exactly one line on stderr
+naming the problem, and that nothing was written, deleted or left behind.
+
+Kinds (the README's "Bad input" table counts them): limits, numbers, files,
+writes, config, lock, one-line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from pipeline import limits
+from pipeline.errors import InputError
+from pipeline.guards import check_coordinates, escape, image_format, image_header_size
+from tests.pipeline.test_fuzz_inputs import (
+    GOOD_RECIPE,
+    call_main,
+    cylinder_points,
+    fails_cleanly,
+    fuzz,
+    make_rig,
+    textured,
+    write_png,
+    write_rig_file,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+W, H = 64, 48
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict:
+    """A small cloud, a tetrahedron mesh, a textured pair and its rig."""
+    from pipeline.cloud_io import write_cloud
+    from pipeline.mesh_io import write_mesh
+    from tests.pipeline.test_fuzz_inputs import tetra_mesh
+
+    root = tmp_path_factory.mktemp("hostile")
+    cloud = write_cloud(root / "cloud.xyz", cylinder_points(600))
+    mesh = write_mesh(root / "tetra.ply", *tetra_mesh())
+    left = write_png(root / "left.png", textured(W, H, 1))
+    right = write_png(root / "right.png", np.roll(textured(W, H, 1), -3, axis=1))
+    rig = write_rig_file(root / "rig.yml", W, H)
+    return {"root": root, "cloud": cloud, "mesh": mesh, "left": left, "right": right,
+            "rig": rig}
+
+
+def _recipe(tmp: Path, extra: str = "", name: str = "scene.toml") -> Path:
+    path = tmp / name
+    path.write_text(GOOD_RECIPE + extra)
+    return path
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _env(**extra) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **extra)
+    env.pop(limits.ALLOW_ENV, None)
+    return env
+
+
+# =========================================================================== limits
+
+def _sphere_mesh(path: Path, resolution: int) -> Path:
+    import open3d as o3d
+
+    from pipeline.mesh_io import write_mesh
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution)
+    return write_mesh(path, np.asarray(sphere.vertices), np.asarray(sphere.triangles))
+
+
+SYNTH_LIMITS = [
+    ('[cameras]\nlayout = "ring"\nwidth = 48\nheight = 40\nn = 1000000000\n', "synth.views"),
+    ('[cameras]\nlayout = "ring"\nwidth = 48\nheight = 40\nn = 8\n'
+     '[cameras.second_ring]\nn = 100000000\nelevation_deg = 40.0\n', "synth.views"),
+    ('[cameras]\nlayout = "stereo"\nwidth = 1000000\nheight = 1000000\n', "synth.pixels"),
+    ('[shape]\nkind = "revolution"\nprofile = [[0.0, 1.0], [2.0, 0.9]]\n'
+     'triangles = 1000000000000\n', "synth.triangles"),
+    ("[render]\nsupersample = 1000000\n", "render.supersample"),
+    ("[texture]\ncomponents = 1000000000\n", "texture.components"),
+]
+
+
+@pytest.mark.parametrize(("table", "key"), SYNTH_LIMITS, ids=[k for _, k in SYNTH_LIMITS])
+def test_synth_oversized_recipe_refused_before_work(tmp_path, capfd, table, key):
+    import tomllib
+
+    import tomli_w
+
+    raw = tomllib.loads(GOOD_RECIPE)
+    for name, value in tomllib.loads(table).items():
+        raw[name] = {**raw.get(name, {}), **value} if name != "cameras" else value
+    recipe = tmp_path / "big.toml"
+    recipe.write_text(tomli_w.dumps(raw))
+    out = tmp_path / "out"
+    line = fails_cleanly(capfd, ["synth", recipe, "--out", out], key, "estimated", out=out)
+    assert "--allow-large" in line
+
+
+def test_synth_nested_toml_refused(tmp_path, capfd):
+    recipe = tmp_path / "deep.toml"
+    recipe.write_text(GOOD_RECIPE + "x = " + "[" * 5000 + "]" * 5000 + "\n")
+    fails_cleanly(capfd, ["synth", recipe, "--out", tmp_path / "out"], "nested too deeply")
+
+
+@pytest.mark.parametrize(("options", "key"), [
+    (["--sections", "1000000000"], "sections.count"),
+    (["--n", "1000000000"], "ring.points"),
+    (["--sections", "90000", "--n", "90000"], "mesh.triangles"),
+])
+def test_sections_oversized_refused(files, tmp_path, capfd, options, key):
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", files["cloud"], "--out", out, *options], key, out=out)
+
+
+def test_smooth_level_past_the_triangle_limit(tmp_path, capfd):
+    mesh = _sphere_mesh(tmp_path / "sphere.ply", 40)  # 6240 triangles: 4 x 6240 x 4^6 = 1e8
+    out = tmp_path / "s.ply"
+    fails_cleanly(capfd, ["smooth", mesh, "--out", out, "--level", "6"], "smooth.triangles",
+                  "6240 control triangles", "102236160", out=out)
+
+
+@pytest.mark.parametrize("claim", ["OFF\n1000000000 4 0\n0 0 0\n", "ply\nformat ascii 1.0\n"
+                                   "element vertex 1000000000\nproperty float x\nproperty "
+                                   "float y\nproperty float z\nend_header\n0 0 0\n"])
+def test_header_counts_refused_before_reading(tmp_path, capfd, claim):
+    mesh = tmp_path / ("m.off" if claim.startswith("OFF") else "m.ply")
+    mesh.write_text(claim)
+    fails_cleanly(capfd, ["smooth", mesh, "--out", tmp_path / "s.ply"], "file.elements",
+                  "1000000000")
+
+
+def test_png_header_size_refused_before_decoding(files, tmp_path, capfd):
+    import struct
+    import zlib
+
+    big = tmp_path / "big.png"
+    ihdr = struct.pack(">IIBBBBB", 100_000, 100_000, 8, 0, 0, 0, 0)
+    chunk = struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + \
+        struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    big.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk + b"\x00" * 64)
+    for command in ("match", "stereo"):
+        out = tmp_path / ("m" if command == "match" else "c.ply")
+        fails_cleanly(capfd, [command, big, files["right"], "--rig", files["rig"], "--out", out],
+                      "image.pixels", "100000x100000", out=out)
+
+
+@pytest.mark.parametrize(("argv", "needle"), [
+    (["--pattern", "100000x100000", "--square", "0.02"], "calibrate.corners"),
+    (["--pattern", "9x6", "--square", "1e308"], "--square"),
+])
+def test_calibrate_oversized(files, tmp_path, capfd, argv, needle):
+    fails_cleanly(capfd, ["calibrate", str(files["left"]), str(files["right"]), *argv,
+                          "--out", tmp_path / "rig.yml"], needle, out=tmp_path / "rig.yml")
+
+
+@pytest.mark.parametrize(("argv", "needle"), [
+    (["--scheduler", "local-cluster:0"], "at least 1"),
+    (["--scheduler", "local-cluster:100000"], "workers"),
+    (["--set", "sections.count=1000000000"], "sections.count"),
+    (["--set", "acquire.max_iter=1000000000"], "iterations"),
+    (["--set", "executor.workers=100000"], "workers"),
+])
+def test_run_oversized_settings(files, tmp_path, capfd, argv, needle):
+    out = tmp_path / "w"
+    fails_cleanly(capfd, ["run", files["cloud"], "--out", out, *argv], needle, out=out)
+
+
+def test_match_max_iter(files, tmp_path, capfd):
+    out = tmp_path / "m"
+    fails_cleanly(capfd, ["match", files["left"], files["right"], "--rig", files["rig"], "--out",
+                          out, "--max-iter", "1000000000"], "iterations", out=out)
+
+
+def test_allow_large_lifts_a_limit(monkeypatch):
+    with pytest.raises(limits.LimitError, match=r"sections\.count = 200000 .*estimated"):
+        limits.check("sections.count", 200_000)
+    monkeypatch.setenv(limits.ALLOW_ENV, "1")
+    limits.check("sections.count", 200_000)  # lifted
+
+
+def test_defaults_and_fixtures_are_within_the_limits():
+    """The shipped recipes and every default pass: the limits refuse only the extreme."""
+    from pipeline.config import resolve
+    from pipeline.scenes import load_recipe
+
+    resolve()
+    for recipe in sorted((ROOT / "fixtures" / "scenes").glob("*.toml")):
+        load_recipe(recipe)
+
+
+# =========================================================================== numbers
+
+@pytest.mark.parametrize(("scale", "needle"), [(1e300, "beyond"), (1e60, "beyond")])
+def test_sections_coordinates_past_float64_geometry(tmp_path, capfd, scale, needle):
+    from pipeline.cloud_io import write_cloud
+
+    cloud = write_cloud(tmp_path / "huge.ply", cylinder_points(300) * scale)
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", cloud, "--out", out], needle, "huge.ply", out=out)
+
+
+def test_render_mesh_coordinates_past_float64_geometry(tmp_path, capfd):
+    from pipeline.mesh_io import write_mesh
+    from tests.pipeline.test_fuzz_inputs import tetra_mesh
+
+    v, t = tetra_mesh()
+    mesh = write_mesh(tmp_path / "huge.ply", v * 1e200, t)
+    out = tmp_path / "r.png"
+    fails_cleanly(capfd, ["render", mesh, "--out", out], "beyond", out=out)
+
+
+def test_collinear_cloud_is_degenerate(tmp_path, capfd):
+    line = np.linspace(0, 1, 1000)[:, None] * np.array([[0.3, 0.1, 1.0]])
+    cloud = tmp_path / "line.xyz"
+    np.savetxt(cloud, line)
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", cloud, "--out", out], "degenerate", "line", out=out)
+
+
+def test_complex_npz_cloud(tmp_path, capfd):
+    cloud = tmp_path / "c.npz"
+    np.savez(cloud, points=cylinder_points(300).astype(np.complex128) * (1 + 1j))
+    fails_cleanly(capfd, ["sections", cloud, "--out", tmp_path / "m.ply"], "complex128")
+
+
+@given(exponent=st.integers(51, 307), sign=st.sampled_from([1.0, -1.0]))
+@fuzz(20)
+def test_check_coordinates_refuses_past_the_limit(exponent, sign):
+    points = cylinder_points(10)
+    points[3, 1] = sign * 10.0 ** exponent
+    with pytest.raises(InputError, match="beyond"):
+        check_coordinates(points, "p")
+    check_coordinates(points / 10.0 ** (exponent - 49), "p")  # within: accepted
+
+
+def _rig_text(rig_path: Path, old: str, new: str, tmp: Path) -> Path:
+    text = rig_path.read_text()
+    assert old in text, old
+    path = tmp / "edited.yml"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+@pytest.mark.parametrize(("old", "new", "needle"), [
+    ("version: 1", "version: 99", "version 99"),
+    ("format: photosurf-cameras", "format: other-cameras", "other-cameras"),
+    ("rig_R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ ",
+     "rig_R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ .Nan, ", "rig_R"),
+    ("rig_T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ ",
+     "rig_T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 5., ", "inconsistent"),
+])
+def test_rig_file_that_is_not_what_it_says(files, tmp_path, capfd, old, new, needle):
+    rig = _rig_text(files["rig"], old, new, tmp_path)
+    if needle == "rig_R":  # the NaN replaces the first value (a 3x3 keeps 9 numbers)
+        text = rig.read_text()
+        start = text.index(".Nan, ") + len(".Nan, ")
+        comma = text.index(",", start)
+        rig.write_text(text[:start] + text[comma + 1:].lstrip())
+    if needle == "inconsistent":
+        text = rig.read_text()
+        start = text.index("5., ") + len("5., ")
+        comma = text.index(",", start)
+        rig.write_text(text[:start] + text[comma + 1:].lstrip())
+    out = tmp_path / "m"
+    fails_cleanly(capfd, ["match", files["left"], files["right"], "--rig", rig, "--out", out],
+                  needle, out=out)
+
+
+def test_rig_with_zero_baseline(tmp_path, capfd, files):
+    from matching.cameras import Camera, StereoRig, write_rig
+
+    left = make_rig(W, H).left
+    twin = Camera(left.K, left.dist, left.R, left.t, W, H, "right")
+    rig = tmp_path / "zero.yml"
+    write_rig(rig, StereoRig(left, twin))
+    fails_cleanly(capfd, ["match", files["left"], files["right"], "--rig", rig, "--out",
+                          tmp_path / "m"], "baseline")
+
+
+@pytest.mark.parametrize("how", ["same_path", "same_pixels"])
+@pytest.mark.parametrize("command", ["match", "stereo"])
+def test_stereo_pair_of_one_image(files, tmp_path, capfd, how, command):
+    right = files["left"]
+    if how == "same_pixels":
+        right = tmp_path / "copy.png"
+        right.write_bytes(files["left"].read_bytes())
+    out = tmp_path / ("m" if command == "match" else "c.ply")
+    fails_cleanly(capfd, [command, files["left"], right, "--rig", files["rig"], "--out", out],
+                  "zero baseline", out=out)
+
+
+def test_calibrate_same_glob_both_sides(files, tmp_path, capfd):
+    out = tmp_path / "rig.yml"
+    glob = str(files["root"] / "left.png")
+    fails_cleanly(capfd, ["calibrate", glob, glob, "--square", "0.02", "--out", out],
+                  "both a left and a right", out=out)
+
+
+# =========================================================================== files
+
+def _fifo(tmp_path: Path, name: str) -> Path:
+    path = tmp_path / name
+    os.mkfifo(path)
+    return path
+
+
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
+@pytest.mark.parametrize("command", ["sections", "smooth", "match", "synth", "run-config"])
+def test_fifo_or_device_input_refused_at_once(files, tmp_path, capfd, special, command):
+    suffix = {"sections": ".xyz", "smooth": ".ply", "match": ".png", "synth": ".toml",
+              "run-config": ".toml"}[command]
+    src = _fifo(tmp_path, f"in{suffix}") if special == "fifo" else Path(special)
+    out = tmp_path / "out"
+    argv = {"sections": ["sections", src, "--out", tmp_path / "m.ply"],
+            "smooth": ["smooth", src, "--out", tmp_path / "s.ply"],
+            "match": ["match", src, files["right"], "--rig", files["rig"], "--out", out],
+            "synth": ["synth", src, "--out", out],
+            "run-config": ["run", files["cloud"], "--config", src, "--out", out]}[command]
+    needle = "FIFO" if special == "fifo" else "character device"
+    fails_cleanly(capfd, argv, needle)
+
+
+def test_gif_named_png_refused(files, tmp_path, capfd):
+    gif = tmp_path / "anim.png"
+    gif.write_bytes(b"GIF89a" + bytes(range(64)) * 4)
+    fails_cleanly(capfd, ["match", gif, files["right"], "--rig", files["rig"], "--out",
+                          tmp_path / "m"], "GIF")
+
+
+def test_image_header_size_by_format(tmp_path):
+    import cv2
+
+    image = textured(37, 23, 0)
+    for suffix in (".png", ".jpg", ".tif", ".bmp", ".pgm", ".webp"):
+        path = tmp_path / f"i{suffix}"
+        assert cv2.imwrite(str(path), image)
+        assert image_header_size(path)[1] == (37, 23), suffix
+    (tmp_path / "j.png").write_bytes((tmp_path / "i.jpg").read_bytes())
+    with pytest.raises(InputError, match="named .png but the content is a JPEG"):
+        image_format(tmp_path / "j.png")
+
+
+# =========================================================================== writes
+
+def _limited(argv: list, fsize: int, cwd: Path) -> subprocess.CompletedProcess:
+    """Run photosurf with a file-size limit (``ulimit -f``): writes past it fail with EFBIG."""
+    import resource
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of the signal
+        resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *map(str, argv)], cwd=cwd,
+                          env=_env(), capture_output=True, text=True, preexec_fn=limit,
+                          timeout=300)
+
+
+@pytest.mark.parametrize("command", ["sections", "smooth", "render"])
+def test_full_disk_fails_and_leaves_nothing(files, tmp_path, command):
+    out = tmp_path / {"sections": "m.ply", "smooth": "s.ply", "render": "r.png"}[command]
+    src = files["cloud"] if command == "sections" else files["mesh"]
+    argv = [command, src, "--out", out] + (["--level", "2"] if command == "smooth" else [])
+    result = _limited(argv, 2048, tmp_path)
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert result.returncode == 2, result.stderr
+    assert len(lines) == 1, result.stderr
+    assert "File too large" in lines[0], lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], "something was left behind"
+
+
+def test_out_is_the_input(files, tmp_path, capfd):
+    cloud = tmp_path / "c.ply"
+    from pipeline.cloud_io import write_cloud
+
+    write_cloud(cloud, cylinder_points(300))
+    before = cloud.read_bytes()
+    fails_cleanly(capfd, ["sections", cloud, "--out", cloud], "is the input")
+    mesh = tmp_path / "t.ply"
+    mesh.write_bytes(files["mesh"].read_bytes())
+    fails_cleanly(capfd, ["smooth", mesh, "--out", mesh], "is the input")
+    link = tmp_path / "link.ply"
+    link.symlink_to(mesh)
+    fails_cleanly(capfd, ["smooth", mesh, "--out", link], "is the input")
+    assert cloud.read_bytes() == before and mesh.read_bytes() == files["mesh"].read_bytes()
+
+
+def test_synth_out_holding_the_recipe(tmp_path, capfd):
+    folder = tmp_path / "recipes"
+    folder.mkdir()
+    recipe = _recipe(folder)
+    for out in (folder, tmp_path):  # the recipe's folder, and its parent
+        fails_cleanly(capfd, ["synth", recipe, "--out", out], "holds the input")
+    assert recipe.read_text() == GOOD_RECIPE
+
+
+def test_match_out_holding_an_input(files, tmp_path, capfd):
+    fails_cleanly(capfd, ["match", files["left"], files["right"], "--rig", files["rig"], "--out",
+                          files["root"]], "holds the input")
+    assert files["left"].is_file() and files["rig"].is_file()
+
+
+@pytest.mark.parametrize("command", ["synth", "match"])
+def test_existing_folder_with_unrelated_files_is_kept(files, tmp_path, capfd, command):
+    out = tmp_path / "work"
+    out.mkdir()
+    (out / "thesis.tex").write_text("\\documentclass{article}\n")
+    (out / "my_notes.txt").write_text("notes\n")
+    before = _tree(out)
+    argv = (["synth", _recipe(tmp_path), "--out", out] if command == "synth" else
+            ["match", files["left"], files["right"], "--rig", files["rig"], "--out", out])
+    fails_cleanly(capfd, argv, "photosurf did not write", "nothing was changed")
+    assert _tree(out) == before
+
+
+def test_synth_replaces_only_its_own_files(tmp_path, capfd):
+    recipe = _recipe(tmp_path)
+    out = tmp_path / "out"
+    assert call_main(["synth", recipe, "--out", out, "-q"]) == 0
+    first = _tree(out)
+    (out / "notes.txt").write_text("mine\n")
+    (out / "images" / "mine.txt").write_text("mine too\n")
+    assert call_main(["synth", recipe, "--out", out, "-q", "--set", "seed=2"]) == 0
+    second = _tree(out)
+    assert second["notes.txt"] == b"mine\n" and second["images/mine.txt"] == b"mine too\n"
+    assert set(second) == set(first) | {"notes.txt", "images/mine.txt"}
+    assert second["images/view_00.png"] != first["images/view_00.png"]  # replaced (seed 2)
+    assert not [p for p in out.iterdir() if p.name.startswith(".photosurf-tmp")]
+
+
+@pytest.mark.parametrize("occupied", [False, True])
+def test_synth_out_dot(tmp_path, capfd, monkeypatch, occupied):
+    recipe = _recipe(tmp_path)
+    here = tmp_path / "here"
+    here.mkdir()
+    if occupied:
+        (here / "keep.txt").write_text("keep\n")
+    monkeypatch.chdir(here)
+    if occupied:
+        fails_cleanly(capfd, ["synth", recipe, "--out", "."], "photosurf did not write")
+        assert sorted(p.name for p in here.iterdir()) == ["keep.txt"]
+    else:
+        assert call_main(["synth", recipe, "--out", ".", "-q"]) == 0
+        assert (here / "images" / "view_00.png").is_file()
+        assert not [p for p in here.iterdir() if p.name.startswith(".photosurf-tmp")]
+
+
+def test_batch_does_not_follow_a_link_in_outdir(files, tmp_path, capfd):
+    outdir = tmp_path / "out"
+    outdir.mkdir()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (outdir / "a").symlink_to(elsewhere)
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(f'[[object]]\nname = "a"\ninput = "{files["cloud"]}"\n')
+    line = fails_cleanly(capfd, ["batch", manifest, "--out", outdir, "--to", "sections"],
+                         "1 of 1 objects failed", "symbolic link")
+    assert str(outdir / "a") in line
+    assert list(elsewhere.iterdir()) == []  # nothing written through the link
+
+
+def _cloud_run(tmp_path: Path) -> tuple[Path, Path]:
+    from pipeline.cloud_io import write_cloud
+
+    theta = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    z = np.linspace(0, 2, 120)
+    tt, zz = np.meshgrid(theta, z)
+    points = np.column_stack([np.cos(tt).ravel(), np.sin(tt).ravel(), zz.ravel()])
+    return write_cloud(tmp_path / "cyl.npz", points), tmp_path / "w"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_signal_during_run_is_clean(tmp_path, sig):
+    cloud, work = _cloud_run(tmp_path)
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", str(cloud), "--out",
+                             str(work), "-q"], env=_env(), stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if work.is_dir() and any(p.name.startswith(".") and p.name != ".lock"
+                                 for p in work.iterdir()):
+            break  # a stage is writing its temporary
+        time.sleep(0.02)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=120)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if proc.returncode == 0:
+        pytest.skip("the run finished before the signal arrived")
+    assert proc.returncode == 128 + sig, err
+    assert lines == [f"photosurf run: interrupted ({signal.Signals(sig).name})"], err
+    left = [p.name for p in work.iterdir() if p.name.startswith(".") and p.name != ".lock"]
+    assert left == [], f"temporaries left: {left}"
+
+
+# =========================================================================== workspace
+
+@pytest.mark.parametrize(("text", "needle"), [
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    ('{"manifest_version": 1, "stages": {"acquire": 5}}', "stage 'acquire' is a int"),
+    ('{"manifest_version": 1, "stages": []}', "'stages' is a list"),
+    ('{"manifest_version": 1, "stages": {"sections": {"outputs": {"/etc/passwd": "x"}}}}',
+     "outside the workspace"),
+    ("[1, 2]", "not an object"),
+])
+def test_damaged_manifest(files, tmp_path, capfd, text, needle):
+    work = tmp_path / "w"
+    work.mkdir()
+    (work / "manifest.json").write_text(text)
+    fails_cleanly(capfd, ["run", files["cloud"], "--out", work], "workspace is damaged", needle)
+
+
+@pytest.mark.parametrize("call", ["lockf", "flock"])
+def test_lock_held_by_another_process(files, tmp_path, capfd, call):
+    work = tmp_path / "w"
+    work.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import fcntl, sys, time\n"
+         f"f = open({str(work / '.lock')!r}, 'a+')\n"
+         f"fcntl.{call}(f, fcntl.LOCK_EX)\n"
+         "print('locked', flush=True)\n"
+         "time.sleep(60)\n"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        fails_cleanly(capfd, ["run", files["cloud"], "--out", work], "another photosurf run")
+        assert not (work / "manifest.json").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+# =========================================================================== config
+
+@given(value=st.sampled_from(["1\n[executor]\nworkers = 1000", "3\nfoo = 1", "4\r\n[x]",
+                              "true\n", '"a"\n[report]\nwidth = 9'] +
+                             [f"{n}\n[{t}]" for n in range(3) for t in ("a", "b.c")]))
+@fuzz(12)
+def test_set_value_is_one_toml_value(value):
+    from pipeline.config import resolve
+
+    with pytest.raises(InputError, match=r"--set sections\.count: the value must be one"):
+        resolve(assignments=[f"sections.count={value}"])
+
+
+def test_set_injection_through_the_cli(tmp_path, capfd):
+    recipe = _recipe(tmp_path)
+    fails_cleanly(capfd, ["synth", recipe, "--out", tmp_path / "o", "--set",
+                          "seed=1\n[cameras]\nwidth = 9"], "--set seed", out=tmp_path / "o")
+    fails_cleanly(capfd, ["run", recipe, "--out", tmp_path / "w", "--set",
+                          "sections.count=3\n[executor]\nworkers=1000"], "--set sections.count")
+
+
+# =========================================================================== one line
+
+@given(name=st.text(st.sampled_from("ab\n\r\t\x1b[]2J\x07\x9b\u2028 "), min_size=1, max_size=12))
+@fuzz(30)
+def test_escape_leaves_no_control_character(name):
+    shown = escape(name)
+    assert shown.isprintable()
+    assert "\n" not in shown and "\x1b" not in shown
+
+
+def test_file_name_with_newline_and_escape_stays_one_line(tmp_path, capfd):
+    name = tmp_path / "evil\n\x1b[2Jname.xyz"
+    name.write_text("not numbers at all\nreally\nnot\n")
+    line = fails_cleanly(capfd, ["sections", name, "--out", tmp_path / "m.ply"])
+    assert "\\n" in line and "\\x1b" in line and "\x1b" not in line
+
+
+def test_no_arguments_prints_usage_on_stderr(capfd):
+    from pipeline.cli import main
+
+    capfd.readouterr()
+    assert main([]) == 2
+    captured = capfd.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith("usage: photosurf")
+
+
+def test_batch_sums_failures_in_one_line(files, tmp_path, capfd):
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text("[[object]]\nname = 'a'\ninput = 'missing1.ply'\n"
+                        "[[object]]\nname = 'b'\ninput = 'missing2.ply'\n"
+                        f"[[object]]\nname = 'c'\ninput = '{tmp_path}/bad\\nname.xyz'\n")
+    line = fails_cleanly(capfd, ["batch", manifest, "--out", tmp_path / "o", "-q"],
+                         "3 of 3 objects failed", "missing1.ply", "(and 2 more)")
+    report = json.loads((tmp_path / "o" / "batch.json").read_text())
+    assert [o["status"] for o in report["objects"]] == ["failed"] * 3
+    assert "\n" not in line
