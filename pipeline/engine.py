@@ -239,6 +239,10 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     if lo > hi:
         raise InputError(f"--from {start} comes after --to {stop}")
 
+    from pipeline.guards import check_output
+
+    if not Path(outdir).is_file():  # (a file: Workspace says --out must be a folder)
+        check_output(outdir, [*input_paths, rig_path], folder=True)  # never over an input
     ws = Workspace(outdir)
     run = _Run(ws, config, input_paths, kind, rig_path, executor or LocalExecutor(), force,
                lo, hi, tuple(names))

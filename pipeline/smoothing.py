@@ -94,9 +94,8 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     ValueError
         A control mesh :func:`surface.bezier.control_net` rejects.
     """
-    from surface import bezier
-
     from pipeline import limits
+    from surface import bezier
 
     # Loop's refinement makes 4 patches per control triangle, level L 4^L triangles each:
     # refused before the control net is built ("auto" is bounded by MAX_AUTO_LEVEL)
@@ -152,8 +151,12 @@ def smooth_to_files(vertices, triangles, out, level: int | None = None,
                          f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
     if not 0 <= level <= 8:
         raise InputError(f"--level must be in 0..8, got {level}")
+    from pipeline.limits import LimitError
+
     try:
         smoothed = smooth_mesh(vertices, triangles, level)
+    except LimitError:
+        raise  # the request, not the mesh
     except ValueError as exc:
         raise InputError(f"{source}: cannot build the Bezier surface: {exc}") from exc
     surface = smoothed.surface

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from pipeline import artifacts, progress
 from pipeline.errors import InputError, StageSkipped
-from pipeline.inputs import folder_images, read_image, scene_source, stereo_inputs
+from pipeline.inputs import folder_images, scene_source, stereo_inputs
 
 if TYPE_CHECKING:
     from pipeline.engine import StageContext
@@ -90,14 +90,14 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
 
 def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> tuple:
     """``matching.pair.reconstruct_pair`` on two image files and a rig file."""
-    from matching.cameras import read_rig
     from matching.pair import reconstruct_pair
+    from pipeline.inputs import read_pair, read_rig_for
 
-    rig = read_rig(rig_path)
+    rig = read_rig_for(rig_path)  # and pipeline.guards.check_rig: format, values, baseline
     options = dict(params)
     options.pop("eccentric", None)  # image folders only (defaults.toml)
     max_reproj = options.pop("max_reprojection_px") or None
-    result = reconstruct_pair(read_image(left), read_image(right), rig,
+    result = reconstruct_pair(*read_pair(left, right, need_same_size=False), rig,
                               max_reprojection_px=max_reproj, **options)
     return result.points, result.colours, result.sigma
 
@@ -123,11 +123,13 @@ def sections(ctx: StageContext) -> dict:
     """``surface.reconstruct.slice_cloud``: slice and move the slab points to their planes."""
     import warnings
 
+    from pipeline.guards import check_cloud_shape
     from surface import reconstruct as rc
     from surface import sections as sections_mod
 
     p = ctx.params["sections"]
     points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
+    check_cloud_shape(points, "acquire: the cloud")  # a line spans no surface
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
         sliced = rc.slice_cloud(

@@ -643,6 +643,12 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         Bad cloud or parameters (from the steps), an unknown projection, or
         fewer than two sections with a loop.
     """
+    # |x| > 1e50 overflows the geometry's 4th-6th powers; at ~1e300 Shewchuk's Triangle
+    # (topology._triangle_edges) crashed the process (pipeline.guards.MAX_COORDINATE)
+    extreme = np.abs(np.asarray(points, dtype=np.float64))
+    if extreme.size and not extreme.max() <= 1e50:
+        raise ValueError(f"points: |coordinates| up to {extreme.max():.3g} (NaN/inf or beyond "
+                         "1e50, where products of coordinates overflow float64)")
     sliced = slice_cloud(points, axis=axis, sections=sections, spacing=spacing,
                          thickness=thickness, projection=projection)
     kept, loops, messages = organise_sections(sliced.sections,
