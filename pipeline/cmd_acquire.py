@@ -93,6 +93,10 @@ def run(args: argparse.Namespace) -> int:
                          "and an odd patch >= 5")
     if args.check_views < 1:
         raise InputError(f"--check-views {args.check_views}: must be >= 1")
+    from pipeline.guards import check_output
+
+    for target in (out, out.with_suffix(".npz")):
+        check_output(target, [args.folder, args.cameras])
     with get_executor(args.scheduler) as executor:
         cloud = acquire_folder(args.folder, args.cameras, executor=executor,
                                check_views=args.check_views,

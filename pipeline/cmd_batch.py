@@ -27,7 +27,6 @@ import copy
 import json
 import os
 import sys
-import tomllib
 from pathlib import Path
 
 from pipeline import config as config_mod
@@ -63,13 +62,12 @@ def read_manifest(path: str | os.PathLike) -> list[dict]:
         Missing file, invalid TOML, an unknown key, an object without input,
         a duplicate name.
     """
+    from pipeline.guards import load_toml
+
     path = Path(path)
-    if not path.is_file():
+    if not path.exists() or path.is_dir():
         raise FileNotFoundError(f"{path}: no such batch manifest")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(f"{path}: invalid TOML: {exc}") from exc
+    data = load_toml(path, "batch manifest")  # a regular file; bounded size and nesting
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise InputError(f"{path}: unknown key {sorted(unknown)[0]!r} "
