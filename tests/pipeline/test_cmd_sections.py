@@ -124,11 +124,13 @@ def test_smooth_gives_a_watertight_g1_surface_near_the_truth(vase, vase_npz, tmp
     assert main(["sections", str(path), "--out", str(out), "--smooth", "--level", "1"]) == 0
     text = capsys.readouterr().out
     assert "smooth:" in text and "level 1" in text
-    net = np.load(out.with_suffix(".npz"))
-    assert net["control_points"].shape[1:] == (28, 3)
+    from pipeline.export import read_control_net
+
+    net = read_control_net(out.with_suffix(".npz"))  # format version 2: shared points
+    assert net.control_points.shape[1:] == (28, 3)
     vertices, triangles = read_mesh(out)
     # 4 patches per stitched triangle (one Loop refinement), 4^1 triangles per patch.
-    assert len(triangles) == 4 * len(net["control_points"])
+    assert len(triangles) == 4 * len(net.control_points)
     # With support rings at the two 90-degree rims (surface.stitch.support_distance) the
     # G1 surface keeps them to ~sigma instead of rounding them over a control edge, so the
     # smooth surface meets the stitched mesh's bound: closer than the raw points' 0.8 sigma
