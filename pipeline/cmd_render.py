@@ -61,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.mesh_io import read_mesh_with_normals, weld_vertices
-    from pipeline.render import is_closed, render_mesh, write_png
+    from pipeline.render import render_mesh, write_png
+    from surface.metrics import is_watertight
 
     out = Path(args.out)
     if out.suffix.lower() != ".png":
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         truth = (tv, tt)
         if args.error_range is not None:
             d = float(args.error_range)
-            error_range = (-d, d) if is_closed(tt) else (0.0, d)
+            error_range = (-d, d) if is_watertight(tt) else (0.0, d)
     image = render_mesh(vertices, triangles, views=args.views, size=args.size, truth=truth,
                         normals=normals, error_range=error_range, smooth=not args.flat)
     write_png(out, image)

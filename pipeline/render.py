@@ -56,6 +56,8 @@ import numpy as np
 
 from pipeline.atomic import atomic_file
 from pipeline.export import vertex_normals
+from pipeline.raycast import RayCaster, look_at_rotation
+from pipeline.raycast import direction as view_direction
 from surface.validate import TOL, check_finite, check_shape
 
 
@@ -152,17 +154,10 @@ def look_at(center: np.ndarray, radius: float, azimuth_deg: float, elevation_deg
     half = math.radians(fov_deg) / 2.0
     focal = 0.5 * min(width, height) / math.tan(half)
     distance = radius / math.sin(math.atan(fill * math.tan(half)))
-    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    outward = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    outward = view_direction(azimuth_deg, elevation_deg)
     eye = np.asarray(center, dtype=np.float64) + distance * outward
-    forward = -outward
-    up = np.array([0.0, 0.0, 1.0])
-    right = np.cross(forward, up)
-    if np.linalg.norm(right) < 1e-6:  # looking straight up/down: any horizontal right will do
-        right = np.array([-math.sin(az), math.cos(az), 0.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    R = np.stack([right, down, forward])
+    az = math.radians(azimuth_deg)  # looking straight up/down: any horizontal right will do
+    R = look_at_rotation(-outward, fallback_right=np.array([-math.sin(az), math.cos(az), 0.0]))
     K = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0],
                   [0.0, 0.0, 1.0]])
     return K, R, -R @ eye
@@ -234,13 +229,6 @@ def _shade(normals: np.ndarray, view_dirs: np.ndarray, albedo: np.ndarray, R: np
     return albedo * diffuse[:, None] + lighting.specular * highlight[:, None]
 
 
-def _cast(scene, rays: np.ndarray) -> dict[str, np.ndarray]:
-    import open3d as o3d
-
-    hits = scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))
-    return {key: value.numpy() for key, value in hits.items()}
-
-
 def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
                 K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
                 supersample: int = 2, lighting: Lighting = Lighting(),
@@ -250,8 +238,8 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
 
     Parameters
     ----------
-    scene : open3d.t.geometry.RaycastingScene
-        Holding exactly the mesh ``(vertices, triangles)`` as geometry 0.
+    scene : pipeline.raycast.RayCaster
+        Holding exactly the mesh ``(vertices, triangles)``.
     vertices : (V, 3) float64
     triangles : (F, 3) int64
     normals : (V, 3) float64, unit vertex normals
@@ -276,7 +264,7 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
     import cv2
 
     rays = camera_rays(K, R, t, width, height, supersample)  # (Hs, Ws, 6)
-    hits = _cast(scene, rays)
+    hits = scene.cast_rays(rays)
     hit = np.isfinite(hits["t_hit"])
     face = hits["primitive_ids"][hit].astype(np.int64)
     uv = hits["primitive_uvs"][hit].astype(np.float64)
@@ -381,39 +369,6 @@ def viridis(values: np.ndarray) -> np.ndarray:
     return (1 - w) * table[lo] + w * table[lo + 1]
 
 
-def is_closed(triangles: np.ndarray) -> bool:
-    """Every directed edge has exactly one opposite twin (closed, oriented, manifold)."""
-    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    forward = np.unique(edges, axis=0, return_counts=True)
-    if np.any(forward[1] != 1):
-        return False
-    backward = np.unique(edges[:, ::-1], axis=0)
-    return len(backward) == len(forward[0]) and np.array_equal(backward, forward[0])
-
-
-def distance_to_truth(vertices: np.ndarray, truth_vertices: np.ndarray,
-                      truth_triangles: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Distance of each vertex to the truth surface.
-
-    Returns
-    -------
-    distance : (V,) float64, scene units
-        Signed (negative inside) when the truth is closed, else unsigned.
-    signed : bool
-    """
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(truth_vertices.astype(np.float32), truth_triangles.astype(np.uint32))
-    query = o3d.core.Tensor(vertices.astype(np.float32))
-    signed = is_closed(truth_triangles)
-    if signed:
-        distance = scene.compute_signed_distance(query)
-    else:
-        distance = scene.compute_distance(query)
-    return distance.numpy().astype(np.float64), signed
-
-
 def _nice_ceil(x: float) -> float:
     """Smallest of 1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 8 × 10^k that is ≥ x."""
     if x <= 0 or not math.isfinite(x):
@@ -508,8 +463,6 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
     -------
     image : (height, width, 3) uint8, RGB
     """
-    import open3d as o3d
-
     vertices = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
     check_finite(vertices, "vertices")
     triangles = check_shape(triangles, "(F, 3)", "triangles").astype(np.int64)
@@ -537,8 +490,7 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
     if tile_w < 8 or tile_h < 8:
         raise ValueError(f"size {width}x{height} is too small for {len(pairs)} views")
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(vertices.astype(np.float32), triangles.astype(np.uint32))
+    scene = RayCaster(vertices, triangles)
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     center = 0.5 * (lo + hi)
     radius = max(float(np.linalg.norm(vertices - center, axis=1).max()), TOL.zero)
@@ -559,7 +511,10 @@ def _error_colours(vertices, truth, error_range):
     """Per-vertex normalised distances, the colour map and the legend's arguments."""
     truth_vertices = check_shape(truth[0], "(T, 3)", "truth vertices", dtype=np.float64)
     truth_triangles = check_shape(truth[1], "(G, 3)", "truth triangles").astype(np.int64)
-    distance, signed = distance_to_truth(vertices, truth_vertices, truth_triangles)
+    from surface.metrics import is_watertight, point_mesh_distance
+
+    signed = is_watertight(truth_triangles)  # signed (- inside) only where inside means something
+    distance = point_mesh_distance(vertices, truth_vertices, truth_triangles, signed=signed)
     if error_range is None:
         top = _nice_ceil(float(np.abs(distance).max()))
         error_range = (-top, top) if signed else (0.0, top)

@@ -267,8 +267,8 @@ def _sections_section(root: Path) -> str:
 
 
 def _truth_section(root, final, truth, params, info, read_mesh) -> str:
-    from pipeline.render import is_closed, render_mesh
-    from surface.metrics import compare_meshes, point_mesh_distance
+    from pipeline.render import render_mesh
+    from surface.metrics import compare_meshes, is_watertight, point_mesh_distance
 
     tv, tt = truth
     diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
@@ -290,7 +290,7 @@ def _truth_section(root, final, truth, params, info, read_mesh) -> str:
         v, t = read_mesh(final[1])
         size = (3 * int(params["width"]), 2 * int(params["height"]))
         # colours saturate at τ, the F-score threshold: red/blue = beyond it
-        error_range = (-tau, tau) if is_closed(tt) else (0.0, tau)
+        error_range = (-tau, tau) if is_watertight(tt) else (0.0, tau)
         sheet = render_mesh(v, t, views=6, size=size, truth=(tv, tt), error_range=error_range)
         blocks.append(_figure(png_data_uri(sheet), f"{final[0]} coloured by its distance to "
                               f"the truth mesh (saturating at τ = {tau:.3g})"))

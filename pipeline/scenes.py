@@ -74,6 +74,8 @@ import numpy as np
 from matching.cameras import Camera, StereoRig, write_cameras_yml, write_colmap_text
 from pipeline import limits
 from pipeline.errors import InputError
+from pipeline.raycast import RayCaster, look_at
+from pipeline.raycast import direction as view_direction
 
 #: Default recipe shipped with the project.
 DEFAULT_RECIPE = Path(__file__).resolve().parents[1] / "fixtures" / "scenes" / "vase.toml"
@@ -91,7 +93,7 @@ class SceneTolerance:
     undistort_px: float = 1e-6
     #: Share of the image the object must cover for a camera to "see" it.
     min_coverage: float = 0.01
-    #: Denominator guard in the float64 ray/triangle refinement.
+    #: Denominator guard of normalisations.
     zero: float = 1e-300
     #: Rounding slack on recipe sums that must not exceed 1 (ambient + diffuse).
     recipe_slack: float = 1e-12
@@ -770,21 +772,6 @@ class SinusoidTexture:
 # --------------------------------------------------------------------------- cameras
 
 
-def _look_at(position: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """World→camera rotation of a camera at ``position`` looking at ``target``, image y down."""
-    forward = target - position
-    forward = forward / np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(up, dtype=np.float64))
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    return np.stack([right, down, forward])
-
-
-def _direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
-    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-
-
 def _intrinsics(cams: dict) -> tuple[np.ndarray, np.ndarray]:
     f = cams["focal_px"]
     cx, cy = cams["principal_point"]
@@ -801,9 +788,9 @@ def _make_camera(index: int, position, rotation, K, dist, cams) -> Camera:
 def _stereo_cameras(cams: dict, centre: np.ndarray, distance: float) -> list[Camera]:
     """Left and right camera: midpoint at ``distance`` from the centre, toed in symmetrically."""
     K, dist = _intrinsics(cams)
-    view = _direction(cams["azimuth_deg"], cams["elevation_deg"])
+    view = view_direction(cams["azimuth_deg"], cams["elevation_deg"])
     middle = centre + distance * view
-    mid_rotation = _look_at(middle, centre)
+    mid_rotation = look_at(middle, centre)
     right_axis = mid_rotation[0]
     baseline = cams.get("baseline", 0.25 * distance)  # base/distance 1:4 by default
     convergence = cams.get("convergence_deg",
@@ -828,8 +815,8 @@ def _ring_cameras(cams: dict, centre: np.ndarray, radius: float) -> list[Camera]
     out = []
     for n, elevation, azimuth0 in rings:
         for k in range(n):
-            position = centre + radius * _direction(azimuth0 + 360.0 * k / n, elevation)
-            out.append(_make_camera(len(out), position, _look_at(position, centre), K, dist,
+            position = centre + radius * view_direction(azimuth0 + 360.0 * k / n, elevation)
+            out.append(_make_camera(len(out), position, look_at(position, centre), K, dist,
                                     cams))
     return out
 
@@ -939,46 +926,6 @@ def pixel_rays(camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarr
     R = camera.R  # directions Rᵀ (x, y, 1), written out: (N, 3) @ (3, 3) is slow in BLAS
     directions = xy[:, 0:1] * R[0] + xy[:, 1:2] * R[1] + R[2]
     return camera.center, directions
-
-
-class RayCaster:
-    """open3d's CPU ``RaycastingScene`` around one mesh, with float64 refinement of hits."""
-
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray):
-        import open3d as o3d
-
-        self.vertices = np.asarray(vertices, dtype=np.float64)
-        self.triangles = np.asarray(triangles, dtype=np.int64)
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
-                                  o3d.core.Tensor(self.triangles.astype(np.uint32)))
-
-    def cast(self, origin: np.ndarray, directions: np.ndarray) -> dict:
-        """Cast rays; return ``t (N,) float32`` (inf on a miss), ``ids (N,) int64`` (-1 on a
-        miss) and barycentric ``uv (N, 2) float32`` (point = (1-u-v) v0 + u v1 + v v2)."""
-        import open3d as o3d
-
-        rays = np.empty((len(directions), 6), dtype=np.float32)
-        rays[:, :3] = np.broadcast_to(origin, (len(directions), 3))
-        rays[:, 3:] = directions
-        hit = self._scene.cast_rays(o3d.core.Tensor(rays))
-        t = hit["t_hit"].numpy()
-        ids = hit["primitive_ids"].numpy().astype(np.int64)
-        ids[~np.isfinite(t)] = -1
-        return {"t": t, "ids": ids, "uv": hit["primitive_uvs"].numpy()}
-
-    def refine(self, origin: np.ndarray, directions: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        """Float64 ray parameter of the intersection with triangle ``ids`` (Möller–Trumbore [2]).
-
-        ``origin (3,) or (N, 3)``, ``directions (N, 3)``, ``ids (N,)`` all valid; returns ``(N,)``.
-        """
-        tri = self.vertices[self.triangles[ids]]  # (N, 3, 3)
-        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        p = np.cross(directions, e2)
-        det = np.einsum("ij,ij->i", e1, p)
-        q = np.cross(origin - tri[:, 0], e1)
-        det = np.where(np.abs(det) > TOL.zero, det, TOL.zero)
-        return np.einsum("ij,ij->i", e2, q) / det
 
 
 # --------------------------------------------------------------------------- scene

@@ -71,6 +71,7 @@ __all__ = [
     "interior_normal_pairs",
     "g1_angle",
     "signed_volume",
+    "is_watertight",
     "mesh_topology",
 ]
 
@@ -231,21 +232,23 @@ def sample_mesh(vertices: np.ndarray, triangles: np.ndarray, count: int | None =
 
 
 def point_mesh_distance(points: np.ndarray, vertices: np.ndarray,
-                        triangles: np.ndarray) -> np.ndarray:
-    """Unsigned distance from each point to the nearest point of a triangle mesh.
+                        triangles: np.ndarray, signed: bool = False) -> np.ndarray:
+    """Distance from each point to the nearest point of a triangle mesh.
 
     Parameters
     ----------
     points : (N, 3) float64
     vertices : (V, 3) float64
     triangles : (F, 3) int
+    signed : bool
+        Negative inside the mesh (meaningful for a closed mesh: :func:`is_watertight`).
 
     Returns
     -------
     (N,) float64
         Distances in scene units, computed by open3d's
-        ``RaycastingScene.compute_distance`` (float32 inside: the absolute
-        error is about 1e-7 times the coordinate magnitude).
+        ``RaycastingScene.compute_distance`` (``compute_signed_distance``; float32
+        inside: the absolute error is about 1e-7 times the coordinate magnitude).
     """
     import open3d as o3d
 
@@ -260,7 +263,8 @@ def point_mesh_distance(points: np.ndarray, vertices: np.ndarray,
     scene.add_triangles(o3d.core.Tensor((v - centre).astype(np.float32)),
                         o3d.core.Tensor(t.astype(np.uint32)))
     query = o3d.core.Tensor((p - centre).astype(np.float32))
-    return scene.compute_distance(query).numpy().astype(np.float64)
+    distance = scene.compute_signed_distance(query) if signed else scene.compute_distance(query)
+    return distance.numpy().astype(np.float64)
 
 
 def point_cloud_distance(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -473,6 +477,19 @@ def face_components(triangles: np.ndarray, table: EdgeTable | None = None) -> np
     graph = coo_matrix((np.ones(flat.size), (face_of, anchor)), shape=(len(t), len(t)))
     _, labels = connected_components(graph, directed=False)
     return labels.astype(np.int64)
+
+
+def is_watertight(triangles: np.ndarray) -> bool:
+    """Closed and oriented: every edge has two faces, traversing it once each way.
+
+    The cheap part of :func:`mesh_topology` (``closed and oriented``) for a mesh whose
+    vertices are not needed; ``triangles (F, 3)`` int.
+    """
+    t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
+    if len(t) == 0:
+        return False
+    table = edge_table(t)
+    return bool(np.all(table.counts == 2) and np.all(table.forward == 1))
 
 
 def mesh_topology(vertices: np.ndarray, triangles: np.ndarray) -> dict:

@@ -10,8 +10,8 @@ from scipy.spatial import cKDTree
 from pipeline.cli import main
 from pipeline.export import read_control_net
 from pipeline.mesh_io import read_mesh_with_normals, write_mesh
-from pipeline.render import is_closed
 from surface import bezier
+from surface.metrics import is_watertight
 
 
 def _icosphere(subdivisions=2):
@@ -41,7 +41,7 @@ def test_icosphere_gives_closed_surface_near_the_sphere(tmp_path, icosphere_file
     assert sorted(p.name for p in tmp_path.iterdir()) == ["smooth.npz", "smooth.ply"]
 
     v, t, n = read_mesh_with_normals(out)
-    assert len(t) == 20480 and is_closed(t)
+    assert len(t) == 20480 and is_watertight(t)
     assert len(v) - 3 * len(t) // 2 + len(t) == 2  # Euler characteristic of a sphere
     # Loop's limit surface shrinks a sphere-inscribed mesh: at a regular vertex
     # v∞ = v + ½·mean(w_i - v), whose radial part is -h²/4 for edges of length
@@ -76,7 +76,7 @@ def test_control_net_file_rebuilds_the_surface(tmp_path, icosphere_file, capsys)
     # and the stored domain mesh re-tessellates it watertight, triangle for
     # triangle (open3d's glTF reader renumbers vertices, so compare corners)
     v2, t2, _ = bezier.tessellate(net.control_points, 1, net.domain_triangles)
-    assert len(v2) == len(v) and is_closed(t2)
+    assert len(v2) == len(v) and is_watertight(t2)
     np.testing.assert_allclose(v2[t2], v[t], atol=1e-6)
 
 

@@ -12,12 +12,11 @@ from pipeline.render import (
     _linear,
     coolwarm,
     default_views,
-    distance_to_truth,
-    is_closed,
     look_at,
     render_mesh,
     write_png,
 )
+from surface.metrics import is_watertight, point_mesh_distance
 
 WHITE = (255, 255, 255)
 
@@ -172,8 +171,9 @@ def test_error_colour_of_offset_sphere():
     delta, half_range = 0.05, 0.1
     for sign, expected_value in ((+1, 0.75), (-1, 0.25)):
         vertices, triangles = _sphere(1.0 + sign * delta, resolution=60)
-        distance, signed = distance_to_truth(vertices, *truth)
-        assert signed
+        # the error colours' distance (surface.metrics): signed, the truth being closed
+        assert is_watertight(truth[1])
+        distance = point_mesh_distance(vertices, *truth, signed=True)
         assert np.all(np.abs(distance - sign * delta) < 2e-4)
         image = render_mesh(vertices, triangles, views=[(0.0, 20.0)], size=(200, 260),
                             truth=truth, error_range=(-half_range, half_range))
@@ -209,10 +209,10 @@ def test_error_legend_shows_the_colour_bar():
 
 def test_unsigned_distance_to_open_truth():
     vase = _vase()
-    assert not is_closed(vase[1]) and is_closed(_sphere(resolution=10)[1])
+    # an open truth: the error colours take the unsigned distance (surface.metrics)
+    assert not is_watertight(vase[1]) and is_watertight(_sphere(resolution=10)[1])
     moved = vase[0] * np.array([1.03, 1.03, 1.0])
-    distance, signed = distance_to_truth(moved, *vase)
-    assert not signed
+    distance = point_mesh_distance(moved, *vase)
     # each vertex moved 0.03 r out along its radius: at most 0.03 r from the truth (its own
     # vertex; float32 scene ~1e-7), at least 0.03 r cos(tilt), tilt = atan max|r'| =
     # atan(0.625 + 0.1) -> cos 0.81 (the surface normal leans off the radius)

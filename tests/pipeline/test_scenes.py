@@ -20,6 +20,7 @@ from matching.cameras import read_cameras_yml, read_colmap_text
 from pipeline import scenes
 from pipeline.errors import InputError
 from pipeline.mesh_io import read_mesh
+from pipeline.raycast import look_at
 
 SMALL = {"cameras.width": 160, "cameras.height": 120, "cameras.focal_px": 208.0}
 
@@ -431,7 +432,7 @@ def test_mesh_shape_with_ring(tmp_path):
 
 def test_undistort_inverts_the_distortion_model():
     cam = scenes._make_camera(0, np.array([0.0, -5.0, 0.0]),
-                              scenes._look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)),
+                              look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)),
                               np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]]),
                               np.array([-0.25, 0.08, 0.001, -0.002, -0.01]),
                               {"width": 320, "height": 240})
@@ -444,7 +445,7 @@ def test_undistort_inverts_the_distortion_model():
 
 def test_non_invertible_distortion_is_an_input_error():
     cam = scenes._make_camera(0, np.array([0.0, -5.0, 0.0]),
-                              scenes._look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)),
+                              look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)),
                               np.array([[100.0, 0, 159.5], [0, 100.0, 119.5], [0, 0, 1]]),
                               np.array([-0.9, 0.0, 0.0, 0.0, 0.0]),
                               {"width": 320, "height": 240})

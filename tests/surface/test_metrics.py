@@ -209,3 +209,34 @@ def test_scores_and_topology_are_rigid_invariant(angles, shift):
     assert here["accuracy"] >= 0.05 - 1e-6
     assert M.signed_volume(move(CUBE_V), CUBE_F) == pytest.approx(8.0, rel=1e-9)
     assert M.mesh_topology(move(CUBE_V), CUBE_F)["closed"]
+
+
+def test_is_watertight_needs_closed_and_oriented():
+    import open3d as o3d
+
+    sphere = o3d.geometry.TriangleMesh.create_icosahedron()
+    v = np.asarray(sphere.vertices, np.float64)
+    t = np.asarray(sphere.triangles, np.int64)
+    assert M.is_watertight(t)
+    topo = M.mesh_topology(v, t)
+    assert topo["closed"] and topo["oriented"]
+    flipped = t.copy()
+    flipped[0] = flipped[0, ::-1]  # closed, but one face against its neighbours
+    assert not M.is_watertight(flipped) and M.mesh_topology(v, flipped)["closed"]
+    assert not M.is_watertight(t[1:])  # a hole
+    assert not M.is_watertight(np.zeros((0, 3), np.int64))
+
+
+def test_signed_point_mesh_distance_is_negative_inside():
+    import open3d as o3d
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 40)
+    v = np.asarray(sphere.vertices, np.float64)
+    t = np.asarray(sphere.triangles, np.int64)
+    points = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 1.5], [2.0, 0.0, 0.0]])
+    # the faceted sphere lies inside the unit sphere by at most 1 - cos(pi/40) = 3.1e-3
+    expected = np.array([-0.5, 0.5, 1.0])
+    np.testing.assert_allclose(M.point_mesh_distance(points, v, t, signed=True), expected,
+                               atol=3.2e-3)
+    np.testing.assert_allclose(M.point_mesh_distance(points, v, t), np.abs(expected),
+                               atol=3.2e-3)
