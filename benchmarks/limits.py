@@ -28,10 +28,9 @@ import time
 import zlib
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+# numpy and photosurf are imported by the --make-inputs child only (see _make_inputs)
 
 RECIPE = """\
 seed = 1
@@ -51,6 +50,7 @@ supersample = 1
 def _inputs(tmp: Path) -> dict:
     """Small valid inputs plus the hostile files the requests name."""
     import cv2
+    import numpy as np
     import open3d as o3d
 
     from matching.cameras import Camera, StereoRig, write_rig
@@ -160,6 +160,15 @@ def _cases(f: dict, out: Path) -> list[tuple[str, list]]:
     ]
 
 
+def _make_inputs(tmp: Path) -> dict:
+    """The inputs, written by a child process: a child's ``ru_maxrss`` counts the pages it
+    shares with its parent at fork time, so the measuring process must not hold open3d and
+    OpenCV (277 MB) itself."""
+    subprocess.run([sys.executable, __file__, "--make-inputs", str(tmp)], check=True,
+                   env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    return json.loads((tmp / "files.json").read_text())
+
+
 def _measure(argv: list, timeout: float = 60.0) -> dict:
     """Run ``photosurf ARGV`` as a child; its wall time, peak RSS, status and stderr."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -192,11 +201,17 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a third of the rows")
     parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "limits.json"))
+    parser.add_argument("--make-inputs", metavar="DIR", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.make_inputs:  # in a child: this process stays small (see _make_inputs)
+        files = _inputs(Path(args.make_inputs))
+        (Path(args.make_inputs) / "files.json").write_text(
+            json.dumps({k: str(v) for k, v in files.items()}))
+        return 0
     rows = []
     with tempfile.TemporaryDirectory(prefix="limits-") as name:
         tmp = Path(name)
-        files = _inputs(tmp)
+        files = _make_inputs(tmp)
         (tmp / "out").mkdir()
         cases = _cases(files, tmp / "out")
         if args.quick:

@@ -18,9 +18,9 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from pipeline.scenes import DEFAULT_RECIPE
-
-    parser.add_argument("recipe", nargs="?", default=str(DEFAULT_RECIPE), metavar="RECIPE",
+    # the default is resolved in run(): importing pipeline.scenes (numba, OpenCV) here would
+    # cost every photosurf command ~0.5 s before it can even refuse bad input
+    parser.add_argument("recipe", nargs="?", default=None, metavar="RECIPE",
                         help="scene recipe (TOML); default: the vase, fixtures/scenes/vase.toml")
     parser.add_argument("--out", required=True, metavar="OUTDIR",
                         help="output folder: new, empty, or an earlier synth output (only "
@@ -45,9 +45,11 @@ def parse_override(text: str) -> tuple[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline import progress
-    from pipeline.scenes import load_recipe, render_scene
+    from pipeline.scenes import DEFAULT_RECIPE, load_recipe, render_scene
 
     progress.set_quiet(args.quiet)
+    if args.recipe is None:
+        args.recipe = str(DEFAULT_RECIPE)
     from pipeline.atomic import output_dir_state
     from pipeline.guards import check_output, regular_file
 
