@@ -123,8 +123,34 @@ class LoopGraph:
                    and not (e.kind == "appear" and e.section == -1)
                    and not (e.kind == "vanish" and e.section == last))
 
+    def euler(self) -> float:
+        """Euler characteristic of the closed surface the events describe.
+
+        Built from the sections' loops, the surface is tubes (χ = 0), one saddle
+        per split or merge into k loops (χ = -(k - 1)) and its caps: a cap is a
+        disk with as many holes as it has hole loops capped with it on the same
+        side of the same section (a rim: an annulus, χ = 0), so each capped loop
+        counts +1 and each capped hole inside a capped loop -1 more (-1 in all).
+        ``inf`` when a ``complex`` event leaves the surface undetermined.
+        """
+        chi = 0.0
+        capped: dict[tuple[int, str], set] = {}
+        for e in self.events:
+            if e.kind == "complex":
+                return float("inf")
+            if e.kind in ("split", "merge"):
+                chi -= len(e.lower) + len(e.upper) - 2
+            elif e.kind == "appear":
+                capped.setdefault((e.section + 1, "below"), set()).add(e.upper[0])
+            elif e.kind == "vanish":
+                capped.setdefault((e.section, "above"), set()).add(e.lower[0])
+        for (section, _), loops in capped.items():
+            parents = self.parent[section]
+            chi += sum(-1 if parents[k] in loops else 1 for k in loops)
+        return chi
+
     def to_json(self) -> dict:
-        return {"loops": [len(d) for d in self.depth],
+        return {"loops": [len(d) for d in self.depth], "euler": self.euler(),
                 "depth": [d.tolist() for d in self.depth],
                 "area": [np.round(a, 12).tolist() for a in self.area],
                 "edges": [[int(s), int(i), int(j), float(o)] for s, i, j, o in self.edges],
@@ -213,9 +239,12 @@ def nesting(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """
     count = len(loops)
     inside = np.zeros((count, count), bool)   # inside[i, k]: i in k
+    lo = np.array([lp.min(axis=0) for lp in loops]).reshape(-1, 2)
+    hi = np.array([lp.max(axis=0) for lp in loops]).reshape(-1, 2)
     for k in range(count):
         for i in range(count):
-            if i != k:
+            # only a loop within k's bounding box can be inside k
+            if i != k and np.all(lo[i] >= lo[k]) and np.all(hi[i] <= hi[k]):
                 inside[i, k] = bool(np.mean(_inside(loops[i], loops[k])) > 0.5)
     depth = inside.sum(axis=1).astype(np.int64)
     parent = np.full(count, -1, np.int64)

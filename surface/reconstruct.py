@@ -223,23 +223,29 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
 #: Points of the cloud the axis trials of :func:`choose_axis` slice (a random subset:
 #: the loops' count and correspondence need the sections' shape, not their detail).
 AXIS_TRIAL_POINTS = 60_000
+#: Candidate axes closer than this (degrees) to one already tried are not tried again.
+AXIS_SAME_DEGREES = 5.0
 
 
 def choose_axis(points: np.ndarray, sections: int | None = None,
                 spacing: float | None = None) -> tuple[np.ndarray, str]:
-    r"""``axis="auto"``: the principal axis that resolves the shape's topology best.
+    r"""``axis="auto"``: the candidate axis that resolves the shape's topology best.
 
     The section method rebuilds surfaces that run along the axis (walls) from
     their contours, and surfaces facing along it (caps) only as flat fills
     between contours; and it sees a handle only if the sections resolve it.
-    Each of the cloud's three principal axes (PCA) is tried:
+    Candidates: the direction most perpendicular to the surface normals (the
+    least eigenvector of :math:`\sum n n^T`, PCA normals of 12 neighbours: the
+    axis of a surface of revolution or an extrusion), then the cloud's three
+    principal axes (PCA) unless within :data:`AXIS_SAME_DEGREES` of it.  Each is
+    tried:
 
     1. sliced (:func:`slice_cloud`, on at most :data:`AXIS_TRIAL_POINTS`
        points), organised and related by the loop graph, which gives the
        Euler characteristic of the surface the sections describe,
-       :math:`\chi = C - \sum (k - 1)` over its C caps (loops appearing or
-       vanishing) and its splits and merges into k loops; an unresolved
-       handle only raises χ, so the smallest χ found is the shape's;
+       :math:`\chi = \sum_{caps} (1 - h) - \sum (k - 1)` over its caps with h holes
+       (``LoopGraph.euler``) and its splits and merges into k loops; an
+       unresolved handle only raises χ, so the smallest χ found is the shape's;
     2. among the axes reaching that χ, the one with the smallest share of cap
        points (PCA normals within 60° of the axis, ``MIN_WALL_SINE``) wins.
 
@@ -266,11 +272,18 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
     pts = np.asarray(points, dtype=np.float64)
     centred = pts - pts.mean(axis=0)
     _, vecs = np.linalg.eigh(centred.T @ centred)
-    candidates = [_orient(vecs[:, k]) for k in (2, 1, 0)]
     rng = np.random.default_rng(0)
     trial = pts if len(pts) <= AXIS_TRIAL_POINTS else pts[
         np.sort(rng.choice(len(pts), AXIS_TRIAL_POINTS, replace=False))]
     normals = _pca_normals(trial, np.arange(len(trial)))
+    # The direction most perpendicular to the normals (least eigenvector of Σ n nᵀ)
+    # is a surface of revolution's or an extrusion's axis even where a handle or a
+    # spout tilts the points' principal axes; it is tried first, then those.
+    candidates = [_orient(np.linalg.eigh(normals.T @ normals)[1][:, 0])]
+    for k in (2, 1, 0):
+        if all(abs(float(vecs[:, k] @ c)) < np.cos(np.radians(AXIS_SAME_DEGREES))
+               for c in candidates):
+            candidates.append(_orient(vecs[:, k]))
     chis, shares = [], []
     for axis in candidates:
         shares.append(float(np.mean(1.0 - (normals @ axis) ** 2 < MIN_WALL_SINE**2)))
@@ -279,24 +292,16 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
             _, loops, _ = organise_sections(sliced.sections, min_points=4)
             graph = loop_graph([[lp.points @ lp.frame[:2].T for lp in found] for found in loops],
                                spacing=sliced.spacing)
-            chi = 0.0
-            for event in graph.events:
-                if event.kind in ("appear", "vanish"):
-                    chi += 1
-                elif event.kind in ("split", "merge"):
-                    chi -= len(event.lower) + len(event.upper) - 2
-                elif event.kind == "complex":
-                    chi = float("inf")
-            chis.append(chi)
+            chis.append(graph.euler())
         except ValueError:
             chis.append(float("inf"))
     finite = [c for c in chis if np.isfinite(c)]
     best_chi = min(finite) if finite else float("inf")
-    pool = [k for k in range(3) if chis[k] == best_chi] or [0]
+    pool = [k for k in range(len(candidates)) if chis[k] == best_chi] or [0]
     best = min(pool, key=lambda k: (shares[k], k))
     listed = "; ".join(f"{np.round(a, 3).tolist()}: chi {c:g}, caps {100 * f:.0f} %"
                        for a, c, f in zip(candidates, chis, shares, strict=True))
-    reason = (f"axis auto: {np.round(candidates[best], 4).tolist()}, of the principal axes "
+    reason = (f"axis auto: {np.round(candidates[best], 4).tolist()}, of the candidate axes "
               f"resolving the most topology (smallest Euler characteristic chi of the "
               f"sections' loop graph) the one with the fewest points on caps ({listed})")
     return candidates[best], reason
@@ -420,13 +425,27 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
     nearly always a gap in the data (a ring broken into arcs where the
     acquisition missed a patch).  Keeping it leaves the surface open on both
     sides; dropping it stitches the neighbours to each other.
+
+    An end section whose number of loops differs from the two next to it (which
+    agree) is dropped too: the end sections hold only their inner half-slab,
+    and a thin wall's inner loop is the first to go missing there, which would
+    seal a hollow's rim into a closed cavity (a second component).
     """
     counts = [len(found) for found in loops]
     drop = {k for k in range(1, len(kept) - 1)
             if counts[k - 1] == counts[k + 1] != counts[k]}
+    last = len(kept) - 1
+    ends = set()
+    if len(kept) >= 5:
+        ends = {k for k, a, b in ((0, 1, 2), (last, last - 1, last - 2))
+                if counts[a] == counts[b] != counts[k] and a not in drop and b not in drop}
     notes = [f"section {kept[k].section_id} at height {kept[k].height:.6g} skipped: "
              f"{counts[k]} loop(s) between sections of {counts[k - 1]} (a one-section split "
              "or merge: a gap in the data at this section spacing)" for k in sorted(drop)]
+    notes += [f"end section {kept[k].section_id} at height {kept[k].height:.6g} skipped: "
+              f"{counts[k]} loop(s) beyond two sections of {counts[1 if k == 0 else last - 1]} "
+              "(a loop missing from the end's half slab)" for k in sorted(ends)]
+    drop |= ends
     keep = [k for k in range(len(kept)) if k not in drop]
     return [kept[k] for k in keep], [loops[k] for k in keep], notes
 

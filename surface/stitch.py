@@ -1240,14 +1240,22 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     if not topo["oriented"]:
         problem("faces are not consistently oriented")
     mask = _flippable_edges(triangles, flip_region, fixed, len(vertices))
+    sec_of = np.concatenate(sec_of).astype(np.int64)
+    loop_of = np.concatenate(loop_of).astype(np.int64)
+    used = np.zeros(len(vertices), bool)
+    used[triangles.ravel()] = True
+    if not used.all():  # a loop dropped as noise: its points are in no face
+        renumber = np.cumsum(used) - 1
+        vertices, sec_of, loop_of = vertices[used], sec_of[used], loop_of[used]
+        triangles = renumber[triangles]
     return StitchResult(
         vertices=vertices,
         triangles=triangles,
         closed=bool(topo["closed"]),
         messages=tuple(messages),
         region=region,
-        section_of_vertex=np.concatenate(sec_of).astype(np.int64),
-        loop_of_vertex=np.concatenate(loop_of).astype(np.int64),
+        section_of_vertex=sec_of,
+        loop_of_vertex=loop_of,
         open_interfaces=tuple(open_ifaces),
         flips=int(flips),
         delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
