@@ -50,7 +50,7 @@ from _common import uptime  # noqa: E402
 
 from pipeline import config as config_mod  # noqa: E402
 from pipeline import progress  # noqa: E402
-from pipeline.cmd_batch import run_object  # noqa: E402
+from pipeline.batch import run_object  # noqa: E402
 from pipeline.engine import run_pipeline  # noqa: E402
 from pipeline.executor import DaskExecutor, LocalExecutor  # noqa: E402
 from pipeline.plan import STAGE_ORDER  # noqa: E402

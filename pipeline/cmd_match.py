@@ -19,7 +19,7 @@ import numpy as np
 from pipeline.atomic import atomic_dir
 from pipeline.errors import InputError
 from pipeline.inputs import check_rig_size, read_pair, read_rig_for
-from pipeline.pair_cli import add_match_options, check_some_matched, match_options, summary
+from pipeline.options import add_match_options, check_some_matched, match_options, summary
 from pipeline.workspace import write_npz_to
 
 HELP = "least-squares matching of a stereo pair (calibrated or rectified) -> matches.npz"

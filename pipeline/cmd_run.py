@@ -9,6 +9,7 @@ import sys
 from pipeline import config as config_mod
 from pipeline import progress
 from pipeline.engine import StageError, run_pipeline
+from pipeline.options import add_config_arguments
 from pipeline.plan import KINDS, STAGE_ORDER
 
 HELP = "run the whole pipeline (scene/stereo pair/image folder/point cloud -> surface + report)"
@@ -49,17 +50,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rerun the chosen stages even when up to date")
     parser.add_argument("--json", action="store_true",
                         help="print a machine-readable summary (JSON) on stdout")
-
-
-def add_config_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--config``, ``--set`` and ``--scheduler`` (shared with ``photosurf batch``)."""
-    parser.add_argument("--config", metavar="FILE", help="TOML file of parameters")
-    parser.add_argument("--set", dest="assignments", action="append", default=[],
-                        metavar="SECTION.KEY=VALUE",
-                        help="set one parameter (repeatable), e.g. --set sections.count=40")
-    parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="Dask scheduler tcp://HOST:PORT, local-cluster[:N], or local "
-                             "(default: executor.scheduler of the config)")
 
 
 def failure_summary(outdir: str, error: str) -> dict:

@@ -19,7 +19,7 @@ from pipeline.atomic import atomic_file
 from pipeline.cloud_io import write_ply
 from pipeline.errors import InputError
 from pipeline.inputs import check_rig_size, read_pair, read_rig_for
-from pipeline.pair_cli import add_match_options, check_some_matched, match_options, summary
+from pipeline.options import add_match_options, check_some_matched, match_options, summary
 from pipeline.workspace import write_npz_to
 
 HELP = "calibrated stereo pair -> point cloud (PLY with per-point sigma, plus .npz)"

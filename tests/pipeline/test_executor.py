@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline import cli
-from pipeline.cmd_batch import read_manifest
+from pipeline.batch import read_manifest
 from pipeline.errors import InputError
 from pipeline.executor import DaskExecutor, LocalExecutor, get_executor
 from pipeline.workspace import sha256_file

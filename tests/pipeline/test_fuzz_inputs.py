@@ -783,7 +783,7 @@ def test_recipe_missing_things(tmp_path, case):
     "[[object]]\ninput = \"a.toml\"\nname = 7\n",
 ]), junk=st.text(alphabet="[]=\"# \n", max_size=3))
 def test_batch_manifest_broken(body, junk):
-    from pipeline.cmd_batch import read_manifest
+    from pipeline.batch import read_manifest
 
     with scratch() as tmp:
         path = tmp / "batch.toml"
@@ -812,7 +812,7 @@ def test_cloud_ply_negative_vertex_count(tmp_path):
                  id="object-set-out-of-range"),
 ])
 def test_batch_manifest_wrong_types(tmp_path, body):
-    from pipeline.cmd_batch import read_manifest
+    from pipeline.batch import read_manifest
 
     path = tmp_path / "batch.toml"
     path.write_text(body)

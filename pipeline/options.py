@@ -1,5 +1,6 @@
-"""The stereo-pair options and summaries shared by ``photosurf match`` and ``photosurf stereo``
-(commands do not import each other: both import this)."""
+"""Command-line options shared by several commands (commands never import each other:
+they import this): the stereo-pair matching options and summaries of ``photosurf match``
+and ``photosurf stereo``, the configuration options of ``photosurf run`` and ``batch``."""
 
 from __future__ import annotations
 
@@ -54,3 +55,14 @@ def summary(matches) -> str:
 def check_some_matched(matches, left: str) -> None:
     if not matches.accepted.any():
         raise InputError(f"{left}: no point could be matched: {summary(matches)}")
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--config``, ``--set`` and ``--scheduler`` (shared with ``photosurf batch``)."""
+    parser.add_argument("--config", metavar="FILE", help="TOML file of parameters")
+    parser.add_argument("--set", dest="assignments", action="append", default=[],
+                        metavar="SECTION.KEY=VALUE",
+                        help="set one parameter (repeatable), e.g. --set sections.count=40")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="Dask scheduler tcp://HOST:PORT, local-cluster[:N], or local "
+                             "(default: executor.scheduler of the config)")
