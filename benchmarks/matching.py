@@ -31,9 +31,17 @@ affine warps (exact truth) the resampler choice: zero-noise bias, RMS at 2 grey
 levels and time for bilinear / Keys bicubic / cubic B-spline, and the two final
 linearisations (template vs search-image gradients).
 
+Real images (``benchmarks/_real_matching.py`` says how each figure is made): graffiti
+(candidates on a grid, homography + 1 px starts; LSM with region growing and its
+forward-backward variance factor beside per-patch ECC and PyrLK) and neighbouring
+temple pairs (accepted share of the object, LSM's forward-backward loop against its σ
+and against SGBM's left-right loop on the same pixels), when the real data is found
+(``../shared/data/real`` beside the checkout, or ``--real-data``).
+
 Usage::
 
     .venv/bin/python benchmarks/matching.py [--quick] [--json PATH] [--scene DIR]
+        [--real-data DIR]
 """
 
 from __future__ import annotations
@@ -337,11 +345,78 @@ def vase(scene_dir: Path, quick: bool):
                       "image": [int(left.shape[1]), int(left.shape[0])]}
 
 
+def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
+    """Graffiti and temple figures (``_real_matching``), printed; goals added in place."""
+    import _real_matching as real
+
+    out = {}
+    if (folder / "graffiti" / "graf1.png").is_file():
+        gr = real.graffiti(folder / "graffiti", quick)
+        out["graffiti"] = gr
+        print(f"\ngraffiti graf1 -> graf3, {gr['candidates']} candidates (spacing "
+              f"{gr['spacing']}, {gr['patch']}x{gr['patch']}; flat-block noise "
+              f"{gr['noise_flat_blocks']:.2f}); growth: {gr['grown']} grown in "
+              f"{gr['rounds']} rounds")
+        print(f"{'method':50s} {'accepted':>8s} {'>2px H':>7s} {'>2px sm':>7s} "
+              f"{'resid px':>8s} {'resid/σ':>7s} {'points/s':>9s}")
+        for r in gr["rows"]:
+            ratio = r.get("residual_over_sigma")
+            print(f"{r['method']:50s} {100 * r['accepted']:7.1f}% "
+                  f"{100 * r['beyond_2px_of_homography']:6.1f}% "
+                  f"{100 * r['beyond_2px_of_smooth']:6.1f}% {r['residual_rms_px']:8.3f} "
+                  f"{'' if ratio is None else f'{ratio:7.2f}':>7s} {r['points_per_s']:9.0f}")
+        by = {r["method"]: r for r in gr["rows"]}
+        lsm = by["LSM + region growing (retries from neighbours)"]
+        ecc = by["cv2.findTransformECC gauss=1 (per patch, subset)"]
+        sub = by["LSM + growing on the ECC subset"]
+        print(f"forward-backward (a lower bound: both directions share the pixels' "
+              f"noise): loop RMS {lsm['fb_loop_rms_px']:.3f} px, k² "
+              f"{lsm['fb_variance_factor']:.2f}; residual / (σ k) "
+              f"{lsm['residual_over_sigma_with_fb_factor']:.2f}")
+        print(f"variance factor from independent neighbouring windows (matching.precision,"
+              f" what match_pair applies): k² {lsm['variance_factor']:.1f}; residual / "
+              f"(σ k) {lsm['residual_over_sigma_with_factor']:.2f}")
+        goals["graffiti_accepted_ge_80pct"] = lsm["accepted"] >= 0.8
+        goals["graffiti_beyond_2px_le_1pct (of the smooth mapping)"] = (
+            lsm["beyond_2px_of_smooth"] <= 0.01)
+        goals["graffiti_residual_le_0.15px"] = lsm["residual_rms_px"] <= 0.15
+        goals["graffiti_residual_over_sigma_le_1.5 (variance factor)"] = (
+            lsm["residual_over_sigma_with_factor"] <= 1.5)
+        goals["graffiti_lsm_le_0.75x_ecc"] = (sub["residual_rms_px"]
+                                              <= 0.75 * ecc["residual_rms_px"])
+    if (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
+        te = real.temple(folder / "temple_sparse_ring", quick)
+        out["temple"] = te
+        print("\ntemple neighbouring pairs (rectified, spacing 4, 15x15):")
+        print(f"{'pair':>7s} {'on obj':>7s} {'accepted':>8s} {'LSM fb':>7s} {'σ_x':>6s} "
+              f"{'fb/σ':>5s} {'k²':>5s} {'same':>5s} {'LSM fb':>7s} {'SGBM lr':>7s}")
+        for r in te["rows"]:
+            print(f"{str(tuple(r['pair'])):>7s} {r['candidates_on_object']:7d} "
+                  f"{100 * r['accepted_share_on_object']:7.1f}% {r['lsm_fb_loop_rms_px']:7.3f} "
+                  f"{r['lsm_reported_sigma_x_rms_px']:6.3f} {r['lsm_fb_over_sigma']:5.2f} "
+                  f"{r['variance_factor_local']:5.0f} {r['same_pixels']:5d} "
+                  f"{r['lsm_fb_loop_rms_same_px']:7.3f} {r['sgbm_lr_loop_rms_same_px']:7.3f}")
+        d = te["dense"]
+        print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
+              f"{d['image'][0]}x{d['image'][1]}: {d['px_per_s']:.0f} px/s "
+              f"({d['accepted']} of {d['candidates']} candidates accepted in "
+              f"{d['seconds']:.1f} s)")
+        rows = te["rows"]
+        goals["temple_accepted_on_object_ge_80pct"] = all(
+            r["accepted_share_on_object"] >= 0.8 for r in rows)
+        goals["temple_fb_over_sigma_le_1.5"] = all(r["lsm_fb_over_sigma"] <= 1.5 for r in rows)
+        goals["temple_lsm_2x_more_precise_than_sgbm_lr"] = all(
+            r["sgbm_over_lsm"] >= 2 for r in rows if np.isfinite(r["sgbm_over_lsm"]))
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="512x384 render, fewer ECC calls")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "matching.json"))
     parser.add_argument("--scene", help="use an already rendered scene folder")
+    parser.add_argument("--real-data", default=str(ROOT.parent / "shared" / "data" / "real"),
+                        help="folder with graffiti/ and temple_sparse_ring/")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         scene_dir = Path(args.scene) if args.scene else render(args.quick, Path(tmp) / "vase")
@@ -405,9 +480,10 @@ def main(argv=None) -> int:
         print(f"{r['noise']:5.1f} {r['interpolation']:>9s} {r['jacobian']:>9s} "
               f"{r['rms_px']:8.4f} {r['reported_px']:9.4f} {r['points_per_s']:9.0f} "
               f"{r['points_per_cpu_s']:9.0f}")
+    real = real_figures(Path(args.real_data), args.quick, goals)
     print_goals(goals)
     write_result(args.json, {"info": info, "quick": args.quick, "methods": rows, "3d": d3,
-                             "synthetic": synth, "goals": goals})
+                             "synthetic": synth, "real": real, "goals": goals})
     return 0
 
 

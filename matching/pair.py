@@ -90,6 +90,7 @@ from matching.lsm import (
     prepare_image,
     robust_upper_limit,
 )
+from matching.precision import variance_factor
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
@@ -154,6 +155,9 @@ class PairMatches:
         The images were given rectified (rows correspond).
     image_size : (int, int)
         Left image (width, height), px.
+    sigma_factor : float
+        The variance factor k² that ``cov`` and ``sigma`` already carry
+        (:func:`matching.precision.variance_factor`; 1: not applied).
     """
 
     x_left: np.ndarray
@@ -173,6 +177,7 @@ class PairMatches:
     image_size: tuple[int, int]
     offset: np.ndarray
     edge: np.ndarray
+    sigma_factor: float = 1.0
 
     def __len__(self) -> int:
         return len(self.x_left)
@@ -194,6 +199,16 @@ class PairMatches:
         ok = self.accepted
         xi = self.x_left[ok].astype(np.intp)
         out[xi[:, 1], xi[:, 0]] = self.x_left[ok, 0] - self.x_right[ok, 0]
+        return out
+
+    def sigma_map(self) -> np.ndarray:
+        """(H, W) float32 σ of ``disparity_map``'s values (sqrt of ``cov[0, 0]``: along the
+        rows), px, NaN where not accepted."""
+        w, h = self.image_size
+        out = np.full((h, w), np.nan, np.float32)
+        ok = self.accepted
+        xi = self.x_left[ok].astype(np.intp)
+        out[xi[:, 1], xi[:, 0]] = np.sqrt(np.maximum(self.cov[ok, 0, 0], 0.0))
         return out
 
     def as_dict(self) -> dict[str, np.ndarray]:
@@ -221,7 +236,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
                sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,
                max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
-               eccentric: bool = False, grow: bool = True, **lsm_options) -> PairMatches:
+               eccentric: bool = False, grow: bool = True, sigma_factor: bool = False,
+               **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -282,6 +298,16 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         without an SGBM approximation, or whose SGBM start failed, are matched from the
         affine warps of their accepted neighbours (default on); off: they stay
         ``no_approximation`` / their first status.
+    sigma_factor : bool
+        Scale the covariances by the variance factor k² that the residuals of
+        independent neighbouring windows to a local quadratic mapping give
+        (:func:`matching.precision.variance_factor`): what real images add to
+        σ0²N⁻¹ (correlated noise, blur and shading differences, model error);
+        never below 1 (σ0²N⁻¹ is the white-noise bound); needs >= 30 accepted
+        matches (else k² = 1).  Default off: it assumes the matches' field is a
+        quadratic over 2.5 patches for most points, true of a wall (graffiti: k² 7.8)
+        but not of a temple's facade at 640x480 (k² ~750: the depth structure, not the
+        matching error, sets it).
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -339,6 +365,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         "iterations": np.zeros(n, np.int32), "affine": np.full((n, 6), np.nan),
         "radiometric": np.full((n, 2), np.nan), "patch": np.zeros(n, np.int32),
     }
+    factor = 1.0
     textured = np.flatnonzero(cand.textured)
     if len(textured):
         rect = None if rectified else rectify(rig)
@@ -423,9 +450,20 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch)]] = IMPRECISE
+            factor = 1.0
+            if sigma_factor:
+                ok_final = status[idx] == Status.OK
+                wcov = res.cov if res.window_cov is None else res.window_cov
+                vf = variance_factor(points, res.affine[:, [0, 3]], wcov, ok_final,
+                                     patch=patch)
+                # σ0²N⁻¹ is the white-noise precision, a lower bound: what real images
+                # add only grows it (an estimate below 1 is the estimator's own scatter,
+                # ~10 % for a few thousand matches)
+                if np.isfinite(vf.factor):
+                    factor = max(1.0, vf.factor)
             out["x_right"][idx] = res.position
-            out["cov"][idx] = res.cov
-            out["sigma"][idx] = res.sigma
+            out["cov"][idx] = res.cov * factor
+            out["sigma"][idx] = res.sigma * np.sqrt(factor)
             out["sigma0"][idx] = res.sigma0
             out["correlation"][idx] = res.correlation
             out["iterations"][idx] = res.iterations
@@ -433,7 +471,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["radiometric"][idx] = res.radiometric
     return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
                        rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
-                       offset=offset, edge=edge, **out)
+                       offset=offset, edge=edge, sigma_factor=float(factor), **out)
 
 
 def _fill_directions(points: np.ndarray, direction: np.ndarray) -> np.ndarray:

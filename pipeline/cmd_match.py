@@ -4,14 +4,17 @@ Writes ``OUT/matches.npz`` (every candidate: ``x_left``, ``x_right``, ``approx``
 ``cov``, ``sigma``, ``sigma0``, ``correlation``, ``iterations``, ``affine``,
 ``radiometric``, ``texture``, ``status`` and the ``status_names`` table) and, for a
 rectified pair, ``OUT/disparity.npy`` (float32, left-image size,
-``x_left - x_right``, NaN where not matched).  The folder appears complete or not
-at all.  Images are read by :func:`pipeline.inputs.read_image` (the rules of every
-command that reads images).
+``x_left - x_right``, NaN where not matched); with ``--dense`` (rectified only) every
+pixel is a candidate (spacing 1) and ``OUT/sigma.npy`` (float32, the σ of each
+disparity, px, NaN where not matched) is written beside it, and the speed is printed.
+The folder appears complete or not at all.  Images are read by
+:func:`pipeline.inputs.read_image` (the rules of every command that reads images).
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--rectified", action="store_true",
                         help="the images are rectified: corresponding points share a row")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--dense", action="store_true",
+                        help="rectified pair: match every pixel (spacing 1) and also write "
+                             "sigma.npy beside disparity.npy")
     add_match_options(parser)
 
 
@@ -44,6 +50,12 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.guards import check_output
 
     options = match_options(args)
+    dense = getattr(args, "dense", False)
+    if dense and not args.rectified:
+        raise InputError("--dense needs --rectified (a disparity map is defined on rectified "
+                         "images)")
+    if dense:
+        options["spacing"] = 1
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise InputError(f"{args.out}: is a file; --out must name a folder")
     check_output(args.out, [args.left, args.right, args.rig], folder=True)
@@ -52,12 +64,18 @@ def run(args: argparse.Namespace) -> int:
     rig = None if args.rectified else read_rig_for(args.rig, args.left)
     if rig is not None:
         check_rig_size(rig, (left, right), (args.left, args.right))
+    start = time.perf_counter()
     matches = match_pair(left, right, rig, rectified=args.rectified, **options)
+    seconds = time.perf_counter() - start
     check_some_matched(matches, args.left)
     with atomic_dir(args.out, kind="match") as tmp:
         write_npz_to(tmp / "matches.npz", **matches.as_dict())  # byte-reproducible
         if args.rectified:
             np.save(tmp / "disparity.npy", matches.disparity_map())
+        if dense:
+            np.save(tmp / "sigma.npy", matches.sigma_map())
     if not getattr(args, "quiet", False):
-        print(f"{summary(matches)}; wrote {args.out}")
+        speed = (f"; dense: {len(matches) / seconds:.0f} px/s "
+                 f"({int(matches.accepted.sum())} accepted in {seconds:.1f} s)" if dense else "")
+        print(f"{summary(matches)}{speed}; wrote {args.out}")
     return 0

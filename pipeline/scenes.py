@@ -273,6 +273,13 @@ def validate_recipe(raw: Mapping, source: str = "<recipe>",
                                             _view_count(recipe["cameras"]))
     noise = top.sub("noise") or _Table(source, "noise", {})
     recipe["noise"] = {"sigma": noise.take("sigma", "float", 2.0, nonneg=True)}
+    # less kind than white noise on equally sharp views (issue 13), only when asked for
+    # (the recipes without them stay byte-identical): noise low-passed by a Gaussian of
+    # correlation_px (as demosaicing correlates it; renormalised to sigma), and the odd
+    # views blurred by a Gaussian of blur_difference_px before the noise
+    for key in ("correlation_px", "blur_difference_px"):
+        if noise.has(key):
+            recipe["noise"][key] = noise.take(key, "float", nonneg=True)
     noise.done()
     render = top.sub("render") or _Table(source, "render", {})
     recipe["render"] = {"supersample": render.take("supersample", "int", 3, positive=True)}
@@ -1137,8 +1144,17 @@ def render_view(scene: Scene, index: int) -> tuple[np.ndarray, np.ndarray, np.nd
     radiance = np.full(W * H, scene.recipe["lighting"]["background"] / 255.0)
     radiance[near] = _box_radiance(scene, cam, np.flatnonzero(near))
     grey = scene.gains[index] * 255.0 * radiance.reshape(H, W) + scene.offsets[index]
-    sigma = scene.recipe["noise"]["sigma"]
-    if sigma > 0:
+    noise = scene.recipe["noise"]
+    blur = noise.get("blur_difference_px", 0.0)
+    if blur > 0 and index % 2 == 1:
+        grey = cv2.GaussianBlur(grey, (0, 0), blur, borderType=cv2.BORDER_REFLECT)
+    sigma = noise["sigma"]
+    corr = noise.get("correlation_px", 0.0)
+    if sigma > 0 and corr > 0:
+        draw = _seeded(scene.recipe["seed"], 100 + index).normal(0.0, 1.0, grey.shape)
+        draw = cv2.GaussianBlur(draw, (0, 0), corr, borderType=cv2.BORDER_REFLECT)
+        grey = grey + sigma * draw / draw.std()
+    elif sigma > 0:
         grey = grey + _seeded(scene.recipe["seed"], 100 + index).normal(0.0, sigma, grey.shape)
     image = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
     return image, depth.reshape(H, W).astype(np.float32), points.reshape(H, W, 3)

@@ -119,6 +119,25 @@ def test_match_rectified_writes_disparity(tmp_path):
     assert np.sqrt(np.mean((disp[have] - 7.4) ** 2)) < 0.03
 
 
+def test_match_dense_writes_disparity_and_sigma_at_every_pixel(tmp_path, capsys):
+    """--dense: every pixel a candidate; sigma.npy holds each disparity's σ (NaN exactly
+    where the disparity is), and the disparities err like their σ (errors of
+    neighbouring pixels share windows: the RMS over ~10 000 is good to ~10 %)."""
+    paths = _write(tmp_path, *_rectified_pair())
+    out = tmp_path / "d"
+    assert main(["match", *paths, "--rectified", "--dense", "--out", str(out)]) == 0
+    assert "px/s" in capsys.readouterr().out
+    disp, sigma = np.load(out / "disparity.npy"), np.load(out / "sigma.npy")
+    assert sigma.shape == disp.shape == (120, 160) and sigma.dtype == np.float32
+    have = np.isfinite(disp)
+    assert np.array_equal(have, np.isfinite(sigma))
+    assert have.sum() > 0.5 * (120 - 20) * (160 - 30)  # most interior pixels
+    ratio = np.sqrt(np.mean((disp[have] - 7.4) ** 2)) / np.sqrt(np.mean(sigma[have] ** 2))
+    assert 0.7 < ratio < 1.4
+    flag = tmp_path / "f"
+    assert main(["match", *paths, "--rig", paths[0], "--dense", "--out", str(flag)]) != 0
+
+
 def _fails(capsys, argv, *fragments):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

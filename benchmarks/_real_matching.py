@@ -1,0 +1,320 @@
+"""Real-image figures of ``benchmarks/matching.py``: graffiti (a flat wall 40 deg apart)
+and neighbouring temple pairs (16 real views with exact cameras), peers side by side.
+
+Graffiti (``graf1.png`` -> ``graf3.png``, homography ``H13``): the candidates of
+``matching.seeds.select_points`` (21x21, the spacing given) whose homography image lies
+inside graf3; every method starts from the homography's position plus 1 px of Gaussian
+noise and (LSM, ECC) its local affine map.  Judged by the share beyond 2 px of the
+homography and by the residual to a smooth mapping -- a homography plus a degree-7
+polynomial fitted robustly to LSM's accepted matches (the data set's homography has no
+lens-distortion term) -- per axis over the residuals below 2 px; LSM's ratio of that
+residual to its reported σ, without and with the forward-backward variance factor
+(``matching.consistency``).  Peers: ``cv2.findTransformECC`` (MOTION_AFFINE,
+gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
+
+Temple: neighbouring ring views rectified by ``cv2.stereoRectify`` (their baselines
+run along the image columns: the rectified pair is transposed, and mirrored where the
+disparity would be negative); ``matching.pair.match_pair`` on the rectified pair
+(SGBM seeds, region growing); object = grey > 0.19 x 255, dilated 5 px.  LSM's
+forward-backward loop along the rows / sqrt(2) against its reported σ, and SGBM's
+left-right loop (disparity of the left, then of the right image at the matched
+position) / sqrt(2) on the same pixels.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from matching.consistency import forward_backward
+from matching.grow import grow_matches
+from matching.lsm import LSMResult, lsm_match, prepare_image
+from matching.precision import variance_factor
+from matching.seeds import disparity_range, select_points, sgbm_disparity
+
+GRAFFITI_PATCH = 21
+
+
+def _grey(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise FileNotFoundError(f"cannot read {path}")
+    return img.astype(np.float64) @ np.array([0.114, 0.587, 0.299])
+
+
+def _homography(path: Path) -> np.ndarray:
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    hom = storage.getNode("H13").mat()
+    storage.release()
+    return hom
+
+
+def _apply(hom, p):
+    q = np.column_stack([p, np.ones(len(p))]) @ hom.T
+    return q[:, :2] / q[:, 2:]
+
+
+def _jacobian(hom, p):
+    q = np.column_stack([p, np.ones(len(p))]) @ hom.T
+    w = q[:, 2]
+    uv = q[:, :2] / w[:, None]
+    jac = np.empty((len(p), 2, 2))
+    for r in range(2):
+        for c in range(2):
+            jac[:, r, c] = (hom[r, c] - uv[:, r] * hom[2, c]) / w
+    return jac
+
+
+def _poly(p, deg, centre, scale):
+    x, y = ((p - centre) / scale).T
+    return np.column_stack([x**i * y**j for i in range(deg + 1) for j in range(deg + 1 - i)])
+
+
+def smooth_mapping(src, dst, deg: int = 7, iterations: int = 6):
+    """Homography + degree-``deg`` polynomial, robust (4 x 1.4826 MAD), fitted to src->dst."""
+    centre, scale = src.mean(0), np.ptp(src, axis=0) / 2
+    keep = np.ones(len(src), bool)
+    for _ in range(iterations):
+        hom, _ = cv2.findHomography(src[keep], dst[keep], 0)
+        design = _poly(src, deg, centre, scale)
+        coef = np.linalg.lstsq(design[keep], (dst - _apply(hom, src))[keep], rcond=None)[0]
+        res = dst - _apply(hom, src) - design @ coef
+        e = np.linalg.norm(res, axis=1)
+        keep = e < max(4 * 1.4826 * np.median(e[keep]), 0.05)
+    return lambda p: _apply(hom, p) + _poly(p, deg, centre, scale) @ coef
+
+
+def _ecc(f, g, points, approx, jac, patch):
+    half, pad = patch // 2, patch
+    out = np.full_like(approx, np.nan)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
+    h, w = g.shape
+    f32, g32 = f.astype(np.float32), g.astype(np.float32)
+    for i, ((x, y), (ax, ay)) in enumerate(zip(points.astype(int), approx, strict=True)):
+        x0, y0 = int(round(ax)) - pad, int(round(ay)) - pad
+        if x0 < 0 or y0 < 0 or x0 + 2 * pad + 1 > w or y0 + 2 * pad + 1 > h:
+            continue
+        a = jac[i]
+        # warp maps template pixel (u, v) (0..patch-1) into the search crop
+        t = np.array([ax - x0, ay - y0]) - a @ [half, half]
+        warp = np.array([[a[0, 0], a[0, 1], t[0]], [a[1, 0], a[1, 1], t[1]]], np.float32)
+        try:
+            _, warp = cv2.findTransformECC(f32[y - half:y + half + 1, x - half:x + half + 1],
+                                           g32[y0:y0 + 2 * pad + 1, x0:x0 + 2 * pad + 1],
+                                           warp, cv2.MOTION_AFFINE, crit, None, 1)
+        except cv2.error:
+            continue
+        out[i] = warp[:, :2] @ [half, half] + warp[:, 2] + [x0, y0]
+    return out
+
+
+def _lk(f, g, points, approx, patch):
+    p0 = points.astype(np.float32).reshape(-1, 1, 2)
+    p1 = approx.astype(np.float32).reshape(-1, 1, 2)
+    res, status, _ = cv2.calcOpticalFlowPyrLK(
+        np.clip(f, 0, 255).astype(np.uint8), np.clip(g, 0, 255).astype(np.uint8), p0, p1,
+        winSize=(patch, patch), maxLevel=2,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001),
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    out = np.full_like(approx, np.nan)
+    good = status.ravel() == 1
+    out[good] = res.reshape(-1, 2)[good]
+    return out
+
+
+def _judge(name, pos, truth, smooth, points, seconds, candidates, sigma=None, extra=None):
+    found = np.isfinite(pos).all(1)
+    off_h = np.linalg.norm(pos - truth, axis=1)
+    res = pos - smooth(points)
+    e = np.linalg.norm(res, axis=1)
+    inl = found & (e < 2.0)
+    row = {"method": name, "accepted": float(found.sum() / candidates),
+           "beyond_2px_of_homography": float(np.mean(off_h[found] > 2.0)),
+           "beyond_2px_of_smooth": float(np.mean(e[found] > 2.0)),
+           "residual_rms_px": float(np.sqrt(np.mean(res[inl] ** 2))),
+           "points": int(found.sum()), "points_per_s": float(len(points) / seconds)}
+    if sigma is not None:
+        row["reported_sigma_rms_px"] = float(np.sqrt(np.mean(sigma[inl] ** 2)))
+        row["residual_over_sigma"] = row["residual_rms_px"] / row["reported_sigma_rms_px"]
+    row.update(extra or {})
+    return row
+
+
+def graffiti(folder: Path, quick: bool) -> dict:
+    """Graffiti figures (module docstring)."""
+    f, g = _grey(folder / "graf1.png"), _grey(folder / "graf3.png")
+    hom = _homography(folder / "H1to3p.xml")
+    patch = GRAFFITI_PATCH
+    spacing = 8 if quick else 4
+    fp, gp = prepare_image(f), prepare_image(g)
+    cand = select_points(f, spacing=spacing, patch=patch, noise=fp.noise)
+    truth_all = _apply(hom, cand.points)
+    h, w = g.shape
+    inside = ((truth_all > patch) & (truth_all < [w - patch, h - patch])).all(1)
+    n_cand = int(inside.sum())
+    sel = inside & cand.textured
+    pts, truth = cand.points[sel], truth_all[sel]
+    approx = truth + np.random.default_rng(0).normal(0.0, 1.0, truth.shape)
+    jac = _jacobian(hom, pts)
+    init = np.column_stack([approx[:, 0], jac[:, 0, 0], jac[:, 0, 1], approx[:, 1],
+                            jac[:, 1, 0], jac[:, 1, 1], np.zeros(len(pts)), np.ones(len(pts))])
+    lsm_match(fp, gp, pts[:20], approx[:20], patch=patch, initial=init[:20])  # kernels
+    t0 = time.perf_counter()
+    first = lsm_match(fp, gp, pts, approx, patch=patch, initial=init)
+    t1 = time.perf_counter()
+    growth = grow_matches(fp, gp, pts, first, approx, patch=patch)
+    t2 = time.perf_counter()
+    res = growth.result
+    fb = forward_backward(fp, gp, pts, res, patch=patch)
+    t3 = time.perf_counter()
+    vf = variance_factor(pts, res.position, res.cov, res.accepted, patch=patch)
+    t4 = time.perf_counter()
+    ok = res.accepted
+    near = ok & (np.linalg.norm(res.position - truth, axis=1) < 20.0)
+    smooth = smooth_mapping(pts[near], res.position[near])
+    k = float(np.sqrt(fb.variance_factor))
+    rows = []
+    for name, result, seconds in (("LSM one pass (21x21, H + 1 px start)", first, t1 - t0),
+                                  ("LSM + region growing (retries from neighbours)", res,
+                                   t2 - t0)):
+        pos = np.where(result.accepted[:, None], result.position, np.nan)
+        rows.append(_judge(name, pos, truth, smooth, pts, seconds, n_cand, result.sigma))
+    lsm_row = rows[-1]
+    lsm_row["fb_variance_factor"] = fb.variance_factor
+    lsm_row["fb_loop_rms_px"] = fb.loop_rms
+    lsm_row["residual_over_sigma_with_fb_factor"] = lsm_row["residual_over_sigma"] / k
+    lsm_row["fb_seconds"] = t3 - t2
+    lsm_row["variance_factor"] = vf.factor
+    lsm_row["variance_factor_seconds"] = t4 - t3
+    lsm_row["residual_over_sigma_with_factor"] = (lsm_row["residual_over_sigma"]
+                                                  / np.sqrt(vf.factor))
+    m = min(len(pts), 600 if quick else 3000)
+    pick = np.random.default_rng(1).choice(len(pts), m, replace=False)
+    t0 = time.perf_counter()
+    ecc_pos = _ecc(f, g, pts[pick], approx[pick], jac[pick], patch)
+    ecc_s = time.perf_counter() - t0
+    rows.append(_judge("cv2.findTransformECC gauss=1 (per patch, subset)", ecc_pos,
+                       truth[pick], smooth, pts[pick], ecc_s, m,
+                       extra={"note": f"{m} random candidates"}))
+    lsm_sub = np.where(res.accepted[pick, None], res.position[pick], np.nan)
+    rows.append(_judge("LSM + growing on the ECC subset", lsm_sub, truth[pick], smooth,
+                       pts[pick], 1.0, m, res.sigma[pick]))
+    t0 = time.perf_counter()
+    lk_pos = _lk(f, g, pts, approx, patch)
+    rows.append(_judge("cv2.calcOpticalFlowPyrLK (21x21)", lk_pos, truth, smooth, pts,
+                       time.perf_counter() - t0, n_cand))
+    status = {str(k_): int(v) for k_, v in zip(*np.unique(res.status, return_counts=True),
+                                              strict=True)}
+    return {"rows": rows, "candidates": n_cand, "textured": int(sel.sum()),
+            "spacing": spacing, "patch": patch, "rounds": growth.rounds,
+            "grown": int(growth.grown.sum()), "status_codes": status,
+            "noise_flat_blocks": fp.noise}
+
+
+# ------------------------------------------------------------------------------ temple
+def _rectified_pair(cams, images, i, j):
+    from matching.multiview import rectify_pair
+
+    rect, _, _ = rectify_pair(cams[i], cams[j])
+    grey = [im.astype(np.float64) @ np.array([0.114, 0.587, 0.299]) for im in
+            (images[i], images[j])]
+    maps = (rect.maps_left, rect.maps_right)
+    out = [cv2.remap(g, *m, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+           for g, m in zip(grey, maps, strict=True)]
+    valid = cv2.remap(np.ones_like(grey[0], np.float32), *rect.maps_left, cv2.INTER_NEAREST,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    along = 1 if abs(rect.P2[1, 3]) > abs(rect.P2[0, 3]) else 0
+    shift = rect.P2[along, 3]
+    if along == 1:  # epipolar lines are columns: transpose
+        out = [o.T.copy() for o in out]
+        valid = valid.T.copy()
+    if shift > 0:  # x_right > x_left: mirror both so disparities are positive
+        out = [o[:, ::-1].copy() for o in out]
+        valid = valid[:, ::-1].copy()
+    return out[0], out[1], valid
+
+
+def _sgbm_loop(left, right, points):
+    """SGBM left-right loop along the rows at ``points`` (NaN where either is missing).
+
+    The right image's disparity comes from SGBM on the mirrored pair (right mirrored as
+    the left image): a right pixel x_r matches x_l = x_r + d_r, the same range.
+    """
+    lo, count = disparity_range(left, right)
+    d_left = sgbm_disparity(left, right, lo, count)
+    d_right = sgbm_disparity(right[:, ::-1], left[:, ::-1], lo, count)[:, ::-1]
+    w = left.shape[1]
+    xi, yi = points[:, 0].astype(int), points[:, 1].astype(int)
+    xr = points[:, 0] - d_left[yi, xi]
+    ok = np.isfinite(xr) & (xr >= 0) & (xr < w - 1)
+    x0 = np.where(ok, np.floor(np.nan_to_num(xr)), 0).astype(int)
+    t = xr - x0
+    rows = d_right[yi]
+    idx = np.arange(len(points))
+    back = (1 - t) * rows[idx, x0] + t * rows[idx, np.minimum(x0 + 1, w - 1)]
+    back[~ok] = np.nan
+    return (xr + back) - points[:, 0], d_left
+
+
+def temple(folder: Path, quick: bool) -> dict:
+    """Temple neighbouring-pair figures (module docstring)."""
+    from matching.cameras import read_projection_txt
+    from matching.pair import PAIR_STATUS_NAMES, match_pair
+
+    cams = read_projection_txt(folder / "templeSR_par.txt", image_dir=folder)
+    images = [cv2.imread(str(folder / c.name), cv2.IMREAD_COLOR) for c in cams]
+    pairs = [(0, 1)] if quick else [(0, 1), (4, 5), (8, 9), (12, 13)]
+    rows = []
+    for i, j in pairs:
+        left, right, valid = _rectified_pair(cams, images, i, j)
+        obj = cv2.dilate((left > 0.19 * 255).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        t0 = time.perf_counter()
+        m = match_pair(left, right, rectified=True, mask=valid, spacing=4)
+        seconds = time.perf_counter() - t0
+        xi = m.x_left.astype(int)
+        on_obj = obj[xi[:, 1], xi[:, 0]]
+        forward = LSMResult(position=m.x_right, affine=m.affine, radiometric=m.radiometric,
+                            converged=m.accepted, iterations=m.iterations, sigma0=m.sigma0,
+                            cov=m.cov, correlation=m.correlation, status=m.status,
+                            noise_sigma0=float("nan"))
+        fb = forward_backward(prepare_image(left), prepare_image(right), m.x_left, forward)
+        vf = variance_factor(m.x_left + m.offset, m.affine[:, [0, 3]], m.cov, m.accepted,
+                             patch=15)
+        use = fb.used & on_obj
+        loop_x = fb.loop[:, 0]
+        lsm_fb = float(np.sqrt(np.mean(loop_x[use] ** 2) / 2))
+        sig_x = float(np.sqrt(np.mean(m.cov[use, 0, 0])))
+        try:
+            sgbm_loop, _ = _sgbm_loop(left, right, m.x_left)
+        except ValueError as exc:  # SIFT finds no row-consistent match on this pair
+            sgbm_loop = np.full(len(m.x_left), np.nan)
+            print(f"temple pair {(i, j)}: SGBM left-right loop skipped ({exc})")
+        same = use & np.isfinite(sgbm_loop) & (np.abs(sgbm_loop) < 3)
+        rows.append({
+            "pair": [i, j], "candidates_on_object": int(on_obj.sum()),
+            "accepted_share_on_object": float(m.accepted[on_obj].mean()),
+            "status_on_object": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
+                *np.unique(m.status[on_obj], return_counts=True), strict=True)},
+            "lsm_fb_loop_rms_px": lsm_fb, "lsm_reported_sigma_x_rms_px": sig_x,
+            "lsm_fb_over_sigma": lsm_fb / sig_x, "fb_variance_factor": fb.variance_factor,
+            "variance_factor_local": vf.factor,
+            "same_pixels": int(same.sum()),
+            "lsm_fb_loop_rms_same_px": float(np.sqrt(np.mean(loop_x[same] ** 2) / 2)),
+            "sgbm_lr_loop_rms_same_px": float(np.sqrt(np.mean(sgbm_loop[same] ** 2) / 2)),
+            "seconds": seconds})
+        r = rows[-1]
+        r["sgbm_over_lsm"] = r["sgbm_lr_loop_rms_same_px"] / r["lsm_fb_loop_rms_same_px"]
+    # dense mode: every pixel of the first rectified pair (640x480 transposed)
+    left, right, valid = _rectified_pair(cams, images, *pairs[0])
+    t0 = time.perf_counter()
+    dense = match_pair(left, right, rectified=True, mask=valid, spacing=1)
+    seconds = time.perf_counter() - t0
+    out = {"rows": rows, "dense": {
+        "pair": list(pairs[0]), "image": [int(left.shape[1]), int(left.shape[0])],
+        "candidates": len(dense), "accepted": int(dense.accepted.sum()),
+        "seconds": seconds, "px_per_s": left.size / seconds,
+        "accepted_per_s": float(dense.accepted.sum() / seconds)}}
+    return out
