@@ -433,3 +433,26 @@ def test_eccentric_window_offset_outside_the_patch_refused(clean_pair):
         lsm_match(f, g, pts, truth_of(pts), offset=np.full(pts.shape, 8.0))
     with pytest.raises(ValueError, match="offset"):
         lsm_match(f, g, pts, truth_of(pts), offset=np.zeros((1, 2)))
+
+
+def test_one_straight_edge_and_uniform_squares_give_no_points():
+    """A chessboard-like scene, 2 grey levels of noise, the right image a 0.3 px shift:
+    a window on one straight edge has gradient only across it (λ_min = the noise's), a
+    window inside a square none -- both are rejected as textureless, so neither gives a
+    point that slides along the edge."""
+    size, square = 160, 40
+    ys, xs = np.mgrid[0:size, 0:size].astype(np.float64)
+
+    def board(dx):
+        cell = (np.floor((xs - dx) / square) + np.floor(ys / square)) % 2
+        return ndimage.gaussian_filter(60.0 + 120.0 * cell, 1.0)
+
+    rng = np.random.default_rng(12)
+    f = board(0.0) + rng.normal(0.0, 2.0, xs.shape)
+    g = board(0.3) + rng.normal(0.0, 2.0, xs.shape)
+    edge = np.array([[40.0, 60.0], [60.0, 80.0], [100.0, 120.0], [120.0, 60.0]])
+    inside = np.array([[60.0, 60.0], [100.0, 100.0], [20.0, 100.0]])
+    pts = np.vstack([edge, inside])
+    truth = pts + [0.3, 0.0]
+    res = lsm_match(f, g, pts, truth + [0.8, -0.6], patch=15)
+    assert (res.status == Status.TEXTURELESS).all(), res.status
