@@ -7,9 +7,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "fixtures"
-# Real photographs handed to the project (never copied into the repository): ../shared/data/real beside
+# Real photographs handed to the project (never copied into the repository):
+# ../shared/data/real beside
 # the checkout, or wherever PHOTOSURF_REAL_DATA points.
-REAL_DATA = Path(os.environ.get("PHOTOSURF_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+REAL_DATA = Path(os.environ.get("PHOTOSURF_REAL_DATA",
+                               ROOT.parent / "shared" / "data" / "real"))
 
 
 @pytest.fixture(scope="session")
@@ -19,7 +21,7 @@ def fixtures_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def real_data_dir() -> Path:
-    """The real data folder (temple_sparse_ring/, graffiti/); the test is skipped if it is absent."""
+    """The real data folder (temple_sparse_ring/, graffiti/); skipped if it is absent."""
     if not (REAL_DATA / "README.md").is_file():
         pytest.skip(f"real data not found at {REAL_DATA} (set PHOTOSURF_REAL_DATA)")
     return REAL_DATA
