@@ -225,6 +225,9 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
 AXIS_TRIAL_POINTS = 60_000
 #: Candidate axes closer than this (degrees) to one already tried are not tried again.
 AXIS_SAME_DEGREES = 5.0
+#: Candidates whose share of cap points exceeds the smallest share by more than this
+#: are not chosen for their Euler characteristic (:func:`choose_axis`).
+CAP_SHARE_SLACK = 0.10
 
 
 def choose_axis(points: np.ndarray, sections: int | None = None,
@@ -248,6 +251,11 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
        unresolved handle only raises χ, so the smallest χ found is the shape's;
     2. among the axes reaching that χ, the one with the smallest share of cap
        points (PCA normals within 60° of the axis, ``MIN_WALL_SINE``) wins.
+
+    χ is compared only among the axes whose cap share is within
+    :data:`CAP_SHARE_SLACK` of the smallest: an axis cutting most walls
+    obliquely gives ragged loops whose spurious splits lower χ (a sparse
+    cylinder cut across).
 
     A mug: along its height χ = 0 with its floor and rims as caps (~20 % of
     its area); across, the handle is resolved too but a third of the walls
@@ -295,9 +303,12 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
             chis.append(graph.euler())
         except ValueError:
             chis.append(float("inf"))
-    finite = [c for c in chis if np.isfinite(c)]
+    # χ decides only among axes with about as few cap points as the fewest: an axis
+    # cutting most walls obliquely makes ragged loops whose spurious splits lower χ.
+    close = [k for k in range(len(candidates)) if shares[k] <= min(shares) + CAP_SHARE_SLACK]
+    finite = [chis[k] for k in close if np.isfinite(chis[k])]
     best_chi = min(finite) if finite else float("inf")
-    pool = [k for k in range(len(candidates)) if chis[k] == best_chi] or [0]
+    pool = [k for k in close if chis[k] == best_chi] or close
     best = min(pool, key=lambda k: (shares[k], k))
     listed = "; ".join(f"{np.round(a, 3).tolist()}: chi {c:g}, caps {100 * f:.0f} %"
                        for a, c, f in zip(candidates, chis, shares, strict=True))
@@ -436,7 +447,7 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
             if counts[k - 1] == counts[k + 1] != counts[k]}
     last = len(kept) - 1
     ends = set()
-    if len(kept) >= 5:
+    if len(kept) >= 8:  # a long enough stack that two ends and their pairs are a few
         ends = {k for k, a, b in ((0, 1, 2), (last, last - 1, last - 2))
                 if counts[a] == counts[b] != counts[k] and a not in drop and b not in drop}
     notes = [f"section {kept[k].section_id} at height {kept[k].height:.6g} skipped: "
@@ -683,6 +694,9 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip,
                           support_sigma=section_noise(loops) if support else None,
                           cap_points=sliced.cap_cloud)
+    if len(result.triangles) == 0:
+        raise ValueError(f"no surface from {len(kept)} section(s) with loops: "
+                         f"{result.problem_line()} (too few points or sections?)")
     if messages:
         from dataclasses import replace
 
