@@ -204,7 +204,13 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     dict
         ``metrics`` (against the truth, when there is one) and ``topology``.
     """
-    from pipeline.mesh_io import read_mesh
+    from functools import cache
+
+    from pipeline.mesh_io import read_mesh as read_mesh_file
+
+    @cache  # each mesh is read once, however many sections show it
+    def read_mesh(path):
+        return read_mesh_file(path)
 
     root = Path(root)
     params = config.get("report", {})
