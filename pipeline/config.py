@@ -29,7 +29,7 @@ from pipeline.errors import InputError
 FLEXIBLE = {
     "sections.axis": ("x", "y", "z", "auto"),
     "curves.smoothing": ("auto",),
-    "smooth.level": ("auto",),
+    "smooth.level": ("auto", "adaptive"),
 }
 
 #: Parameters that take one of a fixed set of words (lists: every element must be one).
@@ -67,7 +67,7 @@ RANGES = {
     "curves.smoothing": (_non_negative, ">= 0 or 'auto'"),
     "curves.outlier_threshold": (_positive, "> 0"),
     "curves.min_loop_points": (lambda v: v == 0 or v >= 4, ">= 4 (0: from curves.smoothing)"),
-    "smooth.level": (lambda v: 0 <= v <= 6, "0..6 or 'auto'"),
+    "smooth.level": (lambda v: 0 <= v <= 6, "0..6, 'auto' or 'adaptive'"),
     "smooth.tolerance": (_non_negative, ">= 0 (0: from the data)"),
     "smooth.size_tolerance": (_non_negative, ">= 0 (0: the section points' noise)"),
     "report.width": (lambda v: v >= 16, ">= 16 pixels"),

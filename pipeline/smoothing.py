@@ -46,7 +46,7 @@ class Smoothed:
     triangles : (T, 3) int64
     normals : (V, 3) float64
         The exact unit normals of the tessellation.
-    level : int
+    level : int or "adaptive"
     gap : float
         Largest position gap across patch edges, scene units.
     g1_angle : float
@@ -84,8 +84,10 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     vertices : (V, 3) float64
     triangles : (F, 3) int64
         Oriented 2-manifold control mesh (closed gives a watertight surface).
-    level : int or "auto"
-        Tessellation level; ``"auto"`` needs ``tolerance``.
+    level : int, "auto" or "adaptive"
+        Tessellation level; ``"auto"`` (one level, the coarsest within ``tolerance``) and
+        ``"adaptive"`` (:func:`surface.bezier.tessellate_adaptive`: cuts per patch) need
+        ``tolerance``.
     tolerance : float, optional
         Chord tolerance of ``"auto"``, scene units.
 
@@ -103,11 +105,14 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     limits.check("smooth.triangles", 4 * len(triangles) * 4 ** finest,
                  where=f"level {finest} on {len(triangles)} control triangles")
     surface = bezier.control_net(vertices, triangles)
-    if level == "auto":  # finest detail the data can vouch for: the chord error <= tolerance
-        level = bezier.tessellation_level(surface.control_points, tolerance,
-                                          max_level=MAX_AUTO_LEVEL)
-    level = int(level)
-    v, t, n = bezier.tessellate(surface, level=level)
+    if level == "adaptive":  # a chord tolerance per patch, crack-free across patch edges
+        v, t, n = bezier.tessellate_adaptive(surface, tolerance)
+    else:
+        if level == "auto":  # finest detail the data can vouch for: chord error <= tolerance
+            level = bezier.tessellation_level(surface.control_points, tolerance,
+                                              max_level=MAX_AUTO_LEVEL)
+        level = int(level)
+        v, t, n = bezier.tessellate(surface, level=level)
     gap, angle = bezier.edge_continuity(surface.control_points, surface.domain_mesh[1],
                                         samples=EDGE_SAMPLES)
     return Smoothed(surface, v, t, n, level, float(gap), float(angle))

@@ -281,7 +281,8 @@ def smooth(ctx: StageContext) -> dict:
         if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back
             control = interpolating_control(vertices, triangles)
         smoothed = smooth_mesh(control, triangles, level,
-                               _smooth_tolerance(ctx) if level == "auto" else None)
+                               _smooth_tolerance(ctx) if level in ("auto", "adaptive")
+                               else None)
     except ValueError as exc:
         from surface.metrics import mesh_topology
 
