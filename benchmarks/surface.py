@@ -30,6 +30,12 @@ the stitched method does not; the table's "normals" column is that share):
   vertices whose Loop limit positions are the stitched vertices, one sparse
   solve; counted in the smooth stage), so it passes through the stitched
   vertices instead of shrinking away from them;
+* ``stitched+sized`` what ``photosurf run``'s smooth stage does (issue 15): the dense
+  stitched mesh thinned by ``surface.sizing`` (tolerance: the section noise σ̂), the
+  surface through its vertices (``sizing.interpolating_control``), tessellated at
+  ``smooth.level``; after the clock: patches and file sizes (PLY and GLB by
+  ``pipeline.export``, control net format version 2, STEP through OpenCascade when at
+  most ``STEP_MAX_PATCHES`` patches), also written for the Poisson rows' PLY/GLB;
 * ``stitched-before`` / ``stitched+bezier-before`` session 1's settings (``BEFORE``:
   curve smoothing fixed at 8 points per control point, no support rings), the
   "before" of issue 5's Chamfer fix measured in the same run.  The defaults
@@ -55,8 +61,17 @@ samples to the reconstruction mesh (exact point-to-triangle distances),
 Chamfer = their mean, F-score at tau = 0.005, Hausdorff; closed and the
 number of edge-connected components from ``mesh_topology``.
 
-Then the scaling of time with the number of points (10^4, 10^5, 10^6;
-``--quick`` stops at 10^5) for the stitched method and Poisson depth 8.
+Then the scaling of time with the number of points (10^4, 10^5, 10^6, or ``--sizes``;
+``--quick`` stops at 10^5) for the stitched, the sized method and Poisson depth 8, with
+the peak of numpy's allocations during each (``tracemalloc``; open3d's C++ memory is not
+in it).
+
+Measured (session 3, issue 15, load 15-21, ``--methods poisson-8 poisson-9 stitched+bezier
+stitched+sized --no-shapes --sizes 10000 100000 1000000``): 50 000 points: stitched+sized
+5 792 patches, 23 168 triangles, PLY 0.86 MB / GLB 0.56 MB / net 3.4 MB (Poisson-8 PLY
+6.7 MB), 1.59 CPU-s (Poisson-8 5.91), but Chamfer 0.00136 -- NOT <= 0.5 x Poisson-8
+(0.00038): the sizing tolerance sigma-hat = 0.0023 is far above the dense surface's own
+error on this noisy cloud; stitched+bezier (dense) 0.00032 as before.
 
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append
@@ -158,6 +173,66 @@ def run_stitched_bezier(points: np.ndarray, level: int | None = None,
             "g1_angle": angle, "g1_gap": gap, "excluded_seconds": excluded}
 
 
+#: Largest surface written to STEP inside the benchmark (OpenCascade takes ~13 ms and
+#: writes ~20 KB per patch here, pipeline/step.py).
+STEP_MAX_PATCHES = 3000
+
+
+def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None) -> dict:
+    """Bytes of the mesh as PLY and GLB (pipeline.export) and, for a Bezier surface, of its
+    control net (format version 2) and, when small enough, its STEP solid."""
+    import tempfile
+
+    from pipeline import export
+
+    sizes = {}
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        for suffix in (".ply", ".glb"):
+            path = export.export_mesh(folder / f"s{suffix}", vertices, triangles)
+            sizes[f"{suffix[1:]}_bytes"] = path.stat().st_size
+        if surface is not None:
+            path = export.write_control_net(folder / "s.npz", surface.control_points,
+                                            bezier.index_table(), surface.source_face,
+                                            surface.domain_mesh)
+            sizes["net_bytes"] = path.stat().st_size
+            if len(surface.control_points) <= STEP_MAX_PATCHES:
+                from pipeline.step import write_cad
+
+                start = time.perf_counter()
+                path = write_cad(folder / "s.step", surface.control_points,
+                                 surface.domain_mesh[1])
+                sizes["step_bytes"] = path.stat().st_size
+                sizes["step_seconds"] = time.perf_counter() - start
+    return sizes
+
+
+def run_stitched_sized(points: np.ndarray, level: int | None = None) -> dict:
+    """The pipeline's smooth stage on the cloud: dense stitched mesh -> sized control mesh
+    (surface.sizing, tolerance = the section noise) -> interpolating control vertices ->
+    Bezier surface -> tessellation at ``smooth.level``; file sizes after the clock."""
+    from surface.sizing import interpolating_control, sized_from_points
+
+    level = int(defaults()["smooth"]["level"]) if level is None else int(level)
+    start = time.perf_counter()
+    sized, dense = sized_from_points(points, axis="z")
+    smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles),
+                                sized.triangles)
+    vertices, triangles, _ = bezier.tessellate(smooth, level=level)
+    seconds = time.perf_counter() - start
+    check = (time.perf_counter(), time.process_time())
+    sizes = file_sizes(vertices, triangles, smooth)
+    gap, angle = bezier.edge_continuity(smooth.control_points, smooth.domain_mesh[1])
+    excluded = (time.perf_counter() - check[0], time.process_time() - check[1])
+    return {"vertices": vertices, "triangles": triangles, "level": level,
+            "stitched_triangles": int(len(dense.triangles)),
+            "control_triangles": int(len(sized.triangles)), "size_step": sized.step,
+            "size_n": sized.n, "size_deviation": sized.deviation,
+            "size_tolerance": sized.tolerance, "patches": len(smooth.control_points),
+            "g1_angle": angle, "g1_gap": gap, "wall_seconds_inner": seconds, **sizes,
+            "excluded_seconds": excluded}
+
+
 def _o3d_cloud(points: np.ndarray, normals: bool):
     """open3d cloud (with estimated, oriented normals) and the seconds the normals took."""
     import open3d as o3d
@@ -180,7 +255,11 @@ def run_poisson(points: np.ndarray, depth: int) -> dict:
 
     cloud, normals_seconds = _o3d_cloud(points, normals=True)
     mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth)
-    return {**_from_o3d(mesh), "normals_seconds": normals_seconds}
+    out = _from_o3d(mesh)
+    check = (time.perf_counter(), time.process_time())
+    sizes = file_sizes(out["vertices"], out["triangles"])
+    excluded = (time.perf_counter() - check[0], time.process_time() - check[1])
+    return {**out, "normals_seconds": normals_seconds, **sizes, "excluded_seconds": excluded}
 
 
 def run_ball_pivoting(points: np.ndarray) -> dict:
@@ -211,6 +290,7 @@ METHODS = [
     ("alpha-4s", lambda p: run_alpha(p, 4.0)),
     ("stitched+bezier", run_stitched_bezier),
     ("stitched+bezier-interp", lambda p: run_stitched_bezier(p, interpolate=True)),
+    ("stitched+sized", run_stitched_sized),
     ("stitched-before", lambda p: run_stitched(p, **BEFORE)),
     ("stitched+bezier-before", lambda p: run_stitched_bezier(p, **BEFORE)),
 ]
@@ -256,16 +336,28 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
     for size in sizes:
         points = noisy_cloud(*truth, size, seed=SEED + 1, sigma=SIGMA)
         for name, method in methods:
+            import tracemalloc
+
+            tracemalloc.start()  # numpy's allocations (not open3d's C++ ones)
             row = evaluate(name, method, points, truth, samples=min(SAMPLES, 4 * size))
+            peak = tracemalloc.get_traced_memory()[1] / 2 ** 20
+            tracemalloc.stop()
+            row["numpy_peak_mib"] = peak
             rows.append({"points": size, "method": name, "seconds": row["seconds"],
                          "cpu_seconds": row["cpu_seconds"],
                          "normals_seconds": row.get("normals_seconds"),
                          "triangles": row["triangles"], "chamfer": row.get("chamfer"),
-                         "closed": row["closed"], "components": row["components"]})
+                         "closed": row["closed"], "components": row["components"],
+                         "patches": row.get("patches"), "numpy_peak_mib": peak,
+                         **{k: row[k] for k in ("ply_bytes", "glb_bytes", "net_bytes",
+                                                 "step_bytes", "fscore") if k in row}})
             chamfer = row.get("chamfer", float("nan"))
-            print(f"  {size:>8d} points  {name:<10s} {row['seconds']:7.2f} s "
+            print(f"  {size:>8d} points  {name:<15s} {row['seconds']:7.2f} s "
                   f"({row['cpu_seconds']:7.2f} s CPU)  "
-                  f"{row['triangles']:>8d} triangles  Chamfer {chamfer:.5f}", flush=True)
+                  f"{row['triangles']:>8d} triangles  Chamfer {chamfer:.5f}  "
+                  f"numpy peak {peak:.0f} MiB"
+                  + (f"  patches {row['patches']}  PLY {row['ply_bytes'] / 1e6:.1f} MB"
+                     if "patches" in row and "ply_bytes" in row else ""), flush=True)
     return rows
 
 
@@ -296,6 +388,13 @@ def goals(rows: list[dict]) -> dict:
         verdict.update({"chamfer_le_poisson8": bool(s["chamfer"] <= p["chamfer"]),
                         "one_closed_component": bool(s["closed"] and s["components"] == 1),
                         "faster_than_poisson8": bool(s["seconds"] < p["seconds"])})
+    z = by.get("stitched+sized")
+    if z is not None and "chamfer" in z:
+        verdict.update({
+            "sized_chamfer_le_half_poisson8": bool(z["chamfer"] <= 0.5 * p["chamfer"]),
+            "sized_ply_le_poisson8_ply": bool(z["ply_bytes"] <= p.get("ply_bytes", 0)),
+            "sized_time_le_poisson8": bool(z["seconds"] <= p["seconds"]),
+            "sized_one_closed_component": bool(z["closed"] and z["components"] == 1)})
     for name, prefix in (("stitched+bezier", "bezier"),
                          ("stitched+bezier-interp", "bezier_interp"),
                          ("stitched+bezier-before", "bezier_before")):
@@ -313,8 +412,23 @@ def goals(rows: list[dict]) -> dict:
     return verdict
 
 
+def print_sizes(rows: list[dict]) -> None:
+    """Patches and file sizes (MB) of the rows that have them."""
+    print(f"\n{'method':<23s}{'patches':>9s}{'triangles':>10s}{'PLY MB':>8s}{'GLB MB':>8s}"
+          f"{'net MB':>8s}{'STEP MB':>8s}{'STEP s':>8s}")
+    for r in rows:
+        if "ply_bytes" not in r:
+            continue
+        mb = {k: (f"{r[k] / 1e6:8.2f}" if k in r else f"{'-':>8s}")
+              for k in ("ply_bytes", "glb_bytes", "net_bytes", "step_bytes")}
+        step_s = f"{r['step_seconds']:8.1f}" if "step_seconds" in r else f"{'-':>8s}"
+        print(f"{r['method']:<23s}{r.get('patches', 0):9d}{r['triangles']:10d}"
+              f"{mb['ply_bytes']}{mb['glb_bytes']}{mb['net_bytes']}{mb['step_bytes']}{step_s}")
+
+
 def print_bezier(rows: list[dict]) -> None:
     """The smoothed rows' stage times, rates and G1 figures against Poisson depth 8."""
+    print_sizes(rows)
     by = {r["method"]: r for r in rows}
     for name in ("stitched+bezier", "stitched+bezier-interp", "stitched+bezier-before"):
         if name in by:
@@ -427,6 +541,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
     parser.add_argument("--no-shapes", action="store_true",
                         help="skip the before/after table on the other shapes")
+    parser.add_argument("--sizes", nargs="+", type=int,
+                        help="cloud sizes of the scaling runs (default 10^4 10^5 10^6)")
     parser.add_argument("--methods", nargs="+", choices=[m[0] for m in METHODS],
                         help="run only these methods (default: all)")
     args = parser.parse_args(argv)
@@ -452,11 +568,11 @@ def main(argv: list[str] | None = None) -> int:
     shape_rows = [] if args.no_shapes else other_shapes()
     scale_rows = []
     if not args.no_scaling:
-        sizes = [10_000, 100_000] + ([] if args.quick else [1_000_000])
+        sizes = args.sizes or ([10_000, 100_000] + ([] if args.quick else [1_000_000]))
         print("\nscaling:")
-        scale_rows = scaling(truth, sizes, [m for m in METHODS if m[0] in ("stitched",
-                                                                          "poisson-8")
-                                            and (not args.methods or m[0] in args.methods)])
+        scale_rows = scaling(truth, sizes, [m for m in METHODS if m[0] in (
+            "stitched", "poisson-8", "stitched+sized")
+            and (not args.methods or m[0] in args.methods)])
     result = {"benchmark": "surface", "points": args.points, "sigma": SIGMA, "tau": TAU,
               "samples": SAMPLES, "seed": SEED, "quick": bool(args.quick), "methods": rows,
               "goals": verdict, "scaling": scale_rows, "shapes": shape_rows,
