@@ -9,9 +9,11 @@ A ring of calibrated views is turned into one cloud in four steps.
    decide: a pair is usable when ``min_ratio <= b/d <= max_ratio`` and the angle is
    at most ``max_angle_deg``; each view keeps its ``partners`` usable partners whose
    ratio is closest to ``target_ratio`` (1:4, the stereo recipe's base/distance).
-2. **Pair reconstruction.**  Each pair is rectified (Bouguet, ``cv2.stereoRectify``
-   *without* the zero-disparity constraint, ``alpha = 1``, so that a convergent pair
-   keeps the object in both rectified frames) and matched by
+2. **Pair reconstruction.**  Each pair is rectified with the baseline as the rectified
+   x axis (:mod:`matching.rectify`, Fusiello, Trucco and Verri 2000: rows are epipolar
+   lines whatever the views' relative roll, baseline direction or image sizes),
+   *without* the zero-disparity constraint, so that a convergent pair keeps the object
+   in both rectified frames, and matched by
    :func:`matching.pair.match_pair` (SGBM approximations, horizontal epipolar LSM),
    then re-matched with second-order warp terms estimated from the neighbours' affine
    parameters (:func:`matching.second_order.second_order_terms`: an affine fit of a curved
@@ -116,8 +118,9 @@ from scipy.stats import chi2
 from matching.cameras import Camera, StereoRig
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, lsm_match, prepare_image
 from matching.pair import match_pair
+from matching.rectify import Rectification, rectify, rectify_images
 from matching.second_order import second_order_terms
-from matching.seeds import DEFAULT_SPACING, Rectification, rectify_images
+from matching.seeds import DEFAULT_SPACING
 from matching.triangulate import triangulate_multiview, triangulate_pair
 from matching.validate import TOL, check_shape
 
@@ -125,6 +128,7 @@ __all__ = [
     "REASON_NAMES",
     "PairCloud",
     "MultiViewCloud",
+    "SkippedPair",
     "scene_centre",
     "select_pairs",
     "rectify_pair",
@@ -285,8 +289,9 @@ def select_pairs(cameras: Sequence[Camera], *, min_ratio: float = 0.1,
     Returns
     -------
     list of (left, right)
-        Unique pairs, sorted; ``right``'s centre lies to the right of ``left``'s
-        (positive x in the left camera frame), as rectification expects.
+        Each unordered pair once, sorted; oriented so that the lower-numbered view
+        sees the other on its +x side where it does (any order rectifies:
+        :mod:`matching.rectify` takes the baseline as the x axis).
     """
     if not 0 < min_ratio <= target_ratio <= max_ratio:
         raise ValueError(f"need 0 < min_ratio <= target_ratio <= max_ratio, got {min_ratio}, "
@@ -302,48 +307,41 @@ def select_pairs(cameras: Sequence[Camera], *, min_ratio: float = 0.1,
     angle = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
     usable = (ratio >= min_ratio) & (ratio <= max_ratio) & (angle <= max_angle_deg)
     np.fill_diagonal(usable, False)
-    pairs = set()
+    chosen = set()
     for i in range(len(cameras)):
         cand = np.flatnonzero(usable[i])
         best = cand[np.argsort(np.abs(ratio[i, cand] - target_ratio), kind="stable")]
-        for j in best[:partners]:
-            x_in_i = cameras[i].to_camera(centres[j][None])[0, 0]
-            pairs.add((i, int(j)) if x_in_i > 0 else (int(j), i))
+        chosen.update((min(i, int(j)), max(i, int(j))) for j in best[:partners])
+    pairs = []
+    for a, b in chosen:  # each pair once, oriented by its lower-numbered view
+        x_in_a = cameras[a].to_camera(centres[b][None])[0, 0]
+        pairs.append((a, b) if x_in_a > 0 else (b, a))
     return sorted(pairs)
 
 
 def rectify_pair(left: Camera, right: Camera) -> tuple[Rectification, Camera, Camera]:
-    """Bouguet rectification keeping a convergent pair's overlap in view.
+    """Rectify a pair whatever its relative pose (:func:`matching.rectify.rectify`).
 
-    ``cv2.stereoRectify`` without ``CALIB_ZERO_DISPARITY`` (each rectified principal
-    point centres its own view) and ``alpha = 1`` (no source pixel is cut away).
+    The baseline is the rectified x axis (Fusiello, Trucco and Verri 2000), each view
+    keeps its own principal-point column (no zero-disparity constraint) and every
+    column it reaches, so a convergent pair keeps its overlap in view; vertical
+    baselines, views turned against each other and different image sizes are all
+    rectified to rows.
 
     Returns
     -------
-    rect : matching.seeds.Rectification
+    rect : matching.rectify.Rectification
     left_rect, right_rect : Camera
         The rectified pinhole cameras in the world frame (``P1``/``P2`` composed with
-        the left camera's pose), no distortion.
+        the left camera's pose), no distortion, of the rectified size.
     """
-    rig = StereoRig(left, right)
-
-    def dist(cam):
-        return cam.dist if cam.dist.size else np.zeros(5)
-
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-        left.K, dist(left), right.K, dist(right), left.size, rig.R, rig.T.reshape(3, 1),
-        flags=0, alpha=1.0)
-    maps_l = cv2.initUndistortRectifyMap(left.K, dist(left), R1, P1, left.size, cv2.CV_32FC1)
-    maps_r = cv2.initUndistortRectifyMap(right.K, dist(right), R2, P2, left.size,
-                                         cv2.CV_32FC1)
-    rect = Rectification(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q, size=left.size, maps_left=maps_l,
-                         maps_right=maps_r)
+    rect = rectify(StereoRig(left, right))
     pose = np.eye(4)
-    pose[:3, :3] = R1 @ left.R
-    pose[:3, 3] = R1 @ left.t
-    w, h = left.size
-    cam_l = Camera.from_projection(P1 @ pose, w, h, name=left.name)
-    cam_r = Camera.from_projection(P2 @ pose, w, h, name=right.name)
+    pose[:3, :3] = rect.R1 @ left.R
+    pose[:3, 3] = rect.R1 @ left.t
+    w, h = rect.size
+    cam_l = Camera.from_projection(rect.P1 @ pose, w, h, name=left.name)
+    cam_r = Camera.from_projection(rect.P2 @ pose, w, h, name=right.name)
     return rect, cam_l, cam_r
 
 
@@ -802,6 +800,22 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                        time.perf_counter() - start)
 
 
+def _check_coverage(cameras: Sequence[Camera], done: Sequence[tuple[int, int]],
+                    skipped: Sequence[SkippedPair], min_covered: float) -> None:
+    """Raise (one line) when too few views remain in a reconstructed pair."""
+    covered = {v for pr in done for v in pr}
+    need = max(2, int(np.ceil(min_covered * len(cameras))))
+    if len(covered) >= need:
+        return
+    reasons: dict[str, int] = {}
+    for sp in skipped:
+        reasons[sp.reason] = reasons.get(sp.reason, 0) + 1
+    worst = max(reasons, key=reasons.get) if reasons else "no pair"
+    raise ValueError(f"only {len(covered)} of {len(cameras)} views are in a reconstructed "
+                     f"pair (need {need}); {len(skipped)} of {len(skipped) + len(done)} pairs "
+                     f"failed, most often: {worst}")
+
+
 # --------------------------------------------------------------------------- merge
 def _colours(points: np.ndarray, views: np.ndarray, cameras: Sequence[Camera],
              colour_image: Callable) -> np.ndarray:
@@ -1000,9 +1014,27 @@ def _image(ref) -> np.ndarray:
     return ref.load() if isinstance(ref, _View) else ref
 
 
-def _pair_task(item: dict) -> PairCloud:
-    return reconstruct_view_pair(_image(item["left_image"]), _image(item["right_image"]),
-                                 item["left"], item["right"], item["pair"], **item["options"])
+@dataclass(frozen=True)
+class SkippedPair:
+    """A view pair that could not be reconstructed, and why (one line)."""
+
+    pair: tuple[int, int]
+    reason: str
+
+
+def _pair_task(item: dict) -> PairCloud | SkippedPair:
+    """One pair's cloud, or a :class:`SkippedPair` when its data do not allow one.
+
+    A ``ValueError`` is the data's verdict (no overlap, no usable rectification, too few
+    matches): the pair is skipped and the run goes on; any other error is a fault.
+    """
+    try:
+        return reconstruct_view_pair(_image(item["left_image"]), _image(item["right_image"]),
+                                     item["left"], item["right"], item["pair"],
+                                     **item["options"])
+    except ValueError as exc:
+        return SkippedPair(tuple(item["pair"]), str(exc).splitlines()[0] if str(exc)
+                           else type(exc).__name__)
 
 
 def _consistency_task(item: dict) -> Consistency:
@@ -1089,7 +1121,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                           require_confirmation: bool = True, second_order: str = "geometric",
                           keep_unchecked: bool | None = None, sor_neighbours: int = 16,
                           sor_std: float = 3.0, pair_options: dict | None = None,
-                          **match_options) -> MultiViewCloud:
+                          min_covered: float = 0.5, **match_options) -> MultiViewCloud:
     """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
 
     Parameters
@@ -1124,6 +1156,11 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         As :func:`merge_clouds`.
     pair_options : dict, optional
         Keyword arguments of :func:`select_pairs`.
+    min_covered : float
+        A pair whose data allow no reconstruction (no overlap, no rectification...) is
+        skipped (``stats["skipped"]``: pair, view names, one-line reason); the run fails
+        only when fewer than this share of the views (and fewer than 2) remain in a
+        reconstructed pair.
     **match_options
         ``spacing``, ``patch``, ``interpolation``, ``min_correlation``,
         ``sigma0_factor``, ``max_iter``, ``shift_stop_px``, ``min_texture_snr``,
@@ -1161,6 +1198,8 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     workers = _default_workers() if workers is None else int(workers)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if not 0.0 <= min_covered <= 1.0:
+        raise ValueError(f"min_covered must lie in [0, 1], got {min_covered}")
     if int(chunk_pairs) < 1:
         raise ValueError(f"chunk_pairs must be >= 1, got {chunk_pairs}")
     unknown = set(match_options) - set(_MATCH_KEYS)
@@ -1180,9 +1219,13 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         raise ValueError("cameras: no view pair has a usable baseline-to-depth ratio and "
                          "viewing angle")
     t0 = time.perf_counter()
-    clouds = map_func(_pair_task, [
+    results = map_func(_pair_task, [
         {"left_image": ref(a), "right_image": ref(b), "left": cameras[a],
          "right": cameras[b], "pair": (a, b), "options": match_options} for a, b in pairs])
+    skipped = [r for r in results if isinstance(r, SkippedPair)]
+    clouds = [r for r in results if not isinstance(r, SkippedPair)]
+    _check_coverage(cameras, [c.pair for c in clouds], skipped, min_covered)
+    pairs = [c.pair for c in clouds]
     t1 = time.perf_counter()
     patch = int(match_options.get("patch", 15))
     spacing = int(match_options.get("spacing", DEFAULT_SPACING))
@@ -1241,7 +1284,9 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     counts[REASON_NAMES[OUTLIER]] = merged["outliers"]
     is_multi = reasons[keep] == MULTIVIEW
     stats = {
-        "views": len(cameras), "pairs": len(pairs),
+        "views": len(cameras), "pairs": len(pairs), "pairs_skipped": len(skipped),
+        "skipped": [{"pair": list(sp.pair), "views": [cameras[v].name for v in sp.pair],
+                     "reason": sp.reason} for sp in skipped],
         "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
         "fused": merged["fused"], "fusion_radius": merged["radius"],
         "points": int(len(merged["points"])),

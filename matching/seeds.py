@@ -23,8 +23,9 @@ selecting by w or q only buys precision by dropping points (on the vase, q >= 0.
 keeps 81 % of the points for 0.0371 -> 0.0364 px RMS); :mod:`matching.pair` uses the
 prediction instead to grow the patch where the precision is poor.
 
-Approximations.  A calibrated pair is rectified (``cv2.stereoRectify``, Bouguet's
-method) and ``cv2.StereoSGBM`` (Hirschmüller 2008) computes a coarse disparity
+Approximations.  A calibrated pair is rectified (:mod:`matching.rectify`: the
+baseline is the rectified x axis, Fusiello, Trucco and Verri 2000) and
+``cv2.StereoSGBM`` (Hirschmüller 2008) computes a coarse disparity
 map on the rectified images.  Its disparity range comes from the data: SIFT
 matches between the rectified images (ratio test, rows agreeing within 2 px)
 give the 1st-99th percentile disparity plus a margin.  A selected left pixel is
@@ -57,6 +58,13 @@ import cv2
 import numpy as np
 
 from matching.lsm import estimate_noise
+from matching.rectify import (  # noqa: F401 - rectification lives in matching.rectify
+    Rectification,
+    left_to_rectified,
+    rectified_to_original,
+    rectify,
+    rectify_images,
+)
 from matching.validate import TOL, check_shape
 
 #: Candidate spacing, px: one candidate per 3 x 3 cell.  Chosen for the density the
@@ -65,9 +73,6 @@ from matching.validate import TOL, check_shape
 #: neighbouring points then share most of their 15 px windows, so their errors are
 #: correlated (each σ is right; the independent samples are fewer than the points).
 DEFAULT_SPACING = 3
-
-#: cv2.undistortPoints iterates 5 times by default (1e-3 px errors at strong distortion).
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
 
 
 @dataclass(frozen=True)
@@ -427,111 +432,6 @@ def forstner(image, points, patch: int = 15) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------
 # rectification
 # --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Rectification:
-    """Bouguet rectification of a calibrated pair (``cv2.stereoRectify``).
-
-    Attributes
-    ----------
-    R1, R2 : (3, 3) float64
-        Rotations original camera -> rectified camera (left, right).
-    P1, P2 : (3, 4) float64
-        Rectified projection matrices (common K, ``P2[0, 3] = f * Tx``).
-    Q : (4, 4) float64
-        Disparity-to-depth matrix.
-    size : (int, int)
-        Rectified image (width, height), px.
-    maps_left, maps_right : tuple of (H, W) float32
-        ``cv2.remap`` maps rectified pixel -> original pixel.
-    """
-
-    R1: np.ndarray
-    R2: np.ndarray
-    P1: np.ndarray
-    P2: np.ndarray
-    Q: np.ndarray
-    size: tuple[int, int]
-    maps_left: tuple[np.ndarray, np.ndarray]
-    maps_right: tuple[np.ndarray, np.ndarray]
-
-
-def _dist(cam) -> np.ndarray:
-    return cam.dist if cam.dist.size else np.zeros(5)
-
-
-def rectify(rig, alpha: float = 1.0) -> Rectification:
-    """Rectify a :class:`matching.cameras.StereoRig` (left and right images of one size).
-
-    Parameters
-    ----------
-    rig : StereoRig
-    alpha : float
-        ``cv2.stereoRectify`` free scaling (0: only valid pixels, 1: all pixels;
-        default 1 keeps every source pixel).
-
-    Notes
-    -----
-    The principal points are left free (no ``CALIB_ZERO_DISPARITY``): for a
-    convergent rig (the vase pair converges by 14°) zero-disparity rectification
-    puts the object at disparities of 540-650 px in a 1024 px image, where SGBM has
-    no room to search; with free principal points they are -58..22 px.
-
-    Raises
-    ------
-    ValueError
-        When the baseline is zero (no stereo).
-    """
-    left, right = rig.left, rig.right
-    if rig.baseline < TOL.zero:
-        raise ValueError("rig has a zero baseline: the two cameras coincide")
-    size = left.size
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-        left.K, _dist(left), right.K, _dist(right), size, rig.R, rig.T.reshape(3, 1),
-        flags=0, alpha=alpha)
-    maps_l = cv2.initUndistortRectifyMap(left.K, _dist(left), R1, P1, size, cv2.CV_32FC1)
-    maps_r = cv2.initUndistortRectifyMap(right.K, _dist(right), R2, P2, size, cv2.CV_32FC1)
-    return Rectification(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q, size=size, maps_left=maps_l,
-                         maps_right=maps_r)
-
-
-def rectify_images(rect: Rectification, left, right, interpolation=cv2.INTER_CUBIC):
-    """Resample both images into the rectified frame (``cv2.remap``)."""
-    out = []
-    for img, maps in ((left, rect.maps_left), (right, rect.maps_right)):
-        out.append(cv2.remap(np.asarray(img, dtype=np.float32), maps[0], maps[1],
-                             interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0))
-    return out[0], out[1]
-
-
-def left_to_rectified(rect: Rectification, camera, points) -> np.ndarray:
-    """Original left pixels (N, 2) -> rectified left pixels (N, 2), exact (undistortPoints)."""
-    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
-    if len(points) == 0:
-        return points.copy()
-    out = cv2.undistortPoints(points.reshape(-1, 1, 2), camera.K, _dist(camera), R=rect.R1,
-                              P=rect.P1, criteria=_UNDISTORT_CRITERIA)
-    return out.reshape(-1, 2)
-
-
-def rectified_to_original(rect: Rectification, camera, points, which: str = "right"):
-    """Rectified pixels (N, 2) -> original (distorted) pixels (N, 2) of ``camera``, exact.
-
-    The rectified pixel's ray is rotated back by Rᵀ (R1 or R2) and projected with the
-    camera's K and distortion.
-    """
-    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
-    R, P = (rect.R2, rect.P2) if which == "right" else (rect.R1, rect.P1)
-    if len(points) == 0:
-        return points.copy()
-    k = P[:3, :3]
-    rays = np.column_stack([(points[:, 0] - k[0, 2]) / k[0, 0],
-                            (points[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(points))])
-    rays = rays @ R  # R^T ray, row-wise
-    out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.K,
-                               _dist(camera))
-    return out.reshape(-1, 2)
 
 
 # --------------------------------------------------------------------------------------
