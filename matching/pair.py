@@ -237,7 +237,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,
                max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
                eccentric: bool = False, grow: bool = True, sigma_factor: bool = False,
-               **lsm_options) -> PairMatches:
+               search_range: tuple[int, int] | None = None, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -308,6 +308,10 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         quadratic over 2.5 patches for most points, true of a wall (graffiti: k² 7.8)
         but not of a temple's facade at 640x480 (k² ~750: the depth structure, not the
         matching error, sets it).
+    search_range : (int, int), optional
+        SGBM's (min_disparity, num_disparities) of a rectified pair, from the geometry
+        (:func:`matching.search_range.pair_disparity_range`); default: from SIFT
+        matches.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -373,7 +377,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         def approximate(pts, reuse=None):
             if rectified:
                 return approximate_rectified(left, right, pts, block=sgbm_block, patch=patch,
-                                             reuse=reuse)
+                                             reuse=reuse, search_range=search_range)
             return approximate_calibrated(rig, left, right, pts, rect=rect, block=sgbm_block,
                                           patch=patch, reuse=reuse)
 

@@ -622,20 +622,23 @@ def disparity_valid_left(approx: Approximations, shape: tuple[int, int], rig=Non
 
 
 def approximate_rectified(left_rect, right_rect, points, block: int = 5,
-                          patch: int = 15, reuse: Approximations | None = None
-                          ) -> Approximations:
+                          patch: int = 15, reuse: Approximations | None = None,
+                          search_range: tuple[int, int] | None = None) -> Approximations:
     """Approximations for left points of an already rectified pair (rows correspond).
 
     ``patch``: LSM patch side; a point gets no approximation when SGBM has no disparity
     at any of its patch's corners, edge midpoints or centre.  ``reuse``: an earlier
     result for the same pair, whose disparity map is sampled instead of running SGBM
-    again.
+    again.  ``search_range``: SGBM's (min_disparity, num_disparities) when the geometry
+    gives it (:func:`matching.search_range.pair_disparity_range`); default: from SIFT
+    matches (:func:`disparity_range`).
     """
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
     if reuse is not None:
         disp, (dmin, count) = reuse.disparity, reuse.range
     else:
-        dmin, count = disparity_range(left_rect, right_rect)
+        dmin, count = (disparity_range(left_rect, right_rect) if search_range is None
+                       else (int(search_range[0]), int(search_range[1])))
         disp = sgbm_disparity(left_rect, right_rect, dmin, count, block)
     d = _disparity_over_patch(disp, _patch_probes(points, patch))
     x_right = np.column_stack([points[:, 0] - d, points[:, 1]])
