@@ -637,7 +637,19 @@ def shape_mesh(shape: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- texture
 
 
-@numba.njit(inline="always", fastmath=True, cache=True)
+#: The texture kernels' floating-point flags: only "no signed zeros".  Reassociation
+#: (fastmath's "reassoc") lets LLVM vectorise the 48-term float32 sum with the host's
+#: vector width (8 lanes with AVX2, 16 with AVX-512), and contraction ("contract") fuses
+#: multiply-adds where the host has FMA: the rendered grey levels then differ in the
+#: last float32 bits between CPUs, a few pixels round to another 8-bit level, and every
+#: test on a rendered scene sees other data on another machine (issue 12, item 9: the
+#: 24-view ring's lowest point moved 1.6 px on an AMD EPYC).  Without them the
+#: arithmetic is IEEE's on any x86-64 (texture evaluation ~1.8x slower: ~+1 s of the
+#: 24-view 320x240 ring's render).
+_EXACT = {"nsz"}
+
+
+@numba.njit(inline="always", fastmath=_EXACT, cache=True)
 def _sin_turns(u):  # pragma: no cover - compiled
     # sin 2πu: reduce to [-1/4, 1/4] turn, degree-9 Taylor polynomial (error < 4e-6, far
     # below a grey level); ~7x faster than libm's sin, which numba cannot vectorise here
@@ -654,7 +666,7 @@ def _sin_turns(u):  # pragma: no cover - compiled
     return sine if u >= 0 else -sine
 
 
-@numba.njit(inline="always", fastmath=True, cache=True)
+@numba.njit(inline="always", fastmath=_EXACT, cache=True)
 def _texture_sum(x, y, z, freq, phase):  # pragma: no cover - compiled
     total = np.float32(0.0)
     for k in range(freq.shape[0]):
@@ -662,13 +674,13 @@ def _texture_sum(x, y, z, freq, phase):  # pragma: no cover - compiled
     return total
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+@numba.njit(parallel=True, fastmath=_EXACT, cache=True)
 def _sinusoid_sum(points, freq, phase, out):  # pragma: no cover - compiled
     for i in numba.prange(points.shape[0]):
         out[i] = _texture_sum(points[i, 0], points[i, 1], points[i, 2], freq, phase)
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+@numba.njit(parallel=True, fastmath=_EXACT, cache=True)
 def _shade(origin, directions, t, ids, uv, corner, light, params, freq, phase,
            out):  # pragma: no cover - compiled
     """Radiance per ray; params = ambient, diffuse, background, albedo mid, half-range,
