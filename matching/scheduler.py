@@ -1,0 +1,84 @@
+"""Running independent view-pair tasks: threads of this process, or any ``map``.
+
+View pairs, and then their consistency checks, are independent tasks; in this process
+they run on one thread per core (the numba LSM kernels release the GIL and run
+single-threaded in each), or on any ``map_func`` (a Dask executor's).  A task carries a
+:class:`ViewRef` (a lazily loading image sequence and an index) instead of pixels, so an
+image is in memory only while a task uses it.  Results do not depend on the thread
+count: every kernel works per point.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ViewRef", "load_image", "thread_map", "default_workers"]
+
+
+@dataclass(frozen=True)
+class ViewRef:
+    """One view's image, read on use from a lazily loading image sequence.
+
+    Tasks carry this (the sequence names files; it pickles small) instead of the pixels,
+    so that an image is in memory only while a task uses it.
+    """
+
+    images: Sequence
+    index: int
+
+    def load(self) -> np.ndarray:
+        return np.asarray(self.images[self.index])
+
+
+def load_image(ref) -> np.ndarray:
+    return ref.load() if isinstance(ref, ViewRef) else ref
+
+
+def kernels_release_gil() -> bool:
+    """True when the LSM and second-order numba kernels are compiled with ``nogil=True``."""
+    from matching import lsm, second_order
+
+    kernels = [getattr(lsm, "_lsm_batch", None),
+               getattr(second_order, "_second_order_kernel", None)]
+    return all(getattr(k, "targetoptions", {}).get("nogil", False) for k in kernels)
+
+
+def thread_map(workers: int) -> Callable:
+    """``map(func, items)`` on ``workers`` threads of this process, results in order.
+
+    View pairs are independent and much of a pair's time is serial (SIFT, SGBM,
+    rectification, numpy), so two pairs at once keep two cores busy where one pair's
+    numba ``prange`` kernels alone leave them half idle.  When the kernels release the
+    GIL each thread runs them on one numba thread (``numba.set_num_threads`` is
+    per thread), else they keep numba's default and the other threads overlap them with
+    GIL-free OpenCV/numpy work.  Results do not depend on the thread count (every
+    kernel works per point).
+    """
+    def run(func, items):
+        items = list(items)
+        if workers <= 1 or len(items) < 2:
+            return [func(item) for item in items]
+        single = kernels_release_gil()
+
+        def call(item):
+            if single:
+                import numba
+
+                numba.set_num_threads(1)
+            return func(item)
+
+        with ThreadPoolExecutor(min(workers, len(items))) as pool:
+            return list(pool.map(call, items))
+    return run
+
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
