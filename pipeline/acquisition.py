@@ -10,17 +10,61 @@ pairs and checks mapped over a :mod:`pipeline.executor` executor.
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.errors import InputError
+
+log = logging.getLogger("photosurf")
+#: ``[acquire] masks``: where object masks come from (:func:`folder_masks`).
+MASK_MODES = ("auto", "folder", "none")
 
 #: Options of ``[acquire]`` (pipeline/defaults.toml) that matching.multiview takes.
 MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "max_iter",
               "shift_stop_px", "sigma0_factor", "min_correlation", "eccentric")
 
 
+def folder_masks(bases: list[Path], names: list[str], images, cameras,
+                 mode: str = "auto") -> tuple[list | None, str]:
+    """Object masks of a folder's images and where they came from.
+
+    ``mode`` ``"auto"``: ``BASE/masks/NAME.png`` (COLMAP's layout, 0 = ignore; the first
+    of ``bases``, the input folder and the images' folder, that has one) for the
+    images that have one, the automatic foreground of a uniform background
+    (:func:`matching.masks.foreground_mask`) for the others; ``"folder"``: mask files
+    only; ``"none"``: no masks.  Returns ``(masks or None, description)``.
+    """
+    from matching.masks import foreground_mask, mask_path, read_mask
+
+    if mode == "none":
+        return None, "none"
+    masks, files, automatic = [], 0, 0
+    for v, (name, cam) in enumerate(zip(names, cameras, strict=True)):
+        path = next((p for p in (mask_path(b, name) for b in bases) if p is not None), None)
+        if path is not None:
+            try:
+                masks.append(read_mask(path, cam.size))
+            except ValueError as exc:
+                raise InputError(str(exc)) from None
+            files += 1
+        elif mode == "auto":
+            mask = foreground_mask(images[v])
+            automatic += mask is not None
+            masks.append(mask)
+        else:
+            masks.append(None)
+    if not files and not automatic:
+        return None, "none (no mask files; no uniform background)" if mode == "auto" else "none"
+    parts = ([f"{files} from masks/"] if files else []) + (
+        [f"{automatic} automatic (uniform background)"] if automatic else [])
+    return masks, ", ".join(parts)
+
+
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
-                   check_views: int = 2, camera_model: str = "SIMPLE_RADIAL", **options):
+                   check_views: int = 2, camera_model: str = "SIMPLE_RADIAL",
+                   masks: str = "auto", roi=(), **options):
     """Image folder -> :class:`matching.multiview.MultiViewCloud` (plus what was loaded).
 
     Parameters
@@ -35,6 +79,11 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     check_views : int
     camera_model : str
         COLMAP camera model for SfM (only used without cameras).
+    masks : {"auto", "folder", "none"}
+        Object masks (:func:`folder_masks`): candidates only on them, the search volume
+        is their visual hull, points off them are dropped.
+    roi : sequence of 6 float, optional
+        Region of interest ``[x0, y0, z0, x1, y1, z1]`` in world units (empty: none).
     **options
         ``[acquire]`` options of pipeline/defaults.toml; the matching ones
         (:data:`MATCH_KEYS`) are passed on (``max_reprojection_px`` has no multi-view
@@ -45,23 +94,43 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     matching.multiview.MultiViewCloud
         With ``points`` (N, 3), ``colours`` (N, 3) uint8 and ``sigma`` (N,) in scene
         units; its ``stats`` gain ``camera_source``, ``unregistered``, ``ignored``,
-        ``sfm``, ``view_names``.
+        ``sfm``, ``view_names``, ``masks`` (where they came from), ``ring``
+        (:func:`matching.ring.fit_ring` of the cameras, ``as_dict``).
     """
     from matching.multiview import reconstruct_multiview
+    from matching.ring import fit_ring
     from pipeline.executor import LocalExecutor
     from pipeline.inputs import load_folder
 
+    if masks not in MASK_MODES:
+        raise InputError(f"masks {masks!r}: choose one of {', '.join(MASK_MODES)}")
+    box = None
+    if roi is not None and len(roi):
+        box = np.asarray(roi, dtype=np.float64).reshape(-1)
+        if box.shape != (6,) or not np.all(np.isfinite(box)) or not np.all(box[3:] > box[:3]):
+            raise InputError(f"roi {list(roi)!r}: give [x0, y0, z0, x1, y1, z1] with "
+                             "x1 > x0, y1 > y0, z1 > z0")
+        box = box.reshape(2, 3)
     loaded = load_folder(folder, cameras, camera_model=camera_model)
+    where = Path(loaded["images"].paths[0]).parent if getattr(
+        loaded["images"], "paths", None) else Path(folder)
+    object_masks, mask_source = folder_masks([Path(folder), where], loaded["names"],
+                                             loaded["images"],
+                                             loaded["cameras"], masks)
     match = {k: v for k, v in options.items() if k in MATCH_KEYS}
     map_func = None if executor is None or isinstance(executor, LocalExecutor) else executor.map
     try:
         cloud = reconstruct_multiview(loaded["images"], loaded["cameras"], map_func=map_func,
-                                      check_views=check_views, **match)
+                                      check_views=check_views, masks=object_masks, roi=box,
+                                      **match)
     except ValueError as exc:
         raise InputError(f"{folder}: {exc}") from None
     cloud.stats.update(camera_source=loaded["camera_source"],
                        unregistered=loaded["unregistered"], ignored=loaded["ignored"],
-                       sfm=loaded["sfm"], view_names=loaded["names"])
+                       sfm=loaded["sfm"], view_names=loaded["names"], masks=mask_source,
+                       ring=fit_ring(loaded["cameras"]).as_dict())
+    for skip in cloud.stats.get("skipped", []):
+        log.warning("acquire: pair %s skipped: %s", " - ".join(skip["views"]), skip["reason"])
     if len(cloud) == 0:
         raise InputError(f"{folder}: no point survived matching and the consistency checks "
                          f"({json.dumps(cloud.reason_counts)})")

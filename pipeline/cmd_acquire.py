@@ -49,6 +49,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep LSM windows centred near untextured regions (background "
                              "past a rim): those points are then dropped instead of "
                              "matched with the window moved onto the surface")
+    parser.add_argument("--masks", choices=("auto", "folder", "none"), default="auto",
+                        help="object masks: FOLDER/masks/NAME.png (0 = ignore, COLMAP's "
+                             "layout), else the automatic foreground of a uniform background "
+                             "(auto, default); mask files only (folder); none")
+    parser.add_argument("--roi", metavar="X0,Y0,Z0,X1,Y1,Z1", default=None,
+                        help="region of interest, a box in world units: points outside are "
+                             "dropped")
     parser.add_argument("--check-views", type=int, default=2,
                         help="further views each point is LSM-checked in (default 2)")
     parser.add_argument("--sfm-camera-model", default="SIMPLE_RADIAL",
@@ -97,15 +104,24 @@ def run(args: argparse.Namespace) -> int:
 
     for target in (out, out.with_suffix(".npz")):
         check_output(target, [args.folder, args.cameras])
+    roi = ()
+    if args.roi is not None:
+        try:
+            roi = [float(v) for v in args.roi.split(",")]
+        except ValueError:
+            raise InputError(f"--roi {args.roi}: give six numbers X0,Y0,Z0,X1,Y1,Z1") from None
     with get_executor(args.scheduler) as executor:
         cloud = acquire_folder(args.folder, args.cameras, executor=executor,
                                check_views=args.check_views,
                                camera_model=args.sfm_camera_model, spacing=args.spacing,
-                               patch=args.patch, eccentric=args.eccentric)
+                               patch=args.patch, eccentric=args.eccentric,
+                               masks=args.masks, roi=roi)
     write_outputs(out, cloud)
     if not getattr(args, "quiet", False):
         st = cloud.stats
         extra = (f"; SfM left out {', '.join(st['unregistered'])}" if st["unregistered"] else "")
+        if st.get("pairs_skipped"):
+            extra += f"; {st['pairs_skipped']} pair(s) skipped"
         print(f"{st['views']} views ({st['camera_source']}), {st['pairs']} pairs: "
               f"{len(cloud)} points (median sigma {float(np.median(cloud.sigma)):.3g}, "
               f"{st['fused']} fused, {cloud.reason_counts['outlier']} outliers removed; "

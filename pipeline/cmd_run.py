@@ -9,6 +9,7 @@ import sys
 from pipeline import config as config_mod
 from pipeline import progress
 from pipeline.engine import StageError, run_pipeline
+from pipeline.errors import InputError
 from pipeline.options import add_config_arguments
 from pipeline.plan import KINDS, STAGE_ORDER
 
@@ -18,7 +19,8 @@ EPILOG = """\
 INPUT kinds (detected, or forced with --kind):
   scene   a scene recipe .toml: rendered first into OUTDIR/scene, truth kept for the report
   stereo  LEFT RIGHT image files with --rig RIG.yml, or a folder with two images and a rig file
-  folder  a folder of images all around the object (multi-view)
+  folder  a folder of images all around the object (multi-view), cameras from
+          --cameras FILE, FOLDER/cameras.yml or FOLDER/sparse, else pycolmap SfM
   cloud   a point cloud .ply .xyz .csv .npz
 
 Stages: scene -> acquire -> sections -> curves -> stitch -> smooth -> export -> report.
@@ -41,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="OUTDIR", help="workspace folder")
     parser.add_argument("--kind", choices=KINDS, help="force the input kind")
     parser.add_argument("--rig", metavar="RIG.yml", help="stereo rig file (for LEFT RIGHT)")
+    parser.add_argument("--cameras", metavar="FILE",
+                        help="cameras of an image folder (as photosurf acquire --cameras: "
+                             "cameras.yml, COLMAP model, projection-matrix .txt); default "
+                             "FOLDER/cameras.yml or FOLDER/sparse, else pycolmap SfM")
     add_config_arguments(parser)
     parser.add_argument("--from", dest="start", choices=STAGE_ORDER, metavar="STAGE",
                         help=f"first stage to run ({', '.join(STAGE_ORDER)})")
@@ -75,7 +81,11 @@ def run(args: argparse.Namespace) -> int:
     scheduler = args.scheduler or config["executor"]["scheduler"]
     with get_executor(scheduler, config["executor"]["workers"]) as executor:
         try:
-            summary = run_pipeline(args.inputs, args.out, config, kind=args.kind, rig=args.rig,
+            if args.rig and args.cameras:
+                raise InputError("give --rig (stereo pair) or --cameras (image folder), "
+                                 "not both")
+            summary = run_pipeline(args.inputs, args.out, config, kind=args.kind,
+                                   rig=args.rig or args.cameras,
                                    start=args.start, stop=args.stop, force=args.force,
                                    executor=executor)
         except StageError as exc:  # the CLI prints the one-line error; JSON readers get it too

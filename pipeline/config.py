@@ -27,7 +27,7 @@ from pipeline.errors import InputError
 #: Keys that take a value of the default's type *or* one of these words (``axis`` also a
 #: vector ``[x, y, z]``): ``axis = "auto"``, ``smoothing = "auto"``, ``level = "auto"``.
 FLEXIBLE = {
-    "sections.axis": ("x", "y", "z", "auto"),
+    "sections.axis": ("x", "y", "z", "auto", "data"),
     "curves.smoothing": ("auto",),
     "smooth.level": ("auto", "adaptive"),
 }
@@ -35,6 +35,7 @@ FLEXIBLE = {
 #: Parameters that take one of a fixed set of words (lists: every element must be one).
 CHOICES = {
     "acquire.interpolation": ("bilinear", "bicubic", "spline"),
+    "acquire.masks": ("auto", "folder", "none"),
     "curves.parametrisation": ("uniform", "centripetal", "chordal"),
     "sections.projection": ("surface", "axis"),
     "export.formats": ("ply", "obj", "stl", "gltf", "glb", "step", "iges"),

@@ -14,6 +14,7 @@ which order, reading what, is :mod:`pipeline.plan`; running them is
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -22,11 +23,14 @@ from typing import TYPE_CHECKING
 from pipeline import artifacts, progress
 from pipeline.errors import InputError, StageSkipped
 from pipeline.inputs import folder_images, scene_source, stereo_inputs
+from pipeline.workspace import write_text
 
 if TYPE_CHECKING:
     from pipeline.engine import StageContext
 
 log = logging.getLogger("photosurf")
+#: The acquire stage's record of the cameras' ring (for sections.axis = "data").
+RING_FILE = "ring.json"
 
 
 # --------------------------------------------------------------------------- scene
@@ -56,7 +60,13 @@ def acquire(ctx: StageContext) -> dict:
         return _save_cloud(ctx, *_stereo_cloud(left, right, rig, ctx.params["acquire"]))
     folder = ctx.stage_path("scene") if ctx.kind == "scene" else ctx.inputs[0]
     cloud, info = _multiview_cloud(folder, ctx)
-    return {**_save_cloud(ctx, *_cloud_arrays(cloud)), **info}
+    out = _save_cloud(ctx, *_cloud_arrays(cloud))
+    # what the sections stage's axis "data" needs: the cameras' ring, and whether the
+    # frame is the user's (given cameras) or an arbitrary SfM one
+    ring = {**cloud.stats.get("ring", {}), "frame": "sfm" if info["cameras"] == "pycolmap SfM"
+            else "given"}
+    write_text(ctx.out / RING_FILE, json.dumps(ring, indent=1))
+    return {**out, **info}
 
 
 def _save_cloud(ctx: StageContext, points, colors=None, sigma=None) -> dict:
@@ -76,14 +86,22 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
     ``photosurf acquire``); view pairs on the executor."""
     from pipeline.acquisition import acquire_folder
 
-    cloud = acquire_folder(folder, executor=ctx.executor, **ctx.params["acquire"])
+    cameras = str(ctx.rig) if ctx.rig is not None and ctx.kind == "folder" else None
+    cloud = acquire_folder(folder, cameras, executor=ctx.executor, **ctx.params["acquire"])
     stats = cloud.stats
     if stats.get("unregistered"):
         log.warning("acquire: %d image(s) not registered by SfM: %s",
                     len(stats["unregistered"]), ", ".join(stats["unregistered"]))
     source = stats.get("camera_source")
+    skipped = stats.get("skipped", [])
     info = {"cameras": "pycolmap SfM" if source == "sfm" else Path(str(source)).name,
             "views": len(stats.get("view_names", [])), "pairs": len(cloud.pairs),
+            "pairs_skipped": len(skipped),
+            **({"skipped": "; ".join(f"{' - '.join(s['views'])}: {s['reason']}"
+                                     for s in skipped)} if skipped else {}),
+            "masks": stats.get("masks", "none"), "search_range": stats.get("search", ""),
+            "variance_factor": round(float(stats.get("variance_factor_median", 1.0)), 2),
+            "ring": bool(stats.get("ring", {}).get("is_ring", False)),
             **{f"reason_{k}": v for k, v in cloud.reason_counts.items()}}
     return cloud, info
 
@@ -95,7 +113,8 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
 
     rig = read_rig_for(rig_path)  # and pipeline.guards.check_rig: format, values, baseline
     options = dict(params)
-    options.pop("eccentric", None)  # image folders only (defaults.toml)
+    for key in ("eccentric", "masks", "roi"):  # image folders only (defaults.toml)
+        options.pop(key, None)
     max_reproj = options.pop("max_reprojection_px") or None
     result = reconstruct_pair(*read_pair(left, right, need_same_size=False), rig,
                               max_reprojection_px=max_reproj, **options)
@@ -130,10 +149,11 @@ def sections(ctx: StageContext) -> dict:
     p = ctx.params["sections"]
     points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
     check_cloud_shape(points, "acquire: the cloud")  # a line spans no surface
+    axis, axis_source = _section_axis(p["axis"], ctx.stage_path("acquire", RING_FILE))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
         sliced = rc.slice_cloud(
-            points, axis=p["axis"], sections=p["count"] or None, spacing=p["spacing"] or None,
+            points, axis=axis, sections=p["count"] or None, spacing=p["spacing"] or None,
             thickness=p["thickness"] or None, projection=p["projection"])
     kept = [s for s in sliced.sections if len(s) > 0]
     if len(kept) < 2:
@@ -145,9 +165,25 @@ def sections(ctx: StageContext) -> dict:
         log.warning("sections: %s", message)
     for message in sliced.notes:  # axis = "auto": the axis chosen and why
         log.info("sections: %s", message)
+    used = kept[0].frame[2]
     return {"sections": len(kept), "empty": len(sliced.sections) - len(kept),
             "spacing": sliced.spacing, "cap_points": len(sliced.cap_cloud),
+            "axis": [round(float(a), 6) for a in used], "axis_source": axis_source,
             "warnings": warned, "notes": list(sliced.notes)}
+
+
+def _section_axis(axis, ring_file: Path):
+    """The slicing axis and what it is: ``"data"`` is the cameras' ring normal when they
+    form a ring (:func:`matching.ring.fit_ring`), else the cloud's principal axis in an
+    SfM frame (whose z means nothing) and z in the user's own frame."""
+    if not (isinstance(axis, str) and axis == "data"):
+        return axis, "given" if not isinstance(axis, str) else f"sections.axis = {axis}"
+    ring = json.loads(ring_file.read_text()) if ring_file.is_file() else {}
+    if ring.get("is_ring"):
+        return ring["axis"], "ring normal of the cameras"
+    if ring.get("frame") == "sfm":
+        return "auto", "principal axis (SfM frame; cameras not a ring)"
+    return "z", "z (no camera ring)"
 
 
 def curves(ctx: StageContext) -> dict:
