@@ -261,7 +261,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             image_names: Sequence[str] | None = None, matcher: str = "auto",
             single_camera: bool | None = None, camera_model: str = "SIMPLE_RADIAL",
             known_distance: tuple[str, str, float] | None = None,
-            num_threads: int | None = None, seed: int = 0) -> SfmResult:
+            num_threads: int | None = None, seed: int = 0,
+            intrinsics=None) -> SfmResult:
     """Recover intrinsics and poses of the images in a folder with pycolmap on the CPU.
 
     Parameters
@@ -287,6 +288,21 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         Default: all cores.
     seed : int
         Random seed of the mapper (RANSAC), for repeatable runs.
+    intrinsics : (3, 3) array_like, optional
+        The images' known camera matrix K (OpenCV convention, one camera for all;
+        e.g. from a cameras file without poses): a PINHOLE camera with these values
+        (COLMAP's principal point is OpenCV's + 0.5), held fixed in every bundle
+        adjustment.  Unknown intrinsics trade against the poses on a narrow field of
+        view: the temple ring's principal point is 18 px off the image centre that
+        SIMPLE_RADIAL assumes, 0.7 degrees at f = 1520 px.
+
+    Notes
+    -----
+    When the mapper leaves images out, it is run once more with the registration
+    thresholds halved (at least 15 inlier correspondences for a new image instead of
+    30, 50 for the initial pair instead of 100): a small object against a plain
+    background gives neighbouring views few common features, and a ring whose views
+    are all registered closes its loop.
 
     Returns
     -------
@@ -339,6 +355,17 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         database.unlink(missing_ok=True)
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
+        if intrinsics is not None:
+            K = check_shape(intrinsics, "(3, 3)", "intrinsics", dtype=np.float64)
+            if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K))):
+                raise ValueError(f"intrinsics must have positive focal lengths, got {K.tolist()}")
+            reader.camera_model = "PINHOLE"
+            reader.camera_params = (f"{K[0, 0]!r},{K[1, 1]!r},{K[0, 2] + 0.5!r},"
+                                    f"{K[1, 2] + 0.5!r}")
+            single_camera = True
+            if len(sizes) > 1:
+                raise ValueError(f"{image_dir}: one intrinsics matrix but the images have "
+                                 f"{len(sizes)} sizes: {sorted(sizes)}")
         extraction = pycolmap.FeatureExtractionOptions()
         extraction.num_threads = threads
         mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
@@ -358,8 +385,23 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads = threads
         options.random_seed = seed
+        if intrinsics is not None:
+            options.ba_refine_focal_length = False
+            options.ba_refine_principal_point = False
+            options.ba_refine_extra_params = False
         reconstructions = pycolmap.incremental_mapping(database, image_dir, sparse,
                                                        options=options)
+        if reconstructions and max(r.num_reg_images() for r in reconstructions.values()) \
+                < len(names):
+            options.mapper.abs_pose_min_num_inliers = 15
+            options.mapper.init_min_num_inliers = 50
+            options.min_num_matches = 10
+            retry = work / "sparse_relaxed"
+            retry.mkdir(exist_ok=True)
+            again = pycolmap.incremental_mapping(database, image_dir, retry, options=options)
+            if again and (max(r.num_reg_images() for r in again.values())
+                          > max(r.num_reg_images() for r in reconstructions.values())):
+                reconstructions = again
     if not reconstructions:
         raise ValueError(f"{image_dir}: SfM registered no image ({len(names)} images; too "
                          "little texture or overlap for SIFT matches?)")
