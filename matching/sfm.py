@@ -360,8 +360,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K))):
                 raise ValueError(f"intrinsics must have positive focal lengths, got {K.tolist()}")
             reader.camera_model = "PINHOLE"
-            reader.camera_params = (f"{K[0, 0]!r},{K[1, 1]!r},{K[0, 2] + 0.5!r},"
-                                    f"{K[1, 2] + 0.5!r}")
+            reader.camera_params = (f"{float(K[0, 0])},{float(K[1, 1])},{float(K[0, 2]) + 0.5},"
+                                    f"{float(K[1, 2]) + 0.5}")
             single_camera = True
             if len(sizes) > 1:
                 raise ValueError(f"{image_dir}: one intrinsics matrix but the images have "
