@@ -64,7 +64,7 @@ def folder_masks(bases: list[Path], names: list[str], images, cameras,
 
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
                    check_views: int = 2, camera_model: str = "SIMPLE_RADIAL",
-                   masks: str = "auto", roi=(), **options):
+                   masks: str = "folder", roi=(), **options):
     """Image folder -> :class:`matching.multiview.MultiViewCloud` (plus what was loaded).
 
     Parameters
@@ -79,8 +79,9 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     check_views : int
     camera_model : str
         COLMAP camera model for SfM (only used without cameras).
-    masks : {"auto", "folder", "none"}
-        Object masks (:func:`folder_masks`): candidates only on them, the search volume
+    masks : {"folder", "auto", "none"}
+        Object masks (:func:`folder_masks`; default mask files only): candidates only on
+        them, the search volume
         is their visual hull, points off them are dropped.
     roi : sequence of 6 float, optional
         Region of interest ``[x0, y0, z0, x1, y1, z1]`` in world units (empty: none).

@@ -49,10 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep LSM windows centred near untextured regions (background "
                              "past a rim): those points are then dropped instead of "
                              "matched with the window moved onto the surface")
-    parser.add_argument("--masks", choices=("auto", "folder", "none"), default="auto",
+    parser.add_argument("--masks", choices=("auto", "folder", "none"), default="folder",
                         help="object masks: FOLDER/masks/NAME.png (0 = ignore, COLMAP's "
-                             "layout), else the automatic foreground of a uniform background "
-                             "(auto, default); mask files only (folder); none")
+                             "layout; folder, default); those, else the automatic foreground "
+                             "of a uniform dark or light background (auto); none")
     parser.add_argument("--roi", metavar="X0,Y0,Z0,X1,Y1,Z1", default=None,
                         help="region of interest, a box in world units: points outside are "
                              "dropped")
