@@ -44,8 +44,9 @@ $(STAMP): pyproject.toml
 # numba kernels compiled once into their on-disk cache (pipeline/warmup.py says why);
 # redone when the kernels' sources change
 WARM   := $(VENV)/.photosurf-kernels
-$(WARM): $(STAMP) matching/lsm.py matching/second_order.py matching/multiview.py pipeline/scenes.py \
-         surface/catmull_rom.py surface/_loop_patches.py surface/bezier.py
+# (every module holding a numba kernel: a new one is followed without editing this list)
+KERNELS := $(shell grep -l numba matching/*.py surface/*.py pipeline/scenes.py 2>/dev/null)
+$(WARM): $(STAMP) $(KERNELS)
 	$(PY) -m pipeline.warmup
 	@touch $(WARM)
 
