@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         handler.addFilter(_escape_record)
     _quiet_opencv(args.verbose)
     try:
-        with _signals_unwind():
+        with _signals_unwind(), _escaped_stdout():
             status = args._module.run(args)
     except USER_ERRORS as exc:
         if args.verbose:
@@ -169,6 +169,31 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 128 + int(signum)
     return int(status or 0)
+
+
+class _EscapingStream:
+    """A text stream whose writes keep their line breaks but escape every other control
+    character (a file name holding ``\x1b[2J`` in a summary line cannot drive the terminal)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        self._stream.write("\n".join(escape(line) for line in text.split("\n")))
+        return len(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _escaped_stdout():
+    saved = sys.stdout
+    sys.stdout = _EscapingStream(saved)
+    try:
+        yield
+    finally:
+        sys.stdout = saved
 
 
 def _escape_record(record: logging.LogRecord) -> bool:

@@ -607,3 +607,12 @@ def test_batch_sums_failures_in_one_line(files, tmp_path, capfd):
     report = json.loads((tmp_path / "o" / "batch.json").read_text())
     assert [o["status"] for o in report["objects"]] == ["failed"] * 3
     assert "\n" not in line
+
+
+def test_summary_lines_on_stdout_are_escaped(files, tmp_path, capfd):
+    out = tmp_path / "evil\x1b[2J.ply"
+    capfd.readouterr()
+    assert call_main(["sections", files["cloud"], "--out", out]) == 0
+    printed = capfd.readouterr().out
+    assert "\x1b" not in printed and "evil\\x1b[2J.ply" in printed
+    assert out.is_file()  # the file itself keeps its real name
