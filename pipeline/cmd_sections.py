@@ -128,6 +128,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
     vertices, triangles = result.vertices, result.triangles
+    if len(triangles) == 0:
+        raise InputError(f"{args.cloud}: no surface: no section could be stitched "
+                         f"({'; '.join(result.messages) or 'no loops'})")
     smooth = None
     if args.smooth:
         if not result.closed:

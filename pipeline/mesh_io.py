@@ -289,6 +289,8 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndar
                          f"(choose one of {', '.join(MESH_SUFFIXES)})")
     vertices = np.asarray(vertices, dtype=np.float64)
     triangles = np.asarray(triangles, dtype=np.int64)
+    if len(triangles) == 0:  # an empty mesh is no output (open3d's writer refused it too)
+        raise InputError(f"{path}: no triangles to write")
     if normals is None and compute_normals and suffix not in (".stl", ".off"):
         normals = _area_normals(vertices, triangles)
     with atomic_file(path) as tmp:
