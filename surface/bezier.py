@@ -489,6 +489,21 @@ def _edge_ids(triangles: np.ndarray):
     return edge_id.reshape(-1, 3), len(unique), start.reshape(-1, 3) < end.reshape(-1, 3)
 
 
+
+def _patches_and_domain(control_points, triangles, caller: str, why: str = ""):
+    """``(cp (P, 28, 3), triangles (P, 3) int64)`` of a :class:`BezierSurface` or of
+    control points plus their domain triangles, checked (the tessellators' entrance)."""
+    if isinstance(control_points, BezierSurface):
+        triangles = control_points.domain_mesh[1] if triangles is None else triangles
+        control_points = control_points.control_points
+    cp = _check_control_points(control_points)
+    if triangles is None:
+        raise ValueError(f"{caller} needs the domain triangles (P, 3) {why}".rstrip())
+    tris = check_shape(triangles, "(P, 3)", "triangles", dtype=np.int64)
+    if len(tris) != len(cp):
+        raise ValueError(f"triangles has {len(tris)} rows but control_points {len(cp)} patches")
+    return cp, tris
+
 def tessellate(control_points, level: int, triangles=None):
     """Uniform, welded triangulation of all patches.
 
@@ -514,15 +529,8 @@ def tessellate(control_points, level: int, triangles=None):
     normals : (V, 3) float64
         Exact unit surface normals from the derivative nets.
     """
-    if isinstance(control_points, BezierSurface):
-        triangles = control_points.domain_mesh[1] if triangles is None else triangles
-        control_points = control_points.control_points
-    cp = _check_control_points(control_points)
-    if triangles is None:
-        raise ValueError("tessellate needs the domain triangles (P, 3) to weld patch edges")
-    tris = check_shape(triangles, "(P, 3)", "triangles", dtype=np.int64)
-    if len(tris) != len(cp):
-        raise ValueError(f"triangles has {len(tris)} rows but control_points {len(cp)} patches")
+    cp, tris = _patches_and_domain(control_points, triangles, "tessellate",
+                                   "to weld patch edges")
     level = int(level)
     if not 0 <= level <= 10:
         raise ValueError(f"level must be in 0..10, got {level}")
@@ -1148,15 +1156,7 @@ def tessellate_adaptive(control_points, tolerance: float, triangles=None,
     vertices (V, 3), triangles (F, 3), normals (V, 3)
         As :func:`tessellate`.
     """
-    if isinstance(control_points, BezierSurface):
-        triangles = control_points.domain_mesh[1] if triangles is None else triangles
-        control_points = control_points.control_points
-    cp = _check_control_points(control_points)
-    if triangles is None:
-        raise ValueError("tessellate_adaptive needs the domain triangles (P, 3)")
-    tris = check_shape(triangles, "(P, 3)", "triangles", dtype=np.int64)
-    if len(tris) != len(cp):
-        raise ValueError(f"triangles has {len(tris)} rows but control_points {len(cp)} patches")
+    cp, tris = _patches_and_domain(control_points, triangles, "tessellate_adaptive")
     segments = adaptive_segments(cp, tolerance, max_segments)
     edge_id, n_edges, forward = _edge_ids(tris)
     edge_cuts = np.zeros(n_edges, dtype=np.int64)
