@@ -423,8 +423,9 @@ def _refuse_open_arcs(loops: list) -> None:
     if 2 * open_count > len(first):
         raise ValueError(
             f"{open_count} of {len(first)} sections are open arcs, not closed contours: "
-            "the points do not go all round the object (a single stereo pair sees one "
-            "side); the section method needs views all round it")
+            "their points leave gaps wider than the link distance (parts of the object "
+            "unseen -- one stereo pair sees one side -- or too sparse on thin parts); the "
+            "section method needs closed contours")
 
 
 def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[str]]:
