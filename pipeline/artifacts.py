@@ -18,7 +18,7 @@ file                        arrays (shapes; lengths in scene units)
 ``curves/curves.npz``       ``points`` (Q,3) of the resampled closed rings, ``offsets``
                             (R+1,), ``section`` (R,), ``loop`` (R,), ``heights`` (R,),
                             ``axis`` (3,), ``frame`` (3,3), ``noise`` () the section
-                            points' sigma (:func:`surface.stitch.section_noise`); R rings,
+                            points' sigma (:func:`surface.reconstruct.section_noise`); R rings,
                             a section may hold several loops
 ``stitch/mesh.ply``         the stitched mesh (:func:`pipeline.mesh_io.write_mesh`);
 ``stitch/stitch.json``      its notes (closed, messages, open interfaces, flips ...)

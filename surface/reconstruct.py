@@ -834,4 +834,3 @@ def largest_perimeter(loops_per_section) -> float:
 
 
 #: Former private name, used by ``pipeline.stages`` (kept as an alias).
-_largest_perimeter = largest_perimeter

@@ -1263,20 +1263,3 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         graph=graph,
         problems=tuple(problems),
     )
-
-
-# --------------------------------------------------------------------------- moved names
-#: The cloud-to-surface orchestration lives in :mod:`surface.reconstruct`; its
-#: names stay reachable here for callers written before the move.
-_MOVED = ("surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
-          "_largest_perimeter", "SlicedCloud", "slice_cloud", "organise_sections",
-          "ring_count", "section_rings", "min_loop_points", "section_noise",
-          "NORMAL_NEIGHBOURS", "MIN_WALL_SINE", "CAP_INSET", "SPARSE_TAIL")
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        import surface.reconstruct
-
-        return getattr(surface.reconstruct, name)
-    raise AttributeError(f"module 'surface.stitch' has no attribute {name!r}")

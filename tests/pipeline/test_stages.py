@@ -112,7 +112,7 @@ def test_out_of_range_parameters_fail_before_the_workspace(vase, tmp_path, capfd
 
 
 def test_curves_store_the_noise_and_stitch_adds_support_rings_at_the_rims(vase, tmp_path):
-    """curves.npz carries the section points' sigma (surface.stitch.section_noise: the
+    """curves.npz carries the section points' sigma (surface.reconstruct.section_noise: the
     robust spread across the curve, ~ the cloud's sigma = 0.002 per coordinate, between
     0.8 and 1.5 of it with the local-quadratic misfit of 6000 points); the stitch stage
     adds support rings at the two 90° rims and nowhere else, and not with support off."""
