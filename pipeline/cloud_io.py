@@ -201,7 +201,14 @@ def _finite(points: np.ndarray, path: Path) -> np.ndarray:
 
 def read_text(path: str | os.PathLike) -> Cloud:
     """Read ``x y z [extra ...]`` rows (whitespace or commas; ``#`` comments; header ok)."""
+    from pipeline import limits
+    from pipeline.guards import count_occurrences
+
     path = Path(path)
+    # its lines bound its rows: costed before a row is parsed (bounded memory, early stop)
+    lines = count_occurrences(path, {"line": (b"\n",)}, limits.LIMITS["file.elements"].maximum,
+                              start=b"")["line"]
+    limits.check("file.elements", lines, where=f"{path}: line count {lines}")
     rows = []
     with open(path, encoding="utf-8", errors="replace") as fh:
         for number, line in enumerate(fh, 1):
@@ -227,13 +234,45 @@ def read_text(path: str | os.PathLike) -> Cloud:
     return Cloud(_finite(data[:, :3], path), extra=data[:, 3:] if width > 3 else None)
 
 
+def _check_npz_shapes(path: Path) -> None:
+    """The shapes in the ``.npy`` headers of ``points`` (and ``colours``, ``sigma``) before
+    any array is read: an archive of a few kB can claim 10^12 rows (zeros compress well)."""
+    import zipfile
+
+    from pipeline import limits
+
+    try:
+        with open(path, "rb") as fh, zipfile.ZipFile(fh) as archive:
+            shapes = {}
+            for name in ("points", "colours", "sigma"):
+                if f"{name}.npy" not in archive.namelist():
+                    continue
+                with archive.open(f"{name}.npy") as member:
+                    version = np.lib.format.read_magic(member)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shapes[name] = read_header(member)[0]
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, TypeError):
+        return  # np.load says what is wrong with the file
+    points = shapes.get("points")
+    if points is None:
+        return
+    rows = points[0] if points else 1
+    limits.check("file.elements", rows, where=f"{path}: points row count {rows}")
+    for name, shape in shapes.items():
+        if int(np.prod(shape, dtype=np.float64)) > 3 * max(rows, 1):
+            raise InputError(f"{path}: '{name}' has shape {shape}, expected ({rows}, 3) or "
+                             f"({rows},) like the points")
+
+
 def read_npz(path: str | os.PathLike) -> Cloud:
     """Read ``points`` (and ``colours``, ``sigma`` if present) from an ``.npz``."""
     import zipfile
 
     path = Path(path)
+    _check_npz_shapes(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
             if "points" not in data:
                 raise InputError(f"{path}: no 'points' array (has {sorted(data.files)})")
             arrays = {k: data[k] for k in ("points", "colours", "sigma") if k in data}

@@ -14,7 +14,6 @@ import sys
 
 from pipeline import config as config_mod
 from pipeline import progress
-from pipeline.batch import read_manifest, run_object
 from pipeline.options import add_config_arguments
 from pipeline.plan import STAGE_ORDER
 
@@ -35,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pipeline.batch import read_manifest, run_object
     from pipeline.executor import get_executor
     from pipeline.workspace import Workspace, write_text
 

@@ -8,11 +8,6 @@ import logging
 import math
 from pathlib import Path
 
-import cv2
-
-from matching.calibrate import parse_pattern, stereo_calibrate
-from matching.cameras import read_rig, write_rig
-from pipeline.atomic import atomic_file
 from pipeline.errors import InputError
 
 HELP = "calibrate a stereo rig from chessboard image pairs (writes a rig file for --rig)"
@@ -62,14 +57,19 @@ def _expand(pattern: str, side: str) -> list[Path]:
 
 
 def _read_gray(path: Path):
+    import cv2
+
     from pipeline.guards import read_image
 
     return read_image(path, cv2.IMREAD_GRAYSCALE)  # regular file, format, size limit
 
 
 def run(args: argparse.Namespace) -> int:
+    # OpenCV and the calibration code are imported after the checks: a refusal costs
+    # the interpreter's start-up only (benchmarks/limits.py)
+    from matching.calibrate import parse_pattern
     from pipeline import limits
-    from pipeline.guards import check_output
+    from pipeline.guards import check_image_file, check_output
 
     if not (math.isfinite(args.square) and args.square > 0):
         raise InputError(f"--square must be positive, got {args.square}")
@@ -92,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
         raise InputError(f"--out {out}: must end in .yml, .yaml, .xml or .json")
     check_output(out, [*lefts, *rights])
+    for path in (*lefts, *rights):  # every header before any image is decoded
+        check_image_file(path)
     left_images = [_read_gray(p) for p in lefts]
     right_images = [_read_gray(p) for p in rights]
     names = [f"{a.name}/{b.name}" for a, b in zip(lefts, rights, strict=True)]
@@ -99,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
     if len(sizes) != 1:
         raise InputError(f"calibration images have different sizes: "
                          f"{sorted((w, h) for h, w in sizes)}")
+    from matching.calibrate import stereo_calibrate
+    from matching.cameras import read_rig, write_rig
+    from pipeline.atomic import atomic_file
+
     try:
         result = stereo_calibrate(left_images, right_images, pattern, args.square,
                                   fix_k3=not args.fit_k3, names=names)

@@ -45,7 +45,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from matching.pair import match_pair
     from pipeline.atomic import output_dir_state
     from pipeline.guards import check_output
 
@@ -64,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
     rig = None if args.rectified else read_rig_for(args.rig, args.left)
     if rig is not None:
         check_rig_size(rig, (left, right), (args.left, args.right))
+    # the matcher (numba, scipy: ~0.6 s of imports) only after every check of the inputs
+    from matching.pair import match_pair
+
     start = time.perf_counter()
     matches = match_pair(left, right, rig, rectified=args.rectified, **options)
     seconds = time.perf_counter() - start

@@ -61,8 +61,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.mesh_io import read_mesh_with_normals, weld_vertices
-    from pipeline.render import render_mesh, write_png
-    from surface.metrics import is_watertight
 
     out = Path(args.out)
     if out.suffix.lower() != ".png":
@@ -87,8 +85,13 @@ def run(args: argparse.Namespace) -> int:
             tv, tt = weld_vertices(tv, tt)
         truth = (tv, tt)
         if args.error_range is not None:
+            from surface.metrics import is_watertight
+
             d = float(args.error_range)
             error_range = (-d, d) if is_watertight(tt) else (0.0, d)
+    # the renderer (open3d's ray caster) only after both meshes passed every check
+    from pipeline.render import render_mesh, write_png
+
     image = render_mesh(vertices, triangles, views=args.views, size=args.size, truth=truth,
                         normals=normals, error_range=error_range, smooth=not args.flat)
     write_png(out, image)

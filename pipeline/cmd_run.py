@@ -8,7 +8,6 @@ import sys
 
 from pipeline import config as config_mod
 from pipeline import progress
-from pipeline.engine import StageError, run_pipeline
 from pipeline.errors import InputError
 from pipeline.options import add_config_arguments
 from pipeline.plan import KINDS, STAGE_ORDER
@@ -74,6 +73,7 @@ def failure_summary(outdir: str, error: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pipeline.engine import StageError, run_pipeline
     from pipeline.executor import get_executor
 
     progress.set_quiet(args.quiet or args.json)

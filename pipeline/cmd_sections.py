@@ -86,7 +86,6 @@ def read_points(path: str | Path) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.mesh_io import MESH_SUFFIXES, write_mesh
-    from surface.reconstruct import surface_from_points
 
     out = Path(args.out)
     if args.level is not None and not args.smooth:
@@ -121,6 +120,9 @@ def run(args: argparse.Namespace) -> int:
         bad = int(np.count_nonzero(~np.all(np.isfinite(points), axis=1)))
         raise InputError(f"{args.cloud}: {bad} points have NaN/inf coordinates")
     check_cloud_shape(points, str(args.cloud))
+    # the surface code (numba, scipy: ~0.5 s of imports) only after every check
+    from surface.reconstruct import surface_from_points
+
     start = time.perf_counter()
     try:
         result = surface_from_points(points, axis=axis, sections=args.sections, n=args.n,

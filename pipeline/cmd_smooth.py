@@ -44,15 +44,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.guards import check_output
-    from pipeline.mesh_io import read_mesh_with_normals, weld_vertices
-    from pipeline.smoothing import EDGE_SAMPLES, smooth_to_files
+    from pipeline import limits
+    from pipeline.guards import check_output, regular_file
+    from pipeline.mesh_io import check_header_counts, read_mesh_with_normals, weld_vertices
+    from pipeline.smoothing import EDGE_SAMPLES, default_level, smooth_to_files
 
     mesh_path = Path(args.mesh)
     if Path(args.out).suffix.lower() == ".npz":
         raise InputError(f"{args.out}: the control net takes the .npz name; choose a mesh format")
     for target in (args.out, Path(args.out).with_suffix(".npz")):
         check_output(target, [mesh_path])
+    # the tessellation's size from the file's face count, before open3d or the Bezier code
+    # is loaded (each face is at least one triangle; smooth_mesh checks the exact count)
+    faces = check_header_counts(regular_file(mesh_path, "mesh file")).get("faces")
+    level = default_level() if args.level is None else args.level
+    if not 0 <= level <= 8:
+        raise InputError(f"--level must be in 0..8, got {level}")
+    if faces:
+        limits.check("smooth.triangles", 4 * faces * 4 ** level,
+                     where=f"level {level} on {faces} control triangles ({mesh_path})")
     vertices, triangles, _ = read_mesh_with_normals(mesh_path)
     if mesh_path.suffix.lower() == ".stl":
         vertices, triangles = weld_vertices(vertices, triangles)

@@ -36,8 +36,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from matching.pair import PAIR_STATUS_NAMES, reconstruct_pair
-
     out = Path(args.out)
     if out.suffix.lower() != ".ply":
         raise InputError(f"{out}: --out must end in .ply")
@@ -52,6 +50,9 @@ def run(args: argparse.Namespace) -> int:
     rig = read_rig_for(args.rig, args.left)
     check_rig_size(rig, (left, right), (args.left, args.right))
     options.pop("epipolar")
+    # the matcher (numba, scipy: ~0.6 s of imports) only after every check of the inputs
+    from matching.pair import PAIR_STATUS_NAMES, reconstruct_pair
+
     rec = reconstruct_pair(left, right, rig, epipolar=args.epipolar,
                            max_reprojection_px=args.max_reprojection, **options)
     check_some_matched(rec.matches, args.left)

@@ -43,18 +43,37 @@ def parse_override(text: str) -> tuple[str, object]:
     return key, parse_value(raw, f"--set {key}")
 
 
+def _precheck(path: str, overrides: dict) -> None:
+    """The recipe's sizes (:func:`pipeline.limits.check_recipe`) from its raw TOML plus the
+    ``--set`` values, before the scene code (numba, scipy, open3d: ~0.7 s of imports) is
+    loaded: an oversized request is refused at the cost of the interpreter's start-up."""
+    from pipeline import limits
+    from pipeline.guards import load_toml
+
+    raw = load_toml(path, "recipe file")  # regular file, bounded size and nesting
+    for key, value in overrides.items():
+        node, parts = raw, key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {}) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node[parts[-1]] = value  # a key that is no table is the validation's to report
+    limits.check_recipe(raw, path)
+
+
 def run(args: argparse.Namespace) -> int:
     from pipeline import progress
-    from pipeline.scenes import DEFAULT_RECIPE, load_recipe, render_scene
-
-    progress.set_quiet(args.quiet)
-    if args.recipe is None:
-        args.recipe = str(DEFAULT_RECIPE)
     from pipeline.atomic import output_dir_state
     from pipeline.guards import check_output, regular_file
 
+    progress.set_quiet(args.quiet)
     overrides = dict(parse_override(text) for text in args.overrides)
-    regular_file(args.recipe, "recipe file")
+    if args.recipe is not None:
+        regular_file(args.recipe, "recipe file")
+        _precheck(args.recipe, overrides)
+    from pipeline.scenes import DEFAULT_RECIPE, load_recipe, render_scene
+
+    if args.recipe is None:
+        args.recipe = str(DEFAULT_RECIPE)
     recipe = load_recipe(args.recipe, overrides=overrides)
     mesh = recipe["shape"].get("path")
     check_output(args.out, [args.recipe, mesh], folder=True)

@@ -660,7 +660,9 @@ def read_control_net(path: str | os.PathLike) -> ControlNet:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such control-net file")
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        # our own handle: closed even when numpy fails half-way (else the raised
+        # error's traceback keeps numpy's open file alive: a ResourceWarning later)
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as npz:
             arrays = {name: npz[name] for name in npz.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: not a readable .npz ({exc or type(exc).__name__})") from exc

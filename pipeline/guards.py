@@ -118,6 +118,46 @@ def read_bytes(path: str | os.PathLike, what: str = "file", limit: int | None = 
     return path.read_bytes()
 
 
+#: A text file of elements (mesh or cloud lines) has one at least every this many bytes
+#: (a long comment aside); past its first 64 MB a file with fewer is not what it says.
+SCAN_SPARSE_BYTES = 4096
+
+
+def count_occurrences(path: str | os.PathLike, patterns: dict[str, tuple[bytes, ...]],
+                      limit: float, start: bytes = b"\n") -> dict[str, int]:
+    """How often each element's ``patterns`` occur in a file, read in 16 MB chunks.
+
+    Memory stays bounded whatever the file; the scan stops once a count passes ``limit``
+    (a hostile file is not read to its end), and a file with fewer than one element per
+    :data:`SCAN_SPARSE_BYTES` past its first 64 MB is refused (zeros, another format: it
+    would be scanned, then parsed, for nothing).
+
+    Parameters
+    ----------
+    patterns : dict
+        Element name -> byte strings counted for it (``b"\\nv "`` counts OBJ vertex lines).
+    start : bytes
+        Virtual text before the file (a newline: a line at the very start counts too).
+    """
+    counts = dict.fromkeys(patterns, 0)
+    overlap = max(len(p) for ps in patterns.values() for p in ps) - 1
+    tail, scanned = start, 0
+    with open(regular_file(path), "rb") as fh:
+        while chunk := fh.read(16 << 20):
+            data = tail + chunk
+            scanned += len(chunk)
+            for name, ps in patterns.items():
+                counts[name] += sum(data.count(p) for p in ps)
+            if max(counts.values()) > limit:
+                break
+            if scanned >= 64 << 20 and sum(counts.values()) * SCAN_SPARSE_BYTES < scanned:
+                raise InputError(f"{path}: {sum(counts.values())} element lines in its first "
+                                 f"{scanned >> 20} MB: not a text {path.suffix or 'data'} file "
+                                 "of points or faces")
+            tail = data[len(data) - overlap:] if overlap else b""
+    return counts
+
+
 #: A TOML file (config, recipe, batch manifest) larger than this is refused unread.
 MAX_TOML_BYTES = 16 << 20
 

@@ -82,9 +82,14 @@ def read_pair(left: str | os.PathLike, right: str | os.PathLike,
     One image twice (the same file, or identical textured pixels) is refused: a pair
     of one view has a zero baseline.
     """
+    from pipeline.guards import check_image_file
+
     if os.path.realpath(left) == os.path.realpath(right):
         raise InputError(f"{right}: is the left image {left} again; a stereo pair needs two "
                          "views (zero baseline)")
+    for path in (left, right):  # both headers (size limit) before either image is decoded
+        if Path(path).exists() and not Path(path).is_dir():
+            check_image_file(path)
     images = read_image(left), read_image(right)
     if images[0].shape == images[1].shape and np.array_equal(images[0], images[1]) and \
             images[0].min() != images[0].max():  # (a blank pair: the matcher says why)

@@ -37,7 +37,9 @@ mesh.triangles         5e7          stitched mesh: about 3 x sections x n
 smooth.triangles       5e7          tessellation: 4 F x 4^level
 iterations             1000         --max-iter / acquire.max_iter
 workers                64           local-cluster:N / executor.workers
-file.elements          1e8          vertex or face count in a PLY/OFF header
+file.elements          1e8          vertices, faces or rows a mesh/cloud file claims:
+                                    PLY/OFF/STL header, glTF accessors, OBJ/ASCII-STL
+                                    /XYZ lines counted, NPZ array header
 calibrate.corners      1e4          --pattern COLSxROWS inner corners
 =====================  ===========  ============================================
 """
@@ -45,6 +47,7 @@ calibrate.corners      1e4          --pattern COLSxROWS inner corners
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from pipeline.errors import InputError
@@ -183,24 +186,53 @@ def check_positive(option: str, value: int, key: str, minimum: int = 1) -> None:
     check(key, value, where=option)
 
 
-def check_recipe(recipe: dict, source: str) -> None:
-    """The sizes of a (partly) validated scene recipe: views, pixels, rays, triangles,
-    texture components, supersampling -- before any array is made."""
+#: The defaults of the recipe fields the sizes depend on (``pipeline.scenes``'
+#: ``validate_recipe`` fills the same; ``tests/pipeline/test_hostile.py`` checks they agree),
+#: so that a raw recipe is costed as the validated one will be.
+RECIPE_DEFAULTS = {"render.supersample": 3, "cameras.n": 8}
+
+
+def _whole(table, key: str, default: int | None = None) -> int | None:
+    """``table[key]`` when it is a whole number, ``default`` when absent, else ``None``
+    (a value of the wrong type is the validation's to report, not a size)."""
+    if not isinstance(table, Mapping) or key not in table:
+        return default
+    value = table[key]
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def check_recipe(recipe: Mapping, source: str) -> None:
+    """The sizes of a scene recipe -- views, pixels, rays, triangles, texture components,
+    supersampling -- before any array is made.
+
+    ``recipe`` may be the raw TOML (``photosurf synth`` costs it before the scene code
+    is even imported) or the validated one (``pipeline.scenes.validate_recipe``):
+    fields that are absent take :data:`RECIPE_DEFAULTS`, fields that are not whole
+    numbers are left to the validation.
+    """
     cams = recipe.get("cameras")
-    render = recipe.get("render", {})
-    supersample = int(render.get("supersample", 1))
-    check("render.supersample", supersample, where=f"{source}: render.supersample")
-    if cams:
-        views = 2 if cams["layout"] == "stereo" else \
-            cams["n"] + cams.get("second_ring", {}).get("n", 0)
-        check("synth.views", views, where=f"{source}: cameras.n (+ second_ring.n)")
-        pixels = cams["width"] * cams["height"] * supersample ** 2
-        check("synth.pixels", pixels,
-              where=f"{source}: cameras.width x cameras.height x render.supersample^2")
-        check("synth.rays", pixels * views, where=f"{source}: views x pixels per view")
-    shape = recipe.get("shape", {})
-    if "triangles" in shape:
-        check("synth.triangles", shape["triangles"], where=f"{source}: shape.triangles")
-    texture = recipe.get("texture", {})
-    if "components" in texture:
-        check("texture.components", texture["components"], where=f"{source}: texture.components")
+    render = recipe.get("render")
+    supersample = _whole(render, "supersample", RECIPE_DEFAULTS["render.supersample"])
+    if supersample is not None:
+        check("render.supersample", supersample, where=f"{source}: render.supersample")
+    if isinstance(cams, Mapping):
+        ring2 = cams.get("second_ring")
+        views = 2 if cams.get("layout") == "stereo" else _whole(
+            cams, "n", RECIPE_DEFAULTS["cameras.n"])
+        extra = _whole(ring2, "n", 0) if cams.get("layout") != "stereo" else 0
+        if views is not None and extra is not None:
+            views += extra
+            check("synth.views", views, where=f"{source}: cameras.n (+ second_ring.n)")
+        width, height = _whole(cams, "width"), _whole(cams, "height")
+        if width is not None and height is not None and supersample is not None:
+            pixels = width * height * supersample ** 2
+            check("synth.pixels", pixels,
+                  where=f"{source}: cameras.width x cameras.height x render.supersample^2")
+            if views is not None and extra is not None:
+                check("synth.rays", pixels * views, where=f"{source}: views x pixels per view")
+    triangles = _whole(recipe.get("shape"), "triangles")
+    if triangles is not None:
+        check("synth.triangles", triangles, where=f"{source}: shape.triangles")
+    components = _whole(recipe.get("texture"), "components")
+    if components is not None:
+        check("texture.components", components, where=f"{source}: texture.components")

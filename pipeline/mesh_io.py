@@ -10,10 +10,8 @@ itself, so ``.glb`` is not offered here (see
 
 from __future__ import annotations
 
-import contextlib
 import os
 import struct
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -45,49 +43,79 @@ def to_open3d(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray |
 def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh; return ``(vertices (V,3) float64, triangles (F,3) int64)``.
 
-    Before open3d reads anything the file must be a regular file
-    (:func:`pipeline.guards.regular_file`), and a PLY, OFF or binary STL header's
-    element counts must fit the file's size and :mod:`pipeline.limits`
-    (``file.elements``): a header claiming 10^9 vertices is refused at once.
-    open3d's own lines on fd 2 (RPly, tinyobj) are captured.
+    Before anything is allocated the file must be a regular file
+    (:func:`pipeline.guards.regular_file`) whose element counts
+    (:func:`check_header_counts`: the PLY/OFF/STL header, the glTF accessors, the
+    lines of an OBJ or ASCII STL) fit the file's size and :mod:`pipeline.limits`
+    (``file.elements``): a header claiming 10^9 vertices is refused at once.  A
+    binary PLY of triangles is read here with numpy (:func:`_read_binary_ply`: no
+    open3d import, so its coordinates are checked within the interpreter's
+    start-up); other files through open3d, whose own lines on fd 2 (RPly,
+    tinyobj) are captured.
 
     Raises
     ------
     FileNotFoundError, InputError
-        Missing file, unknown format, or a file with no triangles.
+        Missing file, unknown format, a file with no triangles, indices past the
+        vertices, non-finite or too large coordinates.
     """
-    import open3d as o3d
+    vertices, triangles, _ = _read_checked(path, want_normals=False)
+    return vertices, triangles
 
+
+def _read_checked(path: str | os.PathLike, want_normals: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     from pipeline.guards import check_coordinates, native_stderr, regular_file
 
     path = regular_file(path, "mesh file")
-    if path.suffix.lower() not in MESH_SUFFIXES + (".glb",):
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES + (".glb",):
         raise InputError(f"{path}: unknown mesh format {path.suffix!r} "
                          f"(expected one of {', '.join(MESH_SUFFIXES)})")
     check_header_counts(path)
-    with native_stderr():
-        mesh = o3d.io.read_triangle_mesh(str(path))
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    triangles = np.asarray(mesh.triangles, dtype=np.int64)
+    read = _read_binary_ply(path) if suffix == ".ply" else None
+    if read is None:
+        import open3d as o3d
+
+        with native_stderr(), o3d.utility.VerbosityContextManager(
+                o3d.utility.VerbosityLevel.Error):
+            mesh = o3d.io.read_triangle_mesh(str(path))
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        normals = (np.asarray(mesh.vertex_normals, dtype=np.float64)
+                   if want_normals and suffix != ".stl" and mesh.has_vertex_normals()
+                   and len(mesh.vertex_normals) == len(vertices) else None)
+        read = vertices, np.asarray(mesh.triangles, dtype=np.int64), normals
+    vertices, triangles, normals = read
     if len(triangles) == 0:
         raise InputError(f"{path}: no triangles could be read")
     if not np.all(np.isfinite(vertices)):
         raise InputError(f"{path}: vertices contain NaN/inf")
     check_coordinates(vertices, str(path), "vertex coordinates")
-    return vertices, triangles
+    if triangles.min() < 0 or triangles.max() >= len(vertices):
+        raise InputError(f"{path}: face indices run past the {len(vertices)} vertices "
+                         f"({int(triangles.min())}..{int(triangles.max())})")
+    if normals is not None and not np.all(np.isfinite(normals)):
+        normals = None
+    return vertices, triangles, normals
 
 
 #: Bytes of one value of each PLY scalar type.
 _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2,
               "ushort": 2, "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4,
               "float": 4, "float32": 4, "double": 8, "float64": 8}
+#: numpy kinds of the PLY scalar types (the byte order is the file's).
+_PLY_KINDS = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
+              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+              "float64": "f8"}
 
 
-def _ply_counts(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, int]], int]:
-    """``(format, [(element, count, least bytes per element)], header bytes)`` of a PLY."""
+def _ply_header(head: bytes) -> tuple[str, list[list], int] | None:
+    """``(format, [[element, count, [property words ...]], ...], header bytes)`` or ``None``
+    when ``head`` holds no complete header."""
     end = head.find(b"end_header")
-    if end < 0:
-        return "", [], len(head)  # no header to check: the reader refuses the file
+    if not head.startswith(b"ply") or end < 0:
+        return None
     stop = head.find(b"\n", end)
     stop = len(head) if stop < 0 else stop + 1
     fmt, elements = "ascii", []
@@ -96,32 +124,207 @@ def _ply_counts(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, int]
         if len(words) >= 2 and words[0] == "format":
             fmt = words[1]
         elif words and words[0] == "element":
-            try:
-                count = int(words[2])
-            except (IndexError, ValueError):
-                raise InputError(f"{path}: bad PLY line {line!r}") from None
-            if count < 0:
-                raise InputError(f"{path}: negative {words[1]} count {count}")
-            elements.append([words[1], count, 0])
+            elements.append([words[1] if len(words) > 1 else "", words[2:3], []])
         elif words and words[0] == "property" and elements:
+            elements[-1][2].append(words[1:])
+    return fmt, elements, stop
+
+
+def _ply_counts(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, int]], int]:
+    """``(format, [(element, count, least bytes per element)], header bytes)`` of a PLY."""
+    parsed = _ply_header(head)
+    if parsed is None:
+        return "", [], len(head)  # no header to check: the reader refuses the file
+    fmt, elements, stop = parsed
+    counts = []
+    for name, count_words, properties in elements:
+        try:
+            count = int(count_words[0])
+        except (IndexError, ValueError):
+            raise InputError(f"{path}: bad PLY line 'element {name} "
+                             f"{' '.join(count_words)}'") from None
+        if count < 0:
+            raise InputError(f"{path}: negative {name} count {count}")
+        least = 0
+        for words in properties:
             if fmt == "ascii":
-                elements[-1][2] += 2  # a digit and a separator at least
-            elif len(words) >= 3 and words[1] == "list":
-                elements[-1][2] += _PLY_SIZES.get(words[2], 1)  # the list's length, at least
+                least += 2  # a digit and a separator at least
+            elif len(words) >= 2 and words[0] == "list":
+                least += _PLY_SIZES.get(words[1], 1)  # the list's length, at least
             else:
-                elements[-1][2] += _PLY_SIZES.get(words[1] if len(words) > 1 else "", 1)
-    return fmt, [tuple(e) for e in elements], stop
+                least += _PLY_SIZES.get(words[0] if words else "", 1)
+        counts.append((name, count, least))
+    return fmt, counts, stop
 
 
-def check_header_counts(path: str | os.PathLike) -> None:
-    """Refuse a PLY/OFF/STL header whose element counts the file cannot hold, or past
-    the ``file.elements`` limit -- before any reader allocates them.
+def _read_binary_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+    """A binary PLY of ``vertex`` (scalar properties with x, y, z) then ``face`` (one
+    list of 3 indices each) read with numpy structured arrays; ``None`` for any other
+    layout (ASCII, polygons, other elements first: open3d reads those).
 
-    Each element needs at least a fixed number of bytes (binary: the sizes of its
-    properties; text: a digit and a separator per value), so
-    ``count x least bytes <= file size`` must hold.
+    Returns
+    -------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    normals : (V, 3) float64 or None
+        ``nx ny nz`` when the file has them.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    parsed = _ply_header(head)
+    if parsed is None:
+        return None
+    fmt, elements, stop = parsed
+    order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt)
+    if order is None or [e[0] for e in elements[:2]] != ["vertex", "face"]:
+        return None
+    (_, (n_vertices,), vertex_props), (_, (n_faces,), face_props) = elements[:2]
+    if any(len(w) != 2 or w[0] not in _PLY_KINDS for w in vertex_props) or \
+            len(face_props) != 1 or len(face_props[0]) != 4 or face_props[0][0] != "list" or \
+            face_props[0][1] not in _PLY_KINDS or face_props[0][2] not in _PLY_KINDS:
+        return None
+    vertex_type = np.dtype([(w[1], order + _PLY_KINDS[w[0]]) for w in vertex_props])
+    names = set(vertex_type.names)
+    if not {"x", "y", "z"} <= names or len(names) != len(vertex_props):
+        return None
+    face_type = np.dtype([("n", order + _PLY_KINDS[face_props[0][1]]),
+                          ("v", order + _PLY_KINDS[face_props[0][2]], (3,))])
+    n_vertices, n_faces = int(n_vertices), int(n_faces)  # checked by check_header_counts
+    with open(path, "rb") as fh:
+        fh.seek(stop)
+        vertex_data = np.fromfile(fh, dtype=vertex_type, count=n_vertices)
+        if len(vertex_data) < n_vertices:
+            raise InputError(f"{path}: truncated PLY: {len(vertex_data)} of {n_vertices} "
+                             "vertices")
+        # a polygon (count != 3) would misalign every later face: read the counts first
+        face_data = np.fromfile(fh, dtype=face_type, count=n_faces)
+    if len(face_data) < n_faces or np.any(face_data["n"] != 3):
+        return None  # polygons or a short file: open3d's reader decides
+    vertices = np.column_stack([vertex_data[c] for c in "xyz"]).astype(np.float64)
+    normals = (np.column_stack([vertex_data[c] for c in ("nx", "ny", "nz")])
+               .astype(np.float64) if {"nx", "ny", "nz"} <= names else None)
+    return vertices, face_data["v"].astype(np.int64), normals
+
+
+#: Least bytes of one element of the text formats: an OBJ line "v 0 0 0\n" or "f 1 2 3\n"
+#: (8), an ASCII STL facet "facet normal 0 0 0 outer loop vertex 0 0 0 (x3) endloop
+#: endfacet" with single separators (80).
+_OBJ_LEAST, _ASCII_STL_LEAST = 8, 80
+#: A glTF JSON document (a .gltf file, the JSON chunk of a .glb) larger than this is refused.
+MAX_GLTF_JSON_BYTES = 64 << 20
+
+
+def _gltf_document(path: Path, head: bytes, size: int) -> tuple[dict, int]:
+    """The JSON document of a .gltf/.glb and the bytes its binary buffer 0 really holds
+    (GLB: the BIN chunk; .gltf: its first buffer's file or data URI)."""
+    import json
+
+    blob = 0
+    if path.suffix.lower() == ".glb":
+        if len(head) < 20 or head[:4] != b"glTF":
+            raise InputError(f"{path}: not a binary glTF (no 'glTF' magic)")
+        json_len = struct.unpack_from("<I", head, 12)[0]
+        if 20 + json_len > size or json_len > MAX_GLTF_JSON_BYTES:
+            raise InputError(f"{path}: the GLB JSON chunk claims {json_len} bytes, the file "
+                             f"holds {size}")
+        with open(path, "rb") as fh:
+            fh.seek(20)
+            text = fh.read(json_len)
+            bin_head = fh.read(8)
+        if len(bin_head) == 8:
+            blob = min(struct.unpack("<I", bin_head[:4])[0], size - 28 - json_len)
+    else:
+        if size > MAX_GLTF_JSON_BYTES:
+            raise InputError(f"{path}: {size} bytes is too large for a glTF JSON file "
+                             f"(at most {MAX_GLTF_JSON_BYTES})")
+        text = path.read_bytes()
+    try:
+        document = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"{path}: the glTF JSON does not parse "
+                         f"({type(exc).__name__})") from None
+    if not isinstance(document, dict):
+        raise InputError(f"{path}: the glTF JSON is not an object")
+    buffers = document.get("buffers")
+    if path.suffix.lower() == ".gltf" and isinstance(buffers, list) and buffers and \
+            isinstance(buffers[0], dict):
+        uri = buffers[0].get("uri", "")
+        if isinstance(uri, str) and uri.startswith("data:"):
+            blob = (len(uri) - uri.find(",") - 1) * 3 // 4  # base64: 3 bytes per 4 chars
+        elif isinstance(uri, str) and (path.parent / uri).is_file():
+            blob = (path.parent / uri).stat().st_size
+    return document, blob
+
+
+#: Bytes of one component of each glTF componentType, and components per accessor type.
+_GLTF_COMPONENT = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _gltf_counts(path: Path, head: bytes, size: int) -> list[tuple[str, int, int]]:
+    """Vertices and triangles the mesh primitives' accessors claim (glTF 2.0 section 3.6),
+    each accessor's bytes checked against what the buffer really holds."""
+    document, blob = _gltf_document(path, head, size)
+    accessors, views = document.get("accessors", []), document.get("bufferViews", [])
+    if not isinstance(accessors, list) or not isinstance(views, list):
+        raise InputError(f"{path}: glTF accessors / bufferViews are not lists")
+
+    def claimed(index) -> int:
+        if not isinstance(index, int) or not 0 <= index < len(accessors) or \
+                not isinstance(accessors[index], dict):
+            raise InputError(f"{path}: glTF accessor {index!r} does not exist")
+        accessor = accessors[index]
+        count = accessor.get("count")
+        if not isinstance(count, int) or count < 0:
+            raise InputError(f"{path}: glTF accessor {index}: count {count!r} is not a "
+                             "whole number >= 0")
+        view = accessor.get("bufferView")
+        if isinstance(view, int) and 0 <= view < len(views) and isinstance(views[view], dict):
+            need = count * _GLTF_COMPONENT.get(accessor.get("componentType"), 1) * \
+                _GLTF_WIDTH.get(accessor.get("type"), 1)
+            length = views[view].get("byteLength", 0)
+            hold = min(length if isinstance(length, int) else 0, blob) \
+                if views[view].get("buffer", 0) == 0 else length
+            if isinstance(hold, int) and need > hold:
+                raise InputError(f"{path}: glTF accessor {index} claims {count} elements "
+                                 f"({need} bytes) but its buffer holds {hold} bytes: "
+                                 "truncated or not what it says")
+        return count
+
+    vertices = triangles = 0
+    meshes = document.get("meshes", [])
+    for mesh in meshes if isinstance(meshes, list) else []:
+        primitives = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        for prim in primitives if isinstance(primitives, list) else []:
+            attributes = prim.get("attributes", {}) if isinstance(prim, dict) else {}
+            if not isinstance(attributes, dict) or "POSITION" not in attributes:
+                continue
+            n = claimed(attributes["POSITION"])
+            vertices += n
+            triangles += claimed(prim["indices"]) // 3 if "indices" in prim else n // 3
+    return [("vertex", vertices, 0), ("triangle", triangles, 0)]
+
+
+def check_header_counts(path: str | os.PathLike) -> dict[str, int]:
+    """Refuse a mesh or cloud file whose element counts the file cannot hold, or past the
+    ``file.elements`` limit -- before any reader allocates them.
+
+    The counts are what the file says or implies: the PLY, OFF and binary STL headers;
+    the glTF/GLB accessors of the mesh primitives (each accessor's bytes must fit its
+    buffer); the ``v``/``f`` lines of an OBJ and the facets of an ASCII STL, counted in
+    a bounded-memory pass that stops once the limit is passed.  In a header, each
+    element needs at least a fixed number of bytes (binary: the sizes of its properties;
+    text: a digit and a separator per value), so ``count x least bytes <= file size``
+    must hold.
+
+    Returns
+    -------
+    dict
+        ``{"vertices": V, "faces": F}`` as far as the file says (faces of a PLY/OFF/OBJ
+        may be polygons: each is at least one triangle).
     """
     from pipeline import limits
+    from pipeline.guards import count_occurrences
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -132,7 +335,7 @@ def check_header_counts(path: str | os.PathLike) -> None:
     body = size
     if suffix == ".ply":
         if not head.startswith(b"ply"):
-            return  # not a PLY header: the reader refuses the file
+            return {}  # not a PLY header: the reader refuses the file
         _, counts, stop = _ply_counts(path, head)
         body = size - stop
     elif suffix == ".off":
@@ -152,6 +355,17 @@ def check_header_counts(path: str | os.PathLike) -> None:
         n_facets = struct.unpack("<I", head[80:84])[0]
         counts = [("facet", n_facets, 50)]
         body = size - 84
+    elif suffix == ".stl":  # ASCII: "solid ... facet ... endfacet ... endsolid"
+        found = count_occurrences(path, {"facet": (b"endfacet",)},
+                                  limits.LIMITS["file.elements"].maximum)
+        counts = [("facet", found["facet"], _ASCII_STL_LEAST)]
+    elif suffix == ".obj":
+        found = count_occurrences(path, {"vertex": (b"\nv ", b"\nv\t"),
+                                         "face": (b"\nf ", b"\nf\t")},
+                                  limits.LIMITS["file.elements"].maximum)
+        counts = [("vertex", found["vertex"], _OBJ_LEAST), ("face", found["face"], _OBJ_LEAST)]
+    elif suffix in (".gltf", ".glb"):
+        counts = _gltf_counts(path, head, size)
     for element, count, _ in counts:
         limits.check("file.elements", count, where=f"{path}: {element} count {count}")
     needed = sum(count * least for _, count, least in counts)
@@ -159,6 +373,8 @@ def check_header_counts(path: str | os.PathLike) -> None:
         shown = ", ".join(f"{count} {element}s" for element, count, _ in counts)
         raise InputError(f"{path}: the header claims {shown}, which need at least {needed} "
                          f"bytes, but the file holds {body}: truncated or not what it says")
+    canonical = {"vertex": "vertices", "face": "faces", "facet": "faces", "triangle": "faces"}
+    return {canonical[e]: c for e, c, _ in counts if e in canonical}
 
 
 def _area_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -299,35 +515,7 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndar
     return path
 
 
-# --------------------------------------------------------------------------- additions for
-# the smooth/render commands (pipeline/cmd_smooth.py, pipeline/cmd_render.py)
-
-
-@contextlib.contextmanager
-def quiet_native_stderr() -> Iterator[None]:
-    """Silence C-level writes to file descriptor 2 (open3d's RPly, tinyobj) for a moment.
-
-    The CLI promises one error line on bad input; open3d's file parsers print
-    their own diagnostics straight to fd 2, which ``VerbosityLevel`` does not
-    reach.  Python-level ``sys.stderr`` is untouched.
-    """
-    try:
-        saved = os.dup(2)
-    except OSError:  # no fd 2 (embedded interpreter): nothing to silence
-        yield
-        return
-    try:
-        with open(os.devnull, "wb") as sink:
-            os.dup2(sink.fileno(), 2)
-            try:
-                yield
-            finally:
-                os.dup2(saved, 2)
-    finally:
-        os.close(saved)
-
-
-def read_mesh_with_normals(path: str | os.PathLike, quiet: bool = True
+def read_mesh_with_normals(path: str | os.PathLike
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`read_mesh` plus the file's vertex normals, if it stores any.
 
@@ -336,28 +524,10 @@ def read_mesh_with_normals(path: str | os.PathLike, quiet: bool = True
     vertices : (V, 3) float64
     triangles : (F, 3) int64
     normals : (V, 3) float64 or None
-        Unit vertex normals as stored (PLY, OBJ, glTF, GLB), ``None`` when the
-        file has none (STL stores facet normals only, so ``None``).
+        Vertex normals as stored (PLY, OBJ, glTF, GLB), ``None`` when the file has
+        none or any is not finite (STL stores facet normals only, so ``None``).
     """
-    import open3d as o3d
-
-    from pipeline.guards import regular_file
-
-    path = regular_file(path, "mesh file")  # no FIFO or device
-    with contextlib.ExitStack() as stack:
-        if quiet:
-            stack.enter_context(quiet_native_stderr())
-            stack.enter_context(o3d.utility.VerbosityContextManager(
-                o3d.utility.VerbosityLevel.Error))
-        vertices, triangles = read_mesh(path)
-        normals = None
-        if path.suffix.lower() != ".stl":
-            mesh = o3d.io.read_triangle_mesh(str(path))
-            if mesh.has_vertex_normals() and len(mesh.vertex_normals) == len(vertices):
-                normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
-                if not np.all(np.isfinite(normals)):
-                    normals = None
-    return vertices, triangles, normals
+    return _read_checked(path, want_normals=True)
 
 
 def weld_vertices(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -262,13 +262,13 @@ def validate_recipe(raw: Mapping, source: str = "<recipe>",
     ``texture``, ``lighting``, ``cameras``, ``noise``, ``render``.  Errors
     name ``source`` and the dotted field.
     """
+    limits.check_recipe(raw, source)  # the sizes as written, before anything is built
     top = _Table(source, "", raw)
     recipe = {"seed": top.take("seed", "int", 0, nonneg=True)}
     recipe["shape"] = _validate_shape(top.sub("shape", required=True),
                                       Path(base_dir) if base_dir is not None else Path.cwd())
     recipe["texture"] = _validate_texture(top.sub("texture") or _Table(source, "texture", {}))
     recipe["cameras"] = _validate_cameras(top.sub("cameras", required=True))
-    limits.check_recipe(recipe, source)  # views and image size before any per-view table
     recipe["lighting"] = _validate_lighting(top.sub("lighting") or _Table(source, "lighting", {}),
                                             _view_count(recipe["cameras"]))
     noise = top.sub("noise") or _Table(source, "noise", {})

@@ -210,6 +210,197 @@ def test_defaults_and_fixtures_are_within_the_limits():
         load_recipe(recipe)
 
 
+# refusals cost the interpreter's start-up only (benchmarks/limits.py times them): the
+# heavy libraries are not imported before the check that refuses
+_HEAVY = ("open3d", "numba", "scipy", "surface.reconstruct", "surface.bezier", "matching.pair",
+          "pipeline.scenes", "pipeline.render")
+
+
+def _refusal_imports(argv: list, cwd: Path) -> tuple[int, list[str], str]:
+    code = ("import sys\nimport pipeline.cli as cli\nrc = cli.main(sys.argv[1:])\n"
+            f"heavy = {_HEAVY!r}\n"
+            "print(' '.join(sorted(m for m in sys.modules if m in heavy)))\nsys.exit(rc)\n")
+    proc = subprocess.run([sys.executable, "-c", code, *map(str, argv)], cwd=cwd, env=_env(),
+                          capture_output=True, text=True, timeout=120)
+    return proc.returncode, proc.stdout.split(), proc.stderr
+
+
+def test_refusals_come_before_the_heavy_imports(files, tmp_path):
+    import struct
+    import zlib
+
+    from pipeline.mesh_io import write_mesh
+    from tests.pipeline.test_fuzz_inputs import tetra_mesh
+
+    v, t = tetra_mesh()
+    huge = write_mesh(tmp_path / "huge.ply", v * 1e200, t, compute_normals=False)
+    off = tmp_path / "claims.off"
+    off.write_text("OFF\n1000000000 1 0\n0 0 0\n")
+    ihdr = struct.pack(">IIBBBBB", 100_000, 100_000, 8, 0, 0, 0, 0)
+    png = tmp_path / "claims.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + ihdr +
+                    struct.pack(">I", zlib.crc32(b"IHDR" + ihdr)) + b"\x00" * 64)
+    recipe = _recipe(tmp_path, "", "ok.toml")
+    out = tmp_path / "out"
+    cases = [
+        (["sections", files["cloud"], "--out", out / "m.ply", "--sections", "1000000000"],
+         "sections.count"),
+        (["smooth", off, "--out", out / "s.ply"], "file.elements"),
+        (["render", huge, "--out", out / "r.png"], "beyond"),
+        (["synth", recipe, "--out", out / "s", "--set", "cameras.layout=ring", "--set",
+          "cameras.n=1000000000"], "synth.views"),
+        (["stereo", png, files["right"], "--rig", files["rig"], "--out", out / "c.ply"],
+         "image.pixels"),
+    ]
+    for argv, needle in cases:
+        status, heavy, err = _refusal_imports(argv, tmp_path)
+        assert status == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+        assert heavy == [], f"{argv[0]} imported {heavy} before refusing: {err.strip()}"
+
+
+def test_raw_recipe_costed_with_the_validated_defaults(tmp_path):
+    """The synth pre-check costs a raw recipe with the defaults the validation fills."""
+    import tomllib
+
+    import tomli_w
+
+    from pipeline.scenes import load_recipe
+
+    raw = tomllib.loads(GOOD_RECIPE)
+    raw.pop("render", None)
+    raw["cameras"].pop("n", None)
+    raw["cameras"]["layout"] = "ring"
+    path = tmp_path / "plain.toml"
+    path.write_text(tomli_w.dumps(raw))
+    recipe = load_recipe(path)
+    assert recipe["render"]["supersample"] == limits.RECIPE_DEFAULTS["render.supersample"]
+    assert recipe["cameras"]["n"] == limits.RECIPE_DEFAULTS["cameras.n"]
+
+
+def _lowered(monkeypatch, key: str, maximum: float) -> None:
+    import dataclasses
+
+    monkeypatch.setitem(limits.LIMITS, key, dataclasses.replace(limits.LIMITS[key],
+                                                                maximum=maximum))
+
+
+def _obj_text(v: np.ndarray, t: np.ndarray) -> str:
+    return "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in v.tolist()) + \
+        "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in t.tolist())
+
+
+def _ascii_stl(v: np.ndarray, t: np.ndarray) -> str:
+    facets = "".join("facet normal 0 0 0\nouter loop\n" +
+                     "".join(f"vertex {x!r} {y!r} {z!r}\n" for x, y, z in v[tri].tolist()) +
+                     "endloop\nendfacet\n" for tri in t)
+    return f"solid s\n{facets}endsolid s\n"
+
+
+@pytest.mark.parametrize("kind", ["obj", "ascii-stl", "ply", "off", "glb"])
+def test_every_mesh_format_counts_its_elements(tmp_path, capfd, monkeypatch, kind):
+    """Each reader's file is costed before it is read: with the limit lowered below the
+    sphere's element count, the refusal names the file, the key, the count and the cost
+    (the same file is read when the limit allows it)."""
+    import open3d as o3d
+
+    from pipeline.export import write_glb
+    from pipeline.mesh_io import check_header_counts, read_mesh, write_mesh
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 10)  # 182 vertices, 360 faces
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    path = tmp_path / {"ascii-stl": "m.stl"}.get(kind, f"m.{kind}")
+    if kind == "obj":
+        path.write_text(_obj_text(v, t))
+    elif kind == "ascii-stl":
+        path.write_text(_ascii_stl(v, t))
+    elif kind == "glb":
+        write_glb(path, v, t)
+    else:
+        write_mesh(path, v, t)
+    counts = check_header_counts(path)
+    assert counts["faces"] == len(t)
+    assert len(read_mesh(path)[1]) == len(t)  # read in full while the limit allows it
+    if kind != "ascii-stl":
+        assert counts["vertices"] == len(v)
+    _lowered(monkeypatch, "file.elements", len(t) - 1)
+    out = tmp_path / "r.png"
+    line = fails_cleanly(capfd, ["render", path, "--out", out], path.name, "file.elements",
+                         f"count {len(t)}", "estimated", out=out)
+    assert "past the limit 359" in line
+
+
+@pytest.mark.parametrize("claim", ["count", "bytes"])
+def test_gltf_accessor_claims(tmp_path, capfd, claim):
+    """A GLB whose accessor claims 10^12 positions (no buffer view: glTF's implicit zeros,
+    nothing to compare with but the limit), or more than its buffer holds."""
+    import json
+    import struct
+
+    count = 10 ** 12 if claim == "count" else 1000
+    document = {"asset": {"version": "2.0"}, "buffers": [{"byteLength": 36}],
+                "bufferViews": [{"buffer": 0, "byteLength": 36}],
+                "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3",
+                               "count": count}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]}
+    if claim == "count":
+        del document["accessors"][0]["bufferView"]
+    text = json.dumps(document).encode().ljust(4 * (len(json.dumps(document)) // 4 + 1))
+    blob = np.zeros(9, "<f4").tobytes()
+    path = tmp_path / "claims.glb"
+    path.write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(text) + len(blob)) +
+                     struct.pack("<II", len(text), 0x4E4F534A) + text +
+                     struct.pack("<II", len(blob), 0x004E4942) + blob)
+    needles = ["file.elements", str(count)] if claim == "count" else ["1000 elements",
+                                                                       "holds 36 bytes"]
+    fails_cleanly(capfd, ["render", path, "--out", tmp_path / "r.png"], "claims.glb", *needles)
+
+
+def test_text_mesh_of_zeros_is_not_scanned_to_its_end(tmp_path, capfd):
+    """A sparse 4 GB file named .obj (no lines at all) is refused after its first 64 MB."""
+    path = tmp_path / "zeros.obj"
+    with open(path, "wb") as fh:
+        fh.truncate(4 << 30)
+    fails_cleanly(capfd, ["smooth", path, "--out", tmp_path / "s.ply"], "zeros.obj",
+                  "not a text .obj file")
+
+
+def test_binary_ply_read_by_numpy_as_open3d_reads_it(tmp_path):
+    """The numpy reader of binary triangle PLYs gives open3d's arrays bit for bit; a PLY of
+    polygons falls back to open3d."""
+    import open3d as o3d
+
+    from pipeline.mesh_io import _read_binary_ply, read_mesh_with_normals, write_mesh
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 12)
+    path = write_mesh(tmp_path / "s.ply", np.asarray(sphere.vertices) * 3.0 + 0.1,
+                      np.asarray(sphere.triangles))
+    assert _read_binary_ply(path) is not None
+    v, t, n = read_mesh_with_normals(path)
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    np.testing.assert_array_equal(v, np.asarray(mesh.vertices))
+    np.testing.assert_array_equal(t, np.asarray(mesh.triangles))
+    np.testing.assert_array_equal(n, np.asarray(mesh.vertex_normals))
+    quad = tmp_path / "quad.ply"
+    quad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty double "
+                     b"x\nproperty double y\nproperty double z\nelement face 1\nproperty list "
+                     b"uchar int vertex_indices\nend_header\n" +
+                     np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], "<f8").tobytes() +
+                     b"\x04" + np.arange(4, dtype="<i4").tobytes())
+    assert _read_binary_ply(quad) is None
+    assert len(read_mesh_with_normals(quad)[1]) == 2  # open3d splits the quad
+
+
+def test_cloud_text_and_npz_counts(tmp_path, capfd, monkeypatch):
+    """An XYZ cloud's rows and an NPZ's ``points`` shape are costed before they are read."""
+    points = cylinder_points(300)
+    np.savetxt(tmp_path / "c.xyz", points)
+    np.savez(tmp_path / "c.npz", points=points)
+    _lowered(monkeypatch, "file.elements", 299)
+    for name in ("c.xyz", "c.npz"):
+        fails_cleanly(capfd, ["sections", tmp_path / name, "--out", tmp_path / "m.ply"], name,
+                      "file.elements", "300", "estimated")
+
+
 # =========================================================================== numbers
 
 @pytest.mark.parametrize(("scale", "needle"), [(1e300, "beyond"), (1e60, "beyond")])
