@@ -8,8 +8,11 @@ noise and (LSM, ECC) its local affine map.  Judged by the share beyond 2 px of t
 homography and by the residual to a smooth mapping -- a homography plus a degree-7
 polynomial fitted robustly to LSM's accepted matches (the data set's homography has no
 lens-distortion term) -- per axis over the residuals below 2 px; LSM's ratio of that
-residual to its reported σ, without and with the forward-backward variance factor
-(``matching.consistency``).  Peers: ``cv2.findTransformECC`` (MOTION_AFFINE,
+residual to its reported σ, without and with the variance factor of independent
+neighbouring windows (``matching.precision.midpoint_variance_factor``, what
+``match_pair`` applies; RMS over RMS, and the median |e|/σ over its Gaussian value),
+and beside it the forward-backward loops' factor (``matching.consistency``, a lower
+bound).  Peers: ``cv2.findTransformECC`` (MOTION_AFFINE,
 gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
 
 Temple: neighbouring ring views rectified by ``cv2.stereoRectify`` (their baselines
@@ -18,7 +21,8 @@ disparity would be negative); ``matching.pair.match_pair`` on the rectified pair
 (SGBM seeds, region growing); object = grey > 0.19 x 255, dilated 5 px.  LSM's
 forward-backward loop along the rows / sqrt(2) against its reported σ, and SGBM's
 left-right loop (disparity of the left, then of the right image at the matched
-position) / sqrt(2) on the same pixels.
+position) / sqrt(2) on the same pixels.  LSM's σ includes ``match_pair``'s variance
+factor (``sigma_factor``, reported as k²).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import numpy as np
 from matching.consistency import forward_backward
 from matching.grow import grow_matches
 from matching.lsm import LSMResult, lsm_match, prepare_image
-from matching.precision import variance_factor
+from matching.precision import midpoint_variance_factor
 from matching.seeds import disparity_range, select_points, sgbm_disparity
 
 GRAFFITI_PATCH = 21
@@ -170,7 +174,7 @@ def graffiti(folder: Path, quick: bool) -> dict:
     res = growth.result
     fb = forward_backward(fp, gp, pts, res, patch=patch)
     t3 = time.perf_counter()
-    vf = variance_factor(pts, res.position, res.cov, res.accepted, patch=patch)
+    vf = midpoint_variance_factor(pts, res.affine, res.affine_cov, res.accepted, patch=patch)
     t4 = time.perf_counter()
     ok = res.accepted
     near = ok & (np.linalg.norm(res.position - truth, axis=1) < 20.0)
@@ -190,7 +194,13 @@ def graffiti(folder: Path, quick: bool) -> dict:
     lsm_row["variance_factor"] = vf.factor
     lsm_row["variance_factor_seconds"] = t4 - t3
     lsm_row["residual_over_sigma_with_factor"] = (lsm_row["residual_over_sigma"]
-                                                  / np.sqrt(vf.factor))
+                                                  / np.sqrt(max(1.0, vf.factor)))
+    # the core of the distribution against its tails: median |e| / σ over its Gaussian
+    # value sqrt(2 ln 2) (|e| of a 2-D error with σ per axis)
+    e = np.linalg.norm(res.position - smooth(pts), axis=1)
+    inl = ok & (e < 2.0)
+    lsm_row["median_residual_over_sigma_with_factor"] = float(
+        np.median(e[inl] / res.sigma[inl]) / np.sqrt(2 * np.log(2) * max(1.0, vf.factor)))
     m = min(len(pts), 600 if quick else 3000)
     pick = np.random.default_rng(1).choice(len(pts), m, replace=False)
     t0 = time.perf_counter()
@@ -281,8 +291,6 @@ def temple(folder: Path, quick: bool) -> dict:
                             cov=m.cov, correlation=m.correlation, status=m.status,
                             noise_sigma0=float("nan"))
         fb = forward_backward(prepare_image(left), prepare_image(right), m.x_left, forward)
-        vf = variance_factor(m.x_left + m.offset, m.affine[:, [0, 3]], m.cov, m.accepted,
-                             patch=15)
         use = fb.used & on_obj
         loop_x = fb.loop[:, 0]
         lsm_fb = float(np.sqrt(np.mean(loop_x[use] ** 2) / 2))
@@ -300,7 +308,8 @@ def temple(folder: Path, quick: bool) -> dict:
                 *np.unique(m.status[on_obj], return_counts=True), strict=True)},
             "lsm_fb_loop_rms_px": lsm_fb, "lsm_reported_sigma_x_rms_px": sig_x,
             "lsm_fb_over_sigma": lsm_fb / sig_x, "fb_variance_factor": fb.variance_factor,
-            "variance_factor_local": vf.factor,
+            "variance_factor": m.sigma_factor,
+            "lsm_sigma_x_without_factor_rms_px": sig_x / np.sqrt(m.sigma_factor),
             "same_pixels": int(same.sum()),
             "lsm_fb_loop_rms_same_px": float(np.sqrt(np.mean(loop_x[same] ** 2) / 2)),
             "sgbm_lr_loop_rms_same_px": float(np.sqrt(np.mean(sgbm_loop[same] ** 2) / 2)),

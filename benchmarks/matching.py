@@ -373,9 +373,12 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
               f"noise): loop RMS {lsm['fb_loop_rms_px']:.3f} px, k² "
               f"{lsm['fb_variance_factor']:.2f}; residual / (σ k) "
               f"{lsm['residual_over_sigma_with_fb_factor']:.2f}")
-        print(f"variance factor from independent neighbouring windows (matching.precision,"
-              f" what match_pair applies): k² {lsm['variance_factor']:.1f}; residual / "
-              f"(σ k) {lsm['residual_over_sigma_with_factor']:.2f}")
+        print(f"variance factor from independent neighbouring windows' midpoints "
+              f"(matching.precision, what match_pair applies): k² "
+              f"{lsm['variance_factor']:.1f}; residual / (σ k) "
+              f"{lsm['residual_over_sigma_with_factor']:.2f} (RMS over RMS), "
+              f"{lsm['median_residual_over_sigma_with_factor']:.2f} (median |e|/σk over "
+              f"its Gaussian value)")
         goals["graffiti_accepted_ge_80pct"] = lsm["accepted"] >= 0.8
         goals["graffiti_beyond_2px_le_1pct (of the smooth mapping)"] = (
             lsm["beyond_2px_of_smooth"] <= 0.01)
@@ -394,7 +397,7 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
             print(f"{str(tuple(r['pair'])):>7s} {r['candidates_on_object']:7d} "
                   f"{100 * r['accepted_share_on_object']:7.1f}% {r['lsm_fb_loop_rms_px']:7.3f} "
                   f"{r['lsm_reported_sigma_x_rms_px']:6.3f} {r['lsm_fb_over_sigma']:5.2f} "
-                  f"{r['variance_factor_local']:5.0f} {r['same_pixels']:5d} "
+                  f"{r['variance_factor']:5.1f} {r['same_pixels']:5d} "
                   f"{r['lsm_fb_loop_rms_same_px']:7.3f} {r['sgbm_lr_loop_rms_same_px']:7.3f}")
         d = te["dense"]
         print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "

@@ -12,9 +12,9 @@ the neighbours' local-plane mappings.  A match is *consistent* when the Mahalano
 distance of its position from :math:`\pi_k(X)`, with covariance
 :math:`s^2 (J_k \Sigma_X J_k^T + \Sigma_{LSM})`, passes the :math:`\chi^2_2` test at
 ``reject_p``; :math:`s^2` is the pair's a-posteriori variance factor
-(:func:`variance_factor`, Förstner 1979 [2]_: on real photographs LSM's σ is several
-times optimistic).  Points with at least one consistent further view are triangulated
-from all their views (:func:`matching.triangulate.triangulate_multiview`).
+(:func:`matching.precision.variance_factor`, Förstner 1979 [2]_: on real photographs
+LSM's σ is several times optimistic).  Points with at least one consistent further view
+are triangulated from all their views (:func:`matching.triangulate.triangulate_multiview`).
 
 References
 ----------
@@ -36,6 +36,7 @@ from scipy.stats import chi2
 
 from matching.cameras import Camera
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, lsm_match, prepare_image
+from matching.precision import variance_factor
 from matching.second_order import second_order_terms
 from matching.seeds import DEFAULT_SPACING
 from matching.triangulate import triangulate_multiview
@@ -324,15 +325,3 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     return Consistency(points, pcov, sigma, reason, views, tried,
                        time.perf_counter() - start, factor)
 
-
-def variance_factor(d2: np.ndarray, dof: int = 2, min_count: int = 30) -> float:
-    """Robust a-posteriori variance factor of χ²-distributed squared distances, >= 1.
-
-    ``median(d2) / median(χ²_dof)`` (the median of χ²_2 is 2 ln 2 = 1.386), 1 when fewer
-    than ``min_count`` values or when the data are no worse than their covariances say.
-    """
-    d2 = np.asarray(d2, dtype=np.float64)
-    d2 = d2[np.isfinite(d2)]
-    if len(d2) < min_count:
-        return 1.0
-    return float(max(1.0, np.median(d2) / chi2.ppf(0.5, dof)))

@@ -131,6 +131,10 @@ class LSMResult:
         With eccentric windows (``lsm_match``'s ``offset``): the covariance of the
         window centre's shift, px² (the window's own precision, before the transfer to
         the offset pixel); None: ``cov`` is the centre's.
+    affine_cov : (N, 6, 6) float64 or None
+        Covariance of ``affine`` (``a0 a1 a2 b0 b1 b2``; px², px, 1), the same
+        σ0² Nc⁻¹ as ``cov`` (rank 5 with an epipolar constraint): the warp's precision
+        away from the centre (:func:`matching.precision.midpoint_variance_factor`).
     """
 
     position: np.ndarray
@@ -144,6 +148,7 @@ class LSMResult:
     status: np.ndarray
     noise_sigma0: float
     window_cov: np.ndarray | None = None
+    affine_cov: np.ndarray | None = None
 
     @property
     def accepted(self) -> np.ndarray:
@@ -573,11 +578,13 @@ def _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats):
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrained, half,
                  kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-                 grad_noise_var, offset, p_out, cov_out, wcov_out, sig0_out, corr_out):
+                 grad_noise_var, offset, p_out, cov_out, wcov_out, acov_out, sig0_out,
+                 corr_out):
     """Gauss-Newton LSM for one patch; returns (status, iterations, converged).
 
     ``cov_out``: covariance of the warped template pixel ``offset`` (relative to the
-    centre); ``wcov_out``: of the window centre (the shift (a0, b0))."""
+    centre); ``wcov_out``: of the window centre (the shift (a0, b0)); ``acov_out``: of
+    the six affine unknowns ``a0 a1 a2 b0 b1 b2``."""
     npix = (2 * half + 1) ** 2
     fh, fw = fimg.shape
     gh, gw = gimg.shape
@@ -737,6 +744,35 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
                 acc += grads[2 + a, i] * xs[2 + b, i]
             cov_out[a, b] = sig0sq * acc
             wcov_out[a, b] = sig0sq * acw
+    # the affine unknowns a0 a1 a2 b0 b1 b2 as rows of the (reduced) unknowns:
+    # sigma0^2 G Nc^-1 G^T
+    gaff = np.zeros((6, 8))
+    if constrained:
+        gaff[0, 0] = d[0]
+        gaff[3, 0] = d[1]
+        gaff[1, 1] = 1.0
+        gaff[2, 2] = 1.0
+        gaff[4, 3] = 1.0
+        gaff[5, 4] = 1.0
+    else:
+        for k in range(6):
+            gaff[k, k] = 1.0
+    xa = np.zeros((6, 8))
+    nlo = np.empty((8, 8))
+    if not _cholesky_factor(ncred, m, nlo):
+        return 7, it, False
+    for a in range(6):
+        for i in range(8):
+            unit[i] = gaff[a, i]
+        _cholesky_back(nlo, unit, m, col)
+        for i in range(m):
+            xa[a, i] = col[i]
+    for a in range(6):
+        for b in range(6):
+            acc = 0.0
+            for i in range(m):
+                acc += gaff[a, i] * xa[b, i]
+            acov_out[a, b] = sig0sq * acc
     sf = stats[1] / npix
     sg = stats[2] / npix
     vf = stats[3] / npix - sf * sf
@@ -753,15 +789,15 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
 @numba.njit(parallel=True, nogil=True, cache=True, fastmath=_FM, error_model="numpy")
 def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constrained, half,
                kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-               grad_noise_var, offsets, params, cov, wcov, sigma0, corr, status, iters,
-               conv):
+               grad_noise_var, offsets, params, cov, wcov, acov, sigma0, corr, status,
+               iters, conv):
     n = centres.shape[0]
     for i in numba.prange(n):
         s, it, cv = _solve_point(fimg, fraw, gimg, centres[i], approx[i], init[i], quad[i],
                                  directions[i], constrained, half, kind, exact_final,
                                  max_iter, tol,
                                  max_shift, det_min, min_texture, grad_noise_var,
-                                 offsets[i], params[i], cov[i], wcov[i],
+                                 offsets[i], params[i], cov[i], wcov[i], acov[i],
                                  sigma0[i:i + 1], corr[i:i + 1])
         status[i] = s
         iters[i] = it
@@ -1075,6 +1111,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     params = np.full((n, 8), np.nan)
     cov = np.full((n, 2, 2), np.nan)
     wcov = np.full((n, 2, 2), np.nan)
+    acov = np.full((n, 6, 6), np.nan)
     sigma0 = np.full(n, np.nan)
     corr = np.full(n, np.nan)
     status = np.zeros(n, np.uint8)
@@ -1085,8 +1122,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     status[~finite] = Status.NO_CONVERGENCE
     idx = np.flatnonzero(finite)
     if len(idx):
-        sub = [params[idx], cov[idx], wcov[idx], sigma0[idx], corr[idx], status[idx],
-               iters[idx], conv[idx]]
+        sub = [params[idx], cov[idx], wcov[idx], acov[idx], sigma0[idx], corr[idx],
+               status[idx], iters[idx], conv[idx]]
         _lsm_batch(fimg, fprep.raw, gimg, np.ascontiguousarray(points[idx]),
                    np.ascontiguousarray(approx[idx]), np.ascontiguousarray(init[idx]),
                    np.ascontiguousarray(quad[idx]), np.ascontiguousarray(dirs[idx]),
@@ -1094,8 +1131,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                    int(max_iter), tol,
                    max_shift, TOL.affine_det_min, min_texture, grad_noise_var,
                    np.ascontiguousarray(offs[idx]), *sub)
-        for full, part in zip((params, cov, wcov, sigma0, corr, status, iters, conv), sub,
-                              strict=True):
+        for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
+                              sub, strict=True):
             full[idx] = part
     good = status == Status.OK
     population = sigma0[good]
@@ -1129,4 +1166,5 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     return LSMResult(position=position, affine=params[:, :6],
                      radiometric=params[:, 6:], converged=conv, iterations=iters,
                      sigma0=sigma0, cov=cov, correlation=corr, status=status,
-                     noise_sigma0=float(ref), window_cov=wcov if offset is not None else None)
+                     noise_sigma0=float(ref), window_cov=wcov if offset is not None else None,
+                     affine_cov=acov)

@@ -341,6 +341,11 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     # 0.042 % of the height; transfer errors at occluding contours are caught by the
     # further-view check (cloud RMS 0.000229 -> 0.000228)
     options.setdefault("eccentric", True)
+    # the pair's own variance factor (match_pair's default) is left to the further-view
+    # check (matching.confirm), which estimates it from a third view's matches of the
+    # same points and scales the pair's covariances by it: applying both would count
+    # what real images add twice
+    options.setdefault("sigma_factor", False)
     # both rectified images are prepared (spline prefilter, noise) once for all LSM passes
     interpolation = options.get("interpolation", DEFAULT_INTERPOLATION)
     prep_l, prep_r = prepare_image(grey_l, interpolation), prepare_image(grey_r, interpolation)

@@ -90,7 +90,7 @@ from matching.lsm import (
     prepare_image,
     robust_upper_limit,
 )
-from matching.precision import variance_factor
+from matching.precision import midpoint_variance_factor
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
@@ -157,7 +157,7 @@ class PairMatches:
         Left image (width, height), px.
     sigma_factor : float
         The variance factor k² that ``cov`` and ``sigma`` already carry
-        (:func:`matching.precision.variance_factor`; 1: not applied).
+        (:func:`matching.precision.midpoint_variance_factor`; 1: not applied).
     """
 
     x_left: np.ndarray
@@ -236,7 +236,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
                sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,
                max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
-               eccentric: bool = False, grow: bool = True, sigma_factor: bool = False,
+               eccentric: bool = False, grow: bool = True, sigma_factor: bool = True,
                search_range: tuple[int, int] | None = None, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
@@ -299,15 +299,14 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         affine warps of their accepted neighbours (default on); off: they stay
         ``no_approximation`` / their first status.
     sigma_factor : bool
-        Scale the covariances by the variance factor k² that the residuals of
-        independent neighbouring windows to a local quadratic mapping give
-        (:func:`matching.precision.variance_factor`): what real images add to
-        σ0²N⁻¹ (correlated noise, blur and shading differences, model error);
-        never below 1 (σ0²N⁻¹ is the white-noise bound); needs >= 30 accepted
-        matches (else k² = 1).  Default off: it assumes the matches' field is a
-        quadratic over 2.5 patches for most points, true of a wall (graffiti: k² 7.8)
-        but not of a temple's facade at 640x480 (k² ~750: the depth structure, not the
-        matching error, sets it).
+        Scale the covariances by the variance factor k² that independent neighbouring
+        windows give (:func:`matching.precision.midpoint_variance_factor`: two windows
+        a patch apart predict their midpoint through their own affine warps, which
+        agree for any locally quadratic surface): what real images add to σ0²N⁻¹
+        (correlated noise, blur and shading differences, model error).  Never below 1
+        (σ0²N⁻¹ is the white-noise bound); needs >= 30 window pairs (else k² = 1).
+        Default on (measured k²: temple pair (0, 1) 10.5, graffiti ~7, rendered vase
+        pair ~1.6).
     search_range : (int, int), optional
         SGBM's (min_disparity, num_disparities) of a rectified pair, from the geometry
         (:func:`matching.search_range.pair_disparity_range`); default: from SIFT
@@ -457,9 +456,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             factor = 1.0
             if sigma_factor:
                 ok_final = status[idx] == Status.OK
-                wcov = res.cov if res.window_cov is None else res.window_cov
-                vf = variance_factor(points, res.affine[:, [0, 3]], wcov, ok_final,
-                                     patch=patch)
+                vf = midpoint_variance_factor(points, res.affine, res.affine_cov, ok_final,
+                                              patch=sides)
                 # σ0²N⁻¹ is the white-noise precision, a lower bound: what real images
                 # add only grows it (an estimate below 1 is the estimator's own scatter,
                 # ~10 % for a few thousand matches)
@@ -580,7 +578,8 @@ def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options
               "radiometric": np.full((n, 2), np.nan), "converged": np.zeros(n, bool),
               "iterations": np.zeros(n, np.int32), "sigma0": np.full(n, np.nan),
               "cov": np.full((n, 2, 2), np.nan), "correlation": np.full(n, np.nan),
-              "status": np.zeros(n, np.uint8), "window_cov": np.full((n, 2, 2), np.nan)}
+              "status": np.zeros(n, np.uint8), "window_cov": np.full((n, 2, 2), np.nan),
+              "affine_cov": np.full((n, 6, 6), np.nan)}
     offset = options.get("offset")
     if offset is None:
         del arrays["window_cov"]

@@ -4,33 +4,36 @@ LSM's covariance :math:`\sigma_0^2 N^{-1}` (Gruen 1985) holds for white noise an
 model that fits.  Real photographs add correlated noise (demosaicing, compression:
 fewer independent observations than pixels), blur and shading differences between
 the views and the affine model's own error, none of which :math:`\sigma_0` sees.  The
-data measure them where the scene is smooth: each accepted match :math:`x_i` is
-compared with the value a local quadratic mapping, fitted to the matches of the
-*independent* windows around it (centres between one patch side and ``radius_px``
-away, so that no pixel of its own window is in theirs), predicts at its centre,
+data measure them by redundancy: two windows whose centres :math:`p_i, p_j` are at
+least a patch side apart share no pixel, and each one's estimated affine warp
+:math:`W_i(p) = x_i + A_i (p - p_i)` predicts where their midpoint
+:math:`m = (p_i + p_j)/2` goes.  For any mapping that is quadratic between the two
+centres the two predictions agree exactly (the trapezoidal rule: the difference of
+the two is :math:`x_i - x_j - \tfrac12 (A_i + A_j)(p_i - p_j)`), so a slanted or
+curved surface -- a temple's facade, a wall seen 40 degrees apart -- gives no
+disagreement, only the matching errors do:
 
 .. math::
 
-    d_i = x_i - \hat x_i, \qquad
-    E\,|d_i|^2 = k^2 \left(\operatorname{tr}\Sigma_i + v_{0,i}\,
-    \overline{\operatorname{tr}\Sigma_j}\right),
+    d_{ij} = W_i(m) - W_j(m), \qquad
+    E\,[d_{ij} d_{ij}^\mathsf{T}] = k^2 \left(G_i \Sigma_i G_i^\mathsf{T}
+    + G_j \Sigma_j G_j^\mathsf{T}\right),
 
-:math:`v_{0,i}` the fit's variance factor at the centre (:math:`(X^\mathsf{T}X)^{-1}_{00}`,
-grown by :math:`n_i / n_{eff}`: neighbours closer than a patch share pixels, and the
-ring holds about :math:`n_{eff} = \pi(R^2 - s^2)/s^2` independent windows of side s).
-The variance factor :math:`k^2`, estimated robustly as the median of
-:math:`r_i = |d_i|^2 / E_0|d_i|^2` over its Gaussian value (ln 2 for full covariances,
-0.455 -- χ²₁'s median -- for the rank-1 ones of an epipolar constraint), is the
-factor by which the reported variances must grow (a variance-component estimate from
-redundant observations, Förstner 1979); the matches' covariances are then
-:math:`k^2 \Sigma`.  Depth edges and surfaces curved more than a
-quadratic over ``radius_px`` inflate some :math:`d_i`; the median ignores them while
-they are fewer than half (``used`` marks the residuals within the χ²₂ 99 % point).
-What the local fit cannot see is an error that is smooth over the radius (a relief
-of the scene itself is not a matching error).
+:math:`\Sigma_i` the reported 6x6 covariance of :math:`(a_0, a_1, a_2, b_0, b_1, b_2)`
+(:attr:`matching.lsm.LSMResult.affine_cov`) and :math:`G_i` the gradient of
+:math:`W_i(m)` in them.  The variance factor :math:`k^2` -- the factor by which the
+reported variances must grow, a variance-component estimate from redundant
+observations (Förstner 1979) -- is the median of the Mahalanobis distances
+:math:`d^\mathsf{T} E^{-1} d` over its value for Gaussian errors (2 ln 2, the median of
+χ²₂): robust to the pairs across a depth edge or an occlusion, which disagree by
+far more, while they are fewer than half.  Pairs are taken between one and 1.5 patch
+sides apart (the nearest independent windows: the least model error between them).
 
-Unlike forward-backward matching (:mod:`matching.consistency`), whose two matches read
-the same pixels and so share their noise, the windows compared here share none.
+What it cannot see is an error that both windows share: one smooth over the two
+windows (a lens distortion, a relief of the scene: these are geometry, not matching
+error) or a bias the same texture gives both.  Unlike forward-backward matching
+(:mod:`matching.consistency`), whose two matches read the same pixels and so share
+their noise, the windows compared here share none.
 
 References
 ----------
@@ -45,153 +48,157 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import chi2
 
-from matching.validate import TOL, check_shape
+from matching.validate import check_shape
 
-numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
-
-#: χ²(2 dof) 99 % point.
-_CHI2_2_99 = 9.21
-#: Fewer independent neighbours than this: no prediction (6 unknowns per axis).
-_MIN_NEIGHBOURS = 12
+#: Pairs between one and this many (mean) patch sides apart.
+PAIR_REACH = 1.5
+#: At most this many windows enter the estimate (a dense map is thinned on a grid:
+#: the factor is one number per pair of images; 20 000 windows give ~10⁵ pairs).
+MAX_WINDOWS = 20000
 
 
 @dataclass(frozen=True)
 class VarianceFactor:
-    """Result of :func:`variance_factor` (arrays over the N matches).
+    """Result of :func:`midpoint_variance_factor`.
 
     Attributes
     ----------
     factor : float
-        ``k²`` (NaN: fewer than 30 predictions).
-    residual : (N, 2) float64
-        ``d = x - x̂``, px (NaN: not predicted).
-    expected : (N,) float64
-        Reported ``E|d|²`` before the factor, px².
-    used : (N,) bool
-        Matches in the estimate (predicted, not trimmed).
+        ``k²`` (NaN: fewer than ``min_pairs`` pairs).
+    pairs : (P, 2) int64
+        Indices of the window pairs compared (into the N matches).
+    d2 : (P,) float64
+        Their Mahalanobis distances ``dᵀ E⁻¹ d`` before the factor.
     """
 
     factor: float
-    residual: np.ndarray
-    expected: np.ndarray
-    used: np.ndarray
+    pairs: np.ndarray
+    d2: np.ndarray
 
 
-@numba.njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def _local_quadratic(points, values, var, starts, nbrs, min_nb, det_tol, pred, v0, nbvar):
-    """Quadratic fit of ``values`` over each point's neighbours ``nbrs[starts[i]:...]``."""
-    for i in numba.prange(len(points)):
-        s, e = starts[i], starts[i + 1]
-        if e - s < min_nb:
-            continue
-        a = np.zeros((6, 6))
-        b = np.zeros((6, 2))
-        acc = 0.0
-        for t in range(s, e):
-            j = nbrs[t]
-            dx = points[j, 0] - points[i, 0]
-            dy = points[j, 1] - points[i, 1]
-            row = np.array([1.0, dx, dy, dx * dx, dx * dy, dy * dy])
-            for r in range(6):
-                for c in range(6):
-                    a[r, c] += row[r] * row[c]
-                b[r, 0] += row[r] * values[j, 0]
-                b[r, 1] += row[r] * values[j, 1]
-            acc += var[j]
-        scale = a[0, 0]
-        if not np.linalg.det(a / scale) > det_tol:
-            continue
-        inv = np.linalg.inv(a)
-        coef = inv @ b
-        pred[i, 0] = coef[0, 0]
-        pred[i, 1] = coef[0, 1]
-        v0[i] = inv[0, 0]
-        nbvar[i] = acc / (e - s)
+def variance_factor(d2, dof: int = 2, min_count: int = 30, at_least: float = 1.0) -> float:
+    """Robust a-posteriori variance factor of χ²-distributed squared distances.
+
+    ``median(d2) / median(χ²_dof)`` (the median of χ²₂ is 2 ln 2 = 1.386), never below
+    ``at_least`` (default 1: the reported covariances are the white-noise bound);
+    ``at_least`` (or 1 if that is 0) when fewer than ``min_count`` finite values.
+
+    Parameters
+    ----------
+    d2 : (M,) array_like
+        Squared Mahalanobis distances of residuals against their reported covariances.
+    dof : int
+        Their degrees of freedom (2 for image points).
+    """
+    d2 = np.asarray(d2, dtype=np.float64).ravel()
+    d2 = d2[np.isfinite(d2)]
+    if len(d2) < min_count:
+        return float(at_least) if at_least > 0 else 1.0
+    return float(max(at_least, np.median(d2) / chi2.ppf(0.5, dof)))
 
 
-def variance_factor(points, positions, cov, valid=None, *, patch: int = 15,
-                    radius_px: float | None = None) -> VarianceFactor:
+def _thin(points: np.ndarray, idx: np.ndarray, max_windows: int) -> np.ndarray:
+    """At most ~``max_windows`` of ``idx``: the first per cell of a grid (deterministic)."""
+    if len(idx) <= max_windows:
+        return idx
+    p = points[idx]
+    lo, hi = p.min(0), p.max(0)
+    cell = float(np.sqrt(np.prod(np.maximum(hi - lo, 1.0)) / max_windows))
+    while True:
+        key = np.floor((p - lo) / cell).astype(np.int64)
+        _, first = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1],
+                             return_index=True)
+        if len(first) <= max_windows:
+            return idx[np.sort(first)]
+        cell *= 1.2
+
+
+def midpoint_variance_factor(points, affine, affine_cov, valid=None, *, patch=15,
+                             min_pairs: int = 30,
+                             max_windows: int = MAX_WINDOWS) -> VarianceFactor:
     """Estimate the variance factor of LSM matches (module docstring).
 
     Parameters
     ----------
     points : (N, 2) array_like
         Template window centres, px.
-    positions : (N, 2) array_like
-        Matched positions in the search image, px.
-    cov : (N, 2, 2) array_like
-        Reported covariances, px².
+    affine : (N, 6) array_like
+        Their warps ``a0 a1 a2 b0 b1 b2`` (``(a0, b0)``: the centre's match, px).
+    affine_cov : (N, 6, 6) array_like
+        Reported covariances of ``affine`` (:attr:`matching.lsm.LSMResult.affine_cov`).
     valid : (N,) bool, optional
         Matches to use (default: all finite).
-    patch : int
-        Patch side, px: neighbours closer than this share pixels and are left out.
-    radius_px : float, optional
-        Outer radius of the neighbourhood, px (default 2.5 ``patch``: the ring between
-        one and 2.5 patch sides holds ~5 windows' worth of independent matches).
+    patch : int or (N,) array_like of int
+        Patch side(s), px: windows closer than the mean side of the two share pixels
+        and are not paired.
+    min_pairs : int
+        Fewer pairs: factor NaN.
+    max_windows : int
+        More valid windows: thinned on a grid first.
 
     Returns
     -------
     VarianceFactor
     """
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
-    positions = check_shape(positions, "(N, 2)", "positions", dtype=np.float64)
-    cov = check_shape(cov, "(N, 2, 2)", "cov", dtype=np.float64)
+    affine = check_shape(affine, "(N, 6)", "affine", dtype=np.float64)
+    acov = check_shape(affine_cov, "(N, 6, 6)", "affine_cov", dtype=np.float64)
     n = len(points)
-    if len(positions) != n or len(cov) != n:
-        raise ValueError(f"points, positions and cov must have the same length, got {n}, "
-                         f"{len(positions)}, {len(cov)}")
-    outer = 2.5 * patch if radius_px is None else float(radius_px)
-    if not (np.isfinite(outer) and outer > patch):
-        raise ValueError(f"radius_px must exceed the patch side {patch}, got {radius_px!r}")
-    var = np.trace(cov, axis1=1, axis2=2)
-    ok = (np.isfinite(points).all(1) & np.isfinite(positions).all(1) & np.isfinite(var))
+    if len(affine) != n or len(acov) != n:
+        raise ValueError(f"points, affine and affine_cov must have the same length, got "
+                         f"{n}, {len(affine)}, {len(acov)}")
+    sides = np.broadcast_to(np.asarray(patch, dtype=np.float64), (n,))
+    if not np.all(np.isfinite(sides) & (sides >= 1)):
+        raise ValueError("patch must be a positive side (or one per point)")
+    ok = (np.isfinite(points).all(1) & np.isfinite(affine).all(1)
+          & np.isfinite(acov).all(axis=(1, 2)))
     if valid is not None:
         ok &= np.asarray(valid, dtype=bool)
-    idx = np.flatnonzero(ok)
-    residual = np.full((n, 2), np.nan)
-    expected = np.full(n, np.nan)
-    used = np.zeros(n, bool)
-    if len(idx) < 30:
-        return VarianceFactor(float("nan"), residual, expected, used)
-    p = np.ascontiguousarray(points[idx])
-    pairs = cKDTree(p).query_pairs(outer, output_type="ndarray")
-    d = np.linalg.norm(p[pairs[:, 0]] - p[pairs[:, 1]], axis=1)
-    pairs = pairs[d >= patch]  # independent windows only
-    both = np.concatenate([pairs, pairs[:, ::-1]])
-    order = np.argsort(both[:, 0], kind="stable")
-    nbrs = np.ascontiguousarray(both[order, 1], dtype=np.int64)
-    starts = np.zeros(len(idx) + 1, np.int64)
-    np.cumsum(np.bincount(both[:, 0], minlength=len(idx)), out=starts[1:])
-    pred = np.full((len(idx), 2), np.nan)
-    v0 = np.full(len(idx), np.nan)
-    nbvar = np.full(len(idx), np.nan)
-    _local_quadratic(p, np.ascontiguousarray(positions[idx]), np.ascontiguousarray(var[idx]),
-                     starts, nbrs, _MIN_NEIGHBOURS, TOL.zero, pred, v0, nbvar)
-    # neighbours closer than a patch share pixels, so their errors are correlated: the
-    # ring holds about ring_area / patch² independent windows, not its n matches, and the
-    # fit's variance grows by n / that (white-noise warps: k² 1.28 -> ~1 with it)
-    count = np.diff(starts).astype(np.float64)
-    ring = np.pi * (outer**2 - patch**2)
-    inflation = np.maximum(1.0, count * patch**2 / ring)
-    res = positions[idx] - pred
-    exp = var[idx] + v0 * nbvar * inflation
-    residual[idx] = res
-    expected[idx] = exp
-    r = np.sum(res**2, axis=1) / exp
-    good = np.isfinite(r)
-    if good.sum() < 30:
-        return VarianceFactor(float("nan"), residual, expected, used)
-    # robust: the median of r against its value for Gaussian errors -- half a chi-square
-    # of 2 dof (ln 2) for full covariances, a chi-square of 1 dof (0.455) for the rank-1
-    # ones of an epipolar constraint -- so that depth edges and curvature beyond the
-    # quadratic (which can be most of a temple's facade) do not set the factor
-    rank1 = np.abs(np.linalg.det(cov[idx])) <= 1e-9 * var[idx] ** 2
-    ref = np.where(rank1, 0.45493642, np.log(2.0))
-    k2 = float(np.median(r[good] / ref[good]))
-    keep = good & (r <= _CHI2_2_99 * k2)
-    used[idx[keep]] = True
-    return VarianceFactor(k2, residual, expected, used)
+    idx = _thin(points, np.flatnonzero(ok), max_windows)
+    empty = VarianceFactor(float("nan"), np.zeros((0, 2), np.int64), np.zeros(0))
+    if len(idx) < 2:
+        return empty
+    p = points[idx]
+    s = sides[idx]
+    pairs = cKDTree(p).query_pairs(PAIR_REACH * s.max(), output_type="ndarray")
+    if not len(pairs):
+        return empty
+    a, b = pairs[:, 0], pairs[:, 1]
+    delta = p[a] - p[b]  # (P, 2)
+    dist = np.linalg.norm(delta, axis=1)
+    mean_side = 0.5 * (s[a] + s[b])
+    keep = (dist >= mean_side) & (dist <= PAIR_REACH * mean_side)
+    a, b, delta = a[keep], b[keep], delta[keep]
+    if len(a) < min_pairs:
+        return VarianceFactor(float("nan"), idx[np.column_stack([a, b])], np.zeros(0))
+    fa, fb = affine[idx[a]], affine[idx[b]]
+    # W_a(m) - W_b(m), m = (p_a + p_b)/2: offsets -delta/2 from a, +delta/2 from b
+    half = 0.5 * delta
+    d = np.column_stack([
+        fa[:, 0] - fb[:, 0] - (fa[:, 1] + fb[:, 1]) * half[:, 0]
+        - (fa[:, 2] + fb[:, 2]) * half[:, 1],
+        fa[:, 3] - fb[:, 3] - (fa[:, 4] + fb[:, 4]) * half[:, 0]
+        - (fa[:, 5] + fb[:, 5]) * half[:, 1]])
+    expected = (_warp_cov(acov[idx[a]], -half) + _warp_cov(acov[idx[b]], half))
+    det = expected[:, 0, 0] * expected[:, 1, 1] - expected[:, 0, 1] ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d2 = (expected[:, 1, 1] * d[:, 0] ** 2 - 2 * expected[:, 0, 1] * d[:, 0] * d[:, 1]
+              + expected[:, 0, 0] * d[:, 1] ** 2) / det
+    d2[~(det > 0)] = np.nan
+    factor = variance_factor(d2, 2, min_pairs, at_least=0.0)
+    if np.isfinite(d2).sum() < min_pairs:
+        factor = float("nan")
+    return VarianceFactor(factor, idx[np.column_stack([a, b])], d2)
+
+
+def _warp_cov(cov6: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(P, 2, 2) covariance of ``W(p + offset)`` from the (P, 6, 6) affine covariance."""
+    g = np.zeros((len(offset), 2, 6))
+    g[:, 0, 0] = g[:, 1, 3] = 1.0
+    g[:, 0, 1] = g[:, 1, 4] = offset[:, 0]
+    g[:, 0, 2] = g[:, 1, 5] = offset[:, 1]
+    return np.einsum("pik,pkl,pjl->pij", g, cov6, g)
