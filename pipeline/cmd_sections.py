@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
                          f"(choose one of {', '.join(MESH_SUFFIXES)})")
     from pipeline import limits
-    from pipeline.guards import check_cloud_shape, check_output
+    from pipeline.guards import check_cloud_shape, check_output, unit_scale
 
     if args.sections is not None and args.sections < 2:
         raise InputError(f"--sections must be >= 2, got {args.sections}")
@@ -119,17 +119,20 @@ def run(args: argparse.Namespace) -> int:
     if not np.all(np.isfinite(points)):
         bad = int(np.count_nonzero(~np.all(np.isfinite(points), axis=1)))
         raise InputError(f"{args.cloud}: {bad} points have NaN/inf coordinates")
-    check_cloud_shape(points, str(args.cloud))
+    check_cloud_shape(points, str(args.cloud), axis=axis)
+    # a cloud below the surface code's scale-invariant range is meshed at unit size: an
+    # exact power of two, so its mesh is the unit copy's scaled back (guards.unit_scale)
+    unit = unit_scale(points)
     # the surface code (numba, scipy: ~0.5 s of imports) only after every check
     from surface.reconstruct import surface_from_points
 
     start = time.perf_counter()
     try:
-        result = surface_from_points(points, axis=axis, sections=args.sections, n=args.n,
+        result = surface_from_points(points / unit, axis=axis, sections=args.sections, n=args.n,
                                      smoothing=smoothing, close_ends=not args.open_ends)
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
-    vertices, triangles = result.vertices, result.triangles
+    vertices, triangles = result.vertices * unit, result.triangles
     if len(triangles) == 0:
         raise InputError(f"{args.cloud}: no surface: no section could be stitched "
                          f"({'; '.join(result.messages) or 'no loops'})")

@@ -54,6 +54,17 @@ MAX_COORDINATE = 1e50
 #: coordinates carry fewer than ~6 significant digits of shape (float64 has 15.9).
 MIN_RELATIVE_EXTENT = 1e-10
 
+#: Smallest extent the surface code is scale-invariant at (scene units): a 600-point
+#: cylinder scaled by 2^-17 (7.6e-6) gives the very mesh of scale 1, by 2^-20 (9.5e-7) a
+#: different one (absolute tolerances such as ``TOL.zero = 1e-12`` on areas take over).
+#: ``photosurf sections`` rescales a smaller cloud by an exact power of two
+#: (:func:`unit_scale`); the pipeline's sections stage refuses it, naming this.
+MIN_EXTENT = 1e-4
+
+#: Smallest extent float64 resolves to ~10 digits: below the normal range (2.2e-308)
+#: numbers are subnormal, spaced 4.9e-324 apart (4.9e-324 / 1e-10 = 4.9e-314).
+MIN_NORMAL_EXTENT = float(np.finfo(np.float64).smallest_subnormal) / MIN_RELATIVE_EXTENT
+
 
 # --------------------------------------------------------------------------- names
 
@@ -368,13 +379,26 @@ def check_coordinates(points: np.ndarray, name: str, what: str = "coordinates") 
     return points
 
 
-def check_cloud_shape(points: np.ndarray, name: str) -> None:
-    """Refuse a cloud that spans no volume: all points equal, on a line, or too small
-    against its distance from the origin for float64 to resolve its shape.
+def check_cloud_shape(points: np.ndarray, name: str, axis=None) -> None:
+    """Refuse a cloud that spans no volume: all points equal, on a line, in one plane,
+    too small against its distance from the origin for float64 to resolve its shape, or
+    so small that float64 holds it only as subnormal numbers.
 
-    The test is on the singular values s1 >= s2 >= s3 of the centred points: a
-    line has s2 ~ 0, so every section of it is a point and no closed surface
-    exists (1000 collinear points used to give a "closed" 2164-triangle mesh).
+    The test is on the singular values s1 >= s2 >= s3 of the centred points scaled by
+    their extent (so it is the same at every scale): a line has s2 ~ 0, so every section
+    of it is a point (1000 collinear points used to give a "closed" 2164-triangle mesh);
+    a plane has s3 ~ 0, and every plane across it meets it in a line segment, not a
+    closed loop -- the slicing planes cut such a cloud in segments whenever the slicing
+    axis lies in its plane or crosses it (a plane perpendicular to the axis is one
+    section: ``surface.sections`` says so).
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    name : str
+        The file or stage named in the message.
+    axis : "x", "y", "z", (3,) array, or None
+        The slicing axis, named in the message ("auto"/None: the principal axis).
     """
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 4:
@@ -385,11 +409,50 @@ def check_cloud_shape(points: np.ndarray, name: str) -> None:
     if extent == 0 or extent < MIN_RELATIVE_EXTENT * scale:
         raise InputError(f"{name}: degenerate cloud: every point at the same place "
                          f"(extent {extent:.3g} at distance {scale:.3g})")
+    if extent < MIN_NORMAL_EXTENT:
+        raise InputError(f"{name}: coordinates spanning {extent:.3g}: float64 holds numbers "
+                         f"below {np.finfo(np.float64).tiny:.3g} only as subnormals, which "
+                         f"resolve fewer than 10 digits of a shape this small")
     sample = points[:: max(1, len(points) // 200_000)] - centre
-    singular = np.linalg.svd(sample / extent, compute_uv=False)
+    _, singular, directions = np.linalg.svd(sample / extent, full_matrices=False)
     if singular[1] <= 1e-9 * singular[0]:
         raise InputError(f"{name}: degenerate cloud: all {len(points)} points lie on one line "
                          "(no surface passes through them)")
+    if singular[2] <= 1e-9 * singular[0]:
+        normal = directions[2]
+        named = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+        if axis is None or (isinstance(axis, str) and axis.strip().lower() not in named):
+            vector, label = directions[0], "the principal (slicing) axis"
+        else:
+            vector = np.asarray(named.get(axis.strip().lower()) if isinstance(axis, str)
+                                else axis, dtype=np.float64)
+            label = f"the slicing axis {np.round(vector / np.linalg.norm(vector), 6).tolist()}"
+        cosine = abs(float(normal @ vector)) / float(np.linalg.norm(vector))
+        if cosine >= 1 - 1e-9:
+            return  # one plane across the axis: one section, surface.sections refuses it
+        angle = np.degrees(np.arcsin(min(1.0, cosine)))
+        where = ("which holds " + label if angle < 1e-6 else
+                 f"at {angle:.3g} deg to {label}")
+        raise InputError(f"{name}: degenerate cloud: all {len(points)} points lie in one plane "
+                         f"(normal {np.round(normal, 6).tolist()}) {where}: every section would "
+                         "be a line segment, not a closed loop (no closed surface)")
+
+
+def unit_scale(points: np.ndarray) -> float:
+    """An exact power of two ``u`` such that ``points / u`` spans [1, 2), when the cloud is
+    smaller than :data:`MIN_EXTENT`; else 1.
+
+    Dividing by a power of two is exact in binary floating point (no digit changes, only
+    the exponent), and the surface code is scale-invariant from ~2e-5 up (a 600-point
+    cylinder scaled by 2^-17 gives the very mesh of scale 1, by 2^-20 another one: its
+    absolute tolerances, ``TOL.zero = 1e-12`` on areas, take over).  So ``photosurf
+    sections`` meshes ``points / u`` and multiplies the vertices by ``u``: a cloud
+    scaled by 1e-49 gives the mesh of its unit-size copy.
+    """
+    extent = float(np.ptp(np.asarray(points, dtype=np.float64), axis=0).max())
+    if not 0 < extent < MIN_EXTENT:
+        return 1.0
+    return float(np.ldexp(1.0, int(np.floor(np.log2(extent)))))
 
 
 # --------------------------------------------------------------------------- outputs

@@ -142,14 +142,22 @@ def sections(ctx: StageContext) -> dict:
     """``surface.reconstruct.slice_cloud``: slice and move the slab points to their planes."""
     import warnings
 
-    from pipeline.guards import check_cloud_shape
+    import numpy as np
+
+    from pipeline.guards import MIN_EXTENT, check_cloud_shape
     from surface import reconstruct as rc
     from surface import sections as sections_mod
 
     p = ctx.params["sections"]
     points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
-    check_cloud_shape(points, "acquire: the cloud")  # a line spans no surface
     axis, axis_source = _section_axis(p["axis"], ctx.stage_path("acquire", RING_FILE))
+    check_cloud_shape(points, "acquire: the cloud", axis=axis)  # a line or plane: no surface
+    extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    if 0 < extent < MIN_EXTENT:  # the stages' lengths are in scene units: not rescaled here
+        raise InputError(f"sections: the cloud spans {extent:.3g} scene units, below "
+                         f"{MIN_EXTENT:g}, where the surface code's absolute tolerances change "
+                         "the result; give the cloud in a smaller unit (or use photosurf "
+                         "sections, which rescales it)")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
         sliced = rc.slice_cloud(

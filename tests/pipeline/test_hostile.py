@@ -430,6 +430,65 @@ def test_collinear_cloud_is_degenerate(tmp_path, capfd):
     fails_cleanly(capfd, ["sections", cloud, "--out", out], "degenerate", "line", out=out)
 
 
+def _flat_cloud(normal_tilt_rad: float, n: int = 600) -> np.ndarray:
+    """Points in the plane y = 0 (which holds z), tilted about x by ``normal_tilt_rad``."""
+    rng = np.random.default_rng(0)
+    flat = np.column_stack([rng.uniform(-1, 1, n), np.zeros(n), rng.uniform(0, 2, n)])
+    c, s = np.cos(normal_tilt_rad), np.sin(normal_tilt_rad)
+    return flat @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T
+
+
+@pytest.mark.parametrize(("tilt", "axis", "needles"), [
+    (0.0, "z", ["holds the slicing axis [0.0, 0.0, 1.0]"]),
+    (0.0, "auto", ["holds the principal (slicing) axis"]),
+    (0.5, "z", ["at 28.6 deg to the slicing axis"]),  # arcsin(sin 0.5 rad) = 28.6 deg
+])
+def test_flat_cloud_across_the_slicing_axis(tmp_path, capfd, tilt, axis, needles):
+    """A plane the slicing planes cross: every section a segment; refused, naming that."""
+    cloud = tmp_path / "flat.xyz"
+    np.savetxt(cloud, _flat_cloud(tilt))
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", cloud, "--out", out, "--axis", axis], "flat.xyz",
+                  "one plane", "line segment", *needles, out=out)
+
+
+def test_tiny_cloud_meshed_at_unit_size(tmp_path, capfd):
+    """Scale-invariant maths: a cloud scaled by 2^-163 (1.7e-49; its 6th powers 1e-294
+    are still normal float64) gives the unit cloud's mesh times 2^-163, bit for bit."""
+    from pipeline.cloud_io import write_cloud
+    from pipeline.mesh_io import read_mesh
+
+    points = cylinder_points(600)
+    scale = 2.0 ** -163
+    meshes = []
+    for name, factor in (("unit", 1.0), ("tiny", scale)):
+        cloud = write_cloud(tmp_path / f"{name}.ply", points * factor)
+        assert call_main(["sections", cloud, "--out", tmp_path / f"{name}_m.ply", "-q"]) == 0
+        meshes.append(read_mesh(tmp_path / f"{name}_m.ply"))
+    (v1, t1), (v2, t2) = meshes
+    np.testing.assert_array_equal(t2, t1)
+    np.testing.assert_array_equal(v2, v1 * scale)
+
+
+def test_subnormal_cloud_refused(tmp_path, capfd):
+    """Below float64's normal range the coordinates keep too few digits of the shape."""
+    cloud = tmp_path / "sub.npz"
+    np.savez(cloud, points=cylinder_points(300) * 1e-318)
+    fails_cleanly(capfd, ["sections", cloud, "--out", tmp_path / "m.ply"], "sub.npz",
+                  "subnormal")
+
+
+def test_run_refuses_a_cloud_below_the_scale_invariant_range(tmp_path, capfd):
+    """The pipeline's stages take lengths in scene units, so a 1e-6 cloud is refused with
+    the reason (the command photosurf sections rescales it instead)."""
+    cloud = tmp_path / "small.xyz"
+    np.savetxt(cloud, cylinder_points(300) * 1e-6)
+    out = tmp_path / "w"
+    line = fails_cleanly(capfd, ["run", cloud, "--out", out], "below 0.0001",
+                         "absolute tolerances")
+    assert "spans 2e-06" in line
+
+
 def test_complex_npz_cloud(tmp_path, capfd):
     cloud = tmp_path / "c.npz"
     np.savez(cloud, points=cylinder_points(300).astype(np.complex128) * (1 + 1j))
