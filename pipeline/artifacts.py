@@ -19,7 +19,13 @@ file                        arrays (shapes; lengths in scene units)
                             (R+1,), ``section`` (R,), ``loop`` (R,), ``heights`` (R,),
                             ``axis`` (3,), ``frame`` (3,3), ``noise`` () the section
                             points' sigma (:func:`surface.reconstruct.section_noise`); R rings,
-                            a section may hold several loops
+                            a section may hold several loops.  How each ring was fitted
+                            (``surface.catmull_rom.RingFit``): ``smoothing`` (R,) points
+                            per control point, ``controls`` (R,) int64, ``data_points``
+                            (R,) int64, ``loop_noise`` (R,) the loop's sigma-hat,
+                            ``precision`` (R,) the ring's own sigma, ``ring_precision`` ()
+                            their median (:func:`surface.sizing.ring_precision`); absent in
+                            files written before session 5 (:func:`read_curve_fits`: None)
 ``stitch/mesh.ply``         the stitched mesh (:func:`pipeline.mesh_io.write_mesh`);
 ``stitch/stitch.json``      its notes (closed, messages, open interfaces, flips ...)
 ``smooth/surface.ply``      the tessellated Bézier surface with its exact normals
@@ -141,7 +147,7 @@ def section_heights(folder: str | os.PathLike) -> np.ndarray:
 
 # --------------------------------------------------------------------------- curves
 def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
-                 noise: float) -> tuple[int, int]:
+                 noise: float, fits: Sequence | None = None) -> tuple[int, int]:
     """``folder/curves.npz``: the rings of each section, flattened.
 
     Parameters
@@ -152,6 +158,9 @@ def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
         The sections the rings belong to (same order): their heights and frame.
     noise : float
         The section points' sigma, scene units.
+    fits : sequence, optional
+        Mirroring ``rings``: each ring's ``surface.catmull_rom.RingFit`` (or a list of
+        them); stored per ring with their median precision.
 
     Returns
     -------
@@ -166,10 +175,24 @@ def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
             loop_ids.append(lp)
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in flat])]).astype(np.int64)
     frame = sections[0].frame
+    extra = {}
+    if fits is not None:
+        from surface.sizing import ring_precision
+
+        records = [f for item in fits for f in ([item] if hasattr(item, "precision")
+                                                 else list(item))]
+        if len(records) != len(flat):
+            raise ValueError(f"fits: {len(records)} records for {len(flat)} rings")
+        extra = {"smoothing": np.array([f.smoothing for f in records], np.float64),
+                 "controls": np.array([f.controls for f in records], np.int64),
+                 "data_points": np.array([f.points for f in records], np.int64),
+                 "loop_noise": np.array([f.noise for f in records], np.float64),
+                 "precision": np.array([f.precision for f in records], np.float64),
+                 "ring_precision": np.float64(ring_precision(records))}
     save_npz(Path(folder) / CURVES, points=np.concatenate(flat), offsets=offsets,
              section=np.array(sec, np.int64), loop=np.array(loop_ids, np.int64),
              heights=np.array([sections[k].height for k in sec]), axis=frame[2], frame=frame,
-             noise=np.float64(noise))
+             noise=np.float64(noise), **extra)
     return len(flat), int(offsets[-1])
 
 
@@ -190,6 +213,23 @@ def read_curves(folder: str | os.PathLike) -> tuple[list, list, float | None]:
                                   origin=np.zeros(3), frame=frame, section_id=len(planes)))
         rings[-1].append(d["points"][off[k]:off[k + 1]])
     return rings, planes, (float(d["noise"]) if "noise" in d else None)
+
+
+#: The per-ring fit arrays of ``curves.npz`` (:func:`write_curves` with ``fits``).
+CURVE_FITS = ("smoothing", "controls", "data_points", "loop_noise", "precision")
+
+
+def read_curve_fits(folder: str | os.PathLike) -> dict | None:
+    """How the rings of ``folder/curves.npz`` were fitted: the per-ring arrays
+    ``smoothing``, ``controls``, ``data_points``, ``loop_noise``, ``precision`` (R,) and
+    the median ``ring_precision`` (float); None for a file written before they were
+    stored."""
+    with np.load(Path(folder) / CURVES) as d:
+        if "ring_precision" not in d.files:
+            return None
+        out = {key: d[key] for key in CURVE_FITS}
+        out["ring_precision"] = float(d["ring_precision"])
+    return out
 
 
 # --------------------------------------------------------------------------- stitch

@@ -94,7 +94,7 @@ STAGES: list[Stage] = [
     Stage("sections", fn.sections, params=("sections",), needs=("acquire",),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.sections")),
     Stage("curves", fn.curves, params=("curves",), needs=("sections",),
-          modules=_ADAPTERS + ("surface.reconstruct",)),
+          modules=_ADAPTERS + ("surface.reconstruct", "surface.sizing")),
     Stage("stitch", fn.stitch, params=("stitch",), needs=("curves", "sections"),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.stitch")),
     Stage("smooth", fn.smooth, params=("smooth", "stitch"), needs=("stitch",),

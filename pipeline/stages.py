@@ -197,7 +197,10 @@ def _section_axis(axis, ring_file: Path):
 def curves(ctx: StageContext) -> dict:
     """``surface.reconstruct.organise_sections`` then ``section_rings`` (fit, predict) and
     ``untangle`` (sections whose rings knot the loop graph dropped)."""
+    import numpy as np
+
     from surface import reconstruct as rc
+    from surface.sizing import ring_precision
 
     p = ctx.params["curves"]
     smoothing = p["smoothing"] or "auto"  # 0: from the data (as the other "0:" keys)
@@ -209,16 +212,22 @@ def curves(ctx: StageContext) -> dict:
             ctx.track(sliced, "loops", total=len(sliced), unit="section"), **options)
     except ValueError as exc:
         raise InputError(f"curves: {exc} (set sections.count)") from exc
-    rings = rc.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
-                             parametrisation=p["parametrisation"])
+    rings, fits = rc.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
+                                   parametrisation=p["parametrisation"], fits=True)
+    fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
     kept, loops, rings, untangled = rc.untangle(kept, loops, rings)
+    fits = [fit_of[id(section)] for section in kept]
     messages += untangled
     for message in messages:
         log.warning("curves: %s", message)
-    n_rings, n_points = artifacts.write_curves(ctx.out, rings, kept, rc.section_noise(loops))
+    n_rings, n_points = artifacts.write_curves(ctx.out, rings, kept, rc.section_noise(loops),
+                                               fits)
     n = p["n"] or rc.ring_count(kept, loops)
+    records = [f for item in fits for f in ([item] if hasattr(item, "smoothing") else item)]
     return {"rings": n_rings, "n": int(n), "points": n_points,
-            "sections_without_loop": len(sliced) - len(kept), "warnings": messages}
+            "sections_without_loop": len(sliced) - len(kept), "warnings": messages,
+            "ring_precision": ring_precision(records),
+            "smoothing_median": float(np.median([f.smoothing for f in records]))}
 
 
 def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float):
@@ -275,15 +284,24 @@ def stitch(ctx: StageContext) -> dict:
 def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     """``surface.sizing.size_control_mesh`` of the curves' rings (``smooth.size``): the
     thinned stitched mesh whose interpolating surface is within ``smooth.size_tolerance``
-    (0: the section points' noise σ̂) of the stitched mesh; ``None`` when not asked or
-    not possible (no noise estimate, an open mesh), with the reason logged."""
+    (0: ``surface.sizing.precision_tolerance`` of the dense rings' own precision, which
+    the curves stage stores; the section points' noise σ̂ for a curves.npz written
+    before it was)
+    of the stitched mesh; ``None`` when not asked or not possible (no noise estimate,
+    an open mesh), with the reason logged."""
     from surface import sizing
 
     p = ctx.params["smooth"]
     if not p["size"] or not ctx.has_output("curves") or not ctx.has_output("sections"):
         return None
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
-    tolerance = float(p["size_tolerance"]) or (noise or 0.0)
+    fits = artifacts.read_curve_fits(ctx.stage_path("curves"))
+    if fits is None and not float(p["size_tolerance"]):
+        log.info("smooth: curves.npz holds no ring precision (written before it was "
+                 "stored): sizing against the points' noise instead (re-run curves)")
+    derived = sizing.precision_tolerance(fits["ring_precision"]) if fits is not None \
+        else (noise or 0.0)
+    tolerance = float(p["size_tolerance"]) or derived
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     if tolerance <= 0 or spacing <= 0:
         log.info("smooth: no sizing (no noise estimate or section spacing); the stitched "

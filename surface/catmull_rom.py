@@ -40,6 +40,25 @@ noise σ (measured: 0.93–1.1 × that on a noisy circle) and the noise does not
 become wiggles; the shape bias stays below 1e-7 of the radius on a circle at
 8 points per control point.  ``smoothing ≤ 1`` interpolates the points.
 
+Precision of the fitted curve (:func:`precision_factor`, stored per ring by
+:func:`predict_sections` with ``fits=True``): the least-squares control points
+``P = K⁻¹Aᵀx`` with ``K = AᵀA + λDᵀD`` have covariance ``σ² K⁻¹AᵀA K⁻¹`` for
+independent point noise σ across the curve, so the curve's variance averaged over
+its parameter is ``σ²/n · tr(K⁻¹AᵀA K⁻¹ G)``, ``G = ∫ b(t) b(t)ᵀ dt`` the Gram
+matrix of the basis.  With the data spread evenly in ``t`` (``AᵀA ≈ (M/n) G``)
+every matrix is circulant and the trace is a sum over the n Fourier modes ω::
+
+    σ_curve² = σ² · (n / M) · ρ(n),   ρ(n) = (1/n) Σ_ω [ĝ(ω) / (ĝ(ω) + λ' d̂(ω))]²
+
+with ``ĝ(ω) = Σ_k g_k cos kω`` the symbol of the Catmull-Rom Gram matrix
+(``g_0 = 57/70``, ``g_±1 = 71/560``, ``g_±2 = −1/28``, ``g_±3 = 1/560``),
+``d̂(ω) = (2 − 2 cos ω)³`` that of the third differences and ``λ' = 0.01 g_0``
+(the fairness weight below).  Without the fairness term ρ = 1 and the curve's σ is
+the familiar ``σ/√s`` (n/M = 1/s: s points per control point, the trace of the hat
+matrix being n); the fairness term damps the highest modes, ρ ≈ 0.73 for n ≥ 8.
+Measured on noisy circles (random θ, 40 draws): 1.02-1.08 × the prediction for
+s = 32 … 4 (uneven data spacing raises the variance a little).
+
 References
 ----------
 .. [1] E. Catmull and R. Rom, "A class of local interpolating splines",
@@ -67,10 +86,12 @@ from surface.validate import TOL, check_finite, check_shape
 __all__ = [
     "M_CR",
     "ClosedCurve",
+    "RingFit",
     "choose_smoothing",
     "fit",
     "fit_loop",
     "predict_ring",
+    "precision_factor",
     "predict_sections",
     "ring_size",
 ]
@@ -698,6 +719,91 @@ def fit_loop(loop, smoothing: float | str = 8.0, parametrisation: str = "uniform
     )
 
 
+# ----------------------------------------------------------------------------- precision
+@lru_cache(maxsize=1)
+def _gram_stencil() -> np.ndarray:
+    """``g_k = ∫ φ(t) φ(t − k) dt``, k = −3 … 3, of the uniform Catmull-Rom basis φ (exact).
+
+    From the segment Gram ``¼ M_CRᵀ H M_CR`` of the power basis ``(u³, u², u, 1)``,
+    ``H_ab = 1 / (e_a + e_b + 1)``: ``g_k`` sums its entries ``(a, a + k)``.
+    """
+    exponents = np.array([3, 2, 1, 0])
+    segment = 0.25 * M_CR.T @ (1.0 / (exponents[:, None] + exponents[None, :] + 1)) @ M_CR
+    return np.array([sum(segment[a, a + k] for a in range(4) if 0 <= a + k < 4)
+                     for k in range(-3, 4)])
+
+
+@lru_cache(maxsize=256)
+def _fairness_variance_ratio(n: int) -> float:
+    """ρ(n) of the module notes: the fairness term's share of the curve's variance."""
+    g = _gram_stencil()
+    omega = 2.0 * np.pi * np.arange(n) / n
+    symbol = sum(g[k + 3] * np.cos(k * omega) for k in range(-3, 4))
+    third = (2.0 - 2.0 * np.cos(omega)) ** 3
+    return float(np.mean((symbol / (symbol + _FAIRNESS * g[3] * third)) ** 2))
+
+
+def precision_factor(controls: int, points: int) -> float:
+    """σ of a least-squares fitted curve per unit σ of its points: ``√(ρ(n) · n / M)``.
+
+    Module notes ("Precision of the fitted curve"); 1 for an interpolating curve
+    (``controls >= points``).
+
+    Parameters
+    ----------
+    controls : int
+        n, control points of the fit (>= 4).
+    points : int
+        M, data points fitted (>= 1).
+
+    Returns
+    -------
+    float
+        In (0, 1]: the curve's RMS error across the curve, averaged over its
+        parameter, is this times the points' σ.
+    """
+    controls, points = int(controls), int(points)
+    if controls < 1 or points < 1:
+        raise ValueError(f"need controls >= 1 and points >= 1, got {controls}, {points}")
+    if controls >= points:
+        return 1.0
+    return float(np.sqrt(_fairness_variance_ratio(controls) * controls / points))
+
+
+@dataclass(frozen=True)
+class RingFit:
+    """How one ring's curve was fitted, and its precision.
+
+    Attributes
+    ----------
+    smoothing : float
+        s, data points per control point (GCV's choice for ``"auto"``; 1: interpolating).
+    controls : int
+        n, control points of the curve.
+    points : int
+        M, the loop's points fitted.
+    noise : float
+        σ̂ of the loop's points across the curve (``topology.Loop.noise``), scene units;
+        NaN when the loop has none.
+    precision : float
+        ``noise · precision_factor(controls, points)``: the ring's own RMS error across
+        the curve from the points' noise, scene units.
+    """
+
+    smoothing: float
+    controls: int
+    points: int
+    noise: float
+    precision: float
+
+
+def _ring_fit(loop, curve: ClosedCurve) -> RingFit:
+    m = len(loop.points)
+    noise = float(getattr(loop, "noise", np.nan))
+    return RingFit(float(curve.smoothing), curve.n, m, noise,
+                   noise * precision_factor(curve.n, m))
+
+
 # ----------------------------------------------------------------------------- prediction
 def ring_size(section_index: int, n: int) -> int:
     """Points on the ring of section ``section_index`` (0-based): N, 2N, N, 2N, ….
@@ -714,17 +820,21 @@ def predict_ring(
     smoothing: float | str = 8.0,
     parametrisation: str = "uniform",
     theta0: float = 0.0,
-) -> np.ndarray:
+    fit: bool = False,
+):
     """Ring ``(n_points, 3)`` of one loop: at equal θ if star-shaped, else equal arc length.
 
     Point ``j`` sits at ``θ = theta0 + 2πj/n_points`` about the loop centroid
     in the common frame (star-shaped), or at arc length ``j·L/n_points`` from
-    the crossing with the ray at ``theta0`` (not star-shaped).
+    the crossing with the ray at ``theta0`` (not star-shaped).  ``fit=True``
+    returns ``(ring, RingFit)``.
     """
     curve = fit_loop(loop, smoothing, parametrisation)
     if curve.is_star_shaped():
-        return curve.resample_theta(n_points, theta0)
-    return curve.resample_arclength(n_points, theta0)
+        ring = curve.resample_theta(n_points, theta0)
+    else:
+        ring = curve.resample_arclength(n_points, theta0)
+    return (ring, _ring_fit(loop, curve)) if fit else ring
 
 
 def predict_sections(
@@ -732,7 +842,8 @@ def predict_sections(
     n: int,
     smoothing: float | str = 8.0,
     parametrisation: str = "uniform",
-) -> list:
+    fits: bool = False,
+):
     """Predict the stitching rings: N points on odd sections, 2N on even ones.
 
     Parameters
@@ -744,21 +855,27 @@ def predict_sections(
         N, points on the odd sections (0-based indices 0, 2, 4, …).
     smoothing, parametrisation
         Passed to :func:`fit`.
+    fits : bool
+        Also return how each ring was fitted (:class:`RingFit`: the smoothing chosen,
+        the points' noise and the ring's precision), mirroring the rings.
 
     Returns
     -------
-    list
+    list, or (list, list) with ``fits``
         Mirrors the input: for a Loop entry an ``(n_k, 3)`` array, for a
         sequence entry a list of such arrays; ``n_k = ring_size(k, n)``.
         Ring point ``j`` is at ``θ = 2πj/n_k`` (star-shaped loop) or at equal
         arc length starting at θ = 0 (not star-shaped).
     """
     n = _check_count(n, "n")
-    rings = []
+    rings, records = [], []
     for k, entry in enumerate(loops_per_section):
         n_k = ring_size(k, n)
         if hasattr(entry, "points"):
-            rings.append(predict_ring(entry, n_k, smoothing, parametrisation))
+            ring, record = predict_ring(entry, n_k, smoothing, parametrisation, fit=True)
         else:
-            rings.append([predict_ring(lp, n_k, smoothing, parametrisation) for lp in entry])
-    return rings
+            pairs = [predict_ring(lp, n_k, smoothing, parametrisation, fit=True) for lp in entry]
+            ring, record = [r for r, _ in pairs], [f for _, f in pairs]
+        rings.append(ring)
+        records.append(record)
+    return (rings, records) if fits else rings

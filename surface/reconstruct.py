@@ -552,7 +552,8 @@ def ring_count(kept: Sequence, loops: Sequence) -> int:
 
 
 def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
-                  smoothing: float | str = 8.0, parametrisation: str = "uniform") -> list:
+                  smoothing: float | str = 8.0, parametrisation: str = "uniform",
+                  fits: bool = False):
     """Step 3 of :func:`surface_from_points`: fit and predict the rings.
 
     Parameters
@@ -561,12 +562,13 @@ def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
         From :func:`organise_sections`.
     n : int, optional
         Ring points on odd sections (default :func:`ring_count`).
-    smoothing, parametrisation
-        Passed to :func:`surface.catmull_rom.predict_sections`.
+    smoothing, parametrisation, fits
+        Passed to :func:`surface.catmull_rom.predict_sections` (``fits``: also return
+        each ring's ``RingFit``, its smoothing and precision, mirroring the rings).
 
     Returns
     -------
-    list
+    list, or (list, list) with ``fits``
         One entry per section: an ``(n_k, 3)`` array, or a list of them for
         several loops.  Step 4 is :func:`extend_to_caps`, step 5
         :func:`stitch_rings`.
@@ -577,7 +579,7 @@ def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
         n = ring_count(kept, loops)
     # A lone loop is passed as itself, so its ring comes back as one (n_k, 3) array.
     return predict_sections([lp[0] if len(lp) == 1 else lp for lp in loops], n,
-                            smoothing=smoothing, parametrisation=parametrisation)
+                            smoothing=smoothing, parametrisation=parametrisation, fits=fits)
 
 
 def section_noise(loops: Sequence) -> float:

@@ -22,15 +22,53 @@ perimeter), so the thinned triangles stay about as wide as they are tall.
 Candidates run from coarse (12 points round the largest ring) to fine, ``h``
 shrinking by √2 each time; the first whose smooth surface lies within
 ``tolerance`` of the dense stitched mesh -- the mean distance from the dense
-mesh's vertices (a fixed sample) to the candidate's tessellation -- is taken,
+mesh's vertices (a fixed sample, :func:`reference_vertices`: those the smooth
+surface interpolates, i.e. not at sharp rims) to the candidate's tessellation -- is taken,
 so the cost is dominated by the last, largest candidate.  If none passes before
-the dense resolution is reached the dense mesh is kept.  The default tolerance
-is half the section points' noise σ̂ (``surface.reconstruct.section_noise``):
-a deviation d independent of the noise raises the RMS distance to the data
-from σ̂ to √(σ̂² + d²) ≤ 1.12 σ̂, i.e. the smooth surface stays within the noise.
+the dense resolution is reached the dense mesh is kept.
+
+The tolerance is the dense rings' own precision (:func:`ring_precision`), not the
+points' noise.  Each dense ring is a least-squares Catmull-Rom curve through the
+M points of its loop with n = M/s control points (s chosen per loop by GCV,
+``surface.catmull_rom.choose_smoothing``), so its error across the curve from
+the points' noise σ̂ (``topology.Loop.noise``) is (``surface.catmull_rom`` notes,
+the hat matrix's trace n averaged over the curve, fairness term included)::
+
+    σ_ring = σ̂ · √(ρ(n) · n / M) ≈ 0.85 σ̂ / √s,        ρ(n) ≈ 0.73
+
+(σ_ring the median over the rings), and the tolerance is the dense rings' own
+mean error across the surface, the mean of |N(0, σ_ring²)|::
+
+    tolerance = √(2/π) · σ_ring                      (:func:`precision_tolerance`)
+
+i.e. the thinned surface may move away from the dense one (mean distance from
+its vertices) by as much as the dense one is itself uncertain.  Much of that
+deviation is the dense rings' own noise, which a thinning does not follow (a
+bias-free thinning that drops a share f of the dense vertices' rings deviates by
+about f·√(2/π)·√(1 + v)·σ_ring, v ∈ [0.64, 1] the variance left by interpolating
+the kept rings), so the error to the truth grows far less than the deviation.
+The points' σ̂ itself (the session-4 tolerance) is √s/0.85 ≈ 4-7× σ_ring on
+clouds of 10⁴-10⁶ points, and let the thinning lose most of the accuracy the
+curve fits gained.  Measured (the candidates' Chamfer to the truth, one run each;
+σ = 0.002 unless said; stitched = the dense stitched mesh):
+
+=====================  ========  ===========  ====================  =================
+cloud                  σ_ring    tolerance    patches dense->sized  Chamfer stitched / sized
+=====================  ========  ===========  ====================  =================
+vase 50 000            0.000366  0.000292     149 136 -> 34 232     0.000288 / 0.000313
+vase 200 000           0.000274  0.000218     556 880 -> 114 256    0.000194 / 0.000226
+vase 50 000 σ 0.0005   0.000106  0.000085     149 048 -> 81 408     0.000139 / 0.000119
+amphora 40 000         0.000383  0.000305     116 456 -> 24 632     0.000278 / 0.000320
+=====================  ========  ===========  ====================  =================
+
+(the vase at 50 000 points with σ̂ = 0.00235 as the tolerance: 5 792 patches,
+Chamfer 0.00136).  The rejected next-coarser candidates were 1.26-1.76× the
+stitched mesh's Chamfer; the Bézier surface over the *dense* mesh is itself
+0.82-1.14× it (interpolating noisy vertices G1 swings between them more than
+the flat triangles do), which bounds what any sizing can reach.
 
 Measured on the demo's rings (``photosurf run fixtures/scenes/vase_ring.toml``,
-189 sections, n = 515, σ̂ = 0.000178): 1 201 832 patches -> 64 768 (step 4,
+session 3, 189 sections, n = 515, σ̂ = 0.000178): 1 201 832 patches -> 64 768 (step 4,
 n = 96; mean deviation 0.000087), smooth-surface Chamfer to the truth 0.00024 ->
 0.00025; step 8, n = 64 (22 832 patches, deviation 0.00018) gives 0.00035.
 
@@ -53,8 +91,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["SizedMesh", "coarsen_rings", "interpolating_control", "kept_sections",
-           "sized_from_points",
-           "resample_ring", "size_control_mesh", "smooth_deviation"]
+           "precision_tolerance", "ring_precision", "sized_from_points",
+           "reference_vertices", "resample_ring", "size_control_mesh", "smooth_deviation"]
 
 #: Points round the largest ring of the coarsest candidate.
 MIN_RING_POINTS = 12
@@ -62,6 +100,32 @@ MIN_RING_POINTS = 12
 H_RATIO = float(np.sqrt(2.0))
 #: Dense-mesh vertices the deviation of a candidate is measured at (a fixed sample).
 REFERENCE_POINTS = 10_000
+
+
+def ring_precision(fits: Sequence) -> float:
+    """The dense rings' precision σ_ring: the median of the rings' own σ (module notes).
+
+    Parameters
+    ----------
+    fits : sequence
+        ``surface.catmull_rom.RingFit`` records, or lists of them (one per section, as
+        ``predict_sections(..., fits=True)`` returns them).
+
+    Returns
+    -------
+    float
+        Scene units; 0 when no ring has a noise estimate (noise-free points give 0 too).
+    """
+    values = [float(f.precision) for item in fits
+              for f in ([item] if hasattr(item, "precision") else list(item))]
+    values = [v for v in values if np.isfinite(v)]
+    return float(np.median(values)) if values else 0.0
+
+
+def precision_tolerance(precision: float) -> float:
+    """The sizing tolerance of rings of precision σ_ring: ``√(2/π) σ_ring`` (module notes),
+    the mean distance of a N(0, σ_ring²) error; scene units."""
+    return float(np.sqrt(2.0 / np.pi) * precision)
 
 
 def resample_ring(ring: np.ndarray, count: int) -> np.ndarray:
@@ -193,6 +257,32 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray) -> np.nda
         return np.asarray(vertices, dtype=np.float64)
 
 
+def reference_vertices(vertices: np.ndarray, triangles: np.ndarray,
+                       rng: np.random.Generator) -> np.ndarray:
+    """Indices (sorted) of at most ``REFERENCE_POINTS`` vertices of the dense mesh that its
+    smooth surface passes through: those on or next to a sharp edge are left out.
+
+    There :func:`interpolating_control` keeps the vertices as control points, so every
+    surface -- the dense one too -- rounds the rim off by about the support-ring width
+    instead of passing through them: a deviation common to all candidates that says
+    nothing about the thinning (measured on the 50 000-point vase: it raised the mean
+    deviation of the step-2 candidate from 0.00024 to 0.00029, 20 % of the tolerance).
+    A coarser candidate's wider rounding still shows at the dense vertices next to
+    that band.  A mesh with no other vertices keeps them all.
+    """
+    from surface.fitting import sharp_vertices
+
+    candidates = np.arange(len(vertices))
+    try:
+        smooth = np.flatnonzero(~sharp_vertices(vertices, triangles, rings=1))
+    except ValueError:
+        smooth = candidates
+    if len(smooth):
+        candidates = smooth
+    pick = rng.choice(candidates, size=min(REFERENCE_POINTS, len(candidates)), replace=False)
+    return np.sort(pick)
+
+
 def smooth_deviation(vertices: np.ndarray, triangles: np.ndarray, reference: np.ndarray):
     """Loop's surface interpolating ``(vertices, triangles)`` and its mean distance to
     ``reference``.
@@ -264,7 +354,8 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         The dense stitched mesh, the reference.
     tolerance : float
         Largest mean distance from the dense mesh's vertices to the smooth
-        surface, scene units (> 0); e.g. half the points' noise σ̂.
+        surface, scene units (> 0); :func:`precision_tolerance` of the dense
+        rings' precision (:func:`ring_precision`) keeps the dense surface's accuracy.
     seed : int
         Seed of the reference sample (fixed: the same input gives the same choice).
 
@@ -287,9 +378,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                          f"rings and {len(planes)} planes")
     dense_vertices, dense_triangles = (np.asarray(a) for a in dense)
     rng = np.random.default_rng(seed)
-    pick = rng.choice(len(dense_vertices), size=min(REFERENCE_POINTS, len(dense_vertices)),
-                      replace=False)
-    reference = dense_vertices[np.sort(pick)]
+    reference = dense_vertices[reference_vertices(dense_vertices, dense_triangles, rng)]
     perimeter = _largest_perimeter(rings)
     dense_n = min(len(loop) for entry in rings[::2] for loop in _loops(entry))
     h = perimeter / MIN_RING_POINTS
@@ -330,7 +419,9 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
     points : (P, 3) float64
     axis : as ``surface_from_points``
     tolerance : float, optional
-        Default: the section points' noise σ̂ (``reconstruct.section_noise``).
+        Default: :func:`precision_tolerance` of the dense rings' precision
+        (:func:`ring_precision`); the section points' noise σ̂
+        (``reconstruct.section_noise``) if no ring has one.
     smoothing, support
         As ``surface_from_points``.
 
@@ -345,9 +436,11 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
     sliced = rc.slice_cloud(points, axis=axis)
     kept, loops, _ = rc.organise_sections(sliced.sections,
                                           min_points=rc.min_loop_points(smoothing))
-    rings = rc.section_rings(kept, loops, None, smoothing=smoothing)
+    rings, fits = rc.section_rings(kept, loops, None, smoothing=smoothing, fits=True)
+    fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
     kept, loops, rings, _ = rc.untangle(kept, loops, rings)
     noise = rc.section_noise(loops)
+    precision = ring_precision([fit_of[id(section)] for section in kept])
     cap = sliced.cap_cloud
 
     def build(ring_list, planes):
@@ -360,7 +453,7 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
         return result
 
     dense = build(rings, kept)
-    tol = float(tolerance) if tolerance else noise
+    tol = float(tolerance) if tolerance else (precision_tolerance(precision) or noise)
     sized = size_control_mesh(rings, kept, sliced.spacing,
                               lambda r, p: (lambda s: (s.vertices, s.triangles))(build(r, p)),
                               (dense.vertices, dense.triangles), tol)

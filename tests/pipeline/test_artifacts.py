@@ -93,6 +93,36 @@ def test_curves_round_trip_with_several_loops(tmp_path, rng, frame):
     np.testing.assert_array_equal(planes[0].frame, frame)
 
 
+def test_curves_store_how_each_ring_was_fitted_and_old_files_still_read(tmp_path, rng,
+                                                                       frame):
+    from surface.catmull_rom import RingFit
+    from surface.sizing import ring_precision
+
+    sections = _sections(rng, frame)
+    rings = [rng.normal(size=(6, 3)), [rng.normal(size=(12, 3)), rng.normal(size=(5, 3))],
+             rng.normal(size=(6, 3))]
+    fits = [RingFit(8.0, 10, 80, 0.002, 0.0003),
+            [RingFit(16.0, 12, 192, 0.003, 0.0004), RingFit(1.0, 5, 5, 0.001, 0.001)],
+            RingFit(4.0, 20, 80, 0.002, 0.0006)]
+    artifacts.write_curves(tmp_path, rings, sections, 0.002, fits)
+    back = artifacts.read_curve_fits(tmp_path)
+    np.testing.assert_array_equal(back["smoothing"], [8.0, 16.0, 1.0, 4.0])  # ring order
+    np.testing.assert_array_equal(back["controls"], [10, 12, 5, 20])
+    np.testing.assert_array_equal(back["data_points"], [80, 192, 5, 80])
+    np.testing.assert_array_equal(back["loop_noise"], [0.002, 0.003, 0.001, 0.002])
+    np.testing.assert_array_equal(back["precision"], [0.0003, 0.0004, 0.001, 0.0006])
+    assert back["ring_precision"] == ring_precision(fits) == 0.0005  # median of four
+    _, _, noise = artifacts.read_curves(tmp_path)
+    assert noise == 0.002
+    with pytest.raises(ValueError, match="3 records for 4 rings"):
+        artifacts.write_curves(tmp_path / "x", rings, sections, 0.002, fits[:2])
+    # a curves.npz of an older workspace (no fits) reads as before, with no fits
+    (tmp_path / "old").mkdir()
+    artifacts.write_curves(tmp_path / "old", rings, sections, 0.002)
+    assert artifacts.read_curve_fits(tmp_path / "old") is None
+    assert [len(item) for item in artifacts.read_curves(tmp_path / "old")[0]] == [1, 2, 1]
+
+
 def test_stitched_and_smooth_round_trip(tmp_path):
     import open3d as o3d
 

@@ -18,8 +18,11 @@ from hypothesis import strategies as st
 from surface.catmull_rom import (
     M_CR,
     ClosedCurve,
+    RingFit,
+    choose_smoothing,
     fit,
     fit_loop,
+    precision_factor,
     predict_ring,
     predict_sections,
     ring_size,
@@ -334,3 +337,67 @@ def test_fit_commutes_with_rigid_motions(seed, shift, angle):
         base.control_points @ rot.T + shift,
         atol=1e-9 * (1 + np.abs(shift).max()),
     )
+
+
+# ----------------------------------------------------------------------------- precision
+def test_catmull_rom_gram_stencil_is_exact():
+    from fractions import Fraction
+
+    from surface.catmull_rom import _gram_stencil
+
+    # integrals of products of cubics with rational coefficients: the module notes' values
+    want = [Fraction(1, 560), Fraction(-1, 28), Fraction(71, 560), Fraction(57, 70)]
+    got = _gram_stencil()
+    np.testing.assert_allclose(got, [float(w) for w in want + want[-2::-1]], rtol=1e-13)
+    assert abs(got.sum() - 1.0) < 1e-13  # the basis is a partition of unity: Σ g_k = 1
+
+
+@pytest.mark.parametrize("points,smoothing", [(640, 32.0), (640, 8.0), (300, 4.0)])
+def test_precision_factor_predicts_the_fitted_curves_noise(points, smoothing):
+    # noisy circles (random θ, radial noise σ): the fitted curve's RMS radial error over
+    # its parameter against σ · precision_factor.  40 draws of about M/s independent
+    # control-point errors each: the RMS's sampling error is ~1/sqrt(2 · 40 · M/s),
+    # 2-4 %; uneven random spacing raises the variance a few % (module notes: 1.02-1.08)
+    rng = np.random.default_rng(5)
+    sigma, errors = 0.002, []
+    for _ in range(40):
+        theta = np.sort(rng.uniform(0.0, 2.0 * np.pi, points))
+        radius = 1.0 + rng.normal(0.0, sigma, points)
+        curve = fit(np.c_[radius * np.cos(theta), radius * np.sin(theta), np.zeros(points)],
+                    smoothing)
+        q = curve.evaluate(np.linspace(0.0, curve.period, 2000, endpoint=False))
+        errors.append(np.hypot(q[:, 0], q[:, 1]) - 1.0)
+    ratio = np.sqrt(np.mean(np.square(errors))) / (
+        sigma * precision_factor(max(4, round(points / smoothing)), points))
+    assert 0.93 < ratio < 1.15
+    # the naive σ/√s overstates it: the fairness term damps the highest modes (ρ ≈ 0.73)
+    assert precision_factor(max(4, round(points / smoothing)), points) < 0.9 / np.sqrt(smoothing)
+
+
+def test_precision_factor_of_an_interpolating_curve_is_one():
+    assert precision_factor(50, 50) == 1.0 and precision_factor(60, 50) == 1.0
+    with pytest.raises(ValueError, match="controls >= 1"):
+        precision_factor(0, 10)
+
+
+def test_predict_sections_returns_the_fits_mirroring_the_rings():
+    rng = np.random.default_rng(2)
+    loops = []
+    for k in range(3):
+        section = circle_section(k, m=400)
+        noisy = section.points + np.c_[rng.normal(0, 0.002, (400, 2)), np.zeros(400)]
+        loops.append(organise(Section(section.height, noisy, section.origin, FRAME, k,
+                                      np.arange(400)))[0])
+    rings, fits = predict_sections([loops[0], [loops[1], loops[2]]], 12, smoothing="auto",
+                                   fits=True)
+    assert isinstance(fits[0], RingFit) and isinstance(fits[1], list) and len(fits[1]) == 2
+    plain = predict_sections([loops[0], [loops[1], loops[2]]], 12, smoothing="auto")
+    np.testing.assert_array_equal(rings[0], plain[0])  # the same rings as without fits
+    np.testing.assert_array_equal(rings[1][1], plain[1][1])
+    for fit_record, loop in zip([fits[0], *fits[1]], loops, strict=True):
+        assert fit_record.smoothing == choose_smoothing(loop.points, loop.frame)  # GCV's
+        assert fit_record.points == 400
+        assert fit_record.controls == round(400 / fit_record.smoothing)
+        assert fit_record.noise == loop.noise
+        assert fit_record.precision == pytest.approx(
+            loop.noise * precision_factor(fit_record.controls, 400), rel=1e-12)
