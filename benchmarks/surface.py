@@ -31,7 +31,8 @@ the stitched method does not; the table's "normals" column is that share):
   solve; counted in the smooth stage), so it passes through the stitched
   vertices instead of shrinking away from them;
 * ``stitched+sized`` what ``photosurf run``'s smooth stage does (issue 15): the dense
-  stitched mesh thinned by ``surface.sizing`` (tolerance: the section noise σ̂), the
+  stitched mesh thinned by ``surface.sizing`` (tolerance: √(2/π) × the dense rings' own
+  precision σ_ring, ``sizing.precision_tolerance``; session 4 used the section noise σ̂), the
   surface through its vertices (``sizing.interpolating_control``), tessellated at
   ``smooth.level``; after the clock: patches and file sizes (PLY and GLB by
   ``pipeline.export``, control net format version 2, STEP through OpenCascade when at
@@ -209,7 +210,7 @@ def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None) -> dic
 
 def run_stitched_sized(points: np.ndarray, level: int | None = None) -> dict:
     """The pipeline's smooth stage on the cloud: dense stitched mesh -> sized control mesh
-    (surface.sizing, tolerance = the section noise) -> interpolating control vertices ->
+    (surface.sizing, tolerance from the rings' precision) -> interpolating control vertices ->
     Bezier surface -> tessellation at ``smooth.level``; file sizes after the clock."""
     from surface.sizing import interpolating_control, sized_from_points
 
