@@ -1,7 +1,10 @@
 """Write-then-rename, so that no reader ever sees a half-written output.
 
 ``atomic_file(path)`` yields a temporary path beside ``path``; on success it is
-renamed over ``path``, on error (a full disk, a signal) removed.
+flushed to the disk (``fsync``), renamed over ``path`` and the folder's entry synced
+too, on error (a full disk, a signal) removed: after a crash or power loss the path
+holds the old file or the whole new one, never a renamed but unwritten one (the
+rename can reach the disk before the data otherwise, ext4/XFS delayed allocation).
 ``atomic_dir(path)`` does the same for a whole output folder (the folder
 appears complete or not at all).
 
@@ -50,14 +53,36 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
     tmp = _temp_name(path.parent, f".{path.stem}.", path.suffix)
     try:
         os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
-        with _naming(path):
+        with naming(path):
             yield tmp
         if not tmp.exists() or tmp.stat().st_size == 0:
             raise OSError(f"{path}: writer produced no output")
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
+        with naming(path):
+            _fsync(tmp)  # EIO of a delayed write surfaces here, before the rename
         os.replace(tmp, path)
+        _fsync(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _fsync(path: Path) -> None:
+    """Flush a file's data (or a folder's entries) to the disk; a failure is an OSError."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(root: Path) -> None:
+    """``fsync`` every regular file and folder under ``root`` (before it is renamed)."""
+    for folder, _, names in os.walk(root):
+        for name in names:
+            full = Path(folder) / name
+            if not full.is_symlink():
+                _fsync(full)
+        _fsync(Path(folder))
 
 
 def _temp_name(folder: Path, prefix: str, suffix: str = "") -> Path:
@@ -76,13 +101,21 @@ def _temp_name(folder: Path, prefix: str, suffix: str = "") -> Path:
 
 
 @contextlib.contextmanager
-def _naming(path: Path) -> Iterator[None]:
-    """A failed write (ENOSPC, EFBIG, EIO) that names no file names the output."""
+def naming(path: str | os.PathLike) -> Iterator[None]:
+    """A failed write (ENOSPC, EFBIG, EIO) that names no file names the output ``path``.
+
+    :func:`atomic_file` applies it to its own temporary; a caller writing two files in
+    nested ``atomic_file`` blocks wraps each write in its own ``naming`` (else the inner
+    block would name the other file)."""
     try:
         yield
     except OSError as exc:
         if exc.filename is None and exc.errno is not None:
             raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
+        if exc.filename is None and "requested and" in str(exc):
+            # numpy's tofile (np.save) reports a short write without errno or name
+            raise OSError(f"{path}: short write ({exc} bytes): the disk is full or a file-size "
+                          "limit was reached") from exc
         raise
 
 
@@ -149,6 +182,8 @@ def _write_marker(folder: Path, kind: str, files: list[str]) -> None:
     try:
         with open(tmp, "x", encoding="utf-8") as fh:
             fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, folder / MARKER)
     finally:
@@ -213,10 +248,12 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
             tmp = _temp_name(path, _TMP_PREFIX)
             try:
                 os.mkdir(tmp, 0o700)
-                with _naming(path):
+                with naming(path):
                     yield tmp
+                    _fsync_tree(tmp)
                 _publish(tmp)
                 _merge_into(path, tmp, output_dir_state(path, kind) or [], kind)
+                _fsync(path)
             finally:
                 shutil.rmtree(tmp, ignore_errors=True)
             return
@@ -226,8 +263,9 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
     tmp = _temp_name(path.parent, f".{path.name}.")
     try:
         os.mkdir(tmp, 0o700)
-        with _naming(path):
+        with naming(path):
             yield tmp
+            _fsync_tree(tmp)
         if kind is not None:
             _write_marker(tmp, kind, _own_files(tmp))
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; give the usual folder mode
@@ -243,6 +281,7 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
                 shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
+        _fsync(path.parent)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

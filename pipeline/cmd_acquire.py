@@ -71,21 +71,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def write_outputs(out: Path, cloud) -> None:
     """``out`` (.ply) and ``out.npz`` atomically, together."""
     from matching.multiview import REASON_NAMES
-    from pipeline.atomic import atomic_file
+    from pipeline.atomic import atomic_file, naming
     from pipeline.cloud_io import write_ply
     from pipeline.workspace import write_npz_to
 
     names = sorted(REASON_NAMES)
     with atomic_file(out) as tmp_ply, atomic_file(out.with_suffix(".npz")) as tmp_npz:
-        # byte-reproducible (np.savez stamps the time into the zip)
-        write_npz_to(tmp_npz, points=cloud.points, colours=cloud.colours, sigma=cloud.sigma,
-                     views=cloud.views, pair=cloud.pair,
-                     pairs=np.asarray(cloud.pairs, np.int64).reshape(-1, 2),
-                     view_names=np.array(cloud.stats.get("view_names", []), dtype=str),
-                     reason_names=np.array([REASON_NAMES[k] for k in names]),
-                     reason_counts=np.array([cloud.reason_counts[REASON_NAMES[k]]
-                                             for k in names]))
-        write_ply(tmp_ply, cloud.points, cloud.colours, cloud.sigma)
+        with naming(out.with_suffix(".npz")):  # each failure names its own file
+            # byte-reproducible (np.savez stamps the time into the zip)
+            write_npz_to(tmp_npz, points=cloud.points, colours=cloud.colours, sigma=cloud.sigma,
+                         views=cloud.views, pair=cloud.pair,
+                         pairs=np.asarray(cloud.pairs, np.int64).reshape(-1, 2),
+                         view_names=np.array(cloud.stats.get("view_names", []), dtype=str),
+                         reason_names=np.array([REASON_NAMES[k] for k in names]),
+                         reason_counts=np.array([cloud.reason_counts[REASON_NAMES[k]]
+                                                 for k in names]))
+        with naming(out):
+            write_ply(tmp_ply, cloud.points, cloud.colours, cloud.sigma)
 
 
 def run(args: argparse.Namespace) -> int:

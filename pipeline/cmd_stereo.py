@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_file
+from pipeline.atomic import atomic_file, naming
 from pipeline.cloud_io import write_ply
 from pipeline.errors import InputError
 from pipeline.inputs import check_rig_size, read_pair, read_rig_for
@@ -61,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
     per_point["status_names"] = np.array([PAIR_STATUS_NAMES[k] for k in sorted(PAIR_STATUS_NAMES)])
     # the .ply (inner) is renamed first: if that fails the .npz is never renamed
     with atomic_file(out.with_suffix(".npz")) as tmp_npz, atomic_file(out) as tmp_ply:
-        write_npz_to(tmp_npz, **per_point)  # byte-reproducible (np.savez stamps the time)
-        write_ply(tmp_ply, rec.points, rec.colours, rec.sigma)
+        with naming(out.with_suffix(".npz")):  # each failure names its own file
+            write_npz_to(tmp_npz, **per_point)  # byte-reproducible (np.savez stamps the time)
+        with naming(out):
+            write_ply(tmp_ply, rec.points, rec.colours, rec.sigma)
     if not getattr(args, "quiet", False):
         print(f"{summary(rec.matches)}; {len(rec)} points triangulated (median sigma "
               f"{float(np.median(rec.sigma)):.3g}); wrote {out}")

@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_file
+from pipeline.atomic import atomic_file, naming
 from pipeline.errors import InputError
 from pipeline.workspace import write_npz_to
 from surface.validate import TOL, check_finite, check_shape
@@ -723,6 +723,8 @@ def export_surface(path: str | os.PathLike, vertices: np.ndarray, triangles: np.
     with contextlib.ExitStack() as stack:
         tmp_mesh = stack.enter_context(atomic_file(path))
         tmp_net = stack.enter_context(atomic_file(net_path))
-        _write_mesh_to(tmp_mesh, suffix, vertices, triangles, normals, None)
-        write_npz_to(tmp_net, **arrays)  # byte-reproducible (np.savez stamps the time)
+        with naming(path):  # a failure names the file that failed, not the inner block's
+            _write_mesh_to(tmp_mesh, suffix, vertices, triangles, normals, None)
+        with naming(net_path):
+            write_npz_to(tmp_net, **arrays)  # byte-reproducible (np.savez stamps the time)
     return path, net_path

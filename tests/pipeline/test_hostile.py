@@ -640,6 +640,51 @@ def test_full_disk_fails_and_leaves_nothing(files, tmp_path, command):
     assert sorted(p.name for p in tmp_path.iterdir()) == [], "something was left behind"
 
 
+def _limited_fails(argv: list, fsize: int, cwd: Path, names: str) -> None:
+    """Under ``RLIMIT_FSIZE = fsize`` the command exits 2 with one line naming one of
+    ``names`` and the failure (EFBIG, or numpy's short write, which has no errno), and
+    ``cwd`` holds nothing afterwards."""
+    result = _limited(argv, fsize, cwd)
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert result.returncode == 2, result.stderr
+    assert len(lines) == 1, result.stderr
+    assert "File too large" in lines[0] or "short write" in lines[0], lines[0]
+    assert any(n in lines[0] for n in names.split()), lines[0]
+    assert sorted(p.name for p in cwd.iterdir()) == [], "something was left behind"
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".stl", ".obj", ".glb"])
+def test_full_disk_during_export(files, tmp_path, capfd, suffix):
+    """``smooth`` exports the surface and its control net: written in full without a
+    limit; with the limit at half the mesh's size the mesh write fails; for PLY, with the
+    limit between the mesh's and the net's sizes, the net fails after the mesh temporary
+    was complete -- and neither file appears."""
+    done = tmp_path / "done"
+    assert call_main(["smooth", files["mesh"], "--out", done / f"s{suffix}", "--level", "0",
+                      "-q"]) == 0
+    mesh_size = (done / f"s{suffix}").stat().st_size
+    net_size = (done / "s.npz").stat().st_size
+    cases = [(mesh_size // 2, f"s{suffix}")]
+    if suffix == ".ply":
+        assert mesh_size < net_size  # 16 patches: 16 flat triangles, 16 x 28 control points
+        cases.append(((mesh_size + net_size) // 2, "s.npz"))
+    for fsize, failing in cases:
+        work = tmp_path / f"limit{fsize}"
+        work.mkdir()
+        _limited_fails(["smooth", files["mesh"], "--out", work / f"s{suffix}", "--level", "0"],
+                       fsize, work, failing)
+
+
+def test_full_disk_during_synth(tmp_path):
+    """A rendered scene folder (many files, ``atomic_dir``) under a 4 kB file limit."""
+    recipe_dir = tmp_path / "recipe"
+    recipe_dir.mkdir()
+    recipe = _recipe(recipe_dir)
+    work = tmp_path / "work"
+    work.mkdir()
+    _limited_fails(["synth", recipe, "--out", work / "scene"], 4096, work, "scene")
+
+
 def test_out_is_the_input(files, tmp_path, capfd):
     cloud = tmp_path / "c.ply"
     from pipeline.cloud_io import write_cloud
