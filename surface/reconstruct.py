@@ -216,6 +216,11 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
             slices = [replace(s, source_index=dense[s.source_index]) for s in slices]
             delta = abs(slices[1].height - slices[0].height) if len(slices) > 1 else delta
         slices, cap_points = slide_to_planes(pts, slices)
+        if thickness is None:
+            # the sparse tails are where a thinning wall ends (points thin towards a rim
+            # the cameras see edge-on): the end placement needs them
+            tail = np.setdiff1d(np.arange(len(pts)), dense)
+            cap_points = np.union1d(cap_points, tail).astype(np.int64)
     cap_cloud = pts[cap_points] if len(cap_points) else pts
     return SlicedCloud(list(slices), cap_cloud, float(delta), notes)
 
@@ -757,13 +762,16 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         # Within two spacings: a section emptied as a cap may lie in between.
         beyond = candidates[(offset > 0) & (offset <= 2 * delta)]
         beyond_flat = points[beyond] @ frame[:2].T
-        # No cap seen (an open end, or a cap the cameras missed): the wall points in the
-        # outer half-slab run on to the end of the data; for points spread evenly over
-        # [0, e] beyond the plane the p-quantile of the offsets is p e.  p = 0.95: the
-        # median (p = 1/2) undershoots where the points are not spread evenly up to the
-        # edge (24-view ring: caps 0.005 inside the rims at spacing 4, 0.001 at 3; with
-        # p = 0.95 0.003 and 0.0006), and the top 5 % keeps strays past the edge out.
-        outer = offset[(offset > 0) & (offset <= delta / 2)]
+        # No cap seen (an open end, or a cap the cameras missed): the wall points beyond
+        # the end plane -- its outer half-slab and the sparse tail cut from the slicing
+        # (slice_cloud), where a wall thinning towards a rim ends -- run on to the end of
+        # the data (only the half-slab was looked at before, so a thinned end stopped up
+        # to a spacing short: demo ring bottom 0.008 high).  For points spread evenly
+        # over [0, e] beyond the plane the p-quantile of the offsets is p e.  p = 0.95:
+        # the median (p = 1/2) undershoots where the points are not spread evenly up to
+        # the edge (24-view ring: caps 0.005 inside the rims at spacing 4, 0.001 at 3;
+        # with p = 0.95 0.003 and 0.0006), and the top 5 % keeps strays past the edge out.
+        outer = offset[(offset > 0) & (offset <= 2 * delta)]
         end_step = (sign * float(np.quantile(outer, _END_QUANTILE)) / _END_QUANTILE
                     if len(outer) >= NORMAL_NEIGHBOURS else None)
         new_rings, counts = [], []
