@@ -758,6 +758,50 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
     return by_child, added, bridges, np.concatenate(dips) if dips else np.zeros(0)
 
 
+#: Cap points a bridge point's height is fitted to (a plane through them: 3 unknowns,
+#: four times as many points).
+BRIDGE_NEIGHBOURS = 12
+
+
+def _bridge_heights(flat: np.ndarray, default: np.ndarray, height: float, other: float,
+                    cap_points: np.ndarray | None, frame: np.ndarray) -> np.ndarray:
+    """Heights ``(B,)`` of a split's bridge points from the cloud between the sections.
+
+    The bridge runs over the saddle where the loops part; there the surface
+    faces along the axis, so its points are cap points (``reconstruct``'s
+    ``MIN_WALL_SINE``).  Each bridge point takes the height at its plane
+    position of the least-squares plane through the :data:`BRIDGE_NEIGHBOURS`
+    nearest (in the plane) cap points strictly between the two sections, when
+    they lie within a quarter of the bridge's length; otherwise, or with no cap
+    points, ``default`` (the ``4 t (1 - t)`` dip of :func:`_bridge_split`).
+    Heights are kept between the sections.
+    """
+    lo, hi = min(height, other), max(height, other)
+    out = np.clip(np.asarray(default, np.float64), lo, hi)
+    if cap_points is None or len(cap_points) < BRIDGE_NEIGHBOURS or len(flat) == 0:
+        return out
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(cap_points, np.float64)
+    h = pts @ frame[2]
+    between = (h > lo) & (h < hi)
+    if np.count_nonzero(between) < BRIDGE_NEIGHBOURS:
+        return out
+    plane = pts[between] @ frame[:2].T
+    h = h[between]
+    reach = 0.25 * (float(np.linalg.norm(flat[-1] - flat[0])) +
+                    2 * float(np.median(np.linalg.norm(np.diff(flat, axis=0), axis=1)))
+                    if len(flat) > 1 else 0.0)
+    dist, near = cKDTree(plane).query(flat, k=BRIDGE_NEIGHBOURS)       # (B, k)
+    uv = plane[near] - flat[:, None, :]
+    design = np.concatenate([np.ones(near.shape + (1,)), uv], axis=2)  # (B, k, 3)
+    normal = np.einsum("bki,bkj->bij", design, design) + 1e-12 * np.eye(3)
+    fit = np.linalg.solve(normal, np.einsum("bki,bk->bi", design, h[near])[..., None])[:, 0, 0]
+    ok = dist[:, -1] <= reach
+    out[ok] = np.clip(fit[ok], lo, hi)
+    return out
+
+
 #: Fewest cap points inside a loop that place its cap (a plane fit needs 3; the
 #: median of a dozen is robust to a few wall points leaking in).
 CAP_MIN_POINTS = 12
@@ -978,7 +1022,8 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
 CAP_MIN_ANGLE = 25.0
 
 
-def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.ndarray]:
+def _quality_cap(ring2d: np.ndarray, outward_up: bool,
+                 max_area: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Constrained quality Delaunay triangulation of a closed planar contour.
 
     The contour's points and edges are kept as they are (no point added on
@@ -992,6 +1037,9 @@ def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.n
         The contour, counter-clockwise, in the section plane's coordinates.
     outward_up : bool
         As in :func:`cap_triangles`.
+    max_area : float, optional
+        Largest triangle area (Triangle's ``a`` switch): a dome's height field is
+        sampled as finely inside as along its contour.
 
     Returns
     -------
@@ -1014,8 +1062,8 @@ def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.n
     pts = ring2d - centre
     edge = float(np.mean(np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)))
     segments = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
-    out = triangle.triangulate({"vertices": pts, "segments": segments},
-                               f"pYq{CAP_MIN_ANGLE:g}")
+    switches = f"pYq{CAP_MIN_ANGLE:g}" + (f"a{max_area:.15f}" if max_area else "")  # no exponent
+    out = triangle.triangulate({"vertices": pts, "segments": segments}, switches)
     verts = np.asarray(out.get("vertices", np.zeros((0, 2))), np.float64)
     tri = np.asarray(out.get("triangles", np.zeros((0, 3))), np.int64).reshape(-1, 3)
     if (len(verts) < n or not np.allclose(verts[:n], pts, rtol=0, atol=TOL.zero * (1 + edge))
@@ -1031,6 +1079,83 @@ def _quality_cap(ring2d: np.ndarray, outward_up: bool) -> tuple[np.ndarray, np.n
     flip = (twice < 0) if outward_up else (twice > 0)
     tri[flip] = tri[flip][:, ::-1]
     return verts[n:] + centre, tri
+
+
+#: Cap points each dome height is fitted to (a local quadratic: the standard error of
+#: its value at the centre of a disk of k uniform points is about 1.6 σ/√k, σ/4 here).
+DOME_NEIGHBOURS = 48
+#: A cap is a dome when the cap points' robust spread about their best plane exceeds
+#: this many times their spread about local quadratics (the noise): a flat cap's ratio
+#: is ~1 (measured 1.0-1.2 on the benchmark clouds' flat ends).
+DOME_RATIO = 2.0
+
+
+def _local_quadratic(flat: np.ndarray, h: np.ndarray, query: np.ndarray,
+                     k: int) -> np.ndarray:
+    """Heights ``(Q,)`` at ``query`` of least-squares quadratics through k nearest points.
+
+    ``h ≈ c0 + c1 u + c2 v + c3 u² + c4 uv + c5 v²`` in the offsets (u, v) from
+    each query point, batched normal equations; ``c0`` is the height there.
+    """
+    from scipy.spatial import cKDTree
+
+    k = min(k, len(flat))
+    _, near = cKDTree(flat).query(query, k=k)                    # (Q, k)
+    uv = flat[near] - query[:, None, :]                           # (Q, k, 2)
+    scale = np.maximum(np.abs(uv).max(axis=(1, 2)), TOL.zero)[:, None]
+    u, v = uv[..., 0] / scale, uv[..., 1] / scale
+    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=2)   # (Q, k, 6)
+    normal = np.einsum("qki,qkj->qij", design, design) + 1e-9 * np.eye(6)
+    rhs = np.einsum("qki,qk->qi", design, h[near])
+    return np.linalg.solve(normal, rhs[..., None])[:, 0, 0]
+
+
+def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | None,
+          frame: np.ndarray):
+    """The cap points' height field over an end contour, or None for a flat cap.
+
+    The section planes stop where the surface turns within 60° of them
+    (``reconstruct.MIN_WALL_SINE``); beyond the last contour a rounded end (a
+    capsule's hemisphere, a torus' crown) is a height field over the plane,
+    sampled by the cap points; so is a branch's rounded end between two
+    sections (a handle's lowest point).  Those inside the contour (shrunk by
+    :data:`CAP_SHRINK`) with heights in ``(lo, hi)`` (an end cap: from two
+    spacings back on; an inner cap: up to the next section plane) are taken;
+    the cap is a dome when their robust spread (1.4826 × median
+    absolute deviation) about their least-squares plane exceeds
+    :data:`DOME_RATIO` times that about local quadratics of
+    :data:`DOME_NEIGHBOURS` points (the noise).
+
+    Returns
+    -------
+    callable or None
+        ``(Q, 2)`` plane points -> ``(Q,)`` heights along the axis (local
+        quadratics, :func:`_local_quadratic`).
+    """
+    if cap_points is None or len(cap_points) < 2 * DOME_NEIGHBOURS:
+        return None
+    pts = np.asarray(cap_points, np.float64)
+    h = pts @ frame[2]
+    side = (h > lo) & (h < hi)
+    every, h_every = pts[side] @ frame[:2].T, h[side]
+    within = _inside(every, ring2d)
+    every, h_every = every[within], h_every[within]
+    inside = _inside(every, _scaled(ring2d, CAP_SHRINK))
+    flat, h = every[inside], h_every[inside]
+    if len(flat) < 2 * DOME_NEIGHBOURS:
+        return None
+    design = np.column_stack([np.ones(len(flat)), flat])
+    plane = h - design @ np.linalg.lstsq(design, h, rcond=None)[0]
+    local = h - _local_quadratic(flat, h, flat, DOME_NEIGHBOURS)
+
+    def spread(r):
+        return 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    if spread(plane) <= DOME_RATIO * max(spread(local), TOL.zero):
+        return None
+    # The height field is fitted to every point over the contour: near the rim the
+    # dome meets the wall's last points, which hold it there (no extrapolation).
+    return lambda query: _local_quadratic(every, h_every, np.asarray(query, np.float64),
+                                          DOME_NEIGHBOURS)
 
 
 def _inset_ring(ring: np.ndarray, d: float) -> np.ndarray:
@@ -1121,6 +1246,20 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     messages: list[str] = []
     notes: list[str] = []
     base_heights = heights.copy()     # the sections' own planes (support rings come between)
+    spacing = float(np.median(np.abs(np.diff(base_heights))))
+
+    def dome_window(height: float, up: bool, inner: bool) -> tuple[float, float]:
+        if not inner:   # an end: its last contour may lie up to two spacings inside
+            return (height - 2 * spacing, np.inf) if up else (-np.inf, height + 2 * spacing)
+        beyond = base_heights[base_heights > height + TOL.zero] if up else \
+            base_heights[base_heights < height - TOL.zero]
+        limit = (beyond.min() if up else beyond.max()) if len(beyond) else \
+            height + (spacing if up else -spacing)
+        return (height, float(limit)) if up else (float(limit), height)
+
+    def dome_area(ring2d: np.ndarray) -> float:  # as large as the strips' triangles
+        edge = float(np.mean(np.linalg.norm(np.roll(ring2d, -1, axis=0) - ring2d, axis=1)))
+        return 0.5 * edge * spacing
     problems: list[str] = []
 
     def problem(text: str) -> None:  # a reason the surface is not one closed manifold
@@ -1213,8 +1352,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             other = float(np.mean(np.concatenate([vertices[indices[many_s][k]] @ frame[2]
                                                   for k in many])))
             if len(new_flat):
-                extra_vertices.append(new_flat @ frame[:2] + (
-                    height + 0.5 * (other - height) * dip)[:, None] * frame[2])
+                lift = _bridge_heights(new_flat, height + 0.5 * (other - height) * dip,
+                                       height, other, cap_points, frame)
+                extra_vertices.append(new_flat @ frame[:2] + lift[:, None] * frame[2])
                 sec_of.append(np.full(len(new_flat), single_s))
                 loop_of.append(np.full(len(new_flat), single))
             all_flat = np.vstack([vertices @ frame[:2].T] + [x @ frame[:2].T
@@ -1230,9 +1370,10 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                          f"{list(event.lower)} into {list(event.upper)}, tiled with "
                          f"{len(bridge)} bridge edge(s)")
         for low_idx, low_param, up_idx, up_param in pieces:
-            if _star_shaped(planar_of(low_idx)) and _star_shaped(planar_of(up_idx)):
+            if (event.kind == "one-to-one" and _star_shaped(planar_of(low_idx))
+                    and _star_shaped(planar_of(up_idx))):
                 local = zip_rings(low_param, up_param)
-            else:  # a bump on a wall: no angle parameter (tile_min_span)
+            else:  # a bump on a wall, a branch's sub-loop: no common angle (tile_min_span)
                 local = tile_min_span(vertex_of(low_idx), vertex_of(up_idx))
             n_a = len(low_param)
             glob = np.where(local < n_a, low_idx[np.minimum(local, n_a - 1)],
@@ -1272,15 +1413,19 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             if end is not None and not holes and (end, lp) in cap_inset:
                 inner = _inset_ring(vertices[start:start + len(flat)], cap_inset[(end, lp)])
                 inner_flat = inner @ frame[:2].T
+                height = float(np.mean(inner @ frame[2]))
+                dome = _dome(inner_flat, *dome_window(height, up, None), cap_points, frame)
                 try:
-                    added, cap = _quality_cap(inner_flat, outward_up=face_up)
+                    added, cap = _quality_cap(inner_flat, outward_up=face_up,
+                                              max_area=dome_area(inner_flat) if dome else None)
                 except ValueError as exc:  # the inset contour is not simple
                     messages.append(f"cap of section {s} loop {lp}: no support ring inside "
                                     f"the cap ({exc})")
                 else:
                     inner_start = len(vertices)
-                    height = float(np.mean(inner @ frame[2]))
-                    vertices = np.vstack([vertices, inner, added @ frame[:2] + height * frame[2]])
+                    lift = dome(added) if dome and len(added) else np.full(len(added), height)
+                    vertices = np.vstack([vertices, inner, added @ frame[:2] + lift[:, None]
+                                          * frame[2]])
                     sec_of.append(np.full(len(inner) + len(added), s))
                     loop_of.append(np.full(len(inner) + len(added), lp))
                     inner_param = _ring_order_and_parameter(inner_flat)[1]
@@ -1295,6 +1440,23 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                     idx = inner_start + np.arange(len(inner))
                     fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
                     add_faces(cap + inner_start, label)  # added points follow the inner ring
+                    continue
+            dome = None if holes else _dome(flat, *dome_window(float(heights_all[s]), up,
+                                                                end is None), cap_points, frame)
+            if dome is not None:
+                try:
+                    added, cap = _quality_cap(flat, outward_up=face_up, max_area=dome_area(flat))
+                except ValueError:   # the contour is not simple: the flat cap below
+                    pass
+                else:
+                    new_idx = len(vertices) + np.arange(len(added))
+                    vertices = np.vstack([vertices, added @ frame[:2] + dome(added)[:, None]
+                                          * frame[2]] if len(added) else [vertices])
+                    sec_of.append(np.full(len(added), s))
+                    loop_of.append(np.full(len(added), lp))
+                    add_faces(np.concatenate([indices[s][lp], new_idx])[cap], label, flip_as)
+                    notes.append(f"cap of section {s} loop {lp}: a dome of {len(added)} points "
+                                 "on the cap points' height field")
                     continue
             rings_here = [indices[s][lp]] + [indices[s][k] for k in holes]
             step = (_cap_step(planar[s][lp], [planar[s][k] for k in holes],
