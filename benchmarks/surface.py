@@ -74,6 +74,16 @@ stitched+sized --no-shapes --sizes 10000 100000 1000000``): 50 000 points: stitc
 (0.00038): the sizing tolerance sigma-hat = 0.0023 is far above the dense surface's own
 error on this noisy cloud; stitched+bezier (dense) 0.00032 as before.
 
+Measured (session 5, issue 15, tolerance sqrt(2/pi) x the rings' precision, load ~9-11 so
+wall seconds are inflated 3-5x: compare CPU; ``--methods poisson-8 stitched stitched+bezier
+stitched+sized --no-shapes --sizes 50000 100000 1000000``): 50 000 points stitched+sized
+34 232 patches, Chamfer 0.00031 (stitched 0.00029, Poisson-8 0.00076: <= 0.5x met), PLY
+5.07 MB (Poisson-8 6.73), 3.72 CPU-s (Poisson-8 8.91).  Scaling, sized / stitched /
+Poisson-8: 10^5 Chamfer 0.00031 / 0.00021 / 0.00072, 58 184 patches, PLY 8.6 MB (Poisson
+16.3), 10.2 / 5.3 / 16.4 CPU-s; 10^6 0.00023 / 0.00012 / 0.00035, 483 056 patches, PLY
+71.5 MB (Poisson 16.2), 68.9 / 41.9 / 131.9 CPU-s, numpy peak 1.7 GB, process peak RSS
+3.1 GB.
+
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append
 ``(name, function)`` to ``METHODS``.

@@ -52,20 +52,31 @@ clouds of 10⁴-10⁶ points, and let the thinning lose most of the accuracy the
 curve fits gained.  Measured (the candidates' Chamfer to the truth, one run each;
 σ = 0.002 unless said; stitched = the dense stitched mesh):
 
-=====================  ========  ===========  ====================  =================
-cloud                  σ_ring    tolerance    patches dense->sized  Chamfer stitched / sized
-=====================  ========  ===========  ====================  =================
-vase 50 000            0.000366  0.000292     149 136 -> 34 232     0.000288 / 0.000313
-vase 200 000           0.000274  0.000218     556 880 -> 114 256    0.000194 / 0.000226
-vase 50 000 σ 0.0005   0.000106  0.000085     149 048 -> 81 408     0.000139 / 0.000119
-amphora 40 000         0.000383  0.000305     116 456 -> 24 632     0.000278 / 0.000320
-=====================  ========  ===========  ====================  =================
+=========================  ========  =========  =====================  ========================
+cloud                      σ_ring    tolerance  patches dense -> sized  Chamfer stitched / sized
+=========================  ========  =========  =====================  ========================
+vase 50 000                0.000366  0.000292   149 136 -> 34 232      0.000288 / 0.000313
+vase 100 000 (seed 1)      0.000322  0.000257   285 368 -> 58 184      0.000212 / 0.000310
+vase 200 000               0.000274  0.000218   556 880 -> 114 256     0.000194 / 0.000226
+vase 50 000, σ = 0.0005    0.000106  0.000085   149 048 -> 81 408      0.000139 / 0.000119
+amphora 40 000             0.000383  0.000305   116 456 -> 24 632      0.000278 / 0.000320
+cylinder 40 000            0.000348  0.000278   94 048 -> 17 464       0.000250 / 0.000292
+=========================  ========  =========  =====================  ========================
 
 (the vase at 50 000 points with σ̂ = 0.00235 as the tolerance: 5 792 patches,
 Chamfer 0.00136).  The rejected next-coarser candidates were 1.26-1.76× the
-stitched mesh's Chamfer; the Bézier surface over the *dense* mesh is itself
-0.82-1.14× it (interpolating noisy vertices G1 swings between them more than
-the flat triangles do), which bounds what any sizing can reach.
+stitched mesh's Chamfer.  The Bézier surface over the *dense* mesh is itself
+0.82-1.67× the stitched mesh's Chamfer, which bounds what any sizing can reach:
+on the walls interpolating noisy vertices G1 swings between them more than the
+flat triangles do, and at the flat caps' rims the kept sharp vertices round the
+edge off.  The 100 000-point row is that case: walls (completeness, > 0.05 from
+the rims) stitched 0.000239 / dense smooth 0.000267 / sized 0.000280, but rims
+0.00011 / 0.00062 / 0.00040 and caps 0.00001 / 0.00052 / 0.00029 -- the sized
+surface is closer to the truth than the dense smooth one there.  Keeping only the
+sharp vertices themselves (``sharp_vertices(rings=0)``) brought that cloud's sized
+Chamfer to 0.000263 (rims 0.00019, caps 0.00009) and left the 50 000-point one at
+0.000317; not the default (not checked on the demo's coarse thinnings, where
+session 3 measured the overshoot of interpolating the rims).
 
 Measured on the demo's rings (``photosurf run fixtures/scenes/vase_ring.toml``,
 session 3, 189 sections, n = 515, σ̂ = 0.000178): 1 201 832 patches -> 64 768 (step 4,
