@@ -165,6 +165,31 @@ def test_rerun_skips_and_a_parameter_reruns_only_downstream(cloud, tmp_path, cli
     assert {"numpy", "open3d", "python"} <= set(manifest["versions"])
 
 
+def test_sizing_tolerance_from_the_stored_ring_precision_and_from_an_older_curves_file(
+        cloud, tmp_path, cli_run):
+    from surface.sizing import precision_tolerance
+
+    out = tmp_path / "ws"
+    cli_run("run", cloud, "--out", out, *SMALL, "--to", "smooth")
+    manifest = json.loads((out / "manifest.json").read_text())
+    curves, smooth = (manifest["stages"][k]["info"] for k in ("curves", "smooth"))
+    assert 0 < curves["ring_precision"] < 0.002 / 2  # the rings average >= 4 points each
+    assert smooth["size_tolerance"] == pytest.approx(precision_tolerance(curves["ring_precision"]),
+                                                     rel=1e-12)
+    # a curves.npz written before the fits were stored: the smooth stage still runs, sizing
+    # against the section points' noise as it did then
+    path = out / "curves" / "curves.npz"
+    with np.load(path) as npz:
+        old = {k: npz[k] for k in ("points", "offsets", "section", "loop", "heights", "axis",
+                                   "frame", "noise")}
+    np.savez(path, **old)
+    # (smooth.tolerance, the chord bound of the "auto" levels only, makes smooth run again)
+    cli_run("run", cloud, "--out", out, *SMALL, "--from", "smooth", "--to", "smooth",
+            "--set", "smooth.tolerance=0.001")
+    smooth = json.loads((out / "manifest.json").read_text())["stages"]["smooth"]["info"]
+    assert smooth["size_tolerance"] == float(old["noise"]) and smooth["patches"] > 0
+
+
 @pytest.mark.parametrize("args, message", [
     (["run", "missing.ply", "--out", "{out}"], "missing.ply: no such file or folder"),
     (["run", "{cloud}", "--out", "{out}", "--set", "curves.smoothnes=2"],
