@@ -246,8 +246,9 @@ def _gltf_document(path: Path, head: bytes, size: int) -> tuple[dict, int]:
     if not isinstance(document, dict):
         raise InputError(f"{path}: the glTF JSON is not an object")
     buffers = document.get("buffers")
-    if path.suffix.lower() == ".gltf" and isinstance(buffers, list) and buffers and \
-            isinstance(buffers[0], dict):
+    if isinstance(buffers, list) and buffers and isinstance(buffers[0], dict) and \
+            "uri" in buffers[0]:  # an external or data-URI buffer (a GLB's may be one too)
+        blob = 0
         uri = buffers[0].get("uri", "")
         if isinstance(uri, str) and uri.startswith("data:"):
             blob = (len(uri) - uri.find(",") - 1) * 3 // 4  # base64: 3 bytes per 4 chars
@@ -351,7 +352,10 @@ def check_header_counts(path: str | os.PathLike) -> dict[str, int]:
         if n_vertices < 0 or n_faces < 0:
             raise InputError(f"{path}: negative OFF counts {n_vertices} {n_faces}")
         counts = [("vertex", n_vertices, 6), ("face", n_faces, 8)]  # "x y z", "3 a b c"
-    elif suffix == ".stl" and size >= 84 and not head[:80].lstrip().startswith(b"solid"):
+    elif suffix == ".stl" and size >= 84 and (not head[:80].lstrip().startswith(b"solid")
+                                              or b"facet" not in head[:4096]):
+        # binary (some exporters start the 80-byte header with "solid" too: an ASCII STL
+        # says "facet" within its first lines)
         n_facets = struct.unpack("<I", head[80:84])[0]
         counts = [("facet", n_facets, 50)]
         body = size - 84

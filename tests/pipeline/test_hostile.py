@@ -355,6 +355,17 @@ def test_gltf_accessor_claims(tmp_path, capfd, claim):
     fails_cleanly(capfd, ["render", path, "--out", tmp_path / "r.png"], "claims.glb", *needles)
 
 
+
+def test_binary_stl_whose_header_says_solid(tmp_path, capfd):
+    """Some exporters start a binary STL's 80-byte header with "solid": without "facet"
+    in its first lines it is costed as binary (here 10^9 facets claimed in 134 bytes)."""
+    import struct
+
+    path = tmp_path / "solid.stl"
+    path.write_bytes(b"solid evil".ljust(80, b" ") + struct.pack("<I", 10 ** 9) + bytes(50))
+    fails_cleanly(capfd, ["render", path, "--out", tmp_path / "r.png"], "solid.stl",
+                  "facet count 1000000000", "file.elements")
+
 def test_text_mesh_of_zeros_is_not_scanned_to_its_end(tmp_path, capfd):
     """A sparse 4 GB file named .obj (no lines at all) is refused after its first 64 MB."""
     path = tmp_path / "zeros.obj"
