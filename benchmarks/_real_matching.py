@@ -15,9 +15,10 @@ and beside it the forward-backward loops' factor (``matching.consistency``, a lo
 bound).  Peers: ``cv2.findTransformECC`` (MOTION_AFFINE,
 gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
 
-Temple: neighbouring ring views rectified by ``cv2.stereoRectify`` (their baselines
-run along the image columns: the rectified pair is transposed, and mirrored where the
-disparity would be negative); ``matching.pair.match_pair`` on the rectified pair
+Temple: neighbouring ring views (``matching.view_pairs.select_pairs``, the ring
+pipeline's pairs; the first with ``--quick``, four spread over the list without)
+rectified by ``matching.multiview.rectify_pair`` (baseline = rectified x; mirrored
+where the disparity would be negative); ``matching.pair.match_pair`` on the rectified pair
 (SGBM seeds, region growing); object = grey > 0.19 x 255, dilated 5 px.  LSM's
 forward-backward loop along the rows / sqrt(2) against its reported σ, and SGBM's
 left-right loop (disparity of the left, then of the right image at the matched
@@ -276,7 +277,12 @@ def temple(folder: Path, quick: bool) -> dict:
 
     cams = read_projection_txt(folder / "templeSR_par.txt", image_dir=folder)
     images = [cv2.imread(str(folder / c.name), cv2.IMREAD_COLOR) for c in cams]
-    pairs = [(0, 1)] if quick else [(0, 1), (4, 5), (8, 9), (12, 13)]
+    # the ring pipeline's own pairs (baseline/depth and viewing angle): the views are not
+    # numbered in ring order (4-5 or 12-13 are no neighbours: no common rectification)
+    from matching.view_pairs import select_pairs
+
+    chosen = select_pairs(cams)
+    pairs = [chosen[0]] if quick else [chosen[k * len(chosen) // 4] for k in range(4)]
     rows = []
     for i, j in pairs:
         left, right, valid = _rectified_pair(cams, images, i, j)

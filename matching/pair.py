@@ -305,8 +305,11 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         agree for any locally quadratic surface): what real images add to σ0²N⁻¹
         (correlated noise, blur and shading differences, model error).  Never below 1
         (σ0²N⁻¹ is the white-noise bound); needs >= 30 window pairs (else k² = 1).
-        Default on (measured k²: temple pair (0, 1) 10.5, graffiti ~7, rendered vase
-        pair ~1.6).
+        Default on (measured, ``benchmarks/matching.py``: rendered vase pair 1024x768
+        k² 1.27, actual / reported σ 1.27 -> 1.01; 320x240 with 1 px correlated noise
+        9.5, 3.0 -> 0.98; graffiti 7.1; temple pairs 10.5-76).  It cannot see what every
+        window shares -- a relief finer than the window, which each window smooths
+        alike (rendered ripple: actual / reported still 2.2 with k² 9.9).
     search_range : (int, int), optional
         SGBM's (min_disparity, num_disparities) of a rectified pair, from the geometry
         (:func:`matching.search_range.pair_disparity_range`); default: from SIFT
