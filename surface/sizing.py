@@ -66,7 +66,7 @@ cylinder 40 000            0.000348  0.000278   94 048 -> 17 464       0.000250 
 (the vase at 50 000 points with σ̂ = 0.00235 as the tolerance: 5 792 patches,
 Chamfer 0.00136).  The rejected next-coarser candidates were 1.26-1.76× the
 stitched mesh's Chamfer.  The Bézier surface over the *dense* mesh is itself
-0.82-1.67× the stitched mesh's Chamfer, which bounds what any sizing can reach:
+0.82-1.64× the stitched mesh's Chamfer, which bounds what any sizing can reach:
 on the walls interpolating noisy vertices G1 swings between them more than the
 flat triangles do, and at the flat caps' rims the kept sharp vertices round the
 edge off.  The 100 000-point row is that case: walls (completeness, > 0.05 from
@@ -74,9 +74,22 @@ the rims) stitched 0.000239 / dense smooth 0.000267 / sized 0.000280, but rims
 0.00011 / 0.00062 / 0.00040 and caps 0.00001 / 0.00052 / 0.00029 -- the sized
 surface is closer to the truth than the dense smooth one there.  Keeping only the
 sharp vertices themselves (``sharp_vertices(rings=0)``) brought that cloud's sized
-Chamfer to 0.000263 (rims 0.00019, caps 0.00009) and left the 50 000-point one at
-0.000317; not the default (not checked on the demo's coarse thinnings, where
-session 3 measured the overshoot of interpolating the rims).
+Chamfer to 0.000263 (rims 0.00019, caps 0.00009), left the 50 000-point one at
+0.000317 and a 10⁶-point one (seed 1: sized 483 056 patches, Chamfer 0.000226 against
+the stitched 0.000118; walls 0.000162 / 0.000137, rims 0.00042 / 0.00003, caps
+0.00040 / 0.00001) at 0.000207, and changed nothing on the demo: not the default.
+The flat caps' triangles have no inner vertices, so their patches take the wall's
+curvature from the rim's one-ring: a crease rule or inner cap vertices would be next.
+
+Session 5, the demo (``photosurf run fixtures/scenes/vase_ring.toml``, 208 sections,
+n = 569, σ̂ = 0.00020, median s = 16, σ_ring = 0.000048, tolerance 0.000038): step 2,
+n = 193, 265 328 patches (dense 1 481 216); walls (> 0.05 from the ends) Chamfer
+0.000090 against the stitched mesh's 0.000087 (the ends are misplaced by the
+acquisition, 0.0057, for both).  The coarser candidates: step 4, n = 136 (105 176
+patches, deviation 0.000071) 0.000095; step 5, n = 97 (63 176) 0.000112; step 8,
+n = 68 (32 576, session 4's σ̂ choice) 0.000167 -- strict by one or two candidates
+here, where the stitched mesh's own error (8.7e-5 on the walls) is 2.3× what the
+noise model predicts for it (smooth across sections: a bias of the cloud).
 
 Measured on the demo's rings (``photosurf run fixtures/scenes/vase_ring.toml``,
 session 3, 189 sections, n = 515, σ̂ = 0.000178): 1 201 832 patches -> 64 768 (step 4,
