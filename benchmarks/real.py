@@ -17,15 +17,19 @@ exact cameras in ``templeSR_par.txt``, a black cloth behind the object):
   a share of the ring radius); its sparse points, aligned, as a peer cloud;
 * ``pycolmap-sfm-K``     the same with the given intrinsics held fixed
   (:func:`matching.sfm.run_sfm` ``intrinsics``);
-* ``photosurf-sfm``      photosurf's cloud with the ``pycolmap-sfm-K`` cameras, aligned.
+* ``...-lsm``            the same two runs with the tie points re-measured by LSM and
+  bundle-adjusted again (``run_sfm(refine="lsm")``, :mod:`matching.sfm_refine`; the
+  rows without it use ``refine="none"``);
+* ``photosurf-sfm``      photosurf's cloud with the ``pycolmap-sfm-K-lsm`` cameras, aligned.
 
 Goals (issue 12): >= 40 000 points with the given cameras, >= 99 % inside the box + 5 mm
 and >= 99 % inside every silhouette; SfM: all 16 views, rotations within 0.1 degrees
 and centres within 0.1 % of the ring radius.
 
-    .venv/bin/python benchmarks/real.py [--quick] [--json PATH] [--spacing N]
+    .venv/bin/python benchmarks/real.py [--quick] [--sfm-only] [--json PATH] [--spacing N]
 
-``--quick``: spacing 3 and no SfM-based cloud (the other rows as they are).
+``--quick``: spacing 3 and no SfM-based cloud (the other rows as they are);
+``--sfm-only``: the four SfM rows only.
 """
 
 from __future__ import annotations
@@ -157,13 +161,14 @@ def run_sgbm(images, cameras, masks, spacing: int) -> dict:
             **shares(merged["points"], cameras, images)}
 
 
-def run_sfm_row(name: str, reference, images, intrinsics=None) -> tuple[dict, object, tuple]:
+def run_sfm_row(name: str, reference, images, intrinsics=None,
+                refine: str = "none") -> tuple[dict, object, tuple]:
     from matching.sfm import run_sfm, umeyama
 
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="photosurf-real-sfm-") as tmp:
         result = run_sfm(DATA, work_dir=tmp, image_names=[c.name for c in reference],
-                         intrinsics=intrinsics)
+                         intrinsics=intrinsics, refine=refine)
     seconds = time.perf_counter() - start
     ref = {c.name: c for c in reference}
     cams = [c for c in result.cameras if c.name in ref]
@@ -193,20 +198,20 @@ COLUMNS = [("points", 8, "d"), ("in_box", 8, ".4f"), ("in_silhouettes_3px", 9, "
            ("in_silhouettes_5px", 9, ".4f"), ("pairs", 6, "d"), ("pairs_skipped", 5, "d"),
            ("registered", 5, "d"), ("rot_median_deg", 8, ".3f"), ("rot_max_deg", 8, ".3f"),
            ("centre_rms_mm", 8, ".2f"), ("centre_rms_pct_radius", 8, ".3f"),
-           ("seconds", 8, ".1f")]
+           ("reprojection_px", 8, ".3f"), ("seconds", 8, ".1f")]
 
 
 def print_table(rows: list[dict]) -> None:
     heads = ["points", "in box", "in sil3", "in sil5", "pairs", "skip", "reg", "rot med",
-             "rot max", "C mm", "C %r", "seconds"]
-    print(f"{'method':18s}" + "".join(f"{h:>{w}s}" for h, (_, w, _) in zip(heads, COLUMNS,
+             "rot max", "C mm", "C %r", "rep px", "seconds"]
+    print(f"{'method':19s}" + "".join(f"{h:>{w}s}" for h, (_, w, _) in zip(heads, COLUMNS,
                                                                            strict=True)))
     for r in rows:
         cells = []
         for key, width, fmt in COLUMNS:
             v = r.get(key)
             cells.append(f"{v:>{width}{fmt}}" if isinstance(v, int | float) else " " * width)
-        print(f"{r['method']:18s}" + "".join(cells))
+        print(f"{r['method']:19s}" + "".join(cells))
     for r in rows:
         for line in r.get("skipped", []):
             print(f"  {r['method']}: skipped {line}")
@@ -216,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
                         help="spacing 3, no photosurf cloud on SfM cameras")
+    parser.add_argument("--sfm-only", action="store_true",
+                        help="only the SfM rows (no dense clouds)")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "real.json"))
     parser.add_argument("--spacing", type=int, default=None,
                         help="candidate spacing, px (default 2; --quick 3)")
@@ -231,17 +238,24 @@ def main(argv: list[str] | None = None) -> int:
     masks = [foreground_mask(img) for img in images]
     print(f"{len(cameras)} views {cameras[0].size[0]}x{cameras[0].size[1]}; automatic masks "
           f"for {sum(m is not None for m in masks)}; spacing {spacing}", flush=True)
-    known, cloud = run_photosurf("photosurf", images, cameras, masks, spacing)
-    print(f"  photosurf: {known['points']} points in {known['seconds']:.1f} s", flush=True)
-    sgbm = run_sgbm(images, cameras, masks, spacing)
-    print(f"  sgbm: {sgbm['points']} points in {sgbm['seconds']:.1f} s", flush=True)
-    sfm, _, _ = run_sfm_row("pycolmap-sfm", cameras, images)
-    print(f"  sfm: {sfm['registered']} views in {sfm['seconds']:.1f} s", flush=True)
-    sfm_k, result_k, sim_k = run_sfm_row("pycolmap-sfm-K", cameras, images,
-                                         intrinsics=cameras[0].K)
-    print(f"  sfm with K: {sfm_k['registered']} views in {sfm_k['seconds']:.1f} s", flush=True)
-    rows = [known, sgbm, sfm, sfm_k]
-    if not args.quick and sim_k is not None:
+    rows = []
+    if not args.sfm_only:
+        known, cloud = run_photosurf("photosurf", images, cameras, masks, spacing)
+        print(f"  photosurf: {known['points']} points in {known['seconds']:.1f} s", flush=True)
+        sgbm = run_sgbm(images, cameras, masks, spacing)
+        print(f"  sgbm: {sgbm['points']} points in {sgbm['seconds']:.1f} s", flush=True)
+        rows += [known, sgbm]
+    sfm_rows = []
+    for name, K, refine in (("pycolmap-sfm", None, "none"), ("pycolmap-sfm-lsm", None, "lsm"),
+                            ("pycolmap-sfm-K", cameras[0].K, "none"),
+                            ("pycolmap-sfm-K-lsm", cameras[0].K, "lsm")):
+        row, result, sim = run_sfm_row(name, cameras, images, intrinsics=K, refine=refine)
+        print(f"  {name}: {row['registered']} views in {row['seconds']:.1f} s", flush=True)
+        sfm_rows.append(row)
+        if name == "pycolmap-sfm-K-lsm":
+            result_k, sim_k = result, sim
+    rows += sfm_rows
+    if not args.quick and not args.sfm_only and sim_k is not None:
         by_name = {c.name: c for c in result_k.cameras}
         idx = [v for v, c in enumerate(cameras) if c.name in by_name]
         with_sfm, _ = run_photosurf("photosurf-sfm", [images[v] for v in idx],
@@ -251,17 +265,20 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(with_sfm)
     print()
     print_table(rows)
-    goals = {
-        "points_ge_40000": known["points"] >= 40_000,
-        "in_box_ge_99pct": known["in_box"] >= 0.99,
-        "in_silhouettes_3px_ge_99pct": known["in_silhouettes_3px"] >= 0.99,
-        "in_silhouettes_5px_ge_99pct": known["in_silhouettes_5px"] >= 0.99,
-        "sfm_all_views": max(sfm["registered"], sfm_k["registered"]) == len(cameras),
-        "sfm_rotations_le_0.1deg": min(sfm.get("rot_max_deg", np.inf),
-                                       sfm_k.get("rot_max_deg", np.inf)) <= 0.1,
-        "sfm_centres_le_0.1pct_radius": min(sfm.get("centre_rms_pct_radius", np.inf),
-                                            sfm_k.get("centre_rms_pct_radius", np.inf)) <= 0.1,
-    }
+    goals = {}
+    if not args.sfm_only:
+        goals.update({
+            "points_ge_40000": known["points"] >= 40_000,
+            "in_box_ge_99pct": known["in_box"] >= 0.99,
+            "in_silhouettes_3px_ge_99pct": known["in_silhouettes_3px"] >= 0.99,
+            "in_silhouettes_5px_ge_99pct": known["in_silhouettes_5px"] >= 0.99,
+        })
+    goals.update({
+        "sfm_all_views": max(r["registered"] for r in sfm_rows) == len(cameras),
+        "sfm_rotations_le_0.1deg": min(r.get("rot_max_deg", np.inf) for r in sfm_rows) <= 0.1,
+        "sfm_centres_le_0.1pct_radius": min(r.get("centre_rms_pct_radius", np.inf)
+                                            for r in sfm_rows) <= 0.1,
+    })
     print()
     print_goals(goals)
     write_result(args.json, {"benchmark": "real", "data": "temple_sparse_ring",
