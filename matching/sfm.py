@@ -274,7 +274,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         Folder of images (by suffix: png, jpg, tif, bmp, ppm, pgm, webp).
     work_dir : path, optional
         Where the feature database and the sparse model (``sparse/``, COLMAP
-        binary) are kept; default a temporary folder, removed afterwards.
+        binary) are kept, and the refined model (``sparse_refined/``, see
+        ``refine``); default a temporary folder, removed afterwards.
     image_names : sequence of str, optional
         Use only these images of the folder.
     matcher : {"auto", "exhaustive", "sequential"}
@@ -303,11 +304,14 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         reference observation and bundle-adjust again, with outlier rounds
         (:func:`matching.sfm_refine.refine_tracks_lsm`, :func:`~matching.sfm_refine.
         bundle_adjust`; intrinsics held if given).  "auto" (default): "lsm" when
-        ``intrinsics`` are given, else "none" -- with the focal length and distortion
-        free, the re-adjustment of the temple ring diverged (centres 18 % of the ring
-        radius off); with its K it gave rotations 0.35 -> 0.12-0.15 degrees (median),
-        centres 0.50 -> 0.20-0.24 % of the radius, reprojection 0.21 -> 0.03 px
-        (``benchmarks/real.py --sfm-only``, rows ``pycolmap-sfm-K`` and ``-K-lsm``).
+        ``intrinsics`` are given, else "none".  Temple ring with its K (``benchmarks/
+        real.py --quick --sfm-only``, rows ``pycolmap-sfm-K`` and ``-K-lsm``, three
+        runs): rotations against the given cameras 0.33-0.35 -> 0.12-0.19 degrees
+        (median), 0.58-0.61 -> 0.22-0.30 (max), centres 0.49-0.51 -> 0.20-0.25 % of the
+        ring radius, reprojection 0.21 -> 0.03-0.04 px.  With focal length and
+        distortion free it is not the default: one run gained 0.81 -> 0.72 degrees,
+        but with an earlier form of the outlier rounds (σ without the redundancy
+        correction) the focal length ran off (centres 18 % of the radius).
 
     Notes
     -----
@@ -431,6 +435,10 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             before = float(best.compute_mean_reprojection_error())
             refinement = refine_tracks_lsm(best, image_dir)
             adjustment = bundle_adjust(best, refine_intrinsics=intrinsics is None)
+            if work_dir is not None:
+                refined = Path(work_dir) / "sparse_refined"
+                refined.mkdir(exist_ok=True)
+                best.write(refined)
         refinement = {"method": "lsm", "reprojection_before_px": before, **refinement,
                       "ba_rejected": adjustment["rejected"],
                       "ba_sigma_px": adjustment["sigma_px"],

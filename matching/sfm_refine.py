@@ -94,7 +94,7 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
         against their keypoints, the reference's rounding included),
         ``points_removed``.
     """
-    from matching.lsm import lsm_match, prepare_image
+    from matching.lsm import lsm_match
 
     pid, iid, p2d, xy = _observations(reconstruction)
     if max_shift_px is None:
@@ -131,13 +131,8 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
     groups = [np.flatnonzero(pair == code) for code in np.unique(pair[~is_ref])]
     A = np.zeros((len(pid), 2, 2))
     for m in groups:
-        ci, cj = cams[int(iid[ref[m[0]]])], cams[int(iid[m[0]])]
-        mapped = []
-        for step in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):
-            origin, d = ci.ray(p_ref[m] + step)
-            lam = np.sum(normal[m] * (X[m] - origin), 1) / np.sum(normal[m] * d, 1)
-            mapped.append(cj.project(origin + d * lam[:, None]))
-        A[m] = np.stack([mapped[1] - mapped[0], mapped[2] - mapped[0]], axis=2)
+        A[m] = _plane_affine(cams[int(iid[ref[m[0]]])], cams[int(iid[m[0]])], p_ref[m], X[m],
+                             normal[m])[1]
     # the reference keypoint moved to the pixel grid: move its partners with the affine map
     approx = xy + np.einsum("nij,nj->ni", A, p_ref - xy[ref])
     init = np.zeros((len(pid), 8))
@@ -145,13 +140,7 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
     init[:, 1], init[:, 2], init[:, 4], init[:, 5] = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
     init[:, 7] = 1.0
 
-    image_dir = Path(image_dir)
-    prepared = {}
-    for i, name in names.items():
-        grey = cv2.imread(str(image_dir / name), cv2.IMREAD_GRAYSCALE)
-        if grey is None:
-            raise ValueError(f"{image_dir / name}: not a readable image")
-        prepared[i] = prepare_image(grey.astype(np.float64))
+    prepared = _prepare(image_dir, names)
     new = np.full_like(xy, np.nan)
     new[is_ref] = p_ref[is_ref]
     for m in groups:
@@ -189,14 +178,44 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
 MIN_TRIANGULATION_ANGLE_DEG = 1.5
 
 
+def _prepare(image_dir, names: dict) -> dict:
+    from matching.lsm import prepare_image
+
+    image_dir = Path(image_dir)
+    prepared = {}
+    for i, name in names.items():
+        grey = cv2.imread(str(image_dir / name), cv2.IMREAD_GRAYSCALE)
+        if grey is None:
+            raise ValueError(f"{image_dir / name}: not a readable image")
+        prepared[i] = prepare_image(grey.astype(np.float64))
+    return prepared
+
+
+def _plane_affine(ci, cj, p, X, normal):
+    """Map of pixels ``p`` (N, 2) of camera ``ci`` into ``cj`` through the planes (X, normal).
+
+    Returns the image of ``p`` (N, 2) and the affine derivative (N, 2, 2), by
+    differences over one pixel (the plane's homography is smooth on that scale).
+    """
+    mapped = []
+    for step in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):
+        origin, d = ci.ray(p + step)
+        lam = np.sum(normal * (X - origin), 1) / np.sum(normal * d, 1)
+        mapped.append(cj.project(origin + d * lam[:, None]))
+    return mapped[0], np.stack([mapped[1] - mapped[0], mapped[2] - mapped[0]], axis=2)
+
+
 def bundle_adjust(reconstruction, refine_intrinsics: bool = True, rounds: int = 2,
                   reject_k: float = 3.72) -> dict:
     """Global bundle adjustment in place (pycolmap), the principal point held, with outlier rounds.
 
     After each adjustment the observations whose reprojection error exceeds
     ``reject_k`` σ are deleted and the adjustment repeated; σ is the robust
-    per-axis σ of the errors, median(|e|) / sqrt(2 ln 2) (|e| of a 2-D normal
-    error is Rayleigh-distributed); k = 3.72 is the 99.9 % quantile of
+    per-axis σ of the residuals, median(|v|) / sqrt(2 ln 2) (|v| of a 2-D normal
+    error is Rayleigh-distributed), scaled by sqrt(n / (n - u)) (n residuals, u
+    unknowns: 3 per point, 6 per image, less the 7 of the gauge) -- a residual is
+    smaller than the error it comes from by the redundancy, and two-view points
+    keep little of it; k = 3.72 is the 99.9 % quantile of
     sqrt(χ²₂) — a wrong LSM match converged on the wrong texture, not noise.
     Points whose rays meet at less than ``MIN_TRIANGULATION_ANGLE_DEG`` (or
     behind a camera) are deleted too.
@@ -232,7 +251,11 @@ def bundle_adjust(reconstruction, refine_intrinsics: bool = True, rounds: int = 
         if not len(pid):
             break
         err, angle, behind = _residuals(reconstruction, pid, iid, xy)
-        sigma = float(np.median(err) / np.sqrt(2 * np.log(2)))
+        # residuals are smaller than the errors by the redundancy: σ² = Σv²/(n - u)
+        n_res = 2 * len(pid)
+        unknowns = 3 * len(np.unique(pid)) + 6 * len(np.unique(iid)) - 7
+        sigma = float(np.median(err) / np.sqrt(2 * np.log(2))
+                      * np.sqrt(n_res / max(n_res - unknowns, 1)))
         weak = np.isin(pid, np.unique(pid[behind | (angle < MIN_TRIANGULATION_ANGLE_DEG)]))
         if round_ == rounds:  # the poses stay; undetermined points are not returned
             reconstruction_points = np.unique(pid[weak])
