@@ -37,6 +37,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
+import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -246,17 +248,57 @@ def _check_images(folder: Path, names: list[str]) -> set[tuple[int, int]]:
     return sizes
 
 
+#: A glog line (COLMAP, Ceres): severity letter, yyyymmdd, time -- after any colour code.
+_GLOG_LINE = re.compile(r"^(?:\x1b\[[0-9;]*m)*[IWEF]\d{8} \d\d:\d\d:\d\d")
+_ANSI_LEAD = re.compile(r"^(?:\x1b\[[0-9;]*m)+")
+
+
 @contextlib.contextmanager
 def _quiet_colmap() -> Iterator[None]:
+    """COLMAP's and Ceres' glog lines kept off stderr (shown with DEBUG logging).
+
+    ``pycolmap.logging.minloglevel`` alone does not reach every line (bundle
+    adjustment's "=== Global bundle adjustment ===" and Ceres' solver warnings
+    were printed with it at 3), so file descriptor 2 itself is redirected to a
+    temporary file for the block; whatever else was written there (Python's own
+    messages) is written back on exit, the glog lines are dropped.
+    """
     import pycolmap
 
     previous = pycolmap.logging.minloglevel
+    if log.getEffectiveLevel() <= logging.DEBUG:
+        yield
+        return
     # 3 = FATAL only: COLMAP's own ERROR lines ("Failed to create any sparse model") are
     # reported by run_sfm's ValueError, as one line; -vv (DEBUG) shows them all.
-    pycolmap.logging.minloglevel = 3 if log.getEffectiveLevel() > logging.DEBUG else previous
+    pycolmap.logging.minloglevel = 3
     try:
-        yield
+        saved = os.dup(2)
+    except OSError:  # no fd 2 (embedded interpreter): the log level is all there is
+        saved = None
+    try:
+        if saved is None:
+            yield
+            return
+        with tempfile.TemporaryFile() as sink:
+            sys.stderr.flush()
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield
+            finally:
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+                sink.seek(0)
+                text = sink.read(1 << 20).decode("utf-8", "replace")
+                # a coloured glog line's reset code starts the next line: dropped with it
+                kept = [_ANSI_LEAD.sub("", line) for line in text.splitlines(keepends=True)
+                        if not _GLOG_LINE.match(line)]
+                kept = [line for line in kept if line.strip()]
+                if kept:
+                    os.write(2, "".join(kept).encode())
     finally:
+        if saved is not None:
+            os.close(saved)
         pycolmap.logging.minloglevel = previous
 
 

@@ -244,8 +244,11 @@ def bundle_adjust(reconstruction, refine_intrinsics: bool = True, rounds: int = 
     options.print_summary = False
     options.ceres.solver_options.max_num_iterations = 500
     rejected, sigma, converged = 0, float("nan"), False
+    from matching.sfm import _quiet_colmap
+
     for round_ in range(rounds + 1):
-        summary = pycolmap.bundle_adjustment(reconstruction, options)
+        with _quiet_colmap():  # COLMAP/Ceres log lines ("Global bundle adjustment") on fd 2
+            summary = pycolmap.bundle_adjustment(reconstruction, options)
         converged = _converged(summary)
         pid, iid, p2d, xy = _observations(reconstruction)
         if not len(pid):

@@ -32,7 +32,7 @@ def rolled_ring(tmp_path_factory):
     return folder, cams
 
 
-def test_lsm_tie_points_sharpen_poses_on_a_rolled_ring(rolled_ring, tmp_path):
+def test_lsm_tie_points_sharpen_poses_on_a_rolled_ring(rolled_ring, tmp_path, capfd):
     """With the true K held, LSM tie points cut the rotation and centre errors by >= 3x.
 
     SIFT locates keypoints to ~0.2 px on these aliased renders; LSM on the same
@@ -58,8 +58,31 @@ def test_lsm_tie_points_sharpen_poses_on_a_rolled_ring(rolled_ring, tmp_path):
     assert rms1 < rms0 / 3, (rms0, rms1)
     assert refined.report()["refinement"]["method"] == "lsm"
     assert plain.refinement == {}
+    # bundle_adjust called on its own (as benchmarks/real.py does) says nothing on stderr
+    import pycolmap
+
+    from matching.sfm_refine import bundle_adjust
+
+    capfd.readouterr()
+    bundle_adjust(pycolmap.Reconstruction(str(tmp_path / "lsm" / "sparse_refined")),
+                  refine_intrinsics=False)
+    assert capfd.readouterr().err == ""
 
 
 def test_refine_option_checked(rolled_ring):
     with pytest.raises(ValueError, match="refine must be one of"):
         run_sfm(rolled_ring[0], refine="gauss")
+
+
+def test_quiet_colmap_drops_glog_lines_keeps_the_rest(capfd):
+    """COLMAP/Ceres lines written to fd 2 inside the block are dropped (with a coloured
+    line's reset code); anything else written there comes back after it."""
+    import os
+
+    from matching.sfm import _quiet_colmap
+
+    with _quiet_colmap():
+        os.write(2, b"I20261201 23:39:42.616234 1 bundle_adjustment.cc:46] === Global ===\n")
+        os.write(2, b"\x1b[0;33mW20261201 23:37:03.558940 1 lm.cc:123] Linear solver failure.\n")
+        os.write(2, b"\x1b[mplain line\n")
+    assert capfd.readouterr().err == "plain line\n"
