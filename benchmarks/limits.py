@@ -33,19 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 # numpy and photosurf are imported by the --make-inputs child only (see _make_inputs)
 
-RECIPE = """\
-seed = 1
-[shape]
-kind = "revolution"
-profile = [[0.0, 1.0], [1.0, 1.2], [2.0, 0.9]]
-triangles = 2000
-[cameras]
-layout = "stereo"
-width = 48
-height = 40
-[render]
-supersample = 1
-"""
+# the smallest valid scene recipe, shared with tests/pipeline/test_fuzz_inputs.py
+RECIPE = (ROOT / "fixtures" / "scenes" / "tiny_stereo.toml").read_text()
 
 
 def _inputs(tmp: Path) -> dict:

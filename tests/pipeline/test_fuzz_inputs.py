@@ -675,19 +675,9 @@ def test_config_unknown_keys_and_wrong_types(section, key, value):
 
 # =========================================================================== scene recipes
 
-GOOD_RECIPE = """\
-seed = 1
-[shape]
-kind = "revolution"
-profile = [[0.0, 1.0], [1.0, 1.2], [2.0, 0.9]]
-triangles = 2000
-[cameras]
-layout = "stereo"
-width = 48
-height = 40
-[render]
-supersample = 1
-"""
+# the smallest valid recipe (benchmarks/limits.py reads the same file)
+GOOD_RECIPE = (Path(__file__).resolve().parents[2] / "fixtures" / "scenes"
+               / "tiny_stereo.toml").read_text()
 
 
 @fuzz(40)
