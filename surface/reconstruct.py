@@ -206,7 +206,8 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
             # its dense part: sparse tails (stray points beyond the ends) would otherwise
             # place the end planes outside the surface.
             axis_vector = slices[0].frame[2]
-            dense = np.flatnonzero(_dense_extent(pts @ axis_vector, delta))
+            in_dense = _dense_extent(pts @ axis_vector, delta)
+            dense = np.flatnonzero(in_dense)
             heights = pts[dense] @ axis_vector
             count = None if spacing is not None else len(slices)
             step = spacing if spacing is not None else (
@@ -219,8 +220,7 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
         if thickness is None:
             # the sparse tails are where a thinning wall ends (points thin towards a rim
             # the cameras see edge-on): the end placement needs them
-            tail = np.setdiff1d(np.arange(len(pts)), dense)
-            cap_points = np.union1d(cap_points, tail).astype(np.int64)
+            cap_points = np.union1d(cap_points, np.flatnonzero(~in_dense)).astype(np.int64)
     cap_cloud = pts[cap_points] if len(cap_points) else pts
     return SlicedCloud(list(slices), cap_cloud, float(delta), notes)
 
