@@ -427,7 +427,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 growth = grow_matches(
                     fprep, gprep, points, res, start,
                     candidates=res.status != Status.TEXTURELESS, same_row=bool(rectified),
-                    **{k: v for k, v in options.items() if k not in ("radius_px",)})
+                    **options)
                 res, start = growth.result, growth.approx
                 out["approx"][idx] = start
             if grow:

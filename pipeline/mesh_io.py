@@ -381,20 +381,6 @@ def check_header_counts(path: str | os.PathLike) -> dict[str, int]:
     return {canonical[e]: c for e, c, _ in counts if e in canonical}
 
 
-def _area_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals ((0, 0, 1) where none is defined)."""
-    corners = vertices[triangles]
-    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normals = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(normals, triangles[:, c], face)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    good = length[:, 0] > 0
-    normals[good] /= length[good]
-    normals[~good] = (0.0, 0.0, 1.0)
-    return normals
-
-
 def _write_ply_to(tmp: Path, vertices, triangles, normals, colors) -> None:
     """Binary little-endian PLY: double x y z [nx ny nz] [uchar rgb], int vertex_indices."""
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
@@ -512,7 +498,9 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndar
     if len(triangles) == 0:  # an empty mesh is no output (open3d's writer refused it too)
         raise InputError(f"{path}: no triangles to write")
     if normals is None and compute_normals and suffix not in (".stl", ".off"):
-        normals = _area_normals(vertices, triangles)
+        from pipeline.export import vertex_normals  # export imports this module lazily
+
+        normals = vertex_normals(vertices, triangles)
     with atomic_file(path) as tmp:
         write_mesh_to(tmp, suffix, vertices, triangles,
                       None if suffix in (".stl", ".off") else normals, colors)
