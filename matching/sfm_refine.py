@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 
 from matching.cameras import cameras_from_pycolmap
+from matching.visibility import plane_affine
 
 __all__ = ["refine_tracks_lsm", "bundle_adjust"]
 
@@ -128,11 +129,17 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
     normal = ray + ray[ref]
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     pair = iid[ref] * (int(iid.max()) + 1) + iid
-    groups = [np.flatnonzero(pair == code) for code in np.unique(pair[~is_ref])]
+    # observations grouped by (reference view, view): one sort instead of a scan per pair
+    others = np.flatnonzero(~is_ref)
+    codes, inverse = np.unique(pair[others], return_inverse=True)
+    groups = np.split(others[np.argsort(inverse, kind="stable")],
+                      np.cumsum(np.bincount(inverse, minlength=len(codes)))[:-1])
     A = np.zeros((len(pid), 2, 2))
     for m in groups:
-        A[m] = _plane_affine(cams[int(iid[ref[m[0]]])], cams[int(iid[m[0]])], p_ref[m], X[m],
-                             normal[m])[1]
+        ci, cj = cams[int(iid[ref[m[0]]])], cams[int(iid[m[0]])]
+        # the Jacobian at the point's own projection (a plane's homography is smooth on
+        # the sub-pixel scale that separates it from the reference keypoint)
+        A[m] = plane_affine(ci, cj, ci.project(X[m]), X[m], normal[m])
     # the reference keypoint moved to the pixel grid: move its partners with the affine map
     approx = xy + np.einsum("nij,nj->ni", A, p_ref - xy[ref])
     init = np.zeros((len(pid), 8))
@@ -189,20 +196,6 @@ def _prepare(image_dir, names: dict) -> dict:
             raise ValueError(f"{image_dir / name}: not a readable image")
         prepared[i] = prepare_image(grey.astype(np.float64))
     return prepared
-
-
-def _plane_affine(ci, cj, p, X, normal):
-    """Map of pixels ``p`` (N, 2) of camera ``ci`` into ``cj`` through the planes (X, normal).
-
-    Returns the image of ``p`` (N, 2) and the affine derivative (N, 2, 2), by
-    differences over one pixel (the plane's homography is smooth on that scale).
-    """
-    mapped = []
-    for step in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):
-        origin, d = ci.ray(p + step)
-        lam = np.sum(normal * (X - origin), 1) / np.sum(normal * d, 1)
-        mapped.append(cj.project(origin + d * lam[:, None]))
-    return mapped[0], np.stack([mapped[1] - mapped[0], mapped[2] - mapped[0]], axis=2)
 
 
 def bundle_adjust(reconstruction, refine_intrinsics: bool = True, rounds: int = 2,
