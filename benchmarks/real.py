@@ -118,9 +118,8 @@ def run_sgbm(images, cameras, masks, spacing: int) -> dict:
     """
     import cv2
 
-    from matching.masks import inside_masks
+    from matching.masks import grey, inside_masks
     from matching.multiview import (
-        _grey,
         _search_range,
         _search_volume,
         merge_clouds,
@@ -137,7 +136,7 @@ def run_sgbm(images, cameras, masks, spacing: int) -> dict:
     pts, src, views = [], [], []
     for p, (a, b) in enumerate(pairs):
         rect, cam_l, cam_r = rectify_pair(cameras[a], cameras[b])
-        gl, gr = rectify_images(rect, _grey(images[a]), _grey(images[b]))
+        gl, gr = rectify_images(rect, grey(images[a]), grey(images[b]))
         dmin, count = _search_range(volume, cam_l, cam_r, gl, gr)
         disp = sgbm_disparity(gl, gr, dmin, count, block=5)
         m = masks[a] if masks[a] is not None else np.ones(cameras[a].size[::-1], bool)

@@ -84,11 +84,12 @@ def read_mask(path: str | os.PathLike, size: tuple[int, int]) -> np.ndarray:
     return img != 0
 
 
-def _grey(image) -> np.ndarray:
+def grey(image, dtype=np.float64) -> np.ndarray:
+    """(H, W) grey image of a grey or BGR(A) one (OpenCV's BT.601 weights), as ``dtype``."""
     img = np.asarray(image)
     if img.ndim == 3:
         img = img[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR
-    return np.asarray(img, dtype=np.float32)
+    return np.asarray(img, dtype=dtype)
 
 
 def foreground_mask(image, margin_px: int = 3) -> np.ndarray | None:
@@ -106,22 +107,23 @@ def foreground_mask(image, margin_px: int = 3) -> np.ndarray | None:
     (H, W) bool or None
         None when the border is not a uniform background.
     """
-    grey = cv2.GaussianBlur(_grey(image), (0, 0), _BLUR_SIGMA)
-    h, w = grey.shape
+    blurred = cv2.GaussianBlur(grey(image, np.float32), (0, 0), _BLUR_SIGMA)
+    h, w = blurred.shape
     b = max(4, int(round(_BORDER_SHARE * min(h, w))))
     if 4 * b >= min(h, w):
         return None
-    sides = [grey[:b].ravel(), grey[-b:].ravel(), grey[:, :b].ravel(), grey[:, -b:].ravel()]
+    sides = [blurred[:b].ravel(), blurred[-b:].ravel(), blurred[:, :b].ravel(),
+             blurred[:, -b:].ravel()]
     border = np.concatenate(sides)
     median = float(np.median(border))
     # per side, and the median of the four: a side the object touches does not count
     t = float(np.median([np.quantile(np.abs(s - median), _BACKGROUND_QUANTILE)
                          for s in sides]))
-    lo, hi = np.percentile(grey, [1, 99])
+    lo, hi = np.percentile(blurred, [1, 99])
     agree = sum(abs(float(np.median(s)) - median) <= t for s in sides)
     if agree < 3 or not (t < 0.5 * (hi - lo)):
         return None
-    fg = (np.abs(grey - median) > t).astype(np.uint8)
+    fg = (np.abs(blurred - median) > t).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
     if count < 2:
         return None

@@ -132,7 +132,7 @@ from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
 )
 from matching.fusion import merge_clouds, point_colours
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
-from matching.masks import inside_masks
+from matching.masks import grey, inside_masks
 from matching.pair import match_pair
 from matching.rectify import Rectification, rectify, rectify_images
 from matching.scheduler import ViewRef, default_workers, load_image, thread_map
@@ -279,13 +279,6 @@ def rectify_pair(left: Camera, right: Camera) -> tuple[Rectification, Camera, Ca
     return rect, cam_l, cam_r
 
 
-def _grey(image) -> np.ndarray:
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = img[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR
-    return np.asarray(img, dtype=np.float64)
-
-
 def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
                           pair: tuple[int, int] = (0, 1), *, volume: SceneVolume | None = None,
                           mask=None, **match_options) -> PairCloud:
@@ -322,7 +315,7 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
             raise ValueError(f"{name} ({cam.name}) is {got} px but its camera is "
                              f"{cam.size[0]}x{cam.size[1]} px")
     rect, cam_l, cam_r = rectify_pair(left, right)
-    grey_l, grey_r = rectify_images(rect, _grey(left_image), _grey(right_image))
+    grey_l, grey_r = rectify_images(rect, grey(left_image), grey(right_image))
     source = np.ones(left.size[::-1], np.float32) if mask is None else \
         np.asarray(mask, dtype=np.float32)
     valid = cv2.remap(source, *rect.maps_left, cv2.INTER_NEAREST,
@@ -416,9 +409,9 @@ def rectified_template(left_image, left: Camera, right: Camera,
     pixels); recomputed where needed (~30 ms at 1024x768) instead of kept per pair.
     """
     rect, _, _ = rectify_pair(left, right)
-    grey = cv2.remap(np.asarray(_grey(left_image), dtype=np.float32), *rect.maps_left,
-                     cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return prepare_image(grey, interpolation)
+    rectified = cv2.remap(grey(left_image, np.float32), *rect.maps_left,
+                          cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return prepare_image(rectified, interpolation)
 
 
 # --------------------------------------------------------------------------- consistency
@@ -507,8 +500,8 @@ def _consistency_task(item: dict) -> Consistency:
 
 def _view_task(item: dict) -> tuple[PreparedImage, np.ndarray]:
     """A further view's grey image prepared for LSM and its z-buffer of all pair points."""
-    grey = prepare_image(_grey(load_image(item["image"])), item["interpolation"])
-    return grey, zbuffer(item["camera"], item["points"], item["window"])
+    prepared = prepare_image(grey(load_image(item["image"])), item["interpolation"])
+    return prepared, zbuffer(item["camera"], item["points"], item["window"])
 
 
 _MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "sgbm_block",
