@@ -227,25 +227,17 @@ def graffiti(folder: Path, quick: bool) -> dict:
 
 # ------------------------------------------------------------------------------ temple
 def _rectified_pair(cams, images, i, j):
+    """The pair as the multi-view pipeline matches it (rectify_pair + rectify_images): the
+    rectified grey images (the baseline along +x, matching.rectify) and the left's valid area."""
+    from matching.masks import grey
     from matching.multiview import rectify_pair
+    from matching.rectify import rectify_images
 
     rect, _, _ = rectify_pair(cams[i], cams[j])
-    grey = [im.astype(np.float64) @ np.array([0.114, 0.587, 0.299]) for im in
-            (images[i], images[j])]
-    maps = (rect.maps_left, rect.maps_right)
-    out = [cv2.remap(g, *m, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-           for g, m in zip(grey, maps, strict=True)]
-    valid = cv2.remap(np.ones_like(grey[0], np.float32), *rect.maps_left, cv2.INTER_NEAREST,
-                      borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
-    along = 1 if abs(rect.P2[1, 3]) > abs(rect.P2[0, 3]) else 0
-    shift = rect.P2[along, 3]
-    if along == 1:  # epipolar lines are columns: transpose
-        out = [o.T.copy() for o in out]
-        valid = valid.T.copy()
-    if shift > 0:  # x_right > x_left: mirror both so disparities are positive
-        out = [o[:, ::-1].copy() for o in out]
-        valid = valid[:, ::-1].copy()
-    return out[0], out[1], valid
+    left, right = rectify_images(rect, grey(images[i]), grey(images[j]))
+    valid = cv2.remap(np.ones(images[i].shape[:2], np.float32), *rect.maps_left,
+                      cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    return left, right, valid
 
 
 def _sgbm_loop(left, right, points):
