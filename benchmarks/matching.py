@@ -412,6 +412,18 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
                   f"{100 * r['beyond_2px_of_homography']:6.1f}% "
                   f"{100 * r['beyond_2px_of_smooth']:6.1f}% {r['residual_rms_px']:8.3f} "
                   f"{'' if ratio is None else f'{ratio:7.2f}':>7s} {r['points_per_s']:9.0f}")
+        syn = gr["synthetic"]
+        for r in syn["rows"]:
+            print(f"{r['method']:50s} {100 * r['accepted']:7.1f}% "
+                  f"{100 * r['beyond_2px_of_homography']:6.1f}% {'(exact)':>7s} "
+                  f"{r['residual_rms_px']:8.3f} {r['residual_over_sigma']:7.2f} "
+                  f"{r['points_per_s']:9.0f}")
+        print(f"  (synthetic graf3: graf1 through the homography, pixel-area integration, "
+              f"+ noise {syn['noise_added']:.2f}; truth exact; k² "
+              f"{syn['rows'][-1]['variance_factor']:.1f}, residual / (σ k) "
+              f"{syn['rows'][-1]['residual_over_sigma_with_factor']:.2f})")
+        print(f"  (real rows judged on the wall plane: {gr['candidates_off_wall']} "
+              f"candidates below the step / on the car left out)")
         by = {r["method"]: r for r in gr["rows"]}
         lsm = by["LSM + region growing (retries from neighbours)"]
         ecc = by["cv2.findTransformECC gauss=1 (per patch, subset)"]
