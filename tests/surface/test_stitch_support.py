@@ -247,3 +247,29 @@ def test_open_cylinder_ends_where_thinning_wall_points_end(seed):
     assert sum("no cap points" in m for m in result.messages) == 2, result.messages
     assert abs(result.vertices[:, 2].min()) < 0.006          # 3 σ; before 0.016
     assert abs(result.vertices[:, 2].max() - 2.0) < 0.006
+
+
+@pytest.mark.parametrize("sigma", [0.002, 0.05])
+def test_flat_cap_of_a_coarse_control_mesh_stays_in_its_plane(sigma):
+    """Coarse rings (24 / 48 points, sections h = 0.2 apart: a sized control mesh) under the
+    interpolating surface the smooth stage builds.  sigma = 0.002: support rings at d (0.026
+    here) and the guard ring at 2 d; sigma = 0.05: the rim's rounding h sin(45°)/3 = 0.047
+    is within the noise, no support, and the cap gets rings one wall leg (0.2) apart.
+    Loop's patch reads two rings of the control mesh about its triangle, so every patch
+    inside the guard ring reads only cap-plane vertices: the surface there is the plane
+    to rounding (affine invariance).  The ear-clipped cap of the same rings (no
+    ``support_sigma``) has no inner vertex, and its patches bend by > 0.01 across it."""
+    from surface.sizing import interpolating_control
+
+    def cap_heights(result, inside):
+        surface = bezier.control_net(interpolating_control(result.vertices, result.triangles),
+                                     result.triangles)
+        v, _, _ = bezier.tessellate(surface, level=3)
+        centre = np.hypot(v[:, 0], v[:, 1]) < inside
+        assert centre.sum() > 100
+        return np.minimum(np.abs(v[centre, 2]), np.abs(v[centre, 2] - HEIGHT))
+
+    rings = cylinder_rings(n=24)
+    inside = 0.9 if sigma < 0.01 else 1.0 - 2 * 0.2 - 1e-6
+    assert cap_heights(stitch_rings(rings, Z_AXIS, support_sigma=sigma), inside).max() <= 1e-12
+    assert cap_heights(stitch_rings(rings, Z_AXIS), inside).max() > 0.01  # the test can fail
