@@ -113,46 +113,40 @@ def write_ply(path: str | os.PathLike, points, colours=None, sigma=None) -> Path
     return path
 
 
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "<i2",
-              "int16": "<i2", "ushort": "<u2", "uint16": "<u2", "int": "<i4", "int32": "<i4",
-              "uint": "<u4", "uint32": "<u4", "float": "<f4", "float32": "<f4",
-              "double": "<f8", "float64": "<f8"}
-
-
 def _parse_header(path: Path):
-    """(format, vertex count, [(name, dtype)], header bytes, only-vertex flag) or None."""
+    """(format, vertex count, [(name, dtype)], header bytes, only-vertex flag) or None.
+
+    The header is read by :func:`pipeline.mesh_io.ply_header` (one PLY header parser for
+    meshes and clouds); None: vertex properties this fast path does not read (lists,
+    unknown types), open3d reads the file instead.
+    """
+    from pipeline import limits
+    from pipeline.mesh_io import PLY_KINDS, ply_header
+
     with open(path, "rb") as fh:
         head = fh.read(65536)
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
+    parsed = ply_header(head)
+    if parsed is None:
         raise InputError(f"{path}: not a PLY file (no 'ply' magic / end_header)")
-    stop = head.index(b"\n", end) + 1
-    lines = head[:stop].decode("ascii", "replace").splitlines()
-    fmt, count, props, element, elements = None, 0, [], None, []
-    for line in lines:
-        words = line.split()
-        if not words:
+    fmt, elements, stop = parsed
+    count, props = 0, []
+    for name, count_words, properties in elements:
+        if name != "vertex":
             continue
-        if words[0] == "format":
-            fmt = words[1]
-        elif words[0] == "element":
-            element = words[1]
-            elements.append(element)
-            if element == "vertex":
-                try:
-                    count = int(words[2])
-                except (IndexError, ValueError):
-                    raise InputError(f"{path}: bad PLY line {line!r}") from None
-                if count < 0:
-                    raise InputError(f"{path}: negative vertex count {count}")
-                from pipeline import limits
-
-                limits.check("file.elements", count, where=f"{path}: vertex count {count}")
-        elif words[0] == "property" and element == "vertex":
-            if words[1] == "list" or words[1] not in _PLY_TYPES:
-                return None
-            props.append((words[-1], _PLY_TYPES[words[1]]))
-    return fmt, count, props, stop, elements == ["vertex"]
+        try:
+            count = int(count_words[0])
+        except (IndexError, ValueError):
+            raise InputError(f"{path}: bad PLY line "
+                             f"'element vertex {' '.join(count_words)}'") from None
+        if count < 0:
+            raise InputError(f"{path}: negative vertex count {count}")
+        limits.check("file.elements", count, where=f"{path}: vertex count {count}")
+        for words in properties:
+            if len(words) < 2 or words[0] not in PLY_KINDS:
+                return None  # a list property, or a type this path does not read
+            props.append((words[-1], "<" + PLY_KINDS[words[0]]))
+        break
+    return fmt, count, props, stop, [e[0] for e in elements] == ["vertex"]
 
 
 def read_ply(path: str | os.PathLike) -> Cloud:

@@ -104,13 +104,13 @@ _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16":
               "ushort": 2, "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4,
               "float": 4, "float32": 4, "double": 8, "float64": 8}
 #: numpy kinds of the PLY scalar types (the byte order is the file's).
-_PLY_KINDS = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+PLY_KINDS = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
               "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
               "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
               "float64": "f8"}
 
 
-def _ply_header(head: bytes) -> tuple[str, list[list], int] | None:
+def ply_header(head: bytes) -> tuple[str, list[list], int] | None:
     """``(format, [[element, count, [property words ...]], ...], header bytes)`` or ``None``
     when ``head`` holds no complete header."""
     end = head.find(b"end_header")
@@ -132,7 +132,7 @@ def _ply_header(head: bytes) -> tuple[str, list[list], int] | None:
 
 def _ply_counts(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, int]], int]:
     """``(format, [(element, count, least bytes per element)], header bytes)`` of a PLY."""
-    parsed = _ply_header(head)
+    parsed = ply_header(head)
     if parsed is None:
         return "", [], len(head)  # no header to check: the reader refuses the file
     fmt, elements, stop = parsed
@@ -171,7 +171,7 @@ def _read_binary_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | N
     """
     with open(path, "rb") as fh:
         head = fh.read(65536)
-    parsed = _ply_header(head)
+    parsed = ply_header(head)
     if parsed is None:
         return None
     fmt, elements, stop = parsed
@@ -179,16 +179,16 @@ def _read_binary_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | N
     if order is None or [e[0] for e in elements[:2]] != ["vertex", "face"]:
         return None
     (_, (n_vertices,), vertex_props), (_, (n_faces,), face_props) = elements[:2]
-    if any(len(w) != 2 or w[0] not in _PLY_KINDS for w in vertex_props) or \
+    if any(len(w) != 2 or w[0] not in PLY_KINDS for w in vertex_props) or \
             len(face_props) != 1 or len(face_props[0]) != 4 or face_props[0][0] != "list" or \
-            face_props[0][1] not in _PLY_KINDS or face_props[0][2] not in _PLY_KINDS:
+            face_props[0][1] not in PLY_KINDS or face_props[0][2] not in PLY_KINDS:
         return None
-    vertex_type = np.dtype([(w[1], order + _PLY_KINDS[w[0]]) for w in vertex_props])
+    vertex_type = np.dtype([(w[1], order + PLY_KINDS[w[0]]) for w in vertex_props])
     names = set(vertex_type.names)
     if not {"x", "y", "z"} <= names or len(names) != len(vertex_props):
         return None
-    face_type = np.dtype([("n", order + _PLY_KINDS[face_props[0][1]]),
-                          ("v", order + _PLY_KINDS[face_props[0][2]], (3,))])
+    face_type = np.dtype([("n", order + PLY_KINDS[face_props[0][1]]),
+                          ("v", order + PLY_KINDS[face_props[0][2]], (3,))])
     n_vertices, n_faces = int(n_vertices), int(n_faces)  # checked by check_header_counts
     with open(path, "rb") as fh:
         fh.seek(stop)
