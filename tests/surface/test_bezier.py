@@ -203,6 +203,25 @@ def test_patches_share_one_tangent_plane_at_every_vertex(surfaces, name):
     assert _angle(corner, first[vertex]).max() <= 1e-9
 
 
+def test_edge_continuity_kernel_equals_the_dense_evaluation():
+    """The sparse numba kernel against the dense (P, 28, 3) evaluation of both sides, on
+    nets moved off G1 (random kinks and gaps) so the figures are far from zero."""
+    rng = np.random.default_rng(3)
+    surface = bz.control_net(*icosphere(2))
+    cp = surface.control_points + rng.normal(0.0, 1e-3, surface.control_points.shape)
+    tris = surface.domain_mesh[1]
+    h1, h2 = bz._edge_pairs(tris)
+    t = np.linspace(0.0, 1.0, 7)
+    p1, n1 = bz._edge_samples(cp, h1, t)
+    p2, n2 = bz._edge_samples(cp, h2, 1.0 - t)
+    gap = np.linalg.norm(p1 - p2, axis=-1).max()
+    angle = _angle(n1.reshape(-1, 3), n2.reshape(-1, 3)).max()
+    got_gap, got_angle = bz.edge_continuity(cp, tris, samples=7)
+    assert gap > 1e-4 and angle > 1e-3  # the perturbation broke G1 everywhere
+    assert abs(got_gap - gap) <= 1e-12 * gap
+    assert abs(got_angle - angle) <= 1e-9 * angle
+
+
 def random_hull(seed: int):
     """Convex hull of random points on an ellipsoid: valences 3..11, sliver triangles."""
     from scipy.spatial import ConvexHull
