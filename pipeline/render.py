@@ -16,9 +16,10 @@ the hit point (Phong normal interpolation), so a finely tessellated smooth
 surface looks smooth: open3d's ``primitive_normals`` are per face and would
 show every facet.  Lights are fixed to the camera (a key light above-left, a
 fill light right), so every view of the sheet is lit alike; surfaces are lit
-from both sides.  Anti-aliasing: each view is cast at ``supersample``× the
-resolution and reduced with ``cv2.INTER_AREA`` (a box filter over the
-sub-pixels, in linear light), which the raycaster alone does not provide.
+from both sides.  Anti-aliasing, which the raycaster alone does not provide, is
+adaptive [4]_: one ray per pixel centre, then ``supersample²`` rays averaged in
+linear light (a box filter over the sub-pixels) wherever a pixel's colour or hit
+status differs from a neighbour's (:func:`render_view`).
 
 Cameras follow the OpenCV convention (``x_c = R X + t``, pixel centres at
 integer coordinates, y down); the world's +z axis is up in every view.  The
@@ -41,6 +42,8 @@ References
        pictures", Proc. SIGGRAPH '77, pp. 192-198 (1977).
 .. [3] K. Moreland, "Diverging color maps for scientific visualization",
        ISVC 2009, LNCS 5876, pp. 92-103 (2009).
+.. [4] T. Whitted, "An improved illumination model for shaded display",
+       Communications of the ACM 23(6), pp. 343-349 (1980).
 """
 
 from __future__ import annotations
@@ -178,12 +181,143 @@ def camera_rays(K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height:
     xs = (np.arange(width * s) + 0.5) / s - 0.5
     ys = (np.arange(height * s) + 0.5) / s - 0.5
     grid_x, grid_y = np.meshgrid(xs, ys)  # (Hs, Ws)
-    pixels = np.stack([grid_x, grid_y, np.ones_like(grid_x)], axis=-1)
-    dirs = pixels @ np.linalg.inv(K).T @ R  # (Hs, Ws, 3): R^T K^-1 x, row-vector form
+    return rays_through(K, R, t, grid_x, grid_y)
+
+
+def rays_through(K: np.ndarray, R: np.ndarray, t: np.ndarray, x: np.ndarray,
+                 y: np.ndarray) -> np.ndarray:
+    """Rays ``(..., 6) float32`` (origin, unit direction) through image points ``x, y``
+    (pixels, any equal shapes)."""
+    pixels = np.stack([x, y, np.ones_like(x)], axis=-1)
+    dirs = pixels @ (np.linalg.inv(K).T @ R)  # R^T K^-1 x, row-vector form
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
     eye = -R.T @ t
     origins = np.broadcast_to(eye, dirs.shape)
     return np.concatenate([origins, dirs], axis=-1).astype(np.float32)
+
+
+def pixel_footprint(radius: float, width: int, height: int, fov_deg: float = FOV_DEG,
+                    fill: float = FILL) -> float:
+    """Smallest length on the object one pixel spans in a :func:`look_at` view, scene units.
+
+    Every point of the bounding sphere (radius ``r``, eye distance ``d``) is at least
+    ``d - r`` from the eye and within the sphere's angular radius ``asin(r / d)`` of the
+    optical axis, where a pixel subtends at least ``cos²`` of the ``1 / f`` radians it
+    subtends on the axis; so a pixel covers at least ``(d - r) cos²(asin(r/d)) / f``.
+    A surface approximated within a fraction of this moves no pixel's content by more
+    than that fraction of a pixel.
+    """
+    half = math.radians(fov_deg) / 2.0
+    focal = 0.5 * min(width, height) / math.tan(half)
+    distance = radius / math.sin(math.atan(fill * math.tan(half)))
+    return (distance - radius) * (1.0 - (radius / distance) ** 2) / focal
+
+
+def screen_tessellation(control_points: np.ndarray, triangles: np.ndarray, width: int,
+                        height: int, supersample: int = 2, radius: float | None = None,
+                        max_segments: int = 32
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """A Bézier surface tessellated for :func:`look_at` views of ``width`` × ``height``.
+
+    The chord tolerance is half a sub-pixel, ``δ = pixel_footprint / (2 s)``
+    (:func:`pixel_footprint`): no silhouette or shading sample moves by more than half
+    the spacing of the rays that draw it, however finely the surface was tessellated
+    for export.  What moves a pixel is the surface's distance from its flat triangles
+    *across* them: a patch lies within ``h = max_a |n · (b_a - b_600)|`` of the plane of
+    its corners (the control points' spread about that plane, ``n`` its unit normal;
+    convex-hull property, :func:`plane_deviation`), whereas the parametric bounds of
+    :func:`surface.bezier.adaptive_segments` also count the parametrisation's motion
+    *along* the surface, which draws nothing (on the demo's patches they are 40-2000x
+    ``h``).  A patch with ``h > δ`` is split at its edge midpoints (de Casteljau,
+    :func:`surface.bezier.subdivide`: the exact nets of the uniform grid's triangles)
+    until every piece is within ``δ`` of its own corners' plane; level ``L`` gives the
+    patch ``2^L`` cuts, welded and crack-free across patch edges
+    (:func:`surface.bezier.tessellate_adaptive`; where a neighbour is finer, the
+    transition triangles along the shared edge are smaller still).  A patch still
+    outside ``δ`` after ``max_segments`` cuts keeps them.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) float64
+        Sextic nets (``smooth/control_net.npz``).
+    triangles : (P, 3) int
+        Their domain triangles (shared vertices: a welded result).
+    width, height : int
+        Pixels of one view.
+    supersample : int
+        Rays per pixel side of :func:`render_view`'s anti-aliasing.
+    radius : float, optional
+        Bounding-sphere radius of the surface as rendered, scene units (default: from
+        the patches' corners, which lie on the surface, so no larger than the surface's:
+        the footprint, and with it the tolerance, is not overestimated).
+    max_segments : int
+        Cap of the cuts per patch edge.
+
+    Returns
+    -------
+    vertices (V, 3), triangles (F, 3), normals (V, 3)
+        Points and exact unit normals of the surface; counter-clockwise as the domain.
+    tolerance : float
+        ``δ``, scene units.
+    """
+    from surface import bezier
+
+    cp = check_shape(control_points, "(P, 28, 3)", "control_points", dtype=np.float64)
+    if radius is None:
+        corners = cp[:, [0, 21, 27]].reshape(-1, 3)
+        centre = 0.5 * (corners.min(axis=0) + corners.max(axis=0))
+        radius = float(np.sqrt(((corners - centre) ** 2).sum(axis=1).max()))
+    footprint = pixel_footprint(max(float(radius), TOL.zero), width, height)
+    tolerance = footprint / (2.0 * max(int(supersample), 1))
+    cuts = _certified_cuts(cp, tolerance, max_segments)
+    if cuts.max(initial=1) == 1:  # one flat triangle a patch: the uniform level 0, faster
+        vertices, faces, normals = bezier.tessellate(cp, 0, triangles)
+    else:
+        vertices, faces, normals = bezier.tessellate_adaptive(cp, tolerance, triangles,
+                                                              segments=cuts.astype(np.int64))
+    return vertices, faces, normals, tolerance
+
+
+#: Sub-patches :func:`_certified_cuts` holds at once (28 x 3 float64 each: 2^20 ~ 700 MB).
+_SPLIT_BUDGET = 2 ** 20
+
+
+def _certified_cuts(cp: np.ndarray, tolerance: float, max_segments: int) -> np.ndarray:
+    """``(P,)`` cuts ``2^L``: the smallest level whose midpoint pieces are all within
+    ``tolerance`` of their corners' planes (capped at ``max_segments``)."""
+    cuts = np.ones(len(cp), dtype=np.int64)
+    owner = np.arange(len(cp))
+    nets = cp
+    from surface import bezier
+
+    while len(nets):
+        bad = np.unique(owner[plane_deviation(nets) > tolerance])
+        bad = bad[2 * cuts[bad] <= max_segments]
+        if not len(bad):
+            break
+        cuts[bad] *= 2
+        keep = np.isin(owner, bad)
+        if 4 * np.count_nonzero(keep) > _SPLIT_BUDGET:  # the rest from h ~ 1/m^2
+            h = plane_deviation(nets[keep])
+            worst = np.zeros(len(cp))
+            np.maximum.at(worst, owner[keep], h)
+            more = np.ceil(np.sqrt(worst[bad] / tolerance))
+            cuts[bad] = np.minimum(max_segments, cuts[bad] * np.maximum(more, 1)).astype(np.int64)
+            break
+        nets = bezier.subdivide(nets[keep])
+        owner = np.repeat(owner[keep], 4)
+    return cuts
+
+
+def plane_deviation(control_points: np.ndarray) -> np.ndarray:
+    """``(P,)``: each patch's largest control-point distance from the plane of its three
+    corners, which bounds the patch's distance from that plane (convex hull)."""
+    cp = np.asarray(control_points, dtype=np.float64)
+    corner = cp[:, 0]
+    normal = _unit(np.cross(cp[:, 21] - corner, cp[:, 27] - corner))
+    height = np.matmul(cp, normal[:, :, None])[:, :, 0] - np.einsum("pd,pd->p", corner,
+                                                                     normal)[:, None]
+    return np.abs(height).max(axis=1)
 
 
 # --------------------------------------------------------------------------- shading
@@ -229,12 +363,29 @@ def _shade(normals: np.ndarray, view_dirs: np.ndarray, albedo: np.ndarray, R: np
     return albedo * diffuse[:, None] + lighting.specular * highlight[:, None]
 
 
+#: Adaptive anti-aliasing: a pixel is supersampled when its centre ray's colour differs
+#: from an 8-neighbour's by more than this many 8-bit sRGB levels in a channel, or one of
+#: the two hits the object and the other does not.
+AA_CONTRAST = 4.0
+
+
 def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
                 K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int, height: int,
                 supersample: int = 2, lighting: Lighting = Lighting(),
                 vertex_values: np.ndarray | None = None, colormap=None,
                 background=(255, 255, 255), smooth: bool = True) -> np.ndarray:
     """Render one view of a mesh already loaded in ``scene``.
+
+    Anti-aliasing is adaptive (Whitted [4]_): one ray through every pixel centre, then ``s²`` rays
+    (sub-pixel centres as :func:`camera_rays`, averaged in linear light: a box filter)
+    only for the pixels whose colour differs from a neighbour's by more than
+    :data:`AA_CONTRAST` levels or whose neighbour's ray has the other hit status
+    (silhouettes, occlusion edges, highlights' rims).  Elsewhere the shading changes by
+    less than :data:`AA_CONTRAST` levels per pixel, and the centre sample differs from
+    the box filter's mean only by the curvature term, about 1/24 of the second
+    difference (< 1 level): the same image as supersampling every pixel, for about
+    ``1 + s² e`` rays per pixel instead of ``s²`` (``e`` the share of edge pixels, a few
+    percent).  Detail thinner than a pixel that no centre ray hits is not seen.
 
     Parameters
     ----------
@@ -246,7 +397,7 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
     K, R, t : camera, see :func:`look_at`
     width, height : int, output size in pixels
     supersample : int
-        Rays per pixel side (anti-aliasing); 1 disables it.
+        Rays per pixel side at the edges (anti-aliasing); 1 disables it.
     lighting : Lighting
     vertex_values : (V,) float64, optional
         Scalars mapped through ``colormap`` (interpolated per pixel); the
@@ -261,9 +412,46 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
     -------
     image : (height, width, 3) uint8, RGB
     """
-    import cv2
+    def shade(rays):
+        return _shade_rays(scene, rays, triangles, normals, R, lighting, vertex_values,
+                           colormap, background, smooth)
 
-    rays = camera_rays(K, R, t, width, height, supersample)  # (Hs, Ws, 6)
+    s = int(supersample)
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    image, hit = shade(rays_through(K, R, t, xs, ys))  # (H·W, 3) linear, (H·W,)
+    image = image.reshape(height, width, 3)
+    if s > 1:
+        edge = _edges(_srgb(image) * 255.0, hit.reshape(height, width), AA_CONTRAST)
+        py, px = np.nonzero(edge)
+        if len(py):
+            offsets = (np.arange(s) + 0.5) / s - 0.5  # sub-pixel centres, as camera_rays
+            sub_y, sub_x = np.broadcast_arrays(py[:, None, None] + offsets[None, :, None],
+                                               px[:, None, None] + offsets[None, None, :])
+            sub, _ = shade(rays_through(K, R, t, sub_x, sub_y))  # (M·s², 3), row-major
+            # sub-pixels are averaged in linear light (a pixel's light is the sum of its
+            # parts), then encoded
+            image[py, px] = sub.reshape(len(py), s * s, 3).mean(axis=1)
+    return np.clip(np.rint(_srgb(image) * 255.0), 0, 255).astype(np.uint8)
+
+
+def _edges(encoded: np.ndarray, hit: np.ndarray, contrast: float) -> np.ndarray:
+    """``(H, W)`` bool: pixels differing from an 8-neighbour by more than ``contrast``
+    levels in a channel of ``encoded (H, W, 3)``, or in ``hit (H, W)``."""
+    edge = np.zeros(hit.shape, dtype=bool)
+    height, width = hit.shape
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = (slice(0, height - dy), slice(max(0, -dx), width - max(0, dx)))
+        b = (slice(dy, height), slice(max(0, dx), width - max(0, -dx)))
+        differ = (np.abs(encoded[a] - encoded[b]).max(axis=-1) > contrast) | (hit[a] != hit[b])
+        edge[a] |= differ
+        edge[b] |= differ
+    return edge
+
+
+def _shade_rays(scene, rays, triangles, normals, R, lighting, vertex_values, colormap,
+                background, smooth) -> tuple[np.ndarray, np.ndarray]:
+    """Linear colour ``(N, 3)`` (background where a ray misses) and hit mask ``(N,)`` of
+    ``rays (..., 6)``."""
     hits = scene.cast_rays(rays)
     hit = np.isfinite(hits["t_hit"])
     face = hits["primitive_ids"][hit].astype(np.int64)
@@ -281,15 +469,10 @@ def render_view(scene, vertices: np.ndarray, triangles: np.ndarray, normals: np.
         value = np.einsum("mc,mc->m", bary, vertex_values[corners])
         albedo = _linear(colormap(value))
     colour = _shade(normal, view_dirs, albedo, R, lighting, specular=vertex_values is None)
-    # Sub-pixels are averaged in linear light (a pixel's light is the sum of
-    # its parts), then encoded.
-    image = np.empty((hit.size, 3))
-    image[:] = _linear(np.asarray(background, dtype=np.float64) / 255.0)
-    image[hit] = np.clip(colour, 0.0, 1.0)
-    image = image.reshape(height * supersample, width * supersample, 3).astype(np.float32)
-    if supersample > 1:
-        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
-    return np.clip(np.rint(_srgb(image) * 255.0), 0, 255).astype(np.uint8)
+    out = np.empty((hit.size, 3))
+    out[:] = _linear(np.asarray(background, dtype=np.float64) / 255.0)
+    out[hit] = np.clip(colour, 0.0, 1.0)
+    return out, hit
 
 
 # --------------------------------------------------------------------------- error colours
@@ -431,7 +614,8 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
                 error_range: tuple[float, float] | None = None,
                 supersample: int = 2, lighting: Lighting = Lighting(),
                 background: tuple[int, int, int] = (255, 255, 255),
-                smooth: bool = True) -> np.ndarray:
+                smooth: bool = True, caster: RayCaster | None = None,
+                distances: np.ndarray | None = None) -> np.ndarray:
     """Render a contact sheet of shaded views of a mesh, headless on the CPU.
 
     Parameters
@@ -458,6 +642,12 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
     background : RGB
     smooth : bool
         Interpolated vertex normals (default) or flat facets.
+    caster : pipeline.raycast.RayCaster, optional
+        The ray caster of exactly this mesh, when already built (several sheets of one
+        mesh share its BVH).
+    distances : (V,) float64, optional
+        With ``truth``: the vertices' distances to it, when already measured (signed,
+        negative inside, for a watertight truth; as :func:`surface.metrics.point_mesh_distance`).
 
     Returns
     -------
@@ -484,13 +674,13 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
 
     values = colormap = legend = None
     if truth is not None:
-        values, colormap, legend = _error_colours(vertices, truth, error_range)
+        values, colormap, legend = _error_colours(vertices, truth, error_range, distances)
     legend_h = max(48, height // 10) if legend is not None else 0
     tile_w, tile_h = width // cols, (height - legend_h) // rows
     if tile_w < 8 or tile_h < 8:
         raise ValueError(f"size {width}x{height} is too small for {len(pairs)} views")
 
-    scene = RayCaster(vertices, triangles)
+    scene = RayCaster(vertices, triangles) if caster is None else caster
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     center = 0.5 * (lo + hi)
     radius = max(float(np.linalg.norm(vertices - center, axis=1).max()), TOL.zero)
@@ -507,14 +697,18 @@ def render_mesh(vertices: np.ndarray, triangles: np.ndarray,
     return sheet
 
 
-def _error_colours(vertices, truth, error_range):
+def _error_colours(vertices, truth, error_range, distance=None):
     """Per-vertex normalised distances, the colour map and the legend's arguments."""
     truth_vertices = check_shape(truth[0], "(T, 3)", "truth vertices", dtype=np.float64)
     truth_triangles = check_shape(truth[1], "(G, 3)", "truth triangles").astype(np.int64)
     from surface.metrics import is_watertight, point_mesh_distance
 
     signed = is_watertight(truth_triangles)  # signed (- inside) only where inside means something
-    distance = point_mesh_distance(vertices, truth_vertices, truth_triangles, signed=signed)
+    if distance is None:
+        distance = point_mesh_distance(vertices, truth_vertices, truth_triangles, signed=signed)
+    elif np.shape(distance) != (len(vertices),):
+        raise ValueError(f"distances must be one per vertex ({len(vertices)}), got "
+                         f"{np.shape(distance)}")
     if error_range is None:
         top = _nice_ceil(float(np.abs(distance).max()))
         error_range = (-top, top) if signed else (0.0, top)

@@ -203,6 +203,15 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     -------
     dict
         ``metrics`` (against the truth, when there is one) and ``topology``.
+
+    Notes
+    -----
+    The images show the surface at the size they are drawn (``report.width`` ×
+    ``report.height`` pixels a view): the smooth surface is tessellated afresh from its
+    control net for that size (:func:`pipeline.render.screen_tessellation`: chord error
+    within half a sub-pixel), not drawn from the export's finer tessellation; both
+    sheets share one ray caster.  The figures (metrics, topology) are those of the
+    files the run wrote, the exported tessellation included.
     """
     from functools import cache
 
@@ -219,45 +228,98 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     scene_done = manifest.get("stages", {}).get("scene", {}).get("status") == "done"
     truth = read_mesh(truth_path) if scene_done and truth_path.is_file() else None
     final = _final_mesh(root)
+    if final is None and truth is not None:  # nothing reconstructed yet: the scene
+        final = ("truth mesh of the scene (no surface yet)", truth_path)
+    screen = _Screen(root, final, params, read_mesh) if final is not None else None
     parts: list[str] = []
     info: dict = {}
     jobs = ["surface", "sections", "truth"]
     for job in track(jobs, "report"):
-        if job == "surface" and final is not None:
-            parts.append(_surface_section(root, final, params, info, read_mesh))
-        elif job == "surface" and truth is not None:  # nothing reconstructed yet: the scene
-            parts.append(_surface_section(root, ("truth mesh of the scene (no surface yet)",
-                                                 truth_path), params, info, read_mesh))
+        if job == "surface" and screen is not None:
+            parts.append(_surface_section(root, screen, params, info, read_mesh))
         elif job == "sections":
             parts.append(_sections_section(root))
         elif job == "truth" and truth is not None:
-            parts.append(_truth_section(root, final, truth, params, info, read_mesh))
+            parts.append(_truth_section(root, screen if _final_mesh(root) else None, truth,
+                                        params, info, read_mesh))
     parts.append(_run_section(manifest, order))
     page = _page(manifest, "\n".join(p for p in parts if p))
     Path(out_html).write_text(page, encoding="utf-8")
     return info
 
 
-def _surface_section(root: Path, final, params, info, read_mesh) -> str:
-    from pipeline.render import render_mesh
+class _Screen:
+    """The final surface as drawn: a mesh sized for the report's views, its normals and
+    its ray caster, built once for both sheets."""
+
+    def __init__(self, root: Path, final, params, read_mesh):
+        from pipeline.render import screen_tessellation
+
+        self.label, path = final
+        self.size = (3 * int(params["width"]), 2 * int(params["height"]))
+        self.tolerance = None
+        vertices, triangles = read_mesh(path)
+        net = root / "smooth" / "control_net.npz"
+        if path == root / "smooth" / "surface.ply" and net.is_file():
+            with np.load(net) as data:
+                control_points, domain = data["control_points"], data["domain_triangles"]
+            self.vertices, self.triangles, self.normals, self.tolerance = screen_tessellation(
+                control_points, domain, *_tile(self.size), radius=_radius(vertices))
+        else:  # a plain mesh (the stitched one, the truth) is drawn as it is
+            from pipeline.export import vertex_normals
+
+            self.vertices, self.triangles = vertices, triangles
+            self.normals = vertex_normals(vertices, triangles)
+        self._caster = None
+
+    @property
+    def caster(self):
+        from pipeline.raycast import RayCaster
+
+        if self._caster is None:
+            self._caster = RayCaster(self.vertices, self.triangles)
+        return self._caster
+
+    def render(self, **kwargs) -> np.ndarray:
+        from pipeline.render import render_mesh
+
+        return render_mesh(self.vertices, self.triangles, views=6, size=self.size,
+                           normals=self.normals, caster=self.caster, **kwargs)
+
+    def note(self) -> str:
+        if self.tolerance is None:
+            return ""
+        return (f" (its exact patches tessellated for the screen: {len(self.triangles)} "
+                f"triangles, chord error ≤ {self.tolerance:.2g})")
+
+
+def _tile(size: tuple[int, int]) -> tuple[int, int]:
+    """One view's pixels in a 3×2 sheet of ``size`` (the legend band makes it smaller)."""
+    return size[0] // 3, size[1] // 2
+
+
+def _radius(vertices: np.ndarray) -> float:
+    """Bounding-sphere radius about the bounding box's centre, as the renderer takes it."""
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return float(np.sqrt(((vertices - centre) ** 2).sum(axis=1).max()))
+
+
+def _surface_section(root: Path, screen: _Screen, params, info, read_mesh) -> str:
     from surface.metrics import mesh_topology
 
-    label, path = final
-    vertices, triangles = read_mesh(path)
-    size = (3 * int(params["width"]), 2 * int(params["height"]))
-    sheet = render_mesh(vertices, triangles, views=6, size=size)
+    sheet = screen.render()
     rows = []
     for name, rel in MESHES:
         mesh_path = root / rel
         if mesh_path.is_file():
-            v, t = (vertices, triangles) if mesh_path == path else read_mesh(mesh_path)
-            topo = mesh_topology(v, t)
+            topo = mesh_topology(*read_mesh(mesh_path))
             info.setdefault("topology", {})[name] = topo
             rows.append([name, topo["vertices"], topo["faces"], topo["closed"], topo["oriented"],
                          topo["components"], topo["boundary_edges"], topo["nonmanifold_edges"]])
     table = _table(rows, ["mesh", "vertices", "faces", "closed", "oriented", "components",
                           "boundary edges", "non-manifold edges"]) if rows else ""
-    return (f"<section><h2>Surface</h2>{_figure(png_data_uri(sheet), f'{label}: six views')}"
+    caption = f"{screen.label}: six views{screen.note()}"
+    return (f"<section><h2>Surface</h2>{_figure(png_data_uri(sheet), caption)}"
             f"{'<h3>Topology</h3>' if rows else ''}{table}</section>")
 
 
@@ -272,39 +334,49 @@ def _sections_section(root: Path) -> str:
     return f"<section><h2>Sections and curves</h2>{_figure(png_data_uri(plot), caption)}</section>"
 
 
-def _truth_section(root, final, truth, params, info, read_mesh) -> str:
-    from pipeline.render import render_mesh
-    from surface.metrics import compare_meshes, is_watertight, point_mesh_distance
+def _with_error(value: float, error: float) -> str:
+    return f"{value:.6g} ± {error:.2g}"
+
+
+def _truth_section(root, screen, truth, params, info, read_mesh) -> str:
+    from surface.metrics import MeshDistance, compare_meshes, is_watertight
 
     tv, tt = truth
     diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
     tau = float(params["tau_rel"]) * diag
+    to_truth = MeshDistance(tv, tt)  # one BVH for the cloud, every mesh and the error map
     rows, blocks = [], []
     cloud = _load_npz(root / "acquire" / "cloud.npz")
     if cloud is not None and len(cloud["points"]):
-        d = point_mesh_distance(cloud["points"], tv, tt)
+        d = to_truth(cloud["points"])
         info.setdefault("metrics", {})["cloud_rms"] = float(np.sqrt(np.mean(d ** 2)))
         rows.append(["point cloud", len(d), "", "", "", "", "", float(np.sqrt(np.mean(d ** 2)))])
     for name, rel in MESHES:
         if (root / rel).is_file():
             v, t = read_mesh(root / rel)
-            m = compare_meshes(v, t, tv, tt, tau=tau, count=int(params["samples"]))
+            m = compare_meshes(v, t, tv, tt, tau=tau, count=int(params["samples"]),
+                               truth_distance=to_truth)
             info.setdefault("metrics", {})[name] = m
-            rows.append([name, m["samples"], m["accuracy"], m["completeness"], m["chamfer"],
-                         m["fscore"], m["hausdorff"], ""])
-    if final is not None:
-        v, t = read_mesh(final[1])
-        size = (3 * int(params["width"]), 2 * int(params["height"]))
+            rows.append([name, m["samples"], _with_error(m["accuracy"], m["accuracy_se"]),
+                         _with_error(m["completeness"], m["completeness_se"]),
+                         _with_error(m["chamfer"], m["chamfer_se"]), m["fscore"],
+                         m["hausdorff"], ""])
+    if screen is not None:
+        signed = is_watertight(tt)
         # colours saturate at τ, the F-score threshold: red/blue = beyond it
-        error_range = (-tau, tau) if is_watertight(tt) else (0.0, tau)
-        sheet = render_mesh(v, t, views=6, size=size, truth=(tv, tt), error_range=error_range)
-        blocks.append(_figure(png_data_uri(sheet), f"{final[0]} coloured by its distance to "
-                              f"the truth mesh (saturating at τ = {tau:.3g})"))
+        error_range = (-tau, tau) if signed else (0.0, tau)
+        sheet = screen.render(truth=(tv, tt), error_range=error_range,
+                              distances=to_truth(screen.vertices, signed=signed))
+        blocks.append(_figure(png_data_uri(sheet), f"{screen.label} coloured by its distance "
+                              f"to the truth mesh (saturating at τ = {tau:.3g})"))
     table = _table(rows, ["surface", "samples", "accuracy", "completeness", "Chamfer",
                           f"F@{tau:.3g}", "Hausdorff", "RMS (points)"])
     note = (f"<p>Distances in scene units; τ = {params['tau_rel']} × truth bounding-box "
             f"diagonal ({diag:.4g}) = {tau:.4g}.  Accuracy: mean distance from the surface to "
-            "the truth; completeness: from the truth to the surface (Tanks and Temples).</p>")
+            "the truth; completeness: from the truth to the surface (Tanks and Temples), "
+            f"each the mean over {int(params['samples'])} points sampled uniformly by area "
+            "(exact point-to-triangle distances), ± its sampling error (standard error of "
+            "the mean).</p>")
     return f"<section><h2>Against the truth</h2>{''.join(blocks)}{table}{note}</section>"
 
 

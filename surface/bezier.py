@@ -1224,7 +1224,7 @@ def adaptive_segments(control_points, tolerance: float, max_segments: int = 32) 
 
 
 def tessellate_adaptive(control_points, tolerance: float, triangles=None,
-                        max_segments: int = 32):
+                        max_segments: int = 32, segments: np.ndarray | None = None):
     """Welded triangulation with a chord tolerance per patch, crack-free across patch edges.
 
     Each patch gets ``m_p`` cuts inside (:func:`adaptive_segments`); each domain edge
@@ -1246,6 +1246,9 @@ def tessellate_adaptive(control_points, tolerance: float, triangles=None,
         Domain triangles (a :class:`BezierSurface` brings its own).
     max_segments : int
         Cap of the cuts per patch edge.
+    segments : (P,) int, optional
+        The cuts per patch, when decided otherwise (e.g. for a screen:
+        ``pipeline.render.screen_tessellation``); default :func:`adaptive_segments`.
 
     Returns
     -------
@@ -1253,7 +1256,12 @@ def tessellate_adaptive(control_points, tolerance: float, triangles=None,
         As :func:`tessellate`.
     """
     cp, tris = _patches_and_domain(control_points, triangles, "tessellate_adaptive")
-    segments = adaptive_segments(cp, tolerance, max_segments)
+    if segments is None:
+        segments = adaptive_segments(cp, tolerance, max_segments)
+    else:
+        segments = np.asarray(segments, dtype=np.int64).reshape(-1)
+        if len(segments) != len(cp) or segments.min(initial=1) < 1:
+            raise ValueError(f"segments must be {len(cp)} positive cut counts")
     edge_id, n_edges, forward = _edge_ids(tris)
     edge_cuts = np.zeros(n_edges, dtype=np.int64)
     np.maximum.at(edge_cuts, edge_id.ravel(), np.repeat(segments, 3))
@@ -1266,7 +1274,10 @@ def tessellate_adaptive(control_points, tolerance: float, triangles=None,
     vertices = np.zeros((n_vertices, 3))
     out_normals = np.zeros((n_vertices, 3))
     keys = np.column_stack([segments, edge_cuts[edge_id]])  # (P, 4)
-    unique, group = np.unique(keys, axis=0, return_inverse=True)
+    base = int(keys.max(initial=0)) + 1  # one integer per key: a 1-D unique, not a row sort
+    code = ((keys[:, 0] * base + keys[:, 1]) * base + keys[:, 2]) * base + keys[:, 3]
+    _, first, group = np.unique(code, return_index=True, return_inverse=True)
+    unique = keys[first]
     faces = []
     for g, key in enumerate(unique):  # one batch per template (few distinct ones)
         patches = np.flatnonzero(group.ravel() == g)

@@ -10,6 +10,8 @@ import pytest
 from pipeline.render import (
     Lighting,
     _linear,
+    _srgb,
+    camera_rays,
     coolwarm,
     default_views,
     look_at,
@@ -270,3 +272,78 @@ def test_given_normals_must_match_vertices():
     vertices, triangles = _sphere(resolution=10)
     with pytest.raises(ValueError, match="normals must be finite, one per vertex"):
         render_mesh(vertices, triangles, normals=vertices[:5])
+
+
+@pytest.mark.parametrize("coloured", [False, True])
+def test_adaptive_antialiasing_equals_supersampling_every_pixel(coloured):
+    # The reference casts s² = 4 rays in every pixel: the same view at twice the size
+    # with one ray per pixel (its pixel centres are exactly the sub-pixel centres of
+    # camera_rays(s=2)), box-filtered in linear light.  The adaptive render casts the
+    # 4 sub-rays only where neighbours differ by > AA_CONTRAST levels; elsewhere its
+    # centre ray differs from the 4-ray mean by the curvature term only (< 1 level).
+    vertices, triangles = _vase()
+    truth = (vertices * 1.01, triangles) if coloured else None
+    width, height = 200, 480  # the legend band is height // 10 at both sizes
+    adaptive = render_mesh(vertices, triangles, views=[(40.0, 25.0)], size=(width, height),
+                           truth=truth)
+    double = render_mesh(vertices, triangles, views=[(40.0, 25.0)],
+                         size=(2 * width, 2 * height), truth=truth, supersample=1)
+    linear = _linear(double / 255.0).reshape(height, 2, width, 2, 3).mean(axis=(1, 3))
+    reference = np.clip(np.rint(_srgb(linear) * 255.0), 0, 255)
+    rows = height - height // 10 if coloured else height  # the tile, not the legend text
+    difference = np.abs(adaptive[:rows].astype(int) - reference[:rows].astype(int))
+    assert _object_mask(adaptive).mean() > 0.1
+    assert difference.max() <= 1
+
+
+def test_pixel_footprint_bounds_the_spacing_of_adjacent_rays_on_the_object():
+    # Adjacent pixels' rays hit a sphere (the bounding sphere itself) at least one
+    # footprint apart, and the nearest ones (facing the eye at the image centre) at
+    # (d - r) / f, within the (1 - (r/d)^2) = 0.94 the bound gives away.
+    from pipeline.raycast import RayCaster
+    from pipeline.render import pixel_footprint
+
+    vertices, triangles = _sphere(resolution=200)
+    width, height = 160, 120
+    K, R, t = look_at(np.zeros(3), 1.0, 30.0, 20.0, width, height)
+    rays = camera_rays(K, R, t, width, height)
+    hits = RayCaster(vertices, triangles).cast_rays(rays)
+    distance = hits["t_hit"].reshape(height, width)
+    points = rays[..., :3] + np.where(np.isfinite(distance), distance, 0.0)[..., None] * \
+        rays[..., 3:]
+    both = np.isfinite(distance[:, 1:]) & np.isfinite(distance[:, :-1])
+    spacing = np.linalg.norm(points[:, 1:] - points[:, :-1], axis=-1)[both]
+    footprint = pixel_footprint(1.0, width, height)
+    assert spacing.min() >= footprint
+    assert spacing.min() <= 1.1 * footprint
+
+
+def test_screen_tessellation_is_within_its_chord_tolerance():
+    # The exact surface sampled inside every patch lies within the tolerance of the
+    # screen tessellation; a coarse control mesh (320 patches on an ellipsoid) seen in a
+    # small view needs one flat triangle on some patches and more cuts on others, in a
+    # large one several cuts everywhere.
+    from pipeline.render import _certified_cuts, screen_tessellation
+    from surface import bezier
+    from surface.metrics import MeshDistance, mesh_topology
+
+    vertices, triangles = _sphere(resolution=5)
+    surface = bezier.control_net(vertices * np.array([1.4, 0.7, 1.0]), triangles)
+    cp, domain = surface.control_points, surface.domain_mesh[1]
+    bary = np.random.default_rng(0).dirichlet([1.0, 1.0, 1.0], size=64)
+    exact = bezier.evaluate(cp, bary).reshape(-1, 3)
+    counts = []
+    for width, height in ((40, 30), (480, 360)):
+        v, t, n, tolerance = screen_tessellation(cp, domain, width, height)
+        cuts = _certified_cuts(cp, tolerance, 32)
+        counts.append(len(t))
+        assert len(t) == (cuts ** 2).sum() or cuts.min() < cuts.max()  # uniform: m^2 each
+        assert MeshDistance(v, t)(exact).max() <= tolerance
+        topology = mesh_topology(v, t)
+        assert topology["closed"] and topology["oriented"] and topology["components"] == 1
+        assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+        if width == 40:
+            assert cuts.min() == 1 and cuts.max() > 1
+        else:
+            assert cuts.min() > 1
+    assert counts[1] > 4 * counts[0]  # sized for the screen: finer for a larger view

@@ -11,7 +11,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from pipeline.mesh_io import write_mesh
+from pipeline.mesh_io import read_mesh, write_mesh
 from pipeline.report import build_report, sections_plot
 from pipeline.workspace import save_npz
 
@@ -113,3 +113,35 @@ def test_report_renders_in_headless_chromium_without_console_errors(tmp_path):
     match = re.search(r'<body[^>]*data-images="(\d+)/(\d+)"', proc.stdout)
     assert match, proc.stdout[:500]
     assert match.group(1) == match.group(2) == "3"
+
+
+def test_report_draws_the_smooth_surface_for_the_screen_and_states_sampling_errors(tmp_path):
+    """With a smooth surface the report draws it from its control net, tessellated for
+    the views, and its metrics agree with a 10x larger sample within the errors stated."""
+    from pipeline import artifacts
+    from pipeline.smoothing import smooth_mesh
+    from surface.metrics import compare_meshes
+
+    root, coarse = _workspace(tmp_path)
+    smoothed = smooth_mesh(coarse.vertices, coarse.triangles, 1)
+    artifacts.write_smooth(root / "smooth", smoothed.vertices, smoothed.triangles,
+                           smoothed.normals, smoothed.surface)
+    out = tmp_path / "report.html"
+    info = build_report(root, CONFIG, out)
+    page = out.read_text()
+    assert page.count('<img src="data:image/png;base64,') == 3
+    assert page.count("tessellated for the screen") == 2  # both sheets
+    assert info["topology"]["smooth surface"]["closed"]
+    assert info["topology"]["smooth surface"]["faces"] == len(smoothed.triangles)
+    truth = read_mesh(root / "scene" / "truth" / "mesh.ply")
+    tau = info["metrics"]["smooth surface"]["tau"]
+    for name, (v, t) in (("smooth surface", (smoothed.vertices, smoothed.triangles)),
+                         ("stitched mesh", (coarse.vertices, coarse.triangles))):
+        got = info["metrics"][name]
+        ref = compare_meshes(v, t, *truth, tau=tau, count=10 * CONFIG["report"]["samples"],
+                             seed=7)
+        for key in ("accuracy", "completeness", "chamfer"):
+            error = np.hypot(got[f"{key}_se"], ref[f"{key}_se"])
+            assert 0 < got[f"{key}_se"] < 0.05 * got[key]
+            assert abs(got[key] - ref[key]) <= 4 * error, (name, key)
+        assert f"{got['chamfer']:.6g} ± {got['chamfer_se']:.2g}" in page

@@ -240,3 +240,37 @@ def test_signed_point_mesh_distance_is_negative_inside():
                                atol=3.2e-3)
     np.testing.assert_allclose(M.point_mesh_distance(points, v, t), np.abs(expected),
                                atol=3.2e-3)
+
+
+def test_sampling_error_covers_the_exact_chamfer_distance():
+    # The square z = a x over [-1, 1]^2 against the flat one: a sample (x, y, a x) is
+    # |a x| above the flat square, a flat sample is |a x| / sqrt(1 + a^2) from the
+    # tilted plane (its foot moves towards x = 0, inside the square), and both are
+    # uniform in x: means a / 2 and a / (2 sqrt(1 + a^2)), standard deviations
+    # a / sqrt(12) and a / sqrt(12 (1 + a^2)).
+    a, count = 0.2, 4000
+    v0, f0 = square(0.0, n=8)
+    v1, f1 = square(0.0, n=8)
+    v1[:, 2] = a * v1[:, 0]
+    exact = 0.5 * (a / 2 + a / (2 * np.sqrt(1 + a * a)))
+    se = 0.5 * np.sqrt((a * a / 12 + a * a / (12 * (1 + a * a))) / count)
+    distance, truth_distance = M.MeshDistance(v1, f1), M.MeshDistance(v0, f0)
+    for seed in range(3):
+        s = M.compare_meshes(v1, f1, v0, f0, tau=0.1, count=count, seed=seed,
+                             distance=distance, truth_distance=truth_distance)
+        assert s["chamfer_se"] == pytest.approx(se, rel=0.1)
+        assert abs(s["chamfer"] - exact) <= 4 * s["chamfer_se"]
+        assert s["accuracy_se"] == pytest.approx(a / np.sqrt(12 * count), rel=0.1)
+    # the prebuilt distances are the same figures as building them per call
+    assert M.compare_meshes(v1, f1, v0, f0, tau=0.1, count=500) == M.compare_meshes(
+        v1, f1, v0, f0, tau=0.1, count=500, distance=distance, truth_distance=truth_distance)
+
+
+def test_face_components_of_three_pieces_numbered_by_first_face():
+    # two cubes and a lone triangle, interleaved: labels follow each piece's first face
+    v = np.vstack([CUBE_V, CUBE_V + 5.0, np.eye(3) + 20.0])
+    f = np.vstack([CUBE_F[:6], CUBE_F[:6] + 8, [[16, 17, 18]], CUBE_F[6:], CUBE_F[6:] + 8])
+    labels = M.face_components(f)
+    assert labels.tolist() == [0] * 6 + [1] * 6 + [2] + [0] * 6 + [1] * 6
+    topology = M.mesh_topology(v, f)
+    assert topology["components"] == 3 and topology["boundary_edges"] == 3
