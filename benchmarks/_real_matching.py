@@ -36,7 +36,7 @@ import numpy as np
 
 from matching.consistency import forward_backward
 from matching.grow import grow_matches
-from matching.lsm import LSMResult, lsm_match, prepare_image
+from matching.lsm import DEFAULT_FOOTPRINT_VAR, LSMResult, lsm_match, prepare_image
 from matching.precision import midpoint_variance_factor
 from matching.seeds import disparity_range, select_points, sgbm_disparity
 
@@ -170,13 +170,14 @@ def render_homography(image: np.ndarray, hom: np.ndarray, shape, supersample: in
     return big.reshape(shape[0], s, shape[1], s).mean(axis=(1, 3)).astype(np.float64)
 
 
-def _lsm_grown(fp, gp, pts, approx, init, patch):
+def _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=DEFAULT_FOOTPRINT_VAR):
     """LSM one pass from ``init`` and region growing: (first, growth, seconds, seconds)."""
-    lsm_match(fp, gp, pts[:20], approx[:20], patch=patch, initial=init[:20])  # kernels
+    opts = {"patch": patch, "footprint_var": footprint_var}
+    lsm_match(fp, gp, pts[:20], approx[:20], initial=init[:20], **opts)  # kernels
     t0 = time.perf_counter()
-    first = lsm_match(fp, gp, pts, approx, patch=patch, initial=init)
+    first = lsm_match(fp, gp, pts, approx, initial=init, **opts)
     t1 = time.perf_counter()
-    growth = grow_matches(fp, gp, pts, first, approx, patch=patch)
+    growth = grow_matches(fp, gp, pts, first, approx, **opts)
     return first, growth, t1 - t0, time.perf_counter() - t0
 
 
@@ -217,6 +218,7 @@ def graffiti(folder: Path, quick: bool) -> dict:
                             jac[:, 1, 0], jac[:, 1, 1], np.zeros(len(pts)), np.ones(len(pts))])
     first, growth, t_first, t_grown = _lsm_grown(fp, gp, pts, approx, init, patch)
     res = growth.result
+    plain = _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=None)[1].result
     t2 = time.perf_counter()
     fb = forward_backward(fp, gp, pts, res, patch=patch)
     t3 = time.perf_counter()
@@ -231,6 +233,9 @@ def graffiti(folder: Path, quick: bool) -> dict:
         pos = np.where(result.accepted[:, None], result.position, np.nan)
         rows.append(_judge(name, pos, truth, smooth, pts, seconds, n_cand, result.sigma))
     lsm_row = rows[-1]
+    rows.append(_judge("LSM + growing, no footprint smoothing", np.where(
+        plain.accepted[:, None], plain.position, np.nan), truth, smooth, pts, 1.0, n_cand,
+        plain.sigma))
     lsm_row["fb_variance_factor"] = fb.variance_factor
     lsm_row["fb_loop_rms_px"] = fb.loop_rms
     lsm_row["residual_over_sigma_with_fb_factor"] = lsm_row["residual_over_sigma"] / k
@@ -278,6 +283,7 @@ def graffiti_synthetic(f, g, hom, pts, approx, init, patch) -> dict:
     fp, gp = prepare_image(f), prepare_image(synth)
     first, growth, t_first, t_grown = _lsm_grown(fp, gp, pts, approx, init, patch)
     res = growth.result
+    plain = _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=None)[1].result
     truth = _apply(hom, pts)
     exact = lambda p: _apply(hom, p)  # noqa: E731
     rows = []
@@ -286,6 +292,9 @@ def graffiti_synthetic(f, g, hom, pts, approx, init, patch) -> dict:
         pos = np.where(result.accepted[:, None], result.position, np.nan)
         rows.append(_judge(name, pos, truth, exact, pts, seconds, len(pts), result.sigma))
     _factor_figures(rows[-1], pts, res, exact, patch)
+    rows.append(_judge("LSM + growing, synthetic, no footprint smoothing", np.where(
+        plain.accepted[:, None], plain.position, np.nan), truth, exact, pts, 1.0, len(pts),
+        plain.sigma))
     return {"rows": rows, "noise_added": float(noise)}
 
 
