@@ -507,18 +507,19 @@ def shared_points(control_points: np.ndarray, index: np.ndarray,
     """
     flat = control_points.reshape(-1, 3)
     if domain_triangles is not None and len(domain_triangles):
-        from surface.bezier import control_index, control_point_ids
+        from surface.bezier import control_index, control_point_ids, gather_shared
 
         # the topological ids are in surface.bezier's storage order; map to this net's rows
         order = control_index(index[:, 0], index[:, 1], index[:, 2])
         ids, count = control_point_ids(domain_triangles)
-        ids = ids[:, order]
-        points = np.zeros((count, 3))
-        points[ids.ravel()] = flat
-        if np.array_equal(points[ids], control_points):
-            used = np.zeros(count, dtype=bool)
-            used[ids.ravel()] = True  # ids of a mesh with unused vertices leave gaps
-            remap = np.cumsum(used) - 1
+        if not np.array_equal(order, np.arange(N_CONTROL)):
+            ids = ids[:, order]
+        shared = gather_shared(control_points, ids, count)  # None: copies differ
+        if shared is not None:
+            points, used = shared
+            if used.all():
+                return points, ids
+            remap = np.cumsum(used) - 1  # ids of a mesh with unused vertices leave gaps
             return points[used], remap[ids]
     rows = np.ascontiguousarray(flat).view(np.dtype((np.void, 24))).ravel()
     _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)

@@ -378,7 +378,7 @@ def _smooth_tolerance(ctx: StageContext) -> float:
 def export(ctx: StageContext) -> dict:
     """``pipeline.export``: the surface in every ``export.formats``, and its control net."""
     from pipeline import export as export_mod
-    from pipeline.mesh_io import read_mesh
+    from pipeline.mesh_io import read_mesh, read_mesh_with_normals
 
     smoothed = ctx.has_output("smooth")
     source = ctx.stage_path("smooth", artifacts.SURFACE) if smoothed else \
@@ -386,8 +386,9 @@ def export(ctx: StageContext) -> dict:
     if not smoothed:
         log.warning("export: no smooth surface (%s); exporting the stitched mesh",
                     (ctx.workspace.record("smooth") or {}).get("reason", "smooth did not run"))
-    vertices, triangles = read_mesh(source)
-    normals = artifacts.read_ply_normals(source) if smoothed else None
+    # the smooth surface's exact normals come with it (one read of the file)
+    vertices, triangles, normals = read_mesh_with_normals(source) if smoothed else \
+        (*read_mesh(source), None)
     net = artifacts.read_control_net(ctx.stage_path("smooth")) if smoothed else None
     written = []
     for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):

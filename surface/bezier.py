@@ -1009,6 +1009,50 @@ def control_point_ids(triangles) -> tuple[np.ndarray, int]:
     return _global_sample_ids(tris, DEGREE, index_table(), layout), layout.n_ids
 
 
+def gather_shared(control_points: np.ndarray, ids: np.ndarray, count: int
+                  ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The distinct points of a net numbered by ``ids``, or ``None`` where copies differ.
+
+    Parameters
+    ----------
+    control_points : (P, N, 3) float64
+    ids : (P, N) int64
+        Id of every control point in ``0 .. count - 1`` (e.g. :func:`control_point_ids`).
+    count : int
+
+    Returns
+    -------
+    points : (count, 3) float64
+        ``points[ids] == control_points`` (ids no point has are left zero).
+    used : (count,) bool
+        The ids some point has.
+    Or ``None`` when two points of one id differ (``!=``).
+    """
+    cp = np.ascontiguousarray(control_points, dtype=np.float64)
+    points = np.zeros((int(count), 3))
+    used = np.zeros(int(count), dtype=np.bool_)
+    ok = _gather_shared(cp, np.ascontiguousarray(ids, dtype=np.int64), points, used)
+    return (points, used) if ok else None
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_shared(cp, ids, points, seen):  # pragma: no cover
+    """One pass: the first copy of an id is stored, every later one compared (``!=``, as
+    ``numpy.array_equal``; the nets are finite)."""
+    for p in range(ids.shape[0]):
+        for m in range(ids.shape[1]):
+            g = ids[p, m]
+            if not seen[g]:
+                seen[g] = True
+                for d in range(3):
+                    points[g, d] = cp[p, m, d]
+            else:
+                for d in range(3):
+                    if points[g, d] != cp[p, m, d]:
+                        return False
+    return True
+
+
 def share_boundaries(control_points: np.ndarray, triangles: np.ndarray) -> float:
     """Make the boundary control points that neighbouring patches share bit-identical, in place.
 

@@ -260,6 +260,20 @@ def test_control_net_v2_keeps_points_that_differ_in_the_last_bit(tmp_path):
     assert read_control_net(path).control_points.tobytes() == cp.tobytes()
 
 
+def test_control_net_v2_numbers_points_of_a_domain_with_unused_vertices(tmp_path):
+    from surface.bezier import index_table
+
+    surface = _bezier_sphere()
+    cp, (dv, dt) = surface.control_points, surface.domain_mesh
+    # vertex 0 of the domain used by no patch: its id is a gap the numbering closes
+    domain = (np.vstack([np.zeros((1, 3)), dv]), dt + 1)
+    path = write_control_net(tmp_path / "gap.npz", cp, index_table(), surface.source_face,
+                             domain_mesh=domain)
+    net = read_control_net(path)
+    assert len(net.points) == len(dv) + 5 * (len(dt) * 3 // 2) + 10 * len(dt)
+    assert net.control_points.tobytes() == cp.tobytes()
+
+
 def test_control_net_v2_rejects_bad_patch_indices(tmp_path):
     from surface.bezier import index_table
 
