@@ -1076,16 +1076,25 @@ def share_boundaries(control_points: np.ndarray, triangles: np.ndarray) -> float
         The largest change made (scene units).
     """
     ids, count = control_point_ids(triangles)
-    flat, flat_ids = control_points.reshape(-1, 3), ids.ravel()
-    shared = np.empty((count, 3))
-    shared[flat_ids] = flat  # duplicates: one of the writes wins; all copies then read it
+    if not control_points.flags.c_contiguous:
+        raise ValueError("share_boundaries changes control_points in place: give a "
+                         "C-contiguous array")
+    return float(_share_rows(control_points.reshape(-1, 3), ids.ravel(), np.empty((count, 3))))
+
+
+@numba.njit(cache=True, nogil=True)
+def _share_rows(flat, ids, shared):  # pragma: no cover
+    """``flat[r] = shared[ids[r]]`` with each id's value its last row's (rows in order, as
+    a numpy fancy assignment leaves it); returns the largest coordinate change."""
+    for r in range(len(ids)):
+        for d in range(3):
+            shared[ids[r], d] = flat[r, d]
     change = 0.0
-    step = 3 * _CHUNK_ROWS
-    for start in range(0, len(flat), step):  # bounded temporaries on large surfaces
-        part = slice(start, start + step)
-        canonical = shared[flat_ids[part]]
-        change = max(change, float(np.abs(canonical - flat[part]).max(initial=0.0)))
-        flat[part] = canonical
+    for r in range(len(ids)):
+        for d in range(3):
+            value = shared[ids[r], d]
+            change = max(change, abs(value - flat[r, d]))
+            flat[r, d] = value
     return change
 
 
