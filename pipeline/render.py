@@ -225,7 +225,7 @@ def screen_tessellation(control_points: np.ndarray, triangles: np.ndarray, width
     for export.  What moves a pixel is the surface's distance from its flat triangles
     *across* them: a patch lies within ``h = max_a |n · (b_a - b_600)|`` of the plane of
     its corners (the control points' spread about that plane, ``n`` its unit normal;
-    convex-hull property, :func:`plane_deviation`), whereas the parametric bounds of
+    convex-hull property, :func:`surface.bezier.plane_deviation`), whereas the parametric bounds of
     :func:`surface.bezier.adaptive_segments` also count the parametrisation's motion
     *along* the surface, which draws nothing (on the demo's patches they are 40-2000x
     ``h``).  A patch with ``h > δ`` is split at its edge midpoints (de Casteljau,
@@ -285,10 +285,12 @@ _SPLIT_BUDGET = 2 ** 20
 def _certified_cuts(cp: np.ndarray, tolerance: float, max_segments: int) -> np.ndarray:
     """``(P,)`` cuts ``2^L``: the smallest level whose midpoint pieces are all within
     ``tolerance`` of their corners' planes (capped at ``max_segments``)."""
+    from surface import bezier
+    from surface.bezier import plane_deviation
+
     cuts = np.ones(len(cp), dtype=np.int64)
     owner = np.arange(len(cp))
     nets = cp
-    from surface import bezier
 
     while len(nets):
         bad = np.unique(owner[plane_deviation(nets) > tolerance])
@@ -307,17 +309,6 @@ def _certified_cuts(cp: np.ndarray, tolerance: float, max_segments: int) -> np.n
         nets = bezier.subdivide(nets[keep])
         owner = np.repeat(owner[keep], 4)
     return cuts
-
-
-def plane_deviation(control_points: np.ndarray) -> np.ndarray:
-    """``(P,)``: each patch's largest control-point distance from the plane of its three
-    corners, which bounds the patch's distance from that plane (convex hull)."""
-    cp = np.asarray(control_points, dtype=np.float64)
-    corner = cp[:, 0]
-    normal = _unit(np.cross(cp[:, 21] - corner, cp[:, 27] - corner))
-    height = np.matmul(cp, normal[:, :, None])[:, :, 0] - np.einsum("pd,pd->p", corner,
-                                                                     normal)[:, None]
-    return np.abs(height).max(axis=1)
 
 
 # --------------------------------------------------------------------------- shading

@@ -710,6 +710,47 @@ def _second_difference_bound(cp: np.ndarray) -> np.ndarray:
     return 0.5 * DEGREE * (DEGREE - 1) * worst
 
 
+def plane_deviation(control_points) -> np.ndarray:
+    """Largest distance of each patch's control points from the plane of its corners.
+
+    By the convex-hull property the patch lies within this distance of that plane, so
+    it bounds the patch's distance *across* its flat triangle (level 0), not counting
+    the parametrisation's motion along the surface that :func:`chord_error_bound`
+    also counts.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) array_like
+
+    Returns
+    -------
+    (P,) float64, scene units (``inf`` for a patch whose corners are collinear)
+    """
+    cp = np.ascontiguousarray(_check_control_points(control_points))
+    return _plane_deviation(cp)
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_deviation(cp):  # pragma: no cover
+    out = np.empty(cp.shape[0])
+    for p in range(cp.shape[0]):
+        ax, ay, az = cp[p, 0, 0], cp[p, 0, 1], cp[p, 0, 2]
+        ux, uy, uz = cp[p, 21, 0] - ax, cp[p, 21, 1] - ay, cp[p, 21, 2] - az
+        vx, vy, vz = cp[p, 27, 0] - ax, cp[p, 27, 1] - ay, cp[p, 27, 2] - az
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length == 0.0:
+            out[p] = np.inf
+            continue
+        worst = 0.0
+        for m in range(cp.shape[1]):
+            h = ((cp[p, m, 0] - ax) * nx + (cp[p, m, 1] - ay) * ny
+                 + (cp[p, m, 2] - az) * nz) / length
+            worst = max(worst, abs(h))
+        out[p] = worst
+    return out
+
+
 #: Largest number of sub-patches tessellation_level subdivides while searching.
 _LEVEL_BUDGET = 2 ** 17
 

@@ -763,3 +763,22 @@ def test_adaptive_tessellation_is_watertight_and_within_tolerance(tolerance):
     # the vertices lie on the surface (each evaluated exactly on one patch)
     corners = bz.evaluate(surface.control_points, np.eye(3))  # (P, 3, 3)
     assert point_mesh_distance(corners.reshape(-1, 3), v, t).max() < 1e-6  # float32 inside
+
+
+def test_plane_deviation_bounds_the_distance_across_the_corners_plane():
+    # a flat net (its points at the Greville abscissae of a tilted triangle), one inner
+    # point lifted by h along the normal and others slid within the plane: the bound is
+    # h exactly (sliding moves nothing across), and the patch stays within it
+    rng = np.random.default_rng(5)
+    corners = rng.normal(size=(3, 3))
+    normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    normal /= np.linalg.norm(normal)
+    net = (bz.index_table() / 6.0) @ corners
+    net[4] += 0.5 * (corners[1] - corners[0])  # along the plane
+    net[12] += 0.3 * normal  # across it
+    bound = bz.plane_deviation(net[None])[0]
+    assert bound == pytest.approx(0.3, rel=1e-12)
+    assert bz.chord_error_bound(net[None])[0] > bound  # counts the slide too
+    bary = rng.dirichlet([1.0, 1.0, 1.0], size=500)
+    across = np.abs((bz.evaluate(net[None], bary)[0] - corners[0]) @ normal)
+    assert across.max() <= bound and across.max() > 0.05 * bound
