@@ -239,7 +239,8 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None) -> dict:
             "stitched_triangles": int(len(dense.triangles)),
             "control_triangles": int(len(sized.triangles)), "size_step": sized.step,
             "size_n": sized.n, "size_deviation": sized.deviation,
-            "size_tolerance": sized.tolerance, "patches": len(smooth.control_points),
+            "size_tolerance": sized.tolerance, "size_error": sized.error,
+            "size_noise": sized.noise, "patches": len(smooth.control_points),
             "g1_angle": angle, "g1_gap": gap, "wall_seconds_inner": seconds, **sizes,
             "excluded_seconds": excluded}
 

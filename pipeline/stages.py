@@ -283,12 +283,12 @@ def stitch(ctx: StageContext) -> dict:
 
 def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     """``surface.sizing.size_control_mesh`` of the curves' rings (``smooth.size``): the
-    thinned stitched mesh whose interpolating surface is within ``smooth.size_tolerance``
-    (0: ``surface.sizing.precision_tolerance`` of the dense rings' own precision, which
-    the curves stage stores; the section points' noise σ̂ for a curves.npz written
-    before it was)
-    of the stitched mesh; ``None`` when not asked or not possible (no noise estimate,
-    an open mesh), with the reason logged."""
+    thinned stitched mesh (kept rings regressed across their neighbour sections) whose
+    interpolating surface is estimated within ``smooth.size_tolerance`` of the truth (0:
+    ``surface.sizing.ring_noise``, the dense rings' own error from their scatter between
+    sections, else their fits' precision stored by the curves stage, else the points'
+    noise σ̂); ``None`` when not asked or not possible (no noise estimate, an open mesh),
+    with the reason logged."""
     from surface import sizing
 
     p = ctx.params["smooth"]
@@ -296,12 +296,9 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
         return None
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
     fits = artifacts.read_curve_fits(ctx.stage_path("curves"))
-    if fits is None and not float(p["size_tolerance"]):
-        log.info("smooth: curves.npz holds no ring precision (written before it was "
-                 "stored): sizing against the points' noise instead (re-run curves)")
-    derived = sizing.precision_tolerance(fits["ring_precision"]) if fits is not None \
-        else (noise or 0.0)
-    tolerance = float(p["size_tolerance"]) or derived
+    precision = fits["ring_precision"] if fits is not None else 0.0
+    ring_sigma = sizing.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0)
+    tolerance = float(p["size_tolerance"]) or ring_sigma
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     if tolerance <= 0 or spacing <= 0:
         log.info("smooth: no sizing (no noise estimate or section spacing); the stitched "
@@ -316,7 +313,7 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
         return result.vertices, result.triangles
 
     return sizing.size_control_mesh(rings, planes, spacing, mesh, (vertices, triangles),
-                                    tolerance)
+                                    tolerance, noise=ring_sigma)
 
 
 def smooth(ctx: StageContext) -> dict:
@@ -338,6 +335,7 @@ def smooth(ctx: StageContext) -> dict:
             vertices, triangles = sized.vertices, sized.triangles
             info = {"size_step": sized.step, "size_n": sized.n,
                     "size_deviation": sized.deviation, "size_tolerance": sized.tolerance,
+                    "size_error": sized.error, "size_noise": sized.noise,
                     "control_triangles": len(triangles)}
         control = vertices
         if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back

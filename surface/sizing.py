@@ -114,9 +114,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SizedMesh", "coarsen_rings", "interpolating_control", "kept_sections",
-           "precision_tolerance", "ring_precision", "sized_from_points",
-           "reference_vertices", "resample_ring", "size_control_mesh", "smooth_deviation"]
+__all__ = ["SizedMesh", "coarsen_rings", "error_estimate", "influence", "interpolating_control",
+           "kept_sections", "precision_tolerance", "reference_vertices", "resample_ring",
+           "ring_noise", "ring_precision", "section_scatter", "section_weights",
+           "size_control_mesh", "sized_from_points", "smooth_deviation"]
 
 #: Points round the largest ring of the coarsest candidate.
 MIN_RING_POINTS = 12
@@ -152,6 +153,17 @@ def precision_tolerance(precision: float) -> float:
     return float(np.sqrt(2.0 / np.pi) * precision)
 
 
+def ring_noise(rings: Sequence, axis, precision: float = 0.0, points_noise: float = 0.0
+               ) -> float:
+    """σ of the dense rings' errors: their scatter between sections (:func:`section_scatter`),
+    else the fits' own precision σ_ring (:func:`ring_precision`), else the points' σ̂;
+    scene units (0 if none is known)."""
+    for value in (section_scatter(rings, axis), precision, points_noise):
+        if value is not None and np.isfinite(value) and value > 0:
+            return float(value)
+    return 0.0
+
+
 def resample_ring(ring: np.ndarray, count: int) -> np.ndarray:
     """Closed ring resampled to ``count`` points on the periodic cubic through its points.
 
@@ -179,6 +191,42 @@ def resample_ring(ring: np.ndarray, count: int) -> np.ndarray:
     t = np.arange(len(ring) + 1) / len(ring)
     spline = CubicSpline(t, np.vstack([ring, ring[:1]]), bc_type="periodic", axis=0)
     return spline(np.arange(count) / count)
+
+
+def resample_at_angles(ring: np.ndarray, count: int, centre: np.ndarray,
+                       frame: np.ndarray) -> np.ndarray | None:
+    """Ring resampled at the polar angles ``2πj/count`` about ``centre`` in the plane
+    ``frame[:2]``, on the periodic cubic through its points (:func:`resample_ring`'s
+    curve), so that rings of different sections line up point by point whatever their
+    first points; ``None`` when the ring is not star-shaped about ``centre``.
+
+    Parameters
+    ----------
+    ring : (M, 3) float64
+    count : int
+    centre : (3,) float64
+    frame : (3, 3) float64
+        Rows e1, e2 (the plane), axis.
+
+    Returns
+    -------
+    (count, 3) float64 or None
+    """
+    from scipy.interpolate import CubicSpline
+
+    ring = np.asarray(ring, dtype=np.float64)
+    flat = (ring - centre) @ frame[:2].T
+    angle = np.unwrap(np.arctan2(flat[:, 1], flat[:, 0]))
+    if angle[-1] < angle[0]:                       # clockwise: the same ring reversed
+        ring, angle = ring[::-1], angle[::-1]
+    period = np.append(angle, angle[0] + 2 * np.pi)
+    if np.any(np.diff(period) <= 0):               # not star-shaped about the centre
+        return None
+    m = len(ring)
+    u = np.arange(m + 1) / m
+    spline = CubicSpline(u, np.vstack([ring, ring[:1]]), bc_type="periodic", axis=0)
+    targets = angle[0] + np.mod(2 * np.pi * np.arange(count) / count - angle[0], 2 * np.pi)
+    return spline(np.interp(targets, period, u))
 
 
 def kept_sections(count: int, step: int) -> list[int]:
@@ -215,7 +263,196 @@ def kept_sections(count: int, step: int) -> list[int]:
     return keep
 
 
-def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int) -> tuple[list, list]:
+def _heights(rings: Sequence, axis: np.ndarray) -> np.ndarray:
+    return np.array([float(np.mean(np.concatenate([loop @ axis for loop in _loops(entry)])))
+                     for entry in rings])
+
+
+def _single(entry) -> np.ndarray | None:
+    loops = _loops(entry)
+    return loops[0] if len(loops) == 1 else None
+
+
+def _plane_frame(axis) -> np.ndarray:
+    """Rows e1, e2, axis: an orthonormal frame with the unit axis last."""
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(axis, e1), axis])
+
+
+def _aligned(rings: Sequence, sections: np.ndarray, count: int, frame: np.ndarray):
+    """The single-loop rings of ``sections`` resampled at common polar angles about their
+    mean centroid, ``(len(sections), count, 3)``; None if one is missing or not
+    star-shaped."""
+    loops = [_single(rings[j]) for j in sections]
+    if any(loop is None for loop in loops):
+        return None
+    centre = np.mean([loop.mean(axis=0) for loop in loops], axis=0)
+    out = [resample_at_angles(loop, count, centre, frame) for loop in loops]
+    return None if any(o is None for o in out) else np.stack(out)
+
+
+#: Consecutive sections of one 4th difference, and its noise gain Σ c² = 1+16+36+16+1.
+_D4 = np.array([1.0, -4.0, 6.0, -4.0, 1.0])
+
+
+def section_scatter(rings: Sequence, axis=(0.0, 0.0, 1.0)) -> float:
+    """The dense rings' error measured from their scatter between neighbouring sections.
+
+    The rings are resampled to one count at the same polar angles about the window's
+    mean centroid (:func:`resample_at_angles`: the rings' own first points are not
+    aligned from section to section), and at each
+    point of five consecutive single-loop sections, equally spaced, the 4th difference
+    across the sections ``x_{k-2} - 4x_{k-1} + 6x_k - 4x_{k+1} + x_{k+2}`` is taken along
+    the middle ring's in-plane radial direction: the profile's shape up to a cubic
+    cancels and the rings' independent errors add up to 70 σ², so
+    ``σ = 1.4826 · median|d4| / √70`` (robust to the rims and to branch events).
+    Each ring is fitted to its own section's points, so their errors are independent
+    from section to section, whatever their correlation along the ring.
+
+    Parameters
+    ----------
+    rings : sequence
+        One entry per section, ``(M, 3)`` or a list of loops (sections with several
+        loops are skipped).
+    axis : (3,) float64
+        The sections' common normal.
+
+    Returns
+    -------
+    float
+        Scene units; ``nan`` when no five consecutive single-loop sections exist.
+    """
+    axis = _plane_frame(axis)[2]
+    single = [_single(entry) for entry in rings]
+    sizes = [len(loop) for loop in single if loop is not None]
+    if len(sizes) < 5:
+        return float("nan")
+    count = min(sizes)
+    frame = _plane_frame(axis)
+    heights = _heights(rings, frame[2])
+    values = []
+    for k in range(2, len(rings) - 2):
+        gaps = np.diff(heights[k - 2:k + 3])
+        if np.ptp(gaps) > 0.25 * abs(float(np.median(gaps))):
+            continue
+        window = _aligned(rings, np.arange(k - 2, k + 3), count, frame)
+        if window is None:
+            continue
+        d4 = np.tensordot(_D4, window, axes=1)                      # (count, 3)
+        radial = window[2] - window[2].mean(axis=0)
+        radial -= np.outer(radial @ axis, axis)
+        radial /= np.maximum(np.linalg.norm(radial, axis=1), 1e-300)[:, None]
+        values.append(np.einsum("ij,ij->i", d4, radial))
+    if not values:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(np.concatenate(values))) / np.sqrt(_D4 @ _D4))
+
+
+def section_weights(heights: np.ndarray, keep: Sequence[int], singles: Sequence[bool]
+                    ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each kept section's local quadratic regression across its neighbour sections.
+
+    Kept section ``k`` is replaced by the value at its own height of the least-squares
+    quadratic (in height) through the sections ``j`` with ``|j - k| <= w``, ``w`` the
+    smaller gap to the neighbouring kept sections (Savitzky-Golay; 5 sections: weight
+    0.49 on its own, noise σ·0.70; 9 sections: 0.26, σ·0.51), so the thinning averages
+    the dense rings' independent errors across sections instead of interpolating them;
+    a quadratic's weights reproduce the profile up to its curvature.  Where the window
+    would reach a section with several loops, or ``w < 2``, the section is kept as it is.
+
+    Parameters
+    ----------
+    heights : (K,) float64
+        The dense sections' heights along the axis.
+    keep : sequence of int
+        Kept section indices, increasing.
+    singles : sequence of bool
+        Per dense section: one loop.
+
+    Returns
+    -------
+    list of (indices, weights)
+        Per kept section, the dense sections and their weights (summing to 1).
+    """
+    out = []
+    keep = list(keep)
+    for position, k in enumerate(keep):
+        gaps = [k - keep[position - 1] if position > 0 else 0,
+                keep[position + 1] - k if position + 1 < len(keep) else 0]
+        w = min(gaps)
+        index = np.arange(k - w, k + w + 1)
+        if w < 2 or not all(singles[j] for j in index):
+            out.append((np.array([k]), np.array([1.0])))
+            continue
+        t = heights[index] - heights[k]
+        scale = max(float(np.max(np.abs(t))), 1e-300)
+        design = np.vander(t / scale, 3, increasing=True)              # (2w+1, 3)
+        weights = design @ np.linalg.solve(design.T @ design, np.eye(3)[0])
+        out.append((index, weights))
+    return out
+
+
+def influence(heights: np.ndarray, keep: Sequence[int],
+              weights: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The weight of each dense section's own ring in the thinned surface at its height.
+
+    The diagonal of the linear map dense rings -> thinned surface along the profile:
+    the kept sections' regressions (:func:`section_weights`) then the interpolation
+    between the kept heights, modelled by the not-a-knot cubic spline through them
+    (the interpolating Loop surface is a G1 interpolant of the kept rings).  It is the
+    trace term of Stein's unbiased risk estimate (:func:`error_estimate`).
+
+    Returns
+    -------
+    (K,) float64
+    """
+    from scipy.interpolate import CubicSpline
+
+    count, keep = len(heights), np.asarray(keep)
+    smooth = np.zeros((len(keep), count))
+    for row, (index, w) in enumerate(weights):
+        smooth[row, index] = w
+    if len(keep) >= 4:
+        interp = CubicSpline(heights[keep], np.eye(len(keep)), axis=0)(heights)   # (K, kept)
+    else:
+        interp = np.stack([np.interp(heights, heights[keep], col)
+                           for col in np.eye(len(keep))], axis=1)
+    return np.einsum("ij,ji->i", interp, smooth)
+
+
+def error_estimate(distances: np.ndarray, noise: float, influence_mean: float) -> float:
+    """RMS error to the truth of a surface fitted to noisy points, from its distances to them.
+
+    Stein's unbiased risk estimate (Mallows' Cp): for points ``x = truth + ε``,
+    ``ε ~ N(0, σ²)`` independent, and a fit ``S x`` linear in them, the mean squared
+    error to the truth is ``E|Sx - x|² - σ² + 2σ²·tr(S)/N``; ``tr(S)/N`` is the mean
+    influence of a point on the fit at itself (:func:`influence`).  A fit that copies the
+    points (influence 1) gets σ, one that ignores them (0) ``sqrt(mean d² - σ²)``.
+
+    Parameters
+    ----------
+    distances : (N,) float64
+        From the dense vertices to the thinned surface, scene units.
+    noise : float
+        σ of the dense vertices (:func:`section_scatter`).
+    influence_mean : float
+        Mean influence over the same vertices.
+
+    Returns
+    -------
+    float
+        Scene units (0 if the estimate is negative).
+    """
+    mean_square = float(np.mean(np.square(distances)))
+    return float(np.sqrt(max(mean_square - noise ** 2 * (1.0 - 2.0 * influence_mean), 0.0)))
+
+
+def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
+                  smooth: bool = False, axis=(0.0, 0.0, 1.0)) -> tuple[list, list]:
     """Every ``step``-th section (the first and last always), rings resampled to n / 2n.
 
     Parameters
@@ -229,6 +466,11 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int) -> tuple
     n : int
         Points on the kept rings at even positions of the result; odd ones get 2n
         (the stitch's N / 2N pattern, ``surface.catmull_rom.ring_size``).
+    smooth : bool
+        Each kept ring the local quadratic regression of the resampled dense rings
+        around it (:func:`section_weights`) instead of its own dense ring.
+    axis : (3,) float64
+        The sections' normal (for their heights when ``smooth``).
 
     Returns
     -------
@@ -237,11 +479,19 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int) -> tuple
     from surface.catmull_rom import ring_size
 
     keep = kept_sections(len(rings), step)
+    if smooth:
+        frame = _plane_frame(axis)
+        heights = _heights(rings, frame[2])
+        weights = section_weights(heights, keep, [_single(e) is not None for e in rings])
     out = []
     for position, index in enumerate(keep):
         count = ring_size(position, int(n))
         entry = rings[index]
-        if isinstance(entry, np.ndarray) and entry.ndim == 2:
+        aligned = _aligned(rings, weights[position][0], count, frame) \
+            if smooth and len(weights[position][0]) > 1 else None
+        if aligned is not None:
+            out.append(np.tensordot(weights[position][1], aligned, axes=1))
+        elif isinstance(entry, np.ndarray) and entry.ndim == 2:
             out.append(resample_ring(entry, count))
         else:
             out.append([resample_ring(loop, count) for loop in entry])
@@ -307,6 +557,17 @@ def reference_vertices(vertices: np.ndarray, triangles: np.ndarray,
     return np.sort(pick)
 
 
+def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray, reference: np.ndarray):
+    """Loop's surface interpolating the mesh and the distances from ``reference`` to it."""
+    from surface import bezier
+    from surface.metrics import point_mesh_distance
+
+    control = interpolating_control(vertices, triangles)
+    surface = bezier.control_net(control, triangles)
+    v, t, _ = bezier.tessellate(surface, 1)
+    return surface, point_mesh_distance(reference, v, t)
+
+
 def smooth_deviation(vertices: np.ndarray, triangles: np.ndarray, reference: np.ndarray):
     """Loop's surface interpolating ``(vertices, triangles)`` and its mean distance to
     ``reference``.
@@ -318,13 +579,8 @@ def smooth_deviation(vertices: np.ndarray, triangles: np.ndarray, reference: np.
     A mesh with borders gets the approximating surface (no interpolating solve
     exists there).
     """
-    from surface import bezier
-    from surface.metrics import point_mesh_distance
-
-    control = interpolating_control(vertices, triangles)
-    surface = bezier.control_net(control, triangles)
-    v, t, _ = bezier.tessellate(surface, 1)
-    return surface, float(point_mesh_distance(reference, v, t).mean())
+    surface, distances = _smooth_surface(vertices, triangles, reference)
+    return surface, float(distances.mean())
 
 
 @dataclass
@@ -335,16 +591,23 @@ class SizedMesh:
     ----------
     vertices : (V, 3) float64
     triangles : (F, 3) int64
-        The thinned stitched mesh (vertices on the dense curves).
+        The thinned stitched mesh (vertices on the dense curves, or on their
+        regression across sections).
     step, n : int
         Sections kept every ``step``; ring points n / 2n (``step = 1, n = 0``: the
         dense mesh itself was kept).
     deviation : float
-        Mean distance from the dense mesh's vertices to the smooth surface over
-        this mesh (scene units).
+        Mean distance from the dense mesh's reference vertices to the smooth surface
+        over this mesh (scene units).
     tolerance : float
+        Largest error estimate accepted (scene units).
     tried : list of dict
-        Every candidate: ``step``, ``n``, ``triangles``, ``deviation``.
+        Every candidate: ``step``, ``n``, ``triangles``, ``deviation``, ``error``.
+    error : float
+        The chosen candidate's estimated RMS error to the truth
+        (:func:`error_estimate`; 0 for the dense mesh).
+    noise : float
+        σ of the dense rings used in it (:func:`section_scatter`).
     """
 
     vertices: np.ndarray
@@ -354,12 +617,24 @@ class SizedMesh:
     deviation: float
     tolerance: float
     tried: list = field(default_factory=list)
+    error: float = 0.0
+    noise: float = 0.0
 
 
 def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                       build: Callable, dense: tuple[np.ndarray, np.ndarray],
-                      tolerance: float, seed: int = 0) -> SizedMesh:
-    """The coarsest thinning of the rings whose smooth surface stays within ``tolerance``.
+                      tolerance: float, seed: int = 0, noise: float | None = None,
+                      smooth: bool = True) -> SizedMesh:
+    """The coarsest thinning of the rings whose smooth surface is estimated within
+    ``tolerance`` of the truth.
+
+    Each candidate's kept rings are regressions across their neighbour sections
+    (``smooth``, :func:`section_weights`); its error to the truth is estimated from
+    its distances to the dense mesh's reference vertices by Stein's unbiased risk
+    estimate (:func:`error_estimate`: the dense vertices' noise ``noise`` and their
+    influence on the candidate, :func:`influence`).  With ``tolerance`` = ``noise``
+    (the default of the callers) the chosen surface is estimated no farther from the
+    truth than the dense rings are.
 
     Parameters
     ----------
@@ -377,11 +652,14 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     dense : ((V, 3) float64, (F, 3) int64)
         The dense stitched mesh, the reference.
     tolerance : float
-        Largest mean distance from the dense mesh's vertices to the smooth
-        surface, scene units (> 0); :func:`precision_tolerance` of the dense
-        rings' precision (:func:`ring_precision`) keeps the dense surface's accuracy.
+        Largest estimated RMS error to the truth, scene units (> 0).
     seed : int
         Seed of the reference sample (fixed: the same input gives the same choice).
+    noise : float, optional
+        σ of the dense rings' errors; default :func:`section_scatter` of the rings
+        (0 when it cannot be measured: the estimate is then the RMS distance).
+    smooth : bool
+        Regress the kept rings across sections (else they are the dense rings).
 
     Returns
     -------
@@ -400,9 +678,21 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     if len(rings) < 2 or len(planes) != len(rings):
         raise ValueError(f"need at least two sections with one plane each, got {len(rings)} "
                          f"rings and {len(planes)} planes")
+    axis = np.asarray(planes[0].frame[2], dtype=np.float64)
+    if noise is None:
+        noise = section_scatter(rings, axis)
+    noise = float(noise) if np.isfinite(noise) else 0.0
     dense_vertices, dense_triangles = (np.asarray(a) for a in dense)
+    heights = _heights(rings, axis)
+    order = np.argsort(heights)
     rng = np.random.default_rng(seed)
-    reference = dense_vertices[reference_vertices(dense_vertices, dense_triangles, rng)]
+    reference = reference_vertices(dense_vertices, dense_triangles, rng)
+    nearest = _nearest_section(dense_vertices[reference] @ axis, heights, order)
+    inner = (nearest > 0) & (nearest < len(rings) - 1)   # the end planes' caps: not rings
+    if inner.sum() >= min(100, len(inner)):
+        reference, nearest = reference[inner], nearest[inner]
+    reference = dense_vertices[reference]
+    singles = [_single(entry) is not None for entry in rings]
     perimeter = _largest_perimeter(rings)
     dense_n = min(len(loop) for entry in rings[::2] for loop in _loops(entry))
     h = perimeter / MIN_RING_POINTS
@@ -415,21 +705,37 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
             break
         if (step, n) not in seen:
             seen.add((step, n))
-            thin_rings, thin_planes = coarsen_rings(rings, planes, step, n)
+            thin_rings, thin_planes = coarsen_rings(rings, planes, step, n, smooth=smooth,
+                                                    axis=axis)
+            keep = kept_sections(len(rings), step)
+            weights = section_weights(heights, keep, singles) if smooth else \
+                [(np.array([k]), np.array([1.0])) for k in keep]
+            mean_influence = float(influence(heights, keep, weights)[nearest].mean())
             try:
                 vertices, triangles = build(thin_rings, thin_planes)
-                _, deviation = smooth_deviation(vertices, triangles, reference)
+                _, distances = _smooth_surface(vertices, triangles, reference)
             except ValueError as exc:  # a thinning the stitch or the surface refuses
                 tried.append({"step": step, "n": n, "error": str(exc)})
             else:
+                error = error_estimate(distances, noise, mean_influence)
                 tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
-                              "deviation": deviation})
-                if deviation <= tolerance:
+                              "deviation": float(distances.mean()), "error": error,
+                              "influence": mean_influence})
+                if error <= tolerance:
                     return SizedMesh(np.asarray(vertices), np.asarray(triangles, np.int64),
-                                     step, n, deviation, tolerance, tried)
+                                     step, n, float(distances.mean()), tolerance, tried,
+                                     error, noise)
         h /= H_RATIO
     return SizedMesh(dense_vertices, dense_triangles.astype(np.int64), 1, 0, 0.0, tolerance,
-                     tried)
+                     tried, 0.0, noise)
+
+
+def _nearest_section(values: np.ndarray, heights: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Index of the section whose height is nearest each value."""
+    sorted_heights = heights[order]
+    at = np.clip(np.searchsorted(sorted_heights, values), 1, len(heights) - 1)
+    left = np.abs(values - sorted_heights[at - 1]) <= np.abs(sorted_heights[at] - values)
+    return order[np.where(left, at - 1, at)]
 
 
 def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = None,
@@ -443,9 +749,8 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
     points : (P, 3) float64
     axis : as ``surface_from_points``
     tolerance : float, optional
-        Default: :func:`precision_tolerance` of the dense rings' precision
-        (:func:`ring_precision`); the section points' noise σ̂
-        (``reconstruct.section_noise``) if no ring has one.
+        Largest estimated error to the truth; default :func:`ring_noise` of the dense
+        rings (the thinned surface no farther from the truth than they are).
     smoothing, support
         As ``surface_from_points``.
 
@@ -477,8 +782,9 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
         return result
 
     dense = build(rings, kept)
-    tol = float(tolerance) if tolerance else (precision_tolerance(precision) or noise)
+    ring_sigma = ring_noise(rings, kept[0].frame[2], precision, noise)
+    tol = float(tolerance) if tolerance else ring_sigma
     sized = size_control_mesh(rings, kept, sliced.spacing,
                               lambda r, p: (lambda s: (s.vertices, s.triangles))(build(r, p)),
-                              (dense.vertices, dense.triangles), tol)
+                              (dense.vertices, dense.triangles), tol, noise=ring_sigma)
     return sized, dense

@@ -165,19 +165,25 @@ def test_rerun_skips_and_a_parameter_reruns_only_downstream(cloud, tmp_path, cli
     assert {"numpy", "open3d", "python"} <= set(manifest["versions"])
 
 
-def test_sizing_tolerance_from_the_stored_ring_precision_and_from_an_older_curves_file(
+def test_sizing_tolerance_from_the_rings_and_from_an_older_curves_file(
         cloud, tmp_path, cli_run):
-    from surface.sizing import precision_tolerance
+    from pipeline import artifacts
+    from surface.sizing import ring_noise, section_scatter
 
     out = tmp_path / "ws"
     cli_run("run", cloud, "--out", out, *SMALL, "--to", "smooth")
     manifest = json.loads((out / "manifest.json").read_text())
     curves, smooth = (manifest["stages"][k]["info"] for k in ("curves", "smooth"))
     assert 0 < curves["ring_precision"] < 0.002 / 2  # the rings average >= 4 points each
-    assert smooth["size_tolerance"] == pytest.approx(precision_tolerance(curves["ring_precision"]),
-                                                     rel=1e-12)
-    # a curves.npz written before the fits were stored: the smooth stage still runs, sizing
-    # against the section points' noise as it did then
+    rings, planes, noise = artifacts.read_curves(out / "curves")
+    scatter = section_scatter(rings, planes[0].frame[2])
+    # the rings' scatter between sections: at least their fits' precision, within the
+    # points' noise (each ring averages several points)
+    assert curves["ring_precision"] <= scatter < noise
+    assert smooth["size_tolerance"] == pytest.approx(scatter, rel=1e-12)
+    assert smooth["size_error"] <= smooth["size_tolerance"] or smooth["size_step"] == 1
+    # a curves.npz written before the fits were stored: the smooth stage still runs, with
+    # the same tolerance (the scatter needs only the rings)
     path = out / "curves" / "curves.npz"
     with np.load(path) as npz:
         old = {k: npz[k] for k in ("points", "offsets", "section", "loop", "heights", "axis",
@@ -187,7 +193,8 @@ def test_sizing_tolerance_from_the_stored_ring_precision_and_from_an_older_curve
     cli_run("run", cloud, "--out", out, *SMALL, "--from", "smooth", "--to", "smooth",
             "--set", "smooth.tolerance=0.001")
     smooth = json.loads((out / "manifest.json").read_text())["stages"]["smooth"]["info"]
-    assert smooth["size_tolerance"] == float(old["noise"]) and smooth["patches"] > 0
+    assert smooth["size_tolerance"] == pytest.approx(ring_noise(rings, planes[0].frame[2]),
+                                                     rel=1e-12) and smooth["patches"] > 0
 
 
 @pytest.mark.parametrize("args, message", [
