@@ -198,6 +198,8 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
             init[:, 3] = pos[:, 1]
         options = dict(lsm_options, patch=patch,
                        sigma0_population=arrays["sigma0"][acc])
+        if "grad_power" in arrays:
+            options["population_grad_power"] = arrays["grad_power"][acc]
         if dirs is not None:
             options["direction"] = dirs[todo]
         if offs is not None:

@@ -138,6 +138,10 @@ class LSMResult:
         Covariance of ``affine`` (``a0 a1 a2 b0 b1 b2``; px², px, 1), the same
         σ0² Nc⁻¹ as ``cov`` (rank 5 with an epipolar constraint): the warp's precision
         away from the centre (:func:`matching.precision.midpoint_variance_factor`).
+    grad_power : (N,) float64 or None
+        The template's mean gradient power (|∇f|² averaged over the window, of the
+        smoothed template with ``footprint_var``), grey levels²/px²: what the σ0 test's
+        ``sigma0_model="gradient"`` predicts σ0 from.
     """
 
     position: np.ndarray
@@ -152,6 +156,7 @@ class LSMResult:
     noise_sigma0: float
     window_cov: np.ndarray | None = None
     affine_cov: np.ndarray | None = None
+    grad_power: np.ndarray | None = None
 
     @property
     def accepted(self) -> np.ndarray:
@@ -729,6 +734,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     hmat = np.empty((8, 8))
     nfac = np.empty(4)
     _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, nfac)
+    corr_out[1] = (hmat[0, 0] + hmat[3, 3]) / npix  # mean gradient power |∇f|²
     # texture: smallest eigenvalue of the mean structure tensor, against the gradient
     # noise of the (smoothed) template (nfac[1] + nfac[2] = 1 unsmoothed)
     sxx = hmat[0, 0] / npix
@@ -943,7 +949,7 @@ def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constr
                                  max_iter, tol,
                                  max_shift, det_min, min_texture, grad_noise_var,
                                  offsets[i], blurs[i], params[i], cov[i], wcov[i], acov[i],
-                                 sigma0[i:i + 1], corr[i:i + 1])
+                                 sigma0[i:i + 1], corr[i])
         status[i] = s
         iters[i] = it
         conv[i] = cv
@@ -1104,6 +1110,68 @@ def footprint_blur(initial, footprint_var: float | None) -> np.ndarray:
     return out
 
 
+#: Population slices of :func:`sigma0_gradient_model`'s fit (by gradient power).
+_SIGMA0_MODEL_BINS = 8
+
+
+def sigma0_gradient_model(sigma0, grad_power, fixed_intercept: float | None = None):
+    """σ0² = α + β |∇f|² of a population of accepted matches, or None.
+
+    A correct match leaves the noise (α: both images' σ_n², with the gain) and what the
+    model does not follow -- a residual misregistration, blur or shading difference of
+    the texture across the window, δ, leaves v ≈ δ·∇f, so E v² = β |∇f|² with β the
+    variance of δ (px²).  On real images the second term dominates where the texture is
+    strong (temple pair (0, 1): median σ0 1.8 grey levels in the weakest eighth of the
+    windows by |∇f|², 16 in the strongest), so a σ0 test against one population median
+    rejects the best-textured windows; against this model it rejects what the window's
+    own texture does not explain.  Fit: the population sorted by |∇f|² in
+    ``_SIGMA0_MODEL_BINS`` equal slices, the median σ0² and |∇f|² of each, a least-squares
+    line through the slice medians with β >= 0 (α >= 1 % of the weakest slice's median
+    σ0², so the prediction never vanishes); with ``fixed_intercept`` α is that.
+
+    Parameters
+    ----------
+    sigma0 : (M,) array_like
+        σ0 of accepted matches, grey levels.
+    grad_power : (M,) array_like
+        Their templates' mean |∇f|², grey levels²/px².
+    fixed_intercept : float, optional
+        α, grey levels² (a known noise).
+
+    Returns
+    -------
+    (alpha, beta) or None
+        None with fewer than 30 finite values.
+    """
+    s2 = np.asarray(sigma0, dtype=np.float64) ** 2
+    gp = np.asarray(grad_power, dtype=np.float64)
+    keep = np.isfinite(s2) & np.isfinite(gp)
+    s2, gp = s2[keep], gp[keep]
+    if len(s2) < 30:
+        return None
+    order = np.argsort(gp, kind="stable")
+    slices = np.array_split(order, _SIGMA0_MODEL_BINS)
+    x = np.array([np.median(gp[sl]) for sl in slices])
+    y = np.array([np.median(s2[sl]) for sl in slices])
+    floor = 0.01 * y[0]
+    if fixed_intercept is not None:
+        alpha = float(fixed_intercept)
+        xx = float(np.sum(x * x))
+        beta = max(float(np.sum(x * (y - alpha)) / xx), 0.0) if xx > 0 else 0.0
+        return alpha, beta
+    xm, ym = x.mean(), y.mean()
+    sxx = float(np.sum((x - xm) ** 2))
+    beta = max(float(np.sum((x - xm) * (y - ym)) / sxx), 0.0) if sxx > 0 else 0.0
+    alpha = ym - beta * xm
+    if alpha < floor:  # refit the slope through (0, floor)
+        alpha = floor
+        xx = float(np.sum(x * x))
+        beta = max(float(np.sum(x * (y - alpha)) / xx), 0.0) if xx > 0 else 0.0
+    if beta == 0.0:
+        alpha = float(np.median(s2))
+    return float(alpha), float(beta)
+
+
 def robust_upper_limit(values: np.ndarray, k: float, dof: int) -> float:
     """``median + k·s`` of a population of σ-like values (σ0 or σ of LSM matches).
 
@@ -1126,8 +1194,9 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               min_correlation: float = 0.7,
               min_texture_snr: float = 2.0, initial=None, quadratic=None,
               jacobian: str = "template", noise_correction: bool = True,
-              offset=None, sigma0_population=None,
-              footprint_var: float | None = None) -> LSMResult:
+              offset=None, sigma0_population=None, population_grad_power=None,
+              footprint_var: float | None = None,
+              sigma0_model: str = "gradient") -> LSMResult:
     """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
 
     Parameters
@@ -1218,6 +1287,17 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         its reference (median) and robust limit from them and from this call's
         converged points together, so that a small batch is judged like a large one.
 
+    population_grad_power : (M,) array_like, optional
+        The mean template gradient power (``LSMResult.grad_power``) of each value of
+        ``sigma0_population``, for ``sigma0_model="gradient"`` (without it that model
+        falls back to the constant one when a population is given).
+    sigma0_model : {"gradient", "constant"}
+        Reference of the σ0 tests (``sigma0_factor``, ``sigma0_mad_k``): "gradient"
+        (default, with 30 or more values) predicts each window's σ0 from its texture,
+        σ0² = α + β |∇f|², fitted to the population (:func:`sigma0_gradient_model`: on
+        real images the model error grows with the texture's strength), and tests
+        σ0 / prediction; "constant": σ0 against the population median (or
+        ``noise_sigma``), as if only noise were left.
     footprint_var : float, optional
         Shape-adapted smoothing of the template (Lindeberg & Gårding 1997) [5]_: a
         pixel of either image integrates the scene over a footprint of variance
@@ -1242,6 +1322,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
     if not (isinstance(patch, int | np.integer) and patch >= 5 and patch % 2 == 1):
         raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
+    if sigma0_model not in ("gradient", "constant"):
+        raise ValueError(f"sigma0_model must be 'gradient' or 'constant', got {sigma0_model!r}")
     if jacobian not in ("template", "search"):
         raise ValueError(f"jacobian must be 'template' or 'search', got {jacobian!r}")
     if max_iter < 1:
@@ -1306,7 +1388,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     wcov = np.full((n, 2, 2), np.nan)
     acov = np.full((n, 6, 6), np.nan)
     sigma0 = np.full(n, np.nan)
-    corr = np.full(n, np.nan)
+    corr = np.full((n, 2), np.nan)  # correlation, the template's mean |∇f|²
     status = np.zeros(n, np.uint8)
     iters = np.zeros(n, np.int32)
     conv = np.zeros(n, np.bool_)
@@ -1327,12 +1409,45 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
                               sub, strict=True):
             full[idx] = part
+    corr, grad_power = corr[:, 0].copy(), corr[:, 1].copy()
     good = status == Status.OK
     population = sigma0[good]
+    pop_power = grad_power[good]
     if sigma0_population is not None:
         extra = np.asarray(sigma0_population, dtype=np.float64).ravel()
-        population = np.concatenate([population, extra[np.isfinite(extra)]])
-    if noise_sigma is not None:
+        extra_power = (np.full(len(extra), np.nan) if population_grad_power is None else
+                       np.asarray(population_grad_power, dtype=np.float64).ravel())
+        if len(extra_power) != len(extra):
+            raise ValueError(f"population_grad_power must have {len(extra)} values, got "
+                             f"{len(extra_power)}")
+        keep = np.isfinite(extra)
+        population = np.concatenate([population, extra[keep]])
+        pop_power = np.concatenate([pop_power, extra_power[keep]])
+    dof = (patch * patch) - (7 if constrained else 8)
+    model = None
+    if sigma0_model == "gradient" and len(population) >= 30 and np.isfinite(pop_power).all():
+        fixed = None
+        if noise_sigma is not None:
+            gain = float(np.median(params[good, 7])) if good.any() else 1.0
+            fixed = float(noise_sigma) ** 2 * (1.0 + gain**2)
+        model = sigma0_gradient_model(population, pop_power, fixed_intercept=fixed)
+    if model is not None:
+        # σ0 against what the window's texture predicts: σ0² = α + β |∇f|² (module
+        # docstring of sigma0_gradient_model); the same tests on the ratio
+        alpha, beta = model
+        ratio = sigma0 / np.sqrt(alpha + beta * np.maximum(grad_power, 0.0))
+        pop_ratio = population / np.sqrt(alpha + beta * pop_power)
+        ref = float(np.sqrt(alpha + beta * np.median(pop_power)))
+        limit = min(sigma0_factor * float(np.median(pop_ratio)),
+                    robust_upper_limit(pop_ratio, sigma0_mad_k, dof))
+        ok = status == Status.OK
+        status[ok & ~(ratio <= limit)] = Status.SIGMA0_TOO_LARGE
+        sigma0_tested = True
+    else:
+        sigma0_tested = False
+    if sigma0_tested:
+        pass
+    elif noise_sigma is not None:
         # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
         gain = float(np.median(params[good, 7])) if good.any() else 1.0
         ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
@@ -1340,12 +1455,12 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         ref = float(np.median(population))
     else:
         ref = float(np.hypot(fprep.noise, gprep.noise))
-    limit = sigma0_factor * ref
-    if len(population) >= 30:
-        dof = (patch * patch) - (7 if constrained else 8)
-        limit = min(limit, robust_upper_limit(population, sigma0_mad_k, dof))
-    ok = status == Status.OK
-    status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
+    if not sigma0_tested:
+        limit = sigma0_factor * ref
+        if len(population) >= 30:
+            limit = min(limit, robust_upper_limit(population, sigma0_mad_k, dof))
+        ok = status == Status.OK
+        status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
     ok = status == Status.OK
     status[ok & ~(corr >= min_correlation)] = Status.LOW_CORRELATION
     position = params[:, [0, 3]]
@@ -1360,4 +1475,4 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                      radiometric=params[:, 6:], converged=conv, iterations=iters,
                      sigma0=sigma0, cov=cov, correlation=corr, status=status,
                      noise_sigma0=float(ref), window_cov=wcov if offset is not None else None,
-                     affine_cov=acov)
+                     affine_cov=acov, grad_power=grad_power)

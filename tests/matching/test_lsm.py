@@ -336,6 +336,9 @@ def test_graffiti_texture_test_keeps_the_painted_wall(real_data_dir):
     ({"interpolation": "nearest"}, "interpolation must be one of"),
     ({"max_iter": 0}, "max_iter must be"),
     ({"direction": (0.0, 0.0)}, "direction must be non-zero"),
+    ({"sigma0_model": "median"}, "sigma0_model must be"),
+    ({"sigma0_population": [1.0, 2.0], "population_grad_power": [1.0]},
+     "population_grad_power must have 2"),
 ])
 def test_bad_arguments(clean_pair, kwargs, match):
     f, g = clean_pair
@@ -538,3 +541,63 @@ def test_footprint_blur_clipped_and_off():
     assert not footprint_blur(init, None).any()
     with pytest.raises(ValueError, match="footprint_var must be positive"):
         footprint_blur(init, -1.0)
+
+
+def test_sigma0_test_follows_the_texture_strength():
+    """A search view blurred (σ 0.7 px) against the template, whose texture is 6x
+    stronger in a strip x > 180 than elsewhere: there the blur's model error gives σ0
+    ~11 grey levels against ~2.3 in the rest (1 grey level of noise).  Against one
+    population median (``sigma0_model="constant"``) every window of the strong strip is
+    rejected (measured 0 % accepted); predicted from each window's gradient power
+    (default) all are kept (100 %), and a block of the search image replaced by other
+    texture is still rejected everywhere (0 of 77 windows)."""
+    size = 240
+    a, b = np.array([[1.03, 0.04], [-0.02, 0.97]]), np.array([4.3, -2.6])
+    coef = texture_coefficients(size, seed=3)
+    ys, xs = np.mgrid[0:size, 0:size].astype(np.float64)
+
+    def scene(x, y):
+        return 128 + (sample(coef, x, y) - 128) * (0.5 + 2.5 * np.clip((x - 160) / 20, 0, 1))
+
+    f = scene(xs, ys)
+    src = np.linalg.solve(a, np.stack([xs.ravel() - b[0], ys.ravel() - b[1]]))
+    g = ndimage.gaussian_filter(scene(src[0], src[1]).reshape(size, size), 0.7)
+    rng = np.random.default_rng(4)
+    f += rng.normal(0, 1.0, f.shape)
+    g += rng.normal(0, 1.0, g.shape)
+    g[100:150, 150:200] = scene(xs + 37, ys + 53)[100:150, 150:200]
+    pts = grid_points(size, 4)
+    t = pts @ a.T + b
+    occluded = (t[:, 0] > 158) & (t[:, 0] < 192) & (t[:, 1] > 108) & (t[:, 1] < 142)
+    clear = (~((t[:, 0] > 140) & (t[:, 0] < 210) & (t[:, 1] > 90) & (t[:, 1] < 160))
+             & (t < size - 12).all(1))
+    strong = clear & (pts[:, 0] > 190)
+    approx = start_near(t, 0.5)
+    const = lsm_match(f, g, pts, approx, sigma0_model="constant")
+    model = lsm_match(f, g, pts, approx)
+    assert strong.sum() > 200 and occluded.sum() > 50
+    assert np.median(model.sigma0[strong]) > 3 * np.median(model.sigma0[clear & ~strong])
+    assert const.accepted[strong].mean() < 0.2
+    assert model.accepted[strong].mean() > 0.95
+    assert model.accepted[clear].mean() > 0.97
+    assert not model.accepted[occluded].any()
+    assert np.isfinite(model.grad_power[clear]).all()
+
+
+def test_sigma0_gradient_model_fit():
+    """σ0² = α + β |∇f|² recovered from slice medians; β never negative; None below 30."""
+    from matching.lsm import sigma0_gradient_model
+
+    rng = np.random.default_rng(8)
+    gp = rng.uniform(5.0, 500.0, 5000)
+    dof = 217
+    s0 = np.sqrt((4.0 + 0.3 * gp) * rng.chisquare(dof, gp.size) / dof)
+    alpha, beta = sigma0_gradient_model(s0, gp)
+    assert alpha == pytest.approx(4.0, rel=0.15)
+    assert beta == pytest.approx(0.3, rel=0.03)
+    alpha, beta = sigma0_gradient_model(s0, gp, fixed_intercept=4.0)
+    assert (alpha, beta) == (4.0, pytest.approx(0.3, rel=0.03))
+    flat = np.sqrt(9.0 * rng.chisquare(dof, gp.size) / dof)
+    alpha, beta = sigma0_gradient_model(flat * (1 - 0.1 * gp / 500), gp)  # falls: β = 0
+    assert beta == 0.0 and alpha == pytest.approx(np.median((flat * (1 - 0.1 * gp / 500)) ** 2))
+    assert sigma0_gradient_model(s0[:29], gp[:29]) is None
