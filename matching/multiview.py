@@ -130,9 +130,10 @@ from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
     check_consistency,
     variance_factor,
 )
+from matching.contours import OutlinePoints, outline_points
 from matching.fusion import merge_clouds, point_colours
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
-from matching.masks import grey, inside_masks
+from matching.masks import foreground_mask, grey, inside_masks
 from matching.pair import match_pair
 from matching.rectify import Rectification, rectify, rectify_images
 from matching.scheduler import ViewRef, default_workers, load_image, thread_map
@@ -430,6 +431,38 @@ def _search_volume(cameras: Sequence[Camera], masks, roi) -> SceneVolume | None:
     return volume
 
 
+def _outline_points(cameras: Sequence[Camera], masks, roi, points: np.ndarray,
+                    sigma: np.ndarray, image) -> OutlinePoints:
+    """Outline points (:mod:`matching.contours`) of every view with a mask (given, or
+    the automatic foreground of a uniform background), on the object and in ``roi``."""
+    use = []
+    for v in range(len(cameras)):
+        m = masks[v] if masks is not None else None
+        if m is None:
+            m = foreground_mask(image(v), margin_px=0)
+        use.append(m)
+    images = _LazyViews(image, len(cameras))
+    extra = outline_points(images, cameras, use, points, sigma)
+    if len(extra) and (masks is not None or roi is not None):
+        inside = _inside_object(extra.points, cameras, masks, roi)
+        extra = OutlinePoints(extra.points[inside], extra.sigma[inside], extra.view[inside],
+                              extra.edge[inside], extra.neighbour[inside])
+    return extra
+
+
+class _LazyViews:
+    """``images[v]`` read on access (one view at a time in memory)."""
+
+    def __init__(self, image, n: int):
+        self._image, self._n = image, n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, v: int):
+        return self._image(v)
+
+
 def _inside_object(points: np.ndarray, cameras: Sequence[Camera], masks, roi) -> np.ndarray:
     """(N,) bool: on every mask (where it projects into the image) and inside ``roi``."""
     keep = np.ones(len(points), bool)
@@ -523,7 +556,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                           keep_unchecked: bool | None = None, sor_neighbours: int = 16,
                           sor_std: float = 3.0, pair_options: dict | None = None,
                           min_covered: float = 0.5, masks: Sequence | None = None,
-                          roi=None, search: str = "geometry",
+                          roi=None, search: str = "geometry", outline: bool = True,
                           **match_options) -> MultiViewCloud:
     """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
 
@@ -576,6 +609,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         volume of the frusta, the visual hull with masks, cut to ``roi``
         (:func:`matching.search_range.scene_volume`); ``"features"`` SIFT matches per
         pair (:func:`matching.seeds.disparity_range`).
+    outline : bool
+        Add outline points (:mod:`matching.contours`): each view's object edge measured
+        to sub-pixel where it is a rim (not a grazing contour), its depth from the
+        matched surface beside it, so the cloud reaches a rim that area matching stops a
+        pixel short of; in views with a mask, or the automatic foreground of a uniform
+        background (default True; ``stats["outline_points"]`` counts them).
     **match_options
         ``spacing``, ``patch``, ``interpolation``, ``min_correlation``,
         ``sigma0_factor``, ``max_iter``, ``shift_stop_px``, ``min_texture_snr``,
@@ -716,6 +755,17 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                              for p, c in enumerate(checks)])[keep]
     factors = [c.variance_factor for c in checks]
     del checks
+    n_outline, matched_sigma = 0, sigma
+    if outline and len(points):
+        extra = _outline_points(cameras, masks, roi, points, sigma, lambda v: load_image(ref(v)))
+        n_outline = len(extra)
+        if n_outline:
+            points = np.vstack([points, extra.points])
+            sigma = np.concatenate([sigma, extra.sigma])
+            seen = views[extra.neighbour].copy()  # the surface beside it, and its view
+            seen[np.arange(n_outline), extra.view] = True
+            views = np.vstack([views, seen])
+            source = np.concatenate([source, -1 - extra.view])  # fused across views
     colours = point_colours(points, views, cameras, lambda v: load_image(ref(v)))
     merged = merge_clouds(points, sigma, views, source, colours,
                           sor_neighbours=sor_neighbours, sor_std=sor_std)
@@ -732,10 +782,11 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         "skipped": [{"pair": list(sp.pair), "views": [cameras[v].name for v in sp.pair],
                      "reason": sp.reason} for sp in skipped],
         "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
+        "outline_points": n_outline,
         "fused": merged["fused"], "fusion_radius": merged["radius"],
         "points": int(len(merged["points"])),
         "median_sigma_pair": median_sigma_pair,
-        "median_sigma_multiview": float(np.median(sigma[is_multi])) if is_multi.any()
+        "median_sigma_multiview": float(np.median(matched_sigma[is_multi])) if is_multi.any()
         else float("nan"),
         "prepared_views": prepared_views, "workers": workers,
         "pair_seconds": t1 - t0, "consistency_seconds": t2 - t1, "merge_seconds": t3 - t2,
