@@ -3,27 +3,35 @@ and neighbouring temple pairs (16 real views with exact cameras), peers side by 
 
 Graffiti (``graf1.png`` -> ``graf3.png``, homography ``H13``): the candidates of
 ``matching.seeds.select_points`` (21x21, the spacing given) whose homography image lies
-inside graf3; every method starts from the homography's position plus 1 px of Gaussian
-noise and (LSM, ECC) its local affine map.  Judged by the share beyond 2 px of the
-homography and by the residual to a smooth mapping -- a homography plus a degree-7
-polynomial fitted robustly to LSM's accepted matches (the data set's homography has no
-lens-distortion term) -- per axis over the residuals below 2 px; LSM's ratio of that
-residual to its reported σ, without and with the variance factor of independent
-neighbouring windows (``matching.precision.midpoint_variance_factor``, what
-``match_pair`` applies; RMS over RMS, and the median |e|/σ over its Gaussian value),
-and beside it the forward-backward loops' factor (``matching.consistency``, a lower
-bound).  Peers: ``cv2.findTransformECC`` (MOTION_AFFINE,
-gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
+inside graf3 and whose window lies on the wall plane (``graffiti_wall``: the strip below
+the step at the bottom and the car stand off the plane); every method starts from the
+homography's position plus 1 px of Gaussian noise and (LSM, ECC) its local affine map.
+Judged by the share beyond 2 px of the homography and by the residual to a smooth
+mapping -- a homography plus a degree-7 polynomial fitted robustly to LSM's accepted
+matches (the data set's homography has no lens-distortion term) -- per axis over the
+residuals below 2 px; LSM's ratio of that residual to its reported σ, without and with
+the variance factor of independent neighbouring windows
+(``matching.precision.midpoint_variance_factor``, what ``match_pair`` applies; RMS over
+RMS, and the median |e|/σ over its Gaussian value), and beside it the forward-backward
+loops' factor (``matching.consistency``, a lower bound). Peers: ``cv2.findTransformECC``
+(MOTION_AFFINE, gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
+LSM runs with ``match_pair``'s footprint smoothing
+(``matching.lsm.DEFAULT_FOOTPRINT_VAR``), and once without it beside. The same
+candidates on a synthetic graf3 (``graffiti_synthetic``: graf1 through the homography,
+pixel-area integration, graf3's noise) are judged against the exact homography: LSM's
+own error on this geometry and texture.
 
 Temple: neighbouring ring views (``matching.view_pairs.select_pairs``, the ring
 pipeline's pairs; the first with ``--quick``, four spread over the list without)
-rectified by ``matching.multiview.rectify_pair`` (baseline = rectified x; mirrored
-where the disparity would be negative); ``matching.pair.match_pair`` on the rectified pair
-(SGBM seeds, region growing); object = grey > 0.19 x 255, dilated 5 px.  LSM's
+rectified by ``matching.multiview.rectify_pair`` (baseline = rectified x; mirrored where
+the disparity would be negative); ``matching.pair.match_pair`` on the rectified pair
+(SGBM seeds, region growing); object = grey > 0.19 x 255, dilated 5 px. LSM's
 forward-backward loop along the rows / sqrt(2) against its reported σ, and SGBM's
-left-right loop (disparity of the left, then of the right image at the matched
-position) / sqrt(2) on the same pixels.  LSM's σ includes ``match_pair``'s variance
-factor (``sigma_factor``, reported as k²).
+left-right loop (disparity of the left, then of the right image at the matched position)
+/ sqrt(2) on the same pixels. LSM's σ includes ``match_pair``'s variance factor
+(``sigma_factor``, reported as k²). The accepted share is split into interior windows
+(no background pixel in the 15x15 window) and those on the outline, and given again with
+eccentric windows (``match_pair(eccentric=True)``, as the ring pipeline matches).
 """
 
 from __future__ import annotations
@@ -234,7 +242,7 @@ def graffiti(folder: Path, quick: bool) -> dict:
         rows.append(_judge(name, pos, truth, smooth, pts, seconds, n_cand, result.sigma))
     lsm_row = rows[-1]
     rows.append(_judge("LSM + growing, no footprint smoothing", np.where(
-        plain.accepted[:, None], plain.position, np.nan), truth, smooth, pts, 1.0, n_cand,
+        plain.accepted[:, None], plain.position, np.nan), truth, smooth, pts, np.nan, n_cand,
         plain.sigma))
     lsm_row["fb_variance_factor"] = fb.variance_factor
     lsm_row["fb_loop_rms_px"] = fb.loop_rms
@@ -251,7 +259,7 @@ def graffiti(folder: Path, quick: bool) -> dict:
                        extra={"note": f"{m} random candidates"}))
     lsm_sub = np.where(res.accepted[pick, None], res.position[pick], np.nan)
     rows.append(_judge("LSM + growing on the ECC subset", lsm_sub, truth[pick], smooth,
-                       pts[pick], 1.0, m, res.sigma[pick]))
+                       pts[pick], np.nan, m, res.sigma[pick]))
     t0 = time.perf_counter()
     lk_pos = _lk(f, g, pts, approx, patch)
     rows.append(_judge("cv2.calcOpticalFlowPyrLK (21x21)", lk_pos, truth, smooth, pts,
@@ -293,7 +301,7 @@ def graffiti_synthetic(f, g, hom, pts, approx, init, patch) -> dict:
         rows.append(_judge(name, pos, truth, exact, pts, seconds, len(pts), result.sigma))
     _factor_figures(rows[-1], pts, res, exact, patch)
     rows.append(_judge("LSM + growing, synthetic, no footprint smoothing", np.where(
-        plain.accepted[:, None], plain.position, np.nan), truth, exact, pts, 1.0, len(pts),
+        plain.accepted[:, None], plain.position, np.nan), truth, exact, pts, np.nan, len(pts),
         plain.sigma))
     return {"rows": rows, "noise_added": float(noise)}
 
@@ -351,12 +359,19 @@ def temple(folder: Path, quick: bool) -> dict:
     rows = []
     for i, j in pairs:
         left, right, valid = _rectified_pair(cams, images, i, j)
-        obj = cv2.dilate((left > 0.19 * 255).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        fg = (left > 0.19 * 255).astype(np.float32)
+        obj = cv2.dilate(fg.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        # interior: no background pixel in the 15x15 window (match_pair's base patch);
+        # the rest of the object's candidates straddle its outline (a depth edge)
+        background = 1.0 - cv2.boxFilter(fg, -1, (15, 15), normalize=True,
+                                          borderType=cv2.BORDER_CONSTANT)
         t0 = time.perf_counter()
         m = match_pair(left, right, rectified=True, mask=valid, spacing=4)
         seconds = time.perf_counter() - t0
         xi = m.x_left.astype(int)
         on_obj = obj[xi[:, 1], xi[:, 0]]
+        interior = on_obj & (background[xi[:, 1], xi[:, 0]] < 1e-6)
+        ecc = match_pair(left, right, rectified=True, mask=valid, spacing=4, eccentric=True)
         forward = LSMResult(position=m.x_right, affine=m.affine, radiometric=m.radiometric,
                             converged=m.accepted, iterations=m.iterations, sigma0=m.sigma0,
                             cov=m.cov, correlation=m.correlation, status=m.status,
@@ -375,6 +390,11 @@ def temple(folder: Path, quick: bool) -> dict:
         rows.append({
             "pair": [i, j], "candidates_on_object": int(on_obj.sum()),
             "accepted_share_on_object": float(m.accepted[on_obj].mean()),
+            "interior_share_of_object": float(interior.sum() / on_obj.sum()),
+            "accepted_share_interior": float(m.accepted[interior].mean()),
+            "accepted_share_outline": float(m.accepted[on_obj & ~interior].mean()),
+            "accepted_share_on_object_eccentric": float(ecc.accepted[on_obj].mean()),
+            "accepted_share_interior_eccentric": float(ecc.accepted[interior].mean()),
             "status_on_object": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
                 *np.unique(m.status[on_obj], return_counts=True), strict=True)},
             "lsm_fb_loop_rms_px": lsm_fb, "lsm_reported_sigma_x_rms_px": sig_x,

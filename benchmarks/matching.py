@@ -420,8 +420,8 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
                   f"{r['points_per_s']:9.0f}")
         print(f"  (synthetic graf3: graf1 through the homography, pixel-area integration, "
               f"+ noise {syn['noise_added']:.2f}; truth exact; k² "
-              f"{syn['rows'][-1]['variance_factor']:.1f}, residual / (σ k) "
-              f"{syn['rows'][-1]['residual_over_sigma_with_factor']:.2f})")
+              f"{syn['rows'][1]['variance_factor']:.1f}, residual / (σ k) "
+              f"{syn['rows'][1]['residual_over_sigma_with_factor']:.2f})")
         print(f"  (real rows judged on the wall plane: {gr['candidates_off_wall']} "
               f"candidates below the step / on the car left out)")
         by = {r["method"]: r for r in gr["rows"]}
@@ -458,6 +458,14 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
                   f"{r['lsm_reported_sigma_x_rms_px']:6.3f} {r['lsm_fb_over_sigma']:5.2f} "
                   f"{r['variance_factor']:5.1f} {r['same_pixels']:5d} "
                   f"{r['lsm_fb_loop_rms_same_px']:7.3f} {r['sgbm_lr_loop_rms_same_px']:7.3f}")
+        for r in te["rows"]:
+            print(f"{str(tuple(r['pair'])):>7s} accepted: interior windows "
+                  f"({100 * r['interior_share_of_object']:.0f} % of the object's) "
+                  f"{100 * r['accepted_share_interior']:.1f} %, outline "
+                  f"{100 * r['accepted_share_outline']:.1f} %; eccentric windows "
+                  f"(match_pair(eccentric=True), the ring pipeline's): object "
+                  f"{100 * r['accepted_share_on_object_eccentric']:.1f} %, interior "
+                  f"{100 * r['accepted_share_interior_eccentric']:.1f} %")
         d = te["dense"]
         print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
               f"{d['image'][0]}x{d['image'][1]}: {d['px_per_s']:.0f} px/s "
