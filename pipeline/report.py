@@ -5,14 +5,18 @@ Contents, each present when the run produced what it needs:
 * the run: input, kind, versions, per-stage status and timing (from the
   manifest) and the parameters each stage ran with;
 * the rendered surface (:func:`pipeline.render.render_mesh`, a 3×2 contact
-  sheet of the smooth surface, or of the stitched mesh before smoothing);
+  sheet of the smooth surface, or of the stitched mesh before smoothing), at the
+  size it is shown: the smooth surface's exact patches tessellated for that size
+  (:func:`pipeline.render.screen_tessellation`), one ray caster for both sheets;
 * the sections and their curves, drawn with OpenCV: a top view (every
   section in its plane, coloured by height, its curve as a closed line) and a
   side view (in-plane coordinate ``e1`` against height);
 * against the truth (scene inputs, ``scene/truth/mesh.ply``): the error map
   (the surface coloured by its distance to the truth) and the metrics table
   (:func:`surface.metrics.compare_meshes`: accuracy, completeness, Chamfer,
-  F-score at τ, Hausdorff), with the cloud's RMS distance to the truth;
+  F-score at τ, Hausdorff, the means ± their sampling errors; one
+  :class:`surface.metrics.MeshDistance` of the truth for all of them), with the
+  cloud's RMS distance to the truth;
 * the topology of each mesh (:func:`surface.metrics.mesh_topology`).
 
 Images are PNGs embedded as base64 ``data:`` URIs, so the file can be mailed
