@@ -145,3 +145,25 @@ def test_report_draws_the_smooth_surface_for_the_screen_and_states_sampling_erro
             assert 0 < got[f"{key}_se"] < 0.05 * got[key]
             assert abs(got[key] - ref[key]) <= 4 * error, (name, key)
         assert f"{got['chamfer']:.6g} ± {got['chamfer_se']:.2g}" in page
+
+
+def test_cloud_rms_of_a_sample_agrees_with_every_point_within_its_error(tmp_path):
+    """A cloud larger than report.samples: the RMS over a sample, ± its stated error,
+    covers the RMS over all points (noise of 0.01 about the surface)."""
+    from surface.metrics import point_mesh_distance
+
+    root, _ = _workspace(tmp_path)
+    rng = np.random.default_rng(4)
+    cloud = np.concatenate(_vase_rings(121, 200))
+    radial = cloud * np.array([1.0, 1.0, 0.0])
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    cloud = cloud + rng.normal(0.0, 0.01, (len(cloud), 1)) * radial
+    save_npz(root / "acquire" / "cloud.npz", points=cloud)
+    info = build_report(root, CONFIG, tmp_path / "report.html")
+    metrics = info["metrics"]
+    assert metrics["cloud_samples"] == CONFIG["report"]["samples"] < len(cloud)
+    truth = read_mesh(root / "scene" / "truth" / "mesh.ply")
+    full = float(np.sqrt(np.mean(point_mesh_distance(cloud, *truth) ** 2)))
+    assert 0.008 < full < 0.012
+    assert 0 < metrics["cloud_rms_se"] < 0.05 * full
+    assert abs(metrics["cloud_rms"] - full) <= 4 * metrics["cloud_rms_se"]
