@@ -40,6 +40,15 @@ residual (the bias of gradient-based registration, Robinson & Milanfar 2004),
 while a central-difference template gradient is independent of the residual
 at its own pixel.  All patches run in one numba ``prange`` kernel.
 
+Real images.  Where the search view is foreshortened its pixels cover more than one
+template pixel, and the template holds detail the search image lacks; ``footprint_var``
+smooths the template by the Gaussian of the two footprints' difference,
+:math:`c\,(A^{-1}A^{-\mathsf{T}} - I)_+` (shape-adapted smoothing, Lindeberg & Gårding
+1997 [5]_), inside the kernel.  The σ0 test (``sigma0_model="gradient"``) predicts each
+window's σ0 from its texture, :math:`\sigma_0^2 = \alpha + \beta\,\overline{|\nabla f|^2}`
+(a residual misregistration δ of the texture leaves :math:`v \approx \delta\cdot\nabla f`),
+fitted to the population (:func:`sigma0_gradient_model`).
+
 References
 ----------
 .. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image
