@@ -31,9 +31,12 @@ the stitched method does not; the table's "normals" column is that share):
   solve; counted in the smooth stage), so it passes through the stitched
   vertices instead of shrinking away from them;
 * ``stitched+sized`` what ``photosurf run``'s smooth stage does (issue 15): the dense
-  stitched mesh thinned by ``surface.sizing`` (tolerance: √(2/π) × the dense rings' own
-  precision σ_ring, ``sizing.precision_tolerance``; session 4 used the section noise σ̂), the
-  surface through its vertices (``sizing.interpolating_control``), tessellated at
+  stitched mesh thinned by ``surface.sizing`` (kept rings regressed across their neighbour
+  sections; the coarsest candidate whose error to the truth, Stein's unbiased risk estimate
+  from its distances to the stitched vertices, is within the dense rings' own error, their
+  scatter between sections: ``sizing.ring_noise``; session 5 used √(2/π) × the rings'
+  modelled precision), the surface through its vertices (``sizing.interpolating_control``),
+  tessellated at
   ``smooth.level``; after the clock: patches and file sizes (PLY and GLB by
   ``pipeline.export``, control net format version 2, STEP through OpenCascade when at
   most ``STEP_MAX_PATCHES`` patches), also written for the Poisson rows' PLY/GLB;
@@ -83,6 +86,15 @@ Poisson-8: 10^5 Chamfer 0.00031 / 0.00021 / 0.00072, 58 184 patches, PLY 8.6 MB 
 16.3), 10.2 / 5.3 / 16.4 CPU-s; 10^6 0.00023 / 0.00012 / 0.00035, 483 056 patches, PLY
 71.5 MB (Poisson 16.2), 68.9 / 41.9 / 131.9 CPU-s, numpy peak 1.7 GB, process peak RSS
 3.1 GB.
+
+Measured (session 6, issue 15: kept rings regressed across sections, Stein's risk estimate
+against the rings' scatter; load ~5-7, compare CPU; same command): 50 000 points
+stitched+sized 9 328 patches, Chamfer 0.00034 (stitched 0.00029, Poisson-8 0.00076), PLY
+1.38 MB (Poisson-8 6.73), 3.43 CPU-s (8.75).  Scaling, sized / stitched / Poisson-8: 5·10^4
+0.00031 / 0.00027 / 0.00074, 9 312 patches, PLY 1.4 MB (6.8), 7.1 / 3.8 / 8.4 CPU-s; 10^5
+0.00021 / 0.00021 / 0.00072, 16 688 patches, PLY 2.5 MB (16.3), 12.6 / 5.6 / 17.5 CPU-s;
+10^6 0.000087 / 0.00012 / 0.00035, 30 848 patches, PLY 4.6 MB (16.2), 97.7 / 66.5 / 127.2
+CPU-s, numpy peak 1.76 GB.
 
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append

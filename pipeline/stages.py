@@ -336,6 +336,7 @@ def smooth(ctx: StageContext) -> dict:
             info = {"size_step": sized.step, "size_n": sized.n,
                     "size_deviation": sized.deviation, "size_tolerance": sized.tolerance,
                     "size_error": sized.error, "size_noise": sized.noise,
+                    "size_tried": sized.tried,
                     "control_triangles": len(triangles)}
         control = vertices
         if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back

@@ -4,107 +4,100 @@ The stitched mesh of :mod:`surface.stitch` follows the point density (sections
 two point spacings apart, rings as fine as the sections): on a dense cloud it has
 far more vertices than the shape and its noise call for, and Loop's surface over
 it (4 patches per triangle) inherits them all.  Here the rings of the dense
-sections are *thinned*: every ``step``-th section is kept (the first and last
-always) and each kept ring is resampled to ``n`` (odd positions) / ``2n`` (even)
-points on the periodic cubic through its own dense points (the rings are already
-the smoothed Catmull-Rom curves, sampled at equal θ or equal arc length, so
-their index is a regular parameter), then stitched again with the same rules
-(end rings to the caps, support rings at sharp rims).  The smooth surface is
-built over the *interpolating* control mesh of the thinned mesh
+sections are *thinned*: every ``step``-th section is kept (graded towards both
+ends, :func:`kept_sections`), each kept ring resampled to ``n`` (odd positions) /
+``2n`` (even) points, and the result stitched again with the same rules (end rings
+to the caps, support rings at sharp rims, the flat caps' guard rings).  The smooth
+surface is built over the *interpolating* control mesh of the thinned mesh
 (:func:`interpolating_control`: Loop's limit surface passes through the thinned
-vertices, which lie on the dense curves, except at sharp rims), so it does
-not shrink away from the data as an approximating subdivision surface over a
-coarse mesh would (bias ``h^2 (k_1 + k_2) / 8``, C. Loop 1987; Hoppe et al. 1994).
+vertices except at sharp rims), so it does not shrink away from the data as an
+approximating subdivision surface over a coarse mesh would (bias
+``h^2 (k_1 + k_2) / 8``, C. Loop 1987; Hoppe et al. 1994).
 
-How coarse: one target edge length ``h`` sets both ``step = floor(h / Δ)``
-(Δ the dense section spacing) and ``n = ceil(P / h)`` (P the largest ring
-perimeter), so the thinned triangles stay about as wide as they are tall.
-Candidates run from coarse (12 points round the largest ring) to fine, ``h``
-shrinking by √2 each time; the first whose smooth surface lies within
-``tolerance`` of the dense stitched mesh -- the mean distance from the dense
-mesh's vertices (a fixed sample, :func:`reference_vertices`: those the smooth
-surface interpolates, i.e. not at sharp rims) to the candidate's tessellation -- is taken,
-so the cost is dominated by the last, largest candidate.  If none passes before
-the dense resolution is reached the dense mesh is kept.
+Regression across sections
+--------------------------
+Each dense ring is a least-squares curve through its own section's points, so
+the rings' errors are independent from section to section (correlated along each
+ring).  A kept ring is therefore not its own dense ring but the local quadratic
+regression, in height, of the dense rings within ``w`` sections of it (``w`` the
+smaller gap to the neighbouring kept sections; :func:`section_weights`,
+Savitzky-Golay): at ``w = 4`` its own weight is 0.26 and its noise σ·0.51, while
+a quadratic keeps the profile's shape up to its curvature's change.  The rings are
+lined up point by point at common polar angles about the window's mean centroid
+(:func:`resample_at_angles`; the rings' own first points wander by a few degrees
+between sections, and averaging unaligned points cuts chords: measured on the
+10⁵-point vase, step 2, the regressed rings' error 0.00042 unaligned against
+0.00024 aligned, the dense rings' 0.00038).  Sections next to the ends (``w < 2``)
+and windows reaching a section with several loops are kept as they are.
 
-The tolerance is the dense rings' own precision (:func:`ring_precision`), not the
-points' noise.  Each dense ring is a least-squares Catmull-Rom curve through the
-M points of its loop with n = M/s control points (s chosen per loop by GCV,
-``surface.catmull_rom.choose_smoothing``), so its error across the curve from
-the points' noise σ̂ (``topology.Loop.noise``) is (``surface.catmull_rom`` notes,
-the hat matrix's trace n averaged over the curve, fairness term included)::
+How coarse
+----------
+One target edge length ``h`` sets both ``step = floor(h / Δ)`` (Δ the dense
+section spacing) and ``n = ceil(P / h)`` (P the largest ring perimeter), so the
+thinned triangles stay about as wide as they are tall.  Candidates run from coarse
+(12 points round the largest ring) to fine, ``h`` shrinking by √2 each time; the
+first whose estimated error to the truth is within ``tolerance`` is taken, so the
+cost is dominated by the last, largest candidate.  If none passes before the dense
+resolution is reached the dense mesh is kept.
 
-    σ_ring = σ̂ · √(ρ(n) · n / M) ≈ 0.85 σ̂ / √s,        ρ(n) ≈ 0.73
+The estimate (:func:`error_estimate`) is Stein's unbiased risk estimate (Mallows'
+Cp) of the candidate as a linear fit to the dense vertices ``x = truth + ε``::
 
-(σ_ring the median over the rings), and the tolerance is the dense rings' own
-mean error across the surface, the mean of |N(0, σ_ring²)|::
+    e² = mean |S x − x|² − σ² (1 − 2 h̄)
 
-    tolerance = √(2/π) · σ_ring                      (:func:`precision_tolerance`)
+the distances ``|S x − x|`` from a fixed sample of the dense mesh's vertices
+(:func:`reference_vertices`: off the sharp rims and off the end planes) to the
+candidate's tessellation, σ the dense rings' error, ``h̄`` the mean influence of a
+dense ring on the candidate at its own height (:func:`influence`: the regression
+weights, then the kept rings' interpolation modelled by a cubic spline through the
+kept heights; along the ring the candidate is taken to copy the dense ring, which
+over-states h̄ and so the estimate).  σ is measured from the data, not modelled
+(:func:`section_scatter`): the 4th difference across five sections of the rings
+resampled at common angles cancels the profile up to a cubic and sums 70 σ² of
+the rings' independent errors, ``σ = 1.4826 median|d4| / √70``.  The default
+tolerance is that σ itself (:func:`ring_noise`): the thinned surface is estimated
+no farther from the truth than the dense rings are.  The fits' own precision
+σ_ring (:func:`ring_precision`, the Catmull-Rom hat matrix: σ̂·√(ρ(n)·n/M) ≈ 0.85
+σ̂/√s) is the fallback where no five consecutive single-loop sections exist; it
+under-states the rings' error (10⁵-point vase: σ_ring 0.00032, the rings' RMS
+error to the truth 0.00038, the scatter 0.00045 -- which includes the rings'
+negative correlation between neighbours, -0.13, and the radial-vs-normal factor).
+Session 5's rule (mean distance <= √(2/π)·σ_ring, interpolating the dense rings)
+gave no candidate credit for averaging and was strict by one or two candidates.
 
-i.e. the thinned surface may move away from the dense one (mean distance from
-its vertices) by as much as the dense one is itself uncertain.  Much of that
-deviation is the dense rings' own noise, which a thinning does not follow (a
-bias-free thinning that drops a share f of the dense vertices' rings deviates by
-about f·√(2/π)·√(1 + v)·σ_ring, v ∈ [0.64, 1] the variance left by interpolating
-the kept rings), so the error to the truth grows far less than the deviation.
-The points' σ̂ itself (the session-4 tolerance) is √s/0.85 ≈ 4-7× σ_ring on
-clouds of 10⁴-10⁶ points, and let the thinning lose most of the accuracy the
-curve fits gained.  Measured (the candidates' Chamfer to the truth, one run each;
-σ = 0.002 unless said; stitched = the dense stitched mesh):
+Measured (``benchmarks/surface.py --methods poisson-8 stitched stitched+bezier
+stitched+sized --no-shapes --sizes 50000 100000 1000000``, one run, σ = 0.002 vase;
+Chamfer to the truth; stitched = the dense stitched mesh)::
 
-=========================  ========  =========  =====================  ========================
-cloud                      σ_ring    tolerance  patches dense -> sized  Chamfer stitched / sized
-=========================  ========  =========  =====================  ========================
-vase 50 000                0.000366  0.000292   149 136 -> 34 232      0.000288 / 0.000313
-vase 100 000 (seed 1)      0.000322  0.000257   285 368 -> 58 184      0.000212 / 0.000310
-vase 200 000               0.000274  0.000218   556 880 -> 114 256     0.000194 / 0.000226
-vase 50 000, σ = 0.0005    0.000106  0.000085   149 048 -> 81 408      0.000139 / 0.000119
-amphora 40 000             0.000383  0.000305   116 456 -> 24 632      0.000278 / 0.000320
-cylinder 40 000            0.000348  0.000278   94 048 -> 17 464       0.000250 / 0.000292
-=========================  ========  =========  =====================  ========================
+    points   patches (session 5)   Chamfer sized / stitched / Poisson-8   PLY MB sized / P-8
+    5·10⁴    9 312 (34 232)        0.000311 / 0.000268 / 0.000742         1.38 / 6.75
+    10⁵      16 688 (58 184)       0.000206 / 0.000212 / 0.000720         2.47 / 16.29
+    10⁶      30 848 (483 056)      0.000087 / 0.000117 / 0.000349         4.57 / 16.21
 
-(the vase at 50 000 points with σ̂ = 0.00235 as the tolerance: 5 792 patches,
-Chamfer 0.00136).  The rejected next-coarser candidates were 1.26-1.76× the
-stitched mesh's Chamfer.  The Bézier surface over the *dense* mesh is itself
-0.82-1.64× the stitched mesh's Chamfer, which bounds what any sizing can reach:
-on the walls interpolating noisy vertices G1 swings between them more than the
-flat triangles do, and at the flat caps' rims the kept sharp vertices round the
-edge off.  The 100 000-point row is that case: walls (completeness, > 0.05 from
-the rims) stitched 0.000239 / dense smooth 0.000267 / sized 0.000280, but rims
-0.00011 / 0.00062 / 0.00040 and caps 0.00001 / 0.00052 / 0.00029 -- the sized
-surface is closer to the truth than the dense smooth one there.  Keeping only the
-sharp vertices themselves (``sharp_vertices(rings=0)``) brought that cloud's sized
-Chamfer to 0.000263 (rims 0.00019, caps 0.00009), left the 50 000-point one at
-0.000317 and a 10⁶-point one (seed 1: sized 483 056 patches, Chamfer 0.000226 against
-the stitched 0.000118; walls 0.000162 / 0.000137, rims 0.00042 / 0.00003, caps
-0.00040 / 0.00001) at 0.000207, and changed nothing on the demo: not the default.
-The flat caps' triangles have no inner vertices, so their patches take the wall's
-curvature from the rim's one-ring: a crease rule or inner cap vertices would be next.
+At 10⁵ and 10⁶ points the sized surface is closer to the truth than the stitched
+mesh (the regression averages 5-9 sections' noise), at 5·10⁴ it is 1.16× farther
+(walls 0.000329 / 0.000293 at seed 1): there the estimate (0.00041, tolerance
+0.00053) is an RMS error, and a mean distance flatters a rough polyhedron (the
+stitched mesh's Chamfer is 0.56× its rings' RMS error on these clouds, a smooth
+surface's √(2/π) = 0.80×).  ``tests/surface/test_sizing.py`` checks the 2·10⁴-point
+vase: 0.79× the stitched mesh's Chamfer with 3.4× fewer patches than the dense surface.
+The demo (``photosurf run fixtures/scenes/vase_ring.toml``, 208 sections, σ 7.5e-5 from
+the scatter, σ_ring 4.8e-5): see the README's figures table.
 
-Session 5, the demo (``photosurf run fixtures/scenes/vase_ring.toml``, 208 sections,
-n = 569, σ̂ = 0.00020, median s = 16, σ_ring = 0.000048, tolerance 0.000038): step 2,
-n = 193, 265 328 patches (dense 1 481 216); walls (> 0.05 from the ends) Chamfer
-0.000090 against the stitched mesh's 0.000087 (the ends are misplaced by the
-acquisition, 0.0057, for both).  The coarser candidates: step 4, n = 136 (105 176
-patches, deviation 0.000071) 0.000095; step 5, n = 97 (63 176) 0.000112; step 8,
-n = 68 (32 576, session 4's σ̂ choice) 0.000167 -- strict by one or two candidates
-here, where the stitched mesh's own error (8.7e-5 on the walls) is 2.3× what the
-noise model predicts for it (smooth across sections: a bias of the cloud).
-
-Measured on the demo's rings (``photosurf run fixtures/scenes/vase_ring.toml``,
-session 3, 189 sections, n = 515, σ̂ = 0.000178): 1 201 832 patches -> 64 768 (step 4,
-n = 96; mean deviation 0.000087), smooth-surface Chamfer to the truth 0.00024 ->
-0.00025; step 8, n = 64 (22 832 patches, deviation 0.00018) gives 0.00035.
-
-The thinning is uniform over the object; adaptive spacing (denser sections
-where the profile bends, fewer ring points where a section is straight) is not
-done here.
+The thinning is uniform between the graded ends; fewer ring points at the same
+section step (a decoupled ``n``) lost accuracy fast on the 10⁵-point vase (step 5:
+n = 49 -> 34 raised the walls' error 0.000225 -> 0.000275), so one ``h`` sets both.
 
 References
 ----------
 .. [1] C. Loop, "Smooth subdivision surfaces based on triangles", M.S. thesis,
    University of Utah (1987).
 .. [2] H. Hoppe et al., "Piecewise smooth surface reconstruction", SIGGRAPH 1994.
+.. [3] C. M. Stein, "Estimation of the mean of a multivariate normal distribution",
+   Annals of Statistics 9 (1981) 1135-1151; C. L. Mallows, "Some comments on Cp",
+   Technometrics 15 (1973) 661-675.
+.. [4] A. Savitzky, M. J. E. Golay, "Smoothing and differentiation of data by
+   simplified least squares procedures", Analytical Chemistry 36 (1964) 1627-1639.
 """
 
 from __future__ import annotations
@@ -514,19 +507,23 @@ def _largest_perimeter(rings: Sequence) -> float:
 def interpolating_control(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Control vertices of the surface through the mesh's vertices, sharp edges kept.
 
-    :func:`surface.fitting.interpolating_control_mesh` with the vertices on or next
-    to an edge sharper than 30° (the stitch's support-ring threshold) kept as they
-    are (:func:`surface.fitting.sharp_vertices`): interpolating a rim ring and its
-    support ring one noise width away overshoots the edge (measured on the demo's
-    step-7 thinning: Hausdorff distance to the truth 0.015 interpolating
-    everything, 0.0018 with the sharp vertices and their one-rings kept, against
-    the dense mesh's 0.0014).  A mesh with borders gets its own vertices back.
+    :func:`surface.fitting.interpolating_control_mesh` with the vertices on an edge
+    sharper than 30° (the stitch's support-ring threshold) kept as they are
+    (:func:`surface.fitting.sharp_vertices`, ``rings=0``): interpolating a rim ring
+    and its support ring one noise width away overshoots the edge (measured on the
+    demo's step-7 thinning, session 4: Hausdorff distance to the truth 0.015
+    interpolating everything, 0.0018 with the sharp vertices and their one-rings
+    kept).  With the caps' guard rings (``surface.stitch.CAP_GUARD_RINGS``) keeping
+    the rim vertices alone is enough and rounds the rims less: 10⁵-point vase sized
+    Chamfer 0.000222 -> 0.000206 (rim band 0.00120 -> 0.00085), Hausdorff 0.021 ->
+    0.015; demo Hausdorff 0.0072 -> 0.0054, Chamfer unchanged; 5·10⁴ points 0.000319
+    -> 0.000311.  A mesh with borders gets its own vertices back.
     """
     from surface.fitting import interpolating_control_mesh, sharp_vertices
 
     try:
         return interpolating_control_mesh(vertices, triangles,
-                                          keep=sharp_vertices(vertices, triangles, rings=1))
+                                          keep=sharp_vertices(vertices, triangles, rings=0))
     except ValueError:  # borders: no limit-point system
         return np.asarray(vertices, dtype=np.float64)
 
