@@ -71,7 +71,7 @@ NEAR_PX = (1.25, 2.5)
 EDGE_MODEL_PX = 0.1
 #: Least edge contrast, in units of the image noise σ.
 MIN_CONTRAST_SNR = 10.0
-#: Largest spread (std) of the outer samples, in units of the noise σ.
+#: Largest grey-level std over 7 x 7 px around the outer samples, in units of the noise σ.
 MAX_BACKGROUND_SNR = 3.0
 #: Neighbourhood of an edge point in which the cloud's points give the surface, px.
 RADIUS_PX = 3.0

@@ -121,7 +121,7 @@ def _parse_header(path: Path):
     unknown types), open3d reads the file instead.
     """
     from pipeline import limits
-    from pipeline.mesh_io import PLY_KINDS, ply_header
+    from pipeline.mesh_io import PLY_KINDS, ply_count, ply_header
 
     with open(path, "rb") as fh:
         head = fh.read(65536)
@@ -133,13 +133,7 @@ def _parse_header(path: Path):
     for name, count_words, properties in elements:
         if name != "vertex":
             continue
-        try:
-            count = int(count_words[0])
-        except (IndexError, ValueError):
-            raise InputError(f"{path}: bad PLY line "
-                             f"'element vertex {' '.join(count_words)}'") from None
-        if count < 0:
-            raise InputError(f"{path}: negative vertex count {count}")
+        count = ply_count(path, name, count_words)
         limits.check("file.elements", count, where=f"{path}: vertex count {count}")
         for words in properties:
             if len(words) < 2 or words[0] not in PLY_KINDS:

@@ -130,6 +130,18 @@ def ply_header(head: bytes) -> tuple[str, list[list], int] | None:
     return fmt, elements, stop
 
 
+def ply_count(path, name: str, count_words: list) -> int:
+    """The element count of a header line ``element NAME COUNT`` (one-line errors)."""
+    try:
+        count = int(count_words[0])
+    except (IndexError, ValueError):
+        raise InputError(f"{path}: bad PLY line 'element {name} "
+                         f"{' '.join(count_words)}'") from None
+    if count < 0:
+        raise InputError(f"{path}: negative {name} count {count}")
+    return count
+
+
 def _ply_counts(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, int]], int]:
     """``(format, [(element, count, least bytes per element)], header bytes)`` of a PLY."""
     parsed = ply_header(head)
@@ -138,13 +150,7 @@ def _ply_counts(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, int]
     fmt, elements, stop = parsed
     counts = []
     for name, count_words, properties in elements:
-        try:
-            count = int(count_words[0])
-        except (IndexError, ValueError):
-            raise InputError(f"{path}: bad PLY line 'element {name} "
-                             f"{' '.join(count_words)}'") from None
-        if count < 0:
-            raise InputError(f"{path}: negative {name} count {count}")
+        count = ply_count(path, name, count_words)
         least = 0
         for words in properties:
             if fmt == "ascii":

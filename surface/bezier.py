@@ -117,6 +117,11 @@ import numpy as np
 
 from surface.validate import TOL, check_finite, check_shape
 
+# as in matching.lsm: OpenMP first (the TBB layer here is too old and warns on stderr:
+# an export-only process, which never imports matching.lsm, printed numba's TBB
+# warning beside its own error line)
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+
 DEGREE = 6
 N_CONTROL = (DEGREE + 1) * (DEGREE + 2) // 2  # 28
 #: Samples x patches evaluated at once in tessellate: ~5 MB work arrays, far below glibc's
