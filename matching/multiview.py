@@ -434,33 +434,28 @@ def _search_volume(cameras: Sequence[Camera], masks, roi) -> SceneVolume | None:
 def _outline_points(cameras: Sequence[Camera], masks, roi, points: np.ndarray,
                     sigma: np.ndarray, image) -> OutlinePoints:
     """Outline points (:mod:`matching.contours`) of every view with a mask (given, or
-    the automatic foreground of a uniform background), on the object and in ``roi``."""
-    use = []
-    for v in range(len(cameras)):
+    the automatic foreground of a uniform background), on the object and in ``roi``;
+    one image in memory at a time."""
+    parts = []
+    for v, cam in enumerate(cameras):
+        img = image(v)
         m = masks[v] if masks is not None else None
         if m is None:
-            m = foreground_mask(image(v), margin_px=0)
-        use.append(m)
-    images = _LazyViews(image, len(cameras))
-    extra = outline_points(images, cameras, use, points, sigma)
+            m = foreground_mask(img, margin_px=0)
+        if m is None:
+            continue
+        part = outline_points([img], [cam], [m], points, sigma)
+        parts.append(OutlinePoints(part.points, part.sigma, np.full(len(part), v, np.int64),
+                                   part.edge, part.neighbour))
+    if not parts:
+        return outline_points([], [], [], points, sigma)
+    extra = OutlinePoints(*(np.concatenate([getattr(p, f) for p in parts])
+                            for f in ("points", "sigma", "view", "edge", "neighbour")))
     if len(extra) and (masks is not None or roi is not None):
         inside = _inside_object(extra.points, cameras, masks, roi)
         extra = OutlinePoints(extra.points[inside], extra.sigma[inside], extra.view[inside],
                               extra.edge[inside], extra.neighbour[inside])
     return extra
-
-
-class _LazyViews:
-    """``images[v]`` read on access (one view at a time in memory)."""
-
-    def __init__(self, image, n: int):
-        self._image, self._n = image, n
-
-    def __len__(self) -> int:
-        return self._n
-
-    def __getitem__(self, v: int):
-        return self._image(v)
 
 
 def _inside_object(points: np.ndarray, cameras: Sequence[Camera], masks, roi) -> np.ndarray:
