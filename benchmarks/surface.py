@@ -88,12 +88,12 @@ Poisson-8: 10^5 Chamfer 0.00031 / 0.00021 / 0.00072, 58 184 patches, PLY 8.6 MB 
 3.1 GB.
 
 Measured (session 6, issue 15: kept rings regressed across sections, Stein's risk estimate
-against the rings' scatter; load ~5-7, compare CPU; same command): 50 000 points
-stitched+sized 9 328 patches, Chamfer 0.00034 (stitched 0.00029, Poisson-8 0.00076), PLY
-1.38 MB (Poisson-8 6.73), 3.43 CPU-s (8.75).  Scaling, sized / stitched / Poisson-8: 5·10^4
-0.00031 / 0.00027 / 0.00074, 9 312 patches, PLY 1.4 MB (6.8), 7.1 / 3.8 / 8.4 CPU-s; 10^5
-0.00021 / 0.00021 / 0.00072, 16 688 patches, PLY 2.5 MB (16.3), 12.6 / 5.6 / 17.5 CPU-s;
-10^6 0.000087 / 0.00012 / 0.00035, 30 848 patches, PLY 4.6 MB (16.2), 97.7 / 66.5 / 127.2
+against the rings' scatter; main d62be9c, load ~7, compare CPU; same command): 50 000 points
+stitched+sized 9 304 patches, Chamfer 0.00032 (stitched 0.00029, Poisson-8 0.00076), PLY
+1.38 MB (Poisson-8 6.73), 3.94 CPU-s (10.21).  Scaling, sized / stitched / Poisson-8: 5·10^4
+0.00031 / 0.00027 / 0.00074, 9 296 patches, PLY 1.4 MB (6.8), 9.0 / 4.7 / 9.5 CPU-s; 10^5
+0.00021 / 0.00021 / 0.00072, 16 680 patches, PLY 2.5 MB (16.3), 12.1 / 6.1 / 17.8 CPU-s;
+10^6 0.000087 / 0.00012 / 0.00035, 30 848 patches, PLY 4.6 MB (16.2), 73.6 / 52.7 / 117.7
 CPU-s, numpy peak 1.76 GB.
 
 To add a method (e.g. "stitched + Bezier smoothed") write a function

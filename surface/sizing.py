@@ -66,12 +66,12 @@ Session 5's rule (mean distance <= √(2/π)·σ_ring, interpolating the dense r
 gave no candidate credit for averaging and was strict by one or two candidates.
 
 Measured (``benchmarks/surface.py --methods poisson-8 stitched stitched+bezier
-stitched+sized --no-shapes --sizes 50000 100000 1000000``, one run, σ = 0.002 vase;
+stitched+sized --no-shapes --sizes 50000 100000 1000000``, one run at main d62be9c, σ = 0.002 vase;
 Chamfer to the truth; stitched = the dense stitched mesh)::
 
     points   patches (session 5)   Chamfer sized / stitched / Poisson-8   PLY MB sized / P-8
-    5·10⁴    9 312 (34 232)        0.000311 / 0.000268 / 0.000742         1.38 / 6.75
-    10⁵      16 688 (58 184)       0.000206 / 0.000212 / 0.000720         2.47 / 16.29
+    5·10⁴    9 296 (34 232)        0.000309 / 0.000267 / 0.000740         1.38 / 6.75
+    10⁵      16 680 (58 184)       0.000206 / 0.000211 / 0.000719         2.47 / 16.29
     10⁶      30 848 (483 056)      0.000087 / 0.000117 / 0.000349         4.57 / 16.21
 
 At 10⁵ and 10⁶ points the sized surface is closer to the truth than the stitched
