@@ -205,21 +205,50 @@ def resample_at_angles(ring: np.ndarray, count: int, centre: np.ndarray,
     -------
     (count, 3) float64 or None
     """
+
+    out = resample_rings_at_angles([ring], count, centre, frame)
+    return None if out is None else out[0]
+
+
+def resample_rings_at_angles(rings: Sequence, count: int, centre: np.ndarray,
+                             frame: np.ndarray) -> np.ndarray | None:
+    """:func:`resample_at_angles` of several rings about one centre, ``(R, count, 3)``
+    (None if one is not star-shaped): rings with the same point count share one
+    periodic cubic (its columns side by side) evaluated at all their parameters at once,
+    instead of one spline per ring (the sizing resamples thousands of rings per demo).
+    """
     from scipy.interpolate import CubicSpline
 
-    ring = np.asarray(ring, dtype=np.float64)
-    flat = (ring - centre) @ frame[:2].T
-    angle = np.unwrap(np.arctan2(flat[:, 1], flat[:, 0]))
-    if angle[-1] < angle[0]:                       # clockwise: the same ring reversed
-        ring, angle = ring[::-1], angle[::-1]
-    period = np.append(angle, angle[0] + 2 * np.pi)
-    if np.any(np.diff(period) <= 0):               # not star-shaped about the centre
-        return None
-    m = len(ring)
-    u = np.arange(m + 1) / m
-    spline = CubicSpline(u, np.vstack([ring, ring[:1]]), bc_type="periodic", axis=0)
-    targets = angle[0] + np.mod(2 * np.pi * np.arange(count) / count - angle[0], 2 * np.pi)
-    return spline(np.interp(targets, period, u))
+    prepared = []
+    for ring in rings:
+        ring = np.asarray(ring, dtype=np.float64)
+        flat = (ring - centre) @ frame[:2].T
+        angle = np.unwrap(np.arctan2(flat[:, 1], flat[:, 0]))
+        if angle[-1] < angle[0]:                       # clockwise: the same ring reversed
+            ring, angle = ring[::-1], angle[::-1]
+        period = np.append(angle, angle[0] + 2 * np.pi)
+        if np.any(np.diff(period) <= 0):               # not star-shaped about the centre
+            return None
+        prepared.append((ring, angle, period))
+    out = np.empty((len(prepared), count, 3))
+    steps = 2 * np.pi * np.arange(count) / count
+    same = {}
+    for i, (r, _, _) in enumerate(prepared):
+        same.setdefault(len(r), []).append(i)
+    # at most 16 rings a spline: its evaluation costs (rings x count) x 3 rings values
+    batches = [(m, g[k:k + 16]) for m, g in sorted(same.items()) for k in range(0, len(g), 16)]
+    for m, idx in batches:
+        u = np.arange(m + 1) / m
+        columns = np.concatenate([np.vstack([prepared[i][0], prepared[i][0][:1]]) for i in idx],
+                                 axis=1)
+        spline = CubicSpline(u, columns, bc_type="periodic", axis=0)
+        params = np.concatenate([
+            np.interp(prepared[i][1][0] + np.mod(steps - prepared[i][1][0], 2 * np.pi),
+                      prepared[i][2], u) for i in idx])
+        values = spline(params)  # (len(idx) count, 3 len(idx)): the diagonal blocks wanted
+        for k, i in enumerate(idx):
+            out[i] = values[k * count:(k + 1) * count, 3 * k:3 * k + 3]
+    return out
 
 
 def kept_sections(count: int, step: int) -> list[int]:
@@ -284,8 +313,7 @@ def _aligned(rings: Sequence, sections: np.ndarray, count: int, frame: np.ndarra
     if any(loop is None for loop in loops):
         return None
     centre = np.mean([loop.mean(axis=0) for loop in loops], axis=0)
-    out = [resample_at_angles(loop, count, centre, frame) for loop in loops]
-    return None if any(o is None for o in out) else np.stack(out)
+    return resample_rings_at_angles(loops, count, centre, frame)
 
 
 #: Consecutive sections of one 4th difference, and its noise gain Σ c² = 1+16+36+16+1.

@@ -214,3 +214,25 @@ def test_error_estimate_is_steins_unbiased_risk():
     estimate = sizing.error_estimate(np.abs(fit - x), sigma, influence_mean=1 / 5)
     assert estimate == pytest.approx(actual, rel=0.05)
     assert sizing.error_estimate(np.zeros(10), sigma, 1.0) == pytest.approx(sigma)  # a copy
+
+
+def test_rings_resampled_together_equal_one_by_one():
+    """resample_rings_at_angles (one spline for rings of one point count) gives the
+    rings resample_at_angles gives one at a time, to rounding."""
+    from surface.sizing import resample_at_angles, resample_rings_at_angles
+
+    rng = np.random.default_rng(0)
+    frame = np.eye(3)
+    rings = []
+    for m in (60, 60, 75, 60):
+        th = rng.uniform(0, 0.1) + 2 * np.pi * np.arange(m) / m
+        r = 1 + 0.05 * np.sin(3 * th) + rng.normal(0, 0.001, m)
+        rings.append(np.column_stack([r * np.cos(th), r * np.sin(th), np.full(m, rng.uniform())]))
+    rings[1] = rings[1][::-1]  # clockwise
+    together = resample_rings_at_angles(rings, 50, np.zeros(3), frame)
+    alone = np.stack([resample_at_angles(r, 50, np.zeros(3), frame) for r in rings])
+    assert np.allclose(together, alone, rtol=0, atol=1e-12)
+    # not star-shaped about the centre: None, as one by one
+    bent = rings[0].copy()
+    bent[10] = -0.01 * bent[10]
+    assert resample_rings_at_angles([rings[0], bent], 50, np.zeros(3), frame) is None
