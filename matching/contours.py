@@ -105,6 +105,11 @@ class OutlinePoints:
     def __len__(self) -> int:
         return len(self.points)
 
+    def take(self, keep) -> OutlinePoints:
+        """The points selected by ``keep`` (bool mask or indices)."""
+        return OutlinePoints(self.points[keep], self.sigma[keep], self.view[keep],
+                             self.edge[keep], self.neighbour[keep])
+
 
 def _noise(grey: np.ndarray) -> float:
     from matching.lsm import estimate_noise
@@ -277,39 +282,45 @@ def _view_outline(camera: Camera, grey, mask, points, sigma) -> tuple:
     return P[ok2], sig[ok2], e[ok2], gid[ok2, 0]
 
 
-def outline_points(images: Sequence, cameras: Sequence[Camera], masks: Sequence,
-                   points, sigma) -> OutlinePoints:
+def outline_points(images: Sequence, cameras: Sequence[Camera], masks: Sequence | None,
+                   points, sigma, auto_masks: bool = False) -> OutlinePoints:
     """Outline points of every view with a mask (the module docstring).
 
     Parameters
     ----------
     images : sequence of V (H, W) or (H, W, 3) array_like (colour in BGR order)
+        Read once per view (a lazily loading sequence keeps one image in memory).
     cameras : sequence of V Camera
-    masks : sequence of V (H, W) bool or None (None: that view gives no points)
+    masks : sequence of V (H, W) bool or None, or None
+        None entries (or no masks): that view gives no points, unless ``auto_masks``.
     points : (N, 3) float64, the matched cloud, scene units
     sigma : (N,) float64, its points' σ, scene units
+    auto_masks : bool
+        Where a view has no mask, the automatic foreground of a uniform background
+        (:func:`matching.masks.foreground_mask`, no margin; none on a textured one).
 
     Returns
     -------
     OutlinePoints
     """
+    from matching.masks import foreground_mask
     from matching.masks import grey as to_grey
 
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     sigma = np.asarray(sigma, dtype=np.float64).reshape(-1)
-    out_p, out_s, out_v, out_e, out_n = [], [], [], [], []
-    for v, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
-        if mask is None or len(points) < MIN_NEIGHBOURS:
+    parts = []
+    for v, cam in enumerate(cameras):
+        mask = masks[v] if masks is not None else None
+        if (mask is None and not auto_masks) or len(points) < MIN_NEIGHBOURS:
             continue
-        g = to_grey(images[v])
-        P, s, e, nb = _view_outline(cam, g, mask, points, sigma)
-        out_n.append(nb)
-        out_p.append(P)
-        out_s.append(s)
-        out_v.append(np.full(len(P), v, np.int64))
-        out_e.append(e)
-    if not out_p:
+        image = images[v]
+        if mask is None:
+            mask = foreground_mask(image, margin_px=0)
+            if mask is None:
+                continue
+        P, s, e, nb = _view_outline(cam, to_grey(image), mask, points, sigma)
+        parts.append((P, s, np.full(len(P), v, np.int64), e, nb))
+    if not parts:
         return OutlinePoints(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64),
                              np.zeros((0, 2)), np.zeros(0, np.int64))
-    return OutlinePoints(np.concatenate(out_p), np.concatenate(out_s),
-                         np.concatenate(out_v), np.concatenate(out_e), np.concatenate(out_n))
+    return OutlinePoints(*(np.concatenate(column) for column in zip(*parts, strict=True)))

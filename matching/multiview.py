@@ -133,7 +133,7 @@ from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
 from matching.contours import OutlinePoints, outline_points
 from matching.fusion import merge_clouds, point_colours
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
-from matching.masks import foreground_mask, grey, inside_masks
+from matching.masks import grey, inside_masks
 from matching.pair import match_pair
 from matching.rectify import Rectification, rectify, rectify_images
 from matching.scheduler import ViewRef, default_workers, load_image, thread_map
@@ -435,27 +435,25 @@ def _outline_points(cameras: Sequence[Camera], masks, roi, points: np.ndarray,
                     sigma: np.ndarray, image) -> OutlinePoints:
     """Outline points (:mod:`matching.contours`) of every view with a mask (given, or
     the automatic foreground of a uniform background), on the object and in ``roi``;
-    one image in memory at a time."""
-    parts = []
-    for v, cam in enumerate(cameras):
-        img = image(v)
-        m = masks[v] if masks is not None else None
-        if m is None:
-            m = foreground_mask(img, margin_px=0)
-        if m is None:
-            continue
-        part = outline_points([img], [cam], [m], points, sigma)
-        parts.append(OutlinePoints(part.points, part.sigma, np.full(len(part), v, np.int64),
-                                   part.edge, part.neighbour))
-    if not parts:
-        return outline_points([], [], [], points, sigma)
-    extra = OutlinePoints(*(np.concatenate([getattr(p, f) for p in parts])
-                            for f in ("points", "sigma", "view", "edge", "neighbour")))
+    each image read once, one in memory at a time."""
+    extra = outline_points(_Lazy(image, len(cameras)), cameras, masks, points, sigma,
+                           auto_masks=True)
     if len(extra) and (masks is not None or roi is not None):
-        inside = _inside_object(extra.points, cameras, masks, roi)
-        extra = OutlinePoints(extra.points[inside], extra.sigma[inside], extra.view[inside],
-                              extra.edge[inside], extra.neighbour[inside])
+        extra = extra.take(_inside_object(extra.points, cameras, masks, roi))
     return extra
+
+
+class _Lazy:
+    """``images[v]`` read by ``image(v)`` on access."""
+
+    def __init__(self, image, n: int):
+        self._image, self._n = image, n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, v: int):
+        return self._image(v)
 
 
 def _inside_object(points: np.ndarray, cameras: Sequence[Camera], masks, roi) -> np.ndarray:
