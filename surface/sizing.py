@@ -108,7 +108,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["SizedMesh", "coarsen_rings", "error_estimate", "influence", "interpolating_control",
-           "kept_sections", "precision_tolerance", "reference_vertices", "resample_ring",
+           "kept_sections", "reference_vertices", "resample_ring",
            "ring_noise", "ring_precision", "section_scatter", "section_weights",
            "size_control_mesh", "sized_from_points", "smooth_deviation"]
 
@@ -138,12 +138,6 @@ def ring_precision(fits: Sequence) -> float:
               for f in ([item] if hasattr(item, "precision") else list(item))]
     values = [v for v in values if np.isfinite(v)]
     return float(np.median(values)) if values else 0.0
-
-
-def precision_tolerance(precision: float) -> float:
-    """The sizing tolerance of rings of precision σ_ring: ``√(2/π) σ_ring`` (module notes),
-    the mean distance of a N(0, σ_ring²) error; scene units."""
-    return float(np.sqrt(2.0 / np.pi) * precision)
 
 
 def ring_noise(rings: Sequence, axis, precision: float = 0.0, points_noise: float = 0.0
@@ -347,13 +341,13 @@ def section_scatter(rings: Sequence, axis=(0.0, 0.0, 1.0)) -> float:
     float
         Scene units; ``nan`` when no five consecutive single-loop sections exist.
     """
-    axis = _plane_frame(axis)[2]
+    frame = _plane_frame(axis)
+    axis = frame[2]
     single = [_single(entry) for entry in rings]
     sizes = [len(loop) for loop in single if loop is not None]
     if len(sizes) < 5:
         return float("nan")
     count = min(sizes)
-    frame = _plane_frame(axis)
     heights = _heights(rings, frame[2])
     values = []
     for k in range(2, len(rings) - 2):

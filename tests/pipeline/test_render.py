@@ -337,7 +337,10 @@ def test_screen_tessellation_is_within_its_chord_tolerance():
         v, t, n, tolerance = screen_tessellation(cp, domain, width, height)
         cuts = _certified_cuts(cp, tolerance, 32)
         counts.append(len(t))
-        assert len(t) == (cuts ** 2).sum() or cuts.min() < cuts.max()  # uniform: m^2 each
+        if cuts.min() == cuts.max():  # uniform: m^2 triangles a patch
+            assert len(t) == (cuts ** 2).sum()
+        else:
+            assert len(t) >= (cuts ** 2).sum()
         assert MeshDistance(v, t)(exact).max() <= tolerance
         topology = mesh_topology(v, t)
         assert topology["closed"] and topology["oriented"] and topology["components"] == 1
