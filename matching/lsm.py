@@ -194,7 +194,9 @@ _FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
 #: Default pixel footprint variance of ``lsm_match``'s ``footprint_var``, px² per axis.
 #: Measured, not derived: a box pixel alone has 1/12, but the smoothing also takes the
 #: weight off the band the foreshortened view aliases, and every case measured is best
-#: near 0.25 (flat from 0.2 to 0.33): graffiti (21x21, first pass, the wall) residual to
+#: near 0.25 (flat from 0.2 to 0.33; one sweep in session 6, the value changed by hand
+#: in benchmarks/_real_matching.py -- no benchmark row repeats it): graffiti (21x21,
+#: first pass, the wall) residual to
 #: the smooth mapping 0.227 px without, 0.218 / 0.195 / 0.182 / 0.187 at 1/12 / 0.15 /
 #: 0.25 / 0.33; graf1 re-rendered through the homography (box pixels) 0.134 px without,
 #: 0.107 / 0.076 / 0.074 / 0.083; two box-pixel cameras 0.55x foreshortened
@@ -1433,12 +1435,11 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         population = np.concatenate([population, extra[keep]])
         pop_power = np.concatenate([pop_power, extra_power[keep]])
     dof = (patch * patch) - (7 if constrained else 8)
+    # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
+    gain = float(np.median(params[good, 7])) if good.any() else 1.0
     model = None
     if sigma0_model == "gradient" and len(population) >= 30 and np.isfinite(pop_power).all():
-        fixed = None
-        if noise_sigma is not None:
-            gain = float(np.median(params[good, 7])) if good.any() else 1.0
-            fixed = float(noise_sigma) ** 2 * (1.0 + gain**2)
+        fixed = None if noise_sigma is None else float(noise_sigma) ** 2 * (1.0 + gain**2)
         model = sigma0_gradient_model(population, pop_power, fixed_intercept=fixed)
     if model is not None:
         # σ0 against what the window's texture predicts: σ0² = α + β |∇f|² (module
@@ -1451,20 +1452,13 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                     robust_upper_limit(pop_ratio, sigma0_mad_k, dof))
         ok = status == Status.OK
         status[ok & ~(ratio <= limit)] = Status.SIGMA0_TOO_LARGE
-        sigma0_tested = True
     else:
-        sigma0_tested = False
-    if sigma0_tested:
-        pass
-    elif noise_sigma is not None:
-        # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
-        gain = float(np.median(params[good, 7])) if good.any() else 1.0
-        ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
-    elif len(population) >= 30:
-        ref = float(np.median(population))
-    else:
-        ref = float(np.hypot(fprep.noise, gprep.noise))
-    if not sigma0_tested:
+        if noise_sigma is not None:
+            ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
+        elif len(population) >= 30:
+            ref = float(np.median(population))
+        else:
+            ref = float(np.hypot(fprep.noise, gprep.noise))
         limit = sigma0_factor * ref
         if len(population) >= 30:
             limit = min(limit, robust_upper_limit(population, sigma0_mad_k, dof))

@@ -321,8 +321,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         Shape-adapted smoothing of the template where the right view is foreshortened
         (``lsm_match``'s ``footprint_var``; the affine start of the growth and of the
         second pass sets it, the first pass starts from the identity); default
-        ``matching.lsm.DEFAULT_FOOTPRINT_VAR`` (graffiti, ``benchmarks/matching.py``:
-        residual 0.254 -> 0.193 px, accepted 88.6 -> 92.6 %); None: off.
+        ``matching.lsm.DEFAULT_FOOTPRINT_VAR`` (graffiti wall: the figures with and
+        without it are ``benchmarks/matching.py``'s, in benchmarks/README.md); None: off.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
