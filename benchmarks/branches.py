@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 
 import surface.topology  # noqa: E402, F401  (imported before timing, as open3d is)
-from pipeline.config import defaults  # noqa: E402
+from pipeline.smoothing import default_level  # noqa: E402
 from surface import bezier, metrics  # noqa: E402
 from surface.reconstruct import surface_from_points  # noqa: E402
 from tests import _shapes  # noqa: E402
@@ -53,7 +53,7 @@ def run_stitched(points):
 
 
 def run_bezier(points):
-    level = int(defaults()["smooth"]["level"])
+    level = default_level()
     result = surface_from_points(points, axis="z")
     smooth = bezier.control_net(result.vertices, result.triangles)
     vertices, triangles, _ = bezier.tessellate(smooth, level=level)

@@ -134,6 +134,7 @@ from _common import print_goals, write_result  # noqa: E402
 import surface.catmull_rom  # noqa: E402, F401
 import surface.topology  # noqa: E402, F401
 from pipeline.config import defaults  # noqa: E402
+from pipeline.smoothing import default_level  # noqa: E402
 from surface import bezier, metrics  # noqa: E402
 from surface.fitting import interpolating_control_mesh  # noqa: E402
 from surface.reconstruct import surface_from_points  # noqa: E402
@@ -166,7 +167,7 @@ def run_stitched_bezier(points: np.ndarray, level: int | None = None,
     ``interpolate``: the control mesh is ``surface.fitting.interpolating_control_mesh``
     of the stitched mesh (its time counted in the smooth stage).  ``options`` go
     to ``surface_from_points`` (default: its defaults, which are the pipeline's)."""
-    level = int(defaults()["smooth"]["level"]) if level is None else int(level)
+    level = default_level() if level is None else int(level)
     clocks = [(time.perf_counter(), time.process_time())]
     stitched = surface_from_points(points, axis="z", **options)
     clocks.append((time.perf_counter(), time.process_time()))
@@ -233,15 +234,19 @@ def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None) -> dic
 def run_stitched_sized(points: np.ndarray, level: int | None = None) -> dict:
     """The pipeline's smooth stage on the cloud: dense stitched mesh -> sized control mesh
     (surface.sizing, tolerance from the rings' precision) -> interpolating control vertices ->
-    Bezier surface -> tessellation at ``smooth.level``; file sizes after the clock."""
+    Bezier surface -> tessellation at ``smooth.level`` ("adaptive": chord tolerance
+    ``SizedMesh.chord_tolerance``); file sizes after the clock."""
     from surface.sizing import interpolating_control, sized_from_points
 
-    level = int(defaults()["smooth"]["level"]) if level is None else int(level)
+    level = defaults()["smooth"]["level"] if level is None else level
     start = time.perf_counter()
     sized, dense = sized_from_points(points, axis="z")
     smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles),
                                 sized.triangles)
-    vertices, triangles, _ = bezier.tessellate(smooth, level=level)
+    if level == "adaptive":  # the smooth stage's default: cuts per patch within the error
+        vertices, triangles, _ = bezier.tessellate_adaptive(smooth, sized.chord_tolerance())
+    else:
+        vertices, triangles, _ = bezier.tessellate(smooth, level=int(level))
     seconds = time.perf_counter() - start
     check = (time.perf_counter(), time.process_time())
     sizes = file_sizes(vertices, triangles, smooth)

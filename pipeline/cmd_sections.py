@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(control net beside it as OUT.npz; needs a closed mesh)")
     parser.add_argument("--level", type=int, default=None, metavar="L",
                         help="with --smooth: tessellation level, 4^L triangles per patch "
-                             "(default: the pipeline's smooth.level)")
+                             "(default: the pipeline's smooth.level when an integer, else 1)")
 
 
 def parse_axis(text: str):

@@ -9,12 +9,14 @@ normals to ``OUT`` (.ply .obj .stl .gltf .glb) and the control net beside it as
 A thin command over :func:`pipeline.smoothing.smooth_to_files` (the smoothing of
 ``photosurf sections --smooth`` and of ``photosurf run``'s smooth stage too).
 
-Default level: the pipeline's ``smooth.level`` (``pipeline/defaults.toml``),
-one setting for ``photosurf run`` and ``photosurf smooth``.  It is chosen a
-priori: the refinement halves the control mesh's edge h₀ and level L cuts a
-patch edge into 2^L, so the flat triangles have edges h = h₀/2^(L+1) and
-deviate from the exact surface by about the sagitta κh²/8 — 4× less per
-level; the ``.npz`` keeps the exact surface whatever the level.  An STL input
+Default level: the pipeline's ``smooth.level`` (``pipeline/defaults.toml``) when
+that is an integer, else ``pipeline.smoothing.COMMAND_LEVEL`` (1: ``photosurf run``'s
+"adaptive" tessellation takes its chord tolerance from the sized surface's error
+estimate, which a mesh alone does not give).  It is chosen a priori: the
+refinement halves the control mesh's edge h₀ and level L cuts a patch edge into
+2^L, so the flat triangles have edges h = h₀/2^(L+1) and deviate from the exact
+surface by about the sagitta κh²/8 — 4× less per level; the ``.npz`` keeps the exact
+surface whatever the level.  An STL input
 (three vertices per facet) is welded first (bit-identical positions only).
 """
 
@@ -40,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "net is written beside it as OUT.npz")
     parser.add_argument("--level", type=int, default=None, metavar="L",
                         help="tessellation level: 4^L triangles per patch, 4 patches per input "
-                             f"triangle (default {default_level()}, the pipeline's smooth.level)")
+                             f"triangle (default {default_level()})")
 
 
 def run(args: argparse.Namespace) -> int:

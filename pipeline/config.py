@@ -32,6 +32,10 @@ FLEXIBLE = {
     "smooth.level": ("auto", "adaptive"),
 }
 
+#: FLEXIBLE keys whose default is a word: an example of the other values they take
+#: (``smooth.level`` defaults to "adaptive" and takes an integer level too).
+FLEXIBLE_EXAMPLE = {"smooth.level": 1}
+
 #: Parameters that take one of a fixed set of words (lists: every element must be one).
 CHOICES = {
     "acquire.interpolation": ("bilinear", "bicubic", "spline"),
@@ -200,14 +204,15 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
                 _merge(default, value, origin, f"{dotted}.")
             continue
         if dotted in FLEXIBLE:
-            ok, converted = _type_ok(default, value)
-            ok = ok and not isinstance(default, str)  # a word must be one of the words
+            example = FLEXIBLE_EXAMPLE.get(dotted, default)
+            ok, converted = _type_ok(example, value)
+            ok = ok and not isinstance(example, str)  # a word must be one of the words
             vector = (isinstance(value, list) and len(value) == 3 and
                       all(isinstance(v, int | float) and not isinstance(v, bool) for v in value))
             if not (ok or value in FLEXIBLE[dotted] or (dotted == "sections.axis" and vector)):
                 words = " or ".join(repr(w) for w in FLEXIBLE[dotted])
                 kind = "[x, y, z] or " if dotted == "sections.axis" else \
-                    f"{type(default).__name__} (like {default!r}) or "
+                    f"{type(example).__name__} (like {example!r}) or "
                 raise InputError(f"{origin}: {dotted} must be {kind}{words}, got {value!r}")
             base[key] = converted if ok else value
             _check_range(dotted, base[key], origin)

@@ -222,19 +222,10 @@ def screen_tessellation(control_points: np.ndarray, triangles: np.ndarray, width
     The chord tolerance is half a sub-pixel, ``δ = pixel_footprint / (2 s)``
     (:func:`pixel_footprint`): no silhouette or shading sample moves by more than half
     the spacing of the rays that draw it, however finely the surface was tessellated
-    for export.  What moves a pixel is the surface's distance from its flat triangles
-    *across* them: a patch lies within ``h = max_a |n · (b_a - b_600)|`` of the plane of
-    its corners (the control points' spread about that plane, ``n`` its unit normal;
-    convex-hull property, :func:`surface.bezier.plane_deviation`), whereas the parametric bounds of
-    :func:`surface.bezier.adaptive_segments` also count the parametrisation's motion
-    *along* the surface, which draws nothing (on the demo's patches they are 40-2000x
-    ``h``).  A patch with ``h > δ`` is split at its edge midpoints (de Casteljau,
-    :func:`surface.bezier.subdivide`: the exact nets of the uniform grid's triangles)
-    until every piece is within ``δ`` of its own corners' plane; level ``L`` gives the
-    patch ``2^L`` cuts, welded and crack-free across patch edges
-    (:func:`surface.bezier.tessellate_adaptive`; where a neighbour is finer, the
-    transition triangles along the shared edge are smaller still).  A patch still
-    outside ``δ`` after ``max_segments`` cuts keeps them.
+    for export: every patch is cut until its pieces lie within ``δ`` of their own
+    corners' planes (:func:`surface.bezier.certified_segments`: what moves a pixel is the
+    surface's distance *across* its flat triangles), welded and crack-free across patch
+    edges (:func:`surface.bezier.tessellate_adaptive`).
 
     Parameters
     ----------
@@ -269,46 +260,13 @@ def screen_tessellation(control_points: np.ndarray, triangles: np.ndarray, width
         radius = float(np.sqrt(((corners - centre) ** 2).sum(axis=1).max()))
     footprint = pixel_footprint(max(float(radius), TOL.zero), width, height)
     tolerance = footprint / (2.0 * max(int(supersample), 1))
-    cuts = _certified_cuts(cp, tolerance, max_segments)
+    cuts = bezier.certified_segments(cp, tolerance, max_segments)
     if cuts.max(initial=1) == 1:  # one flat triangle a patch: the uniform level 0, faster
         vertices, faces, normals = bezier.tessellate(cp, 0, triangles)
     else:
         vertices, faces, normals = bezier.tessellate_adaptive(cp, tolerance, triangles,
                                                               segments=cuts.astype(np.int64))
     return vertices, faces, normals, tolerance
-
-
-#: Sub-patches :func:`_certified_cuts` holds at once (28 x 3 float64 each: 2^20 ~ 700 MB).
-_SPLIT_BUDGET = 2 ** 20
-
-
-def _certified_cuts(cp: np.ndarray, tolerance: float, max_segments: int) -> np.ndarray:
-    """``(P,)`` cuts ``2^L``: the smallest level whose midpoint pieces are all within
-    ``tolerance`` of their corners' planes (capped at ``max_segments``)."""
-    from surface import bezier
-    from surface.bezier import plane_deviation
-
-    cuts = np.ones(len(cp), dtype=np.int64)
-    owner = np.arange(len(cp))
-    nets = cp
-
-    while len(nets):
-        bad = np.unique(owner[plane_deviation(nets) > tolerance])
-        bad = bad[2 * cuts[bad] <= max_segments]
-        if not len(bad):
-            break
-        cuts[bad] *= 2
-        keep = np.isin(owner, bad)
-        if 4 * np.count_nonzero(keep) > _SPLIT_BUDGET:  # the rest from h ~ 1/m^2
-            h = plane_deviation(nets[keep])
-            worst = np.zeros(len(cp))
-            np.maximum.at(worst, owner[keep], h)
-            more = np.ceil(np.sqrt(worst[bad] / tolerance))
-            cuts[bad] = np.minimum(max_segments, cuts[bad] * np.maximum(more, 1)).astype(np.int64)
-            break
-        nets = bezier.subdivide(nets[keep])
-        owner = np.repeat(owner[keep], 4)
-    return cuts
 
 
 # --------------------------------------------------------------------------- shading

@@ -68,11 +68,19 @@ class Smoothed:
                 "g1_angle": self.g1_angle, "gap": self.gap}
 
 
+#: Level of the stand-alone commands (``photosurf smooth``, ``sections --smooth``) when the
+#: pipeline's ``smooth.level`` is a word: they have no error estimate to make a chord
+#: tolerance from.
+COMMAND_LEVEL = 1
+
+
 def default_level() -> int:
-    """The pipeline's ``smooth.level`` (pipeline/defaults.toml) as an integer level."""
+    """The pipeline's ``smooth.level`` (pipeline/defaults.toml) if it is an integer level,
+    else :data:`COMMAND_LEVEL`."""
     from pipeline.config import defaults
 
-    return int(defaults()["smooth"]["level"])
+    level = defaults()["smooth"]["level"]
+    return COMMAND_LEVEL if isinstance(level, str) else int(level)
 
 
 def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
@@ -86,10 +94,10 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
         Oriented 2-manifold control mesh (closed gives a watertight surface).
     level : int, "auto" or "adaptive"
         Tessellation level; ``"auto"`` (one level, the coarsest within ``tolerance``) and
-        ``"adaptive"`` (:func:`surface.bezier.tessellate_adaptive`: cuts per patch) need
-        ``tolerance``.
+        ``"adaptive"`` (:func:`surface.bezier.tessellate_adaptive` with
+        :func:`surface.bezier.certified_segments`: cuts per patch) need ``tolerance``.
     tolerance : float, optional
-        Chord tolerance of ``"auto"``, scene units.
+        Chord tolerance of ``"auto"`` and ``"adaptive"``, scene units.
 
     Raises
     ------
@@ -100,13 +108,21 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     from surface import bezier
 
     # Loop's refinement makes 4 patches per control triangle, level L 4^L triangles each:
-    # refused before the control net is built ("auto" is bounded by MAX_AUTO_LEVEL)
-    finest = MAX_AUTO_LEVEL if level == "auto" else int(level)
-    limits.check("smooth.triangles", 4 * len(triangles) * 4 ** finest,
-                 where=f"level {finest} on {len(triangles)} control triangles")
+    # refused before the control net is built ("auto" is bounded by MAX_AUTO_LEVEL; the
+    # adaptive cuts are known once the net is, and checked before tessellating)
+    if level != "adaptive":
+        finest = MAX_AUTO_LEVEL if level == "auto" else int(level)
+        limits.check("smooth.triangles", 4 * len(triangles) * 4 ** finest,
+                     where=f"level {finest} on {len(triangles)} control triangles")
     surface = bezier.control_net(vertices, triangles)
     if level == "adaptive":  # a chord tolerance per patch, crack-free across patch edges
-        v, t, n = bezier.tessellate_adaptive(surface, tolerance)
+        if tolerance is None or not tolerance > 0:
+            raise ValueError(f"level 'adaptive' needs a positive chord tolerance, got {tolerance}")
+        cuts = bezier.certified_segments(surface.control_points, tolerance)
+        limits.check("smooth.triangles", int((cuts ** 2).sum()),
+                     where=f"adaptive cuts (tolerance {tolerance:.3g}) on "
+                           f"{len(cuts)} patches")
+        v, t, n = bezier.tessellate_adaptive(surface, tolerance, segments=cuts)
     else:
         if level == "auto":  # finest detail the data can vouch for: chord error <= tolerance
             level = bezier.tessellation_level(surface.control_points, tolerance,

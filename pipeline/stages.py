@@ -341,9 +341,10 @@ def smooth(ctx: StageContext) -> dict:
         control = vertices
         if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back
             control = interpolating_control(vertices, triangles)
-        smoothed = smooth_mesh(control, triangles, level,
-                               _smooth_tolerance(ctx) if level in ("auto", "adaptive")
-                               else None)
+        tolerance = _smooth_tolerance(ctx, sized) if level in ("auto", "adaptive") else None
+        if tolerance is not None:
+            info["chord_tolerance"] = tolerance
+        smoothed = smooth_mesh(control, triangles, level, tolerance)
     except ValueError as exc:
         from surface.metrics import mesh_topology
 
@@ -357,15 +358,19 @@ def smooth(ctx: StageContext) -> dict:
     return {**smoothed.info(), **info}
 
 
-def _smooth_tolerance(ctx: StageContext) -> float:
-    """Chord tolerance of ``smooth.level = "auto"``: given, else the cloud's median sigma,
-    else 5 % of the section spacing (scene units): the surface between two sections is
-    only known to the scale of their spacing, finer facets would show no more."""
+def _smooth_tolerance(ctx: StageContext, sized=None) -> float:
+    """Chord tolerance of ``smooth.level = "adaptive"`` / ``"auto"`` (scene units): given,
+    else the sized surface's estimated error to the truth
+    (``surface.sizing.SizedMesh.chord_tolerance``), else the cloud's median sigma, else
+    5 % of the section spacing (the surface between two sections is only known to the
+    scale of their spacing, finer facets would show no more)."""
     import numpy as np
 
     given = float(ctx.params["smooth"]["tolerance"])
     if given > 0:
         return given
+    if sized is not None and sized.chord_tolerance() > 0:
+        return sized.chord_tolerance()
     sigma = artifacts.read_cloud(ctx.stage_path("acquire"))["sigma"]
     sigma = sigma[np.isfinite(sigma) & (sigma > 0)]
     if sigma.size:

@@ -107,6 +107,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Tessellation chord tolerance as a share of the sized surface's estimated error
+#: (:meth:`SizedMesh.chord_tolerance`).
+CHORD_FRACTION = 1.0
+
 __all__ = ["SizedMesh", "coarsen_rings", "error_estimate", "influence", "interpolating_control",
            "kept_sections", "reference_vertices", "resample_ring",
            "ring_noise", "ring_precision", "section_scatter", "section_weights",
@@ -643,6 +647,24 @@ class SizedMesh:
     tried: list = field(default_factory=list)
     error: float = 0.0
     noise: float = 0.0
+
+    def chord_tolerance(self) -> float:
+        """Chord tolerance of the surface's tessellation: ``CHORD_FRACTION`` of its
+        estimated error to the truth (of the dense rings' noise when the dense mesh was
+        kept), 0 when neither is known.
+
+        The flat triangles then lie within what the data leave open anyway.  Measured
+        (one run each, session 7): on the 5*10^4-point σ = 0.002 vase (9 304 patches,
+        estimated error 0.00041) the smooth surface's Chamfer distance to the truth is
+        0.000249 tessellated at level 3 (595 456 triangles), 0.000247 at half the error
+        (160 516), 0.000261 at the error (74 920) and 0.000322 at the former fixed
+        level 1 (37 216), the dense stitched mesh's 0.000287; on the demo (108 376
+        patches, error 6.3e-5) half the error gives 884 166 triangles and Chamfer
+        0.000331, level 1 433 504 and 0.000334, the error itself at least 381 052.
+        Half the error doubles the demo's files for 1 % of its Chamfer distance.
+        """
+        scale = self.error if self.error > 0 else self.noise
+        return CHORD_FRACTION * scale if np.isfinite(scale) and scale > 0 else 0.0
 
 
 def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,

@@ -323,7 +323,7 @@ def test_screen_tessellation_is_within_its_chord_tolerance():
     # screen tessellation; a coarse control mesh (320 patches on an ellipsoid) seen in a
     # small view needs one flat triangle on some patches and more cuts on others, in a
     # large one several cuts everywhere.
-    from pipeline.render import _certified_cuts, screen_tessellation
+    from pipeline.render import screen_tessellation
     from surface import bezier
     from surface.metrics import MeshDistance, mesh_topology
 
@@ -335,7 +335,7 @@ def test_screen_tessellation_is_within_its_chord_tolerance():
     counts = []
     for width, height in ((40, 30), (480, 360)):
         v, t, n, tolerance = screen_tessellation(cp, domain, width, height)
-        cuts = _certified_cuts(cp, tolerance, 32)
+        cuts = bezier.certified_segments(cp, tolerance, 32)
         counts.append(len(t))
         if cuts.min() == cuts.max():  # uniform: m^2 triangles a patch
             assert len(t) == (cuts ** 2).sum()
