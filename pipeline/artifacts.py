@@ -14,7 +14,9 @@ file                        arrays (shapes; lengths in scene units)
 ``sections/sections.npz``   ``points`` (P,3) on their planes, ``offsets`` (K+1,) int64,
                             ``heights`` (K,), ``section_id`` (K,) int64, ``origin`` (K,3),
                             ``frame`` (3,3), ``source_index`` (P,) int64, ``cap_cloud`` (C,3)
-                            the points an end cap may move to, ``spacing`` ()
+                            the points an end cap may move to, ``cap_sigma`` (C,) their
+                            precision (NaN unknown; absent in older workspaces),
+                            ``spacing`` ()
 ``curves/curves.npz``       ``points`` (Q,3) of the resampled closed rings, ``offsets``
                             (R+1,), ``section`` (R,), ``loop`` (R,), ``heights`` (R,),
                             ``axis`` (3,), ``frame`` (3,3), ``noise`` () the section
@@ -101,7 +103,7 @@ def read_cloud(folder: str | os.PathLike) -> dict[str, np.ndarray]:
 
 # --------------------------------------------------------------------------- sections
 def write_sections(folder: str | os.PathLike, sections: Sequence, cap_cloud: np.ndarray,
-                   spacing: float) -> Path:
+                   spacing: float, cap_sigma: np.ndarray | None = None) -> Path:
     """``folder/sections.npz`` from non-empty :class:`surface.sections.Section` objects.
 
     Parameters
@@ -113,7 +115,11 @@ def write_sections(folder: str | os.PathLike, sections: Sequence, cap_cloud: np.
     cap_cloud : (C, 3) float64
     spacing : float
         Distance between adjacent section planes, scene units.
+    cap_sigma : (C,) float64, optional
+        Precision of the cap points (NaN unknown; default all unknown).
     """
+    if cap_sigma is None:
+        cap_sigma = np.full(len(cap_cloud), np.nan)
     offsets = np.concatenate([[0], np.cumsum([len(s) for s in sections])]).astype(np.int64)
     return save_npz(Path(folder) / SECTIONS,
                     points=np.concatenate([s.points for s in sections]), offsets=offsets,
@@ -122,7 +128,9 @@ def write_sections(folder: str | os.PathLike, sections: Sequence, cap_cloud: np.
                     origin=np.array([s.origin for s in sections]), frame=sections[0].frame,
                     source_index=np.concatenate([s.source_index for s in sections]
                                                 ).astype(np.int64),
-                    cap_cloud=cap_cloud, spacing=np.float64(spacing))
+                    cap_cloud=cap_cloud,
+                    cap_sigma=np.asarray(cap_sigma, dtype=np.float64).reshape(len(cap_cloud)),
+                    spacing=np.float64(spacing))
 
 
 def read_sections(folder: str | os.PathLike) -> tuple[list, np.ndarray, float]:
@@ -137,6 +145,16 @@ def read_sections(folder: str | os.PathLike) -> tuple[list, np.ndarray, float]:
                         source_index=d["source_index"][off[k]:off[k + 1]])
                 for k in range(len(off) - 1)]
     return sections, d["cap_cloud"], float(d["spacing"])
+
+
+def read_cap_sigma(folder: str | os.PathLike) -> np.ndarray | None:
+    """The cap points' precision ``(C,)`` of ``folder/sections.npz``; ``None`` when the
+    workspace predates it or no σ is known."""
+    with np.load(Path(folder) / SECTIONS) as npz:
+        if "cap_sigma" not in npz.files:
+            return None
+        sigma = npz["cap_sigma"]
+    return sigma if np.isfinite(sigma).any() else None
 
 
 def section_heights(folder: str | os.PathLike) -> np.ndarray:

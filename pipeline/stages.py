@@ -149,7 +149,8 @@ def sections(ctx: StageContext) -> dict:
     from surface import sections as sections_mod
 
     p = ctx.params["sections"]
-    points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
+    cloud = artifacts.read_cloud(ctx.stage_path("acquire"))
+    points = cloud["points"]
     axis, axis_source = _section_axis(p["axis"], ctx.stage_path("acquire", RING_FILE))
     check_cloud_shape(points, "acquire: the cloud", axis=axis)  # a line or plane: no surface
     extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
@@ -167,7 +168,8 @@ def sections(ctx: StageContext) -> dict:
     if len(kept) < 2:
         raise InputError(f"sections: only {len(kept)} non-empty sections; need at least 2 "
                          "(set sections.count or sections.spacing)")
-    artifacts.write_sections(ctx.out, kept, sliced.cap_cloud, sliced.spacing)
+    artifacts.write_sections(ctx.out, kept, sliced.cap_cloud, sliced.spacing,
+                             cloud["sigma"][sliced.cap_index])
     warned = [str(w.message) for w in caught]
     for message in warned:
         log.warning("sections: %s", message)
@@ -230,11 +232,12 @@ def curves(ctx: StageContext) -> dict:
             "smoothing_median": float(np.median([f.smoothing for f in records]))}
 
 
-def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float):
+def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float,
+              cap_sigma=None):
     """``(rings, planes) -> (StitchResult, notes)`` with the stitch stage's rules: end rings
-    moved to the cap points (``stitch.extend_ends``), caps, support rings at sharp rims
-    (``stitch.support``), inner caps at their cap points' height; ``notes`` are the end
-    extension's."""
+    moved to the cap points (``stitch.extend_ends``, weighted by their precision
+    ``cap_sigma`` where known), caps, support rings at sharp rims (``stitch.support``),
+    inner caps at their cap points' height; ``notes`` are the end extension's."""
     import numpy as np
 
     from surface import reconstruct as rc
@@ -249,7 +252,8 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
         notes_ends = []
         if params["caps"] and params["extend_ends"] and spacing > 0:
             rings, notes_ends = rc.extend_to_caps(rings, ring_planes, cap_cloud,
-                                                  np.arange(len(cap_cloud)), spacing)
+                                                  np.arange(len(cap_cloud)), spacing,
+                                                  sigma=cap_sigma)
         result = st.stitch_rings(rings, planes[0].frame[2], close_ends=params["caps"],
                                  support_sigma=support, cap_points=cap_cloud)
         return result, notes_ends
@@ -265,7 +269,9 @@ def stitch(ctx: StageContext) -> dict:
     p = ctx.params["stitch"]
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
-    result, notes_ends = _stitcher(p, planes, noise, cap_cloud, spacing)(rings, planes)
+    cap_sigma = artifacts.read_cap_sigma(ctx.stage_path("sections"))
+    result, notes_ends = _stitcher(p, planes, noise, cap_cloud, spacing,
+                                   cap_sigma)(rings, planes)
     messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
@@ -304,7 +310,8 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
         log.info("smooth: no sizing (no noise estimate or section spacing); the stitched "
                  "mesh is the control mesh")
         return None
-    build = _stitcher(ctx.params["stitch"], planes, noise, cap_cloud, spacing)
+    build = _stitcher(ctx.params["stitch"], planes, noise, cap_cloud, spacing,
+                      artifacts.read_cap_sigma(ctx.stage_path("sections")))
 
     def mesh(thin_rings, thin_planes):
         result, _ = build(thin_rings, thin_planes)
