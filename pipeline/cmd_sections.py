@@ -10,7 +10,9 @@ stitched by the direction criterion, Lawson-flipped to Delaunay and capped
 reads, writes and reports).
 
 Inputs: the point-cloud files of :mod:`pipeline.cloud_io` -- ``.ply``,
-``.xyz`` / ``.txt`` / ``.csv`` (columns x y z [extra]), ``.npz`` (``points``).
+``.xyz`` / ``.txt`` / ``.csv`` (columns x y z [extra]), ``.npz`` (``points``).  A cloud
+that carries its points' precision (PLY ``sigma``, npz ``sigma``) has its ends placed with
+them (inverse-variance weights, as ``photosurf run`` does).
 Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.  With
 ``--smooth`` the stitched mesh becomes the control mesh of the G1 sextic Bézier
 surface (:func:`pipeline.smoothing.smooth_to_files`, as in ``photosurf smooth``):
@@ -77,11 +79,14 @@ def parse_axis(text: str):
     return vec
 
 
-def read_points(path: str | Path) -> np.ndarray:
-    """The points ``(N, 3) float64`` of a cloud file (``pipeline.cloud_io.read_cloud``)."""
+def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """The points ``(N, 3) float64`` of a cloud file (``pipeline.cloud_io.read_cloud``) and
+    their precision σ ``(N,)`` when the file carries one (else ``None``)."""
     from pipeline import cloud_io
 
-    return np.asarray(cloud_io.read_cloud(path).points, dtype=np.float64)
+    cloud = cloud_io.read_cloud(path)
+    sigma = None if cloud.sigma is None else np.asarray(cloud.sigma, dtype=np.float64)
+    return np.asarray(cloud.points, dtype=np.float64), sigma
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         check_output(target, [args.cloud])
     smoothing = _smoothing(args.smoothing)
     axis = parse_axis(args.axis)
-    points = read_points(args.cloud)
+    points, sigma = read_points(args.cloud)
     if len(points) == 0:
         raise InputError(f"{args.cloud}: the point cloud is empty")
     if not np.all(np.isfinite(points)):
@@ -129,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         result = surface_from_points(points / unit, axis=axis, sections=args.sections, n=args.n,
-                                     smoothing=smoothing, close_ends=not args.open_ends)
+                                     smoothing=smoothing, close_ends=not args.open_ends,
+                                     sigma=None if sigma is None else sigma / unit)
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
     vertices, triangles = result.vertices * unit, result.triangles
