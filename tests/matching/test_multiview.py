@@ -262,6 +262,34 @@ def test_geometric_second_order_terms_match_the_matched_ones(ring):
         reconstruct_multiview(images, cams, pairs=[(1, 2)], second_order="affine")
 
 
+def _tilted(cam: Camera, deg: float) -> Camera:
+    """``cam`` turned by ``deg`` about its own x axis (the image moves by ~f tan(deg) in y)."""
+    a = np.radians(deg)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    R = turn @ cam.R
+    return Camera(cam.K, cam.dist, R, -R @ cam.center, cam.width, cam.height, cam.name)
+
+
+def test_a_further_views_orientation_error_is_estimated_not_rejected(ring):
+    """A further view whose given camera is tilted by 0.25 deg (its image ~1.7 px off the
+    others', 30x the matches' σ; the temple ring's given cameras: views 5, 13 and 14 sit
+    1-1.5 px off): the common offset of its matches is estimated and removed
+    (matching.confirm._systematic_offset), so it confirms as many points as with the
+    exact camera, and the cloud stays as accurate.  Measured: 1 771 points confirmed in
+    view 0 against 1 769, RMS 0.00155 against 0.00151; without the estimate 4 points
+    (every match 'inconsistent')."""
+    cams, images = list(ring["cameras"][:6]), ring["images"][:6]
+    exact = reconstruct_multiview(images, cams, pairs=[(1, 2), (3, 4)])
+    cams[0] = _tilted(cams[0], 0.25)
+    tilted = reconstruct_multiview(images, cams, pairs=[(1, 2), (3, 4)])
+    assert exact.views[:, 0].sum() > 1000  # view 0 checks both pairs' points
+    assert tilted.views[:, 0].sum() >= 0.95 * exact.views[:, 0].sum()
+    assert len(tilted) >= 0.97 * len(exact)
+    rms = {name: np.sqrt(np.mean(_distance(ring["truth"], c.points) ** 2))
+           for name, c in (("exact", exact), ("tilted", tilted))}
+    assert rms["tilted"] <= 1.1 * rms["exact"]
+
+
 def test_multiview_sigma_is_smaller_and_honest(ring, cloud):
     st = cloud.stats
     # three or more rays instead of two: measured 0.00065 against 0.0019
