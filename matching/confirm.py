@@ -171,9 +171,10 @@ def _systematic_offset(d: np.ndarray) -> np.ndarray:
     at least ``_OFFSET_MIN_COUNT`` matches give it and it exceeds ``_OFFSET_SCATTERS``
     times the robust scatter of one offset (1.4826 MAD per axis, summed in quadrature);
     zero otherwise.  A shift common to all of a pair's points in view k is an
-    orientation error of view k or of the pair (the temple ring's given cameras: views
-    5, 13 and 14 sit 1-1.5 px off the others, a short-baseline pair's points 2.5 px in
-    its further views), not a matching error; larger than the matching scatter it
+    orientation error of view k or of the pair (the temple ring's given cameras: a
+    view of one latitude (views 0-10, 11-15) checking a pair of the other sits ~1.2 px
+    off, a short-baseline pair's points 2.4-3.5 px in its further views), not a
+    matching error; larger than the matching scatter it
     decides the χ² test and the pull-in range instead of the matching.  Two scatters:
     ~98 % of the matches (Φ(2) for a normal scatter) are displaced the same way, a
     common cause; on the temple ring the camera offsets measure 2-5 scatters, while the
