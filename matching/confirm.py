@@ -108,19 +108,25 @@ def _second_order_pass(template, search, points, affine, radiometric, accepted, 
                     offset=None if offset is None else offset[idx], **lsm)
     return res.accepted, res.position, res.cov
 
-def _match_further(template, search, centres, approx, affine, offset, quad, second_order,
-                   patch, interpolation, lsm_options):
-    """LSM of the template windows into a further view from ``approx`` and the
-    local-plane affine: ``(accepted (M,) bool, position (M, 2), cov (M, 2, 2),
-    LSMResult)``."""
+def _initial(approx: np.ndarray, affine: np.ndarray) -> np.ndarray:
+    """(M, 8) LSM start ``a0 a1 a2 b0 b1 b2 r0 r1``: ``approx`` (M, 2), the local-plane
+    ``affine`` (M, 2, 2), no radiometric change."""
     init = np.zeros((len(approx), 8))
     init[:, [0, 3]] = approx
     init[:, [1, 2]] = affine[:, 0]
     init[:, [4, 5]] = affine[:, 1]
     init[:, 7] = 1.0
+    return init
+
+
+def _match_further(template, search, centres, approx, affine, offset, quad, second_order,
+                   patch, interpolation, lsm_options):
+    """LSM of the template windows into a further view from ``approx`` and the
+    local-plane affine: ``(accepted (M,) bool, position (M, 2), cov (M, 2, 2),
+    LSMResult)``."""
     res = lsm_match(template, search, centres, approx, patch=patch,
-                    interpolation=interpolation, initial=init, offset=offset,
-                    quadratic=quad, **lsm_options)
+                    interpolation=interpolation, initial=_initial(approx, affine),
+                    offset=offset, quadratic=quad, **lsm_options)
     ok, position, lsm_cov = res.accepted, res.position, res.cov
     if second_order == "matched":  # a second pass with the matched field's terms
         refined = _second_order_pass(
@@ -150,14 +156,10 @@ def _match_along_epipolar(template, search, centres, approx, affine, offset, qua
     one unknown.  The σ0 tests take the first pass's accepted matches as population
     (``first``: its LSMResult), so a small batch is judged like the whole view.
     """
-    init = np.zeros((len(approx), 8))
-    init[:, [0, 3]] = approx
-    init[:, [1, 2]] = affine[:, 0]
-    init[:, [4, 5]] = affine[:, 1]
-    init[:, 7] = 1.0
     good = first.accepted
     res = lsm_match(template, search, centres, approx, patch=patch,
-                    interpolation=interpolation, initial=init, offset=offset,
+                    interpolation=interpolation, initial=_initial(approx, affine),
+                    offset=offset,
                     quadratic=quad, direction=direction,
                     sigma0_population=first.sigma0[good],
                     population_grad_power=first.grad_power[good], **lsm_options)
