@@ -127,6 +127,7 @@ def run_photosurf(name: str, images, cameras, masks, spacing: int, reference=Non
            "pairs_skipped": st["pairs_skipped"],
            "skipped": [f"{'-'.join(s['views'])}: {s['reason']}" for s in st["skipped"]],
            "search": st["search"], "variance_factor": st["variance_factor_median"],
+           "further_view_offsets": st["further_view_offsets"],
            "reasons": cloud.reason_counts, "load_before": load, "load_after": uptime(),
            **shares(points, reference or cameras, images)}
     return row, cloud

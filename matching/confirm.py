@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -209,6 +209,9 @@ class Consistency:
     variance_factor : float
         The a-posteriori variance factor applied to the pair's match covariances
         (:func:`variance_factor`; 1: they were right).
+    offsets : dict int -> (2,) float64
+        The systematic offset, px, of each further view where one was found
+        (:func:`_systematic_offset`; views without one are absent).
     """
 
     points: np.ndarray
@@ -219,6 +222,7 @@ class Consistency:
     checked: np.ndarray
     seconds: float = 0.0
     variance_factor: float = 1.0
+    offsets: dict = field(default_factory=dict)
 
 
 def _visible(cloud: PairCloud, cam_k: Camera, zbuf: np.ndarray, normals: np.ndarray,
@@ -340,6 +344,7 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         template = prepare_image(template.raw, interpolation)
     bound = chi2.ppf(reject_p, 2)
     tests = []  # per further view: (k, idx, matched, position, LSM cov, Mahalanobis d²)
+    offsets = {}  # per further view with a systematic offset: that offset, px
     for k in others:
         need = tried < check_views
         if not need.any():
@@ -389,6 +394,8 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                 interpolation, lsm_options, first)
             ok, position, lsm_cov = ok.copy(), position.copy(), lsm_cov.copy()
             ok[lost], position[lost], lsm_cov[lost] = ok2, pos2, cov2
+        if np.any(bias):
+            offsets[k] = bias
         matched[idx[ok]] = True
         s_pred = s_pred + lsm_cov
         d = position - x_pred[idx] - bias
@@ -434,5 +441,5 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     if not require_confirmation:
         reason[reason == NO_FURTHER_MATCH] = PAIR_ONLY
     return Consistency(points, pcov, sigma, reason, views, tried,
-                       time.perf_counter() - start, factor)
+                       time.perf_counter() - start, factor, offsets)
 

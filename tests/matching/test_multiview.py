@@ -301,6 +301,12 @@ def test_a_further_views_orientation_error_is_estimated_not_rejected(ring):
     rms = {name: np.sqrt(np.mean(_distance(ring["truth"], c.points) ** 2))
            for name, c in (("exact", exact), ("tilted", tilted))}
     assert rms["tilted"] <= 1.1 * rms["exact"]
+    # the offset found is the tilt's image shift, f tan(0.25 deg) = 1.815 px along y
+    # (measured: (-0.003, 1.841) for pair (1, 2); pair (3, 4) has nearer views to check)
+    shift = cams[0].K[1, 1] * np.tan(np.radians(0.25))
+    found = [o["offset_px"] for o in tilted.stats["further_view_offsets"] if o["view"] == 0]
+    assert found and not exact.stats["further_view_offsets"]
+    np.testing.assert_allclose(found, [[0.0, shift]] * len(found), atol=0.1 * shift)
 
 
 def test_multiview_sigma_is_smaller_and_honest(ring, cloud):
