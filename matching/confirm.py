@@ -384,9 +384,13 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
             start_bias = bias
         lost = np.flatnonzero(np.isin(first.status, _LOST))
         if epipolar and len(lost):
-            # the template ray's image in k: its direction at the point, J_k d
+            # the template ray's image in k: its direction at the point, J_k d (none
+            # where view k's centre lies on the ray)
             _, ray = cam_t.ray(centres[idx[lost]])
             direction = np.einsum("mij,mj->mi", jac[lost], ray)
+            along = np.linalg.norm(direction, axis=1) > TOL.zero
+            lost, direction = lost[along], direction[along]
+        if epipolar and len(lost):
             q = None if quad is None else quad[lost]
             ok2, pos2, cov2 = _match_along_epipolar(
                 template, images[k], centres[idx[lost]], approx[lost] + start_bias,
