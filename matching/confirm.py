@@ -393,7 +393,7 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         if epipolar and len(lost):
             q = None if quad is None else quad[lost]
             ok2, pos2, cov2 = _match_along_epipolar(
-                template, images[k], centres[idx[lost]], approx[lost] + start_bias,
+                template, images[k], centres[idx[lost]], approx[lost] + bias,
                 affine[lost], None if off is None else off[lost], q, direction, patch,
                 interpolation, lsm_options, first)
             ok, position, lsm_cov = ok.copy(), position.copy(), lsm_cov.copy()
