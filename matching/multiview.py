@@ -232,7 +232,10 @@ class MultiViewCloud:
         Pair points per :data:`REASON_NAMES` name (before merging; ``outlier`` after).
     stats : dict
         Counts and timings (``pair_seconds``, ``consistency_seconds``, ``merge_seconds``,
-        ``fused``, ``median_sigma_pair``, ``median_sigma_multiview`` ...).
+        ``fused``, ``median_sigma_pair``, ``median_sigma_multiview`` ...);
+        ``further_view_offsets``: one ``{"pair", "view", "offset_px"}`` per pair and
+        further view whose matches were systematically off (an orientation error:
+        :func:`matching.confirm._systematic_offset`).
     """
 
     points: np.ndarray
@@ -521,7 +524,7 @@ def _consistency_task(item: dict) -> Consistency:
     return Consistency(points=res.points, cov=np.zeros((0, 3, 3)), sigma=res.sigma,
                        reason=res.reason, views=np.packbits(res.views, axis=1),
                        checked=res.checked, seconds=res.seconds,
-                       variance_factor=res.variance_factor)
+                       variance_factor=res.variance_factor, offsets=res.offsets)
 
 
 def _view_task(item: dict) -> tuple[PreparedImage, np.ndarray]:
@@ -747,6 +750,8 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     source = np.concatenate([np.full(len(c.reason), p, np.int64)
                              for p, c in enumerate(checks)])[keep]
     factors = [c.variance_factor for c in checks]
+    offsets = [{"pair": list(pr), "view": int(k), "offset_px": [float(v) for v in b]}
+               for pr, c in zip(pairs, checks, strict=True) for k, b in c.offsets.items()]
     del checks
     n_outline, matched_sigma = 0, sigma
     if outline and len(points):
@@ -772,6 +777,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         "variance_factor_median": float(np.median(factors)) if factors else 1.0,
         "variance_factor_max": float(np.max(factors)) if factors else 1.0,
         "outside": int(np.count_nonzero(reasons == OUTSIDE)),
+        "further_view_offsets": offsets,
         "skipped": [{"pair": list(sp.pair), "views": [cameras[v].name for v in sp.pair],
                      "reason": sp.reason} for sp in skipped],
         "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
