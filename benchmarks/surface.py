@@ -96,12 +96,20 @@ stitched+sized 9 304 patches, Chamfer 0.00032 (stitched 0.00029, Poisson-8 0.000
 10^6 0.000087 / 0.00012 / 0.00035, 30 848 patches, PLY 4.6 MB (16.2), 73.6 / 52.7 / 117.7
 CPU-s, numpy peak 1.76 GB.
 
+``--scaling-fresh [SIZE ...]`` (issue 15) runs only the scaling of the sized smooth surface
+(default 10^5, 10^6, 3*10^6 and 10^7 points): each size in a fresh Python process
+(:func:`fresh_one`), cloud made first, then the clock over dense stitched mesh -> sized control
+mesh -> Bezier surface -> tessellation, the process's peak resident set read when the clock
+stops (it includes the interpreter, the imports, the truth mesh and the cloud), Chamfer against
+the truth after; a table, the exponent b of seconds ~ n^b fitted over the sizes >= 10^6, and
+JSON (``benchmarks/results/surface_scaling.json`` unless ``--json``).
+
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append
 ``(name, function)`` to ``METHODS``.
 
 Run: ``.venv/bin/python benchmarks/surface.py [--quick] [--json PATH]
-[--methods NAME ...]`` (``--methods`` runs only the named rows, e.g.
+[--methods NAME ...] [--scaling-fresh [SIZE ...]]`` (``--methods`` runs only the named rows, e.g.
 ``--methods poisson-8 stitched+bezier --no-scaling``).
 
 Measured (2026-11-22 session 2, ``--no-scaling``, 2 shared cores at load 1-4; wall / CPU s):
