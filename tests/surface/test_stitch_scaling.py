@@ -101,3 +101,26 @@ def test_dome_test_on_sampled_points(count):
     truth = 1.0 + 0.05 * (1.0 - (query ** 2).sum(axis=1))
     # σ/4 per fit (48 points; DOME_NEIGHBOURS' note): 0.0005, 6 σ bound
     np.testing.assert_allclose(height(query), truth, rtol=0, atol=0.003)
+
+
+def test_pca_normals_denser_than_the_noise_use_a_subset(monkeypatch):
+    # A plane z = 0 with σ = 0.002 sampled at spacing ~0.0009 (well below σ): the
+    # 12-neighbour fits of the whole cloud see the noise (median tilt ~40°); on a
+    # subset of 1/16 (spacing ~0.0035) they see the plane again.  At or below
+    # NORMAL_POINTS the normals are the whole cloud's.
+    from surface import reconstruct
+
+    rng = np.random.default_rng(5)
+    cloud = np.c_[rng.uniform(0, 0.3, (120_000, 2)), rng.normal(0.0, 0.002, 120_000)]
+    query = np.arange(0, 120_000, 7)
+
+    def median_tilt(normals):
+        return float(np.degrees(np.median(np.arccos(np.abs(normals[:, 2])))))
+
+    whole = reconstruct._pca_normals(cloud, query)
+    monkeypatch.setattr(reconstruct, "NORMAL_POINTS", 7_500)
+    subset = reconstruct._pca_normals(cloud, query)
+    assert median_tilt(whole) > 25.0
+    assert median_tilt(subset) < 0.6 * median_tilt(whole)
+    monkeypatch.setattr(reconstruct, "NORMAL_POINTS", 120_000)
+    np.testing.assert_array_equal(reconstruct._pca_normals(cloud, query), whole)
