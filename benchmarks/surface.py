@@ -104,6 +104,15 @@ stops (it includes the interpreter, the imports, the truth mesh and the cloud), 
 the truth after; a table, the exponent b of seconds ~ n^b fitted over the sizes >= 10^6, and
 JSON (``benchmarks/results/surface_scaling.json`` unless ``--json``).
 
+Measured (session 7, issue 15, ``--scaling-fresh``; 10^5 and 10^6 at 94e37b2, load 5-10,
+3 10^6 and 10^7 at 5329483 with ``--scaling-fresh 3000000 10000000``, load 2-5; the two
+commits differ only above 10^6 points): seconds / CPU-s / peak GiB / patches / Chamfer
+10^5 22.1 / 11.0 / 0.59 / 16 680 / 0.000206; 10^6 88.9 / 56.4 / 1.02 / 30 848 / 0.000087;
+3 10^6 141.2 / 133.9 / 2.01 / 31 384 / 0.000102; 10^7 485.8 / 467.1 / 5.45 / 58 048 /
+0.00060.  CPU ~ n^0.92 from 10^6 up.  Before (705e48e): 10^6 180.7 / 106.9 / 2.27 GiB,
+same patches and Chamfer; 10^7 did not finish.  The 10^7 surface is closed, one component,
+F 1.000, but its Chamfer is 6x the 3 10^6 one's: not explained yet.
+
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append
 ``(name, function)`` to ``METHODS``.
