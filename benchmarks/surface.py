@@ -111,7 +111,9 @@ commits differ only above 10^6 points): seconds / CPU-s / peak GiB / patches / C
 3 10^6 141.2 / 133.9 / 2.01 / 31 384 / 0.000102; 10^7 485.8 / 467.1 / 5.45 / 58 048 /
 0.00060.  CPU ~ n^0.92 from 10^6 up.  Before (705e48e): 10^6 180.7 / 106.9 / 2.27 GiB,
 same patches and Chamfer; 10^7 did not finish.  The 10^7 surface is closed, one component,
-F 1.000, but its Chamfer is 6x the 3 10^6 one's: not explained yet.
+F 1.000, but its Chamfer is 6x the 3 10^6 one's, already the dense mesh's (0.00061): the
+walls are 0.000044 from the truth, the two ends 0.0020 and 0.0026 (the end placement, once the
+section spacing is below the cap points' noise band; see benchmarks/README.md).
 
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append
