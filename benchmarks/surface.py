@@ -96,12 +96,31 @@ stitched+sized 9 304 patches, Chamfer 0.00032 (stitched 0.00029, Poisson-8 0.000
 10^6 0.000087 / 0.00012 / 0.00035, 30 848 patches, PLY 4.6 MB (16.2), 73.6 / 52.7 / 117.7
 CPU-s, numpy peak 1.76 GB.
 
+``--scaling-fresh [SIZE ...]`` (issue 15) runs only the scaling of the sized smooth surface
+(default 10^5, 10^6, 3*10^6 and 10^7 points): each size in a fresh Python process
+(:func:`fresh_one`), cloud made first, then the clock over dense stitched mesh -> sized control
+mesh -> Bezier surface -> tessellation, the process's peak resident set read when the clock
+stops (it includes the interpreter, the imports, the truth mesh and the cloud), Chamfer against
+the truth after; a table, the exponent b of seconds ~ n^b fitted over the sizes >= 10^6, and
+JSON (``benchmarks/results/surface_scaling.json`` unless ``--json``).
+
+Measured (session 7, issue 15, ``--scaling-fresh``; 10^5 and 10^6 at 94e37b2, load 5-10,
+3 10^6 and 10^7 at 5329483 with ``--scaling-fresh 3000000 10000000``, load 2-5; the two
+commits differ only above 10^6 points): seconds / CPU-s / peak GiB / patches / Chamfer
+10^5 22.1 / 11.0 / 0.59 / 16 680 / 0.000206; 10^6 88.9 / 56.4 / 1.02 / 30 848 / 0.000087;
+3 10^6 141.2 / 133.9 / 2.01 / 31 384 / 0.000102; 10^7 485.8 / 467.1 / 5.45 / 58 048 /
+0.00060.  CPU ~ n^0.92 from 10^6 up.  Before (705e48e): 10^6 180.7 / 106.9 / 2.27 GiB,
+same patches and Chamfer; 10^7 did not finish.  The 10^7 surface is closed, one component,
+F 1.000, but its Chamfer is 6x the 3 10^6 one's, already the dense mesh's (0.00061): the
+walls are 0.000044 from the truth, the two ends 0.0020 and 0.0026 (the end placement, once the
+section spacing is below the cap points' noise band; see benchmarks/README.md).
+
 To add a method (e.g. "stitched + Bezier smoothed") write a function
 ``points -> dict(vertices=..., triangles=..., **notes)`` and append
 ``(name, function)`` to ``METHODS``.
 
 Run: ``.venv/bin/python benchmarks/surface.py [--quick] [--json PATH]
-[--methods NAME ...]`` (``--methods`` runs only the named rows, e.g.
+[--methods NAME ...] [--scaling-fresh [SIZE ...]]`` (``--methods`` runs only the named rows, e.g.
 ``--methods poisson-8 stitched+bezier --no-scaling``).
 
 Measured (2026-11-22 session 2, ``--no-scaling``, 2 shared cores at load 1-4; wall / CPU s):
@@ -127,7 +146,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _common import print_goals, write_result  # noqa: E402
+from _common import print_goals, uptime, write_result  # noqa: E402
 
 # The stitched method's modules are imported here, as open3d is, so that no
 # method's timing includes an import.
@@ -390,6 +409,104 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
     return rows
 
 
+# ----------------------------------------------------------------------------- issue 15 scaling
+#: Cloud sizes of ``--scaling-fresh`` (issue 15: 10^5, 10^6, 3 10^6, 10^7 points).
+FRESH_SIZES = [100_000, 1_000_000, 3_000_000, 10_000_000]
+
+
+def _peak_rss_gib() -> float:
+    """Peak resident set of this process so far, GiB (``ru_maxrss`` is KiB on Linux)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+
+
+def _rss_gib() -> float:
+    """Current resident set of this process, GiB."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 2 ** 20
+    return float("nan")
+
+
+def fresh_one(size: int, samples: int = SAMPLES) -> dict:
+    """One row of the fresh-process scaling: cloud -> sized smooth surface in this process.
+
+    The cloud (``size`` points of the 1024 x 768 vase, sigma = SIGMA, seed SEED + 1, as
+    :func:`scaling`) is made first; then the clock runs over what ``photosurf run``'s smooth
+    stage does from a cloud (``run_stitched_sized`` without its file sizes): dense stitched
+    mesh, sized control mesh, interpolating control, Bezier surface, tessellation at
+    ``smooth.level``.  The peak resident set is read when the clock stops (before the
+    scoring); it includes the interpreter, the imports, the truth mesh and the cloud
+    (``rss_before_gib``: the resident set just before the clock starts).
+    """
+    from surface.sizing import interpolating_control, sized_from_points
+
+    truth = vase_truth(n_theta=1024, n_z=768)
+    points = noisy_cloud(*truth, size, seed=SEED + 1, sigma=SIGMA)
+    level = int(defaults()["smooth"]["level"])
+    rss_before = _rss_gib()
+    start, cpu_start = time.perf_counter(), time.process_time()
+    sized, dense = sized_from_points(points, axis="z")
+    smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles),
+                                sized.triangles)
+    vertices, triangles, _ = bezier.tessellate(smooth, level=level)
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
+    peak = _peak_rss_gib()
+    dense_triangles = int(len(dense.triangles))
+    del points, dense
+    scores = metrics.compare_meshes(vertices, triangles, *truth, tau=TAU, count=samples,
+                                    seed=SEED)
+    topo = metrics.mesh_topology(vertices, triangles)
+    return {"points": size, "seconds": seconds, "cpu_seconds": cpu_seconds,
+            "peak_rss_gib": peak, "rss_before_gib": rss_before,
+            "patches": int(len(smooth.control_points)), "triangles": int(len(triangles)),
+            "stitched_triangles": dense_triangles, "size_step": sized.step, "size_n": sized.n,
+            "chamfer": scores["chamfer"], "fscore": scores["fscore"],
+            "hausdorff": scores["hausdorff"], "closed": bool(topo["closed"]),
+            "components": int(topo["components"])}
+
+
+def scaling_fresh(sizes: list[int]) -> tuple[list[dict], float | None]:
+    """Run :func:`fresh_one` for each size in a fresh Python process (so that each peak
+    resident set is that size's alone), one after the other; rows and the exponent b of
+    seconds ~ n^b fitted by least squares in log-log over the sizes >= 10^6."""
+    import json
+    import subprocess
+    import tempfile
+
+    rows = []
+    print(f"\nscaling, a fresh process per size (cloud -> sized smooth surface; load "
+          f"{uptime()}):")
+    print(f"{'points':>10s}{'seconds':>9s}{'CPU s':>9s}{'peak GiB':>10s}{'patches':>9s}"
+          f"{'Chamfer':>10s}{'F@.005':>8s}{'closed':>7s}{'comps':>6s}")
+    for size in sizes:
+        with tempfile.TemporaryDirectory() as folder:
+            out = Path(folder) / "row.json"
+            done = subprocess.run([sys.executable, __file__, "--fresh-child", str(size),
+                                   "--json", str(out)], capture_output=True, text=True)
+            if done.returncode != 0:
+                print(f"{size:>10d}  failed (exit {done.returncode}): "
+                      f"{done.stderr.strip().splitlines()[-1:] }", flush=True)
+                rows.append({"points": size, "failed": done.returncode})
+                continue
+            row = json.loads(out.read_text())
+        rows.append(row)
+        print(f"{size:>10d}{row['seconds']:9.1f}{row['cpu_seconds']:9.1f}"
+              f"{row['peak_rss_gib']:10.2f}{row['patches']:9d}{row['chamfer']:10.6f}"
+              f"{row['fscore']:8.3f}{'yes' if row['closed'] else 'no':>7s}"
+              f"{row['components']:6d}", flush=True)
+    big = [r for r in rows if "seconds" in r and r["points"] >= 1_000_000]
+    exponent = None
+    if len(big) >= 2:
+        exponent = float(np.polyfit(np.log([r["points"] for r in big]),
+                                    np.log([r["seconds"] for r in big]), 1)[0])
+        cpu = float(np.polyfit(np.log([r["points"] for r in big]),
+                               np.log([r["cpu_seconds"] for r in big]), 1)[0])
+        print(f"seconds ~ n^{exponent:.2f} (CPU ~ n^{cpu:.2f}) from 10^6 up")
+    return rows, exponent
+
+
 def print_table(rows: list[dict]) -> None:
     head = (f"{'method':<23s}{'seconds':>8s}{'CPU s':>8s}{'normals':>8s}{'triangles':>10s}"
             f"{'accuracy':>10s}{'complete':>10s}{'Chamfer':>10s}{'F@.005':>8s}{'Hausdorff':>10s}"
@@ -574,7 +691,25 @@ def main(argv: list[str] | None = None) -> int:
                         help="cloud sizes of the scaling runs (default 10^4 10^5 10^6)")
     parser.add_argument("--methods", nargs="+", choices=[m[0] for m in METHODS],
                         help="run only these methods (default: all)")
+    parser.add_argument("--scaling-fresh", nargs="*", type=int, metavar="SIZE",
+                        help="only the issue-15 scaling: cloud -> sized smooth surface, a fresh "
+                             "process per size with its peak memory (default sizes "
+                             "10^5 10^6 3*10^6 10^7)")
+    parser.add_argument("--fresh-child", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+
+    if args.fresh_child:
+        write_result(args.json, fresh_one(args.fresh_child))
+        return 0
+    if args.scaling_fresh is not None:
+        rows, exponent = scaling_fresh(args.scaling_fresh or FRESH_SIZES)
+        json_path = args.json if "--json" in (argv or sys.argv) else str(
+            ROOT / "benchmarks" / "results" / "surface_scaling.json")
+        write_result(json_path, {"benchmark": "surface-scaling", "sigma": SIGMA, "tau": TAU,
+                                 "samples": SAMPLES, "seed": SEED + 1, "rows": rows,
+                                 "seconds_exponent_from_1e6": exponent, "load": uptime(),
+                                 "numpy": np.__version__})
+        return 0
 
     import open3d as o3d
 
