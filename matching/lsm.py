@@ -100,6 +100,10 @@ class Status(IntEnum):
     OUTSIDE_IMAGE = 6
     #: template gradient energy not above the noise's (or singular normal matrix)
     TEXTURELESS = 7
+    #: the residual holds a motion step: one part of the window moves against the rest
+    #: (a depth edge), ``LSMResult.step_score`` above ``step_limit`` (codes 8-10 are
+    #: :mod:`matching.pair`'s)
+    TWO_MOTIONS = 11
 
 
 #: ``status code -> name`` for every value :class:`Status` takes.
@@ -166,6 +170,7 @@ class LSMResult:
     window_cov: np.ndarray | None = None
     affine_cov: np.ndarray | None = None
     grad_power: np.ndarray | None = None
+    step_score: np.ndarray | None = None
 
     @property
     def accepted(self) -> np.ndarray:
@@ -646,8 +651,8 @@ def _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _residual_stats(gimg, p, q, half, kind, fv, stats):
-    """stats = [vtv, sf, sg, sff, sgg, sfg] at p (values only)."""
+def _residual_stats(gimg, p, q, half, kind, fv, stats, vres):
+    """stats = [vtv, sf, sg, sff, sgg, sfg] at p (values only); the residuals into vres."""
     wx = np.empty(4)
     dwx = np.empty(4)
     wy = np.empty(4)
@@ -663,6 +668,7 @@ def _residual_stats(gimg, p, q, half, kind, fv, stats):
             _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
             gval = out[0]
             res = fv[n] - p[6] - p[7] * gval
+            vres[n] = res
             stats[0] += res * res
             stats[1] += fv[n]
             stats[2] += gval
@@ -670,6 +676,136 @@ def _residual_stats(gimg, p, q, half, kind, fv, stats):
             stats[4] += gval * gval
             stats[5] += fv[n] * gval
             n += 1
+
+
+#: Orientations of :func:`_step_score`'s split lines: the part is ``k(x, y) <= c`` with
+#: k = x, y, x + y, x - y (a vertical, horizontal and the two diagonal lines).
+_STEP_ORIENTATIONS = 4
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _step_score(fv, fx, fy, vres, half, min_part):
+    """Largest score statistic of a motion step along a straight line through the window.
+
+    The nuisance columns are the 8 of the template Jacobian j = [f_x, f_x x, f_x y, f_y,
+    f_y x, f_y y, 1, f] and a blur difference, the template's Laplacian Δf (zero on the
+    patch's border; a Gaussian blur of variance s between the views leaves
+    v ≈ -(s/2) Δf, which would otherwise read as steps): K = [j, Δf], H = Σ K Kᵀ.  For
+    every split of the window by a line of ``_STEP_ORIENTATIONS`` orientations at every
+    offset leaving at least ``min_part`` pixels on each side, the two columns
+    E = m [f_x, f_y] (m: the part's indicator) are the extra unknowns of a shift of
+    that part alone.  With K projected out, the score of E is r = Eᵀv - EᵀK H⁻¹ Kᵀv,
+    its covariance σ² M, M = EᵀE - EᵀK H⁻¹ KᵀE, and S = rᵀ M⁻¹ r / σ² ~ χ²(2) when
+    the window holds one motion and white noise (σ² = |v - K H⁻¹ Kᵀv|² / (n - 9)).
+    Prefix sums over the lines' bins give every offset from one pass over the pixels.
+    Returns max S (NaN if H is singular).
+    """
+    side = 2 * half + 1
+    nb = 4 * half + 1
+    npix = side * side
+    nk = 9
+    # per orientation and bin: [E^T K (2 x 9), E^T E (xx, xy, yy), E^T v (2), count]
+    nacc = 2 * nk + 6
+    acc = np.zeros((_STEP_ORIENTATIONS, nb, nacc))
+    hmat = np.zeros((nk, nk))
+    c = np.zeros(nk)
+    jv = np.empty(nk)
+    vtv = 0.0
+    n = 0
+    for iy in range(-half, half + 1):
+        for ix in range(-half, half + 1):
+            gx = fx[n]
+            gy = fy[n]
+            res = vres[n]
+            jv[0] = gx
+            jv[1] = gx * ix
+            jv[2] = gx * iy
+            jv[3] = gy
+            jv[4] = gy * ix
+            jv[5] = gy * iy
+            jv[6] = 1.0
+            jv[7] = fv[n]
+            if abs(ix) < half and abs(iy) < half:
+                jv[8] = 0.5 * (fx[n + 1] - fx[n - 1] + fy[n + side] - fy[n - side])
+            else:
+                jv[8] = 0.0
+            vtv += res * res
+            for i in range(nk):
+                c[i] += jv[i] * res
+                for j in range(i + 1):
+                    hmat[i, j] += jv[i] * jv[j]
+            for o in range(_STEP_ORIENTATIONS):
+                if o == 0:
+                    b = ix + half
+                elif o == 1:
+                    b = iy + half
+                elif o == 2:
+                    b = ix + iy + 2 * half
+                else:
+                    b = ix - iy + 2 * half
+                row = acc[o, b]
+                for i in range(nk):
+                    row[i] += gx * jv[i]
+                    row[nk + i] += gy * jv[i]
+                row[2 * nk] += gx * gx
+                row[2 * nk + 1] += gx * gy
+                row[2 * nk + 2] += gy * gy
+                row[2 * nk + 3] += gx * res
+                row[2 * nk + 4] += gy * res
+                row[2 * nk + 5] += 1.0
+            n += 1
+    for i in range(nk):
+        for j in range(i + 1, nk):
+            hmat[i, j] = hmat[j, i]
+    lo = np.empty((nk, nk))
+    if not _cholesky_factor(hmat, nk, lo):
+        return np.nan
+    hc = np.empty(nk)
+    _cholesky_back(lo, c, nk, hc)  # H^-1 K^T v
+    for i in range(nk):
+        vtv -= c[i] * hc[i]
+    sig2 = vtv / (npix - nk)
+    if not sig2 > 0.0:
+        return np.nan
+    x0 = np.empty(nk)
+    x1 = np.empty(nk)
+    e0 = np.empty(nk)
+    e1 = np.empty(nk)
+    part = np.empty(nacc)
+    best = 0.0
+    for o in range(_STEP_ORIENTATIONS):
+        bins = side if o < 2 else nb
+        for k in range(nacc):
+            part[k] = 0.0
+        for b in range(bins - 1):
+            for k in range(nacc):
+                part[k] += acc[o, b, k]
+            count = part[2 * nk + 5]
+            if count < min_part or npix - count < min_part:
+                continue
+            for i in range(nk):
+                e0[i] = part[i]
+                e1[i] = part[nk + i]
+            _cholesky_back(lo, e0, nk, x0)
+            _cholesky_back(lo, e1, nk, x1)
+            r0 = part[2 * nk + 3]
+            r1 = part[2 * nk + 4]
+            m00 = part[2 * nk]
+            m01 = part[2 * nk + 1]
+            m11 = part[2 * nk + 2]
+            for i in range(nk):
+                r0 -= e0[i] * hc[i]
+                r1 -= e1[i] * hc[i]
+                m00 -= e0[i] * x0[i]
+                m01 -= e0[i] * x1[i]
+                m11 -= e1[i] * x1[i]
+            det = m00 * m11 - m01 * m01
+            if not det > 1e-12 * (part[2 * nk] * part[2 * nk + 2] + 1e-300):
+                continue
+            s = (m11 * r0 * r0 - 2.0 * m01 * r0 * r1 + m00 * r1 * r1) / det
+            if s > best:
+                best = s
+    return best / sig2
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
@@ -821,7 +957,8 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         # final linearisation with the template-gradient Jacobian J = T(p) j
         if not _mixing(p, tmat):
             return 4, it, False
-        _residual_stats(gimg, p, q, half, kind, fv, stats)
+        vres = np.empty(npix)
+        _residual_stats(gimg, p, q, half, kind, fv, stats, vres)
         _ic_normals(tmat, hmat, tt, nmat)
         for i in range(8):
             rhs[i] = 0.0
@@ -831,6 +968,8 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         p_out[i] = p[i]
     sig0sq = max(vtv, 0.0) / (npix - m)
     sig0_out[0] = np.sqrt(sig0sq)
+    if not exact_final:
+        corr_out[2] = _step_score(fv, fx, fy, vres, half, 2 * (2 * half + 1))
     # covariance of the shift unknown(s): sigma0^2 Nc^-1 with Nc the normal matrix less
     # the expected template-noise part (Nc = N without correction)
     ncred = np.empty((8, 8))
@@ -1121,6 +1260,13 @@ def footprint_blur(initial, footprint_var: float | None) -> np.ndarray:
     return out
 
 
+#: Median of ``LSMResult.step_score`` over correct matches with white noise (Monte Carlo:
+#: 2 x 2464 windows 15x15 of test_lsm.py's noisy pair, 8.4-8.6; 99.9 % quantile 22-24).
+STEP_SCORE_NULL_MEDIAN = 8.5
+#: Default limit of the motion-step test (``lsm_match``'s ``step_limit``): above the
+#: largest score of those 4900 correct windows (26-28; 26 at 9, 15 and 21 px).
+STEP_SCORE_LIMIT = 30.0
+
 #: Population slices of :func:`sigma0_gradient_model`'s fit (by gradient power).
 _SIGMA0_MODEL_BINS = 8
 
@@ -1183,6 +1329,21 @@ def sigma0_gradient_model(sigma0, grad_power, fixed_intercept: float | None = No
     return float(alpha), float(beta)
 
 
+def step_score_limit(scores, limit: float) -> float:
+    """Limit of :func:`lsm_match`'s motion-step test for a population of step scores.
+
+    ``limit`` x max(1, median / ``STEP_SCORE_NULL_MEDIAN``) with 30 or more finite
+    scores, else ``limit``: where the residual is not white (correlated noise, the
+    model errors of real images) every window's score grows by about the same factor,
+    which the population's median measures.
+    """
+    scores = np.asarray(scores, dtype=np.float64)
+    scores = scores[np.isfinite(scores)]
+    if len(scores) < 30:
+        return float(limit)
+    return float(limit) * max(1.0, float(np.median(scores)) / STEP_SCORE_NULL_MEDIAN)
+
+
 def robust_upper_limit(values: np.ndarray, k: float, dof: int) -> float:
     """``median + k·s`` of a population of σ-like values (σ0 or σ of LSM matches).
 
@@ -1207,7 +1368,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               jacobian: str = "template", noise_correction: bool = True,
               offset=None, sigma0_population=None, population_grad_power=None,
               footprint_var: float | None = None,
-              sigma0_model: str = "gradient") -> LSMResult:
+              sigma0_model: str = "gradient", step_limit: float | None = STEP_SCORE_LIMIT,
+              population_step_score=None) -> LSMResult:
     """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
 
     Parameters
@@ -1399,7 +1561,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     wcov = np.full((n, 2, 2), np.nan)
     acov = np.full((n, 6, 6), np.nan)
     sigma0 = np.full(n, np.nan)
-    corr = np.full((n, 2), np.nan)  # correlation, the template's mean |∇f|²
+    corr = np.full((n, 3), np.nan)  # correlation, the template's mean |∇f|², step score
     status = np.zeros(n, np.uint8)
     iters = np.zeros(n, np.int32)
     conv = np.zeros(n, np.bool_)
@@ -1420,7 +1582,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
                               sub, strict=True):
             full[idx] = part
-    corr, grad_power = corr[:, 0].copy(), corr[:, 1].copy()
+    corr, grad_power, step = corr[:, 0].copy(), corr[:, 1].copy(), corr[:, 2].copy()
     good = status == Status.OK
     population = sigma0[good]
     pop_power = grad_power[good]
@@ -1434,6 +1596,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         keep = np.isfinite(extra)
         population = np.concatenate([population, extra[keep]])
         pop_power = np.concatenate([pop_power, extra_power[keep]])
+    pop_step = (np.zeros(0) if population_step_score is None else
+                np.asarray(population_step_score, dtype=np.float64).ravel())
     dof = (patch * patch) - (7 if constrained else 8)
     # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
     gain = float(np.median(params[good, 7])) if good.any() else 1.0
@@ -1466,6 +1630,10 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
     ok = status == Status.OK
     status[ok & ~(corr >= min_correlation)] = Status.LOW_CORRELATION
+    if step_limit is not None and jacobian == "template":
+        ok = status == Status.OK
+        limit = step_score_limit(np.concatenate([step[ok], pop_step]), step_limit)
+        status[ok & ~(step <= limit)] = Status.TWO_MOTIONS
     position = params[:, [0, 3]]
     if offset is not None:
         ox, oy = offs[:, 0], offs[:, 1]
@@ -1478,4 +1646,4 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                      radiometric=params[:, 6:], converged=conv, iterations=iters,
                      sigma0=sigma0, cov=cov, correlation=corr, status=status,
                      noise_sigma0=float(ref), window_cov=wcov if offset is not None else None,
-                     affine_cov=acov, grad_power=grad_power)
+                     affine_cov=acov, grad_power=grad_power, step_score=step)

@@ -17,6 +17,8 @@ from scipy import ndimage
 
 from matching.lsm import (
     STATUS_NAMES,
+    STEP_SCORE_LIMIT,
+    STEP_SCORE_NULL_MEDIAN,
     Status,
     estimate_noise,
     lsm_match,
@@ -601,3 +603,88 @@ def test_sigma0_gradient_model_fit():
     alpha, beta = sigma0_gradient_model(flat * (1 - 0.1 * gp / 500), gp)  # falls: β = 0
     assert beta == 0.0 and alpha == pytest.approx(np.median((flat * (1 - 0.1 * gp / 500)) ** 2))
     assert sigma0_gradient_model(s0[:29], gp[:29]) is None
+
+
+# ------------------------------------------------------------ edges (issue 13, item 4)
+def _edge_windows(pair, patch, step=2, margin=12):
+    """Integer left points on a grid with truth; (points, truth, straddling, clear)."""
+    h, w = pair.left.shape
+    ys, xs = np.mgrid[margin:h - margin:step, margin:w - margin:step]
+    pts = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    truth = pair.truth(pts)
+    keep = np.isfinite(truth).all(1) & (truth[:, 0] > margin) & (truth[:, 0] < w - margin)
+    pts, truth = pts[keep], truth[keep]
+    # the square window meets the edge line when |distance| <= half (|n_x| + |n_y|)
+    reach = (patch // 2) * np.abs(pair.normal).sum()
+    dist = np.abs(pair.edge_distance(pts))
+    return pts, truth, dist <= reach, dist > reach + 2.0
+
+
+@pytest.mark.parametrize("case, options", [
+    ("textured front 3.7 px before textured back", {}),
+    ("the same, edge at 30 degrees", {"angle_deg": 30.0}),
+    ("uniform front before textured back", {"front": "uniform", "front_level": 100.0}),
+    ("textured, a 0.5 px step", {"d_front": 3.2, "d_back": 2.7}),
+])
+def test_depth_edge_windows_rejected_or_honest(case, options):
+    """A window across a depth edge holds two motions.  Rendered pairs of a front plane
+    before a back plane (exact truth per pixel, ``tests/matching/_edges.py``), rectified,
+    2 grey levels of noise, LSM along the rows: the windows clear of the edge are
+    accepted (>= 95 %) and their error is what σ says; of the windows across the edge
+    few are accepted (measured 0 / 0 / 1 of 266, and 25 of 420 at 30 degrees: windows
+    whose corner only touches the edge; the σ0 test rejects the rest when the population
+    is clean), and none of those lies more than 3σ from the truth of its centre pixel
+    (largest measured 2.8σ)."""
+    from tests.matching._edges import layered_pair
+
+    pair = layered_pair(size=(100, 140), edge_x=70.3, **options)
+    pts, truth, across, clear = _edge_windows(pair, 15)
+    res = lsm_match(pair.left, pair.right, pts, truth + [0.3, 0.0], patch=15,
+                    direction=(1.0, 0.0))
+    z = np.abs(res.position[:, 0] - truth[:, 0]) / np.sqrt(res.cov[:, 0, 0])
+    textured = clear & (res.status != Status.TEXTURELESS)
+    assert res.accepted[textured].mean() > 0.95
+    assert np.mean(z[res.accepted & clear] > 3.0) < 0.01
+    assert res.accepted[across].sum() <= 0.1 * across.sum()
+    assert not (z[res.accepted & across] > 3.0).any()
+
+
+def test_motion_step_test_in_a_blurred_view():
+    """A 0.5 px depth step with the right view blurred (σ 0.7 px): the blur's model error
+    raises every window's σ0 (the σ0 test's population with it), so that the σ0 test
+    alone keeps windows across the edge whose centre errs up to ~15σ.  The motion-step
+    test (``step_limit``; the blur is one of its nuisance columns) rejects them as
+    ``two_motions``: measured 140 -> 45 of the 266 windows across the edge accepted,
+    93 -> 12 of them beyond 3σ, at a cost of none of the windows clear of the edge."""
+    from tests.matching._edges import layered_pair
+
+    pair = layered_pair(size=(100, 140), edge_x=70.3, d_front=3.2, d_back=2.7)
+    right = ndimage.gaussian_filter(pair.right, 0.7)
+    pts, truth, across, clear = _edge_windows(pair, 15)
+    out = {}
+    for limit in (None, STEP_SCORE_LIMIT):
+        res = lsm_match(pair.left, right, pts, truth + [0.3, 0.0], patch=15,
+                        direction=(1.0, 0.0), step_limit=limit)
+        z = np.abs(res.position[:, 0] - truth[:, 0]) / np.sqrt(res.cov[:, 0, 0])
+        out[limit] = (res.accepted[across].sum(), (res.accepted & across & (z > 3)).sum(),
+                      res.accepted[clear].mean(), res)
+    (acc0, bad0, clear0, _), (acc1, bad1, clear1, res) = out[None], out[STEP_SCORE_LIMIT]
+    assert (res.status[across] == Status.TWO_MOTIONS).sum() > 0.1 * across.sum()
+    assert bad1 < 0.5 * bad0
+    assert clear1 > clear0 - 0.005
+
+
+def test_step_score_of_correct_matches():
+    """One motion and white noise: the step score is the largest of ~40 correlated
+    χ²(2) statistics; its median is ``STEP_SCORE_NULL_MEDIAN`` (measured 8.4-8.7 over
+    2 x 2464 windows) and no correct window reaches ``STEP_SCORE_LIMIT`` (largest
+    measured: 26.6)."""
+    f, g = warped_pair(size=240, noise=2.0, seed=5)
+    pts = grid_points(240, 4)
+    res = lsm_match(f, g, pts, start_near(truth_of(pts), 0.5), step_limit=None)
+    score = res.step_score[res.accepted]
+    assert len(score) > 2000
+    assert np.median(score) == pytest.approx(STEP_SCORE_NULL_MEDIAN, rel=0.1)
+    assert np.mean(score > STEP_SCORE_LIMIT) < 0.002
+    again = lsm_match(f, g, pts, start_near(truth_of(pts), 0.5))
+    assert np.mean(again.status == Status.TWO_MOTIONS) < 0.002
