@@ -705,32 +705,20 @@ def _residual_stats(gimg, p, q, half, kind, fv, stats, vres):
 _STEP_ORIENTATIONS = 4
 
 
-@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _step_score(fv, fx, fy, vres, half, min_part):
-    """Largest score statistic of a motion step along a straight line through the window.
+#: Nuisance columns of :func:`_step_score`: the 8 of the template Jacobian and Δf.
+_STEP_NUISANCE = 9
 
-    The nuisance columns are the 8 of the template Jacobian j = [f_x, f_x x, f_x y, f_y,
-    f_y x, f_y y, 1, f] and a blur difference, the template's Laplacian Δf (zero on the
-    patch's border; a Gaussian blur of variance s between the views leaves
-    v ≈ -(s/2) Δf, which would otherwise read as steps): K = [j, Δf], H = Σ K Kᵀ.  For
-    every split of the window by a line of ``_STEP_ORIENTATIONS`` orientations at every
-    offset leaving at least ``min_part`` pixels on each side, the two columns
-    E = m [f_x, f_y] (m: the part's indicator) are the extra unknowns of a shift of
-    that part alone.  With K projected out, the score of E is r = Eᵀv - EᵀK H⁻¹ Kᵀv,
-    its covariance σ² M, M = EᵀE - EᵀK H⁻¹ KᵀE, and S = rᵀ M⁻¹ r / σ² ~ χ²(2) when
-    the window holds one motion and white noise (σ² = |v - K H⁻¹ Kᵀv|² / (n - 9)).
-    Prefix sums over the lines' bins give every offset from one pass over the pixels.
-    Returns max S (NaN if H is singular).
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _step_sums(fv, fx, fy, vres, half, acc, hmat, c):
+    """One pass over the window for :func:`_step_score`; returns vᵀv.
+
+    ``hmat`` = Σ K Kᵀ and ``c`` = Σ K v of the nuisance columns K = [j, Δf]; ``acc[o, b]``
+    the sums over bin b of orientation o of [E_x K (9), E_y K (9), E_x², E_x E_y, E_y²,
+    E_x v, E_y v, 1] with [E_x, E_y] = [f_x, f_y].
     """
     side = 2 * half + 1
-    nb = 4 * half + 1
-    npix = side * side
-    nk = 9
-    # per orientation and bin: [E^T K (2 x 9), E^T E (xx, xy, yy), E^T v (2), count]
-    nacc = 2 * nk + 6
-    acc = np.zeros((_STEP_ORIENTATIONS, nb, nacc))
-    hmat = np.zeros((nk, nk))
-    c = np.zeros(nk)
+    nk = _STEP_NUISANCE
     jv = np.empty(nk)
     vtv = 0.0
     n = 0
@@ -747,10 +735,9 @@ def _step_score(fv, fx, fy, vres, half, min_part):
             jv[5] = gy * iy
             jv[6] = 1.0
             jv[7] = fv[n]
-            if abs(ix) < half and abs(iy) < half:
+            jv[8] = 0.0
+            if abs(ix) < half and abs(iy) < half:  # Laplacian from the central differences
                 jv[8] = 0.5 * (fx[n + 1] - fx[n - 1] + fy[n + side] - fy[n - side])
-            else:
-                jv[8] = 0.0
             vtv += res * res
             for i in range(nk):
                 c[i] += jv[i] * res
@@ -779,16 +766,19 @@ def _step_score(fv, fx, fy, vres, half, min_part):
     for i in range(nk):
         for j in range(i + 1, nk):
             hmat[i, j] = hmat[j, i]
-    lo = np.empty((nk, nk))
-    if not _cholesky_factor(hmat, nk, lo):
-        return np.nan
-    hc = np.empty(nk)
-    _cholesky_back(lo, c, nk, hc)  # H^-1 K^T v
-    for i in range(nk):
-        vtv -= c[i] * hc[i]
-    sig2 = vtv / (npix - nk)
-    if not sig2 > 0.0:
-        return np.nan
+    return vtv
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _best_split(acc, lo, hc, half, min_part):
+    """max over the splits of rᵀ M⁻¹ r (:func:`_step_score`), from prefix sums of ``acc``.
+
+    ``lo``: Cholesky factor of H; ``hc`` = H⁻¹ Kᵀv.
+    """
+    side = 2 * half + 1
+    npix = side * side
+    nk = _STEP_NUISANCE
+    nacc = acc.shape[2]
     x0 = np.empty(nk)
     x1 = np.empty(nk)
     e0 = np.empty(nk)
@@ -796,7 +786,7 @@ def _step_score(fv, fx, fy, vres, half, min_part):
     part = np.empty(nacc)
     best = 0.0
     for o in range(_STEP_ORIENTATIONS):
-        bins = side if o < 2 else nb
+        bins = side if o < 2 else 2 * side - 1
         for k in range(nacc):
             part[k] = 0.0
         for b in range(bins - 1):
@@ -824,10 +814,46 @@ def _step_score(fv, fx, fy, vres, half, min_part):
             det = m00 * m11 - m01 * m01
             if not det > 1e-12 * (part[2 * nk] * part[2 * nk + 2] + 1e-300):
                 continue
-            s = (m11 * r0 * r0 - 2.0 * m01 * r0 * r1 + m00 * r1 * r1) / det
-            if s > best:
-                best = s
-    return best / sig2
+            score = (m11 * r0 * r0 - 2.0 * m01 * r0 * r1 + m00 * r1 * r1) / det
+            if score > best:
+                best = score
+    return best
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _step_score(fv, fx, fy, vres, half, min_part):
+    """Largest score statistic of a motion step along a straight line through the window.
+
+    The nuisance columns are the 8 of the template Jacobian j = [f_x, f_x x, f_x y, f_y,
+    f_y x, f_y y, 1, f] and a blur difference, the template's Laplacian Δf (zero on the
+    patch's border; a Gaussian blur of variance s between the views leaves
+    v ≈ -(s/2) Δf, which would otherwise read as steps): K = [j, Δf], H = Σ K Kᵀ.  For
+    every split of the window by a line of ``_STEP_ORIENTATIONS`` orientations at every
+    offset leaving at least ``min_part`` pixels on each side, the two columns
+    E = m [f_x, f_y] (m: the part's indicator) are the extra unknowns of a shift of
+    that part alone.  With K projected out, the score of E is r = Eᵀv - EᵀK H⁻¹ Kᵀv,
+    its covariance σ² M, M = EᵀE - EᵀK H⁻¹ KᵀE, and S = rᵀ M⁻¹ r / σ² ~ χ²(2) when
+    the window holds one motion and white noise (σ² = |v - K H⁻¹ Kᵀv|² / (n - 9)).
+    Prefix sums over the lines' bins give every offset from one pass over the pixels.
+    Returns max S (NaN if H is singular).
+    """
+    side = 2 * half + 1
+    nk = _STEP_NUISANCE
+    acc = np.zeros((_STEP_ORIENTATIONS, 2 * side - 1, 2 * nk + 6))
+    hmat = np.zeros((nk, nk))
+    c = np.zeros(nk)
+    vtv = _step_sums(fv, fx, fy, vres, half, acc, hmat, c)
+    lo = np.empty((nk, nk))
+    if not _cholesky_factor(hmat, nk, lo):
+        return np.nan
+    hc = np.empty(nk)
+    _cholesky_back(lo, c, nk, hc)  # H^-1 K^T v
+    for i in range(nk):
+        vtv -= c[i] * hc[i]
+    sig2 = vtv / (side * side - nk)
+    if not sig2 > 0.0:
+        return np.nan
+    return _best_split(acc, lo, hc, half, min_part) / sig2
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
