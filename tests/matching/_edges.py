@@ -7,8 +7,11 @@ coordinates ``(x + d_front, y)`` when that point lies in the front's half-plane,
 back at ``(x + d_back, y)`` (ray casting of two planes: the front wins).  The left image
 is the same with zero disparity.  Each layer carries its own band-limited texture
 (Gaussian-filtered noise, B-spline-interpolated, as in ``test_lsm.py``) or a uniform
-grey level; pixels are box averages of ``supersample``² samples (a sharp depth edge is
-anti-aliased as a camera does), then Gaussian noise is added.
+grey level; pixels are box averages of ``supersample``² samples, each of which weighs
+the two layers by the share of its cell the front covers (a sharp depth edge is
+anti-aliased as a camera does, and its position is not quantised to the sample grid:
+with hard samples a 0.1 px move of an edge between the views would not show at all),
+then Gaussian noise is added.
 
 Truth of a left pixel: the disparity of the layer its centre sees; a back pixel the
 front hides in the right view (occluded) has none (NaN).
@@ -118,8 +121,12 @@ def layered_pair(size=(120, 160), *, angle_deg: float = 0.0, edge_x: float = 80.
 
     def view(disparity_front, disparity_back):
         xf, xb = xs + disparity_front, xs + disparity_back
-        in_front = xf * normal[0] + ys * normal[1] < offset
-        img = np.where(in_front, albedo("front", xf, ys), albedo("back", xb, ys))
+        # the share of each sample's 1/s x 1/s cell the front covers: the box integral of
+        # the half-plane (exact for an axis-parallel edge, a linear ramp across the cell
+        # otherwise), so that the edge is not quantised to the 1/s grid
+        reach = 0.5 * np.abs(normal).sum() / s
+        cover = np.clip(0.5 - (xf * normal[0] + ys * normal[1] - offset) / (2 * reach), 0, 1)
+        img = cover * albedo("front", xf, ys) + (1 - cover) * albedo("back", xb, ys)
         return img.reshape(h, s, w, s).mean(axis=(1, 3))
 
     rng = np.random.default_rng(seed + 100)
@@ -134,24 +141,37 @@ def layered_pair(size=(120, 160), *, angle_deg: float = 0.0, edge_x: float = 80.
 
 
 def chessboard_pair(size: int = 160, square: int = 40, shift=(0.3, 0.0),
-                    noise: float = 2.0, texture: float = 0.0, seed: int = 12,
-                    supersample: int = 4):
+                    noise: float = 2.0, texture: float = 0.0, psf_px: float = 0.0,
+                    seed: int = 12, supersample: int = 4):
     """A chessboard (60 / 180 grey levels) moved by ``shift`` (x, y) px between the views.
 
-    Squares' edges are box-averaged like a camera's pixels; ``texture`` > 0 adds a
-    band-limited texture of that standard deviation (grey levels) painted on the board.
-    Returns ``(left, right)``.
+    Squares' edges are box-averaged like a camera's pixels, after a Gaussian optical
+    blur of σ ``psf_px`` px (0: none, a step sharper than any lens gives);
+    ``texture`` > 0 adds a band-limited texture of that standard deviation (grey
+    levels) painted on the board.  Returns ``(left, right)``.
     """
     s = supersample
     sub = (np.arange(size * s) + 0.5) / s - 0.5
     xs, ys = np.meshgrid(sub, sub)
     coef = _texture((size + 16, size + 16), seed + 1, contrast=texture)
 
+    def odd_share(t):
+        """Share of each sample's cell [t - 1/2s, t + 1/2s] lying in odd squares (exact
+        box integral: the edges are not quantised to the 1/s grid)."""
+        def integral(u):  # ∫_0^u [floor(v / square) odd] dv
+            period = 2.0 * square
+            return (np.floor(u / period) * square
+                    + np.clip(np.mod(u, period) - square, 0.0, square))
+        return (integral(t + 0.5 / s) - integral(t - 0.5 / s)) * s
+
     def board(dx, dy):
-        cell = (np.floor((xs - dx) / square) + np.floor((ys - dy) / square)) % 2
+        ox, oy = odd_share(xs - dx), odd_share(ys - dy)
+        cell = ox * (1 - oy) + (1 - ox) * oy  # the cell's mean of the squares' parity
         paint = 60.0 + 120.0 * cell
         if texture > 0:
             paint = paint + _sample(coef, xs - dx, ys - dy) - 128.0
+        if psf_px > 0:
+            paint = ndimage.gaussian_filter(paint, psf_px * s, mode="nearest")
         return paint.reshape(size, s, size, s).mean(axis=(1, 3))
 
     rng = np.random.default_rng(seed)
