@@ -60,11 +60,12 @@ difference (the template's Laplacian) projected out (:func:`_step_score`;
 ``LSMResult.step_score`` is the largest over the lines, ~χ²(2) each under one motion).
 Measured on rendered two-plane pairs (``tests/matching/test_lsm.py``): a 0.5 px step
 with a 0.7 px blur between the views, 93 -> 12 windows across the edge beyond 3σ; a
-0.2 px step without blur scores 12-17 against a null median of 8.5 and stays
-(its windows err up to half the step, 5-10σ): the test's detection limit.  A straight
-edge between uniform regions (the aperture problem) is rejected as textureless;
-with weak texture (4 grey levels) it is accepted with σ along the edge ~10x σ across
-it, both right within 20 % (the full covariance ``cov``; ``sigma`` is their RMS).
+0.2 px step without blur scores 14-25 (median by distance to the edge) against a null
+median of 8.5 and a limit of 30, and stays (its windows err up to half the step,
+median 3-7σ): the test's detection limit.  A straight edge between uniform regions
+(the aperture problem) is rejected as textureless; with weak texture (4 grey levels) it
+is accepted with σ along the edge ~10x σ across it, both right (errors 1.15 and 1.08
+of their σ RMS: the full covariance ``cov``; ``sigma`` is their RMS).
 
 References
 ----------
