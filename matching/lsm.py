@@ -714,13 +714,16 @@ _STEP_NUISANCE = 9
 def _step_sums(fv, fx, fy, vres, half, acc, hmat, c):
     """One pass over the window for :func:`_step_score`; returns vᵀv.
 
-    ``hmat`` = Σ K Kᵀ and ``c`` = Σ K v of the nuisance columns K = [j, Δf]; ``acc[o, b]``
-    the sums over bin b of orientation o of [E_x K (9), E_y K (9), E_x², E_x E_y, E_y²,
+    ``hmat`` = Σ K Kᵀ of the nuisance columns K = [j, Δf]: its 8 x 8 block, the
+    template's H, is given; the Δf row is added here.  ``c`` = Σ K v; ``acc[o, b]`` the
+    sums over bin b of orientation o of [E_x K (9), E_y K (9), E_x², E_x E_y, E_y²,
     E_x v, E_y v, 1] with [E_x, E_y] = [f_x, f_y].
     """
     side = 2 * half + 1
     nk = _STEP_NUISANCE
+    nacc = 2 * nk + 6
     jv = np.empty(nk)
+    q = np.empty(nacc)
     vtv = 0.0
     n = 0
     for iy in range(-half, half + 1):
@@ -742,39 +745,45 @@ def _step_sums(fv, fx, fy, vres, half, acc, hmat, c):
             vtv += res * res
             for i in range(nk):
                 c[i] += jv[i] * res
-                for j in range(i + 1):
-                    hmat[i, j] += jv[i] * jv[j]
-            for o in range(_STEP_ORIENTATIONS):
-                if o == 0:
-                    b = ix + half
-                elif o == 1:
-                    b = iy + half
-                elif o == 2:
-                    b = ix + iy + 2 * half
-                else:
-                    b = ix - iy + 2 * half
-                row = acc[o, b]
-                for i in range(nk):
-                    row[i] += gx * jv[i]
-                    row[nk + i] += gy * jv[i]
-                row[2 * nk] += gx * gx
-                row[2 * nk + 1] += gx * gy
-                row[2 * nk + 2] += gy * gy
-                row[2 * nk + 3] += gx * res
-                row[2 * nk + 4] += gy * res
-                row[2 * nk + 5] += 1.0
+                hmat[nk - 1, i] += jv[nk - 1] * jv[i]
+                q[i] = gx * jv[i]
+                q[nk + i] = gy * jv[i]
+            q[2 * nk] = gx * gx
+            q[2 * nk + 1] = gx * gy
+            q[2 * nk + 2] = gy * gy
+            q[2 * nk + 3] = gx * res
+            q[2 * nk + 4] = gy * res
+            q[2 * nk + 5] = 1.0
+            b0 = ix + half
+            b1 = iy + half
+            b2 = ix + iy + 2 * half
+            b3 = ix - iy + 2 * half
+            for k in range(nacc):
+                acc[0, b0, k] += q[k]
+                acc[1, b1, k] += q[k]
+                acc[2, b2, k] += q[k]
+                acc[3, b3, k] += q[k]
             n += 1
-    for i in range(nk):
-        for j in range(i + 1, nk):
-            hmat[i, j] = hmat[j, i]
+    for i in range(nk - 1):
+        hmat[i, nk - 1] = hmat[nk - 1, i]
     return vtv
 
 
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _forward(lo, b, m, z):
+    """z = lo⁻¹ b (forward substitution only): then bᵀH⁻¹b' = z·z' for H = lo loᵀ."""
+    for i in range(m):
+        s = b[i]
+        for k in range(i):
+            s -= lo[i, k] * z[k]
+        z[i] = s / lo[i, i]
+
+
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _best_split(acc, lo, hc, half, min_part):
+def _best_split(acc, lo, zc, half, min_part):
     """max over the splits of rᵀ M⁻¹ r (:func:`_step_score`), from prefix sums of ``acc``.
 
-    ``lo``: Cholesky factor of H; ``hc`` = H⁻¹ Kᵀv.
+    ``lo``: Cholesky factor of H; ``zc`` = lo⁻¹ Kᵀv (so EᵀK H⁻¹ Kᵀv = (lo⁻¹ KᵀE)ᵀ zc).
     """
     side = 2 * half + 1
     npix = side * side
@@ -799,19 +808,19 @@ def _best_split(acc, lo, hc, half, min_part):
             for i in range(nk):
                 e0[i] = part[i]
                 e1[i] = part[nk + i]
-            _cholesky_back(lo, e0, nk, x0)
-            _cholesky_back(lo, e1, nk, x1)
+            _forward(lo, e0, nk, x0)
+            _forward(lo, e1, nk, x1)
             r0 = part[2 * nk + 3]
             r1 = part[2 * nk + 4]
             m00 = part[2 * nk]
             m01 = part[2 * nk + 1]
             m11 = part[2 * nk + 2]
             for i in range(nk):
-                r0 -= e0[i] * hc[i]
-                r1 -= e1[i] * hc[i]
-                m00 -= e0[i] * x0[i]
-                m01 -= e0[i] * x1[i]
-                m11 -= e1[i] * x1[i]
+                r0 -= x0[i] * zc[i]
+                r1 -= x1[i] * zc[i]
+                m00 -= x0[i] * x0[i]
+                m01 -= x0[i] * x1[i]
+                m11 -= x1[i] * x1[i]
             det = m00 * m11 - m01 * m01
             if not det > 1e-12 * (part[2 * nk] * part[2 * nk + 2] + 1e-300):
                 continue
@@ -822,7 +831,7 @@ def _best_split(acc, lo, hc, half, min_part):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _step_score(fv, fx, fy, vres, half, min_part):
+def _step_score(fv, fx, fy, vres, half, min_part, htemplate):
     """Largest score statistic of a motion step along a straight line through the window.
 
     The nuisance columns are the 8 of the template Jacobian j = [f_x, f_x x, f_x y, f_y,
@@ -836,25 +845,29 @@ def _step_score(fv, fx, fy, vres, half, min_part):
     its covariance σ² M, M = EᵀE - EᵀK H⁻¹ KᵀE, and S = rᵀ M⁻¹ r / σ² ~ χ²(2) when
     the window holds one motion and white noise (σ² = |v - K H⁻¹ Kᵀv|² / (n - 9)).
     Prefix sums over the lines' bins give every offset from one pass over the pixels.
-    Returns max S (NaN if H is singular).
+    ``htemplate``: the template's H = Σ j jᵀ (8 x 8).  Returns max S (NaN if H is
+    singular).
     """
     side = 2 * half + 1
     nk = _STEP_NUISANCE
     acc = np.zeros((_STEP_ORIENTATIONS, 2 * side - 1, 2 * nk + 6))
     hmat = np.zeros((nk, nk))
+    for i in range(nk - 1):
+        for j in range(nk - 1):
+            hmat[i, j] = htemplate[i, j]
     c = np.zeros(nk)
     vtv = _step_sums(fv, fx, fy, vres, half, acc, hmat, c)
     lo = np.empty((nk, nk))
     if not _cholesky_factor(hmat, nk, lo):
         return np.nan
-    hc = np.empty(nk)
-    _cholesky_back(lo, c, nk, hc)  # H^-1 K^T v
+    zc = np.empty(nk)
+    _forward(lo, c, nk, zc)
     for i in range(nk):
-        vtv -= c[i] * hc[i]
+        vtv -= zc[i] * zc[i]  # |v|² - vᵀK H⁻¹ Kᵀv
     sig2 = vtv / (side * side - nk)
     if not sig2 > 0.0:
         return np.nan
-    return _best_split(acc, lo, hc, half, min_part) / sig2
+    return _best_split(acc, lo, zc, half, min_part) / sig2
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
@@ -1018,7 +1031,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     sig0sq = max(vtv, 0.0) / (npix - m)
     sig0_out[0] = np.sqrt(sig0sq)
     if not exact_final:
-        corr_out[2] = _step_score(fv, fx, fy, vres, half, 2 * (2 * half + 1))
+        corr_out[2] = _step_score(fv, fx, fy, vres, half, 2 * (2 * half + 1), hmat)
     # covariance of the shift unknown(s): sigma0^2 Nc^-1 with Nc the normal matrix less
     # the expected template-noise part (Nc = N without correction)
     ncred = np.empty((8, 8))
