@@ -185,10 +185,10 @@ def test_rendered_pair_with_a_specular_highlight(specular_vase):
     of the axis errors exceed 3σ (against 0.7 % elsewhere).  match_pair's variance
     factor grows (k² ~7 against ~2 without the highlight) but is one for the image, so
     σ stays optimistic by 20-30 % overall (measured 1.23-1.30 over the matches within
-    1 px, 2.9 % of the axis errors beyond 3σ; without the highlight 0.94 and 1.3 %).  Asserted as a bound that must not get
-    worse: actual / reported in [0.8, 1.45], under 4 % beyond 3σ, under 0.6 % of the
-    accepted matches beyond 1 px (measured 3 of 1113-1123 in two runs, the largest
-    1.45-1.7 px: blunders in the highlight)."""
+    1 px, 2.9 % of the axis errors beyond 3σ; without the highlight 0.94 and 1.3 %).
+    Asserted as a bound that must not get worse: actual / reported in [0.8, 1.45],
+    under 4 % beyond 3σ, under 0.6 % of the accepted matches beyond 1 px (measured 3 of
+    1113-1123 in two runs, the largest 1.45-1.7 px: blunders in the highlight)."""
     ratio, m = _pair_ratio(specular_vase)
     corr = np.load(specular_vase / "truth" / "correspondence.npy")
     xi = m.x_left[m.accepted].astype(int)
