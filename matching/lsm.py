@@ -831,7 +831,7 @@ def _best_split(acc, lo, zc, half, min_part):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _step_score(fv, fx, fy, vres, half, min_part, htemplate):
+def _step_score(fv, fx, fy, vres, half, min_part, htemplate, noise_var):
     """Largest score statistic of a motion step along a straight line through the window.
 
     The nuisance columns are the 8 of the template Jacobian j = [f_x, f_x x, f_x y, f_y,
@@ -845,8 +845,13 @@ def _step_score(fv, fx, fy, vres, half, min_part, htemplate):
     its covariance σ² M, M = EᵀE - EᵀK H⁻¹ KᵀE, and S = rᵀ M⁻¹ r / σ² ~ χ²(2) when
     the window holds one motion and white noise (σ² = |v - K H⁻¹ Kᵀv|² / (n - 9)).
     Prefix sums over the lines' bins give every offset from one pass over the pixels.
-    ``htemplate``: the template's H = Σ j jᵀ (8 x 8).  Returns max S (NaN if H is
-    singular).
+    ``htemplate``: the template's H = Σ j jᵀ (8 x 8).  σ² is never taken below
+    ``noise_var`` (a quarter of the two images' noise variance, below what noise leaves
+    where there is any, so that the test's null distribution stays χ²'s): where almost
+    no noise is left the
+    residual is the convergence's remaining misregistration (δ·∇f, |δ| < the shift
+    stop), itself structured (measured: identical noise-free images, 8 of 20 windows
+    over the limit without the floor).  Returns max S (NaN if H is singular).
     """
     side = 2 * half + 1
     nk = _STEP_NUISANCE
@@ -864,7 +869,7 @@ def _step_score(fv, fx, fy, vres, half, min_part, htemplate):
     _forward(lo, c, nk, zc)
     for i in range(nk):
         vtv -= zc[i] * zc[i]  # |v|² - vᵀK H⁻¹ Kᵀv
-    sig2 = vtv / (side * side - nk)
+    sig2 = max(vtv / (side * side - nk), noise_var)
     if not sig2 > 0.0:
         return np.nan
     return _best_split(acc, lo, zc, half, min_part) / sig2
@@ -922,8 +927,8 @@ def _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats):
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrained, half,
                  kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-                 grad_noise_var, offset, blur, p_out, cov_out, wcov_out, acov_out, sig0_out,
-                 corr_out):
+                 grad_noise_var, step_noise_var, offset, blur, p_out, cov_out, wcov_out,
+                 acov_out, sig0_out, corr_out):
     """Gauss-Newton LSM for one patch; returns (status, iterations, converged).
 
     ``cov_out``: covariance of the warped template pixel ``offset`` (relative to the
@@ -1031,7 +1036,8 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     sig0sq = max(vtv, 0.0) / (npix - m)
     sig0_out[0] = np.sqrt(sig0sq)
     if not exact_final:
-        corr_out[2] = _step_score(fv, fx, fy, vres, half, 2 * (2 * half + 1), hmat)
+        corr_out[2] = _step_score(fv, fx, fy, vres, half, 2 * (2 * half + 1), hmat,
+                                  step_noise_var)
     # covariance of the shift unknown(s): sigma0^2 Nc^-1 with Nc the normal matrix less
     # the expected template-noise part (Nc = N without correction)
     ncred = np.empty((8, 8))
@@ -1152,16 +1158,16 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
 @numba.njit(parallel=True, nogil=True, cache=True, fastmath=_FM, error_model="numpy")
 def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constrained, half,
                kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-               grad_noise_var, offsets, blurs, params, cov, wcov, acov, sigma0, corr, status,
-               iters, conv):
+               grad_noise_var, step_noise_var, offsets, blurs, params, cov, wcov, acov, sigma0,
+               corr, status, iters, conv):
     n = centres.shape[0]
     for i in numba.prange(n):
         s, it, cv = _solve_point(fimg, fraw, gimg, centres[i], approx[i], init[i], quad[i],
                                  directions[i], constrained, half, kind, exact_final,
                                  max_iter, tol,
                                  max_shift, det_min, min_texture, grad_noise_var,
-                                 offsets[i], blurs[i], params[i], cov[i], wcov[i], acov[i],
-                                 sigma0[i:i + 1], corr[i])
+                                 step_noise_var, offsets[i], blurs[i], params[i], cov[i],
+                                 wcov[i], acov[i], sigma0[i:i + 1], corr[i])
         status[i] = s
         iters[i] = it
         conv[i] = cv
@@ -1658,7 +1664,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                    constrained, patch // 2, _KIND[interpolation], jacobian == "search",
                    int(max_iter), tol,
                    max_shift, TOL.affine_det_min, min_texture, grad_noise_var,
-                   np.ascontiguousarray(offs[idx]), np.ascontiguousarray(blur[idx]), *sub)
+                   0.25 * (fprep.noise**2 + gprep.noise**2), np.ascontiguousarray(offs[idx]),
+                   np.ascontiguousarray(blur[idx]), *sub)
         for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
                               sub, strict=True):
             full[idx] = part
@@ -1713,7 +1720,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     if step_limit is not None and jacobian == "template":
         ok = status == Status.OK
         limit = step_score_limit(step[ok], step_limit, pop_step)
-        status[ok & ~(step <= limit)] = Status.TWO_MOTIONS
+        status[ok & (step > limit)] = Status.TWO_MOTIONS  # NaN (no residual left): kept
     position = params[:, [0, 3]]
     if offset is not None:
         ox, oy = offs[:, 0], offs[:, 1]

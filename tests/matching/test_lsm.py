@@ -723,3 +723,17 @@ def test_one_straight_edge_with_weak_texture_reports_its_aperture():
     assert 0.7 < rms[1] < 1.4 and 0.7 < rms[0] < 1.8
     assert np.abs(z).max() < 4.0
     np.testing.assert_allclose(res.sigma[ok], np.sqrt((lam[:, 0] + lam[:, 1]) / 2), rtol=1e-9)
+
+
+def test_step_test_keeps_noise_free_small_batches(clean_pair):
+    """Without noise the residual left is the convergence's own misregistration (δ·∇f,
+    |δ| < the 0.01 px stop), structured like a step; the score's σ² is floored at a
+    quarter of the images' estimated noise variance, so that a batch too small to scale
+    the limit (20 windows) keeps them (measured: 8 of 20 identical-image windows
+    rejected without the floor)."""
+    f, g = clean_pair
+    pts = grid_points(160, 12)[:20]
+    for search, truth in ((f, pts), (np.roll(f, 3, axis=1), pts + [3.0, 0.0]),
+                          (g, truth_of(pts))):
+        res = lsm_match(f, search, pts, truth + 0.3)
+        assert res.accepted.all(), np.bincount(res.status)
