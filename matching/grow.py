@@ -200,6 +200,8 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
                        sigma0_population=arrays["sigma0"][acc])
         if "grad_power" in arrays:
             options["population_grad_power"] = arrays["grad_power"][acc]
+        if "step_score" in arrays:  # lsm.step_score_limit: the larger of the medians
+            options["population_step_score"] = arrays["step_score"][acc]
         if dirs is not None:
             options["direction"] = dirs[todo]
         if offs is not None:

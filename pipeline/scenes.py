@@ -26,14 +26,20 @@ uniform on the sphere, :math:`\sigma_T = \sqrt{K/2}` and the albedo
 
 Shading (Lambert with ambient light, no cast shadows) and image formation:
 
-.. math::  L = a(X)\,\big(k_a + k_d \max(0, \mathbf n \cdot \mathbf l)\big),\qquad
+.. math::  L = a(X)\,\big(k_a + k_d \max(0, \mathbf n \cdot \mathbf l)\big)
+           + k_s \max(0, \mathbf n \cdot \mathbf h)^{p},\qquad
            g = \mathrm{round}\big(\gamma_v \cdot 255\,\bar L + o_v + \varepsilon\big),
            \quad \varepsilon \sim N(0, \sigma^2),
 
 where :math:`\bar L` is the mean of :math:`L` over the pixel's area
 (supersampling s×s, then ``cv2.INTER_AREA``), :math:`\gamma_v, o_v` the view's
 gain and offset, and **n** the barycentric interpolation of the corner normals
-(analytic for surfaces of revolution).
+(analytic for surfaces of revolution).  The specular term (Blinn-Phong [4]_,
+``lighting.specular`` :math:`k_s` and ``lighting.shininess`` :math:`p`, off unless
+given) uses the half vector :math:`\mathbf h` of the light and the direction back to
+the camera, and only where :math:`\mathbf n \cdot \mathbf l > 0`: a highlight that
+does not move with the texture but with the viewpoint, so that it differs between the
+views as on a glossy surface (radiance above 1 saturates at 255).
 
 Cameras (OpenCV convention, Hartley & Zisserman §6.1): world→camera
 :math:`x_c = R X + t`, normalised :math:`(x, y) = (x_c/z_c, y_c/z_c)`, Brown–Conrady
@@ -55,6 +61,8 @@ References
    intersection", Journal of Graphics Tools 2(1), 21–28 (1997).
 .. [3] R. Hartley, A. Zisserman, "Multiple View Geometry in Computer Vision",
    2nd ed., Cambridge University Press (2004), §6.1 and §9.
+.. [4] J. F. Blinn, "Models of light reflection for computer synthesized pictures",
+   Computer Graphics (SIGGRAPH '77) 11(2), 192–198 (1977).
 """
 
 from __future__ import annotations
@@ -419,6 +427,11 @@ def _validate_lighting(table: _Table, n_views: int) -> dict:
     if lighting["background"] > 255:
         raise table.error("background", f"is a grey level in 0..255, got "
                           f"{lighting['background']:g}")
+    # a Blinn-Phong highlight (issue 13: less kind than Lambert), only when asked for
+    # (the recipes without it stay byte-identical)
+    if table.has("specular") or table.has("shininess"):
+        lighting["specular"] = table.take("specular", "float", 0.0, nonneg=True)
+        lighting["shininess"] = table.take("shininess", "float", 40.0, positive=True)
     lighting.update(_per_view(table, "gain", n_views, 1.0, positive=True))
     lighting.update(_per_view(table, "offset", n_views, 0.0))
     table.done()
@@ -684,7 +697,8 @@ def _sinusoid_sum(points, freq, phase, out):  # pragma: no cover - compiled
 def _shade(origin, directions, t, ids, uv, corner, light, params, freq, phase,
            out):  # pragma: no cover - compiled
     """Radiance per ray; params = ambient, diffuse, background, albedo mid, half-range,
-    1/(2 σ_T).  Corner normals interpolated barycentrically, texture at the hit point."""
+    1/(2 σ_T), specular, shininess.  Corner normals interpolated barycentrically,
+    texture at the hit point; the Blinn-Phong term only where specular > 0."""
     for i in numba.prange(t.shape[0]):
         tri = ids[i]
         if tri < 0:
@@ -705,6 +719,16 @@ def _shade(origin, directions, t, ids, uv, corner, light, params, freq, phase,
         z = origin[2] + t[i] * dz
         albedo = params[3] + params[4] * np.tanh(_texture_sum(x, y, z, freq, phase) * params[5])
         out[i] = albedo * (params[0] + params[1] * lambert)
+        if params[6] > 0 and lambert > 0:
+            # half vector of the light and the direction back to the camera (-d)
+            dn = np.sqrt(dx * dx + dy * dy + dz * dz)
+            hx = light[0] - dx / dn
+            hy = light[1] - dy / dn
+            hz = light[2] - dz / dn
+            hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+            cos_h = (nx * hx + ny * hy + nz * hz) / (norm * hn)
+            if cos_h > 0:
+                out[i] += params[6] * cos_h ** params[7]
 
 
 @numba.njit(parallel=True, cache=True)
@@ -1098,7 +1122,8 @@ def _radiance(scene: Scene, origin: np.ndarray, directions: np.ndarray) -> np.nd
     lighting, tex = scene.recipe["lighting"], scene.texture
     params = np.array([lighting["ambient"], lighting["diffuse"], lighting["background"] / 255.0,
                        0.5 * (tex.albedo[0] + tex.albedo[1]), 0.5 * (tex.albedo[1] - tex.albedo[0]),
-                       1.0 / (2.0 * tex.sigma)], dtype=np.float32)
+                       1.0 / (2.0 * tex.sigma), lighting.get("specular", 0.0),
+                       lighting.get("shininess", 1.0)], dtype=np.float32)
     out = np.empty(len(directions), dtype=np.float32)
     _quiet_numba(_shade, np.asarray(origin, np.float32), np.asarray(directions, np.float32),
                  hit["t"], hit["ids"], hit["uv"], scene.corner_normals32,

@@ -166,6 +166,41 @@ def test_rendered_pair_with_correlated_noise(correlated_vase):
     assert honest == pytest.approx(1.0, rel=0.25)
 
 
+@pytest.fixture(scope="module")
+def specular_vase(tmp_path_factory):
+    """The default vase pair at 320x240 with a Blinn-Phong highlight (k_s 0.4, p 30)."""
+    from pipeline import scenes
+
+    recipe = scenes.load_recipe(scenes.DEFAULT_RECIPE, overrides={
+        "cameras.width": 320, "cameras.height": 240, "cameras.focal_px": 416.0,
+        "lighting.specular": 0.4, "lighting.shininess": 30.0})
+    out = tmp_path_factory.mktemp("specular") / "scene"
+    scenes.render_scene(recipe, out, progress=False)
+    return out
+
+
+def test_rendered_pair_with_a_specular_highlight(specular_vase):
+    """A highlight that moves between the views is outside LSM's radiometric model
+    (offset + gain per window): where it lies the matches err 0.17-0.27 px and 6-11 %
+    of the axis errors exceed 3σ (against 0.7 % elsewhere).  match_pair's variance
+    factor grows (k² ~7 against ~2 without the highlight) but is one for the image, so
+    σ stays optimistic by 20-30 % overall (measured 1.23-1.30 over the matches within
+    1 px, 2.9 % of the axis errors beyond 3σ; without the highlight 0.94 and 1.3 %).
+    Asserted as a bound that must not get worse: actual / reported in [0.8, 1.45],
+    under 4 % beyond 3σ, under 0.6 % of the accepted matches beyond 1 px (measured 3 of
+    1113-1123 in two runs, the largest 1.45-1.7 px: blunders in the highlight)."""
+    ratio, m = _pair_ratio(specular_vase)
+    corr = np.load(specular_vase / "truth" / "correspondence.npy")
+    xi = m.x_left[m.accepted].astype(int)
+    err = m.x_right[m.accepted] - corr[xi[:, 1], xi[:, 0]]
+    seen = np.isfinite(err).all(1)
+    sig = np.sqrt(np.stack([m.cov[m.accepted, 0, 0], m.cov[m.accepted, 1, 1]], 1))[seen]
+    beyond = np.mean(np.abs(err[seen]) > 3.0 * sig)
+    assert 0.8 < ratio < 1.45
+    assert beyond < 0.04
+    assert np.mean(np.linalg.norm(err[seen], axis=1) > 1.0) < 0.006
+
+
 def _graffiti(folder: Path):
     sys.path.append(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from _real_matching import _apply, _grey, _homography, _jacobian, smooth_mapping
