@@ -204,13 +204,11 @@ def rasterise(polygon: np.ndarray, origin: np.ndarray, cell: float,
 
 
 def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    x, y = points[:, 0:1], points[:, 1:2]
-    x0, y0 = polygon[:, 0], polygon[:, 1]
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-    straddle = (y0 > y) != (y1 > y)
-    dy = np.where(y1 == y0, 1.0, y1 - y0)
-    x_cross = x0 + (y - y0) * (x1 - x0) / dy
-    return np.count_nonzero(straddle & (x < x_cross), axis=1) % 2 == 1
+    """Even-odd test of ``points`` against ``polygon``: :func:`surface.stitch._inside`
+    (imported here: ``surface.stitch`` imports this module)."""
+    from surface.stitch import _inside as inside
+
+    return inside(points, polygon)
 
 
 def _area(polygon: np.ndarray) -> float:
