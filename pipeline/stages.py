@@ -376,8 +376,9 @@ def _smooth_tolerance(ctx: StageContext, sized=None) -> float:
     given = float(ctx.params["smooth"]["tolerance"])
     if given > 0:
         return given
-    if sized is not None and sized.chord_tolerance() > 0:
-        return sized.chord_tolerance()
+    from_size = sized.chord_tolerance() if sized is not None else 0.0
+    if from_size > 0:
+        return from_size
     sigma = artifacts.read_cloud(ctx.stage_path("acquire"))["sigma"]
     sigma = sigma[np.isfinite(sigma) & (sigma > 0)]
     if sigma.size:
