@@ -597,7 +597,8 @@ def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index
                       source_face: np.ndarray | None = None,
                       domain_mesh: tuple[np.ndarray, np.ndarray] | None = None,
                       version: int = CONTROL_NET_VERSION) -> Path:
-    """Write the Bézier control net as an uncompressed ``.npz``, atomically.
+    """Write the Bézier control net as a deflated ``.npz`` (``numpy.savez_compressed``'s
+    kind, read by ``numpy.load``), atomically.
 
     Arrays in the file (read them with ``numpy.load(path)``; no pickles):
 
@@ -644,7 +645,9 @@ def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index
         raise ValueError(f"version must be one of {_CONTROL_NET_VERSIONS}, got {version!r}")
     arrays = _net_arrays(control_points, index, source_face, domain_mesh, version)
     with atomic_file(path) as tmp:
-        write_npz_to(tmp, **arrays)  # byte-reproducible (np.savez stamps the time)
+        # byte-reproducible (np.savez stamps the time); deflated: the demo's 65 312 patches
+        # 37.3 -> 27.6 MB (the points 28.2 -> 23.1, the patch table 7.3 -> 3.4) in ~1 s
+        write_npz_to(tmp, compress=True, **arrays)
     return path
 
 

@@ -186,10 +186,15 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
     return path
 
 
-def write_npz_to(path: str | os.PathLike, **arrays: np.ndarray) -> None:
+def write_npz_to(path: str | os.PathLike, compress: bool = False, **arrays: np.ndarray) -> None:
     """The bytes of :func:`save_npz` written straight to ``path`` (not atomic: for a
-    temporary the caller renames, e.g. one of several files that land together)."""
-    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+    temporary the caller renames, e.g. one of several files that land together).
+
+    ``compress``: each member deflated (zlib level 1, what ``numpy.savez_compressed``
+    files are; ``numpy.load`` reads both): on float64 control points about 0.8 of the
+    size, on integer tables 0.1-0.5, ~40 MB/s a core; for files meant to be handed on."""
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(path, "w", method, compresslevel=1 if compress else None) as zf:
         for name, value in arrays.items():
             buffer = io.BytesIO()
             np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)

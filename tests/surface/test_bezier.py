@@ -787,3 +787,44 @@ def test_plane_deviation_bounds_the_distance_across_the_corners_plane():
     bary = rng.dirichlet([1.0, 1.0, 1.0], size=500)
     across = np.abs((bz.evaluate(net[None], bary)[0] - corners[0]) @ normal)
     assert across.max() <= bound and across.max() > 0.05 * bound
+
+
+# ----------------------------------------------------------------------------- closest points
+
+
+@pytest.mark.parametrize("mesh", [lambda: _o3d_arrays(o3d.geometry.TriangleMesh.create_sphere(
+    1.0, 8)), lambda: icosphere(2)], ids=["uv-sphere", "icosphere"])
+def test_closest_points_find_the_foot_on_the_exact_surface(mesh):
+    """Points put at known distances ``d`` along the exact normal of random surface points
+    (|d| <= 0.01, far below the surfaces' radii of curvature; not a cube's Loop surface,
+    whose curvature is unbounded at its valence-3 corners) are measured at
+    ``|d|`` to 3e-6 (the patch polynomial continued past an edge leaves the neighbour by
+    up to ~1e-6 at the sphere's valence-8 poles), where the level-1 tessellation errs by
+    about 1e-3 (300x the tolerance) -- what the sizing measured before."""
+    from surface.metrics import point_mesh_distance
+
+    surface = bz.control_net(*mesh())
+    rng = np.random.default_rng(3)
+    patch = rng.integers(0, len(surface.control_points), 1500)
+    bary = rng.dirichlet([1.0, 1.0, 1.0], 1500)
+    nets = surface.control_points[patch]
+    on = np.einsum("nk,nkd->nd", bz.bernstein_matrix(bary), nets)
+    normal = np.stack([bz.normals(nets[i:i + 1], bary[i:i + 1])[0, 0] for i in range(len(bary))])
+    d = rng.uniform(-0.01, 0.01, len(bary))
+    query = on + d[:, None] * normal
+    distance, foot_patch, foot_bary = bz.closest_points(surface, query)
+    np.testing.assert_allclose(distance, np.abs(d), rtol=0, atol=3e-6)
+    foot = np.einsum("nk,nkd->nd", bz.bernstein_matrix(foot_bary),
+                     surface.control_points[foot_patch])
+    np.testing.assert_allclose(foot, on, rtol=0, atol=2e-5)
+    flat = point_mesh_distance(query, *bz.tessellate(surface, 1)[:2])
+    assert np.abs(flat - np.abs(d)).max() > 300 * 3e-6
+
+
+def test_closest_points_of_points_on_the_surface_are_zero_and_checked():
+    surface = bz.control_net(*icosphere(1))
+    points = bz.evaluate(surface.control_points[:50], np.array([[0.2, 0.3, 0.5]]))[:, 0]
+    distance, patch, _ = bz.closest_points(surface, points)
+    assert distance.max() < 1e-9
+    with pytest.raises(ValueError):
+        bz.closest_points(surface, np.full((3, 3), np.nan))
