@@ -200,7 +200,8 @@ def write_npz_to(path: str | os.PathLike, compress: bool = False, **arrays: np.n
             np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.external_attr = 0o644 << 16
-            zf.writestr(info, buffer.getvalue())
+            info.compress_type = method  # a ZipInfo carries its own (stored by default)
+            zf.writestr(info, buffer.getvalue(), compresslevel=1 if compress else None)
 
 
 def _usual_mode(path: Path) -> None:
