@@ -444,13 +444,16 @@ def fresh_one(size: int, samples: int = SAMPLES) -> dict:
 
     truth = vase_truth(n_theta=1024, n_z=768)
     points = noisy_cloud(*truth, size, seed=SEED + 1, sigma=SIGMA)
-    level = int(defaults()["smooth"]["level"])
+    level = defaults()["smooth"]["level"]
     rss_before = _rss_gib()
     start, cpu_start = time.perf_counter(), time.process_time()
     sized, dense = sized_from_points(points, axis="z")
     smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles),
                                 sized.triangles)
-    vertices, triangles, _ = bezier.tessellate(smooth, level=level)
+    if level == "adaptive":  # the smooth stage's default, as run_stitched_sized
+        vertices, triangles, _ = bezier.tessellate_adaptive(smooth, sized.chord_tolerance())
+    else:
+        vertices, triangles, _ = bezier.tessellate(smooth, level=int(level))
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     peak = _peak_rss_gib()
     dense_triangles = int(len(dense.triangles))

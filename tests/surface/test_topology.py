@@ -315,3 +315,22 @@ def test_every_point_is_ordered_or_an_outlier_once(seed, m):
     for lp in loops:
         assert len(lp) >= 4
         assert signed_area(lp.points[:, :2] - lp.centroid[:2]) > 0  # CCW
+
+
+def test_two_opt_work_is_bounded_on_a_filled_disk(monkeypatch):
+    """A filled disk (a cap taken for a section) makes every pair a 2-opt candidate at
+    every move; with the work bound the tour comes back a permutation, shortened, but
+    stopped early: longer than the unbounded optimisation's (counted work, not time)."""
+    from surface import topology
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1, 1, (300, 2))
+    tour = rng.permutation(len(points))
+    full = topology._two_opt(points, tour)
+    monkeypatch.setattr(topology, "TWO_OPT_WORK", 200_000)      # ~5 moves of ~45 000 pairs
+    bounded = topology._two_opt(points, tour)
+    for out in (full, bounded):
+        assert sorted(out.tolist()) == list(range(len(points)))
+    start, cut, best = (topology._tour_length(points, x) for x in (tour, bounded, full))
+    assert best < cut < start
+    assert cut > 1.5 * best
