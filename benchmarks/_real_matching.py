@@ -13,7 +13,9 @@ residuals below 2 px; LSM's ratio of that residual to its reported σ, without a
 the variance factor of independent neighbouring windows
 (``matching.precision.midpoint_variance_factor``, what ``match_pair`` applies; RMS over
 RMS, and the median |e|/σ over its Gaussian value), and beside it the forward-backward
-loops' factor (``matching.consistency``, a lower bound). Peers: ``cv2.findTransformECC``
+loops' factor (``matching.consistency``, a lower bound); and the residuals split along /
+across the epipolar lines (``parallax_split``: plane + parallax, where a relief of the wall
+can only act along them). Peers: ``cv2.findTransformECC``
 (MOTION_AFFINE, gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
 LSM runs with ``match_pair``'s footprint smoothing
 (``matching.lsm.DEFAULT_FOOTPRINT_VAR``), and once without it beside. The same
@@ -41,6 +43,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from matching.consistency import forward_backward
 from matching.grow import grow_matches
@@ -189,6 +192,75 @@ def _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=DEFAULT_FOOTPRINT
     return first, growth, t1 - t0, time.perf_counter() - t0
 
 
+#: Gaussian scale (px) of the residual field's correlated part in :func:`parallax_split`:
+#: half a 21-px window, below the ~40 px over which graffiti's residuals stay correlated.
+PARALLAX_SMOOTHING_PX = 10.0
+
+
+def _smoothed_field(points, values, scale):
+    """(N, 2) Gaussian-weighted mean of ``values`` over the points within 3 ``scale``."""
+    pairs = cKDTree(points).query_pairs(3.0 * scale, output_type="ndarray")
+    i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(len(points))])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(len(points))])
+    w = np.exp(-0.5 * np.sum((points[i] - points[j]) ** 2, axis=1) / scale**2)
+    total = np.bincount(i, w, len(points))
+    return np.column_stack([np.bincount(i, w * values[j, k], len(points)) / total
+                            for k in range(2)])
+
+
+def _epipolar_directions(theta, x2):
+    """Unit directions of the epipolar lines through ``x2`` (image 2 px) for the epipole
+    ``(cos a cos b, sin a cos b, sin b)`` (homogeneous, px / 1000)."""
+    a, b = theta
+    epi = np.array([np.cos(a) * np.cos(b), np.sin(a) * np.cos(b), np.sin(b)])
+    d = epi[:2][None] - epi[2] * x2 / 1000.0
+    return d / np.linalg.norm(d, axis=1)[:, None]
+
+
+def parallax_split(points, x2, residual, cov, k2, patch):
+    """Residuals to the wall's smooth mapping split along / across the epipolar lines.
+
+    Two views of a rigid scene differ from a plane's homography only by parallax along
+    the epipolar lines (plane + parallax, Irani & Anandan 1996): a relief of the wall
+    -- paint layers, a bulge -- moves points along them, never across.  The epipole is
+    fitted (2 unknowns, multi-start least squares) to the correlated part of the
+    residual field (``_smoothed_field``, Gaussian ``PARALLAX_SMOOTHING_PX``): the
+    direction that field takes.  Returned: per component the residual RMS, the reported
+    σ k RMS projected on it (``cov`` with the variance factor ``k2``), their ratio, and
+    the correlation of the component between windows 1-1.5 patch sides apart (the
+    pairs the variance factor compares: what they cannot see).
+
+    points, x2, residual : (N, 2) float64 -- template px, matches in image 2, residuals
+    cov : (N, 2, 2) float64 -- reported covariances, px²
+    """
+    from scipy.optimize import least_squares
+
+    field = _smoothed_field(points, residual, PARALLAX_SMOOTHING_PX)
+
+    def across(theta):
+        d = _epipolar_directions(theta, x2)
+        return field[:, 0] * d[:, 1] - field[:, 1] * d[:, 0]
+
+    starts = [(a, b) for a in np.linspace(0.0, np.pi, 7) for b in np.linspace(-1.4, 1.4, 7)]
+    best = min((least_squares(across, s) for s in starts), key=lambda r: r.cost)
+    along_dir = _epipolar_directions(best.x, x2)
+    across_dir = np.column_stack([along_dir[:, 1], -along_dir[:, 0]])
+    pairs = cKDTree(points).query_pairs(1.5 * patch, output_type="ndarray")
+    dist = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    pairs = pairs[dist >= patch]
+    out = {"epipole_direction_median": np.median(along_dir, axis=0).tolist()}
+    for name, u in (("along", along_dir), ("across", across_dir)):
+        comp = np.sum(residual * u, axis=1)
+        var = np.einsum("ni,nij,nj->n", u, cov, u) * max(k2, 1.0)
+        c = comp - comp.mean()
+        out[f"{name}_rms_px"] = float(np.sqrt(np.mean(comp**2)))
+        out[f"{name}_sigma_k_rms_px"] = float(np.sqrt(np.mean(var)))
+        out[f"{name}_over_sigma_k"] = out[f"{name}_rms_px"] / out[f"{name}_sigma_k_rms_px"]
+        out[f"{name}_neighbour_correlation"] = float(
+            np.mean(c[pairs[:, 0]] * c[pairs[:, 1]]) / np.mean(c**2))
+    return out
+
+
 def _factor_figures(row, pts, res, mapping, patch):
     """Variance factor of independent neighbouring windows and residual / (σ k) into ``row``."""
     t0 = time.perf_counter()
@@ -203,6 +275,9 @@ def _factor_figures(row, pts, res, mapping, patch):
     inl = res.accepted & (e < 2.0)
     row["median_residual_over_sigma_with_factor"] = float(
         np.median(e[inl] / res.sigma[inl]) / np.sqrt(2 * np.log(2) * k2))
+    row["parallax_split"] = parallax_split(pts[inl], res.position[inl],
+                                           (res.position - mapping(pts))[inl], res.cov[inl],
+                                           k2, patch)
 
 
 def graffiti(folder: Path, quick: bool) -> dict:

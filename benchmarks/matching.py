@@ -438,6 +438,14 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
               f"{lsm['residual_over_sigma_with_factor']:.2f} (RMS over RMS), "
               f"{lsm['median_residual_over_sigma_with_factor']:.2f} (median |e|/σk over "
               f"its Gaussian value)")
+        for label, row in (("real", lsm), ("synthetic", syn["rows"][1])):
+            ps = row["parallax_split"]
+            print(f"{label}: residual along / across the epipolar lines (plane + parallax: "
+                  f"a relief moves points along them only): {ps['along_rms_px']:.3f} / "
+                  f"{ps['across_rms_px']:.3f} px, over σ k {ps['along_over_sigma_k']:.2f} / "
+                  f"{ps['across_over_sigma_k']:.2f}, correlation between windows 1-1.5 "
+                  f"sides apart {ps['along_neighbour_correlation']:.2f} / "
+                  f"{ps['across_neighbour_correlation']:.2f}")
         goals["graffiti_accepted_ge_80pct"] = lsm["accepted"] >= 0.8
         goals["graffiti_beyond_2px_le_1pct (of the smooth mapping)"] = (
             lsm["beyond_2px_of_smooth"] <= 0.01)
