@@ -129,3 +129,42 @@ def test_cap_height_leaves_a_dome_to_the_points_past_the_plane():
     ring = np.column_stack([np.cos(angles), np.sin(angles)])
     assert _cap_height(z, np.column_stack([r * np.cos(t), r * np.sin(t)]), ring, 0.0, 1.0,
                        0.05, None) is None
+
+
+def test_normal_neighbours_follow_the_noise_against_the_point_spacing():
+    """12 neighbours where the noise is well below the point spacing; more where it is not
+    (ρ/√k, the normals' estimated tilt, above 0.1 rad at 12)."""
+    from surface.reconstruct import normal_neighbours
+    from tests._vase import noisy_cloud, vase_truth
+
+    truth = vase_truth(n_theta=256, n_z=192)
+    # 3·10⁴ points: spacing ≈ 0.029
+    assert normal_neighbours(noisy_cloud(*truth, 30_000, seed=0, sigma=0.002)) == 12
+    assert normal_neighbours(noisy_cloud(*truth, 30_000, seed=0, sigma=0.035)) >= 48
+
+
+def test_noise_as_large_as_the_point_spacing_still_gives_the_caps(monkeypatch):
+    """A 3·10⁴-point vase with σ = 0.035, above its point spacing (≈ 0.029), as a dense
+    cloud's is (10⁷ points at σ = 0.002: spacing 0.0016).  With 12-neighbour normals
+    the cap points pass as walls, the sections next to the caps become filled disks and
+    the ends lie 0.021-0.029 off the truth (Chamfer 0.014-0.016, seeds 0-1); with the
+    neighbours from the noise (48) 0.0023-0.0029 (Chamfer 0.0052-0.0062)."""
+    from surface import metrics
+    from surface import reconstruct as rc
+    from tests._vase import noisy_cloud, vase_truth
+
+    truth = vase_truth(n_theta=256, n_z=192)
+    points = noisy_cloud(*truth, 30_000, seed=0, sigma=0.035)
+    scores, ends = {}, {}
+    for name in ("auto", "twelve"):
+        if name == "twelve":
+            monkeypatch.setattr(rc, "normal_neighbours", lambda cloud: 12)
+        mesh = rc.surface_from_points(points, axis="z")
+        assert mesh.closed
+        scores[name] = metrics.compare_meshes(mesh.vertices, mesh.triangles, *truth,
+                                              tau=0.05, count=30_000)["chamfer"]
+        z = mesh.vertices[:, 2]
+        near_ends = mesh.vertices[(z < 0.1) | (z > 2.9)]
+        ends[name] = float(metrics.point_mesh_distance(near_ends, *truth).mean())
+    assert ends["auto"] < 0.006 < 0.015 < ends["twelve"]
+    assert scores["auto"] < 0.5 * scores["twelve"]
