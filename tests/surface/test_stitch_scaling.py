@@ -106,8 +106,9 @@ def test_dome_test_on_sampled_points(count):
 def test_pca_normals_denser_than_the_noise_use_a_subset(monkeypatch):
     # A plane z = 0 with σ = 0.002 sampled at spacing ~0.0009 (well below σ): the
     # 12-neighbour fits of the whole cloud see the noise (median tilt ~40°); on a
-    # subset of 1/16 (spacing ~0.0035) they see the plane again.  At or below
-    # NORMAL_POINTS the normals are the whole cloud's.
+    # subset of 1/16 (spacing ~0.0035) they see the plane again, and so do the default
+    # neighbours chosen from the noise.  At or below NORMAL_POINTS the normals are the
+    # whole cloud's.
     from surface import reconstruct
 
     rng = np.random.default_rng(5)
@@ -117,10 +118,14 @@ def test_pca_normals_denser_than_the_noise_use_a_subset(monkeypatch):
     def median_tilt(normals):
         return float(np.degrees(np.median(np.arccos(np.abs(normals[:, 2])))))
 
-    whole = reconstruct._pca_normals(cloud, query)
+    whole = reconstruct._pca_normals(cloud, query, k=12)
+    # the default neighbours follow the noise (reconstruct.normal_neighbours) and see the
+    # plane on the whole cloud too
+    assert reconstruct.normal_neighbours(cloud) > 12
+    assert median_tilt(reconstruct._pca_normals(cloud, query)) < 0.6 * median_tilt(whole)
     monkeypatch.setattr(reconstruct, "NORMAL_POINTS", 7_500)
-    subset = reconstruct._pca_normals(cloud, query)
+    subset = reconstruct._pca_normals(cloud, query, k=12)
     assert median_tilt(whole) > 25.0
     assert median_tilt(subset) < 0.6 * median_tilt(whole)
     monkeypatch.setattr(reconstruct, "NORMAL_POINTS", 120_000)
-    np.testing.assert_array_equal(reconstruct._pca_normals(cloud, query), whole)
+    np.testing.assert_array_equal(reconstruct._pca_normals(cloud, query, k=12), whole)
