@@ -343,9 +343,8 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     # further-view check (cloud RMS 0.000229 -> 0.000228)
     options.setdefault("eccentric", True)
     # a second candidate lattice, half a cell off, matched between accepted centred
-    # windows, up to the first lattice's LSM losses (match_pair's default is off):
-    # temple ring, spacing 3: 34 245 -> 49 768 points, 62 -> 79-84 CPU-s, every share
-    # inside the silhouettes up (benchmarks/README.md)
+    # windows (match_pair's default is off): temple ring, spacing 3: 34 245 -> 49 768
+    # points at a ~10 % longer run, every share inside the silhouettes up (README)
     options.setdefault("densify", True)
     # the pair's own variance factor (match_pair's default) is left to the further-view
     # check (matching.confirm), which estimates it from a third view's matches of the

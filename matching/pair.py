@@ -522,19 +522,10 @@ def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: di
     predictions (Otto & Chau's growing, :mod:`matching.grow`), its own row for the
     rectified pair, with their median shape, radiometry and second-order terms, so
     one LSM pass at the first lattice's precision suffices; the σ0 and precision tests
-    take the first lattice's accepted matches as population.
-
-    The second lattice makes up for the first lattice's losses on the surface, never
-    more: it takes at most as many candidates (evenly thinned) as the first lattice had
-    candidates that reached the LSM and gave no usable match (rejected, or straddling
-    an edge; a candidate without an approximation is off the object or hidden in this
-    pair, no loss), so a pair yields at most the one point per ``spacing`` cell of the
-    surface it matches that its candidates asked for.  Where the LSM loses much (temple
-    ring: a third of the candidates it tries, on occlusions, shadows, one-dimensional
-    texture and the wide-baseline perspective) the matched interior is sampled up to
-    twice as densely, at the LSM cost of those candidates alone (a finer first lattice
-    would also try every failing candidate again); where nearly every candidate matches
-    (a rendered, textured ring) little is added.
+    take the first lattice's accepted matches as population.  Doubles the candidates
+    where the surface is matched, at the LSM cost of those alone: the candidates of
+    the first lattice that fail (background, occlusions, wide-baseline perspective)
+    are not tried twice, as a finer first lattice would.
 
     Returns ``(candidates, status, edge, offset, out)`` with the matched second-lattice
     candidates appended, or None when there are none.
@@ -567,15 +558,6 @@ def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: di
     q, nb, dense = q[~straddle], nb[~straddle], replace(
         dense, points=q[~straddle], texture=dense.texture[~straddle],
         textured=dense.textured[~straddle])
-    # the budget: the first lattice's candidates that reached the LSM and gave no usable
-    # match (not those without an approximation: off the object, or hidden in this pair)
-    tried = cand.textured & (status != NO_APPROXIMATION)
-    budget = int(np.count_nonzero(tried & ~((status == Status.OK) & ~edge)))
-    if len(q) > budget:  # evenly thinned (row-major order: rows, and along each row)
-        pick = np.unique(np.linspace(0, len(q) - 1, budget).round().astype(np.int64))
-        q, nb = q[pick], nb[pick]
-        dense = replace(dense, points=q, texture=dense.texture[pick],
-                        textured=dense.textured[pick])
     if not len(q):
         return None
     aff = out["affine"][nb]  # (M, 4, 6)

@@ -12,7 +12,7 @@ import pytest
 
 from matching.cameras import Camera, StereoRig
 from matching.lsm import Status
-from matching.pair import NO_APPROXIMATION, PAIR_STATUS_NAMES, match_pair, reconstruct_pair
+from matching.pair import PAIR_STATUS_NAMES, match_pair, reconstruct_pair
 from tests.matching.test_lsm import sample, texture_coefficients
 
 W, H, Z = 320, 240, 3.0
@@ -145,8 +145,7 @@ def test_rectified_pair_disparity_map():
 
 def test_densify_adds_a_lattice_between_accepted_matches():
     """``densify``: a second lattice, half a cell off, matched inside the accepted region
-    only, no more candidates than the first lattice lost in the LSM, at the first
-    lattice's accuracy and on the rectified rows."""
+    only, at the first lattice's accuracy and on the rectified rows."""
     coef = texture_coefficients(200, seed=4)
     ys, xs = np.mgrid[0:120, 0:180].astype(np.float64)
     disparity = 9.0 + 0.02 * xs
@@ -156,18 +155,14 @@ def test_densify_adds_a_lattice_between_accepted_matches():
     right = sample(coef, x_of_u + 10, ys + 10) + rng.normal(0, 2.0, xs.shape)
     flat = 60  # columns left of it carry no texture: no window may reach into them
     left[:, :flat] = 90.0 + rng.normal(0, 2.0, (120, flat))
-    # a foreign texture in the right image: the first lattice's candidates there fail
-    right[30:90, 120:160] = sample(texture_coefficients(200, seed=77), xs, ys)[30:90, 120:160]
     coarse = match_pair(left, right, rectified=True, spacing=4)
     dense = match_pair(left, right, rectified=True, spacing=4, densify=True)
     n = len(coarse)
     np.testing.assert_array_equal(dense.status[:n], coarse.status[:n])
     np.testing.assert_array_equal(dense.x_right[:n], coarse.x_right[:n])
-    lost = ~np.isin(coarse.status, (Status.TEXTURELESS, NO_APPROXIMATION)) & ~(
-        coarse.accepted & ~coarse.edge)
-    assert 0 < len(dense) - n <= lost.sum()  # measured: 238 of 238 (the budget binds)
     new = np.flatnonzero(dense.accepted[n:]) + n
-    assert len(new) > 0.6 * (len(dense) - n), (len(new), len(dense) - n)  # measured 193
+    # one shifted cell per first-lattice cell, less the rim of the matched region
+    assert len(new) > 0.6 * coarse.accepted.sum(), (len(new), coarse.accepted.sum())
     x = dense.x_left[new]
     assert len(np.unique(dense.x_left, axis=0)) == len(dense)  # new pixels only
     assert (x[:, 0] - 7 >= flat).all()  # its window (15 px) clear of the flat part

@@ -96,9 +96,9 @@ def test_no_densify_matches_only_the_first_lattice(arc, tmp_path, capsys):
     for points in clouds.values():
         r = np.hypot(points[:, 0], points[:, 1])
         assert np.median(np.abs(r - (1 + 0.3 * np.sin(2 * points[:, 2])))) < 2e-3
-    # second-lattice points up to the first lattice's LSM losses, less the points the
-    # merge fuses: measured 2 413 against 1 874 (1.29)
-    assert len(clouds[False]) > 1.15 * len(clouds[True]), {k: len(v) for k, v in clouds.items()}
+    # a second lattice point per first-lattice match inside the matched surface, less
+    # the points the merge fuses: measured 2 587 against 1 874 (1.38)
+    assert len(clouds[False]) > 1.2 * len(clouds[True]), {k: len(v) for k, v in clouds.items()}
 
 
 def test_acquire_with_explicit_cameras_and_an_images_subfolder(scene, tmp_path, capsys):
