@@ -75,7 +75,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -95,6 +95,7 @@ from matching.precision import midpoint_variance_factor
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
+    Candidates,
     approximate_calibrated,
     approximate_rectified,
     disparity_valid_left,
@@ -240,7 +241,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                eccentric: bool = False, grow: bool = True, sigma_factor: bool = True,
                search_range: tuple[int, int] | None = None,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
-               **lsm_options) -> PairMatches:
+               densify: bool = False, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -296,6 +297,11 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         further view to confirm them; :func:`matching.multiview.reconstruct_view_pair`
         turns it on (its points reach a rim to within about a pixel instead of half
         a window).
+    densify : bool
+        Rectified pairs: a second candidate lattice, shifted by half a cell, matched
+        where the four first-lattice matches around each of its candidates were
+        accepted with centred windows, started from their affine warps (:func:`_densify`;
+        default False).
     grow : bool
         Region growing (:func:`matching.grow.grow_matches`, Otto & Chau 1989): candidates
         without an SGBM approximation, or whose SGBM start failed, are matched from the
@@ -443,6 +449,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             if grow:
                 unapproximated = ~np.isfinite(start).all(1)
             sides = np.full(len(points), patch, np.int32)
+            quad = None
             if (second_order or adaptive_patch) and res.accepted.sum() >= 8:
                 quad = (second_order_terms(points, res.affine, res.accepted,
                                            radius_px=max(20.0, 5.0 * spacing))
@@ -484,9 +491,114 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["iterations"][idx] = res.iterations
             out["affine"][idx] = res.affine
             out["radiometric"][idx] = res.radiometric
+            if densify and rectified and spacing >= 2 and res.accepted.sum() >= 30:
+                quad_all = None
+                if second_order and quad is not None:
+                    quad_all = np.full((n, 6), np.nan)
+                    quad_all[idx] = quad
+                dense = _densify(left, fprep, gprep, cand, status, edge, offset, out,
+                                 res, spacing, patch, mask, valid, quad_all,
+                                 max_sigma_mad_k, factor, options)
+                if dense is not None:
+                    cand, status, edge, offset, out = dense
     return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
                        rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
                        offset=offset, edge=edge, sigma_factor=float(factor), **out)
+
+
+def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: dict,
+             res: LSMResult, spacing: int, patch: int, mask, valid, quad, max_sigma_mad_k,
+             factor: float, options: dict):
+    """A second candidate lattice between accepted matches (rectified pair; region growing).
+
+    The first lattice takes the best-textured pixel of every ``spacing`` cell; the
+    second does the same on the cells shifted by ``ceil(spacing / 2)`` px in x and y,
+    each of which lies between four first-lattice cells.  A second-lattice candidate is
+    matched only where those four candidates were accepted with centred windows (the
+    interior of the matched surface: no rim, silhouette or occlusion edge within about
+    a window, whose transfers the further-view check would have to catch) and its own
+    window holds no untextured or unmatched pixel (:func:`matching.seeds.window_offsets`
+    without moving).  Its start is the median of the four neighbours' affine
+    predictions (Otto & Chau's growing, :mod:`matching.grow`), its own row for the
+    rectified pair, with their median shape, radiometry and second-order terms, so
+    one LSM pass at the first lattice's precision suffices; the σ0 and precision tests
+    take the first lattice's accepted matches as population.  Doubles the candidates
+    where the surface is matched, at the LSM cost of those alone: the candidates of
+    the first lattice that fail (background, occlusions, wide-baseline perspective)
+    are not tried twice, as a finer first lattice would.
+
+    Returns ``(candidates, status, edge, offset, out)`` with the matched second-lattice
+    candidates appended, or None when there are none.
+    """
+    h, w = left.shape
+    s, half = int(spacing), (int(spacing) + 1) // 2
+    x0 = cand.points.astype(np.int64)
+    good = (status == Status.OK) & ~edge & ~np.any(offset != 0.0, axis=1)
+    ny, nx = h // s, w // s
+    grid = np.full((ny + 1, nx + 1), -1, np.int64)  # first-lattice candidate per cell
+    cell = x0 // s
+    grid[cell[good, 1], cell[good, 0]] = np.flatnonzero(good)
+    occupied = np.zeros((h, w), bool)
+    occupied[x0[:, 1], x0[:, 0]] = True
+    shifted = select_points(left[half:, half:], spacing=s, patch=patch,
+                            min_texture_snr=options.get("min_texture_snr", 2.0),
+                            noise=cand.noise, mask=None if mask is None else mask[half:, half:])
+    q = shifted.points + half
+    qi = q.astype(np.int64)
+    d = (qi - half) // s  # the shifted cell: between first-lattice cells d and d + 1
+    nb = np.stack([grid[d[:, 1] + dy, d[:, 0] + dx] for dy in (0, 1) for dx in (0, 1)], 1)
+    keep = shifted.textured & np.all(nb >= 0, axis=1) & ~occupied[qi[:, 1], qi[:, 0]]
+    if not keep.any():
+        return None
+    q, nb = q[keep], nb[keep]
+    dense = Candidates(points=q, texture=shifted.texture[keep],
+                       textured=np.ones(len(q), bool), threshold=shifted.threshold,
+                       noise=shifted.noise)
+    _, straddle = window_offsets(dense, left, patch, s, mask, valid, move=False)
+    q, nb, dense = q[~straddle], nb[~straddle], replace(
+        dense, points=q[~straddle], texture=dense.texture[~straddle],
+        textured=dense.textured[~straddle])
+    if not len(q):
+        return None
+    aff = out["affine"][nb]  # (M, 4, 6)
+    step = q[:, None, :] - cand.points[nb]  # (M, 4, 2)
+    pu = aff[..., 0] + aff[..., 1] * step[..., 0] + aff[..., 2] * step[..., 1]
+    start = np.column_stack([np.median(pu, axis=1), q[:, 1]])  # rectified: its own row
+    init = np.zeros((len(q), 8))
+    init[:, [0, 3]] = start
+    init[:, [1, 2, 4, 5]] = np.median(aff[..., [1, 2, 4, 5]], axis=1)
+    init[:, 6:] = np.median(out["radiometric"][nb], axis=1)
+    lsm = dict(options)
+    lsm.pop("offset", None)
+    lsm["direction"] = np.array([1.0, 0.0])
+    acc = res.accepted
+    lsm["sigma0_population"] = res.sigma0[acc]
+    if res.grad_power is not None:
+        lsm["population_grad_power"] = res.grad_power[acc]
+    if res.step_score is not None:
+        lsm["population_step_score"] = res.step_score[acc]
+    if quad is not None:
+        lsm["quadratic"] = np.nan_to_num(np.nanmedian(quad[nb], axis=1))
+    found = lsm_match(fprep, gprep, q, start, initial=init, **lsm)
+    st = found.status.astype(status.dtype)
+    if max_sigma_mad_k is not None and acc.sum() >= 30:
+        sigma = found.window_sigma
+        limit = robust_upper_limit(res.window_sigma[acc & np.isfinite(res.window_sigma)],
+                                   max_sigma_mad_k, patch * patch - 8)
+        st[found.accepted & np.isfinite(sigma) & (sigma > limit)] = IMPRECISE
+    m = len(q)
+    add = {"x_right": found.position, "approx": start, "cov": found.cov * factor,
+           "sigma": found.sigma * np.sqrt(factor), "sigma0": found.sigma0,
+           "correlation": found.correlation, "iterations": found.iterations,
+           "affine": found.affine, "radiometric": found.radiometric,
+           "patch": np.full(m, patch, np.int32)}
+    out = {k: np.concatenate([v, add[k].astype(v.dtype)]) for k, v in out.items()}
+    merged = Candidates(points=np.vstack([cand.points, q]),
+                        texture=np.concatenate([cand.texture, dense.texture]),
+                        textured=np.concatenate([cand.textured, dense.textured]),
+                        threshold=cand.threshold, noise=cand.noise)
+    return (merged, np.concatenate([status, st]), np.concatenate([edge, np.zeros(m, bool)]),
+            np.vstack([offset, np.zeros((m, 2))]), out)
 
 
 def _fill_directions(points: np.ndarray, direction: np.ndarray) -> np.ndarray:

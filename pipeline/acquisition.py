@@ -23,7 +23,7 @@ MASK_MODES = ("auto", "folder", "none")
 
 #: Options of ``[acquire]`` (pipeline/defaults.toml) that matching.multiview takes.
 MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "max_iter",
-              "shift_stop_px", "sigma0_factor", "min_correlation", "eccentric")
+              "shift_stop_px", "sigma0_factor", "min_correlation", "eccentric", "densify")
 
 
 def folder_masks(bases: list[Path], names: list[str], images, cameras,

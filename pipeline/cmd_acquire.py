@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep LSM windows centred near untextured regions (background "
                              "past a rim): those points are then dropped instead of "
                              "matched with the window moved onto the surface")
+    parser.add_argument("--no-densify", dest="densify", action="store_false",
+                        help="match only the SPACING lattice (default: also a second "
+                             "lattice, half a cell off, between accepted matches)")
     parser.add_argument("--masks", choices=("auto", "folder", "none"), default="folder",
                         help="object masks: FOLDER/masks/NAME.png (0 = ignore, COLMAP's "
                              "layout; folder, default); those, else the automatic foreground "
@@ -117,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
                                check_views=args.check_views,
                                camera_model=args.sfm_camera_model, spacing=args.spacing,
                                patch=args.patch, eccentric=args.eccentric,
+                               densify=args.densify,
                                masks=args.masks, roi=roi)
     write_outputs(out, cloud)
     if not getattr(args, "quiet", False):

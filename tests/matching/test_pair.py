@@ -143,6 +143,35 @@ def test_rectified_pair_disparity_map():
     np.testing.assert_array_equal(m.x_right[m.accepted, 1], m.x_left[m.accepted, 1])
 
 
+def test_densify_adds_a_lattice_between_accepted_matches():
+    """``densify``: a second lattice, half a cell off, matched inside the accepted region
+    only, at the first lattice's accuracy and on the rectified rows."""
+    coef = texture_coefficients(200, seed=4)
+    ys, xs = np.mgrid[0:120, 0:180].astype(np.float64)
+    disparity = 9.0 + 0.02 * xs
+    rng = np.random.default_rng(0)
+    left = sample(coef, xs + 10, ys + 10) + rng.normal(0, 2.0, xs.shape)
+    x_of_u = (xs + 9.0) / (1 - 0.02)
+    right = sample(coef, x_of_u + 10, ys + 10) + rng.normal(0, 2.0, xs.shape)
+    flat = 60  # columns left of it carry no texture: no window may reach into them
+    left[:, :flat] = 90.0 + rng.normal(0, 2.0, (120, flat))
+    coarse = match_pair(left, right, rectified=True, spacing=4)
+    dense = match_pair(left, right, rectified=True, spacing=4, densify=True)
+    n = len(coarse)
+    np.testing.assert_array_equal(dense.status[:n], coarse.status[:n])
+    np.testing.assert_array_equal(dense.x_right[:n], coarse.x_right[:n])
+    new = np.flatnonzero(dense.accepted[n:]) + n
+    # one shifted cell per first-lattice cell, less the rim of the matched region
+    assert len(new) > 0.6 * coarse.accepted.sum(), (len(new), coarse.accepted.sum())
+    x = dense.x_left[new]
+    assert len(np.unique(dense.x_left, axis=0)) == len(dense)  # new pixels only
+    assert (x[:, 0] - 7 >= flat).all()  # its window (15 px) clear of the flat part
+    err = dense.x_right[new, 0] - (x[:, 0] - disparity[x[:, 1].astype(int), x[:, 0].astype(int)])
+    # the first lattice's accuracy (test_rectified_pair_disparity_map: < 0.03 px)
+    assert np.sqrt(np.mean(err**2)) < 0.03
+    np.testing.assert_array_equal(dense.x_right[new, 1], x[:, 1])
+
+
 def test_bad_input():
     rig = make_rig()
     img = np.random.default_rng(0).normal(100, 20, (H, W))
