@@ -116,12 +116,12 @@ def shares(points: np.ndarray, cameras, images) -> dict:
 
 
 def run_photosurf(name: str, images, cameras, masks, spacing: int, reference=None,
-                  similarity=None) -> tuple[dict, object]:
+                  similarity=None, **options) -> tuple[dict, object]:
     from matching.multiview import reconstruct_multiview
 
     start, cpu = time.perf_counter(), time.process_time()
     load = uptime()
-    cloud = reconstruct_multiview(images, cameras, masks=masks, spacing=spacing)
+    cloud = reconstruct_multiview(images, cameras, masks=masks, spacing=spacing, **options)
     seconds = time.perf_counter() - start
     points = cloud.points
     if similarity is not None:
@@ -408,9 +408,13 @@ def main(argv: list[str] | None = None) -> int:
     if not args.sfm_only:
         known, cloud = run_photosurf("photosurf", images, cameras, masks, spacing)
         print(f"  photosurf: {known['points']} points in {known['seconds']:.1f} s", flush=True)
+        dense, _ = run_photosurf("photosurf-densify", images, cameras, masks, spacing,
+                                 densify=True)
+        print(f"  photosurf-densify: {dense['points']} points in {dense['seconds']:.1f} s",
+              flush=True)
         sgbm = run_sgbm(images, cameras, masks, spacing)
         print(f"  sgbm: {sgbm['points']} points in {sgbm['seconds']:.1f} s", flush=True)
-        rows += [known, sgbm]
+        rows += [known, dense, sgbm]
     sfm_rows, sim_k = [], None
     sfm_runs = () if args.no_sfm else (
         ("pycolmap-sfm", None, "none"), ("pycolmap-sfm-lsm", None, "lsm"),

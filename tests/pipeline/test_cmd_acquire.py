@@ -84,14 +84,14 @@ def test_no_eccentric_drops_the_points_near_the_rims(arc, tmp_path, capsys):
     assert tops[False] > 2.975 and tops[True] < tops[False] - 0.05
 
 
-def test_no_densify_matches_only_the_first_lattice(arc, tmp_path, capsys):
-    """The second lattice (default) adds points between accepted matches, as accurate as
-    the first lattice's; --no-densify leaves it out."""
+def test_densify_adds_a_second_lattice(arc, tmp_path, capsys):
+    """The second lattice (``--densify``, opt-in) adds points between accepted matches, as
+    accurate as the first lattice's; by default (or ``--no-densify``) only the first."""
     clouds = {}
-    for flag in ([], ["--no-densify"]):
+    for flag in (["--densify"], []):
         out = tmp_path / f"d{len(flag)}" / "cloud.ply"
         assert main(["acquire", str(arc), "--out", str(out), "--spacing", "6", *flag]) == 0
-        clouds[bool(flag)] = read_ply(out).points
+        clouds[not flag] = read_ply(out).points
     capsys.readouterr()
     for points in clouds.values():
         r = np.hypot(points[:, 0], points[:, 1])
