@@ -441,13 +441,14 @@ def main(argv: list[str] | None = None) -> int:
     print_table(rows)
     goals = {}
     if not args.sfm_only:
-        goals.update({
-            "points_ge_40000": known["points"] >= 40_000,
-            "in_box_ge_99pct": known["in_box"] >= 0.99,
-            "in_silhouettes_3px_ge_99pct": known["in_silhouettes_3px"] >= 0.99,
-            "in_silhouettes_5px_ge_99pct": known["in_silhouettes_5px"] >= 0.99,
-            "in_outlines_3px_ge_99pct": known["in_outlines_3px"] >= 0.99,
-        })
+        for row, suffix in ((known, ""), (dense, "_densify")):
+            goals.update({
+                f"points_ge_40000{suffix}": row["points"] >= 40_000,
+                f"in_box_ge_99pct{suffix}": row["in_box"] >= 0.99,
+                f"in_silhouettes_3px_ge_99pct{suffix}": row["in_silhouettes_3px"] >= 0.99,
+                f"in_silhouettes_5px_ge_99pct{suffix}": row["in_silhouettes_5px"] >= 0.99,
+                f"in_outlines_3px_ge_99pct{suffix}": row["in_outlines_3px"] >= 0.99,
+            })
     sfm_rows = [r for r in sfm_rows if r["method"] in
                 ("pycolmap-sfm", "pycolmap-sfm-lsm", "pycolmap-sfm-K", "pycolmap-sfm-K-lsm")]
     goals.update({} if args.no_sfm else {
