@@ -613,7 +613,6 @@ def reference_vertices(vertices: np.ndarray, triangles: np.ndarray,
 def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray, reference: np.ndarray):
     """Loop's surface interpolating the mesh and the distances from ``reference`` to it."""
     from surface import bezier
-
     from surface.metrics import point_mesh_distance
 
     control = interpolating_control(vertices, triangles)
@@ -777,40 +776,33 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     h = perimeter / MIN_RING_POINTS
     tried: list[dict] = []
     seen = set()
-
-    def attempt(step: int, n: int) -> SizedMesh | None:
-        """Build candidate (step, n); the SizedMesh if its estimate passes."""
-        seen.add((step, n))
-        thin_rings, thin_planes = coarsen_rings(rings, planes, step, n, smooth=smooth,
-                                                axis=axis)
-        keep = kept_sections(len(rings), step)
-        weights = section_weights(heights, keep, singles) if smooth else \
-            [(np.array([k]), np.array([1.0])) for k in keep]
-        mean_influence = float(influence(heights, keep, weights)[nearest].mean())
-        try:
-            vertices, triangles = build(thin_rings, thin_planes)
-            _, distances = _smooth_surface(vertices, triangles, reference)
-        except ValueError as exc:  # a thinning the stitch or the surface refuses
-            tried.append({"step": step, "n": n, "error": str(exc)})
-            return None
-        error = error_estimate(distances, noise, mean_influence)
-        tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
-                      "deviation": float(distances.mean()), "error": error,
-                      "influence": mean_influence})
-        if error > tolerance:
-            return None
-        return SizedMesh(np.asarray(vertices), np.asarray(triangles, np.int64), step, n,
-                         float(distances.mean()), tolerance, tried, error, noise)
-
     while True:
         step = max(1, int(np.floor(h / spacing)))
         n = max(3, int(np.ceil(perimeter / h)))
         if step == 1 and n >= dense_n:
             break
         if (step, n) not in seen:
-            chosen = attempt(step, n)
-            if chosen is not None:
-                return chosen
+            seen.add((step, n))
+            thin_rings, thin_planes = coarsen_rings(rings, planes, step, n, smooth=smooth,
+                                                    axis=axis)
+            keep = kept_sections(len(rings), step)
+            weights = section_weights(heights, keep, singles) if smooth else \
+                [(np.array([k]), np.array([1.0])) for k in keep]
+            mean_influence = float(influence(heights, keep, weights)[nearest].mean())
+            try:
+                vertices, triangles = build(thin_rings, thin_planes)
+                _, distances = _smooth_surface(vertices, triangles, reference)
+            except ValueError as exc:  # a thinning the stitch or the surface refuses
+                tried.append({"step": step, "n": n, "error": str(exc)})
+            else:
+                error = error_estimate(distances, noise, mean_influence)
+                tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
+                              "deviation": float(distances.mean()), "error": error,
+                              "influence": mean_influence})
+                if error <= tolerance:
+                    return SizedMesh(np.asarray(vertices), np.asarray(triangles, np.int64),
+                                     step, n, float(distances.mean()), tolerance, tried,
+                                     error, noise)
         h /= H_RATIO
     return SizedMesh(dense_vertices, dense_triangles.astype(np.int64), 1, 0, 0.0, tolerance,
                      tried, 0.0, noise)
