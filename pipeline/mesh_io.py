@@ -392,8 +392,7 @@ def _write_ply_to(tmp: Path, vertices, triangles, normals, colors) -> None:
     vertex_indices.
 
     Positions stay float64 (georeferenced coordinates need every bit); unit normals are
-    float32: 6e-8 rad, and 12 of the 48 bytes a vertex took (the demo's surface.ply
-    13.0 -> 10.8 MB)."""
+    float32: 6e-8 rad, and 12 of the 48 bytes a vertex took."""
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     header = ["ply", "format binary_little_endian 1.0", "comment photosurf mesh",
               f"element vertex {len(vertices)}", "property double x", "property double y",
