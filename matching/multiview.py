@@ -345,7 +345,7 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     # a second candidate lattice, half a cell off, matched between accepted centred
     # windows: opt-in (``densify=True``): temple ring, spacing 3: 34 245 -> 49 768 points
     # at a ~10 % longer run, every share inside the silhouettes up; the demo's rendered
-    # ring 381 k -> 551 k points at ~45 % more acquisition time, 53 % more patches,
+    # ring 381 k -> 551 k points at 51 % more acquisition time, 53 % more patches,
     # Hausdorff 0.0016 -> 0.0031, the same Chamfer (README)
     options.setdefault("densify", False)
     # the pair's own variance factor (match_pair's default) is left to the further-view
