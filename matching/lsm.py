@@ -404,6 +404,20 @@ def _ic_constrained(tmat, hmat, c, d, tt, nmat, rhs, nred, bred):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _affine_row(jv, gx, gy, ix, iy, value):
+    """The Jacobian row of the affine + linear radiometric model at window pixel (ix, iy):
+    ``[gx, gx ix, gx iy, gy, gy ix, gy iy, 1, value]`` into ``jv[:8]``."""
+    jv[0] = gx
+    jv[1] = gx * ix
+    jv[2] = gx * iy
+    jv[3] = gy
+    jv[4] = gy * ix
+    jv[5] = gy * iy
+    jv[6] = 1.0
+    jv[7] = value
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
 def _reduce(nmat, rhs, d, constrained, nred, bred):
     """Project the 8x8 system onto the unknowns (shift along ``d`` if constrained)."""
     if not constrained:
@@ -626,14 +640,7 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, noise_fac)
             fv[n] = out[0]
             fx[n] = out[1]
             fy[n] = out[2]
-            jv[0] = out[1]
-            jv[1] = out[1] * ix
-            jv[2] = out[1] * iy
-            jv[3] = out[2]
-            jv[4] = out[2] * ix
-            jv[5] = out[2] * iy
-            jv[6] = 1.0
-            jv[7] = out[0]
+            _affine_row(jv, out[1], out[2], ix, iy, out[0])
             for i in range(8):
                 for j in range(i + 1):
                     hmat[i, j] += jv[i] * jv[j]
@@ -731,14 +738,7 @@ def _step_sums(fv, fx, fy, vres, half, acc, hmat, c):
             gx = fx[n]
             gy = fy[n]
             res = vres[n]
-            jv[0] = gx
-            jv[1] = gx * ix
-            jv[2] = gx * iy
-            jv[3] = gy
-            jv[4] = gy * ix
-            jv[5] = gy * iy
-            jv[6] = 1.0
-            jv[7] = fv[n]
+            _affine_row(jv, gx, gy, ix, iy, fv[n])
             jv[8] = 0.0
             if abs(ix) < half and abs(iy) < half:  # Laplacian from the central differences
                 jv[8] = 0.5 * (fx[n + 1] - fx[n - 1] + fy[n + side] - fy[n - side])
@@ -900,14 +900,7 @@ def _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats):
             gu = p[7] * out[1]
             gv = p[7] * out[2]
             res = fv[n] - p[6] - p[7] * gval
-            jv[0] = gu
-            jv[1] = gu * ix
-            jv[2] = gu * iy
-            jv[3] = gv
-            jv[4] = gv * ix
-            jv[5] = gv * iy
-            jv[6] = 1.0
-            jv[7] = gval
+            _affine_row(jv, gu, gv, ix, iy, gval)
             for i in range(8):
                 rhs[i] += jv[i] * res
                 for j in range(i + 1):
