@@ -37,8 +37,9 @@ import os
 import platform
 import re
 import shutil
+import typing
 import zipfile
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from importlib import metadata
 from pathlib import Path
 
@@ -186,7 +187,8 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
     return path
 
 
-def write_npz_to(path, deflate=(), **arrays: np.ndarray) -> None:
+def write_npz_to(path: str | os.PathLike | typing.BinaryIO, deflate: Collection[str] = (),
+                 **arrays: np.ndarray) -> None:
     """The bytes of :func:`save_npz` written straight to ``path`` (a path or a binary file
     object; not atomic: for a temporary the caller renames, e.g. one of several files
     that land together).

@@ -881,9 +881,10 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
             flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
             inside = beyond[_inside(beyond_flat, flat)]
             counts.append(len(inside))
-            cap = _cap_height(heights, candidates_flat, ring @ frame[:2].T, h_end, sign, delta,
-                              None if sigma is None else sigma[candidates])
-            if len(inside) >= NORMAL_NEIGHBOURS and cap is not None:
+            cap = None if len(inside) < NORMAL_NEIGHBOURS else _cap_height(
+                heights, candidates_flat, ring @ frame[:2].T, h_end, sign, delta,
+                None if sigma is None else sigma[candidates])
+            if cap is not None:
                 step = cap - h_end
             elif len(inside) >= NORMAL_NEIGHBOURS:
                 cap_weights = None if sigma is None else _precision_weights(sigma[inside])
