@@ -342,11 +342,7 @@ def _cholesky_factor(a, m, lo):
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _cholesky_back(lo, b, m, x):
     """Solve ``lo lo^T x = b`` (forward then back substitution)."""
-    for i in range(m):
-        s = b[i]
-        for k in range(i):
-            s -= lo[i, k] * x[k]
-        x[i] = s / lo[i, i]
+    _forward(lo, b, m, x)
     for i in range(m - 1, -1, -1):
         s = x[i]
         for k in range(i + 1, m):
