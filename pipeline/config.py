@@ -74,7 +74,7 @@ RANGES = {
     "curves.min_loop_points": (lambda v: v == 0 or v >= 4, ">= 4 (0: from curves.smoothing)"),
     "smooth.level": (lambda v: 0 <= v <= 6, "0..6, 'auto' or 'adaptive'"),
     "smooth.tolerance": (_non_negative, ">= 0 (0: from the data)"),
-    "smooth.size_tolerance": (_non_negative, ">= 0 (0: the dense rings' own error)"),
+    "smooth.size_tolerance": (_non_negative, ">= 0 (0: the dense stitched mesh's own error)"),
     "report.width": (lambda v: v >= 16, ">= 16 pixels"),
     "report.height": (lambda v: v >= 16, ">= 16 pixels"),
     "report.tau_rel": (_positive, "> 0"),

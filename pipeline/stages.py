@@ -291,10 +291,12 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     """``surface.sizing.size_control_mesh`` of the curves' rings (``smooth.size``): the
     thinned stitched mesh (kept rings regressed across their neighbour sections) whose
     interpolating surface is estimated within ``smooth.size_tolerance`` of the truth (0:
-    ``surface.sizing.ring_noise``, the dense rings' own error from their scatter between
-    sections, else their fits' precision stored by the curves stage, else the points'
-    noise σ̂); ``None`` when not asked or not possible (no noise estimate, an open mesh),
-    with the reason logged."""
+    no farther than the dense stitched mesh, ``surface.sizing.stitched_error`` of the
+    rings' variogram across sections, ``surface.sizing.section_variogram``; where it
+    cannot be measured, their independent scatter ``surface.sizing.ring_noise``, else
+    their fits' precision stored by the curves stage, else the points' noise σ̂);
+    ``None`` when not asked or not possible (no noise estimate, an open mesh), with the
+    reason logged."""
     from surface import sizing
 
     p = ctx.params["smooth"]
@@ -304,9 +306,10 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     fits = artifacts.read_curve_fits(ctx.stage_path("curves"))
     precision = fits["ring_precision"] if fits is not None else 0.0
     ring_sigma = sizing.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0)
-    tolerance = float(p["size_tolerance"]) or ring_sigma
+    variogram = sizing.section_variogram(rings, planes[0].frame[2])
+    tolerance = float(p["size_tolerance"]) or None
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
-    if tolerance <= 0 or spacing <= 0:
+    if (tolerance is None and variogram is None and ring_sigma <= 0) or spacing <= 0:
         log.info("smooth: no sizing (no noise estimate or section spacing); the stitched "
                  "mesh is the control mesh")
         return None
@@ -320,7 +323,7 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
         return result.vertices, result.triangles
 
     return sizing.size_control_mesh(rings, planes, spacing, mesh, (vertices, triangles),
-                                    tolerance, noise=ring_sigma)
+                                    tolerance, noise=ring_sigma, variogram=variogram)
 
 
 def smooth(ctx: StageContext) -> dict:
@@ -343,6 +346,7 @@ def smooth(ctx: StageContext) -> dict:
             info = {"size_step": sized.step, "size_n": sized.n,
                     "size_deviation": sized.deviation, "size_tolerance": sized.tolerance,
                     "size_error": sized.error, "size_noise": sized.noise,
+                    "size_variogram": sized.variogram.to_json() if sized.variogram else None,
                     "size_tried": sized.tried,
                     "control_triangles": len(triangles)}
         control = vertices

@@ -168,7 +168,7 @@ def test_rerun_skips_and_a_parameter_reruns_only_downstream(cloud, tmp_path, cli
 def test_sizing_tolerance_from_the_rings_and_from_an_older_curves_file(
         cloud, tmp_path, cli_run):
     from pipeline import artifacts
-    from surface.sizing import ring_noise, section_scatter
+    from surface.sizing import section_scatter
 
     out = tmp_path / "ws"
     cli_run("run", cloud, "--out", out, *SMALL, "--to", "smooth")
@@ -180,16 +180,22 @@ def test_sizing_tolerance_from_the_rings_and_from_an_older_curves_file(
     # the rings' scatter between sections: at least their fits' precision, within the
     # points' noise (each ring averages several points)
     assert curves["ring_precision"] <= scatter < noise
-    assert smooth["size_tolerance"] == pytest.approx(scatter, rel=1e-12)
-    # the candidate taken met the tolerance, every one tried before it missed it (the
+    # the default tolerance: the dense stitched mesh's own error over its surface, at
+    # least its vertices' error between sections less the interpolation's gain
+    variogram = smooth["size_variogram"]
+    assert variogram["nugget"] > 0 and variogram["lags"][0] == 1
+    # the candidate taken met its tolerance, every coarser one tried missed its own (the
     # dense mesh, step 1, is taken only when every candidate missed)
     tried = [c for c in smooth["size_tried"] if isinstance(c["error"], float)]
     assert tried  # at least one candidate was built and judged
     taken = smooth["size_step"] > 1
     assert not taken or smooth["size_error"] <= smooth["size_tolerance"]
-    assert all(c["error"] > smooth["size_tolerance"] for c in (tried[:-1] if taken else tried))
+    chosen = [c for c in tried if c["error"] == smooth["size_error"]] if taken else []
+    assert all(c["error"] > c["tolerance"] for c in tried
+               if not chosen or c["triangles"] < chosen[0]["triangles"])
+    assert not taken or smooth["size_tolerance"] == pytest.approx(chosen[0]["tolerance"])
     # a curves.npz written before the fits were stored: the smooth stage still runs, with
-    # the same tolerance (the scatter needs only the rings)
+    # the same variogram (it needs only the rings)
     path = out / "curves" / "curves.npz"
     with np.load(path) as npz:
         old = {k: npz[k] for k in ("points", "offsets", "section", "loop", "heights", "axis",
@@ -199,8 +205,7 @@ def test_sizing_tolerance_from_the_rings_and_from_an_older_curves_file(
     cli_run("run", cloud, "--out", out, *SMALL, "--from", "smooth", "--to", "smooth",
             "--set", "smooth.tolerance=0.001")
     smooth = json.loads((out / "manifest.json").read_text())["stages"]["smooth"]["info"]
-    assert smooth["size_tolerance"] == pytest.approx(ring_noise(rings, planes[0].frame[2]),
-                                                     rel=1e-12) and smooth["patches"] > 0
+    assert smooth["size_variogram"] == variogram and smooth["patches"] > 0
 
 
 @pytest.mark.parametrize("args, message", [
