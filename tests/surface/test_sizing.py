@@ -243,3 +243,109 @@ def test_rings_resampled_together_equal_one_by_one():
     bent = rings[0].copy()
     bent[10] = -0.01 * bent[10]
     assert resample_rings_at_angles([rings[0], bent], 50, np.zeros(3), frame) is None
+
+
+def correlated_vase_rings(white: float, shared: float, rho: float, seed: int = 5,
+                          sections: int = 121, n: int = 240, modes: int = 20):
+    """The vase's rings with radial errors smooth along each ring (Fourier modes
+    1..``modes``): an independent part of RMS ``white`` plus a part of RMS ``shared``
+    that follows an AR(1) across sections with correlation ``rho`` from one section to
+    the next, so that ``γ(k) = white² + shared² (1 − rho^k)``."""
+    rng = np.random.default_rng(seed)
+    rings, planes, spacing = vase_rings(sections, n)
+    k = np.arange(1, modes + 1)
+    scale = 1.0 / np.sqrt(modes)
+    ar = rng.normal(0.0, shared * scale, (2, modes))
+    out = []
+    for ring in rings:
+        count = len(ring)
+        theta = 2.0 * np.pi * (np.arange(count) + rng.uniform()) / count
+        z = ring[0, 2]
+        ar = rho * ar + np.sqrt(1.0 - rho ** 2) * rng.normal(0.0, shared * scale, (2, modes))
+        a, b = ar + rng.normal(0.0, white * scale, (2, modes))
+        r = radius(z) + np.cos(np.outer(theta, k)) @ a + np.sin(np.outer(theta, k)) @ b
+        out.append(np.column_stack([r * np.cos(theta), r * np.sin(theta), np.full(count, z)]))
+    return out, planes, spacing
+
+
+def test_section_variogram_measures_errors_shared_between_sections():
+    # independent errors: a flat variogram at sigma^2 (the 6th differences' mean squares
+    # scatter by ~5 % over 121 rings x 40 modes); errors shared by neighbouring sections
+    # (AR(1), rho = 0.8, a range of 4.5 sections): the variogram rises from
+    # white^2 + shared^2 (1 - rho) to the sill white^2 + shared^2, which the former
+    # median scatter of neighbouring sections (lag 1) could not see
+    sigma = 1e-3
+    flat = sizing.section_variogram(correlated_vase_rings(sigma, 0.0, 0.0)[0])
+    assert np.sqrt(flat(1)) == pytest.approx(sigma, rel=0.08)
+    assert np.sqrt(flat(10)) == pytest.approx(sigma, rel=0.08)
+    assert flat.lags == tuple(range(1, 11))  # windows of at most half the sections
+    white, shared, rho = 0.5e-3, 1e-3, 0.8
+    rings = correlated_vase_rings(white, shared, rho)[0]
+    variogram = sizing.section_variogram(rings)
+    for lag in (1, 3, 10):
+        expected = np.sqrt(white ** 2 + shared ** 2 * (1.0 - rho ** lag))
+        assert np.sqrt(variogram(lag)) == pytest.approx(expected, rel=0.15), lag
+    assert np.sqrt(variogram.sill) == pytest.approx(np.hypot(white, shared), rel=0.15)
+    assert sizing.section_scatter(rings) < 0.85 * np.hypot(white, shared)
+    assert variogram(0) == 0.0
+    assert sizing.section_variogram(rings[:6]) is None
+
+
+def test_risk_estimate_for_errors_correlated_across_sections():
+    # a running mean of 7 sections over a sine with AR(1) + white errors: the estimate
+    # E|Sx - x|^2 - 2 sum_j S_ij gamma(|i - j|) + sill matches the actual RMS error
+    # (~2 % sampling scatter at 40 000 samples); Stein's white-noise estimate with the
+    # lag-1 scatter as sigma misses it by far
+    rng = np.random.default_rng(1)
+    count, white, shared, rho = 40_000, 0.02, 0.05, 0.7
+    t = np.linspace(0.0, 40.0, count)
+    e = np.empty(count)
+    e[0] = rng.normal(0.0, shared)
+    for i in range(1, count):
+        e[i] = rho * e[i - 1] + np.sqrt(1 - rho ** 2) * rng.normal(0.0, shared)
+    x = np.sin(t) + e + rng.normal(0.0, white, count)
+    fit = np.convolve(np.pad(x, 3, mode="wrap"), np.ones(7) / 7, mode="valid")
+    actual = float(np.sqrt(np.mean((fit - np.sin(t)) ** 2)))
+    variogram = sizing.Variogram(white ** 2, shared ** 2, -1.0 / np.log(rho))
+    unshared = float(np.sum(variogram(np.arange(-3, 4))) / 7)
+    estimate = sizing.risk_estimate(np.abs(fit - x), variogram, unshared)
+    assert estimate == pytest.approx(actual, rel=0.05)
+    lag1 = np.sqrt(variogram(1))
+    assert sizing.error_estimate(np.abs(fit - x), lag1, 1 / 7) < 0.75 * actual
+
+
+def test_stitched_surface_error_sees_the_faces_not_the_vertices():
+    # a plane triangulated on a grid, its vertices off it by independent errors sigma:
+    # over the faces the error is sum b_i eps_i, RMS sigma / sqrt(2) (E[b_i^2] = 1/6),
+    # which the vertices' and the faces' distances to a fixed surface (here the plane
+    # itself) show; without face points the model value sqrt(sill - gamma(1) / 2)
+    rng = np.random.default_rng(2)
+    sigma = 1e-3
+    u, v = np.meshgrid(np.linspace(0, 1, 201), np.linspace(0, 1, 201))
+    vertices = np.column_stack([u.ravel(), v.ravel(), rng.normal(0, sigma, u.size)])
+    quads = (np.arange(200)[:, None] * 201 + np.arange(200)[None, :]).ravel()
+    triangles = np.vstack([np.column_stack([quads, quads + 1, quads + 202]),
+                           np.column_stack([quads, quads + 202, quads + 201])])
+    on_faces = M.sample_mesh(vertices, triangles, count=40_000, seed=3)
+    measured = sizing.stitched_surface_error(np.abs(vertices[:, 2]), np.abs(on_faces[:, 2]),
+                                             sizing.Variogram.white(sigma))
+    assert measured == pytest.approx(sigma / np.sqrt(2), rel=0.03)
+    # the faces' own RMS error, to the vertices' sample variance against sigma^2 (~0.7 %)
+    assert measured == pytest.approx(np.sqrt(np.mean(on_faces[:, 2] ** 2)), rel=0.02)
+    assert sizing.stitched_surface_error(np.abs(vertices[:, 2]), None,
+                                         sizing.Variogram.white(sigma)) == pytest.approx(
+        sigma / np.sqrt(2))
+
+
+def test_flat_vertices_are_the_caps_inside_their_rims():
+    from surface.fitting import flat_vertices
+
+    rings, planes, _ = vase_rings(31, 60)
+    vertices, triangles = build(rings, planes)
+    flat = flat_vertices(vertices, triangles)
+    z = vertices[:, 2]
+    r = np.hypot(vertices[:, 0], vertices[:, 1])
+    on_cap = (np.abs(z) < 1e-12) | (np.abs(z - 3.0) < 1e-12)
+    rim = on_cap & (r > radius(z) - 1e-9)
+    np.testing.assert_array_equal(flat, on_cap & ~rim)
+    assert flat.sum() > 0
