@@ -254,7 +254,7 @@ class MeshDistance:
             raise ValueError("triangles is empty; no mesh to measure distances to")
         # Shift to the mesh centre so that float32 keeps the small distances exact.
         self.centre = v.mean(axis=0)
-        self._scene = o3d.t.geometry.RaycastingScene()
+        self.scene = self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor((v - self.centre).astype(np.float32)),
                                   o3d.core.Tensor(t.astype(np.uint32)))
 

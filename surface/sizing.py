@@ -1056,11 +1056,14 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
             gate = goal if tolerance is not None else max(goal, stitched_error(variogram))
             if error <= EXACT_WITHIN * gate:   # near: exact distances to the candidate
                 from surface.bezier import closest_points
-                distances = closest_points(surface, reference)[0]
+                faces = tolerance is None and on_faces is not None
+                exact = closest_points(surface, np.vstack([reference, on_faces]) if faces
+                                       else reference, tessellated=measure)[0]
+                distances = exact[:len(reference)]
                 error = risk_estimate(distances, variogram, unshared)
-                if tolerance is None and on_faces is not None:
-                    goal = stitched_surface_error(
-                        distances, closest_points(surface, on_faces)[0], variogram)
+                if faces:
+                    goal = stitched_surface_error(distances, exact[len(reference):],
+                                                  variogram)
         except ValueError as exc:  # a thinning the stitch or the surface refuses
             tried.append({"step": step, "n": n, "error": str(exc)})
             return None
