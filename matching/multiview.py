@@ -396,15 +396,14 @@ def _densify_stats(clouds: Sequence[PairCloud]) -> dict:
     """How much of the second lattice the pairs matched (``stats["densify"]``).
 
     ``pairs``: pairs that matched any; ``candidates``: second-lattice candidates matched;
-    ``first_lattice``: first-lattice candidates LSM ran on (from an approximation);
-    ``share``: candidates / first_lattice (the LSM work densifying added);
-    ``deficit``: matched-surface cells whose first-lattice candidate was not accepted.
+    ``first_lattice``: the pairs' first-lattice candidates (one per cell on the masks);
+    ``share``: candidates / first_lattice; ``deficit``: matched-surface cells whose
+    first-lattice candidate gave no point (:func:`matching.pair.density_deficit`).
     """
-    skip = ("textureless", "no_approximation", "outside_image", "density_deficit",
-            "densified", "silhouette", "eccentric")
+    extra = ("density_deficit", "densified", "silhouette", "eccentric")
     counts = [c.status_counts for c in clouds]
     dense = sum(int(c.get("densified", 0)) for c in counts)
-    first = sum(int(v) for c in counts for k, v in c.items() if k not in skip) - dense
+    first = sum(int(v) for c in counts for k, v in c.items() if k not in extra) - dense
     return {"pairs": sum(int(c.get("densified", 0)) > 0 for c in counts),
             "candidates": dense, "first_lattice": first,
             "share": dense / first if first > 0 else 0.0,
