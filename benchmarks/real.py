@@ -137,7 +137,8 @@ def run_photosurf(name: str, images, cameras, masks, spacing: int, reference=Non
            "skipped": [f"{'-'.join(s['views'])}: {s['reason']}" for s in st["skipped"]],
            "search": st["search"], "variance_factor": st["variance_factor_median"],
            "further_view_offsets": st["further_view_offsets"],
-           "densify": st.get("densify"), "reasons": cloud.reason_counts, "load_before": load, "load_after": uptime(),
+           "densify": st.get("densify"), "reasons": cloud.reason_counts,
+           "load_before": load, "load_after": uptime(),
            **shares(points, reference or cameras, images)}
     return row, cloud
 

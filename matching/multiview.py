@@ -33,8 +33,9 @@ fusion (:mod:`matching.fusion`); tasks run through :mod:`matching.scheduler`.
    :func:`matching.pair._densify`: region growing of the matched surface's interior,
    at the LSM cost of those candidates alone); by default (``"auto"``) only as many as
    the first lattice left cells of the matched surface unaccepted, nearest those holes
-   (:func:`matching.pair.density_deficit`: nothing where the first lattice is complete).  The accepted matches are triangulated
-   in the rectified cameras (:func:`matching.triangulate.triangulate_pair`).
+   (:func:`matching.pair.density_deficit`: nothing where the first lattice is complete).
+   The accepted matches are triangulated in the rectified cameras
+   (:func:`matching.triangulate.triangulate_pair`).
 3. **Multi-image consistency** (in the spirit of MPGC, Gruen & Baltsavias 1988 [1]_).
    Every pair point :math:`X` is projected into the further views :math:`k`.  It is
    *visible* in :math:`k` when it lies in front of the camera, inside the image by the
