@@ -161,9 +161,9 @@ class PairMatches:
         The variance factor k² that ``cov`` and ``sigma`` already carry
         (:func:`matching.precision.midpoint_variance_factor`; 1: not applied).
     density_deficit : int
-        Cells of the matched surface whose first-lattice candidate was not accepted
-        (:func:`density_deficit`; 0 when ``densify`` is off or the pair had too few
-        accepted matches to densify).
+        Cells of the matched surface whose first-lattice candidate gave no point
+        (rejected, or a straddler; :func:`density_deficit`); 0 when ``densify`` is off
+        or the pair had too few accepted matches to densify.
     densified : int
         Second-lattice candidates matched (:func:`_densify`); they are the last
         ``densified`` entries of the arrays.
@@ -313,7 +313,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         True: at every such candidate; ``"auto"``: only as many as the first lattice
         falls short of the requested density (one point per ``spacing`` x ``spacing``
         cell) on the matched surface, nearest its holes first (:func:`density_deficit`:
-        nothing where every candidate of the matched surface was accepted); default
+        nothing where every candidate of the matched surface gave a point); default
         False here (:func:`matching.multiview.reconstruct_view_pair` defaults to
         ``"auto"``).
     grow : bool
