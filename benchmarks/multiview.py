@@ -110,6 +110,7 @@ def run_photosurf(name: str, images, cameras, truth, spacing: int) -> tuple[dict
            "median_sigma_multiview": st["median_sigma_multiview"],
            "pair_seconds": st["pair_seconds"], "consistency_seconds": st["consistency_seconds"],
            "merge_seconds": st["merge_seconds"], "fused": st["fused"],
+           "densify": st.get("densify"),
            "reasons": cloud.reason_counts}
     return row, cloud
 

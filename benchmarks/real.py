@@ -9,6 +9,9 @@ exact cameras in ``templeSR_par.txt``, a black cloth behind the object):
   above 0.19 x 255, dilated by 3 px and by 5 px) and inside every view's outline (the
   silhouette with its enclosed holes filled, dilated by 3 px: see :func:`_silhouettes`),
   pairs used / skipped (with reasons), the a-posteriori variance factor of the matches, seconds;
+  the default second lattice (``densify="auto"``; ``densify`` in the JSON row: pairs and
+  candidates it matched);
+* ``photosurf-densify``  the same with the second lattice forced (``densify=True``);
 * ``sgbm``               OpenCV's SGBM on the *same* rectified pairs with the same search
   ranges, every valid disparity triangulated in the rectified cameras and fused the
   same way (:func:`matching.multiview.merge_clouds`, visual hull of the same masks);
@@ -134,7 +137,8 @@ def run_photosurf(name: str, images, cameras, masks, spacing: int, reference=Non
            "skipped": [f"{'-'.join(s['views'])}: {s['reason']}" for s in st["skipped"]],
            "search": st["search"], "variance_factor": st["variance_factor_median"],
            "further_view_offsets": st["further_view_offsets"],
-           "reasons": cloud.reason_counts, "load_before": load, "load_after": uptime(),
+           "densify": st.get("densify"), "reasons": cloud.reason_counts,
+           "load_before": load, "load_after": uptime(),
            **shares(points, reference or cameras, images)}
     return row, cloud
 
@@ -408,6 +412,8 @@ def main(argv: list[str] | None = None) -> int:
     if not args.sfm_only:
         known, cloud = run_photosurf("photosurf", images, cameras, masks, spacing)
         print(f"  photosurf: {known['points']} points in {known['seconds']:.1f} s", flush=True)
+        # the default is densify="auto" (the second lattice where the first falls short);
+        # True: the second lattice wherever its four neighbours were accepted
         dense, _ = run_photosurf("photosurf-densify", images, cameras, masks, spacing,
                                  densify=True)
         print(f"  photosurf-densify: {dense['points']} points in {dense['seconds']:.1f} s",

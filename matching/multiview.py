@@ -31,8 +31,11 @@ fusion (:mod:`matching.fusion`); tasks run through :mod:`matching.scheduler`.
    four first-lattice matches around each of its candidates were accepted with
    centred windows, started from their affine warps (``densify``,
    :func:`matching.pair._densify`: region growing of the matched surface's interior,
-   at the LSM cost of those candidates alone).  The accepted matches are triangulated
-   in the rectified cameras (:func:`matching.triangulate.triangulate_pair`).
+   at the LSM cost of those candidates alone); by default (``"auto"``) only as many as
+   the first lattice left cells of the matched surface unaccepted, nearest those holes
+   (:func:`matching.pair.density_deficit`: nothing where the first lattice is complete).
+   The accepted matches are triangulated in the rectified cameras
+   (:func:`matching.triangulate.triangulate_pair`).
 3. **Multi-image consistency** (in the spirit of MPGC, Gruen & Baltsavias 1988 [1]_).
    Every pair point :math:`X` is projected into the further views :math:`k`.  It is
    *visible* in :math:`k` when it lies in front of the camera, inside the image by the
@@ -343,11 +346,14 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     # further-view check (cloud RMS 0.000229 -> 0.000228)
     options.setdefault("eccentric", True)
     # a second candidate lattice, half a cell off, matched between accepted centred
-    # windows: opt-in (``densify=True``): temple ring, spacing 3: 34 245 -> 49 768 points
-    # at a ~10 % longer run, every share inside the silhouettes up; the demo's rendered
-    # ring 381 k -> 551 k points at 51 % more acquisition time, 53 % more patches,
-    # Hausdorff 0.0016 -> 0.0031, the same Chamfer (README)
-    options.setdefault("densify", False)
+    # windows, "auto": only as many candidates as the first lattice left cells of the
+    # matched surface unaccepted (match_pair's density_deficit: the density ``spacing``
+    # asks for, where a share of the candidates was rejected).  Everywhere (True) it
+    # costs the demo's rendered ring, whose matched surface is accepted nearly
+    # completely, 51 % more acquisition time and 53 % more patches (381 k -> 551 k
+    # points, Hausdorff 0.0016 -> 0.0031, the same Chamfer; README); the temple ring,
+    # spacing 3, is where it pays: 33 910 -> 49 768 points with True
+    options.setdefault("densify", "auto")
     # the pair's own variance factor (match_pair's default) is left to the further-view
     # check (matching.confirm), which estimates it from a third view's matches of the
     # same points and scales the pair's covariances by it: applying both would count
@@ -378,11 +384,31 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
                      x_template=matches.x_left[ok][keep], x_right=x_right[keep],
                      cov_2d=cov2[keep], cameras=(cam_l, cam_r),
                      status_counts={**matches.status_counts(),
+                                    "density_deficit": matches.density_deficit,
+                                    "densified": matches.densified,
                                     "silhouette": int(np.count_nonzero(matches.accepted
                                                                        & near_edge)),
                                     "eccentric": int(np.count_nonzero(
                                         np.any(offset != 0, axis=1)))},
                      seconds=time.perf_counter() - start, offset=offset)
+
+
+def _densify_stats(clouds: Sequence[PairCloud]) -> dict:
+    """How much of the second lattice the pairs matched (``stats["densify"]``).
+
+    ``pairs``: pairs that matched any; ``candidates``: second-lattice candidates matched;
+    ``first_lattice``: the pairs' first-lattice candidates (one per cell on the masks);
+    ``share``: candidates / first_lattice; ``deficit``: matched-surface cells whose
+    first-lattice candidate gave no point (:func:`matching.pair.density_deficit`).
+    """
+    extra = ("density_deficit", "densified", "silhouette", "eccentric")
+    counts = [c.status_counts for c in clouds]
+    dense = sum(int(c.get("densified", 0)) for c in counts)
+    first = sum(int(v) for c in counts for k, v in c.items() if k not in extra) - dense
+    return {"pairs": sum(int(c.get("densified", 0)) > 0 for c in counts),
+            "candidates": dense, "first_lattice": first,
+            "share": dense / first if first > 0 else 0.0,
+            "deficit": sum(int(c.get("density_deficit", 0)) for c in counts)}
 
 
 def _search_range(volume: SceneVolume | None, cam_l: Camera, cam_r: Camera, grey_l,
@@ -703,6 +729,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     clouds = [r for r in results if not isinstance(r, SkippedPair)]
     _check_coverage(cameras, [c.pair for c in clouds], skipped, min_covered)
     pairs = [c.pair for c in clouds]
+    densify = _densify_stats(clouds)
     t1 = time.perf_counter()
     patch = int(match_options.get("patch", 15))
     spacing = int(match_options.get("spacing", DEFAULT_SPACING))
@@ -791,7 +818,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         "skipped": [{"pair": list(sp.pair), "views": [cameras[v].name for v in sp.pair],
                      "reason": sp.reason} for sp in skipped],
         "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
-        "outline_points": n_outline,
+        "outline_points": n_outline, "densify": densify,
         "fused": merged["fused"], "fusion_radius": merged["radius"],
         "points": int(len(merged["points"])),
         "median_sigma_pair": median_sigma_pair,

@@ -160,6 +160,13 @@ class PairMatches:
     sigma_factor : float
         The variance factor k² that ``cov`` and ``sigma`` already carry
         (:func:`matching.precision.midpoint_variance_factor`; 1: not applied).
+    density_deficit : int
+        Cells of the matched surface whose first-lattice candidate gave no point
+        (rejected, or a straddler; :func:`density_deficit`); 0 when ``densify`` is off
+        or the pair had too few accepted matches to densify.
+    densified : int
+        Second-lattice candidates matched (:func:`_densify`); they are the last
+        ``densified`` entries of the arrays.
     """
 
     x_left: np.ndarray
@@ -180,6 +187,8 @@ class PairMatches:
     offset: np.ndarray
     edge: np.ndarray
     sigma_factor: float = 1.0
+    density_deficit: int = 0
+    densified: int = 0
 
     def __len__(self) -> int:
         return len(self.x_left)
@@ -241,7 +250,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                eccentric: bool = False, grow: bool = True, sigma_factor: bool = True,
                search_range: tuple[int, int] | None = None,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
-               densify: bool = False, **lsm_options) -> PairMatches:
+               densify: bool | str = False, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -297,11 +306,16 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         further view to confirm them; :func:`matching.multiview.reconstruct_view_pair`
         turns it on (its points reach a rim to within about a pixel instead of half
         a window).
-    densify : bool
+    densify : {False, True, "auto"}
         Rectified pairs: a second candidate lattice, shifted by half a cell, matched
         where the four first-lattice matches around each of its candidates were
-        accepted with centred windows, started from their affine warps (:func:`_densify`;
-        default False).
+        accepted with centred windows, started from their affine warps (:func:`_densify`).
+        True: at every such candidate; ``"auto"``: only as many as the first lattice
+        falls short of the requested density (one point per ``spacing`` x ``spacing``
+        cell) on the matched surface, nearest its holes first (:func:`density_deficit`:
+        nothing where every candidate of the matched surface gave a point); default
+        False here (:func:`matching.multiview.reconstruct_view_pair` defaults to
+        ``"auto"``).
     grow : bool
         Region growing (:func:`matching.grow.grow_matches`, Otto & Chau 1989): candidates
         without an SGBM approximation, or whose SGBM start failed, are matched from the
@@ -353,6 +367,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     if max_sigma_mad_k is not None and not (np.isfinite(max_sigma_mad_k)
                                             and max_sigma_mad_k > 0):
         raise ValueError(f"max_sigma_mad_k must be positive or None, got {max_sigma_mad_k!r}")
+    if not (isinstance(densify, bool | np.bool_) or densify == "auto"):
+        raise ValueError(f"densify must be True, False or 'auto', got {densify!r}")
     corr = lsm_options.get("min_correlation", 0.7)
     if not (np.isfinite(corr) and -1.0 <= corr <= 1.0):
         raise ValueError(f"min_correlation must be in [-1, 1], got {corr!r}")
@@ -386,7 +402,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         "iterations": np.zeros(n, np.int32), "affine": np.full((n, 6), np.nan),
         "radiometric": np.full((n, 2), np.nan), "patch": np.zeros(n, np.int32),
     }
-    factor = 1.0
+    factor, deficit, densified = 1.0, 0, 0
     textured = np.flatnonzero(cand.textured)
     if len(textured):
         rect = None if rectified else rectify(rig)
@@ -496,19 +512,101 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 if second_order and quad is not None:
                     quad_all = np.full((n, 6), np.nan)
                     quad_all[idx] = quad
+                n_first = len(status)
                 dense = _densify(left, fprep, gprep, cand, status, edge, offset, out,
                                  res, spacing, patch, mask, valid, quad_all,
-                                 max_sigma_mad_k, factor, options)
-                if dense is not None:
-                    cand, status, edge, offset, out = dense
+                                 max_sigma_mad_k, factor, options, auto=densify == "auto")
+                cand, status, edge, offset, out, deficit = dense
+                densified = len(status) - n_first
     return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
                        rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
-                       offset=offset, edge=edge, sigma_factor=float(factor), **out)
+                       offset=offset, edge=edge, sigma_factor=float(factor),
+                       density_deficit=int(deficit), densified=int(densified), **out)
+
+
+def density_deficit(cells: np.ndarray, shape: tuple[int, int], tried: np.ndarray,
+                    matched: np.ndarray, delivered: np.ndarray,
+                    radius: int) -> tuple[np.ndarray, np.ndarray]:
+    r"""Where the first candidate lattice falls short of its own density on the matched surface.
+
+    The lattice asks for one point per cell (``spacing`` x ``spacing`` px).  On the
+    cell grid let :math:`T` be the cells whose candidate was tried (LSM ran from an
+    approximation: the object as far as the pair can see it), :math:`A \subseteq T`
+    those LSM accepted (evidence that the surface is matched there) and
+    :math:`P \subseteq A` those that give the pair a point (``delivered``: not a
+    window straddling a silhouette).  The *matched surface* is
+
+    .. math:: M = (A \bullet B_r) \cap T,
+
+    the morphological closing of :math:`A` by the disk :math:`B_r` of radius ``radius``
+    cells, kept to tried cells: a rejected cell with accepted matches around it within
+    :math:`r` cells (a gap up to about :math:`2r` cells wide) lies inside the matched
+    surface, while the band beyond the outermost accepted matches (windows reaching
+    over a silhouette into the background, occlusions) is its edge, not a hole.  The
+    deficit is :math:`D = M \setminus P`: the cells of the matched surface that the
+    lattice requested and did not deliver, :math:`|M| - |P|` of them (the closing
+    contains :math:`A`).  Its size per connected component of :math:`M` (8-neighbours)
+    is that region's shortfall; it is zero where every candidate of the matched
+    surface gave a point.
+
+    Parameters
+    ----------
+    cells : (N, 2) int64
+        Cell (column, row) of each first-lattice candidate.
+    shape : (int, int)
+        Cell grid (rows, columns); ``cells`` lie inside it.
+    tried, matched, delivered : (N,) bool
+        Per candidate: :math:`T`, :math:`A`, :math:`P` (each implies the one before).
+    radius : int
+        Closing radius r, cells (>= 1).
+
+    Returns
+    -------
+    deficit : (rows, columns) bool
+        :math:`D`.
+    labels : (rows, columns) int32
+        Connected component of :math:`M` per cell (0: not in :math:`M`).
+    """
+    import cv2
+
+    maps = np.zeros((3, *shape), np.uint8)  # T, A, P
+    for m, flags in enumerate((tried, tried & matched, tried & matched & delivered)):
+        maps[m, cells[:, 1], cells[:, 0]] = flags
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    # cv2's default border leaves the closing unchanged at the grid's edge
+    surface = cv2.morphologyEx(maps[1], cv2.MORPH_CLOSE, disk) & maps[0]
+    _, labels = cv2.connectedComponents(surface, connectivity=8, ltype=cv2.CV_32S)
+    return (surface > 0) & (maps[2] == 0), labels
+
+
+def _fill_deficit(corner_cells: np.ndarray, texture: np.ndarray, deficit: np.ndarray,
+                  labels: np.ndarray) -> np.ndarray:
+    """Which second-lattice candidates make up the deficit: per component k of the
+    matched surface, the :math:`|D_k|` nearest to a deficit cell (distance from the
+    mean of the four neighbour cells' distances; ties: stronger texture, then order).
+
+    ``corner_cells`` (M, 4, 2) int64: the four first-lattice cells (column, row) around
+    each candidate.  Returns (M,) bool.
+    """
+    import cv2
+
+    counts = np.bincount(labels[deficit], minlength=int(labels.max()) + 1)
+    # distance (cells) of every cell to the nearest deficit cell (zeros of the source)
+    far = cv2.distanceTransform((~deficit).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist = far[corner_cells[..., 1], corner_cells[..., 0]].mean(axis=1)
+    label = labels[corner_cells[:, 0, 1], corner_cells[:, 0, 0]]
+    order = np.lexsort((np.arange(len(label)), -texture, dist, label))
+    sorted_label = label[order]
+    first = np.searchsorted(sorted_label, sorted_label, side="left")
+    rank = np.arange(len(order)) - first  # place within its component
+    take = np.zeros(len(label), bool)
+    take[order] = rank < counts[sorted_label]
+    return take
 
 
 def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: dict,
              res: LSMResult, spacing: int, patch: int, mask, valid, quad, max_sigma_mad_k,
-             factor: float, options: dict):
+             factor: float, options: dict, auto: bool = False):
     """A second candidate lattice between accepted matches (rectified pair; region growing).
 
     The first lattice takes the best-textured pixel of every ``spacing`` cell; the
@@ -527,8 +625,20 @@ def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: di
     the first lattice that fail (background, occlusions, wide-baseline perspective)
     are not tried twice, as a finer first lattice would.
 
-    Returns ``(candidates, status, edge, offset, out)`` with the matched second-lattice
-    candidates appended, or None when there are none.
+    ``auto``: only the candidates that make up the first lattice's shortfall on the
+    matched surface (:func:`density_deficit` with r = ceil(patch / spacing) cells, one
+    window: a defect up to a window across in either image -- a specular spot, a
+    small occlusion -- rejects every window that overlaps it, a hole up to two windows
+    wide, which a closing by r encloses): in each connected region of the matched
+    surface with :math:`|D_k|` requested cells not delivered, the :math:`|D_k|`
+    eligible candidates nearest to those cells (all eligible ones when fewer).  The
+    pair then delivers about one point per cell of its matched surface where the
+    interior allows it -- it cannot exceed that, as True can -- and nothing is added
+    where the first lattice is complete.
+
+    Returns ``(candidates, status, edge, offset, out, deficit)``: the matched
+    second-lattice candidates appended (the inputs unchanged when there are none) and
+    :math:`|D|`, the matched-surface cells whose candidate gave no point.
     """
     h, w = left.shape
     s, half = int(spacing), (int(spacing) + 1) // 2
@@ -538,6 +648,13 @@ def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: di
     grid = np.full((ny + 1, nx + 1), -1, np.int64)  # first-lattice candidate per cell
     cell = x0 // s
     grid[cell[good, 1], cell[good, 0]] = np.flatnonzero(good)
+    tried = ~np.isin(status, (Status.TEXTURELESS, NO_APPROXIMATION, Status.OUTSIDE_IMAGE))
+    deficit, labels = density_deficit(cell, (ny + 1, nx + 1), tried, status == Status.OK,
+                                      ~edge, radius=-(-patch // s))
+    n_deficit = int(deficit.sum())
+    unchanged = (cand, status, edge, offset, out, n_deficit)
+    if auto and not n_deficit:
+        return unchanged
     occupied = np.zeros((h, w), bool)
     occupied[x0[:, 1], x0[:, 0]] = True
     shifted = select_points(left[half:, half:], spacing=s, patch=patch,
@@ -549,17 +666,22 @@ def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: di
     nb = np.stack([grid[d[:, 1] + dy, d[:, 0] + dx] for dy in (0, 1) for dx in (0, 1)], 1)
     keep = shifted.textured & np.all(nb >= 0, axis=1) & ~occupied[qi[:, 1], qi[:, 0]]
     if not keep.any():
-        return None
+        return unchanged
     q, nb = q[keep], nb[keep]
     dense = Candidates(points=q, texture=shifted.texture[keep],
                        textured=np.ones(len(q), bool), threshold=shifted.threshold,
                        noise=shifted.noise)
     _, straddle = window_offsets(dense, left, patch, s, mask, valid, move=False)
+    if auto:  # the shortfall, from the candidates that would be matched
+        free = np.flatnonzero(~straddle)
+        straddle = straddle.copy()
+        straddle[free[~_fill_deficit(cell[nb[free]], dense.texture[free], deficit,
+                                     labels)]] = True
     q, nb, dense = q[~straddle], nb[~straddle], replace(
         dense, points=q[~straddle], texture=dense.texture[~straddle],
         textured=dense.textured[~straddle])
     if not len(q):
-        return None
+        return unchanged
     aff = out["affine"][nb]  # (M, 4, 6)
     step = q[:, None, :] - cand.points[nb]  # (M, 4, 2)
     pu = aff[..., 0] + aff[..., 1] * step[..., 0] + aff[..., 2] * step[..., 1]
@@ -598,7 +720,7 @@ def _densify(left, fprep, gprep, cand: Candidates, status, edge, offset, out: di
                         textured=np.concatenate([cand.textured, dense.textured]),
                         threshold=cand.threshold, noise=cand.noise)
     return (merged, np.concatenate([status, st]), np.concatenate([edge, np.zeros(m, bool)]),
-            np.vstack([offset, np.zeros((m, 2))]), out)
+            np.vstack([offset, np.zeros((m, 2))]), out, n_deficit)
 
 
 def _fill_directions(points: np.ndarray, direction: np.ndarray) -> np.ndarray:

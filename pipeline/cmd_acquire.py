@@ -49,11 +49,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep LSM windows centred near untextured regions (background "
                              "past a rim): those points are then dropped instead of "
                              "matched with the window moved onto the surface")
-    parser.add_argument("--densify", action=argparse.BooleanOptionalAction, default=False,
-                        help="also match a second lattice, half a cell off, between "
-                             "accepted matches (denser clouds where the first lattice is "
-                             "sparse: real temple ring 34 245 -> 49 768 points; default "
-                             "off)")
+    parser.add_argument("--densify", action=argparse.BooleanOptionalAction, default="auto",
+                        help="a second lattice, half a cell off, matched between accepted "
+                             "matches: by default only as many candidates as the first "
+                             "lattice left cells of the matched surface unaccepted (the "
+                             "density SPACING asks for; nothing where it is complete); "
+                             "--densify: wherever its neighbours were accepted; "
+                             "--no-densify: the first lattice only")
     parser.add_argument("--masks", choices=("auto", "folder", "none"), default="folder",
                         help="object masks: FOLDER/masks/NAME.png (0 = ignore, COLMAP's "
                              "layout; folder, default); those, else the automatic foreground "

@@ -30,11 +30,13 @@ FLEXIBLE = {
     "sections.axis": ("x", "y", "z", "auto", "data"),
     "curves.smoothing": ("auto",),
     "smooth.level": ("auto", "adaptive"),
+    "acquire.densify": ("auto",),
 }
 
 #: FLEXIBLE keys whose default is a word: an example of the other values they take
-#: (``smooth.level`` defaults to "adaptive" and takes an integer level too).
-FLEXIBLE_EXAMPLE = {"smooth.level": 1}
+#: (``smooth.level`` defaults to "adaptive" and takes an integer level too;
+#: ``acquire.densify`` defaults to "auto" and takes true / false).
+FLEXIBLE_EXAMPLE = {"smooth.level": 1, "acquire.densify": True}
 
 #: Parameters that take one of a fixed set of words (lists: every element must be one).
 CHOICES = {

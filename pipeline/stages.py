@@ -81,6 +81,14 @@ def _save_cloud(ctx: StageContext, points, colors=None, sigma=None) -> dict:
             **({"sigma_median": float(np.median(finite))} if finite.size else {})}
 
 
+def _densify_info(densify: dict | None) -> dict:
+    """The second lattice's share of the pairs and of the LSM candidates (manifest)."""
+    if not densify:
+        return {}
+    return {"densified_pairs": int(densify["pairs"]),
+            "densified_share": round(float(densify["share"]), 4)}
+
+
 def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
     """``pipeline.acquisition.acquire_folder`` (the same loading, checks and method as
     ``photosurf acquire``); view pairs on the executor."""
@@ -102,6 +110,7 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
             "masks": stats.get("masks", "none"), "search_range": stats.get("search", ""),
             "variance_factor": round(float(stats.get("variance_factor_median", 1.0)), 2),
             "ring": bool(stats.get("ring", {}).get("is_ring", False)),
+            **_densify_info(stats.get("densify")),
             **{f"reason_{k}": v for k, v in cloud.reason_counts.items()}}
     return cloud, info
 

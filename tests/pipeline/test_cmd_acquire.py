@@ -85,20 +85,25 @@ def test_no_eccentric_drops_the_points_near_the_rims(arc, tmp_path, capsys):
 
 
 def test_densify_adds_a_second_lattice(arc, tmp_path, capsys):
-    """The second lattice (``--densify``, opt-in) adds points between accepted matches, as
-    accurate as the first lattice's; by default (or ``--no-densify``) only the first."""
+    """The second lattice (``--densify``) adds points between accepted matches, as
+    accurate as the first lattice's; ``--no-densify`` only the first; the default
+    ("auto") only what the first lattice left unaccepted of the matched surface, which
+    on this rendered arc is little."""
     clouds = {}
-    for flag in (["--densify"], []):
-        out = tmp_path / f"d{len(flag)}" / "cloud.ply"
+    for flag in (["--densify"], [], ["--no-densify"]):
+        out = tmp_path / f"d{len(clouds)}" / "cloud.ply"
         assert main(["acquire", str(arc), "--out", str(out), "--spacing", "6", *flag]) == 0
-        clouds[not flag] = read_ply(out).points
+        clouds[flag[0] if flag else "auto"] = read_ply(out).points
     capsys.readouterr()
     for points in clouds.values():
         r = np.hypot(points[:, 0], points[:, 1])
         assert np.median(np.abs(r - (1 + 0.3 * np.sin(2 * points[:, 2])))) < 2e-3
+    n = {k: len(v) for k, v in clouds.items()}
     # a second lattice point per first-lattice match inside the matched surface, less
     # the points the merge fuses: measured 2 587 against 1 874 (1.38)
-    assert len(clouds[False]) > 1.2 * len(clouds[True]), {k: len(v) for k, v in clouds.items()}
+    assert n["--densify"] > 1.2 * n["--no-densify"], n
+    # measured: 1 974 against 1 874 (+5 %: where windows near the rims failed)
+    assert n["--no-densify"] <= n["auto"] < 1.1 * n["--no-densify"], n
 
 
 def test_acquire_with_explicit_cameras_and_an_images_subfolder(scene, tmp_path, capsys):
