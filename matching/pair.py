@@ -431,6 +431,9 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             points, start = centres[idx], x_right[sub]
             shifted = np.any(offset[idx] != 0.0, axis=1)
             direction = _fill_directions(points, direction_all[sub]) if epipolar else None
+            # a rectified pair maps rows to rows: the window's shape across them is
+            # geometry, not an unknown (lsm_match's rigid_across)
+            lsm_options.setdefault("rigid_across", bool(rectified and epipolar))
             options = dict(patch=patch, interpolation=interpolation, direction=direction,
                            min_texture_snr=min_texture_snr, footprint_var=footprint_var,
                            **lsm_options)
