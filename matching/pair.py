@@ -463,12 +463,21 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                     # a grown eccentric window would reach over the edge it was moved off
                     sides[shifted] = patch
                 second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
-                # a grown search window that leaves the image: back to the base patch
-                out_grown = (second.status == Status.OUTSIDE_IMAGE) & (sides != patch)
-                if out_grown.any():
-                    sides[out_grown] = patch
+                # a grown window that fails (its search window leaves the image, or it
+                # reaches over a depth or shading edge the base window stays clear of):
+                # back to the base patch -- growing is for precision, not to lose points
+                failed_grown = (second.status != Status.OK) & (sides != patch)
+                if failed_grown.any():
+                    sides[failed_grown] = patch
                     second = _rematch(fprep, gprep, points, start, res, quad, sides,
-                                      options, only=out_grown, into=second)
+                                      options, only=failed_grown, into=second)
+                # a first-pass match the refinement loses (second-order terms taken from
+                # neighbours across a depth edge) keeps its first-pass result, which
+                # passed the same tests
+                lost = res.accepted & (second.status != Status.OK)
+                if lost.any():
+                    second = _keep_first(second, res, lost)
+                    sides[lost] = patch
                 res = second
             status[idx] = res.status
             if grow:
@@ -729,6 +738,20 @@ def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options
         if side == options["patch"] and only is None:
             reference = res.noise_sigma0
     return LSMResult(noise_sigma0=reference, **arrays)
+
+
+def _keep_first(second: LSMResult, first: LSMResult, lost: np.ndarray) -> LSMResult:
+    """``second`` with the points ``lost`` (N,) bool taken from ``first`` (every array
+    field both carry)."""
+    arrays = {}
+    for f in fields(second):
+        mine, theirs = getattr(second, f.name), getattr(first, f.name)
+        if f.name == "noise_sigma0" or mine is None or theirs is None:
+            continue
+        value = np.array(mine)
+        value[lost] = theirs[lost]
+        arrays[f.name] = value
+    return replace(second, **arrays)
 
 
 def _imprecise(res: LSMResult, k: float, patch: int) -> np.ndarray:
