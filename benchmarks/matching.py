@@ -41,7 +41,11 @@ and against SGBM's left-right loop on the same pixels), when the real data is fo
 Usage::
 
     .venv/bin/python benchmarks/matching.py [--quick] [--json PATH] [--scene DIR]
-        [--real-data DIR]
+        [--real-data DIR] [--part {all,vase,real,graffiti,temple}]
+
+``--part`` runs one part alone (its goals only; JSON to ``matching_<part>.json`` unless
+``--json`` is given): ``vase`` the rendered scenes and synthetic warps, ``real`` both
+real sets, ``graffiti`` or ``temple`` one of them.
 """
 
 from __future__ import annotations
@@ -66,6 +70,8 @@ from matching.pair import PAIR_STATUS_NAMES, match_pair  # noqa: E402
 from matching.seeds import approximate_calibrated, rectify, rectify_images, select_points  # noqa: E402
 
 OUTLIER_PX = 1.0
+#: ``--part`` choices.
+PARTS = ("all", "vase", "real", "graffiti", "temple")
 
 
 def render(quick: bool, folder: Path) -> Path:
@@ -392,12 +398,13 @@ def vase(scene_dir: Path, quick: bool):
                       "image": [int(left.shape[1]), int(left.shape[0])]}
 
 
-def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
+def real_figures(folder: Path, quick: bool, goals: dict,
+                 sets: tuple[str, ...] = ("graffiti", "temple")) -> dict:
     """Graffiti and temple figures (``_real_matching``), printed; goals added in place."""
     import _real_matching as real
 
     out = {}
-    if (folder / "graffiti" / "graf1.png").is_file():
+    if "graffiti" in sets and (folder / "graffiti" / "graf1.png").is_file():
         gr = real.graffiti(folder / "graffiti", quick)
         out["graffiti"] = gr
         print(f"\ngraffiti graf1 -> graf3, {gr['candidates']} candidates (spacing "
@@ -454,7 +461,7 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
             lsm["residual_over_sigma_with_factor"] <= 1.5)
         goals["graffiti_lsm_le_0.75x_ecc"] = (sub["residual_rms_px"]
                                               <= 0.75 * ecc["residual_rms_px"])
-    if (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
+    if "temple" in sets and (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
         te = real.temple(folder / "temple_sparse_ring", quick)
         out["temple"] = te
         print("\ntemple neighbouring pairs (rectified, spacing 4, 15x15):")
@@ -474,6 +481,11 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
                   f"(match_pair(eccentric=True), the ring pipeline's): object "
                   f"{100 * r['accepted_share_on_object_eccentric']:.1f} %, interior "
                   f"{100 * r['accepted_share_interior_eccentric']:.1f} %")
+        for r in te["rows"]:
+            total = sum(r["status_on_object"].values())
+            print(f"{str(tuple(r['pair'])):>7s} statuses of the object's candidates: " + ", ".join(
+                f"{k} {100 * v / total:.1f}" for k, v in sorted(
+                    r["status_on_object"].items(), key=lambda kv: -kv[1])))
         d = te["dense"]
         print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
               f"{d['image'][0]}x{d['image'][1]}: {d['px_per_s']:.0f} px/s "
@@ -491,11 +503,27 @@ def real_figures(folder: Path, quick: bool, goals: dict) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="512x384 render, fewer ECC calls")
-    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "matching.json"))
+    parser.add_argument("--json", help="output (default benchmarks/results/matching.json, "
+                        "matching_<part>.json with --part)")
     parser.add_argument("--scene", help="use an already rendered scene folder")
     parser.add_argument("--real-data", default=str(ROOT.parent / "shared" / "data" / "real"),
                         help="folder with graffiti/ and temple_sparse_ring/")
+    parser.add_argument("--part", choices=PARTS, default="all",
+                        help="run one part alone (vase: rendered + synthetic; real: both "
+                             "real sets)")
     args = parser.parse_args(argv)
+    results = ROOT / "benchmarks" / "results"
+    if args.json is None:
+        args.json = str(results / ("matching.json" if args.part == "all"
+                                   else f"matching_{args.part}.json"))
+    if args.part in ("real", "graffiti", "temple"):
+        goals: dict = {}
+        sets = ("graffiti", "temple") if args.part == "real" else (args.part,)
+        real = real_figures(Path(args.real_data), args.quick, goals, sets)
+        print_goals(goals)
+        write_result(args.json, {"quick": args.quick, "part": args.part, "real": real,
+                                 "goals": goals})
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         scene_dir = Path(args.scene) if args.scene else render(args.quick, Path(tmp) / "vase")
         rows, d3, info = vase(scene_dir, args.quick)
@@ -568,7 +596,8 @@ def main(argv=None) -> int:
         print(f"{r['noise']:5.1f} {r['interpolation']:>9s} {r['jacobian']:>9s} "
               f"{r['rms_px']:8.4f} {r['reported_px']:9.4f} {r['points_per_s']:9.0f} "
               f"{r['points_per_cpu_s']:9.0f}")
-    real = real_figures(Path(args.real_data), args.quick, goals)
+    real = (real_figures(Path(args.real_data), args.quick, goals) if args.part == "all"
+            else {})
     print_goals(goals)
     write_result(args.json, {"info": info, "quick": args.quick, "methods": rows, "3d": d3,
                              "synthetic": synth, "ripple": ripple, "real": real,

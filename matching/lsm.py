@@ -388,15 +388,55 @@ def _ic_normals(tmat, hmat, tt, nmat):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _ic_constrained(tmat, hmat, c, d, tt, nmat, rhs, nred, bred):
-    """Reduced normal equations of the template-gradient Jacobian, shift along ``d``."""
+def _ic_constrained(tmat, hmat, c, pm, m, tt, nmat, rhs, nred, bred):
+    """Reduced normal equations of the template-gradient Jacobian in the basis ``pm``."""
     _ic_normals(tmat, hmat, tt, nmat)
     for i in range(8):
         s = 0.0
         for k in range(8):
             s += tmat[i, k] * c[k]
         rhs[i] = s
-    _reduce(nmat, rhs, d, True, nred, bred)
+    _reduce(nmat, rhs, pm, m, nred, bred)
+
+
+#: Unknowns of the epipolar modes (``constrained`` of the kernel): 0 none (8), 1 the
+#: shift along ``d`` (7: s, a1, a2, b1, b2, r0, r1), 2 the shift and the shape along
+#: ``d`` with the warp across it the template's own (5: s, w1, w2, r0, r1).
+_MODE_UNKNOWNS = (8, 7, 5)
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _basis(d, mode, pm):
+    """The unknowns' basis: p = p0 + pm[:, :m] x (8 x m); returns m.
+
+    Mode 2 keeps every window pixel on its own epipolar line: with n ⟂ d,
+    nᵀA = nᵀ, i.e. A = I + d wᵀ (a rectified pair, d = (1, 0): b1 = 0, b2 = 1) --
+    the shift s d and the shape w along d are estimated, the rest is geometry.
+    """
+    for i in range(8):
+        for j in range(8):
+            pm[i, j] = 0.0
+    if mode == 0:
+        for i in range(8):
+            pm[i, i] = 1.0
+        return 8
+    pm[0, 0] = d[0]
+    pm[3, 0] = d[1]
+    if mode == 1:
+        pm[1, 1] = 1.0
+        pm[2, 2] = 1.0
+        pm[4, 3] = 1.0
+        pm[5, 4] = 1.0
+        pm[6, 5] = 1.0
+        pm[7, 6] = 1.0
+        return 7
+    pm[1, 1] = d[0]  # w1: A += d (1, 0)
+    pm[4, 1] = d[1]
+    pm[2, 2] = d[0]  # w2: A += d (0, 1)
+    pm[5, 2] = d[1]
+    pm[6, 3] = 1.0
+    pm[7, 4] = 1.0
+    return 5
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
@@ -414,53 +454,37 @@ def _affine_row(jv, gx, gy, ix, iy, value):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
-def _reduce(nmat, rhs, d, constrained, nred, bred):
-    """Project the 8x8 system onto the unknowns (shift along ``d`` if constrained)."""
-    if not constrained:
+def _reduce(nmat, rhs, pm, m, nred, bred):
+    """Project the 8x8 system onto the m unknowns of the basis ``pm`` (:func:`_basis`)."""
+    if m == 8:
         for i in range(8):
             bred[i] = rhs[i]
             for j in range(8):
                 nred[i, j] = nmat[i, j]
         return 8
-    # unknowns: s, a1, a2, b1, b2, r0, r1 with (a0, b0) = s * d
-    pm = np.zeros((8, 7))
-    pm[0, 0] = d[0]
-    pm[3, 0] = d[1]
-    pm[1, 1] = 1.0
-    pm[2, 2] = 1.0
-    pm[4, 3] = 1.0
-    pm[5, 4] = 1.0
-    pm[6, 5] = 1.0
-    pm[7, 6] = 1.0
-    for i in range(7):
+    for i in range(m):
         s = 0.0
         for k in range(8):
             s += pm[k, i] * rhs[k]
         bred[i] = s
-        for j in range(7):
+        for j in range(m):
             s = 0.0
             for k in range(8):
                 if pm[k, i] != 0.0:
-                    for m in range(8):
-                        s += pm[k, i] * nmat[k, m] * pm[m, j]
+                    for r in range(8):
+                        s += pm[k, i] * nmat[k, r] * pm[r, j]
             nred[i, j] = s
-    return 7
+    return m
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
-def _expand(xred, d, constrained, delta):
-    if not constrained:
-        for i in range(8):
-            delta[i] = xred[i]
-        return
-    delta[0] = d[0] * xred[0]
-    delta[3] = d[1] * xred[0]
-    delta[1] = xred[1]
-    delta[2] = xred[2]
-    delta[4] = xred[3]
-    delta[5] = xred[4]
-    delta[6] = xred[5]
-    delta[7] = xred[6]
+def _expand(xred, pm, m, delta):
+    """delta = pm[:, :m] xred: the update of the 8 parameters."""
+    for i in range(8):
+        s = 0.0
+        for j in range(m):
+            s += pm[i, j] * xred[j]
+        delta[i] = s
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
@@ -951,7 +975,9 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     for k in range(8):
         p[k] = init[k]
     hlo = np.empty((8, 8))
-    h_spd = constrained or _cholesky_factor(hmat, 8, hlo)
+    h_spd = constrained > 0 or _cholesky_factor(hmat, 8, hlo)
+    pm = np.empty((8, 8))
+    m = _basis(d, constrained, pm)
     tmat = np.empty((8, 8))
     tt = np.empty((8, 8))
     nmat = np.empty((8, 8))
@@ -972,17 +998,17 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         if not _mixing(p, tmat):
             return 4, it, False
         _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c)
-        if not constrained:
+        if constrained == 0:
             # delta = T^{-T} H^{-1} c, with T^{-T} in closed form (module docstring)
             if not h_spd:
                 return 7, it, False
             _cholesky_back(hlo, c, 8, xred)
             _ic_step(p, xred, delta)
         else:
-            _ic_constrained(tmat, hmat, c, d, tt, nmat, rhs, nred, bred)
-            if not _cholesky_solve(nred, bred, 7, xred):
+            _ic_constrained(tmat, hmat, c, pm, m, tt, nmat, rhs, nred, bred)
+            if not _cholesky_solve(nred, bred, m, xred):
                 return 7, it, False
-            _expand(xred, d, constrained, delta)
+            _expand(xred, pm, m, delta)
         for i in range(8):
             p[i] += delta[i]
         if not np.isfinite(p[0] + p[3]):
@@ -1000,10 +1026,10 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     if exact_final:
         # final exact forward-additive step: its normal matrix gives the covariance
         _exact_normals(gimg, p, q, half, kind, fv, nmat, rhs, stats)
-        m = _reduce(nmat, rhs, d, constrained, nred, bred)
+        m = _reduce(nmat, rhs, pm, m, nred, bred)
         if not _cholesky_solve(nred, bred, m, xred):
             return 7, it, False
-        _expand(xred, d, constrained, delta)
+        _expand(xred, pm, m, delta)
         vtv = stats[0]
         for i in range(m):
             vtv -= xred[i] * bred[i]  # linearised residual after the step
@@ -1018,7 +1044,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         _ic_normals(tmat, hmat, tt, nmat)
         for i in range(8):
             rhs[i] = 0.0
-        m = _reduce(nmat, rhs, d, constrained, nred, bred)
+        m = _reduce(nmat, rhs, pm, m, nred, bred)
         vtv = stats[0]
     for i in range(8):
         p_out[i] = p[i]
@@ -1055,7 +1081,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         tt[7, 7] -= 2.0 * grad_noise_var * nfac[0] * npix  # value noise: σ_n² Σk²
         hc = tt.copy()
         _ic_normals(tmat, hc, tt, nmat)
-        _reduce(nmat, rhs, d, constrained, ncred, bred)
+        _reduce(nmat, rhs, pm, m, ncred, bred)
     else:
         for i in range(m):
             for j in range(m):
@@ -1065,24 +1091,14 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     # rows 0-1: the centre (o = 0), rows 2-3: the pixel at ``offset``
     ox = offset[0]
     oy = offset[1]
+    # (in the 8 parameters, then through the basis: grads = g_full pm)
     grads = np.zeros((4, 8))
     for r in range(2):
         o_x = ox if r == 1 else 0.0
         o_y = oy if r == 1 else 0.0
-        if constrained:  # unknowns s, a1, a2, b1, b2, r0, r1 with (a0, b0) = s d
-            grads[2 * r, 0] = d[0]
-            grads[2 * r, 1] = o_x
-            grads[2 * r, 2] = o_y
-            grads[2 * r + 1, 0] = d[1]
-            grads[2 * r + 1, 3] = o_x
-            grads[2 * r + 1, 4] = o_y
-        else:
-            grads[2 * r, 0] = 1.0
-            grads[2 * r, 1] = o_x
-            grads[2 * r, 2] = o_y
-            grads[2 * r + 1, 3] = 1.0
-            grads[2 * r + 1, 4] = o_x
-            grads[2 * r + 1, 5] = o_y
+        for i in range(m):
+            grads[2 * r, i] = pm[0, i] + o_x * pm[1, i] + o_y * pm[2, i]
+            grads[2 * r + 1, i] = pm[3, i] + o_x * pm[4, i] + o_y * pm[5, i]
     xs = np.zeros((4, 8))
     unit = np.zeros(8)
     col = np.empty(8)
@@ -1105,16 +1121,9 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
     # the affine unknowns a0 a1 a2 b0 b1 b2 as rows of the (reduced) unknowns:
     # sigma0^2 G Nc^-1 G^T
     gaff = np.zeros((6, 8))
-    if constrained:
-        gaff[0, 0] = d[0]
-        gaff[3, 0] = d[1]
-        gaff[1, 1] = 1.0
-        gaff[2, 2] = 1.0
-        gaff[4, 3] = 1.0
-        gaff[5, 4] = 1.0
-    else:
-        for k in range(6):
-            gaff[k, k] = 1.0
+    for k in range(6):
+        for i in range(m):
+            gaff[k, i] = pm[k, i]
     xa = np.zeros((6, 8))
     nlo = np.empty((8, 8))
     if not _cholesky_factor(ncred, m, nlo):
@@ -1435,7 +1444,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
               offset=None, sigma0_population=None, population_grad_power=None,
               footprint_var: float | None = None,
               sigma0_model: str = "gradient", step_limit: float | None = STEP_SCORE_LIMIT,
-              population_step_score=None) -> LSMResult:
+              population_step_score=None, rigid_across: bool = False) -> LSMResult:
     """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
 
     Parameters
@@ -1560,6 +1569,15 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         Only with ``jacobian="template"``.
     population_step_score : (M,) array_like, optional
         ``step_score`` of accepted matches made elsewhere (as ``sigma0_population``).
+    rigid_across : bool
+        With ``direction``: every pixel of the window, not only its centre, stays on its
+        epipolar line -- with n ⟂ d the warp satisfies nᵀA = nᵀ, A = I + d wᵀ, so the
+        shift along d and the shape w along d are estimated (5 unknowns with the
+        radiometry instead of 7) and the initial A is projected onto that form.  Exact for
+        a rectified pair (d = (1, 0): b1 = 0, b2 = 1, rows map to rows); there the
+        freed b1, b2 are determined only by the texture's y-gradients, and on texture
+        that has little of them (flutes, horizontal edges) wander and drag the window
+        (``matching.pair`` uses it for rectified pairs).  Default False.
 
     Notes
     -----
@@ -1576,6 +1594,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         raise ValueError(f"jacobian must be 'template' or 'search', got {jacobian!r}")
     if max_iter < 1:
         raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    if rigid_across and direction is None:
+        raise ValueError("rigid_across needs a direction (the epipolar constraint)")
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
     approx = check_shape(approx, "(N, 2)", "approx", dtype=np.float64)
     if len(points) != len(approx):
@@ -1623,6 +1643,13 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
             raise ValueError(f"offset must be finite and inside the patch (|offset| <= "
                              f"{patch // 2} px per axis), got up to "
                              f"{np.abs(offs).max(initial=0.0):g}")
+    mode = (2 if rigid_across else 1) if constrained else 0
+    if mode == 2:
+        # A = I + d dᵀ (A - I): the initial shape along d kept, across it the identity
+        init = init.copy()
+        amat = init[:, [1, 2, 4, 5]].reshape(n, 2, 2) - np.eye(2)
+        amat = np.eye(2) + dirs[:, :, None] * np.einsum("ni,nij->nj", dirs, amat)[:, None, :]
+        init[:, [1, 2, 4, 5]] = amat.reshape(n, 4)
     blur = footprint_blur(init, footprint_var)
     tol = TOL.lsm_shift_stop_px if shift_stop_px is None else float(shift_stop_px)
     max_shift = 0.25 * patch if max_shift_px is None else float(max_shift_px)
@@ -1650,7 +1677,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         _lsm_batch(fimg, fprep.raw, gimg, np.ascontiguousarray(points[idx]),
                    np.ascontiguousarray(approx[idx]), np.ascontiguousarray(init[idx]),
                    np.ascontiguousarray(quad[idx]), np.ascontiguousarray(dirs[idx]),
-                   constrained, patch // 2, _KIND[interpolation], jacobian == "search",
+                   mode, patch // 2, _KIND[interpolation], jacobian == "search",
                    int(max_iter), tol,
                    max_shift, TOL.affine_det_min, min_texture, grad_noise_var,
                    0.25 * (fprep.noise**2 + gprep.noise**2), np.ascontiguousarray(offs[idx]),
@@ -1674,7 +1701,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         pop_power = np.concatenate([pop_power, extra_power[keep]])
     pop_step = (np.zeros(0) if population_step_score is None else
                 np.asarray(population_step_score, dtype=np.float64).ravel())
-    dof = (patch * patch) - (7 if constrained else 8)
+    dof = (patch * patch) - _MODE_UNKNOWNS[mode]
     # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
     gain = float(np.median(params[good, 7])) if good.any() else 1.0
     model = None

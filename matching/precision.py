@@ -193,15 +193,40 @@ def midpoint_variance_factor(points, affine, affine_cov, valid=None, *, patch=15
         fa[:, 3] - fb[:, 3] - (fa[:, 4] + fb[:, 4]) * half[:, 0]
         - (fa[:, 5] + fb[:, 5]) * half[:, 1]])
     expected = (_warp_cov(acov[idx[a]], -half) + _warp_cov(acov[idx[b]], half))
-    det = expected[:, 0, 0] * expected[:, 1, 1] - expected[:, 0, 1] ** 2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d2 = (expected[:, 1, 1] * d[:, 0] ** 2 - 2 * expected[:, 0, 1] * d[:, 0] * d[:, 1]
-              + expected[:, 0, 0] * d[:, 1] ** 2) / det
-    d2[~(det > 0)] = np.nan
-    factor = variance_factor(d2, 2, min_pairs, at_least=0.0)
+    d2, dof = _mahalanobis(d, expected)
+    factor = variance_factor(d2, dof, min_pairs, at_least=0.0)
     if np.isfinite(d2).sum() < min_pairs:
         factor = float("nan")
     return VarianceFactor(factor, idx[np.column_stack([a, b])], d2)
+
+
+#: A 2x2 covariance whose eigenvalue ratio is below this is rank 1 (a shift held to the
+#: epipolar line, every window pixel on its own line: ``lsm_match(rigid_across=True)``).
+_RANK1_RATIO = 1e-9
+
+
+def _mahalanobis(d: np.ndarray, expected: np.ndarray) -> tuple[np.ndarray, int]:
+    """Squared Mahalanobis distances of (P, 2) ``d`` against (P, 2, 2) ``expected`` and
+    their degrees of freedom.
+
+    Where every covariance is rank 1 (the matches of a rectified pair with the window's
+    rows held by the geometry: no spread across the epipolar line, none to compare), the
+    distance along the one direction with spread, 1 degree of freedom; else the 2-D
+    distance over the full-rank pairs, 2.
+    """
+    eig, vec = np.linalg.eigh(expected)  # ascending
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rank1 = eig[:, 0] <= _RANK1_RATIO * eig[:, 1]
+        if rank1.mean() > 0.5:
+            along = np.einsum("pi,pi->p", d, vec[:, :, 1])
+            d2 = along**2 / eig[:, 1]
+            d2[~(rank1 & (eig[:, 1] > 0))] = np.nan
+            return d2, 1
+        det = expected[:, 0, 0] * expected[:, 1, 1] - expected[:, 0, 1] ** 2
+        d2 = (expected[:, 1, 1] * d[:, 0] ** 2 - 2 * expected[:, 0, 1] * d[:, 0] * d[:, 1]
+              + expected[:, 0, 0] * d[:, 1] ** 2) / det
+    d2[~(det > 0) | rank1] = np.nan
+    return d2, 2
 
 
 def _warp_cov(cov6: np.ndarray, offset: np.ndarray) -> np.ndarray:

@@ -117,6 +117,32 @@ def test_epipolar_constraint_rank_one_covariances():
     assert 0.65 < vf.factor < 1.3
 
 
+def test_rows_held_by_the_geometry_give_a_one_dimensional_factor():
+    """rigid_across (every window pixel on its row): the midpoint covariances are rank 1
+    (nothing varies across the rows), the factor is taken along the rows with 1 degree of
+    freedom -- about 1 for white noise (measured 0.83; the 2-D test gave NaN here), and
+    it grows with a noise added to the matches' x (2 σ_x: measured 1.55, the midpoint's
+    variance being mostly the shape's, a1 and a2 over half a window)."""
+    a = np.array([[1.0, 0.0], [0.0, 1.0]])
+    b = np.array([-4.3, 0.0])
+    f, g = warped_pair(size=200, A=a, b=b, noise=2.0, seed=11)
+    pts = grid_points(200, 3)
+    truth = pts + b
+    res = lsm_match(f, g, pts, truth + [0.7, 0.0], patch=15, direction=(1.0, 0.0),
+                    rigid_across=True)
+    ok = res.accepted
+    assert ok.mean() > 0.95
+    np.testing.assert_array_equal(res.affine_cov[ok][:, [3, 4, 5], :], 0.0)
+    vf = midpoint_variance_factor(pts, res.affine, res.affine_cov, ok, patch=15)
+    assert 0.65 < vf.factor < 1.35
+    rng = np.random.default_rng(3)
+    sigma_x = np.sqrt(res.affine_cov[:, 0, 0])
+    moved = res.affine.copy()
+    moved[:, 0] += 2.0 * sigma_x * rng.standard_normal(len(pts))
+    vf2 = midpoint_variance_factor(pts, moved, res.affine_cov, ok, patch=15)
+    assert vf2.factor > 1.5 * vf.factor
+
+
 def test_thinning_keeps_the_estimate():
     """Above ``max_windows`` the windows are thinned on a grid: the factor stays within
     the median's own scatter."""
