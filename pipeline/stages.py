@@ -306,6 +306,8 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     their fits' precision stored by the curves stage, else the points' noise σ̂);
     ``None`` when not asked or not possible (no noise estimate, an open mesh), with the
     reason logged."""
+    import numpy as np
+
     from surface import sizing
 
     p = ctx.params["smooth"]
@@ -314,8 +316,9 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
     fits = artifacts.read_curve_fits(ctx.stage_path("curves"))
     precision = fits["ring_precision"] if fits is not None else 0.0
-    ring_sigma = sizing.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0)
     variogram = sizing.section_variogram(rings, planes[0].frame[2])
+    ring_sigma = sizing.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0) \
+        if variogram is None else float(np.sqrt(variogram(1)))
     tolerance = float(p["size_tolerance"]) or None
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     if (tolerance is None and variogram is None and ring_sigma <= 0) or spacing <= 0:

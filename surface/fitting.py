@@ -152,9 +152,8 @@ def sharp_vertices(vertices, triangles, angle: float = np.pi / 6, rings: int = 1
     cos = np.einsum("ij,ij->i", normal[face[a]], normal[face[b]])
     sharp = np.zeros(len(v), dtype=bool)
     sharp[half[a[cos < np.cos(angle)]].ravel()] = True
-    adjacency = _adjacency(t, len(v)) if rings else None
-    for _ in range(int(rings)):
-        sharp |= (adjacency @ sharp.astype(np.float64)) > 0
+    for _ in range(int(rings)):   # one-ring: the vertices of every face touching the set
+        sharp = sharp | (np.bincount(t[sharp[t].any(axis=1)].ravel(), minlength=len(v)) > 0)
     return sharp
 
 

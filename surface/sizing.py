@@ -110,6 +110,7 @@ References
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -904,8 +905,8 @@ class SizedMesh:
         The chosen candidate's estimated RMS error to the truth
         (:func:`risk_estimate`; 0 for the dense mesh).
     noise : float
-        σ of the dense rings' scatter between neighbouring sections
-        (:func:`section_scatter`).
+        σ of the dense rings' errors between neighbouring sections: ``√γ(1)`` of the
+        variogram, or the white-noise σ taken where it could not be measured.
     variogram : Variogram
         The dense rings' errors across sections the estimates used.
     """
@@ -1008,11 +1009,13 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     axis = np.asarray(planes[0].frame[2], dtype=np.float64)
     if variogram is None:
         variogram = section_variogram(rings, axis)
-    if noise is None:
-        noise = section_scatter(rings, axis)
-    noise = float(noise) if np.isfinite(noise) else 0.0
-    if variogram is None:
+    if variogram is None:   # fewer than seven single-loop sections: independent errors
+        if noise is None:
+            noise = section_scatter(rings, axis)
+        noise = float(noise) if np.isfinite(noise) else 0.0
         variogram = Variogram.white(noise)
+    else:
+        noise = float(np.sqrt(variogram(1)))
     if tolerance is None and not variogram.sill > 0:
         raise ValueError("no noise estimate of the dense rings: give a tolerance")
     dense_vertices, dense_triangles = (np.asarray(a) for a in dense)
@@ -1041,6 +1044,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         if (step, n) in seen or (step == 1 and n >= dense_n):
             return None
         seen.add((step, n))
+        started = time.perf_counter()
         thin_rings, thin_planes = coarsen_rings(rings, planes, step, n, smooth=smooth,
                                                 axis=axis)
         keep = kept_sections(len(rings), step)
@@ -1073,7 +1077,8 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
                       "deviation": float(distances.mean()), "error": error,
                       "tolerance": float(goal), "influence": mean_influence,
-                      "unshared": unshared})
+                      "unshared": unshared,
+                      "seconds": round(time.perf_counter() - started, 3)})
         if error > goal:
             return None
         return SizedMesh(np.asarray(vertices), np.asarray(triangles, np.int64), step, n,
