@@ -67,7 +67,8 @@ from scipy.sparse.linalg import spsolve
 
 from surface.validate import check_finite, check_shape
 
-__all__ = ["interpolating_control_mesh", "limit_matrix", "limit_positions", "sharp_vertices"]
+__all__ = ["flat_vertices", "interpolating_control_mesh", "limit_matrix", "limit_positions",
+           "sharp_vertices"]
 
 
 def _adjacency(triangles: np.ndarray, count: int) -> sp.csr_matrix:
