@@ -142,7 +142,7 @@ from matching.fusion import merge_clouds, point_colours
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
 from matching.masks import grey, inside_masks
 from matching.pair import match_pair
-from matching.rectify import Rectification, rectify, rectify_images
+from matching.rectify import Rectification, rectify, rectify_images, resample
 from matching.scheduler import ViewRef, default_workers, load_image, thread_map
 from matching.search_range import SceneVolume, pair_disparity_range, scene_volume
 from matching.seeds import DEFAULT_SPACING, disparity_range
@@ -449,9 +449,7 @@ def rectified_template(left_image, left: Camera, right: Camera,
     pixels); recomputed where needed (~30 ms at 1024x768) instead of kept per pair.
     """
     rect, _, _ = rectify_pair(left, right)
-    rectified = cv2.remap(grey(left_image, np.float32), *rect.maps_left,
-                          cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return prepare_image(rectified, interpolation)
+    return prepare_image(resample(grey(left_image, np.float32), rect.maps_left), interpolation)
 
 
 # --------------------------------------------------------------------------- consistency

@@ -245,3 +245,32 @@ def test_a_failed_pair_is_skipped_with_its_reason(arc):
     # too few views left in a reconstructed pair: one clear line
     with pytest.raises(ValueError, match=r"only 0 of 2 views .* most often: .*viewing dir"):
         reconstruct_multiview(imgs, cams, pairs=[(0, 3)], workers=1)
+
+
+def test_resampling_keeps_a_clipped_background_clipped():
+    # a black background clipped at 0 beside a textured object with noise sigma = 2: the
+    # cubic kernel's overshoot at the step made the rectified black ripple below 0, the
+    # clipped pixels were no longer the image's minimum, and the noise estimate read the
+    # ripple-free black (0.00-0.04 grey levels on the rectified temple views); kept
+    # within the source's range, the estimate sees the object's noise again
+    from matching.lsm import estimate_noise
+    from matching.rectify import resample
+
+    rng = np.random.default_rng(0)
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w]
+    texture = 120 + 60 * np.sin(xx / 5.0) * np.cos(yy / 7.0) + rng.normal(0, 2.0, (h, w))
+    image = np.where(xx > w // 3, np.clip(texture, 1, 254), 0.0).astype(np.float32)
+    K = np.array([[300.0, 0, w / 2], [0, 300.0, h / 2], [0, 0, 1]])
+    R = cv2.Rodrigues(np.array([0.0, 0.0, 0.05]))[0]                 # a small roll
+    maps = cv2.initUndistortRectifyMap(K, None, R, K, (w, h), cv2.CV_32FC1)
+    raw = cv2.remap(image, maps[0], maps[1], cv2.INTER_CUBIC,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    kept = resample(image, maps)
+    assert raw.min() < -1.0                                            # the overshoot
+    assert kept.min() >= 0.0 and kept.max() <= image.max()
+    inside = (kept > 0)
+    np.testing.assert_array_equal(kept[inside & (raw > 0) & (raw <= image.max())],
+                                  raw[inside & (raw > 0) & (raw <= image.max())])
+    assert estimate_noise(raw) < 0.2                                   # the black's
+    assert 0.5 < estimate_noise(kept) < 2.0   # the object's (0.86: the cubic kernel smooths it)
