@@ -143,8 +143,8 @@ H_RATIO = float(np.sqrt(2.0))
 #: Dense-mesh vertices the deviation of a candidate is measured at (a fixed sample).
 REFERENCE_POINTS = 10_000
 #: A candidate whose estimate to its level-1 tessellation is within this many times the
-#: goal (measured to the tessellation too, or modelled, :func:`stitched_error`, whichever
-#: is larger) is measured again to its exact surface (the tessellation's chord error,
+#: goal (measured to the tessellation too: :func:`stitched_surface_error`, never below
+#: :func:`stitched_error`) is measured again to its exact surface (the tessellation's chord error,
 #: κh²/128, is 5e-5 on the demo's candidates: half their error; far-off candidates are
 #: refused on the cheap measure).
 EXACT_WITHIN = 2.0
@@ -860,18 +860,17 @@ def reference_vertices(vertices: np.ndarray, triangles: np.ndarray,
     return np.sort(pick)
 
 
-def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray, reference):
-    """Loop's surface interpolating the mesh and the distances from ``reference`` to its
-    level-1 tessellation (``reference`` None: the distance function itself, for several
-    point sets)."""
+def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray):
+    """Loop's surface interpolating the mesh and the distance function of its level-1
+    tessellation (``surface.metrics.MeshDistance``: one raycasting scene for several
+    point sets, and the start of :func:`surface.bezier.closest_points`)."""
     from surface import bezier
     from surface.metrics import MeshDistance
 
     control = interpolating_control(vertices, triangles)
     surface = bezier.control_net(control, triangles)
     v, t, _ = bezier.tessellate(surface, 1)
-    measure = MeshDistance(v, t)
-    return surface, (measure if reference is None else measure(reference))
+    return surface, MeshDistance(v, t)
 
 
 def smooth_deviation(vertices: np.ndarray, triangles: np.ndarray, reference: np.ndarray):
@@ -880,20 +879,13 @@ def smooth_deviation(vertices: np.ndarray, triangles: np.ndarray, reference: np.
 
     Returns ``(surface, mean distance)``; the distance is measured to the level-1
     tessellation (16 triangles per control triangle: edges a quarter of the control
-    mesh's, chord error ~ κ h² / 128 for control edge h).  That chord error is not small
-    (5e-5 on the demo's candidates, as much as the noise the distances are compared
-    with) and it makes the rule stricter than its estimate says -- which the rule needs:
-    measured to the exact surface (:func:`surface.bezier.closest_points`, session 8) the
-    10⁵-point vase took step 7 (11 000 patches) instead of step 5 (16 664) and its
-    Chamfer distance rose to 1.36x the stitched mesh's (0.00030 vs 0.00022,
-    ``benchmarks/surface.py --methods stitched stitched+sized --no-shapes --no-scaling
-    --points 100000``): the estimate is an RMS error and the goal a mean distance, and
-    a polyhedron through independent noisy vertices has a mean distance of about
-    0.56 σ against a smooth surface's 0.80 of its RMS error.  A mesh with borders gets
-    the approximating surface (no interpolating solve exists there).
+    mesh's, chord error ~ κ h² / 128 for control edge h: 5e-5 on the demo's candidates,
+    which is why :func:`size_control_mesh` measures the candidates near its goal to the
+    exact surface).  A mesh with borders gets the approximating surface (no
+    interpolating solve exists there).
     """
-    surface, distances = _smooth_surface(vertices, triangles, reference)
-    return surface, float(distances.mean())
+    surface, measure = _smooth_surface(vertices, triangles)
+    return surface, float(measure(reference).mean())
 
 
 @dataclass
@@ -1070,13 +1062,12 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         unshared = float(unshared_noise(matrix, variogram)[nearest].mean())
         try:
             vertices, triangles = build(thin_rings, thin_planes)
-            surface, measure = _smooth_surface(vertices, triangles, None)
+            surface, measure = _smooth_surface(vertices, triangles)
             distances = measure(reference)
             error = risk_estimate(distances, variogram, unshared)
             goal = tolerance if tolerance is not None else stitched_surface_error(
                 distances, None if on_faces is None else measure(on_faces), variogram)
-            gate = goal if tolerance is not None else max(goal, stitched_error(variogram))
-            if error <= EXACT_WITHIN * gate:   # near: exact distances to the candidate
+            if error <= EXACT_WITHIN * goal:   # near: exact distances to the candidate
                 from surface.bezier import closest_points
                 faces = tolerance is None and on_faces is not None
                 exact = closest_points(surface, np.vstack([reference, on_faces]) if faces
