@@ -51,11 +51,11 @@ several sections (the rings' error 1.26e-4 RMS to the truth, their scatter betwe
 neighbouring sections 7.5e-5).  What the data show is the variogram
 ``γ(k) = ½E|ε_{i+k} − ε_i|²``: the 6th differences over every L-th section (the
 profile cancelled up to a quintic) have mean square ``−Σ c_m c_m' γ(|m−m'|L)``, measured
-at L = 1..12 and fitted by a nugget + exponential model.  On the demo it gives γ(1),
-γ(4), γ(8), sill = 9.0, 11.7, 12.6, 12.8e-5 against 8.9, 11.7, 12.6, 12.5e-5 from the
-truth (median over windows of their mean squares; the former median-based σ said 7.5e-5:
-the errors are heavier-tailed than a Gaussian).  An error common to every section is
-not in it, and needs not be: it moves every surface alike.
+at L = 1..12 and fitted by a nugget + exponential model.  On the demo it gives √γ(1),
+√γ(4), √γ(8), √sill = 9.1, 11.8, 12.7, 12.9e-5 against 8.9, 11.7, 12.6e-5 and an RMS
+error of 12.6e-5 from the truth (``benchmarks/demo_truth.py W``; the former
+median-based σ said 7.5e-5: the errors are heavier-tailed than a Gaussian).  An error
+common to every section is not in it, and needs not be: it moves every surface alike.
 
 *The candidate's error* (:func:`risk_estimate`): for the dense vertices
 ``x = truth + ε`` and the candidate ``S x`` (its regression and interpolation across
@@ -74,12 +74,13 @@ dense faces to the same candidate surface: it holds the interpolation's gain ove
 vertices' noise (``Σ b_i ε_i``; ``σ/√2`` for independent errors, the "0.56 σ" Chamfer
 of a polyhedron through noisy vertices) and the flat triangles' chords (on a sparse
 cloud as large as the noise).  On the demo it says 1.12e-4 where the truth says 1.17e-4
-(walls, RMS), on a 2·10⁴-point σ = 0.002 vase 5.9e-4.
+(walls, RMS; a one-off script, not kept), on a 2·10⁴-point σ = 0.002 vase 5.9e-4.
 
 Measured (one run each, this session's code): the demo (380 786 points, 209 sections)
 takes step 7, n = 81: 39 992 patches (step 5, 65 312 before), export 35.7 MB (51.0),
 Chamfer 0.000289 (0.000287; stitched 0.000302), Hausdorff 0.0013 (0.0016); its
-candidates' wall RMS errors to the truth, step 8 / 7 / 6 / 5: 1.17 / 0.98 / 0.98 /
+candidates' wall RMS errors to the truth (a one-off script building each candidate,
+not kept), step 8 / 7 / 6 / 5: 1.17 / 0.98 / 0.98 /
 0.95e-4 against the stitched mesh's 1.17e-4 -- the rule takes the coarsest that is
 clearly closer.  The rule before (σ from the median scatter, Stein's estimate at the
 vertices, the tessellation's distances) refused step 8 by 1.9× and had no step 7.
@@ -501,10 +502,11 @@ def section_variogram(rings: Sequence, axis=(0.0, 0.0, 1.0), max_lag: int = MAX_
     of the single values under-stated γ by 15 % against the truth); a median across
     windows, because one odd ring spoils every window that holds it (the densified
     demo's cloud: one ring made 3 % of the lag-1 windows 12× the rest, and a mean
-    square with the largest 1 % clipped gave 2.6× the truth's sill).  Measured against
-    the truth on both demo clouds: γ(1), γ(4), γ(8) 8.8, 11.3, 13.2e-5 / 8.9, 11.3,
-    13.3e-5 against 8.9, 11.7, 12.6e-5.  The lags ``1 .. max_lag`` are fitted by the
-    model of :class:`Variogram` (log least squares).
+    square with the largest 1 % clipped gave 2.6× the truth's sill).  The lags
+    ``1 .. max_lag`` are fitted by the model of :class:`Variogram` (log least squares).
+    Fitted against the truth (``benchmarks/demo_truth.py W``), √γ at k = 1, 4, 8: 9.1,
+    11.8, 12.7e-5 against 8.9, 11.7, 12.6e-5 (session-8 demo cloud), 8.9, 11.6, 12.5e-5
+    against 8.7, 11.5, 12.5e-5 (merged main's).
 
     Returns
     -------
