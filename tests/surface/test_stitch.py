@@ -412,3 +412,76 @@ def test_one_sided_cloud_is_refused_not_closed_into_a_wrong_solid():
         surface_from_points(half, axis="z")
     # the whole cloud, from the same generator, is accepted and closed
     assert surface_from_points(points, axis="z").closed
+
+
+def _wall_end(rng, wall, line, end, blur):
+    """Offsets beyond an end plane: ``wall`` points spread evenly up to ``end`` and
+    ``line`` points on the rim line at ``end``, each blurred by ``blur``."""
+    offsets = np.r_[rng.uniform(0.0, end, wall), np.full(line, end)]
+    offsets = offsets + rng.normal(0.0, blur, len(offsets))
+    return offsets[offsets > 0]
+
+
+def test_rim_line_finds_the_bunch_at_a_rim_seen_edge_on():
+    """A rim seen edge-on by a ring of cameras: the points beyond the end plane bunch at
+    the rim.  The quantile rule lands on the bunch's outer flank (about +1.5 sigma at
+    these counts); the rim line is found within 0.75 sigma (the wall's shoulder, taken
+    out to first order, leaves an inward bias of ~0.2 sigma at 150 line to 250 wall
+    points; simulated: mean -0.00011, largest 0.00043 at sigma 0.0006)."""
+    from surface.reconstruct import rim_line
+
+    rng = np.random.default_rng(11)
+    blur, end = 0.0006, 0.0056
+    errors, quantile_errors = [], []
+    for _ in range(40):
+        offsets = _wall_end(rng, 250, 150, end, blur)
+        q = np.quantile(offsets, 0.95) / 0.95
+        found = rim_line(offsets, np.full(len(offsets), blur), q)
+        assert found is not None
+        errors.append(found - end)
+        quantile_errors.append(q - end)
+    errors = np.array(errors)
+    assert np.abs(errors).max() < 0.75 * blur, errors
+    assert np.mean(quantile_errors) > 2.0 * np.abs(errors.mean())
+
+
+def test_rim_line_leaves_a_plain_wall_end_alone():
+    """No rim line (the wall points just stop, blurred): no bunch stands out at 5
+    standard errors, so the quantile rule's end stays (None), at any count."""
+    from surface.reconstruct import rim_line
+
+    rng = np.random.default_rng(12)
+    found = 0
+    for wall, end, blur in ((100, 0.01, 0.001), (350, 0.0056, 0.0006), (2000, 0.01, 0.0005)):
+        for _ in range(60):
+            offsets = _wall_end(rng, wall, 0, end, blur)
+            q = np.quantile(offsets, 0.95) / 0.95
+            found += rim_line(offsets, np.full(len(offsets), blur), q) is not None
+    assert found == 0
+    # Without a finite, positive sigma there is no kernel width: no rim line is claimed.
+    offsets = _wall_end(rng, 250, 100, 0.0056, 0.0006)
+    assert rim_line(offsets, np.full(len(offsets), np.nan), 0.006) is None
+
+
+def test_open_ends_with_rim_lines_end_at_the_rims():
+    """Walls only plus a rim line at each end (outline points of rims seen edge-on, as
+    the demo ring measures them): with the points' sigma the end rings go to the rim
+    lines, without it to the quantile rule's end beyond them."""
+    from surface.reconstruct import surface_from_points
+
+    v, f = vase_truth()
+    walls = f[:-2 * 256]
+    rng = np.random.default_rng(7)
+    points = M.sample_mesh(v, walls, count=12000, seed=7)
+    theta = rng.uniform(0.0, 2.0 * np.pi, 1200)
+    rims = np.where(np.arange(1200) < 600, 0.0, 3.0)
+    rim_points = np.column_stack([radius(rims) * np.cos(theta), radius(rims) * np.sin(theta),
+                                  rims])
+    points = np.vstack([points, rim_points]) + rng.normal(0.0, SIGMA, (13200, 3))
+    sigma = np.full(len(points), SIGMA)
+    with_sigma = surface_from_points(points, sigma=sigma)
+    plain = surface_from_points(points)
+    assert sum("rim line" in m for m in with_sigma.messages) == 2, with_sigma.messages
+    z, z0 = with_sigma.vertices[:, 2], plain.vertices[:, 2]
+    assert abs(z.min()) < SIGMA and abs(z.max() - 3.0) < SIGMA
+    assert abs(z0.min()) + abs(z0.max() - 3.0) > 2 * (abs(z.min()) + abs(z.max() - 3.0))
