@@ -681,6 +681,59 @@ def other_shapes(density: float = 2000.0, samples: int = 60_000) -> list[dict]:
     return rows
 
 
+#: Cloud sizes of ``--shapes-table`` (issue 15's 10^4-10^6; 10^6 on request: ~5 min a shape).
+SHAPE_TABLE_SIZES = [10_000, 100_000]
+#: Methods of ``--shapes-table``: the sized smooth surface beside the peers the issue names.
+SHAPE_TABLE_METHODS = ("poisson-8", "poisson-9", "stitched", "stitched+sized")
+
+
+def shapes_table(sizes: list[int]) -> list[dict]:
+    """Issue 15's table on every shape of revolution: the vase and ``SHAPES`` at each
+    cloud size, sigma = SIGMA, the sized smooth surface (``stitched+sized``: patches,
+    triangles, PLY / GLB / control net bytes, Chamfer, F, seconds) beside screened Poisson
+    depth 8 and 9 and the dense stitched mesh on the same cloud, with the issue's three
+    goals per row against Poisson-8: Chamfer <= 0.5x, PLY no larger, CPU seconds no more.
+    """
+    methods = [m for m in METHODS if m[0] in SHAPE_TABLE_METHODS]
+    shapes = {"vase": lambda: vase_truth(n_theta=1024, n_z=768), **SHAPES}
+    rows = []
+    print(f"\nshapes table (sigma = {SIGMA}; CPU seconds of this process; goals of the sized "
+          f"surface against poisson-8: Chamfer <= 0.5x, PLY <=, CPU s <=)")
+    print(f"{'shape':<9s}{'points':>8s} {'method':<15s}{'Chamfer':>9s}{'F':>7s}{'patches':>8s}"
+          f"{'triangles':>10s}{'PLY MB':>8s}{'GLB MB':>8s}{'net MB':>8s}{'CPU s':>8s}"
+          f"{'closed':>7s}")
+    for name, make in shapes.items():
+        truth = make()
+        for size in sizes:
+            points = noisy_cloud(*truth, size, seed=SEED + 2, sigma=SIGMA)
+            group = {}
+            for method_name, method in methods:
+                row = evaluate(method_name, method, points, truth,
+                               samples=min(SAMPLES, 4 * size))
+                row = {k: v for k, v in row.items() if np.isscalar(v) or v is None}
+                row.update(shape=name, points=size)
+                group[method_name] = row
+                rows.append(row)
+                mb = (lambda key: f"{row[key] / 1e6:8.2f}" if key in row else f"{'-':>8s}")
+                print(f"{name:<9s}{size:8d} {method_name:<15s}{row.get('chamfer', np.nan):9.6f}"
+                      f"{row.get('fscore', np.nan):7.3f}{row.get('patches', '-')!s:>8s}"
+                      f"{row['triangles']:10d}{mb('ply_bytes')}{mb('glb_bytes')}"
+                      f"{mb('net_bytes')}{row['cpu_seconds']:8.2f}"
+                      f"{'yes' if row.get('closed') else 'no':>7s}", flush=True)
+            sized, p8 = group.get("stitched+sized"), group.get("poisson-8")
+            if sized and p8 and "chamfer" in sized and "chamfer" in p8:
+                verdict = {"chamfer_ratio": sized["chamfer"] / p8["chamfer"],
+                           "ply_ratio": sized["ply_bytes"] / p8["ply_bytes"],
+                           "cpu_ratio": sized["cpu_seconds"] / p8["cpu_seconds"]}
+                verdict["met"] = bool(verdict["chamfer_ratio"] <= 0.5 and
+                                      verdict["ply_ratio"] <= 1.0 and verdict["cpu_ratio"] <= 1.0)
+                sized.update(verdict)
+                print(f"{'':<18s}sized / poisson-8: Chamfer {verdict['chamfer_ratio']:.2f}x, PLY "
+                      f"{verdict['ply_ratio']:.2f}x, CPU {verdict['cpu_ratio']:.2f}x -> "
+                      f"{'met' if verdict['met'] else 'NOT met'}", flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="scaling up to 10^5 points only")
@@ -699,6 +752,9 @@ def main(argv: list[str] | None = None) -> int:
                              "process per size with its peak memory (default sizes "
                              "10^5 10^6 3*10^6 10^7)")
     parser.add_argument("--fresh-child", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--shapes-table", nargs="*", type=int, metavar="SIZE",
+                        help="only issue 15's table: every shape of revolution at these cloud "
+                             "sizes (default 10^4 10^5), sized surface beside Poisson 8 / 9")
     args = parser.parse_args(argv)
 
     if args.fresh_child:
@@ -717,6 +773,14 @@ def main(argv: list[str] | None = None) -> int:
     import open3d as o3d
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    if args.shapes_table is not None:
+        rows = shapes_table(args.shapes_table or SHAPE_TABLE_SIZES)
+        json_path = args.json if "--json" in (argv or sys.argv) else str(
+            ROOT / "benchmarks" / "results" / "surface_shapes.json")
+        write_result(json_path, {"benchmark": "surface-shapes", "sigma": SIGMA, "tau": TAU,
+                                 "seed": SEED + 2, "rows": rows, "load": uptime(),
+                                 "open3d": o3d.__version__, "numpy": np.__version__})
+        return 0
     truth = vase_truth(n_theta=1024, n_z=768)  # chord sagitta ~6e-6, far below the noise
     points = noisy_cloud(*truth, args.points, seed=SEED, sigma=SIGMA)
     print(f"vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], flat caps: {args.points} points, "
