@@ -510,12 +510,15 @@ def temple(folder: Path, quick: bool) -> dict:
     seconds = time.perf_counter() - t0
     comps = cross_pair_comparisons(data)
     network = cross_pair_network(data, comps)
+    by_class = {name: cross_pair_summary(cross_pair_comparisons(_window_class(data, keep)))
+                for name, keep in (("clear", False), ("edge", True))}
     for r in rows:
         mine = next(p for p in network["pairs"] if p["pair"] == r["pair"])
         r["cross_pair"] = mine
     out = {"rows": rows, "cross_pair": {
         "comparisons": [{k: v for k, v in c.items() if k != "p_points"} for c in comps],
         "network": network, "summary": cross_pair_summary(comps),
+        "summary_by_window_class": by_class,
         "max_angle_deg": CROSS_MAX_ANGLE_DEG, "bound_px": CROSS_BOUND_PX,
         "radius_px": CROSS_RADIUS_PX,
         "pairs": [list(d["pair"]) for d in data]}, "dense": {
@@ -626,6 +629,20 @@ def cross_pair_comparisons(data: list[dict], max_angle: float = CROSS_MAX_ANGLE_
                 "lsm_over_reported": z,
                 "share_q": float(np.mean(var_q / total)), "share_p": float(np.mean(var_p / total)),
                 "p_points": ok[use]})
+    return out
+
+
+def _window_class(data: list[dict], edge: bool) -> list[dict]:
+    """``data`` with only the accepted windows clear of an edge (``edge`` False) or
+    reaching over one (True) left accepted, in P and in Q."""
+    from dataclasses import replace
+
+    out = []
+    for d in data:
+        m = d["matches"]
+        status = m.status.copy()
+        status[m.edge != edge] = 255  # no status: not accepted
+        out.append(dict(d, matches=replace(m, status=status)))
     return out
 
 

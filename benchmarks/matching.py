@@ -509,13 +509,21 @@ def real_figures(folder: Path, quick: bool, goals: dict,
                   f"{v['sgbm_over_lsm']:.2f}, LSM δ/σ {v['lsm_over_reported']:.2f}, outliers "
                   f"LSM {100 * v['lsm_outliers']:.0f} % SGBM {100 * v['sgbm_outliers']:.0f} %, "
                   f"cameras' trend {v['trend_rms_px']:.2f} px")
+        for cls, summary in cp["summary_by_window_class"].items():
+            for name, v in summary.items():
+                print(f"{cls} windows only (P and Q), {name} ({v['comparisons']} comparisons, "
+                      f"{v['points']} points): LSM δ {v['lsm_px']:.3f} px, SGBM δ "
+                      f"{v['sgbm_px']:.3f} px, SGBM/LSM {v['sgbm_over_lsm']:.2f}, LSM δ/σ "
+                      f"{v['lsm_over_reported']:.2f}, outliers LSM "
+                      f"{100 * v['lsm_outliers']:.0f} % SGBM {100 * v['sgbm_outliers']:.0f} %")
         print(f"{'pair':>8s} {'comp':>4s} {'LSM':>6s} {'SGBM':>6s} {'act/σ':>6s} {'σ k':>6s} "
-              f"{'k²':>5s} {'med SGBM/LSM':>12s} {'med δ/σ':>7s}   (network; fit "
+              f"{'k²':>5s} {'k²edge':>6s} {'med SGBM/LSM':>12s} {'med δ/σ':>7s}   (network; fit "
               f"{cp['network']['fit_relative_rms']})")
         for p in cp["network"]["pairs"]:
             print(f"{str(tuple(p['pair'])):>8s} {p['comparisons']:4d} {p['lsm_px']:6.3f} "
                   f"{p['sgbm_px']:6.3f} {p['lsm_over_reported']:6.2f} "
                   f"{p['reported_sigma_rms_px']:6.3f} {p['variance_factor']:5.0f} "
+                  f"{p['variance_factor_edge']:6.0f} "
                   f"{p['median_sgbm_over_lsm']:12.2f} {p['median_lsm_over_reported']:7.2f}")
         d = te["dense"]
         print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
