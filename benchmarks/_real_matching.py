@@ -34,6 +34,23 @@ left-right loop (disparity of the left, then of the right image at the matched p
 (``sigma_factor``, reported as k²). The accepted share is split into interior windows
 (no background pixel in the 15x15 window) and those on the outline, and given again with
 eccentric windows (``match_pair(eccentric=True)``, as the ring pipeline matches).
+
+Temple cross-pair check (``cross_pair_comparisons``; ``matching.precision``'s cross-pair
+section): every ring pair is matched (LSM and SGBM); each accepted LSM match of a pair P
+is triangulated with the given cameras and carried into every pair Q that shares no view
+with it, where Q's nearest accepted match (within ``CROSS_RADIUS_PX``) predicts the right
+column through its warp; the discrepancy δ = ε_Q + c ε_P holds the two pairs' errors and
+no shared image noise.  The same is done with SGBM's disparities on the same P pixels and
+SGBM's map in Q (bilinear).  Kept: points whose rays from P's and Q's left views meet at
+<= ``CROSS_MAX_ANGLE_DEG`` and |δ| < ``CROSS_BOUND_PX`` for both methods; per comparison
+the cameras' own inconsistency is removed (``geometric_trend``, reported as its RMS) and
+δ's spread is the Gaussian core of a core + uniform-outlier mixture (``core_spread``,
+its outlier share beside).  ``lsm_over_reported``: the core spread of δ over
+sqrt(σ_Q² + c² σ_P²), both σ as ``match_pair`` reports them (with its variance factor);
+per pair, the network of comparisons (``matching.precision.network_variances``) gives
+its own error where a cycle of three pairs determines it.  On a rendered ring with exact
+truth (``tests/matching/test_cross_pair.py``) δ equals the two true errors' combination
+to 0.01 px for 95 % of the points, and δ/σ agrees with the truth's within 10 %.
 """
 
 from __future__ import annotations
@@ -431,18 +448,20 @@ def temple(folder: Path, quick: bool) -> dict:
 
     chosen = select_pairs(cams)
     pairs = [chosen[0]] if quick else [chosen[k * len(chosen) // 4] for k in range(4)]
+    # every ring pair once (LSM and SGBM): the cross-pair check needs the whole network
+    data = [_pair_data(cams, images, i, j) for i, j in chosen]
+    by_pair = {d["pair"]: d for d in data}
     rows = []
     for i, j in pairs:
-        left, right, valid = _rectified_pair(cams, images, i, j)
+        d = by_pair[(i, j)]
+        left, right, valid = d["left"], d["right"], d["valid"]
         fg = (left > 0.19 * 255).astype(np.float32)
         obj = cv2.dilate(fg.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
         # interior: no background pixel in the 15x15 window (match_pair's base patch);
         # the rest of the object's candidates straddle its outline (a depth edge)
         background = 1.0 - cv2.boxFilter(fg, -1, (15, 15), normalize=True,
                                           borderType=cv2.BORDER_CONSTANT)
-        t0 = time.perf_counter()
-        m = match_pair(left, right, rectified=True, mask=valid, spacing=4)
-        seconds = time.perf_counter() - t0
+        m, seconds = d["matches"], d["seconds"]
         xi = m.x_left.astype(int)
         on_obj = obj[xi[:, 1], xi[:, 0]]
         interior = on_obj & (background[xi[:, 1], xi[:, 0]] < 1e-6)
@@ -474,8 +493,10 @@ def temple(folder: Path, quick: bool) -> dict:
                 *np.unique(m.status[on_obj], return_counts=True), strict=True)},
             "lsm_fb_loop_rms_px": lsm_fb, "lsm_reported_sigma_x_rms_px": sig_x,
             "lsm_fb_over_sigma": lsm_fb / sig_x, "fb_variance_factor": fb.variance_factor,
-            "variance_factor": m.sigma_factor,
-            "lsm_sigma_x_without_factor_rms_px": sig_x / np.sqrt(m.sigma_factor),
+            "variance_factor": m.sigma_factor, "variance_factor_edge": m.sigma_factor_edge,
+            "lsm_sigma_x_without_factor_rms_px": float(np.sqrt(np.mean(
+                m.cov[use, 0, 0] / np.where(m.edge[use], m.sigma_factor_edge,
+                                            m.sigma_factor)))),
             "same_pixels": int(same.sum()),
             "lsm_fb_loop_rms_same_px": float(np.sqrt(np.mean(loop_x[same] ** 2) / 2)),
             "sgbm_lr_loop_rms_same_px": float(np.sqrt(np.mean(sgbm_loop[same] ** 2) / 2)),
@@ -487,9 +508,201 @@ def temple(folder: Path, quick: bool) -> dict:
     t0 = time.perf_counter()
     dense = match_pair(left, right, rectified=True, mask=valid, spacing=1)
     seconds = time.perf_counter() - t0
-    out = {"rows": rows, "dense": {
+    comps = cross_pair_comparisons(data)
+    network = cross_pair_network(data, comps)
+    by_class = {name: cross_pair_summary(cross_pair_comparisons(_window_class(data, keep)))
+                for name, keep in (("clear", False), ("edge", True))}
+    for r in rows:
+        mine = next(p for p in network["pairs"] if p["pair"] == r["pair"])
+        r["cross_pair"] = mine
+    out = {"rows": rows, "cross_pair": {
+        "comparisons": [{k: v for k, v in c.items() if k != "p_points"} for c in comps],
+        "network": network, "summary": cross_pair_summary(comps),
+        "summary_by_window_class": by_class,
+        "max_angle_deg": CROSS_MAX_ANGLE_DEG, "bound_px": CROSS_BOUND_PX,
+        "radius_px": CROSS_RADIUS_PX,
+        "pairs": [list(d["pair"]) for d in data]}, "dense": {
         "pair": list(pairs[0]), "image": [int(left.shape[1]), int(left.shape[0])],
         "candidates": len(dense), "accepted": int(dense.accepted.sum()),
         "seconds": seconds, "px_per_s": left.size / seconds,
         "accepted_per_s": float(dense.accepted.sum() / seconds)}}
+    return out
+
+
+# ------------------------------------------------------------------ temple cross-pair check
+#: Largest angle (deg) at the point between the rays of P's and Q's left views: beyond
+#: it the two pairs see a relief through windows too different (and the surface too often
+#: hidden) for one to check the other.  The ring's neighbouring disjoint pairs lie 23-60
+#: deg apart; the table is split at 35 deg.
+CROSS_MAX_ANGLE_DEG = 50.0
+#: Discrepancies beyond this (px) are no matching error (occlusion, another surface).
+CROSS_BOUND_PX = 3.0
+#: Q's match must lie within this of the transferred point (px): its warp carries it there.
+CROSS_RADIUS_PX = 2.0
+
+
+def _pair_data(cams, images, i, j, spacing=4, **options):
+    """LSM (``match_pair``, ``options``) and SGBM of one rectified ring pair, with its
+    rectified cameras."""
+    from matching.multiview import rectify_pair
+    from matching.pair import match_pair
+
+    left, right, valid = _rectified_pair(cams, images, i, j)
+    _, cam_l, cam_r = rectify_pair(cams[i], cams[j])
+    t0 = time.perf_counter()
+    m = match_pair(left, right, rectified=True, mask=valid, spacing=spacing, **options)
+    seconds = time.perf_counter() - t0
+    try:
+        lo, count = disparity_range(left, right)
+        sgbm = sgbm_disparity(left, right, lo, count)
+    except ValueError:
+        sgbm = np.full(left.shape, np.nan, np.float32)
+    return {"pair": (i, j), "matches": m, "cams": (cam_l, cam_r), "sgbm": sgbm,
+            "left": left, "right": right, "valid": valid, "seconds": seconds}
+
+
+def cross_pair_comparisons(data: list[dict], max_angle: float = CROSS_MAX_ANGLE_DEG,
+                           bound: float = CROSS_BOUND_PX, radius: float = CROSS_RADIUS_PX,
+                           min_points: int = 100) -> list[dict]:
+    """Every ordered comparison of two pairs without a common view (module section).
+
+    On the same P pixels (LSM accepted, SGBM valid there and at Q) and the same Q
+    neighbourhoods: LSM's discrepancy (P's match transferred, Q's nearest match's
+    warp at the transferred point) and SGBM's (P's SGBM disparity transferred, Q's
+    SGBM map bilinearly there), each with the cameras' trend removed
+    (``matching.precision.geometric_trend``), its Gaussian core's spread and outlier
+    share (``core_spread``), and LSM's discrepancy over the σ both pairs report.
+    """
+    from matching.precision import (
+        core_spread,
+        discrepancy,
+        geometric_trend,
+        lsm_column_at,
+        map_column_at,
+        ray_angle,
+        transfer_matches,
+    )
+
+    out = []
+    for p, dp in enumerate(data):
+        mp = dp["matches"]
+        ok = np.flatnonzero(mp.accepted)
+        xl, xr = mp.x_left[ok], mp.x_right[ok]
+        xi = xl.astype(int)
+        d_sgbm = dp["sgbm"][xi[:, 1], xi[:, 0]].astype(np.float64)
+        for q, dq in enumerate(data):
+            if set(dp["pair"]) & set(dq["pair"]):
+                continue
+            mq = dq["matches"]
+            angle = ray_angle(dp["cams"][0], dq["cams"][0], xl, xr[:, 0], dp["cams"])
+            near = angle <= max_angle
+            if near.sum() < min_points:
+                continue
+            tr = transfer_matches(dp["cams"], xl, xr, dq["cams"])
+            col, qi, slope = lsm_column_at(tr.u, mq.x_left, mq.x_right, mq.affine,
+                                           mq.accepted, radius)
+            delta, c = discrepancy(tr, col, slope)
+            trs = transfer_matches(dp["cams"], xl, xl[:, 0] - d_sgbm, dq["cams"])
+            col_s, slope_s = map_column_at(trs.u, dq["sgbm"].astype(np.float64))
+            delta_s, c_s = discrepancy(trs, col_s, slope_s)
+            use = (near & np.isfinite(delta) & np.isfinite(delta_s)
+                   & (np.abs(delta) < bound) & (np.abs(delta_s) < bound))
+            if use.sum() < min_points:
+                continue
+            disp_q = tr.u[use, 0] - tr.v_x[use]
+            res_l, trend = geometric_trend(tr.u[use], disp_q, delta[use], bound)
+            res_s, _ = geometric_trend(trs.u[use], disp_q, delta_s[use], bound)
+            var_q = mq.cov[qi[use], 0, 0]
+            var_p = c[use] ** 2 * mp.cov[ok[use], 0, 0]
+            total = var_q + var_p
+            lsm_sigma, _, lsm_out = core_spread(res_l, bound)
+            sgbm_sigma, _, sgbm_out = core_spread(res_s, bound)
+            z = core_spread(res_l / np.sqrt(total), 5 * bound)[0]
+            out.append({
+                "p": p, "q": q, "P": list(dp["pair"]), "Q": list(dq["pair"]),
+                "points": int(use.sum()), "angle_median_deg": float(np.median(angle[use])),
+                "c2_lsm": float(np.mean(c[use] ** 2)), "c2_sgbm": float(np.mean(c_s[use] ** 2)),
+                "lsm_px": lsm_sigma, "sgbm_px": sgbm_sigma,
+                "lsm_outliers": lsm_out, "sgbm_outliers": sgbm_out,
+                "sgbm_over_lsm": sgbm_sigma / lsm_sigma,
+                "trend_rms_px": float(np.sqrt(np.mean(trend**2))),
+                "lsm_over_reported": z,
+                "share_q": float(np.mean(var_q / total)), "share_p": float(np.mean(var_p / total)),
+                "p_points": ok[use]})
+    return out
+
+
+def _window_class(data: list[dict], edge: bool) -> list[dict]:
+    """``data`` with only the accepted windows clear of an edge (``edge`` False) or
+    reaching over one (True) left accepted, in P and in Q."""
+    from dataclasses import replace
+
+    out = []
+    for d in data:
+        m = d["matches"]
+        status = m.status.copy()
+        status[m.edge != edge] = 255  # no status: not accepted
+        out.append(dict(d, matches=replace(m, status=status)))
+    return out
+
+
+def cross_pair_network(data: list[dict], comps: list[dict]) -> dict:
+    """Per pair: its own LSM and SGBM error (px) and LSM's actual / reported σ, from the
+    network of comparisons (``matching.precision.network_variances``)."""
+    from matching.precision import network_variances
+
+    g = lambda key: np.array([c[key] for c in comps], np.float64)  # noqa: E731
+    p, q, n = g("p").astype(int), g("q").astype(int), g("points")
+    lsm = network_variances(len(data), p, q, g("lsm_px") ** 2, g("c2_lsm"), np.ones(len(p)), n)
+    sgbm = network_variances(len(data), p, q, g("sgbm_px") ** 2, g("c2_sgbm"), np.ones(len(p)),
+                             n)
+    scale = network_variances(len(data), p, q, g("lsm_over_reported") ** 2, g("share_p"),
+                              g("share_q"), n)
+    rows = []
+    for k, d in enumerate(data):
+        m = d["matches"]
+        used = np.zeros(len(m), bool)
+        for c in comps:
+            if c["p"] == k:
+                used[c["p_points"]] = True
+        mine = (p == k) | (q == k)
+        rows.append({
+            "pair": list(d["pair"]), "comparisons": int(mine.sum()),
+            "points_as_p": int(used.sum()),
+            "lsm_px": float(np.sqrt(lsm.variance[k])), "sgbm_px": float(np.sqrt(sgbm.variance[k])),
+            "sgbm_over_lsm": float(np.sqrt(sgbm.variance[k] / lsm.variance[k]))
+            if lsm.variance[k] > 0 else float("nan"),
+            "lsm_over_reported": float(np.sqrt(scale.variance[k])),
+            "reported_sigma_rms_px": float(np.sqrt(np.mean(m.cov[used, 0, 0])))
+            if used.any() else float("nan"),
+            "variance_factor": float(m.sigma_factor),
+            "variance_factor_edge": float(m.sigma_factor_edge),
+            "median_sgbm_over_lsm": float(np.median(g("sgbm_over_lsm")[mine]))
+            if mine.any() else float("nan"),
+            "median_lsm_over_reported": float(np.median(g("lsm_over_reported")[mine]))
+            if mine.any() else float("nan")})
+    fit = {name: float(np.sqrt(np.nanmean(v.residual ** 2)))
+           for name, v in (("lsm", lsm), ("sgbm", sgbm), ("scale", scale))}
+    return {"pairs": rows, "fit_relative_rms": fit}
+
+
+def cross_pair_summary(comps: list[dict]) -> dict:
+    """Medians over the comparisons, by angle class (below / above 35 deg)."""
+    out = {}
+    for name, lo, hi in (("all", 0.0, 180.0), ("below_35deg", 0.0, 35.0),
+                         ("35deg_and_above", 35.0, 180.0)):
+        sel = [c for c in comps if lo <= c["angle_median_deg"] < hi]
+        if not sel:
+            continue
+        def g(key, sel=sel):
+            return np.array([c[key] for c in sel], np.float64)
+
+        out[name] = {"comparisons": len(sel), "points": int(g("points").sum()),
+                     "lsm_px": float(np.median(g("lsm_px"))),
+                     "sgbm_px": float(np.median(g("sgbm_px"))),
+                     "sgbm_over_lsm": float(np.median(g("sgbm_over_lsm"))),
+                     "lsm_over_reported": float(np.median(g("lsm_over_reported"))),
+                     "lsm_outliers": float(np.median(g("lsm_outliers"))),
+                     "sgbm_outliers": float(np.median(g("sgbm_outliers"))),
+                     "trend_rms_px": float(np.median(g("trend_rms_px")))}
     return out

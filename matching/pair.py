@@ -99,7 +99,7 @@ from matching.lsm import (
     prepare_image,
     robust_upper_limit,
 )
-from matching.precision import midpoint_variance_factor
+from matching.precision import class_variance_factors
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
@@ -166,8 +166,12 @@ class PairMatches:
     image_size : (int, int)
         Left image (width, height), px.
     sigma_factor : float
-        The variance factor k² that ``cov`` and ``sigma`` already carry
-        (:func:`matching.precision.midpoint_variance_factor`; 1: not applied).
+        The variance factor k² that ``cov`` and ``sigma`` of the windows clear of an
+        edge (``~edge``) already carry (:func:`matching.precision.class_variance_factors`;
+        1: not applied).
+    sigma_factor_edge : float
+        The same for the ``edge`` windows (estimated from the window pairs among them;
+        ``sigma_factor`` where there are none).
     density_deficit : int
         Cells of the matched surface whose first-lattice candidate gave no point
         (rejected, or a straddler; :func:`density_deficit`); 0 when ``densify`` is off
@@ -195,6 +199,7 @@ class PairMatches:
     offset: np.ndarray
     edge: np.ndarray
     sigma_factor: float = 1.0
+    sigma_factor_edge: float = 1.0
     density_deficit: int = 0
     densified: int = 0
 
@@ -334,8 +339,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         windows give (:func:`matching.precision.midpoint_variance_factor`: two windows
         a patch apart predict their midpoint through their own affine warps, which
         agree for any locally quadratic surface): what real images add to σ0²N⁻¹
-        (correlated noise, blur and shading differences, model error).  Never below 1
-        (σ0²N⁻¹ is the white-noise bound); needs >= 30 window pairs (else k² = 1).
+        (correlated noise, blur and shading differences, model error), one factor for
+        the windows clear of an edge and one for the ``edge`` windows
+        (:func:`matching.precision.class_variance_factors`: two populations; pooled, the
+        temple pairs' clear windows erred 0.30 of their σ k by the cross-pair check of
+        ``benchmarks/matching.py --part temple``).  Never below 1
+        (σ0²N⁻¹ is the white-noise bound); needs >= 30 window pairs (a class with
+        fewer: the pooled factor; fewer overall: k² = 1).
         Default on (measured, ``benchmarks/matching.py``: rendered vase pair 1024x768
         k² 1.27, actual / reported σ 1.27 -> 1.01; 320x240 with 1 px correlated noise
         9.5, 3.0 -> 0.98; graffiti 7.1; temple pairs 10.5-76).  It cannot see what every
@@ -410,7 +420,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         "iterations": np.zeros(n, np.int32), "affine": np.full((n, 6), np.nan),
         "radiometric": np.full((n, 2), np.nan), "patch": np.zeros(n, np.int32),
     }
-    factor, deficit, densified = 1.0, 0, 0
+    factor, factor_edge, deficit, densified = 1.0, 1.0, 0, 0
     textured = np.flatnonzero(cand.textured)
     if len(textured):
         rect = None if rectified else rectify(rig)
@@ -509,19 +519,21 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch)]] = IMPRECISE
-            factor = 1.0
+            factor, factor_edge, per_window = 1.0, 1.0, np.ones(len(idx))
             if sigma_factor:
                 ok_final = status[idx] == Status.OK
-                vf = midpoint_variance_factor(points, res.affine, res.affine_cov, ok_final,
-                                              patch=sides)
                 # σ0²N⁻¹ is the white-noise precision, a lower bound: what real images
                 # add only grows it (an estimate below 1 is the estimator's own scatter,
-                # ~10 % for a few thousand matches)
-                if np.isfinite(vf.factor):
-                    factor = max(1.0, vf.factor)
+                # ~10 % for a few thousand matches); windows clear of and reaching over
+                # an edge are two populations (class_variance_factors)
+                per_window, factors = class_variance_factors(
+                    points, res.affine, res.affine_cov, ok_final,
+                    edge[idx].astype(np.int64), patch=sides)
+                factor = float(factors[0]) if len(factors) else 1.0
+                factor_edge = float(factors[1]) if len(factors) > 1 else factor
             out["x_right"][idx] = res.position
-            out["cov"][idx] = res.cov * factor
-            out["sigma"][idx] = res.sigma * np.sqrt(factor)
+            out["cov"][idx] = res.cov * per_window[:, None, None]
+            out["sigma"][idx] = res.sigma * np.sqrt(per_window)
             out["sigma0"][idx] = res.sigma0
             out["correlation"][idx] = res.correlation
             out["iterations"][idx] = res.iterations
@@ -541,6 +553,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     return PairMatches(x_left=cand.points, texture=cand.texture, status=status,
                        rectified=bool(rectified), image_size=(left.shape[1], left.shape[0]),
                        offset=offset, edge=edge, sigma_factor=float(factor),
+                       sigma_factor_edge=float(factor_edge),
                        density_deficit=int(deficit), densified=int(densified), **out)
 
 

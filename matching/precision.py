@@ -40,7 +40,10 @@ Measured (``benchmarks/matching.py``, one full run): rendered vase pair 1024x768
 k² = 1.27 (actual / reported σ 1.27 -> 1.01), 320x240 with 1 px correlated noise
 9.5 (3.0 -> 0.98); graffiti 21x21 7.1 (the forward-backward lower bound 3.2); temple
 pairs 10.5 to 76 (the old estimator -- residuals to a local quadratic over 2.5 patch
-sides -- gave ~745 on pair (0, 1): the facade's depth structure).  Unlike forward-backward matching
+sides -- gave ~745 on pair (0, 1): the facade's depth structure).  Per window class
+(:func:`class_variance_factors`, what ``match_pair`` applies since session 10): temple
+k² 5-85 for the windows clear of an edge, 74-240 for the ``edge`` windows; the cross-pair
+check (below) puts the errors at 0.75 / 0.64 of those σ k.  Unlike forward-backward matching
 (:mod:`matching.consistency`), whose two matches read the same pixels and so share
 their noise, the windows compared here share none.
 
@@ -200,6 +203,50 @@ def midpoint_variance_factor(points, affine, affine_cov, valid=None, *, patch=15
     return VarianceFactor(factor, idx[np.column_stack([a, b])], d2)
 
 
+def class_variance_factors(points, affine, affine_cov, valid, classes, *, patch=15,
+                           min_pairs: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`midpoint_variance_factor` per class of windows, never below 1.
+
+    One factor for a pair's matches assumes one population; a window that reaches
+    over a silhouette, an occlusion or an untextured region (``match_pair``'s ``edge``)
+    holds a second motion or none, a model error its σ0 does not carry, while a window
+    clear of them has only the image's.  Pooled, the factor is the majority's: on the
+    temple pairs (about half the windows are edge windows) the cross-pair check found
+    the clear windows' errors at 0.30 of their σ k and the edge windows' at 0.97-1.11
+    (``benchmarks/matching.py --part temple``).  Each class gets the factor of the
+    window pairs inside it; a class with fewer than ``min_pairs`` pairs gets the pooled
+    one.
+
+    Parameters
+    ----------
+    points, affine, affine_cov, valid, patch
+        As :func:`midpoint_variance_factor`.
+    classes : (N,) array_like of int
+        Class of each window.
+
+    Returns
+    -------
+    per_point : (N,) float64
+        The factor of each window's class (1 where nothing is known).
+    factors : (C,) float64
+        Per class ``0..C-1`` (pooled where too few pairs).
+    """
+    classes = np.asarray(classes, dtype=np.int64)
+    valid = np.ones(len(classes), bool) if valid is None else np.asarray(valid, dtype=bool)
+    pooled = midpoint_variance_factor(points, affine, affine_cov, valid, patch=patch,
+                                      min_pairs=min_pairs).factor
+    pooled = max(1.0, pooled) if np.isfinite(pooled) else 1.0
+    n_classes = int(classes.max()) + 1 if len(classes) else 0
+    factors = np.full(n_classes, pooled)
+    for c in range(n_classes):
+        own = midpoint_variance_factor(points, affine, affine_cov, valid & (classes == c),
+                                       patch=patch, min_pairs=min_pairs).factor
+        if np.isfinite(own):
+            factors[c] = max(1.0, own)
+    per_point = factors[classes] if n_classes else np.ones(0)
+    return per_point, factors
+
+
 #: A 2x2 covariance whose eigenvalue ratio is below this is rank 1 (a shift held to the
 #: epipolar line, every window pixel on its own line: ``lsm_match(rigid_across=True)``).
 _RANK1_RATIO = 1e-9
@@ -236,3 +283,340 @@ def _warp_cov(cov6: np.ndarray, offset: np.ndarray) -> np.ndarray:
     g[:, 0, 1] = g[:, 1, 4] = offset[:, 0]
     g[:, 0, 2] = g[:, 1, 5] = offset[:, 1]
     return np.einsum("pik,pkl,pjl->pij", g, cov6, g)
+
+
+# --------------------------------------------------------------- cross-pair redundancy
+# Cross-pair check of rectified disparities (the precision a pair's σ must match).
+#
+# A match of pair P = (i, j) (rectified: left pixel ``x``, right column ``x_r``) fixes a
+# 3D point on the left ray through ``x``; with exact cameras that point projects into a
+# pair Q = (k, l) that shares no view with P at ``u`` (Q's rectified left) and ``v``
+# (Q's rectified right, the same row).  Q's own match nearest ``u`` predicts, through
+# its affine warp, the right column at ``u``; the discrepancy
+#
+# .. math::  \delta = x^Q_r(u) - v_x = \varepsilon_Q - c\,\varepsilon_P,
+#    \qquad E[\delta^2] = v_Q + \overline{c^2}\, v_P,
+#
+# involves only the two pairs' disparity errors (no image is shared, so no noise is
+# shared), ``c`` the derivative of :math:`\delta` in P's right column (through the
+# point's move along P's left ray).  One comparison gives one equation in two unknown
+# variances; a network of three or more pairs that see the same surface determines
+# each pair's own error variance (the "three-cornered hat" of clock comparisons,
+# Gray & Allan 1974), whatever the method that produced the disparities -- the same
+# equations judge LSM and SGBM on the same pixels.
+
+
+@dataclass(frozen=True)
+class Transfer:
+    """Pair P's matches carried into pair Q's rectified frame (:func:`transfer_matches`).
+
+    Attributes
+    ----------
+    u : (N, 2) float64
+        The triangulated point in Q's rectified left image, px.
+    v_x : (N,) float64
+        Its column in Q's rectified right image, px.
+    du, dv_x : (N, 2), (N,) float64
+        Their derivatives in P's right column (px per px).
+    """
+
+    u: np.ndarray
+    v_x: np.ndarray
+    du: np.ndarray
+    dv_x: np.ndarray
+
+
+def _triangulate(cam_left, cam_right, x_left, x_right_col):
+    """Rectified pair: the point on ``cam_left``'s ray through ``x_left`` whose right
+    column is ``x_right_col`` ((N, 3); the rows are the left's)."""
+    pl, pr = cam_left.P, cam_right.P
+    xr = np.column_stack([x_right_col, x_left[:, 1]])
+    # DLT, 4 equations per point (exact for consistent rows)
+    rows = np.stack([x_left[:, :1] * pl[2] - pl[0], x_left[:, 1:2] * pl[2] - pl[1],
+                     xr[:, :1] * pr[2] - pr[0], xr[:, 1:2] * pr[2] - pr[1]], axis=1)
+    out = np.full((len(x_left), 3), np.nan)
+    fin = np.isfinite(rows).all(axis=(1, 2))
+    if fin.any():
+        h = np.linalg.svd(rows[fin])[2][:, -1]
+        out[fin] = h[:, :3] / h[:, 3:]
+    return out
+
+
+def _project(cam, X):
+    q = X @ cam.P[:, :3].T + cam.P[:, 3]
+    return q[:, :2] / q[:, 2:]
+
+
+def transfer_matches(cams_p, x_left, x_right, cams_q, step: float = 0.01) -> Transfer:
+    """Carry pair P's rectified matches into pair Q's rectified frame.
+
+    Parameters
+    ----------
+    cams_p, cams_q : (Camera, Camera)
+        The rectified left and right pinhole cameras of P and Q
+        (:func:`matching.multiview.rectify_pair`'s second and third results).
+    x_left : (N, 2) array_like
+        P's left pixels, px.
+    x_right : (N, 2) or (N,) array_like
+        P's right matches (only the column is used: the row is the left's), px.
+    step : float
+        Finite-difference step of the derivatives, px.
+
+    Returns
+    -------
+    Transfer
+    """
+    x_left = check_shape(x_left, "(N, 2)", "x_left", dtype=np.float64)
+    col = np.asarray(x_right, dtype=np.float64)
+    col = col[:, 0] if col.ndim == 2 else col
+    if len(col) != len(x_left):
+        raise ValueError(f"x_left and x_right must have the same length, got "
+                         f"{len(x_left)} and {len(col)}")
+    out = []
+    for shift in (0.0, step):
+        X = _triangulate(cams_p[0], cams_p[1], x_left, col + shift)
+        out.append((_project(cams_q[0], X), _project(cams_q[1], X)[:, 0]))
+    (u, v), (u1, v1) = out
+    return Transfer(u=u, v_x=v, du=(u1 - u) / step, dv_x=(v1 - v) / step)
+
+
+def lsm_column_at(u, x_left, x_right, affine, valid, radius: float = 1.0):
+    """Q's right column at ``u`` from its nearest accepted match within ``radius``.
+
+    The match's affine warp carries it from its left pixel to ``u``
+    (``x_r + a1 (u_x - x_x) + a2 (u_y - x_y)``); within a pixel the warp's own
+    uncertainty adds at most ~5 % of the match's variance for a 15-px window.
+
+    Returns
+    -------
+    column : (M,) float64
+        NaN where no accepted match lies within ``radius``.
+    index : (M,) int64
+        The match used (-1: none).
+    slope : (M, 2) float64
+        ``(a1, a2)``: the column's derivative in ``u``.
+    """
+    u = check_shape(u, "(N, 2)", "u", dtype=np.float64)
+    ok = np.flatnonzero(np.asarray(valid, bool) & np.isfinite(x_right[:, 0]))
+    column = np.full(len(u), np.nan)
+    index = np.full(len(u), -1, np.int64)
+    slope = np.full((len(u), 2), np.nan)
+    if not len(ok) or not len(u):
+        return column, index, slope
+    fin = np.isfinite(u).all(1)
+    dist, near = cKDTree(x_left[ok]).query(u[fin], distance_upper_bound=radius)
+    hit = np.isfinite(dist)
+    rows = np.flatnonzero(fin)[hit]
+    m = ok[near[hit]]
+    slope[rows] = affine[m][:, 1:3]
+    column[rows] = x_right[m, 0] + np.sum(slope[rows] * (u[rows] - x_left[m]), axis=1)
+    index[rows] = m
+    return column, index, slope
+
+
+def map_column_at(u, disparity):
+    """Right column ``u_x - D(u)`` at ``u`` from a dense disparity map (bilinear over the
+    four pixels around ``u``; NaN if any is missing), and its derivative in ``u``.
+
+    Returns ``column (M,)``, ``slope (M, 2)``.
+    """
+    u = check_shape(u, "(N, 2)", "u", dtype=np.float64)
+    h, w = disparity.shape
+    col = np.full(len(u), np.nan)
+    slope = np.full((len(u), 2), np.nan)
+    fin = np.isfinite(u).all(1)
+    x0 = np.floor(np.where(fin, u[:, 0], -1)).astype(np.int64)
+    y0 = np.floor(np.where(fin, u[:, 1], -1)).astype(np.int64)
+    ok = fin & (x0 >= 0) & (y0 >= 0) & (x0 < w - 1) & (y0 < h - 1)
+    x0, y0, uu = x0[ok], y0[ok], u[ok]
+    tx, ty = uu[:, 0] - x0, uu[:, 1] - y0
+    d00, d01 = disparity[y0, x0], disparity[y0, x0 + 1]
+    d10, d11 = disparity[y0 + 1, x0], disparity[y0 + 1, x0 + 1]
+    d = ((1 - ty) * ((1 - tx) * d00 + tx * d01) + ty * ((1 - tx) * d10 + tx * d11))
+    col[ok] = uu[:, 0] - d
+    slope[ok, 0] = 1.0 - ((1 - ty) * (d01 - d00) + ty * (d11 - d10))
+    slope[ok, 1] = -((1 - tx) * (d10 - d00) + tx * (d11 - d01))
+    return col, slope
+
+
+def discrepancy(transfer: Transfer, column, slope):
+    """``δ = column - v_x`` and ``c = ∂δ/∂(P's right column)`` ((M,), (M,))."""
+    delta = np.asarray(column, np.float64) - transfer.v_x
+    c = np.sum(np.asarray(slope, np.float64) * transfer.du, axis=1) - transfer.dv_x
+    return delta, c
+
+
+def robust_sigma(values) -> float:
+    """1.4826 × the median absolute deviation from the median (NaN if empty)."""
+    values = np.asarray(values, np.float64)
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+@dataclass(frozen=True)
+class NetworkVariances:
+    """Result of :func:`network_variances`.
+
+    Attributes
+    ----------
+    variance : (K,) float64
+        Each pair's own error variance, px² (NaN: not determined by the network).
+    residual : (E,) float64
+        The equations' relative residuals (fit / measured - 1).
+    """
+
+    variance: np.ndarray
+    residual: np.ndarray
+
+
+def network_variances(n_pairs: int, p_index, q_index, measured, coef_p, coef_q,
+                      count) -> NetworkVariances:
+    r"""Each pair's own error variance (or variance scale) from cross-pair comparisons.
+
+    Solves :math:`m_e = b_e\, x_{p_e} + a_e\, x_{q_e}` over the comparisons ``e`` by
+    non-negative least squares, each equation weighted by the relative precision of
+    its measured variance (:math:`\sqrt{n_e} / m_e`).  With ``m`` the variance of δ,
+    ``b`` the mean ``c²`` and ``a = 1``, ``x`` are the pairs' error variances (px²);
+    with ``m`` the variance of δ over its reported σ, ``a`` and ``b`` the two pairs'
+    mean shares of that σ², ``x`` are the factors by which each pair's reported
+    variances must grow.
+
+    Parameters
+    ----------
+    n_pairs : int
+    p_index, q_index : (E,) array_like of int
+        The compared pair (its error enters through ``c``) and the checking pair.
+    measured : (E,) array_like
+        ``m``, per comparison.
+    coef_p, coef_q : (E,) array_like
+        ``b`` and ``a``.
+    count : (E,) array_like
+        Points per comparison.
+
+    Returns
+    -------
+    NetworkVariances
+        A pair's value is NaN unless the equations determine it (its column is not
+        in the span of the others': it needs a cycle of comparisons through three
+        or more pairs).
+    """
+    from scipy.optimize import nnls
+
+    p = np.asarray(p_index, np.int64)
+    q = np.asarray(q_index, np.int64)
+    m = np.asarray(measured, np.float64)
+    bp = np.asarray(coef_p, np.float64)
+    aq = np.asarray(coef_q, np.float64)
+    n = np.asarray(count, np.float64)
+    if not (len(p) == len(q) == len(m) == len(bp) == len(aq) == len(n)):
+        raise ValueError("p_index, q_index, measured, coef_p, coef_q and count must have "
+                         "the same length")
+    variance = np.full(n_pairs, np.nan)
+    residual = np.full(len(p), np.nan)
+    use = np.isfinite(m) & (m > 0) & np.isfinite(bp) & np.isfinite(aq) & (n > 0)
+    if not use.any():
+        return NetworkVariances(variance, residual)
+    rows = np.flatnonzero(use)
+    design = np.zeros((len(rows), n_pairs))
+    np.add.at(design, (np.arange(len(rows)), q[rows]), aq[rows])
+    np.add.at(design, (np.arange(len(rows)), p[rows]), bp[rows])
+    weight = np.sqrt(n[rows]) / m[rows]
+    a = design * weight[:, None]
+    involved = np.flatnonzero(np.abs(design).sum(0) > 0)
+    if len(involved) < 3:
+        return NetworkVariances(variance, residual)
+    sol, _ = nnls(a[:, involved], m[rows] * weight)
+    rank = np.linalg.matrix_rank(a[:, involved])
+    for col, k in enumerate(involved):
+        others = np.delete(a[:, involved], col, axis=1)
+        if np.linalg.matrix_rank(others) < rank:
+            variance[k] = sol[col]
+    residual[rows] = (design[:, involved] @ sol) / m[rows] - 1.0
+    return NetworkVariances(variance, residual)
+
+
+def core_spread(values, bound: float, iterations: int = 50) -> tuple[float, float, float]:
+    """Spread of a Gaussian core among outliers spread evenly over ``[-bound, bound]``.
+
+    A two-component mixture ``(1 - π) N(μ, σ²) + π U(-bound, bound)`` fitted by EM to
+    the values within the bound (Dempster, Laird and Rubin 1977): the matches of a
+    point another pair sees occluded, or on another surface, scatter over the whole
+    window of accepted discrepancies, and the median absolute deviation (break-down
+    50 %) grows long before that.
+
+    Returns
+    -------
+    sigma, mu, outlier_share : float
+        NaN with fewer than 10 values.
+    """
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v) & (np.abs(v) <= bound)]
+    if len(v) < 10:
+        return float("nan"), float("nan"), float("nan")
+    mu = float(np.median(v))
+    sigma = max(robust_sigma(v), 1e-6)
+    share = 0.1
+    flat = 1.0 / (2.0 * bound)
+    for _ in range(iterations):
+        core = (1 - share) * np.exp(-0.5 * ((v - mu) / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
+        w = core / (core + share * flat)
+        total = w.sum()
+        mu_new = float(np.sum(w * v) / total)
+        sigma_new = float(max(np.sqrt(np.sum(w * (v - mu_new) ** 2) / total), 1e-6))
+        share_new = float(1.0 - total / len(v))
+        done = abs(sigma_new - sigma) < 1e-6 * sigma and abs(share_new - share) < 1e-6
+        mu, sigma, share = mu_new, sigma_new, share_new
+        if done:
+            break
+    return sigma, mu, share
+
+
+def ray_angle(cam_a, cam_b, x_left, x_right_col, cams_p) -> np.ndarray:
+    """(N,) angle (degrees) at P's triangulated points between the rays from the
+    centres of ``cam_a`` and ``cam_b``."""
+    X = _triangulate(cams_p[0], cams_p[1], np.asarray(x_left, np.float64),
+                     np.asarray(x_right_col, np.float64))
+    ra, rb = X - cam_a.center, X - cam_b.center
+    cos = np.sum(ra * rb, axis=1) / (np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def geometric_trend(u, disparity, delta, bound: float = 3.0, iterations: int = 5):
+    """Remove what inexact cameras add to cross-pair discrepancies.
+
+    An error of a view's rotation shifts the transferred points by a smooth function
+    of their image position, one of its centre by that times the inverse depth (the
+    disparity): ``δ ≈ q(u) + (α + β u_x + γ u_y) d`` with ``q`` quadratic -- 9
+    unknowns, fitted robustly (4 × :func:`robust_sigma`, 5 rounds) over the
+    comparison's points, which no matching error of a window shares.
+
+    Parameters
+    ----------
+    u : (M, 2) array_like
+        The points in Q's rectified left image, px.
+    disparity : (M,) array_like
+        Their disparity in Q, px.
+    delta : (M,) array_like
+        Discrepancies, px.
+
+    Returns
+    -------
+    residual, trend : (M,) float64
+    """
+    u = check_shape(u, "(N, 2)", "u", dtype=np.float64)
+    delta = np.asarray(delta, np.float64)
+    x, y = ((u - np.median(u, axis=0)) / 100.0).T
+    d = (np.asarray(disparity, np.float64) - np.median(disparity)) / 100.0
+    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y, d, d * x, d * y])
+    keep = np.abs(delta - np.median(delta)) <= bound
+    coef = np.zeros(design.shape[1])
+    for _ in range(iterations):
+        if keep.sum() <= 2 * design.shape[1]:
+            break
+        coef = np.linalg.lstsq(design[keep], delta[keep], rcond=None)[0]
+        res = delta - design @ coef
+        keep = np.abs(res) < min(4.0 * robust_sigma(res[keep]), bound)
+    trend = design @ coef
+    return delta - trend, trend

@@ -340,3 +340,35 @@ def test_bad_arguments():
         midpoint_variance_factor(pts, np.zeros((5, 6)), np.zeros((5, 6, 6)), patch=0)
     few = midpoint_variance_factor(pts, np.zeros((5, 6)), np.zeros((5, 6, 6)))
     assert np.isnan(few.factor)
+
+
+def test_class_factors_keep_two_populations_apart():
+    """White noise on the left half of the images, 1-px correlated noise on the right:
+    one pooled factor is wrong for both halves, one per class is right for each (left
+    k² about 1 -- never below 1 --, right > 2 with the scaled σ within 25 % of the
+    actual error)."""
+    from matching.precision import class_variance_factors
+
+    f, g = warped_pair(size=200, noise=0.0, seed=8)
+    rng = np.random.default_rng(9)
+    for img in (f, g):
+        white = rng.normal(0.0, 2.0, img.shape)
+        corr = ndimage.gaussian_filter(rng.normal(0.0, 1.0, img.shape), 1.0)
+        img += np.where(np.arange(img.shape[1])[None, :] < 100, white, 2.0 * corr / corr.std())
+    pts = grid_points(200, 3)
+    res = lsm_match(f, g, pts, start_near(truth_of(pts)), patch=15)
+    # windows straddling the boundary (x within half a patch of 100) belong to neither
+    left, right = pts[:, 0] < 100 - 8, pts[:, 0] > 100 + 8
+    valid = res.accepted & (left | right)
+    per_point, factors = class_variance_factors(pts, res.affine, res.affine_cov, valid,
+                                                right.astype(np.int64), patch=15)
+    pooled = midpoint_variance_factor(pts, res.affine, res.affine_cov, valid, patch=15).factor
+    assert factors[0] == pytest.approx(1.0, abs=0.3)
+    assert factors[1] > 2.0
+    assert factors[0] < pooled < factors[1]
+    np.testing.assert_array_equal(per_point, factors[right.astype(int)])
+    sel = valid & right
+    err = res.position[sel] - truth_of(pts[sel])
+    actual = np.sqrt(np.mean(np.sum(err**2, axis=1)))
+    scaled = np.sqrt(factors[1] * np.mean(np.trace(res.cov[sel], axis1=1, axis2=2)))
+    assert scaled / actual == pytest.approx(1.0, rel=0.25)
