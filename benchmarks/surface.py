@@ -687,7 +687,7 @@ SHAPE_TABLE_SIZES = [10_000, 100_000]
 SHAPE_TABLE_METHODS = ("poisson-8", "poisson-9", "stitched", "stitched+sized")
 
 
-def shapes_table(sizes: list[int]) -> list[dict]:
+def shapes_table(sizes: list[int], only: list[str] | None = None) -> list[dict]:
     """Issue 15's table on every shape of revolution: the vase and ``SHAPES`` at each
     cloud size, sigma = SIGMA, the sized smooth surface (``stitched+sized``: patches,
     triangles, PLY / GLB / control net bytes, Chamfer, F, seconds) beside screened Poisson
@@ -696,6 +696,7 @@ def shapes_table(sizes: list[int]) -> list[dict]:
     """
     methods = [m for m in METHODS if m[0] in SHAPE_TABLE_METHODS]
     shapes = {"vase": lambda: vase_truth(n_theta=1024, n_z=768), **SHAPES}
+    shapes = {k: v for k, v in shapes.items() if not only or k in only}
     rows = []
     print(f"\nshapes table (sigma = {SIGMA}; CPU seconds of this process; goals of the sized "
           f"surface against poisson-8: Chamfer <= 0.5x, PLY <=, CPU s <=)")
@@ -755,6 +756,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shapes-table", nargs="*", type=int, metavar="SIZE",
                         help="only issue 15's table: every shape of revolution at these cloud "
                              "sizes (default 10^4 10^5), sized surface beside Poisson 8 / 9")
+    parser.add_argument("--shape", nargs="+", choices=["vase", *SHAPES],
+                        help="--shapes-table on these shapes only")
     args = parser.parse_args(argv)
 
     if args.fresh_child:
@@ -774,7 +777,7 @@ def main(argv: list[str] | None = None) -> int:
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     if args.shapes_table is not None:
-        rows = shapes_table(args.shapes_table or SHAPE_TABLE_SIZES)
+        rows = shapes_table(args.shapes_table or SHAPE_TABLE_SIZES, args.shape)
         json_path = args.json if "--json" in (argv or sys.argv) else str(
             ROOT / "benchmarks" / "results" / "surface_shapes.json")
         write_result(json_path, {"benchmark": "surface-shapes", "sigma": SIGMA, "tau": TAU,

@@ -405,6 +405,16 @@ _D6 = np.array([1.0, -6.0, 15.0, -20.0, 15.0, -6.0, 1.0])
 MAX_LAG = 12
 #: Fewest windows (of seven sections) a lag of the variogram is measured on.
 MIN_WINDOWS = 5
+#: The 6th differences' mean squares of the :class:`Variogram` model are concave in the
+#: lag L (``504 p L/r − 56 p (L/r)³ + …`` from the nugget's level, then saturating at
+#: ``924 sill``), so they grow no faster than L; a profile that the 6th differences do not
+#: cancel grows as L¹² (a rounded end's last sections, where the profile's 6th derivative
+#: is large).  :func:`section_variogram` stops at the first lag whose mean square exceeds
+#: the previous one's times ``L / L_prev`` by more than this share (a margin for the
+#: medians' sampling scatter, ~5 %): on a 10⁵-point capsule (σ 0.002, hemispherical ends)
+#: the lags ran 3.8e-4 (flat) up to lag 5 and 5.5e-4 .. 1.0e-3 beyond, a fitted sill of
+#: 1.9e-3 and a sized surface 1.7x the stitched mesh's distance to the truth.
+PROFILE_MARGIN = 0.25
 
 
 @dataclass
@@ -534,8 +544,18 @@ def section_variogram(rings: Sequence, axis=(0.0, 0.0, 1.0), max_lag: int = MAX_
         values = values[np.isfinite(values).all(axis=1)]
         if len(values) < MIN_WINDOWS:
             break
+        # About the window's mean over the ring: a shape of revolution's profile term is
+        # the same at every angle, so what the 6th differences leave of it near a rounded
+        # end goes; the rings' errors lose their mean over the ring (mode 0), put back
+        # below from lag 1, where the profile term is smallest.
+        spread = float(np.median(np.var(values, axis=1)))
+        if not lags:
+            mode0 = float(np.median(np.mean(values ** 2, axis=1))) / max(spread, 1e-300)
+        mean_square = spread * mode0
+        if lags and mean_square > (1.0 + PROFILE_MARGIN) * measured[-1] * lag / lags[-1]:
+            break   # growing faster than any variogram of the model can: the profile
         lags.append(lag)
-        measured.append(float(np.median(np.mean(values ** 2, axis=1))))
+        measured.append(mean_square)
     if not lags:
         return None
     lags_a, measured_a = np.array(lags, dtype=np.float64), np.array(measured)
