@@ -7,7 +7,10 @@ exact cameras in ``templeSR_par.txt``, a black cloth behind the object):
   cameras and the automatic foreground masks (:mod:`matching.masks`): points, share
   inside the data set's bounding box + 5 mm, share inside every view's silhouette (grey
   above 0.19 x 255, dilated by 3 px and by 5 px) and inside every view's outline (the
-  silhouette with its enclosed holes filled, dilated by 3 px: see :func:`_silhouettes`),
+  silhouette with its enclosed holes filled, dilated by 3 px: see :func:`_silhouettes`)
+  and inside every view's silhouette with its shadowed holes counted as object (``in shd3``:
+  the enclosed holes brighter than the black cloth), and what the points outside a 3 px
+  silhouette are (:func:`outside_breakdown`, printed under the table),
   pairs used / skipped (with reasons), the a-posteriori variance factor of the matches, seconds;
   the default second lattice (``densify="auto"``; ``densify`` in the JSON row: pairs and
   candidates it matched);
@@ -74,7 +77,8 @@ def _images(cameras) -> list:
     return [cv2.imread(str(DATA / c.name), cv2.IMREAD_UNCHANGED) for c in cameras]
 
 
-def _silhouettes(images, dilate_px: int, outline: bool = False) -> list:
+def _silhouettes(images, dilate_px: int, outline: bool = False,
+                 shadows: bool = False) -> list:
     """Grey above 0.19 x 255 (SOURCE.md's silhouette), dilated by ``dilate_px``.
 
     ``outline``: with every background region the silhouette encloses filled (only the
@@ -84,20 +88,119 @@ def _silhouettes(images, dilate_px: int, outline: bool = False) -> list:
     correct point on a shadowed part projects into such a hole.  The two figures bound
     the truth: the plain silhouette counts the shadowed holes as background, the
     outline counts the see-through gaps as object.
+
+    ``shadows``: the enclosed holes' pixels that are brighter than the black cloth --
+    on the view's automatic foreground (:func:`matching.masks.foreground_mask` without
+    dilation: above the background's own level, taken from the image border) -- count
+    as object: plaster in shadow (grey 20-45, textured, against the cloth's 0-3) is
+    object, a see-through gap to the black cloth stays background.
     """
     import cv2
+
+    from matching.masks import foreground_mask
 
     side = 2 * dilate_px + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
     out = []
     for img in images:
         sil = (cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) > SILHOUETTE_GREY).astype(np.uint8)
-        if outline:
-            _, labels = cv2.connectedComponents(1 - sil, connectivity=4)
-            border = np.unique(np.r_[labels[0], labels[-1], labels[:, 0], labels[:, -1]])
-            outer = np.isin(labels, border) & (sil == 0)
-            sil = (~outer).astype(np.uint8)
+        if outline or shadows:
+            outer = _outer_background(sil)
+            if outline:
+                sil = (~outer).astype(np.uint8)
+            else:
+                fg = foreground_mask(img, margin_px=0)
+                if fg is not None:
+                    sil = ((sil > 0) | (~outer & fg)).astype(np.uint8)
         out.append(cv2.dilate(sil, kernel) > 0)
+    return out
+
+
+def _outer_background(sil: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the background of a silhouette connected to the image border."""
+    import cv2
+
+    _, labels = cv2.connectedComponents((1 - sil).astype(np.uint8), connectivity=4)
+    border = np.unique(np.r_[labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+    return np.isin(labels, border) & (sil == 0)
+
+
+def _latitudes(cameras) -> np.ndarray | None:
+    """(V,) gantry latitude of each view (``templeSR_ang.txt``), degrees, or None."""
+    path = DATA / "templeSR_ang.txt"
+    if not path.is_file():
+        return None
+    lat = {line.split()[2]: float(line.split()[0])
+           for line in path.read_text().splitlines() if len(line.split()) == 3}
+    return np.array([lat.get(c.name, np.nan) for c in cameras])
+
+
+def outside_breakdown(points: np.ndarray, views: np.ndarray | None, cameras,
+                      images) -> dict:
+    """What the points outside a 3 px silhouette are: where, how far, in which views.
+
+    For every (point, view) where the point projects outside that view's silhouette
+    dilated by 3 px (``incidences``): in an enclosed hole of the silhouette whose pixel
+    is on the automatic foreground (``hole_shadow``: plaster in shadow) or not
+    (``hole_gap``: the black cloth between columns), outside the outline on the
+    automatic foreground (``outer_dim``: a shadowed side, lit cloth beside the object)
+    or not (``outer_black``); ``black_cloth``: incidences whose 3 x 3 px neighbourhood
+    is darker than 6 grey levels (the clipped cloth; a bright edge's blur halo is 3-5
+    grey levels at 3-4 px); ``distance_px``: the distance from the undilated silhouette
+    (median, 90 %); ``other_latitude``: incidences in a view of a gantry latitude none
+    of the point's matching views has, against ``other_latitude_base``, the share of
+    all (point, view) projections that are such (the two latitudes' cameras sit
+    ~1.25 px apart).  ``points_shadow_only``: points outside only in shadowed holes.
+    """
+    import cv2
+
+    from matching.masks import foreground_mask, grey
+
+    n, nv = len(points), len(cameras)
+    fail = np.zeros((n, nv), bool)
+    kinds = {k: np.zeros((n, nv), bool) for k in ("hole", "fg", "black")}
+    dist = np.full((n, nv), np.nan)
+    seen_in = np.zeros((n, nv), bool)
+    for v, (cam, img) in enumerate(zip(cameras, images, strict=True)):
+        g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        sil = (g > SILHOUETTE_GREY).astype(np.uint8)
+        sil3 = cv2.dilate(sil, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))) > 0
+        outer = _outer_background(sil)
+        fg = foreground_mask(img, margin_px=0)
+        fg = np.zeros(g.shape, bool) if fg is None else fg
+        black = cv2.dilate(grey(img, np.float32), np.ones((3, 3), np.uint8)) < 6
+        d = cv2.distanceTransform(1 - sil, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        x = np.rint(cam.project(points)).astype(np.int64)
+        w, h = cam.size
+        inside = (cam.depth(points) > 0) & (x[:, 0] >= 0) & (x[:, 0] < w) & (x[:, 1] >= 0) \
+            & (x[:, 1] < h)
+        i = np.flatnonzero(inside)
+        xi, yi = x[i, 0], x[i, 1]
+        seen_in[i, v] = True
+        fail[i, v] = ~sil3[yi, xi]
+        kinds["hole"][i, v] = ~outer[yi, xi]
+        kinds["fg"][i, v] = fg[yi, xi]
+        kinds["black"][i, v] = black[yi, xi]
+        dist[i, v] = d[yi, xi]
+    hole, fg = kinds["hole"], kinds["fg"]
+    out = {"points_outside": int(fail.any(axis=1).sum()), "incidences": int(fail.sum()),
+           "hole_shadow": int((fail & hole & fg).sum()),
+           "hole_gap": int((fail & hole & ~fg).sum()),
+           "outer_dim": int((fail & ~hole & fg).sum()),
+           "outer_black": int((fail & ~hole & ~fg).sum()),
+           "black_cloth": int((fail & kinds["black"]).sum()),
+           "points_on_black_cloth": int((fail & kinds["black"]).any(axis=1).sum()),
+           "points_shadow_only": int((fail.any(axis=1)
+                                      & ~(fail & ~(hole & fg)).any(axis=1)).sum()),
+           "distance_px": [float(q) for q in np.nanpercentile(dist[fail], [50, 90])]
+           if fail.any() else [], "views": [int(c) for c in fail.sum(axis=0)]}
+    lat = _latitudes(cameras)
+    if views is not None and lat is not None and np.isfinite(lat).all():
+        levels = np.unique(lat)
+        has = np.stack([views[:, lat == lv].any(axis=1) for lv in levels], 1)  # (N, L)
+        other = ~has[:, np.searchsorted(levels, lat)]  # (N, V): view's latitude unseen
+        out["other_latitude"] = float((fail & other).sum() / max(fail.sum(), 1))
+        out["other_latitude_base"] = float((seen_in & other).sum() / max(seen_in.sum(), 1))
     return out
 
 
@@ -107,7 +210,8 @@ def shares(points: np.ndarray, cameras, images) -> dict:
 
     if len(points) == 0:
         return {"in_box": float("nan"), "in_silhouettes_3px": float("nan"),
-                "in_silhouettes_5px": float("nan"), "in_outlines_3px": float("nan")}
+                "in_silhouettes_5px": float("nan"), "in_outlines_3px": float("nan"),
+                "in_silhouettes_3px_shadows": float("nan")}
     box = np.all((points >= BOX[0] - 0.005) & (points <= BOX[1] + 0.005), axis=1)
     out = {"in_box": float(box.mean())}
     for px in (3, 5):
@@ -115,6 +219,8 @@ def shares(points: np.ndarray, cameras, images) -> dict:
             inside_masks(points, cameras, _silhouettes(images, px)).mean())
     out["in_outlines_3px"] = float(
         inside_masks(points, cameras, _silhouettes(images, 3, outline=True)).mean())
+    out["in_silhouettes_3px_shadows"] = float(
+        inside_masks(points, cameras, _silhouettes(images, 3, shadows=True)).mean())
     return out
 
 
@@ -138,8 +244,11 @@ def run_photosurf(name: str, images, cameras, masks, spacing: int, reference=Non
            "search": st["search"], "variance_factor": st["variance_factor_median"],
            "further_view_offsets": st["further_view_offsets"],
            "densify": st.get("densify"), "reasons": cloud.reason_counts,
+           "silhouette_rejected": st.get("silhouette_rejected"),
            "load_before": load, "load_after": uptime(),
-           **shares(points, reference or cameras, images)}
+           **shares(points, reference or cameras, images),
+           "outside_3px": outside_breakdown(points, cloud.views, reference or cameras,
+                                            images)}
     return row, cloud
 
 
@@ -363,6 +472,7 @@ def run_sfm_row(name: str, reference, images, intrinsics=None,
 
 COLUMNS = [("points", 8, "d"), ("in_box", 8, ".4f"), ("in_silhouettes_3px", 9, ".4f"),
            ("in_silhouettes_5px", 9, ".4f"), ("in_outlines_3px", 9, ".4f"),
+           ("in_silhouettes_3px_shadows", 9, ".4f"),
            ("pairs", 6, "d"), ("pairs_skipped", 5, "d"),
            ("registered", 5, "d"), ("rot_median_deg", 8, ".3f"), ("rot_max_deg", 8, ".3f"),
            ("centre_rms_mm", 8, ".2f"), ("centre_rms_pct_radius", 8, ".3f"),
@@ -370,7 +480,8 @@ COLUMNS = [("points", 8, "d"), ("in_box", 8, ".4f"), ("in_silhouettes_3px", 9, "
 
 
 def print_table(rows: list[dict]) -> None:
-    heads = ["points", "in box", "in sil3", "in sil5", "in out3", "pairs", "skip", "reg", "rot med",
+    heads = ["points", "in box", "in sil3", "in sil5", "in out3", "in shd3", "pairs", "skip",
+             "reg", "rot med",
              "rot max", "C mm", "C %r", "rep px", "view px", "seconds"]
     print(f"{'method':19s}" + "".join(f"{h:>{w}s}" for h, (_, w, _) in zip(heads, COLUMNS,
                                                                            strict=True)))
@@ -383,6 +494,19 @@ def print_table(rows: list[dict]) -> None:
     for r in rows:
         for line in r.get("skipped", []):
             print(f"  {r['method']}: skipped {line}")
+    for r in rows:
+        b = r.get("outside_3px")
+        if b:
+            print(f"  {r['method']}: outside a 3 px silhouette {b['points_outside']} points "
+                  f"({b['points_shadow_only']} only in shadowed holes, "
+                  f"{b['points_on_black_cloth']} somewhere on the black cloth); "
+                  f"{b['incidences']} (point, view): hole shadow {b['hole_shadow']}, hole gap "
+                  f"{b['hole_gap']}, outer dim {b['outer_dim']}, outer black "
+                  f"{b['outer_black']}; distance median / 90 % "
+                  + (" / ".join(f"{q:.1f}" for q in b['distance_px']) or "-") + " px"
+                  + (f"; other latitude {100 * b['other_latitude']:.0f} % "
+                     f"(base {100 * b['other_latitude_base']:.0f} %)"
+                     if "other_latitude" in b else ""))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -454,6 +578,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"in_silhouettes_3px_ge_99pct{suffix}": row["in_silhouettes_3px"] >= 0.99,
                 f"in_silhouettes_5px_ge_99pct{suffix}": row["in_silhouettes_5px"] >= 0.99,
                 f"in_outlines_3px_ge_99pct{suffix}": row["in_outlines_3px"] >= 0.99,
+                f"in_silhouettes_3px_shadows_ge_99pct{suffix}":
+                    row["in_silhouettes_3px_shadows"] >= 0.99,
             })
     sfm_rows = [r for r in sfm_rows if r["method"] in
                 ("pycolmap-sfm", "pycolmap-sfm-lsm", "pycolmap-sfm-K", "pycolmap-sfm-K-lsm")]

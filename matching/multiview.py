@@ -93,11 +93,25 @@ Per-point reasons (:data:`REASON_NAMES`), for every triangulated pair point:
 4     ``triangulation``       rejected by the multi-view triangulation
 5     ``outlier``             removed by the statistical outlier filter (merge)
 6     ``outside``             off a view's object mask where it projects into that
-                              image (visual hull), or outside the region of interest
+                              image (visual hull), outside the region of interest, or
+                              farther outside a view's automatic foreground than its
+                              own σ allows (silhouette consistency, below)
 ====  ======================  ===================================================
 
 Codes 2-6 are rejected (2 only when ``require_confirmation``), 1 unless
 ``keep_unchecked``.
+
+**Silhouette consistency** (``silhouettes=True``, :func:`matching.masks.near_foreground`).
+Wherever a view's background is uniform (:func:`matching.masks.foreground_mask` finds
+one; nothing changes where none is found), every point, matched or outline, must
+project within :math:`\sqrt2/2 + q\,\sigma f/z` px of that view's foreground in every view whose
+image it falls in, :math:`q` the two-sided normal quantile at ``reject_p``: the visual
+hull with a tolerance from the point's own precision instead of the masks' fixed
+dilation.  It removes what the further-view check lets through at an object's
+outline -- an eccentric window's transfer or a match beside an occluding edge whose
+depth puts it a few pixels past the silhouette in the views that did not match it (on
+the temple ring 2-3 px past the foreground, in views of either latitude; README, real
+temple ring).
 
 Views that saw a point are stored as a dense ``(N, V)`` bool matrix (``views``; V
 the number of cameras, column order of ``cameras``); the pair a point came from is
@@ -120,6 +134,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.stats import norm
 
 from matching.cameras import Camera, StereoRig
 from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
@@ -140,7 +155,7 @@ from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
 from matching.contours import OutlinePoints, outline_points
 from matching.fusion import merge_clouds, point_colours
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
-from matching.masks import grey, inside_masks
+from matching.masks import foreground_mask, grey, inside_masks, near_foreground, signed_distance
 from matching.pair import match_pair
 from matching.rectify import Rectification, rectify, rectify_images, resample
 from matching.scheduler import ViewRef, default_workers, load_image, thread_map
@@ -493,6 +508,18 @@ class _Lazy:
         return self._image(v)
 
 
+def _foreground_distances(n: int, image) -> list:
+    """Per view, the signed distance (px) from its automatic foreground's boundary
+    (:func:`matching.masks.foreground_mask` without dilation,
+    :func:`matching.masks.signed_distance`), or None where the background is not
+    uniform; each image read once, one in memory at a time."""
+    out = []
+    for v in range(n):
+        fg = foreground_mask(image(v), margin_px=0)
+        out.append(None if fg is None else signed_distance(fg))
+    return out
+
+
 def _inside_object(points: np.ndarray, cameras: Sequence[Camera], masks, roi) -> np.ndarray:
     """(N,) bool: on every mask (where it projects into the image) and inside ``roi``."""
     keep = np.ones(len(points), bool)
@@ -587,7 +614,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                           sor_std: float = 3.0, pair_options: dict | None = None,
                           min_covered: float = 0.5, masks: Sequence | None = None,
                           roi=None, search: str = "geometry", outline: bool = True,
-                          **match_options) -> MultiViewCloud:
+                          silhouettes: bool = True, **match_options) -> MultiViewCloud:
     """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
 
     Parameters
@@ -645,6 +672,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         matched surface beside it, so the cloud reaches a rim that area matching stops a
         pixel short of; in views with a mask, or the automatic foreground of a uniform
         background (default True; ``stats["outline_points"]`` counts them).
+    silhouettes : bool
+        Reject points farther outside a view's automatic foreground (uniform
+        background) than their σ allows (the module docstring's silhouette consistency;
+        ``outside``; ``stats["silhouette_rejected"]`` counts the matched and outline
+        points it removed, ``stats["silhouette_views"]`` the views that had a
+        foreground).  Default True; views without a uniform background do not take part.
     **match_options
         ``spacing``, ``patch``, ``interpolation``, ``min_correlation``,
         ``sigma0_factor``, ``max_iter``, ``shift_stop_px``, ``min_texture_snr``,
@@ -778,6 +811,18 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         reasons = np.where(out, OUTSIDE, reasons).astype(reasons.dtype)
         keep &= ~out
         del all_pts
+    distances = (_foreground_distances(len(cameras), lambda v: load_image(ref(v)))
+                 if silhouettes else [None] * len(cameras))
+    quantile = float(norm.ppf(0.5 + 0.5 * reject_p))
+    n_silhouette = 0
+    if any(d is not None for d in distances):
+        idx = np.flatnonzero(keep)
+        off = ~near_foreground(np.concatenate([c.points for c in checks])[idx],
+                               np.concatenate([c.sigma for c in checks])[idx], cameras,
+                               distances, quantile)
+        reasons[idx[off]] = OUTSIDE
+        keep[idx[off]] = False
+        n_silhouette = int(off.sum())
     points = np.concatenate([c.points for c in checks])[keep]
     sigma = np.concatenate([c.sigma for c in checks])[keep]
     views = np.unpackbits(np.concatenate([c.views for c in checks])[keep], axis=1,
@@ -791,6 +836,10 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     n_outline, matched_sigma = 0, sigma
     if outline and len(points):
         extra = _outline_points(cameras, masks, roi, points, sigma, lambda v: load_image(ref(v)))
+        if len(extra) and any(d is not None for d in distances):
+            near = near_foreground(extra.points, extra.sigma, cameras, distances, quantile)
+            n_silhouette += int(np.count_nonzero(~near))
+            extra = extra.take(near)
         n_outline = len(extra)
         if n_outline:
             points = np.vstack([points, extra.points])
@@ -817,6 +866,8 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                      "reason": sp.reason} for sp in skipped],
         "pair_points": int(len(reasons)), "kept_points": int(keep.sum()),
         "outline_points": n_outline, "densify": densify,
+        "silhouette_rejected": n_silhouette,
+        "silhouette_views": sum(d is not None for d in distances),
         "fused": merged["fused"], "fusion_radius": merged["radius"],
         "points": int(len(merged["points"])),
         "median_sigma_pair": median_sigma_pair,
