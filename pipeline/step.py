@@ -1,27 +1,42 @@
 r"""STEP (and IGES) export of the exact smooth surface, through OpenCascade.
 
-Each sextic triangular patch of Loop's surface (``surface.bezier``) is split
-at its centroid and edge midpoints into three quadrilaterals, each exactly a
-non-degenerate degree (6, 6) tensor-product Bézier patch
-(``surface.bezier.tensor_product_nets``; Farin, *Curves and Surfaces for CAGD*,
-5th ed., §17: a triangular patch reparametrised over a bilinear image of the
-square is a tensor-product patch of degree (n, n)).  The faces are assembled
-into one closed shell directly, by topology, not by sewing: every vertex
-(domain vertex, edge midpoint, patch centroid) and every edge (each half of a
-domain edge, each spoke from an edge midpoint to a centroid) is made once and
-shared by the faces that meet there, each face carrying a straight pcurve
-along its side of the parameter square.  ``BRepBuilderAPI_Sewing`` would find
-the same neighbours geometrically, at a cost that grows faster than the face
-count (measured: 18 240 faces in 91 s); the shared topology is exact and
-linear.  The shell becomes a solid (turned over if the tessellation's signed
-volume is negative) written by ``STEPControl_Writer`` (AP214, entities
-``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 with Bézier knots,
-``ADVANCED_FACE``, ``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``) or
+Each sextic triangular patch of Loop's surface (``surface.bezier``) is written
+as one degree (6, 6) tensor-product Bézier face, degenerate at the patch's
+corner 0: over the unit square, the barycentric map (Duffy's)
+
+    (r, s, t) = (1 - u, u (1 - v), u v)
+
+turns the patch's Bernstein polynomial into one of degree 6 in u and in v
+(r^i s^j t^k = (1-u)^i u^(j+k) (1-v)^j v^k, i + j + k = 6), so the face is
+exact: its pole row ``u = m / 6`` is the row ``i = 6 - m`` of the triangular
+net, a curve of degree m in v, degree-elevated to 6 (:func:`degenerate_nets`;
+Farin, *Curves and Surfaces for CAGD*, 5th ed., §§17-18: the tensor-product
+form of a triangular patch, and degree elevation).  The side ``u = 0`` collapses
+to corner 0; the other three sides are the patch's edges, whose poles are the
+triangular net's 7 edge control points, exactly, so neighbouring faces share
+their edge curves bit for bit.  One face per patch instead of the three
+non-degenerate quadrilaterals of a centroid split (``surface.bezier.
+tensor_product_nets``): a third of the faces, no spokes, 33 distinct poles per
+patch instead of about 110.
+
+The faces are assembled into one closed shell by topology, not by sewing:
+every vertex (a domain vertex) and every edge (a domain edge) is made once and
+shared by the two faces that meet there, each face carrying a straight pcurve
+along its side of the parameter square, and a degenerated edge (OpenCascade's
+convention for a collapsed side, as at a sphere's poles) along ``u = 0``.
+``BRepBuilderAPI_Sewing`` would find the same neighbours geometrically, at a
+cost that grows faster than the face count (measured: 18 240 faces in 91 s).
+The shell becomes a solid (turned over if the surface encloses a negative
+volume) written by ``STEPControl_Writer`` (AP214: ``B_SPLINE_SURFACE_WITH_KNOTS``
+of degree 6 x 6 with Bézier knots, ``ADVANCED_FACE``, ``CLOSED_SHELL``,
+``MANIFOLD_SOLID_BREP``; the degenerated edges are not written, readers
+restore them), without pcurves, and with its duplicate entities merged
+(``STEPControl_Writer.CleanDuplicateEntities``, OpenCascade >= 8.0: a pole that
+several surfaces and edge curves use is one ``CARTESIAN_POINT``), or by
 ``IGESControl_Writer`` (5.3, BRep mode).
 
-Geometry is exact up to float64 rounding: a face's boundary row and the edge
-curve it shares with its neighbour differ by rounding only (~1e-16 of the
-size), far inside the edges' tolerance.
+Geometry is exact up to float64 rounding of the degree elevation (~1e-16 of the
+size) and the writer's 12 significant digits.
 
 References
 ----------
@@ -29,11 +44,16 @@ References
    and ISO 10303-214 (automotive design, AP214).
 .. [2] C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH 1994.
 .. [3] G. Farin, "Curves and Surfaces for CAGD", 5th ed., Morgan Kaufmann (2002).
+.. [4] M. G. Duffy, "Quadrature over a pyramid or cube of integrands with a
+   singularity at a vertex", SIAM J. Numer. Anal. 19 (1982): the collapsed square.
 """
 
 from __future__ import annotations
 
 import os
+from fractions import Fraction
+from functools import cache
+from math import comb
 from pathlib import Path
 
 import numpy as np
@@ -48,18 +68,64 @@ CAD_SUFFIXES = (".step", ".stp", ".iges", ".igs")
 #: rounding between a face's boundary row and its shared edge curve (~1e-16), far
 #: below any modelling scale.
 REL_TOLERANCE = 1e-9
+_DEGREE = 6
 
-__all__ = ["CAD_SUFFIXES", "read_cad_solid", "shell_topology", "solid_from_nets", "write_cad"]
+__all__ = ["CAD_SUFFIXES", "degenerate_nets", "read_cad_solid", "shell_topology",
+           "solid_from_nets", "write_cad"]
+
+
+@cache
+def _degenerate_matrix() -> np.ndarray:
+    """``(49, 28)`` map from a sextic triangular net to its degenerate (6, 6) net.
+
+    Row ``7 m + l`` is the pole of u-index m and v-index l: the degree-m curve
+    with poles ``b[6 - m, m - k, k]`` (k = 0..m) elevated to degree 6,
+    ``P[m, l] = sum_k C(m, k) C(6 - m, l - k) / C(6, l) b[6 - m, m - k, k]``;
+    the weights are rationals rounded once, so the boundary rows (m = 6, l = 0,
+    l = 6), whose weights are 0 and 1, copy the edge control points exactly.
+    """
+    from surface.bezier import N_CONTROL, control_index
+
+    n = _DEGREE
+    out = np.zeros((n + 1, n + 1, N_CONTROL))
+    for m in range(n + 1):
+        for l in range(n + 1):
+            for k in range(max(0, l - (n - m)), min(m, l) + 1):
+                weight = Fraction(comb(m, k) * comb(n - m, l - k), comb(n, l))
+                out[m, l, control_index(n - m, m - k, k)] = float(weight)
+    out = out.reshape((n + 1) ** 2, N_CONTROL)
+    out.flags.writeable = False
+    return out
+
+
+def degenerate_nets(control_points: np.ndarray) -> np.ndarray:
+    """Each sextic triangular patch as one degree (6, 6) tensor-product Bézier net.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) float64
+        ``surface.bezier`` index order.
+
+    Returns
+    -------
+    (P, 7, 7, 3) float64
+        ``out[p, m, l]`` is pole (m, l): the net evaluated at (u, v) is patch p
+        at barycentric ``(1 - u, u (1 - v), u v)``.  Row m = 0 is corner 0 seven
+        times; column l = 0 runs along edge 0 -> 1, row m = 6 along edge 1 -> 2,
+        column l = 6 along edge 0 -> 2; ``dS/du x dS/dv`` points the way the
+        triangle's normal does (u > 0).
+    """
+    cp = np.asarray(control_points, dtype=np.float64)
+    return np.matmul(_degenerate_matrix(), cp).reshape(-1, 7, 7, 3)
 
 
 def shell_topology(triangles: np.ndarray) -> dict:
-    """Shared vertices and edges of the three-quadrilateral split of every patch.
+    """Shared edges of the one-face-per-patch shell.
 
-    Face ``3 p + c`` is the quadrilateral at corner ``c`` of patch ``p``, with
-    sides, counter-clockwise in its ``(u, v)`` square: ``v = 0`` (corner ->
-    midpoint of domain edge ``c``, i.e. corner c -> c + 1), ``u = 1`` (that midpoint
-    -> centroid), ``v = 1`` (midpoint of edge ``c + 2`` -> centroid), ``u = 0``
-    (corner -> midpoint of edge ``c + 2``).
+    Face p's sides, counter-clockwise in its ``(u, v)`` square: 0 ``v = 0``
+    (corner 0 -> 1, u increasing), 1 ``u = 1`` (corner 1 -> 2, v increasing),
+    2 ``v = 1`` (corner 0 -> 2, u increasing), 3 ``u = 0`` (degenerate, corner 0).
+    An edge's curve runs from its lower to its higher vertex id.
 
     Parameters
     ----------
@@ -69,65 +135,38 @@ def shell_topology(triangles: np.ndarray) -> dict:
     Returns
     -------
     dict
-        ``edge (3P, 4) int64`` edge id of each side; ``start (n_edges,)``,
-        ``end (n_edges,)`` vertex ids of each edge in the direction of its curve;
-        ``same (3P, 4) bool``: the side runs (in increasing u or v) the way its
-        edge's curve does; ``owner (n_edges, 2)``: the face and side whose
-        boundary row defines the edge's curve; ``n_vertices``; ``vertex_owner
-        (n_vertices, 2)``: a face and its pole (k, l) index giving each vertex.
+        ``edge (P, 3) int64`` edge id of sides 0-2; ``same (P, 3) bool``: the side
+        runs (in increasing u or v) the way its edge's curve does; ``start, end
+        (E,)`` vertex ids of each edge's curve; ``owner (E, 2)``: the face and side
+        whose boundary row defines the edge's curve; ``n_vertices``.
     """
     from surface.bezier import _edge_ids
 
     tris = np.asarray(triangles, dtype=np.int64)
-    n_patches = len(tris)
-    n_domain = int(tris.max()) + 1
-    edge_id, n_domain_edges, forward = _edge_ids(tris)  # (P, 3): domain edge c -> c + 1
-    corner = np.arange(3)
-    prev = (corner + 2) % 3
-    # vertex ids: domain vertices, then edge midpoints, then centroids
-    mid = n_domain + edge_id  # (P, 3)
-    centre = n_domain + n_domain_edges + np.arange(n_patches)
-    # edge ids: the two halves of each domain edge (half 0 touches its lower vertex), spokes
-    low_half = 2 * edge_id + np.where(forward, 0, 1)  # half at corner c of edge c -> c + 1
-    high_half = 2 * edge_id + np.where(forward, 1, 0)  # half at corner c + 1
-    spoke = 2 * n_domain_edges + 3 * np.arange(n_patches)[:, None] + corner[None, :]
-    # sides of face (p, c), each as (edge, start vertex, end vertex) in increasing u or v
-    v_corner = tris  # (P, 3)
-    sides = [
-        (low_half, v_corner, mid),  # v = 0: corner -> mid of edge c
-        (spoke, mid, np.repeat(centre[:, None], 3, axis=1)),  # u = 1: mid c -> centre
-        (spoke[:, prev], mid[:, prev], np.repeat(centre[:, None], 3, axis=1)),  # v = 1
-        (high_half[:, prev], v_corner, mid[:, prev]),  # u = 0: corner -> mid of edge c + 2
-    ]
-    edge = np.stack([s[0] for s in sides], axis=2).reshape(-1, 4)  # (3P, 4)
-    a = np.stack([s[1] for s in sides], axis=2).reshape(-1, 4)
-    b = np.stack([s[2] for s in sides], axis=2).reshape(-1, 4)
-    n_edges = 2 * n_domain_edges + 3 * n_patches
+    half_edge, n_edges, forward = _edge_ids(tris)  # (P, 3): edge c -> c + 1, lower -> higher
+    edge = half_edge  # sides 0, 1, 2 lie on half-edges 0, 1, 2
+    # sides 0 and 1 run along their half-edge, side 2 (corner 0 -> 2) against half-edge 2
+    same = np.stack([forward[:, 0], forward[:, 1], ~forward[:, 2]], axis=1)
     flat = edge.ravel()
     owner_slot = np.full(n_edges, -1, dtype=np.int64)
     owner_slot[flat[::-1]] = np.arange(len(flat))[::-1]  # first side naming each edge
-    start, end = a.ravel()[owner_slot], b.ravel()[owner_slot]
-    same = (a == start[edge]) & (b == end[edge])
-    if not np.all(same | ((a == end[edge]) & (b == start[edge]))):
-        raise ValueError("triangles: a shared edge joins different vertices on its two sides")
-    n_vertices = n_domain + n_domain_edges + n_patches
-    # a face and pole giving each vertex: corner (0, 0) of (p, c); mid (6, 0); centre (6, 6)
-    vertex_owner = np.empty((n_vertices, 2), dtype=np.int64)
-    faces = 3 * np.arange(n_patches)[:, None] + corner[None, :]
-    vertex_owner[v_corner.ravel()] = np.stack([faces.ravel(), np.zeros(3 * n_patches, int)], 1)
-    vertex_owner[mid.ravel()] = np.stack([faces.ravel(), np.full(3 * n_patches, 6 * 7)], 1)
-    vertex_owner[centre] = np.stack([3 * np.arange(n_patches), np.full(n_patches, 48)], 1)
-    return {"edge": edge, "start": start, "end": end, "same": same,
-            "owner": np.stack([owner_slot // 4, owner_slot % 4], axis=1),
-            "n_vertices": n_vertices, "vertex_owner": vertex_owner}
+    a = tris[:, [0, 1, 0]].ravel()[owner_slot]
+    b = tris[:, [1, 2, 2]].ravel()[owner_slot]
+    start, end = np.minimum(a, b), np.maximum(a, b)
+    counts = np.bincount(flat, minlength=n_edges)
+    if np.any(counts > 2):
+        raise ValueError("triangles: an edge is shared by more than two patches")
+    return {"edge": edge, "same": same, "start": start, "end": end,
+            "owner": np.stack([owner_slot // 3, owner_slot % 3], axis=1),
+            "n_vertices": int(tris.max()) + 1}
 
 
-#: Pole rows of each side of a face, ``(4, 7)`` flat indices ``7 k + l`` in increasing u or v.
+#: Pole rows of each side of a face, ``(4, 7)`` flat indices ``7 m + l`` in increasing u or v.
 _SIDE_POLES = np.array([
-    [7 * k for k in range(7)],  # v = 0 (l = 0), u increasing
-    [42 + l for l in range(7)],  # u = 1 (k = 6), v increasing
-    [7 * k + 6 for k in range(7)],  # v = 1 (l = 6), u increasing
-    [l for l in range(7)],  # u = 0 (k = 0), v increasing
+    [7 * m for m in range(7)],  # v = 0 (l = 0), u increasing
+    [42 + l for l in range(7)],  # u = 1 (m = 6), v increasing
+    [7 * m + 6 for m in range(7)],  # v = 1 (l = 6), u increasing
+    [l for l in range(7)],  # u = 0 (m = 0), v increasing: the apex
 ])
 #: Each side's pcurve in the face's (u, v) square: origin and direction of t in [0, 1].
 _SIDE_LINES = (((0.0, 0.0), (1.0, 0.0)), ((1.0, 0.0), (0.0, 1.0)),
@@ -151,79 +190,34 @@ def solid_from_nets(control_points: np.ndarray, triangles: np.ndarray):
     Returns
     -------
     TopoDS_Solid
-        3P faces (one degree (6, 6) Bézier surface each), every edge shared by
-        exactly two faces.
+        P faces (one degree (6, 6) Bézier surface each, degenerate at the
+        triangle's corner 0), every edge shared by exactly two faces.
 
     Notes
     -----
     The OpenCascade objects are made one by one from Python (the kernel has
-    no bulk constructor): about 0.5 ms per face.
+    no bulk constructor): about 0.3 ms of CPU per face.
     """
     from OCP.BRep import BRep_Builder
-    from OCP.collections import Array1_gp_Pnt, Array2_gp_Pnt
-    from OCP.Geom import Geom_BezierCurve, Geom_BezierSurface
-    from OCP.Geom2d import Geom2d_Line
-    from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
-    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED
-    from OCP.TopoDS import (
-        TopoDS_Edge,
-        TopoDS_Face,
-        TopoDS_Shell,
-        TopoDS_Solid,
-        TopoDS_Vertex,
-        TopoDS_Wire,
-    )
+    from OCP.TopoDS import TopoDS_Shell, TopoDS_Solid
 
-    from surface.bezier import tensor_product_nets
-
-    poles = tensor_product_nets(control_points).reshape(-1, 49, 3)  # (3P, 49, 3)
+    poles = degenerate_nets(control_points).reshape(-1, 49, 3)  # (P, 49, 3)
     topo = shell_topology(triangles)
     size = float(np.ptp(poles.reshape(-1, 3), axis=0).max()) or 1.0
     tol = REL_TOLERANCE * size
     builder = BRep_Builder()
-    vertex_xyz = poles[topo["vertex_owner"][:, 0], topo["vertex_owner"][:, 1]].tolist()
-    vertices = []
-    for x, y, z in vertex_xyz:
-        vertex = TopoDS_Vertex()
-        builder.MakeVertex(vertex, gp_Pnt(x, y, z), tol)
-        vertices.append(vertex)
+    tris = np.asarray(triangles, dtype=np.int64)
+    corners = np.empty((topo["n_vertices"], 3))
+    corners[tris.ravel()] = poles[:, [0, 42, 48]].reshape(-1, 3)  # corners 0, 1, 2
+    vertices = _make_vertices(builder, corners, tol)
     owner = topo["owner"]
-    edge_poles = poles[owner[:, 0][:, None], _SIDE_POLES[owner[:, 1]]].tolist()  # (E, 7, 3)
-    edges = []
-    for rows, a, b in zip(edge_poles, topo["start"].tolist(), topo["end"].tolist(), strict=True):
-        array = Array1_gp_Pnt(1, 7)
-        for i, (x, y, z) in enumerate(rows, start=1):
-            array.SetValue(i, gp_Pnt(x, y, z))
-        edge = TopoDS_Edge()
-        builder.MakeEdge(edge, Geom_BezierCurve(array), tol)
-        builder.Add(edge, vertices[a].Oriented(TopAbs_FORWARD))
-        builder.Add(edge, vertices[b].Oriented(TopAbs_REVERSED))
-        builder.Range(edge, 0.0, 1.0)
-        edges.append(edge)
-    lines = [[Geom2d_Line(gp_Pnt2d(*origin), gp_Dir2d(*direction)) for origin, direction in
-              _SIDE_LINES],
-             [Geom2d_Line(gp_Pnt2d(origin[0] + direction[0], origin[1] + direction[1]),
-                          gp_Dir2d(-direction[0], -direction[1]))
-              for origin, direction in _SIDE_LINES]]  # t -> side point at 1 - t
+    edge_poles = poles[owner[:, 0][:, None], _SIDE_POLES[owner[:, 1]]]  # (E, 7, 3)
+    owner_same = topo["same"][owner[:, 0], owner[:, 1]]
+    edge_poles = np.where(owner_same[:, None, None], edge_poles, edge_poles[:, ::-1])
+    edges = _make_edges(builder, edge_poles, topo["start"], topo["end"], vertices, tol)
     shell = TopoDS_Shell()
     builder.MakeShell(shell)
-    face_edges, face_same = topo["edge"].tolist(), topo["same"].tolist()
-    for face_poles, sides, same in zip(poles.tolist(), face_edges, face_same, strict=True):
-        grid = Array2_gp_Pnt(1, 7, 1, 7)
-        for m, (x, y, z) in enumerate(face_poles):
-            grid.SetValue(m // 7 + 1, m % 7 + 1, gp_Pnt(x, y, z))
-        face = TopoDS_Face()
-        builder.MakeFace(face, Geom_BezierSurface(grid), tol)
-        wire = TopoDS_Wire()
-        builder.MakeWire(wire)
-        for side, backwards in _WIRE:
-            edge = edges[sides[side]]
-            # the pcurve follows the edge's own parameter: along the side, or against it
-            builder.UpdateEdge(edge, lines[0 if same[side] else 1][side], face, tol)
-            along_wire = same[side] != backwards
-            builder.Add(wire, edge.Oriented(TopAbs_FORWARD if along_wire else TopAbs_REVERSED))
-        builder.Add(face, wire)
-        builder.Add(shell, face)
+    _add_faces(builder, shell, poles, topo, tris[:, 0], vertices, edges, tol)
     shell.Closed(True)
     if _signed_volume(control_points, triangles) < 0:  # domain triangles clockwise: turn over
         shell.Reverse()
@@ -233,13 +227,95 @@ def solid_from_nets(control_points: np.ndarray, triangles: np.ndarray):
     return solid
 
 
-def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
-    """Volume of the surface's level-2 tessellation (divergence theorem): its sign tells
-    whether the faces point outward (ShapeFix_Solid finds the same at ~2 ms a face)."""
-    from surface.bezier import tessellate
+def _make_vertices(builder, points: np.ndarray, tol: float) -> list:
+    from OCP.gp import gp_Pnt
+    from OCP.TopoDS import TopoDS_Vertex
 
-    vertices, tris, _ = tessellate(control_points, 2, triangles)
-    a, b, c = (vertices[tris[:, i]] for i in range(3))
+    vertices = []
+    for x, y, z in points.tolist():
+        vertex = TopoDS_Vertex()
+        builder.MakeVertex(vertex, gp_Pnt(x, y, z), tol)
+        vertices.append(vertex)
+    return vertices
+
+
+def _make_edges(builder, edge_poles: np.ndarray, start: np.ndarray, end: np.ndarray,
+                vertices: list, tol: float) -> list:
+    """One sextic Bézier edge per domain edge, ``edge_poles (E, 7, 3)`` from ``start``
+    to ``end``, parameter range [0, 1]."""
+    from OCP.collections import Array1_gp_Pnt
+    from OCP.Geom import Geom_BezierCurve
+    from OCP.gp import gp_Pnt
+    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED
+    from OCP.TopoDS import TopoDS_Edge
+
+    edges = []
+    for rows, a, b in zip(edge_poles.tolist(), start.tolist(), end.tolist(), strict=True):
+        array = Array1_gp_Pnt(1, 7)
+        for i, (x, y, z) in enumerate(rows, start=1):
+            array.SetValue(i, gp_Pnt(x, y, z))
+        edge = TopoDS_Edge()
+        builder.MakeEdge(edge, Geom_BezierCurve(array), tol)
+        builder.Add(edge, vertices[a].Oriented(TopAbs_FORWARD))
+        builder.Add(edge, vertices[b].Oriented(TopAbs_REVERSED))
+        builder.Range(edge, 0.0, 1.0)
+        edges.append(edge)
+    return edges
+
+
+def _add_faces(builder, shell, poles: np.ndarray, topo: dict, apex: np.ndarray,
+               vertices: list, edges: list, tol: float) -> None:
+    """One face per patch: its Bézier surface, its three shared edges and its
+    degenerated side, wired counter-clockwise in (u, v)."""
+    from OCP.collections import Array2_gp_Pnt
+    from OCP.Geom import Geom_BezierSurface
+    from OCP.Geom2d import Geom2d_Line
+    from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
+    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED
+    from OCP.TopoDS import TopoDS_Edge, TopoDS_Face, TopoDS_Wire
+
+    lines = [[Geom2d_Line(gp_Pnt2d(*origin), gp_Dir2d(*direction)) for origin, direction in
+              _SIDE_LINES],
+             [Geom2d_Line(gp_Pnt2d(origin[0] + direction[0], origin[1] + direction[1]),
+                          gp_Dir2d(-direction[0], -direction[1]))
+              for origin, direction in _SIDE_LINES]]  # t -> side point at 1 - t
+    forward, reversed_ = TopAbs_FORWARD, TopAbs_REVERSED
+    grid_index = [(m // 7 + 1, m % 7 + 1) for m in range(49)]
+    for face_poles, sides, same, corner in zip(poles.tolist(), topo["edge"].tolist(),
+                                               topo["same"].tolist(), apex.tolist(),
+                                               strict=True):
+        grid = Array2_gp_Pnt(1, 7, 1, 7)
+        for (row, col), (x, y, z) in zip(grid_index, face_poles, strict=True):
+            grid.SetValue(row, col, gp_Pnt(x, y, z))
+        face = TopoDS_Face()
+        builder.MakeFace(face, Geom_BezierSurface(grid), tol)
+        wire = TopoDS_Wire()
+        builder.MakeWire(wire)
+        for side, backwards in _WIRE[:3]:
+            edge = edges[sides[side]]
+            # the pcurve follows the edge's own parameter: along the side, or against it
+            builder.UpdateEdge(edge, lines[0 if same[side] else 1][side], face, tol)
+            builder.Add(wire, edge.Oriented(forward if same[side] != backwards else reversed_))
+        collapsed = TopoDS_Edge()  # side u = 0: corner 0, walked from v = 1 to v = 0
+        builder.MakeEdge(collapsed)
+        builder.Degenerated(collapsed, True)
+        builder.Add(collapsed, vertices[corner].Oriented(forward))
+        builder.Add(collapsed, vertices[corner].Oriented(reversed_))
+        builder.UpdateEdge(collapsed, lines[0][3], face, tol)
+        builder.Range(collapsed, 0.0, 1.0)
+        builder.Add(wire, collapsed.Oriented(reversed_))
+        builder.Add(face, wire)
+        builder.Add(shell, face)
+
+
+def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
+    """Volume enclosed by the patches' corner triangles (divergence theorem): the
+    polyhedron inscribed in the surface at its patch corners, whose sign tells whether
+    the faces point outward (ShapeFix_Solid finds the same at ~2 ms a face)."""
+    from surface.bezier import control_index
+
+    cp = np.asarray(control_points)
+    a, b, c = (cp[:, control_index(*corner)] for corner in ((6, 0, 0), (0, 6, 0), (0, 0, 6)))
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
@@ -306,6 +382,12 @@ def _write_step(solid, path: Path) -> bool:
     Interface_Static.SetIVal_s("write.surfacecurve.mode", 0)
     if writer.Transfer(solid, STEPControl_AsIs) != IFSelect_RetDone:
         return False
+    # the transfer writes every pole of every surface and edge curve as its own point;
+    # merged, a patch has 33 instead of 61 (the demo's file 218 -> 138 MB, and the
+    # shorter file writes faster than the merge costs: OpenCascade >= 8.0 only)
+    clean = getattr(writer, "CleanDuplicateEntities", None)
+    if clean is not None:
+        clean()
     return writer.Write(str(path)) == IFSelect_RetDone
 
 
