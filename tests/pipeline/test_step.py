@@ -133,6 +133,26 @@ def test_step_file_shares_the_poles_of_neighbouring_faces(tmp_path, ellipsoid):
     assert distinct <= points <= distinct + 1
 
 
+def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
+    # the patches over part of the domain: a valid shell with a border, not a solid
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
+    from OCP.TopAbs import TopAbs_SHELL
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    keep = ellipsoid.domain_mesh[0][tris].mean(axis=1)[:, 2] > 0  # the upper half
+    used, local = np.unique(tris[keep], return_inverse=True)
+    path = step.write_cad(tmp_path / "half.step", cp[keep], local.reshape(-1, 3))
+    shape = step.read_cad_solid(path)
+    assert shape.ShapeType() == TopAbs_SHELL
+    assert sum(1 for _ in _faces(shape)) == int(keep.sum())
+    assert BRepCheck_Analyzer(shape).IsValid()
+    shells = ShapeAnalysis_Shell()
+    shells.LoadShells(shape)
+    shells.CheckOrientedShells(shape, True)
+    assert shells.HasFreeEdges()  # the border
+
+
 def test_write_cad_refuses_unknown_suffix_and_mismatched_arrays(tmp_path, ellipsoid):
     from pipeline.errors import InputError
 
