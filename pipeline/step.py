@@ -36,7 +36,7 @@ several surfaces and edge curves use is one ``CARTESIAN_POINT``), or by
 ``IGESControl_Writer`` (5.3, BRep mode).
 
 Geometry is exact up to float64 rounding of the degree elevation (~1e-16 of the
-size) and the writer's 12 significant digits.
+size) and the writer's 12-13 significant digits.
 
 References
 ----------
