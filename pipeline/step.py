@@ -16,8 +16,8 @@ to corner 0; the other three sides are the patch's edges, whose poles are the
 triangular net's 7 edge control points, exactly, so neighbouring faces share
 their edge curves bit for bit.  One face per patch instead of the three
 non-degenerate quadrilaterals of a centroid split (``surface.bezier.
-tensor_product_nets``): a third of the faces, no spokes, 33 distinct poles per
-patch instead of about 110.
+tensor_product_nets``): a third of the faces, no spokes, 49 surface poles a
+patch instead of 147 (33 distinct ones once shared with the neighbours).
 
 The faces are assembled into one closed shell by topology, not by sewing:
 every vertex (a domain vertex) and every edge (a domain edge) is made once and
@@ -398,8 +398,9 @@ def _write_step(solid, path: Path) -> bool:
     if writer.Transfer(solid, STEPControl_AsIs) != IFSelect_RetDone:
         return False
     # the transfer writes every pole of every surface and edge curve as its own point;
-    # merged, a patch has 33 instead of 61 (the demo's file 218 -> 138 MB, and the
-    # shorter file writes faster than the merge costs: OpenCascade >= 8.0 only)
+    # merged, a patch has 33 instead of 61: the demo's 34 208 patches 218 -> 138 MB for
+    # 19.5 CPU-s of merging against 6.2 saved in writing (benchmarks/export.py), bought
+    # for the size; OpenCascade >= 8.0 only
     clean = getattr(writer, "CleanDuplicateEntities", None)
     if clean is not None:
         clean()
