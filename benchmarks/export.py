@@ -13,12 +13,13 @@ triangles, unit radius, exact radial normals):
   bare ``RaycastingScene.cast_rays`` for the same rays;
 * ``pipeline.step``: the exact Bézier surface as a closed CAD solid (Loop's
   surface over an ellipsoid of ``--patches`` patches, or the control net of a
-  workspace with ``--net W/smooth``): CPU seconds of each phase (building the
-  OpenCascade solid, the STEP transfer, merging duplicate entities, writing),
-  bytes, and the file read back by OpenCascade (valid closed solid, faces,
-  volume and area against a fine tessellation, largest distance of face
-  samples from it against the chord bound); the peers: the same solid written
-  unmerged, and as IGES; the PLY of the tessellation for scale.
+  workspace with ``--net W/smooth``): ``write_cad``'s CPU seconds and bytes,
+  and the file read back by OpenCascade (valid closed solid, faces, volume and
+  area against a fine tessellation, largest distance of face samples from it
+  against the chord bound); the peers: the same solid through OpenCascade's
+  shape transfer phase by phase (building the solid, transfer, merging
+  duplicate entities, writing), merged and unmerged; IGES; the PLY of the
+  tessellation for scale.
 
 Run: ``.venv/bin/python benchmarks/export.py [--quick] [--net W/smooth] [--json PATH]``
 (default JSON: ``benchmarks/results/export.json``).
@@ -196,7 +197,9 @@ def _step_read_back(path: Path, control_points, triangles) -> dict:
 
 
 def _step_phases(control_points, triangles, path: Path, merge: bool) -> dict:
-    """``pipeline.step.write_cad``'s STEP path phase by phase, the merge optional."""
+    """The STEP path through OpenCascade's shape transfer (``pipeline.step.solid_from_nets``,
+    ``STEPControl_Writer``; ``write_cad``'s path for open shells) phase by phase, the merge
+    of duplicate entities optional."""
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
     from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
@@ -219,21 +222,26 @@ def _step_phases(control_points, triangles, path: Path, merge: bool) -> dict:
 
 
 def bench_step(control_points, triangles, folder: Path, read_back: bool = True) -> list[dict]:
-    """``pipeline.step`` phase by phase (CPU and wall seconds), merged and unmerged STEP,
-    IGES, and the level-2 tessellation's PLY for scale."""
+    """``pipeline.step.write_cad`` to STEP (its entities made directly, poles shared) with
+    the file read back; the peers: the shape transfer, merged and unmerged, phase by phase
+    (CPU and wall seconds), IGES, and the level-2 tessellation's PLY for scale."""
     from pipeline import step
     from surface import bezier
 
     step._quiet()
     step.write_cad(folder / "warm.step", *_ellipsoid_net(64))  # imports, caches
     rows = []
-    for label, merge in (("STEP merged (write_cad)", True), ("STEP unmerged", False)):
+    row = {"writer": "STEP (write_cad)", "patches": len(control_points)}
+    path = _clocked(row, "total", lambda: step.write_cad(folder / "s.step", control_points,
+                                                         triangles))
+    row["bytes"] = path.stat().st_size
+    if read_back:
+        row.update(_step_read_back(path, control_points, triangles))
+    rows.append(row)
+    for label, merge in (("STEP transfer + merge", True), ("STEP transfer, unmerged", False)):
         path = folder / f"{'merged' if merge else 'unmerged'}.step"
-        row = {"writer": label, "patches": len(control_points),
-               **_step_phases(control_points, triangles, path, merge)}
-        if merge and read_back:
-            row.update(_step_read_back(path, control_points, triangles))
-        rows.append(row)
+        rows.append({"writer": label, "patches": len(control_points),
+                     **_step_phases(control_points, triangles, path, merge)})
     row = {"writer": "IGES (write_cad)", "patches": len(control_points)}
     path = _clocked(row, "total", lambda: step.write_cad(folder / "s.iges", control_points,
                                                          triangles))

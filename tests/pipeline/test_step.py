@@ -117,20 +117,32 @@ def test_degenerate_nets_are_the_triangular_patches(ellipsoid):
 
 def test_step_file_shares_the_poles_of_neighbouring_faces(tmp_path, ellipsoid):
     # one CARTESIAN_POINT per distinct pole: a corner per domain vertex, 5 per domain
-    # edge, 25 inside each face (and the placement's origin); unmerged, the writer
-    # repeats every pole of every surface and edge curve (61 a patch)
+    # edge, 25 inside each face (and the placement's origin); OpenCascade's shape
+    # transfer would repeat every pole of every surface and edge curve (61 a patch)
     import re
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
-    from OCP.STEPControl import STEPControl_Writer
-
-    if not hasattr(STEPControl_Writer, "CleanDuplicateEntities"):
-        pytest.skip("OpenCascade < 8.0 writes every pole separately")
     path = step.write_cad(tmp_path / "s.step", cp, tris)
     points = len(re.findall(r"= CARTESIAN_POINT\(", path.read_text()))
     n_vertices, n_edges = int(tris.max()) + 1, len(tris) * 3 // 2
     distinct = n_vertices + 5 * n_edges + 25 * len(tris)
     assert distinct <= points <= distinct + 1
+
+
+def test_clockwise_domain_gives_the_same_outward_solid(tmp_path, ellipsoid):
+    # the same surface over the domain turned over (corners 1, 2 and net indices j, k
+    # swapped): the solid is turned back, so its volume is the same and positive
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    volumes = []
+    for name, (nets, domain) in {"ccw": (cp, tris),
+                                 "cw": step._reversed_nets(cp, tris)}.items():
+        shape = step.read_cad_solid(step.write_cad(tmp_path / f"{name}.step", nets, domain))
+        assert BRepCheck_Analyzer(shape).IsValid()
+        volumes.append(_props(shape)[0])
+    assert volumes[0] > 0
+    assert volumes[1] == pytest.approx(volumes[0], rel=1e-12)
 
 
 def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
