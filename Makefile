@@ -54,7 +54,7 @@ setup: $(STAMP) $(WARM)
 	@$(MAKE) --no-print-directory sysdeps
 
 # The demo also writes the exact surface as a STEP solid (out/export/surface.step: about
-# 4 KB and 1.2 CPU-ms a patch, README "CAD"), which the default export.formats leave out.
+# 4 KB and 0.6 CPU-ms a patch, README "CAD"), which the default export.formats leave out.
 DEMO_FORMATS ?= ["ply", "glb", "step"]
 
 demo: setup

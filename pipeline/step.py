@@ -21,19 +21,25 @@ patch instead of 147 (33 distinct ones once shared with the neighbours).
 
 The faces are assembled into one closed shell by topology, not by sewing:
 every vertex (a domain vertex) and every edge (a domain edge) is made once and
-shared by the two faces that meet there, each face carrying a straight pcurve
-along its side of the parameter square, and a degenerated edge (OpenCascade's
-convention for a collapsed side, as at a sphere's poles) along ``u = 0``.
-``BRepBuilderAPI_Sewing`` would find the same neighbours geometrically, at a
-cost that grows faster than the face count (measured: 18 240 faces in 91 s).
-The shell becomes a solid (turned over if the surface encloses a negative
-volume) written by ``STEPControl_Writer`` (AP214: ``B_SPLINE_SURFACE_WITH_KNOTS``
-of degree 6 x 6 with Bézier knots, ``ADVANCED_FACE``, ``CLOSED_SHELL``,
-``MANIFOLD_SOLID_BREP``; the degenerated edges are not written, readers
-restore them), without pcurves, and with its duplicate entities merged
-(``STEPControl_Writer.CleanDuplicateEntities``, OpenCascade >= 8.0: a pole that
-several surfaces and edge curves use is one ``CARTESIAN_POINT``), or by
-``IGESControl_Writer`` (5.3, BRep mode).
+shared by the two faces that meet there.  ``BRepBuilderAPI_Sewing`` would find
+the same neighbours geometrically, at a cost that grows faster than the face
+count (measured: 18 240 faces in 91 s).
+
+STEP (AP214): the entities are made directly with OpenCascade's STEP data
+classes (``StepGeom``, ``StepShape``) and written by ``STEPControl_Writer``:
+one ``CARTESIAN_POINT`` per distinct pole (a corner per domain vertex, 5 per
+domain edge, 25 per face), ``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 and
+``B_SPLINE_CURVE_WITH_KNOTS`` of degree 6 with Bézier knots, ``EDGE_CURVE``,
+``ADVANCED_FACE`` bounded by its three real edges (the collapsed side has none,
+as in OpenCascade's own output; readers restore a degenerated edge),
+``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``, in the product structure the writer
+makes for a template solid.  The shape transfer of the same solid
+(``TopoDS`` built by :func:`solid_from_nets`, ``STEPControl_Writer.Transfer``)
+writes each pole of each surface and edge curve as its own point (61 a patch)
+and needs ``CleanDuplicateEntities`` to share them: twice the time for the
+same file (``benchmarks/export.py``); it remains the path of an open shell.
+IGES: the ``TopoDS`` solid (faces with straight pcurves, degenerated edges
+along ``u = 0``) through ``IGESControl_Writer`` (5.3, BRep mode).
 
 Geometry is exact up to float64 rounding of the degree elevation (~1e-16 of the
 size) and the writer's 12-13 significant digits.
@@ -460,8 +466,8 @@ def _write_step_entities(control_points: np.ndarray, triangles: np.ndarray,
 
     The shape transfer (``STEPControl_Writer.Transfer`` of :func:`solid_from_nets`)
     writes each pole of each surface and edge curve as its own point and needs
-    ``CleanDuplicateEntities`` to share them: on the demo's 34 208 patches 44.0
-    CPU-s against 20.2 here, for the same 138 MB (benchmarks/export.py)."""
+    ``CleanDuplicateEntities`` to share them: on the demo's 34 208 patches 38.2
+    CPU-s against 21.0 here in the same run, for the same 138 MB (benchmarks/export.py)."""
     from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
