@@ -375,10 +375,11 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         raise ValueError(f"triangles must have one row per patch ({len(cp)}), got {len(tris)}")
     _quiet()
     with atomic_file(path) as tmp:
-        if suffix in (".step", ".stp") and shell_topology(tris)["closed"]:
-            ok = _write_step_entities(cp, tris, tmp)
-        elif suffix in (".step", ".stp"):  # an open shell: through the shape transfer
-            ok = _write_step(solid_from_nets(cp, tris), tmp)
+        if suffix in (".step", ".stp"):
+            # the entities directly; an open shell, or a template this OpenCascade
+            # structures otherwise (_STEP_ROOTS), through the shape transfer
+            ok = shell_topology(tris)["closed"] and _write_step_entities(cp, tris, tmp)
+            ok = ok or _write_step(solid_from_nets(cp, tris), tmp)
         else:
             ok = _write_iges(solid_from_nets(cp, tris), tmp)
         if not ok:

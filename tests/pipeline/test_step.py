@@ -145,6 +145,25 @@ def test_clockwise_domain_gives_the_same_outward_solid(tmp_path, ellipsoid):
     assert volumes[1] == pytest.approx(volumes[0], rel=1e-12)
 
 
+def test_unexpected_template_falls_back_to_the_shape_transfer(tmp_path, ellipsoid, monkeypatch):
+    # a writer whose template solid has other roots: the shape transfer writes the solid
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    transferred = []
+    transfer = step._write_step
+    monkeypatch.setattr(step, "_write_step", lambda *a: transferred.append(1) or transfer(*a))
+    step.write_cad(tmp_path / "direct.step", cp, tris)
+    assert transferred == []
+    monkeypatch.setattr(step, "_STEP_ROOTS", ("NoSuchEntity",))
+    path = step.write_cad(tmp_path / "t.step", cp, tris)
+    assert transferred == [1]
+    shape = step.read_cad_solid(path)
+    assert BRepCheck_Analyzer(shape).IsValid()
+    assert sum(1 for _ in _faces(shape)) == len(cp)
+    assert "PLANE(" not in path.read_text()  # no template box left in the file
+
+
 def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
     # the patches over part of the domain: a valid shell with a border, not a solid
     from OCP.BRepCheck import BRepCheck_Analyzer
