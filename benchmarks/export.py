@@ -10,9 +10,18 @@ triangles, unit radius, exact radial normals):
   GLB writer (which its reader rejects: 0 triangles read back);
 * ``pipeline.render.render_mesh``: the default 3×2 contact sheet (1200×800,
   2× supersampling) and one 400×400 view, smooth shading; and the floor, the
-  bare ``RaycastingScene.cast_rays`` for the same rays.
+  bare ``RaycastingScene.cast_rays`` for the same rays;
+* ``pipeline.step``: the exact Bézier surface as a closed CAD solid (Loop's
+  surface over an ellipsoid of ``--patches`` patches, or the control net of a
+  workspace with ``--net W/smooth``): ``write_cad``'s CPU seconds and bytes,
+  and the file read back by OpenCascade (valid closed solid, faces, volume and
+  area against a fine tessellation, largest distance of face samples from it
+  against the chord bound); the peers: the same solid through OpenCascade's
+  shape transfer phase by phase (building the solid, transfer, merging
+  duplicate entities, writing), merged and unmerged; IGES; the PLY of the
+  tessellation for scale.
 
-Run: ``.venv/bin/python benchmarks/export.py [--quick] [--json PATH]``
+Run: ``.venv/bin/python benchmarks/export.py [--quick] [--net W/smooth] [--json PATH]``
 (default JSON: ``benchmarks/results/export.json``).
 """
 
@@ -115,11 +124,172 @@ def bench_render(vertices, triangles, normals, repeats: int) -> list[dict]:
     return rows
 
 
+def _ellipsoid_net(patches: int):
+    """Loop's surface over an ellipsoid (axes 1, 0.7, 0.5) with about ``patches`` patches."""
+    import open3d as o3d
+
+    from surface import bezier
+
+    resolution = max(2, int(round(np.sqrt(patches / 16))))  # 4 r^2 triangles, 4 patches each
+    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution)
+    surface = bezier.control_net(np.asarray(mesh.vertices) * [1.0, 0.7, 0.5],
+                                 np.asarray(mesh.triangles))
+    return surface.control_points, surface.domain_mesh[1]
+
+
+def _clocked(timings: dict, name: str, call):
+    start, cpu = time.perf_counter(), time.process_time()
+    out = call()
+    timings[f"{name}_s"] = time.perf_counter() - start
+    timings[f"{name}_cpu_s"] = time.process_time() - cpu
+    return out
+
+
+def _step_read_back(path: Path, control_points, triangles) -> dict:
+    """The file read back: validity, faces, volume and area against the level-3
+    tessellation, face samples' distance to it against its chord bound."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from pipeline.step import read_cad_solid
+    from surface import bezier
+    from surface.metrics import point_mesh_distance
+
+    row: dict = {}
+    shape = _clocked(row, "read", lambda: read_cad_solid(path))
+    row["solid"] = shape.ShapeType() == TopAbs_SOLID
+    row["valid"] = bool(_clocked(row, "check", lambda: BRepCheck_Analyzer(shape).IsValid()))
+    volume, area = GProp_GProps(), GProp_GProps()
+    BRepGProp.VolumeProperties_s(shape, volume)
+    BRepGProp.SurfaceProperties_s(shape, area)
+    level = 3
+    v, t, _ = bezier.tessellate(control_points, level, triangles)
+    a, b, c = (v[t[:, i]] for i in range(3))
+    tess_volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+    tess_area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+    row["volume_rel_error"] = abs(volume.Mass() - tess_volume) / abs(tess_volume)
+    row["area_rel_error"] = abs(area.Mass() - tess_area) / tess_area
+    cp = control_points
+    for _ in range(level):
+        cp = bezier.subdivide(cp)
+    row["chord_bound"] = float(bezier.chord_error_bound(cp).max())
+    samples, faces = [], 0
+    explorer = TopExp_Explorer(shape, TopAbs_FACE)
+    grid = (0.1, 0.5, 0.9)
+    while explorer.More():
+        surface = BRep_Tool.Surface_s(TopoDS.Face(explorer.Current()))
+        if faces % 10 == 0:  # every tenth face, 9 samples each
+            u0, u1, v0, v1 = surface.Bounds()
+            for u in grid:
+                for w in grid:
+                    p = surface.Value(u0 + u * (u1 - u0), v0 + w * (v1 - v0))
+                    samples.append((p.X(), p.Y(), p.Z()))
+        faces += 1
+        explorer.Next()
+    row["faces"] = faces
+    row["sample_distance_max"] = float(point_mesh_distance(np.array(samples), v, t).max())
+    return row
+
+
+def _step_phases(control_points, triangles, path: Path, merge: bool) -> dict:
+    """The STEP path through OpenCascade's shape transfer (``pipeline.step.solid_from_nets``,
+    ``STEPControl_Writer``; ``write_cad``'s path for open shells) phase by phase, the merge
+    of duplicate entities optional."""
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+    from pipeline import step
+
+    row: dict = {}
+    solid = _clocked(row, "build", lambda: step.solid_from_nets(control_points, triangles))
+    writer = STEPControl_Writer()
+    Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
+    Interface_Static.SetIVal_s("write.surfacecurve.mode", 0)
+    ok = _clocked(row, "transfer", lambda: writer.Transfer(solid, STEPControl_AsIs))
+    if merge:
+        _clocked(row, "merge", writer.CleanDuplicateEntities)
+    ok = ok == IFSelect_RetDone and _clocked(
+        row, "write", lambda: writer.Write(str(path))) == IFSelect_RetDone
+    row["ok"] = bool(ok)
+    row["bytes"] = path.stat().st_size
+    return row
+
+
+def bench_step(control_points, triangles, folder: Path, read_back: bool = True) -> list[dict]:
+    """``pipeline.step.write_cad`` to STEP (its entities made directly, poles shared) with
+    the file read back; the peers: the shape transfer, merged and unmerged, phase by phase
+    (CPU and wall seconds), IGES, and the level-2 tessellation's PLY for scale."""
+    from pipeline import step
+    from surface import bezier
+
+    step._quiet()
+    step.write_cad(folder / "warm.step", *_ellipsoid_net(64))  # imports, caches
+    rows = []
+    row = {"writer": "STEP (write_cad)", "patches": len(control_points)}
+    path = _clocked(row, "total", lambda: step.write_cad(folder / "s.step", control_points,
+                                                         triangles))
+    row["bytes"] = path.stat().st_size
+    if read_back:
+        row.update(_step_read_back(path, control_points, triangles))
+    rows.append(row)
+    for label, merge in (("STEP transfer + merge", True), ("STEP transfer, unmerged", False)):
+        path = folder / f"{'merged' if merge else 'unmerged'}.step"
+        rows.append({"writer": label, "patches": len(control_points),
+                     **_step_phases(control_points, triangles, path, merge)})
+    row = {"writer": "IGES (write_cad)", "patches": len(control_points)}
+    path = _clocked(row, "total", lambda: step.write_cad(folder / "s.iges", control_points,
+                                                         triangles))
+    row["bytes"] = path.stat().st_size
+    rows.append(row)
+    v, t, n = bezier.tessellate(control_points, 2, triangles)
+    row = {"writer": "PLY, level-2 tessellation", "patches": len(control_points)}
+    path = _clocked(row, "total", lambda: export_mesh(folder / "s.ply", v, t, n))
+    row["bytes"] = path.stat().st_size
+    rows.append(row)
+    for row in rows:
+        row["total_cpu_s"] = row.get("total_cpu_s", sum(
+            row.get(f"{k}_cpu_s", 0.0) for k in ("build", "transfer", "merge", "write")))
+        row["total_s"] = row.get("total_s", sum(
+            row.get(f"{k}_s", 0.0) for k in ("build", "transfer", "merge", "write")))
+    return rows
+
+
+def _print_step(rows: list[dict], source: str) -> None:
+    print(f"\nCAD export of {source}: {rows[0]['patches']} patches "
+          f"(CPU seconds; wall in the JSON)")
+    print(f"{'writer':<27}{'build':>7}{'transfer':>9}{'merge':>7}{'write':>7}{'total':>7}"
+          f"{'ms/patch':>9}{'MB':>8}{'KB/patch':>9}")
+    for r in rows:
+        cells = "".join(f"{r[f'{k}_cpu_s']:>{w}.1f}" if f"{k}_cpu_s" in r else f"{'-':>{w}}"
+                        for k, w in (("build", 7), ("transfer", 9), ("merge", 7), ("write", 7)))
+        print(f"{r['writer']:<27}{cells}{r['total_cpu_s']:>7.1f}"
+              f"{r['total_cpu_s'] / r['patches'] * 1e3:>9.2f}{r['bytes'] / 1e6:>8.1f}"
+              f"{r['bytes'] / r['patches'] / 1e3:>9.2f}")
+    r = rows[0]
+    if "valid" in r:
+        print(f"read back: {r['read_s']:.1f} s, {r['faces']} faces, solid {r['solid']}, valid "
+              f"{r['valid']} (BRepCheck {r['check_s']:.1f} s); volume {r['volume_rel_error']:.1e}, "
+              f"area {r['area_rel_error']:.1e} from the level-3 tessellation; face samples "
+              f"within {r['sample_distance_max']:.1e} of it (chord bound {r['chord_bound']:.1e})")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small mesh, one repeat")
     parser.add_argument("--triangles", type=int, default=None,
                         help="triangles of the test sphere (default 1e6, --quick 5e4)")
+    parser.add_argument("--patches", type=int, default=None,
+                        help="patches of the ellipsoid written to STEP (default 4000, --quick 500)")
+    parser.add_argument("--net", default=None,
+                        help="a workspace's smooth/ folder: write its control net instead")
+    parser.add_argument("--no-read-back", action="store_true",
+                        help="skip reading the STEP file back (large nets)")
     parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "export.json"))
     args = parser.parse_args(argv)
     import open3d as o3d
@@ -131,6 +301,17 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         formats = bench_formats(vertices, triangles, normals, Path(tmp))
     renders = bench_render(vertices, triangles, normals, repeats)
+    if args.net:
+        from pipeline.artifacts import read_control_net
+
+        net = read_control_net(args.net)
+        cad_source = f"the control net in {args.net}"
+        control_points, domain = net["control_points"], net["domain_triangles"]
+    else:
+        control_points, domain = _ellipsoid_net(args.patches or (500 if args.quick else 4000))
+        cad_source = "Loop's surface over an ellipsoid"
+    with tempfile.TemporaryDirectory() as tmp:
+        cad = bench_step(control_points, domain, Path(tmp), read_back=not args.no_read_back)
 
     print(f"mesh: sphere, {len(vertices)} vertices, {len(triangles)} triangles")
     print(f"{'writer':<16}{'write s':>9}{'MB':>8}{'read s':>8}{'read tris':>11}"
@@ -143,10 +324,12 @@ def main(argv=None) -> int:
     print()
     for r in renders:
         print(f"{r['render']:<45}{r['seconds']:>8.3f} s")
+    _print_step(cad, cad_source)
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"vertices": len(vertices), "triangles": len(triangles),
-                               "formats": formats, "render": renders}, indent=1))
+                               "formats": formats, "render": renders,
+                               "cad": {"source": cad_source, "rows": cad}}, indent=1))
     print(f"\nwrote {out}")
     return 0
 

@@ -216,8 +216,8 @@ def run_stitched_bezier(points: np.ndarray, level: int | None = None,
             "g1_angle": angle, "g1_gap": gap, "excluded_seconds": excluded}
 
 
-#: Largest surface written to STEP inside the benchmark (OpenCascade takes ~13 ms and
-#: writes ~20 KB per patch here, pipeline/step.py).
+#: Largest surface written to STEP inside the benchmark (OpenCascade takes ~0.6 CPU-ms and
+#: writes ~4 KB per patch here, pipeline/step.py; benchmarks/export.py measures it).
 STEP_MAX_PATCHES = 3000
 
 

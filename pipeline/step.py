@@ -1,27 +1,48 @@
 r"""STEP (and IGES) export of the exact smooth surface, through OpenCascade.
 
-Each sextic triangular patch of Loop's surface (``surface.bezier``) is split
-at its centroid and edge midpoints into three quadrilaterals, each exactly a
-non-degenerate degree (6, 6) tensor-product Bézier patch
-(``surface.bezier.tensor_product_nets``; Farin, *Curves and Surfaces for CAGD*,
-5th ed., §17: a triangular patch reparametrised over a bilinear image of the
-square is a tensor-product patch of degree (n, n)).  The faces are assembled
-into one closed shell directly, by topology, not by sewing: every vertex
-(domain vertex, edge midpoint, patch centroid) and every edge (each half of a
-domain edge, each spoke from an edge midpoint to a centroid) is made once and
-shared by the faces that meet there, each face carrying a straight pcurve
-along its side of the parameter square.  ``BRepBuilderAPI_Sewing`` would find
-the same neighbours geometrically, at a cost that grows faster than the face
-count (measured: 18 240 faces in 91 s); the shared topology is exact and
-linear.  The shell becomes a solid (turned over if the tessellation's signed
-volume is negative) written by ``STEPControl_Writer`` (AP214, entities
-``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 with Bézier knots,
-``ADVANCED_FACE``, ``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``) or
-``IGESControl_Writer`` (5.3, BRep mode).
+Each sextic triangular patch of Loop's surface (``surface.bezier``) is written
+as one degree (6, 6) tensor-product Bézier face, degenerate at the patch's
+corner 0: over the unit square, the barycentric map (Duffy's)
 
-Geometry is exact up to float64 rounding: a face's boundary row and the edge
-curve it shares with its neighbour differ by rounding only (~1e-16 of the
-size), far inside the edges' tolerance.
+    (r, s, t) = (1 - u, u (1 - v), u v)
+
+turns the patch's Bernstein polynomial into one of degree 6 in u and in v
+(r^i s^j t^k = (1-u)^i u^(j+k) (1-v)^j v^k, i + j + k = 6), so the face is
+exact: its pole row ``u = m / 6`` is the row ``i = 6 - m`` of the triangular
+net, a curve of degree m in v, degree-elevated to 6 (:func:`degenerate_nets`;
+Farin, *Curves and Surfaces for CAGD*, 5th ed., §§17-18: the tensor-product
+form of a triangular patch, and degree elevation).  The side ``u = 0`` collapses
+to corner 0; the other three sides are the patch's edges, whose poles are the
+triangular net's 7 edge control points, exactly, so neighbouring faces share
+their edge curves bit for bit.  One face per patch instead of the three
+non-degenerate quadrilaterals of a centroid split (``surface.bezier.
+tensor_product_nets``): a third of the faces, no spokes, 49 surface poles a
+patch instead of 147 (33 distinct ones once shared with the neighbours).
+
+The faces are assembled into one closed shell by topology, not by sewing:
+every vertex (a domain vertex) and every edge (a domain edge) is made once and
+shared by the two faces that meet there.  ``BRepBuilderAPI_Sewing`` would find
+the same neighbours geometrically, at a cost that grows faster than the face
+count (measured: 18 240 faces in 91 s).
+
+STEP (AP214): the entities are made directly with OpenCascade's STEP data
+classes (``StepGeom``, ``StepShape``) and written by ``STEPControl_Writer``:
+one ``CARTESIAN_POINT`` per distinct pole (a corner per domain vertex, 5 per
+domain edge, 25 per face), ``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 and
+``B_SPLINE_CURVE_WITH_KNOTS`` of degree 6 with Bézier knots, ``EDGE_CURVE``,
+``ADVANCED_FACE`` bounded by its three real edges (the collapsed side has none,
+as in OpenCascade's own output; readers restore a degenerated edge),
+``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``, in the product structure the writer
+makes for a template solid.  The shape transfer of the same solid
+(``TopoDS`` built by :func:`solid_from_nets`, ``STEPControl_Writer.Transfer``)
+writes each pole of each surface and edge curve as its own point (61 a patch)
+and needs ``CleanDuplicateEntities`` to share them: twice the time for the
+same file (``benchmarks/export.py``); it remains the path of an open shell.
+IGES: the ``TopoDS`` solid (faces with straight pcurves, degenerated edges
+along ``u = 0``) through ``IGESControl_Writer`` (5.3, BRep mode).
+
+Geometry is exact up to float64 rounding of the degree elevation (~1e-16 of the
+size) and the writer's 12-13 significant digits.
 
 References
 ----------
@@ -29,11 +50,17 @@ References
    and ISO 10303-214 (automotive design, AP214).
 .. [2] C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH 1994.
 .. [3] G. Farin, "Curves and Surfaces for CAGD", 5th ed., Morgan Kaufmann (2002).
+.. [4] M. G. Duffy, "Quadrature over a pyramid or cube of integrands with a
+   singularity at a vertex", SIAM J. Numer. Anal. 19 (1982): the collapsed square.
 """
 
 from __future__ import annotations
 
+import gc
 import os
+from fractions import Fraction
+from functools import cache
+from math import comb
 from pathlib import Path
 
 import numpy as np
@@ -48,18 +75,64 @@ CAD_SUFFIXES = (".step", ".stp", ".iges", ".igs")
 #: rounding between a face's boundary row and its shared edge curve (~1e-16), far
 #: below any modelling scale.
 REL_TOLERANCE = 1e-9
+_DEGREE = 6
 
-__all__ = ["CAD_SUFFIXES", "read_cad_solid", "shell_topology", "solid_from_nets", "write_cad"]
+__all__ = ["CAD_SUFFIXES", "degenerate_nets", "read_cad_solid", "shell_topology",
+           "solid_from_nets", "write_cad"]
+
+
+@cache
+def _degenerate_matrix() -> np.ndarray:
+    """``(49, 28)`` map from a sextic triangular net to its degenerate (6, 6) net.
+
+    Row ``7 m + l`` is the pole of u-index m and v-index l: the degree-m curve
+    with poles ``b[6 - m, m - k, k]`` (k = 0..m) elevated to degree 6,
+    ``P[m, l] = sum_k C(m, k) C(6 - m, l - k) / C(6, l) b[6 - m, m - k, k]``;
+    the weights are rationals rounded once, so the boundary rows (m = 6, l = 0,
+    l = 6), whose weights are 0 and 1, copy the edge control points exactly.
+    """
+    from surface.bezier import N_CONTROL, control_index
+
+    n = _DEGREE
+    out = np.zeros((n + 1, n + 1, N_CONTROL))
+    for m in range(n + 1):
+        for l in range(n + 1):
+            for k in range(max(0, l - (n - m)), min(m, l) + 1):
+                weight = Fraction(comb(m, k) * comb(n - m, l - k), comb(n, l))
+                out[m, l, control_index(n - m, m - k, k)] = float(weight)
+    out = out.reshape((n + 1) ** 2, N_CONTROL)
+    out.flags.writeable = False
+    return out
+
+
+def degenerate_nets(control_points: np.ndarray) -> np.ndarray:
+    """Each sextic triangular patch as one degree (6, 6) tensor-product Bézier net.
+
+    Parameters
+    ----------
+    control_points : (P, 28, 3) float64
+        ``surface.bezier`` index order.
+
+    Returns
+    -------
+    (P, 7, 7, 3) float64
+        ``out[p, m, l]`` is pole (m, l): the net evaluated at (u, v) is patch p
+        at barycentric ``(1 - u, u (1 - v), u v)``.  Row m = 0 is corner 0 seven
+        times; column l = 0 runs along edge 0 -> 1, row m = 6 along edge 1 -> 2,
+        column l = 6 along edge 0 -> 2; ``dS/du x dS/dv`` points the way the
+        triangle's normal does (u > 0).
+    """
+    cp = np.asarray(control_points, dtype=np.float64)
+    return np.matmul(_degenerate_matrix(), cp).reshape(-1, 7, 7, 3)
 
 
 def shell_topology(triangles: np.ndarray) -> dict:
-    """Shared vertices and edges of the three-quadrilateral split of every patch.
+    """Shared edges of the one-face-per-patch shell.
 
-    Face ``3 p + c`` is the quadrilateral at corner ``c`` of patch ``p``, with
-    sides, counter-clockwise in its ``(u, v)`` square: ``v = 0`` (corner ->
-    midpoint of domain edge ``c``, i.e. corner c -> c + 1), ``u = 1`` (that midpoint
-    -> centroid), ``v = 1`` (midpoint of edge ``c + 2`` -> centroid), ``u = 0``
-    (corner -> midpoint of edge ``c + 2``).
+    Face p's sides, counter-clockwise in its ``(u, v)`` square: 0 ``v = 0``
+    (corner 0 -> 1, u increasing), 1 ``u = 1`` (corner 1 -> 2, v increasing),
+    2 ``v = 1`` (corner 0 -> 2, u increasing), 3 ``u = 0`` (degenerate, corner 0).
+    An edge's curve runs from its lower to its higher vertex id.
 
     Parameters
     ----------
@@ -69,65 +142,39 @@ def shell_topology(triangles: np.ndarray) -> dict:
     Returns
     -------
     dict
-        ``edge (3P, 4) int64`` edge id of each side; ``start (n_edges,)``,
-        ``end (n_edges,)`` vertex ids of each edge in the direction of its curve;
-        ``same (3P, 4) bool``: the side runs (in increasing u or v) the way its
-        edge's curve does; ``owner (n_edges, 2)``: the face and side whose
-        boundary row defines the edge's curve; ``n_vertices``; ``vertex_owner
-        (n_vertices, 2)``: a face and its pole (k, l) index giving each vertex.
+        ``edge (P, 3) int64`` edge id of sides 0-2; ``same (P, 3) bool``: the side
+        runs (in increasing u or v) the way its edge's curve does; ``start, end
+        (E,)`` vertex ids of each edge's curve; ``owner (E, 2)``: the face and side
+        whose boundary row defines the edge's curve; ``n_vertices``; ``closed``:
+        every edge is shared by two patches.
     """
     from surface.bezier import _edge_ids
 
     tris = np.asarray(triangles, dtype=np.int64)
-    n_patches = len(tris)
-    n_domain = int(tris.max()) + 1
-    edge_id, n_domain_edges, forward = _edge_ids(tris)  # (P, 3): domain edge c -> c + 1
-    corner = np.arange(3)
-    prev = (corner + 2) % 3
-    # vertex ids: domain vertices, then edge midpoints, then centroids
-    mid = n_domain + edge_id  # (P, 3)
-    centre = n_domain + n_domain_edges + np.arange(n_patches)
-    # edge ids: the two halves of each domain edge (half 0 touches its lower vertex), spokes
-    low_half = 2 * edge_id + np.where(forward, 0, 1)  # half at corner c of edge c -> c + 1
-    high_half = 2 * edge_id + np.where(forward, 1, 0)  # half at corner c + 1
-    spoke = 2 * n_domain_edges + 3 * np.arange(n_patches)[:, None] + corner[None, :]
-    # sides of face (p, c), each as (edge, start vertex, end vertex) in increasing u or v
-    v_corner = tris  # (P, 3)
-    sides = [
-        (low_half, v_corner, mid),  # v = 0: corner -> mid of edge c
-        (spoke, mid, np.repeat(centre[:, None], 3, axis=1)),  # u = 1: mid c -> centre
-        (spoke[:, prev], mid[:, prev], np.repeat(centre[:, None], 3, axis=1)),  # v = 1
-        (high_half[:, prev], v_corner, mid[:, prev]),  # u = 0: corner -> mid of edge c + 2
-    ]
-    edge = np.stack([s[0] for s in sides], axis=2).reshape(-1, 4)  # (3P, 4)
-    a = np.stack([s[1] for s in sides], axis=2).reshape(-1, 4)
-    b = np.stack([s[2] for s in sides], axis=2).reshape(-1, 4)
-    n_edges = 2 * n_domain_edges + 3 * n_patches
+    half_edge, n_edges, forward = _edge_ids(tris)  # (P, 3): edge c -> c + 1, lower -> higher
+    edge = half_edge  # sides 0, 1, 2 lie on half-edges 0, 1, 2
+    # sides 0 and 1 run along their half-edge, side 2 (corner 0 -> 2) against half-edge 2
+    same = np.stack([forward[:, 0], forward[:, 1], ~forward[:, 2]], axis=1)
     flat = edge.ravel()
     owner_slot = np.full(n_edges, -1, dtype=np.int64)
     owner_slot[flat[::-1]] = np.arange(len(flat))[::-1]  # first side naming each edge
-    start, end = a.ravel()[owner_slot], b.ravel()[owner_slot]
-    same = (a == start[edge]) & (b == end[edge])
-    if not np.all(same | ((a == end[edge]) & (b == start[edge]))):
-        raise ValueError("triangles: a shared edge joins different vertices on its two sides")
-    n_vertices = n_domain + n_domain_edges + n_patches
-    # a face and pole giving each vertex: corner (0, 0) of (p, c); mid (6, 0); centre (6, 6)
-    vertex_owner = np.empty((n_vertices, 2), dtype=np.int64)
-    faces = 3 * np.arange(n_patches)[:, None] + corner[None, :]
-    vertex_owner[v_corner.ravel()] = np.stack([faces.ravel(), np.zeros(3 * n_patches, int)], 1)
-    vertex_owner[mid.ravel()] = np.stack([faces.ravel(), np.full(3 * n_patches, 6 * 7)], 1)
-    vertex_owner[centre] = np.stack([3 * np.arange(n_patches), np.full(n_patches, 48)], 1)
-    return {"edge": edge, "start": start, "end": end, "same": same,
-            "owner": np.stack([owner_slot // 4, owner_slot % 4], axis=1),
-            "n_vertices": n_vertices, "vertex_owner": vertex_owner}
+    a = tris[:, [0, 1, 0]].ravel()[owner_slot]
+    b = tris[:, [1, 2, 2]].ravel()[owner_slot]
+    start, end = np.minimum(a, b), np.maximum(a, b)
+    counts = np.bincount(flat, minlength=n_edges)
+    if np.any(counts > 2):
+        raise ValueError("triangles: an edge is shared by more than two patches")
+    return {"edge": edge, "same": same, "start": start, "end": end,
+            "owner": np.stack([owner_slot // 3, owner_slot % 3], axis=1),
+            "n_vertices": int(tris.max()) + 1, "closed": bool(np.all(counts == 2))}
 
 
-#: Pole rows of each side of a face, ``(4, 7)`` flat indices ``7 k + l`` in increasing u or v.
+#: Pole rows of each side of a face, ``(4, 7)`` flat indices ``7 m + l`` in increasing u or v.
 _SIDE_POLES = np.array([
-    [7 * k for k in range(7)],  # v = 0 (l = 0), u increasing
-    [42 + l for l in range(7)],  # u = 1 (k = 6), v increasing
-    [7 * k + 6 for k in range(7)],  # v = 1 (l = 6), u increasing
-    [l for l in range(7)],  # u = 0 (k = 0), v increasing
+    [7 * m for m in range(7)],  # v = 0 (l = 0), u increasing
+    [42 + l for l in range(7)],  # u = 1 (m = 6), v increasing
+    [7 * m + 6 for m in range(7)],  # v = 1 (l = 6), u increasing
+    [l for l in range(7)],  # u = 0 (m = 0), v increasing: the apex
 ])
 #: Each side's pcurve in the face's (u, v) square: origin and direction of t in [0, 1].
 _SIDE_LINES = (((0.0, 0.0), (1.0, 0.0)), ((1.0, 0.0), (0.0, 1.0)),
@@ -150,80 +197,47 @@ def solid_from_nets(control_points: np.ndarray, triangles: np.ndarray):
 
     Returns
     -------
-    TopoDS_Solid
-        3P faces (one degree (6, 6) Bézier surface each), every edge shared by
-        exactly two faces.
+    TopoDS_Solid or TopoDS_Shell
+        P faces (one degree (6, 6) Bézier surface each, degenerate at the
+        triangle's corner 0), every edge shared by exactly two faces; a domain
+        with a border gives the open shell of its faces instead (written as a
+        surface model).
 
     Notes
     -----
     The OpenCascade objects are made one by one from Python (the kernel has
-    no bulk constructor): about 0.5 ms per face.
+    no bulk constructor): about 0.2 ms of CPU per face, with the cyclic garbage
+    collector paused (the wrappers hold no cycles; it scanned the ~10^5 of them
+    again and again, +20 %).
     """
     from OCP.BRep import BRep_Builder
-    from OCP.collections import Array1_gp_Pnt, Array2_gp_Pnt
-    from OCP.Geom import Geom_BezierCurve, Geom_BezierSurface
-    from OCP.Geom2d import Geom2d_Line
-    from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
-    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED
-    from OCP.TopoDS import (
-        TopoDS_Edge,
-        TopoDS_Face,
-        TopoDS_Shell,
-        TopoDS_Solid,
-        TopoDS_Vertex,
-        TopoDS_Wire,
-    )
+    from OCP.TopoDS import TopoDS_Shell, TopoDS_Solid
 
-    from surface.bezier import tensor_product_nets
-
-    poles = tensor_product_nets(control_points).reshape(-1, 49, 3)  # (3P, 49, 3)
+    poles = degenerate_nets(control_points).reshape(-1, 49, 3)  # (P, 49, 3)
     topo = shell_topology(triangles)
     size = float(np.ptp(poles.reshape(-1, 3), axis=0).max()) or 1.0
     tol = REL_TOLERANCE * size
     builder = BRep_Builder()
-    vertex_xyz = poles[topo["vertex_owner"][:, 0], topo["vertex_owner"][:, 1]].tolist()
-    vertices = []
-    for x, y, z in vertex_xyz:
-        vertex = TopoDS_Vertex()
-        builder.MakeVertex(vertex, gp_Pnt(x, y, z), tol)
-        vertices.append(vertex)
+    tris = np.asarray(triangles, dtype=np.int64)
+    corners = np.empty((topo["n_vertices"], 3))
+    corners[tris.ravel()] = poles[:, [0, 42, 48]].reshape(-1, 3)  # corners 0, 1, 2
     owner = topo["owner"]
-    edge_poles = poles[owner[:, 0][:, None], _SIDE_POLES[owner[:, 1]]].tolist()  # (E, 7, 3)
-    edges = []
-    for rows, a, b in zip(edge_poles, topo["start"].tolist(), topo["end"].tolist(), strict=True):
-        array = Array1_gp_Pnt(1, 7)
-        for i, (x, y, z) in enumerate(rows, start=1):
-            array.SetValue(i, gp_Pnt(x, y, z))
-        edge = TopoDS_Edge()
-        builder.MakeEdge(edge, Geom_BezierCurve(array), tol)
-        builder.Add(edge, vertices[a].Oriented(TopAbs_FORWARD))
-        builder.Add(edge, vertices[b].Oriented(TopAbs_REVERSED))
-        builder.Range(edge, 0.0, 1.0)
-        edges.append(edge)
-    lines = [[Geom2d_Line(gp_Pnt2d(*origin), gp_Dir2d(*direction)) for origin, direction in
-              _SIDE_LINES],
-             [Geom2d_Line(gp_Pnt2d(origin[0] + direction[0], origin[1] + direction[1]),
-                          gp_Dir2d(-direction[0], -direction[1]))
-              for origin, direction in _SIDE_LINES]]  # t -> side point at 1 - t
+    edge_poles = poles[owner[:, 0][:, None], _SIDE_POLES[owner[:, 1]]]  # (E, 7, 3)
+    owner_same = topo["same"][owner[:, 0], owner[:, 1]]
+    edge_poles = np.where(owner_same[:, None, None], edge_poles, edge_poles[:, ::-1])
     shell = TopoDS_Shell()
     builder.MakeShell(shell)
-    face_edges, face_same = topo["edge"].tolist(), topo["same"].tolist()
-    for face_poles, sides, same in zip(poles.tolist(), face_edges, face_same, strict=True):
-        grid = Array2_gp_Pnt(1, 7, 1, 7)
-        for m, (x, y, z) in enumerate(face_poles):
-            grid.SetValue(m // 7 + 1, m % 7 + 1, gp_Pnt(x, y, z))
-        face = TopoDS_Face()
-        builder.MakeFace(face, Geom_BezierSurface(grid), tol)
-        wire = TopoDS_Wire()
-        builder.MakeWire(wire)
-        for side, backwards in _WIRE:
-            edge = edges[sides[side]]
-            # the pcurve follows the edge's own parameter: along the side, or against it
-            builder.UpdateEdge(edge, lines[0 if same[side] else 1][side], face, tol)
-            along_wire = same[side] != backwards
-            builder.Add(wire, edge.Oriented(TopAbs_FORWARD if along_wire else TopAbs_REVERSED))
-        builder.Add(face, wire)
-        builder.Add(shell, face)
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        vertices = _make_vertices(builder, corners, tol)
+        edges = _make_edges(builder, edge_poles, topo["start"], topo["end"], vertices, tol)
+        _add_faces(builder, shell, poles, topo, tris[:, 0], vertices, edges, tol)
+    finally:
+        if collecting:
+            gc.enable()
+    if not topo["closed"]:
+        return shell
     shell.Closed(True)
     if _signed_volume(control_points, triangles) < 0:  # domain triangles clockwise: turn over
         shell.Reverse()
@@ -233,13 +247,95 @@ def solid_from_nets(control_points: np.ndarray, triangles: np.ndarray):
     return solid
 
 
-def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
-    """Volume of the surface's level-2 tessellation (divergence theorem): its sign tells
-    whether the faces point outward (ShapeFix_Solid finds the same at ~2 ms a face)."""
-    from surface.bezier import tessellate
+def _make_vertices(builder, points: np.ndarray, tol: float) -> list:
+    from OCP.gp import gp_Pnt
+    from OCP.TopoDS import TopoDS_Vertex
 
-    vertices, tris, _ = tessellate(control_points, 2, triangles)
-    a, b, c = (vertices[tris[:, i]] for i in range(3))
+    vertices = []
+    for x, y, z in points.tolist():
+        vertex = TopoDS_Vertex()
+        builder.MakeVertex(vertex, gp_Pnt(x, y, z), tol)
+        vertices.append(vertex)
+    return vertices
+
+
+def _make_edges(builder, edge_poles: np.ndarray, start: np.ndarray, end: np.ndarray,
+                vertices: list, tol: float) -> list:
+    """One sextic Bézier edge per domain edge, ``edge_poles (E, 7, 3)`` from ``start``
+    to ``end``, parameter range [0, 1]."""
+    from OCP.collections import Array1_gp_Pnt
+    from OCP.Geom import Geom_BezierCurve
+    from OCP.gp import gp_Pnt
+    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED
+    from OCP.TopoDS import TopoDS_Edge
+
+    edges = []
+    for rows, a, b in zip(edge_poles.tolist(), start.tolist(), end.tolist(), strict=True):
+        array = Array1_gp_Pnt(1, 7)
+        for i, (x, y, z) in enumerate(rows, start=1):
+            array.SetValue(i, gp_Pnt(x, y, z))
+        edge = TopoDS_Edge()
+        builder.MakeEdge(edge, Geom_BezierCurve(array), tol)
+        builder.Add(edge, vertices[a].Oriented(TopAbs_FORWARD))
+        builder.Add(edge, vertices[b].Oriented(TopAbs_REVERSED))
+        builder.Range(edge, 0.0, 1.0)
+        edges.append(edge)
+    return edges
+
+
+def _add_faces(builder, shell, poles: np.ndarray, topo: dict, apex: np.ndarray,
+               vertices: list, edges: list, tol: float) -> None:
+    """One face per patch: its Bézier surface, its three shared edges and its
+    degenerated side, wired counter-clockwise in (u, v)."""
+    from OCP.collections import Array2_gp_Pnt
+    from OCP.Geom import Geom_BezierSurface
+    from OCP.Geom2d import Geom2d_Line
+    from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
+    from OCP.TopAbs import TopAbs_FORWARD, TopAbs_REVERSED
+    from OCP.TopoDS import TopoDS_Edge, TopoDS_Face, TopoDS_Wire
+
+    lines = [[Geom2d_Line(gp_Pnt2d(*origin), gp_Dir2d(*direction)) for origin, direction in
+              _SIDE_LINES],
+             [Geom2d_Line(gp_Pnt2d(origin[0] + direction[0], origin[1] + direction[1]),
+                          gp_Dir2d(-direction[0], -direction[1]))
+              for origin, direction in _SIDE_LINES]]  # t -> side point at 1 - t
+    forward, reversed_ = TopAbs_FORWARD, TopAbs_REVERSED
+    grid_index = [(m // 7 + 1, m % 7 + 1) for m in range(49)]
+    for face_poles, sides, same, corner in zip(poles.tolist(), topo["edge"].tolist(),
+                                               topo["same"].tolist(), apex.tolist(),
+                                               strict=True):
+        grid = Array2_gp_Pnt(1, 7, 1, 7)
+        for (row, col), (x, y, z) in zip(grid_index, face_poles, strict=True):
+            grid.SetValue(row, col, gp_Pnt(x, y, z))
+        face = TopoDS_Face()
+        builder.MakeFace(face, Geom_BezierSurface(grid), tol)
+        wire = TopoDS_Wire()
+        builder.MakeWire(wire)
+        for side, backwards in _WIRE[:3]:
+            edge = edges[sides[side]]
+            # the pcurve follows the edge's own parameter: along the side, or against it
+            builder.UpdateEdge(edge, lines[0 if same[side] else 1][side], face, tol)
+            builder.Add(wire, edge.Oriented(forward if same[side] != backwards else reversed_))
+        collapsed = TopoDS_Edge()  # side u = 0: corner 0, walked from v = 1 to v = 0
+        builder.MakeEdge(collapsed)
+        builder.Degenerated(collapsed, True)
+        builder.Add(collapsed, vertices[corner].Oriented(forward))
+        builder.Add(collapsed, vertices[corner].Oriented(reversed_))
+        builder.UpdateEdge(collapsed, lines[0][3], face, tol)
+        builder.Range(collapsed, 0.0, 1.0)
+        builder.Add(wire, collapsed.Oriented(reversed_))
+        builder.Add(face, wire)
+        builder.Add(shell, face)
+
+
+def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
+    """Volume enclosed by the patches' corner triangles (divergence theorem): the
+    polyhedron inscribed in the surface at its patch corners, whose sign tells whether
+    the faces point outward (ShapeFix_Solid finds the same at ~2 ms a face)."""
+    from surface.bezier import control_index
+
+    cp = np.asarray(control_points)
+    a, b, c = (cp[:, control_index(*corner)] for corner in ((6, 0, 0), (0, 6, 0), (0, 0, 6)))
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
@@ -253,7 +349,8 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         Suffix one of :data:`CAD_SUFFIXES`; written atomically.
     control_points : (P, 28, 3) float64
     triangles : (P, 3) int64
-        Closed, oriented domain mesh of the patches.
+        Oriented domain mesh of the patches: closed, the file holds a closed solid;
+        with a border, the open shell of the faces.
 
     Returns
     -------
@@ -277,9 +374,14 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     if len(tris) != len(cp) or len(tris) == 0:
         raise ValueError(f"triangles must have one row per patch ({len(cp)}), got {len(tris)}")
     _quiet()
-    solid = solid_from_nets(cp, tris)
     with atomic_file(path) as tmp:
-        ok = _write_step(solid, tmp) if suffix in (".step", ".stp") else _write_iges(solid, tmp)
+        if suffix in (".step", ".stp"):
+            # the entities directly; an open shell, or a template this OpenCascade
+            # structures otherwise (_STEP_ROOTS), through the shape transfer
+            ok = shell_topology(tris)["closed"] and _write_step_entities(cp, tris, tmp)
+            ok = ok or _write_step(solid_from_nets(cp, tris), tmp)
+        else:
+            ok = _write_iges(solid_from_nets(cp, tris), tmp)
         if not ok:
             raise InputError(f"{path}: OpenCascade could not write the {suffix[1:].upper()} file")
     return path
@@ -293,20 +395,217 @@ def _quiet() -> None:
     Message.DefaultMessenger_s().RemovePrinters(Message_PrinterOStream.get_type_descriptor_s())
 
 
+def _step_settings() -> None:
+    from OCP.Interface import Interface_Static
+
+    Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
+    Interface_Static.SetCVal_s("write.step.product.name", "photosurf surface")
+
+
 def _write_step(solid, path: Path) -> bool:
+    """``solid`` (or shell) through OpenCascade's shape transfer."""
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
     from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
 
     writer = STEPControl_Writer()
-    Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
-    Interface_Static.SetCVal_s("write.step.product.name", "photosurf surface")
+    _step_settings()
+    Interface_Static.SetIVal_s("write.precision.mode", 0)  # the shape's least tolerance
     # no pcurves: every face is a full Bezier patch whose sides are its iso-lines, which
     # readers rebuild exactly; a quarter fewer entities to write and read
     Interface_Static.SetIVal_s("write.surfacecurve.mode", 0)
     if writer.Transfer(solid, STEPControl_AsIs) != IFSelect_RetDone:
         return False
+    # the transfer writes every pole of every surface and edge curve as its own point;
+    # merged, a patch has 33 instead of 61: the demo's 34 208 patches 218 -> 138 MB for
+    # 19.5 CPU-s of merging against 6.2 saved in writing (benchmarks/export.py), bought
+    # for the size; OpenCascade >= 8.0 only
+    clean = getattr(writer, "CleanDuplicateEntities", None)
+    if clean is not None:
+        clean()
     return writer.Write(str(path)) == IFSelect_RetDone
+
+
+# --------------------------------------------------------------- STEP entities, directly
+def _reversed_nets(control_points: np.ndarray, triangles: np.ndarray):
+    """The same surface over the domain turned over: corners 1 and 2 swapped, and with
+    them the net's indices j and k."""
+    from surface.bezier import control_index, index_table
+
+    table = index_table()
+    return (control_points[:, control_index(table[:, 0], table[:, 2], table[:, 1])],
+            triangles[:, [0, 2, 1]])
+
+
+def _pole_ids(triangles: np.ndarray, topo: dict) -> tuple[np.ndarray, int]:
+    """``(P, 49)`` id of each pole of each degenerate net among the ``Q`` distinct ones:
+    a domain vertex's corner point (ids ``0..V-1``), the 5 inner points of each edge
+    curve in its own direction (``V + 5 e + 0..4``), the 25 inner poles of each face."""
+    n_patches, n_vertices, n_edges = len(triangles), topo["n_vertices"], len(topo["start"])
+    ids = np.empty((n_patches, 7, 7), dtype=np.int64)
+    inner = np.arange(1, 6)
+    edge, same = topo["edge"], topo["same"]
+
+    def along(side: int) -> np.ndarray:  # (P, 5): the side's inner points, increasing u or v
+        position = np.where(same[:, side][:, None], inner[None, :], 6 - inner[None, :])
+        return n_vertices + 5 * edge[:, side][:, None] + position - 1
+
+    ids[:, 0, :] = triangles[:, 0][:, None]  # the collapsed side
+    ids[:, 6, 0], ids[:, 6, 6] = triangles[:, 1], triangles[:, 2]
+    ids[:, 1:6, 0], ids[:, 6, 1:6], ids[:, 1:6, 6] = along(0), along(1), along(2)
+    first = n_vertices + 5 * n_edges
+    ids[:, 1:6, 1:6] = (first + 25 * np.arange(n_patches))[:, None, None] \
+        + np.arange(25).reshape(5, 5)
+    return ids.reshape(n_patches, 49), first + 25 * n_patches
+
+
+def _write_step_entities(control_points: np.ndarray, triangles: np.ndarray,
+                         path: Path) -> bool:
+    """The closed solid written as STEP entities made directly (``StepGeom``,
+    ``StepShape``), every distinct pole one ``CARTESIAN_POINT``, into the product
+    structure OpenCascade's writer makes for a template solid.
+
+    The shape transfer (``STEPControl_Writer.Transfer`` of :func:`solid_from_nets`)
+    writes each pole of each surface and edge curve as its own point and needs
+    ``CleanDuplicateEntities`` to share them: on the demo's 34 208 patches 38.2
+    CPU-s against 21.0 here in the same run, for the same 138 MB (benchmarks/export.py)."""
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+    from OCP.StepShape import StepShape_ManifoldSolidBrep
+
+    if _signed_volume(control_points, triangles) < 0:  # faces must point outward
+        control_points, triangles = _reversed_nets(control_points, triangles)
+    poles = degenerate_nets(control_points).reshape(-1, 49, 3)
+    topo = shell_topology(triangles)
+    ids, n_points = _pole_ids(triangles, topo)
+    xyz = np.empty((n_points, 3))
+    xyz[ids.ravel()] = poles.reshape(-1, 3)  # shared poles are equal bit for bit
+    size = float(np.ptp(xyz, axis=0).max()) or 1.0
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        shell = _step_shell(xyz, ids, topo)
+    finally:
+        if collecting:
+            gc.enable()
+    # the product, context, units and uncertainty of a template solid, its brep's shell
+    # replaced by ours, and the model rebuilt from its roots (the template's faces dropped)
+    writer = STEPControl_Writer()
+    _step_settings()
+    Interface_Static.SetIVal_s("write.precision.mode", 2)  # the uncertainty given here
+    Interface_Static.SetRVal_s("write.precision.val", REL_TOLERANCE * size)
+    if writer.Transfer(BRepPrimAPI_MakeBox(1.0, 1.0, 1.0).Shape(),
+                       STEPControl_AsIs) != IFSelect_RetDone:
+        return False
+    model = writer.Model()
+    entities = [model.Value(i) for i in range(1, model.NbEntities() + 1)]
+    breps = [e for e in entities if isinstance(e, StepShape_ManifoldSolidBrep)]
+    roots = [e for e in entities if e.DynamicType().Name() in _STEP_ROOTS]
+    if len(breps) != 1 or len(roots) != len(_STEP_ROOTS):
+        return False
+    breps[0].SetOuter(shell)
+    model.ClearEntities()
+    for root in roots:
+        model.AddWithRefs(root)
+    return writer.Write(str(path)) == IFSelect_RetDone
+
+
+#: The entities no other refers to in OpenCascade's AP214 output for one solid.
+_STEP_ROOTS = ("StepBasic_ApplicationProtocolDefinition",
+               "StepShape_ShapeDefinitionRepresentation",
+               "StepBasic_ProductRelatedProductCategory")
+
+
+def _step_shell(xyz: np.ndarray, ids: np.ndarray, topo: dict):
+    """``CLOSED_SHELL`` of one ``ADVANCED_FACE`` per patch (degree 6 x 6
+    ``B_SPLINE_SURFACE_WITH_KNOTS``, Bézier knots) bounded by the shared
+    ``EDGE_CURVE`` s (sextic ``B_SPLINE_CURVE_WITH_KNOTS``); the collapsed side has no
+    edge (OpenCascade's writer omits degenerated edges too; readers restore them)."""
+    import OCP.StepGeom as geom
+    import OCP.StepShape as shape
+    from OCP.collections import HArray1_double, HArray1_int, HArray1_StepGeom_CartesianPoint
+    from OCP.StepData import StepData_Logical
+    from OCP.TCollection import TCollection_HAsciiString
+
+    name = TCollection_HAsciiString("")
+    points = []
+    for x, y, z in xyz.tolist():
+        point = geom.StepGeom_CartesianPoint()
+        point.Init3D(name, x, y, z)
+        points.append(point)
+    vertices = []
+    for point in points[:topo["n_vertices"]]:
+        vertex = shape.StepShape_VertexPoint()
+        vertex.Init(name, point)
+        vertices.append(vertex)
+    multiplicities = HArray1_int(1, 2)
+    knots = HArray1_double(1, 2)
+    for i, (count, knot) in enumerate(((7, 0.0), (7, 1.0)), start=1):
+        multiplicities.SetValue(i, count)
+        knots.SetValue(i, knot)
+    common = {"name": name, "multiplicities": multiplicities, "knots": knots,
+              "false": StepData_Logical.StepData_LFalse,
+              "bezier": geom.StepGeom_KnotType.StepGeom_ktPiecewiseBezierKnots}
+    start, end = topo["start"], topo["end"]
+    curve_ids = np.column_stack([start, topo["n_vertices"] + 5 * np.arange(len(start))[:, None]
+                                 + np.arange(5), end])  # (E, 7)
+    edges = []
+    form = geom.StepGeom_BSplineCurveForm.StepGeom_bscfUnspecified
+    for row, a, b in zip(curve_ids.tolist(), start.tolist(), end.tolist(), strict=True):
+        array = HArray1_StepGeom_CartesianPoint(1, 7)
+        for i, q in enumerate(row, start=1):
+            array.SetValue(i, points[q])
+        curve = geom.StepGeom_BSplineCurveWithKnots()
+        curve.Init(name, 6, array, form, common["false"], common["false"], multiplicities,
+                   knots, common["bezier"])
+        edge = shape.StepShape_EdgeCurve()
+        edge.Init(name, vertices[a], vertices[b], curve, True)
+        edges.append(edge)
+    return _step_faces(points, edges, ids, topo, common)
+
+
+def _step_faces(points: list, edges: list, ids: np.ndarray, topo: dict, common: dict):
+    import OCP.StepGeom as geom
+    import OCP.StepShape as shape
+    from OCP.collections import (
+        HArray1_StepShape_Face,
+        HArray1_StepShape_FaceBound,
+        HArray1_StepShape_OrientedEdge,
+        HArray2_StepGeom_CartesianPoint,
+    )
+
+    name, false = common["name"], common["false"]
+    multiplicities, knots, bezier = common["multiplicities"], common["knots"], common["bezier"]
+    form = geom.StepGeom_BSplineSurfaceForm.StepGeom_bssfUnspecified
+    grid_index = [(m // 7 + 1, m % 7 + 1) for m in range(49)]
+    faces = HArray1_StepShape_Face(1, len(ids))
+    for f, (row, sides, same) in enumerate(zip(ids.tolist(), topo["edge"].tolist(),
+                                               topo["same"].tolist(), strict=True), start=1):
+        grid = HArray2_StepGeom_CartesianPoint(1, 7, 1, 7)
+        for (r, c), q in zip(grid_index, row, strict=True):
+            grid.SetValue(r, c, points[q])
+        surface = geom.StepGeom_BSplineSurfaceWithKnots()
+        surface.Init(name, 6, 6, grid, form, false, false, false, multiplicities,
+                     multiplicities, knots, knots, bezier)
+        loop_edges = HArray1_StepShape_OrientedEdge(1, 3)
+        for i, (side, backwards) in enumerate(_WIRE[:3], start=1):
+            oriented = shape.StepShape_OrientedEdge()
+            oriented.Init(name, edges[sides[side]], same[side] != backwards)
+            loop_edges.SetValue(i, oriented)
+        loop = shape.StepShape_EdgeLoop()
+        loop.Init(name, loop_edges)
+        bound = shape.StepShape_FaceBound()
+        bound.Init(name, loop, True)
+        bounds = HArray1_StepShape_FaceBound(1, 1)
+        bounds.SetValue(1, bound)
+        face = shape.StepShape_AdvancedFace()
+        face.Init(name, bounds, surface, True)
+        faces.SetValue(f, face)
+    shell = shape.StepShape_ClosedShell()
+    shell.Init(name, faces)
+    return shell
 
 
 def _write_iges(solid, path: Path) -> bool:

@@ -55,7 +55,7 @@ def test_cad_file_reads_back_as_the_closed_solid_of_the_surface(tmp_path, ellips
     path = step.write_cad(tmp_path / f"surface{suffix}", cp, tris)
     shape = step.read_cad_solid(path)
     faces = list(_faces(shape))
-    assert len(faces) == 3 * len(cp)
+    assert len(faces) == len(cp)  # one degenerate (6, 6) face per patch
     if suffix == ".step":  # IGES keeps faces and shells but reads back as a compound
         assert shape.ShapeType() == TopAbs_SOLID
         assert BRepCheck_Analyzer(shape).IsValid()
@@ -90,24 +90,98 @@ def test_cad_file_reads_back_as_the_closed_solid_of_the_surface(tmp_path, ellips
     assert distance.max() <= chord * 1.001 + 1e-12
 
 
-def test_quadrilateral_nets_are_the_triangular_patches(ellipsoid):
-    # each (6, 6) net, evaluated at (u, v), is the sextic at the bilinear image of (u, v)
+def test_degenerate_nets_are_the_triangular_patches(ellipsoid):
+    # each (6, 6) net, evaluated at (u, v), is the sextic at barycentric (1-u, u(1-v), uv)
     from math import comb
 
     cp = ellipsoid.control_points[:17]
-    nets = bezier.tensor_product_nets(cp)
+    nets = step.degenerate_nets(cp)
     rng = np.random.default_rng(5)
-    eye = np.eye(3)
-    for u, v in rng.random((4, 2)):
+    for u, v in np.vstack([rng.random((6, 2)), [[0.0, 0.3], [1.0, 1.0], [0.5, 0.0]]]):
         bu = np.array([comb(6, k) * u ** k * (1 - u) ** (6 - k) for k in range(7)])
         bv = np.array([comb(6, k) * v ** k * (1 - v) ** (6 - k) for k in range(7)])
-        for c in range(3):
-            m_next, m_prev = (eye[c] + eye[(c + 1) % 3]) / 2, (eye[c] + eye[(c + 2) % 3]) / 2
-            bary = ((1 - u) * (1 - v) * eye[c] + u * (1 - v) * m_next + u * v / 3
-                    + (1 - u) * v * m_prev)
-            expected = bezier.evaluate(cp, bary[None])[:, 0]
-            got = np.einsum("k,l,pkld->pd", bu, bv, nets[:, c])
-            np.testing.assert_allclose(got, expected, atol=1e-14)
+        expected = bezier.evaluate(cp, np.array([[1 - u, u * (1 - v), u * v]]))[:, 0]
+        got = np.einsum("k,l,pkld->pd", bu, bv, nets)
+        np.testing.assert_allclose(got, expected, atol=1e-14)
+    # the three real sides are the net's edge control points bit for bit (what lets
+    # neighbouring faces share one edge curve), the fourth is corner 0 seven times
+    def row(i, j, k):
+        return cp[:, bezier.control_index(i, j, k)]
+
+    m = np.arange(7)
+    assert np.array_equal(nets[:, :, 0], row(6 - m, m, 0 * m))
+    assert np.array_equal(nets[:, 6, :], row(0 * m, 6 - m, m))
+    assert np.array_equal(nets[:, :, 6], row(6 - m, 0 * m, m))
+    assert np.array_equal(nets[:, 0, :], np.repeat(cp[:, :1], 7, axis=1))
+
+
+def test_step_file_shares_the_poles_of_neighbouring_faces(tmp_path, ellipsoid):
+    # one CARTESIAN_POINT per distinct pole: a corner per domain vertex, 5 per domain
+    # edge, 25 inside each face (and the placement's origin); OpenCascade's shape
+    # transfer would repeat every pole of every surface and edge curve (61 a patch)
+    import re
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    path = step.write_cad(tmp_path / "s.step", cp, tris)
+    points = len(re.findall(r"= CARTESIAN_POINT\(", path.read_text()))
+    n_vertices, n_edges = int(tris.max()) + 1, len(tris) * 3 // 2
+    distinct = n_vertices + 5 * n_edges + 25 * len(tris)
+    assert distinct <= points <= distinct + 1
+
+
+def test_clockwise_domain_gives_the_same_outward_solid(tmp_path, ellipsoid):
+    # the same surface over the domain turned over (corners 1, 2 and net indices j, k
+    # swapped): the solid is turned back, so its volume is the same and positive
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    volumes = []
+    for name, (nets, domain) in {"ccw": (cp, tris),
+                                 "cw": step._reversed_nets(cp, tris)}.items():
+        shape = step.read_cad_solid(step.write_cad(tmp_path / f"{name}.step", nets, domain))
+        assert BRepCheck_Analyzer(shape).IsValid()
+        volumes.append(_props(shape)[0])
+    assert volumes[0] > 0
+    assert volumes[1] == pytest.approx(volumes[0], rel=1e-12)
+
+
+def test_unexpected_template_falls_back_to_the_shape_transfer(tmp_path, ellipsoid, monkeypatch):
+    # a writer whose template solid has other roots: the shape transfer writes the solid
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    transferred = []
+    transfer = step._write_step
+    monkeypatch.setattr(step, "_write_step", lambda *a: transferred.append(1) or transfer(*a))
+    step.write_cad(tmp_path / "direct.step", cp, tris)
+    assert transferred == []
+    monkeypatch.setattr(step, "_STEP_ROOTS", ("NoSuchEntity",))
+    path = step.write_cad(tmp_path / "t.step", cp, tris)
+    assert transferred == [1]
+    shape = step.read_cad_solid(path)
+    assert BRepCheck_Analyzer(shape).IsValid()
+    assert sum(1 for _ in _faces(shape)) == len(cp)
+    assert "PLANE(" not in path.read_text()  # no template box left in the file
+
+
+def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
+    # the patches over part of the domain: a valid shell with a border, not a solid
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
+    from OCP.TopAbs import TopAbs_SHELL
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    keep = ellipsoid.domain_mesh[0][tris].mean(axis=1)[:, 2] > 0  # the upper half
+    used, local = np.unique(tris[keep], return_inverse=True)
+    path = step.write_cad(tmp_path / "half.step", cp[keep], local.reshape(-1, 3))
+    shape = step.read_cad_solid(path)
+    assert shape.ShapeType() == TopAbs_SHELL
+    assert sum(1 for _ in _faces(shape)) == int(keep.sum())
+    assert BRepCheck_Analyzer(shape).IsValid()
+    shells = ShapeAnalysis_Shell()
+    shells.LoadShells(shape)
+    shells.CheckOrientedShells(shape, True)
+    assert shells.HasFreeEdges()  # the border
 
 
 def test_write_cad_refuses_unknown_suffix_and_mismatched_arrays(tmp_path, ellipsoid):
@@ -149,4 +223,4 @@ def test_run_exports_a_step_solid_of_the_sized_surface(tmp_path):
                                                              "surface.npz"]
     shape = step.read_cad_solid(out / "export" / "surface.step")
     assert BRepCheck_Analyzer(shape).IsValid()
-    assert sum(1 for _ in _faces(shape)) == 3 * smooth["patches"]
+    assert sum(1 for _ in _faces(shape)) == smooth["patches"]
