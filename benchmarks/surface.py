@@ -715,7 +715,8 @@ def shapes_table(sizes: list[int], only: list[str] | None = None) -> list[dict]:
                 row.update(shape=name, points=size)
                 group[method_name] = row
                 rows.append(row)
-                mb = (lambda key: f"{row[key] / 1e6:8.2f}" if key in row else f"{'-':>8s}")
+                def mb(key, row=row):
+                    return f"{row[key] / 1e6:8.2f}" if key in row else f"{'-':>8s}"
                 print(f"{name:<9s}{size:8d} {method_name:<15s}{row.get('chamfer', np.nan):9.6f}"
                       f"{row.get('fscore', np.nan):7.3f}{row.get('patches', '-')!s:>8s}"
                       f"{row['triangles']:10d}{mb('ply_bytes')}{mb('glb_bytes')}"
