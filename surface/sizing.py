@@ -878,8 +878,25 @@ def reference_vertices(vertices: np.ndarray, triangles: np.ndarray,
     smooth = np.flatnonzero(_off_rims(vertices, triangles) if off_rims is None else off_rims)
     if len(smooth):
         candidates = smooth
-    pick = rng.choice(candidates, size=min(REFERENCE_POINTS, len(candidates)), replace=False)
+    area = _vertex_areas(vertices, triangles)[candidates]
+    weights = area / area.sum() if area.sum() > 0 else None
+    pick = rng.choice(candidates, size=min(REFERENCE_POINTS, np.count_nonzero(area) if
+                                           weights is not None else len(candidates)),
+                      replace=False, p=weights)
     return np.sort(pick)
+
+
+def _vertex_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """A third of the area of each vertex's faces: the reference vertices are drawn by it,
+    so that their mean squares weigh the surface as the points spread over its faces do
+    (:func:`stitched_surface_error` compares the two)."""
+    tri = np.asarray(triangles, dtype=np.int64)
+    v = np.asarray(vertices, dtype=np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]]),
+                                axis=1)
+    out = np.zeros(len(v))
+    np.add.at(out, tri.ravel(), np.repeat(area / 3.0, 3))
+    return out
 
 
 def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray):
