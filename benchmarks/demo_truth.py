@@ -13,6 +13,9 @@ tables:
   rings, the sizing's measure of the rings' errors across sections, beside the same
   variogram from the rings' signed distances to the truth (the end five sections left
   out): γ(k) at lags 1, 2, 4, 8, 12 and the sill, as RMS (√γ).
+* **The ends** -- the stitched mesh's lowest and highest point along z against the truth's
+  (``surface.reconstruct.extend_to_caps``: where an open end's rings were moved, the rim
+  line or the quantile rule; positive = past the truth's end).
 
 Run: ``.venv/bin/python benchmarks/demo_truth.py W [--json PATH]``.
 """
@@ -114,6 +117,11 @@ def main() -> int:
         cells = " ".join(f"{row[n]['mean']:10.6f} ({row[n]['share_of_chamfer']:.6f})"
                          for n in REGIONS)
         print(f"{name:16s} {row['chamfer']:9.6f} {cells}")
+    z = read_mesh(w / "stitch" / "mesh.ply")[0][:, 2]
+    ends = {"bottom": float(truth[0][:, 2].min() - z.min()),
+            "top": float(z.max() - truth[0][:, 2].max())}
+    print(f"ends of the stitched mesh past the truth's: bottom {ends['bottom']:+.5f}, "
+          f"top {ends['top']:+.5f}")
     vg = variograms(w, truth)
     print("rings' variogram across sections, sqrt(gamma(k)) (sizing's measure / truth):")
     for lag in LAGS:
@@ -122,7 +130,7 @@ def main() -> int:
     print(f"  sill {vg['measured_sill'] or float('nan'):.3e} / rings' RMS error "
           f"{vg['truth_rms']:.3e}")
     write_result(args.json, {"benchmark": "demo_truth", "workspace": str(w), "load": uptime(),
-                             "regions": rows, "variogram": vg})
+                             "regions": rows, "ends": ends, "variogram": vg})
     return 0
 
 

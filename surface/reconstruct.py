@@ -995,8 +995,9 @@ def _drop_sections_past_cap(rings: list, section_heights: list, this: int, sign:
 
 #: Significance (in standard errors) a bunch of points at the end of a wall must reach to
 #: be taken for its rim line (:func:`rim_line`).  Of 1 200 simulated ends with no rim line
-#: (100-2 000 points uniform over the end's extent, blurred by their σ) none reached 5
-#: (the largest 4.5); the demo's rims, seen edge-on by the ring, reach 7.2-8.4.
+#: (100-2 000 points uniform over the end's extent, blurred by their σ; a one-off
+#: simulation, ``tests/surface/test_stitch.py`` checks 180) none reached 5 (the largest
+#: 4.5); the demo's rims, seen edge-on by the ring, reach 7.2-8.4.
 RIM_LINE_Z = 5.0
 
 
@@ -1018,11 +1019,10 @@ def rim_line(offsets: np.ndarray, sigma: np.ndarray, end: float) -> float | None
     when the points within ±σ of it exceed what the wall just inside (``[p - 8σ,
     p - 3σ]``) predicts by :data:`RIM_LINE_Z` standard errors of the difference
     (both counts Poisson); the line's centre is then the window's mean with the
-    wall's shoulder taken out (below).  Measured on four demo clouds (24-view ring,
-    sessions 8-9): the ends lie -0.00006..+0.00014 from the truth's bottom rim and
-    -0.00006..-0.00028 from its top rim where the quantile rule said +0.0016..+0.0018
-    and +0.0009 (the density's maximum alone: -0.00004..-0.00008 and
-    -0.00023..-0.00042).
+    wall's shoulder taken out (below).  Measured on four demo workspaces (24-view
+    ring; ``benchmarks/demo_truth.py W``, the stitched mesh's ends against the
+    truth's): bottom -0.00009..+0.00014, top -0.00006..-0.00040, where the quantile
+    rule said +0.0016..+0.0018 and +0.0009.
 
     Parameters
     ----------
@@ -1066,8 +1066,8 @@ def rim_line(offsets: np.ndarray, sigma: np.ndarray, end: float) -> float | None
     # The wall's shoulder: its points within ±σ of an edge at e number ρσ and average
     # e - φ(1)σ (∫ t Φ(-t) dt over [-1, 1] = -φ(1)); taken out of the window's count and
     # sum, what is left is the line's.  Halves the maximum's inward bias (simulated 250
-    # wall + 100 line points, σ 0.0006: -0.00032 -> -0.00015 on average; demo top rims
-    # -0.00024..-0.00042 -> -0.00006..-0.00028).
+    # wall + 100 line points, σ 0.0006: -0.00032 -> -0.00015 on average; on the demo's
+    # full clouds, one-off, top rims -0.00024..-0.00042 -> -0.00006..-0.00028).
     density_wall = wall / (hi - lo)
     shoulder = density_wall * blur
     line = peak
