@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from surface.stitch import StitchResult, _inside, _nearest_loop, stitch_rings
+from surface.stitch import StitchResult, _dome, _inside, _nearest_loop, stitch_rings
 from surface.validate import TOL
 
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
@@ -882,6 +882,12 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
             end_step = rim
         if end_step is not None:
             end_step *= sign
+        if any(_dome(ring @ frame[:2].T, *((h_end - 2 * delta, np.inf) if sign > 0
+                                            else (-np.inf, h_end + 2 * delta)),
+                     points[candidates], frame) is not None for ring in ends):
+            notes.append(f"{'bottom' if end == 0 else 'top'}: a dome beyond the last "
+                         f"section: it ends there (the dome's height field covers the rest)")
+            continue
         new_rings, counts = [], []
         for ring in ends:
             flat = ring @ frame[:2].T

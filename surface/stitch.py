@@ -1489,6 +1489,14 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         height = float(np.mean(rings_in[-1] @ frame[2]))
         dome = _dome(inner_flat, *dome_window(height, up, None), cap_points, frame) \
             if support else None
+        if dome is not None:
+            # A rounded end: the inset rings lie on the dome too (flat at the rim's
+            # height they cut under it, by the dome's sag over the inset), and its
+            # height field takes every point over the rim, not only the innermost ring's.
+            dome = _dome(rim, *dome_window(height, up, None), cap_points, frame) or dome
+            for k in range(1, len(rings_in)):
+                flat_k = rings_in[k] @ frame[:2].T
+                rings_in[k] = flat_k @ frame[:2] + dome(flat_k)[:, None] * frame[2]
         try:
             added, cap = _quality_cap(inner_flat, outward_up=face_up,
                                       max_area=dome_area(inner_flat) if dome else None)
