@@ -882,13 +882,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
             end_step = rim
         if end_step is not None:
             end_step *= sign
-        if any(_dome(ring @ frame[:2].T, *((h_end - 2 * delta, np.inf) if sign > 0
-                                            else (-np.inf, h_end + 2 * delta)),
-                     points[candidates], frame) is not None for ring in ends):
-            notes.append(f"{'bottom' if end == 0 else 'top'}: a dome beyond the last "
-                         f"section: it ends there (the dome's height field covers the rest)")
-            continue
-        new_rings, counts = [], []
+        new_rings, counts, dome = [], [], False
         for ring in ends:
             flat = ring @ frame[:2].T
             flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
@@ -897,6 +891,15 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
             cap = None if len(inside) < NORMAL_NEIGHBOURS else _cap_height(
                 heights, candidates_flat, ring @ frame[:2].T, h_end, sign, delta,
                 None if sigma is None else sigma[candidates])
+            if cap is None and len(inside) >= NORMAL_NEIGHBOURS and _dome(
+                    ring @ frame[:2].T, *((h_end - 2 * delta, np.inf) if sign > 0
+                                          else (-np.inf, h_end + 2 * delta)),
+                    points[candidates], frame) is not None:
+                # A rounded end (no flat cap across the plane, a dome past it): the
+                # median height of its points is no contour of it; the end stays at
+                # the last section and the stitch's dome covers the rest.
+                dome = True
+                break
             if cap is not None:
                 step = cap - h_end
             elif len(inside) >= NORMAL_NEIGHBOURS:
@@ -915,6 +918,10 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                 last = _nearest_loop(last, loops, frame)
                 chain.append(last)
             new_rings.append(_extrapolate_ring(ring, chain, step, axis))
+        if dome:
+            notes.append(f"{'bottom' if end == 0 else 'top'}: a dome past the last section "
+                         f"(its height field closes the end)")
+            continue
         if len(new_rings) < len(ends):
             continue
         rings.insert(0 if end == 0 else len(rings),

@@ -191,7 +191,7 @@ def test_rounded_ends_follow_the_domes():
     lie on the dome's height field.  Before, the end ring was extrapolated to the median
     height (radius 0.43 at z = -0.94 where the sphere has 0.34) and the rings inside it
     were flat there: vertices up to 0.037-0.039 off the sphere, 0.013-0.016 RMS (10⁴
-    points, σ = 0.002, seeds 3-4); now at most 0.0026-0.0033 and 0.0008-0.0009 RMS."""
+    points, σ = 0.002, seeds 3-4); now at most 0.0026-0.0033 and 0.00074-0.00076 RMS."""
     from surface.reconstruct import surface_from_points
 
     sigma = 0.002
