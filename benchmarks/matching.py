@@ -348,7 +348,8 @@ def vase(scene_dir: Path, quick: bool):
     variants = (("LSM pair (2 passes + 2nd order)", {}),
                 ("LSM pair, fixed 15x15, no precision test",
                  {"adaptive_patch": False, "max_sigma_mad_k": None}),
-                ("LSM pair, adaptive, no precision test", {"max_sigma_mad_k": None}))
+                ("LSM pair, adaptive, no precision test", {"max_sigma_mad_k": None}),
+                ("LSM pair, equal-weight (robust=False)", {"robust": False}))
     pair_default = None
     for name, options in variants:
         t0 = time.perf_counter()
