@@ -263,7 +263,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                eccentric: bool = False, grow: bool = True, sigma_factor: bool = True,
                search_range: tuple[int, int] | None = None,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
-               densify: bool | str = False, robust: bool | str = "edge",
+               densify: bool | str = False, robust: bool | str = False,
                **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
@@ -365,8 +365,11 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     robust : {False, True, "edge"}
         Robust LSM (``lsm_match``'s ``robust``: Tukey IRLS from the equal-weight solution,
         least squares over the pixels that follow one warp) for every window (True), for
-        the ``edge`` windows only ("edge"), or none (False, default).  The region growing
-        stays equal-weight; the second pass re-matches every window with it.
+        the ``edge`` windows only ("edge"), or none (False, default: on a rendered ring the
+        edge windows it adds err 0.21-0.25 px RMS, 3-13 % beyond 3σ, while those both
+        accept improve, e.g. 0.099 -> 0.086 px; README, *Robust LSM*).  The region growing
+        stays equal-weight; the second pass re-matches every window with it.  With
+        ``eccentric`` the windows moved off their edge are not ``edge`` windows here.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -481,7 +484,9 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                            **lsm_options)
             if shifted.any():
                 options["offset"] = -offset[idx]
-            robust_flags = (edge[idx] if robust == "edge" else
+            # "edge": the edge windows left where they are (an eccentric window was
+            # moved off its edge)
+            robust_flags = (edge[idx] & ~shifted if robust == "edge" else
                             np.full(len(idx), bool(robust)))
             res = lsm_match(fprep, gprep, points, start, robust=robust_flags, **options)
             if grow and res.accepted.any():

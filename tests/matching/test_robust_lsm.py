@@ -118,3 +118,33 @@ def test_robust_per_window_flags_and_validation():
         lsm_match(pair.left, pair.right, pts, truth, robust=np.zeros(len(pts)))
     with pytest.raises(ValueError, match="robust"):
         lsm_match(pair.left, pair.right, pts, truth, robust=True, jacobian="search")
+
+
+def test_match_pair_robust_edge_windows():
+    """``match_pair(robust="edge")`` on a uniform front before a textured back, the right
+    view blurred 0.7 px (SGBM starts, growth, adaptive patch, variance factor): of the
+    150 candidates whose window meets the edge, 12 accepted (0 equal-weight), none
+    beyond 3σ (largest 2.04σ); the textured candidates clear of it as equal-weight
+    (99.2 % against 99.0 %)."""
+    from scipy import ndimage
+
+    from matching.pair import match_pair
+
+    pair = layered_pair(size=(100, 160), edge_x=80.3, front="uniform", front_level=100.0)
+    right = ndimage.gaussian_filter(pair.right, 0.7)
+    out = {}
+    for robust in (False, "edge"):
+        m = match_pair(pair.left, right, rectified=True, spacing=3, search_range=(0, 16),
+                       robust=robust)
+        truth = pair.truth(m.x_left)
+        has = np.isfinite(truth).all(1)
+        dist = np.abs(pair.edge_distance(m.x_left))
+        across, clear = has & (dist <= 7), has & (dist > 16)
+        z = np.abs(m.x_right[:, 0] - truth[:, 0]) / np.sqrt(m.cov[:, 0, 0])
+        textured = clear & ~np.isin(m.status, (Status.TEXTURELESS, Status.OUTSIDE_IMAGE))
+        out[robust] = (m.accepted[across].sum(), m.accepted[textured].mean())
+        assert not (z[m.accepted & across] > 3.0).any()
+    assert out["edge"][0] >= out[False][0] + 5
+    assert out["edge"][1] >= out[False][1] - 0.005
+    with pytest.raises(ValueError, match="robust"):
+        match_pair(pair.left, right, rectified=True, robust="all")
