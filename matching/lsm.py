@@ -67,6 +67,25 @@ median 3-7σ): the test's detection limit.  A straight edge between uniform regi
 is accepted with σ along the edge ~10x σ across it, both right (errors 1.15 and 1.08
 of their σ RMS: the full covariance ``cov``; ``sigma`` is their RMS).
 
+Robust adjustment (``robust``).  Equal-weight least squares lets the pixels of a window
+that do not follow its warp (another surface across a depth edge) pull the match.  From
+the equal-weight solution, the line the motion-step test finds most likely to split two
+motions gives the start: least squares over the reported pixel's side of it (from the
+equal-weight compromise Tukey's weights would not move, every pixel misfitting alike).
+Then iteratively reweighted least squares with Tukey's biweight [6]_, c = 4.685 (95 %
+efficiency at Gaussian residuals) times the residuals' robust scale 1.4826 median|v|
+(never below the two images' noise), and a pixel needs 5 of its 3 x 3 neighbourhood
+weighted (another surface's uncorrelated texture fits by chance in scattered pixels).
+The final *support* is the weighted pixels less those 4-adjacent to an unweighted one
+(boundary pixels mix both surfaces), connected to the reported pixel; least squares over
+it gives the match, σ0² = vᵀWv / (Σw - u) and N = Jᵀ W J (the template-noise correction
+over the support), so that σ is the support's own.  A support without the reported
+pixel, or under half the window, or a failed iteration: the equal-weight solution and
+its tests stand.  Measured on rendered two-plane pairs (``tests/matching/test_robust_lsm.py``):
+windows across a 3.7 px edge whose centre lies >= 3 px from it, median error 0.296 ->
+0.012 px; accepted across the edge 0 -> 187 of 266, 1 beyond 3σ (3.09σ); windows clear
+of the edge unchanged (within 0.2σ).
+
 References
 ----------
 .. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image
@@ -81,6 +100,9 @@ References
 .. [5] T. Lindeberg, J. Gårding, "Shape-adapted smoothing in estimation of 3-D shape
    cues from affine deformations of local 2-D brightness structure", Image and Vision
    Computing 15(6), 415-434 (1997).
+.. [6] P. W. Holland, R. E. Welsch, "Robust regression using iteratively reweighted
+   least-squares", Communications in Statistics - Theory and Methods 6(9), 813-827
+   (1977).
 """
 
 from __future__ import annotations
@@ -178,6 +200,10 @@ class LSMResult:
         largest score, over the lines splitting the window, of a shift of one side
         against the other, in units of the residual variance (NaN with
         ``jacobian="search"`` or where no solution was reached).
+    support : (N,) float64 or None
+        Robust LSM (``lsm_match``'s ``robust``): the share of the window's pixels in the
+        final support; NaN where the equal-weight solution stands (not robust, or no
+        support found).
     """
 
     position: np.ndarray
@@ -194,6 +220,7 @@ class LSMResult:
     affine_cov: np.ndarray | None = None
     grad_power: np.ndarray | None = None
     step_score: np.ndarray | None = None
+    support: np.ndarray | None = None
 
     @property
     def accepted(self) -> np.ndarray:
@@ -1403,6 +1430,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
             _weighted_normals(fv, fx, fy, vres, wts, half, hmat, c)
             sw = _weighted_stats(fv, vres, p, wts, npix, stats)
             corr_out[1] = (hmat[0, 0] + hmat[3, 3]) / sw
+        corr_out[3] = sw / npix
         _ic_normals(tmat, hmat, tt, nmat)
         for i in range(8):
             rhs[i] = 0.0
@@ -2067,7 +2095,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     wcov = np.full((n, 2, 2), np.nan)
     acov = np.full((n, 6, 6), np.nan)
     sigma0 = np.full(n, np.nan)
-    corr = np.full((n, 3), np.nan)  # correlation, the template's mean |∇f|², step score
+    # correlation, the template's mean |∇f|², step score, robust support share
+    corr = np.full((n, 4), np.nan)
     status = np.zeros(n, np.uint8)
     iters = np.zeros(n, np.int32)
     conv = np.zeros(n, np.bool_)
@@ -2091,7 +2120,8 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
                               sub, strict=True):
             full[idx] = part
-    corr, grad_power, step = corr[:, 0].copy(), corr[:, 1].copy(), corr[:, 2].copy()
+    corr, grad_power, step, support = (corr[:, 0].copy(), corr[:, 1].copy(),
+                                       corr[:, 2].copy(), corr[:, 3].copy())
     good = status == Status.OK
     population = sigma0[good]
     pop_power = grad_power[good]
@@ -2155,4 +2185,5 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                      radiometric=params[:, 6:], converged=conv, iterations=iters,
                      sigma0=sigma0, cov=cov, correlation=corr, status=status,
                      noise_sigma0=float(ref), window_cov=wcov if offset is not None else None,
-                     affine_cov=acov, grad_power=grad_power, step_score=step)
+                     affine_cov=acov, grad_power=grad_power, step_score=step,
+                     support=support)
