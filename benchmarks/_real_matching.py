@@ -198,9 +198,11 @@ def render_homography(image: np.ndarray, hom: np.ndarray, shape, supersample: in
     return big.reshape(shape[0], s, shape[1], s).mean(axis=(1, 3)).astype(np.float64)
 
 
-def _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=DEFAULT_FOOTPRINT_VAR):
-    """LSM one pass from ``init`` and region growing: (first, growth, seconds, seconds)."""
-    opts = {"patch": patch, "footprint_var": footprint_var}
+def _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=DEFAULT_FOOTPRINT_VAR,
+               **options):
+    """LSM one pass from ``init`` and region growing: (first, growth, seconds, seconds)
+    (``options``: more of ``lsm_match``'s)."""
+    opts = {"patch": patch, "footprint_var": footprint_var, **options}
     lsm_match(fp, gp, pts[:20], approx[:20], initial=init[:20], **opts)  # kernels
     t0 = time.perf_counter()
     first = lsm_match(fp, gp, pts, approx, initial=init, **opts)
@@ -336,6 +338,12 @@ def graffiti(folder: Path, quick: bool) -> dict:
     rows.append(_judge("LSM + growing, no footprint smoothing", np.where(
         plain.accepted[:, None], plain.position, np.nan), truth, smooth, pts, np.nan, n_cand,
         plain.sigma))
+    # peer: robust LSM in every window (``lsm_match(robust=True)``, first pass and growth)
+    robust = _lsm_grown(fp, gp, pts, approx, init, patch, robust=True)[1].result
+    rows.append(_judge("LSM + growing, robust LSM (robust=True)", np.where(
+        robust.accepted[:, None], robust.position, np.nan), truth, smooth, pts, np.nan, n_cand,
+        robust.sigma))
+    _factor_figures(rows[-1], pts, robust, smooth, patch)
     lsm_row["fb_variance_factor"] = fb.variance_factor
     lsm_row["fb_loop_rms_px"] = fb.loop_rms
     lsm_row["residual_over_sigma_with_fb_factor"] = lsm_row["residual_over_sigma"] / k

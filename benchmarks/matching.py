@@ -436,6 +436,11 @@ def real_figures(folder: Path, quick: bool, goals: dict,
               f"{syn['rows'][1]['residual_over_sigma_with_factor']:.2f})")
         print(f"  (real rows judged on the wall plane: {gr['candidates_off_wall']} "
               f"candidates below the step / on the car left out)")
+        rob = next((r for r in gr["rows"] if r["method"].startswith("LSM + growing, robust")),
+                   None)
+        if rob is not None:
+            print(f"  (robust LSM: k² {rob['variance_factor']:.1f}, residual / (σ k) "
+                  f"{rob['residual_over_sigma_with_factor']:.2f})")
         by = {r["method"]: r for r in gr["rows"]}
         lsm = by["LSM + region growing (retries from neighbours)"]
         ecc = by["cv2.findTransformECC gauss=1 (per patch, subset)"]
