@@ -198,9 +198,11 @@ def render_homography(image: np.ndarray, hom: np.ndarray, shape, supersample: in
     return big.reshape(shape[0], s, shape[1], s).mean(axis=(1, 3)).astype(np.float64)
 
 
-def _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=DEFAULT_FOOTPRINT_VAR):
-    """LSM one pass from ``init`` and region growing: (first, growth, seconds, seconds)."""
-    opts = {"patch": patch, "footprint_var": footprint_var}
+def _lsm_grown(fp, gp, pts, approx, init, patch, footprint_var=DEFAULT_FOOTPRINT_VAR,
+               **options):
+    """LSM one pass from ``init`` and region growing: (first, growth, seconds, seconds)
+    (``options``: more of ``lsm_match``'s)."""
+    opts = {"patch": patch, "footprint_var": footprint_var, **options}
     lsm_match(fp, gp, pts[:20], approx[:20], initial=init[:20], **opts)  # kernels
     t0 = time.perf_counter()
     first = lsm_match(fp, gp, pts, approx, initial=init, **opts)
@@ -336,6 +338,12 @@ def graffiti(folder: Path, quick: bool) -> dict:
     rows.append(_judge("LSM + growing, no footprint smoothing", np.where(
         plain.accepted[:, None], plain.position, np.nan), truth, smooth, pts, np.nan, n_cand,
         plain.sigma))
+    # peer: robust LSM in every window (``lsm_match(robust=True)``, first pass and growth)
+    robust = _lsm_grown(fp, gp, pts, approx, init, patch, robust=True)[1].result
+    rows.append(_judge("LSM + growing, robust LSM (robust=True)", np.where(
+        robust.accepted[:, None], robust.position, np.nan), truth, smooth, pts, np.nan, n_cand,
+        robust.sigma))
+    _factor_figures(rows[-1], pts, robust, smooth, patch)
     lsm_row["fb_variance_factor"] = fb.variance_factor
     lsm_row["fb_loop_rms_px"] = fb.loop_rms
     lsm_row["residual_over_sigma_with_fb_factor"] = lsm_row["residual_over_sigma"] / k
@@ -450,6 +458,9 @@ def temple(folder: Path, quick: bool) -> dict:
     pairs = [chosen[0]] if quick else [chosen[k * len(chosen) // 4] for k in range(4)]
     # every ring pair once (LSM and SGBM): the cross-pair check needs the whole network
     data = [_pair_data(cams, images, i, j) for i, j in chosen]
+    # the peer: the same pairs with robust LSM on the edge windows (robust="edge")
+    robust = [_pair_data(cams, images, i, j, robust="edge") for i, j in chosen]
+    robust_by_pair = {d["pair"]: d for d in robust}
     by_pair = {d["pair"]: d for d in data}
     rows = []
     for i, j in pairs:
@@ -481,9 +492,13 @@ def temple(folder: Path, quick: bool) -> dict:
             sgbm_loop = np.full(len(m.x_left), np.nan)
             print(f"temple pair {(i, j)}: SGBM left-right loop skipped ({exc})")
         same = use & np.isfinite(sgbm_loop) & (np.abs(sgbm_loop) < 3)
+        mp = robust_by_pair[(i, j)]["matches"]
         rows.append({
             "pair": [i, j], "candidates_on_object": int(on_obj.sum()),
             "accepted_share_on_object": float(m.accepted[on_obj].mean()),
+            "accepted_share_on_object_robust_edge": float(mp.accepted[on_obj].mean()),
+            "edge_share_of_accepted": float(m.edge[m.accepted].mean()),
+            "edge_share_of_accepted_robust_edge": float(mp.edge[mp.accepted].mean()),
             "interior_share_of_object": float(interior.sum() / on_obj.sum()),
             "accepted_share_interior": float(m.accepted[interior].mean()),
             "accepted_share_outline": float(m.accepted[on_obj & ~interior].mean()),
@@ -512,13 +527,23 @@ def temple(folder: Path, quick: bool) -> dict:
     network = cross_pair_network(data, comps)
     by_class = {name: cross_pair_summary(cross_pair_comparisons(_window_class(data, keep)))
                 for name, keep in (("clear", False), ("edge", True))}
+    comps_robust = cross_pair_comparisons(robust)
+    network_robust = cross_pair_network(robust, comps_robust)
+    by_class_robust = {
+        name: cross_pair_summary(cross_pair_comparisons(_window_class(robust, keep)))
+        for name, keep in (("clear", False), ("edge", True))}
     for r in rows:
         mine = next(p for p in network["pairs"] if p["pair"] == r["pair"])
         r["cross_pair"] = mine
+        r["cross_pair_robust_edge"] = next(p for p in network_robust["pairs"]
+                                            if p["pair"] == r["pair"])
     out = {"rows": rows, "cross_pair": {
         "comparisons": [{k: v for k, v in c.items() if k != "p_points"} for c in comps],
         "network": network, "summary": cross_pair_summary(comps),
         "summary_by_window_class": by_class,
+        "robust_edge": {"summary": cross_pair_summary(comps_robust),
+                         "summary_by_window_class": by_class_robust,
+                         "network": network_robust},
         "max_angle_deg": CROSS_MAX_ANGLE_DEG, "bound_px": CROSS_BOUND_PX,
         "radius_px": CROSS_RADIUS_PX,
         "pairs": [list(d["pair"]) for d in data]}, "dense": {

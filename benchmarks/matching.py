@@ -348,7 +348,8 @@ def vase(scene_dir: Path, quick: bool):
     variants = (("LSM pair (2 passes + 2nd order)", {}),
                 ("LSM pair, fixed 15x15, no precision test",
                  {"adaptive_patch": False, "max_sigma_mad_k": None}),
-                ("LSM pair, adaptive, no precision test", {"max_sigma_mad_k": None}))
+                ("LSM pair, adaptive, no precision test", {"max_sigma_mad_k": None}),
+                ("LSM pair, robust LSM on the edge windows", {"robust": "edge"}))
     pair_default = None
     for name, options in variants:
         t0 = time.perf_counter()
@@ -435,6 +436,11 @@ def real_figures(folder: Path, quick: bool, goals: dict,
               f"{syn['rows'][1]['residual_over_sigma_with_factor']:.2f})")
         print(f"  (real rows judged on the wall plane: {gr['candidates_off_wall']} "
               f"candidates below the step / on the car left out)")
+        rob = next((r for r in gr["rows"] if r["method"].startswith("LSM + growing, robust")),
+                   None)
+        if rob is not None:
+            print(f"  (robust LSM: k² {rob['variance_factor']:.1f}, residual / (σ k) "
+                  f"{rob['residual_over_sigma_with_factor']:.2f})")
         by = {r["method"]: r for r in gr["rows"]}
         lsm = by["LSM + region growing (retries from neighbours)"]
         ecc = by["cv2.findTransformECC gauss=1 (per patch, subset)"]
@@ -525,6 +531,38 @@ def real_figures(folder: Path, quick: bool, goals: dict,
                   f"{p['reported_sigma_rms_px']:6.3f} {p['variance_factor']:5.0f} "
                   f"{p['variance_factor_edge']:6.0f} "
                   f"{p['median_sgbm_over_lsm']:12.2f} {p['median_lsm_over_reported']:7.2f}")
+        # the peer in the same process: robust LSM on the edge windows (robust="edge")
+        ew = cp["robust_edge"]
+        print("\nequal-weight LSM (match_pair's default, robust=False) against robust LSM on "
+              "the edge windows (robust='edge'), same process:")
+        print(f"{'':34s} {'comps':>5s} {'points':>6s} {'LSM δ':>6s} {'SGBM δ':>6s} "
+              f"{'ratio':>5s} {'δ/σ':>5s} {'out LSM':>7s} {'SGBM':>5s}")
+        for label, key in (("all", "all"), ("rays < 35 deg", "below_35deg")):
+            for tag, summ in (("equal-weight", cp["summary"]), ("robust='edge'", ew["summary"])):
+                v = summ.get(key)
+                if v:
+                    print(f"{label + ', ' + tag:34s} {v['comparisons']:5d} {v['points']:6d} "
+                          f"{v['lsm_px']:6.3f} {v['sgbm_px']:6.3f} {v['sgbm_over_lsm']:5.2f} "
+                          f"{v['lsm_over_reported']:5.2f} {100 * v['lsm_outliers']:6.0f}% "
+                          f"{100 * v['sgbm_outliers']:4.0f}%")
+        for cls in ("clear", "edge"):
+            for tag, summ in (("equal-weight", cp["summary_by_window_class"]),
+                              ("robust='edge'", ew["summary_by_window_class"])):
+                v = summ[cls].get("below_35deg")
+                if v:
+                    print(f"{cls + ' < 35 deg, ' + tag:34s} {v['comparisons']:5d} "
+                          f"{v['points']:6d} {v['lsm_px']:6.3f} {v['sgbm_px']:6.3f} "
+                          f"{v['sgbm_over_lsm']:5.2f} {v['lsm_over_reported']:5.2f} "
+                          f"{100 * v['lsm_outliers']:6.0f}% {100 * v['sgbm_outliers']:4.0f}%")
+        for r in te["rows"]:
+            c, e = r["cross_pair"], r["cross_pair_robust_edge"]
+            print(f"{str(tuple(r['pair'])):>8s} accepted on the object "
+                  f"{100 * r['accepted_share_on_object']:.1f} % (robust='edge' "
+                  f"{100 * r['accepted_share_on_object_robust_edge']:.1f} %), edge windows "
+                  f"{100 * r['edge_share_of_accepted']:.0f} % of the accepted; median "
+                  f"SGBM/LSM {c['median_sgbm_over_lsm']:.2f} ({e['median_sgbm_over_lsm']:.2f}), "
+                  f"δ/σ {c['median_lsm_over_reported']:.2f} "
+                  f"({e['median_lsm_over_reported']:.2f})")
         d = te["dense"]
         print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
               f"{d['image'][0]}x{d['image'][1]}: {d['px_per_s']:.0f} px/s "
