@@ -886,23 +886,12 @@ def _robust_support(gimg, p, q, half, kind, fv, fx, fy, hmat, approx, pm, m, tol
     convergence, 3: pull-in, 4: degenerate, 6: outside, 7: singular).
     """
     npix = (2 * half + 1) ** 2
-    hw = np.empty((8, 8))
-    c = np.empty(8)
-    tmat = np.empty((8, 8))
-    tt = np.empty((8, 8))
-    nmat = np.empty((8, 8))
-    rhs = np.empty(8)
-    nred = np.empty((8, 8))
-    bred = np.empty(8)
-    xred = np.empty(8)
-    delta = np.empty(8)
     stats = np.empty(6)
     # start: least squares over the side of the reported pixel of the line the
     # motion-step test finds most likely to split two motions (:func:`_step_score`), so
     # that the IRLS begins at that pixel's motion and not at the compromise of two
     # motions the equal-weight solution is across an edge (from which Tukey's weights
     # would not move: every pixel misfits alike).  One motion: any half is a start.
-    keep = np.empty(npix, np.bool_)
     for n in range(npix):
         wts[n] = 1.0
     _residual_stats(gimg, p, q, half, kind, fv, stats, vres)
@@ -918,44 +907,34 @@ def _robust_support(gimg, p, q, half, kind, fv, fx, fy, hmat, approx, pm, m, tol
             for ix in range(-half, half + 1):
                 wts[n] = 1.0 if (_split_bin(split[0], ix, iy, half) <= split[1]) == mine else 0.0
                 n += 1
-        code = _robust_finish(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol,
-                              max_shift, wts, vres)
+        code = _robust_iterate(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol,
+                               max_shift, wts, vres, False, floor)
         if code != 0:
             return code
-    for it in range(_ROBUST_ITER):
-        if not _inside(p, q, half, gimg.shape[1], gimg.shape[0]):
-            return 6
-        if not _mixing(p, tmat):
-            return 4
-        _residual_stats(gimg, p, q, half, kind, fv, stats, vres)
-        _tukey_weights(vres, npix, floor, wts)
-        _coherent(wts, half, keep)
-        _weighted_normals(fv, fx, fy, vres, wts, half, hw, c)
-        _ic_constrained(tmat, hw, c, pm, m, tt, nmat, rhs, nred, bred)
-        if not _cholesky_solve(nred, bred, m, xred):
-            return 7
-        _expand(xred, pm, m, delta)
-        for i in range(8):
-            p[i] += delta[i]
-        if not np.isfinite(p[0] + p[3]):
-            return 1
-        if (p[0] - approx[0]) ** 2 + (p[3] - approx[1]) ** 2 > max_shift * max_shift:
-            return 3
-        if it >= 1 and np.sqrt(delta[0] ** 2 + delta[3] ** 2) < tol:
-            break  # the weights have settled
+    # IRLS: Tukey's weights from each pass's residuals
+    code = _robust_iterate(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol,
+                           max_shift, wts, vres, True, floor)
+    if code != 0:
+        return code
     # the support fixed: least squares over the pixels that follow the warp
     if not _final_support(wts, half, offset):
         return 11
-    return _robust_finish(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol,
-                          max_shift, wts, vres)
+    return _robust_iterate(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol,
+                           max_shift, wts, vres, False, floor)
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
-def _robust_finish(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol, max_shift,
-                   wts, vres):
-    """Gauss-Newton with the fixed weights ``wts`` until the shift update is below
-    ``tol`` (:func:`_robust_support`'s first and last stage); returns 0 or a status
-    code."""
+def _robust_iterate(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol, max_shift,
+                    wts, vres, reweight, floor):
+    """Gauss-Newton on the weighted normal equations (:func:`_robust_support`'s three
+    stages).  ``reweight`` False: the weights ``wts`` fixed, until the shift update is
+    below ``tol`` (status 1 if it never is).  True: Tukey's weights of each pass's
+    residuals (scale floored at ``floor``, :func:`_tukey_weights`, made coherent,
+    :func:`_coherent`) for at most :data:`_ROBUST_ITER` passes, ending from the second
+    on when the update is below ``tol`` (the weights have settled), else after the
+    last.  Returns 0 or a status code."""
+    npix = (2 * half + 1) ** 2
+    keep = np.empty(npix, np.bool_)
     hw = np.empty((8, 8))
     c = np.empty(8)
     tmat = np.empty((8, 8))
@@ -967,12 +946,15 @@ def _robust_finish(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol, max_s
     xred = np.empty(8)
     delta = np.empty(8)
     stats = np.empty(6)
-    for _ in range(_ROBUST_ITER):
+    for it in range(_ROBUST_ITER):
         if not _inside(p, q, half, gimg.shape[1], gimg.shape[0]):
             return 6
         if not _mixing(p, tmat):
             return 4
         _residual_stats(gimg, p, q, half, kind, fv, stats, vres)
+        if reweight:
+            _tukey_weights(vres, npix, floor, wts)
+            _coherent(wts, half, keep)
         _weighted_normals(fv, fx, fy, vres, wts, half, hw, c)
         _ic_constrained(tmat, hw, c, pm, m, tt, nmat, rhs, nred, bred)
         if not _cholesky_solve(nred, bred, m, xred):
@@ -984,9 +966,9 @@ def _robust_finish(gimg, p, q, half, kind, fv, fx, fy, approx, pm, m, tol, max_s
             return 1
         if (p[0] - approx[0]) ** 2 + (p[3] - approx[1]) ** 2 > max_shift * max_shift:
             return 3
-        if np.sqrt(delta[0] ** 2 + delta[3] ** 2) < tol:
+        if np.sqrt(delta[0] ** 2 + delta[3] ** 2) < tol and (it >= 1 or not reweight):
             return 0
-    return 1
+    return 0 if reweight else 1
 
 
 #: Orientations of :func:`_step_score`'s split lines: the part is ``k(x, y) <= c`` with

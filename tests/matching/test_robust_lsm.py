@@ -13,6 +13,7 @@ import pytest
 
 from matching.lsm import Status, lsm_match
 from tests.matching._edges import layered_pair
+from tests.matching.test_lsm import _edge_windows
 
 CASES = {
     "textured front 3.7 px before textured back": {},
@@ -27,15 +28,8 @@ NO_TESTS = dict(sigma0_factor=1e9, sigma0_mad_k=1e9, step_limit=None, min_correl
 
 def _windows(pair, patch=15, margin=12, step=2):
     """Integer left points with truth; (points, truth, across, clear, distance)."""
-    h, w = pair.left.shape
-    ys, xs = np.mgrid[margin:h - margin:step, margin:w - margin:step]
-    pts = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
-    truth = pair.truth(pts)
-    keep = np.isfinite(truth).all(1) & (truth[:, 0] > margin) & (truth[:, 0] < w - margin)
-    pts, truth = pts[keep], truth[keep]
-    reach = (patch // 2) * np.abs(pair.normal).sum()
-    dist = np.abs(pair.edge_distance(pts))
-    return pts, truth, dist <= reach, dist > reach + 2.0, dist
+    pts, truth, across, clear = _edge_windows(pair, patch, step=step, margin=margin)
+    return pts, truth, across, clear, np.abs(pair.edge_distance(pts))
 
 
 def _match(pair, pts, truth, robust, **options):
