@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from surface.stitch import StitchResult, _dome, _inside, _nearest_loop, stitch_rings
+from surface.stitch import StitchResult, _dome, _inside, _nearest_loop, end_window, stitch_rings
 from surface.validate import TOL
 
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
@@ -892,8 +892,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                 heights, candidates_flat, ring @ frame[:2].T, h_end, sign, delta,
                 None if sigma is None else sigma[candidates])
             if cap is None and len(inside) >= NORMAL_NEIGHBOURS and _dome(
-                    ring @ frame[:2].T, *((h_end - 2 * delta, np.inf) if sign > 0
-                                          else (-np.inf, h_end + 2 * delta)),
+                    ring @ frame[:2].T, *end_window(h_end, sign > 0, delta),
                     points[candidates], frame) is not None:
                 # A rounded end (no flat cap across the plane, a dome past it): the
                 # median height of its points is no contour of it; the end stays at

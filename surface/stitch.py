@@ -1294,8 +1294,21 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
         every, h_every = window[within], h_window[within]
     test = np.unique(np.linspace(0, len(flat) - 1, min(len(flat), DOME_WIDTH_TEST_POINTS))
                      .astype(np.int64))
-    k = _dome_neighbours(every, h_every, flat[test], spread(local))
-    return lambda query: _local_quadratic(every, h_every, np.asarray(query, np.float64), k)
+    noise, chosen = spread(local), []
+
+    def field(query) -> np.ndarray:
+        # the neighbour count on the first call: a caller that only asks "a dome?"
+        # (reconstruct.extend_to_caps) does not pay for it
+        if not chosen:
+            chosen.append(_dome_neighbours(every, h_every, flat[test], noise))
+        return _local_quadratic(every, h_every, np.asarray(query, np.float64), chosen[0])
+    return field
+
+
+def end_window(height: float, up: bool, spacing: float) -> tuple[float, float]:
+    """Heights of the cap points an end's dome test takes: beyond its last contour, which
+    may lie up to two section spacings inside the data (``up``: the end faces +axis)."""
+    return (height - 2 * spacing, np.inf) if up else (-np.inf, height + 2 * spacing)
 
 
 #: Most cap points one dome height is fitted to (the doubling of :func:`_dome_neighbours`
@@ -1432,8 +1445,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     spacing = float(np.median(np.abs(np.diff(base_heights))))
 
     def dome_window(height: float, up: bool, inner: bool) -> tuple[float, float]:
-        if not inner:   # an end: its last contour may lie up to two spacings inside
-            return (height - 2 * spacing, np.inf) if up else (-np.inf, height + 2 * spacing)
+        if not inner:
+            return end_window(height, up, spacing)
         beyond = base_heights[base_heights > height + TOL.zero] if up else \
             base_heights[base_heights < height - TOL.zero]
         limit = (beyond.min() if up else beyond.max()) if len(beyond) else \
