@@ -2,10 +2,11 @@
 and neighbouring temple pairs (16 real views with exact cameras), peers side by side.
 
 Graffiti (``graf1.png`` -> ``graf3.png``, homography ``H13``): the candidates of
-``matching.seeds.select_points`` (21x21, the spacing given) whose homography image lies
-inside graf3 and whose window lies on the wall plane (``graffiti_wall``: the strip below
-the step at the bottom and the car stand off the plane); every method starts from the
-homography's position plus 1 px of Gaussian noise and (LSM, ECC) its local affine map.
+``matching.seeds.select_points`` (21x21 unless ``--graffiti-patch``, the spacing given)
+whose homography image lies inside graf3 and whose window lies on the wall plane
+(``graffiti_wall``: the strip below the step at the bottom and the car stand off the
+plane); every method starts from the homography's position plus 1 px of Gaussian noise and
+(LSM, ECC) its local affine map.
 Judged by the share beyond 2 px of the homography and by the residual to a smooth
 mapping -- a homography plus a degree-7 polynomial fitted robustly to LSM's accepted
 matches (the data set's homography has no lens-distortion term) -- per axis over the
@@ -16,7 +17,7 @@ RMS, and the median |e|/σ over its Gaussian value), and beside it the forward-b
 loops' factor (``matching.consistency``, a lower bound); and the residuals split along /
 across the epipolar lines (``parallax_split``: plane + parallax, where a relief of the wall
 can only act along them). Peers: ``cv2.findTransformECC``
-(MOTION_AFFINE, gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (21x21 window).
+(MOTION_AFFINE, gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (the same window).
 LSM runs with ``match_pair``'s footprint smoothing
 (``matching.lsm.DEFAULT_FOOTPRINT_VAR``), and once without it beside. The same
 candidates on a synthetic graf3 (``graffiti_synthetic``: graf1 through the homography,
@@ -64,6 +65,7 @@ from scipy.spatial import cKDTree
 
 from matching.consistency import forward_backward
 from matching.grow import grow_matches
+from matching.ici import ici_choice, ici_ladder, interval_sigmas, select_results
 from matching.lsm import DEFAULT_FOOTPRINT_VAR, LSMResult, lsm_match, prepare_image
 from matching.precision import midpoint_variance_factor
 from matching.seeds import disparity_range, select_points, sgbm_disparity
@@ -281,7 +283,8 @@ def parallax_split(points, x2, residual, cov, k2, patch):
 
 
 def _factor_figures(row, pts, res, mapping, patch):
-    """Variance factor of independent neighbouring windows and residual / (σ k) into ``row``."""
+    """Variance factor of independent neighbouring windows and residual / (σ k) into ``row``
+    (``patch``: the side, or the sides per point)."""
     t0 = time.perf_counter()
     vf = midpoint_variance_factor(pts, res.affine, res.affine_cov, res.accepted, patch=patch)
     row["variance_factor"] = vf.factor
@@ -296,14 +299,17 @@ def _factor_figures(row, pts, res, mapping, patch):
         np.median(e[inl] / res.sigma[inl]) / np.sqrt(2 * np.log(2) * k2))
     row["parallax_split"] = parallax_split(pts[inl], res.position[inl],
                                            (res.position - mapping(pts))[inl], res.cov[inl],
-                                           k2, patch)
+                                           k2, int(np.median(np.broadcast_to(patch,
+                                                                             inl.shape)[inl])))
 
 
-def graffiti(folder: Path, quick: bool) -> dict:
-    """Graffiti figures (module docstring)."""
+def graffiti(folder: Path, quick: bool, patch: int = GRAFFITI_PATCH) -> dict:
+    """Graffiti figures (module docstring); ``patch``: the window side of LSM and its peers
+    (odd, px)."""
     f, g = _grey(folder / "graf1.png"), _grey(folder / "graf3.png")
     hom = _homography(folder / "H1to3p.xml")
-    patch = GRAFFITI_PATCH
+    if patch < 5 or patch % 2 == 0:
+        raise ValueError(f"graffiti patch must be an odd side >= 5 px, got {patch}")
     spacing = 8 if quick else 4
     fp, gp = prepare_image(f), prepare_image(g)
     cand = select_points(f, spacing=spacing, patch=patch, noise=fp.noise)
@@ -329,7 +335,8 @@ def graffiti(folder: Path, quick: bool) -> dict:
     smooth = smooth_mapping(pts[near], res.position[near])
     k = float(np.sqrt(fb.variance_factor))
     rows = []
-    for name, result, seconds in (("LSM one pass (21x21, H + 1 px start)", first, t_first),
+    one_pass = f"LSM one pass ({patch}x{patch}, H + 1 px start)"
+    for name, result, seconds in ((one_pass, first, t_first),
                                   ("LSM + region growing (retries from neighbours)", res,
                                    t_grown)):
         pos = np.where(result.accepted[:, None], result.position, np.nan)
@@ -349,6 +356,24 @@ def graffiti(folder: Path, quick: bool) -> dict:
     lsm_row["residual_over_sigma_with_fb_factor"] = lsm_row["residual_over_sigma"] / k
     lsm_row["fb_seconds"] = t3 - t2
     _factor_figures(lsm_row, pts, res, smooth, patch)
+    # LSM's window per point by ICI (matching.ici) over a ladder from the benchmark's side
+    # to twice it: each side matched and grown as above, then each point keeps the
+    # largest side that agrees with every smaller one within ±Γ σk
+    ladder = ici_ladder(patch)
+    t0 = time.perf_counter()
+    grown = [res] + [_lsm_grown(fp, gp, pts, approx, init, side)[1].result
+                     for side in ladder[1:]]
+    sig = [interval_sigmas(r, pts, side, None)[0] for r, side in zip(grown, ladder, strict=True)]
+    choice = ici_choice(np.stack([r.position for r in grown]), np.stack(sig),
+                        np.stack([r.accepted for r in grown]))
+    ici = select_results(grown, choice)
+    sides = np.asarray(ladder)[np.maximum(choice, 0)]
+    rows.append(_judge(f"LSM + growing, window by ICI ({'/'.join(map(str, ladder))})",
+                       np.where(ici.accepted[:, None], ici.position, np.nan), truth, smooth,
+                       pts, time.perf_counter() - t0 + t_grown, n_cand, ici.sigma,
+                       extra={"sides": {int(s): int(np.sum((choice >= 0) & (sides == s)))
+                                        for s in ladder}}))
+    _factor_figures(rows[-1], pts, ici, smooth, sides)
     m = min(len(pts), 600 if quick else 3000)
     pick = np.random.default_rng(1).choice(len(pts), m, replace=False)
     t0 = time.perf_counter()
@@ -362,7 +387,7 @@ def graffiti(folder: Path, quick: bool) -> dict:
                        pts[pick], np.nan, m, res.sigma[pick]))
     t0 = time.perf_counter()
     lk_pos = _lk(f, g, pts, approx, patch)
-    rows.append(_judge("cv2.calcOpticalFlowPyrLK (21x21)", lk_pos, truth, smooth, pts,
+    rows.append(_judge(f"cv2.calcOpticalFlowPyrLK ({patch}x{patch})", lk_pos, truth, smooth, pts,
                        time.perf_counter() - t0, n_cand))
     status = {str(k_): int(v) for k_, v in zip(*np.unique(res.status, return_counts=True),
                                               strict=True)}

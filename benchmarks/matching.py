@@ -43,9 +43,11 @@ LSM's reported σ), when the real data is found
 Usage::
 
     .venv/bin/python benchmarks/matching.py [--quick] [--json PATH] [--scene DIR]
-        [--real-data DIR] [--part {all,vase,real,graffiti,temple}]
+        [--real-data DIR] [--part {all,vase,real,graffiti,temple}] [--graffiti-patch N]
 
-``--part`` runs one part alone (its goals only; JSON to ``matching_<part>.json`` unless
+``--graffiti-patch`` sets the window side of LSM and its peers on graffiti (default 21);
+the ICI row tries that side, ~1.5x and ~2x it (``matching.ici``).  ``--part`` runs one
+part alone (its goals only; JSON to ``matching_<part>.json`` unless
 ``--json`` is given): ``vase`` the rendered scenes and synthetic warps, ``real`` both
 real sets, ``graffiti`` or ``temple`` one of them.
 """
@@ -404,13 +406,15 @@ def vase(scene_dir: Path, quick: bool):
 
 
 def real_figures(folder: Path, quick: bool, goals: dict,
-                 sets: tuple[str, ...] = ("graffiti", "temple")) -> dict:
+                 sets: tuple[str, ...] = ("graffiti", "temple"),
+                 graffiti_patch: int | None = None) -> dict:
     """Graffiti and temple figures (``_real_matching``), printed; goals added in place."""
     import _real_matching as real
 
     out = {}
     if "graffiti" in sets and (folder / "graffiti" / "graf1.png").is_file():
-        gr = real.graffiti(folder / "graffiti", quick)
+        gr = real.graffiti(folder / "graffiti", quick,
+                           real.GRAFFITI_PATCH if graffiti_patch is None else graffiti_patch)
         out["graffiti"] = gr
         print(f"\ngraffiti graf1 -> graf3, {gr['candidates']} candidates (spacing "
               f"{gr['spacing']}, {gr['patch']}x{gr['patch']}; flat-block noise "
@@ -471,6 +475,19 @@ def real_figures(folder: Path, quick: bool, goals: dict,
             lsm["residual_over_sigma_with_factor"] <= 1.5)
         goals["graffiti_lsm_le_0.75x_ecc"] = (sub["residual_rms_px"]
                                               <= 0.75 * ecc["residual_rms_px"])
+        ici = next((r for r in gr["rows"] if "window by ICI" in r["method"]), None)
+        if ici is not None:   # the same goals with each point's window chosen by ICI
+            print(f"ICI windows (matching.ici): sides {ici['sides']}; k² "
+                  f"{ici['variance_factor']:.1f}; residual / (σ k) "
+                  f"{ici['residual_over_sigma_with_factor']:.2f}; along / across the epipolar "
+                  f"lines {ici['parallax_split']['along_rms_px']:.3f} / "
+                  f"{ici['parallax_split']['across_rms_px']:.3f} px")
+            goals["graffiti_accepted_ge_80pct (ICI windows)"] = ici["accepted"] >= 0.8
+            goals["graffiti_beyond_2px_le_1pct (ICI windows)"] = (
+                ici["beyond_2px_of_smooth"] <= 0.01)
+            goals["graffiti_residual_le_0.15px (ICI windows)"] = ici["residual_rms_px"] <= 0.15
+            goals["graffiti_residual_over_sigma_le_1.5 (ICI windows)"] = (
+                ici["residual_over_sigma_with_factor"] <= 1.5)
     if "temple" in sets and (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
         te = real.temple(folder / "temple_sparse_ring", quick)
         out["temple"] = te
@@ -592,6 +609,9 @@ def main(argv=None) -> int:
     parser.add_argument("--part", choices=PARTS, default="all",
                         help="run one part alone (vase: rendered + synthetic; real: both "
                              "real sets)")
+    parser.add_argument("--graffiti-patch", type=int, default=None,
+                        help="window side of LSM and its peers on graffiti (odd px; default "
+                             "21, the issue's)")
     args = parser.parse_args(argv)
     results = ROOT / "benchmarks" / "results"
     if args.json is None:
@@ -600,7 +620,8 @@ def main(argv=None) -> int:
     if args.part in ("real", "graffiti", "temple"):
         goals: dict = {}
         sets = ("graffiti", "temple") if args.part == "real" else (args.part,)
-        real = real_figures(Path(args.real_data), args.quick, goals, sets)
+        real = real_figures(Path(args.real_data), args.quick, goals, sets,
+                            graffiti_patch=args.graffiti_patch)
         print_goals(goals)
         write_result(args.json, {"quick": args.quick, "part": args.part, "real": real,
                                  "goals": goals})

@@ -258,7 +258,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                spacing: int = DEFAULT_SPACING,
                patch: int = 15, interpolation: str = DEFAULT_INTERPOLATION,
                epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
-               sgbm_block: int = 5, second_order: bool = True, adaptive_patch: bool = True,
+               sgbm_block: int = 5, second_order: bool = True,
+               adaptive_patch: bool | str = True,
                max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
                eccentric: bool = False, grow: bool = True, sigma_factor: bool = True,
                search_range: tuple[int, int] | None = None,
@@ -297,10 +298,14 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         :func:`matching.second_order.second_order_terms` derives from the first pass's affine
         parameters within ``max(20, 5 spacing)`` px (removes the curvature bias of an
         affine patch fit: 0.023 px -> 0.001 px on the noise-free vase, 15 px patches).
-    adaptive_patch : bool
+    adaptive_patch : bool or "ici"
         Second pass with a patch grown, where the first pass's σ is worse than the
         image's median, to the smallest side whose predicted σ reaches that median
-        (:func:`adaptive_sides`; Gruen's "adaptive" patch).  Default on.
+        (:func:`adaptive_sides`; Gruen's "adaptive" patch).  Default on.  ``"ici"``: the
+        second pass at every side of ``patch``, ~1.5x and ~2x it
+        (:func:`matching.ici.ici_ladder`), each point keeping the largest side that agrees
+        with every smaller one within ±2σk (:mod:`matching.ici`); ~3x the second pass's
+        time.
     max_patch : int, optional
         Largest grown side, px (odd; default: the largest odd side with at most twice
         the pixels of ``patch``, 21 for 15).
@@ -387,6 +392,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
     if not (isinstance(spacing, int | np.integer) and spacing >= 1):
         raise ValueError(f"spacing must be a positive integer, got {spacing!r}")
+    if not (isinstance(adaptive_patch, bool) or adaptive_patch == "ici"):
+        raise ValueError(f"adaptive_patch must be True, False or 'ici', got {adaptive_patch!r}")
     if max_patch is not None and not (isinstance(max_patch, int | np.integer)
                                       and max_patch >= patch and max_patch % 2 == 1):
         raise ValueError(f"max_patch must be an odd integer >= patch ({patch}), "
@@ -506,13 +513,17 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 quad = (second_order_terms(points, res.affine, res.accepted,
                                            radius_px=max(20.0, 5.0 * spacing))
                         if second_order else None)
-                if adaptive_patch:
+                if adaptive_patch and adaptive_patch != "ici":
                     sides = adaptive_sides(left, points, res.window_sigma, res.accepted,
                                            patch, max_patch, noise=fprep.noise)
                     # a grown eccentric window would reach over the edge it was moved off
                     sides[shifted] = patch
                 options["robust"] = robust_flags
-                second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
+                if adaptive_patch == "ici":
+                    second, sides = _rematch_ici(fprep, gprep, points, start, res, quad,
+                                                 patch, options, shifted)
+                else:
+                    second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
                 # a grown window that fails (its search window leaves the image, or it
                 # reaches over a depth or shading edge the base window stays clear of):
                 # back to the base patch -- growing is for precision, not to lose points
@@ -534,7 +545,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 status[idx[unapproximated]] = NO_APPROXIMATION
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
-                status[idx[_imprecise(res, max_sigma_mad_k, patch)]] = IMPRECISE
+                status[idx[_imprecise(res, max_sigma_mad_k, patch,
+                                      sides if adaptive_patch == "ici" else None)]] = IMPRECISE
             factor, factor_edge, per_window = 1.0, 1.0, np.ones(len(idx))
             if sigma_factor:
                 ok_final = status[idx] == Status.OK
@@ -859,6 +871,28 @@ def adaptive_sides(image, points, sigma, accepted, patch: int = 15,
     return sides
 
 
+def _rematch_ici(fprep, gprep, points, start, first: LSMResult, quad, patch: int, options,
+                 shifted) -> tuple[LSMResult, np.ndarray]:
+    """The second pass at every side of :func:`matching.ici.ici_ladder`, each point keeping
+    the side ICI chooses (eccentric windows keep ``patch``: a grown one would reach over
+    the edge it was moved off)."""
+    from matching.ici import ici_choice, ici_ladder, interval_sigmas, select_results
+
+    ladder = ici_ladder(patch)
+    n = len(points)
+    results, sigmas = [], []
+    for side in ladder:
+        result = _rematch(fprep, gprep, points, start, first, quad,
+                          np.full(n, side, np.int32), options)
+        results.append(result)
+        sigmas.append(interval_sigmas(result, points, side, None)[0])
+    accepted = np.stack([r.accepted for r in results])
+    accepted[1:, np.asarray(shifted, bool)] = False
+    choice = ici_choice(np.stack([r.position for r in results]), np.stack(sigmas), accepted)
+    sides = np.asarray(ladder, np.int32)[np.maximum(choice, 0)]
+    return select_results(results, choice), sides
+
+
 def _rematch(fprep, gprep, points, start, first: LSMResult, quad, sides, options,
              only=None, into: LSMResult | None = None) -> LSMResult:
     """Second LSM pass from the first pass's solution, one call per patch side.
@@ -918,15 +952,27 @@ def _keep_first(second: LSMResult, first: LSMResult, lost: np.ndarray) -> LSMRes
     return replace(second, **arrays)
 
 
-def _imprecise(res: LSMResult, k: float, patch: int) -> np.ndarray:
+def _imprecise(res: LSMResult, k: float, patch: int, sides=None) -> np.ndarray:
     """(N,) bool: accepted with σ > median + k s over the accepted σ (>= 30 of them).
 
     s is the larger of 1.4826 MAD(σ) and the spread σ0's own estimation error gives σ,
     median / sqrt(2 (patch² - 8)) (as the σ0 test of :func:`matching.lsm.lsm_match`), so
     that a uniformly textured image, whose σ differ only by that, loses nothing.
+    ``sides`` (N,): each side's windows against their own (ICI's sides differ 2x and their
+    σ with them: a window kept small beside an edge is not imprecise for being small;
+    a side with fewer than 30 accepted is not tested).
     """
     sigma = res.window_sigma  # the window's own precision (eccentric ones: before the
     ok = res.accepted & np.isfinite(sigma)  # transfer, whose growth is geometry, not texture)
+    if sides is None:
+        return _above_limit(sigma, ok, k, patch)
+    out = np.zeros(len(ok), bool)
+    for side in np.unique(sides[ok]):
+        out |= _above_limit(sigma, ok & (sides == side), k, int(side))
+    return out
+
+
+def _above_limit(sigma: np.ndarray, ok: np.ndarray, k: float, patch: int) -> np.ndarray:
     if ok.sum() < 30:
         return np.zeros(len(ok), bool)
     return ok & (sigma > robust_upper_limit(sigma[ok], k, patch * patch - 8))

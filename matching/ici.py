@@ -1,0 +1,253 @@
+r"""LSM's window side per point by the intersection of confidence intervals (ICI).
+
+A larger LSM window holds more texture: its shift is more precise (σ ∝ 1/side on
+uniform texture, Gruen 1985).  It also reaches farther: over a curved or broken
+surface its affine (or second-order) warp holds less well and over a depth edge not at
+all.  Which side is best is a property of each point, not of the image.  The rule here
+is Lepski's, in the form of Goldenshluger & Nemirovski's and Katkovnik's *intersection
+of confidence intervals* for local estimates of growing support [1]_ [2]_ [3]_ (used
+for adaptive windows in image denoising and stereo): for the sides of a ladder
+``s_1 < s_2 < ...`` with estimates ``x_j`` and standard deviations ``σ_j`` (per axis),
+the intervals ``D_j = [x_j − Γσ_j, x_j + Γσ_j]`` are intersected in order of growing
+side, and a point keeps the largest side before the running intersection becomes
+empty -- the largest window that agrees with every smaller one within their noise --
+or before a window is not accepted.  As long as a window's bias stays below its noise
+the larger one wins; once the bias shows, the intervals part.
+
+The σ's must be honest for the rule to mean what it says: LSM's reported covariance is
+scaled per side by the variance factor of independent neighbouring windows
+(:func:`matching.precision.midpoint_variance_factor`, what ``match_pair`` applies), when
+there are enough windows to estimate it.  ``Γ`` = :data:`ICI_GAMMA` (2: an interval of
+±2σ per axis, Katkovnik's range 1.5-3 for the bias-variance balance).
+
+Written here: no library applies ICI to least-squares image matching.
+
+Measured on graffiti (``benchmarks/matching.py --part graffiti``, ladder 21 / 31 / 41 px,
+the README's table): see the module's callers and the README.
+
+References
+----------
+.. [1] O. V. Lepski, "On a problem of adaptive estimation in Gaussian white noise",
+   Theory Probab. Appl. 35 (1990) 454-466.
+.. [2] A. Goldenshluger, A. Nemirovski, "On spatially adaptive estimation of
+   nonparametric regression", Math. Methods Statist. 6 (1997) 135-170.
+.. [3] V. Katkovnik, "A new method for varying adaptive bandwidth selection", IEEE
+   Trans. Signal Processing 47 (1999) 2567-2571.
+.. [4] A. Gruen, "Adaptive least squares correlation: a powerful image matching
+   technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14 (1985) 175-187.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import fields, replace
+
+import numpy as np
+
+from matching.lsm import LSMResult, lsm_match
+from matching.precision import midpoint_variance_factor
+from surface.validate import check_shape
+
+#: Half-width of the ICI intervals in standard deviations (per axis).
+ICI_GAMMA = 2.0
+#: The default ladder of window sides, px: each side about 1.5 x the previous (σ falls
+#: by about that factor on uniform texture, so neighbouring intervals differ in width).
+ICI_SIDES = (15, 21, 31, 41)
+
+__all__ = ["ICI_GAMMA", "ICI_SIDES", "ici_choice", "ici_ladder", "interval_sigmas",
+           "lsm_match_ici",
+           "select_results"]
+
+
+def ici_ladder(patch: int) -> tuple[int, ...]:
+    """Window sides ``patch``, ~1.5 x and ~2 x it (odd): the ladder ``match_pair``'s
+    ``adaptive_patch="ici"`` and the graffiti benchmark try."""
+    return tuple(int(2 * round((patch * f - 1) / 2) + 1) for f in (1.0, 1.5, 2.0))
+
+
+def ici_choice(positions, sigmas, accepted, gamma: float = ICI_GAMMA,
+               robust: bool = True) -> np.ndarray:
+    """Index of the side each point keeps (ICI, module docstring).
+
+    Parameters
+    ----------
+    positions : (S, N, 2) array_like
+        The estimates of the S sides, smallest first, px.
+    sigmas : (S, N, 2) array_like
+        Their standard deviations per axis, px (NaN: not accepted; 0 on one axis: the
+        estimate is held there, e.g. by an epipolar constraint, and that axis is free).
+    accepted : (S, N) array_like of bool
+        Each side's acceptance.
+    gamma : float
+        Interval half-width in σ (> 0).
+    robust : bool
+        Skip a side whose interval meets none of the others' while those (two or more)
+        all meet each other (:func:`_outvoted`: a slipped window, not a bias).
+
+    Returns
+    -------
+    (N,) int64
+        Index into the ladder; -1 where no side is kept (the smallest not accepted).
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    sig = np.asarray(sigmas, dtype=np.float64)
+    ok = np.asarray(accepted, dtype=bool)
+    if pos.ndim != 3 or pos.shape[2] != 2 or sig.shape != pos.shape or ok.shape != pos.shape[:2]:
+        raise ValueError(f"positions and sigmas must be (S, N, 2) and accepted (S, N), got "
+                         f"{pos.shape}, {sig.shape}, {ok.shape}")
+    if not (np.isfinite(gamma) and gamma > 0):
+        raise ValueError(f"gamma must be a positive number, got {gamma!r}")
+    count, sides = pos.shape[1], pos.shape[0]
+    valid = ok & np.isfinite(pos).all(axis=2) & np.isfinite(sig).all(axis=2) \
+        & (sig > 0).any(axis=2)
+    # σ = 0 on an axis: the estimate is held there (an epipolar constraint along the
+    # other axis), which says nothing about the window: no bound on that axis
+    width = np.where(sig > 0, gamma * sig, np.inf)
+    with np.errstate(invalid="ignore"):
+        lo, hi = pos - width, pos + width
+        # meets[j, k]: the intervals of sides j and k intersect (both valid)
+        meets = ((np.maximum(lo[:, None], lo[None]) <= np.minimum(hi[:, None], hi[None]))
+                 .all(axis=3) & valid[:, None] & valid[None])
+    outvoted = _outvoted(meets, valid) if robust else np.zeros_like(valid)
+    lower = np.full((count, 2), -np.inf)
+    upper = np.full((count, 2), np.inf)
+    alive = np.ones(count, dtype=bool)
+    choice = np.full(count, -1, dtype=np.int64)
+    for j in range(sides):
+        skip = outvoted[j] & alive
+        with np.errstate(invalid="ignore"):
+            new_lower = np.where(skip[:, None], lower, np.maximum(lower, lo[j]))
+            new_upper = np.where(skip[:, None], upper, np.minimum(upper, hi[j]))
+            agree = (new_lower <= new_upper).all(axis=1)
+        lower, upper = new_lower, new_upper
+        alive &= skip | (valid[j] & agree)
+        choice[alive & ~skip] = j
+    return choice
+
+
+def _outvoted(meets: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(S, N) bool: side j's estimate is a gross error -- its interval meets none of the
+    other valid sides' while those (at least two) all meet each other.  A bias from a
+    window's reach grows with the side, so the sides past it disagree with each other
+    too; one window in a consistent ladder that misses all the others has slipped (an
+    accepted blunder: on graffiti's real pair, where ICI kept the 21 px side because
+    the larger ones disagreed with it, that side erred by 1.0 px (median) and the 31 /
+    41 px ones by 0.18 / 0.14)."""
+    sides = meets.shape[0]
+    out = np.zeros_like(valid)
+    if sides < 3:
+        return out
+    for j in range(sides):
+        others = [k for k in range(sides) if k != j]
+        other_valid = valid[others]
+        enough = other_valid.sum(axis=0) >= 2
+        misses_all = ~np.any(meets[j][others] & other_valid, axis=0)
+        consistent = np.ones(valid.shape[1], bool)
+        for a in others:
+            for b in others:
+                if a < b:
+                    consistent &= ~(valid[a] & valid[b]) | meets[a, b]
+        out[j] = valid[j] & enough & misses_all & consistent
+    return out
+
+
+def select_results(results: Sequence[LSMResult], choice) -> LSMResult:
+    """One :class:`LSMResult` whose row i is ``results[choice[i]]``'s (``results[0]``'s where
+    ``choice[i] < 0``).  Optional fields stay None unless every result has them."""
+    choice = np.asarray(choice, dtype=np.int64)
+    if not results:
+        raise ValueError("no results to select from")
+    pick = np.maximum(choice, 0)
+    rows = np.arange(len(choice))
+    out = {}
+    for f in fields(LSMResult):
+        values = [getattr(r, f.name) for r in results]
+        if f.name == "noise_sigma0":
+            out[f.name] = values[0]
+        elif any(v is None for v in values):
+            out[f.name] = None
+        else:
+            out[f.name] = np.stack([np.asarray(v) for v in values])[pick, rows]
+    return replace(results[0], **out)
+
+
+def interval_sigmas(result: LSMResult, points: np.ndarray, side: int,
+                     variance_factor: float | None) -> tuple[np.ndarray, float]:
+    """Per-axis σ ``(N, 2)`` of ``result``'s positions scaled by its side's variance factor
+    k² (given, or :func:`matching.precision.midpoint_variance_factor` of the result, 1
+    where it cannot be estimated; never below 1), and that k²."""
+    if variance_factor is None:
+        factor = midpoint_variance_factor(points, result.affine, result.affine_cov,
+                                          result.accepted, patch=side).factor
+        variance_factor = float(factor) if np.isfinite(factor) else 1.0
+    k2 = max(1.0, float(variance_factor))
+    diag = np.stack([result.cov[:, 0, 0], result.cov[:, 1, 1]], axis=1)
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.where(diag >= 0, diag * k2, np.nan)), k2
+
+
+def lsm_match_ici(template_image, search_image, points, approx, *,
+                  sides: Sequence[int] = ICI_SIDES, gamma: float = ICI_GAMMA,
+                  variance_factors: Sequence[float] | None = None, initial=None,
+                  **options) -> tuple[LSMResult, np.ndarray, dict]:
+    """:func:`matching.lsm.lsm_match` at every side of ``sides`` and, per point, the side
+    the ICI rule keeps (module docstring).
+
+    Each side starts from the previous side's solution where it was accepted (the
+    warp carries over; the pull-in is then the smaller window's), else from ``initial``
+    / ``approx``.
+
+    Parameters
+    ----------
+    template_image, search_image, points, approx, initial
+        As ``lsm_match``.
+    sides : sequence of int
+        Odd window sides, increasing.
+    gamma : float
+        ICI interval half-width in σ.
+    variance_factors : sequence of float, optional
+        k² per side; default each side's own
+        (:func:`matching.precision.midpoint_variance_factor`, 1 where it cannot be
+        estimated).
+    **options
+        More of ``lsm_match``'s (not ``patch``).
+
+    Returns
+    -------
+    (LSMResult, (N,) int32, dict)
+        The chosen side's result per point, the sides (px; the smallest where none is
+        accepted) and ``{"variance_factors": [...], "chosen": {side: count}}``.
+    """
+    sides = [int(s) for s in sides]
+    if not sides or any(s < 3 or s % 2 == 0 for s in sides) or sides != sorted(set(sides)):
+        raise ValueError(f"sides must be odd, >= 3 and increasing, got {sides}")
+    if "patch" in options:
+        raise ValueError("give the window sides as sides=, not patch=")
+    if variance_factors is not None and len(variance_factors) != len(sides):
+        raise ValueError(f"need one variance factor per side ({len(sides)}), got "
+                         f"{len(variance_factors)}")
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    start = None if initial is None else np.asarray(initial, dtype=np.float64)
+    results, sigmas, factors = [], [], []
+    for j, side in enumerate(sides):
+        result = lsm_match(template_image, search_image, points, approx, patch=side,
+                           initial=start, **options)
+        sigma, k2 = interval_sigmas(result, points, side,
+                                     None if variance_factors is None else variance_factors[j])
+        results.append(result)
+        sigmas.append(sigma)
+        factors.append(k2)
+        carried = np.column_stack([result.affine, result.radiometric])
+        good = result.accepted & np.isfinite(carried).all(axis=1)
+        if start is None:
+            start = np.full((len(points), 8), np.nan)
+            start[:, 0], start[:, 3] = np.asarray(approx, np.float64).T
+            start[:, 1] = start[:, 5] = start[:, 7] = 1.0
+            start[:, [2, 4, 6]] = 0.0
+        start = np.where(good[:, None], carried, start)
+    choice = ici_choice(np.stack([r.position for r in results]), np.stack(sigmas),
+                        np.stack([r.accepted for r in results]), gamma)
+    chosen = np.asarray(sides, np.int32)[np.maximum(choice, 0)]
+    counts = {int(s): int(np.sum((choice >= 0) & (chosen == s))) for s in sides}
+    return select_results(results, choice), chosen, {"variance_factors": factors,
+                                                     "chosen": counts}
