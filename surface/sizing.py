@@ -97,29 +97,29 @@ stitched+sized --no-shapes --no-scaling --points 100000``).
 
 *Where the candidates lose on rounded ends* (session 12, one-off scripts on the 10⁴-point
 capsule of ``benchmarks/surface.py``; step 2, n = 24, Chamfer 0.000703 against the dense
-smooth surface's 0.000518 and Poisson-8's 0.00076).  With the candidate's vertices moved
+smooth surface's 0.000518 and Poisson-8's 0.00076). With the candidate's vertices moved
 exactly onto the truth its smooth surface is still 0.00074 RMS off: 0.0016 near the domes
-(the walls 0.00025-0.00046).  On a regular lattice the interpolating surface converges as
-h⁴ or faster (``test_interpolating_surface_is_fourth_order_where_the_mesh_is_regular``:
-5.9e-6 at 48-point rings 0.2 apart); near a dome it does not: the graded spacing of
-:func:`kept_sections` (gaps 1, 2, 4 from each end, for rims), the junction of the strips
-with the dome's quality triangulation and the sphere-cylinder joint (C1 only) each leave an
-O(h²) error (≈ 0.02 κ a² for profile gaps a; exact-ring capsule, gaps 0.2 uniform along the
-profile: 0.0008-0.0011 RMS at the joint and the cap junction, whatever the dome's triangle
-size).  Tried and not kept: sections kept by the profile's length instead of their count
-(no change: the domes' extra length sits in the graded ends); that length weighted by the
-profile's curvature against the ring's (10⁴ capsule 0.000703 -> 0.000589 but 14 576 patches
-instead of 9 640; 10⁵ capsule 0.000201 -> 0.000238 with 118 760 patches instead of 88 656;
-10⁴ amphora unchanged at +44 % patches); a least-squares fit of the control vertices along
-their normals to the dense vertices (0.000703 -> 0.000662) or even to exact samples of the
-truth (0.000483 Chamfer but 0.0047 RMS near a cap junction); the dome end's support test
-taken up the dome (it reads a 33° turn where the cap meets a dome and adds support and
-guard rings a noise width apart, slivers of 8°): slivers gone, 10⁴ unchanged, but at 10⁵
-every candidate from step 5 on estimated within 1 % of its goal and the choice flipped to
-the dense mesh (246 048 patches, 0.000281 against 0.000201).  At 10⁵ the candidates from
-step 5 to 2 all estimate 0.000302-0.000367 against goals 0.000287-0.000304: the smooth
-surfaces are no better than the stitched mesh there, so the first pass is decided by the
-estimates' sampling noise.
+(the walls 0.00025-0.00046). On a regular lattice the interpolating surface converges as h⁴
+or faster (``test_interpolating_surface_is_fourth_order_where_the_mesh_is_regular``: 5.9e-6
+at 48-point rings 0.2 apart); near a dome it does not: the junction of the strips with the
+dome's quality triangulation and the sphere-cylinder joint (C1 only) leave an O(h²) error
+(exact-ring capsule, gaps 0.2 uniform along the profile: 0.0008-0.0011 RMS at the joint and
+at the cap junction, 0.0006-0.001 whatever the dome's triangle size; halving the gaps:
+0.00016-0.00018), and the graded spacing of :func:`kept_sections` (gaps 1, 2, 4 from each
+end, for rims) lies on the domes too (its share not separated). Tried and not kept: sections
+kept by the profile's length instead of their count (no change: the domes' extra length sits
+in the graded ends); that length weighted by the profile's curvature against the ring's (10⁴
+capsule 0.000703 -> 0.000589 but 14 576 patches instead of 9 640; 10⁵ capsule 0.000201 ->
+0.000238 with 118 760 patches instead of 88 656; 10⁴ amphora unchanged at +44 % patches); a
+least-squares fit of the control vertices along their normals to the dense vertices
+(0.000703 -> 0.000662) or even to exact samples of the truth (0.000483 Chamfer but 0.0047
+RMS near a cap junction); the dome end's support test taken up the dome (it reads a 33° turn
+where the cap meets a dome and adds support and guard rings a noise width apart, slivers of
+8°): slivers gone, 10⁴ unchanged, but at 10⁵ every candidate from step 5 on estimated within
+1 % of its goal and the choice flipped to the dense mesh (246 048 patches, 0.000281 against
+0.000201). At 10⁵ the candidates from step 5 to 2 all estimate 0.000302-0.000367 against
+goals 0.000287-0.000304: the smooth surfaces are no better than the stitched mesh there, so
+the first pass is decided by the estimates' sampling noise.
 
 Earlier rules, kept here for their measurements: session 7's (estimate ≤ the median
 scatter σ, distances to the level-1 tessellation) took the 10⁵-point vase to 0.98×
