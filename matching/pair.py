@@ -298,14 +298,14 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         :func:`matching.second_order.second_order_terms` derives from the first pass's affine
         parameters within ``max(20, 5 spacing)`` px (removes the curvature bias of an
         affine patch fit: 0.023 px -> 0.001 px on the noise-free vase, 15 px patches).
-    adaptive_patch : bool or "ici"
+    adaptive_patch : bool, "ici" or tuple of int
         Second pass with a patch grown, where the first pass's σ is worse than the
         image's median, to the smallest side whose predicted σ reaches that median
         (:func:`adaptive_sides`; Gruen's "adaptive" patch).  Default on.  ``"ici"``: the
         second pass at every side of ``patch``, ~1.5x and ~2x it
         (:func:`matching.ici.ici_ladder`), each point keeping the largest side that agrees
-        with every smaller one within ±2σk (:mod:`matching.ici`); ~3x the second pass's
-        time.
+        with every smaller one within ±2σk (:mod:`matching.ici`); a tuple: those sides
+        (odd, increasing).  Each side costs one second pass.
     max_patch : int, optional
         Largest grown side, px (odd; default: the largest odd side with at most twice
         the pixels of ``patch``, 21 for 15).
@@ -392,8 +392,19 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
     if not (isinstance(spacing, int | np.integer) and spacing >= 1):
         raise ValueError(f"spacing must be a positive integer, got {spacing!r}")
-    if not (isinstance(adaptive_patch, bool) or adaptive_patch == "ici"):
-        raise ValueError(f"adaptive_patch must be True, False or 'ici', got {adaptive_patch!r}")
+    ladder = None
+    if isinstance(adaptive_patch, str) and adaptive_patch == "ici":
+        from matching.ici import ici_ladder
+        ladder = ici_ladder(patch)
+    elif isinstance(adaptive_patch, tuple | list):
+        ladder = tuple(int(side) for side in adaptive_patch)
+        if (len(ladder) < 2 or ladder != tuple(sorted(set(ladder)))
+                or any(side < 5 or side % 2 == 0 for side in ladder)):
+            raise ValueError(f"adaptive_patch sides must be odd, >= 5 and increasing, got "
+                             f"{adaptive_patch!r}")
+    elif not isinstance(adaptive_patch, bool):
+        raise ValueError(f"adaptive_patch must be True, False, 'ici' or a tuple of sides, got "
+                         f"{adaptive_patch!r}")
     if max_patch is not None and not (isinstance(max_patch, int | np.integer)
                                       and max_patch >= patch and max_patch % 2 == 1):
         raise ValueError(f"max_patch must be an odd integer >= patch ({patch}), "
@@ -513,15 +524,15 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 quad = (second_order_terms(points, res.affine, res.accepted,
                                            radius_px=max(20.0, 5.0 * spacing))
                         if second_order else None)
-                if adaptive_patch and adaptive_patch != "ici":
+                if adaptive_patch and ladder is None:
                     sides = adaptive_sides(left, points, res.window_sigma, res.accepted,
                                            patch, max_patch, noise=fprep.noise)
                     # a grown eccentric window would reach over the edge it was moved off
                     sides[shifted] = patch
                 options["robust"] = robust_flags
-                if adaptive_patch == "ici":
+                if ladder is not None:
                     second, sides = _rematch_ici(fprep, gprep, points, start, res, quad,
-                                                 patch, options, shifted)
+                                                 ladder, options, shifted)
                 else:
                     second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
                 # a grown window that fails (its search window leaves the image, or it
@@ -546,7 +557,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch,
-                                      sides if adaptive_patch == "ici" else None)]] = IMPRECISE
+                                      None if ladder is None else sides)]] = IMPRECISE
             factor, factor_edge, per_window = 1.0, 1.0, np.ones(len(idx))
             if sigma_factor:
                 ok_final = status[idx] == Status.OK
@@ -871,14 +882,13 @@ def adaptive_sides(image, points, sigma, accepted, patch: int = 15,
     return sides
 
 
-def _rematch_ici(fprep, gprep, points, start, first: LSMResult, quad, patch: int, options,
+def _rematch_ici(fprep, gprep, points, start, first: LSMResult, quad, ladder, options,
                  shifted) -> tuple[LSMResult, np.ndarray]:
-    """The second pass at every side of :func:`matching.ici.ici_ladder`, each point keeping
-    the side ICI chooses (eccentric windows keep ``patch``: a grown one would reach over
-    the edge it was moved off)."""
-    from matching.ici import ici_choice, ici_ladder, interval_sigmas, select_results
+    """The second pass at every side of ``ladder``, each point keeping the side ICI
+    chooses (eccentric windows keep the smallest: a grown one would reach over the edge
+    it was moved off)."""
+    from matching.ici import ici_choice, interval_sigmas, select_results
 
-    ladder = ici_ladder(patch)
     n = len(points)
     results, sigmas = [], []
     for side in ladder:

@@ -177,5 +177,6 @@ def test_match_pair_ici_sharpens_the_clear_windows_and_keeps_the_edge_ones():
     assert 0.75 < out["ici"][2] < 1.3
     assert out["ici"][3] >= 0.9 * out[True][3] and out["ici"][4] == 0
     assert out["ici"][5] > 0.7
-    with pytest.raises(ValueError, match="adaptive_patch"):
-        match_pair(pair.left, pair.right, rectified=True, adaptive_patch="yes")
+    for bad in ("yes", (15, 14), (21,), (15, 15, 21)):
+        with pytest.raises(ValueError, match="adaptive_patch"):
+            match_pair(pair.left, pair.right, rectified=True, adaptive_patch=bad)
