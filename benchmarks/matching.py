@@ -405,6 +405,16 @@ def vase(scene_dir: Path, quick: bool):
                       "image": [int(left.shape[1]), int(left.shape[0])]}
 
 
+def _graffiti_goals(goals: dict, row: dict, suffix: str) -> None:
+    """The issue's four graffiti goals of one LSM row into ``goals`` (names + ``suffix``)."""
+    goals[f"graffiti_accepted_ge_80pct{suffix}"] = row["accepted"] >= 0.8
+    goals[f"graffiti_beyond_2px_le_1pct (of the smooth mapping){suffix}"] = (
+        row["beyond_2px_of_smooth"] <= 0.01)
+    goals[f"graffiti_residual_le_0.15px{suffix}"] = row["residual_rms_px"] <= 0.15
+    goals[f"graffiti_residual_over_sigma_le_1.5 (variance factor){suffix}"] = (
+        row["residual_over_sigma_with_factor"] <= 1.5)
+
+
 def real_figures(folder: Path, quick: bool, goals: dict,
                  sets: tuple[str, ...] = ("graffiti", "temple"),
                  graffiti_patch: int | None = None) -> dict:
@@ -467,12 +477,7 @@ def real_figures(folder: Path, quick: bool, goals: dict,
                   f"{ps['across_over_sigma_k']:.2f}, correlation between windows 1-1.5 "
                   f"sides apart {ps['along_neighbour_correlation']:.2f} / "
                   f"{ps['across_neighbour_correlation']:.2f}")
-        goals["graffiti_accepted_ge_80pct"] = lsm["accepted"] >= 0.8
-        goals["graffiti_beyond_2px_le_1pct (of the smooth mapping)"] = (
-            lsm["beyond_2px_of_smooth"] <= 0.01)
-        goals["graffiti_residual_le_0.15px"] = lsm["residual_rms_px"] <= 0.15
-        goals["graffiti_residual_over_sigma_le_1.5 (variance factor)"] = (
-            lsm["residual_over_sigma_with_factor"] <= 1.5)
+        _graffiti_goals(goals, lsm, "")
         goals["graffiti_lsm_le_0.75x_ecc"] = (sub["residual_rms_px"]
                                               <= 0.75 * ecc["residual_rms_px"])
         ici = next((r for r in gr["rows"] if "window by ICI" in r["method"]), None)
@@ -482,12 +487,7 @@ def real_figures(folder: Path, quick: bool, goals: dict,
                   f"{ici['residual_over_sigma_with_factor']:.2f}; along / across the epipolar "
                   f"lines {ici['parallax_split']['along_rms_px']:.3f} / "
                   f"{ici['parallax_split']['across_rms_px']:.3f} px")
-            goals["graffiti_accepted_ge_80pct (ICI windows)"] = ici["accepted"] >= 0.8
-            goals["graffiti_beyond_2px_le_1pct (ICI windows)"] = (
-                ici["beyond_2px_of_smooth"] <= 0.01)
-            goals["graffiti_residual_le_0.15px (ICI windows)"] = ici["residual_rms_px"] <= 0.15
-            goals["graffiti_residual_over_sigma_le_1.5 (ICI windows)"] = (
-                ici["residual_over_sigma_with_factor"] <= 1.5)
+            _graffiti_goals(goals, ici, " (ICI windows)")
     if "temple" in sets and (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
         te = real.temple(folder / "temple_sparse_ring", quick)
         out["temple"] = te

@@ -67,7 +67,7 @@ import numpy as np
 
 from matching.lsm import LSMResult, lsm_match
 from matching.precision import midpoint_variance_factor
-from surface.validate import check_shape
+from matching.validate import check_shape
 
 #: Half-width of the ICI intervals in standard deviations (per axis).
 ICI_GAMMA = 2.0

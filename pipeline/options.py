@@ -8,6 +8,9 @@ import argparse
 
 from pipeline.errors import InputError
 
+#: ``--window`` -> ``match_pair(adaptive_patch=...)``.
+WINDOW_MODES = {"adaptive": True, "ici": "ici", "fixed": False}
+
 
 def add_match_options(parser: argparse.ArgumentParser) -> None:
     """Matching options shared by ``photosurf match`` and ``photosurf stereo``."""
@@ -23,6 +26,11 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-iter", type=int, default=20, help="Gauss-Newton iterations")
     parser.add_argument("--min-correlation", type=float, default=0.7,
                         help="reject matches below this correlation (default 0.7)")
+    parser.add_argument("--window", choices=tuple(WINDOW_MODES), default="adaptive",
+                        help="LSM window per point: 'adaptive' (default: grown where the first "
+                             "pass is less precise than the image's median), 'ici' (the side "
+                             "of PATCH, ~1.5x, ~2x that agrees with every smaller one: for "
+                             "planar, richly textured scenes; ~3x the second pass), 'fixed'")
 
 
 def match_options(args: argparse.Namespace) -> dict:
@@ -42,7 +50,8 @@ def match_options(args: argparse.Namespace) -> dict:
         raise InputError(f"--min-correlation must be in [-1, 1], got {args.min_correlation}")
     return {"spacing": args.spacing, "patch": args.patch, "interpolation": args.interpolation,
             "epipolar": args.epipolar, "max_iter": args.max_iter,
-            "min_correlation": args.min_correlation}
+            "min_correlation": args.min_correlation,
+            "adaptive_patch": WINDOW_MODES[getattr(args, "window", "adaptive")]}
 
 
 def summary(matches) -> str:

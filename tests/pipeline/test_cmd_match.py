@@ -119,6 +119,25 @@ def test_match_rectified_writes_disparity(tmp_path):
     assert np.sqrt(np.mean((disp[have] - 7.4) ** 2)) < 0.03
 
 
+def test_match_window_ici_on_a_plane_is_more_precise(tmp_path):
+    # a rectified plane (constant disparity): ICI windows (15 / 23 / 29) are larger where
+    # the plane allows, and the disparity error falls below the adaptive patch's
+    paths = _write(tmp_path, *_rectified_pair(size=(140, 200)))
+    rms = {}
+    for mode in ("adaptive", "ici"):
+        out = tmp_path / mode
+        assert main(["match", *paths, "--rectified", "--window", mode, "--out", str(out),
+                     "-q"]) == 0
+        disp = np.load(out / "disparity.npy")
+        have = np.isfinite(disp)
+        assert have.sum() > 300
+        rms[mode] = float(np.sqrt(np.mean((disp[have] - 7.4) ** 2)))
+        patch = np.load(out / "matches.npz")["patch"]
+        if mode == "ici":
+            assert np.mean(patch[np.load(out / "matches.npz")["status"] == 0] == 29) > 0.5
+    assert rms["ici"] < 0.8 * rms["adaptive"]
+
+
 def test_match_dense_writes_disparity_and_sigma_at_every_pixel(tmp_path, capsys):
     """--dense: every pixel a candidate; sigma.npy holds each disparity's σ (NaN exactly
     where the disparity is), and the disparities err like their σ (errors of
