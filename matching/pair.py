@@ -532,7 +532,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 options["robust"] = robust_flags
                 if ladder is not None:
                     second, sides = _rematch_ici(fprep, gprep, points, start, res, quad,
-                                                 ladder, options, shifted)
+                                                 ladder, options, shifted, edge[idx])
                 else:
                     second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
                 # a grown window that fails (its search window leaves the image, or it
@@ -883,19 +883,26 @@ def adaptive_sides(image, points, sigma, accepted, patch: int = 15,
 
 
 def _rematch_ici(fprep, gprep, points, start, first: LSMResult, quad, ladder, options,
-                 shifted) -> tuple[LSMResult, np.ndarray]:
+                 shifted, edge) -> tuple[LSMResult, np.ndarray]:
     """The second pass at every side of ``ladder``, each point keeping the side ICI
     chooses (eccentric windows keep the smallest: a grown one would reach over the edge
-    it was moved off)."""
-    from matching.ici import ici_choice, interval_sigmas, select_results
+    it was moved off).  The intervals' σ carry each side's variance factor per window
+    class (``edge``: :func:`matching.precision.class_variance_factors`, as the pair's
+    final σ do)."""
+    from matching.ici import ici_choice, select_results
 
     n = len(points)
+    classes = np.asarray(edge, dtype=np.int64)
     results, sigmas = [], []
     for side in ladder:
         result = _rematch(fprep, gprep, points, start, first, quad,
                           np.full(n, side, np.int32), options)
         results.append(result)
-        sigmas.append(interval_sigmas(result, points, side, None)[0])
+        k2 = np.maximum(class_variance_factors(points, result.affine, result.affine_cov,
+                                               result.accepted, classes, patch=side)[0], 1.0)
+        diag = np.stack([result.cov[:, 0, 0], result.cov[:, 1, 1]], axis=1) * k2[:, None]
+        with np.errstate(invalid="ignore"):
+            sigmas.append(np.sqrt(np.where(diag >= 0, diag, np.nan)))
     accepted = np.stack([r.accepted for r in results])
     accepted[1:, np.asarray(shifted, bool)] = False
     choice = ici_choice(np.stack([r.position for r in results]), np.stack(sigmas), accepted)
