@@ -76,8 +76,7 @@ ICI_GAMMA = 2.0
 ICI_SIDES = (15, 21, 31, 41)
 
 __all__ = ["ICI_GAMMA", "ICI_SIDES", "ici_choice", "ici_ladder", "interval_sigmas",
-           "lsm_match_ici",
-           "select_results"]
+           "lsm_match_ici", "select_results"]
 
 
 def ici_ladder(patch: int) -> tuple[int, ...]:
@@ -193,7 +192,7 @@ def select_results(results: Sequence[LSMResult], choice) -> LSMResult:
 
 
 def interval_sigmas(result: LSMResult, points: np.ndarray, side: int,
-                     variance_factor: float | None) -> tuple[np.ndarray, float]:
+                    variance_factor: float | None) -> tuple[np.ndarray, float]:
     """Per-axis σ ``(N, 2)`` of ``result``'s positions scaled by its side's variance factor
     k² (given, or :func:`matching.precision.midpoint_variance_factor` of the result, 1
     where it cannot be estimated; never below 1), and that k²."""
