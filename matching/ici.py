@@ -28,7 +28,7 @@ Written here: no library applies ICI to least-squares image matching.
 
 Measured (one run each, session 12):
 
-- graffiti (``benchmarks/matching.py --part graffiti``: 22 312 candidates on the wall,
+- graffiti (``benchmarks/matching.py --part graffiti``: 22 312 textured candidates on the wall,
   21 px windows, the homography + 1 px starts, region growing; ladder 21 / 31 / 41):
   residual to the smooth mapping 0.190 px at 21 px, 0.138 at 31, 0.114 at 41 px alone,
   **0.128 px** with ICI (581 / 951 / 19 276 points at 21 / 31 / 41), residual / σk **1.37**
