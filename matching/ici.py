@@ -192,18 +192,20 @@ def select_results(results: Sequence[LSMResult], choice) -> LSMResult:
 
 
 def interval_sigmas(result: LSMResult, points: np.ndarray, side: int,
-                    variance_factor: float | None) -> tuple[np.ndarray, float]:
-    """Per-axis σ ``(N, 2)`` of ``result``'s positions scaled by its side's variance factor
-    k² (given, or :func:`matching.precision.midpoint_variance_factor` of the result, 1
-    where it cannot be estimated; never below 1), and that k²."""
+                    variance_factor=None) -> tuple[np.ndarray, np.ndarray | float]:
+    """Per-axis σ ``(N, 2)`` of ``result``'s positions scaled by the variance factor k²
+    (a number or one per window, e.g. ``matching.precision.class_variance_factors``; by
+    default :func:`matching.precision.midpoint_variance_factor` of the result, 1 where it
+    cannot be estimated; never below 1), and that k²."""
     if variance_factor is None:
         factor = midpoint_variance_factor(points, result.affine, result.affine_cov,
                                           result.accepted, patch=side).factor
         variance_factor = float(factor) if np.isfinite(factor) else 1.0
-    k2 = max(1.0, float(variance_factor))
+    k2 = np.maximum(1.0, np.asarray(variance_factor, dtype=np.float64))
     diag = np.stack([result.cov[:, 0, 0], result.cov[:, 1, 1]], axis=1)
     with np.errstate(invalid="ignore"):
-        return np.sqrt(np.where(diag >= 0, diag * k2, np.nan)), k2
+        sigma = np.sqrt(np.where(diag >= 0, diag * np.reshape(k2, (-1, 1)), np.nan))
+    return sigma, (float(k2) if k2.ndim == 0 else k2)
 
 
 def lsm_match_ici(template_image, search_image, points, approx, *,

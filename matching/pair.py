@@ -889,7 +889,7 @@ def _rematch_ici(fprep, gprep, points, start, first: LSMResult, quad, ladder, op
     it was moved off).  The intervals' σ carry each side's variance factor per window
     class (``edge``: :func:`matching.precision.class_variance_factors`, as the pair's
     final σ do)."""
-    from matching.ici import ici_choice, select_results
+    from matching.ici import ici_choice, interval_sigmas, select_results
 
     n = len(points)
     classes = np.asarray(edge, dtype=np.int64)
@@ -898,11 +898,9 @@ def _rematch_ici(fprep, gprep, points, start, first: LSMResult, quad, ladder, op
         result = _rematch(fprep, gprep, points, start, first, quad,
                           np.full(n, side, np.int32), options)
         results.append(result)
-        k2 = np.maximum(class_variance_factors(points, result.affine, result.affine_cov,
-                                               result.accepted, classes, patch=side)[0], 1.0)
-        diag = np.stack([result.cov[:, 0, 0], result.cov[:, 1, 1]], axis=1) * k2[:, None]
-        with np.errstate(invalid="ignore"):
-            sigmas.append(np.sqrt(np.where(diag >= 0, diag, np.nan)))
+        per_window = class_variance_factors(points, result.affine, result.affine_cov,
+                                            result.accepted, classes, patch=side)[0]
+        sigmas.append(interval_sigmas(result, points, side, per_window)[0])
     accepted = np.stack([r.accepted for r in results])
     accepted[1:, np.asarray(shifted, bool)] = False
     choice = ici_choice(np.stack([r.position for r in results]), np.stack(sigmas), accepted)
