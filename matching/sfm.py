@@ -38,7 +38,6 @@ import contextlib
 import logging
 import os
 import re
-import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -48,6 +47,7 @@ import cv2
 import numpy as np
 
 from matching.cameras import Camera, cameras_from_pycolmap
+from matching.fd_capture import captured_fd2
 from matching.validate import TOL, check_shape
 
 __all__ = [
@@ -272,34 +272,20 @@ def _quiet_colmap() -> Iterator[None]:
     # 3 = FATAL only: COLMAP's own ERROR lines ("Failed to create any sparse model") are
     # reported by run_sfm's ValueError, as one line; -vv (DEBUG) shows them all.
     pycolmap.logging.minloglevel = 3
+    captured = None
     try:
-        saved = os.dup(2)
-    except OSError:  # no fd 2 (embedded interpreter): the log level is all there is
-        saved = None
-    try:
-        if saved is None:
+        # fd 2 itself, shared with any other thread's capture (matching.fd_capture)
+        with captured_fd2() as captured:
             yield
-            return
-        with tempfile.TemporaryFile() as sink:
-            sys.stderr.flush()
-            os.dup2(sink.fileno(), 2)
-            try:
-                yield
-            finally:
-                sys.stderr.flush()
-                os.dup2(saved, 2)
-                sink.seek(0)
-                text = sink.read(1 << 20).decode("utf-8", "replace")
-                # a coloured glog line's reset code starts the next line: dropped with it
-                kept = [_ANSI_LEAD.sub("", line) for line in text.splitlines(keepends=True)
-                        if not _GLOG_LINE.match(line)]
-                kept = [line for line in kept if line.strip()]
-                if kept:
-                    os.write(2, "".join(kept).encode())
     finally:
-        if saved is not None:
-            os.close(saved)
         pycolmap.logging.minloglevel = previous
+        # a coloured glog line's reset code starts the next line: dropped with it
+        text = captured.text if captured is not None else ""
+        kept = [_ANSI_LEAD.sub("", line) for line in text.splitlines(keepends=True)
+                if not _GLOG_LINE.match(line)]
+        kept = [line for line in kept if line.strip()]
+        if kept:
+            os.write(2, "".join(kept).encode())
 
 
 def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = None,

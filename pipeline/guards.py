@@ -30,13 +30,13 @@ import contextlib
 import os
 import stat
 import struct
-import tempfile
 import tomllib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
+from matching.fd_capture import Captured, captured_fd2
 from pipeline.errors import InputError
 
 #: Largest |coordinate| accepted, in scene units.  Geometry forms products of up
@@ -500,41 +500,22 @@ def check_output(out: str | os.PathLike, inputs: Iterable[str | os.PathLike | No
 # --------------------------------------------------------------------------- native stderr
 
 
-class Captured:
-    """What a native library wrote to file descriptor 2 inside :func:`native_stderr`."""
-
-    text: str = ""
-
-
 @contextlib.contextmanager
 def native_stderr() -> Iterator[Captured]:
     """Capture C-level writes to file descriptor 2 (open3d's RPly, libpng, tinyobj).
 
     ``VerbosityLevel`` and ``cv2.setLogLevel`` do not reach every native line;
-    this redirects the descriptor itself (``os.dup2``) to a temporary file and
-    restores it on exit.  The captured text is on the yielded object's
-    ``text`` after the block (writers check it for failure lines); it is
-    printed again only with ``PHOTOSURF_NATIVE_STDERR=1``.
+    this redirects the descriptor itself to a temporary file for the block
+    (:func:`matching.fd_capture.captured_fd2`: one redirection shared by every
+    thread, so concurrent readers -- the view-pair threads reading images --
+    cannot leave fd 2 pointing at a closed file).  The captured text is on the
+    yielded object's ``text`` after the block (writers check it for failure
+    lines); it is printed again only with ``PHOTOSURF_NATIVE_STDERR=1``.
     """
-    captured = Captured()
-    try:
-        saved = os.dup(2)
-    except OSError:  # no fd 2 (embedded interpreter): nothing to capture
+    with captured_fd2() as captured:
         yield captured
-        return
-    try:
-        with tempfile.TemporaryFile() as sink:
-            os.dup2(sink.fileno(), 2)
-            try:
-                yield captured
-            finally:
-                os.dup2(saved, 2)
-                sink.seek(0)
-                captured.text = sink.read(1 << 20).decode("utf-8", "replace")
-        if captured.text and os.environ.get("PHOTOSURF_NATIVE_STDERR"):
-            os.write(2, captured.text.encode())
-    finally:
-        os.close(saved)
+    if captured.text and os.environ.get("PHOTOSURF_NATIVE_STDERR"):
+        os.write(2, captured.text.encode())
 
 
 # --------------------------------------------------------------------------- writes
