@@ -187,14 +187,19 @@ MIN_TRIANGULATION_ANGLE_DEG = 1.5
 
 def _prepare(image_dir, names: dict) -> dict:
     from matching.lsm import prepare_image
+    from matching.masks import grey
 
     image_dir = Path(image_dir)
     prepared = {}
     for i, name in names.items():
-        grey = cv2.imread(str(image_dir / name), cv2.IMREAD_GRAYSCALE)
-        if grey is None:
+        # the pixels as stored, as COLMAP reads them (its keypoints' frame): IMREAD_GRAYSCALE
+        # would turn a JPEG by its EXIF orientation (a phone's portrait shot) under them
+        image = cv2.imread(str(image_dir / name), cv2.IMREAD_UNCHANGED)
+        if image is None or image.ndim not in (2, 3):
             raise ValueError(f"{image_dir / name}: not a readable image")
-        prepared[i] = prepare_image(grey.astype(np.float64))
+        if image.dtype != np.uint8:   # 16-bit, float: onto 0..255 (pipeline.inputs' rule)
+            image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        prepared[i] = prepare_image(grey(image))
     return prepared
 
 

@@ -86,3 +86,37 @@ def test_quiet_colmap_drops_glog_lines_keeps_the_rest(capfd):
         os.write(2, b"\x1b[0;33mW20261201 23:37:03.558940 1 lm.cc:123] Linear solver failure.\n")
         os.write(2, b"\x1b[mplain line\n")
     assert capfd.readouterr().err == "plain line\n"
+
+
+def exif_jpeg(image: np.ndarray, orientation: int) -> bytes:
+    """JPEG bytes of ``image`` with an EXIF APP1 segment holding only Orientation
+    (tag 0x0112; 6 = "turn 90° clockwise to view", as a phone writes for a portrait shot)."""
+    import struct
+
+    ok, buffer = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    tiff = (b"II*\x00" + struct.pack("<I", 8) + struct.pack("<H", 1)
+            + struct.pack("<HHIHH", 0x0112, 3, 1, orientation, 0) + struct.pack("<I", 0))
+    payload = b"Exif\x00\x00" + tiff
+    data = buffer.tobytes()
+    return data[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + data[2:]
+
+
+def test_tie_point_images_are_in_colmaps_pixel_frame(tmp_path):
+    """An EXIF-oriented JPEG: the LSM re-measurement reads the pixels as stored, as
+    COLMAP does (its keypoints' frame), not turned by the tag (IMREAD_GRAYSCALE turned
+    this 64x48 image to 48x64 under the keypoints)."""
+    import pycolmap
+
+    from matching.sfm import _check_images
+    from matching.sfm_refine import _prepare
+
+    image = np.zeros((48, 64, 3), np.uint8)
+    image[:10, :20] = 200
+    (tmp_path / "portrait.jpg").write_bytes(exif_jpeg(image, 6))
+    bitmap = pycolmap.Bitmap.read(str(tmp_path / "portrait.jpg"), False)
+    assert (bitmap.width, bitmap.height) == (64, 48)
+    prepared = _prepare(tmp_path, {0: "portrait.jpg"})[0]
+    assert prepared.raw.shape == (48, 64)
+    assert float(prepared.raw[:10, :20].mean()) > 150   # the bright corner stays top left
+    assert _check_images(tmp_path, ["portrait.jpg"]) == {(64, 48)}

@@ -52,3 +52,22 @@ def test_calibrate_bad_input(board_folder, tmp_path, capsys):
                    "--square", str(SQUARE), "--out", str(out)])
     assert status == 2 and "matches no file" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob(".rig*"))
+
+
+def test_every_image_reader_keeps_the_stored_pixel_frame(tmp_path):
+    """A phone's portrait JPEG (EXIF Orientation 6): calibration reads it as the
+    matching commands and COLMAP do, the pixels as stored (cv2.IMREAD_GRAYSCALE alone
+    turned it, so a rig would have been calibrated in a frame its views are not read in)."""
+    import numpy as np
+
+    from pipeline.cmd_calibrate import _read_gray
+    from pipeline.inputs import read_image
+    from tests.matching.test_sfm_refine import exif_jpeg
+
+    image = np.zeros((48, 64, 3), np.uint8)
+    image[:10, :20] = 200
+    path = tmp_path / "portrait.jpg"
+    path.write_bytes(exif_jpeg(image, 6))
+    assert _read_gray(path).shape == (48, 64)
+    assert read_image(path).shape == (48, 64, 3)
+    assert float(_read_gray(path)[:10, :20].mean()) > 150
