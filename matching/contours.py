@@ -53,6 +53,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from matching.cameras import Camera
+from matching.masks import bilinear
 
 __all__ = ["OutlinePoints", "outline_points", "edge_points"]
 
@@ -150,8 +151,7 @@ def edge_points(grey, mask) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(lo, hi + 1e-9, PROFILE_STEP_PX, dtype=np.float32)
     mapx = (xs[:, None] + nx[:, None] * t[None, :]).astype(np.float32)
     mapy = (ys[:, None] + ny[:, None] * t[None, :]).astype(np.float32)
-    prof = cv2.remap(g, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    prof = prof.astype(np.float64)
+    prof = bilinear(g, np.stack([mapx, mapy], axis=-1))            # (E, len(t))
     outer = (t >= OUTER_PX[0]) & (t <= OUTER_PX[1])
     innr = (t >= INNER_PX[0]) & (t <= INNER_PX[1])
     b = np.median(prof[:, outer], axis=1)

@@ -249,24 +249,46 @@ def near_foreground(points, sigma, cameras: Sequence, distances: Sequence,
         inside = (depth > 0) & (x[:, 0] >= 0) & (x[:, 0] <= w - 1) & (x[:, 1] >= 0) \
             & (x[:, 1] <= h - 1)
         idx = np.flatnonzero(inside)
-        d = _bilinear(dist, x[idx])
+        d = bilinear(dist, x[idx])
         focal = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
         tol = _RASTER_PX + quantile * sigma[idx] * focal / depth[idx]
         keep[idx[~(d <= tol)]] = False
     return keep
 
 
-def _bilinear(image: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``image`` (H, W) at ``x`` (M, 2) px inside [0, W-1] x [0, H-1]
-    (``cv2.remap``, linear, float32 positions: within 1e-5 of the exact bilinear value on
-    unit-variance pixels, far below the test's ≥ 0.7 px tolerance)."""
-    count = len(x)
+#: Rows of one ``cv2.remap`` call: its map is an image, fewer than 2^15 rows and columns.
+REMAP_MAX_ROWS = 32_000
+#: Positions per row of :func:`bilinear`'s maps.
+REMAP_ROW = 1024
+
+
+def bilinear(image: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` (H, W) at positions ``x`` (..., 2) px (x, y), any count.
+
+    ``cv2.remap`` (linear, replicated border, float32 positions: within 1e-5 of the exact
+    bilinear value on unit-variance pixels); its map is an image of fewer than 2^15 rows,
+    so the positions go as rows of :data:`REMAP_ROW`, at most :data:`REMAP_MAX_ROWS`
+    rows a call (an object outline of a 5-megapixel view holds more than 2^15 edge
+    pixels: one map of a row per edge pixel failed there).
+
+    Returns
+    -------
+    (...) float64
+        ``x``'s shape less its last axis.
+    """
+    x = np.asarray(x, dtype=np.float32)
+    shape = x.shape[:-1]
+    flat = x.reshape(-1, 2)
+    count = len(flat)
     if not count:
-        return np.zeros(0)
-    # remap's map is an image (fewer than 2^15 rows): the positions as rows of 1024
-    rows = -(-count // 1024)
-    coords = np.zeros((rows * 1024, 2), np.float32)
-    coords[:count] = x
-    out = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), coords.reshape(rows, 1024, 2),
-                    None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1)[:count].astype(np.float64)
+        return np.zeros(shape)
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    rows = -(-count // REMAP_ROW)
+    coords = np.zeros((rows * REMAP_ROW, 2), np.float32)
+    coords[:count] = flat
+    coords = coords.reshape(rows, REMAP_ROW, 2)
+    out = np.concatenate([
+        cv2.remap(img, coords[r:r + REMAP_MAX_ROWS], None, cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE).reshape(-1)
+        for r in range(0, rows, REMAP_MAX_ROWS)])
+    return out[:count].astype(np.float64).reshape(shape)

@@ -57,3 +57,24 @@ def test_outline_points_are_empty_without_masks_or_points():
     img = _disk()
     out = outline_points([img], [None], [None], np.zeros((0, 3)), np.zeros(0))
     assert len(out) == 0
+
+
+def test_edge_points_of_an_outline_longer_than_remaps_map():
+    """More than 2^15 edge pixels (a 5-megapixel view's outline): the profiles are sampled
+    in pieces (``cv2.remap``'s map is an image of fewer than 2^15 rows; one row per edge
+    pixel failed there) and the edges still lie on the disks' circles."""
+    size, step, radius = 1600, 50, 20.3
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    cx, cy = (np.round((x - 24.6) / step) * step + 24.6, np.round((y - 25.2) / step) * step + 25.2)
+    r = np.hypot(x - cx, y - cy)
+    inside = 1.0 / (1.0 + np.exp((r - radius) / 0.45))          # a blurred step at `radius`
+    texture = 130.0 + 50.0 * np.sin(x / 3.1) * np.cos(y / 4.3)
+    img = (20.0 + (texture - 20.0) * inside).astype(np.float32)
+    img += np.random.default_rng(0).normal(0, 1.0, img.shape).astype(np.float32)
+    mask = img > 60
+    edge, _ = edge_points(img, mask)
+    assert len(edge) > 2 ** 15
+    cxe = np.round((edge[:, 0] - 24.6) / step) * step + 24.6
+    cye = np.round((edge[:, 1] - 25.2) / step) * step + 25.2
+    re = np.hypot(edge[:, 0] - cxe, edge[:, 1] - cye)
+    assert abs(np.median(re) - radius) < 0.1

@@ -268,3 +268,22 @@ def test_silhouette_consistency_with_the_automatic_foreground():
     assert not near_foreground(planted, np.full(len(planted), 1e-4), cams, dist, 3.29).any()
     textured = [_render_sphere(c, "textured", rng) for c in cams[:2]]
     assert _foreground_distances(2, lambda v: textured[v]) == [None, None]
+
+
+def test_bilinear_samples_any_count_in_pieces(monkeypatch):
+    """masks.bilinear against the exact bilinear value, across several remap calls."""
+    from matching import masks
+
+    rng = np.random.default_rng(3)
+    image = rng.normal(0, 1, (40, 50))
+    x = rng.uniform([0, 0], [49, 39], (5000, 3, 2))
+    monkeypatch.setattr(masks, "REMAP_MAX_ROWS", 2)               # 5 x 3 000 -> 8 calls
+    got = masks.bilinear(image, x)
+    x0, y0 = np.floor(x[..., 0]).astype(int), np.floor(x[..., 1]).astype(int)
+    x1, y1 = np.minimum(x0 + 1, 49), np.minimum(y0 + 1, 39)
+    fx, fy = x[..., 0] - x0, x[..., 1] - y0
+    exact = ((1 - fx) * (1 - fy) * image[y0, x0] + fx * (1 - fy) * image[y0, x1]
+             + (1 - fx) * fy * image[y1, x0] + fx * fy * image[y1, x1])
+    assert got.shape == (5000, 3)
+    assert np.max(np.abs(got - exact)) < 1e-3
+    assert masks.bilinear(image, np.zeros((0, 2))).shape == (0,)
