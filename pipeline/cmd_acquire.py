@@ -130,6 +130,8 @@ def run(args: argparse.Namespace) -> int:
     if not getattr(args, "quiet", False):
         st = cloud.stats
         extra = (f"; SfM left out {', '.join(st['unregistered'])}" if st["unregistered"] else "")
+        if st.get("skipped_views"):
+            extra += f"; {len(st['skipped_views'])} view(s) left out"
         if st.get("pairs_skipped"):
             extra += f"; {st['pairs_skipped']} pair(s) skipped"
         print(f"{st['views']} views ({st['camera_source']}), {st['pairs']} pairs: "

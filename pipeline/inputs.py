@@ -192,9 +192,10 @@ class FolderImages(Sequence):
 
     lazy = True
 
-    def __init__(self, where: Path, names: list[str]):
+    def __init__(self, where: Path, names: list[str], shapes: list[tuple] | None = None):
         self.paths = [Path(where) / name for name in names]
-        self.shapes = [read_image(path).shape for path in self.paths]
+        self.shapes = ([read_image(path).shape for path in self.paths] if shapes is None
+                       else list(shapes))
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -225,14 +226,39 @@ def _camera_source(folder: Path, where: Path, cameras: str | None) -> Path | Non
     return None
 
 
-def _match_cameras(cams: list, names: list[str], source: Path) -> list:
+def _match_cameras(cams: list, names: list[str], source: Path) -> tuple[list, str | None]:
+    """Each image's camera by file name (None where the file has none), and the one-line
+    reason naming the images without one (None when every image has its camera)."""
     by_name = {Path(c.name).name: c for c in cams if c.name}
-    if all(n in by_name for n in names):
-        return [by_name[n] for n in names]
     missing = [n for n in names if n not in by_name]
-    raise InputError(f"{source}: no camera for image(s) {', '.join(missing[:5])}"
-                     f"{' ...' if len(missing) > 5 else ''} ({len(cams)} cameras: "
-                     f"{', '.join(sorted(by_name)[:3])}{' ...' if len(by_name) > 3 else ''})")
+    reason = None if not missing else (
+        f"{source}: no camera for image(s) {', '.join(missing[:5])}"
+        f"{' ...' if len(missing) > 5 else ''} ({len(cams)} cameras: "
+        f"{', '.join(sorted(by_name)[:3])}{' ...' if len(by_name) > 3 else ''})")
+    return [by_name.get(n) for n in names], reason
+
+
+def _readable_images(where: Path, names: list[str]) -> tuple[list[str], list, list[dict]]:
+    """The images that can be read (names, shapes) and the views left out with the
+    one-line reason of each (:func:`read_image`'s)."""
+    kept, shapes, skipped = [], [], []
+    for name in names:
+        try:
+            shapes.append(read_image(where / name).shape)
+        except InputError as exc:
+            skipped.append({"view": name, "reason": str(exc)})
+            continue
+        kept.append(name)
+    return kept, shapes, skipped
+
+
+def _enough_views(names: list[str], skipped: list[dict], where: Path) -> None:
+    """Two views at least: else the first left-out view's reason is the error."""
+    if len(names) >= 2:
+        return
+    if skipped:
+        raise InputError(skipped[0]["reason"])
+    raise InputError(f"{where}: need at least 2 images, found {len(names)}")
 
 
 def load_folder(folder: str | Path, cameras: str | None = None,
@@ -251,7 +277,16 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         ``images`` (:class:`FolderImages`, read on access), ``cameras`` (list of
         Camera, same order), ``names``,
         ``camera_source`` (path or ``"sfm"``), ``ignored`` (other files),
-        ``unregistered`` (images SfM could not place, left out), ``sfm`` (its report).
+        ``unregistered`` (images SfM could not place, left out), ``sfm`` (its report),
+        ``skipped_views`` (``[{"view": name, "reason": one line}]``: images left out
+        because they cannot be read, have no camera in the camera file or not its size;
+        each also a warning).
+
+    Raises
+    ------
+    InputError
+        Fewer than two usable views (the first left-out view's reason), images of
+        different sizes without cameras, a camera file that cannot be read.
     """
     from matching.cameras import read_cameras
 
@@ -259,20 +294,32 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     where, names, others = image_dir(folder)
     if len(names) < 2:
         raise InputError(f"{where}: need at least 2 images, found {len(names)} ({names[0]})")
-    images = FolderImages(where, names)
-    sizes = {(shape[1], shape[0]) for shape in images.shapes}
+    # one bad view is left out with its reason, not fatal (an unreadable or truncated
+    # file, a camera of another size, no camera for it); fewer than two views left fail
+    names, shapes, skipped = _readable_images(where, names)
+    _enough_views(names, skipped, where)
+    sizes = {(shape[1], shape[0]) for shape in shapes}
     source = _camera_source(folder, where, cameras)
-    out = {"ignored": others, "unregistered": [], "sfm": None}
+    out = {"ignored": others, "unregistered": [], "sfm": None, "skipped_views": skipped}
     if source is not None:
         try:
             cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)))
         except ValueError as exc:
             raise InputError(f"{source}: {exc}") from None
-        cams = _match_cameras(cams, names, source)
-        for name, shape, cam in zip(names, images.shapes, cams, strict=True):
-            if (shape[1], shape[0]) != cam.size:
-                raise InputError(f"{where / name}: image is {shape[1]}x{shape[0]} px but "
-                                 f"its camera in {source} is {cam.size[0]}x{cam.size[1]} px")
+        cams, no_camera = _match_cameras(cams, names, source)
+        keep = []
+        for k, (name, shape, cam) in enumerate(zip(names, shapes, cams, strict=True)):
+            if cam is None:
+                skipped.append({"view": name, "reason": no_camera})
+            elif (shape[1], shape[0]) != cam.size:
+                skipped.append({"view": name, "reason": (
+                    f"{where / name}: image is {shape[1]}x{shape[0]} px but its camera in "
+                    f"{source} is {cam.size[0]}x{cam.size[1]} px")})
+            else:
+                keep.append(k)
+        names, shapes, cams = ([seq[k] for k in keep] for seq in (names, shapes, cams))
+        _enough_views(names, skipped, where)
+        images = FolderImages(where, names, shapes)
         out["camera_source"] = str(source)
     else:
         if len(sizes) > 1:
@@ -280,6 +327,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
                              "cameras to say so (give --cameras)")
         from matching.sfm import run_sfm
 
+        images = FolderImages(where, names, shapes)
         result = run_sfm(where, work_dir=sfm_work_dir, image_names=names,
                          camera_model=camera_model)
         if len(result.registered) < 2:
@@ -294,6 +342,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         if result.unregistered:
             log.warning("SfM did not register %s; left out", ", ".join(result.unregistered))
         names = keep
+    for skip in skipped:
+        log.warning("view %s left out: %s", skip["view"], skip["reason"])
     out.update(images=images, cameras=cams, names=names)
     return out
 

@@ -105,6 +105,8 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
     info = {"cameras": "pycolmap SfM" if source == "sfm" else Path(str(source)).name,
             "views": len(stats.get("view_names", [])), "pairs": len(cloud.pairs),
             "pairs_skipped": len(skipped),
+            **({"views_skipped": "; ".join(s["reason"] for s in stats["skipped_views"])}
+               if stats.get("skipped_views") else {}),
             **({"skipped": "; ".join(f"{' - '.join(s['views'])}: {s['reason']}"
                                      for s in skipped)} if skipped else {}),
             "masks": stats.get("masks", "none"), "search_range": stats.get("search", ""),

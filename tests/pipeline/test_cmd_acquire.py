@@ -220,3 +220,28 @@ def test_outputs_are_byte_reproducible(scene, tmp_path, capsys):
     time.sleep(2.1)  # zip dates have 2 s resolution
     assert main(["acquire", str(folder), "--out", str(second), "--spacing", "8"]) == 0
     assert first.with_suffix(".npz").read_bytes() == second.with_suffix(".npz").read_bytes()
+
+
+def test_bad_views_are_left_out_with_their_reason(scene, tmp_path, capsys, caplog):
+    # three good views of the arc, one truncated file, one of the wrong size and one
+    # without a camera: the run goes on over the three good ones, each bad view is one
+    # warning naming its file and problem, and the summary counts them
+    folder = _views_folder(scene, tmp_path / "bad", 3)
+    good = cv2.imread(str(scene / "images" / "view_03.png"), cv2.IMREAD_UNCHANGED)
+    png = (scene / "images" / "view_04.png").read_bytes()
+    (folder / "view_04.png").write_bytes(png[: len(png) // 3])  # truncated
+    cv2.imwrite(str(folder / "view_03.png"), good[: good.shape[0] // 2])  # wrong size
+    cv2.imwrite(str(folder / "extra.png"), good)  # no camera in cameras.yml
+    out = tmp_path / "c.ply"
+    assert main(["acquire", str(folder), "--out", str(out), "--spacing", "8"]) == 0
+    captured = capsys.readouterr()
+    assert "3 views" in captured.out and "3 view(s) left out" in captured.out
+    warnings = [r.getMessage() for r in caplog.records
+                if r.levelname == "WARNING" and "left out" in r.getMessage()]
+    assert len(warnings) == 3, warnings
+    for name, problem in (("view_04.png", "readable"), ("view_03.png", "px but its camera"),
+                          ("extra.png", "no camera for image(s) extra.png")):
+        assert any(name in w and problem in w for w in warnings), (name, warnings)
+    with np.load(out.with_suffix(".npz")) as data:
+        assert sorted(data["view_names"]) == ["view_00.png", "view_01.png", "view_02.png"]
+    assert len(read_ply(out)) > 100
