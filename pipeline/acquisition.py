@@ -129,7 +129,8 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
         raise InputError(f"{folder}: {exc}") from None
     cloud.stats.update(camera_source=loaded["camera_source"],
                        unregistered=loaded["unregistered"], ignored=loaded["ignored"],
-                       skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"], view_names=loaded["names"], masks=mask_source,
+                       skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"],
+                       view_names=loaded["names"], masks=mask_source,
                        ring=fit_ring(loaded["cameras"]).as_dict())
     for skip in cloud.stats.get("skipped", []):
         log.warning("acquire: pair %s skipped: %s", " - ".join(skip["views"]), skip["reason"])
