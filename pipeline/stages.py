@@ -89,6 +89,23 @@ def _densify_info(densify: dict | None) -> dict:
             "densified_share": round(float(densify["share"]), 4)}
 
 
+def _sfm_info(sfm: dict | None, views: int) -> dict:
+    """SfM's registration figures for the manifest and the report (``SfmResult.report``):
+    views registered of those it was given, sparse points, mean reprojection error (before
+    and after the LSM re-measured tie points when refined), and the frame's scale."""
+    if not sfm:
+        return {}
+    info = {"sfm_registered": f"{sfm['registered']} of {views}",
+            "sfm_sparse_points": int(sfm["sparse_points"]),
+            "sfm_reprojection_px": round(float(sfm["mean_reprojection_error_px"]), 3),
+            "sfm_scale": "fixed" if sfm["scale"] == "fixed" else "arbitrary"}
+    refinement = sfm.get("refinement") or {}
+    if refinement.get("method") == "lsm":
+        info["sfm_reprojection_before_lsm_px"] = round(
+            float(refinement["reprojection_before_px"]), 3)
+    return info
+
+
 def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
     """``pipeline.acquisition.acquire_folder`` (the same loading, checks and method as
     ``photosurf acquire``); view pairs on the executor."""
@@ -113,6 +130,8 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
             "variance_factor": round(float(stats.get("variance_factor_median", 1.0)), 2),
             "ring": bool(stats.get("ring", {}).get("is_ring", False)),
             **_densify_info(stats.get("densify")),
+            **_sfm_info(stats.get("sfm"), len(stats.get("view_names", []))
+                        + len(stats.get("unregistered", []))),
             **{f"reason_{k}": v for k, v in cloud.reason_counts.items()}}
     return cloud, info
 

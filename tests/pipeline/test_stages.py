@@ -127,3 +127,23 @@ def test_curves_store_the_noise_and_stitch_adds_support_rings_at_the_rims(vase, 
     _run(path, tmp_path / "off", "stitch.support=false")
     notes = json.loads((tmp_path / "off" / "stitch" / "stitch.json").read_text())
     assert not any("support rings" in m for m in notes["messages"])
+
+
+def test_sfm_registration_reaches_the_manifest():
+    # an SfM-posed folder's acquire stage carries SfM's own figures (issue 12 item 8):
+    # views registered of those given, sparse points, reprojection before / after the
+    # LSM tie points, the frame's scale; a folder with its cameras carries none
+    from matching.sfm import SfmResult
+    from pipeline.stages import _sfm_info
+
+    result = SfmResult(cameras=[], points=np.zeros((4211, 3)),
+                       track_length=np.full(4211, 3), colors=np.zeros((4211, 3), np.uint8),
+                       registered=[f"v{k}.png" for k in range(13)],
+                       unregistered=["v13.png", "v14.png", "v15.png"],
+                       mean_reprojection_error_px=0.0412,
+                       refinement={"method": "lsm", "reprojection_before_px": 0.2137})
+    info = _sfm_info(result.report(), 13 + 3)
+    assert info == {"sfm_registered": "13 of 16", "sfm_sparse_points": 4211,
+                    "sfm_reprojection_px": 0.041, "sfm_reprojection_before_lsm_px": 0.214,
+                    "sfm_scale": "arbitrary"}
+    assert _sfm_info(None, 16) == {}
