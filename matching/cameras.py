@@ -76,6 +76,7 @@ __all__ = [
     "read_cameras",
     "rotation_to_quaternion",
     "quaternion_to_rotation",
+    "turn_camera",
 ]
 
 #: cv2.undistortPoints stops after 5 iterations by default (errors of ~1e-3 px
@@ -709,6 +710,56 @@ def read_rig(path: str | os.PathLike, extrinsics: str | os.PathLike | None = Non
     if intr == path:
         raise ValueError(f"{path}: extrinsics only; give the intrinsics file (M1 D1 M2 D2)")
     return read_stereo_calibration(intr, path, width, height, image)
+
+
+# ------------------------------------------------------------------ turned images
+#: np.rot90 turns the camera about its optical axis by -90 degrees (x_c' = y_c, y_c' = -x_c)
+_QUARTER_TURN = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def turn_camera(camera: Camera, quarter_turns: int) -> Camera:
+    """The camera of ``np.rot90(image, quarter_turns)`` (counter-clockwise quarter turns).
+
+    ``np.rot90`` maps pixel (x, y) of a W-wide image to (y, W - 1 - x) (``cv2.rotate``
+    with ROTATE_90_COUNTERCLOCKWISE does the same).  The turned image is exactly the
+    view of the same camera rolled about its optical axis: K becomes ``[[fy, -s, cy],
+    [0, fx, W - 1 - cx], [0, 0, 1]]`` (skew s = 0 required), R and t are premultiplied by
+    ``R_z = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]]``, width and height swap.  Radial
+    distortion (k1 k2 [k3 ...]) is symmetric about the principal point and is kept;
+    tangential or thin-prism terms would turn with the image and are refused.
+
+    Parameters
+    ----------
+    camera : Camera
+    quarter_turns : int
+        Any integer; taken modulo 4.
+
+    Returns
+    -------
+    Camera
+        Projects every world point to the turned image's pixel of the original's.
+
+    Raises
+    ------
+    ValueError
+        A camera with skew, or with non-radial distortion terms.
+    """
+    if abs(camera.K[0, 1]) > TOL.zero:
+        raise ValueError(f"camera {camera.name!r}: cannot turn a camera with skew "
+                         f"{camera.K[0, 1]}")
+    radial = {0: (), 4: (0, 1), 5: (0, 1, 4), 8: (0, 1, 4, 5, 6, 7)}.get(camera.dist.size)
+    other = np.delete(camera.dist, radial) if radial is not None else camera.dist
+    if radial is None or np.any(other != 0):
+        raise ValueError(f"camera {camera.name!r}: only radial distortion turns with the "
+                         f"image (got coefficients {camera.dist.tolist()})")
+    K, R, t = camera.K, camera.R, camera.t
+    width, height = camera.width, camera.height
+    for _ in range(int(quarter_turns) % 4):
+        K = np.array([[K[1, 1], 0.0, K[1, 2]], [0.0, K[0, 0], width - 1 - K[0, 2]],
+                      [0.0, 0.0, 1.0]])
+        R, t = _QUARTER_TURN @ R, _QUARTER_TURN @ t
+        width, height = height, width
+    return Camera(K, camera.dist, R, t, width, height, camera.name)
 
 
 # ------------------------------------------------------------------ quaternions

@@ -96,6 +96,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
         With ``points`` (N, 3), ``colours`` (N, 3) uint8 and ``sigma`` (N,) in scene
         units; its ``stats`` gain ``camera_source``, ``unregistered``, ``ignored``,
         ``skipped_views`` (``[{"view", "reason"}]``: images left out, one line each),
+        ``cameras`` (the views' Camera objects, in the cloud's frame),
         ``sfm``, ``view_names``, ``masks`` (where they came from), ``ring``
         (:func:`matching.ring.fit_ring` of the cameras, ``as_dict``).
     """
@@ -130,6 +131,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     cloud.stats.update(camera_source=loaded["camera_source"],
                        unregistered=loaded["unregistered"], ignored=loaded["ignored"],
                        skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"],
+                       cameras=loaded["cameras"],
                        view_names=loaded["names"], masks=mask_source,
                        ring=fit_ring(loaded["cameras"]).as_dict())
     for skip in cloud.stats.get("skipped", []):

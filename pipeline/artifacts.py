@@ -58,6 +58,7 @@ MESH = "mesh.ply"
 STITCH_NOTES = "stitch.json"
 SURFACE = "surface.ply"
 CONTROL_NET = "control_net.npz"
+CAMERAS = "cameras.yml"
 
 
 def _members(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -99,6 +100,21 @@ def write_cloud(folder: str | os.PathLike, points, colors=None,
 def read_cloud(folder: str | os.PathLike) -> dict[str, np.ndarray]:
     """The arrays of ``folder/cloud.npz`` (``points``, ``colors``, ``sigma``)."""
     return _members(Path(folder) / CLOUD)
+
+
+def write_cameras(folder: str | os.PathLike, cameras: Sequence) -> None:
+    """``folder/cameras.yml``: the cameras an image folder was matched with when SfM
+    posed it (the cloud's frame; OpenCV FileStorage, as ``--cameras`` reads it)."""
+    from matching.cameras import write_cameras_yml
+
+    write_cameras_yml(Path(folder) / CAMERAS, cameras)
+
+
+def read_cameras(folder: str | os.PathLike) -> list:
+    """The cameras of ``folder/cameras.yml`` (:func:`write_cameras`)."""
+    from matching.cameras import read_cameras_yml
+
+    return read_cameras_yml(Path(folder) / CAMERAS)
 
 
 # --------------------------------------------------------------------------- sections

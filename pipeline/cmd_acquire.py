@@ -16,16 +16,21 @@ checks mapped over :mod:`pipeline.executor` (``--scheduler`` for Dask).
 Writes ``CLOUD.ply`` (binary: x y z, red green blue, ``sigma`` float, scene units) and
 ``CLOUD.npz`` beside it (``points``, ``colours``, ``sigma``, ``views`` (N, V) bool,
 ``pair`` (N,) int64 (-1: fused from several pairs), ``pairs`` (P, 2), ``view_names``
-(V,), ``reason_names`` / ``reason_counts``); both appear together or not at all.
+(V,), ``reason_names`` / ``reason_counts``); with SfM poses also ``CLOUD.cameras.yml``,
+the cameras the cloud was matched with (its frame; give it to ``--cameras`` to reuse
+them).  They appear together or not at all.  Images of several sizes without cameras
+(portrait and landscape shots) are posed by SfM (:func:`matching.sfm.run_sfm`).
 
 Bad input (one line, exit 2, nothing written): missing or empty folder, fewer than 2
-images, an unreadable image file, images of different sizes without cameras that say
-so, cameras that do not cover the images, SfM that registers nothing.
+usable images, SfM that registers fewer than 2.  One bad view (an unreadable or
+truncated file, no camera for it in the cameras file, a size its camera does not
+have) is left out with a warning naming the file and its problem.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -75,15 +80,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "default in-process")
 
 
+def cameras_path(out: Path) -> Path:
+    """Where ``photosurf acquire --out CLOUD.ply`` writes the SfM cameras it used."""
+    return out.with_suffix(".cameras.yml")
+
+
 def write_outputs(out: Path, cloud) -> None:
-    """``out`` (.ply) and ``out.npz`` atomically, together."""
+    """``out`` (.ply) and ``out.npz`` atomically, together; with SfM poses also the
+    cameras they were matched with, ``out.cameras.yml`` (readable by ``--cameras``)."""
+    from matching.cameras import write_cameras_yml
     from matching.multiview import REASON_NAMES
     from pipeline.atomic import atomic_file, naming
     from pipeline.cloud_io import write_ply
     from pipeline.workspace import write_npz_to
 
     names = sorted(REASON_NAMES)
-    with atomic_file(out) as tmp_ply, atomic_file(out.with_suffix(".npz")) as tmp_npz:
+    sfm = cloud.stats.get("camera_source") == "sfm" and cloud.stats.get("cameras")
+    with contextlib.ExitStack() as stack:
+        tmp_ply = stack.enter_context(atomic_file(out))
+        tmp_npz = stack.enter_context(atomic_file(out.with_suffix(".npz")))
+        if sfm:
+            write_cameras_yml(stack.enter_context(atomic_file(cameras_path(out))),
+                              cloud.stats["cameras"])
         with naming(out.with_suffix(".npz")):  # each failure names its own file
             # byte-reproducible (np.savez stamps the time into the zip)
             write_npz_to(tmp_npz, points=cloud.points, colours=cloud.colours, sigma=cloud.sigma,

@@ -285,8 +285,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     Raises
     ------
     InputError
-        Fewer than two usable views (the first left-out view's reason), images of
-        different sizes without cameras, a camera file that cannot be read.
+        Fewer than two usable views (the first left-out view's reason), a camera file
+        that cannot be read, SfM registering fewer than two images.
     """
     from matching.cameras import read_cameras
 
@@ -322,9 +322,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         images = FolderImages(where, names, shapes)
         out["camera_source"] = str(source)
     else:
-        if len(sizes) > 1:
-            raise InputError(f"{where}: images of different sizes {sorted(sizes)} and no "
-                             "cameras to say so (give --cameras)")
+        # images of several sizes: SfM turns one sensor's portrait shots upright to share
+        # one camera with its landscape ones, else gives each image its own camera
         from matching.sfm import run_sfm
 
         images = FolderImages(where, names, shapes)

@@ -66,6 +66,8 @@ def acquire(ctx: StageContext) -> dict:
     ring = {**cloud.stats.get("ring", {}), "frame": "sfm" if info["cameras"] == "pycolmap SfM"
             else "given"}
     write_text(ctx.out / RING_FILE, json.dumps(ring, indent=1))
+    if ring["frame"] == "sfm":  # the cloud's frame: reusable as --cameras
+        artifacts.write_cameras(ctx.out, cloud.stats["cameras"])
     return {**out, **info}
 
 

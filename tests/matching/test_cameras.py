@@ -18,6 +18,7 @@ from matching.cameras import (
     read_rig,
     read_stereo_calibration,
     rotation_to_quaternion,
+    turn_camera,
     write_cameras_yml,
     write_colmap_text,
     write_rig,
@@ -44,6 +45,36 @@ def points_in_front(cam: Camera, rng, n=50, depth=4.0) -> np.ndarray:
     pix = rng.uniform([40, 40], [600, 440], size=(n, 2))
     _, d = cam.ray(pix)
     return cam.center + d * rng.uniform(0.7 * depth, 1.3 * depth, size=(n, 1))
+
+
+# ------------------------------------------------------------------ turned images
+@pytest.mark.parametrize("dist", [(), (-0.2, 0.08, 0.0, 0.0, -0.01)])
+@pytest.mark.parametrize("quarter_turns", [1, 2, 3, -1])
+def test_turned_camera_sees_the_turned_pixels(dist, quarter_turns):
+    # np.rot90 maps pixel (x, y) of a W-wide image to (y, W - 1 - x): the turned camera
+    # projects every point to that pixel of the original's projection (radial
+    # distortion included), to rounding
+    rng = np.random.default_rng(4)
+    cam = random_camera(rng, dist)
+    X = points_in_front(cam, rng)
+    x = cam.project(X)
+    expect = x.copy()
+    width = cam.width
+    for _ in range(quarter_turns % 4):
+        expect = np.c_[expect[:, 1], width - 1 - expect[:, 0]]
+        width = cam.height if width == cam.width else cam.width
+    turned = turn_camera(cam, quarter_turns)
+    assert np.abs(turned.project(X) - expect).max() < 1e-9
+    assert (turned.width, turned.height) == ((cam.height, cam.width) if quarter_turns % 2
+                                             else (cam.width, cam.height))
+    assert np.allclose(turned.center, cam.center, atol=1e-12)
+    assert turn_camera(turned, -quarter_turns).allclose(cam, atol=1e-12)
+
+
+def test_turning_refuses_tangential_distortion():
+    cam = random_camera(np.random.default_rng(5), DISTS[1])
+    with pytest.raises(ValueError, match="only radial distortion"):
+        turn_camera(cam, 1)
 
 
 # ------------------------------------------------------------------ validation

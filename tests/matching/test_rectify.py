@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from matching.cameras import Camera, StereoRig, read_cameras
+from matching.cameras import Camera, StereoRig, read_cameras, turn_camera
 from matching.multiview import reconstruct_multiview, select_pairs
 from matching.rectify import (
     left_to_rectified,
@@ -136,25 +136,19 @@ def test_select_pairs_returns_each_pair_once_whatever_the_rolls():
 # ------------------------------------------------------------------ rendered ring, turned
 def _turn(image: np.ndarray, camera: Camera, quarter_turns: int, pad: tuple[int, int],
           background: float):
-    """The image turned by ``quarter_turns`` x 90 degrees and padded, with its camera.
-
-    np.rot90 maps pixel (x, y) of a W-wide image to (y, W - 1 - x): K becomes
-    [[fy, 0, cy], [0, fx, W - 1 - cx]] and the camera turns by R_z = [[0, 1, 0], [-1, 0, 0],
-    [0, 0, 1]] about its axis (exact: the turned camera sees the same pixels).
-    """
-    K, R, t = camera.K.copy(), camera.R.copy(), camera.t.copy()
-    Rz = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    for _ in range(quarter_turns % 4):
-        w = image.shape[1]
-        image = np.ascontiguousarray(np.rot90(image))
-        K = np.array([[K[1, 1], 0.0, K[1, 2]], [0.0, K[0, 0], w - 1 - K[0, 2]], [0, 0, 1.0]])
-        R, t = Rz @ R, Rz @ t
+    """The image turned by ``quarter_turns`` x 90 degrees (np.rot90) and padded, with its
+    camera (:func:`matching.cameras.turn_camera`: exact, the turned camera sees the same
+    pixels)."""
+    image = np.ascontiguousarray(np.rot90(image, quarter_turns))
+    turned = turn_camera(camera, quarter_turns)
     px, py = pad
     image = cv2.copyMakeBorder(image, py, py, px, px, cv2.BORDER_CONSTANT,
                                value=[background] * 3)
+    K = turned.K.copy()
     K[0, 2] += px
     K[1, 2] += py
-    return image, Camera(K, camera.dist, R, t, image.shape[1], image.shape[0], camera.name)
+    return image, Camera(K, turned.dist, turned.R, turned.t, image.shape[1], image.shape[0],
+                         camera.name)
 
 
 @pytest.fixture(scope="module")

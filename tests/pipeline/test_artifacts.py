@@ -58,6 +58,23 @@ def test_cloud_round_trip_and_defaults(tmp_path, rng):
     assert np.isnan(bare["sigma"]).all()
 
 
+def test_cameras_round_trip(tmp_path, rng):
+    # SfM's cameras of mixed sizes (a portrait view among landscape ones), with distortion
+    import cv2
+
+    from matching.cameras import Camera
+
+    K = np.array([[1520.5, 0.0, 302.3], [0.0, 1520.5, 246.1], [0.0, 0.0, 1.0]])
+    cams = [Camera(K, [-0.02, 0.01, 0.0, 0.0], cv2.Rodrigues(rng.normal(size=3))[0],
+                   rng.normal(size=3), 640, 480, "a.png"),
+            Camera(K[[1, 0, 2]][:, [1, 0, 2]], [], np.eye(3), rng.normal(size=3), 480, 640,
+                   "b.jpg")]
+    artifacts.write_cameras(tmp_path, cams)
+    back = artifacts.read_cameras(tmp_path)
+    assert [c.name for c in back] == ["a.png", "b.jpg"]
+    assert all(b.allclose(c, rtol=0, atol=1e-12) for b, c in zip(back, cams, strict=True))
+
+
 def test_sections_round_trip_is_byte_reproducible(tmp_path, rng, frame):
     sections = _sections(rng, frame)
     cap = rng.normal(size=(9, 3))
