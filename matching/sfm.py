@@ -249,10 +249,6 @@ def _image_sizes(folder: Path, names: list[str]) -> dict[str, tuple[int, int]]:
     return sizes
 
 
-def _check_images(folder: Path, names: list[str]) -> set[tuple[int, int]]:
-    return set(_image_sizes(folder, names).values())
-
-
 def _turned_views(sizes: dict[str, tuple[int, int]]) -> dict[str, int]:
     """Images of one camera held both ways (portrait and landscape): the quarter turns
     (np.rot90) that bring each image of the less common orientation to the other's.
@@ -266,7 +262,7 @@ def _turned_views(sizes: dict[str, tuple[int, int]]) -> dict[str, int]:
         counts[size] = counts.get(size, 0) + 1
     if len(counts) != 2:
         return {}
-    (a, n_a), (b, n_b) = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0][1] > kv[0][0]))
+    (a, _), (b, _) = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0][1] > kv[0][0]))
     if a != (b[1], b[0]):
         return {}
     return {name: 1 for name, size in sizes.items() if size == b}
@@ -457,8 +453,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
     # portrait and landscape shots of one camera: matched turned upright with one camera
     turned = (_turned_views(by_name) if single_camera is None and intrinsics is None
               and camera_model != "OPENCV" else {})
-    if turned:
-        sizes = {max(sizes, key=lambda size: sum(v == size for v in by_name.values()))}
+    if turned:  # the images SfM sees: all of one size
+        sizes = {by_name[name] for name in names if name not in turned}
     if single_camera is None:
         single_camera = len(sizes) == 1
     elif single_camera and len(sizes) > 1:

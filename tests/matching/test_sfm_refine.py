@@ -108,7 +108,7 @@ def test_tie_point_images_are_in_colmaps_pixel_frame(tmp_path):
     this 64x48 image to 48x64 under the keypoints)."""
     import pycolmap
 
-    from matching.sfm import _check_images
+    from matching.sfm import _image_sizes
     from matching.sfm_refine import _prepare
 
     image = np.zeros((48, 64, 3), np.uint8)
@@ -119,4 +119,4 @@ def test_tie_point_images_are_in_colmaps_pixel_frame(tmp_path):
     prepared = _prepare(tmp_path, {0: "portrait.jpg"})[0]
     assert prepared.raw.shape == (48, 64)
     assert float(prepared.raw[:10, :20].mean()) > 150   # the bright corner stays top left
-    assert _check_images(tmp_path, ["portrait.jpg"]) == {(64, 48)}
+    assert _image_sizes(tmp_path, ["portrait.jpg"]) == {"portrait.jpg": (64, 48)}
