@@ -177,8 +177,8 @@ def read_images(where: Path, names: list[str]) -> list[np.ndarray]:
 class FolderImages(Sequence):
     """The images of a folder, read from disk on item access (bounded memory).
 
-    Every file is read once on construction to check it and record its shape, then
-    dropped; ``images[v]`` reads it again.  Pickles as its paths (a Dask task carries
+    Holds the paths and the shapes :func:`load_folder` recorded when it checked every
+    file; ``images[v]`` reads the file again.  Pickles as its paths (a Dask task carries
     the file names, not the pixels).  :func:`matching.multiview.reconstruct_multiview`
     recognises it by ``lazy`` and ``shapes``.
 
@@ -188,14 +188,15 @@ class FolderImages(Sequence):
         The folder.
     names : list of str
         Image file names, in camera order.
+    shapes : list of tuple
+        Each image's array shape, same order.
     """
 
     lazy = True
 
-    def __init__(self, where: Path, names: list[str], shapes: list[tuple] | None = None):
+    def __init__(self, where: Path, names: list[str], shapes: list[tuple]):
         self.paths = [Path(where) / name for name in names]
-        self.shapes = ([read_image(path).shape for path in self.paths] if shapes is None
-                       else list(shapes))
+        self.shapes = list(shapes)  # read once by load_folder, which checks every file
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -204,13 +205,6 @@ class FolderImages(Sequence):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         return read_image(self.paths[index])
-
-    def subset(self, indices: list[int]) -> FolderImages:
-        """The images at ``indices`` (no file is read again)."""
-        out = object.__new__(FolderImages)
-        out.paths = [self.paths[i] for i in indices]
-        out.shapes = [self.shapes[i] for i in indices]
-        return out
 
 
 def _camera_source(folder: Path, where: Path, cameras: str | None) -> Path | None:
@@ -226,16 +220,13 @@ def _camera_source(folder: Path, where: Path, cameras: str | None) -> Path | Non
     return None
 
 
-def _match_cameras(cams: list, names: list[str], source: Path) -> tuple[list, str | None]:
-    """Each image's camera by file name (None where the file has none), and the one-line
-    reason naming the images without one (None when every image has its camera)."""
+def _match_cameras(cams: list, names: list[str]) -> tuple[list, str]:
+    """Each image's camera by file name (None where the file has none), and what the
+    file holds, for the one-line reason of an image without one."""
     by_name = {Path(c.name).name: c for c in cams if c.name}
-    missing = [n for n in names if n not in by_name]
-    reason = None if not missing else (
-        f"{source}: no camera for image(s) {', '.join(missing[:5])}"
-        f"{' ...' if len(missing) > 5 else ''} ({len(cams)} cameras: "
-        f"{', '.join(sorted(by_name)[:3])}{' ...' if len(by_name) > 3 else ''})")
-    return [by_name.get(n) for n in names], reason
+    holds = (f"({len(cams)} cameras: {', '.join(sorted(by_name)[:3])}"
+             f"{' ...' if len(by_name) > 3 else ''})")
+    return [by_name.get(n) for n in names], holds
 
 
 def _readable_images(where: Path, names: list[str]) -> tuple[list[str], list, list[dict]]:
@@ -253,11 +244,15 @@ def _readable_images(where: Path, names: list[str]) -> tuple[list[str], list, li
 
 
 def _enough_views(names: list[str], skipped: list[dict], where: Path) -> None:
-    """Two views at least: else the first left-out view's reason is the error."""
+    """Two views at least: else the first left-out view's reason is the error, naming
+    the other views left out."""
     if len(names) >= 2:
         return
     if skipped:
-        raise InputError(skipped[0]["reason"])
+        others = [skip["view"] for skip in skipped[1:]]
+        raise InputError(skipped[0]["reason"] + (f"; also left out: {', '.join(others[:5])}"
+                                                 f"{' ...' if len(others) > 5 else ''}"
+                                                 if others else ""))
     raise InputError(f"{where}: need at least 2 images, found {len(names)}")
 
 
@@ -306,11 +301,12 @@ def load_folder(folder: str | Path, cameras: str | None = None,
             cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)))
         except ValueError as exc:
             raise InputError(f"{source}: {exc}") from None
-        cams, no_camera = _match_cameras(cams, names, source)
+        cams, holds = _match_cameras(cams, names)
         keep = []
         for k, (name, shape, cam) in enumerate(zip(names, shapes, cams, strict=True)):
             if cam is None:
-                skipped.append({"view": name, "reason": no_camera})
+                skipped.append({"view": name,
+                                "reason": f"{source}: no camera for image {name} {holds}"})
             elif (shape[1], shape[0]) != cam.size:
                 skipped.append({"view": name, "reason": (
                     f"{where / name}: image is {shape[1]}x{shape[0]} px but its camera in "
@@ -319,14 +315,12 @@ def load_folder(folder: str | Path, cameras: str | None = None,
                 keep.append(k)
         names, shapes, cams = ([seq[k] for k in keep] for seq in (names, shapes, cams))
         _enough_views(names, skipped, where)
-        images = FolderImages(where, names, shapes)
         out["camera_source"] = str(source)
     else:
         # images of several sizes: SfM turns one sensor's portrait shots upright to share
         # one camera with its landscape ones, else gives each image its own camera
         from matching.sfm import run_sfm
 
-        images = FolderImages(where, names, shapes)
         result = run_sfm(where, work_dir=sfm_work_dir, image_names=names,
                          camera_model=camera_model)
         if len(result.registered) < 2:
@@ -334,7 +328,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
                              f"{len(names)} images; need 2")
         keep = [n for n in names if n in set(result.registered)]
         by_name = {c.name: c for c in result.cameras}
-        images = images.subset([names.index(n) for n in keep])
+        shapes = [shapes[names.index(n)] for n in keep]
         cams = [by_name[n] for n in keep]
         out.update(camera_source="sfm", unregistered=list(result.unregistered),
                    sfm=result.report())
@@ -343,7 +337,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         names = keep
     for skip in skipped:
         log.warning("view %s left out: %s", skip["view"], skip["reason"])
-    out.update(images=images, cameras=cams, names=names)
+    out.update(images=FolderImages(where, names, shapes), cameras=cams, names=names)
     return out
 
 

@@ -156,7 +156,7 @@ def test_bad_input_exits_2_with_one_line(case, scene, tmp_path, capsys):
         cv2.imwrite(str(folder / "view_00.png"), img)
         cv2.imwrite(str(folder / "other.png"), img)
         shutil.copy(scene / "cameras.yml", folder)
-        expect = "no camera for image(s) other.png"
+        expect = "no camera for image other.png (24 cameras"
     else:
         for k in range(2):
             shutil.copy(scene / "images" / f"view_{k:02d}.png", folder)
@@ -240,7 +240,7 @@ def test_bad_views_are_left_out_with_their_reason(scene, tmp_path, capsys, caplo
                 if r.levelname == "WARNING" and "left out" in r.getMessage()]
     assert len(warnings) == 3, warnings
     for name, problem in (("view_04.png", "readable"), ("view_03.png", "px but its camera"),
-                          ("extra.png", "no camera for image(s) extra.png")):
+                          ("extra.png", "no camera for image extra.png (24 cameras")):
         assert any(name in w and problem in w for w in warnings), (name, warnings)
     with np.load(out.with_suffix(".npz")) as data:
         assert sorted(data["view_names"]) == ["view_00.png", "view_01.png", "view_02.png"]
