@@ -99,7 +99,6 @@ def run(args: argparse.Namespace) -> int:
     elif not args.quiet:
         print(f"photosurf run: {summary.kind} input -> {summary.outdir}")
         print(summary.table())
-        report = summary.outdir / "report.html"
-        if report.is_file():
-            print(f"report: {report}")
+        if summary.report is not None:
+            print(f"report: {summary.report}")
     return 0

@@ -126,13 +126,23 @@ class RunSummary:
     def ok(self) -> bool:
         return all(s.status != "failed" for s in self.stages)
 
-    def to_dict(self) -> dict:
+    @property
+    def report(self) -> Path | None:
+        """The workspace's report.html when this run made it or found it up to date;
+        None when the report stage was outside the run's range, blocked or failed (a file
+        left by an earlier run would describe other outputs)."""
         report = self.outdir / "report.html"
+        current = any(s.name == "report" and s.status in ("done", "up to date")
+                      for s in self.stages)
+        return report if current and report.is_file() else None
+
+    def to_dict(self) -> dict:
+        report = self.report
         return {
             "outdir": str(self.outdir),
             "kind": self.kind,
             "manifest": str(self.outdir / MANIFEST),
-            "report": str(report) if report.is_file() else None,
+            "report": str(report) if report is not None else None,
             "stages": [{"name": s.name, "status": s.status, "seconds": round(s.seconds, 4),
                         **({"reason": s.reason} if s.reason else {}),
                         **({"info": s.info} if s.info else {})} for s in self.stages],

@@ -118,6 +118,13 @@ def test_kill_9_then_rerun_gives_the_uninterrupted_result(cloud, tmp_path, cli_r
     cli_run("run", cloud, "--out", reference, *SMALL)  # uninterrupted, in this process
     expected = results(reference)
     assert {"stitch/mesh.ply", "smooth/surface.ply", "export/surface.ply"} <= set(expected)
+    assert json.loads(cli_run("run", cloud, "--out", reference, *SMALL, "--json").stdout
+                      )["report"] == str(reference / "report.html")   # up to date: current
+    # a run that stops before the report does not point at the earlier run's file
+    assert json.loads(cli_run("run", cloud, "--out", reference, *SMALL, "--to", "stitch",
+                              "--json").stdout)["report"] is None
+    assert "report:" not in cli_run("run", cloud, "--out", reference, *SMALL, "--to",
+                                    "stitch").stdout
 
     work = tmp_path / "work"
     args = ["run", cloud, "--out", work, *SMALL]
