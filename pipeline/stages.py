@@ -381,6 +381,7 @@ def smooth(ctx: StageContext) -> dict:
             info = {"size_step": sized.step, "size_n": sized.n,
                     "size_deviation": sized.deviation, "size_tolerance": sized.tolerance,
                     "size_error": sized.error, "size_noise": sized.noise,
+                    "size_within_goal": bool(sized.error <= sized.tolerance),
                     "size_variogram": sized.variogram.to_json() if sized.variogram else None,
                     "size_tried": sized.tried,
                     "control_triangles": len(triangles)}
