@@ -1082,7 +1082,11 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     Returns
     -------
     SizedMesh
-        The dense mesh itself (``step = 1, n = 0``) if no coarser candidate passes.
+        If no coarser candidate passes: the one estimated closest to the truth (the
+        fewest patches within one standard error of the closest estimate) when that
+        estimate is below the rings' sill (what the dense mesh's own smooth surface can
+        reach; its ``error`` then exceeds its ``tolerance``), else the dense mesh itself
+        (``step = 1, n = 0``).
 
     Raises
     ------
