@@ -65,7 +65,14 @@ from scipy.spatial import cKDTree
 
 from matching.consistency import forward_backward
 from matching.grow import grow_matches
-from matching.ici import ici_choice, ici_ladder, interval_sigmas, select_results
+from matching.ici import (
+    ici_choice,
+    ici_ladder,
+    interval_sigmas,
+    population_choice,
+    population_sides,
+    select_results,
+)
 from matching.lsm import DEFAULT_FOOTPRINT_VAR, LSMResult, lsm_match, prepare_image
 from matching.precision import midpoint_variance_factor
 from matching.seeds import disparity_range, select_points, sgbm_disparity
@@ -363,6 +370,7 @@ def graffiti(folder: Path, quick: bool, patch: int = GRAFFITI_PATCH) -> dict:
     t0 = time.perf_counter()
     grown = [res] + [_lsm_grown(fp, gp, pts, approx, init, side)[1].result
                      for side in ladder[1:]]
+    t_ladder = time.perf_counter() - t0  # the larger sides' passes, shared by both rules
     sig = [interval_sigmas(r, pts, side, None)[0] for r, side in zip(grown, ladder, strict=True)]
     choice = ici_choice(np.stack([r.position for r in grown]), np.stack(sig),
                         np.stack([r.accepted for r in grown]))
@@ -374,6 +382,27 @@ def graffiti(folder: Path, quick: bool, patch: int = GRAFFITI_PATCH) -> dict:
                        extra={"sides": {int(s): int(np.sum((choice >= 0) & (sides == s)))
                                         for s in ladder}}))
     _factor_figures(rows[-1], pts, ici, smooth, sides)
+    # the same sides by the population rule (matching.ici.population_sides, what
+    # match_pair(adaptive_patch="population") adds above Gruen's sides): the wall is one
+    # class, the image's variance factor is the 21 px side's
+    t0 = time.perf_counter()
+    k2 = interval_sigmas(res, pts, patch, None)[1]
+    accepted = np.stack([r.accepted for r in grown])
+    cap = population_sides(np.stack([r.position for r in grown]),
+                           np.stack([r.cov for r in grown]), accepted, k2,
+                           np.zeros(len(pts), np.int64), np.stack([r.sigma0 for r in grown]))
+    pop_choice = population_choice(accepted, np.full(len(pts), cap[0]))
+    population = select_results(grown, pop_choice)
+    pop_sides = np.asarray(ladder)[pop_choice]
+    rows.append(_judge(f"LSM + growing, population rule "
+                       f"({'/'.join(map(str, ladder))})",
+                       np.where(population.accepted[:, None], population.position, np.nan),
+                       truth, smooth, pts, time.perf_counter() - t0 + t_ladder + t_grown,
+                       n_cand, population.sigma,
+                       extra={"sides": {int(s): int(np.sum(population.accepted
+                                                           & (pop_sides == s)))
+                                        for s in ladder}}))
+    _factor_figures(rows[-1], pts, population, smooth, pop_sides)
     m = min(len(pts), 600 if quick else 3000)
     pick = np.random.default_rng(1).choice(len(pts), m, replace=False)
     t0 = time.perf_counter()

@@ -488,6 +488,12 @@ def real_figures(folder: Path, quick: bool, goals: dict,
                   f"lines {ici['parallax_split']['along_rms_px']:.3f} / "
                   f"{ici['parallax_split']['across_rms_px']:.3f} px")
             _graffiti_goals(goals, ici, " (ICI windows)")
+        pop = next((r for r in gr["rows"] if "population rule" in r["method"]), None)
+        if pop is not None:   # and with each point's window by the population rule
+            print(f"population rule (matching.ici.population_sides): sides {pop['sides']}; k² "
+                  f"{pop['variance_factor']:.1f}; residual / (σ k) "
+                  f"{pop['residual_over_sigma_with_factor']:.2f}")
+            _graffiti_goals(goals, pop, " (population rule)")
     if "temple" in sets and (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
         te = real.temple(folder / "temple_sparse_ring", quick)
         out["temple"] = te

@@ -9,7 +9,7 @@ import argparse
 from pipeline.errors import InputError
 
 #: ``--window`` -> ``match_pair(adaptive_patch=...)``.
-WINDOW_MODES = {"adaptive": True, "ici": "ici", "fixed": False}
+WINDOW_MODES = {"adaptive": True, "ici": "ici", "population": "population", "fixed": False}
 
 
 def add_match_options(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +30,10 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
                         help="LSM window per point: 'adaptive' (default: grown where the first "
                              "pass is less precise than the image's median), 'ici' (the side "
                              "of PATCH, ~1.5x, ~2x that agrees with every smaller one: for "
-                             "planar, richly textured scenes; ~3x the second pass), 'fixed'")
+                             "planar, richly textured scenes; ~3x the second pass), "
+                             "'population' (adaptive, then each window class grown to the "
+                             "largest of ~1.5x, ~2x PATCH its nested differences allow, "
+                             "windows clear of edges only; ~3x the second pass), 'fixed'")
 
 
 def match_options(args: argparse.Namespace) -> dict:

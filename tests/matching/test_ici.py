@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from matching.ici import ici_choice, lsm_match_ici, select_results
+from matching.ici import (
+    ici_choice,
+    lsm_match_ici,
+    nested_statistics,
+    population_choice,
+    population_sides,
+    select_results,
+)
 from matching.lsm import lsm_match
 from tests.matching.test_lsm import grid_points, start_near, truth_of, warped_pair
 
@@ -180,3 +187,89 @@ def test_match_pair_ici_sharpens_the_clear_windows_and_keeps_the_edge_ones():
     for bad in ("yes", (15, 14), (21,), (15, 15, 21)):
         with pytest.raises(ValueError, match="adaptive_patch"):
             match_pair(pair.left, pair.right, rectified=True, adaptive_patch=bad)
+
+
+def _nested(count=4000, sides=(11, 17, 25), seed=0, held_y=False):
+    """(S, N, 2) means of nested windows of white noise (σ = 1 per pixel) and their
+    covariances I / pixels: the larger window holds the smaller one's pixels."""
+    rng = np.random.default_rng(seed)
+    sizes = np.asarray(sides) ** 2
+    noise = rng.standard_normal((count, sizes[-1], 2))
+    pos = np.stack([noise[:, :n].mean(axis=1) for n in sizes])
+    cov = np.zeros((len(sides), count, 2, 2))
+    cov[:, :, 0, 0] = cov[:, :, 1, 1] = (1.0 / sizes)[:, None]
+    if held_y:
+        pos[:, :, 1] = 0.0
+        cov[:, :, 1, 1] = 0.0
+    return pos, cov
+
+
+@pytest.mark.parametrize("held_y", [False, True])
+def test_nested_statistics_follow_chi2_without_bias(held_y):
+    from scipy.stats import chi2
+
+    pos, cov = _nested(held_y=held_y)
+    stats, dof = nested_statistics(pos, cov, 1.0)
+    assert np.all(dof == (1 if held_y else 2))
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        # 4000 draws: the median's sampling error ~3 %, the 95 % share's ~0.35 points
+        assert abs(np.median(stats[i, j]) / chi2.ppf(0.5, dof[0]) - 1.0) < 0.08
+        assert abs(np.mean(stats[i, j] <= chi2.ppf(0.95, dof[0])) - 0.95) < 0.015
+    # a variance factor scales T by 1 / k²
+    assert np.allclose(nested_statistics(pos * 2.0, cov, 4.0)[0], stats, equal_nan=True)
+
+
+def test_population_sides_grow_the_unbiased_class_and_stop_the_biased_one():
+    pos, cov = _nested()
+    classes = np.repeat([0, 1], len(pos[0]) // 2)
+    # class 1: the two larger sides biased by 1.5 x the σ of their difference to the
+    # smallest (a window reaching over an edge): MSE balance b² < Δ broken
+    spread = np.sqrt(cov[0, 0, 0, 0] - cov[1, 0, 0, 0])
+    pos[1:, classes == 1, 0] += 1.5 * spread
+    accepted = np.ones(pos.shape[:2], bool)
+    assert population_sides(pos, cov, accepted, 1.0, classes).tolist() == [2, 0]
+    # a bias of half that σ costs less than the noise the larger window removes
+    pos, cov = _nested(seed=1)
+    pos[1:, :, 0] += 0.5 * spread
+    assert population_sides(pos, cov, accepted, 1.0, np.zeros(len(pos[0]), int)).tolist() == [2]
+    # too few windows accepted at the larger sides: no growth
+    few = accepted.copy()
+    few[1:, 20:] = False
+    assert population_sides(pos, cov, few, 1.0, np.zeros(len(pos[0]), int)).tolist() == [0]
+
+
+def test_population_choice_takes_the_largest_accepted_side_up_to_the_class_side():
+    accepted = np.array([[1, 1, 1, 0], [1, 0, 1, 1], [1, 1, 0, 1]], bool)
+    cap = np.array([2, 2, 1, 2])
+    assert population_choice(accepted, cap).tolist() == [2, 2, 1, 2]
+    assert population_choice(accepted, np.zeros(4, int)).tolist() == [0, 0, 0, 0]
+
+
+def test_match_pair_population_sharpens_the_clear_windows_and_keeps_the_edge_ones():
+    """``match_pair(adaptive_patch="population")`` on the two-plane pair of the ICI test:
+    the clear windows grow (measured RMS 0.0199 -> 0.0149 px, actual / reported σ
+    0.92 -> 0.94, 89 % above 15 px), the windows within 12 px of the edge are kept
+    (107 -> 112, none beyond 3σ)."""
+    from matching.pair import match_pair
+    from tests.matching._edges import layered_pair
+
+    pair = layered_pair(size=(120, 200), edge_x=100.3, noise=4.0)
+    out = {}
+    for mode in (True, "population"):
+        m = match_pair(pair.left, pair.right, rectified=True, spacing=3, search_range=(0, 16),
+                       adaptive_patch=mode)
+        truth = pair.truth(m.x_left)
+        has = np.isfinite(truth).all(1)
+        dist = np.abs(pair.edge_distance(m.x_left))
+        e = m.x_right[:, 0] - truth[:, 0]
+        z = np.abs(e) / np.sqrt(m.cov[:, 0, 0])
+        clear, near = has & (dist > 20) & m.accepted, has & (dist <= 12) & m.accepted
+        out[mode] = (clear.sum(), float(np.sqrt(np.mean(e[clear] ** 2))),
+                     float(np.sqrt(np.mean(z[clear] ** 2))), near.sum(),
+                     int((z[near] > 3).sum()), np.mean(m.patch[clear] > 15))
+    new, old = out["population"], out[True]
+    assert new[0] >= 0.98 * old[0]
+    assert new[1] < 0.85 * old[1]
+    assert 0.75 < new[2] < 1.3
+    assert new[3] >= 0.95 * old[3] and new[4] == 0
+    assert new[5] > 0.7

@@ -121,10 +121,11 @@ def test_match_rectified_writes_disparity(tmp_path):
 
 def test_match_window_ici_on_a_plane_is_more_precise(tmp_path):
     # a rectified plane (constant disparity): ICI windows (15 / 23 / 29) are larger where
-    # the plane allows, and the disparity error falls below the adaptive patch's
+    # the plane allows, and the disparity error falls below the adaptive patch's; so do
+    # the population rule's
     paths = _write(tmp_path, *_rectified_pair(size=(140, 200)))
     rms = {}
-    for mode in ("adaptive", "ici"):
+    for mode in ("adaptive", "ici", "population"):
         out = tmp_path / mode
         assert main(["match", *paths, "--rectified", "--window", mode, "--out", str(out),
                      "-q"]) == 0
@@ -136,6 +137,8 @@ def test_match_window_ici_on_a_plane_is_more_precise(tmp_path):
         if mode == "ici":
             assert np.mean(patch[np.load(out / "matches.npz")["status"] == 0] == 29) > 0.5
     assert rms["ici"] < 0.8 * rms["adaptive"]
+    # the population rule (one class of windows, no bias): the same growth
+    assert rms["population"] < 0.8 * rms["adaptive"]
 
 
 def test_match_dense_writes_disparity_and_sigma_at_every_pixel(tmp_path, capsys):
