@@ -46,7 +46,7 @@ Measured (one run each, session 12):
   pessimistic there by the cross-pair check), so the intervals are too wide to see the
   larger windows' bias over its relief.  Hence ICI is an option, not the default.
 
-Session 13 (issue 13, item 3: a window rule that could be ``match_pair``'s default) --
+Session 14 (issue 13, item 3: a window rule that could be ``match_pair``'s default) --
 what was tried, each on the temple's cross-pair check (all 17 ring pairs, one-off runs of
 ``_real_matching._pair_data`` / ``cross_pair_comparisons`` / ``cross_pair_summary``; the
 default: median LSM δ 0.436 px, SGBM/LSM 1.20, windows clear of edges below 35° 0.131 px,

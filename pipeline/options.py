@@ -29,11 +29,12 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", choices=tuple(WINDOW_MODES), default="adaptive",
                         help="LSM window per point: 'adaptive' (default: grown where the first "
                              "pass is less precise than the image's median), 'ici' (the side "
-                             "of PATCH, ~1.5x, ~2x that agrees with every smaller one: for "
-                             "planar, richly textured scenes; ~3x the second pass), "
-                             "'population' (adaptive, then each window class grown to the "
-                             "largest of ~1.5x, ~2x PATCH its nested differences allow, "
-                             "windows clear of edges only; ~3x the second pass), 'fixed'")
+                             "of PATCH, ~1.5x, ~2x that agrees with every smaller one; ~3x "
+                             "the second pass), 'population' (adaptive, then each window "
+                             "class grown to the largest of ~1.5x, ~2x PATCH its nested "
+                             "differences allow, windows clear of edges only: the one for "
+                             "planar or gently curved, richly textured scenes; ~3x the "
+                             "second pass), 'fixed'")
 
 
 def match_options(args: argparse.Namespace) -> dict:
