@@ -512,6 +512,13 @@ def temple(folder: Path, quick: bool) -> dict:
     pairs = [chosen[0]] if quick else [chosen[k * len(chosen) // 4] for k in range(4)]
     # every ring pair once (LSM and SGBM): the cross-pair check needs the whole network
     data = [_pair_data(cams, images, i, j) for i, j in chosen]
+    # which object pixels the right view sees at all: the 16-view cloud as a reference
+    # (benchmarks/_visibility.py; with the given cameras, the ring pipeline's defaults)
+    from _visibility import seen_in_both
+
+    from matching.multiview import reconstruct_multiview
+
+    reference = reconstruct_multiview(images, cams).points
     # the peer: the same pairs with robust LSM on the edge windows (robust="edge")
     robust = [_pair_data(cams, images, i, j, robust="edge") for i, j in chosen]
     robust_by_pair = {d["pair"]: d for d in robust}
@@ -547,7 +554,15 @@ def temple(folder: Path, quick: bool) -> dict:
             print(f"temple pair {(i, j)}: SGBM left-right loop skipped ({exc})")
         same = use & np.isfinite(sgbm_loop) & (np.abs(sgbm_loop) < 3)
         mp = robust_by_pair[(i, j)]["matches"]
+        surface, seen = seen_in_both(reference, d["cams"][0], d["cams"][1], m.x_left,
+                                     right.shape)
+        both = on_obj & seen
         rows.append({
+            "reference_surface_share_of_object": float(surface[on_obj].mean()),
+            "seen_in_both_share_of_object": float(both.sum() / on_obj.sum()),
+            "accepted_share_seen_in_both": float(m.accepted[both].mean()),
+            "status_seen_in_both": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
+                *np.unique(m.status[both], return_counts=True), strict=True)},
             "pair": [i, j], "candidates_on_object": int(on_obj.sum()),
             "accepted_share_on_object": float(m.accepted[on_obj].mean()),
             "accepted_share_on_object_robust_edge": float(mp.accepted[on_obj].mean()),

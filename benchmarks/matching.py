@@ -519,6 +519,17 @@ def real_figures(folder: Path, quick: bool, goals: dict,
             print(f"{str(tuple(r['pair'])):>7s} statuses of the object's candidates: " + ", ".join(
                 f"{k} {100 * v / total:.1f}" for k, v in sorted(
                     r["status_on_object"].items(), key=lambda kv: -kv[1])))
+        for r in te["rows"]:
+            seen = r["status_seen_in_both"]
+            total = max(sum(seen.values()), 1)
+            print(f"{str(tuple(r['pair'])):>7s} seen by both views (16-view reference cloud, "
+                  f"benchmarks/_visibility.py; a rough proxy): "
+                  f"{100 * r['seen_in_both_share_of_object']:.1f} % of the object "
+                  f"(a reference surface at {100 * r['reference_surface_share_of_object']:.1f} "
+                  f"%), accepted {100 * r['accepted_share_seen_in_both']:.1f} % of those; "
+                  f"their losses: " + ", ".join(
+                      f"{k} {100 * v / total:.1f}" for k, v in sorted(
+                          seen.items(), key=lambda kv: -kv[1]) if k != "ok"))
         cp = te["cross_pair"]
         print(f"\ncross-pair check (every ring pair, {len(cp['pairs'])}; P's match transferred "
               f"into a pair Q without a common view, ray angle <= {cp['max_angle_deg']:.0f} deg, "
