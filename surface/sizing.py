@@ -1218,10 +1218,11 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
 
 def _risk_se(distances: np.ndarray, error: float) -> float:
     """Standard error of :func:`risk_estimate` from its reference sample (the mean square's
-    sampling error, ``√(var d² / N)``, through the square root)."""
+    sampling error, ``√(var d² / N)``, through the square root); 0 where it cannot be
+    told (no credit for noise)."""
     square = np.square(np.asarray(distances, dtype=np.float64))
     if error <= 0 or len(square) < 2:
-        return float("inf")
+        return 0.0
     return float(np.sqrt(square.var(ddof=1) / len(square)) / (2.0 * error))
 
 
