@@ -51,9 +51,10 @@ own measure of the goal (:func:`stitched_surface_error`) holds those errors twic
 the dense vertices the candidate copies them (``d_v ≈ 0``), at the points on the dense
 faces it interpolates them smoothly where the faces interpolate them linearly, so
 ``sill + E d_q² − E d_v²`` exceeds the faces' error by about a third of the sill --
-such a candidate passed its own goal almost always.  Measured (session 14,
-``tests/surface/test_sizing.py``, a 10⁵-point capsule, σ = 0.002): the rule refused step
-2 (estimate 3 % above its goal) and took step 1, n = 115 (goal 0.00037 where the
+such a candidate passed its own goal almost always.  Measured (session 14, the cloud of
+``tests/surface/test_sizing.py``, a 10⁵-point capsule, σ = 0.002; the old rule's figures
+from a one-off run of the previous code): the rule refused step 2 (estimate 3 % above its
+goal) and took step 1, n = 115 (goal 0.00037 where the
 coarser candidates said 0.00029): 248 152 patches, the surface 1.10x the stitched
 mesh's mean distance to the exact capsule, 23 CPU-s.  A step-1 candidate is therefore
 judged against the goal the last coarser candidate measured, and not built when the
@@ -1130,7 +1131,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     dense_n = min(len(loop) for entry in rings[::2] for loop in _loops(entry))
     tried: list[dict] = []
     seen = set()
-    failed: dict = {}            # (step, n) -> SizedMesh of a candidate that did not pass
+    failed: list = []            # (SizedMesh, standard error) of each candidate that failed
     shared_goal = [None]         # the goal measured by the last candidate not at step 1
     floor = float(np.sqrt(variogram.sill))   # a step-1 candidate's estimate is never below
 
@@ -1184,15 +1185,16 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                 # a step-1 candidate copies the dense rings' errors: its own measure of the
                 # goal holds them twice (module docstring); the last coarser one's holds
                 goal = shared_goal[0]
+        se = _risk_se(distances, error)
         tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
                       "deviation": float(distances.mean()), "error": error,
                       "tolerance": float(goal), "influence": mean_influence,
-                      "unshared": unshared, "error_se": _risk_se(distances, error),
+                      "unshared": unshared, "error_se": se,
                       "seconds": round(time.perf_counter() - started, 3)})
         sized = SizedMesh(np.asarray(vertices), np.asarray(triangles, np.int64), step, n,
                           float(distances.mean()), float(goal), tried, error, noise, variogram)
         if error > goal:
-            failed[(step, n)] = sized
+            failed.append((sized, se))
             return None
         return sized
 
@@ -1206,7 +1208,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
             between = judge(h * np.sqrt(H_RATIO))   # half way (in log h) to the previous
             return between if between is not None else passed
         h /= H_RATIO
-    best = _closest_failed(failed, tried)
+    best = _closest_failed(failed)
     if best is not None and best.error < floor:
         # none passed, but one is estimated closer to the truth than the dense mesh's own
         # smooth surface can be (at least the sill): the fewest patches among the closest
@@ -1226,18 +1228,16 @@ def _risk_se(distances: np.ndarray, error: float) -> float:
     return float(np.sqrt(square.var(ddof=1) / len(square)) / (2.0 * error))
 
 
-def _closest_failed(failed: dict, tried: list) -> SizedMesh | None:
-    """Of the candidates that did not pass, the one with the fewest triangles among those
-    whose estimate is within one standard error of the smallest (the estimates of
-    neighbouring candidates differ by less than their sampling noise: the coarser one is
-    as close as the data can tell)."""
+def _closest_failed(failed: list) -> SizedMesh | None:
+    """Of the candidates that did not pass (``(SizedMesh, standard error)`` each), the one
+    with the fewest triangles among those whose estimate is within one standard error of
+    the smallest (the estimates of neighbouring candidates differ by less than their
+    sampling noise: the coarser one is as close as the data can tell)."""
     if not failed:
         return None
-    best = min(failed.values(), key=lambda c: c.error)
-    se = next((t["error_se"] for t in tried if (t.get("step"), t.get("n")) ==
-               (best.step, best.n) and "error_se" in t), 0.0)
-    near = [c for c in failed.values() if c.error <= best.error + se]
-    return min(near, key=lambda c: len(c.triangles))
+    best, se = min(failed, key=lambda pair: pair[0].error)
+    return min((c for c, _ in failed if c.error <= best.error + se),
+               key=lambda c: len(c.triangles))
 
 
 def _off_rims(vertices, triangles) -> np.ndarray:
