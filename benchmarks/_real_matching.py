@@ -554,8 +554,7 @@ def temple(folder: Path, quick: bool) -> dict:
             print(f"temple pair {(i, j)}: SGBM left-right loop skipped ({exc})")
         same = use & np.isfinite(sgbm_loop) & (np.abs(sgbm_loop) < 3)
         mp = robust_by_pair[(i, j)]["matches"]
-        surface, seen = seen_in_both(reference, d["cams"][0], d["cams"][1], m.x_left,
-                                     right.shape)
+        surface, seen = seen_in_both(reference, d["cams"][0], d["cams"][1], m.x_left)
         both = on_obj & seen
         rows.append({
             "reference_surface_share_of_object": float(surface[on_obj].mean()),

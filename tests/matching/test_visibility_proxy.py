@@ -42,7 +42,7 @@ def test_pixels_behind_an_occluder_in_the_right_view_are_hidden():
     cloud = np.vstack([wall, box])
     rng = np.random.default_rng(0)
     x_left = np.column_stack([rng.uniform(0, 639, 20_000), rng.uniform(0, 479, 20_000)])
-    surface, seen = seen_in_both(cloud, left, right, x_left, (480, 640))
+    surface, seen = seen_in_both(cloud, left, right, x_left)
 
     # exact: the left ray hits the box face (z = 1.5) or else the wall (z = 2)
     ray = np.column_stack([(x_left - K[:2, 2]) / 800.0, np.ones(len(x_left))])
