@@ -128,10 +128,11 @@ at the cap junction, 0.0006-0.001 whatever the dome's triangle size; halving the
 0.00016-0.00018), and the graded spacing of :func:`kept_sections` (gaps 1, 2, 4 from each
 end, for rims) lies on the domes too (its share not separated). Tried and not kept: sections
 kept by the profile's length instead of their count (no change: the domes' extra length sits
-in the graded ends); that length weighted by the profile's curvature against the ring's (10⁴
-capsule 0.000703 -> 0.000589 but 14 576 patches instead of 9 640; 10⁵ capsule 0.000201 ->
-0.000238 with 118 760 patches instead of 88 656; 10⁴ amphora unchanged at +44 % patches); a
-least-squares fit of the control vertices along their normals to the dense vertices
+in the graded ends; session 15's rule, *Along the profile*, keeps them from both ends and
+regresses along the profile); that length weighted by the profile's curvature against the
+ring's (10⁴ capsule 0.000703 -> 0.000589 but 14 576 patches instead of 9 640; 10⁵ capsule
+0.000201 -> 0.000238 with 118 760 patches instead of 88 656; 10⁴ amphora unchanged at +44 %
+patches); a least-squares fit of the control vertices along their normals to the dense vertices
 (0.000703 -> 0.000662) or even to exact samples of the truth (0.000483 Chamfer but 0.0047
 RMS near a cap junction); the dome end's support test taken up the dome (it reads a 33° turn
 where the cap meets a dome and adds support and guard rings a noise width apart, slivers of
@@ -216,7 +217,7 @@ __all__ = ["SizedMesh", "Variogram", "coarsen_rings", "error_estimate", "influen
            "ring_noise", "ring_precision", "risk_estimate", "section_scatter",
            "section_variogram", "section_weights", "size_control_mesh", "sized_from_points",
            "smooth_deviation", "smoothing_matrix", "stitched_error", "stitched_surface_error",
-           "unshared_noise"]
+           "thinning", "unshared_noise"]
 
 #: Points round the largest ring of the coarsest candidate.
 MIN_RING_POINTS = 12
@@ -378,10 +379,11 @@ def kept_sections(count: int, step: int, length: np.ndarray | None = None) -> li
     interpolating Loop surface, one-off script): mean distance 0.000905 with the rings
     equally spaced in height, 0.000463 along the profile (0.1 apart, 50 / 100 points:
     0.000158 against 0.000073); the error sat where the dome leans (0.0033 against
-    0.0016 at 45-58° latitude).  With the ends graded (gaps ¼, ½, then 1 of the step):
+    0.0016 at 44-58° latitude).  With the ends graded (gaps ¼, ½, then 1 of the step):
     0.000413 in height (the rule before), 0.000259 along the profile; rings 0.4 apart,
     12 / 24 points: 0.00184 against 0.00135 -- the grading holds the junction of the
-    last ring with the dome's own triangulation (its error without: 0.0016 / 0.0085).
+    last ring with the dome's own triangulation (there, 44-58° latitude, 0.00055 / 0.0016
+    graded, 0.0016 / 0.0085 not).
 
     Parameters
     ----------
@@ -966,6 +968,20 @@ def error_estimate(distances: np.ndarray, noise: float, influence_mean: float) -
     return float(np.sqrt(max(mean_square - noise ** 2 * (1.0 - 2.0 * influence_mean), 0.0)))
 
 
+def thinning(heights: np.ndarray, singles: Sequence[bool], step: int,
+             length: np.ndarray | None = None, smooth: bool = True
+             ) -> tuple[list[int], list[tuple[np.ndarray, np.ndarray]]]:
+    """The sections a thinning keeps (:func:`kept_sections`) and each kept ring's weights
+    on the dense rings (:func:`section_weights`; with ``length``, in profile length and
+    windows of at least 2 sections; without ``smooth``, its own ring) -- what
+    :func:`coarsen_rings` builds and :func:`size_control_mesh` models."""
+    keep = kept_sections(len(heights), step, length)
+    if not smooth:
+        return keep, [(np.array([k]), np.array([1.0])) for k in keep]
+    return keep, section_weights(heights if length is None else length, keep, singles,
+                                 least=1 if length is None else 2)
+
+
 def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
                   smooth: bool = False, axis=(0.0, 0.0, 1.0), length: np.ndarray | None = None
                   ) -> tuple[list, list]:
@@ -998,19 +1014,15 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
     """
     from surface.catmull_rom import ring_size
 
-    keep = kept_sections(len(rings), step, length)
-    if smooth:
-        frame = _plane_frame(axis)
-        heights = _heights(rings, frame[2])
-        weights = section_weights(heights if length is None else length, keep,
-                                  [_single(e) is not None for e in rings],
-                                  least=1 if length is None else 2)
+    frame = _plane_frame(axis)
+    keep, weights = thinning(_heights(rings, frame[2]), [_single(e) is not None for e in rings],
+                             step, length, smooth)
     out = []
     for position, index in enumerate(keep):
         count = ring_size(position, int(n))
         entry = rings[index]
         aligned = _aligned(rings, weights[position][0], count, frame) \
-            if smooth and len(weights[position][0]) > 1 else None
+            if len(weights[position][0]) > 1 else None
         if aligned is not None:
             out.append(np.tensordot(weights[position][1], aligned, axes=1))
         elif isinstance(entry, np.ndarray) and entry.ndim == 2:
@@ -1317,12 +1329,8 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         along = length if step >= ALONG_PROFILE_STEP else None
         thin_rings, thin_planes = coarsen_rings(rings, planes, step, n, smooth=smooth,
                                                 axis=axis, length=along)
-        keep = kept_sections(len(rings), step, along)
-        position = heights if along is None else along   # the profile's coordinate
-        weights = section_weights(position, keep, singles,
-                                  least=1 if along is None else 2) if smooth else \
-            [(np.array([k]), np.array([1.0])) for k in keep]
-        matrix = smoothing_matrix(position, keep, weights)
+        keep, weights = thinning(heights, singles, step, along, smooth)
+        matrix = smoothing_matrix(heights if along is None else along, keep, weights)
         mean_influence = float(np.diag(matrix)[nearest].mean())
         unshared = float(unshared_noise(matrix, variogram)[nearest].mean())
         try:
