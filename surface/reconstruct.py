@@ -135,9 +135,11 @@ def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]
     ``t = a − (a·n) n`` with ``t·a = 1 − (a·n)²``, so ``x' = x − δ t/(t·a)``
     is on both the tangent plane and the section plane (error O(κ δ²)
     instead of the axis projection's O(|r'| δ), which on a sloped wall is
-    noise of size slope × slab half-width).  Points where the surface is
-    nearly parallel to the plane (``sqrt(t·a) < MIN_WALL_SINE``) are left out
-    of the contour and returned as *cap points*.
+    noise of size slope × slab half-width; where the wall leans near the limit
+    below, along its neighbours' chord slope instead, :func:`pooled_slopes`).
+    Points where the surface is nearly parallel to the plane
+    (``sqrt(t·a) < MIN_WALL_SINE``) are left out of the contour and returned as
+    *cap points*.
 
     A section whose slab holds more cap points than wall points lies in a
     cap (a shelf) and is emptied; at the ends the test looks at the inner
@@ -214,11 +216,94 @@ def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]
             wall &= delta >= 0
         if k == last:
             wall &= delta <= 0
-        slid = x[wall] - (delta[wall] / ta[wall])[:, None] * tangent[wall]
+        own = tangent / np.maximum(ta, TOL.zero)[:, None]    # slide per unit offset
+        if wall.any() and float(np.median(ta[wall])) < (MIN_WALL_SINE + 2 * NORMAL_TILT) ** 2:
+            # leaning near the wall limit: the wall test selected on the normals' noise
+            slope = pooled_slopes(x, own, delta, wall,
+                                  _loose_walls(an) & _kept_side(delta, k, first, last))
+        else:
+            slope = own[wall]
+        slid = x[wall] - delta[wall][:, None] * slope
         slid -= (slid @ axis - section.height)[:, None] * axis     # exactly on the plane
         capped.append(section.source_index[~wall])
         out.append(replace(section, points=slid, source_index=section.source_index[wall]))
     return out, np.concatenate(capped).astype(np.int64)
+
+
+#: Wall sine down to which a slab point's normal still counts in its neighbours' slide
+#: slopes (:func:`pooled_slopes`), though the point itself is no wall point.
+LOOSE_WALL_SINE = 0.25
+#: Slab points whose slopes :func:`pooled_slopes` fits for each wall point.
+SLOPE_NEIGHBOURS = 16
+
+
+def _loose_walls(an: np.ndarray) -> np.ndarray:
+    """Slab points whose normals (``an = n·a``) are at least LOOSE_WALL_SINE off the axis."""
+    return 1.0 - an ** 2 >= LOOSE_WALL_SINE ** 2
+
+
+def _kept_side(delta: np.ndarray, k: int, first: int, last: int) -> np.ndarray:
+    """The slab points on the side section ``k`` keeps (the inner half at the ends)."""
+    if k == first:
+        return delta >= 0
+    if k == last:
+        return delta <= 0
+    return np.ones(len(delta), dtype=bool)
+
+
+def pooled_slopes(points: np.ndarray, slopes: np.ndarray, delta: np.ndarray,
+                  wall: np.ndarray, pool: np.ndarray) -> np.ndarray:
+    """Each wall point's slide per unit height offset from its slab neighbours, ``(W, 3)``.
+
+    For a section whose wall points lean within two normal-tilt widths of the wall limit
+    (median wall sine below ``MIN_WALL_SINE + 2 NORMAL_TILT``: a dome's last contours),
+    :func:`slide_to_planes` slides each wall point along the least-squares line of its
+    :data:`SLOPE_NEIGHBOURS` nearest ``pool`` points' ``slopes`` (``t / (t·a)``) in their
+    height offsets ``delta``, read at half its own offset: the chord slope between the
+    point and its plane, so the profile's curvature cancels to second order.
+
+    Why: near the limit the wall test selects on the normals' noise (tilt ~0.1 rad,
+    :data:`NORMAL_TILT`) -- a point passes when its normal came out steeper, and its own
+    tangent then slides it short of the surface; the end sections slide from one side
+    only, so all outward.  The pool takes normals down to :data:`LOOSE_WALL_SINE`, past
+    the selection.  Measured (one-off scripts): on a 10⁵-point capsule (σ = 0.002) the
+    last sections' rings +0.0005 / +0.0003 off the sphere, 0.001 / 0.00067 RMS, against
+    +0.00013 / -0.00005 and 0.00065 / 0.0005; on a 10⁴-point one +0.0011 / +0.0012 against
+    +0.0006 / +0.0004.  Steeper walls keep their own slopes: next to a flat cap's rim the
+    neighbours' normals straddle the rim (used everywhere, the 10⁴-point cylinder's end
+    ring went from -0.0023 to -0.0041 off the truth).
+
+    Parameters
+    ----------
+    points : (m, 3) float64
+        The slab's points.
+    slopes : (m, 3) float64
+        Each point's own slide per unit height offset.
+    delta : (m,) float64
+        Their height offsets from the section plane.
+    wall, pool : (m,) bool
+        The points to slide; the points whose slopes are pooled.
+
+    Returns
+    -------
+    (W, 3) float64
+        One slope per wall point (their own when the pool has fewer than 3 points).
+    """
+    from scipy.spatial import cKDTree
+
+    index = np.flatnonzero(pool)
+    if len(index) < 3:
+        return slopes[wall]
+    near = min(SLOPE_NEIGHBOURS, len(index))
+    _, nb = cKDTree(points[index]).query(points[wall], k=near)
+    nb = index[np.asarray(nb).reshape(int(wall.sum()), near)]
+    s, d = slopes[nb], delta[nb]                                  # (W, k, 3), (W, k)
+    d_mean, s_mean = d.mean(axis=1), s.mean(axis=1)
+    dd = d - d_mean[:, None]
+    spread = np.einsum("wk,wk->w", dd, dd)
+    gain = np.einsum("wk,wkc->wc", dd, s - s_mean[:, None, :]) / \
+        np.maximum(spread, TOL.zero)[:, None]                     # d(slope)/d(offset)
+    return s_mean + gain * (0.5 * delta[wall] - d_mean)[:, None]
 
 
 @dataclass(frozen=True)

@@ -502,7 +502,9 @@ def test_candidates_keeping_every_ring_do_not_pass_on_their_own_goal():
     and when none passes the closest estimate is kept: session 14, step 2, n = 68, 90 112
     patches, 0.80x (0.000196), 12 CPU-s; session 15, with the sections kept along the
     profile from step 4 on (both ends rounded), step 4, n = 49: 36 152 patches, 0.74x
-    (0.000182), 13 CPU-s (the closest estimate, 0.000296 against step 2's 0.000303)."""
+    (0.000182), 13 CPU-s (the closest estimate, 0.000296 against step 2's 0.000303); with
+    the last contours slid along pooled slopes (reconstruct.pooled_slopes) 36 088, 0.73x
+    (0.000180)."""
     from tests.surface.test_extrapolate import _capsule_cloud
 
     def capsule_distance(p):
