@@ -67,8 +67,8 @@ from scipy.sparse.linalg import spsolve
 
 from surface.validate import check_finite, check_shape
 
-__all__ = ["flat_vertices", "interpolating_control_mesh", "limit_matrix", "limit_positions",
-           "sharp_vertices"]
+__all__ = ["flat_vertices", "grow_vertices", "interpolating_control_mesh", "limit_matrix",
+           "limit_positions", "sharp_vertices"]
 
 
 def _adjacency(triangles: np.ndarray, count: int) -> sp.csr_matrix:
@@ -153,9 +153,17 @@ def sharp_vertices(vertices, triangles, angle: float = np.pi / 6, rings: int = 1
     cos = np.einsum("ij,ij->i", normal[face[a]], normal[face[b]])
     sharp = np.zeros(len(v), dtype=bool)
     sharp[half[a[cos < np.cos(angle)]].ravel()] = True
-    for _ in range(int(rings)):   # one-ring: the vertices of every face touching the set
-        sharp = sharp | (np.bincount(t[sharp[t].any(axis=1)].ravel(), minlength=len(v)) > 0)
-    return sharp
+    return grow_vertices(sharp, t, rings)
+
+
+def grow_vertices(mask: np.ndarray, triangles: np.ndarray, rings: int = 1) -> np.ndarray:
+    """``mask`` grown by ``rings`` one-rings (the vertices of every face touching the set),
+    ``(V,) bool``."""
+    t = np.asarray(triangles, dtype=np.int64)
+    mask = np.asarray(mask, dtype=bool)
+    for _ in range(int(rings)):
+        mask = mask | (np.bincount(t[mask[t].any(axis=1)].ravel(), minlength=len(mask)) > 0)
+    return mask
 
 
 def flat_vertices(vertices, triangles, angle: float = 1e-6) -> np.ndarray:

@@ -212,15 +212,12 @@ def slide_to_planes(points: np.ndarray, slices: list) -> tuple[list, np.ndarray]
         # The end sections keep only the inner half of their slab: beyond the end
         # planes the neighbourhoods straddle the rim and the cap, so normals and
         # slides are wrong there; those points go to the cap-height estimate.
-        if k == first:
-            wall &= delta >= 0
-        if k == last:
-            wall &= delta <= 0
+        side = _kept_side(delta, k, first, last)
+        wall &= side
         own = tangent / np.maximum(ta, TOL.zero)[:, None]    # slide per unit offset
         if wall.any() and float(np.median(ta[wall])) < (MIN_WALL_SINE + 2 * NORMAL_TILT) ** 2:
             # leaning near the wall limit: the wall test selected on the normals' noise
-            slope = pooled_slopes(x, own, delta, wall,
-                                  _loose_walls(an) & _kept_side(delta, k, first, last))
+            slope = pooled_slopes(x, own, delta, wall, _loose_walls(an) & side)
         else:
             slope = own[wall]
         slid = x[wall] - delta[wall][:, None] * slope

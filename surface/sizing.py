@@ -416,23 +416,21 @@ def kept_sections(count: int, step: int, length: np.ndarray | None = None) -> li
     return keep
 
 
-def rounded_ends(rings: Sequence, dense: tuple[np.ndarray, np.ndarray], axis
-                 ) -> tuple[bool, bool]:
+def rounded_ends(rings: Sequence, dense: tuple[np.ndarray, np.ndarray], axis,
+                 sharp: np.ndarray | None = None) -> tuple[bool, bool]:
     """Whether the dense stitched mesh's first / last end is rounded: no sharp edge
     (dihedral angle over 30°, ``surface.fitting.sharp_vertices``) at as many as a quarter
     of its end section's ring points among the vertices nearest that section.  A rim (a
     flat cap's edge) has a sharp edge all round.  Measured on the σ = 0.002 clouds of
     ``benchmarks/surface.py`` (10⁴ and 10⁵ points, one-off script): 0 sharp vertices at both
     ends of the capsule; at each end of the flat-capped vase, cylinder, amphora and ellipse
-    every point of the end ring (67-478)."""
-    from surface.fitting import sharp_vertices
-
+    every point of the end ring (67-478).  ``sharp``: the dense mesh's sharp vertices
+    (:func:`_sharp`), if known."""
     vertices, triangles = (np.asarray(a) for a in dense)
     axis = np.asarray(axis, dtype=np.float64)
     heights = _heights(rings, axis)
-    try:
-        sharp = sharp_vertices(vertices, triangles, rings=0)
-    except ValueError:
+    sharp = _sharp(vertices, triangles) if sharp is None else sharp
+    if sharp is None:
         return False, False
     near = _nearest_section(vertices @ axis, heights, np.argsort(heights))
     out = []
@@ -1290,7 +1288,8 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     heights = _heights(rings, axis)
     order = np.argsort(heights)
     rng = np.random.default_rng(seed)
-    off_rims = _off_rims(dense_vertices, dense_triangles)
+    sharp = _sharp(dense_vertices, dense_triangles)
+    off_rims = _off_rims(dense_vertices, dense_triangles, sharp)
     reference = reference_vertices(dense_vertices, dense_triangles, rng, off_rims)
     nearest = _nearest_section(dense_vertices[reference] @ axis, heights, order)
     inner = (nearest > 0) & (nearest < len(rings) - 1)   # the end planes' caps: not rings
@@ -1302,7 +1301,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     singles = [_single(entry) is not None for entry in rings]
     # kept step apart along the profile where both ends are rounded (kept_sections)
     length = profile_length(rings, axis) / spacing if along_profile and all(
-        rounded_ends(rings, (dense_vertices, dense_triangles), axis)) else None
+        rounded_ends(rings, (dense_vertices, dense_triangles), axis, sharp)) else None
     perimeter = _largest_perimeter(rings)
     dense_n = min(len(loop) for entry in rings[::2] for loop in _loops(entry))
     tried: list[dict] = []
@@ -1415,14 +1414,26 @@ def _closest_failed(failed: list) -> SizedMesh | None:
                key=lambda c: len(c.triangles))
 
 
-def _off_rims(vertices, triangles) -> np.ndarray:
-    """Vertices neither on nor next to a sharp edge (all of them if the mesh has borders)."""
+def _sharp(vertices, triangles) -> np.ndarray | None:
+    """Vertices on a sharp edge (``surface.fitting.sharp_vertices``), None when the mesh
+    has borders."""
     from surface.fitting import sharp_vertices
 
     try:
-        return ~sharp_vertices(vertices, triangles, rings=1)
+        return sharp_vertices(vertices, triangles, rings=0)
     except ValueError:
+        return None
+
+
+def _off_rims(vertices, triangles, sharp: np.ndarray | None = None) -> np.ndarray:
+    """Vertices neither on nor next to a sharp edge (all of them if the mesh has borders);
+    ``sharp``: :func:`_sharp` of the mesh, if known."""
+    from surface.fitting import grow_vertices
+
+    sharp = _sharp(vertices, triangles) if sharp is None else sharp
+    if sharp is None:
         return np.ones(len(vertices), dtype=bool)
+    return ~grow_vertices(sharp, triangles, 1)
 
 
 def _points_on_faces(vertices, triangles, off_rims, count, axis, heights, order, seed):
