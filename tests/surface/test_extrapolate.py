@@ -231,3 +231,22 @@ def test_slides_near_the_wall_limit_are_not_biased_by_the_wall_test(monkeypatch)
     monkeypatch.setattr(rc, "pooled_slopes", lambda points, slopes, delta, wall, pool:
                         slopes[wall])                       # each point's own tangent
     assert np.all(end_offsets() > 0.0003)
+
+
+def test_a_dome_is_found_past_sections_closer_than_its_sag():
+    """Sections 0.013 apart on a 10⁵-point capsule (a 10⁶-point cloud's spacing): no dome
+    point within two spacings past the end plane lies inside the end ring's 0.9 inset,
+    and the end was extended straight along the wall ('top end extended 0.02619 to the
+    end of the wall points'), off the dome.  Both ends now stay at their last section,
+    closed by the dome's height field."""
+    from surface import reconstruct as rc
+
+    cloud = _capsule_cloud(100_000, 0.002, seed=3)
+    sliced = rc.slice_cloud(cloud, axis="z", sections=300)
+    assert sliced.spacing < 0.015
+    kept, loops, _ = rc.organise_sections(sliced.sections, min_points=rc.min_loop_points("auto"))
+    rings = rc.section_rings(kept, loops, None, smoothing="auto")
+    extended, notes = rc.extend_to_caps(rings, kept, cloud, sliced.cap_index, sliced.spacing)
+    assert len(extended) == len(rings)
+    assert [note.split(":")[0] for note in notes if "a dome past the last section" in note] \
+        == ["bottom", "top"]
