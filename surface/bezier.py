@@ -115,6 +115,7 @@ from math import factorial
 import numba
 import numpy as np
 
+from surface._blas import one_blas_thread
 from surface.validate import TOL, check_finite, check_shape
 
 # as in matching.lsm: OpenMP first (the TBB layer here is too old and warns on stderr:
@@ -534,6 +535,7 @@ def _patches_and_domain(control_points, triangles, caller: str, why: str = ""):
         raise ValueError(f"triangles has {len(tris)} rows but control_points {len(cp)} patches")
     return cp, tris
 
+@one_blas_thread
 def tessellate(control_points, level: int, triangles=None):
     """Uniform, welded triangulation of all patches.
 
@@ -1013,6 +1015,7 @@ class BezierSurface:
     domain_mesh: tuple[np.ndarray, np.ndarray]
 
 
+@one_blas_thread
 def control_net(vertices, triangles) -> BezierSurface:
     """Loop's G1 sextic Bézier surface over a triangle mesh (closed or bordered).
 
@@ -1406,6 +1409,7 @@ def adaptive_segments(control_points, tolerance: float, max_segments: int = 32) 
     return np.clip(np.ceil(np.sqrt(bound / tolerance)), 1, max_segments).astype(np.int64)
 
 
+@one_blas_thread
 def tessellate_adaptive(control_points, tolerance: float, triangles=None,
                         max_segments: int = 32, segments: np.ndarray | None = None):
     """Welded triangulation with a chord tolerance per patch, crack-free across patch edges.

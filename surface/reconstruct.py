@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from surface._blas import one_blas_thread
 from surface.stitch import StitchResult, _dome, _inside, _nearest_loop, end_window, stitch_rings
 from surface.validate import TOL
 
@@ -330,6 +331,7 @@ class SlicedCloud:
     cap_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
+@one_blas_thread
 def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
                 spacing: float | None = None, thickness: float | None = None,
                 projection: str = "surface") -> SlicedCloud:
@@ -711,6 +713,7 @@ def ring_count(kept: Sequence, loops: Sequence) -> int:
     return max(4, int(np.ceil(largest_perimeter(loops) / float(gaps.min()))))
 
 
+@one_blas_thread
 def section_rings(kept: Sequence, loops: Sequence, n: int | None = None,
                   smoothing: float | str = 8.0, parametrisation: str = "uniform",
                   fits: bool = False):
@@ -763,6 +766,7 @@ def section_noise(loops: Sequence) -> float:
     return float(np.median(noise)) if noise else 0.0
 
 
+@one_blas_thread
 def surface_from_points(points: np.ndarray, axis="z", sections: int | None = None,
                         spacing: float | None = None, thickness: float | None = None,
                         n: int | None = None, smoothing: float | str = "auto",

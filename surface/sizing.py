@@ -207,6 +207,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from surface._blas import one_blas_thread
+
 #: Tessellation chord tolerance as a share of the sized surface's estimated error
 #: (:meth:`SizedMesh.chord_tolerance`).
 CHORD_FRACTION = 1.0
@@ -1043,6 +1045,7 @@ def _largest_perimeter(rings: Sequence) -> float:
     return best
 
 
+@one_blas_thread
 def interpolating_control(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Control vertices of the surface through the mesh's vertices, sharp edges kept.
 
@@ -1198,6 +1201,7 @@ class SizedMesh:
         return CHORD_FRACTION * scale if np.isfinite(scale) and scale > 0 else 0.0
 
 
+@one_blas_thread
 def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                       build: Callable, dense: tuple[np.ndarray, np.ndarray],
                       tolerance: float | None = None, seed: int = 0,
@@ -1459,6 +1463,7 @@ def _nearest_section(values: np.ndarray, heights: np.ndarray, order: np.ndarray)
     return order[np.where(left, at - 1, at)]
 
 
+@one_blas_thread
 def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = None,
                       smoothing: float | str = "auto", support: bool = True):
     """Cloud -> dense stitched mesh -> sized control mesh, the steps of

@@ -80,6 +80,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from surface._blas import one_blas_thread
 from surface.loop_graph import LoopGraph, loop_graph, nesting
 from surface.metrics import delaunay_fraction, edge_table, face_normals, mesh_topology
 from surface.validate import TOL, check_finite, check_shape
@@ -1358,6 +1359,7 @@ def _inset_ring(ring: np.ndarray, d: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- the public entry
+@one_blas_thread
 def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                  constrain_contours: bool = True,
                  max_normal_change: float = MAX_NORMAL_CHANGE,
