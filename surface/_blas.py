@@ -5,9 +5,9 @@ solves of the dome's local quadratics, ``(N, 3) @ (3, 3)`` products, Loop's sten
 where OpenBLAS's worker threads (numpy's and scipy's builds each start one per core) add
 no speed but spin while they wait, and the spinning is CPU time the process is charged.
 Measured (``benchmarks/surface.py``'s sized surface, 2 cores, two runs each, one-off
-script): the 10⁴-point ellipse 1.93-2.04 -> 1.45-1.56 CPU-s at 1.25-1.32 -> 1.41-1.53 s
-wall, the 10⁴-point vase 1.80-1.83 -> 1.09-1.26 CPU-s at about the same wall, the
-10⁵-point capsule 8.9-9.5 -> 6.8-7.3 CPU-s and 7.5-7.9 -> 6.6-7.2 s wall.  So the heavy
+script, these entry points decorated): the 10⁴-point ellipse 1.93-2.04 -> 1.02-1.16 CPU-s
+and 1.25-1.32 -> 0.98-1.12 s wall, the 10⁴-point vase 1.80-1.83 -> 1.07-1.09 CPU-s, the
+10⁵-point capsule 8.9-9.5 -> 6.5 CPU-s and 7.5-7.9 -> 6.3-6.4 s wall.  So the heavy
 entry points of ``surface`` run with one BLAS thread (``threadpoolctl``, the library made
 for this); the caller's setting comes back on return.  The controller is made at the
 first call, after scipy's BLAS is loaded, and reused (8 µs a call).
