@@ -477,7 +477,8 @@ def _along_profile(length: np.ndarray, lo: int, hi: int, step: int) -> list[int]
 def profile_length(rings: Sequence, axis=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Each section's position along the profile: the cumulative mean distance between
     the rings of consecutive sections at common polar angles (:func:`resample_at_angles`
-    about the pair's mean centroid: a radius or centre that moves between sections
+    about the mean of their area centroids, :func:`_area_centroid`, which the N / 2N
+    rings' sampling does not move: a radius or centre that moves between sections
     counts), ``(K,)`` from 0.  Between sections where one has several loops or a ring is
     not star-shaped, the height difference.
     """
@@ -490,7 +491,7 @@ def profile_length(rings: Sequence, axis=(0.0, 0.0, 1.0)) -> np.ndarray:
         if a is None or b is None:
             continue
         count = min(len(a), len(b))
-        centre = 0.5 * (a.mean(axis=0) + b.mean(axis=0))
+        centre = 0.5 * (_area_centroid(a, frame) + _area_centroid(b, frame))
         pair = resample_rings_at_angles([a, b], count, centre, frame)
         if pair is not None:
             step[k] = max(step[k], float(np.linalg.norm(pair[1] - pair[0], axis=1).mean()))
