@@ -129,6 +129,13 @@ class Loop:
         (an open arc, e.g. missing data).
     noise : float
         Robust scale σ̂ of the points about their local curve, scene units.
+    bridge : float
+        A step between consecutive ordered points longer than this is missing
+        data, which the curve bridges by a straight chord
+        (``catmull_rom.bridge_gaps``): the link distance ℓ's rule,
+        ``2·(ln M + 6)·h``, with the loop's own median step h (a column's loop
+        is denser than its section's mean gap says), and at most ℓ; inf when
+        unknown.
     """
 
     centroid: np.ndarray
@@ -143,6 +150,7 @@ class Loop:
     section_id: int
     closed: bool = True
     noise: float = 0.0
+    bridge: float = math.inf
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -723,4 +731,12 @@ def _organise_loop(section, uv_all, members, gap, link, threshold, k, min_points
         section_id=section.section_id,
         closed=closed,
         noise=sigma,
+        bridge=_bridge_length(section.points[ordered], link),
     )
+
+
+def _bridge_length(points: np.ndarray, link: float) -> float:
+    """``Loop.bridge`` of the ordered loop ``points``: ``min(ℓ, 2·(ln M + 6)·h)``."""
+    step = np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)
+    local = _DENSITY_RATIO * float(np.median(step)) * (math.log(len(points)) + _SPLIT_LOG_ODDS)
+    return float(min(link, local))

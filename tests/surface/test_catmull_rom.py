@@ -19,6 +19,7 @@ from surface.catmull_rom import (
     M_CR,
     ClosedCurve,
     RingFit,
+    bridge_gaps,
     choose_smoothing,
     fit,
     fit_loop,
@@ -401,3 +402,42 @@ def test_predict_sections_returns_the_fits_mirroring_the_rings():
         assert fit_record.noise == loop.noise
         assert fit_record.precision == pytest.approx(
             loop.noise * precision_factor(fit_record.controls, 400), rel=1e-12)
+
+
+# ----------------------------------------------------------------------------- gaps
+def test_bridge_gaps_puts_points_on_the_chord_of_each_wide_gap():
+    phi = np.linspace(0.0, 1.5 * np.pi, 91)  # three quarters of a circle, step h = 0.0524
+    arc = np.c_[np.cos(phi), np.sin(phi), np.zeros(91)]
+    out = bridge_gaps(arc, 0.5)
+    h = float(np.linalg.norm(arc[1] - arc[0]))
+    chord = math.sqrt(2.0)  # from (0, -1) back to (1, 0)
+    assert len(out) == 91 + math.ceil(chord / h) - 1
+    assert np.array_equal(out[:91], arc)  # the data first, in order, untouched
+    inserted = out[91:]
+    assert np.abs(inserted[:, 0] - inserted[:, 1] - 1.0).max() < 1e-12  # on x - y = 1
+    steps = np.linalg.norm(np.diff(np.r_[out, out[:1]], axis=0), axis=1)
+    assert steps.max() <= h * (1 + 1e-9)
+    assert np.array_equal(bridge_gaps(arc, 2.0), arc)  # no gap that wide: the points
+
+
+def test_an_open_arc_is_bridged_by_its_chord_not_a_bulge():
+    """A quarter of a noisy unit circle unseen: the fairness term alone continues the
+    arcs' curvature across the gap, far out; the bridged fit follows the chord."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(1)
+    phi = rng.uniform(0, 1.5 * np.pi, 600)
+    pts = np.c_[np.cos(phi) + rng.normal(0, 0.005, 600), np.sin(phi) + rng.normal(0, 0.005, 600),
+                np.zeros(600)]
+    loop = organise(Section(0.0, pts, np.zeros(3), FRAME, 0, np.arange(600)))[0]
+    assert not loop.closed and loop.bridge < math.sqrt(2.0)
+
+    def gap_departure(lp) -> float:  # farthest point of the curve over the gap from the chord
+        curve = fit_loop(lp, 8)
+        dense = curve.evaluate(np.linspace(0, curve.period, 20_000))
+        theta = np.mod(np.arctan2(dense[:, 1], dense[:, 0]), 2 * np.pi)
+        over = dense[theta > 1.5 * np.pi + 0.05]
+        return float(np.abs(over[:, 0] - over[:, 1] - 1.0).max() / math.sqrt(2.0))
+
+    assert gap_departure(loop) < 0.02  # σ = 0.005: within a few σ of the chord
+    assert gap_departure(replace(loop, bridge=math.inf)) > 0.3  # measured 0.73
