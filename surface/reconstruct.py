@@ -34,7 +34,7 @@ from surface.validate import TOL
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
            "min_loop_points", "section_noise", "untangle", "choose_axis", "rim_line",
-           "bridged_share", "MAX_BRIDGED_SHARE"]
+           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects"]
 
 #: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
 NORMAL_NEIGHBOURS = 12
@@ -697,6 +697,17 @@ def untangle(kept: list, loops: list, rings: list | None = None):
     notes = []
     kept, loops = list(kept), list(loops)
     rings = None if rings is None else list(rings)
+    if rings is not None:  # a ring that crosses itself can be neither walled nor capped
+        frame = kept[0].frame
+        crossing = [k for k, item in enumerate(rings)
+                    if any(self_intersects(r @ frame[:2].T) for r in
+                           ([item] if isinstance(item, np.ndarray) else item))]
+        if len(kept) - len(crossing) >= 2:
+            for k in crossing[::-1]:
+                notes.append(f"section {kept[k].section_id} at height {kept[k].height:.6g} "
+                             "skipped: its ring crosses itself (points of a face across the "
+                             "section plane, or a sliver of noise, taken for a contour)")
+                del kept[k], loops[k], rings[k]
     if any(len(found) > 1 for found in loops):
         frame = kept[0].frame
         for _ in range(len(kept)):
@@ -718,6 +729,36 @@ def untangle(kept: list, loops: list, rings: list | None = None):
             if rings is not None:
                 del rings[k]
     return (kept, loops, notes) if rings is None else (kept, loops, rings, notes)
+
+
+def self_intersects(uv: np.ndarray) -> bool:
+    """Whether the closed polygon ``uv`` ``(n, 2)`` crosses itself.
+
+    Two edges that cross have midpoints closer than the longest edge: candidate
+    pairs come from a k-d tree of the midpoints (``cKDTree.query_pairs``), and
+    each non-adjacent pair is tested exactly by the signs of its four
+    orientations (edges that only touch or overlap along a line do not count).
+    """
+    from scipy.spatial import cKDTree
+
+    a = np.asarray(uv, dtype=np.float64)
+    n = len(a)
+    if n < 4:
+        return False
+    b = np.roll(a, -1, axis=0)
+    longest = float(np.linalg.norm(b - a, axis=1).max())
+    pairs = cKDTree(0.5 * (a + b)).query_pairs(longest, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    apart = np.abs(i - j) % (n - 1) != 1
+    i, j = i[apart], j[apart]
+
+    def orientation(p, q, r):
+        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
+                       - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+
+    crosses = ((orientation(a[i], b[i], a[j]) * orientation(a[i], b[i], b[j]) < 0)
+               & (orientation(a[j], b[j], a[i]) * orientation(a[j], b[j], b[i]) < 0))
+    return bool(crosses.any())
 
 
 def min_loop_points(smoothing: float | str) -> int:

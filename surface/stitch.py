@@ -1500,8 +1500,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     graph = loop_graph(planar, spacing=float(np.median(np.diff(heights_all))))
     dropped = set(graph.spurious)
     for s, i in sorted(dropped):
-        notes.append(f"section {s} loop {i}: dropped as noise (a loop related to no loop of "
-                     "either neighbour section, narrower than two section spacings)")
+        notes.append(f"section {s} loop {i}: dropped (a loop related to no loop of either "
+                     "neighbour section: thinner than the section spacing, noise or a "
+                     "flat body of no volume)")
     cap_requests: dict[tuple[int, bool], list[int]] = {}
     extra_vertices: list[np.ndarray] = []
     flip_label: list[int] = []
