@@ -57,6 +57,7 @@ from scipy.spatial import cKDTree
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = [
+    "silhouette_scores",
     "EdgeTable",
     "MeshDistance",
     "edge_table",
@@ -587,3 +588,59 @@ def mesh_topology(vertices: np.ndarray, triangles: np.ndarray) -> dict:
         "degenerate_faces": int(np.count_nonzero(repeated | tiny)),
         "signed_volume": signed_volume(v, t) if closed else None,
     }
+
+
+def silhouette_scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silhouettes,
+                      margin_px: int = 5) -> dict:
+    """How a surface's outline agrees with the object's silhouettes in calibrated views.
+
+    The check that real photographs allow without a surface truth (e.g. the
+    Middlebury temple: its silhouettes are the pixels brighter than the black cloth):
+    a view's mask of the surface is the pixels whose viewing ray through the pixel
+    centre hits it (open3d ``RaycastingScene``, one ray per pixel), compared with the
+    silhouette.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    cameras : sequence of ``matching.cameras.Camera`` (``ray``, ``width``, ``height``)
+    silhouettes : sequence of (H, W) bool
+    margin_px : int
+        Disk radius of the tolerance band around the silhouette's outline: edge pixels
+        are half object, and the calibration is good to a pixel or so.
+
+    Returns
+    -------
+    dict
+        Per view (lists in the cameras' order): ``iou`` (surface mask against the
+        silhouette), ``inside`` (share of the surface's pixels within the silhouette
+        dilated by ``margin_px``: no surface where the object is not), ``covered``
+        (share of the silhouette eroded by ``margin_px`` that the surface covers: no
+        object left out).
+    """
+    import cv2
+    import open3d as o3d
+
+    v = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
+    t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
+    centre = v.mean(axis=0)  # float32 keeps the hits exact near the object
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor((v - centre).astype(np.float32)),
+                        o3d.core.Tensor(t.astype(np.uint32)))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+    out = {"iou": [], "inside": [], "covered": []}
+    for cam, silhouette in zip(cameras, silhouettes, strict=True):
+        silhouette = np.asarray(silhouette, bool)
+        rows, cols = np.indices(silhouette.shape)
+        origin, direction = cam.ray(np.column_stack([cols.ravel(), rows.ravel()])
+                                    .astype(np.float64))
+        rays = np.hstack([origin - centre, direction]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        mask = np.isfinite(hit).reshape(silhouette.shape)
+        grown = cv2.dilate(silhouette.astype(np.uint8), disk) > 0
+        core = cv2.erode(silhouette.astype(np.uint8), disk) > 0
+        out["iou"].append(float((mask & silhouette).sum() / max((mask | silhouette).sum(), 1)))
+        out["inside"].append(float((mask & grown).sum() / max(mask.sum(), 1)))
+        out["covered"].append(float((mask & core).sum() / max(core.sum(), 1)))
+    return out

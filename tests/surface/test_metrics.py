@@ -274,3 +274,25 @@ def test_face_components_of_three_pieces_numbered_by_first_face():
     assert labels.tolist() == [0] * 6 + [1] * 6 + [2] + [0] * 6 + [1] * 6
     topology = M.mesh_topology(v, f)
     assert topology["components"] == 3 and topology["boundary_edges"] == 3
+
+
+def test_silhouette_scores_of_a_sphere_against_its_exact_disk():
+    """A unit sphere 5 units in front of a camera outlines a disk of radius
+    f / sqrt(5^2 - 1) px exactly; shifted by half its radius, it leaves part of it."""
+    import open3d as o3d
+
+    from matching.cameras import Camera
+    from surface.metrics import silhouette_scores
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=60)
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    f, w, h = 200.0, 160, 120
+    cam = Camera(np.array([[f, 0, 79.5], [0, f, 59.5], [0, 0, 1]]), [], np.eye(3),
+                 np.array([0.0, 0.0, 5.0]), w, h, "c")
+    rows, cols = np.indices((h, w))
+    disk = np.hypot(cols - 79.5, rows - 59.5) < f / np.sqrt(24.0)
+    exact = silhouette_scores(v, t, [cam], [disk], margin_px=2)
+    # the polygonal sphere lies inside the true one by <= 1 - cos(pi / 60): 0.07 px here
+    assert exact["iou"][0] > 0.98 and exact["inside"][0] == 1.0 and exact["covered"][0] == 1.0
+    moved = silhouette_scores(v + [0.5, 0.0, 0.0], t, [cam], [disk], margin_px=2)
+    assert moved["iou"][0] < 0.7 and moved["inside"][0] < 0.8 and moved["covered"][0] < 0.8
