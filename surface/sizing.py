@@ -1013,12 +1013,12 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
     -------
     (rings, planes) : lists
     """
-    from surface.catmull_rom import ring_size
+    from surface.catmull_rom import branch_ring_size, perimeter, ring_size
 
     frame = _plane_frame(axis)
     keep, weights = thinning(_heights(rings, frame[2]), [_single(e) is not None for e in rings],
                              step, length, smooth)
-    out = []
+    out, largest = [], _largest_perimeter(rings)
     for position, index in enumerate(keep):
         count = ring_size(position, int(n))
         entry = rings[index]
@@ -1029,7 +1029,8 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
         elif isinstance(entry, np.ndarray) and entry.ndim == 2:
             out.append(resample_ring(entry, count))
         else:
-            out.append([resample_ring(loop, count) for loop in entry])
+            out.append([resample_ring(loop, ring_size(position, branch_ring_size(
+                int(n), perimeter(loop), largest))) for loop in entry])
     return out, [planes[i] for i in keep]
 
 
@@ -1038,12 +1039,9 @@ def _loops(entry) -> list:
 
 
 def _largest_perimeter(rings: Sequence) -> float:
-    best = 0.0
-    for entry in rings:
-        for loop in _loops(entry):
-            best = max(best, float(np.linalg.norm(np.diff(np.vstack([loop, loop[:1]]), axis=0),
-                                                  axis=1).sum()))
-    return best
+    from surface.catmull_rom import perimeter
+
+    return max((perimeter(loop) for entry in rings for loop in _loops(entry)), default=0.0)
 
 
 @one_blas_thread

@@ -9,6 +9,7 @@ claims state their bound where they are made.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -250,6 +251,23 @@ def test_predict_sections_mirrors_several_loops():
     assert isinstance(rings[1], list) and [r.shape for r in rings[1]] == [(12, 3), (12, 3)]
 
 
+def test_a_branch_loop_gets_ring_points_by_the_root_of_its_perimeter():
+    """A loop a quarter the size of the largest keeps its chord error (h^2 / 8r) with
+    its points twice as far apart: half of N (and never fewer than 8)."""
+    big = organise(circle_section(0, m=400))[0]
+    small = replace(big, points=0.25 * big.points, centroid=0.25 * big.centroid)
+    rings = predict_sections([[big, small], [big, small]], 64, smoothing=4)
+    assert [len(r) for r in rings[0]] == [64, 32] and [len(r) for r in rings[1]] == [128, 64]
+    tiny = replace(big, points=0.001 * big.points, centroid=0.001 * big.centroid)
+    assert [len(r) for r in predict_sections([[big, tiny]], 64, smoothing=4)[0]] == [64, 8]
+    from surface.catmull_rom import MIN_BRANCH_RING, branch_ring_size, perimeter
+
+    length = perimeter(big.points)
+    assert branch_ring_size(64, length, length) == 64
+    assert branch_ring_size(64, 0.25 * length, length) == 32
+    assert branch_ring_size(64, 1e-6 * length, length) == MIN_BRANCH_RING
+
+
 def test_predict_ring_of_a_non_star_shaped_loop_uses_arc_length():
     uv, _ = c_shape(600, np.random.default_rng(9))
     pts = np.c_[uv, np.zeros(600)]
@@ -423,8 +441,6 @@ def test_bridge_gaps_puts_points_on_the_chord_of_each_wide_gap():
 def test_an_open_arc_is_bridged_by_its_chord_not_a_bulge():
     """A quarter of a noisy unit circle unseen: the fairness term alone continues the
     arcs' curvature across the gap, far out; the bridged fit follows the chord."""
-    from dataclasses import replace
-
     rng = np.random.default_rng(1)
     phi = rng.uniform(0, 1.5 * np.pi, 600)
     pts = np.c_[np.cos(phi) + rng.normal(0, 0.005, 600), np.sin(phi) + rng.normal(0, 0.005, 600),
