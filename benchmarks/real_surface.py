@@ -60,7 +60,7 @@ def scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silhouettes) ->
 
 
 def run_pipeline(workspace: Path, spacing: int | None) -> None:
-    """Acquire (unless the workspace has its cloud) and run to the export, STEP included."""
+    """Acquire, and run to the export (STEP included)."""
     from pipeline import cli
 
     args = ["run", str(DATA), "--cameras", str(DATA / "templeSR_par.txt"), "--out",
@@ -83,6 +83,9 @@ def ours(workspace: Path, spacing: int | None, cameras, silhouettes) -> list[dic
     if cli.main(base + ["--from", "sections", "--to", "smooth", "--force"]) != 0:
         raise SystemExit("photosurf run --from sections failed")
     seconds, cpu = time.perf_counter() - start[0], time.process_time() - start[1]
+    formats = ["--set", 'export.formats=["ply", "glb", "step"]']
+    if cli.main(base + formats + ["--from", "export", "--to", "export", "--force"]) != 0:
+        raise SystemExit("photosurf run --from export failed")  # this smooth surface's files
     manifest = json.loads((workspace / "manifest.json").read_text())
     info = {k: manifest["stages"][k]["info"] for k in ("acquire", "stitch", "smooth")}
     stitched = {"name": "photosurf-stitched", "closed": bool(info["stitch"]["closed"]),
@@ -124,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                    for cam in cameras]
     with tempfile.TemporaryDirectory() as scratch:
         workspace = Path(args.workspace or Path(scratch) / "temple")
-        if not (workspace / "export" / "surface.step").is_file():
+        if not (workspace / "acquire" / "cloud.npz").is_file():
             print(f"photosurf run -> {workspace} (acquisition, then to the export)", flush=True)
             run_pipeline(workspace, args.spacing)
         rows = ours(workspace, args.spacing, cameras, silhouettes)
