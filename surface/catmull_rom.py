@@ -941,8 +941,8 @@ def predict_sections(
     list, or (list, list) with ``fits``
         Mirrors the input: for a Loop entry an ``(n_k, 3)`` array, for a
         sequence entry a list of such arrays; ``n_k = ring_size(k, n)``, for a
-        loop in a sequence ``ring_size(k, branch_ring_size(n, its perimeter, the
-        largest loop's))``.
+        loop in a sequence of several ``ring_size(k, branch_ring_size(n, its
+        perimeter, the largest loop's))``.
         Ring point ``j`` is at ``θ = 2πj/n_k`` (star-shaped loop) or at equal
         arc length starting at θ = 0 (not star-shaped).
     """
@@ -955,9 +955,11 @@ def predict_sections(
         if hasattr(entry, "points"):
             ring, record = predict_ring(entry, n_k, smoothing, parametrisation, fit=True)
         else:
+            several = len(entry) > 1  # a lone loop in a list keeps N, as a Loop entry does
             pairs = [predict_ring(lp, ring_size(k, branch_ring_size(n, perimeter(lp.points),
-                                                                    largest)),
-                                  smoothing, parametrisation, fit=True) for lp in entry]
+                                                                    largest)) if several
+                                  else n_k, smoothing, parametrisation, fit=True)
+                     for lp in entry]
             ring, record = [r for r, _ in pairs], [f for _, f in pairs]
         rings.append(ring)
         records.append(record)

@@ -1029,8 +1029,9 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
         elif isinstance(entry, np.ndarray) and entry.ndim == 2:
             out.append(resample_ring(entry, count))
         else:
+            several = len(entry) > 1  # a lone loop in a list keeps N, as an array does
             out.append([resample_ring(loop, ring_size(position, branch_ring_size(
-                int(n), perimeter(loop), largest))) for loop in entry])
+                int(n), perimeter(loop), largest)) if several else count) for loop in entry])
     return out, [planes[i] for i in keep]
 
 

@@ -457,3 +457,12 @@ def test_an_open_arc_is_bridged_by_its_chord_not_a_bulge():
 
     assert gap_departure(loop) < 0.02  # σ = 0.005: within a few σ of the chord
     assert gap_departure(replace(loop, bridge=math.inf)) > 0.3  # measured 0.73
+
+
+def test_a_lone_loop_in_a_list_keeps_n():
+    """Only a section of several loops scales them; a list of one is the section's only
+    loop (the workspace's curves are lists) and keeps N / 2N."""
+    big = organise(circle_section(0, m=400))[0]
+    small = replace(big, points=0.25 * big.points, centroid=0.25 * big.centroid)
+    rings = predict_sections([[big], [small]], 64, smoothing=4)
+    assert [len(r) for entry in rings for r in entry] == [64, 128]
