@@ -524,3 +524,20 @@ def test_candidates_keeping_every_ring_do_not_pass_on_their_own_goal():
     assert smooth <= 0.85 * stitched
     assert sized.step >= sizing.ALONG_PROFILE_STEP            # kept along the profile
     assert len(surface.control_points) <= 50_000
+
+
+def test_untangled_candidates_drop_a_ring_that_crosses_itself():
+    """The thinned candidates are untangled as the dense rings are (reconstruct.untangle):
+    a kept ring that crosses itself would stitch open; its section goes."""
+    from surface.sizing import untangled
+
+    t = np.linspace(0, 2 * np.pi, 48, endpoint=False) + 0.01
+    rings, planes = [], []
+    for k, z in enumerate(np.linspace(0.0, 1.0, 5)):
+        ring = np.c_[np.cos(t), np.sin(t), np.full(48, z)] if k != 2 else \
+            np.c_[np.sin(t), np.sin(2 * t), np.full(48, z)]
+        rings.append([ring])
+        planes.append(Section(z, ring, np.array([0.0, 0.0, z]), np.eye(3), k, np.arange(48)))
+    kept_rings, kept_planes = untangled(rings, planes)
+    assert [p.section_id for p in kept_planes] == [0, 1, 3, 4]
+    assert len(kept_rings) == 4 and kept_rings[2][0] is rings[3][0]
