@@ -134,8 +134,8 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     return Smoothed(surface, v, t, n, level, float(gap), float(angle))
 
 
-def smooth_to_files(vertices, triangles, out, level: int | None = None,
-                    source: str = "control mesh") -> dict:
+def smooth_to_files(vertices, triangles, out, level: int | str | None = None,
+                    source: str = "control mesh", tolerance: float | None = None) -> dict:
     """:func:`smooth_mesh`, then write ``out`` and ``out.npz`` (the control net).
 
     Parameters
@@ -146,10 +146,13 @@ def smooth_to_files(vertices, triangles, out, level: int | None = None,
         Mesh file (suffix one of ``pipeline.export.EXPORT_SUFFIXES``); the
         control net goes to ``out`` with suffix ``.npz``.  Both appear
         together or not at all.
-    level : int, optional
-        Tessellation level (default: the pipeline's ``smooth.level``).
+    level : int, "auto" or "adaptive", optional
+        Tessellation level (default: the pipeline's ``smooth.level`` when an integer);
+        ``"auto"`` and ``"adaptive"`` need ``tolerance`` (:func:`smooth_mesh`).
     source : str
         Name of the input used in error messages (e.g. its path).
+    tolerance : float, optional
+        Chord tolerance of ``"auto"`` / ``"adaptive"``, scene units.
 
     Returns
     -------
@@ -166,16 +169,21 @@ def smooth_to_files(vertices, triangles, out, level: int | None = None,
     from surface import bezier
 
     out = Path(out)
-    level = default_level() if level is None else int(level)
+    level = default_level() if level is None else level
     if out.suffix.lower() not in EXPORT_SUFFIXES:
         raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
                          f"(choose one of {', '.join(EXPORT_SUFFIXES)})")
-    if not 0 <= level <= 8:
+    if level in ("auto", "adaptive"):
+        if tolerance is None or not tolerance > 0:
+            raise InputError(f"level {level!r} needs a chord tolerance > 0")
+    elif not 0 <= int(level) <= 8:
         raise InputError(f"--level must be in 0..8, got {level}")
+    else:
+        level = int(level)
     from pipeline.limits import LimitError
 
     try:
-        smoothed = smooth_mesh(vertices, triangles, level)
+        smoothed = smooth_mesh(vertices, triangles, level, tolerance)
     except LimitError:
         raise  # the request, not the mesh
     except ValueError as exc:

@@ -1483,7 +1483,9 @@ def _nearest_section(values: np.ndarray, heights: np.ndarray, order: np.ndarray)
 
 @one_blas_thread
 def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = None,
-                      smoothing: float | str = "auto", support: bool = True):
+                      smoothing: float | str = "auto", support: bool = True,
+                      sections: int | None = None, n: int | None = None,
+                      sigma: np.ndarray | None = None):
     """Cloud -> dense stitched mesh -> sized control mesh, the steps of
     ``surface.reconstruct.surface_from_points`` with its defaults, then
     :func:`size_control_mesh` (what ``photosurf run``'s smooth stage does).
@@ -1495,8 +1497,9 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
     tolerance : float, optional
         Largest estimated error to the truth; default :func:`ring_noise` of the dense
         rings (the thinned surface no farther from the truth than they are).
-    smoothing, support
-        As ``surface_from_points``.
+    smoothing, support, sections, n, sigma
+        As ``surface_from_points`` (``sigma``: the points' precision, which places the
+        ends by inverse-variance weights).
 
     Returns
     -------
@@ -1506,19 +1509,20 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
     from surface import reconstruct as rc
     from surface.stitch import stitch_rings
 
-    sliced = rc.slice_cloud(points, axis=axis)
+    sliced = rc.slice_cloud(points, axis=axis, sections=sections)
     kept, loops, _ = rc.organise_sections(sliced.sections,
                                           min_points=rc.min_loop_points(smoothing))
-    rings, fits = rc.section_rings(kept, loops, None, smoothing=smoothing, fits=True)
+    rings, fits = rc.section_rings(kept, loops, n, smoothing=smoothing, fits=True)
     fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
     kept, loops, rings, _ = rc.untangle(kept, loops, rings)
     noise = rc.section_noise(loops)
     precision = ring_precision([fit_of[id(section)] for section in kept])
     cap = sliced.cap_cloud
+    cap_sigma = None if sigma is None else np.asarray(sigma, np.float64)[sliced.cap_index]
 
     def build(ring_list, planes):
         extended, _ = rc.extend_to_caps(ring_list, planes, cap, np.arange(len(cap)),
-                                        sliced.spacing)
+                                        sliced.spacing, sigma=cap_sigma)
         result = stitch_rings(extended, kept[0].frame[2], close_ends=True,
                               support_sigma=noise if support else None, cap_points=cap)
         if not result.closed:
