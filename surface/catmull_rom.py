@@ -47,7 +47,7 @@ chord across the gap, at the loop's median spacing.  Without them the control
 points over the gap are held only by the fairness term, whose quadratic
 continuation of the arcs' ends bulges far out (the real temple ring's cloud,
 ``../shared/data/real/temple_sparse_ring``: rings up to 0.136 outside their
-sections' points for an object 0.10 across, against ≤ 0.0034 bridged); the chord
+sections' points for an object 0.10 across, against ≤ 0.0026 bridged); the chord
 is the least the data say there: the curve is flat where nothing was seen.
 
 Precision of the fitted curve (:func:`precision_factor`, stored per ring by
