@@ -348,11 +348,12 @@ def test_the_real_temple_ring_runs_to_a_closed_smooth_surface(real_data_dir, tmp
     to a closed stitched mesh and the smooth surface: its sections are open arcs across
     14 % of their length (sides no view saw, bridged), and it branches (plinth, four
     columns, entablature).  No surface truth exists (SOURCE.md), so the surface is held to
-    what is known: inside the object's bounding box and, seen from every camera, where
-    the object's silhouette is (grey above 0.19 x 255), 5 px allowed for edge pixels.
-    Measured: IoU 0.79 / 0.84 (min, median), 97 % of the surface's pixels within the
-    silhouette, 97 % of the silhouette covered, 2.0 % of vertices over 2 mm beyond the box
-    (at most 4 mm)."""
+    what is known: no farther past the object's bounding box than its points and, seen from
+    every camera, where the object's silhouette is (grey above 0.19 x 255), 5 px allowed
+    for edge pixels.
+    Measured: IoU 0.77 / 0.83 (min, median), 97 % of the surface's pixels within the
+    silhouette, 96 % of the silhouette covered, at most 4.0 mm beyond the box (the points:
+    4.6 mm)."""
     import cv2
 
     from matching.cameras import read_cameras
@@ -370,8 +371,12 @@ def test_the_real_temple_ring_runs_to_a_closed_smooth_surface(real_data_dir, tmp
     vertices, triangles = read_mesh(out / "smooth" / "surface.ply")
     low = np.array([-0.073568, 0.021728, -0.012445])  # SOURCE.md's tight box, metres
     high = np.array([0.028855, 0.181892, 0.062736])
+    points = np.load(out / "acquire" / "cloud.npz")["points"]
+    # no farther past the box than the points themselves (some lie 4.6 mm below its
+    # floor, whence the bottom cap) and 2 mm: no fin (rings 0.13 past their points before
+    # the gaps were bridged)
     beyond = np.maximum(low - vertices, vertices - high).max(axis=1)
-    assert np.mean(beyond > 0.002) < 0.03 and beyond.max() < 0.01
+    assert beyond.max() < np.maximum(low - points, points - high).max() + 0.002
     cameras = read_cameras(folder / "templeSR_par.txt")
     silhouettes = [cv2.imread(str(folder / cam.name), cv2.IMREAD_GRAYSCALE) > 0.19 * 255
                    for cam in cameras]

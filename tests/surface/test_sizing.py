@@ -257,6 +257,24 @@ def test_section_scatter_measures_the_rings_independent_noise():
     assert np.isnan(sizing.section_scatter(rings[:4]))
 
 
+def test_section_scatter_follows_each_branch_through_sections_of_several_loops():
+    """Two vases side by side (every section two loops, as a temple's columns): the
+    scatter is read along each loop's chain (sizing.loop_chains); single-loop sections
+    alone gave nothing here (nan), and on the real temple one window of five."""
+    sigma = 1e-3
+    left, _, _ = noisy_vase_rings(sigma, seed=3)
+    right, _, _ = noisy_vase_rings(sigma, seed=4)
+    shift = np.array([4.0, 0.0, 0.0])
+    rings = [[a, b + shift] for a, b in zip(left, right, strict=True)]
+    chains = sizing.loop_chains(rings, np.eye(3))
+    assert sorted(len(members) for _, members in chains) == [61, 61]
+    assert sizing.section_scatter(rings) == pytest.approx(sigma, rel=0.05)
+    # a branch that stops (a split, an end) starts a new chain
+    cut = [[a, b + shift] if k < 30 else [a]
+           for k, (a, b) in enumerate(zip(left, right, strict=True))]
+    assert sorted(len(m) for _, m in sizing.loop_chains(cut, np.eye(3))) == [30, 61]
+
+
 def test_regression_across_sections_averages_the_noise():
     # step 4: every kept ring away from the ends is the local quadratic through 9 sections,
     # its own weight c0 = 3 (3w^2 + 3w - 1) / ((2w - 1)(2w + 1)(2w + 3)) = 0.255 (w = 4), so
