@@ -17,7 +17,8 @@ tables:
   (``surface.reconstruct.extend_to_caps``: where an open end's rings were moved, the rim
   line or the quantile rule; positive = past the truth's end).
 
-Run: ``.venv/bin/python benchmarks/demo_truth.py W [--json PATH]``.
+Run: ``.venv/bin/python benchmarks/demo_truth.py [W] [--json PATH]`` (W: default ``out``, the
+``make demo`` workspace; ``make bench`` runs it so, and says so when there is none).
 """
 
 from __future__ import annotations
@@ -103,11 +104,19 @@ def variograms(workspace: Path, truth) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("workspace", type=Path)
+    parser.add_argument("workspace", type=Path, nargs="?", default=ROOT / "out",
+                        help="a rendered scene's workspace (default: make demo's out/)")
+    parser.add_argument("--quick", action="store_true",
+                        help="accepted for make bench's BENCH_ARGS; the workspace is measured "
+                             "as it is")
     parser.add_argument("--json", type=Path,
                         default=ROOT / "benchmarks" / "results" / "demo_truth.json")
     args = parser.parse_args()
     w = args.workspace
+    if not (w / "scene" / "truth" / "mesh.ply").is_file():
+        print(f"{w}: no rendered scene's workspace here (run make demo first); nothing to "
+              "measure")
+        return 0
     truth = read_mesh(w / "scene" / "truth" / "mesh.ply")
     rows = {"smooth surface": by_region(*read_mesh(w / "smooth" / "surface.ply"), truth),
             "stitched mesh": by_region(*read_mesh(w / "stitch" / "mesh.ply"), truth)}

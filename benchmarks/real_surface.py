@@ -22,7 +22,8 @@ Poisson with its normals; file bytes.  Issue 15's goals, on real data: the sized
 PLY no larger than Poisson-8's and its CPU no more (the Chamfer goal needs a truth: here
 the silhouettes stand in).
 
-    .venv/bin/python benchmarks/real_surface.py [--workspace W] [--spacing N] [--json PATH]
+    .venv/bin/python benchmarks/real_surface.py [--workspace W] [--spacing N | --quick]
+                                                [--json PATH]
 """
 
 from __future__ import annotations
@@ -40,10 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from _common import print_goals, uptime, write_result  # noqa: E402
-
-DATA = ROOT.parent / "shared" / "data" / "real" / "temple_sparse_ring"
-#: SOURCE.md: the object's tight bounding box, metres.
-BOX = (np.array([-0.073568, 0.021728, -0.012445]), np.array([0.028855, 0.181892, 0.062736]))
+from real import BOX, DATA, SILHOUETTE_GREY  # noqa: E402  (benchmarks/real.py: the data set)
 
 
 def scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silhouettes) -> dict:
@@ -51,7 +49,7 @@ def scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silhouettes) ->
     from surface.metrics import silhouette_scores
 
     per_view = silhouette_scores(vertices, triangles, cameras, silhouettes)
-    beyond = np.maximum(BOX[0] - vertices, vertices - BOX[1]).max(axis=1)
+    beyond = np.maximum(BOX[0] - vertices, vertices - BOX[1]).max(axis=1)  # BOX: (2, 3)
     out = {"vertices": len(vertices), "triangles": len(triangles),
            "beyond_box_2mm": float(np.mean(beyond > 0.002)), "beyond_box_max": float(beyond.max())}
     for key, values in per_view.items():
@@ -59,33 +57,29 @@ def scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silhouettes) ->
     return out
 
 
-def run_pipeline(workspace: Path, spacing: int | None) -> None:
-    """Acquire, and run to the export (STEP included)."""
+#: The export stage's formats here: the issue's files, the exact STEP included.
+FORMATS = ["--set", 'export.formats=["ply", "glb", "step"]']
+
+
+def _run(workspace: Path, spacing: int | None, *extra: str) -> None:
+    """``photosurf run`` of the data set with its cameras into ``workspace``, in-process."""
     from pipeline import cli
 
     args = ["run", str(DATA), "--cameras", str(DATA / "templeSR_par.txt"), "--out",
-            str(workspace), "-q", "--set", 'export.formats=["ply", "glb", "step"]']
+            str(workspace), "-q", *extra]
     if spacing:
         args += ["--set", f"acquire.spacing={spacing}"]
     if cli.main(args) != 0:
-        raise SystemExit("photosurf run failed")
+        raise SystemExit(f"photosurf run {' '.join(extra)} failed")
 
 
 def ours(workspace: Path, spacing: int | None, cameras, silhouettes) -> list[dict]:
-    from pipeline import cli
     from pipeline.mesh_io import read_mesh
 
-    base = ["run", str(DATA), "--cameras", str(DATA / "templeSR_par.txt"), "--out",
-            str(workspace), "-q"]
-    if spacing:
-        base += ["--set", f"acquire.spacing={spacing}"]
     start = (time.perf_counter(), time.process_time())
-    if cli.main(base + ["--from", "sections", "--to", "smooth", "--force"]) != 0:
-        raise SystemExit("photosurf run --from sections failed")
+    _run(workspace, spacing, "--from", "sections", "--to", "smooth", "--force")
     seconds, cpu = time.perf_counter() - start[0], time.process_time() - start[1]
-    formats = ["--set", 'export.formats=["ply", "glb", "step"]']
-    if cli.main(base + formats + ["--from", "export", "--to", "export", "--force"]) != 0:
-        raise SystemExit("photosurf run --from export failed")  # this smooth surface's files
+    _run(workspace, spacing, *FORMATS, "--from", "export", "--to", "export", "--force")
     manifest = json.loads((workspace / "manifest.json").read_text())
     info = {k: manifest["stages"][k]["info"] for k in ("acquire", "stitch", "smooth")}
     stitched = {"name": "photosurf-stitched", "closed": bool(info["stitch"]["closed"]),
@@ -105,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workspace", help="a workspace of this data set (made if absent)")
     parser.add_argument("--spacing", type=int, default=None,
                         help="acquisition candidate spacing, px (default the pipeline's)")
+    parser.add_argument("--quick", action="store_true",
+                        help="spacing 5 (the real-data test's cloud) unless --spacing")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results"
                                               / "real_surface.json"))
     args = parser.parse_args(argv)
@@ -122,15 +118,16 @@ def main(argv: list[str] | None = None) -> int:
                                                   / "surface.py")
     bench_surface = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench_surface)
+    spacing = args.spacing or (5 if args.quick else None)
     cameras = read_cameras(DATA / "templeSR_par.txt")
-    silhouettes = [cv2.imread(str(DATA / cam.name), cv2.IMREAD_GRAYSCALE) > 0.19 * 255
+    silhouettes = [cv2.imread(str(DATA / cam.name), cv2.IMREAD_GRAYSCALE) > SILHOUETTE_GREY
                    for cam in cameras]
     with tempfile.TemporaryDirectory() as scratch:
         workspace = Path(args.workspace or Path(scratch) / "temple")
         if not (workspace / "acquire" / "cloud.npz").is_file():
             print(f"photosurf run -> {workspace} (acquisition, then to the export)", flush=True)
-            run_pipeline(workspace, args.spacing)
-        rows = ours(workspace, args.spacing, cameras, silhouettes)
+            _run(workspace, spacing, *FORMATS)
+        rows = ours(workspace, spacing, cameras, silhouettes)
         points = artifacts.read_cloud(workspace / "acquire")["points"]
         for depth in (8, 9):
             start = (time.perf_counter(), time.process_time())
