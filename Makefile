@@ -65,7 +65,7 @@ test: setup sysdeps-test
 
 bench: setup
 	@mkdir -p benchmarks/results
-	@for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b $(BENCH_ARGS) --json benchmarks/results/$$(basename $$b .py).json || exit 1; done
+	@for b in benchmarks/[!_]*.py; do echo "== $$b"; $(PY) $$b $(BENCH_ARGS) --json benchmarks/results/$$(basename $$b .py).json || exit 1; done
 
 lint: setup
 	$(VENV)/bin/ruff check matching surface pipeline tests benchmarks
