@@ -109,17 +109,17 @@ def test_section_weights_along_the_profile_follow_a_dome():
     # in height misses the radius by 0.0046, in profile length by 6e-5
     s = 1.0 + 0.17 * np.arange(-2, 3)
     keep = [0, 2, 4]
-    singles = [True] * 5
+    reach = [2] * 5   # every section reaches its whole window
     for position, bound in ((np.sin(s), None), (s, 1e-4)):
         (index, w), = [pair for pair, k in zip(sizing.section_weights(
-            position, keep, singles, least=2), keep, strict=True) if k == 2]
+            position, keep, reach, least=2), keep, strict=True) if k == 2]
         np.testing.assert_allclose(w.sum(), 1.0, atol=1e-12)
         miss = abs(float(w @ np.cos(s[index])) - np.cos(1.0))
         assert (miss > 3e-3) if bound is None else (miss < bound)
     # kept sections one apart: least=2 widens their windows to five sections
-    weights = sizing.section_weights(s, [0, 1, 2, 3, 4], singles, least=2)
+    weights = sizing.section_weights(s, [0, 1, 2, 3, 4], reach, least=2)
     assert len(weights[2][0]) == 5 and len(weights[1][0]) == 1 and len(weights[0][0]) == 1
-    assert all(len(i) == 1 for i, _ in sizing.section_weights(s, [0, 1, 2, 3, 4], singles))
+    assert all(len(i) == 1 for i, _ in sizing.section_weights(s, [0, 1, 2, 3, 4], reach))
 
 
 def test_rounded_ends_tell_domes_from_rims(monkeypatch):
@@ -289,7 +289,8 @@ def test_regression_across_sections_averages_the_noise():
 
     keep = sizing.kept_sections(len(rings), 4)
     heights = np.array([ring[0, 2] for ring in rings])
-    weights = sizing.section_weights(heights, keep, [True] * len(rings))
+    weights = sizing.section_weights(heights, keep, sizing.section_layout(
+        rings, np.eye(3)).reach)
     middle = weights[len(keep) // 2][1]
     assert len(middle) == 9 and middle[4] == pytest.approx(0.2554, abs=1e-4)
     np.testing.assert_allclose([w.sum() for _, w in weights], 1.0, atol=1e-12)
@@ -297,6 +298,40 @@ def test_regression_across_sections_averages_the_noise():
     plain = ring_error(sizing.coarsen_rings(rings, planes, 4, 60)[0])
     assert smoothed == pytest.approx(np.sqrt(0.2554) * sigma, rel=0.1)
     assert plain == pytest.approx(sigma, rel=0.1)
+
+
+def test_branches_are_regressed_along_their_own_chains():
+    """Two vases side by side, the right one ending part way (a branch that stops): each
+    loop's kept ring is the quadratic regression along its own chain (sizing.section_layout);
+    before session 17 every section of two loops was kept as it was (sigma-sized errors)."""
+    sigma = 1e-3
+    left, planes, _ = noisy_vase_rings(sigma, seed=3)
+    right, _, _ = noisy_vase_rings(sigma, seed=4)
+    shift = np.array([4.0, 0.0, 0.0])
+    rings = [[a, b + shift] if k < 40 else [a]
+             for k, (a, b) in enumerate(zip(left, right, strict=True))]
+    layout = sizing.section_layout(rings, np.eye(3))
+    # the section where the right vase ends is not regressed; the left loop runs on
+    assert layout.reach[39] == 0 and layout.reach[38] == 1
+    assert layout.reach[20] == 19 and layout.reach[40] == 20 and layout.reach[50] == 10
+    keep = sizing.kept_sections(len(rings), 4)
+    thin, _ = sizing.coarsen_rings(rings, planes, 4, 60, smooth=True, layout=layout)
+    kept = dict(zip(keep, thin, strict=True))
+
+    def error(loops, centre):
+        points = np.vstack(loops) - centre
+        r = np.hypot(points[:, 0], points[:, 1])
+        return float(np.sqrt(np.mean((r - radius(points[:, 2])) ** 2)))
+
+    middle = [k for k in keep if 8 <= k <= 31]      # windows of 9 inside both chains
+    assert all(isinstance(kept[k], list) and len(kept[k]) == 2 for k in middle)
+    for side, centre in ((0, np.zeros(3)), (1, shift)):
+        assert error([kept[k][side] for k in middle], centre) == pytest.approx(
+            np.sqrt(0.2554) * sigma, rel=0.15)
+    # each kept ring as it is (no regression): sigma-sized errors
+    plain, _ = sizing.coarsen_rings(rings, planes, 4, 60, smooth=False, layout=layout)
+    plain = dict(zip(keep, plain, strict=True))
+    assert error([plain[k][1] for k in middle], shift) == pytest.approx(sigma, rel=0.15)
 
 
 def test_error_estimate_is_steins_unbiased_risk():
