@@ -18,9 +18,10 @@ of the surface's pixels within the silhouette dilated by 5 px, the share of the 
 eroded by 5 px that the surface covers (min and median over the 16 views); the share of
 vertices over 2 mm beyond the tight bounding box; CPU seconds of the stages from the
 sections on (ours: ``photosurf run --from sections --to smooth``, in this process) and of
-Poisson with its normals; file bytes.  Issue 15's goals, on real data: the sized surface's
-PLY no larger than Poisson-8's and its CPU no more (the Chamfer goal needs a truth: here
-the silhouettes stand in).
+Poisson with its normals, every library imported before (open3d's import alone is ~1 CPU-s,
+which ours paid and Poisson's run after it did not, before session 17); file bytes.
+Issue 15's goals, on real data: the sized surface's PLY no larger than Poisson-8's and its
+CPU no more (the Chamfer goal needs a truth: here the silhouettes stand in).
 
     .venv/bin/python benchmarks/real_surface.py [--workspace W] [--spacing N | --quick]
                                                 [--json PATH]
@@ -110,9 +111,12 @@ def main(argv: list[str] | None = None) -> int:
     import importlib.util
 
     import cv2
+    import open3d  # noqa: F401  (imported before any timing: Poisson's runs find it loaded)
 
+    import pipeline.stages  # noqa: F401  (likewise ours: the stages' modules, not the engine's work)
     from matching.cameras import read_cameras
     from pipeline import artifacts
+    from surface import bezier, metrics, reconstruct, sizing, stitch  # noqa: F401
 
     spec = importlib.util.spec_from_file_location("bench_surface", ROOT / "benchmarks"
                                                   / "surface.py")

@@ -181,6 +181,21 @@ def test_sized_vase_is_coarser_and_within_tolerance():
     assert truth_distance(sample).mean() <= truth_distance(dense_sample).mean() + tolerance
 
 
+def test_bisection_takes_the_candidate_the_search_from_the_coarsest_takes(monkeypatch):
+    """The coarsest passing candidate found by bisection over the candidate levels is the
+    one trying every level from the coarsest finds, with fewer candidates built."""
+    rings, planes, spacing = noisy_vase_rings(1e-3)
+    dense = build(rings, planes)
+    found = {}
+    for bisect in (False, True):
+        monkeypatch.setattr(sizing, "SEARCH_BISECT", bisect)
+        sized = sizing.size_control_mesh(rings, planes, spacing, build, dense)
+        built = [c for c in sized.tried if "triangles" in c]
+        found[bisect] = (sized.step, sized.n, len(built))
+    assert found[False][0] > 1 and found[True][:2] == found[False][:2]
+    assert found[True][2] < found[False][2]
+
+
 def test_sized_surface_keeps_the_stitched_accuracy_of_a_noisy_cloud():
     # 20 000 points of the vase with sigma = 0.002: the default tolerance, the dense stitched
     # mesh's own error over its surface (its rings' variogram across sections plus its
