@@ -887,10 +887,10 @@ def section_weights(heights: np.ndarray, keep: Sequence[int], reach: Sequence[in
     0.49 on its own, noise σ·0.70; 9 sections: 0.26, σ·0.51), so the thinning averages
     the dense rings' independent errors across sections instead of interpolating them;
     a quadratic's weights reproduce the profile up to its curvature.  The window is
-    narrowed to the section's ``reach`` (its loops followed one to one without a gap in
-    the data, :func:`section_layout`); where that leaves ``w < 2`` the section is kept as
-    it is.  (Before session 17 a window reaching a section with several loops kept it as
-    it was: a temple's or a mug's branches were never regressed.)
+    narrowed to the section's ``reach`` (as far as its loops continue one to one,
+    :func:`section_layout`); where that leaves ``w < 2`` the section is kept as it is.
+    (Before session 17 a window reaching a section with several loops kept it as it was:
+    a temple's columns or a torus's two sides were never regressed.)
 
     ``heights`` may be any coordinate along the profile: with the sections' positions
     along it (:func:`profile_length`) the quadratic follows a rounded end, whose radius
