@@ -377,6 +377,7 @@ def smooth(ctx: StageContext) -> dict:
     try:
         sized = _sized_control_mesh(ctx, vertices, triangles)
         if sized is not None:
+            _log_sizing(sized, len(triangles))
             vertices, triangles = sized.vertices, sized.triangles
             info = {"size_step": sized.step, "size_n": sized.n,
                     "size_deviation": sized.deviation, "size_tolerance": sized.tolerance,
@@ -403,6 +404,26 @@ def smooth(ctx: StageContext) -> dict:
     artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
                            smoothed.surface)
     return {**smoothed.info(), **info}
+
+
+def _log_sizing(sized, dense_triangles: int) -> None:
+    """One line on the sizing's choice; a warning when it kept the dense stitched mesh
+    (no thinned candidate within its goal), with the closest candidate and the way to
+    accept a coarser surface."""
+    if sized.step > 1 or sized.n > 0:
+        log.info("smooth: control mesh thinned to sections %d apart, %d ring points: %d of "
+                 "%d triangles, estimated error %.3g against its goal %.3g", sized.step,
+                 sized.n, len(sized.triangles), dense_triangles, sized.error, sized.tolerance)
+        return
+    judged = [c for c in sized.tried if isinstance(c.get("error"), float)]
+    closest = min(judged, key=lambda c: c["error"] / c["tolerance"], default=None)
+    told = "" if closest is None else (
+        f"; the closest, sections {closest['step']} apart with {closest['n']} ring points, "
+        f"was estimated {closest['error']:.3g} against {closest['tolerance']:.3g}")
+    log.warning("smooth: no thinned control mesh was within its goal%s: the dense stitched "
+                "mesh is the control mesh (%d triangles, 4 patches each); set "
+                "smooth.size_tolerance to the error to accept for a coarser surface", told,
+                dense_triangles)
 
 
 def _smooth_tolerance(ctx: StageContext, sized=None) -> float:

@@ -147,3 +147,30 @@ def test_sfm_registration_reaches_the_manifest():
                     "sfm_reprojection_px": 0.041, "sfm_reprojection_before_lsm_px": 0.214,
                     "sfm_scale": "arbitrary"}
     assert _sfm_info(None, 16) == {}
+
+
+def test_the_smooth_stage_says_when_the_sizing_keeps_the_dense_mesh(caplog):
+    """A sizing with no candidate within its goal (the real temple posed by SfM) is told as
+    a warning naming the closest candidate and the setting that accepts a coarser one."""
+    from types import SimpleNamespace
+
+    from pipeline.stages import _log_sizing
+
+    tried = [{"step": 20, "n": 12, "error": "the thinned rings stitch to an open mesh"},
+             {"step": 4, "n": 34, "error": 3.0e-3, "tolerance": 1.0e-3},
+             {"step": 2, "n": 68, "error": 1.4e-3, "tolerance": 1.0e-3}]
+    dense = SimpleNamespace(step=1, n=0, tried=tried, triangles=np.zeros((100, 3)),
+                            error=0.0, tolerance=1.0e-3)
+    with caplog.at_level("INFO", logger="photosurf"):
+        _log_sizing(dense, 100)
+    (record,) = caplog.records
+    assert record.levelname == "WARNING"
+    assert "sections 2 apart with 68 ring points" in record.message
+    assert "0.0014 against 0.001" in record.message and "smooth.size_tolerance" in record.message
+    caplog.clear()
+    thinned = SimpleNamespace(step=2, n=68, tried=tried, triangles=np.zeros((40, 3)),
+                              error=9e-4, tolerance=1.0e-3)
+    with caplog.at_level("INFO", logger="photosurf"):
+        _log_sizing(thinned, 100)
+    (record,) = caplog.records
+    assert record.levelname == "INFO" and "40 of 100 triangles" in record.message
