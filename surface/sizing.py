@@ -60,7 +60,11 @@ coarse (12 points round the largest ring) to fine, ``h`` shrinking by √2 each 
 coarsest whose estimated error to the truth is within the goal is taken -- or the one
 half way to the previous level (``h·2^¼``) if that passes too.  It is found by bisection
 over the levels of step ≥ 2 (:data:`SEARCH_BISECT`, session 17: the estimate falls as
-``h`` does), the step-1 levels then in order.  Measured against trying every level from
+``h`` does); when that finds none, every level is tried in order as before (the step-1
+levels among them; the closest estimate, kept when none passes, is chosen among all: a
+first version stopped at the bisection's levels and took step 2, n = 68 where step 4,
+n = 49 is as close on the 10⁵-point capsule of ``tests/surface/test_sizing.py``, which
+caught it).  Measured against trying every level from
 the coarsest: the same choice on the demo (bit-identical control net; 4 candidates built
 instead of 7), the real temple (4 instead of 8; its smooth stage 6.6-6.8 -> 5.5-5.7 s)
 and all ten rows of ``benchmarks/surface.py --shapes-table 10000 100000`` (the same
@@ -1458,7 +1462,8 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     tried: list[dict] = []
     seen = set()
     failed: list = []            # (SizedMesh, standard error) of each candidate that failed
-    shared_goal = [None]         # the goal measured by the last candidate not at step 1
+    shared_goal = [None, np.inf]  # the goal measured by the finest candidate not at step 1
+                                  # (and its h)
     floor = float(np.sqrt(variogram.sill))   # a step-1 candidate's estimate is never below
 
     def judge(h):
@@ -1506,10 +1511,11 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
             return None
         if tolerance is None:
             if step > 1:
-                shared_goal[0] = goal
+                if h < shared_goal[1]:
+                    shared_goal[0], shared_goal[1] = goal, h
             elif shared_goal[0] is not None:
                 # a step-1 candidate copies the dense rings' errors: its own measure of the
-                # goal holds them twice (module docstring); the last coarser one's holds
+                # goal holds them twice (module docstring); the finest coarser one's holds
                 goal = shared_goal[0]
         se = _risk_se(distances, error)
         tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
@@ -1529,23 +1535,22 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         levels.append(h)
         h /= H_RATIO
     # the coarsest level that passes, by bisection over the levels of step >= 2 (the
-    # estimate falls as h does: SEARCH_BISECT); the step-1 levels after, in order, judged
-    # against the finest coarser level's goal (module docstring)
+    # estimate falls as h does: SEARCH_BISECT)
     coarse = [h for h in levels if int(np.floor(h / spacing)) >= 2]
     found = None
-    if SEARCH_BISECT:
-        lo, hi = 0, len(coarse)
-        while lo < hi:
-            mid = (lo + hi) // 2
-            passed = judge(coarse[mid])
-            if passed is not None:
-                hi, found = mid, (coarse[mid], passed)
-            else:
-                lo = mid + 1
-        rest = levels[len(coarse):]
-    else:
-        rest = levels
-    for h in ([] if found is not None else rest):
+    lo, hi = 0, len(coarse) if SEARCH_BISECT else 0
+    while lo < hi:
+        mid = (lo + hi) // 2
+        passed = judge(coarse[mid])
+        if passed is not None:
+            hi, found = mid, (coarse[mid], passed)
+        else:
+            lo = mid + 1
+    # none found: every level in order (those judged already are skipped; the step-1 ones
+    # against the finest coarser level's goal, module docstring), as without the bisection
+    # -- a level it stepped over may pass, and the closest estimate, kept when none does,
+    # is chosen among all of them
+    for h in ([] if found is not None else levels):
         passed = judge(h)
         if passed is not None:
             found = (h, passed)
