@@ -11,7 +11,8 @@ overlap by most of their area and distinct tubes not at all.
 
 The overlap is measured on a raster: every loop is scan-converted once onto one
 grid over the whole sectioned object (cells of :data:`GRID_CELLS` across its
-extent; the even-odd rule by a cumulative sum of edge crossings per row), and
+extent; the even-odd rule by a cumulative sum of edge crossings per row, counted by a
+numba kernel), and
 the overlap of two loops is the count of cells in both, times the cell area.
 Loops are related when they have the same depth and overlap by more than
 :data:`MIN_OVERLAP` of the smaller one's area (a raster of ~10⁵ cells resolves a
@@ -44,6 +45,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 __all__ = ["LoopGraph", "loop_graph", "nesting", "rasterise", "EVENT_KINDS"]
@@ -191,18 +193,35 @@ def rasterise(polygon: np.ndarray, origin: np.ndarray, cell: float,
     c1 = min(int(np.ceil(p[:, 0].max())) + 1, shape[1])
     if r1 <= r0 or c1 <= c0:
         return r0, c0, np.zeros((0, 0), bool)
-    rows = np.arange(r0, r1, dtype=np.float64)[:, None]           # (h, 1)
-    x0, y0 = p[:, 0], p[:, 1]
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-    straddle = (y0 > rows) != (y1 > rows)                         # (h, n)
-    dy = np.where(y1 == y0, 1.0, y1 - y0)
-    x_cross = x0 + (rows - y0) * (x1 - x0) / dy
-    rr, ee = np.nonzero(straddle)
-    first = np.clip(np.floor(x_cross[rr, ee]).astype(np.int64) + 1 - c0, 0, c1 - c0)
-    toggles = np.zeros((r1 - r0, c1 - c0 + 1), np.int64)
-    np.add.at(toggles, (rr, first), 1)
+    x0, y0 = np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1])
+    toggles = _crossings(x0, y0, np.roll(x0, -1), np.roll(y0, -1), r0, r1, c0, c1)
     mask = (np.cumsum(toggles, axis=1)[:, :-1] % 2).astype(bool)
     return r0, c0, mask
+
+
+@numba.njit(cache=True, nogil=True)
+def _crossings(x0, y0, x1, y1, r0, r1, c0, c1):
+    """Per grid row ``r0 .. r1 - 1`` and cell column, the edges ``(x0, y0) -> (x1, y1)``
+    (cell-centre units) that cross the row's centre line first right of that cell:
+    ``(r1 - r0, c1 - c0 + 1)`` counts, one loop over each edge's own rows (the array form
+    before session 17 evaluated every edge at every row: 0.25 ms a loop, 17 loop graphs
+    of the real temple's 235 loops 1.05 s of its 10 s).  The same arithmetic, so the same
+    cells: an edge crosses row ``r`` when exactly one end lies above it."""
+    toggles = np.zeros((r1 - r0, c1 - c0 + 1), np.int64)
+    for e in range(len(x0)):
+        ya, yb = y0[e], y1[e]
+        if ya == yb:
+            continue
+        dy = yb - ya
+        low, high = min(ya, yb), max(ya, yb)
+        for r in range(max(r0, int(np.ceil(low))), min(r1, int(np.ceil(high)))):
+            row = float(r)
+            if (ya > row) == (yb > row):
+                continue
+            x = x0[e] + (row - ya) * (x1[e] - x0[e]) / dy
+            first = int(np.floor(x)) + 1 - c0
+            toggles[r - r0, min(max(first, 0), c1 - c0)] += 1
+    return toggles
 
 
 def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:

@@ -40,6 +40,22 @@ def test_rasterised_area_is_the_polygon_area():
     assert mask.sum() * cell**2 == pytest.approx(exact, rel=0.02)
 
 
+def test_raster_is_the_even_odd_rule_at_the_cell_centres():
+    """The scan-conversion kernel (numba since session 17) marks exactly the cells whose
+    centres the even-odd rule puts inside, for polygons that cross themselves too."""
+    from surface.stitch import _inside
+
+    rng = np.random.default_rng(7)
+    for count in (3, 7, 40, 200):
+        poly = rng.normal(size=(count, 2))
+        cell, origin, shape = 0.05, np.array([-3.0, -2.5]), (90, 110)
+        r0, c0, mask = rasterise(poly, origin, cell, shape)
+        rows, cols = np.mgrid[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]]
+        centres = origin + cell * (np.column_stack([cols.ravel(), rows.ravel()]) + 0.5)
+        np.testing.assert_array_equal(mask.ravel(), _inside(centres, poly))
+        assert mask.any()
+
+
 def test_nesting_depth_and_parent():
     outer, hole, island = circle(64, 1.0), circle(64, 0.7), circle(32, 0.2, cx=0.1)
     side = circle(32, 0.3, cx=2.0)
