@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache, cached_property
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -583,8 +584,53 @@ def _ring_problem(n: int):
     return start, free, weight, rows[:, :28], rows[:, 28 * (n - 1):]
 
 
+#: Where :func:`ring_operator` keeps the operators it built (beside numba's cache).
+OPERATOR_CACHE = Path(__file__).resolve().parent / "__pycache__"
+
+
+@cache
+def _operator_cache_key() -> str:
+    """What the ring operators depend on: this module's and ``surface.bezier``'s source
+    and numpy's version (a stale file is never read)."""
+    import hashlib
+
+    digest = hashlib.sha256(np.__version__.encode())
+    for name in ("_loop_patches.py", "bezier.py"):
+        digest.update((Path(__file__).parent / name).read_bytes())
+    return digest.hexdigest()[:16]
+
+
 @cache
 def ring_operator(n: int) -> np.ndarray:
+    """:func:`ring_operator_fft` of valence ``n``, kept on disk beside numba's kernels
+    (``surface/__pycache__``, keyed by :func:`_operator_cache_key`): each valence costs
+    20-30 ms to build, and a real mesh has many (the temple's sized meshes 24: 0.5 s a
+    run); where the folder cannot be written it is built every time."""
+    import os
+    import tempfile
+
+    folder = OPERATOR_CACHE
+    path = folder / f"ring_operator.{_operator_cache_key()}.{int(n)}.npy"
+    try:
+        operator = np.load(path, allow_pickle=False)
+        if operator.shape == (28 * n, 1 + 15 * n + 3 * n + 1):
+            operator.flags.writeable = False
+            return operator
+    except (OSError, ValueError):
+        pass
+    operator = ring_operator_fft(n)
+    try:
+        folder.mkdir(exist_ok=True)
+        handle, tmp = tempfile.mkstemp(dir=folder, suffix=".npy.tmp")
+        with os.fdopen(handle, "wb") as fh:
+            np.save(fh, operator, allow_pickle=False)
+        os.replace(tmp, path)   # atomic: a concurrent process reads the old or the new
+    except OSError:
+        pass
+    return operator
+
+
+def ring_operator_fft(n: int) -> np.ndarray:
     """Linear map from the data of a valence-n vertex to its n sextic ring patches.
 
     Data (columns): ``[p_v, N_0 .. N_{n-1}, local]`` -- Loop's limit point of

@@ -562,6 +562,23 @@ def test_fourier_ring_solve_equals_the_dense_minimum_norm_solve(n):
     assert np.abs(lp.ring_operator(n) - lp.ring_operator_dense(n)).max() < 1e-11
 
 
+def test_ring_operators_kept_on_disk_are_the_ones_built(monkeypatch, tmp_path):
+    """ring_operator keeps each valence's operator on disk (built once per code version);
+    what it reads back is the operator bit for bit, and a damaged file is built anew."""
+    monkeypatch.setattr(lp, "OPERATOR_CACHE", tmp_path)
+    lp.ring_operator.cache_clear()
+    built = lp.ring_operator(5)
+    (stored,) = tmp_path.glob("ring_operator.*.5.npy")
+    np.testing.assert_array_equal(built, lp.ring_operator_fft(5))
+    lp.ring_operator.cache_clear()
+    np.testing.assert_array_equal(lp.ring_operator(5), built)
+    stored.write_bytes(b"not an array")
+    lp.ring_operator.cache_clear()
+    np.testing.assert_array_equal(lp.ring_operator(5), built)
+    assert not lp.ring_operator(5).flags.writeable
+    lp.ring_operator.cache_clear()
+
+
 @pytest.mark.parametrize("n", [3, 4, 5, 7, 8, 9, 16])
 def test_ring_operator_meets_every_constraint_for_any_data(n):
     """Spoke sharing and G1 rows hold for arbitrary data, except the one row per
