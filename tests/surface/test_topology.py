@@ -334,3 +334,29 @@ def test_two_opt_work_is_bounded_on_a_filled_disk(monkeypatch):
     start, cut, best = (topology._tour_length(points, x) for x in (tour, bounded, full))
     assert best < cut < start
     assert cut > 1.5 * best
+
+
+def test_two_opt_leaves_no_improving_move():
+    """The tour 2-opt returns (numba moves since session 17) is a permutation with no
+    move left that shortens it: for every pair of edges (a, b), (c, d),
+    |ac| + |bd| >= |ab| + |cd| up to the tolerance (checked over all pairs, not only
+    the k-d tree's candidates)."""
+    from surface import topology
+
+    rng = np.random.default_rng(5)
+    theta = rng.uniform(0.0, 2.0 * np.pi, 120)
+    radius = 1.0 + 0.3 * np.sin(5.0 * theta)
+    points = np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
+    points += rng.normal(0.0, 0.02, points.shape)
+    tour = topology._two_opt(points, rng.permutation(len(points)))
+    n = len(tour)
+    assert sorted(tour.tolist()) == list(range(n))
+    ring = points[tour]
+    nxt = np.roll(ring, -1, axis=0)
+    edge = np.linalg.norm(nxt - ring, axis=1)
+    i, j = np.triu_indices(n, 2)
+    keep = ~((i == 0) & (j == n - 1))
+    i, j = i[keep], j[keep]
+    gain = (np.linalg.norm(ring[i] - ring[j], axis=1) + np.linalg.norm(nxt[i] - nxt[j], axis=1)
+            - edge[i] - edge[j])
+    assert gain.min() >= -1e-9
