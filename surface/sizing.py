@@ -555,7 +555,7 @@ def _plane_frame(axis) -> np.ndarray:
 def _aligned(rings: Sequence, sections: np.ndarray, count: int, frame: np.ndarray):
     """The single-loop rings of ``sections`` resampled at common polar angles about their
     mean centroid, ``(len(sections), count, 3)``; None if one is missing or not
-    star-shaped."""
+    star-shaped.  ``rings`` may be one chain's loops (:func:`loop_chains`)."""
     loops = [_single(rings[j]) for j in sections]
     if any(loop is None for loop in loops):
         return None
@@ -1157,8 +1157,7 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
                 chain, at = layout.where[(index, i)]
                 members = layout.chains[chain][1][at - (index - window[0]):
                                                   at + (window[-1] - index) + 1]
-                centre = np.mean([member.mean(axis=0) for member in members], axis=0)
-                aligned = resample_rings_at_angles(members, size, centre, frame)
+                aligned = _aligned(members, np.arange(len(members)), size, frame)
             new.append(resample_ring(loop, size) if aligned is None
                        else np.tensordot(w, aligned, axes=1))
             regressed = aligned is not None
