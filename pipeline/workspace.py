@@ -161,11 +161,10 @@ def code_hash(modules: Iterable[str], shallow: Iterable[str] = ()) -> str:
     photosurf) is out of date, while an unrelated change — say to the report —
     does not rerun acquisition.
     """
-    root = Path(__file__).resolve().parents[1]
     record = {}
     for path in code_files(modules, shallow):
         try:
-            key = path.resolve().relative_to(root).as_posix()
+            key = path.resolve().relative_to(_PACKAGES_ROOT).as_posix()
         except ValueError:
             key = path.name
         record[key] = sha256_file(path)

@@ -244,6 +244,22 @@ def test_code_closure_follows_own_imports_only():
     assert not any(n.startswith("surface/") for n in names)
 
 
+def test_code_closure_imports_nothing():
+    """The code hash reads the sources; it does not execute them (session 17: finding each
+    module with importlib's find_spec imported the closure, scipy.stats and all, ~2 s
+    before a run's first stage)."""
+    import subprocess
+
+    probe = ("import sys; from pipeline.workspace import code_files; "
+             "files = code_files(['pipeline.stages', 'surface.sizing', 'matching.multiview']); "
+             "print(len(files), sorted(m for m in ('scipy.stats', 'matching.confirm', "
+             "'surface.sizing', 'open3d') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).resolve().parents[2])
+    count, imported = out.stdout.split(" ", 1)
+    assert int(count) > 30 and imported.strip() == "[]"
+
+
 def test_code_change_reruns_the_stage_that_uses_it(toy_input, tmp_path, monkeypatch):
     """An upgraded photosurf: the source of a module a stage calls changes."""
     from pipeline import workspace
