@@ -621,6 +621,9 @@ def ring_operator(n: int) -> np.ndarray:
     operator = ring_operator_fft(n)
     try:
         folder.mkdir(exist_ok=True)
+        for stale in folder.glob("ring_operator.*.npy"):   # an older code's (~0.4 MB each)
+            if f".{_operator_cache_key()}." not in stale.name:
+                stale.unlink(missing_ok=True)
         handle, tmp = tempfile.mkstemp(dir=folder, suffix=".npy.tmp")
         with os.fdopen(handle, "wb") as fh:
             np.save(fh, operator, allow_pickle=False)

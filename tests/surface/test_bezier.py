@@ -566,9 +566,12 @@ def test_ring_operators_kept_on_disk_are_the_ones_built(monkeypatch, tmp_path):
     """ring_operator keeps each valence's operator on disk (built once per code version);
     what it reads back is the operator bit for bit, and a damaged file is built anew."""
     monkeypatch.setattr(lp, "OPERATOR_CACHE", tmp_path)
+    stale = tmp_path / "ring_operator.0000000000000000.5.npy"   # an older code's
+    np.save(stale, np.zeros((140, 92)))
     lp.ring_operator.cache_clear()
     built = lp.ring_operator(5)
     (stored,) = tmp_path.glob("ring_operator.*.5.npy")
+    assert stored != stale and not stale.exists()
     np.testing.assert_array_equal(built, lp.ring_operator_fft(5))
     lp.ring_operator.cache_clear()
     np.testing.assert_array_equal(lp.ring_operator(5), built)
