@@ -224,6 +224,21 @@ def _crossings(x0, y0, x1, y1, r0, r1, c0, c1):
     return toggles
 
 
+def _raster(polygon: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[int, int],
+            rasters: dict | None) -> tuple[int, int, np.ndarray]:
+    """:func:`rasterise`, or the raster kept in ``rasters`` for this very array on this
+    grid (the array is held with it, so its ``id`` is not reused)."""
+    if rasters is None:
+        return rasterise(polygon, origin, cell, shape)
+    grid = (origin.tobytes(), float(cell), tuple(shape))
+    kept = rasters.get(id(polygon))
+    if kept is not None and kept[0] is polygon and kept[1] == grid:
+        return kept[2]
+    raster = rasterise(polygon, origin, cell, shape)
+    rasters[id(polygon)] = (polygon, grid, raster)
+    return raster
+
+
 def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """Even-odd test of ``points`` against ``polygon``: :func:`surface.stitch._inside`
     (imported here: ``surface.stitch`` imports this module)."""
@@ -274,7 +289,8 @@ def nesting(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return depth, parent
 
 
-def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None) -> LoopGraph:
+def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None,
+               rasters: dict | None = None) -> LoopGraph:
     """The loop correspondence graph of a stack of sections.
 
     Parameters
@@ -285,6 +301,10 @@ def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None) -
     spacing : float, optional
         Section spacing (scene units); given, the spurious loops are found (module
         notes), None keeps every loop.
+    rasters : dict, optional
+        Kept between calls on the same loop arrays (``reconstruct.untangle`` drops one
+        section at a time and asks again): each loop's raster is reused while the grid
+        is the same (the union of the sections' extents unchanged).
 
     Returns
     -------
@@ -304,7 +324,7 @@ def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None) -
         depth.append(d)
         parent.append(p)
         area.append(np.array([_area(lp) for lp in loops]))
-        masks.append([rasterise(lp, origin, cell, shape) for lp in loops])
+        masks.append([_raster(lp, origin, cell, shape, rasters) for lp in loops])
     edges = []
     for s in range(len(sections) - 1):
         for i, (ra, ca, ma) in enumerate(masks[s]):

@@ -654,7 +654,7 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
     return [kept[k] for k in keep], [loops[k] for k in keep], notes
 
 
-def _tangle(planar: list) -> int | None:
+def _tangle(planar: list, rasters: dict | None = None) -> int | None:
     """The first section to drop so that the loop graph has no knot, or None.
 
     A knot is a ``complex`` event (loops of two sections relating many-to-many)
@@ -668,7 +668,7 @@ def _tangle(planar: list) -> int | None:
     from surface.loop_graph import loop_graph
     from surface.stitch import _bridge_split
 
-    graph = loop_graph(planar)
+    graph = loop_graph(planar, rasters=rasters)
     last = len(planar) - 1
     for event in graph.events:
         s = event.section
@@ -710,17 +710,19 @@ def untangle(kept: list, loops: list, rings: list | None = None):
                 del kept[k], loops[k], rings[k]
     if any(len(found) > 1 for found in loops):
         frame = kept[0].frame
+        if rings is None:
+            planar = [[lp.points @ frame[:2].T for lp in found] for found in loops]
+        else:
+            planar = [[r @ frame[:2].T for r in ([item] if isinstance(item, np.ndarray)
+                                                 else item)] for item in rings]
+        rasters: dict = {}     # each loop scan-converted once while the grid holds
         for _ in range(len(kept)):
             if len(kept) <= 2:
                 break
-            if rings is None:
-                planar = [[lp.points @ frame[:2].T for lp in found] for found in loops]
-            else:
-                planar = [[r @ frame[:2].T for r in ([item] if isinstance(item, np.ndarray)
-                                                     else item)] for item in rings]
-            k = _tangle(planar)
+            k = _tangle(planar, rasters)
             if k is None:
                 break
+            del planar[k]
             notes.append(f"section {kept[k].section_id} at height {kept[k].height:.6g} "
                          f"skipped: its {len(loops[k])} loop(s) do not correspond to its "
                          "neighbours' as splits, merges or continuations (a branch flickering "

@@ -56,6 +56,25 @@ def test_raster_is_the_even_odd_rule_at_the_cell_centres():
         assert mask.any()
 
 
+def test_loop_graph_reuses_rasters_only_on_the_same_grid():
+    """``loop_graph(..., rasters=dict)`` (untangle asks again after dropping a section):
+    the graph is the one computed afresh, whether the grid stays (rasters reused) or the
+    dropped section held the extent (rasters made anew)."""
+    sections = [[circle(48, 1.0 + 0.01 * k)] if k % 5 else
+                [circle(48, 0.6, cx=-0.5), circle(48, 0.6, cx=0.7)] for k in range(12)]
+    sections[-1] = [circle(48, 1.5)]                     # the widest: it sets the grid
+    rasters: dict = {}
+    first = loop_graph(sections, rasters=rasters)
+    assert first.to_json() == loop_graph(sections).to_json()
+    kept = {key: value[2] for key, value in rasters.items()}
+    again = loop_graph(sections, rasters=rasters)
+    assert again.to_json() == first.to_json()
+    assert all(rasters[key][2] is raster for key, raster in kept.items())   # reused
+    smaller = sections[:-1]                              # another grid: made anew
+    assert loop_graph(smaller, rasters=rasters).to_json() == loop_graph(smaller).to_json()
+    assert not all(rasters[key][2] is raster for key, raster in kept.items())
+
+
 def test_nesting_depth_and_parent():
     outer, hole, island = circle(64, 1.0), circle(64, 0.7), circle(32, 0.2, cx=0.1)
     side = circle(32, 0.3, cx=2.0)
