@@ -453,7 +453,8 @@ def _interior_edge_faces(triangles: np.ndarray, n_vertices: int):
     return interior, faces, corners, sorted_keys[first]
 
 
-def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active):
+def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active,
+                     around: np.ndarray | None = None):
     """One sweep's non-Delaunay, legal flips among edges touching ``active`` faces.
 
     Returns ``(f1, f2, new f1, new f2, excess, new edge keys)``; the cheap
@@ -462,10 +463,14 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active)
     face only: both faces of an edge touching an active face are among them,
     and so is any existing edge ``cd`` (it lies in a face around ``c`` or
     ``d``, one of which is a vertex of an active face), so the existence test
-    stays exact while late sweeps cost little.
+    stays exact while late sweeps cost little.  ``around``: those faces (or a superset
+    of them, sorted; :class:`_Incidence`) when the caller keeps them, which makes a late
+    sweep cost what it touches rather than a pass over every face.
     """
     n_v = len(vertices)
-    if active.all():
+    if around is not None:
+        sub = around
+    elif active.all():
         sub = np.arange(len(triangles))
     else:
         touched = np.zeros(n_v, bool)
@@ -500,6 +505,51 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active)
     ok &= np.einsum("ij,ij->i", face_normals(vertices, new2), old) > cos_limit
     sel = np.flatnonzero(ok)
     return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
+
+
+class _Incidence:
+    """The faces around each vertex, kept across flips: a superset, which is all
+    :func:`_flip_candidates` needs (extra faces add edges no active face touches, which
+    it drops; every existing edge is still seen), rebuilt exactly when the flips' added
+    pairs reach half the face count.  A flip of ``(a, b, c), (b, a, d)`` into
+    ``(c, a, d), (d, b, c)`` adds ``d`` to the first face and ``c`` to the second; the
+    pairs ``(b, first)``, ``(a, second)`` stay, stale and harmless."""
+
+    #: added pairs, as a share of the faces, at which the incidence is built anew
+    REBUILD_SHARE = 0.5
+
+    def __init__(self, triangles: np.ndarray, n_vertices: int):
+        self.n_vertices = n_vertices
+        self._build(triangles)
+
+    def _build(self, triangles: np.ndarray) -> None:
+        flat = triangles.ravel()
+        order = np.argsort(flat, kind="stable")
+        self.faces = order // 3
+        self.start = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=self.n_vertices))])
+        self.added_vertices: list[np.ndarray] = []
+        self.added_faces: list[np.ndarray] = []
+        self.added = 0
+
+    def add(self, vertices: np.ndarray, faces: np.ndarray, triangles: np.ndarray) -> None:
+        """Vertex ``vertices[i]`` now lies on face ``faces[i]`` (``triangles``: the mesh now)."""
+        self.added_vertices.append(vertices)
+        self.added_faces.append(faces)
+        self.added += len(vertices)
+        if self.added > self.REBUILD_SHARE * len(triangles):
+            self._build(triangles)
+
+    def around(self, vertices: np.ndarray) -> np.ndarray:
+        """Sorted faces on (or once on) any of the distinct ``vertices``."""
+        first, count = self.start[vertices], np.diff(self.start)[vertices]
+        offset = np.repeat(first - np.cumsum(count) + count, count)
+        found = [self.faces[offset + np.arange(offset.size)]]
+        if self.added:
+            v, f = np.concatenate(self.added_vertices), np.concatenate(self.added_faces)
+            mark = np.zeros(self.n_vertices, bool)
+            mark[vertices] = True
+            found.append(f[mark[v]])
+        return np.unique(np.concatenate(found))
 
 
 def _independent_flips(f1: np.ndarray, f2: np.ndarray, excess: np.ndarray,
@@ -575,25 +625,29 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
              else np.unique(_edge_keys(np.asarray(fixed_edges, np.int64), len(v))))
     cos_limit = float(np.cos(max_normal_change))
     everything = np.ones(len(tri), bool)
-    active = everything
+    active, around = everything, None
+    incidence = _Incidence(tri, len(v))
     total = 0
     for _ in range(max_sweeps):
         f1, f2, new1, new2, excess, new_keys = _flip_candidates(v, tri, reg, fixed, cos_limit,
-                                                                active)
+                                                                active, around)
         if len(f1) == 0:
             if active is everything:
                 return tri, total, True
-            active = everything  # confirm with a full sweep
+            active, around = everything, None  # confirm with a full sweep
             continue
         chosen = _independent_flips(f1, f2, excess, new_keys, len(tri))
         tri[f1[chosen]] = new1[chosen]
         tri[f2[chosen]] = new2[chosen]
+        incidence.add(np.concatenate([new1[chosen, 2], new2[chosen, 2]]),
+                      np.concatenate([f1[chosen], f2[chosen]]), tri)
         total += len(chosen)
         active = np.zeros(len(tri), bool)
         # Faces of this sweep's flips, and those of candidates that lost the
         # independent-set draw, are examined again.
         active[f1] = True
         active[f2] = True
+        around = incidence.around(np.unique(tri[np.concatenate([f1, f2])]))
     return tri, total, False
 
 

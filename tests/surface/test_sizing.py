@@ -386,6 +386,31 @@ def test_rings_resampled_together_equal_one_by_one():
     assert resample_rings_at_angles([rings[0], bent], 50, np.zeros(3), frame) is None
 
 
+@pytest.mark.parametrize("m", [3, 4, 7, 60, 121])
+def test_periodic_cubic_is_scipys_periodic_spline(m):
+    """periodic_cubic (an FFT solve of the circulant system, every ring at once) is
+    scipy's CubicSpline(bc_type="periodic") through the same points, to rounding, at
+    parameters anywhere (the knots, both ends, beyond 1); rings of other sizes alongside
+    do not change it."""
+    from scipy.interpolate import CubicSpline
+
+    from surface.sizing import periodic_cubic
+
+    rng = np.random.default_rng(m)
+    rings = [rng.normal(size=(m, 3)), rng.normal(size=(m + 2, 3)), rng.normal(size=(m, 3))]
+    knots = min(m, 20)
+    params = rng.uniform(0, 1, (3, 40))
+    params[:, :knots] = np.arange(knots) / m                  # at the ring's own points
+    params[:, -3:] = [0.0, 1.0 - 1e-15, 1.25]
+    got = periodic_cubic(rings, params)
+    for ring, t, values in zip(rings, params, got, strict=True):
+        at = np.arange(len(ring) + 1) / len(ring)
+        spline = CubicSpline(at, np.vstack([ring, ring[:1]]), bc_type="periodic", axis=0)
+        assert np.allclose(values, spline(np.mod(t, 1.0)), rtol=0, atol=1e-12)
+    assert np.allclose(got[0, :knots], rings[0][:knots], rtol=0, atol=1e-12)  # through them
+    assert np.allclose(got[2, :knots], rings[2][:knots], rtol=0, atol=1e-12)
+
+
 def correlated_vase_rings(white: float, shared: float, rho: float, seed: int = 5,
                           sections: int = 121, n: int = 240, modes: int = 20):
     """The vase's rings with radial errors smooth along each ring (Fourier modes
