@@ -84,7 +84,7 @@ def default_level() -> int:
 
 
 def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
-                tolerance: float | None = None) -> Smoothed:
+                tolerance: float | None = None, surface=None) -> Smoothed:
     """Build, tessellate and check the Bézier surface over a control mesh.
 
     Parameters
@@ -98,6 +98,9 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
         :func:`surface.bezier.certified_segments`: cuts per patch) need ``tolerance``.
     tolerance : float, optional
         Chord tolerance of ``"auto"`` and ``"adaptive"``, scene units.
+    surface : surface.bezier.BezierSurface, optional
+        ``surface.bezier.control_net(vertices, triangles)`` when it was built already
+        (the sizing builds the chosen control mesh's surface to judge it).
 
     Raises
     ------
@@ -114,7 +117,8 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
         finest = MAX_AUTO_LEVEL if level == "auto" else int(level)
         limits.check("smooth.triangles", 4 * len(triangles) * 4 ** finest,
                      where=f"level {finest} on {len(triangles)} control triangles")
-    surface = bezier.control_net(vertices, triangles)
+    if surface is None:
+        surface = bezier.control_net(vertices, triangles)
     if level == "adaptive":  # a chord tolerance per patch, crack-free across patch edges
         if tolerance is None or not tolerance > 0:
             raise ValueError(f"level 'adaptive' needs a positive chord tolerance, got {tolerance}")

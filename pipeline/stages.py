@@ -386,13 +386,16 @@ def smooth(ctx: StageContext) -> dict:
                     "size_variogram": sized.variogram.to_json() if sized.variogram else None,
                     "size_tried": sized.tried,
                     "control_triangles": len(triangles)}
-        control = vertices
+        control, built = vertices, None
         if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back
-            control = interpolating_control(vertices, triangles)
+            if sized is not None and sized.surface is not None:
+                built = sized.surface   # the sizing built it so, to judge it
+            else:
+                control = interpolating_control(vertices, triangles)
         tolerance = _smooth_tolerance(ctx, sized) if level in ("auto", "adaptive") else None
         if tolerance is not None:
             info["chord_tolerance"] = tolerance
-        smoothed = smooth_mesh(control, triangles, level, tolerance)
+        smoothed = smooth_mesh(control, triangles, level, tolerance, surface=built)
     except ValueError as exc:
         from surface.metrics import mesh_topology
 

@@ -1350,6 +1350,10 @@ class SizedMesh:
         variogram, or the white-noise σ taken where it could not be measured.
     variogram : Variogram
         The dense rings' errors across sections the estimates used.
+    surface : surface.bezier.BezierSurface or None
+        Loop's surface interpolating this mesh (:func:`interpolating_control`, then
+        ``surface.bezier.control_net``), as built to judge a thinned candidate; None
+        for the dense mesh.
     """
 
     vertices: np.ndarray
@@ -1362,6 +1366,7 @@ class SizedMesh:
     error: float = 0.0
     noise: float = 0.0
     variogram: Variogram | None = None
+    surface: object = field(default=None, repr=False)
 
     def chord_tolerance(self) -> float:
         """Chord tolerance of the surface's tessellation: ``CHORD_FRACTION`` of its
@@ -1558,6 +1563,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         if error > goal:
             failed.append((sized, se))
             return None
+        sized.surface = surface   # built to judge it: the smooth stage's surface
         return sized
 
     levels, h = [], perimeter / MIN_RING_POINTS

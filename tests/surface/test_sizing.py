@@ -173,6 +173,10 @@ def test_sized_vase_is_coarser_and_within_tolerance():
     # the smooth surface over the thinned mesh is as close to the truth as the one over
     # the dense mesh, to the tolerance (wall and caps; the rims are supported)
     surface, _ = sizing.smooth_deviation(sized.vertices, sized.triangles, dense[0][:10])
+    # the surface the sizing built to judge it, kept for the smooth stage, is this one
+    assert np.allclose(sized.surface.control_points, surface.control_points, rtol=0,
+                       atol=1e-12)
+    assert np.array_equal(sized.surface.domain_mesh[1], surface.domain_mesh[1])
     v, t, _ = bezier.tessellate(surface, 2)
     dense_surface, _ = sizing.smooth_deviation(*dense, dense[0][:10])
     dv, dt, _ = bezier.tessellate(dense_surface, 1)
