@@ -360,3 +360,61 @@ def test_two_opt_leaves_no_improving_move():
     gain = (np.linalg.norm(ring[i] - ring[j], axis=1) + np.linalg.norm(nxt[i] - nxt[j], axis=1)
             - edge[i] - edge[j])
     assert gain.min() >= -1e-9
+
+
+def _local_residuals_as_arrays(uv, reference, k):
+    """The array form :func:`surface.topology._local_residuals` had before its kernel:
+    the quadratics' normal equations batched, solved by LAPACK."""
+    from scipy.spatial import cKDTree
+
+    from surface.validate import TOL
+
+    k = min(k, len(reference) - 1)
+    m = len(uv)
+    _, nbr = cKDTree(uv[reference]).query(uv, k=k + 1)
+    nbr = reference[nbr]
+    is_self = nbr == np.arange(m)[:, None]
+    is_self[~is_self.any(axis=1), -1] = True
+    near = uv[nbr[~is_self].reshape(m, k)]
+    mean = near.mean(axis=1)
+    du, dv = near[:, :, 0] - mean[:, :1], near[:, :, 1] - mean[:, 1:]
+    angle = 0.5 * np.arctan2(2 * np.sum(du * dv, axis=1), np.sum(du * du - dv * dv, axis=1))
+    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    x, y = du * cos + dv * sin, dv * cos - du * sin
+    spread = np.maximum(np.sqrt(np.mean(x**2, axis=1)), TOL.zero)[:, None]
+    x = x / spread
+    x2 = x * x
+    s1, s2, s3, s4 = x.sum(axis=1), x2.sum(axis=1), (x2 * x).sum(axis=1), (x2 * x2).sum(axis=1)
+    s0 = np.full(m, float(k))
+    gram = np.stack([np.stack([s0, s1, s2], 1), np.stack([s1, s2, s3], 1),
+                     np.stack([s2, s3, s4], 1)], 1)
+    gram += TOL.ridge_rel * (s0 + s2 + s4)[:, None, None] * np.eye(3)
+    rhs = np.stack([y.sum(axis=1), (x * y).sum(axis=1), (x2 * y).sum(axis=1)], axis=1)
+    coef = np.linalg.solve(gram, rhs[..., None])[..., 0]
+    own_u, own_v = uv[:, 0] - mean[:, 0], uv[:, 1] - mean[:, 1]
+    x0 = (own_u * cos[:, 0] + own_v * sin[:, 0]) / spread[:, 0]
+    y0 = own_v * cos[:, 0] - own_u * sin[:, 0]
+    return np.abs(y0 - (coef[:, 0] + coef[:, 1] * x0 + coef[:, 2] * x0**2))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_local_residuals_kernel_is_the_array_form(seed):
+    """The outlier test's local quadratics (a numba kernel) give the residuals of the
+    batched array form they replaced, to rounding: noisy curves, outliers, duplicated
+    points, straight runs, a reference subset."""
+    from surface.topology import _local_residuals
+
+    rng = np.random.default_rng(seed)
+    m = 300
+    t = np.sort(rng.uniform(0, 2 * np.pi, m))
+    uv = np.column_stack([np.cos(t) * (1 + 0.3 * np.cos(3 * t)), 0.6 * np.sin(t)])
+    uv += rng.normal(0, 0.004, uv.shape)
+    uv[::37] += rng.normal(0, 0.1, uv[::37].shape)          # outliers
+    uv[5:9] = uv[5]                                         # coincident points
+    uv[100:130, 1] = 0.25                                   # a straight run
+    reference = np.sort(rng.choice(m, m - 40, replace=False)) if seed % 2 else np.arange(m)
+    for k in (6, 12):
+        got = _local_residuals(uv, reference, k)
+        want = _local_residuals_as_arrays(uv, reference, k)
+        assert np.allclose(got, want, rtol=1e-9, atol=1e-12)
+        assert np.median(got) < 0.01 < np.max(got)          # noise-sized; outliers stand out
