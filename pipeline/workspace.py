@@ -110,14 +110,36 @@ def _module_file(name: str) -> Path | None:
     return None
 
 
+#: Names each source imports, by the source's SHA-256 (:func:`_own_imports`): parsing every
+#: module of the closure took 0.5 s of each ``photosurf run``; a file's names are kept
+#: here once parsed (None: not kept, where the folder cannot be written).
+IMPORTS_CACHE: Path | None = Path(__file__).resolve().parent / "__pycache__" / "imports.json"
+_imports_kept: dict | None = None      # the cache's entries, loaded once
+_imports_used: dict = {}               # the entries this process looked up or made
+
+
 @functools.cache
 def _own_imports(path: Path) -> tuple[str, ...]:
-    """photosurf modules imported anywhere in ``path`` (also inside functions)."""
-    return _imported(ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))))
+    """photosurf modules imported anywhere in ``path`` (also inside functions).
+
+    The names the file's import statements give (:func:`_names`) are kept in
+    :data:`IMPORTS_CACHE` by the file's content hash, so an unchanged file is not parsed
+    again; which of them are photosurf's modules is decided here, by the layout now.
+    """
+    global _imports_kept
+    data = path.read_bytes()
+    key = hashlib.sha256(data).hexdigest()
+    if _imports_kept is None:
+        _imports_kept = _read_imports_cache()
+    names = _imports_kept.get(key)
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+        names = sorted(_names(ast.walk(ast.parse(data.decode("utf-8"), str(path)))))
+    _imports_used[key] = names
+    return tuple(n for n in names if _module_file(n) is not None)
 
 
-def _imported(nodes) -> tuple[str, ...]:
-    """photosurf modules named by the import statements among ``nodes``."""
+def _names(nodes) -> set[str]:
+    """Every module name the import statements among ``nodes`` give (absolute ones)."""
     names = set()
     for node in nodes:
         if isinstance(node, ast.Import):
@@ -126,7 +148,41 @@ def _imported(nodes) -> tuple[str, ...]:
             names.add(node.module)
             # ``from package import module`` names a module, not an attribute
             names.update(f"{node.module}.{alias.name}" for alias in node.names)
-    return tuple(sorted(n for n in names if _module_file(n) is not None))
+    return names
+
+
+def _imported(nodes) -> tuple[str, ...]:
+    """photosurf modules named by the import statements among ``nodes``."""
+    return tuple(sorted(n for n in _names(nodes) if _module_file(n) is not None))
+
+
+def _read_imports_cache() -> dict:
+    if IMPORTS_CACHE is None:
+        return {}
+    try:
+        kept = json.loads(IMPORTS_CACHE.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return kept if isinstance(kept, dict) else {}
+
+
+def _write_imports_cache() -> None:
+    """Add the entries made to the kept ones, atomically (when the kept ones outnumber
+    those used 4 to 1, older sources' entries, only the used ones are kept); nothing
+    when none was made or the folder cannot be written."""
+    global _imports_kept
+    kept = _imports_kept or {}
+    if IMPORTS_CACHE is None or all(key in kept for key in _imports_used):
+        return
+    entries = {**kept, **_imports_used}
+    if len(entries) > 4 * len(_imports_used):
+        entries = dict(_imports_used)
+    try:
+        with atomic_file(IMPORTS_CACHE) as tmp:
+            Path(tmp).write_text(json.dumps(entries, sort_keys=True), encoding="utf-8")
+    except (OSError, InputError):
+        return
+    _imports_kept = entries
 
 
 def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path]:
@@ -151,6 +207,7 @@ def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path
         todo.extend([parent] if parent else [])
         todo.extend(_own_imports(path))
     files.update(p for p in map(_module_file, shallow) if p is not None)
+    _write_imports_cache()
     return sorted(files)
 
 
