@@ -19,7 +19,9 @@ eroded by 5 px that the surface covers (min and median over the 16 views); the s
 vertices over 2 mm beyond the tight bounding box; CPU seconds of the stages from the
 sections on (ours: ``photosurf run --from sections --to smooth``, in this process) and of
 Poisson with its normals, every library imported before (open3d's import alone is ~1 CPU-s,
-which ours paid and Poisson's run after it did not, before session 17); file bytes.
+which ours paid and Poisson's run after it did not, before session 17; since session 18
+every module of ``surface`` too, which the stages import lazily -- numba's start-up and
+the loading of our cached kernels, ~0.25 CPU-s, stay in ours); file bytes.
 Issue 15's goals, on real data: the sized surface's PLY no larger than Poisson-8's and its
 CPU no more (the Chamfer goal needs a truth: here the silhouettes stand in).
 
@@ -116,7 +118,10 @@ def main(argv: list[str] | None = None) -> int:
     import pipeline.stages  # noqa: F401  (likewise ours: the stages' modules, not the engine's work)
     from matching.cameras import read_cameras
     from pipeline import artifacts
-    from surface import bezier, metrics, reconstruct, sizing, stitch  # noqa: F401
+    # every module of the surface package, as the stages import them lazily (catmull_rom
+    # alone brings scipy.interpolate and scipy.optimize, ~0.1 s): libraries, not work
+    for module in sorted((ROOT / "surface").glob("*.py")):
+        importlib.import_module(f"surface.{module.stem}")
 
     spec = importlib.util.spec_from_file_location("bench_surface", ROOT / "benchmarks"
                                                   / "surface.py")

@@ -1352,8 +1352,8 @@ class SizedMesh:
         The dense rings' errors across sections the estimates used.
     surface : surface.bezier.BezierSurface or None
         Loop's surface interpolating this mesh (:func:`interpolating_control`, then
-        ``surface.bezier.control_net``), as built to judge a thinned candidate; None
-        for the dense mesh.
+        ``surface.bezier.control_net``), as built to judge a thinned candidate (passed
+        or the closest of those that failed); None for the dense mesh.
     """
 
     vertices: np.ndarray
@@ -1558,12 +1558,14 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                       "tolerance": float(goal), "influence": mean_influence,
                       "unshared": unshared, "error_se": se,
                       "seconds": round(time.perf_counter() - started, 3)})
+        # the surface built to judge it is the smooth stage's, should it be chosen (the
+        # closest of the failed ones may be)
         sized = SizedMesh(np.asarray(vertices), np.asarray(triangles, np.int64), step, n,
-                          float(distances.mean()), float(goal), tried, error, noise, variogram)
+                          float(distances.mean()), float(goal), tried, error, noise, variogram,
+                          surface)
         if error > goal:
             failed.append((sized, se))
             return None
-        sized.surface = surface   # built to judge it: the smooth stage's surface
         return sized
 
     levels, h = [], perimeter / MIN_RING_POINTS
