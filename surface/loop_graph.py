@@ -194,9 +194,24 @@ def rasterise(polygon: np.ndarray, origin: np.ndarray, cell: float,
     if r1 <= r0 or c1 <= c0:
         return r0, c0, np.zeros((0, 0), bool)
     x0, y0 = np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1])
-    toggles = _crossings(x0, y0, np.roll(x0, -1), np.roll(y0, -1), r0, r1, c0, c1)
-    mask = (np.cumsum(toggles, axis=1)[:, :-1] % 2).astype(bool)
-    return r0, c0, mask
+    x1, y1 = np.empty_like(x0), np.empty_like(y0)
+    x1[:-1], x1[-1] = x0[1:], x0[0]
+    y1[:-1], y1[-1] = y0[1:], y0[0]
+    return r0, c0, _parity(_crossings(x0, y0, x1, y1, r0, r1, c0, c1))
+
+
+@numba.njit(cache=True, nogil=True)
+def _parity(toggles):  # pragma: no cover - compiled
+    """Inside cells ``(rows, cols)``: odd running sums of each row's crossings
+    (``cumsum(toggles, axis=1)[:, :-1] % 2``, without its temporaries)."""
+    rows, cols = toggles.shape[0], toggles.shape[1] - 1
+    mask = np.zeros((rows, cols), np.bool_)
+    for r in range(rows):
+        odd = 0
+        for c in range(cols):
+            odd = (odd + toggles[r, c]) & 1
+            mask[r, c] = odd == 1
+    return mask
 
 
 @numba.njit(cache=True, nogil=True)
@@ -249,7 +264,8 @@ def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
 
 def _area(polygon: np.ndarray) -> float:
     x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+    x1, y1 = np.concatenate([x[1:], x[:1]]), np.concatenate([y[1:], y[:1]])
+    return 0.5 * abs(float(np.sum(x * y1 - x1 * y)))
 
 
 def nesting(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
