@@ -200,6 +200,26 @@ def test_bisection_takes_the_candidate_the_search_from_the_coarsest_takes(monkey
     assert found[True][2] < found[False][2]
 
 
+@pytest.mark.parametrize("shape", ["amphora", "torus"])
+def test_walk_when_none_passes_chooses_what_trying_every_level_chooses(monkeypatch, shape):
+    """When the bisection finds no candidate within its goal (a handle's or a hole's
+    branches: 10 000 points of the branched shapes), the walk -- the step-1 levels, then
+    coarser levels only while their estimates stay within a standard error of the
+    closest -- keeps what trying every level keeps, from fewer candidates."""
+    from tests import _shapes
+
+    points = _shapes.sample(shape, 10_000, seed=1)
+    chosen = {}
+    for walk in (False, True):
+        monkeypatch.setattr(sizing, "WALK_WHEN_NONE_PASS", walk)
+        sized, _ = sizing.sized_from_points(points, axis="z")
+        built = [c for c in sized.tried if "triangles" in c]
+        assert all(c["error"] > c["tolerance"] for c in built)     # none passed
+        chosen[walk] = (sized.step, sized.n, len(sized.triangles), len(built))
+    assert chosen[True][:3] == chosen[False][:3]
+    assert chosen[True][3] < chosen[False][3]
+
+
 def test_sized_surface_keeps_the_stitched_accuracy_of_a_noisy_cloud():
     # 20 000 points of the vase with sigma = 0.002: the default tolerance, the dense stitched
     # mesh's own error over its surface (its rings' variogram across sections plus its
