@@ -123,6 +123,16 @@ _ARC_SAMPLES = 64
 _FAIRNESS = 1e-2
 
 
+def _next(a: np.ndarray) -> np.ndarray:
+    """``np.roll(a, -1, axis=0)`` (each row's successor, cyclically) without its overhead."""
+    return np.concatenate([a[1:], a[:1]])
+
+
+def _previous(a: np.ndarray) -> np.ndarray:
+    """``np.roll(a, 1, axis=0)``."""
+    return np.concatenate([a[-1:], a[:-1]])
+
+
 def _check_curve_input(points, name: str, parametrisation: str) -> np.ndarray:
     """``(n, 3)`` finite float64 points, n >= 4 (a closed cubic needs 4), and a known
     parametrisation; ``ValueError`` naming ``name`` otherwise."""
@@ -439,12 +449,12 @@ def _arc_parameters(points: np.ndarray, window: int) -> tuple[np.ndarray, float]
         smooth = (csum[window : window + m] - csum[:m]) / window
     else:
         smooth = points
-    step = np.linalg.norm(np.roll(smooth, -1, axis=0) - smooth, axis=1)
+    step = np.linalg.norm(_next(smooth) - smooth, axis=1)
     total = float(step.sum())
     if total <= TOL.zero:
         raise ValueError("points all coincide: cannot fit a curve")
     cum = np.concatenate([[0.0], np.cumsum(step)[:-1]])
-    tangent = np.roll(smooth, -1, axis=0) - np.roll(smooth, 1, axis=0)
+    tangent = _next(smooth) - _previous(smooth)
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1), TOL.zero)[:, None]
     arc = cum + np.einsum("mi,mi->m", points - smooth, tangent)
     return arc, total
@@ -587,9 +597,10 @@ def _uniform_points_and_derivatives(ctrl: np.ndarray, t: np.ndarray):
     (a test compares them on random curves).
     """
     n = len(ctrl)
-    tangent = 0.5 * (np.roll(ctrl, -1, axis=0) - np.roll(ctrl, 1, axis=0))
-    slope = np.roll(ctrl, -1, axis=0) - ctrl  # knot steps of 1
-    excess = tangent + np.roll(tangent, -1, axis=0) - 2 * slope
+    after, before = _next(ctrl), _previous(ctrl)
+    tangent = 0.5 * (after - before)
+    slope = after - ctrl  # knot steps of 1
+    excess = tangent + _next(tangent) - 2 * slope
     x = t % n  # the periodic wrap of PPoly
     segment = np.minimum(np.floor(x).astype(np.int64), n - 1)
     local = (x - segment)[:, None]
@@ -965,7 +976,7 @@ MIN_BRANCH_RING = 8
 def perimeter(points: np.ndarray) -> float:
     """Length of the closed polyline through ``points (M, 3)`` in their order."""
     pts = np.asarray(points, dtype=np.float64)
-    return float(np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1).sum())
+    return float(np.linalg.norm(_next(pts) - pts, axis=1).sum())
 
 
 def branch_ring_size(n: int, length: float, largest: float) -> int:

@@ -422,7 +422,8 @@ def periodic_cubic(rings: Sequence, params: np.ndarray) -> np.ndarray:
         groups.setdefault(len(ring), []).append(i)
     for m, idx in groups.items():
         y = np.stack([np.asarray(rings[i], dtype=np.float64) for i in idx])   # (G, m, D)
-        rhs = 6.0 * (np.roll(y, -1, axis=1) - 2.0 * y + np.roll(y, 1, axis=1))
+        rhs = 6.0 * (np.concatenate([y[:, 1:], y[:, :1]], axis=1) - 2.0 * y
+                     + np.concatenate([y[:, -1:], y[:, :-1]], axis=1))
         eigen = 4.0 + 2.0 * np.cos(2.0 * np.pi * np.arange(m // 2 + 1) / m)
         c = np.fft.irfft(np.fft.rfft(rhs, axis=1) / eigen[None, :, None], n=m, axis=1)
         x = np.mod(params[idx], 1.0) * m                                     # (G, K)
