@@ -277,7 +277,7 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
 
     support = noise if params["support"] and noise is not None else None
 
-    def build(rings, ring_planes):
+    def build(rings, ring_planes, diagnostics=True):
         # a lone loop as itself, as surface.reconstruct.surface_from_points passes it
         rings = [item[0] if isinstance(item, list) and len(item) == 1 else item
                  for item in rings]
@@ -287,7 +287,8 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
                                                   np.arange(len(cap_cloud)), spacing,
                                                   sigma=cap_sigma)
         result = st.stitch_rings(rings, planes[0].frame[2], close_ends=params["caps"],
-                                 support_sigma=support, cap_points=cap_cloud)
+                                 support_sigma=support, cap_points=cap_cloud,
+                                 diagnostics=diagnostics)
         return result, notes_ends
 
     return build
@@ -352,7 +353,7 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
                       artifacts.read_cap_sigma(ctx.stage_path("sections")))
 
     def mesh(thin_rings, thin_planes):
-        result, _ = build(thin_rings, thin_planes)
+        result, _ = build(thin_rings, thin_planes, diagnostics=False)
         if not result.closed:
             raise ValueError("the thinned rings stitch to an open mesh")
         return result.vertices, result.triangles

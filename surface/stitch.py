@@ -1418,7 +1418,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                  constrain_contours: bool = True,
                  max_normal_change: float = MAX_NORMAL_CHANGE,
                  support_sigma: float | None = None,
-                 cap_points: np.ndarray | None = None) -> StitchResult:
+                 cap_points: np.ndarray | None = None,
+                 diagnostics: bool = True) -> StitchResult:
     """Stitch closed section rings into an oriented triangle mesh.
 
     Parameters
@@ -1463,6 +1464,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         height of the cap points inside it between its section and the next
         (at least ``CAP_MIN_POINTS`` of them), its wall carried on straight to
         that height; without them, or too few, the cap lies in the loop's plane.
+    diagnostics : bool
+        Measure ``delaunay_fraction`` (False: NaN, for the sizing's candidate meshes,
+        which only need the mesh).
 
     Returns
     -------
@@ -1809,7 +1813,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         problem(f"{topo['nonmanifold_edges']} non-manifold edges")
     if not topo["oriented"]:
         problem("faces are not consistently oriented")
-    mask = _flippable_edges(triangles, flip_region, fixed, len(vertices))
+    mask = _flippable_edges(triangles, flip_region, fixed, len(vertices)) if diagnostics \
+        else None
     sec_of = np.concatenate(sec_of).astype(np.int64)
     loop_of = np.concatenate(loop_of).astype(np.int64)
     used = np.zeros(len(vertices), bool)
@@ -1828,7 +1833,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         loop_of_vertex=loop_of,
         open_interfaces=tuple(open_ifaces),
         flips=int(flips),
-        delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask),
+        delaunay_fraction=delaunay_fraction(vertices, triangles, edge_mask=mask)
+        if diagnostics else float("nan"),
         notes=tuple(notes),
         graph=graph,
         problems=tuple(problems),

@@ -518,3 +518,13 @@ def test_a_ring_with_a_side_unseen_is_bridged_and_closed(unseen):
     # over the wedge, no farther in than the chord's sagitta of the widest ring
     widest = float(np.hypot(v[:, 0], v[:, 1]).max())
     assert distance[over].max() < 1.1 * widest * (1 - np.cos(np.radians(unseen / 2))) + 0.01
+
+
+def test_stitch_without_diagnostics_is_the_same_mesh():
+    """The sizing's candidates skip the Delaunay measure: the same mesh, no fraction."""
+    rings = vase_rings(15, 24, a=1.5, b=0.8, twist=0.15)
+    full = stitch_rings(rings, Z_AXIS)
+    bare = stitch_rings(rings, Z_AXIS, diagnostics=False)
+    assert np.array_equal(full.vertices, bare.vertices)
+    assert np.array_equal(full.triangles, bare.triangles)
+    assert full.delaunay_fraction == 1.0 and np.isnan(bare.delaunay_fraction)
