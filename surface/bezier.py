@@ -294,6 +294,14 @@ def _derivative_operators(degree: int = DEGREE) -> tuple[np.ndarray, np.ndarray]
     return du[0], dv[0]
 
 
+def _clipped_trial(bary: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Barycentrics ``bary`` moved by ``step`` (in s, t), kept within ``_EXTEND`` of the
+    patch (:func:`closest_points`)."""
+    st = bary[:, 1:] + step
+    return np.clip(np.column_stack([1.0 - st.sum(axis=1), st]), -_EXTEND,
+                   1.0 + 2.0 * _EXTEND)
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
@@ -1570,8 +1578,9 @@ def closest_points(control_points, points, triangles=None, level: int = 1,
     start = bary
     moved = np.zeros(len(p))
 
-    def at(b):   # a batched matrix product: several times einsum's speed here
-        return np.matmul(_bernstein(b, DEGREE)[:, None, :], nets)[:, 0]
+    def at(b, rows=None):   # a batched matrix product: several times einsum's speed here
+        return np.matmul(_bernstein(b, DEGREE)[:, None, :],
+                         nets if rows is None else nets[rows])[:, 0]
 
     here = at(bary)
     for _ in range(max(0, int(iterations))):
@@ -1588,16 +1597,21 @@ def closest_points(control_points, points, triangles=None, level: int = 1,
         step = np.stack([np.where(ok, (c * gu - b * gv) / safe, 0.0),
                          np.where(ok, (a * gv - b * gu) / safe, 0.0)], axis=1)
         # Gauss-Newton, its step halved (up to 3 times) where it would move away
+        # (the halvings evaluate only the points that moved away)
         old = np.einsum("nd,nd->n", r, r)
-        for _halving in range(4):
-            st = bary[:, 1:] + step
-            trial = np.clip(np.column_stack([1.0 - st.sum(axis=1), st]), -_EXTEND,
-                            1.0 + 2.0 * _EXTEND)
-            there = at(trial)
-            worse = np.einsum("nd,nd->n", p - there, p - there) > old
-            if _halving == 3 or not worse.any():
+
+        trial = _clipped_trial(bary, step)
+        there = at(trial)
+        worse = np.einsum("nd,nd->n", p - there, p - there) > old
+        for _halving in range(3):
+            redo = np.flatnonzero(worse)
+            if not len(redo):
                 break
-            step = np.where(worse[:, None], 0.5 * step, step)
+            step[redo] *= 0.5
+            trial[redo] = _clipped_trial(bary[redo], step[redo])
+            there[redo] = at(trial[redo], redo)
+            gap = p[redo] - there[redo]
+            worse[redo] = np.einsum("nd,nd->n", gap, gap) > old[redo]
         keep = worse[:, None]
         bary = np.where(keep, bary, trial)
         here = np.where(keep, here, there)
