@@ -131,6 +131,25 @@ def test_bridge_split_gives_one_counter_clockwise_subloop_per_child():
         assert (a, b) in edges and (b, a) in edges
 
 
+def test_bridge_split_refuses_a_sliver_whatever_the_rounding():
+    """A small child nearest to a few collinear points of a loop's straight side (the
+    real temple's square column over a flat face) would close a sub-loop of no area:
+    refused, and refused alike when the points move by rounding (3e-14 on the temple
+    flipped the sign of that zero area between two builds).  (A child over a curved
+    side splits: test_bridge_split_gives_one_counter_clockwise_subloop_per_child.)"""
+    side = np.linspace(-1.0, 1.0, 41)
+    square = np.vstack([np.column_stack([side, np.full(41, -1.0)])[:-1],
+                        np.column_stack([np.full(41, 1.0), side])[:-1],
+                        np.column_stack([side[::-1], np.full(41, 1.0)])[:-1],
+                        np.column_stack([np.full(41, -1.0), side[::-1]])[:-1]])
+    children = [0.8 * square, circle(12, 0.02, cx=0.0, cy=-1.06)]   # nearest to 9 points
+    rng = np.random.default_rng(0)
+    for jitter in (0.0, 3e-14, -3e-14, 1e-13):
+        ring = square + jitter * rng.standard_normal(square.shape)
+        with pytest.raises(ValueError, match="encloses no area"):
+            _bridge_split(np.arange(len(ring)), ring, children, len(ring))
+
+
 # ----------------------------------------------------------------------------- tiling
 def hooked(n, length, z, w=0.08, rise=0.5):
     """A unit circle with a hooked lobe (out along +x by ``length``, then up by ``rise``),
