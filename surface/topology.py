@@ -436,13 +436,12 @@ def _quadratic_residuals(uv, near, ridge, tiny):  # pragma: no cover - compiled
     """Per point: its k neighbours ``near[i]`` about their mean, rotated to their
     principal direction (half the angle of the second moments), x scaled by its RMS;
     ``y = a + b x + c x²`` by least squares (power sums, ridge ``ridge`` times the
-    trace on the diagonal, Gaussian elimination with partial pivoting); the point's
-    distance from it across the direction."""
+    trace on the diagonal, solved by Cholesky: the system is symmetric positive
+    definite); the point's distance from it across the direction."""
     m, k = near.shape
     out = np.empty(m)
     x = np.empty(k)
     y = np.empty(k)
-    g = np.empty((3, 4))
     for i in range(m):
         mu = 0.0
         mv = 0.0
@@ -486,37 +485,22 @@ def _quadratic_residuals(uv, near, ridge, tiny):  # pragma: no cover - compiled
             t0 += y[j]
             t1 += xs * y[j]
             t2 += x2 * y[j]
+        # the normal equations (power sums, the ridge on the diagonal) are symmetric
+        # positive definite: Cholesky, then the two triangular solves
         s0 = float(k)
         lift = ridge * (s0 + s2 + s4)
-        g[0, 0] = s0 + lift
-        g[0, 1] = s1
-        g[0, 2] = s2
-        g[0, 3] = t0
-        g[1, 0] = s1
-        g[1, 1] = s2 + lift
-        g[1, 2] = s3
-        g[1, 3] = t1
-        g[2, 0] = s2
-        g[2, 1] = s3
-        g[2, 2] = s4 + lift
-        g[2, 3] = t2
-        for col in range(3):                         # elimination, partial pivoting
-            piv = col
-            for row in range(col + 1, 3):
-                if abs(g[row, col]) > abs(g[piv, col]):
-                    piv = row
-            if piv != col:
-                for q in range(4):
-                    tmp = g[col, q]
-                    g[col, q] = g[piv, q]
-                    g[piv, q] = tmp
-            for row in range(col + 1, 3):
-                f = g[row, col] / g[col, col]
-                for q in range(col, 4):
-                    g[row, q] -= f * g[col, q]
-        cc = g[2, 3] / g[2, 2]
-        bb = (g[1, 3] - g[1, 2] * cc) / g[1, 1]
-        aa = (g[0, 3] - g[0, 1] * bb - g[0, 2] * cc) / g[0, 0]
+        l00 = np.sqrt(s0 + lift)
+        l10 = s1 / l00
+        l20 = s2 / l00
+        l11 = np.sqrt(max(s2 + lift - l10 * l10, tiny))
+        l21 = (s3 - l20 * l10) / l11
+        l22 = np.sqrt(max(s4 + lift - l20 * l20 - l21 * l21, tiny))
+        y0 = t0 / l00
+        y1 = (t1 - l10 * y0) / l11
+        y2 = (t2 - l20 * y0 - l21 * y1) / l22
+        cc = y2 / l22
+        bb = (y1 - l21 * cc) / l11
+        aa = (y0 - l10 * bb - l20 * cc) / l00
         ou = uv[i, 0] - mu
         ov = uv[i, 1] - mv
         x0 = (ou * c + ov * s) / spread
