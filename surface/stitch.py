@@ -507,6 +507,11 @@ def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active,
     return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
 
 
+#: A sweep's changed faces, times this, below the face count: its neighbours are taken
+#: from the kept incidence (:func:`delaunay_flips`), else from a pass over every face.
+AROUND_SHARE = 16
+
+
 class _Incidence:
     """The faces around each vertex, kept across flips: a superset, which is all
     :func:`_flip_candidates` needs (extra faces add edges no active face touches, which
@@ -647,7 +652,11 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
         # independent-set draw, are examined again.
         active[f1] = True
         active[f2] = True
-        around = incidence.around(np.unique(tri[np.concatenate([f1, f2])]))
+        # the kept incidence pays off when few faces changed; a large sweep's neighbours
+        # are found as cheaply by the pass over every face
+        changed = np.concatenate([f1, f2])
+        around = incidence.around(np.unique(tri[changed])) \
+            if len(changed) * AROUND_SHARE < len(tri) else None
     return tri, total, False
 
 

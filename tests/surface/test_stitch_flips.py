@@ -46,7 +46,7 @@ def test_flips_with_kept_incidence_are_the_flips_of_full_scans(monkeypatch, seed
 
     monkeypatch.setattr(stitch, "_flip_candidates", full_scan)
     scanned = stitch.delaunay_flips(raw.vertices, raw.triangles, region)
-    assert sum(sweeps) >= 5               # the incidence was used in late sweeps
+    assert sum(sweeps) >= 3               # the incidence was used in late sweeps
     assert kept[1] == scanned[1] > 100
     assert np.array_equal(kept[0], scanned[0])
     assert kept[2] and scanned[2]
