@@ -391,7 +391,11 @@ def _edges(encoded: np.ndarray, hit: np.ndarray, contrast: float) -> np.ndarray:
     for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
         a = (slice(0, height - dy), slice(max(0, -dx), width - max(0, dx)))
         b = (slice(dy, height), slice(max(0, dx), width - max(0, -dx)))
-        differ = (np.abs(encoded[a] - encoded[b]).max(axis=-1) > contrast) | (hit[a] != hit[b])
+        gap = np.abs(encoded[a] - encoded[b])
+        # the channels' largest by two elementwise maxima (a reduction over the last axis
+        # of 3 is ~6x slower; the same values)
+        most = np.maximum(np.maximum(gap[..., 0], gap[..., 1]), gap[..., 2])
+        differ = (most > contrast) | (hit[a] != hit[b])
         edge[a] |= differ
         edge[b] |= differ
     return edge
