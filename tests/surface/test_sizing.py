@@ -220,6 +220,22 @@ def test_walk_when_none_passes_chooses_what_trying_every_level_chooses(monkeypat
     assert chosen[True][3] < chosen[False][3]
 
 
+def test_ring_points_of_the_levels_do_not_read_rounding():
+    """The candidate levels h = P / 12 / √2^k give P / h = 12·√2^k: an integer for even k,
+    which a plain ceiling turned into it or the next one by rounding (the real temple ring:
+    96 or 97 ring points as its cloud moved by 1e-13).  The same n for P moved by 1e-13."""
+    rng = np.random.default_rng(3)
+    for perimeter in rng.uniform(0.01, 50.0, 200):
+        for scale in (1.0, 1.0 + 1e-13, 1.0 - 1e-13):
+            p = perimeter * scale
+            h = p / sizing.MIN_RING_POINTS
+            for k in range(12):
+                exact = 12.0 * np.sqrt(2.0) ** k
+                want = round(exact) if k % 2 == 0 else int(np.ceil(exact))
+                assert sizing._ring_points(p, h) == want, (p, k)
+                h /= sizing.H_RATIO
+
+
 def test_sized_surface_keeps_the_stitched_accuracy_of_a_noisy_cloud():
     # 20 000 points of the vase with sigma = 0.002: the default tolerance, the dense stitched
     # mesh's own error over its surface (its rings' variogram across sections plus its
