@@ -421,40 +421,48 @@ def _local_residuals(uv: np.ndarray, reference: np.ndarray, k: int) -> np.ndarra
     per-loop overhead were 0.4 s of the real temple's 263 loops).
     """
     k = min(k, len(reference) - 1)
-    m = len(uv)
     _, nbr = cKDTree(uv[reference]).query(uv, k=k + 1)
-    nbr = reference[nbr]  # (M, k + 1) point indices
-    is_self = nbr == np.arange(m)[:, None]
-    is_self[~is_self.any(axis=1), -1] = True  # not a reference: drop the farthest instead
-    near = np.ascontiguousarray(nbr[~is_self].reshape(m, k))
-    return _quadratic_residuals(np.ascontiguousarray(uv, dtype=np.float64), near,
+    nbr = np.ascontiguousarray(reference[nbr])  # (M, k + 1) point indices, self among them
+    return _quadratic_residuals(np.ascontiguousarray(uv, dtype=np.float64), nbr,
                                 float(TOL.ridge_rel), float(TOL.zero))
 
 
 @numba.njit(cache=True, nogil=True)
-def _quadratic_residuals(uv, near, ridge, tiny):  # pragma: no cover - compiled
-    """Per point: its k neighbours ``near[i]`` about their mean, rotated to their
+def _quadratic_residuals(uv, nbr, ridge, tiny):  # pragma: no cover - compiled
+    """Per point: its k neighbours (``nbr[i]``, its k + 1 nearest references, less itself
+    or, where it is not a reference, less the farthest) about their mean, rotated to their
     principal direction (half the angle of the second moments), x scaled by its RMS;
     ``y = a + b x + c x²`` by least squares (power sums, ridge ``ridge`` times the
     trace on the diagonal, solved by Cholesky: the system is symmetric positive
     definite); the point's distance from it across the direction."""
-    m, k = near.shape
+    m, k = nbr.shape[0], nbr.shape[1] - 1
     out = np.empty(m)
     x = np.empty(k)
     y = np.empty(k)
+    near = np.empty((1, k), np.int64)
     for i in range(m):
+        drop = k
+        for j in range(k + 1):
+            if nbr[i, j] == i:
+                drop = j
+                break
+        at = 0
+        for j in range(k + 1):
+            if j != drop:
+                near[0, at] = nbr[i, j]
+                at += 1
         mu = 0.0
         mv = 0.0
         for j in range(k):
-            mu += uv[near[i, j], 0]
-            mv += uv[near[i, j], 1]
+            mu += uv[near[0, j], 0]
+            mv += uv[near[0, j], 1]
         mu /= k
         mv /= k
         suv = 0.0
         sdiff = 0.0
         for j in range(k):
-            du = uv[near[i, j], 0] - mu
-            dv = uv[near[i, j], 1] - mv
+            du = uv[near[0, j], 0] - mu
+            dv = uv[near[0, j], 1] - mv
             suv += du * dv
             sdiff += du * du - dv * dv
         angle = 0.5 * np.arctan2(2.0 * suv, sdiff)
@@ -462,8 +470,8 @@ def _quadratic_residuals(uv, near, ridge, tiny):  # pragma: no cover - compiled
         s = np.sin(angle)
         sq = 0.0
         for j in range(k):
-            du = uv[near[i, j], 0] - mu
-            dv = uv[near[i, j], 1] - mv
+            du = uv[near[0, j], 0] - mu
+            dv = uv[near[0, j], 1] - mv
             x[j] = du * c + dv * s
             y[j] = dv * c - du * s
             sq += x[j] * x[j]
