@@ -295,17 +295,8 @@ class ClosedCurve:
         coeffs = self.spline.c[:, seg, :] @ self.frame[:2].T  # (4, n, 2) in the plane
         coeffs[3] -= (self.centroid @ self.frame[:2].T)[None, :]
         cubic = direction[None, :, 0] * coeffs[:, :, 1] - direction[None, :, 1] * coeffs[:, :, 0]
-        lo = np.zeros(len(seg))
         hi = np.diff(self.knots)[seg]
-        # invariant f(lo) <= 0 < f(hi) (the ray's angle lies between the segment's
-        # ends); comparing with 0, not the sign at lo, keeps a ray through a knot exact
-        for _ in range(_BISECT_STEPS):
-            mid = 0.5 * (lo + hi)
-            f_mid = ((cubic[0] * mid + cubic[1]) * mid + cubic[2]) * mid + cubic[3]
-            below = f_mid <= 0
-            lo = np.where(below, mid, lo)
-            hi = np.where(below, hi, mid)
-        return self.knots[seg] + 0.5 * (lo + hi)
+        return self.knots[seg] + _bisect_cubics(np.ascontiguousarray(cubic), hi, _BISECT_STEPS)
 
     def resample_arclength(self, n: int, theta0: float = 0.0) -> np.ndarray:
         """``n`` points at equal arc length, counter-clockwise, ``(n, 3)``.
@@ -665,6 +656,27 @@ def _least_squares(pts: np.ndarray, n_ctrl: int, smoothing: float, arcs: dict | 
     system = normal + _FAIRNESS * np.diagonal(normal).mean() * _third_difference_gram(n_ctrl)
     rows, cols_all = _cyclic_band(n_ctrl)
     return _solve_band(system[rows, cols_all], rows, rhs), t
+
+
+@numba.njit(cache=True, nogil=True)
+def _bisect_cubics(cubic, hi, steps):  # pragma: no cover - compiled
+    """Root of each cubic ``cubic[:, r]`` (coefficients of τ³, τ², τ, 1) in ``[0, hi[r]]``
+    by ``steps`` bisections, the midpoint of the last bracket: the invariant
+    f(lo) <= 0 < f(hi) (the ray's angle lies between the segment's ends); comparing with 0,
+    not the sign at lo, keeps a ray through a knot exact.  The array form's arithmetic,
+    one ray at a time (it was 64 passes of array operations a ring)."""
+    out = np.empty(hi.shape[0])
+    for r in range(hi.shape[0]):
+        lo, up = 0.0, hi[r]
+        c0, c1, c2, c3 = cubic[0, r], cubic[1, r], cubic[2, r], cubic[3, r]
+        for _ in range(steps):
+            mid = 0.5 * (lo + up)
+            if ((c0 * mid + c1) * mid + c2) * mid + c3 <= 0:
+                lo = mid
+            else:
+                up = mid
+        out[r] = 0.5 * (lo + up)
+    return out
 
 
 @lru_cache(maxsize=64)
