@@ -151,11 +151,6 @@ def _names(nodes) -> set[str]:
     return names
 
 
-def _imported(nodes) -> tuple[str, ...]:
-    """photosurf modules named by the import statements among ``nodes``."""
-    return tuple(sorted(n for n in _names(nodes) if _module_file(n) is not None))
-
-
 def _read_imports_cache() -> dict:
     if IMPORTS_CACHE is None:
         return {}

@@ -1512,10 +1512,13 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                                   # (and its h)
     floor = float(np.sqrt(variogram.sill))   # a step-1 candidate's estimate is never below
 
+    def level_key(h):
+        """``(step, n)`` of the level of edge length ``h``."""
+        return max(1, int(np.floor(h / spacing))), _ring_points(perimeter, h)
+
     def judge(h):
         """The candidate of edge length ``h``: a SizedMesh if it passes, else None."""
-        step = max(1, int(np.floor(h / spacing)))
-        n = _ring_points(perimeter, h)
+        step, n = level_key(h)
         if (step, n) in seen or (step == 1 and n >= dense_n):
             return None
         seen.add((step, n))
@@ -1581,11 +1584,9 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
         return sized
 
     levels, h = [], perimeter / MIN_RING_POINTS
-    while max(1, int(np.floor(h / spacing))) > 1 or _ring_points(perimeter, h) < dense_n:
+    while level_key(h)[0] > 1 or level_key(h)[1] < dense_n:
         levels.append(h)
         h /= H_RATIO
-    def level_key(h):
-        return max(1, int(np.floor(h / spacing))), _ring_points(perimeter, h)
 
     def walk():
         """After a bisection that found none (WALK_WHEN_NONE_PASS): the step-1 levels in

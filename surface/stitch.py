@@ -531,7 +531,8 @@ class _Incidence:
         flat = triangles.ravel()
         order = np.argsort(flat, kind="stable")
         self.faces = order // 3
-        self.start = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=self.n_vertices))])
+        self.count = np.bincount(flat, minlength=self.n_vertices)
+        self.start = np.concatenate([[0], np.cumsum(self.count)])
         self.added_vertices: list[np.ndarray] = []
         self.added_faces: list[np.ndarray] = []
         self.added = 0
@@ -546,7 +547,7 @@ class _Incidence:
 
     def around(self, vertices: np.ndarray) -> np.ndarray:
         """Sorted faces on (or once on) any of the distinct ``vertices``."""
-        first, count = self.start[vertices], np.diff(self.start)[vertices]
+        first, count = self.start[vertices], self.count[vertices]
         offset = np.repeat(first - np.cumsum(count) + count, count)
         found = [self.faces[offset + np.arange(offset.size)]]
         if self.added:
