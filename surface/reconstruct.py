@@ -496,7 +496,14 @@ def _dense_extent(heights: np.ndarray, delta: float) -> np.ndarray:
     lo, hi = float(heights.min()), float(heights.max())
     if delta <= 0 or hi - lo <= delta:
         return np.ones(len(heights), bool)
-    edges = np.arange(lo, hi + delta / 2, delta / 2)
+    # the edges np.arange(lo, hi + Δ/2, Δ/2) gave, their count taken 1e-9 below its
+    # ceiling: Δ is the extent over the section count, so (hi - lo) / (Δ/2) is an integer
+    # up to rounding, and the plain ceiling added a last bin beyond hi on one build and
+    # not on another -- its single point cut off as a sparse tail moved every section
+    # (the 10⁴-point torus of tests/_shapes.py: the cloud moved by 1e-13 shifted its
+    # sections by up to 3e-4)
+    count = int(np.ceil((hi - lo) / (delta / 2) + 1.0 - 1e-9))
+    edges = lo + (delta / 2) * np.arange(count)
     edges[-1] = max(edges[-1], hi)
     counts, edges = np.histogram(heights, bins=edges)
     full = counts >= SPARSE_TAIL * np.median(counts[counts > 0])

@@ -388,3 +388,19 @@ def test_a_section_whose_ring_crosses_itself_is_skipped():
     assert [s.section_id for s in kept] == [0, 1, 2, 4, 5]
     assert len(notes) == 1 and "crosses itself" in notes[0]
     assert stitch_rings(rings, np.array([0.0, 0.0, 1.0])).closed
+
+
+def test_sections_do_not_move_with_the_clouds_last_bits():
+    """The slabs' dense extent bins the heights by Δ/2 with Δ = extent / sections, so the
+    bin count is an integer up to rounding: a plain ceiling added a bin beyond the top on
+    one build and not on another, and the sections of the 10⁴-point torus moved by up to
+    3e-4 when its cloud moved by 1e-13.  Now they move by the cloud's own rounding."""
+    from surface.reconstruct import slice_cloud
+
+    points = S.sample("torus", 10_000, seed=1)
+    base = [s.height for s in slice_cloud(points, axis="z").sections]
+    for seed in (1, 2, 3):
+        moved = points * (1 + 1e-13 * np.random.default_rng(seed).standard_normal(points.shape))
+        heights = [s.height for s in slice_cloud(moved, axis="z").sections]
+        assert len(heights) == len(base)
+        assert np.abs(np.subtract(heights, base)).max() < 1e-11
