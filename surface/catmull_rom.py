@@ -634,17 +634,15 @@ def _least_squares(pts: np.ndarray, n_ctrl: int, smoothing: float, arcs: dict | 
     # AᵀA and Aᵀx of the sparse design matrix A (row j: weights at cols[j]), adding every
     # entry's terms in point order, as scipy's sparse products do
     if n_ctrl > 6:
-        ctrl = np.empty((n_ctrl, 3))
-        order, where = _interleaved(n_ctrl)
-        if _fit_cyclic_band(np.ascontiguousarray(t), np.ascontiguousarray(pts, np.float64),
-                            _third_difference_band(n_ctrl), _FAIRNESS, order, where, ctrl):
-            return ctrl, t
-        # not positive definite to rounding (no data near some control point): pivoting LU
         # band storage: entry (i, j) at [j, (i − j + 3) mod n], |i − j| ≤ 3 cyclically
         normal = np.zeros((n_ctrl, 7))
         rhs = np.zeros((n_ctrl, 3))
         _normal_equations_band(cols, weights, pts, normal, rhs)
         system = normal + _FAIRNESS * normal[:, 3].mean() * _third_difference_band(n_ctrl)
+        ctrl = np.empty((n_ctrl, 3))
+        if _cholesky_cyclic_band(system, rhs, _interleaved(n_ctrl), ctrl):
+            return ctrl, t
+        # not positive definite to rounding (no data near some control point): pivoting LU
         rows, order = _band_rows(n_ctrl)
         return _solve_band(np.take_along_axis(system, order, axis=1), rows, rhs), t
     rhs = np.stack([np.bincount(cols.ravel(), (weights * pts[:, d, None]).ravel(),
@@ -680,57 +678,29 @@ def _bisect_cubics(cubic, hi, steps):  # pragma: no cover - compiled
 
 
 @lru_cache(maxsize=64)
-def _interleaved(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The order ``0, n-1, 1, n-2, ...`` of n cyclic unknowns and each one's place in it:
-    cyclic neighbours up to 3 apart end up at most 6 places apart, so a cyclic band of
-    half-width 3 becomes a plain band of half-width 6 (no fill-in outside it)."""
+def _interleaved(n: int) -> np.ndarray:
+    """The order ``0, n-1, 1, n-2, ...`` of n cyclic unknowns: cyclic neighbours up to 3
+    apart end up at most 6 places apart, so a cyclic band of half-width 3 becomes a plain
+    band of half-width 6 (no fill-in outside it)."""
     order = np.empty(n, np.int64)
     order[0::2] = np.arange((n + 1) // 2)
     order[1::2] = n - 1 - np.arange(n // 2)
-    where = np.empty(n, np.int64)
-    where[order] = np.arange(n)
-    order.flags.writeable = where.flags.writeable = False
-    return order, where
+    order.flags.writeable = False
+    return order
 
 
 @numba.njit(cache=True, nogil=True)
-def _fit_cyclic_band(t, pts, fair_band, fairness, order, where, out):  # pragma: no cover
-    """Control points of the penalised least-squares fit of :func:`_least_squares` (n > 6)
-    into ``out`` ``(n, 3)``; False (``out`` undefined) when the system is not positive
+def _cholesky_cyclic_band(system, rhs, order, out):  # pragma: no cover - compiled
+    """Solve the symmetric positive definite cyclic band system of :func:`_least_squares`
+    (n > 6; band storage ``system[j, (i − j + 3) mod n]`` = entry (i, j), right-hand sides
+    ``rhs`` ``(n, 3)``) into ``out``; False (``out`` undefined) when it is not positive
     definite to rounding.
 
-    ``AᵀA`` and ``Aᵀx`` accumulate point by point (the uniform Catmull-Rom weights of each
-    point's local parameter); with ``fairness`` × the mean of ``AᵀA``'s diagonal times the
-    third differences' Gram ``fair_band`` (band storage: entry (i, j) at
-    ``[j, (i − j + 3) mod n]``) the system is symmetric positive definite, solved by a
-    banded Cholesky factorisation in the interleaved order (:func:`_interleaved`,
-    half-band 6): O(n) work with no sparse-matrix set-up (SuperLU's was most of the GCV's
-    time, 900 fits a real temple ring).
+    A banded Cholesky factorisation in the interleaved order (:func:`_interleaved`: the
+    cyclic half-band 3 becomes a plain band of 6), O(n) work with no sparse-matrix set-up
+    (SuperLU's was most of the GCV's time, 900 fits a real temple ring).
     """
-    n = fair_band.shape[0]
-    normal = np.zeros((n, 7))
-    rhs = np.zeros((n, 3))
-    for k in range(t.shape[0]):
-        seg = min(int(np.floor(t[k])), n - 1)
-        u = t[k] - seg
-        u2 = u * u
-        u3 = u2 * u
-        w = np.empty(4)
-        w[0] = 0.5 * (-u3 + 2.0 * u2 - u)
-        w[1] = 0.5 * (3.0 * u3 - 5.0 * u2 + 2.0)
-        w[2] = 0.5 * (-3.0 * u3 + 4.0 * u2 + u)
-        w[3] = 0.5 * (u3 - u2)
-        for a in range(4):
-            i = (seg - 1 + a) % n
-            for d in range(3):
-                rhs[i, d] += w[a] * pts[k, d]
-            for b in range(4):
-                j = (seg - 1 + b) % n
-                normal[j, (i - j + 3) % n] += w[a] * w[b]
-    lam = 0.0
-    for j in range(n):
-        lam += normal[j, 3]
-    lam = fairness * lam / n
+    n = system.shape[0]
     half = 6
     low = np.zeros((n, half + 1))          # low[p, d] = L[p, p - d], interleaved order
     for p in range(n):
@@ -738,9 +708,7 @@ def _fit_cyclic_band(t, pts, fair_band, fairness, order, where, out):  # pragma:
             q = p - d
             i, j = order[p], order[q]
             diff = (i - j + 3) % n
-            value = 0.0
-            if diff <= 6:                   # cyclically at most 3 apart (n > 6)
-                value = normal[j, diff] + lam * fair_band[j, diff]
+            value = system[j, diff] if diff <= 6 else 0.0   # cyclically <= 3 apart (n > 6)
             for r in range(max(p - half, q - half, 0), q):
                 value -= low[p, p - r] * low[q, q - r]
             if d == 0:
