@@ -1507,7 +1507,6 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     tried: list[dict] = []
     seen = set()
     failed: list = []            # (SizedMesh, standard error) of each candidate that failed
-    estimates: dict = {}         # (step, n) -> error estimate of each candidate built
     shared_goal = [None, np.inf]  # the goal measured by the finest candidate not at step 1
                                   # (and its h)
     floor = float(np.sqrt(variogram.sill))   # a step-1 candidate's estimate is never below
@@ -1567,7 +1566,6 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
                 # goal holds them twice (module docstring); the finest coarser one's holds
                 goal = shared_goal[0]
         se = _risk_se(distances, error)
-        estimates[(step, n)] = error
         tried.append({"step": step, "n": n, "triangles": int(len(triangles)),
                       "deviation": float(distances.mean()), "error": error,
                       "tolerance": float(goal), "influence": mean_influence,
@@ -1610,7 +1608,8 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
             if passed is not None:
                 passes.append((h, passed))
                 continue
-            error = estimates.get(level_key(h))
+            error = next((c["error"] for c in tried if (c["step"], c["n"]) == level_key(h)
+                          and isinstance(c.get("error"), float)), None)
             if error is not None and error > best.error + se:
                 break
         return passes[-1] if passes else None
