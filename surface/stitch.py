@@ -82,7 +82,7 @@ import numpy as np
 
 from surface._blas import one_blas_thread
 from surface.loop_graph import LoopGraph, loop_graph, nesting
-from surface.metrics import delaunay_fraction, edge_table, face_normals, mesh_topology
+from surface.metrics import delaunay_fraction, edge_table, mesh_topology
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
@@ -416,175 +416,251 @@ def _edge_keys(pairs: np.ndarray, n_vertices: int) -> np.ndarray:
     return lo * n_vertices + hi
 
 
-def _angle(vertices: np.ndarray, apex: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    u = vertices[a] - vertices[apex]
-    w = vertices[b] - vertices[apex]
-    return np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+#: Share of the flips' edge table (open addressing, linear probing) its keys may fill
+#: before it is rebuilt larger (:func:`_lawson`).
+EDGE_TABLE_LOAD = 0.5
 
 
-def _member(sorted_keys: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """``query`` values present in the sorted 1-D ``sorted_keys`` (bool, same shape)."""
-    if sorted_keys.size == 0:
-        return np.zeros(query.shape, bool)
-    pos = np.minimum(np.searchsorted(sorted_keys, query), sorted_keys.size - 1)
-    return sorted_keys[pos] == query
+@numba.njit(cache=True, nogil=True)
+def _slot(table: np.ndarray, key: int) -> int:  # pragma: no cover - numba
+    """Slot of ``key`` in the open-addressing table ``table`` (keys, -1 empty; a power
+    of two long): where it is, or the empty slot where it goes (linear probing)."""
+    mask = np.uint64(len(table) - 1)
+    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
+    i = (h ^ (h >> np.uint64(29))) & mask
+    while table[i] != key and table[i] != -1:
+        i = (i + np.uint64(1)) & mask
+    return np.int64(i)
 
 
-def _interior_edge_faces(triangles: np.ndarray, n_vertices: int):
-    """``metrics.edge_table(triangles).edge_faces()`` and the sorted edge keys, in one sort.
+@numba.njit(cache=True, nogil=True)
+def _empty_table(size: int) -> tuple:  # pragma: no cover - numba
+    """Keys (-1: empty) and counts of an edge table of at least ``2·size`` slots."""
+    n = 16
+    while n < 2 * size:
+        n *= 2
+    return np.full(n, -1, np.int64), np.zeros(n, np.int64)
 
-    Returns ``(edge ids (I,), faces (I, 2), corners (I, 2), keys (E,))``: the edges
-    with exactly two faces, numbered in the order of their keys ``lo·V + hi``, their
-    two faces in half-edge order and the corner each starts at, and every edge's
-    key (ascending).  One stable sort of the half-edge keys gives both the edge
-    numbering and each edge's half-edges in order (the table sorts twice).
+
+@numba.njit(cache=True, nogil=True)
+def _grown(table: np.ndarray, count: np.ndarray) -> tuple:  # pragma: no cover - numba
+    """The table's edges of positive count in one of at least four slots a key:
+    ``(keys, counts, keys held)``."""
+    live = int(np.count_nonzero(count > 0))
+    new_table, new_count = _empty_table(2 * live)
+    for j in range(len(table)):
+        if count[j] > 0:
+            i = _slot(new_table, table[j])
+            new_table[i], new_count[i] = table[j], count[j]
+    return new_table, new_count, live
+
+
+@numba.njit(cache=True, nogil=True)
+def _half_edges(tri: np.ndarray, n_v: int) -> tuple:  # pragma: no cover - numba
+    """The edge table of ``tri`` (each edge's key ``lo·V + hi`` with its count of faces)
+    and ``opp``: half-edge ``3f + c`` (corner c to c + 1) -> the other half of its edge
+    when the edge has exactly two faces, else -1."""
+    n_h = 3 * tri.shape[0]
+    table, count = _empty_table(n_h // 2 + 1)  # ~one edge per two half-edges
+    first = np.empty(len(table), np.int64)
+    opp = np.full(n_h, -1, np.int64)
+    for h in range(n_h):
+        a, b = tri[h // 3, h % 3], tri[h // 3, (h % 3 + 1) % 3]
+        i = _slot(table, min(a, b) * n_v + max(a, b))
+        if table[i] == -1:
+            table[i], first[i] = min(a, b) * n_v + max(a, b), h
+        count[i] += 1
+        if count[i] == 2:
+            opp[first[i]], opp[h] = h, first[i]
+        elif count[i] == 3:
+            opp[opp[first[i]]] = -1
+            opp[first[i]] = -1
+    return table, count, opp
+
+
+@numba.njit(cache=True, nogil=True)
+def _angle_at(v: np.ndarray, apex: int, a: int, b: int) -> float:  # pragma: no cover - numba
+    """The angle at ``apex`` of the triangle ``(apex, a, b)``: ``atan2(|u x w|, u . w)``
+    for ``u = a - apex``, ``w = b - apex`` (the operations, in their order, of the array
+    form's ``np.cross``, ``np.linalg.norm`` and ``einsum``: the reference in
+    ``tests/surface/test_stitch_flips.py`` gives the same flips bit for bit)."""
+    u0, u1, u2 = v[a, 0] - v[apex, 0], v[a, 1] - v[apex, 1], v[a, 2] - v[apex, 2]
+    w0, w1, w2 = v[b, 0] - v[apex, 0], v[b, 1] - v[apex, 1], v[b, 2] - v[apex, 2]
+    c0, c1, c2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+    return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), u0 * w0 + u1 * w1 + u2 * w2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _normal_of(v: np.ndarray, i: int, j: int, k: int) -> tuple:  # pragma: no cover - numba
+    """``metrics.face_normals(..., unit=False)`` of the face ``(i, j, k)``."""
+    a0, a1, a2 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
+    b0, b1, b2 = v[k, 0] - v[i, 0], v[k, 1] - v[i, 1], v[k, 2] - v[i, 2]
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@numba.njit(cache=True, nogil=True)
+def _folds(v: np.ndarray, tri: np.ndarray, f1: int, f2: int, c: int, a: int, d: int, b: int,
+           cos_limit: float, zero: float) -> bool:  # pragma: no cover - numba
+    """Whether a new face ``(c, a, d)`` or ``(d, b, c)`` turns its unit normal beyond
+    ``cos_limit`` from the area-weighted normal of the faces ``f1``, ``f2`` it replaces
+    (the array form's operations: ``metrics.face_normals``)."""
+    p0, p1, p2 = _normal_of(v, tri[f1, 0], tri[f1, 1], tri[f1, 2])
+    q0, q1, q2 = _normal_of(v, tri[f2, 0], tri[f2, 1], tri[f2, 2])
+    o0, o1, o2 = p0 + q0, p1 + q1, p2 + q2
+    norm = max(np.sqrt(o0 * o0 + o1 * o1 + o2 * o2), zero)
+    o0, o1, o2 = o0 / norm, o1 / norm, o2 / norm
+    for i0, i1, i2 in ((c, a, d), (d, b, c)):
+        n0, n1, n2 = _normal_of(v, i0, i1, i2)
+        length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if length > zero:
+            n0, n1, n2 = n0 / length, n1 / length, n2 / length
+        else:
+            n0, n1, n2 = 0.0, 0.0, 0.0
+        if not n0 * o0 + n1 * o1 + n2 * o2 > cos_limit:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarray,
+            cos_limit: float, angle_tol: float, zero: float,
+            max_sweeps: int, max_load: float = 0.5) -> tuple:  # pragma: no cover - numba
+    """:func:`delaunay_flips`' sweeps on ``tri`` in place: ``(flips, converged)``.
+
+    Each sweep (i) finds the interior edges (exactly two faces) of the active faces
+    whose faces share a region, run opposite ways and are not ``fixed`` (sorted keys),
+    whose opposite angles sum above ``π + angle_tol``, whose new edge does not exist yet
+    and whose new faces keep their normals within ``cos_limit`` of the pair's
+    area-weighted normal, and orders them by their keys ``lo·V + hi``; (ii) takes a
+    maximal set of them no two of which share a face, by rounds of "each face keeps its
+    largest-excess candidate" (ranks by a stable sort of the excesses, so ties go by
+    key), then the first flip of each new edge; (iii) applies it.  The next sweep
+    examines the faces of every candidate; when none is left after a partial sweep a
+    full one confirms.  The half-edge partners ``opp`` and the edges' face counts (an
+    open-addressing table, rebuilt when its keys, removed edges included, fill
+    ``max_load`` of it) are kept across flips.
     """
-    start = triangles.ravel()
-    end = np.roll(triangles, -1, axis=1).ravel()  # half-edge 3f + c: corner c -> c + 1
-    keys = _edge_keys(np.stack([start, end], axis=1), n_vertices)
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    first = np.flatnonzero(np.concatenate([[True], sorted_keys[1:] != sorted_keys[:-1]]))
-    counts = np.diff(np.append(first, len(sorted_keys)))
-    interior = np.flatnonzero(counts == 2)
-    slot0, slot1 = order[first[interior]], order[first[interior] + 1]
-    faces = np.stack([slot0 // 3, slot1 // 3], axis=1)
-    corners = np.stack([slot0 % 3, slot1 % 3], axis=1)
-    return interior, faces, corners, sorted_keys[first]
-
-
-def _flip_candidates(vertices, triangles, region, fixed_keys, cos_limit, active,
-                     around: np.ndarray | None = None):
-    """One sweep's non-Delaunay, legal flips among edges touching ``active`` faces.
-
-    Returns ``(f1, f2, new f1, new f2, excess, new edge keys)``; the cheap
-    tests run first so that angles and normals are computed for few edges.
-    The edge table is built over the faces sharing a vertex with an active
-    face only: both faces of an edge touching an active face are among them,
-    and so is any existing edge ``cd`` (it lies in a face around ``c`` or
-    ``d``, one of which is a vertex of an active face), so the existence test
-    stays exact while late sweeps cost little.  ``around``: those faces (or a superset
-    of them, sorted; :class:`_Incidence`) when the caller keeps them, which makes a late
-    sweep cost what it touches rather than a pass over every face.
-    """
-    n_v = len(vertices)
-    if around is not None:
-        sub = around
-    elif active.all():
-        sub = np.arange(len(triangles))
-    else:
-        touched = np.zeros(n_v, bool)
-        touched[triangles[active]] = True
-        sub = np.flatnonzero(touched[triangles].any(axis=1))
-    edge_ids, faces, corners, edge_keys = _interior_edge_faces(triangles[sub], n_v)
-    f1, f2 = sub[faces[:, 0]], sub[faces[:, 1]]
-    k1, k2 = corners[:, 0], corners[:, 1]
-    a = triangles[f1, k1]
-    b = triangles[f1, (k1 + 1) % 3]
-    keep = ((active[f1] | active[f2])
-            & (region[f1] == region[f2])
-            & (triangles[f2, k2] == b) & (triangles[f2, (k2 + 1) % 3] == a)  # consistently oriented
-            & ~_member(fixed_keys, edge_keys[edge_ids]))
-    sel = np.flatnonzero(keep)
-    f1, f2, k1, k2, a, b = f1[sel], f2[sel], k1[sel], k2[sel], a[sel], b[sel]
-    c = triangles[f1, (k1 + 2) % 3]
-    d = triangles[f2, (k2 + 2) % 3]
-    excess = _angle(vertices, c, a, b) + _angle(vertices, d, b, a) - np.pi
-    # Not Delaunay, and the new edge must not exist already (else it is non-manifold).
-    new_keys = _edge_keys(np.stack([c, d], axis=1), n_v)
-    sel = np.flatnonzero((excess > TOL.angle) & (c != d) & ~_member(edge_keys, new_keys))
-    f1, f2, a, b, c, d = f1[sel], f2[sel], a[sel], b[sel], c[sel], d[sel]
-    excess, new_keys = excess[sel], new_keys[sel]
-    new1 = np.stack([c, a, d], axis=1)
-    new2 = np.stack([d, b, c], axis=1)
-    # No fold-over: both new normals within cos_limit of the old area-weighted normal.
-    old = face_normals(vertices, triangles[f1], unit=False) + face_normals(
-        vertices, triangles[f2], unit=False)
-    old /= np.maximum(np.linalg.norm(old, axis=1, keepdims=True), TOL.zero)
-    ok = np.einsum("ij,ij->i", face_normals(vertices, new1), old) > cos_limit
-    ok &= np.einsum("ij,ij->i", face_normals(vertices, new2), old) > cos_limit
-    sel = np.flatnonzero(ok)
-    return f1[sel], f2[sel], new1[sel], new2[sel], excess[sel], new_keys[sel]
-
-
-#: A sweep's changed faces, times this, below the face count: its neighbours are taken
-#: from the kept incidence (:func:`delaunay_flips`), else from a pass over every face.
-AROUND_SHARE = 16
-
-
-class _Incidence:
-    """The faces around each vertex, kept across flips: a superset, which is all
-    :func:`_flip_candidates` needs (extra faces add edges no active face touches, which
-    it drops; every existing edge is still seen), rebuilt exactly when the flips' added
-    pairs reach half the face count.  A flip of ``(a, b, c), (b, a, d)`` into
-    ``(c, a, d), (d, b, c)`` adds ``d`` to the first face and ``c`` to the second; the
-    pairs ``(b, first)``, ``(a, second)`` stay, stale and harmless."""
-
-    #: added pairs, as a share of the faces, at which the incidence is built anew
-    REBUILD_SHARE = 0.5
-
-    def __init__(self, triangles: np.ndarray, n_vertices: int):
-        self.n_vertices = n_vertices
-        self._build(triangles)
-
-    def _build(self, triangles: np.ndarray) -> None:
-        flat = triangles.ravel()
-        order = np.argsort(flat, kind="stable")
-        self.faces = order // 3
-        self.count = np.bincount(flat, minlength=self.n_vertices)
-        self.start = np.concatenate([[0], np.cumsum(self.count)])
-        self.added_vertices: list[np.ndarray] = []
-        self.added_faces: list[np.ndarray] = []
-        self.added = 0
-
-    def add(self, vertices: np.ndarray, faces: np.ndarray, triangles: np.ndarray) -> None:
-        """Vertex ``vertices[i]`` now lies on face ``faces[i]`` (``triangles``: the mesh now)."""
-        self.added_vertices.append(vertices)
-        self.added_faces.append(faces)
-        self.added += len(vertices)
-        if self.added > self.REBUILD_SHARE * len(triangles):
-            self._build(triangles)
-
-    def around(self, vertices: np.ndarray) -> np.ndarray:
-        """Sorted faces on (or once on) any of the distinct ``vertices``."""
-        first, count = self.start[vertices], self.count[vertices]
-        offset = np.repeat(first - np.cumsum(count) + count, count)
-        found = [self.faces[offset + np.arange(offset.size)]]
-        if self.added:
-            v, f = np.concatenate(self.added_vertices), np.concatenate(self.added_faces)
-            mark = np.zeros(self.n_vertices, bool)
-            mark[vertices] = True
-            found.append(f[mark[v]])
-        return np.unique(np.concatenate(found))
-
-
-def _independent_flips(f1: np.ndarray, f2: np.ndarray, excess: np.ndarray,
-                       new_keys: np.ndarray, n_faces: int) -> np.ndarray:
-    """A maximal set of candidate flips no two of which share a face or a new edge.
-
-    Rounds of "each face keeps its largest-excess candidate" (ranks are
-    unique, so the global best always wins): winners are taken, candidates
-    touching a winner's faces are dropped, and the rest compete again.
-    """
-    rank = np.empty(len(f1), np.int64)
-    rank[np.argsort(excess, kind="stable")] = np.arange(len(f1))
-    taken = np.zeros(n_faces, bool)
-    alive = np.ones(len(f1), bool)
-    chosen = []
-    while alive.any():
-        live = np.flatnonzero(alive)
-        best = np.full(n_faces, -1, np.int64)
-        np.maximum.at(best, f1[live], rank[live])
-        np.maximum.at(best, f2[live], rank[live])
-        win = live[(best[f1[live]] == rank[live]) & (best[f2[live]] == rank[live])]
-        chosen.append(win)
-        taken[f1[win]] = True
-        taken[f2[win]] = True
-        alive &= ~(taken[f1] | taken[f2])
-    chosen = np.concatenate(chosen)
-    # Two flips must not create the same new edge.
-    _, first = np.unique(new_keys[chosen], return_index=True)
-    return chosen[first]
+    n_f, n_v = tri.shape[0], v.shape[0]
+    table, count, opp = _half_edges(tri, n_v)
+    filled = int(np.count_nonzero(table != -1))  # a removed edge keeps its slot, count 0
+    active = np.arange(n_f)
+    is_active = np.ones(n_f, np.bool_)
+    full = True
+    total = 0
+    best = np.full(n_f, -1, np.int64)
+    taken = np.zeros(n_f, np.bool_)
+    for _ in range(max_sweeps):
+        # (i) candidates: each edge of an active face once
+        m = 3 * len(active)
+        f1s = np.empty(m, np.int64)
+        f2s = np.empty(m, np.int64)
+        new = np.empty((m, 4), np.int64)   # c, a, d, b: (c, a, d) and (d, b, c)
+        excess = np.empty(m)
+        new_keys = np.empty(m, np.int64)
+        keys = np.empty(m, np.int64)
+        n_c = 0
+        for f in active:
+            for corner in range(3):
+                h = 3 * f + corner
+                o = opp[h]
+                if o < 0 or (is_active[o // 3] and o < h):
+                    continue   # no partner, or the edge is met from its first half
+                h, o = min(h, o), max(h, o)
+                f1, k1, f2, k2 = h // 3, h % 3, o // 3, o % 3
+                a, b = tri[f1, k1], tri[f1, (k1 + 1) % 3]
+                if region[f1] != region[f2] or tri[f2, k2] != b or tri[f2, (k2 + 1) % 3] != a:
+                    continue
+                key = min(a, b) * n_v + max(a, b)
+                pos = np.searchsorted(fixed, key)
+                if pos < len(fixed) and fixed[pos] == key:
+                    continue
+                c, d = tri[f1, (k1 + 2) % 3], tri[f2, (k2 + 2) % 3]
+                ex = _angle_at(v, c, a, b) + _angle_at(v, d, b, a) - np.pi
+                if not ex > angle_tol or c == d:
+                    continue
+                new_key = min(c, d) * n_v + max(c, d)
+                if count[_slot(table, new_key)] > 0 or _folds(v, tri, f1, f2, c, a, d, b,
+                                                              cos_limit, zero):
+                    continue
+                f1s[n_c], f2s[n_c], excess[n_c] = f1, f2, ex
+                new[n_c, 0], new[n_c, 1], new[n_c, 2], new[n_c, 3] = c, a, d, b
+                new_keys[n_c], keys[n_c] = new_key, key
+                n_c += 1
+        for f in active:
+            is_active[f] = False
+        if n_c == 0:
+            if full:
+                return total, True
+            active, full = np.arange(n_f), True  # confirm with a full sweep
+            is_active[:] = True
+            continue
+        by_key = np.argsort(keys[:n_c])  # distinct keys: any sort is the one order
+        f1s, f2s, new = f1s[by_key], f2s[by_key], new[by_key]
+        excess, new_keys = excess[by_key], new_keys[by_key]
+        # (ii) a maximal set no two of which share a face, then one flip per new edge
+        rank = np.empty(n_c, np.int64)
+        rank[np.argsort(excess, kind="mergesort")] = np.arange(n_c)
+        alive = np.ones(n_c, np.bool_)
+        chosen = np.empty(n_c, np.int64)
+        n_chosen = 0
+        n_alive = n_c
+        while n_alive > 0:
+            for t in range(n_c):
+                if alive[t]:
+                    best[f1s[t]] = max(best[f1s[t]], rank[t])
+                    best[f2s[t]] = max(best[f2s[t]], rank[t])
+            start = n_chosen
+            for t in range(n_c):
+                if alive[t] and best[f1s[t]] == rank[t] and best[f2s[t]] == rank[t]:
+                    chosen[n_chosen] = t
+                    n_chosen += 1
+            for t in range(start, n_chosen):
+                taken[f1s[chosen[t]]] = True
+                taken[f2s[chosen[t]]] = True
+            n_alive = 0
+            for t in range(n_c):
+                best[f1s[t]] = -1
+                best[f2s[t]] = -1
+                if alive[t] and (taken[f1s[t]] or taken[f2s[t]]):
+                    alive[t] = False
+                n_alive += alive[t]
+        for t in chosen[:n_chosen]:
+            # (iii) (a, b, c), (b, a, d) -> (c, a, d), (d, b, c), the outer halves'
+            # partners re-pointed; a second flip to the same new edge is dropped
+            i = _slot(table, new_keys[t])
+            if count[i] > 0:
+                continue
+            f1, f2 = f1s[t], f2s[t]
+            c, a, d, b = new[t, 0], new[t, 1], new[t, 2], new[t, 3]
+            k1 = 0 if tri[f1, 0] == a else (1 if tri[f1, 1] == a else 2)
+            k2 = 0 if tri[f2, 0] == b else (1 if tri[f2, 1] == b else 2)
+            o_bc, o_ca = opp[3 * f1 + (k1 + 1) % 3], opp[3 * f1 + (k1 + 2) % 3]
+            o_ad, o_db = opp[3 * f2 + (k2 + 1) % 3], opp[3 * f2 + (k2 + 2) % 3]
+            tri[f1, 0], tri[f1, 1], tri[f1, 2] = c, a, d
+            tri[f2, 0], tri[f2, 1], tri[f2, 2] = d, b, c
+            for h, o in ((3 * f1, o_ca), (3 * f1 + 1, o_ad), (3 * f2, o_db), (3 * f2 + 1, o_bc)):
+                opp[h] = o
+                if o >= 0:
+                    opp[o] = h
+            opp[3 * f1 + 2], opp[3 * f2 + 2] = 3 * f2 + 2, 3 * f1 + 2
+            count[_slot(table, min(a, b) * n_v + max(a, b))] = 0
+            if table[i] == -1:
+                if filled + 1 > max_load * len(table):
+                    table, count, filled = _grown(table, count)
+                    i = _slot(table, new_keys[t])
+                table[i] = new_keys[t]
+                filled += 1
+            count[i] = 2
+            total += 1
+        for t in range(n_chosen):
+            taken[f1s[chosen[t]]] = False
+            taken[f2s[chosen[t]]] = False
+        # the faces of every candidate are examined again
+        for t in range(n_c):
+            is_active[f1s[t]] = True
+            is_active[f2s[t]] = True
+        active, full = np.flatnonzero(is_active), False
+    return total, False
 
 
 def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarray | None = None,
@@ -624,41 +700,15 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
     converged : bool
         False if ``max_sweeps`` was reached with flips still pending.
     """
-    v = np.asarray(vertices, dtype=np.float64)
-    tri = np.array(triangles, dtype=np.int64, copy=True)
-    reg = np.zeros(len(tri), np.int64) if region is None else np.asarray(region, np.int64)
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    tri = np.array(triangles, dtype=np.int64, copy=True, order="C")
+    reg = np.zeros(len(tri), np.int64) if region is None else \
+        np.ascontiguousarray(region, dtype=np.int64)
     fixed = (np.zeros(0, np.int64) if fixed_edges is None or len(fixed_edges) == 0
              else np.unique(_edge_keys(np.asarray(fixed_edges, np.int64), len(v))))
-    cos_limit = float(np.cos(max_normal_change))
-    everything = np.ones(len(tri), bool)
-    active, around = everything, None
-    incidence = _Incidence(tri, len(v))
-    total = 0
-    for _ in range(max_sweeps):
-        f1, f2, new1, new2, excess, new_keys = _flip_candidates(v, tri, reg, fixed, cos_limit,
-                                                                active, around)
-        if len(f1) == 0:
-            if active is everything:
-                return tri, total, True
-            active, around = everything, None  # confirm with a full sweep
-            continue
-        chosen = _independent_flips(f1, f2, excess, new_keys, len(tri))
-        tri[f1[chosen]] = new1[chosen]
-        tri[f2[chosen]] = new2[chosen]
-        incidence.add(np.concatenate([new1[chosen, 2], new2[chosen, 2]]),
-                      np.concatenate([f1[chosen], f2[chosen]]), tri)
-        total += len(chosen)
-        active = np.zeros(len(tri), bool)
-        # Faces of this sweep's flips, and those of candidates that lost the
-        # independent-set draw, are examined again.
-        active[f1] = True
-        active[f2] = True
-        # the kept incidence pays off when few faces changed; a large sweep's neighbours
-        # are found as cheaply by the pass over every face
-        changed = np.concatenate([f1, f2])
-        around = incidence.around(np.unique(tri[changed])) \
-            if len(changed) * AROUND_SHARE < len(tri) else None
-    return tri, total, False
+    total, converged = _lawson(v, tri, reg, fixed, float(np.cos(max_normal_change)),
+                               TOL.angle, TOL.zero, max_sweeps, EDGE_TABLE_LOAD)
+    return tri, int(total), bool(converged)
 
 
 def _flippable_edges(triangles: np.ndarray, region: np.ndarray, fixed: np.ndarray,
