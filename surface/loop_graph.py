@@ -305,6 +305,20 @@ def nesting(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return depth, parent
 
 
+def _nesting_and_areas(loops: list[np.ndarray], kept: dict | None) -> tuple:
+    """:func:`nesting` of a section's loops and their areas, or those kept in ``kept``
+    for these very arrays (held with them, so their ``id`` s are not reused)."""
+    key = ("nesting", *map(id, loops))
+    found = kept.get(key) if kept is not None else None
+    if found is not None and all(a is b for a, b in zip(found[0], loops, strict=True)):
+        return found[1]
+    depth, parent = nesting(loops)
+    result = (depth, parent, np.array([_area(lp) for lp in loops]))
+    if kept is not None:
+        kept[key] = (tuple(loops), result)
+    return result
+
+
 def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None,
                rasters: dict | None = None) -> LoopGraph:
     """The loop correspondence graph of a stack of sections.
@@ -320,7 +334,8 @@ def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None,
     rasters : dict, optional
         Kept between calls on the same loop arrays (``reconstruct.untangle`` drops one
         section at a time and asks again): each loop's raster is reused while the grid
-        is the same (the union of the sections' extents unchanged).
+        is the same (the union of the sections' extents unchanged), and each section's
+        nesting and loop areas while its loops are the same arrays.
 
     Returns
     -------
@@ -336,10 +351,10 @@ def loop_graph(sections: list[list[np.ndarray]], spacing: float | None = None,
     shape = (int(np.ceil((hi[1] - lo[1]) / cell)) + 5, int(np.ceil((hi[0] - lo[0]) / cell)) + 5)
     depth, parent, area, masks = [], [], [], []
     for loops in sections:
-        d, p = nesting(loops)
+        d, p, a = _nesting_and_areas(loops, rasters)
         depth.append(d)
         parent.append(p)
-        area.append(np.array([_area(lp) for lp in loops]))
+        area.append(a)
         masks.append([_raster(lp, origin, cell, shape, rasters) for lp in loops])
     edges = []
     for s in range(len(sections) - 1):

@@ -75,8 +75,6 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components, depth_first_order, minimum_spanning_tree
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from surface.sections import Section, SectionSkippedWarning
@@ -322,16 +320,139 @@ def _triangle_edges(uv: np.ndarray) -> np.ndarray | None:
     return np.stack([key // n, key % n], axis=1)
 
 
-def _mst(uv: np.ndarray, scale: float):
-    """MST of the points as a sparse matrix and its edge lengths."""
+@dataclass(frozen=True)
+class _Tree:
+    """A spanning tree's edges ``row[e] – col[e]`` and lengths ``data[e]``, in (row, col)
+    order (the order of scipy's ``minimum_spanning_tree(...).tocoo()``)."""
+
+    row: np.ndarray
+    col: np.ndarray
+    data: np.ndarray
+
+
+def _spanning_tree(n: int, row: np.ndarray, col: np.ndarray, weight: np.ndarray) -> _Tree:
+    """Kruskal's minimum spanning tree (forest) of the graph ``row[e] – col[e]``.
+
+    The edges are put in (row, col) order and ranked by a stable sort of their
+    weights, as ``scipy.sparse.csgraph.minimum_spanning_tree`` does with a CSR matrix
+    (:func:`_kruskal`), so the tree is scipy's edge for edge, ties included (a test
+    compares them); without the sparse matrices' set-up, which was most of the cost of
+    the ~300 small trees of the real temple's sections.  Weights must be positive (scipy
+    drops zeros).
+    """
+    order = np.argsort(row.astype(np.int64) * n + col, kind="stable")
+    row, col, weight = row[order], col[order], np.asarray(weight, np.float64)[order]
+    kept = _kruskal(n, np.ascontiguousarray(row, np.int64), np.ascontiguousarray(col, np.int64),
+                    np.ascontiguousarray(weight))
+    return _Tree(row=row[kept], col=col[kept], data=weight[kept])
+
+
+@numba.njit(cache=True, nogil=True)
+def _root(parent: np.ndarray, x: int) -> int:  # pragma: no cover - numba
+    """Union-find root of ``x``, halving the path on the way."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+@numba.njit(cache=True, nogil=True)
+def _kruskal(n: int, row: np.ndarray, col: np.ndarray,
+             weight: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+    """Edges ``(E,) bool`` of the minimum spanning forest: through the edges by a stable
+    sort of their weights, each kept when it joins two components (union-find)."""
+    kept = np.zeros(len(weight), np.bool_)
+    parent = np.arange(n)
+    joined = 0
+    for e in np.argsort(weight, kind="mergesort"):
+        if joined == n - 1:
+            break
+        a, b = _root(parent, row[e]), _root(parent, col[e])
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+            kept[e] = True
+            joined += 1
+    return kept
+
+
+@numba.njit(cache=True, nogil=True)
+def _components(n: int, row: np.ndarray, col: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """Connected-component labels ``(n,)`` of the graph ``row[e] – col[e]``, numbered in
+    the order of each component's smallest node (scipy's ``connected_components``)."""
+    parent = np.arange(n)
+    for e in range(len(row)):
+        a, b = _root(parent, row[e]), _root(parent, col[e])
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    label = np.full(n, -1, np.int64)
+    out = np.empty(n, np.int64)
+    count = 0
+    for v in range(n):
+        r = _root(parent, v)
+        if label[r] < 0:
+            label[r] = count
+            count += 1
+        out[v] = label[r]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _tree_walk(n: int, row: np.ndarray, col: np.ndarray,
+               start: int) -> np.ndarray:  # pragma: no cover - numba
+    """Depth-first order of the nodes reached from ``start`` over the undirected edges
+    ``row[e] – col[e]`` (in (row, col) order): scipy's ``depth_first_order(...,
+    directed=False)`` on their CSR matrix, which from each node takes the first unvisited
+    node among its row's columns, ascending, else among its column's rows, ascending."""
+    out_start = np.zeros(n + 1, np.int64)
+    in_start = np.zeros(n + 1, np.int64)
+    for e in range(len(row)):
+        out_start[row[e] + 1] += 1
+        in_start[col[e] + 1] += 1
+    for v in range(n):
+        out_start[v + 1] += out_start[v]
+        in_start[v + 1] += in_start[v]
+    out_next = out_start[:-1].copy()
+    in_next = in_start[:-1].copy()
+    outs = np.empty(len(row), np.int64)
+    ins = np.empty(len(row), np.int64)
+    for e in range(len(row)):   # rows ascending: each column's rows come out ascending
+        outs[out_next[row[e]]] = col[e]
+        out_next[row[e]] += 1
+        ins[in_next[col[e]]] = row[e]
+        in_next[col[e]] += 1
+    walk = np.empty(n, np.int64)
+    stack = np.empty(n, np.int64)
+    seen = np.zeros(n, np.bool_)
+    walk[0], stack[0], seen[start] = start, start, True
+    top, length = 0, 1
+    while top >= 0 and length < n:
+        node = stack[top]
+        child = -1
+        for i in range(out_start[node], out_start[node + 1]):
+            if not seen[outs[i]]:
+                child = outs[i]
+                break
+        if child < 0:
+            for i in range(in_start[node], in_start[node + 1]):
+                if not seen[ins[i]]:
+                    child = ins[i]
+                    break
+        if child < 0:
+            top -= 1
+        else:
+            top += 1
+            stack[top], walk[length], seen[child] = child, child, True
+            length += 1
+    return walk[:length]
+
+
+def _mst(uv: np.ndarray, scale: float) -> _Tree:
+    """MST of the points (:class:`_Tree`: its edges and their lengths)."""
     edges = _graph_edges(uv)
     length = np.linalg.norm(uv[edges[:, 0]] - uv[edges[:, 1]], axis=1)
     # csgraph drops explicit zeros: duplicates get a length of TOL.zero·scale
     weight = np.maximum(length, TOL.zero * scale)
-    n = len(uv)
-    graph = coo_matrix((weight, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    tree = minimum_spanning_tree(graph).tocoo()
-    return tree
+    return _spanning_tree(len(uv), edges[:, 0], edges[:, 1], weight)
 
 
 def _clusters(uv: np.ndarray, link_distance, scale):
@@ -348,8 +469,7 @@ def _clusters(uv: np.ndarray, link_distance, scale):
     keep = lengths <= link
     if link_distance is None:
         keep &= ~_closed_splits(uv, tree, keep, gap, link)
-    cut = coo_matrix((lengths[keep], (tree.row[keep], tree.col[keep])), shape=(n, n))
-    _, labels = connected_components(cut, directed=False)
+    labels = _components(n, tree.row[keep], tree.col[keep])
     return labels, gap, float(link)
 
 
@@ -375,8 +495,7 @@ def _closed_splits(uv, tree, keep, gap, link) -> np.ndarray:
     for edge in candidates:
         trial = keep & ~bridges
         trial[edge] = False
-        graph = coo_matrix((lengths[trial], (tree.row[trial], tree.col[trial])), shape=(n, n))
-        _, labels = connected_components(graph, directed=False)
+        labels = _components(n, tree.row[trial], tree.col[trial])
         sides = [uv[labels == labels[tree.row[edge]]], uv[labels == labels[tree.col[edge]]]]
         if all(_is_closed_loop(side, link) for side in sides):
             bridges[edge] = True
@@ -655,7 +774,7 @@ def _centre_tour(centres: np.ndarray, theta_order: np.ndarray, cell: float) -> n
     if np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1).max() > 3.0 * cell:
         # θ order jumps (a fold): try a depth-first walk of the minimum spanning tree
         tree = _centre_mst(centres)
-        walk, _ = depth_first_order(tree, i_start=int(theta_order[0]), directed=False)
+        walk = _tree_walk(n, tree.row, tree.col, int(theta_order[0]))
         if len(walk) == n and _tour_length(centres, walk) < _tour_length(centres, tour):
             tour = walk
     return _two_opt(centres, np.asarray(tour))
@@ -670,7 +789,11 @@ def _centre_mst(centres: np.ndarray):
     complete graph's weights, orientation (row < column) and row-major order,
     so Kruskal's stable tie-breaking, and hence the tree and any walk of it,
     are the complete graph's.  Near-coincident or collinear centres take the
-    complete graph.
+    complete graph, its upper triangle (each lower twin would come after its upper
+    one in Kruskal's order and close a cycle).  Until session 19 that fallback went
+    through scipy's dense-matrix input, which drops weights within 1e-8 of zero
+    (absolute), so coincident centres lost their edge at any scene scale; here every
+    pair keeps its floored length.
     """
     n = len(centres)
     tree = None
@@ -687,10 +810,11 @@ def _centre_mst(centres: np.ndarray):
         # the complete graph floors lengths at TOL.zero x its diameter (<= the box diagonal)
         floor = TOL.zero * max(float(np.linalg.norm(np.ptp(centres, axis=0))), TOL.zero)
         if length.min() > floor:
-            tree = minimum_spanning_tree(coo_matrix((length, (a, b)), shape=(n, n)).tocsr())
-    if tree is None:
+            tree = _spanning_tree(n, a, b, length)
+    if tree is None:   # the complete graph's upper triangle: scipy's tree of the full matrix
         dist = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
-        tree = minimum_spanning_tree(np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero)))
+        a, b = np.triu_indices(n, 1)
+        tree = _spanning_tree(n, a, b, np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero))[a, b])
     return tree
 
 

@@ -66,13 +66,19 @@ def test_loop_graph_reuses_rasters_only_on_the_same_grid():
     rasters: dict = {}
     first = loop_graph(sections, rasters=rasters)
     assert first.to_json() == loop_graph(sections).to_json()
-    kept = {key: value[2] for key, value in rasters.items()}
+    kept = {key: value[2] for key, value in rasters.items() if isinstance(key, int)}
+    nested = {key: value[1] for key, value in rasters.items() if not isinstance(key, int)}
+    assert len(kept) == 15 and len(nested) == 12           # per loop; per section
     again = loop_graph(sections, rasters=rasters)
     assert again.to_json() == first.to_json()
     assert all(rasters[key][2] is raster for key, raster in kept.items())   # reused
+    assert all(rasters[key][1] is found for key, found in nested.items())
     smaller = sections[:-1]                              # another grid: made anew
     assert loop_graph(smaller, rasters=rasters).to_json() == loop_graph(smaller).to_json()
     assert not all(rasters[key][2] is raster for key, raster in kept.items())
+    changed = [list(loops) for loops in sections]
+    changed[5] = [circle(48, 0.6, cx=-0.5), circle(48, 0.6, cx=0.7)]   # new arrays
+    assert loop_graph(changed, rasters=rasters).to_json() == loop_graph(changed).to_json()
 
 
 def test_nesting_depth_and_parent():

@@ -77,3 +77,14 @@ def test_uniform_evaluation_is_scipys_spline_to_the_bit(seed):
     position, derivative = cr._uniform_points_and_derivatives(ctrl, t)
     assert np.array_equal(position, spline(t))
     assert np.array_equal(derivative, spline(t, 1))
+
+
+@pytest.mark.parametrize("n", [7, 8, 9, 13, 64, 301])
+def test_third_difference_band_is_the_sparse_gram(n):
+    """The constant band (the stencil's autocorrelation) is DᵀD of the periodic third
+    difference, entry (i, j) at [j, (i − j + 3) mod n], exactly."""
+    fair = cr._periodic_third_difference(n)
+    gram = (fair.T @ fair).toarray()
+    j = np.arange(n)[:, None]
+    assert np.array_equal(cr._third_difference_band(n), gram[(j + np.arange(-3, 4)) % n, j])
+    assert np.count_nonzero(gram) == 7 * n

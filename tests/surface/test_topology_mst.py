@@ -2,13 +2,15 @@
 
 Kruskal in scipy breaks weight ties by the edges' row-major position; the
 Delaunay subgraph keeps the complete graph's orientation (row < column) and
-order, so tree, stored order and depth-first walk must come out identical.
+order, so tree, stored order and depth-first walk (``topology._tree_walk``, against
+scipy's ``depth_first_order`` of the dense graph's tree) must come out identical.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import depth_first_order, minimum_spanning_tree
 
 from surface import topology
@@ -16,17 +18,24 @@ from surface.validate import TOL
 
 
 def _dense_tree(points):
+    """scipy's tree of the complete graph: every ordered pair, distances floored at
+    TOL.zero x the largest.  (A dense matrix would not do: scipy's ``csgraph_from_dense``
+    drops entries within 1e-8 of zero, absolute, so coincident centres lost their edge
+    there — the code's fallback did that until session 19.)"""
+    n = len(points)
     dist = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
-    return minimum_spanning_tree(np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero)))
+    row, col = np.nonzero(~np.eye(n, dtype=bool))
+    weight = np.maximum(dist, TOL.zero * max(dist.max(), TOL.zero))[row, col]
+    return minimum_spanning_tree(coo_matrix((weight, (row, col)), shape=(n, n)).tocsr())
 
 
 def _assert_same_tree(points):
     got, want = topology._centre_mst(points), _dense_tree(points)
-    assert np.array_equal(got.indptr, want.indptr)
-    assert np.array_equal(got.indices, want.indices)
-    assert np.array_equal(got.data, want.data)
+    coo = want.tocoo()
+    assert np.array_equal(got.row, coo.row) and np.array_equal(got.col, coo.col)
+    assert np.array_equal(got.data, coo.data)
     for start in (0, len(points) // 2):
-        assert np.array_equal(depth_first_order(got, start, directed=False)[0],
+        assert np.array_equal(topology._tree_walk(len(points), got.row, got.col, start),
                               depth_first_order(want, start, directed=False)[0])
 
 
