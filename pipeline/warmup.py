@@ -55,6 +55,10 @@ def warm_up() -> float:
     cloud = np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
     stitched = surface_from_points(cloud + rng.normal(0.0, 0.002, cloud.shape), axis="z")
     bezier.tessellate(bezier.control_net(stitched.vertices, stitched.triangles), 1)
+    # a kernel on a path the vase does not take: the tree walk of a loop whose θ folds
+    from surface import topology
+
+    topology._tree_walk(3, np.array([0, 1]), np.array([1, 2]), 0)
     return time.perf_counter() - start
 
 

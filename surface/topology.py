@@ -340,10 +340,10 @@ def _spanning_tree(n: int, row: np.ndarray, col: np.ndarray, weight: np.ndarray)
     the ~300 small trees of the real temple's sections.  Weights must be positive (scipy
     drops zeros).
     """
-    order = np.argsort(row.astype(np.int64) * n + col, kind="stable")
+    row, col = np.asarray(row, np.int64), np.asarray(col, np.int64)
+    order = np.argsort(row * n + col, kind="stable")
     row, col, weight = row[order], col[order], np.asarray(weight, np.float64)[order]
-    kept = _kruskal(n, np.ascontiguousarray(row, np.int64), np.ascontiguousarray(col, np.int64),
-                    np.ascontiguousarray(weight))
+    kept = _kruskal(n, row, col, weight)
     return _Tree(row=row[kept], col=col[kept], data=weight[kept])
 
 
