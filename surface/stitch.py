@@ -74,6 +74,7 @@ References
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -1192,6 +1193,31 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
 CAP_GUARD_RINGS = 1
 
 
+#: Bits below the contour's size at which :func:`_quality_cap` snaps its points: 2^-32
+#: of the size (~2e-10), far below any modelling scale and far above the last-bit noise
+#: of the rings (~1e-16 relative).
+SNAP_BITS = 32
+
+
+def _snapped(points: np.ndarray) -> np.ndarray:
+    """``points`` rounded to a grid of 2^-SNAP_BITS of their extent (a power of two).
+
+    Triangle's quality refinement (``q``) decides where to add points by exact
+    in-circle tests, and a ring sampled evenly round a rounded end is nearly cocircular:
+    the last bits of its coordinates (another BLAS, another CPU, a solver changed
+    elsewhere) chose other Steiner points and another number of cap triangles (the
+    10⁴-point torus's dense mesh: 12 106-12 168 triangles under perturbations of 1e-13
+    of the coordinates, session 18).  Snapped, perturbations that small give the same
+    input and so the same triangulation, unless a coordinate sits on a rounding
+    boundary (a chance of ~1e-6 each).
+    """
+    scale = float(np.abs(points).max(initial=0.0))
+    if not scale > 0 or not np.isfinite(scale):
+        return points
+    grid = 2.0 ** (math.floor(math.log2(scale)) - SNAP_BITS)
+    return np.round(points / grid) * grid
+
+
 #: Smallest angle (degrees) of the triangles inside a cap with support rings
 #: (Shewchuk's Triangle, ``q``): the ear-clipped cap of a ring of n points has
 #: slivers of ~180°/n whose Bezier patches have near-singular Jacobians, where
@@ -1236,7 +1262,7 @@ def _quality_cap(ring2d: np.ndarray, outward_up: bool,
 
     n = len(ring2d)
     centre = ring2d.mean(axis=0)
-    pts = ring2d - centre
+    pts = _snapped(ring2d - centre)
     edge = float(np.mean(np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)))
     segments = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
     switches = f"pYq{CAP_MIN_ANGLE:g}" + (f"a{max_area:.15f}" if max_area else "")  # no exponent

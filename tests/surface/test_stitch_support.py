@@ -207,8 +207,30 @@ def test_quality_cap_refuses_a_self_intersecting_contour():
     added, tri = _quality_cap(np.stack([np.cos(t), np.sin(t)], 1), outward_up=True)
     # a convex 40-gon: Euler for a disc, V - E + F = 1, all triangles counter-clockwise
     assert len(tri) == 40 + 2 * len(added) - 2
+    crossing = t + np.pi / 40   # a figure eight, no point on its crossing
     with pytest.raises(ValueError, match="not simple"):
+        _quality_cap(np.stack([np.sin(2 * crossing), np.sin(crossing)], 1), outward_up=True)
+    with pytest.raises(ValueError, match="not all corners"):   # a point repeated
         _quality_cap(np.stack([np.sin(2 * t), np.sin(t)], 1), outward_up=True)
+
+
+def test_quality_cap_does_not_read_the_last_bits():
+    """An evenly sampled circle is cocircular: Triangle's quality refinement chose its
+    Steiner points by in-circle tests that the last bits decided.  The contour is snapped
+    to 2^-32 of its size, so perturbations of 1e-13 give the same triangulation."""
+    from surface.stitch import _quality_cap
+
+    t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+    ring = np.stack([0.7 * np.cos(t) + 3.0, 0.7 * np.sin(t) - 1.0], 1)
+    area = 0.5 * (2 * np.pi * 0.7 / 96) ** 2
+    added, tri = _quality_cap(ring, outward_up=True, max_area=area)
+    assert len(added) > 50
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        moved = ring * (1 + 1e-13 * rng.standard_normal(ring.shape))
+        again, tri_again = _quality_cap(moved, outward_up=True, max_area=area)
+        assert np.array_equal(tri_again, tri)
+        assert np.abs(again - added).max() < 1e-9
 
 
 @pytest.mark.parametrize("seed", [0, 1])
