@@ -380,7 +380,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         if suffix in (".step", ".stp"):
             # the entities directly; an open shell, or a template this OpenCascade
             # structures otherwise (_STEP_ROOTS), through the shape transfer
-            ok = shell_topology(tris)["closed"] and _write_step_entities(cp, tris, tmp)
+            ok = _write_step_entities(cp, tris, tmp)
             ok = ok or _write_step(solid_from_nets(cp, tris), tmp)
         else:
             ok = _write_iges(solid_from_nets(cp, tris), tmp)
@@ -465,7 +465,8 @@ def _write_step_entities(control_points: np.ndarray, triangles: np.ndarray,
                          path: Path) -> bool:
     """The closed solid written as STEP entities made directly (``StepGeom``,
     ``StepShape``), every distinct pole one ``CARTESIAN_POINT``, into the product
-    structure OpenCascade's writer makes for a template solid.
+    structure OpenCascade's writer makes for a template solid; False (nothing written)
+    for an open shell or a template structured otherwise, which the shape transfer writes.
 
     The shape transfer (``STEPControl_Writer.Transfer`` of :func:`solid_from_nets`)
     writes each pole of each surface and edge curve as its own point and needs
@@ -489,8 +490,10 @@ def _write_step_entities(control_points: np.ndarray, triangles: np.ndarray,
 
     if _signed_volume(control_points, triangles) < 0:  # faces must point outward
         control_points, triangles = _reversed_nets(control_points, triangles)
-    poles = degenerate_nets(control_points).reshape(-1, 49, 3)
     topo = shell_topology(triangles)
+    if not topo["closed"]:
+        return False
+    poles = degenerate_nets(control_points).reshape(-1, 49, 3)
     ids, n_points = _pole_ids(triangles, topo)
     xyz = np.empty((n_points, 3))
     xyz[ids.ravel()] = poles.reshape(-1, 3)  # shared poles are equal bit for bit
