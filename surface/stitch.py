@@ -21,6 +21,10 @@ while :math:`\angle acb + \angle adb > \pi` (the local Delaunay criterion),
 never across a section contour (the contours are constraints), never when
 :math:`cd` already exists (non-manifold) and never when a new face normal
 turns by more than ``max_normal_change`` from the old pair's (fold-over).
+Flips go in sweeps, each a maximal set of such edges no two of which share a
+face; they run in one numba kernel (:func:`_lawson`, written here: the flips on a
+surface of sections, with these constraints, are no library's) keeping each
+half-edge's partner and an edge table across flips.
 End caps are an ear-clipping triangulation (mapbox ``earcut``) of the end
 contours in the section plane followed by the same flips inside the cap,
 giving the constrained Delaunay triangulation of the contour.
