@@ -176,3 +176,20 @@ def test_half_edge_partners_and_counts_are_the_edge_tables(mesh):
     partner[first], partner[second] = second, first
     assert np.array_equal(opp, partner)
     assert (opp == -1).sum() >= 6 and (opp >= 0).sum() > len(opp) // 2
+
+
+def test_flips_of_messy_meshes_are_the_array_forms():
+    """Random faces over few vertices (repeated corners, edges of three faces and more,
+    both orientations, flat and not, two regions): the kernel flips as the array form."""
+    flipped = 0
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        n_v = int(rng.integers(4, 30))
+        vertices = rng.normal(size=(n_v, 3)) * [1.0, 1.0, 0.1 * (seed % 3)]
+        faces = rng.integers(0, n_v, (int(rng.integers(2, 60)), 3))
+        region = rng.integers(0, 2, len(faces)) if seed % 5 == 0 else None
+        got = stitch.delaunay_flips(vertices, faces, region, max_sweeps=50)
+        want = reference_flips(vertices, faces, region, max_sweeps=50)
+        assert got[1:] == want[1:] and np.array_equal(got[0], want[0])
+        flipped += got[1] > 0
+    assert flipped >= 10
