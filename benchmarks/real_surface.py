@@ -4,7 +4,8 @@ One run, side by side in one process, on ``../shared/data/real/temple_sparse_rin
 real views with their exact cameras; no surface truth exists, SOURCE.md):
 
 * the cloud: ``photosurf run FOLDER --cameras templeSR_par.txt`` (acquire, spacing
-  ``--spacing``, default the pipeline's 3), or an existing workspace (``--workspace W``);
+  ``--spacing``, default the pipeline's 3), or an existing workspace (``--workspace W``;
+  its acquisition is redone when it was made at another spacing or by other code);
 * ``photosurf-stitched``  the pipeline's dense stitched mesh (``W/stitch/mesh.ply``);
 * ``photosurf-smooth``    its smooth stage (sized control mesh, Loop's sextic patches,
   tessellation by tolerance; ``W/smooth``), with the export stage's files
@@ -134,8 +135,11 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as scratch:
         workspace = Path(args.workspace or Path(scratch) / "temple")
         if not (workspace / "acquire" / "cloud.npz").is_file():
-            print(f"photosurf run -> {workspace} (acquisition, then to the export)", flush=True)
-            _run(workspace, spacing, *FORMATS)
+            print(f"photosurf run -> {workspace} (acquisition)", flush=True)
+        # made, or brought up to date: a workspace acquired at another spacing (or by other
+        # code) is acquired again, not measured as if it were this one (a --quick run on a
+        # spacing-3 workspace measured the spacing-3 cloud until session 19)
+        _run(workspace, spacing, "--to", "acquire")
         rows = ours(workspace, spacing, cameras, silhouettes)
         points = artifacts.read_cloud(workspace / "acquire")["points"]
         for depth in (8, 9):
