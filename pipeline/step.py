@@ -362,9 +362,14 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     ------
     InputError
         Unknown suffix, or OpenCascade refused to write.
+    pipeline.limits.LimitError
+        More patches than ``cad.patches`` allows (OpenCascade's model holds ~24 KB a
+        patch), unless the limits are lifted.
     ValueError
         Malformed arrays.
     """
+    from pipeline import limits
+
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in CAD_SUFFIXES:
@@ -375,6 +380,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     tris = check_shape(triangles, "(P, 3)", "triangles", dtype=np.int64)
     if len(tris) != len(cp) or len(tris) == 0:
         raise ValueError(f"triangles must have one row per patch ({len(cp)}), got {len(tris)}")
+    limits.check("cad.patches", len(cp), where=f"{path}: {len(cp)} patches")
     _quiet()
     with atomic_file(path) as tmp:
         if suffix in (".step", ".stp"):

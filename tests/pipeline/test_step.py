@@ -195,6 +195,25 @@ def test_write_cad_refuses_unknown_suffix_and_mismatched_arrays(tmp_path, ellips
     assert list(tmp_path.iterdir()) == []
 
 
+def test_write_cad_refuses_more_patches_than_the_limit(tmp_path, ellipsoid, monkeypatch):
+    """``cad.patches``: refused in one line before OpenCascade builds anything, nothing
+    written; --allow-large (its environment variable) lifts it."""
+    import dataclasses
+
+    from pipeline import limits
+
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    monkeypatch.setitem(limits.LIMITS, "cad.patches", dataclasses.replace(
+        limits.LIMITS["cad.patches"], maximum=len(cp) - 1))
+    monkeypatch.delenv(limits.ALLOW_ENV, raising=False)
+    with pytest.raises(limits.LimitError, match=rf"a\.step: {len(cp)} patches: cad\.patches = "
+                                                rf"{len(cp)} is past the limit {len(cp) - 1}"):
+        step.write_cad(tmp_path / "a.step", cp, tris)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setenv(limits.ALLOW_ENV, "1")
+    assert step.write_cad(tmp_path / "a.step", cp, tris).stat().st_size > 0
+
+
 def test_run_exports_a_step_solid_of_the_sized_surface(tmp_path):
     """photosurf run on a small noisy vase cloud with export.formats = ["ply", "step"]."""
     import json
