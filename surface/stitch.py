@@ -529,7 +529,7 @@ def _folds(v: np.ndarray, tri: np.ndarray, f1: int, f2: int, c: int, a: int, d: 
 @numba.njit(cache=True, nogil=True)
 def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarray,
             cos_limit: float, angle_tol: float, zero: float,
-            max_sweeps: int, max_load: float = 0.5) -> tuple:  # pragma: no cover - numba
+            max_sweeps: int, max_load: float) -> tuple:  # pragma: no cover - numba
     """:func:`delaunay_flips`' sweeps on ``tri`` in place: ``(flips, converged)``.
 
     Each sweep (i) finds the interior edges (exactly two faces) of the active faces
@@ -1197,10 +1197,12 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
 CAP_GUARD_RINGS = 1
 
 
-#: Bits below the contour's size at which :func:`_quality_cap` snaps its points: 2^-32
-#: of the size (~2e-10), far below any modelling scale and far above the last-bit noise
-#: of the rings (~1e-16 relative).
-SNAP_BITS = 32
+#: Bits below the contour's size at which :func:`_quality_cap` snaps its points: 2^-26
+#: of the size (~1.5e-8), far below any modelling scale and 10⁸ times the last-bit noise
+#: of the rings (~1e-16 relative).  At 2^-32 the 10⁴-point torus moved by 1e-12 still
+#: crossed grid lines often enough to change a cap in 3 of 8 runs
+#: (``benchmarks/last_bits.py``); at 2^-26, in none.
+SNAP_BITS = 26
 
 
 def _snapped(points: np.ndarray) -> np.ndarray:
@@ -1212,8 +1214,8 @@ def _snapped(points: np.ndarray) -> np.ndarray:
     elsewhere) chose other Steiner points and another number of cap triangles (the
     10⁴-point torus's dense mesh: 12 106-12 168 triangles under perturbations of 1e-13
     of the coordinates, session 18).  Snapped, perturbations that small give the same
-    input and so the same triangulation, unless a coordinate sits on a rounding
-    boundary (a chance of ~1e-6 each).
+    input and so the same triangulation, unless a coordinate sits within them of a
+    rounding boundary (a chance of about their size / 1.5e-8 each).
     """
     scale = float(np.abs(points).max(initial=0.0))
     if not scale > 0 or not np.isfinite(scale):

@@ -152,7 +152,7 @@ def test_the_edge_table_rebuilt_on_the_way_changes_nothing():
     tight = np.array(raw.triangles, np.int64)
     loose = tight.copy()
     flips_tight, _ = stitch._lawson(v, tight, *args, 0.26)
-    flips_loose, _ = stitch._lawson(v, loose, *args, 0.5)
+    flips_loose, _ = stitch._lawson(v, loose, *args, stitch.EDGE_TABLE_LOAD)
     assert flips_tight == flips_loose > 300
     assert np.array_equal(tight, loose)
 

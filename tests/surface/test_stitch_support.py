@@ -217,7 +217,8 @@ def test_quality_cap_refuses_a_self_intersecting_contour():
 def test_quality_cap_does_not_read_the_last_bits():
     """An evenly sampled circle is cocircular: Triangle's quality refinement chose its
     Steiner points by in-circle tests that the last bits decided.  The contour is snapped
-    to 2^-32 of its size, so perturbations of 1e-13 give the same triangulation."""
+    to 2^-26 of its size (``stitch.SNAP_BITS``), so perturbations of 1e-13 give the same
+    triangulation."""
     from surface.stitch import _quality_cap
 
     t = np.linspace(0, 2 * np.pi, 96, endpoint=False)
