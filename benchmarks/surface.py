@@ -39,7 +39,8 @@ the stitched method does not; the table's "normals" column is that share):
   tessellated at
   ``smooth.level``; after the clock: patches and file sizes (PLY and GLB by
   ``pipeline.export``, control net format version 2, STEP through OpenCascade when at
-  most ``STEP_MAX_PATCHES`` patches), also written for the Poisson rows' PLY/GLB;
+  most ``STEP_MAX_PATCHES`` patches -- in ``--shapes-table`` every row's, unless
+  ``--no-step``), also written for the Poisson rows' PLY/GLB;
 * ``stitched-before`` / ``stitched+bezier-before`` session 1's settings (``BEFORE``:
   curve smoothing fixed at 8 points per control point, no support rings), the
   "before" of issue 5's Chamfer fix measured in the same run.  The defaults
@@ -221,9 +222,11 @@ def run_stitched_bezier(points: np.ndarray, level: int | None = None,
 STEP_MAX_PATCHES = 3000
 
 
-def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None) -> dict:
+def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None,
+               step_max_patches: int = STEP_MAX_PATCHES) -> dict:
     """Bytes of the mesh as PLY and GLB (pipeline.export) and, for a Bezier surface, of its
-    control net (format version 2) and, when small enough, its STEP solid."""
+    control net (format version 2) and, when it has at most ``step_max_patches`` patches,
+    its STEP solid (``step_seconds``: the writer's wall time)."""
     import tempfile
 
     from pipeline import export
@@ -239,7 +242,7 @@ def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None) -> dic
                                             bezier.index_table(), surface.source_face,
                                             surface.domain_mesh)
             sizes["net_bytes"] = path.stat().st_size
-            if len(surface.control_points) <= STEP_MAX_PATCHES:
+            if len(surface.control_points) <= step_max_patches:
                 from pipeline.step import write_cad
 
                 start = time.perf_counter()
@@ -250,11 +253,13 @@ def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None) -> dic
     return sizes
 
 
-def run_stitched_sized(points: np.ndarray, level: int | None = None) -> dict:
+def run_stitched_sized(points: np.ndarray, level: int | None = None,
+                       step_max_patches: int = STEP_MAX_PATCHES) -> dict:
     """The pipeline's smooth stage on the cloud: dense stitched mesh -> sized control mesh
     (surface.sizing, tolerance from the rings' precision) -> interpolating control vertices ->
     Bezier surface -> tessellation at ``smooth.level`` ("adaptive": chord tolerance
-    ``SizedMesh.chord_tolerance``); file sizes after the clock."""
+    ``SizedMesh.chord_tolerance``); file sizes after the clock (the STEP file up to
+    ``step_max_patches`` patches)."""
     from surface.sizing import interpolating_control, sized_from_points
 
     level = defaults()["smooth"]["level"] if level is None else level
@@ -268,7 +273,7 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None) -> dict:
         vertices, triangles, _ = bezier.tessellate(smooth, level=int(level))
     seconds = time.perf_counter() - start
     check = (time.perf_counter(), time.process_time())
-    sizes = file_sizes(vertices, triangles, smooth)
+    sizes = file_sizes(vertices, triangles, smooth, step_max_patches)
     gap, angle = bezier.edge_continuity(smooth.control_points, smooth.domain_mesh[1])
     excluded = (time.perf_counter() - check[0], time.process_time() - check[1])
     return {"vertices": vertices, "triangles": triangles, "level": level,
@@ -687,24 +692,31 @@ SHAPE_TABLE_SIZES = [10_000, 100_000]
 SHAPE_TABLE_METHODS = ("poisson-8", "poisson-9", "stitched", "stitched+sized")
 
 
-def shapes_table(sizes: list[int], only: list[str] | None = None) -> list[dict]:
+def shapes_table(sizes: list[int], only: list[str] | None = None,
+                 step: bool = True) -> list[dict]:
     """Issue 15's table on every shape of revolution: the vase and ``SHAPES`` at each
     cloud size, sigma = SIGMA, the sized smooth surface (``stitched+sized``: patches,
-    triangles, PLY / GLB / control net bytes, Chamfer, F, seconds) beside screened Poisson
+    triangles, PLY / GLB / control net bytes and, with ``step``, its STEP solid's bytes and
+    writing seconds, after the clock; Chamfer, F, seconds) beside screened Poisson
     depth 8 and 9 and the dense stitched mesh on the same cloud, with the issue's three
     goals per row against Poisson-8: Chamfer <= 0.5x, PLY no larger, CPU seconds no more.
     Each method runs once, untimed, on a 3 000-point vase first (session 11: without it
     the first row, the 10⁴-point vase, carried numba's kernel loading and open3d's set-up).
     """
-    methods = [m for m in METHODS if m[0] in SHAPE_TABLE_METHODS]
+    from pipeline.limits import LIMITS
+
+    step_max = int(LIMITS["cad.patches"].maximum) if step else STEP_MAX_PATCHES
+    methods = [(name, (lambda p: run_stitched_sized(p, step_max_patches=step_max))
+                if name == "stitched+sized" else method)
+               for name, method in METHODS if name in SHAPE_TABLE_METHODS]
     shapes = {"vase": lambda: vase_truth(n_theta=1024, n_z=768), **SHAPES}
     shapes = {k: v for k, v in shapes.items() if not only or k in only}
     rows = []
     print(f"\nshapes table (sigma = {SIGMA}; CPU seconds of this process; goals of the sized "
           f"surface against poisson-8: Chamfer <= 0.5x, PLY <=, CPU s <=)")
     print(f"{'shape':<9s}{'points':>8s} {'method':<15s}{'Chamfer':>9s}{'F':>7s}{'patches':>8s}"
-          f"{'triangles':>10s}{'PLY MB':>8s}{'GLB MB':>8s}{'net MB':>8s}{'CPU s':>8s}"
-          f"{'closed':>7s}")
+          f"{'triangles':>10s}{'PLY MB':>8s}{'GLB MB':>8s}{'net MB':>8s}{'STEP MB':>8s}"
+          f"{'CPU s':>8s}{'closed':>7s}")
     # Every method once on a small cloud first, untimed: no row pays a library's first-call
     # costs in this process (numba loading its cached kernels, open3d's set-up), which
     # would fall on whichever shape comes first.
@@ -728,7 +740,7 @@ def shapes_table(sizes: list[int], only: list[str] | None = None) -> list[dict]:
                 print(f"{name:<9s}{size:8d} {method_name:<15s}{row.get('chamfer', np.nan):9.6f}"
                       f"{row.get('fscore', np.nan):7.3f}{row.get('patches', '-')!s:>8s}"
                       f"{row['triangles']:10d}{mb('ply_bytes')}{mb('glb_bytes')}"
-                      f"{mb('net_bytes')}{row['cpu_seconds']:8.2f}"
+                      f"{mb('net_bytes')}{mb('step_bytes')}{row['cpu_seconds']:8.2f}"
                       f"{'yes' if row.get('closed') else 'no':>7s}", flush=True)
             sized, p8 = group.get("stitched+sized"), group.get("poisson-8")
             if sized and p8 and "chamfer" in sized and "chamfer" in p8:
@@ -738,9 +750,15 @@ def shapes_table(sizes: list[int], only: list[str] | None = None) -> list[dict]:
                 verdict["met"] = bool(verdict["chamfer_ratio"] <= 0.5 and
                                       verdict["ply_ratio"] <= 1.0 and verdict["cpu_ratio"] <= 1.0)
                 sized.update(verdict)
+                written = ""
+                if "step_bytes" in sized:
+                    each = sized["step_bytes"] / 1e3 / sized["patches"]
+                    written = (f"; STEP {sized['step_bytes'] / 1e6:.1f} MB in "
+                               f"{sized['step_seconds']:.1f} s ({each:.1f} KB a patch, "
+                               f"{sized['step_bytes'] / p8['ply_bytes']:.1f}x Poisson-8's PLY)")
                 print(f"{'':<18s}sized / poisson-8: Chamfer {verdict['chamfer_ratio']:.2f}x, PLY "
                       f"{verdict['ply_ratio']:.2f}x, CPU {verdict['cpu_ratio']:.2f}x -> "
-                      f"{'met' if verdict['met'] else 'NOT met'}", flush=True)
+                      f"{'met' if verdict['met'] else 'NOT met'}{written}", flush=True)
     return rows
 
 
@@ -767,6 +785,9 @@ def main(argv: list[str] | None = None) -> int:
                              "sizes (default 10^4 10^5), sized surface beside Poisson 8 / 9")
     parser.add_argument("--shape", nargs="+", choices=["vase", *SHAPES],
                         help="--shapes-table on these shapes only")
+    parser.add_argument("--no-step", action="store_true",
+                        help="--shapes-table without the STEP files (~0.25 ms and ~4 KB a "
+                             "patch, written after the clock)")
     args = parser.parse_args(argv)
 
     if args.fresh_child:
@@ -786,7 +807,8 @@ def main(argv: list[str] | None = None) -> int:
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     if args.shapes_table is not None:
-        rows = shapes_table(args.shapes_table or SHAPE_TABLE_SIZES, args.shape)
+        rows = shapes_table(args.shapes_table or SHAPE_TABLE_SIZES, args.shape,
+                            step=not args.no_step)
         json_path = args.json if "--json" in (argv or sys.argv) else str(
             ROOT / "benchmarks" / "results" / "surface_shapes.json")
         write_result(json_path, {"benchmark": "surface-shapes", "sigma": SIGMA, "tau": TAU,
