@@ -1279,6 +1279,22 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray) -> np.nda
     Chamfer 0.000268 (stitched 0.000288) but a candidate twice as fine (18 248 patches),
     and without the guard ring the overshoot is 0.035 (``rings=0``) / 0.013 (``rings=1``,
     at the top rim).  A mesh with borders gets its own vertices back.
+
+    Tried in session 20 and not kept (one-off scripts; the real temple against its 16
+    silhouettes, the shapes against their truth): interpolating the sharp vertices too.
+    On the temple the kept creases round its edges inwards, and its smooth surface's
+    silhouettes lie 0.0027 IoU below the stitched mesh's on average (the unsized dense
+    surface alike, -0.0028).  Interpolating every sharp vertex gave +0.0039 (the same
+    75 624 patches; 138 176 triangles instead of 95 674), but the mug's Chamfer +46-56 %
+    and the vase with an opening's +28-30 % (30 000 points, seeds 0 / 1).  Interpolating
+    only convex creases, keeping the sharp vertices within 3 % of the height of either
+    end (the rims and their support rings) and the concave ones: temple +0.0047 (102 440
+    triangles); torus +4 / -3 %, pants -5 / -8 %, mug +1 / -3 %, amphora -7 / -8 %,
+    vase with an opening unchanged -- but the 10⁴-point elliptic cylinder 1.9x (its
+    sections' tips, 24-34 points round the ring, are "sharp" at 30° by their sampling
+    alone; interpolated, the sizing took a coarser candidate, the reference sample
+    leaving sharp vertices out).  What is missing is a crease test that tells a crease
+    from coarse sampling of a smooth bend (e.g. read on the dense mesh).
     """
     from surface.fitting import flat_vertices, interpolating_control_mesh, sharp_vertices
 
