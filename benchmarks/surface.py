@@ -265,7 +265,8 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None,
     level = defaults()["smooth"]["level"] if level is None else level
     start = time.perf_counter()
     sized, dense = sized_from_points(points, axis="z")
-    smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles),
+    smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles,
+                                                      sized.creases),
                                 sized.triangles)
     if level == "adaptive":  # the smooth stage's default: cuts per patch within the error
         vertices, triangles, _ = bezier.tessellate_adaptive(smooth, sized.chord_tolerance())
@@ -453,7 +454,8 @@ def fresh_one(size: int, samples: int = SAMPLES) -> dict:
     rss_before = _rss_gib()
     start, cpu_start = time.perf_counter(), time.process_time()
     sized, dense = sized_from_points(points, axis="z")
-    smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles),
+    smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles,
+                                                      sized.creases),
                                 sized.triangles)
     if level == "adaptive":  # the smooth stage's default, as run_stitched_sized
         vertices, triangles, _ = bezier.tessellate_adaptive(smooth, sized.chord_tolerance())

@@ -185,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         else:  # as photosurf run's smooth stage: interpolated vertices, adaptive cuts
             from surface.sizing import interpolating_control
 
-            control = interpolating_control(sized.vertices, sized.triangles) * unit
+            control = interpolating_control(sized.vertices, sized.triangles, sized.creases) * unit
             smooth = smooth_to_files(control, sized.triangles, out,
                                      level="adaptive" if level is None else level,
                                      tolerance=sized.chord_tolerance() * unit,

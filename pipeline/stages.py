@@ -392,7 +392,8 @@ def smooth(ctx: StageContext) -> dict:
             if sized is not None and sized.surface is not None:
                 built = sized.surface   # the sizing built it so, to judge it
             else:
-                control = interpolating_control(vertices, triangles)
+                control = interpolating_control(vertices, triangles,
+                                                sized.creases if sized is not None else None)
         tolerance = _smooth_tolerance(ctx, sized) if level in ("auto", "adaptive") else None
         if tolerance is not None:
             info["chord_tolerance"] = tolerance
