@@ -1,0 +1,96 @@
+"""Creases the smooth surface interpolates (session 20): ``surface.fitting.convex_creases``,
+``surface.sizing.crease_vertices`` and ``interpolating_control(..., creases)``."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+
+from surface import sizing
+from surface.fitting import convex_creases, limit_positions
+
+
+def _arrays(mesh):
+    return np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).astype(np.int64)
+
+
+def _stepped(rows: int = 9, n_theta: int = 48):
+    """Closed mesh of a stepped column about z: r = 1 for z in [0, 1], a flat ledge at z =
+    1 in to r = 0.6, r = 0.6 up to z = 2, flat caps -- one convex crease (the ledge's
+    outer edge), one valley (its inner corner), two rims at the ends."""
+    theta = 2 * np.pi * np.arange(n_theta) / n_theta
+    profile = [(1.0, z) for z in np.linspace(0.0, 1.0, rows)] + \
+              [(r, 1.0) for r in (0.9, 0.8, 0.7)] + \
+              [(0.6, z) for z in np.linspace(1.0, 2.0, rows)]
+    v = np.array([[r * np.cos(a), r * np.sin(a), z] for r, z in profile for a in theta])
+    faces = []
+    for i in range(len(profile) - 1):
+        for j in range(n_theta):
+            a, b = i * n_theta + j, i * n_theta + (j + 1) % n_theta
+            faces += [[a, b, b + n_theta], [a, b + n_theta, a + n_theta]]
+    bottom, top = len(v), len(v) + 1
+    v = np.vstack([v, [[0, 0, 0.0], [0, 0, 2.0]]])
+    last = (len(profile) - 1) * n_theta
+    for j in range(n_theta):
+        k = (j + 1) % n_theta
+        faces += [[bottom, k, j], [top, last + j, last + k]]
+    return v, np.array(faces, dtype=np.int64), profile, n_theta
+
+
+def test_a_cube_is_all_ridges_and_an_l_prism_has_one_valley():
+    v, t = _arrays(o3d.geometry.TriangleMesh.create_box().subdivide_midpoint(1))
+    crease = convex_creases(v, t)
+    corner = np.isin(v, (0.0, 1.0)).sum(axis=1) >= 2     # on an edge of the box
+    assert np.array_equal(crease, corner)               # face centres are not on a crease
+    # the stepped column: the ledge's outer edge (r = 1, z = 1) is a ridge, its inner
+    # corner (r = 0.6, z = 1) a valley, the rims at z = 0 and 2 ridges
+    v, t, profile, n = _stepped()
+    crease = convex_creases(v, t)
+    r, z = np.hypot(v[:, 0], v[:, 1]), v[:, 2]
+    assert crease[(np.abs(r - 1.0) < 1e-9) & (np.abs(z - 1.0) < 1e-9)].all()
+    assert not crease[(np.abs(r - 0.6) < 1e-9) & (np.abs(z - 1.0) < 1e-9)].any()
+    assert crease[(np.abs(r - 1.0) < 1e-9) & (z < 1e-9)].all()
+    assert not crease[(z > 0.1) & (z < 0.9)].any()       # the walls, 7.5° a step round
+
+
+def test_crease_vertices_leave_the_ends_and_need_a_dense_crease_nearby():
+    v, t, profile, n = _stepped()
+    axis = (0.0, 0.0, 1.0)
+    inner = (0.125, 1.875)                             # inside the second rows from each end
+    mask = sizing.crease_vertices(v, t, axis, inner)
+    r, z = np.hypot(v[:, 0], v[:, 1]), v[:, 2]
+    ledge = (np.abs(r - 1.0) < 1e-9) & (np.abs(z - 1.0) < 1e-9)
+    assert np.array_equal(mask, ledge)                  # not the rims at z = 0, 2
+    # a candidate's crease counts only within reach of one of the dense mesh's
+    far = np.array([[5.0, 5.0, 1.0]])
+    assert sizing.crease_vertices(v, t, axis, inner, far, 0.1) is None
+    near = v[ledge][::4] + 0.01
+    assert np.array_equal(sizing.crease_vertices(v, t, axis, inner, near, 0.3), ledge)
+    sizing_flag = sizing.INTERPOLATE_CREASES
+    try:
+        sizing.INTERPOLATE_CREASES = False
+        assert sizing.crease_vertices(v, t, axis, inner) is None
+    finally:
+        sizing.INTERPOLATE_CREASES = sizing_flag
+
+
+def test_interpolated_creases_pass_through_the_ledge_kept_ones_round_it_off():
+    # The Loop limit of the control mesh at the ledge's outer edge: kept as they are, the
+    # vertices round the edge inwards (their limit points pulled into the solid by ~0.03
+    # here); interpolated, the limit points are the vertices (the sparse solve, ~1e-10).
+    v, t, profile, n = _stepped()
+    r, z = np.hypot(v[:, 0], v[:, 1]), v[:, 2]
+    ledge = (np.abs(r - 1.0) < 1e-9) & (np.abs(z - 1.0) < 1e-9)
+    kept = sizing.interpolating_control(v, t)
+    moved = sizing.interpolating_control(v, t, ledge)
+    off_kept = np.linalg.norm(limit_positions(kept, t)[ledge] - v[ledge], axis=1)
+    off_moved = np.linalg.norm(limit_positions(moved, t)[ledge] - v[ledge], axis=1)
+    assert off_kept.min() > 0.01
+    assert off_moved.max() < 1e-9
+    # everything else as before: the walls interpolated either way, the rims kept
+    wall = (z > 0.1) & (z < 0.9)
+    rim = (np.abs(r - 1.0) < 1e-9) & (z < 1e-9)
+    for control in (kept, moved):
+        np.testing.assert_allclose(limit_positions(control, t)[wall], v[wall], atol=1e-9)
+    np.testing.assert_array_equal(moved[rim], v[rim])
+    np.testing.assert_array_equal(kept[rim], v[rim])
