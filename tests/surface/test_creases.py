@@ -94,3 +94,31 @@ def test_interpolated_creases_pass_through_the_ledge_kept_ones_round_it_off():
         np.testing.assert_allclose(limit_positions(control, t)[wall], v[wall], atol=1e-9)
     np.testing.assert_array_equal(moved[rim], v[rim])
     np.testing.assert_array_equal(kept[rim], v[rim])
+
+
+def test_the_sizing_interpolates_a_stepped_columns_ledge_and_not_its_rims():
+    # A noisy cloud of the stepped column (σ = 0.002, 20 000 points): the sized control
+    # mesh carries its creases to the smooth stage -- on the ledge's outer edge (r = 1,
+    # z = 1), none at the rims of the ends (z = 0, 2) nor on the ledge's inner corner
+    # (a valley) -- and the surface built to judge the candidate interpolates them: its
+    # limit points there are the control mesh's vertices.
+    from surface.sizing import sized_from_points
+    from tests._vase import noisy_cloud
+
+    v, t, _, _ = _stepped(rows=41, n_theta=256)
+    points = noisy_cloud(v, t, 20_000, seed=3)
+    sized, _ = sized_from_points(points, axis="z")
+    assert sized.creases is not None and sized.creases.any()
+    at = sized.vertices[sized.creases]
+    r, z = np.hypot(at[:, 0], at[:, 1]), at[:, 2]
+    assert np.all(np.abs(z - 1.0) < 0.06), z          # the ledge, within a section or so
+    assert np.all(r > 0.85), r                         # its outer edge, not the valley
+    control = sizing.interpolating_control(sized.vertices, sized.triangles, sized.creases)
+    limit = limit_positions(control, sized.triangles)
+    np.testing.assert_allclose(limit[sized.creases], at, rtol=0, atol=1e-9)
+    sizing_flag = sizing.INTERPOLATE_CREASES
+    try:
+        sizing.INTERPOLATE_CREASES = False
+        assert sized_from_points(points, axis="z")[0].creases is None
+    finally:
+        sizing.INTERPOLATE_CREASES = sizing_flag
