@@ -1357,8 +1357,9 @@ def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tu
                     dense: np.ndarray | None = None, reach: float = 0.0) -> np.ndarray | None:
     """The vertices on the object's convex creases, ``(V,) bool`` (None without any):
     :func:`surface.fitting.convex_creases` between the heights ``inner = (lo, hi)``
-    along ``axis`` -- the ends' rims, held by support rings a noise width away, stay as
-    they are -- and, with ``dense`` crease points (a candidate judged against its dense
+    along ``axis`` (:func:`size_control_mesh`: the second and the last but one section,
+    half a spacing beyond) -- the ends' rims, held by support rings a noise width away,
+    stay as they are -- and, with ``dense`` crease points (a candidate judged against its dense
     mesh), within ``reach`` of one of them: a crease the dense mesh has too, not the
     coarse sampling of a smooth bend (an elliptic section's tips at 24-34 ring points
     are "sharp" at 30°; at the dense mesh's resolution they are not).
@@ -1582,7 +1583,11 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     # the real temple's thinnings were estimated 3-6x their goal and its dense mesh kept:
     # 308 744 patches, its silhouettes 0.0032 IoU above the stitched mesh's; session 20)
     ordered = heights[order]
-    between = (float(ordered[1]), float(ordered[-2])) if len(ordered) > 3 else (np.inf, -np.inf)
+    # rings 1 .. K-2, half a spacing either side: no vertex of a ring sits on the bound
+    # (a ring's height is its points' mean: a bound at it would split them by rounding)
+    half = 0.5 * float(np.median(np.diff(ordered))) if len(ordered) > 3 else 0.0
+    between = ((float(ordered[1]) - half, float(ordered[-2]) + half) if len(ordered) > 3
+               else (np.inf, -np.inf))
     dense_creases = crease_vertices(dense_vertices, dense_triangles, axis, between)
     crease_points = dense_vertices[dense_creases] if dense_creases is not None else None
     off_rims = _off_rims(dense_vertices, dense_triangles, sharp)
