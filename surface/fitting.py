@@ -133,14 +133,9 @@ def limit_positions(vertices, triangles) -> np.ndarray:
     return limit_matrix(t, len(v)) @ v
 
 
-def sharp_vertices(vertices, triangles, angle: float = np.pi / 6, rings: int = 1) -> np.ndarray:
-    """Vertices on or next to a sharp edge (dihedral angle above ``angle``), ``(V,) bool``.
-
-    ``rings`` grows the set by that many one-rings.  These are where an interpolating
-    G1 surface overshoots (a crease, or a rim held by support rings a noise width
-    away): :func:`interpolating_control_mesh` can keep them as they are.
-    """
-    v, t = _check_mesh(vertices, triangles)
+def _interior_edges(v: np.ndarray, t: np.ndarray):
+    """Unit face normals ``(F, 3)`` and each interior edge's vertices ``(E, 2)`` and two
+    faces ``(E,)``, ``(E,)``."""
     normal = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     half = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
@@ -150,9 +145,21 @@ def sharp_vertices(vertices, triangles, angle: float = np.pi / 6, rings: int = 1
     order = np.argsort(key, kind="stable")
     pair = key[order][1:] == key[order][:-1]
     a, b = order[:-1][pair], order[1:][pair]  # the two half-edges of an interior edge
-    cos = np.einsum("ij,ij->i", normal[face[a]], normal[face[b]])
+    return normal, half[a], face[a], face[b]
+
+
+def sharp_vertices(vertices, triangles, angle: float = np.pi / 6, rings: int = 1) -> np.ndarray:
+    """Vertices on or next to a sharp edge (dihedral angle above ``angle``), ``(V,) bool``.
+
+    ``rings`` grows the set by that many one-rings.  These are where an interpolating
+    G1 surface overshoots (a crease, or a rim held by support rings a noise width
+    away): :func:`interpolating_control_mesh` can keep them as they are.
+    """
+    v, t = _check_mesh(vertices, triangles)
+    normal, edge, fa, fb = _interior_edges(v, t)
+    cos = np.einsum("ij,ij->i", normal[fa], normal[fb])
     sharp = np.zeros(len(v), dtype=bool)
-    sharp[half[a[cos < np.cos(angle)]].ravel()] = True
+    sharp[edge[cos < np.cos(angle)].ravel()] = True
     return grow_vertices(sharp, t, rings)
 
 
@@ -165,23 +172,14 @@ def convex_creases(vertices, triangles, angle: float = np.pi / 6) -> np.ndarray:
     (measured in session 20: a mug's Chamfer +25-31 %, ``surface.sizing.interpolating_control``).
     """
     v, t = _check_mesh(vertices, triangles)
-    normal = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    half = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    face = np.tile(np.arange(len(t)), 3)
-    key = np.sort(half, axis=1)
-    key = key[:, 0] * len(v) + key[:, 1]
-    order = np.argsort(key, kind="stable")
-    pair = key[order][1:] == key[order][:-1]
-    a, b = order[:-1][pair], order[1:][pair]  # the two half-edges of an interior edge
-    fa, fb = face[a], face[b]
+    normal, edge, fa, fb = _interior_edges(v, t)
     sharp = np.einsum("ij,ij->i", normal[fa], normal[fb]) < np.cos(angle)
     centroid = v[t].mean(axis=1)
     convex = np.einsum("ij,ij->i", normal[fa], centroid[fb] - centroid[fa]) < 0.0
     on = np.zeros(len(v), dtype=bool)
     valley = np.zeros(len(v), dtype=bool)
-    on[half[a[sharp]].ravel()] = True
-    valley[half[a[sharp & ~convex]].ravel()] = True
+    on[edge[sharp].ravel()] = True
+    valley[edge[sharp & ~convex].ravel()] = True
     return on & ~valley
 
 
