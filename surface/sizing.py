@@ -1295,7 +1295,7 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
     +0.0051 above the stitched mesh (min / median IoU 0.807 / 0.856 against 0.796 / 0.851;
     63 840 patches against 75 624: the sizing passes step 2 at n = 81 now); at spacing 5
     (18 998 points) -0.0152 against -0.0125 before, at 16 480 patches against 27 816;
-    torus +3 / -2 %, pants -5 / -8 %, mug +1 / -3 %, amphora -7 / -8 %, the vase with an
+    torus +3 / -3 %, pants -5 / -8 %, mug +1 / -3 %, amphora -7 / -8 %, the vase with an
     opening and the five shapes of revolution unchanged bit for bit.  The variants tried:
     every sharp vertex interpolated, temple +0.0039 but the mug +46-56 % and the vase with
     an opening +28-30 % (their lips' and floors' creases); the valleys kept, the mug still
