@@ -391,9 +391,10 @@ def smooth(ctx: StageContext) -> dict:
         if ctx.params["smooth"]["interpolate"]:  # borders: the mesh's own vertices back
             if sized is not None and sized.surface is not None:
                 built = sized.surface   # the sizing built it so, to judge it
-            else:
-                control = interpolating_control(vertices, triangles,
-                                                sized.creases if sized is not None else None)
+            else:   # the object's ridges interpolated too (sizing.crease_vertices)
+                creases = sized.creases if sized is not None else _mesh_creases(
+                    ctx, vertices, triangles)
+                control = interpolating_control(vertices, triangles, creases)
         tolerance = _smooth_tolerance(ctx, sized) if level in ("auto", "adaptive") else None
         if tolerance is not None:
             info["chord_tolerance"] = tolerance
@@ -409,6 +410,20 @@ def smooth(ctx: StageContext) -> dict:
     artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
                            smoothed.surface)
     return {**smoothed.info(), **info}
+
+
+def _mesh_creases(ctx: StageContext, vertices, triangles):
+    """``surface.sizing.mesh_creases`` of the stitched mesh, the sections' heights from the
+    curves stage; None without curves (a mesh given as input)."""
+    from surface import sizing
+
+    if not ctx.has_output("curves"):
+        return None
+    rings, planes, _ = artifacts.read_curves(ctx.stage_path("curves"))
+    try:
+        return sizing.mesh_creases(vertices, triangles, rings, planes[0].frame[2])
+    except ValueError:   # borders or a degenerate mesh: the sharp vertices kept as before
+        return None
 
 
 def _log_sizing(sized, dense_triangles: int) -> None:

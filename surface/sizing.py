@@ -277,8 +277,9 @@ __all__ = ["SectionLayout", "SizedMesh", "Variogram", "coarsen_rings", "error_es
            "ring_noise", "ring_precision", "risk_estimate", "section_layout",
            "section_scatter",
            "section_variogram", "section_weights", "size_control_mesh", "sized_from_points",
-           "crease_vertices", "smooth_deviation", "smoothing_matrix", "stitched_error",
-           "stitched_surface_error", "thinning", "unshared_noise"]
+           "crease_band", "crease_vertices", "mesh_creases", "smooth_deviation",
+           "smoothing_matrix", "stitched_error", "stitched_surface_error", "thinning",
+           "unshared_noise"]
 
 #: Points round the largest ring of the coarsest candidate.
 MIN_RING_POINTS = 12
@@ -1353,6 +1354,27 @@ def _vertex_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return np.bincount(tri.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
 
 
+def crease_band(heights: np.ndarray) -> tuple[float, float]:
+    """The heights between which :func:`crease_vertices` looks: the second and the
+    last-but-one of the sections' ``heights``, half their median spacing beyond -- no
+    vertex of a ring sits on a bound (a ring's height is its points' mean: a bound at it
+    would split them by rounding).  Empty (``(inf, -inf)``) with fewer than four."""
+    ordered = np.sort(np.asarray(heights, dtype=np.float64))
+    if len(ordered) < 4:
+        return np.inf, -np.inf
+    half = 0.5 * float(np.median(np.diff(ordered)))
+    return float(ordered[1]) - half, float(ordered[-2]) + half
+
+
+def mesh_creases(vertices: np.ndarray, triangles: np.ndarray, rings: Sequence,
+                 axis) -> np.ndarray | None:
+    """:func:`crease_vertices` of a stitched mesh itself (no candidate to match against),
+    its ``rings`` giving the sections' heights: what the smooth stage interpolates when
+    the sizing is off (``smooth.size = false``) or keeps the dense mesh."""
+    axis = np.asarray(axis, dtype=np.float64)
+    return crease_vertices(vertices, triangles, axis, crease_band(_heights(rings, axis)))
+
+
 def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tuple,
                     dense: np.ndarray | None = None, reach: float = 0.0) -> np.ndarray | None:
     """The vertices on the object's convex creases, ``(V,) bool`` (None without any):
@@ -1582,12 +1604,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     # every candidate; like the rims they stay out of the reference sample (counted in it,
     # the real temple's thinnings were estimated 3-6x their goal and its dense mesh kept:
     # 308 744 patches, its silhouettes 0.0032 IoU above the stitched mesh's; session 20)
-    ordered = heights[order]
-    # rings 1 .. K-2, half a spacing either side: no vertex of a ring sits on the bound
-    # (a ring's height is its points' mean: a bound at it would split them by rounding)
-    half = 0.5 * float(np.median(np.diff(ordered))) if len(ordered) > 3 else 0.0
-    between = ((float(ordered[1]) - half, float(ordered[-2]) + half) if len(ordered) > 3
-               else (np.inf, -np.inf))
+    between = crease_band(heights)
     dense_creases = crease_vertices(dense_vertices, dense_triangles, axis, between)
     crease_points = dense_vertices[dense_creases] if dense_creases is not None else None
     off_rims = _off_rims(dense_vertices, dense_triangles, sharp)

@@ -122,3 +122,18 @@ def test_the_sizing_interpolates_a_stepped_columns_ledge_and_not_its_rims():
         assert sized_from_points(points, axis="z")[0].creases is None
     finally:
         sizing.INTERPOLATE_CREASES = sizing_flag
+
+
+def test_mesh_creases_of_a_stitched_mesh_take_the_band_from_its_rings():
+    # What the smooth stage interpolates without the sizing: the band runs from the
+    # second ring to the last but one, half a spacing beyond (sizing.crease_band), so
+    # the ledge's ridge is in and the rims at the ends are out.
+    v, t, profile, n = _stepped()
+    rings = [v[i * n:(i + 1) * n] for i in range(len(profile))]
+    heights = np.array([z for _, z in profile])
+    lo, hi = sizing.crease_band(heights)
+    assert lo == 0.125 - 0.0625 and hi == 1.875 + 0.0625    # spacing 0.125: the median gap
+    mask = sizing.mesh_creases(v, t, rings, (0.0, 0.0, 1.0))
+    r, z = np.hypot(v[:, 0], v[:, 1]), v[:, 2]
+    assert np.array_equal(mask, (np.abs(r - 1.0) < 1e-9) & (np.abs(z - 1.0) < 1e-9))
+    assert sizing.crease_band(heights[:3]) == (np.inf, -np.inf)
