@@ -9,8 +9,9 @@ in one process on the same data:
   seeds 0 and 1): ``surface.sizing.sized_from_points``, Loop's surface through the sized
   mesh, adaptive tessellation; patches, crease vertices, Chamfer to the implicit truth;
 * with ``--workspace W`` (a ``photosurf run`` of ``../shared/data/real/temple_sparse_ring``
-  with its cameras): the smooth stage rerun on a copy of W under each rule; patches and
-  the silhouettes' IoU per view (grey above 0.19 x 255) against the stitched mesh's.
+  with its cameras): the smooth stage rerun on a copy of W under each rule, sized and with
+  ``smooth.size=false``; patches and the silhouettes' IoU per view (grey above 0.19 x 255)
+  against the stitched mesh's.
 
     .venv/bin/python benchmarks/creases.py [--workspace W] [--shapes NAME ...] [--quick]
                                            [--json PATH]
@@ -82,14 +83,17 @@ def temple_rows(workspace: Path) -> dict:
 
     stitched = iou(workspace / "stitch" / "mesh.ply")
     out = {"stitched_iou": stitched.tolist()}
-    for label, on in (("kept", False), ("interpolated", True)):
+    runs = [(f"{label}{suffix}", on, extra) for suffix, extra in (("", []), (
+        " unsized", ["--set", "smooth.size=false"])) for label, on in (("kept", False),
+                                                                         ("interpolated", True))]
+    for label, on, extra in runs:
         sizing.INTERPOLATE_CREASES = on
         with tempfile.TemporaryDirectory() as scratch:
             copy = Path(scratch) / "w"
             shutil.copytree(workspace, copy)
             if cli.main(["run", str(DATA), "--cameras", str(DATA / "templeSR_par.txt"),
                          "--out", str(copy), "--from", "smooth", "--to", "smooth", "--force",
-                         "-q"]) != 0:
+                         "-q", *extra]) != 0:
                 raise SystemExit("the smooth stage failed")
             info = json.loads((copy / "manifest.json").read_text())["stages"]["smooth"]["info"]
             values = iou(copy / "smooth" / "surface.ply")
@@ -127,9 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.workspace:
         temple = temple_rows(Path(args.workspace))
         result["temple"] = temple
-        for label in ("kept", "interpolated"):
+        for label in ("kept", "interpolated", "kept unsized", "interpolated unsized"):
             t = temple[label]
-            print(f"temple {label:<13s}{t['patches']:8d} patches, IoU min / median "
+            print(f"temple {label:<21s}{t['patches']:8d} patches, IoU min / median "
                   f"{t['iou_min']:.4f} / {t['iou_median']:.4f}, mean over the stitched mesh "
                   f"{t['mean_over_stitched']:+.4f}")
     write_result(args.json, result)
