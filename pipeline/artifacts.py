@@ -181,7 +181,8 @@ def section_heights(folder: str | os.PathLike) -> np.ndarray:
 
 # --------------------------------------------------------------------------- curves
 def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
-                 noise: float, fits: Sequence | None = None) -> tuple[int, int]:
+                 noise: float, fits: Sequence | None = None, params: Sequence | None = None,
+                 step: float | None = None) -> tuple[int, int]:
     """``folder/curves.npz``: the rings of each section, flattened.
 
     Parameters
@@ -192,6 +193,10 @@ def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
         The sections the rings belong to (same order): their heights and frame.
     noise : float
         The section points' sigma, scene units.
+    params, step : optional
+        Open arcs (``surface.open_surface.open_arcs``): each ring's common parameter
+        ``u`` ``(n_k,)`` and the odd arcs' grid step; stored as ``u`` and ``u_step``
+        (:func:`read_arc_parameters`), which mark the curves as open.
     fits : sequence, optional
         Mirroring ``rings``: each ring's ``surface.catmull_rom.RingFit`` (or a list of
         them); stored per ring with their median precision.
@@ -223,6 +228,11 @@ def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
                  "loop_noise": np.array([f.noise for f in records], np.float64),
                  "precision": np.array([f.precision for f in records], np.float64),
                  "ring_precision": np.float64(ring_precision(records))}
+    if params is not None:
+        extra["u"] = np.concatenate([np.asarray(u, np.float64) for u in params])
+        extra["u_step"] = np.float64(step)
+        if len(extra["u"]) != int(offsets[-1]):
+            raise ValueError(f"params: {len(extra['u'])} values for {offsets[-1]} ring points")
     save_npz(Path(folder) / CURVES, points=np.concatenate(flat), offsets=offsets,
              section=np.array(sec, np.int64), loop=np.array(loop_ids, np.int64),
              heights=np.array([sections[k].height for k in sec]), axis=frame[2], frame=frame,
@@ -247,6 +257,16 @@ def read_curves(folder: str | os.PathLike) -> tuple[list, list, float | None]:
                                   origin=np.zeros(3), frame=frame, section_id=len(planes)))
         rings[-1].append(d["points"][off[k]:off[k + 1]])
     return rings, planes, (float(d["noise"]) if "noise" in d else None)
+
+
+def read_arc_parameters(folder: str | os.PathLike) -> tuple[list, float] | None:
+    """Open arcs' common parameter per ring (one ring per section) and the grid step
+    (:func:`write_curves` with ``params``); None for closed rings."""
+    d = _members(Path(folder) / CURVES)
+    if "u" not in d:
+        return None
+    off = d["offsets"]
+    return [d["u"][off[k]:off[k + 1]] for k in range(len(off) - 1)], float(d["u_step"])
 
 
 #: The per-ring fit arrays of ``curves.npz`` (:func:`write_curves` with ``fits``).

@@ -31,12 +31,13 @@ FLEXIBLE = {
     "curves.smoothing": ("auto",),
     "smooth.level": ("auto", "adaptive"),
     "acquire.densify": ("auto",),
+    "curves.open": ("auto",),
 }
 
 #: FLEXIBLE keys whose default is a word: an example of the other values they take
 #: (``smooth.level`` defaults to "adaptive" and takes an integer level too;
 #: ``acquire.densify`` defaults to "auto" and takes true / false).
-FLEXIBLE_EXAMPLE = {"smooth.level": 1, "acquire.densify": True}
+FLEXIBLE_EXAMPLE = {"smooth.level": 1, "acquire.densify": True, "curves.open": True}
 
 #: Parameters that take one of a fixed set of words (lists: every element must be one).
 CHOICES = {

@@ -241,11 +241,21 @@ def curves(ctx: StageContext) -> dict:
     sliced, _, _ = artifacts.read_sections(ctx.stage_path("sections"))
     options = {"outlier_threshold": p["outlier_threshold"],
                "min_points": p["min_loop_points"] or rc.min_loop_points(smoothing)}
+    mode = _open_mode(p["open"])
     try:
+        if mode is True:
+            raise ValueError("curves.open = true")
         kept, loops, messages = rc.organise_sections(
             ctx.track(sliced, "loops", total=len(sliced), unit="section"), **options)
     except ValueError as exc:
-        raise InputError(f"curves: {exc} (set sections.count)") from exc
+        # one-sided data (open arcs over most of the object): an open surface, not an error
+        arcs = None if mode is False else _open_curves(ctx, sliced, options, smoothing,
+                                                       forced=mode is True)
+        if arcs is None:
+            raise InputError(f"curves: {exc} (set sections.count"
+                             + (")" if mode is False else
+                                ", or curves.open = true for an open surface)")) from exc
+        return arcs
     rings, fits = rc.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
                                    parametrisation=p["parametrisation"], fits=True)
     fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
@@ -262,6 +272,87 @@ def curves(ctx: StageContext) -> dict:
             "sections_without_loop": len(sliced) - len(kept), "warnings": messages,
             "ring_precision": ring_precision(records),
             "smoothing_median": float(np.median([f.smoothing for f in records]))}
+
+
+def _open_mode(value) -> bool | str:
+    """``curves.open``: "auto" (open when the arcs rule says so), true or false."""
+    if isinstance(value, bool) or value == "auto":
+        return value
+    raise InputError(f"curves.open must be \"auto\", true or false, got {value!r}")
+
+
+def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
+                 forced: bool = False) -> dict | None:
+    """The curves stage for one-sided data (``surface.open_surface``): every section's
+    largest loop as an open arc, its open Catmull-Rom curve, resampled on the arcs'
+    common parameter; None when the loops go round the object (``one_sided`` false)
+    and the open surface was not asked for."""
+    import numpy as np
+
+    from surface import open_surface as osf
+    from surface import reconstruct as rc
+
+    p = ctx.params["curves"]
+    kept, loops, messages = osf.organise_arcs(sliced, **options)
+    share = rc.bridged_share(loops)
+    if len(kept) < 2 or not (forced or osf.one_sided(loops)):
+        return None
+    _, _, spacing = artifacts.read_sections(ctx.stage_path("sections"))
+    if not spacing > 0:
+        spacing = float(np.median(np.abs(np.diff([s.height for s in kept]))))
+    curves, rings, params, step, notes = osf.open_arcs(
+        loops, spacing, p["n"] or None, smoothing=smoothing)
+    messages += notes
+    for message in messages:
+        log.warning("curves: %s", message)
+    log.info("curves: %.0f %% of the sections' loop length lies across gaps: one-sided data, "
+             "%d open arcs (curves.open = %s)", 100 * share, len(rings), p["open"])
+    n_rings, n_points = artifacts.write_curves(ctx.out, rings, kept, rc.section_noise(loops),
+                                               params=params, step=step)
+    return {"open": True, "rings": n_rings, "points": n_points, "bridged_share": share,
+            "sections_without_loop": len(sliced) - len(kept), "warnings": messages,
+            "smoothing_median": float(np.median([c.smoothing for c in curves]))}
+
+
+def _camera_centres(ctx: StageContext):
+    """Centres ``(K, 3)`` of the cameras the cloud was seen from, or None (a cloud input,
+    or cameras that cannot be read): the side the open surface faces."""
+    import numpy as np
+
+    from matching.cameras import read_cameras_yml, read_rig
+
+    candidates = [ctx.stage_path("acquire", RING_FILE).parent / artifacts.CAMERAS]
+    if ctx.kind == "scene":
+        candidates.append(ctx.stage_path("scene", "cameras.yml"))
+    elif ctx.rig is not None:
+        candidates.append(Path(ctx.rig))
+    for path in candidates:
+        if not path.is_file():
+            continue
+        for reader in (read_cameras_yml, lambda f: [read_rig(f).left, read_rig(f).right]):
+            try:
+                return np.array([camera.center for camera in reader(path)], np.float64)
+            except Exception:  # noqa: BLE001 - another format, or no cameras: try the next
+                continue
+    return None
+
+
+def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> dict:
+    """``surface.open_surface.stitch_arcs`` of the curves stage's open arcs, facing the
+    cameras when they are known."""
+    from surface.metrics import mesh_topology
+    from surface.open_surface import stitch_arcs
+
+    eyes = _camera_centres(ctx)
+    result = stitch_arcs([r[0] for r in rings], params, step, viewpoint=eyes)
+    topology = mesh_topology(result.vertices, result.triangles)
+    notes = {**result.info(), "closed": False, "messages": list(result.notes),
+             "faces_cameras": eyes is not None, "edge_manifold": topology["edge_manifold"],
+             "oriented": topology["oriented"], "components": topology["components"]}
+    artifacts.write_stitched(ctx.out, result.vertices, result.triangles, notes)
+    for message in result.notes:
+        log.warning("stitch: %s", message)
+    return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
 
 
 def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float,
@@ -301,6 +392,9 @@ def stitch(ctx: StageContext) -> dict:
     loop graph."""
     p = ctx.params["stitch"]
     rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
+    arcs = artifacts.read_arc_parameters(ctx.stage_path("curves"))
+    if arcs is not None:  # one-sided data: an open surface with a border
+        return _stitch_open(ctx, rings, *arcs)
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     cap_sigma = artifacts.read_cap_sigma(ctx.stage_path("sections"))
     result, notes_ends = _stitcher(p, planes, noise, cap_cloud, spacing,
@@ -375,6 +469,8 @@ def smooth(ctx: StageContext) -> dict:
     vertices, triangles = read_mesh(ctx.stage_path("stitch", artifacts.MESH))
     level = ctx.params["smooth"]["level"]
     info: dict = {}
+    if _stitched_open(ctx):
+        return _smooth_open(ctx, vertices, triangles, level)
     try:
         sized = _sized_control_mesh(ctx, vertices, triangles)
         if sized is not None:
@@ -410,6 +506,36 @@ def smooth(ctx: StageContext) -> dict:
     artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
                            smoothed.surface)
     return {**smoothed.info(), **info}
+
+
+def _stitched_open(ctx: StageContext) -> bool:
+    """Whether the stitch stage made an open surface from one-sided data."""
+    notes_path = ctx.stage_path("stitch", artifacts.STITCH_NOTES)
+    return notes_path.is_file() and bool(json.loads(notes_path.read_text()).get("open"))
+
+
+def _smooth_open(ctx: StageContext, vertices, triangles, level) -> dict:
+    """The smooth stage over an open stitched mesh: the stitched mesh is the control mesh
+    (the sizing and the interpolating control points need a closed mesh), Loop's patches
+    with the border rule of ``surface.bezier`` (ghost triangles past the border: the
+    surface is G1 inside and ends at the border edges without interpolating them)."""
+    import numpy as np
+
+    from pipeline.smoothing import smooth_mesh
+    from surface.open_surface import boundary_loops
+
+    tolerance = _smooth_tolerance(ctx) if level in ("auto", "adaptive") else None
+    smoothed = smooth_mesh(vertices, triangles, level, tolerance)
+    artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
+                           smoothed.surface)
+    border = boundary_loops(smoothed.triangles)
+    length = sum(float(np.linalg.norm(smoothed.vertices[b] - smoothed.vertices[np.roll(b, -1)],
+                                      axis=1).sum()) for b in border)
+    return {**smoothed.info(), "open": True, "boundary_loops": len(border),
+            "boundary_length": length, "control_triangles": len(triangles),
+            **({"chord_tolerance": tolerance} if tolerance is not None else {}),
+            "border_rule": "surface.bezier ghost layers (the border is approximated, "
+                           "not interpolated)"}
 
 
 def _mesh_creases(ctx: StageContext, vertices, triangles):

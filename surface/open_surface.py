@@ -1,0 +1,632 @@
+r"""Open surfaces from one-sided sections: open Catmull-Rom arcs stitched into a bordered mesh.
+
+When the sections are open arcs over most of the object (one stereo pair, a relief,
+a facade: :func:`one_sided`, the rule of ``surface.reconstruct.bridged_share``), each
+section's ordered points become an *open* uniform Catmull-Rom curve (the paper's eq.
+3,5 without closing): control points ``P_0 … P_n``, the curve runs through
+``P_1 … P_{n−1}`` and segment ``j`` (between ``P_j`` and ``P_{j+1}``) is::
+
+    Q_j(t) = ½ · [t³ t² t 1] · M_CR · [P_{j−1} P_j P_{j+1} P_{j+2}]ᵀ,   t ∈ [0, 1]
+
+The end control points are the linear extrapolations ``P_0 = 2P_1 − P_2`` and
+``P_n = 2P_{n−1} − P_{n−2}`` (reflection of the neighbour through the end), so the
+end tangent is the end chord and the curve is linear in the interpolated points
+``P_1 … P_{n−1}``: fitted by the least squares of ``surface.catmull_rom`` (its basis,
+its third-difference fairness weight, its arc-length data parameters and its GCV
+choice of the smoothing level), without the cyclic wrap.  The curve starts and ends
+at the arc's first and last data points (their parameters are 0 and n − 2): it ends
+where the data end.
+
+Arcs are put on one common parameter ``u`` (:func:`align_arcs`): the longest arc's
+``u`` is its arc length; each neighbour's ``u`` is the affine function of its own arc
+length that best matches, in least squares, the ``u`` of its points' nearest points
+on the arc already placed (pairs whose nearest point is an end of that arc are left
+out: there the arcs do not overlap).  On a surface of revolution seen from one side
+``u`` is proportional to the angle θ.  Odd sections are resampled every ``h`` in
+``u``, even ones every ``h/2`` on the same grid (N and 2N per unit of ``u``; ``h`` is
+the section spacing on the widest arc, as the closed rings' ``N = P_max/Δ``), at the
+grid points within the arc's range (an arc end within a quarter step past the last
+grid point inside it gets an end point there, never farther: nothing is extrapolated
+beyond the data by more than a quarter of the spacing).
+
+Strips (:func:`zip_arcs`): between two adjacent arcs, over the range of ``u`` both
+cover, the direction criterion as a merge by ``u`` (each step advances the arc whose
+next point comes first, the coarser on a tie: for N↔2N on the common grid exactly
+the paper's ``(o_k, e_2k, e_2k+1), (o_k, e_2k+1, o_k+1), (o_k+1, e_2k+1, e_2k+2)``),
+then Lawson flips (``surface.stitch.delaunay_flips``, never across a section contour).
+The result is an oriented, edge-manifold mesh with borders where the data end; faces
+are counter-clockwise seen from the side the arcs curve away from, or from
+``viewpoint`` when given (the cameras': they saw the surface's outside).
+
+References
+----------
+.. [1] E. Catmull and R. Rom, "A class of local interpolating splines", Computer
+   Aided Geometric Design, Academic Press (1974), 317–326.
+.. [2] C. L. Lawson, "Software for C1 surface interpolation", in Mathematical
+   Software III, Academic Press (1977), 161–194.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from surface.catmull_rom import _FAIRNESS, M_CR, _basis
+from surface.validate import TOL, check_finite, check_shape
+
+__all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
+           "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
+           "open_surface_from_loops", "organise_arcs", "open_arcs", "QUARTER_STEP"]
+
+#: Share of a grid step an arc end may lie past its last grid point and still get an
+#: end point there (the most the resampled arc reaches beyond its data is this share of
+#: the ring spacing).
+QUARTER_STEP = 0.25
+#: Dense samples per curve segment for arc length and nearest points (chord error
+#: ~ (h/16)² κ / 8: below 1e-4 of the spacing for a segment turning 30°).
+_DENSE = 16
+
+
+# --------------------------------------------------------------------------- curve
+@dataclass(frozen=True)
+class OpenCurve:
+    """An open uniform Catmull-Rom curve (module notes).
+
+    Attributes
+    ----------
+    control_points : (n + 1, 3) float64
+        ``P_0 … P_n``; the curve interpolates ``P_1 … P_{n−1}`` (n ≥ 3).
+    smoothing : float
+        Data points per control point of the fit (1: interpolating).
+    """
+
+    control_points: np.ndarray
+    smoothing: float = 1.0
+
+    @property
+    def segments(self) -> int:
+        """Number of segments, ``n − 2``; the parameter runs over ``[0, segments]``."""
+        return len(self.control_points) - 3
+
+    def _split(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.segments)
+        seg = np.minimum(np.floor(t).astype(np.int64), self.segments - 1)
+        return seg, t - seg
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        """Points ``(M, 3)`` at parameters ``t`` ``(M,)`` in ``[0, segments]`` (clipped)."""
+        seg, local = self._split(t)
+        cols = seg[:, None] + np.arange(4)                          # P_{j-1} .. P_{j+2}
+        return np.einsum("mk,mkd->md", _basis(local), self.control_points[cols])
+
+    def derivative(self, t: np.ndarray) -> np.ndarray:
+        """``dQ/dt`` ``(M, 3)`` at ``t``."""
+        seg, local = self._split(t)
+        powers = np.stack([3 * local**2, 2 * local, np.ones_like(local),
+                           np.zeros_like(local)], axis=1)
+        cols = seg[:, None] + np.arange(4)
+        return np.einsum("mk,mkd->md", 0.5 * powers @ M_CR, self.control_points[cols])
+
+    def dense(self, per_segment: int = _DENSE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Parameters ``(K,)``, points ``(K, 3)`` and cumulative chord length ``(K,)``."""
+        t = np.linspace(0.0, self.segments, self.segments * per_segment + 1)
+        pts = self(t)
+        length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0),
+                                                                 axis=1))])
+        return t, pts, length
+
+
+def _extension(m: int) -> np.ndarray:
+    """``(m + 2, m)`` map from the interpolated points to ``P_0 … P_n`` (reflected ends)."""
+    ext = np.zeros((m + 2, m))
+    ext[1:-1] = np.eye(m)
+    ext[0, 0], ext[0, 1] = 2.0, -1.0
+    ext[-1, -1], ext[-1, -2] = 2.0, -1.0
+    return ext
+
+
+def _open_parameters(points: np.ndarray, window: int, segments: int) -> np.ndarray:
+    """Parameters ``(M,)`` in ``[0, segments]`` proportional to arc length along the arc.
+
+    As ``catmull_rom._arc_parameters`` without the wrap: the arc length of a moving
+    average of ``window`` points (shrinking at the ends), each point placed at its own
+    foot on it; the ends map to 0 and ``segments``.
+    """
+    m = len(points)
+    window = int(min(max(window, 1), max(1, m // 2)))
+    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(points, axis=0)])
+    idx = np.arange(m)
+    lo = np.clip(idx - window // 2, 0, m)
+    hi = np.clip(idx - window // 2 + window, 0, m)
+    lo = np.maximum(0, np.minimum(lo, hi - 1))
+    smooth = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    step = np.linalg.norm(np.diff(smooth, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(step)])
+    total = float(cum[-1])
+    if total <= TOL.zero:
+        raise ValueError("points all coincide: cannot fit a curve")
+    tangent = np.gradient(smooth, axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1), TOL.zero)[:, None]
+    arc = cum + np.einsum("mi,mi->m", points - smooth, tangent)
+    # the ends are the data's ends: rescale so the first and last points sit at 0, L
+    arc = (arc - arc[0]) / max(arc[-1] - arc[0], TOL.zero) * total
+    return np.clip(segments * arc / total, 0.0, segments)
+
+
+def _least_squares(points: np.ndarray, m: int, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Interpolated points ``(m, 3)`` of the open curve minimising
+    ``Σ|Q(t_j) − x_j|² + λ Σ|Δ³P_i|²`` and the data parameters ``t`` ``(M,)``.
+
+    λ is ``catmull_rom``'s fairness weight (1 % of the mean diagonal of ``AᵀA``);
+    the system is ``m × m`` and dense (m is a few hundred at most).
+    """
+    window = max(int(round(smoothing)), int(np.ceil(np.sqrt(len(points)))))
+    t = _open_parameters(points, window, m - 1)
+    seg = np.minimum(np.floor(t).astype(np.int64), m - 2)
+    weights = _basis(t - seg)                                      # (M, 4)
+    ext = _extension(m)
+    design = np.einsum("mk,mkj->mj", weights, ext[seg[:, None] + np.arange(4)])  # (M, m)
+    normal = design.T @ design
+    third = np.diff(np.eye(m + 2), n=3, axis=0) @ ext              # (m - 1, m)
+    system = normal + _FAIRNESS * float(np.diagonal(normal).mean()) * (third.T @ third)
+    ctrl = np.linalg.solve(system, design.T @ points)
+    return ctrl, t
+
+
+def _normal_rss(points: np.ndarray, curve: OpenCurve, t: np.ndarray, frame: np.ndarray) -> float:
+    """Sum of squared residuals normal to the curve, in the section plane."""
+    resid = (points - curve(t)) @ frame[:2].T
+    tangent = curve.derivative(t) @ frame[:2].T
+    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), TOL.zero)[:, None]
+    return float(np.sum(np.einsum("mi,mi->m", resid, normal) ** 2))
+
+
+def fit_open(points: np.ndarray, smoothing: float | str = "auto",
+             frame: np.ndarray | None = None) -> OpenCurve:
+    """Fit an open Catmull-Rom curve to the ordered points of an arc.
+
+    Parameters
+    ----------
+    points : (M, 3) float64, M ≥ 4
+        The arc's points in order from one end to the other.
+    smoothing : float or "auto"
+        Data points per control point: ``≤ 1`` interpolates every point (the
+        curve passes through them, ``P_{j+1} = x_j``); ``s > 1`` fits
+        ``max(3, round(M/s))`` interpolated points by least squares.  ``"auto"``:
+        generalised cross-validation over s = 4, 8, 16, … (as
+        ``surface.catmull_rom.choose_smoothing``, never below 4), ``M·RSS/(M − m)²``
+        with residuals normal to the curve in the section plane.
+    frame : (3, 3) float64, optional
+        Section frame (rows e1, e2, normal) for the GCV residuals; default the
+        points' best-fit plane.
+
+    Returns
+    -------
+    OpenCurve
+    """
+    pts = check_shape(points, "(M, 3)", "points", dtype=np.float64)
+    check_finite(pts, "points")
+    if len(pts) < 4:
+        raise ValueError(f"points: an open curve needs at least 4 points, got {len(pts)}")
+    if isinstance(smoothing, str) and smoothing != "auto":
+        raise ValueError(f"smoothing must be a number >= 0 or 'auto', got {smoothing!r}")
+    m_data = len(pts)
+    if smoothing != "auto" and smoothing <= 1:
+        return OpenCurve(np.ascontiguousarray(_extension(m_data) @ pts), 1.0)
+    if frame is None:
+        centred = pts - pts.mean(axis=0)
+        frame = np.linalg.svd(centred, full_matrices=False)[2]
+    candidates = [float(smoothing)] if smoothing != "auto" else \
+        [4.0 * 2**k for k in range(32) if m_data / (4.0 * 2**k) >= 8] or [4.0]
+    best = None
+    for s in candidates:
+        m = max(3, min(m_data, int(round(m_data / s))))
+        ctrl, t = _least_squares(pts, m, s)
+        curve = OpenCurve(np.ascontiguousarray(_extension(m) @ ctrl), s)
+        score = m_data * _normal_rss(pts, curve, t, frame) / max(m_data - m, 1) ** 2
+        if best is None or score < best[0]:
+            best = (score, curve)
+    return best[1]
+
+
+# --------------------------------------------------------------------------- arcs
+def loop_arc(loop) -> np.ndarray:
+    """The ordered points ``(M, 3)`` of a ``surface.topology.Loop`` as an open arc.
+
+    The loop's cyclic order is cut at its longest step (the unseen side) and the arc
+    runs from the point after it to the point before it, keeping the loop's
+    counter-clockwise direction.
+    """
+    pts = np.asarray(loop.points, dtype=np.float64)
+    step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    return np.roll(pts, -(int(np.argmax(step)) + 1), axis=0)
+
+
+def one_sided(loops: Sequence) -> bool:
+    """True when the loops are open arcs over much of their length: the share of
+    their length across gaps (``surface.reconstruct.bridged_share``) exceeds
+    ``surface.reconstruct.MAX_BRIDGED_SHARE`` (the rule that refuses closed rings)."""
+    from surface.reconstruct import MAX_BRIDGED_SHARE, bridged_share
+
+    return bridged_share(list(loops)) > MAX_BRIDGED_SHARE
+
+
+@dataclass(frozen=True)
+class _Placed:
+    """A curve's dense samples on the common parameter: ``u = offset + scale · s``."""
+
+    t: np.ndarray
+    points: np.ndarray
+    length: np.ndarray
+    offset: float
+    scale: float
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.offset + self.scale * self.length
+
+
+def _match(placed: _Placed, t, pts, length) -> tuple[float, float, int] | None:
+    """Affine ``u = a + c·s`` of an arc from nearest points on a placed neighbour."""
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(placed.points).query(pts)
+    inside = (nearest > 1) & (nearest < len(placed.points) - 2)   # not past its ends
+    if np.count_nonzero(inside) < 8:
+        return None
+    s, u = length[inside], placed.u[nearest[inside]]
+    keep = np.ones(len(s), bool)
+    for _ in range(2):  # one pass of a 3-MAD cut against pairs across a fold
+        c, a = np.polyfit(s[keep], u[keep], 1)
+        resid = u - (a + c * s)
+        mad = 1.4826 * np.median(np.abs(resid[keep] - np.median(resid[keep])))
+        keep = np.abs(resid) <= 3 * mad + TOL.zero * (1 + abs(u).max())
+        if np.count_nonzero(keep) < 8:
+            return None
+    c, a = np.polyfit(s[keep], u[keep], 1)
+    return float(a), float(c), int(np.count_nonzero(keep))
+
+
+def align_arcs(curves: list[OpenCurve]) -> tuple[list[OpenCurve], list[_Placed], list[str]]:
+    """Put the arcs on one parameter ``u`` (module notes), reversing arcs that run
+    against their neighbours.
+
+    Returns the curves (some reversed), their placed dense samples and notes on
+    neighbours that do not overlap (placed end to end).
+    """
+    curves = list(curves)
+    dense = [c.dense() for c in curves]
+    ref = int(np.argmax([d[2][-1] for d in dense]))
+    placed: list = [None] * len(curves)
+    placed[ref] = _Placed(*dense[ref], 0.0, 1.0)
+    notes = []
+    order = [(k, k - 1) for k in range(ref + 1, len(curves))] + \
+        [(k, k + 1) for k in range(ref - 1, -1, -1)]
+    for k, nb in order:
+        t, pts, length = dense[k]
+        fit = _match(placed[nb], t, pts, length)
+        if fit is not None and fit[1] < 0:  # runs the other way: reverse the arc
+            curves[k] = OpenCurve(curves[k].control_points[::-1].copy(), curves[k].smoothing)
+            t, pts, length = dense[k] = curves[k].dense()
+            fit = _match(placed[nb], t, pts, length)
+        if fit is None or fit[1] <= 0:
+            notes.append(f"arc {k} does not overlap arc {nb}: placed end to end")
+            start = placed[nb].u[[0, -1]]
+            near_first = np.linalg.norm(pts[0] - placed[nb].points[[0, -1]], axis=1)
+            a = float(start[int(np.argmin(near_first))])
+            fit = (a, placed[nb].scale, 0)
+        placed[k] = _Placed(t, pts, length, fit[0], fit[1])
+    return curves, placed, notes
+
+
+def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float
+                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Resample every arc on the common grid of ``u``: section ``k`` every ``step``
+    (``k`` even: the paper's odd sections, N points) or ``step/2`` (2N).
+
+    Returns the rings ``(n_k, 3)`` and their ``u`` ``(n_k,)`` (increasing).  Grid
+    points inside the arc's range are kept; an end lying past its last grid point by
+    more than :data:`QUARTER_STEP` of the step gets an extra point at the end itself.
+    """
+    origin = min(float(p.u.min()) for p in placed)
+    rings, params = [], []
+    for k, (curve, where) in enumerate(zip(curves, placed, strict=True)):
+        h = step if k % 2 == 0 else step / 2
+        u_lo, u_hi = float(where.u[0]), float(where.u[-1])
+        first = math.ceil((u_lo - origin) / h - TOL.angle)
+        last = math.floor((u_hi - origin) / h + TOL.angle)
+        u = origin + h * np.arange(first, last + 1)
+        if len(u) == 0 or u[0] - u_lo > QUARTER_STEP * h:
+            u = np.concatenate([[u_lo], u])
+        if u_hi - u[-1] > QUARTER_STEP * h:
+            u = np.append(u, u_hi)
+        s = (u - where.offset) / where.scale
+        t = np.interp(s, where.length, where.t)
+        rings.append(curve(t))
+        params.append(u)
+    return rings, params
+
+
+def zip_arcs(u_lower: np.ndarray, u_upper: np.ndarray) -> np.ndarray:
+    """Triangulate the strip between two open arcs by merging their parameters.
+
+    Parameters
+    ----------
+    u_lower : (n_a,) float64
+        Increasing common parameter of the lower arc's points (n_a ≥ 1).
+    u_upper : (n_b,) float64
+        The same for the upper arc.
+
+    Returns
+    -------
+    (n_a + n_b − 2, 3) int64
+        Faces over local indices (lower ``0 .. n_a − 1``, upper from ``n_a``), in
+        the orientation of ``surface.stitch.zip_rings``: the next triangle advances
+        the arc whose next point comes first, the coarser on a tie.
+    """
+    n_a, n_b = len(u_lower), len(u_upper)
+    tie = TOL.angle * max(1.0, float(np.abs(np.concatenate([u_lower, u_upper])).max()))
+    bias_a = tie if n_a <= n_b else 0.0
+    bias_b = 0.0 if n_a <= n_b else tie
+    keys = np.concatenate([u_lower[1:] - bias_a, u_upper[1:] - bias_b])
+    is_a = np.concatenate([np.ones(n_a - 1, bool), np.zeros(n_b - 1, bool)])
+    is_a = is_a[np.argsort(keys, kind="stable")]
+    i_a = np.cumsum(is_a) - is_a
+    i_b = np.cumsum(~is_a) - ~is_a
+    b0, b1 = n_a + i_b, n_a + i_b + 1
+    return np.where(is_a[:, None], np.stack([i_a, i_a + 1, b0], axis=1),
+                    np.stack([i_a, b1, b0], axis=1)).astype(np.int64)
+
+
+def _overlap(u_a: np.ndarray, u_b: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of each arc's points within the range of ``u`` both arcs cover."""
+    lo, hi = max(u_a[0], u_b[0]) - tol, min(u_a[-1], u_b[-1]) + tol
+    return (np.flatnonzero((u_a >= lo) & (u_a <= hi)),
+            np.flatnonzero((u_b >= lo) & (u_b <= hi)))
+
+
+# --------------------------------------------------------------------------- mesh
+@dataclass
+class OpenSurface:
+    """A stitched open mesh (:func:`stitch_arcs`).
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+        Oriented faces (module notes); vertices used by no face are dropped.
+    boundary : list of (B_i,) int64
+        Each border loop's vertex ids, in order.
+    boundary_length : float
+        Total length of the border loops, scene units.
+    flips : int
+    delaunay_fraction : float
+        Share of flippable interior edges meeting the local Delaunay criterion.
+    notes : list of str
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    boundary: list
+    boundary_length: float
+    flips: int
+    delaunay_fraction: float
+    notes: list = field(default_factory=list)
+
+    def info(self) -> dict:
+        """The manifest's figures."""
+        return {"open": True, "boundary_loops": len(self.boundary),
+                "boundary_length": float(self.boundary_length), "flips": int(self.flips),
+                "delaunay_fraction": float(self.delaunay_fraction)}
+
+
+def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step: float,
+                flip: bool = True, viewpoint: np.ndarray | None = None) -> OpenSurface:
+    """Stitch consecutive resampled arcs into an open mesh.
+
+    Parameters
+    ----------
+    rings : sequence of (n_k, 3) float64
+        Resampled arcs in section order, running counter-clockwise about the axis
+        (as :func:`resample_arcs` gives them).
+    params : sequence of (n_k,) float64
+        Their common parameter ``u``.
+    step : float
+        The odd sections' grid step in ``u``: points within a quarter of it beyond
+        the overlap of two arcs still join their strip.
+    flip : bool
+        Lawson flips after stitching.
+    viewpoint : (3,) or (K, 3) float64, optional
+        Points the surface was seen from; the faces are turned to face them (by the
+        area-weighted majority).  Default: keep the arcs' counter-clockwise order
+        (normals away from their centres of curvature on a convex object).
+
+    Returns
+    -------
+    OpenSurface
+    """
+    from surface.metrics import delaunay_fraction
+    from surface.stitch import delaunay_flips
+
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])]).astype(np.int64)
+    vertices = np.concatenate([np.asarray(r, np.float64) for r in rings])
+    faces, region, fixed, notes = [], [], [], []
+    tol = QUARTER_STEP * step
+    for k in range(len(rings) - 1):
+        ia, ib = _overlap(params[k], params[k + 1], tol)
+        if len(ia) < 1 or len(ib) < 1 or len(ia) + len(ib) < 3:
+            notes.append(f"arcs {k} and {k + 1} do not overlap: no strip between them")
+            continue
+        local = zip_arcs(params[k][ia], params[k + 1][ib])
+        glob = np.concatenate([offsets[k] + ia, offsets[k + 1] + ib])
+        faces.append(glob[local])
+        region.append(np.full(len(local), k))
+        for ids, off in ((ia, offsets[k]), (ib, offsets[k + 1])):
+            fixed.append(np.stack([off + ids[:-1], off + ids[1:]], axis=1))
+    if not faces:
+        raise ValueError("no two neighbouring arcs overlap: no open surface")
+    tri = np.concatenate(faces)
+    reg = np.concatenate(region)
+    fixed_edges = np.concatenate(fixed)
+    tri, reg = _drop_degenerate(vertices, tri, reg)
+    flips = 0
+    if flip:
+        tri, flips, _ = delaunay_flips(vertices, tri, region=reg, fixed_edges=fixed_edges)
+    if viewpoint is not None and _faces_away(vertices, tri, viewpoint):
+        tri = tri[:, ::-1].copy()
+    used = np.unique(tri)
+    remap = np.full(len(vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    vertices, tri = vertices[used], remap[tri]
+    fraction = delaunay_fraction(vertices, tri)
+    loops = boundary_loops(tri)
+    length = float(sum(np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum()
+                       for lp in loops))
+    return OpenSurface(vertices, tri, loops, length, int(flips), fraction, notes)
+
+
+def _drop_degenerate(vertices, tri, reg):
+    """Faces of zero area (two arcs' end points at one place) are left out."""
+    from surface.metrics import triangle_areas
+
+    scale = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
+    keep = triangle_areas(vertices, tri) > TOL.zero * max(scale, 1.0) ** 2
+    return tri[keep], reg[keep]
+
+
+def _faces_away(vertices: np.ndarray, tri: np.ndarray, viewpoint) -> bool:
+    """Whether most of the area faces away from the viewpoint(s)."""
+    from surface.metrics import face_normals
+
+    eyes = np.atleast_2d(np.asarray(viewpoint, np.float64))
+    normals = face_normals(vertices, tri, unit=False)          # length 2·area
+    centres = vertices[tri].mean(axis=1)
+    towards = eyes.mean(axis=0) - centres
+    return float(np.einsum("fi,fi->f", normals, towards).sum()) < 0
+
+
+def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
+    """The border loops of an oriented edge-manifold mesh, each as its vertex ids in order.
+
+    A border edge is a directed face edge whose reverse is no face's; each border
+    vertex of a vertex-manifold mesh starts exactly one, so following them closes
+    the loops.
+    """
+    tri = np.asarray(triangles, np.int64)
+    directed = np.stack([tri, np.roll(tri, -1, axis=1)], axis=2).reshape(-1, 2)
+    n = int(tri.max()) + 1 if tri.size else 1
+    keys = directed[:, 0] * n + directed[:, 1]
+    reverse = directed[:, 1] * n + directed[:, 0]
+    border = directed[~np.isin(reverse, keys)]
+    nxt = dict(zip(border[:, 0].tolist(), border[:, 1].tolist(), strict=False))
+    loops, seen = [], set()
+    for start in border[:, 0].tolist():
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen and v in nxt:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        loops.append(np.array(loop, np.int64))
+    return loops
+
+
+def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
+    """The loops of every non-empty section, open arcs kept (``surface.topology.organise``).
+
+    ``surface.reconstruct.organise_sections`` without its refusal of open arcs and
+    without the loop-graph repairs (an open surface follows one arc per section).
+
+    Returns
+    -------
+    kept : list of Section
+    loops : list of list of Loop
+    messages : list of str
+        Skipped sections.
+    """
+    import warnings
+
+    from surface.topology import SectionSkippedWarning, organise
+
+    kept, loops, messages = [], [], []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SectionSkippedWarning)
+        for section in sections:
+            found = organise(section, **organise_options) if len(section) else []
+            if found:
+                kept.append(section)
+                loops.append(found)
+    messages += [str(w.message) for w in caught if issubclass(w.category,
+                                                              SectionSkippedWarning)]
+    return kept, loops, messages
+
+
+def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
+              smoothing: float | str = "auto"):
+    """Sections' loops → open arcs → open curves → arcs resampled on the common grid.
+
+    Parameters
+    ----------
+    loops : sequence of sequence of surface.topology.Loop
+        Per section in height order (:func:`organise_arcs`); a section with several
+        loops gives the arc of its loop with the most points (the others are noted).
+    spacing : float
+        Distance between the sections, scene units: the odd arcs' ring spacing on the
+        widest arc (the closed rings' rule ``N = P_max / Δ``) unless ``n`` is given.
+    n : int, optional
+        Points on the widest odd arc instead.
+    smoothing : float or "auto"
+        :func:`fit_open`.
+
+    Returns
+    -------
+    curves : list of OpenCurve
+    rings, params : list of (n_k, 3) and (n_k,) float64
+        The resampled arcs and their common parameter ``u``.
+    step : float
+        The odd arcs' grid step in ``u``.
+    notes : list of str
+    """
+    if not spacing > 0:
+        raise ValueError(f"spacing must be > 0, got {spacing}")
+    notes, curves = [], []
+    for section_loops in loops:
+        best = max(section_loops, key=len)
+        if len(section_loops) > 1:
+            notes.append(f"section at height {best.height:.6g}: {len(section_loops)} loops, "
+                         f"the arc of the largest ({len(best)} points) kept")
+        curves.append(fit_open(loop_arc(best), smoothing, frame=best.frame))
+    curves, placed, align_notes = align_arcs(curves)
+    notes += align_notes
+    if n is None:
+        # the widest arc (smallest scale: most length per unit of u) gets ring points
+        # one section spacing apart
+        step = spacing * min(p.scale for p in placed)
+    else:
+        widest = max(placed, key=lambda p: float(p.u[-1] - p.u[0]))
+        step = float(widest.u[-1] - widest.u[0]) / max(int(n) - 1, 1)
+    rings, params = resample_arcs(curves, placed, step)
+    return curves, rings, params, float(step), notes
+
+
+def open_surface_from_loops(loops: Sequence, spacing: float, n: int | None = None,
+                            smoothing: float | str = "auto", flip: bool = True,
+                            viewpoint: np.ndarray | None = None
+                            ) -> tuple[OpenSurface, list[np.ndarray], list[np.ndarray]]:
+    """:func:`open_arcs` then :func:`stitch_arcs`: the open mesh of one-sided sections.
+
+    Returns
+    -------
+    surface : OpenSurface
+    rings, params : list of (n_k, 3) and (n_k,) float64
+        The resampled arcs and their common parameter (for the workspace).
+    """
+    _, rings, params, step, notes = open_arcs(loops, spacing, n, smoothing)
+    result = stitch_arcs(rings, params, step, flip=flip, viewpoint=viewpoint)
+    result.notes = notes + result.notes
+    return result, rings, params
