@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.photosurf-installed
 OUT    ?= out
 BENCH_ARGS ?=
 
-.PHONY: setup sysdeps sysdeps-test demo test bench lint clean
+.PHONY: setup sysdeps sysdeps-test demo test bench lint docs clean
 
 # Debian packages photosurf needs at run time (open3d loads libusb-1.0).
 SYSLIBS := libusb-1.0.so.0:libusb-1.0-0
@@ -67,8 +67,20 @@ bench: setup
 	@mkdir -p benchmarks/results
 	@for b in benchmarks/[!_]*.py; do echo "== $$b"; $(PY) $$b $(BENCH_ARGS) --json benchmarks/results/$$(basename $$b .py).json || exit 1; done
 
+# The documentation site (docs/ -> site/): the docs extra, the Figures page from the benchmark
+# JSON, then a strict build (a broken link, a missing API page or an unparsable docstring fails).
+DOCS_STAMP := $(VENV)/.photosurf-docs-installed
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(PY) -m pip install -q -e ".[test,docs]"
+	@touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(PY) docs/gen_figures.py
+	$(PY) docs/gen_api.py --check
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
+
 lint: setup
 	$(VENV)/bin/ruff check matching surface pipeline tests benchmarks
 
 clean:
-	rm -rf $(VENV) $(OUT) *.egg-info .pytest_cache
+	rm -rf $(VENV) $(OUT) *.egg-info .pytest_cache site docs/figures.md
