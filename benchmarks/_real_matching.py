@@ -73,6 +73,7 @@ from matching.ici import (
     population_sides,
     select_results,
 )
+from matching.image_file import imread
 from matching.lsm import DEFAULT_FOOTPRINT_VAR, LSMResult, lsm_match, prepare_image
 from matching.precision import midpoint_variance_factor
 from matching.seeds import disparity_range, select_points, sgbm_disparity
@@ -81,7 +82,7 @@ GRAFFITI_PATCH = 21
 
 
 def _grey(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    img = imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise FileNotFoundError(f"cannot read {path}")
     return img.astype(np.float64) @ np.array([0.114, 0.587, 0.299])
@@ -503,7 +504,7 @@ def temple(folder: Path, quick: bool) -> dict:
     from matching.pair import PAIR_STATUS_NAMES, match_pair
 
     cams = read_projection_txt(folder / "templeSR_par.txt", image_dir=folder)
-    images = [cv2.imread(str(folder / c.name), cv2.IMREAD_COLOR) for c in cams]
+    images = [imread(str(folder / c.name), cv2.IMREAD_COLOR) for c in cams]
     # the ring pipeline's own pairs (baseline/depth and viewing angle): the views are not
     # numbered in ring order (4-5 or 12-13 are no neighbours: no common rectification)
     from matching.view_pairs import select_pairs

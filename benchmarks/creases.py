@@ -33,6 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 from _common import uptime, write_result  # noqa: E402
 
+from matching.image_file import imread  # noqa: E402
 from surface import bezier, sizing  # noqa: E402
 from tests import _shapes  # noqa: E402
 
@@ -75,7 +76,7 @@ def temple_rows(workspace: Path) -> dict:
     from surface.metrics import silhouette_scores
 
     cameras = read_cameras(DATA / "templeSR_par.txt")
-    silhouettes = [cv2.imread(str(DATA / cam.name), cv2.IMREAD_GRAYSCALE) > SILHOUETTE_GREY
+    silhouettes = [imread(str(DATA / cam.name), cv2.IMREAD_GRAYSCALE) > SILHOUETTE_GREY
                    for cam in cameras]
 
     def iou(path: Path) -> np.ndarray:

@@ -69,6 +69,7 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, write_result  # noqa: E402
 
 from matching.cameras import read_rig  # noqa: E402
+from matching.image_file import imread  # noqa: E402
 from matching.lsm import lsm_match, prepare_image  # noqa: E402
 from matching.pair import PAIR_STATUS_NAMES, match_pair  # noqa: E402
 from matching.seeds import approximate_calibrated, rectify, rectify_images, select_points  # noqa: E402
@@ -107,7 +108,7 @@ def rippled(folder: Path) -> dict:
                  "shape.profile": np.column_stack([z, radius]).tolist()}
     render_scene(load_recipe(DEFAULT_RECIPE, overrides), folder, progress=False)
     rig = read_rig(folder / "cameras.yml")
-    left, right = (cv2.imread(str(folder / "images" / f"view_0{i}.png"),
+    left, right = (imread(str(folder / "images" / f"view_0{i}.png"),
                               cv2.IMREAD_GRAYSCALE).astype(np.float64) for i in (0, 1))
     corr = np.load(folder / "truth" / "correspondence.npy")
     m = match_pair(left, right, rig, spacing=4)
@@ -309,8 +310,8 @@ def synthetic(quick: bool):
 
 def vase(scene_dir: Path, quick: bool):
     rig = read_rig(scene_dir / "cameras.yml")
-    left = cv2.imread(str(scene_dir / "images" / "view_00.png"), cv2.IMREAD_GRAYSCALE)
-    right = cv2.imread(str(scene_dir / "images" / "view_01.png"), cv2.IMREAD_GRAYSCALE)
+    left = imread(str(scene_dir / "images" / "view_00.png"), cv2.IMREAD_GRAYSCALE)
+    right = imread(str(scene_dir / "images" / "view_01.png"), cv2.IMREAD_GRAYSCALE)
     corr = np.load(scene_dir / "truth" / "correspondence.npy")
     L, R = left.astype(np.float64), right.astype(np.float64)
     cand = select_points(L, spacing=4)

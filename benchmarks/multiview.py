@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 
 from matching.cameras import read_cameras  # noqa: E402
+from matching.image_file import imread  # noqa: E402
 from matching.multiview import reconstruct_multiview  # noqa: E402
 from matching.sfm import align_to_reference, run_sfm  # noqa: E402
 from pipeline.mesh_io import read_mesh  # noqa: E402
@@ -52,7 +53,7 @@ LEVEL = 2
 def _images(folder: Path, cameras) -> list:
     import cv2
 
-    return [cv2.imread(str(folder / "images" / c.name), cv2.IMREAD_UNCHANGED) for c in cameras]
+    return [imread(str(folder / "images" / c.name), cv2.IMREAD_UNCHANGED) for c in cameras]
 
 
 def _rms(points: np.ndarray, truth) -> float:

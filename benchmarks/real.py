@@ -65,6 +65,7 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 
 from matching.cameras import read_cameras  # noqa: E402
+from matching.image_file import imread  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "temple_sparse_ring"
 BOX = np.array([[-0.073568, 0.021728, -0.012445], [0.028855, 0.181892, 0.062736]])
@@ -74,7 +75,7 @@ SILHOUETTE_GREY = 0.19 * 255
 def _images(cameras) -> list:
     import cv2
 
-    return [cv2.imread(str(DATA / c.name), cv2.IMREAD_UNCHANGED) for c in cameras]
+    return [imread(str(DATA / c.name), cv2.IMREAD_UNCHANGED) for c in cameras]
 
 
 def _silhouettes(images, dilate_px: int, outline: bool = False,

@@ -47,6 +47,8 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 from real import BOX, DATA, SILHOUETTE_GREY  # noqa: E402  (benchmarks/real.py: the data set)
 
+from matching.image_file import imread  # noqa: E402
+
 
 def scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silhouettes) -> dict:
     """Silhouette agreement (min / median over the views) and the share beyond the box."""
@@ -130,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     spec.loader.exec_module(bench_surface)
     spacing = args.spacing or (5 if args.quick else None)
     cameras = read_cameras(DATA / "templeSR_par.txt")
-    silhouettes = [cv2.imread(str(DATA / cam.name), cv2.IMREAD_GRAYSCALE) > SILHOUETTE_GREY
+    silhouettes = [imread(str(DATA / cam.name), cv2.IMREAD_GRAYSCALE) > SILHOUETTE_GREY
                    for cam in cameras]
     with tempfile.TemporaryDirectory() as scratch:
         workspace = Path(args.workspace or Path(scratch) / "temple")

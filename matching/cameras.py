@@ -375,9 +375,18 @@ def _check_exists(path: Path) -> Path:
 
 
 def _open_fs(path: Path) -> cv2.FileStorage:
+    """The file parsed from memory: OpenCV's own file functions take the name as UTF-8 and
+    crash the process on a name that is not."""
     _check_exists(path)
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a readable OpenCV FileStorage file (not UTF-8 text)"
+                         ) from None
+    if not text.strip() or "\x00" in text:
+        raise ValueError(f"{path}: not a readable OpenCV FileStorage file (empty or binary)")
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:  # SystemError: cv2's parser on malformed text
         reason = " ".join(str(getattr(exc, "err", None) or exc.__cause__ or exc).split())
         raise ValueError(f"{path}: not a readable OpenCV FileStorage file ({reason})") from None
@@ -478,7 +487,11 @@ def write_cameras_yml(path: str | os.PathLike, cameras: Sequence[Camera] | None,
     if rig is not None:
         rig_index = (_find_camera(cameras, rig.left, "rig.left"),
                      _find_camera(cameras, rig.right, "rig.right"))
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    # written in memory, then by Python (OpenCV's file functions crash on a name that is
+    # not UTF-8); the format by suffix, as OpenCV picks it
+    fmt = {".xml": cv2.FILE_STORAGE_FORMAT_XML, ".json": cv2.FILE_STORAGE_FORMAT_JSON}.get(
+        path.suffix.lower(), cv2.FILE_STORAGE_FORMAT_YAML)
+    fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | fmt)
     if not fs.isOpened():
         raise ValueError(f"{path}: cannot open for writing")
     try:
@@ -502,8 +515,10 @@ def write_cameras_yml(path: str | os.PathLike, cameras: Sequence[Camera] | None,
             fs.write("rig_T", rig.T.reshape(3, 1))
         for key, value in (extra or {}).items():
             fs.write(str(key), value if isinstance(value, str) else float(value))
+        text = fs.releaseAndGetString()
     finally:
         fs.release()
+    path.write_text(text, encoding="utf-8")
 
 
 def _find_camera(cameras: list[Camera], cam: Camera, label: str) -> int:
@@ -596,9 +611,12 @@ def _read_rig_yml(path: Path) -> StereoRig:
 
 # --------------------------------------------- OpenCV stereo calibration sample files
 def _image_size(image: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of an image file as the user sees it (its EXIF orientation applied)."""
+    from matching.image_file import imread
+
     image = Path(image)
     _check_exists(image)
-    array = cv2.imread(str(image), cv2.IMREAD_UNCHANGED)
+    array = imread(image)
     if array is None:
         raise ValueError(f"{image}: not a readable image")
     return int(array.shape[1]), int(array.shape[0])

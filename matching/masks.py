@@ -102,7 +102,9 @@ def read_mask(path: str | os.PathLike, size: tuple[int, int]) -> np.ndarray:
     ValueError
         Unreadable file, or not the image's size (one line naming the file).
     """
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from matching.image_file import imread
+
+    img = imread(path)  # upright, as its image is read
     if img is None:
         raise ValueError(f"{path}: not a readable mask image")
     if img.ndim == 3:

@@ -48,6 +48,7 @@ import numpy as np
 
 from matching.cameras import Camera, cameras_from_pycolmap, turn_camera
 from matching.fd_capture import captured_fd2
+from matching.image_file import read_image_file
 from matching.validate import TOL, check_shape
 
 __all__ = [
@@ -238,15 +239,25 @@ def list_images(folder: str | os.PathLike) -> tuple[list[str], list[str]]:
     return images, others
 
 
-def _image_sizes(folder: Path, names: list[str]) -> dict[str, tuple[int, int]]:
-    """Each image's (width, height) in the stored pixel frame (as COLMAP reads it)."""
-    sizes = {}
+def _image_sizes(folder: Path, names: list[str]) -> tuple[dict[str, tuple[int, int]], set[str]]:
+    """Each image's (width, height) as the user sees it (its EXIF orientation applied),
+    and the images COLMAP cannot be given as they are: an EXIF orientation other than 1
+    (COLMAP would see the stored pixels) or a name that is not UTF-8 (COLMAP's names are
+    UTF-8 strings)."""
+    sizes, restage = {}, set()
     for name in names:
-        image = cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED)
+        image, orientation = read_image_file(folder / name)
         if image is None:
             raise ValueError(f"{folder / name}: not a readable image")
         sizes[name] = (image.shape[1], image.shape[0])
-    return sizes
+        if orientation != 1 or _staged_name(name) != name:
+            restage.add(name)
+    return sizes, restage
+
+
+def _staged_name(name: str) -> str:
+    """A UTF-8 name for ``name`` (a name that is not UTF-8 has its bytes spelt ``\\xNN``)."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def _turned_views(sizes: dict[str, tuple[int, int]]) -> dict[str, int]:
@@ -269,21 +280,23 @@ def _turned_views(sizes: dict[str, tuple[int, int]]) -> dict[str, int]:
 
 
 def _stage_upright(image_dir: Path, names: list[str], turned: dict[str, int],
-                   work: Path) -> tuple[Path, dict[str, str]]:
-    """A folder where every image has one orientation: the turned ones written as
-    lossless PNG (``NAME.png``), the others linked (or copied).  Returns the folder and
-    each staged name's original name."""
+                   work: Path, restage: set[str] = frozenset()) -> tuple[Path, dict[str, str]]:
+    """A folder COLMAP reads as the user sees it: the images ``turned`` by quarter turns
+    to one orientation and those in ``restage`` (an EXIF orientation, a name that is not
+    UTF-8) written upright as lossless PNG (``NAME.png``, the name spelt in UTF-8), the
+    others linked (or copied).  Returns the folder and each staged name's original name."""
     staged = work / "upright"
     staged.mkdir(exist_ok=True)
     original = {}
     for name in names:
-        target = staged / (f"{name}.png" if name in turned else name)
+        written = name in turned or name in restage
+        target = staged / (f"{_staged_name(name)}.png" if written else name)
         target.unlink(missing_ok=True)
-        if name in turned:
-            image = cv2.imread(str(image_dir / name), cv2.IMREAD_UNCHANGED)
-            if not cv2.imwrite(str(target), np.ascontiguousarray(np.rot90(image,
-                                                                          turned[name]))):
-                raise ValueError(f"{target}: could not write a turned copy of {name}")
+        if written:
+            image, _ = read_image_file(image_dir / name)
+            if not cv2.imwrite(str(target), np.ascontiguousarray(
+                    np.rot90(image, turned.get(name, 0)))):
+                raise ValueError(f"{target}: could not write an upright copy of {name}")
         else:
             try:
                 target.symlink_to((image_dir / name).resolve())
@@ -295,7 +308,7 @@ def _stage_upright(image_dir: Path, names: list[str], turned: dict[str, int],
 
 def _turn_back(result: SfmResult, original: dict[str, str],
                turned: dict[str, int]) -> SfmResult:
-    """The SfM result of a staged folder in the original images' names and pixel frames."""
+    """The SfM result of a staged folder in the original images' names and upright frames."""
     cameras = []
     for cam in result.cameras:
         name = original[cam.name]
@@ -410,6 +423,11 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
 
     Notes
     -----
+    Cameras refer to the images as the user sees them (:mod:`matching.image_file`): an
+    image with an EXIF orientation other than 1, or whose name is not UTF-8, is given to
+    COLMAP as an upright lossless copy in the work folder (COLMAP would read the stored
+    pixels, or fail on the name).
+
     When the mapper leaves images out, it is run once more with the registration
     thresholds halved (at least 15 inlier correspondences for a new image instead of
     30, 50 for the initial pair instead of 100): a small object against a plain
@@ -448,7 +466,7 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
     models = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
     if camera_model not in models:
         raise ValueError(f"camera_model must be one of {', '.join(models)}, got {camera_model!r}")
-    by_name = _image_sizes(image_dir, names)
+    by_name, restage = _image_sizes(image_dir, names)
     sizes = set(by_name.values())
     # portrait and landscape shots of one camera: matched turned upright with one camera
     turned = (_turned_views(by_name) if single_camera is None and intrinsics is None
@@ -472,11 +490,11 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             work.mkdir(parents=True, exist_ok=True)
         stack.enter_context(_quiet_colmap())
         original, read_dir = {name: name for name in names}, image_dir
-        if turned:
-            read_dir, original = _stage_upright(image_dir, names, turned, work)
+        if turned or restage:
+            read_dir, original = _stage_upright(image_dir, names, turned, work, restage)
             names = sorted(original)
-            log.info("SfM: %d of %d images turned upright to share one camera",
-                     len(turned), len(names))
+            log.info("SfM: %d of %d images turned upright to share one camera, %d by their "
+                     "EXIF orientation or name", len(turned), len(names), len(restage))
         database = work / "database.db"
         database.unlink(missing_ok=True)
         reader = pycolmap.ImageReaderOptions()
@@ -551,7 +569,7 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
                       "ba_sigma_px": adjustment["sigma_px"],
                       "ba_converged": adjustment["converged"]}
     result = replace(_result_from(best, names, others, matcher), refinement=refinement)
-    if turned:
+    if turned or restage:
         result = _turn_back(result, original, turned)
     if len(reconstructions) > 1:
         log.warning("SfM split the images into %d models; kept the largest (%d images)",

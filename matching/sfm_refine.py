@@ -38,7 +38,6 @@ import logging
 import os
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from matching.cameras import cameras_from_pycolmap
@@ -186,20 +185,18 @@ MIN_TRIANGULATION_ANGLE_DEG = 1.5
 
 
 def _prepare(image_dir, names: dict) -> dict:
+    from matching.image_file import imread, to_uint8
     from matching.lsm import prepare_image
     from matching.masks import grey
 
     image_dir = Path(image_dir)
     prepared = {}
     for i, name in names.items():
-        # the pixels as stored, as COLMAP reads them (its keypoints' frame): IMREAD_GRAYSCALE
-        # would turn a JPEG by its EXIF orientation (a phone's portrait shot) under them
-        image = cv2.imread(str(image_dir / name), cv2.IMREAD_UNCHANGED)
+        # upright, as COLMAP read them: run_sfm gives it upright copies of EXIF-turned images
+        image = imread(image_dir / name)
         if image is None or image.ndim not in (2, 3):
             raise ValueError(f"{image_dir / name}: not a readable image")
-        if image.dtype != np.uint8:   # 16-bit, float: onto 0..255 (pipeline.inputs' rule)
-            image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-        prepared[i] = prepare_image(grey(image))
+        prepared[i] = prepare_image(grey(to_uint8(image, str(image_dir / name))))
     return prepared
 
 

@@ -61,9 +61,9 @@ def _read_gray(path: Path):
 
     from pipeline.guards import read_image
 
-    # regular file, format, size limit; the pixels as stored, as every other reader takes
-    # them (a rig calibrated on EXIF-turned images would not fit the views it is used on)
-    return read_image(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    # regular file, format, size limit; upright (EXIF orientation applied), as every other
+    # reader takes them (a rig calibrated in another frame would not fit the views)
+    return read_image(path, cv2.IMREAD_GRAYSCALE)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -337,13 +337,16 @@ def check_image_file(path: str | os.PathLike) -> tuple[int, int] | None:
 
 
 def read_image(path: str | os.PathLike, flags: int | None = None) -> np.ndarray:
-    """Decode an image with OpenCV after :func:`check_image_file`; libpng's and
-    libjpeg's own lines are captured.  ``InputError`` when it cannot be decoded."""
+    """Decode an image after :func:`check_image_file` (:func:`matching.image_file.
+    read_image_file`: the bytes read by Python, upright by its EXIF orientation); libpng's
+    and libjpeg's own lines are captured.  ``InputError`` when it cannot be decoded."""
     import cv2
+
+    from matching.image_file import read_image_file
 
     check_image_file(path)
     with native_stderr():
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED if flags is None else flags)
+        image, _ = read_image_file(path, cv2.IMREAD_UNCHANGED if flags is None else flags)
     if image is None:
         raise InputError(f"{path}: not a readable image")
     return image

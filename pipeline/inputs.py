@@ -4,11 +4,14 @@ One set of rules for every command that reads images (``photosurf run``, ``match
 ``stereo``, ``acquire``):
 
 * an image file is one of :data:`IMAGE_SUFFIXES`; hidden files (``.name``) are not images;
-* :func:`read_image` reads it as OpenCV does (``IMREAD_UNCHANGED``: grey or BGR), refuses
-  a missing file, a folder, an undecodable file and one smaller than
-  :data:`MIN_IMAGE_PX` on a side (a least-squares patch of 15 px with its search margin
-  does not fit), and maps other depths (16-bit, float) onto 0..255 ``uint8`` by their
-  own range (``cv2.NORM_MINMAX``), since matching works on 8-bit grey levels;
+* :func:`read_image` reads it as the user sees it: the bytes read by Python and decoded
+  by OpenCV (``IMREAD_UNCHANGED``: grey or BGR), its EXIF orientation applied
+  (:mod:`matching.image_file`; cameras, masks, ``--roi`` and the report all refer to this
+  upright image); it refuses a missing file, a folder, a FIFO or device, an undecodable
+  file, one smaller than :data:`MIN_IMAGE_PX` on a side (a least-squares patch of 15 px
+  with its search margin does not fit) and a float image with NaN/inf pixels, and maps
+  other depths (16-bit, float) onto 0..255 ``uint8`` by their own range
+  (:func:`matching.image_file.to_uint8`), since matching works on 8-bit grey levels;
 * a folder's images are its image files, or those of ``FOLDER/images``, sorted by name
   (:func:`folder_images`);
 * :func:`detect_kind` tells a scene recipe, a stereo pair, an image folder and a cloud
@@ -51,10 +54,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     FileNotFoundError
         No such file.
     InputError
-        A folder, an undecodable file, or an image smaller than :data:`MIN_IMAGE_PX`.
+        A FIFO or device, an undecodable file, an image smaller than
+        :data:`MIN_IMAGE_PX`, or NaN/inf pixels.
+    IsADirectoryError
+        A folder.
     """
-    import cv2
-
+    from matching.image_file import to_uint8
     from pipeline import guards
 
     path = Path(path)
@@ -70,9 +75,10 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if min(image.shape[:2]) < MIN_IMAGE_PX:
         raise InputError(f"{path}: image is too small to match: {image.shape[1]}x"
                          f"{image.shape[0]} px (at least {MIN_IMAGE_PX}x{MIN_IMAGE_PX})")
-    if image.dtype != np.uint8:
-        image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-    return image
+    try:
+        return to_uint8(image, str(path))
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
 
 
 def read_pair(left: str | os.PathLike, right: str | os.PathLike,

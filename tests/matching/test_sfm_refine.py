@@ -103,12 +103,12 @@ def exif_jpeg(image: np.ndarray, orientation: int) -> bytes:
 
 
 def test_tie_point_images_are_in_colmaps_pixel_frame(tmp_path):
-    """An EXIF-oriented JPEG: the LSM re-measurement reads the pixels as stored, as
-    COLMAP does (its keypoints' frame), not turned by the tag (IMREAD_GRAYSCALE turned
-    this 64x48 image to 48x64 under the keypoints)."""
+    """An EXIF-oriented JPEG: COLMAP reads the pixels as stored (64x48), so SfM is given
+    an upright copy (48 wide, 64 high), and the LSM re-measurement reads that copy in
+    the frame of COLMAP's keypoints: the image as the user sees it."""
     import pycolmap
 
-    from matching.sfm import _image_sizes
+    from matching.sfm import _image_sizes, _stage_upright
     from matching.sfm_refine import _prepare
 
     image = np.zeros((48, 64, 3), np.uint8)
@@ -116,7 +116,14 @@ def test_tie_point_images_are_in_colmaps_pixel_frame(tmp_path):
     (tmp_path / "portrait.jpg").write_bytes(exif_jpeg(image, 6))
     bitmap = pycolmap.Bitmap.read(str(tmp_path / "portrait.jpg"), False)
     assert (bitmap.width, bitmap.height) == (64, 48)
-    prepared = _prepare(tmp_path, {0: "portrait.jpg"})[0]
-    assert prepared.raw.shape == (48, 64)
-    assert float(prepared.raw[:10, :20].mean()) > 150   # the bright corner stays top left
-    assert _image_sizes(tmp_path, ["portrait.jpg"]) == {"portrait.jpg": (64, 48)}
+    sizes, restage = _image_sizes(tmp_path, ["portrait.jpg"])
+    assert sizes == {"portrait.jpg": (48, 64)} and restage == {"portrait.jpg"}
+    work = tmp_path / "work"
+    work.mkdir()
+    staged, original = _stage_upright(tmp_path, ["portrait.jpg"], {}, work, restage)
+    assert original == {"portrait.jpg.png": "portrait.jpg"}
+    bitmap = pycolmap.Bitmap.read(str(staged / "portrait.jpg.png"), False)
+    assert (bitmap.width, bitmap.height) == (48, 64)
+    prepared = _prepare(staged, {0: "portrait.jpg.png"})[0]
+    assert prepared.raw.shape == (64, 48)
+    assert float(prepared.raw[:20, 38:].mean()) > 150   # shown top right, as a viewer does

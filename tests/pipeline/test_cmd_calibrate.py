@@ -54,10 +54,10 @@ def test_calibrate_bad_input(board_folder, tmp_path, capsys):
     assert not out.exists() and not list(tmp_path.glob(".rig*"))
 
 
-def test_every_image_reader_keeps_the_stored_pixel_frame(tmp_path):
-    """A phone's portrait JPEG (EXIF Orientation 6): calibration reads it as the
-    matching commands and COLMAP do, the pixels as stored (cv2.IMREAD_GRAYSCALE alone
-    turned it, so a rig would have been calibrated in a frame its views are not read in)."""
+def test_every_image_reader_reads_the_upright_image(tmp_path):
+    """A phone's portrait JPEG (EXIF Orientation 6, "turn 90 degrees clockwise to view"):
+    calibration reads it as the matching commands do, as the user sees it (a rig
+    calibrated in another frame would not fit the views it is used on)."""
     import numpy as np
 
     from pipeline.cmd_calibrate import _read_gray
@@ -68,6 +68,8 @@ def test_every_image_reader_keeps_the_stored_pixel_frame(tmp_path):
     image[:10, :20] = 200
     path = tmp_path / "portrait.jpg"
     path.write_bytes(exif_jpeg(image, 6))
-    assert _read_gray(path).shape == (48, 64)
-    assert read_image(path).shape == (48, 64, 3)
-    assert float(_read_gray(path)[:10, :20].mean()) > 150
+    assert _read_gray(path).shape == (64, 48)
+    assert read_image(path).shape == (64, 48, 3)
+    # the stored top-left corner is shown top right after the clockwise quarter turn
+    assert float(_read_gray(path)[:20, 38:].mean()) > 150
+    assert float(read_image(path)[:20, 38:].mean()) > 150
