@@ -1,260 +1,48 @@
 r"""A control mesh sized by the data: as few rings and sections as the smooth surface needs.
 
-The stitched mesh of :mod:`surface.stitch` follows the point density (sections
-two point spacings apart, rings as fine as the sections): on a dense cloud it has
-far more vertices than the shape and its noise call for, and Loop's surface over
-it (4 patches per triangle) inherits them all.  Here the rings of the dense
-sections are *thinned*: every ``step``-th section is kept (graded towards both
-ends, :func:`kept_sections`), each kept ring resampled to ``n`` (odd positions) /
-``2n`` (even) points, and the result stitched again with the same rules (end rings
-to the caps, support rings at sharp rims, the flat caps' guard rings).  The smooth
-surface is built over the *interpolating* control mesh of the thinned mesh
-(:func:`interpolating_control`: Loop's limit surface passes through the thinned
-vertices except at sharp rims), so it does not shrink away from the data as an
-approximating subdivision surface over a coarse mesh would (bias
-``h^2 (k_1 + k_2) / 8``, C. Loop 1987; Hoppe et al. 1994).
+The stitched mesh of :mod:`surface.stitch` follows the point density; Loop's surface over
+it (4 patches a triangle) inherits every vertex.  Here the dense rings are *thinned*: every
+``step``-th section kept (graded towards both ends, :func:`kept_sections`; along the profile
+length instead of the height when both ends are rounded, :func:`rounded_ends`), each kept
+ring resampled to ``n`` (odd positions) / ``2n`` (even) points at common polar angles
+(:func:`resample_at_angles`), and the result stitched again with the same rules.  One target
+edge ``h`` sets ``step = floor(h / Δ)`` and ``n = ceil(P / h)`` (Δ the dense section spacing,
+P the largest ring perimeter).  The smooth surface is built over the *interpolating* control
+mesh (:func:`interpolating_control`), so it passes through the thinned vertices instead of
+shrinking by ``h² (κ1 + κ2) / 8`` as an approximating surface would [1, 2].
 
-Regression across sections
---------------------------
-Each dense ring is a least-squares curve through its own section's points, so
-the rings' errors are independent from section to section (correlated along each
-ring).  A kept ring is therefore not its own dense ring but the local quadratic
-regression, in height, of the dense rings within ``w`` sections of it (``w`` the
-smaller gap to the neighbouring kept sections; :func:`section_weights`,
-Savitzky-Golay): at ``w = 4`` its own weight is 0.26 and its noise σ·0.51, while
-a quadratic keeps the profile's shape up to its curvature's change.  The rings are
-lined up point by point at common polar angles about the window's mean centroid
-(:func:`resample_at_angles`; the rings' own first points wander by a few degrees
-between sections, and averaging unaligned points cuts chords: measured on the
-10⁵-point vase, step 2, the regressed rings' error 0.00042 unaligned against
-0.00024 aligned, the dense rings' 0.00038).  Sections next to the ends (``w < 2``) are
-kept as they are.
+*Regression across sections.*  A kept ring is the local quadratic regression in height (or
+profile length) of the dense rings within ``w`` sections of it, each loop along its own chain
+through the loop graph (:func:`section_weights`, :func:`loop_chains`; Savitzky-Golay [4]).
 
-*Branches* (:func:`section_layout`, session 17).  Each loop is regressed along its own
-chain (:func:`loop_chains`: followed through the loop graph's one-to-one events), and a
-window reaches no farther than every loop of its section continues; before, a window
-reaching a section of several loops kept it as it was, so a temple's columns or a
-torus's two sides were never regressed.  Measured (``sized_from_points`` on the shapes
-of ``tests/_shapes.py``, 30 000 points, seeds 0, 1, 2, 14; a one-off script, patches and
-Chamfer to the implicit truth against the rule before): torus 30 752 / 30 328 / 30 880 /
-29 992 patches against 30 752 / 30 328 / 92 928 / 35 616, Chamfer -8 %, -1 %, +7 %, +4 %;
-a vase with an opening, same patches, Chamfer -12 to -15 % (0.00070 against 0.00080);
-pants, mug and amphora keep their dense mesh either way.  The real temple with its
-cameras keeps its choice (step 2, n = 81), the step-2 estimate 1.28e-4 against 1.52e-4.
-Tried and not kept (measured the same way, and on the temple against its silhouettes,
-``surface.metrics.silhouette_scores``): keeping the sections on both sides of every split,
-merge or gap in the data (a thinning that steps over a merge moves it; on the temple
-posed by SfM ``untangle`` then dropped the section after the merge, 0.0075 RMS off the
-dense mesh there) -- the pants were sized (21 936-28 472 patches where the dense
-81 536-85 056 were kept, Chamfer -7 to +4 %), the temple with cameras thinned to step 3
-(50 000 patches) but its silhouettes' IoU fell from 0.848 to 0.840 (mean over the 16
-views; the stitched mesh 0.844), the torus's choice flipped with the seed (142 432 patches
-for seed 1); gaps alone: the temple took 77 608 patches at IoU 0.845.
+*Level search* (:func:`size_control_mesh`).  ``h`` shrinks by √2 from 12 points round the
+largest ring; the coarsest level whose estimated error is within the goal is taken (or the
+level half way to the previous, ``h·2^¼``, if it passes too): bisection over the levels of
+step ≥ 2, then the step-1 levels, then a walk outwards from the closest estimate.  When none
+passes, the candidate estimated closest is kept if it beats the rings' sill, else the dense
+mesh.  A step-1 candidate is judged against the goal the last coarser candidate measured.
 
-Tried again in session 20, with steep gaps, and not kept.  The rule: keep the event
-sections (both sides of every split, merge, appearance or end of a loop), and both sides of
-every *steep gap* -- two consecutive dense sections farther apart along the surface (the
-mean nearest-point distance between their rings, any loops) than twice their height gap,
-i.e. leaning over 60° (a ledge, a roof) -- or missing stretch (height gap over 1.5
-spacings); the thinning cut there and graded from them as from an end.  Measured (one-off
-scripts, not kept): ``sized_from_points`` on 30 000-point shapes, seeds 0 / 1, Chamfer to
-the implicit truth: the vase with an opening 19 552 / 19 528 -> 11 984 / 14 056 patches,
-Chamfer -19 / -26 %; the pants, dense 82 088 / 81 736 -> 28 640 / 28 080, -3.5 / -4.3 %;
-the torus 30 160 / 29 600 -> 33 016 / 32 408, +3 / +9 % (the events alone; the steep gaps
-alone left it as it was); mug and amphora unchanged; the shapes table's clouds (five
-shapes of revolution, 10⁴ and 10⁵) kept their choices and Chamfer.  But the real temple with its
-cameras went from step 2, n = 96 (75 624 patches) to step 4, n = 48 (45 936) and its
-silhouettes' IoU from 0.796 / 0.851 to 0.787 / 0.845, lower in all 16 views (by 0.006 on
-average; the stitched mesh 0.799 / 0.848): closer to the dense mesh on its sharp vertices
-(RMS 0.00081 against 0.00111) but farther at the columns.  The estimate is one RMS over the
-whole surface: per piece between the breaks, step 4's ran from 5.9e-5 (the columns' long
-piece, 5 043 of the 8 655 reference vertices) to 3.1e-4 (short pieces, > σ).  On the
-temple posed by SfM the step-2 estimate fell from 1.42e-3 to 5.1e-4, still above the
-rings' sill (4.96e-4): the dense mesh stays.  Its step-2 error had sat at the roof (sections
-94-102, rings 10-60 σ apart from one section to the next: 65 % of the mean square; one
-ledge, 27 %) and at the merge under the entablature (24 %).
+*The rings' errors* (:func:`section_variogram`): ``γ(k) = ½ E|ε_{i+k} − ε_i|²`` across
+sections, from 6th differences at lags 1..12, fitted by a nugget + exponential model.
 
-How coarse
-----------
-One target edge length ``h`` sets both ``step = floor(h / Δ)`` (Δ the dense
-section spacing) and ``n = ceil(P / h)`` (P the largest ring perimeter), so the
-thinned triangles stay about as wide as they are tall.  The candidate levels run from
-coarse (12 points round the largest ring) to fine, ``h`` shrinking by √2 each time; the
-coarsest whose estimated error to the truth is within the goal is taken -- or the one
-half way to the previous level (``h·2^¼``) if that passes too.  It is found by bisection
-over the levels of step ≥ 2 (:data:`SEARCH_BISECT`, session 17: the estimate falls as
-``h`` does); when that finds none, the step-1 levels are tried in order, then the
-coarser levels outwards from the candidate estimated closest, while their estimates stay
-within one standard error of it (:data:`WALK_WHEN_NONE_PASS`, session 18; before, every
-level was tried: a first version of the bisection stopped at its own levels and took
-step 2, n = 68 where step 4, n = 49 is as close on the 10⁵-point capsule of
-``tests/surface/test_sizing.py``, which caught it; the walk keeps that choice).  The
-walk against every level: the same choice on 15 branched clouds (torus, pants, mug,
-amphora, vase; 30 000 points, seeds 0-2) with 2-4 candidates built instead of 2-7, and
-on the real temple with cameras 3 instead of 7 (its smooth stage ~0.9 s shorter).
-Measured against trying every level from
-the coarsest: the same choice on the demo (bit-identical control net; 4 candidates built
-instead of 7), the real temple (4 instead of 8; its smooth stage 6.6-6.8 -> 5.5-5.7 s)
-and all ten rows of ``benchmarks/surface.py --shapes-table 10000 100000`` (the same
-patches and Chamfer; the 10⁵ vase 7.5 -> 5.2 CPU-s, one run each).  If none passes before the dense
-resolution is reached, the candidate estimated closest to the truth is kept (the
-fewest patches among those within one standard error of the closest estimate) when
-that estimate is below what the dense mesh's own smooth surface can reach (the rings'
-sill, below), else the dense mesh.
+*A candidate's error* (:func:`risk_estimate`): with ``S`` its smoothing across sections
+(:func:`smoothing_matrix`), ``E|Sx − truth|² = E|Sx − x|² − 2 Σ_j S_ij γ(|i − j|) + sill``
+(Stein's unbiased risk estimate [3] for correlated errors), ``|Sx − x|`` the distances from a
+fixed sample of dense vertices (:func:`reference_vertices`) to the candidate's surface.
 
-*Candidates that keep every ring* (step 1: every dense section kept, each ring as it
-is, since a regression needs ``w ≥ 2``) carry the dense rings' errors in full.  Their
-estimate is then at least the rings' sill (Stein's term ``Σ S_ij γ`` is 0), and their
-own measure of the goal (:func:`stitched_surface_error`) holds those errors twice: at
-the dense vertices the candidate copies them (``d_v ≈ 0``), at the points on the dense
-faces it interpolates them smoothly where the faces interpolate them linearly, so
-``sill + E d_q² − E d_v²`` exceeds the faces' error by about a third of the sill --
-such a candidate passed its own goal almost always.  Measured (session 14, the cloud of
-``tests/surface/test_sizing.py``, a 10⁵-point capsule, σ = 0.002; the old rule's figures
-from a one-off run of the previous code): the rule refused step 2 (estimate 3 % above its
-goal) and took step 1, n = 115 (goal 0.00037 where the
-coarser candidates said 0.00029): 248 152 patches, the surface 1.10x the stitched
-mesh's mean distance to the exact capsule, 23 CPU-s.  A step-1 candidate is therefore
-judged against the goal the last coarser candidate measured, and not built when the
-sill already exceeds it; the capsule now keeps step 2, n = 68 (none passed; the closest
-estimate): 90 112 patches, 0.80x the stitched mesh's distance, 12 CPU-s.
-
-The goal is the issue's "never farther from the truth than the stitched mesh", in
-the currency a distance to the truth sees: an RMS error *over the surface*.
-
-*The rings' errors across sections* (:func:`section_variogram`).  Each dense ring is
-fitted to its own section's points, but its error is not independent of its
-neighbours' when the points' errors are not: on the demo one camera pair's bias spans
-several sections (the rings' error 1.26e-4 RMS to the truth, their scatter between
-neighbouring sections 7.5e-5).  What the data show is the variogram
-``γ(k) = ½E|ε_{i+k} − ε_i|²``: the 6th differences over every L-th section (the
-profile cancelled up to a quintic) have mean square ``−Σ c_m c_m' γ(|m−m'|L)``, measured
-at L = 1..12 and fitted by a nugget + exponential model.  On the demo it gives √γ(1),
-√γ(4), √γ(8), √sill = 9.1, 11.8, 12.7, 12.9e-5 against 8.9, 11.7, 12.6e-5 and an RMS
-error of 12.6e-5 from the truth (``benchmarks/demo_truth.py W``; the former
-median-based σ said 7.5e-5: the errors are heavier-tailed than a Gaussian).  An error
-common to every section is not in it, and needs not be: it moves every surface alike.
-
-*The candidate's error* (:func:`risk_estimate`): for the dense vertices
-``x = truth + ε`` and the candidate ``S x`` (its regression and interpolation across
-sections, :func:`smoothing_matrix`, rows summing to 1),
-``E|Sx − truth|² = E|Sx − x|² − 2 Σ_j S_ij γ(|i−j|) + sill`` -- Stein's unbiased risk
-estimate (Mallows' Cp) for correlated errors; with ``γ = σ²`` it is the former
-``mean d² − σ²(1 − 2h̄)`` (:func:`error_estimate`).  ``|Sx − x|`` are the distances
-from a fixed sample of the dense vertices (off the sharp rims and the end planes) to
-the candidate's smooth surface: to its level-1 tessellation first, and for a
-candidate within 2× of the goal to the exact surface (:func:`surface.bezier.closest_points`;
-the tessellation's chord error, κh²/128, is 5e-5 on the demo's candidates).
-
-*The goal* (:func:`stitched_surface_error`): the stitched mesh's own error over its
-faces, ``sill + E d_q² − E d_v²`` with ``d_q`` the distances from points spread over the
-dense faces to the same candidate surface: it holds the interpolation's gain over the
-vertices' noise (``Σ b_i ε_i``; ``σ/√2`` for independent errors, the "0.56 σ" Chamfer
-of a polyhedron through noisy vertices) and the flat triangles' chords (on a sparse
-cloud as large as the noise).  On the demo it says 1.12e-4 where the truth says 1.17e-4
-(walls, RMS; a one-off script, not kept), on a 2·10⁴-point σ = 0.002 vase 5.9e-4.
-
-Measured (one run each, this session's code): the demo (380 786 points, 209 sections)
-takes step 7, n = 81: 39 992 patches (step 5, 65 312 before), export 35.7 MB (51.0),
-Chamfer 0.000289 (0.000287; stitched 0.000302), Hausdorff 0.0013 (0.0016); its
-candidates' wall RMS errors to the truth (a one-off script building each candidate,
-not kept), step 8 / 7 / 6 / 5: 1.17 / 0.98 / 0.98 /
-0.95e-4 against the stitched mesh's 1.17e-4 -- the rule takes the coarsest that is
-clearly closer.  The rule before (σ from the median scatter, Stein's estimate at the
-vertices, the tessellation's distances) refused step 8 by 1.9× and had no step 7.
-On independent noise the rule is stricter than the old one (which set an RMS estimate
-against a mean-distance goal): the 5·10⁴-point σ = 0.002 vase keeps 9 304 patches and
-is 0.90× the stitched mesh's Chamfer (as before on this cloud; 1.16× on the session-7
-sizes run's cloud, another seed, not re-run), the 10⁵-point
-vase takes 42 120 patches (16 680) at 0.77× (0.98×) -- conservative: for its candidates
-near the goal the error estimate runs ~25 % above their error against the truth
-(along the ring each candidate is taken to copy the dense ring; its resampling at n
-points averages the rings' errors there, which is not credited), and the decisions are
-within 1 % of the goal (``benchmarks/surface.py --methods poisson-8 stitched
-stitched+sized --no-shapes --no-scaling --points 100000``).
-
-*Where the candidates lose on rounded ends* (session 12, one-off scripts on the 10⁴-point
-capsule of ``benchmarks/surface.py``; step 2, n = 24, Chamfer 0.000703 against the dense
-smooth surface's 0.000518 and Poisson-8's 0.00076). With the candidate's vertices moved
-exactly onto the truth its smooth surface is still 0.00074 RMS off: 0.0016 near the domes
-(the walls 0.00025-0.00046). On a regular lattice the interpolating surface converges as h⁴
-or faster (``test_interpolating_surface_is_fourth_order_where_the_mesh_is_regular``: 5.9e-6
-at 48-point rings 0.2 apart); near a dome it does not: the junction of the strips with the
-dome's quality triangulation and the sphere-cylinder joint (C1 only) leave an O(h²) error
-(exact-ring capsule, gaps 0.2 uniform along the profile: 0.0008-0.0011 RMS at the joint and
-at the cap junction, 0.0006-0.001 whatever the dome's triangle size; halving the gaps:
-0.00016-0.00018), and the graded spacing of :func:`kept_sections` (gaps 1, 2, 4 from each
-end, for rims) lies on the domes too (its share not separated). Tried and not kept: sections
-kept by the profile's length instead of their count (no change: the domes' extra length sits
-in the graded ends; session 15's rule, *Along the profile*, keeps them from both ends and
-regresses along the profile); that length weighted by the profile's curvature against the
-ring's (10⁴ capsule 0.000703 -> 0.000589 but 14 576 patches instead of 9 640; 10⁵ capsule
-0.000201 -> 0.000238 with 118 760 patches instead of 88 656; 10⁴ amphora unchanged at +44 %
-patches); a least-squares fit of the control vertices along their normals to the dense vertices
-(0.000703 -> 0.000662) or even to exact samples of the truth (0.000483 Chamfer but 0.0047
-RMS near a cap junction); the dome end's support test taken up the dome (it reads a 33° turn
-where the cap meets a dome and adds support and guard rings a noise width apart, slivers of
-8°): slivers gone, 10⁴ unchanged, but at 10⁵ every candidate from step 5 on estimated within
-1 % of its goal and the choice flipped to the dense mesh (246 048 patches, 0.000281 against
-0.000201). At 10⁵ the candidates from step 5 to 2 all estimate 0.000302-0.000367 against
-goals 0.000287-0.000304: the smooth surfaces are no better than the stitched mesh there, so
-the first pass is decided by the estimates' sampling noise.
-
-Along the profile
------------------
-The dense sections are equally spaced in height; where the profile leans (a dome) they
-lie farther apart on the surface, and "every ``step``-th section" keeps rings unevenly
-spaced along it there, where the interpolating surface undulates (above: the capsule's
-0.0016 near its domes).  When both ends are rounded (:func:`rounded_ends`: no sharp edge
-at the end sections) the candidates from step ``ALONG_PROFILE_STEP`` on keep their
-sections ``step`` dense spacings apart along the profile (:func:`profile_length`,
-:func:`kept_sections`: from both graded ends towards the middle), and regress each kept
-ring in profile length, windows of at least two sections each side
-(:func:`section_weights`; in height the quadratic misses a dome's radius near its pole).
-Exact capsule rings (r = 1, rings 0.2 apart, 25 / 50 points, graded ends, one-off
-script): mean distance 0.000413 kept by height, 0.000259 along the profile (0.4 apart:
-0.00184 / 0.00135).  On 10⁵-point capsules (σ = 0.002, ``tests/surface/test_extrapolate``
-seeds 0-3; one-off runs): 91 152 / 109 552 / 90 112 / 53 728 patches before, 91 152 /
-30 192 / 36 152 / 30 056 now, at 0.80 / 0.79 / 0.80 / 0.70 of the stitched mesh's mean
-distance before and 0.80 / 0.75 / 0.74 / 0.75 now; ``benchmarks/surface.py
---shapes-table 10000 100000 --shape capsule``: 10⁵ 88 952 -> 35 192 patches, Chamfer
-0.000210 -> 0.000190, CPU 1.35x -> 0.72x Poisson-8's (10⁴ unchanged).
-
-Where it is not used, measured: at steps 2-3 (10⁴ points) a gap can only be 1-3 sections,
-and following the profile only makes the gaps at the domes single sections: on the
-10⁴-point capsules (seeds 0, 2, same step and n) 0.92 / 0.94 of the stitched mesh's
-distance against 0.87 / 0.89 kept by height.  Next to a rim the estimate does not look
-(:func:`reference_vertices`), and a candidate kept along the profile gains on the walls
-what it loses there: on the 2·10⁴-point vase of ``tests/surface/test_sizing.py`` the step-3
-candidate (walls RMS 0.000518 against the stitched mesh's 0.000549, the rim bands 0.00113
-/ 0.00276 against 0.00069 / 0.00257) passed its goal and gave 1.13x the stitched mesh's
-Chamfer.  Tried for that and not kept: the candidate's departures from the dense mesh at
-the rims and caps, weighted by their area, added to its estimate -- the dense rim
-vertices are themselves 0.0021 RMS from the truth there, and the departures are mostly
-their noise: the 10⁴-point cylinder went to the dense mesh (25 160 patches, CPU 1.8x
-Poisson-8's).
-
-Earlier rules, kept here for their measurements: session 7's (estimate ≤ the median
-scatter σ, distances to the level-1 tessellation) took the 10⁵-point vase to 0.98×
-and the 5·10⁴-point vase to 1.16× the stitched mesh's Chamfer (an RMS estimate against
-a mean-distance goal, kept safe only by the tessellation's chord error: with exact
-distances it went to 1.36×), and the demo to step 5.  A ring-count descent after
-the first passing candidate (n cut by √2 while the estimate passes) filled the
-tolerance on the 5·10⁴-point vase and doubled its Chamfer: not kept.  Fewer ring
-points at the same section step (a decoupled ``n``) lost accuracy fast (10⁵ points,
-step 5: n = 49 -> 34 raised the walls' error 0.000225 -> 0.000275), so one ``h`` sets
-both.
+*The goal* (:func:`stitched_surface_error`): the stitched mesh's own error over its faces,
+``sill + E d_q² − E d_v²`` (points on the dense faces against the dense vertices): a
+candidate is never farther from the truth than the stitched mesh, as an RMS over the surface.  Scene
+units throughout; the rules' history and the figures that decided them:
+``docs/decisions/sizing.md``.
 
 References
 ----------
-.. [1] C. Loop, "Smooth subdivision surfaces based on triangles", M.S. thesis,
-   University of Utah (1987).
+.. [1] C. Loop, "Smooth subdivision surfaces based on triangles", M.S. thesis, Utah (1987).
 .. [2] H. Hoppe et al., "Piecewise smooth surface reconstruction", SIGGRAPH 1994.
-.. [3] C. M. Stein, "Estimation of the mean of a multivariate normal distribution",
-   Annals of Statistics 9 (1981) 1135-1151; C. L. Mallows, "Some comments on Cp",
-   Technometrics 15 (1973) 661-675.
-.. [4] A. Savitzky, M. J. E. Golay, "Smoothing and differentiation of data by
-   simplified least squares procedures", Analytical Chemistry 36 (1964) 1627-1639.
+.. [3] C. M. Stein, Annals of Statistics 9 (1981) 1135-1151; C. L. Mallows, "Some comments
+   on Cp", Technometrics 15 (1973) 661-675.
+.. [4] A. Savitzky, M. J. E. Golay, Analytical Chemistry 36 (1964) 1627-1639.
 """
 
 from __future__ import annotations
