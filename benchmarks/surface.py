@@ -1,138 +1,40 @@
 """Surface reconstruction from a noisy vase cloud: stitched sections vs open3d's peers.
 
-Truth: the vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], closed by flat caps,
-meshed finely (1024 angles x 768 heights; the chord sagitta, 1.3 (pi/1024)^2/2
-~ 6e-6, is far below the noise).  Cloud: ``--points`` (default 50 000)
-area-uniform samples of the truth plus isotropic Gaussian noise sigma = 0.002
-per coordinate, seeded.
+Truth: the vase r(z) = 1 + 0.3 sin 2z, z in [0, 3], closed by flat caps, meshed finely
+(1024 angles x 768 heights; chord sagitta ~6e-6, far below the noise).  Cloud: ``--points``
+(default 50 000) area-uniform samples of the truth plus Gaussian noise sigma = 0.002 per
+coordinate, seeded.  ``--no-shapes`` skips the other shapes (``SHAPES``: cylinder, elliptic
+cylinder, amphora-like profile, capsule; 2000 points per unit area).
 
-Methods, timed from the raw points to a mesh in the same process (normals
-estimated and oriented inside the peers' timings, since they need them and
-the stitched method does not; the table's "normals" column is that share):
+Methods (``METHODS``), timed from the raw points to a mesh in one process, the peers' normal
+estimation inside their time (the "normals" column is that share):
 
-* ``stitched``     ``surface.reconstruct.surface_from_points`` with its defaults;
-* ``poisson-8/9``  screened Poisson (open3d, depth 8 and 9), normals by PCA of
-  30 neighbours, oriented by ``orient_normals_consistent_tangent_plane(30)``;
-  no density trimming;
-* ``ball-pivoting`` open3d, radii 1, 2, 4 x the mean nearest-neighbour distance;
-* ``alpha-2s``/``alpha-4s`` open3d alpha shapes with alpha = 2 and 4 point spacings;
-* ``stitched+bezier`` the stitched mesh (as ``stitched``) smoothed into Loop's
-  G1 sextic Bezier surface (``surface.bezier.control_net``, 4 patches per
-  stitched triangle) and tessellated by ``surface.bezier.tessellate`` at the
-  pipeline's default level ``smooth.level`` of ``pipeline/defaults.toml``
-  (level 1: 4 triangles per patch).  Its time is the back end's, sections +
-  stitch + smooth + tessellate; the G1 check (``edge_continuity``, largest
-  normal angle and gap over all interior patch edges, 9 samples each) runs
-  after the clock stops.  Rates: patches per second of ``control_net`` and
-  tessellated triangles per second of ``tessellate`` (wall clock);
-* ``stitched+bezier-interp`` the same, but the Bezier surface is built over
-  ``surface.fitting.interpolating_control_mesh`` of the stitched mesh (control
-  vertices whose Loop limit positions are the stitched vertices, one sparse
-  solve; counted in the smooth stage), so it passes through the stitched
-  vertices instead of shrinking away from them;
-* ``stitched+sized`` what ``photosurf run``'s smooth stage does (issue 15): the dense
-  stitched mesh thinned by ``surface.sizing`` (kept rings regressed across their neighbour
-  sections; the coarsest candidate whose error to the truth, Stein's unbiased risk estimate
-  from its distances to the stitched vertices, is within the dense rings' own error, their
-  scatter between sections: ``sizing.ring_noise``; session 5 used √(2/π) × the rings'
-  modelled precision), the surface through its vertices (``sizing.interpolating_control``),
-  tessellated at
-  ``smooth.level``; after the clock: patches and file sizes (PLY and GLB by
-  ``pipeline.export``, control net format version 2, STEP through OpenCascade when at
-  most ``STEP_MAX_PATCHES`` patches -- in ``--shapes-table`` every row's, unless
-  ``--no-step``), also written for the Poisson rows' PLY/GLB;
-* ``stitched-before`` / ``stitched+bezier-before`` session 1's settings (``BEFORE``:
-  curve smoothing fixed at 8 points per control point, no support rings), the
-  "before" of issue 5's Chamfer fix measured in the same run.  The defaults
-  (``stitched``, ``stitched+bezier``) choose the curve smoothing per loop by GCV
-  and add support rings at the two 90° rims (``surface.stitch.support_distance``).
+* ``stitched``: ``surface.reconstruct.surface_from_points`` with its defaults;
+* ``poisson-8/9``: screened Poisson (open3d, depth 8 / 9), PCA normals of 30 neighbours,
+  oriented by ``orient_normals_consistent_tangent_plane(30)``, no density trimming;
+* ``ball-pivoting`` (radii 1, 2, 4 x the mean neighbour distance), ``alpha-2s``/``alpha-4s``;
+* ``stitched+bezier``: Loop's G1 sextic surface over the stitched mesh at ``smooth.level``;
+  ``stitched+bezier-interp``: over its interpolating control mesh (``surface.fitting``);
+* ``stitched+sized``: what ``photosurf run``'s smooth stage does (``surface.sizing``), with the
+  PLY / GLB / control-net / STEP sizes after the clock (STEP up to ``STEP_MAX_PATCHES``);
+* ``stitched-before`` / ``stitched+bezier-before``: fixed curve smoothing, no support rings.
 
-The ``rim`` column is the mean distance from the truth's samples within
-``RIM_BAND`` = 0.05 of a rim (z = 0, z = 3) to the reconstruction, where a G1
-surface without support rings rounds the edge off.
+Scores (``surface.metrics.compare_meshes``, 100 000 area-uniform samples a mesh, exact
+point-to-triangle distances): accuracy, completeness, Chamfer (their mean), F-score at
+tau = 0.005, Hausdorff, closedness and components; ``rim``: the mean distance from the truth's
+samples within ``RIM_BAND`` of a rim.  Wall and CPU seconds (compare CPU on a loaded machine).
 
-After the scaling, unless ``--no-shapes``: before/after on other shapes
-(``SHAPES``: cylinder and elliptic cylinder with flat caps, an amphora-like
-profile, a capsule with domed ends), 2000 points per unit area, sigma = 0.002.
+Scaling (10^4, 10^5, 10^6 or ``--sizes``; ``--quick`` stops at 10^5) for stitched, sized and
+Poisson-8 with numpy's peak allocation (``tracemalloc``; not open3d's C++ memory).
+``--scaling-fresh [SIZE ...]`` runs the sized surface alone, each size in a fresh process
+(:func:`fresh_one`; default 10^5 .. 10^7), with the peak resident set and the exponent b of
+seconds ~ n^b over the sizes >= 10^6.  ``--shapes-table N ...``: every shape of revolution,
+sized surface against Poisson-8.
 
-Every method gets wall seconds (``time.perf_counter``) and CPU seconds of this
-process (``time.process_time``, all threads summed): on a loaded machine the
-wall clock includes other jobs' time, so compare the CPU column.
-
-Scores (``surface.metrics.compare_meshes``): both meshes sampled uniformly by
-area with 100 000 points each; accuracy = mean distance from the
-reconstruction's samples to the truth mesh, completeness = from the truth's
-samples to the reconstruction mesh (exact point-to-triangle distances),
-Chamfer = their mean, F-score at tau = 0.005, Hausdorff; closed and the
-number of edge-connected components from ``mesh_topology``.
-
-Then the scaling of time with the number of points (10^4, 10^5, 10^6, or ``--sizes``;
-``--quick`` stops at 10^5) for the stitched, the sized method and Poisson depth 8, with
-the peak of numpy's allocations during each (``tracemalloc``; open3d's C++ memory is not
-in it).
-
-Measured (session 3, issue 15, load 15-21, ``--methods poisson-8 poisson-9 stitched+bezier
-stitched+sized --no-shapes --sizes 10000 100000 1000000``): 50 000 points: stitched+sized
-5 792 patches, 23 168 triangles, PLY 0.86 MB / GLB 0.56 MB / net 3.4 MB (Poisson-8 PLY
-6.7 MB), 1.59 CPU-s (Poisson-8 5.91), but Chamfer 0.00136 -- NOT <= 0.5 x Poisson-8
-(0.00038): the sizing tolerance sigma-hat = 0.0023 is far above the dense surface's own
-error on this noisy cloud; stitched+bezier (dense) 0.00032 as before.
-
-Measured (session 5, issue 15, tolerance sqrt(2/pi) x the rings' precision, load ~9-11 so
-wall seconds are inflated 3-5x: compare CPU; ``--methods poisson-8 stitched stitched+bezier
-stitched+sized --no-shapes --sizes 50000 100000 1000000``): 50 000 points stitched+sized
-34 232 patches, Chamfer 0.00031 (stitched 0.00029, Poisson-8 0.00076: <= 0.5x met), PLY
-5.07 MB (Poisson-8 6.73), 3.72 CPU-s (Poisson-8 8.91).  Scaling, sized / stitched /
-Poisson-8: 10^5 Chamfer 0.00031 / 0.00021 / 0.00072, 58 184 patches, PLY 8.6 MB (Poisson
-16.3), 10.2 / 5.3 / 16.4 CPU-s; 10^6 0.00023 / 0.00012 / 0.00035, 483 056 patches, PLY
-71.5 MB (Poisson 16.2), 68.9 / 41.9 / 131.9 CPU-s, numpy peak 1.7 GB, process peak RSS
-3.1 GB.
-
-Measured (session 6, issue 15: kept rings regressed across sections, Stein's risk estimate
-against the rings' scatter; main d62be9c, load ~7, compare CPU; same command): 50 000 points
-stitched+sized 9 304 patches, Chamfer 0.00032 (stitched 0.00029, Poisson-8 0.00076), PLY
-1.38 MB (Poisson-8 6.73), 3.94 CPU-s (10.21).  Scaling, sized / stitched / Poisson-8: 5·10^4
-0.00031 / 0.00027 / 0.00074, 9 296 patches, PLY 1.4 MB (6.8), 9.0 / 4.7 / 9.5 CPU-s; 10^5
-0.00021 / 0.00021 / 0.00072, 16 680 patches, PLY 2.5 MB (16.3), 12.1 / 6.1 / 17.8 CPU-s;
-10^6 0.000087 / 0.00012 / 0.00035, 30 848 patches, PLY 4.6 MB (16.2), 73.6 / 52.7 / 117.7
-CPU-s, numpy peak 1.76 GB.
-
-``--scaling-fresh [SIZE ...]`` (issue 15) runs only the scaling of the sized smooth surface
-(default 10^5, 10^6, 3*10^6 and 10^7 points): each size in a fresh Python process
-(:func:`fresh_one`), cloud made first, then the clock over dense stitched mesh -> sized control
-mesh -> Bezier surface -> tessellation, the process's peak resident set read when the clock
-stops (it includes the interpreter, the imports, the truth mesh and the cloud), Chamfer against
-the truth after; a table, the exponent b of seconds ~ n^b fitted over the sizes >= 10^6, and
-JSON (``benchmarks/results/surface_scaling.json`` unless ``--json``).
-
-Measured (session 7, issue 15, ``--scaling-fresh``; 10^5 and 10^6 at 94e37b2, load 5-10,
-3 10^6 and 10^7 at 5329483 with ``--scaling-fresh 3000000 10000000``, load 2-5; the two
-commits differ only above 10^6 points): seconds / CPU-s / peak GiB / patches / Chamfer
-10^5 22.1 / 11.0 / 0.59 / 16 680 / 0.000206; 10^6 88.9 / 56.4 / 1.02 / 30 848 / 0.000087;
-3 10^6 141.2 / 133.9 / 2.01 / 31 384 / 0.000102; 10^7 485.8 / 467.1 / 5.45 / 58 048 /
-0.00060.  CPU ~ n^0.92 from 10^6 up.  Before (705e48e): 10^6 180.7 / 106.9 / 2.27 GiB,
-same patches and Chamfer; 10^7 did not finish.  The 10^7 surface is closed, one component,
-F 1.000, but its Chamfer is 6x the 3 10^6 one's, already the dense mesh's (0.00061): the
-walls are 0.000044 from the truth, the two ends 0.0020 and 0.0026 (the end placement, once the
-section spacing is below the cap points' noise band; see benchmarks/README.md).
-
-To add a method (e.g. "stitched + Bezier smoothed") write a function
-``points -> dict(vertices=..., triangles=..., **notes)`` and append
-``(name, function)`` to ``METHODS``.
-
-Run: ``.venv/bin/python benchmarks/surface.py [--quick] [--json PATH]
-[--methods NAME ...] [--scaling-fresh [SIZE ...]]`` (``--methods`` runs only the named rows, e.g.
-``--methods poisson-8 stitched+bezier --no-scaling``).
-
-Measured (2026-11-22 session 2, ``--no-scaling``, 2 shared cores at load 1-4; wall / CPU s):
-poisson-8 6.11 / 7.44 s, Chamfer 0.00076; stitched 1.31 / 1.36 s, 0.00029 (before:
-0.00042); stitched+bezier 2.50 / 2.45 s, Chamfer 0.00032 <= 0.5 x poisson-8 = 0.00038
-(goal met; before: 0.00056, NOT met), rim band 0.00022 (before 0.00095), F 1.000, one
-closed component, G1 angle 3.4e-11 rad, 1.9e5 patches/s, 1.14e6 triangles/s.  Other
-shapes, smooth Chamfer before -> after: cylinder 0.00051 -> 0.00025, ellipse 0.00107 ->
-0.00037, amphora 0.00055 -> 0.00034, capsule 0.00288 -> 0.00274 (domed ends get flat
-caps).  Scaling (full run, load 4-5): 10^6 points stitched 45.0 / 31.4 s, Chamfer
-0.00012; poisson-8 142.0 / 98.4 s, 0.00035.
+To add a method write ``points -> dict(vertices=..., triangles=..., **notes)`` and append
+``(name, function)`` to ``METHODS``.  Run: ``.venv/bin/python benchmarks/surface.py [--quick]
+[--json PATH] [--methods NAME ...] [--scaling-fresh [SIZE ...]]``.  The figures measured with
+it over time: ``docs/decisions/surface.md``.
 """
 
 from __future__ import annotations
