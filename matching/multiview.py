@@ -1,129 +1,46 @@
 r"""All-round multi-view acquisition: view pairs, multi-image consistency, one merged cloud.
 
-A ring of calibrated views is turned into one cloud in four steps, each in its own
-module: view pairs (:mod:`matching.view_pairs`), pair reconstruction (here; rectification
-:mod:`matching.rectify`, search range :mod:`matching.search_range`), multi-image
-consistency (:mod:`matching.confirm`, visibility :mod:`matching.visibility`) and
-fusion (:mod:`matching.fusion`); tasks run through :mod:`matching.scheduler`.
+A ring of calibrated views becomes one cloud in four steps, each in its own module; tasks
+run through :mod:`matching.scheduler` (one thread per core, or any ``map_func``, e.g. Dask's;
+the results do not depend on where they run, and no task keeps an image).
 
-1. **View pairs.**  For views :math:`i, j` with centres :math:`C_i, C_j` and the
-   scene centre :math:`S` (least-squares intersection of the optical axes), the
-   baseline-to-depth ratio :math:`b/d = \lVert C_i - C_j\rVert / \tfrac12(\lVert
-   C_i - S\rVert + \lVert C_j - S\rVert)` and the angle between the optical axes
-   decide: a pair is usable when ``min_ratio <= b/d <= max_ratio`` and the angle is
-   at most ``max_angle_deg``; each view keeps its ``partners`` usable partners whose
-   ratio is closest to ``target_ratio`` (1:4, the stereo recipe's base/distance).
-2. **Pair reconstruction.**  Each pair is rectified with the baseline as the rectified
-   x axis (:mod:`matching.rectify`, Fusiello, Trucco and Verri 2000: rows are epipolar
-   lines whatever the views' relative roll, baseline direction or image sizes),
-   *without* the zero-disparity constraint, so that a convergent pair keeps the object
-   in both rectified frames, and matched by
-   :func:`matching.pair.match_pair` (SGBM approximations, horizontal epipolar LSM),
-   then re-matched with second-order warp terms estimated from the neighbours' affine
-   parameters (:func:`matching.second_order.second_order_terms`: an affine fit of a curved
-   mapping is biased).  A template window reaching into an untextured region
-   (background beyond a rim or a silhouette) is moved onto the surface and the point
-   transferred through the estimated warp (*eccentric windows*,
-   :func:`matching.seeds.window_offsets`), so the points reach a rim to about a
-   pixel instead of stopping half a window short; a window that cannot be moved
-   clear straddles a silhouette and is dropped (``silhouette`` in the pair's
-   counts).  A second candidate lattice, shifted by half a cell, is matched where the
-   four first-lattice matches around each of its candidates were accepted with
-   centred windows, started from their affine warps (``densify``,
-   :func:`matching.pair._densify`: region growing of the matched surface's interior,
-   at the LSM cost of those candidates alone); by default (``"auto"``) only as many as
-   the first lattice left cells of the matched surface unaccepted, nearest those holes
-   (:func:`matching.pair.density_deficit`: nothing where the first lattice is complete).
-   The accepted matches are triangulated in the rectified cameras
-   (:func:`matching.triangulate.triangulate_pair`).
-3. **Multi-image consistency** (in the spirit of MPGC, Gruen & Baltsavias 1988 [1]_).
-   Every pair point :math:`X` is projected into the further views :math:`k`.  It is
-   *visible* in :math:`k` when it lies in front of the camera, inside the image by the
-   LSM half-patch plus 3 px, the surface normal (PCA of the 12 nearest pair points)
-   faces :math:`k` within ``max_incidence_deg``, and it passes a **depth test against
-   every pair's points**: all points are splatted into a z-buffer of view :math:`k`,
-   minimum-filtered over a window of ``2 spacing + 1`` px (the splat spacing), and
-   :math:`X` is occluded if its depth exceeds the buffer by more than
-   :math:`w\,(z/f)\tan\theta_{max} + 3\sigma_X` (the depth change of a surface at the
-   largest accepted incidence across the window, plus the point's own 3 σ).  The
-   template of view :math:`i` is then LSM-matched into the ``check_views`` visible
-   views nearest to :math:`i` (all points of a view in one batch; at most
-   ``2 check_views + 2`` further views are considered per pair; views closer than half
-   the pair's baseline to either pair view add little parallax and are tried last):
-   the approximation
-   is the reprojection :math:`\pi_k(X)` (an eccentric window's centre: moved by the
-   local-plane mapping), the initial affine the local-plane mapping
-   :math:`i \to k` (rays of the template's unit pixel steps cut the tangent plane and
-   are projected into :math:`k`), and the fixed second-order warp terms are fitted to
-   the neighbouring points' local-plane mappings (one LSM pass; a first affine-only
-   pass would be biased by the curvature, ``second_order``).  A match is *consistent*
-   when the Mahalanobis distance of the matched position from :math:`\pi_k(X)`, with covariance
-   :math:`J_k \Sigma_X J_k^T + \Sigma_{LSM}`, passes the :math:`\chi^2_2` test at
-   ``reject_p``.  Points with at least one consistent further view are triangulated
-   from all their consistent views (:func:`matching.triangulate.triangulate_multiview`)
-   and get its smaller σ.
-4. **Merge.**  The pairs' clouds are concatenated; points of *different* pairs closer
-   than half the point spacing (median nearest-neighbour distance within a pair; a
-   ``scipy.spatial.cKDTree`` radius search) are one surface sample and are fused by
-   σ-weighted averaging (weights :math:`1/\sigma^2`, :math:`\sigma = (\sum
-   \sigma_i^{-2})^{-1/2}`, views OR-ed, colours averaged); finally a statistical outlier
-   removal (a local form of Rusu et al. 2008 [2]_) drops points whose mean distance to
-   their ``sor_neighbours`` nearest neighbours exceeds ``sor_std`` times the median of
-   their neighbours' mean distances, and points farther from their neighbours' PCA
-   plane than ``2 sor_std`` robust standard deviations of that distance (silhouette
-   mismatches lie off the surface without being isolated).
+1. **View pairs** (:mod:`matching.view_pairs`): a pair is usable when its baseline-to-depth
+   ratio lies in ``[min_ratio, max_ratio]`` and its optical axes are within
+   ``max_angle_deg``; each view keeps the ``partners`` closest to ``target_ratio`` (1:4).
+2. **Pair reconstruction** (here): rectified with the baseline as the x axis
+   (:mod:`matching.rectify`, Fusiello, Trucco and Verri 2000), matched by
+   :func:`matching.pair.match_pair`, re-matched with second-order warp terms
+   (:mod:`matching.second_order`), eccentric windows at rims
+   (:func:`matching.seeds.window_offsets`), a second half-cell lattice where the first left
+   holes (``densify``), triangulated (:func:`matching.triangulate.triangulate_pair`).
+3. **Multi-image consistency** (MPGC in spirit, Gruen & Baltsavias 1988 [1]_;
+   :mod:`matching.confirm`, :mod:`matching.visibility`): each point is LSM-matched into the
+   ``check_views`` nearest further views where it is visible (in front, inside, facing
+   within ``max_incidence_deg``, not occluded in a z-buffer of every pair's points), started
+   from its reprojection and the local-plane mapping; consistent when the Mahalanobis
+   distance from :math:`\pi_k(X)` with covariance :math:`J_k \Sigma_X J_k^T + \Sigma_{LSM}`
+   passes :math:`\chi^2_2` at ``reject_p``; confirmed points are triangulated from all their
+   consistent views (:func:`matching.triangulate.triangulate_multiview`).
+4. **Merge** (:mod:`matching.fusion`): points of different pairs closer than half the point
+   spacing fused by 1/σ² weights; a statistical outlier removal (after Rusu et al. 2008
+   [2]_) by neighbour distance and distance to the neighbours' PCA plane.
 
-**Execution and memory.**  View pairs, and then the consistency checks, are
-independent tasks: in this process they run on one thread per core (the numba LSM
-kernels release the GIL and run single-threaded in each), or on any ``map_func`` (a
-Dask executor's).  No task keeps an image: a pair task reads its two images (from a
-lazily loading sequence, see :func:`reconstruct_multiview`), a check re-rectifies its
-template image, and the further views' prepared grey images and z-buffers exist only
-for the chunk of ``chunk_pairs`` pairs that checks in them.  The results do not depend
-on the number of threads or on where tasks run.
+**Silhouette consistency** (``silhouettes=True``, :func:`matching.masks.near_foreground`):
+where a view's background is uniform, a point must project within
+:math:`\sqrt2/2 + q\,\sigma f/z` px of that view's foreground.
 
-Per-point reasons (:data:`REASON_NAMES`), for every triangulated pair point:
-
-====  ======================  ===================================================
-0     ``multiview``           confirmed in >= 1 further view, multi-view triangulated
-1     ``pair_only``           no further view sees it (kept with the pair's σ only
-                              with ``keep_unchecked``)
-2     ``no_further_match``    visible in further views, every LSM there failed
-3     ``inconsistent``        LSM matched in a further view, but off the reprojection
-4     ``triangulation``       rejected by the multi-view triangulation
-5     ``outlier``             removed by the statistical outlier filter (merge)
-6     ``outside``             off a view's object mask where it projects into that
-                              image (visual hull), outside the region of interest, or
-                              farther outside a view's automatic foreground than its
-                              own σ allows (silhouette consistency, below)
-====  ======================  ===================================================
-
-Codes 2-6 are rejected (2 only when ``require_confirmation``), 1 unless
-``keep_unchecked``.
-
-**Silhouette consistency** (``silhouettes=True``, :func:`matching.masks.near_foreground`).
-Wherever a view's background is uniform (:func:`matching.masks.foreground_mask` finds
-one; nothing changes where none is found), every point, matched or outline, must
-project within :math:`\sqrt2/2 + q\,\sigma f/z` px of that view's foreground in every view whose
-image it falls in, :math:`q` the two-sided normal quantile at ``reject_p``: the visual
-hull with a tolerance from the point's own precision instead of the masks' fixed
-dilation.  It removes what the further-view check lets through at an object's
-outline -- an eccentric window's transfer or a match beside an occluding edge whose
-depth puts it a few pixels past the silhouette in the views that did not match it (on
-the temple ring 2-3 px past the foreground, in views of either latitude; README, real
-temple ring).
-
-Views that saw a point are stored as a dense ``(N, V)`` bool matrix (``views``; V
-the number of cameras, column order of ``cameras``); the pair a point came from is
-``pair (N,)`` (index into ``pairs``), ``-1`` for points fused from several pairs.
+Per-point reasons: :data:`REASON_NAMES` (0 ``multiview``, 1 ``pair_only``,
+2 ``no_further_match``, 3 ``inconsistent``, 4 ``triangulation``, 5 ``outlier``,
+6 ``outside``); 2-6 are rejected (2 only with ``require_confirmation``), 1 unless
+``keep_unchecked``.  ``views (N, V)`` bool: the views that saw each point; ``pair (N,)``: the
+pair it came from, -1 when fused.  Every rule in full: ``docs/method/acquire.md``.
 
 References
 ----------
 .. [1] A. Gruen, E. Baltsavias, "Geometrically constrained multiphoto matching",
    Photogrammetric Engineering and Remote Sensing 54(5), 633-641 (1988).
-.. [2] R. B. Rusu, Z. C. Marton, N. Blodow, M. Dolha, M. Beetz, "Towards 3D point
-   cloud based object maps for household environments", Robotics and Autonomous
-   Systems 56(11), 927-941 (2008).
+.. [2] R. B. Rusu et al., "Towards 3D point cloud based object maps for household
+   environments", Robotics and Autonomous Systems 56(11), 927-941 (2008).
 """
 
 from __future__ import annotations
