@@ -51,7 +51,7 @@ References
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -1070,17 +1070,25 @@ def _nearest_rotation(R: np.ndarray) -> np.ndarray:
 
 def read_projection_txt(path: str | os.PathLike, width: int | None = None,
                         height: int | None = None,
-                        image_dir: str | os.PathLike | None = None) -> list[Camera]:
+                        image_dir: str | os.PathLike | None = None,
+                        sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
     """Read per-image ``name k11..k33 r11..r33 t1 t2 t3`` lines (Middlebury ``*_par.txt``).
+
+    The file holds no image size: each camera takes its own image's, so views of
+    several sizes (a portrait view among landscape ones, with K, R, t turned with it)
+    are read as they are.
 
     Parameters
     ----------
     path : path
         Text file; an optional first line holds the number of images.
     width, height : int, optional
-        Image size.  If not given, the first image is looked up in
-        ``image_dir`` (default: the file's folder) and its size used.
+        Image size of the views ``sizes`` does not hold.  If not given, the first
+        image is looked up in ``image_dir`` (default: the file's folder) and its size used.
     image_dir : path, optional
+    sizes : mapping of str to (int, int), optional
+        ``(width, height)`` of each image by file name (the base name of the file's
+        names), as the caller read them.
 
     Returns
     -------
@@ -1107,6 +1115,10 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
         rows.append((number, fields[0], values))
     if not rows:
         raise ValueError(f"{path}: no camera lines")
+    sizes = dict(sizes or {})
+    if (width is None or height is None) and sizes:
+        # the views without an image of their own (the caller has none to use them with)
+        width, height = sizes.get(Path(rows[0][1]).name, next(iter(sizes.values())))
     if width is None or height is None:
         folder = Path(image_dir) if image_dir is not None else path.parent
         candidate = folder / rows[0][1]
@@ -1120,8 +1132,8 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
         if _few_digits_rotation(R):
             R = _nearest_rotation(R)
         try:
-            cameras.append(Camera(K / K[2, 2] if K[2, 2] else K, np.zeros(0), R, t, width,
-                                  height, name))
+            cameras.append(Camera(K / K[2, 2] if K[2, 2] else K, np.zeros(0), R, t,
+                                  *sizes.get(Path(name).name, (width, height)), name))
         except ValueError as exc:
             raise ValueError(f"{path}:{number} ({name}): {exc}") from None
     return cameras
@@ -1129,7 +1141,8 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
 
 # ------------------------------------------------------------------- dispatch
 def read_cameras(path: str | os.PathLike, width: int | None = None,
-                 height: int | None = None) -> list[Camera]:
+                 height: int | None = None,
+                 sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
     """Read cameras from any supported source, by content.
 
     Parameters
@@ -1141,6 +1154,9 @@ def read_cameras(path: str | os.PathLike, width: int | None = None,
         ``images.txt``, or a projection-matrix ``.txt``.
     width, height : int, optional
         Image size for formats that do not store it.
+    sizes : mapping of str to (int, int), optional
+        Each image's ``(width, height)`` by file name, for formats that store no size
+        (a projection-matrix ``.txt``): each camera takes its own image's.
 
     Returns
     -------
@@ -1163,6 +1179,6 @@ def read_cameras(path: str | os.PathLike, width: int | None = None,
         rig = read_rig(path, width=width, height=height)
         return [rig.left, rig.right]
     if path.suffix.lower() == ".txt":
-        return read_projection_txt(path, width, height)
+        return read_projection_txt(path, width, height, sizes=sizes)
     raise ValueError(f"{path}: unknown camera file type (expected .yml/.xml, a COLMAP folder "
                      "or cameras.txt, or a projection-matrix .txt)")

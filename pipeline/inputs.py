@@ -304,7 +304,11 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     out = {"ignored": others, "unregistered": [], "sfm": None, "skipped_views": skipped}
     if source is not None:
         try:
-            cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)))
+            # a file without sizes (Middlebury par): each camera takes its image's size,
+            # so a portrait view with its K, R, t turned with it is used
+            cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)),
+                                sizes={name: (shape[1], shape[0])
+                                       for name, shape in zip(names, shapes, strict=True)})
         except ValueError as exc:
             raise InputError(f"{source}: {exc}") from None
         cams, holds = _match_cameras(cams, names)
