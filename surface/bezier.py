@@ -1,100 +1,33 @@
 r"""Loop's tangent-plane-continuous sextic triangular Bézier surface.
 
-Each triangle of the (once Loop-refined) control mesh carries one sextic
-triangular Bézier patch
+Each triangle of the (once Loop-refined) control mesh carries one sextic patch
 
 .. math::
 
     P(r, s, t) = \sum_{i+j+k=6} b_{ijk} \, B_{ijk}(r, s, t), \qquad
     B_{ijk} = \frac{6!}{i!\,j!\,k!} r^i s^j t^k, \quad r + s + t = 1,
 
-following C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH
-1994, pp. 303-310 [1]_.  ``(r, s, t)`` weight the patch's domain triangle
-corners ``(tri[0], tri[1], tri[2])`` (counter-clockwise seen from outside), so
-``b_600`` sits at ``tri[0]``, ``b_060`` at ``tri[1]``, ``b_006`` at ``tri[2]``.
+after C. Loop, SIGGRAPH 1994 [1]_; ``(r, s, t)`` weight the domain corners ``tri[0..2]``
+(counter-clockwise from outside).  The 28 control points ``(P, 28, 3)`` are stored
+descending in i, then in j: ``index(i, j, k) = m (m + 1) / 2 + k``, ``m = 6 - i``
+(:func:`index_table`, :func:`control_index`; the same rule for every degree here).
 
-Index order
------------
-The 28 control points of a patch are stored lexicographically **descending in
-i, then descending in j** (``k = 6 - i - j``)::
+Construction (:func:`control_net`): (1) one Loop subdivision step [2]_, after which a
+triangle has at most one vertex of valence != 6; (2) regular patches are the quartic box
+spline of Loop subdivision, degree-elevated to 6 (C2 between them: the limit surface
+itself); (3) around an irregular vertex of valence n the patches meet Loop's limit point,
+join their regular neighbours C1, and satisfy the scalar G1 condition across each spoke
 
-    0:(6,0,0) 1:(5,1,0) 2:(5,0,1) 3:(4,2,0) 4:(4,1,1) 5:(4,0,2) 6:(3,3,0) ...
-    ... 21:(0,6,0) 22:(0,5,1) ... 27:(0,0,6)
+.. math::  D_l(t) + D_r(t) = \lambda(t)\, D_e(t), \qquad
+           \lambda(t) = 2\cos(2\pi/n)\,(1 - t) + t;
 
-i.e. ``index(i, j, k) = m (m + 1) / 2 + k`` with ``m = 6 - i = j + k``
-(:func:`index_table`, :func:`control_index`).  The same rule, with 6 replaced by
-the degree, orders nets of any degree in this module (quartic nets,
-derivative nets, tessellation sample grids).
-
-Construction (what :func:`control_net` does)
---------------------------------------------
-1. **Refinement.**  One step of Loop subdivision (original weights
-   ``beta(n) = (5/8 - (3/8 + cos(2 pi / n) / 4)^2) / n``).  Afterwards every
-   triangle has at most one vertex of valence != 6, and the triangles that
-   have one are exactly the corner triangles of the old irregular vertices.
-2. **Regular patches.**  A triangle whose three vertices have valence 6 has a
-   regular 12-point stencil (the union of its corners' 1-rings); its patch is
-   the quartic three-direction box spline of Loop subdivision converted to
-   Bézier form and degree-elevated to 6 (so it *is* the Loop limit surface
-   there).  Adjacent regular patches join C2.
-3. **Irregular vertex, valence n.**  The n patches around it are constrained
-   as in [1]_: position at the vertex = Loop's limit point; across the patch
-   boundary shared with a regular patch the two outer Bézier rows are the C1
-   continuation of that neighbour (so the join with the box-spline region is
-   C1); across each spoke ``v -> w_i`` the cross-boundary derivatives of the
-   two patches satisfy Loop's scalar G1 condition
-
-   .. math::  D_l(t) + D_r(t) = \lambda(t)\, D_e(t), \qquad
-              \lambda(t) = 2\cos(2\pi/n)\,(1 - t) + t,
-
-   (``lambda = 1`` at the regular end, where the three-direction grid gives
-   ``e_l + e_r = e``) as a polynomial identity in t.  At ``t = 0`` this forces
-   the first-row points into ``a cos(2 pi i / n) + b sin(2 pi i / n)`` form:
-   one tangent plane at the vertex; the second-order (vertex-enclosure)
-   condition for even n is met through the free spoke points.
-   **Difference from Loop's paper:** Loop gives the remaining Bézier points
-   by explicit formulas (quartic boundary curves, then the interior); those
-   formulas are not reproduced here.  Instead the free points (the inner
-   five rows of every patch around the vertex) are the least-squares fit to
-   Loop's subdivision limit surface at 45 points of each patch (exact limit
-   points from Loop's limit mask on a template of the vertex's two rings),
-   subject to exactly the constraints above.  The solution is a fixed linear
-   map per valence of the local data, solved once (the constraints are
-   block-circulant around the vertex, so a discrete Fourier transform splits
-   them into n small weighted minimum-norm problems) and applied to all
-   vertices of that valence in one matrix product; it is affine invariant,
-   and where n = 6 it returns the box spline (which then meets every
-   constraint and fits the limit exactly).  The spoke curves come out of
-   degree <= 5 rather than Loop's quartics, and near an irregular vertex the
-   surface is close to, not equal to, the Loop limit surface (measured: at
-   most 0.6 % of the control edge length on a subdivided cube, 0.2 % on an
-   icosphere).
-
-Borders (documented boundary rule)
-----------------------------------
-A control mesh with borders is first closed off by two layers of ghost
-triangles: a border edge ``a -> b`` whose triangle has third vertex c gets the
-ghost ``g = a + b - c`` (c reflected through the edge midpoint, i.e. the
-regular grid continued; an affine rule, so affine invariance and planarity
-survive) and the triangle ``(b, a, g)``; every border vertex's fan is closed by
-``(a, g_in, g_out)``, split by the point reflections through a of its interior
-neighbours where the vertex has only one or two triangles (a grid corner: the
-missing grid neighbours, so the vertex gets valence 6 as on the grid).  The
-second layer does the same to the first, so that
-every input vertex and every neighbour patch the construction reads is
-interior.  The ghost layer's own border follows Loop's boundary rules in the
-refinement (edge midpoint, vertex ``3/4 v + 1/8 (p + q)``).  Only the patches
-of the input faces are returned: the surface is G1 across every interior edge
-and ends at the border edges (it does not interpolate the border polygon).
-On a straight border of a regular grid this is exactly the box spline of the
-continued grid (corners included); where the border triangles are slivers
-or sharp (the convex hull of a random Delaunay triangulation) the reflected
-ghosts can overlap and the surface may fold near the border -- still G1 and
-finite, but close or regularise such borders first.
-
-Other input: non-manifold edges or vertices, inconsistent orientation,
-out-of-range indices, NaN/inf and zero-area triangles raise ``ValueError``;
-vertices used by no triangle are ignored.
+the free points are the constrained least-squares fit to Loop's limit surface at 45 points
+a patch (a fixed linear map per valence, split by a DFT into n small problems), instead of
+Loop's explicit formulas: close to, not equal to, the limit surface there (at most 0.6 % of
+the control edge on a subdivided cube).  Borders are closed by two layers of reflected
+ghost triangles (``g = a + b - c``); only the input faces' patches are returned, G1 across
+every interior edge.  Bad meshes (non-manifold, misoriented, NaN, zero area) raise
+``ValueError``.  The construction in full: ``docs/method/bezier.md``.
 
 References
 ----------
