@@ -1,100 +1,36 @@
 r"""LSM's window side per point by the intersection of confidence intervals (ICI).
 
-A larger LSM window holds more texture: its shift is more precise (σ ∝ 1/side on
-uniform texture, Gruen 1985).  It also reaches farther: over a curved or broken
-surface its affine (or second-order) warp holds less well and over a depth edge not at
-all.  Which side is best is a property of each point, not of the image.  The rule here
-is Lepski's, in the form of Goldenshluger & Nemirovski's and Katkovnik's *intersection
-of confidence intervals* for local estimates of growing support [1]_ [2]_ [3]_ (used
-for adaptive windows in image denoising and stereo): for the sides of a ladder
-``s_1 < s_2 < ...`` with estimates ``x_j`` and standard deviations ``σ_j`` (per axis),
-the intervals ``D_j = [x_j − Γσ_j, x_j + Γσ_j]`` are intersected in order of growing
-side, and a point keeps the largest side before the running intersection becomes
-empty -- the largest window that agrees with every smaller one within their noise --
-or before a window is not accepted.  As long as a window's bias stays below its noise
-the larger one wins; once the bias shows, the intervals part.
+A larger LSM window is more precise (σ ∝ 1/side on uniform texture, Gruen 1985 [4]_) but
+its warp holds less well over a curved or broken surface.  Lepski's rule, as Goldenshluger
+& Nemirovski's and Katkovnik's intersection of confidence intervals [1]_ [2]_ [3]_: for a
+ladder of sides ``s_1 < s_2 < ...`` with estimates ``x_j`` and standard deviations ``σ_j``
+(per axis, scaled by each side's variance factor,
+:func:`matching.precision.midpoint_variance_factor`), the intervals
+``[x_j − Γσ_j, x_j + Γσ_j]`` are intersected in order of growing side and a point keeps the
+largest side before the intersection becomes empty or a window is not accepted;
+``Γ`` = :data:`ICI_GAMMA` (2, within Katkovnik's 1.5-3).  A small window that slipped (its
+interval misses every larger window's while those agree) is skipped
+(``ici_choice(robust=True)``, :func:`_outvoted`).
 
-The σ's must be honest for the rule to mean what it says: LSM's reported covariance is
-scaled per side by the variance factor of independent neighbouring windows
-(:func:`matching.precision.midpoint_variance_factor`, what ``match_pair`` applies), when
-there are enough windows to estimate it.  ``Γ`` = :data:`ICI_GAMMA` (2: an interval of
-±2σ per axis, Katkovnik's range 1.5-3 for the bias-variance balance).
+*Population rule* (:func:`population_sides`, ``match_pair(adaptive_patch="population")``).
+Without bias the difference ``d`` of two nested windows has covariance
+:math:`k^2(\Sigma_i - \Sigma_j)` (Hausman's test [5]_), so
+:math:`T_{ij} = d^\mathsf{T}(k^2(\Sigma_i - \Sigma_j))^{-1} d \sim \chi^2_\nu`; the larger side
+lowers the mean-square error while :math:`E[T] < 2\nu`.  Per window class of a pair
+(``edge`` or not) the largest side whose ``median(T) / median(χ²_ν)`` stays below
+:data:`POPULATION_RISK_RATIO` against every smaller side is kept (``k²`` the clear windows'
+at Gruen's sides; σ0 the smaller window's).
 
-A window that slips (an accepted blunder of the small window: its interval misses every
-larger window's while those agree with each other) would stop the plain rule at the
-blunder; such a side is skipped (``ici_choice(robust=True)``, :func:`_outvoted`).
-
-Written here: no library applies ICI to least-squares image matching.
-
-Measured (one run each, session 12):
-
-- graffiti (``benchmarks/matching.py --part graffiti``: 22 312 textured candidates on the wall,
-  21 px windows, the homography + 1 px starts, region growing; ladder 21 / 31 / 41):
-  residual to the smooth mapping 0.190 px at 21 px, 0.138 at 31, 0.114 at 41 px alone,
-  **0.128 px** with ICI (581 / 951 / 19 276 points at 21 / 31 / 41), residual / σk **1.37**
-  (1.62 at 21 px), 0.1 % beyond 2 px; the plain rule (no skipped slips) 0.162 px: where it
-  kept the 21 px side, that side erred by 1.0 px (median) and the 31 / 41 px ones by 0.18 /
-  0.14 px.  402 points/s against 5 837 for the 21 px pass with growing (one run).
-- rendered two-plane pair (``tests/matching/test_ici.py``, ``match_pair(adaptive_patch=
-  "ici")``, 4 grey levels of noise): windows clear of the depth edge 0.0199 -> 0.0148 px,
-  those within 12 px of it kept small and kept (107 -> 118 accepted, none beyond 3σ).
-- the temple's ring pairs (cross-pair check of ``benchmarks/matching.py --part temple``,
-  one-off run of its functions): *worse* -- median LSM discrepancy 0.436 px with the
-  default adaptive patch, 0.626 with ICI over 15 / 23 / 29 and 0.591 over 11 / 15 / 21
-  (SGBM/LSM 1.20 -> 0.88 / 1.05; windows clear of edges below 35°: 0.131 -> 0.159 /
-  0.151 px).  The temple's variance factors are large (k² 5-240 by window class, and σk
-  pessimistic there by the cross-pair check), so the intervals are too wide to see the
-  larger windows' bias over its relief.  Hence ICI is an option, not the default.
-
-Session 14 (issue 13, item 3: a window rule that could be ``match_pair``'s default) --
-what was tried, each on the temple's cross-pair check (all 17 ring pairs, one-off runs of
-``_real_matching._pair_data`` / ``cross_pair_comparisons`` / ``cross_pair_summary``; the
-default: median LSM δ 0.436 px, SGBM/LSM 1.20, windows clear of edges below 35° 0.131 px,
-edge windows 0.711 px):
-
-- the ICI intervals scaled by the smallest side's factor (per class), not each side's:
-  0.619 px (graffiti 21/31/41: 0.133 px, residual / σk 1.39); by the clear windows'
-  factor at the smallest side for every class: 0.597 px.
-- a sharper per-point test, the nested (Hausman) statistic of :func:`nested_statistics`
-  at the 95.4 % χ² quantile (as Γ = 2) instead of the intervals: 0.596-0.605 px
-  (graffiti 0.148 px, 1.41).  The temple's σk at 15 px is 0.10-0.37 px for the clear
-  windows and 0.6-1.0 px for the edge windows: a larger window's bias below that cannot
-  be seen per point, yet costs more than the noise it removes.
-- the *population rule* (below): 0.578 px; with the larger windows also held clear of
-  edges (``window_offsets`` at their side): **0.482 px**, SGBM/LSM 1.13, below 35° 0.258
-  (default 0.290), clear windows below 35° 0.152, edge windows 0.733; per benchmark pair
-  δ/σ 0.69 / 0.85 / 0.85 / 0.68 (default 0.77 / 0.93 / 0.94 / 0.75).  Graffiti
-  (``benchmarks/matching.py --part graffiti``, its population row): every window at 41 px,
-  0.120 px, 1.31; rendered vase 1024x768 (``match_pair`` as ``--part vase``'s default row,
-  one-off): RMS 0.0276 -> 0.0241 px, actual / σ 1.00 -> 0.93, accepted 96.7 -> 97.8 %.
-
-So no rule found here meets graffiti's goals without making the temple worse than Gruen's
-adaptive patch: the temple's clear windows grown past 21 px err more by the cross-pair
-check although their departures from the smaller windows are, in the population's core,
-within the noise the midpoint factor (k² 5-85 there, pessimistic by that check) allows.
-The default stays Gruen's; ``"ici"`` and ``"population"`` are options.
-
-Population rule (:func:`population_sides`, ``match_pair(adaptive_patch="population")``).
-The larger window holds the smaller one's pixels, so without bias the difference of the
-two has the covariance :math:`k^2(\Sigma_i - \Sigma_j)` (Hausman's specification test
-[5]_) and :math:`T_{ij} = d^\mathsf{T}(k^2(\Sigma_i - \Sigma_j))^{-1} d \sim \chi^2_\nu`.
-The larger side lowers the mean-square error when its bias b is below the variance it
-removes, :math:`b^2 < k^2\,\mathrm{tr}(\Sigma_i - \Sigma_j)`, i.e. :math:`E[T] < 2\nu`.
-One point's T cannot tell (its noise is the size of the bias that matters); a class of
-windows can: per window class of a pair (``edge`` or not) the largest side whose
-``median(T) / median(χ²_ν)`` stays below :data:`POPULATION_RISK_RATIO` against every
-smaller side is kept.  ``k²`` is the image's (the clear windows' at Gruen's sides) for
-every class, and σ0 the smaller window's (a larger window's σ0 holds its model error).
-Graffiti: ``median(T)/median(χ²)`` 0.86 (21 -> 31) and 1.19 (21 -> 41).
+Both are options of :func:`matching.pair.match_pair`, not its default: they meet the
+graffiti wall's goals but make the temple's cross-pair check worse than Gruen's adaptive
+patch (the figures: ``docs/decisions/stereo-matching.md``).  Written here: no library
+applies ICI to least-squares image matching.
 
 References
 ----------
-.. [1] O. V. Lepski, "On a problem of adaptive estimation in Gaussian white noise",
-   Theory Probab. Appl. 35 (1990) 454-466.
-.. [2] A. Goldenshluger, A. Nemirovski, "On spatially adaptive estimation of
-   nonparametric regression", Math. Methods Statist. 6 (1997) 135-170.
-.. [3] V. Katkovnik, "A new method for varying adaptive bandwidth selection", IEEE
-   Trans. Signal Processing 47 (1999) 2567-2571.
+.. [1] O. V. Lepski, Theory Probab. Appl. 35 (1990) 454-466.
+.. [2] A. Goldenshluger, A. Nemirovski, Math. Methods Statist. 6 (1997) 135-170.
+.. [3] V. Katkovnik, IEEE Trans. Signal Processing 47 (1999) 2567-2571.
 .. [4] A. Gruen, "Adaptive least squares correlation: a powerful image matching
    technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14 (1985) 175-187.
 .. [5] J. A. Hausman, "Specification tests in econometrics", Econometrica 46 (1978)
