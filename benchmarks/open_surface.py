@@ -1,0 +1,252 @@
+"""One stereo pair to an open surface: the default stereo recipe end to end, against its truth.
+
+``photosurf run fixtures/scenes/vase.toml`` (one calibrated pair of the vase r(z) = 1 +
+0.3 sin 2z, 1024x768, 2 grey levels of noise, a gain/offset between the views) sees one
+side of the object: the sections are open arcs and the run ends with an open surface
+(``curves.open = "auto"``, :mod:`surface.open_surface`).  Rows, on the same cloud:
+
+* ``photosurf-open``      the smooth surface (Loop's patches over the stitched arcs);
+* ``photosurf-stitched``  its control mesh, the stitched open arcs;
+* ``poisson-trimmed``     open3d's screened Poisson reconstruction (depth 8) of the same
+  cloud with normals oriented to the cameras, its vertices of the lowest 10 % density
+  removed (the usual way to make an open surface of a one-sided scan).
+
+Columns: the surface's distance to the truth mesh (mean, 90th percentile; the cloud's own
+RMS distance beside it), the share of the part both views see that lies within τ of the
+surface (``cover``: all of it; ``cover wall``: the wall, where the truth normal is more
+than 30° from the axis, as the sections take it), the share of the surface's area whose
+nearest truth point neither view pair sees (``beyond``), and where the border lies against
+the border of the part both views see: for each border vertex, the distance from its
+nearest truth point to the other side of that border (positive: inside the seen part),
+median and 90th percentile of its size, in section spacings; and, beside it, the
+distance from each border vertex to the nearest cloud point (``data``: the border lies
+where the data end), in section spacings.  The cloud's own cover of the seen part (within
+two point spacings) is printed above the table: the border cannot lie past the data.
+"Seen by both" is exact: a truth point is seen by a camera when it projects into the
+image and the ray from the camera centre meets the truth mesh first at it (open3d ray
+casting).
+τ = 0.002 × the truth's bounding-box diagonal (the report's ``tau_rel``).
+
+    .venv/bin/python benchmarks/open_surface.py [--workspace DIR] [--json PATH]
+
+``--workspace``: reuse (or keep) the run's workspace; default a temporary folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from _common import print_goals, uptime, write_result  # noqa: E402
+
+RECIPE = ROOT / "fixtures" / "scenes" / "vase.toml"
+#: Truth samples for the visibility map and the coverage (area-weighted, seeded).
+TRUTH_SAMPLES = 200_000
+#: Samples on each reconstructed surface.
+SURFACE_SAMPLES = 50_000
+#: τ as a share of the truth's bounding-box diagonal (pipeline/defaults.toml report.tau_rel).
+TAU_REL = 0.002
+#: A wall point's truth normal is more than 30° from the axis (surface/reconstruct.py
+#: MIN_WALL_SINE = 0.5: the sections take such points; flatter ones are cap points).
+WALL_SINE = 0.5
+
+
+def run(workspace: Path) -> dict:
+    """``photosurf run`` of the recipe into ``workspace`` (resumed when up to date)."""
+    from pipeline.config import resolve
+    from pipeline.engine import run_pipeline
+
+    t0 = time.perf_counter()
+    summary = run_pipeline([str(RECIPE)], workspace, resolve())
+    return {"seconds": time.perf_counter() - t0, "summary": summary}
+
+
+def seen_by(cameras, truth, points: np.ndarray) -> np.ndarray:
+    """``(N,) bool``: the point projects into every camera's image and no part of the truth
+    lies between it and the camera (first hit within 1e-5 of the object's size)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(truth[0].astype(np.float32)),
+                        o3d.core.Tensor(truth[1].astype(np.uint32)))
+    size = float(np.ptp(truth[0], axis=0).max())
+    seen = np.ones(len(points), bool)
+    for cam in cameras:
+        centre = cam.center
+        x_c = points @ cam.R.T + cam.t
+        uv = x_c[:, :2] / x_c[:, 2:3] @ cam.K[:2, :2].T + cam.K[:2, 2]
+        inside = (x_c[:, 2] > 0) & (uv[:, 0] > -0.5) & (uv[:, 0] < cam.width - 0.5) & \
+            (uv[:, 1] > -0.5) & (uv[:, 1] < cam.height - 0.5)
+        ray = points - centre
+        dist = np.linalg.norm(ray, axis=1)
+        rays = np.concatenate([np.broadcast_to(centre, ray.shape), ray / dist[:, None]], axis=1)
+        hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+        seen &= inside & (hit >= dist - 1e-5 * size - 1e-4 * dist)
+    return seen
+
+
+def scores(vertices, triangles, truth, to_truth, visibility: dict, tau: float,
+           spacing: float, cloud_tree) -> dict:
+    """The table's columns for one mesh (module notes)."""
+    from scipy.spatial import cKDTree
+
+    from surface.metrics import edge_table, mesh_topology, sample_mesh
+
+    samples = sample_mesh(vertices, triangles, count=SURFACE_SAMPLES, seed=0)
+    d = to_truth(samples)
+    tree = cKDTree(samples)
+    gap, _ = tree.query(visibility["points"], distance_upper_bound=10 * tau)
+    both, wall = visibility["both"], visibility["wall"]
+    # nearest truth sample of each surface sample / border vertex: seen or not
+    truth_tree = cKDTree(visibility["points"])
+    _, near = truth_tree.query(samples)
+    table = edge_table(triangles)
+    border = np.unique(table.edges[table.counts == 1])
+    inset = to_data = np.zeros(0)
+    if len(border):
+        _, b_near = truth_tree.query(vertices[border])
+        seen_tree = cKDTree(visibility["points"][both])
+        unseen_tree = cKDTree(visibility["points"][~both])
+        inside = both[b_near]
+        q = visibility["points"][b_near]
+        inset = np.where(inside, unseen_tree.query(q)[0], -seen_tree.query(q)[0])
+        to_data = cloud_tree.query(vertices[border])[0]
+    topo = mesh_topology(vertices, triangles)
+    return {"mean": float(d.mean()), "p90": float(np.quantile(d, 0.9)),
+            "cover": float(np.mean(gap[both] <= tau)),
+            "cover_wall": float(np.mean(gap[both & wall] <= tau)),
+            "beyond": float(np.mean(~both[near])),
+            "border_inset_median": float(np.median(inset) / spacing) if len(inset) else None,
+            "border_offset_p90": float(np.quantile(np.abs(inset), 0.9) / spacing)
+            if len(inset) else None,
+            "border_to_data_median": float(np.median(to_data) / spacing) if len(inset) else None,
+            "border_to_data_p90": float(np.quantile(to_data, 0.9) / spacing)
+            if len(inset) else None,
+            "border_vertices": int(len(border)), "components": topo["components"],
+            "boundary_edges": topo["boundary_edges"], "faces": topo["faces"]}
+
+
+def poisson_trimmed(points: np.ndarray, eyes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """open3d's screened Poisson (depth 8) of the cloud, normals towards the cameras, its
+    lowest-density tenth of the vertices removed."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
+    normals = np.asarray(cloud.normals)
+    towards = eyes.mean(axis=0) - points
+    normals *= np.sign(np.einsum("ij,ij->i", normals, towards))[:, None]
+    cloud.normals = o3d.utility.Vector3dVector(normals)
+    mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=8)
+    density = np.asarray(density)
+    mesh.remove_vertices_by_mask(density < np.quantile(density, 0.1))
+    mesh.remove_unreferenced_vertices()
+    return np.asarray(mesh.vertices), np.asarray(mesh.triangles, dtype=np.int64)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--workspace", type=Path, default=None)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    print(f"load {uptime()}")
+
+    from matching.cameras import read_cameras_yml
+    from pipeline import artifacts
+    from pipeline.mesh_io import read_mesh
+    from surface.metrics import MeshDistance, face_normals
+
+    with tempfile.TemporaryDirectory() as tmp:
+        ws = args.workspace or Path(tmp) / "vase"
+        ran = run(ws)
+        truth = read_mesh(ws / "scene" / "truth" / "mesh.ply")
+        cameras = read_cameras_yml(ws / "scene" / "cameras.yml")
+        stitched_notes = artifacts.read_stitched(ws / "stitch")[2]
+        cloud = artifacts.read_cloud(ws / "acquire")["points"]
+        _, _, spacing = artifacts.read_sections(ws / "sections")
+        to_truth = MeshDistance(*truth)
+        # the truth's visibility map: seeded area-weighted samples with their face normals
+        tv, tt = truth
+        areas = np.linalg.norm(face_normals(tv, tt, unit=False), axis=1)
+        rng = np.random.default_rng(0)
+        face = rng.choice(len(tt), TRUTH_SAMPLES, p=areas / areas.sum())
+        r1, r2 = rng.random(TRUTH_SAMPLES), rng.random(TRUTH_SAMPLES)
+        flip = r1 + r2 > 1
+        r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
+        a, b, c = tv[tt[face, 0]], tv[tt[face, 1]], tv[tt[face, 2]]
+        pts = a + r1[:, None] * (b - a) + r2[:, None] * (c - a)
+        axis = artifacts.read_curves(ws / "curves")[1][0].frame[2]
+        normal = face_normals(tv, tt)[face]
+        visibility = {"points": pts, "both": seen_by(cameras, truth, pts),
+                      "wall": np.abs(normal @ axis) < np.sqrt(1 - WALL_SINE**2)}
+        tau = TAU_REL * float(np.linalg.norm(np.ptp(tv, axis=0)))
+        cloud_d = to_truth(cloud)
+        cloud_rms = float(np.sqrt(np.mean(cloud_d**2)))
+        from scipy.spatial import cKDTree
+
+        cloud_tree = cKDTree(cloud)
+        # the cloud's own cover of the part both views see, within its point spacing
+        cloud_step = float(np.median(cloud_tree.query(cloud, k=2)[0][:, 1]))
+        reach = max(tau, 2 * cloud_step)
+        near_cloud = cloud_tree.query(pts, distance_upper_bound=reach)[0] <= reach
+        both = visibility["both"]
+        cloud_row = {"cover": float(np.mean(near_cloud[both])),
+                     "cover_wall": float(np.mean(near_cloud[both & visibility["wall"]])),
+                     "reach": reach}
+        rows = {}
+        smooth = read_mesh(ws / "smooth" / artifacts.SURFACE)
+        rows["photosurf-open"] = scores(*smooth, truth, to_truth, visibility, tau, spacing,
+                                         cloud_tree)
+        stitched = read_mesh(ws / "stitch" / artifacts.MESH)
+        rows["photosurf-stitched"] = scores(*stitched, truth, to_truth, visibility, tau,
+                                            spacing, cloud_tree)
+        t0 = time.perf_counter()
+        eyes = np.array([cam.center for cam in cameras])
+        rows["poisson-trimmed"] = scores(*poisson_trimmed(cloud, eyes), truth, to_truth,
+                                         visibility, tau, spacing, cloud_tree)
+        rows["poisson-trimmed"]["seconds"] = time.perf_counter() - t0
+    print(f"\nstereo vase: {len(cloud)} points, cloud RMS to the truth {cloud_rms:.5f} "
+          f"(mean {cloud_d.mean():.5f}, p90 {np.quantile(cloud_d, 0.9):.5f}); τ = {tau:.4f}; "
+          f"section spacing {spacing:.4f}; seen by both views: "
+          f"{visibility['both'].mean():.3f} of the truth's area; run {ran['seconds']:.1f} s")
+    print(f"stitch record: open={stitched_notes.get('open')}, border loops "
+          f"{stitched_notes.get('boundary_loops')}, border length "
+          f"{stitched_notes.get('boundary_length', 0):.3f}")
+    print(f"the cloud covers {cloud_row['cover']:.3f} of the part both views see "
+          f"({cloud_row['cover_wall']:.3f} of its wall) within {reach:.4f} (2 point spacings)")
+    header = ("row", "mean", "p90", "cover", "cover wall", "beyond", "inset med",
+              "|off| p90", "data med", "data p90", "comp", "faces")
+    print(" | ".join(f"{h:>10}" for h in header))
+    for name, r in rows.items():
+        values = (r["mean"], r["p90"], r["cover"], r["cover_wall"], r["beyond"],
+                  r["border_inset_median"], r["border_offset_p90"],
+                  r["border_to_data_median"], r["border_to_data_p90"])
+        print(" | ".join([f"{name:>10}"] + [f"{v:10.5f}" if v is not None else f"{'-':>10}"
+                                             for v in values]
+                         + [f"{r['components']:10d}", f"{r['faces']:10d}"]))
+    open_row = rows["photosurf-open"]
+    goals = {"open surface (one border loop)": stitched_notes.get("open") is True
+             and stitched_notes.get("boundary_loops") == 1,
+             "mean distance to the truth <= the cloud's RMS": open_row["mean"] <= cloud_rms,
+             "nothing beyond the seen part (beyond <= 1 %)": open_row["beyond"] <= 0.01}
+    print_goals(goals)
+    if args.json:
+        write_result(args.json, {"cloud_points": len(cloud), "cloud_rms": cloud_rms,
+                                 "tau": tau, "spacing": spacing,
+                                 "seen_share": float(visibility["both"].mean()),
+                                 "cloud_cover": cloud_row,
+                                 "run_seconds": ran["seconds"], "stitch": stitched_notes,
+                                 "rows": rows, "goals": goals})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
