@@ -41,7 +41,7 @@ k² = 1.27 (actual / reported σ 1.27 -> 1.01), 320x240 with 1 px correlated noi
 9.5 (3.0 -> 0.98); graffiti 21x21 7.1 (the forward-backward lower bound 3.2); temple
 pairs 10.5 to 76 (the old estimator -- residuals to a local quadratic over 2.5 patch
 sides -- gave ~745 on pair (0, 1): the facade's depth structure).  Per window class
-(:func:`class_variance_factors`, what ``match_pair`` applies since session 10): temple
+(:func:`class_variance_factors`, what ``match_pair`` applies since 2026-12-03): temple
 k² 5-85 for the windows clear of an edge, 74-240 for the ``edge`` windows; the cross-pair
 check (below) puts the errors at 0.75 / 0.64 of those σ k.  Unlike forward-backward matching
 (:mod:`matching.consistency`), whose two matches read the same pixels and so share

@@ -21,7 +21,7 @@ resolve adds no noise.
 
 A different algorithm from the LSM kernel itself (a local regression over matched
 points, not an image alignment), hence its own module; moved out of ``matching/lsm.py``
-unchanged (issue 12 item 10).
+unchanged.
 
 References
 ----------

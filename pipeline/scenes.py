@@ -281,7 +281,7 @@ def validate_recipe(raw: Mapping, source: str = "<recipe>",
                                             _view_count(recipe["cameras"]))
     noise = top.sub("noise") or _Table(source, "noise", {})
     recipe["noise"] = {"sigma": noise.take("sigma", "float", 2.0, nonneg=True)}
-    # less kind than white noise on equally sharp views (issue 13), only when asked for
+    # less kind than white noise on equally sharp views, only when asked for
     # (the recipes without them stay byte-identical): noise low-passed by a Gaussian of
     # correlation_px (as demosaicing correlates it; renormalised to sigma), and the odd
     # views blurred by a Gaussian of blur_difference_px before the noise
@@ -427,7 +427,7 @@ def _validate_lighting(table: _Table, n_views: int) -> dict:
     if lighting["background"] > 255:
         raise table.error("background", f"is a grey level in 0..255, got "
                           f"{lighting['background']:g}")
-    # a Blinn-Phong highlight (issue 13: less kind than Lambert), only when asked for
+    # a Blinn-Phong highlight (less kind than Lambert), only when asked for
     # (the recipes without it stay byte-identical)
     if table.has("specular") or table.has("shininess"):
         lighting["specular"] = table.take("specular", "float", 0.0, nonneg=True)
@@ -655,7 +655,7 @@ def shape_mesh(shape: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 #: vector width (8 lanes with AVX2, 16 with AVX-512), and contraction ("contract") fuses
 #: multiply-adds where the host has FMA: the rendered grey levels then differ in the
 #: last float32 bits between CPUs, a few pixels round to another 8-bit level, and every
-#: test on a rendered scene sees other data on another machine (issue 12, item 9: the
+#: test on a rendered scene sees other data on another machine (the
 #: 24-view ring's lowest point moved 1.6 px on an AMD EPYC).  Without them the
 #: arithmetic is IEEE's on any x86-64 (texture evaluation ~1.8x slower: ~+1 s of the
 #: 24-view 320x240 ring's render).

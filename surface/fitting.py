@@ -42,7 +42,7 @@ overshoots by up to 0.13 (control vertices move by up to 0.7): Chamfer 0.00090
 against 0.00056 for the approximating surface.  Use it on meshes without
 creases, or after the curve smoothing has removed the noise.  With the stitch
 stage's support rings at the rims (``surface.stitch.support_distance``) and
-the curve smoothing chosen by GCV (the pipeline's defaults since session 2)
+the curve smoothing chosen by GCV (the pipeline's defaults since 2026-11-22)
 the overshoot is gone: Chamfer 0.00031 against the approximating surface's
 0.00032 -- a difference within the run-to-run spread, so the pipeline keeps
 the approximating surface (no sparse solve, no noise amplification).
@@ -169,7 +169,7 @@ def convex_creases(vertices, triangles, angle: float = np.pi / 6) -> np.ndarray:
 
     A vertex on a valley (a handle's or a floor's junction with a wall) is not one: an
     interpolating G1 surface through a valley's vertices overshoots into the solid
-    (measured in session 20: a mug's Chamfer +25-31 %, ``surface.sizing.interpolating_control``).
+    (measured on 2026-12-06: a mug's Chamfer +25-31 %, ``surface.sizing.interpolating_control``).
     """
     v, t = _check_mesh(vertices, triangles)
     normal, edge, fa, fb = _interior_edges(v, t)

@@ -88,10 +88,10 @@ ALONG_PROFILE_STEP = 4
 SEARCH_BISECT = True
 #: When the bisection finds none: the step-1 levels, then coarser levels outwards from the
 #: closest estimate only while they stay within its standard error, instead of every level
-#: (:func:`size_control_mesh`; session 18).
+#: (:func:`size_control_mesh`; 2026-12-06).
 WALK_WHEN_NONE_PASS = True
 #: Interpolate the object's convex creases away from its ends (:func:`crease_vertices`,
-#: :func:`interpolating_control`; session 20): False keeps every sharp vertex as it is,
+#: :func:`interpolating_control`; 2026-12-06): False keeps every sharp vertex as it is,
 #: the rule before.
 INTERPOLATE_CREASES = True
 
@@ -541,7 +541,7 @@ def section_layout(rings: Sequence, frame: np.ndarray) -> SectionLayout:
     along them.
 
     A stack of single loops is one chain and each section reaches as far as the nearer
-    end (the regression rule before session 17, which read only single-loop sections).
+    end (the regression rule before 2026-12-06, which read only single-loop sections).
     Several loops a section -- a temple's columns, a torus's two sides -- are regressed
     along their own chains; the sections where loops split, merge, appear or end reach
     no farther than the event.
@@ -677,7 +677,7 @@ def section_variogram(rings: Sequence, axis=(0.0, 0.0, 1.0), max_lag: int = MAX_
     square with the largest 1 % clipped gave 2.6× the truth's sill).  The lags
     ``1 .. max_lag`` are fitted by the model of :class:`Variogram` (log least squares).
     Fitted against the truth (``benchmarks/demo_truth.py W``), √γ at k = 1, 4, 8: 9.1,
-    11.8, 12.7e-5 against 8.9, 11.7, 12.6e-5 (session-8 demo cloud), 8.9, 11.6, 12.5e-5
+    11.8, 12.7e-5 against 8.9, 11.7, 12.6e-5 (2026-12-03 demo cloud), 8.9, 11.6, 12.5e-5
     against 8.7, 11.5, 12.5e-5 (merged main's).
 
     Returns
@@ -750,7 +750,7 @@ def section_weights(heights: np.ndarray, keep: Sequence[int], reach: Sequence[in
     a quadratic's weights reproduce the profile up to its curvature.  The window is
     narrowed to the section's ``reach`` (as far as its loops continue one to one,
     :func:`section_layout`); where that leaves ``w < 2`` the section is kept as it is.
-    (Before session 17 a window reaching a section with several loops kept it as it was:
+    (Before 2026-12-06 a window reaching a section with several loops kept it as it was:
     a temple's columns or a torus's two sides were never regressed.)
 
     ``heights`` may be any coordinate along the profile: with the sections' positions
@@ -1062,7 +1062,7 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
     sharper than 30° (the stitch's support-ring threshold) kept as they are
     (:func:`surface.fitting.sharp_vertices`, ``rings=0``): interpolating a rim ring
     and its support ring one noise width away overshoots the edge (measured on the
-    demo's step-7 thinning, session 4: Hausdorff distance to the truth 0.015
+    demo's step-7 thinning, 2026-12-01: Hausdorff distance to the truth 0.015
     interpolating everything, 0.0018 with the sharp vertices and their one-rings
     kept).  With the caps' guard rings (``surface.stitch.CAP_GUARD_RINGS``) keeping
     the rim vertices alone is enough and rounds the rims less: 10⁵-point vase sized
@@ -1075,7 +1075,7 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
     and without the guard ring the overshoot is 0.035 (``rings=0``) / 0.013 (``rings=1``,
     at the top rim).  A mesh with borders gets its own vertices back.
 
-    ``creases`` (session 20): vertices on the object's convex creases inside its end
+    ``creases`` (2026-12-06): vertices on the object's convex creases inside its end
     sections (:func:`crease_vertices`), which are interpolated too.  Kept, a crease's
     vertices round it inwards: the real temple's smooth surface lay 0.0027 IoU below its
     stitched mesh's silhouettes on average over the 16 views (its unsized dense surface
@@ -1174,7 +1174,7 @@ def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tu
     coarse sampling of a smooth bend (an elliptic section's tips at 24-34 ring points
     are "sharp" at 30°; at the dense mesh's resolution they are not).
 
-    Why (session 20): the kept creases round the real temple's edges inwards; the
+    Why (2026-12-06): the kept creases round the real temple's edges inwards; the
     figures are :func:`interpolating_control`'s.
     """
     from surface.fitting import convex_creases
@@ -1283,7 +1283,7 @@ class SizedMesh:
         kept), 0 when neither is known.
 
         The flat triangles then lie within what the data leave open anyway.  Measured
-        (one run each, session 7): on the 5*10^4-point σ = 0.002 vase (9 304 patches,
+        (one run each, 2026-12-03): on the 5*10^4-point σ = 0.002 vase (9 304 patches,
         estimated error 0.00041) the smooth surface's Chamfer distance to the truth is
         0.000249 tessellated at level 3 (595 456 triangles), 0.000247 at half the error
         (160 516), 0.000261 at the error (74 920) and 0.000322 at the former fixed
@@ -1348,7 +1348,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     along_profile : bool
         Keep the sections ``step`` apart along the profile (:func:`profile_length`) when
         both ends are rounded (:func:`rounded_ends`; module docstring, *Along the
-        profile*); False: every ``step``-th section (the rule before session 15).
+        profile*); False: every ``step``-th section (the rule before 2026-12-06).
 
     Returns
     -------
@@ -1391,7 +1391,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     # the object's convex creases inside its end sections (crease_vertices), interpolated by
     # every candidate; like the rims they stay out of the reference sample (counted in it,
     # the real temple's thinnings were estimated 3-6x their goal and its dense mesh kept:
-    # 308 744 patches, its silhouettes 0.0032 IoU above the stitched mesh's; session 20)
+    # 308 744 patches, its silhouettes 0.0032 IoU above the stitched mesh's; 2026-12-06)
     between = crease_band(heights)
     dense_creases = crease_vertices(dense_vertices, dense_triangles, axis, between)
     crease_points = dense_vertices[dense_creases] if dense_creases is not None else None
