@@ -19,7 +19,7 @@ when further views confirm it) -- by a z-buffer test in each view:
 A rough proxy, stated as one: a hole in the reference cloud makes a hidden pixel count as
 seen (its occluder missing), and on a surface seen at a grazing angle the points within
 the window span more than :data:`HIDDEN` in depth, so a visible pixel can count as
-hidden (on the pair (2, 13) LSM accepts 91 % of the "hidden" ones).  Session 9's
+hidden (on the pair (2, 13) LSM accepts 91 % of the "hidden" ones).  2026-12-03's
 one-off script (2.5 px, 4 mm, and a row-scale condition) said 64 / 78 / 54 / 75 % of the
 object seen in both views of the four benchmark pairs and 79.4 / 88.6 / 82.7 / 80.6 % of
 those accepted; this rule is the one written down and run by ``benchmarks/matching.py

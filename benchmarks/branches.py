@@ -1,4 +1,4 @@
-"""Shapes that are not one tube (issue 14): photosurf beside screened Poisson, same clouds.
+"""Shapes that are not one tube: photosurf beside screened Poisson, same clouds.
 
 Each procedural shape of ``tests/_shapes.py`` (torus, pants, mug, amphora, vase with an
 opening; exact implicit truth, known genus) is sampled with isotropic Gaussian noise
@@ -14,7 +14,7 @@ Scores: Chamfer (mean of the two mean distances: mesh samples to the implicit
 surface by Newton projection, truth samples to the mesh), F-score at τ, closed /
 components / genus (from the Euler characteristic of a closed oriented mesh).
 
-Goals (issue 14): every photosurf surface closed, one component, genus exact;
+Goals: every photosurf surface closed, one component, genus exact;
 Chamfer ≤ Poisson-8's in no more time.
 
 Usage::

@@ -1,7 +1,7 @@
 """Creases interpolated or kept (``surface.sizing.INTERPOLATE_CREASES``), side by side.
 
 The smooth surface passes through the vertices of the object's ridges inside its end
-sections (``surface.sizing.crease_vertices``, session 20); before, every vertex on an edge
+sections (``surface.sizing.crease_vertices``, 2026-12-06); before, every vertex on an edge
 sharper than 30° was kept as it is, and Loop's limit rounded the edge inwards.  Both rules
 in one process on the same data:
 

@@ -1,10 +1,10 @@
-"""Refusal time and peak memory of the oversized and hostile requests of issue 17.
+"""Refusal time and peak memory of the oversized and hostile requests.
 
 Each row runs the real program, ``python -m pipeline.cli ...``, as a child
 process and reads its wall time and peak resident memory (``os.wait4``: the
 child's own ``ru_maxrss``, i.e. RUSAGE_CHILDREN of that one child).  Every
 request must be refused (exit status 2, one line on stderr) in under 2 s and
-500 MB; before issue 17 these requests crashed (``sections`` on a 1e300 cloud:
+500 MB; before they were checked these requests crashed (``sections`` on a 1e300 cloud:
 exit -11), printed tracebacks, or ran until killed by time or memory.
 
 The peer row is ``photosurf --help`` in the same way: the interpreter and the

@@ -16,7 +16,7 @@ One run, side by side, on ``fixtures/scenes/vase_ring.toml`` (1024x768; ``--quic
   the truth (``surface.metrics.compare_meshes``) and the time of the whole folder ->
   surface (acquisition + surface).
 
-Goals (issue 6): photosurf >= 20x the sparse points with <= 0.5x its RMS error; the folder
+Goals: photosurf >= 20x the sparse points with <= 0.5x its RMS error; the folder
 -> smooth surface in <= 60 s on this 2-core machine; surface Chamfer <= 0.1 % of the
 object's height.
 

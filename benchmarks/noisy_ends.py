@@ -5,7 +5,7 @@ Where the noise reaches the point spacing (a dense photogrammetric or scanner cl
 slicing decide whether cap points are told from wall points.  For each cloud the table
 gives the stitched surface (``surface.reconstruct.surface_from_points``) with the
 normals' neighbours chosen from the noise (``reconstruct.normal_neighbours``, the
-default) and with a fixed 12 (the rule before session 8): Chamfer distance to the
+default) and with a fixed 12 (the rule before 2026-12-03): Chamfer distance to the
 truth, the mean distance over the ends (z < 0.1 or z > 2.9) and over the walls between,
 Hausdorff distance, closedness.  One seed per cloud; the vase r(z) = 1 + 0.3 sin 2z.
 

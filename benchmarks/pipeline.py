@@ -14,7 +14,7 @@
    alone (cluster already up) and the cluster's start-up, CPU seconds (this
    process, and the workers'), and whether the results are identical.  The
    in-process default already runs the view pairs on one thread per core.
-3. The demo's back end (issue 15's "smooth + export + report <= 15 s"): the smooth,
+3. The demo's back end ("smooth + export + report <= 15 s"): the smooth,
    export and report stages of the demo run above, and the same three stages run again
    on its workspace (``--from smooth --to report --force``, in this process: numba's
    kernels loaded, imports done), with the patches and triangles they handled.
@@ -103,7 +103,7 @@ def demo(workdir: Path, recipe: str, quick: bool, label: str) -> dict:
             "load_after": uptime(), "error": error, "peak_rss_mib": peak_rss_mib()}
 
 
-#: The demo's back end and its goal (issue 15), seconds.
+#: The demo's back end and its goal, seconds.
 BACK_END = ("smooth", "export", "report")
 BACK_END_GOAL_SECONDS = 15.0
 

@@ -20,10 +20,10 @@ eroded by 5 px that the surface covers (min and median over the 16 views); the s
 vertices over 2 mm beyond the tight bounding box; CPU seconds of the stages from the
 sections on (ours: ``photosurf run --from sections --to smooth``, in this process) and of
 Poisson with its normals, every library imported before (open3d's import alone is ~1 CPU-s,
-which ours paid and Poisson's run after it did not, before session 17; since session 18
+which ours paid and Poisson's run after it did not, before 2026-12-06; since 2026-12-06
 every module of ``surface`` too, which the stages import lazily -- numba's start-up and
 the loading of our cached kernels, ~0.25 CPU-s, stay in ours); file bytes.
-Issue 15's goals, on real data: the sized surface's PLY no larger than Poisson-8's and its
+The goals on real data: the sized surface's PLY no larger than Poisson-8's and its
 CPU no more (the Chamfer goal needs a truth: here the silhouettes stand in).
 
     .venv/bin/python benchmarks/real_surface.py [--workspace W] [--spacing N | --quick]
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"photosurf run -> {workspace} (acquisition)", flush=True)
         # made, or brought up to date: a workspace acquired at another spacing (or by other
         # code) is acquired again, not measured as if it were this one (a --quick run on a
-        # spacing-3 workspace measured the spacing-3 cloud until session 19)
+        # spacing-3 workspace measured the spacing-3 cloud until 2026-12-06)
         _run(workspace, spacing, "--to", "acquire")
         rows = ours(workspace, spacing, cameras, silhouettes)
         points = artifacts.read_cloud(workspace / "acquire")["points"]

@@ -1,6 +1,6 @@
 """Rendering speed of the synthetic scenes: seconds per 1024x768 view of a 100k-triangle object.
 
-Goal (issue 2): <= 2 s per view on 2 cores at the default supersampling (s = 3, i.e. 9 rays
+Goal: <= 2 s per view on 2 cores at the default supersampling (s = 3, i.e. 9 rays
 per pixel near the object).  Rows, all in one process on the same vase (r = 1 + 0.3 sin 2z,
 99 840 triangles, the default stereo pair):
 

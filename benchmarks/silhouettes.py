@@ -1,4 +1,4 @@
-"""Silhouette consistency on and off, side by side in one process (issue 12, item 4).
+"""Silhouette consistency on and off, side by side in one process.
 
 :func:`matching.multiview.reconstruct_multiview` with ``silhouettes=True`` (the default:
 every point within :math:`\\sqrt2/2 + q\\,\\sigma f/z` px of each view's automatic

@@ -70,7 +70,7 @@ SEED = 0
 
 
 # ----------------------------------------------------------------------------- methods
-#: Session 1's settings, measured side by side as the "before" of issue 5's fix:
+#: The 2026-11-22 settings, measured side by side as the "before" of the Chamfer fix:
 #: a fixed curve smoothing of 8 points per control point and no support rings.
 BEFORE = {"smoothing": 8.0, "support": False}
 
@@ -317,8 +317,8 @@ def scaling(truth, sizes: list[int], methods: list[tuple[str, object]]) -> list[
     return rows
 
 
-# ----------------------------------------------------------------------------- issue 15 scaling
-#: Cloud sizes of ``--scaling-fresh`` (issue 15: 10^5, 10^6, 3 10^6, 10^7 points).
+# ----------------------------------------------------------------------------- scaling
+#: Cloud sizes of ``--scaling-fresh`` (10^5, 10^6, 3 10^6, 10^7 points).
 FRESH_SIZES = [100_000, 1_000_000, 3_000_000, 10_000_000]
 
 
@@ -435,8 +435,8 @@ def print_table(rows: list[dict]) -> None:
 
 
 def goals(rows: list[dict]) -> dict:
-    """The issues' goals against Poisson depth 8: the stitched mesh (issue 4) and
-    the Bezier-smoothed surface (issue 5, keys ``bezier_*``)."""
+    """The goals against Poisson depth 8: the stitched mesh and
+    the Bezier-smoothed surface (keys ``bezier_*``)."""
     by = {r["method"]: r for r in rows}
     s, p = by.get("stitched"), by.get("poisson-8")
     if p is None:
@@ -548,7 +548,7 @@ _AMPHORA = 0.75 + 0.25 * np.sin(2.5 * _Z3 + 0.5)
 
 #: The other shapes of the before/after table: name -> truth mesh.  Flat caps
 #: (90° rims) on all but the capsule, whose domed ends get flat caps from the
-#: section method (issue 4's known gap; here only "not worse" is asked).
+#: section method (a known gap; here only "not worse" is asked).
 SHAPES = {
     "cylinder": lambda: revolution_truth(np.ones(384), np.ones(384), _Z2),
     "ellipse": lambda: revolution_truth(1.2 + 0.1 * np.sin(2 * _Z2), 0.6 + 0.05 * np.sin(2 * _Z2),
@@ -590,7 +590,7 @@ def other_shapes(density: float = 2000.0, samples: int = 60_000) -> list[dict]:
     return rows
 
 
-#: Cloud sizes of ``--shapes-table`` (issue 15's 10^4-10^6; 10^6 on request: ~5 min a shape).
+#: Cloud sizes of ``--shapes-table`` (10^4-10^6; 10^6 on request: ~5 min a shape).
 SHAPE_TABLE_SIZES = [10_000, 100_000]
 #: Methods of ``--shapes-table``: the sized smooth surface beside the peers the issue names.
 SHAPE_TABLE_METHODS = ("poisson-8", "poisson-9", "stitched", "stitched+sized")
@@ -598,13 +598,13 @@ SHAPE_TABLE_METHODS = ("poisson-8", "poisson-9", "stitched", "stitched+sized")
 
 def shapes_table(sizes: list[int], only: list[str] | None = None,
                  step: bool = True) -> list[dict]:
-    """Issue 15's table on every shape of revolution: the vase and ``SHAPES`` at each
+    """The shapes table on every shape of revolution: the vase and ``SHAPES`` at each
     cloud size, sigma = SIGMA, the sized smooth surface (``stitched+sized``: patches,
     triangles, PLY / GLB / control net bytes and, with ``step``, its STEP solid's bytes and
     writing seconds, after the clock; Chamfer, F, seconds) beside screened Poisson
     depth 8 and 9 and the dense stitched mesh on the same cloud, with the issue's three
     goals per row against Poisson-8: Chamfer <= 0.5x, PLY no larger, CPU seconds no more.
-    Each method runs once, untimed, on a 3 000-point vase first (session 11: without it
+    Each method runs once, untimed, on a 3 000-point vase first (2026-12-03: without it
     the first row, the 10⁴-point vase, carried numba's kernel loading and open3d's set-up).
     """
     from pipeline.limits import LIMITS
@@ -685,7 +685,7 @@ def main(argv: list[str] | None = None) -> int:
                              "10^5 10^6 3*10^6 10^7)")
     parser.add_argument("--fresh-child", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--shapes-table", nargs="*", type=int, metavar="SIZE",
-                        help="only issue 15's table: every shape of revolution at these cloud "
+                        help="only the shapes table: every shape of revolution at these cloud "
                              "sizes (default 10^4 10^5), sized surface beside Poisson 8 / 9")
     parser.add_argument("--shape", nargs="+", choices=["vase", *SHAPES],
                         help="--shapes-table on these shapes only")
