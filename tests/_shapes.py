@@ -1,4 +1,4 @@
-"""Procedural shapes with exact truth for the branching tests (issue 14) and benchmarks/branches.py.
+"""Procedural shapes with exact truth for the branching tests and benchmarks/branches.py.
 
 Each shape is an implicit solid ``f(x) < 0`` built from signed distance functions
 (Quilez's primitives: capped cylinders, tori; union = min, difference = max(a, -b),

@@ -1,4 +1,4 @@
-"""Rendered rectified pairs with edges and exact truth (issue 13, item 4).
+"""Rendered rectified pairs with edges and exact truth.
 
 Two fronto-parallel layers seen by a rectified pair: a *front* plane at disparity
 ``d_front`` covering the half-plane left of a straight line, in front of a *back* plane

@@ -675,7 +675,7 @@ def test_sigma0_gradient_model_fit():
     assert sigma0_gradient_model(s0[:29], gp[:29]) is None
 
 
-# ------------------------------------------------------------ edges (issue 13, item 4)
+# ------------------------------------------------------------ edges
 def _edge_windows(pair, patch, step=2, margin=12):
     """Integer left points on a grid with truth; (points, truth, straddling, clear)."""
     h, w = pair.left.shape

@@ -1,4 +1,4 @@
-"""Robust LSM across depth edges (issue 13, item 4): ``lsm_match(robust=...)``.
+"""Robust LSM across depth edges: ``lsm_match(robust=...)``.
 
 Rendered rectified pairs of a textured front plane before a textured back plane
 (``tests/matching/_edges.py``: exact truth per pixel, 2 grey levels of noise), matched

@@ -157,7 +157,7 @@ def test_smooth_refuses_an_open_mesh_and_level_without_smooth(vase_npz, tmp_path
 
 
 def test_smooth_sizes_the_control_mesh_as_photosurf_run_does(tmp_path, capsys):
-    """Issue 15's case: ``--smooth`` made 4 patches per stitched triangle (on 50 000 points
+    """The case: ``--smooth`` made 4 patches per stitched triangle (on 50 000 points
     of the vase 155 512 patches, a 19.3 MB PLY, Chamfer 0.000293); it now makes the smooth
     stage's surface: the sized control mesh, interpolated, tessellated within its error
     (19 832 patches, 2.57 MB, Chamfer 0.000201).  20 000 points here."""
@@ -183,7 +183,7 @@ def test_smooth_sizes_the_control_mesh_as_photosurf_run_does(tmp_path, capsys):
 
 
 def test_a_mug_with_a_handle_closes_with_genus_1(tmp_path, capsys):
-    """Issue 14's user case: a mug (nested walls, open top, a handle) is one closed surface
+    """The user case: a mug (nested walls, open top, a handle) is one closed surface
     of genus 1, not a refusal listing every section pair."""
     from tests import _shapes
 

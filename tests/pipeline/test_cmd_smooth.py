@@ -37,7 +37,7 @@ def test_icosphere_gives_closed_surface_near_the_sphere(tmp_path, icosphere_file
     # 320 triangles, refined once -> 1280 patches, 4**2 triangles each
     assert "1280 sextic patches" in text and "20480 triangles" in text
     angle = float(re.search(r"largest normal angle across patch edges (\S+) rad", text)[1])
-    assert angle <= 1e-9  # G1 to rounding (issue 5: <= 1e-9 rad)
+    assert angle <= 1e-9  # G1 to rounding (<= 1e-9 rad)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["smooth.npz", "smooth.ply"]
 
     v, t, n = read_mesh_with_normals(out)

@@ -124,7 +124,7 @@ def test_batch_failed_object_does_not_stop_the_others(tmp_path, capfd):
 def test_dask_refuses_workers_that_run_other_code(tmp_path, monkeypatch):
     """A source file edited after this process imported it: the workers (which import it
     when they start) would run other code; the executor says so instead of returning
-    other numbers (the session-1 cause of Dask != in-process on the 1024x768 ring)."""
+    other numbers (the 2026-11-22 cause of Dask != in-process on the 1024x768 ring)."""
     module = tmp_path / "photosurf_probe_mod.py"
     module.write_text("def value(x):\n    return x + 1\n")
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -167,7 +167,7 @@ def test_dask_view_pairs_identical_to_in_process_at_1024x768():
     """View pairs + consistency checks of the 1024x768 vase ring through LocalCluster(2)
     give the in-process (threaded) cloud bit for bit.  Full size matters: above 640 px
     the SIFT disparity range is found at half resolution, and OpenCV/numba split their
-    work by image size and thread count (session 1 saw a difference only at 1024x768)."""
+    work by image size and thread count (the 2026-11-22 runs saw a difference only at 1024x768)."""
     from matching.multiview import reconstruct_multiview, select_pairs
     from pipeline.scenes import build_scene, load_recipe, render_view
 

@@ -1,4 +1,4 @@
-"""Hardened inputs through the real commands (issue 7, item 6), in-process.
+"""Hardened inputs through the real commands, in-process.
 
 Every malformed input ends in exit status 2 with exactly one line on stderr
 (file descriptor 2 captured, so native libraries printing their own
@@ -917,7 +917,7 @@ ACQUIRE_CASES = ["missing", "a_file", "empty", "one_image", "only_text", "unread
 
 @pytest.mark.parametrize("case", ACQUIRE_CASES)
 def test_acquire_bad_folders(tmp_path, capfd, case):
-    """Issue 6's bad input through ``photosurf acquire``: one line, exit 2, no cloud."""
+    """The bad input through ``photosurf acquire``: one line, exit 2, no cloud."""
     from matching.cameras import write_cameras_yml
 
     folder = tmp_path / "views"

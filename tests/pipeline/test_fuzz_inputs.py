@@ -1,4 +1,4 @@
-"""Hardened inputs (issue 7, item 6): malformed files fed to every public reader.
+"""Hardened inputs: malformed files fed to every public reader.
 
 Each reader must either read the file (when a mutation happened to leave it
 valid) or raise one of the errors the CLI turns into one line with exit
@@ -818,7 +818,7 @@ def test_every_user_error_type_is_handled_by_the_cli():
 @fuzz(20)
 @given(small=st.integers(1, 3), which=st.integers(0, 3), seed=st.integers(0, 100))
 def test_section_with_fewer_than_4_points_is_a_named_warning(small, which, seed):
-    """Issue 4: a section with fewer than 4 points is skipped with a named warning
+    """A section with fewer than 4 points is skipped with a named warning
     (``SectionSkippedWarning`` naming the section), the others are kept."""
     from surface.sections import SectionSkippedWarning, read_sectioned
     from surface.topology import organise_all
@@ -846,7 +846,7 @@ def test_section_with_fewer_than_4_points_is_a_named_warning(small, which, seed)
 @pytest.mark.parametrize("case", ["missing", "a_file", "empty", "one_image", "only_text_files",
                                   "garbage_png", "textureless", "tiny_images", "names_missing"])
 def test_sfm_bad_folders(tmp_path, case):
-    """Issue 6: an empty folder, fewer than 2 images, non-image files, a folder where SfM
+    """An empty folder, fewer than 2 images, non-image files, a folder where SfM
     registers nothing: a ValueError / FileNotFoundError naming the folder or file."""
     from matching.sfm import run_sfm
 

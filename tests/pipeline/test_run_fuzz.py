@@ -1,7 +1,7 @@
 """Malformed inputs to ``photosurf run`` / ``batch``: a clear error or a named warning, never more.
 
 Every example runs the real command in this process and checks the contract
-of issue 7 (hardened inputs):
+of the hardened inputs:
 
 * the exit status is 0 (the run went through, possibly with stages skipped
   with a named reason) or 2 (an error);

@@ -36,7 +36,7 @@ def _run(path, out, *sets):
 @pytest.mark.parametrize(("sets", "kwargs"), [
     ((), {}),
     (("sections.count=24", "curves.smoothing=4.0"), {"sections": 24, "smoothing": 4.0}),
-    # session 1's mesh: fixed smoothing, no support rings (the defaults: 0 = "auto", support)
+    # 2026-11-22's mesh: fixed smoothing, no support rings (the defaults: 0 = "auto", support)
     (("curves.smoothing=8.0", "stitch.support=false"), {"smoothing": 8.0, "support": False}),
     (("curves.smoothing=auto",), {}),
 ])
@@ -130,7 +130,7 @@ def test_curves_store_the_noise_and_stitch_adds_support_rings_at_the_rims(vase, 
 
 
 def test_sfm_registration_reaches_the_manifest():
-    # an SfM-posed folder's acquire stage carries SfM's own figures (issue 12 item 8):
+    # an SfM-posed folder's acquire stage carries SfM's own figures:
     # views registered of those given, sparse points, reprojection before / after the
     # LSM tie points, the frame's scale; a folder with its cameras carries none
     from matching.sfm import SfmResult

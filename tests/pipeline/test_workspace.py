@@ -245,7 +245,7 @@ def test_code_closure_follows_own_imports_only():
 
 
 def test_code_closure_imports_nothing():
-    """The code hash reads the sources; it does not execute them (session 17: finding each
+    """The code hash reads the sources; it does not execute them (2026-12-06: finding each
     module with importlib's find_spec imported the closure, scipy.stats and all, ~2 s
     before a run's first stage)."""
     import subprocess

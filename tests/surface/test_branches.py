@@ -1,4 +1,4 @@
-"""Shapes that are not one tube (issue 14): the loop graph, branch tiling, genus.
+"""Shapes that are not one tube: the loop graph, branch tiling, genus.
 
 Unit tests on analytic rings (exact circles), then procedural shapes with exact truth
 (tests/_shapes.py: implicit solids of known genus, sampled with noise) from points to a
@@ -41,7 +41,7 @@ def test_rasterised_area_is_the_polygon_area():
 
 
 def test_raster_is_the_even_odd_rule_at_the_cell_centres():
-    """The scan-conversion kernel (numba since session 17) marks exactly the cells whose
+    """The scan-conversion kernel (numba since 2026-12-06) marks exactly the cells whose
     centres the even-odd rule puts inside, for polygons that cross themselves too."""
     from surface.stitch import _inside
 

@@ -1,4 +1,4 @@
-"""Creases the smooth surface interpolates (session 20): ``surface.fitting.convex_creases``,
+"""Creases the smooth surface interpolates (2026-12-06): ``surface.fitting.convex_creases``,
 ``surface.sizing.crease_vertices`` and ``interpolating_control(..., creases)``."""
 
 from __future__ import annotations

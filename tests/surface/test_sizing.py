@@ -243,7 +243,7 @@ def test_sized_surface_keeps_the_stitched_accuracy_of_a_noisy_cloud():
     # regressed across sections, gives a smooth surface closer to the truth than the
     # dense stitched mesh (measured 0.82x: 0.000341 / 0.000418; the claim is "never
     # farther") with 4.1x fewer patches (63 392 -> 15 640); the points' noise as the
-    # tolerance (the session-4 scale) thins on to far fewer triangles, a surface 2x
+    # tolerance (the 2026-12-01 scale) thins on to far fewer triangles, a surface 2x
     # worse (asserted: > 1.6x)
     from tests._vase import SIGMA, noisy_cloud, vase_truth
 
@@ -358,7 +358,7 @@ def test_regression_across_sections_averages_the_noise():
 def test_branches_are_regressed_along_their_own_chains():
     """Two vases side by side, the right one ending part way (a branch that stops): each
     loop's kept ring is the quadratic regression along its own chain (sizing.section_layout);
-    before session 17 every section of two loops was kept as it was (sigma-sized errors)."""
+    before 2026-12-06 every section of two loops was kept as it was (sigma-sized errors)."""
     sigma = 1e-3
     left, planes, _ = noisy_vase_rings(sigma, seed=3)
     right, _, _ = noisy_vase_rings(sigma, seed=4)
@@ -632,8 +632,8 @@ def test_candidates_keeping_every_ring_do_not_pass_on_their_own_goal():
     248 152 patches whose surface is 1.10x the stitched mesh's mean distance to the exact
     capsule (0.000270 against 0.000246), 23 CPU-s.  Now step 1 is judged against the last
     coarser candidate's goal (and skipped: its estimate cannot fall below the rings' sill),
-    and when none passes the closest estimate is kept: session 14, step 2, n = 68, 90 112
-    patches, 0.80x (0.000196), 12 CPU-s; session 15, with the sections kept along the
+    and when none passes the closest estimate is kept: 2026-12-06, step 2, n = 68, 90 112
+    patches, 0.80x (0.000196), 12 CPU-s; 2026-12-06, with the sections kept along the
     profile from step 4 on (both ends rounded), step 4, n = 49: 36 152 patches, 0.74x
     (0.000182), 13 CPU-s (the closest estimate, 0.000296 against step 2's 0.000303); with
     the last contours slid along pooled slopes (reconstruct.pooled_slopes) 36 088, 0.73x

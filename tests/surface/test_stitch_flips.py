@@ -1,6 +1,6 @@
 """stitch.delaunay_flips (the numba kernel ``_lawson``) makes the flips of its array form.
 
-The array form below is the implementation the kernel replaced (sessions 5-18), kept
+The array form below is the implementation the kernel replaced (2026-12-01 / 2026-12-06), kept
 here as the reference: each sweep lists the candidate flips among the edges of the
 active faces in the order of their keys, takes a maximal independent set by rounds of
 "each face keeps its largest-excess candidate", drops a second flip to the same new

@@ -1,4 +1,4 @@
-"""The stitch's cap helpers at cloud scale (issue 15): the even-odd test over the
+"""The stitch's cap helpers at cloud scale: the even-odd test over the
 straddling pairs only, the batched local quadratics and the sampled dome test give
 the answers of their all-at-once forms."""
 
@@ -12,7 +12,7 @@ FRAME = np.eye(3)  # plane axes x, y; the axis z
 
 
 def _inside_all_pairs(points, polygon):
-    """The dense P x n even-odd test (the form before issue 15), as the reference."""
+    """The dense P x n even-odd test (the form it replaced), as the reference."""
     x, y = points[:, 0:1], points[:, 1:2]
     x0, y0 = polygon[:, 0], polygon[:, 1]
     x1, y1 = np.roll(x0, -1), np.roll(y0, -1)

@@ -337,7 +337,7 @@ def test_two_opt_work_is_bounded_on_a_filled_disk(monkeypatch):
 
 
 def test_two_opt_leaves_no_improving_move():
-    """The tour 2-opt returns (numba moves since session 17) is a permutation with no
+    """The tour 2-opt returns (numba moves since 2026-12-06) is a permutation with no
     move left that shortens it: for every pair of edges (a, b), (c, d),
     |ac| + |bd| >= |ab| + |cd| up to the tolerance (checked over all pairs, not only
     the k-d tree's candidates)."""

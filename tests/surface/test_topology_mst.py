@@ -21,7 +21,7 @@ def _dense_tree(points):
     """scipy's tree of the complete graph: every ordered pair, distances floored at
     TOL.zero x the largest.  (A dense matrix would not do: scipy's ``csgraph_from_dense``
     drops entries within 1e-8 of zero, absolute, so coincident centres lost their edge
-    there — the code's fallback did that until session 19.)"""
+    there — the code's fallback did that until 2026-12-06.)"""
     n = len(points)
     dist = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
     row, col = np.nonzero(~np.eye(n, dtype=bool))
