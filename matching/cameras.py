@@ -453,6 +453,22 @@ def _camera_error(path: Path, label: str, exc: ValueError) -> ValueError:
     return ValueError(f"{path}: {label}: {exc}")
 
 
+def _unique_names(cameras: list[Camera], entries: list[str], path: Path) -> list[Camera]:
+    """``cameras`` with repeated entries of one image dropped; two entries of one image
+    that differ (pose, intrinsics or size) are refused, naming the image and both
+    entries (``entries[i]`` says where camera ``i`` is in ``path``)."""
+    first: dict[str, int] = {}
+    keep = []
+    for i, cam in enumerate(cameras):
+        j = first.setdefault(cam.name, i)
+        if j == i or not cam.name:
+            keep.append(cam)
+        elif not (cam.size == cameras[j].size and cam.allclose(cameras[j])):
+            raise ValueError(f"{path}: image {cam.name} has two different cameras: "
+                             f"{entries[j]} and {entries[i]}")
+    return keep
+
+
 # ------------------------------------------------------------------- cameras.yml
 def write_cameras_yml(path: str | os.PathLike, cameras: Sequence[Camera] | None,
                       rig: StereoRig | None = None, extra: dict | None = None) -> None:
@@ -578,7 +594,8 @@ def read_cameras_yml(path: str | os.PathLike) -> list[Camera]:
         if isinstance(n_views, str) or not np.isfinite(n_views) or n_views < 1 or \
                 int(n_views) != n_views:
             raise ValueError(f"{path}: n_views must be a positive integer, got {n_views!r}")
-        return [_read_view(fs, path, f"view_{i:02d}") for i in range(int(n_views))]
+        keys = [f"view_{i:02d}" for i in range(int(n_views))]
+        return _unique_names([_read_view(fs, path, key) for key in keys], keys, path)
     finally:
         fs.release()
 
@@ -974,10 +991,19 @@ def read_colmap_text(folder: str | os.PathLike) -> list[Camera]:
     lines = _data_lines(img_path)
     # Every image has two lines, the second (POINTS2D) may be empty: parse the
     # raw lines, skipping comments, pairing each header with its next line.
-    raw = [ln for ln in img_path.read_text().splitlines() if not ln.lstrip().startswith("#")]
+    numbered = [(k, ln) for k, ln in enumerate(img_path.read_text().splitlines(), start=1)
+                 if not ln.lstrip().startswith("#")]
+    raw = [ln for _, ln in numbered]
     headers = raw[0::2]
     if not lines:
         raise ValueError(f"{img_path}: no images")
+    for (number, points_line) in numbered[1::2]:
+        if not _is_points_line(points_line):
+            raise ValueError(
+                f"{img_path}:{number}: malformed images.txt: expected the POINTS2D line "
+                "(X Y POINT3D_ID triples, or empty) after each image line, got "
+                f"{' '.join(points_line.split()[:4])[:60]!r}...")
+    entries = []
     for index, line in enumerate(headers):
         if not line.strip():
             continue
@@ -1003,7 +1029,23 @@ def read_colmap_text(folder: str | os.PathLike) -> list[Camera]:
             cameras.append(Camera(K, dist, quaternion_to_rotation(q), t, width, height, name))
         except ValueError as exc:
             raise ValueError(f"{where} ({name}): {exc}") from None
-    return cameras
+        entries.append(f"image entry {index + 1} (IMAGE_ID {fields[0]})")
+    return _unique_names(cameras, entries, img_path)
+
+
+def _is_points_line(line: str) -> bool:
+    """An images.txt POINTS2D line: empty, or ``X Y POINT3D_ID`` triples (the first
+    checked: an image line, 10 fields ending in a name, is not one)."""
+    fields = line.split()
+    if not fields:
+        return True
+    if len(fields) % 3:
+        return False
+    try:
+        float(fields[0]), float(fields[1]), int(fields[2])
+    except ValueError:
+        return False
+    return True
 
 
 def cameras_from_pycolmap(reconstruction) -> list[Camera]:
@@ -1127,6 +1169,7 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
                              "width and height")
         width, height = _image_size(candidate)
     cameras = []
+    entries = [f"line {number}" for number, _, _ in rows]
     for number, name, values in rows:
         K, R, t = values[:9].reshape(3, 3), values[9:18].reshape(3, 3), values[18:]
         if _few_digits_rotation(R):
@@ -1136,7 +1179,7 @@ def read_projection_txt(path: str | os.PathLike, width: int | None = None,
                                   *sizes.get(Path(name).name, (width, height)), name))
         except ValueError as exc:
             raise ValueError(f"{path}:{number} ({name}): {exc}") from None
-    return cameras
+    return _unique_names(cameras, entries, path)
 
 
 # ------------------------------------------------------------------- dispatch
