@@ -16,16 +16,24 @@ into 2^L, so the flat triangles have edges h = h₀/2^(L+1) and deviate from the
 surface by about the sagitta κh²/8 — 4× less per level.  ``"auto"`` picks the coarsest
 level whose chord error is within a tolerance
 (:func:`surface.bezier.tessellation_level`, at most 3).
+
+Solid check: the tessellation is checked as a solid (:func:`surface.validity.check_solid`:
+manifold, oriented, closed, self-intersections); :func:`solid_report` logs one warning
+line naming every defect (a border only when the control mesh was closed) and returns
+the figures for the manifest, so a defect is never written silently.
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.errors import InputError
+
+log = logging.getLogger("photosurf")
 
 #: G1 is checked at this many points per interior patch edge (ends included).
 EDGE_SAMPLES = 9
@@ -51,6 +59,8 @@ class Smoothed:
         Largest position gap across patch edges, scene units.
     g1_angle : float
         Largest normal angle across patch edges, radians.
+    solid : dict or None
+        :func:`solid_report` of the tessellation (``None`` when not checked).
     """
 
     surface: object
@@ -60,12 +70,48 @@ class Smoothed:
     level: int
     gap: float
     g1_angle: float
+    solid: dict | None = None
 
     def info(self) -> dict:
-        """Counts and the G1 figures (for the manifest and the command's summary)."""
+        """Counts, the G1 figures and the solid check (for the manifest and the
+        command's summary)."""
         return {"patches": len(self.surface.control_points), "level": self.level,
                 "vertices": len(self.vertices), "triangles": len(self.triangles),
-                "g1_angle": self.g1_angle, "gap": self.gap}
+                "g1_angle": self.g1_angle, "gap": self.gap,
+                **({"solid": self.solid} if self.solid is not None else {})}
+
+
+def solid_report(stage: str, vertices: np.ndarray, triangles: np.ndarray,
+                 expect_closed: bool = True) -> dict:
+    """Check a mesh as a solid, log one warning line if it is not one, return the figures.
+
+    Parameters
+    ----------
+    stage : str
+        Prefix of the log line (``"stitch"``, ``"smooth"``).
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    expect_closed : bool
+        ``False`` for a surface open by design (one-sided data, ``--open``): its border
+        is not a defect and is not logged (it is still counted).
+
+    Returns
+    -------
+    dict
+        :meth:`surface.validity.SolidReport.to_json` plus ``seconds`` (the check's time).
+    """
+    import time
+
+    from surface.validity import check_solid
+
+    start = time.perf_counter()
+    report = check_solid(vertices, triangles)
+    problems = [p for p in report.problems()
+                if expect_closed or not p.startswith("is open")]
+    if problems:
+        log.warning("%s: the mesh %s", stage, "; ".join(problems))
+    return {**report.to_json(), "expect_closed": bool(expect_closed),
+            "seconds": round(time.perf_counter() - start, 3)}
 
 
 #: Level of the stand-alone commands (``photosurf smooth``, ``sections --smooth``) when the
@@ -84,7 +130,8 @@ def default_level() -> int:
 
 
 def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
-                tolerance: float | None = None, surface=None) -> Smoothed:
+                tolerance: float | None = None, surface=None,
+                check: bool = True) -> Smoothed:
     """Build, tessellate and check the Bézier surface over a control mesh.
 
     Parameters
@@ -101,6 +148,9 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     surface : surface.bezier.BezierSurface, optional
         ``surface.bezier.control_net(vertices, triangles)`` when it was built already
         (the sizing builds the chosen control mesh's surface to judge it).
+    check : bool
+        Check the tessellation as a solid (:func:`solid_report`, logged as ``smooth``;
+        a border counts as a defect only when the control mesh has none).
 
     Raises
     ------
@@ -135,7 +185,13 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
         v, t, n = bezier.tessellate(surface, level=level)
     gap, angle = bezier.edge_continuity(surface.control_points, surface.domain_mesh[1],
                                         samples=EDGE_SAMPLES)
-    return Smoothed(surface, v, t, n, level, float(gap), float(angle))
+    solid = None
+    if check:
+        from surface.metrics import edge_table
+
+        closed_control = not np.any(edge_table(triangles).counts == 1)
+        solid = solid_report("smooth", v, t, expect_closed=closed_control)
+    return Smoothed(surface, v, t, n, level, float(gap), float(angle), solid)
 
 
 def smooth_to_files(vertices, triangles, out, level: int | str | None = None,

@@ -411,6 +411,10 @@ def stitch(ctx: StageContext) -> dict:
         log.warning("stitch: %s", message)
     for message in notes_ends + list(result.notes):
         log.info("stitch: %s", message)
+    from pipeline.smoothing import solid_report  # one warning line when not a valid solid
+
+    notes["solid"] = solid_report("stitch", result.vertices, result.triangles,
+                                  expect_closed=bool(result.closed))
     return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
 
 

@@ -147,7 +147,8 @@ class SolidReport:
                 and not self.self_intersecting)
 
     def problems(self) -> list[str]:
-        """One short phrase per defect (empty when :attr:`valid`)."""
+        """One phrase per defect, each following "the mesh ..." (empty when
+        :attr:`valid`)."""
         out = []
         if self.self_intersecting:
             where = ""
@@ -157,20 +158,22 @@ class SolidReport:
             out.append(f"self-intersects at {len(self.intersecting_pairs)} triangle "
                        f"pairs{where}")
         if not self.edge_manifold:
-            out.append(f"{len(self.nonmanifold_edges)} edges with more than two faces")
+            out.append(f"has {len(self.nonmanifold_edges)} edges with more than two faces")
         if not self.vertex_manifold:
-            out.append(f"{len(self.nonmanifold_vertices)} pinched (non-manifold) vertices")
+            out.append(f"has {len(self.nonmanifold_vertices)} pinched (non-manifold) "
+                       "vertices")
         if len(self.flipped_faces):
-            out.append(f"{len(self.flipped_faces)} faces oriented against their neighbours")
+            out.append(f"has {len(self.flipped_faces)} faces oriented against their "
+                       "neighbours")
         if self.nonorientable_components:
-            out.append(f"{self.nonorientable_components} non-orientable components")
+            out.append(f"has {self.nonorientable_components} non-orientable components")
         if self.boundary_edges:
-            out.append(f"open: {self.boundary_loops} border loops "
+            out.append(f"is open: {self.boundary_loops} border loops "
                        f"({self.boundary_edges} edges)")
         if len(self.degenerate_faces):
-            out.append(f"{len(self.degenerate_faces)} degenerate faces")
+            out.append(f"has {len(self.degenerate_faces)} degenerate faces")
         if self.faces == 0:
-            out.append("no faces")
+            out.append("has no faces")
         return out
 
     def to_json(self, first: int = 10) -> dict:

@@ -296,4 +296,4 @@ def test_bad_input_is_refused(vertices, triangles, message):
 
 def test_empty_mesh_is_not_a_solid():
     report = check_solid(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    assert not report.valid and report.problems() == ["no faces"]
+    assert not report.valid and report.problems() == ["has no faces"]
