@@ -17,9 +17,17 @@ file name cannot split the line or reach the terminal raw).
 SIGINT, SIGTERM and SIGHUP end a command the same way: the work unwinds (every
 temporary of :mod:`pipeline.atomic` is removed), one line ``photosurf CMD:
 interrupted (SIGTERM)`` is printed and the exit status is 128 + the signal
-number (130, 143, 129).  ``photosurf`` without a command prints its usage on
-stderr with exit status 2.  ``--allow-large`` lifts the limits of
-:mod:`pipeline.limits` (as ``PHOTOSURF_ALLOW_LARGE=1``).
+number (130, 143, 129).  ``photosurf`` without a command prints one line naming
+the commands, exit status 2.  ``--allow-large`` lifts the limits of
+:mod:`pipeline.limits` (as ``PHOTOSURF_ALLOW_LARGE=1``; any value of that variable
+other than a plain yes or no is an error naming it).
+
+Standard streams: a closed descriptor 0, 1 or 2 (``>&-``) is opened on
+``/dev/null`` before any work, so no file the command opens can take its number
+and receive a library's ``printf``; the summary lines are then dropped.  Stdout
+only reports: when it cannot be written (``> /dev/full``, a closed pipe) the
+outputs stand, the exit status is the work's, and one warning line on stderr
+says the summary was lost (``docs/decisions/hostile-input.md``).
 """
 
 from __future__ import annotations
@@ -128,24 +136,33 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    _open_closed_standard_fds()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        parser.print_usage(sys.stderr)
-        print("photosurf: error: a command is required (see photosurf --help)", file=sys.stderr)
+        print(f"photosurf: error: a command is required: photosurf COMMAND ..., COMMAND one "
+              f"of {', '.join(COMMANDS)} (see photosurf --help)", file=sys.stderr)
+        return 2
+    from pipeline import limits
+
+    try:
+        limits.allowed()  # PHOTOSURF_ALLOW_LARGE=banana: an error now, not a lifted limit
+        if getattr(args, "out", None) == "":
+            raise InputError("--out is empty: name the output")
+    except InputError as exc:
+        print(f"photosurf {args.command}: error: {escape(exc)}", file=sys.stderr)
         return 2
     if args.allow_large:
-        from pipeline.limits import ALLOW_ENV
-
-        os.environ[ALLOW_ENV] = "1"  # inherited by worker processes too
+        os.environ[limits.ALLOW_ENV] = "1"  # inherited by worker processes too
     level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1 else
                                               logging.INFO if args.verbose else logging.WARNING)
     logging.basicConfig(level=level, format="photosurf: %(message)s")
     for handler in logging.getLogger().handlers:
         handler.addFilter(_escape_record)
     _quiet_opencv(args.verbose)
+    stdout = _ReportStream(sys.stdout)
     try:
-        with _signals_unwind(), _escaped_stdout():
+        with _signals_unwind(), _replaced_stdout(stdout):
             status = args._module.run(args)
     except USER_ERRORS as exc:
         if args.verbose:
@@ -158,6 +175,15 @@ def main(argv: list[str] | None = None) -> int:
                 message += " (a file is where a folder is needed)"
         print(f"photosurf {args.command}: error: {escape(message)}", file=sys.stderr)
         return 2
+    except RuntimeError as exc:  # Python 3.11's Path.resolve on a link loop
+        if not str(exc).startswith("Symlink loop from "):
+            raise
+        if args.verbose:
+            traceback.print_exc()
+        path = str(exc).removeprefix("Symlink loop from ").strip("'\"")
+        print(f"photosurf {args.command}: error: {escape(path)}: a symbolic link loop (the "
+              "link leads back to itself)", file=sys.stderr)
+        return 2
     except RecursionError:  # a structure nested past Python's limit, wherever it was read
         if args.verbose:
             traceback.print_exc()
@@ -168,32 +194,91 @@ def main(argv: list[str] | None = None) -> int:
         print(f"photosurf {args.command}: interrupted ({signal.Signals(signum).name})",
               file=sys.stderr)
         return 128 + int(signum)
+    finally:
+        stdout.flush()
+        if stdout.failure is not None:
+            _silence_stdout()
+    if stdout.failure is not None:
+        reason = (getattr(stdout.failure, "strerror", None) or str(stdout.failure)
+                  or type(stdout.failure).__name__)
+        print(f"photosurf {args.command}: warning: stdout: {escape(reason)}: the summary was "
+              "not printed (the outputs were written)", file=sys.stderr)
     return int(status or 0)
 
 
-class _EscapingStream:
-    """A text stream whose writes keep their line breaks but escape every other control
-    character (a file name holding ``\x1b[2J`` in a summary line cannot drive the terminal)."""
+def _open_closed_standard_fds() -> None:
+    """Open ``/dev/null`` on each of descriptors 0, 1, 2 that is closed (``>&-``).
+
+    Otherwise the first file the command opens takes the lowest free number, 1,
+    and whatever a library prints on stdout lands in that file.
+    """
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+
+
+class _ReportStream:
+    """Stdout for the command's report lines.
+
+    Writes keep their line breaks but escape every other control character (a
+    file name holding ``\x1b[2J`` in a summary line cannot drive the terminal).
+    Stdout only reports, so a stream that cannot be written (``None`` when
+    Python started with descriptor 1 closed, ``/dev/full``, a closed pipe) does
+    not end the work: the first failure is kept in ``failure`` and later lines
+    are dropped.
+    """
 
     def __init__(self, stream):
         self._stream = stream
+        self.failure: BaseException | None = None
+
+    def _try(self, call, *args) -> None:
+        if self._stream is None or self.failure is not None:
+            return
+        try:
+            call(*args)
+        except (OSError, ValueError) as exc:  # ENOSPC, EPIPE; ValueError: a closed file
+            self.failure = exc
 
     def write(self, text: str) -> int:
-        self._stream.write("\n".join(escape(line) for line in text.split("\n")))
+        self._try(lambda: self._stream.write(
+            "\n".join(escape(line) for line in text.split("\n"))))
         return len(text)
 
+    def flush(self) -> None:
+        self._try(lambda: self._stream.flush())
+
+    def isatty(self) -> bool:
+        return self._stream is not None and self.failure is None and self._stream.isatty()
+
     def __getattr__(self, name):
+        if self._stream is None:
+            raise AttributeError(name)
         return getattr(self._stream, name)
 
 
 @contextlib.contextmanager
-def _escaped_stdout():
+def _replaced_stdout(stream: _ReportStream):
     saved = sys.stdout
-    sys.stdout = _EscapingStream(saved)
+    sys.stdout = stream
     try:
         yield
     finally:
         sys.stdout = saved
+
+
+def _silence_stdout() -> None:
+    """Descriptor 1 to ``/dev/null`` once stdout failed, so that the interpreter's own
+    flush at exit (of the lines still buffered) cannot fail a second time."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
 
 
 def _escape_record(record: logging.LogRecord) -> bool:

@@ -84,9 +84,13 @@ def parse_axis(text: str):
         vec = None
     if vec is None or vec.shape != (3,) or not np.all(np.isfinite(vec)):
         raise InputError(f"--axis must be x, y, z, auto or three numbers X,Y,Z, got {text!r}")
-    if np.linalg.norm(vec) == 0:
+    largest = float(np.abs(vec).max())
+    if largest == 0:
         raise InputError(f"--axis must have non-zero length, got {text!r}")
-    return vec
+    # a direction: scaled by its largest component first, so that neither the squares
+    # of 1e308 (overflow) nor those of 1e-320 (underflow to 0) enter its norm
+    vec = vec / largest
+    return vec / np.linalg.norm(vec)
 
 
 def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:

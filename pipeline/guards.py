@@ -462,7 +462,22 @@ def unit_scale(points: np.ndarray) -> float:
 
 
 def _resolved(path: str | os.PathLike) -> Path:
-    return Path(os.path.abspath(path)).resolve()
+    """The absolute path with every link followed; a link loop is an ``InputError``
+    (Python 3.11's ``Path.resolve`` raises ``RuntimeError("Symlink loop ...")``)."""
+    try:
+        return Path(os.path.abspath(path)).resolve()
+    except (RuntimeError, OSError) as exc:
+        raise InputError(f"{path}: {symlink_loop_reason(exc)}") from None
+
+
+def symlink_loop_reason(exc: BaseException) -> str:
+    """The reason a path could not be followed: ``"symbolic link loop"`` for pathlib's
+    ``RuntimeError`` and for ``ELOOP``, else the system's own words."""
+    import errno
+
+    if isinstance(exc, RuntimeError) or getattr(exc, "errno", None) == errno.ELOOP:
+        return "a symbolic link loop (the link leads back to itself)"
+    return getattr(exc, "strerror", None) or str(exc)
 
 
 def _inside(child: Path, parent: Path) -> bool:

@@ -125,9 +125,30 @@ class LimitError(InputError):
     """A request past a documented limit (one line: key, value, estimated cost)."""
 
 
+#: Values of ``PHOTOSURF_ALLOW_LARGE`` that lift the limits, and those that keep them;
+#: anything else (``banana``, ``2``) is an error naming the variable, never a lifted limit.
+ALLOW_YES = ("1", "yes", "true", "on", "y")
+ALLOW_NO = ("", "0", "no", "false", "off", "n")
+
+
 def allowed() -> bool:
-    """True when ``PHOTOSURF_ALLOW_LARGE`` lifts the limits."""
-    return os.environ.get(ALLOW_ENV, "").strip().lower() not in ("", "0", "no", "false")
+    """True when ``PHOTOSURF_ALLOW_LARGE`` is an explicit yes (:data:`ALLOW_YES`).
+
+    Raises
+    ------
+    InputError
+        The variable holds something that is neither a yes nor a no.
+    """
+    raw = os.environ.get(ALLOW_ENV, "")
+    value = raw.strip().lower()
+    if value in ALLOW_YES:
+        return True
+    if value in ALLOW_NO:
+        return False
+    from pipeline.guards import escape
+
+    raise InputError(f"{ALLOW_ENV}={escape(raw)!s} is neither yes ({', '.join(ALLOW_YES)}) "
+                     f"nor no ({', '.join(v for v in ALLOW_NO if v)}, or unset)")
 
 
 def _amount(value: float, unit: str) -> str:

@@ -893,14 +893,15 @@ def test_file_name_with_newline_and_escape_stays_one_line(tmp_path, capfd):
     assert "\\n" in line and "\\x1b" in line and "\x1b" not in line
 
 
-def test_no_arguments_prints_usage_on_stderr(capfd):
+def test_no_arguments_prints_one_line_on_stderr(capfd):
     from pipeline.cli import main
 
     capfd.readouterr()
     assert main([]) == 2
     captured = capfd.readouterr()
     assert captured.out == ""
-    assert captured.err.startswith("usage: photosurf")
+    assert captured.err.startswith("photosurf: error: a command is required")
+    assert len(captured.err.splitlines()) == 1
 
 
 def test_batch_sums_failures_in_one_line(files, tmp_path, capfd):
