@@ -135,8 +135,12 @@ def check_rig_size(rig, images, paths) -> None:
 
 # --------------------------------------------------------------------------- folders
 def _image_files(where: Path) -> tuple[list[str], list[str]]:
-    """Image names and other (visible) file names of one folder, sorted."""
-    files = sorted(p for p in where.iterdir() if p.is_file() and not p.name.startswith("."))
+    """Image names and other (visible) file names of one folder, sorted.
+
+    Every entry but a folder counts, by its suffix: a FIFO, a device or a broken link
+    named as an image is one (:func:`read_image` refuses it, so a folder's view is left
+    out with its reason, not passed over without a word)."""
+    files = sorted(p for p in where.iterdir() if not p.is_dir() and not p.name.startswith("."))
     images = [p.name for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
     return images, [p.name for p in files if p.name not in images]
 
@@ -242,7 +246,7 @@ def _readable_images(where: Path, names: list[str]) -> tuple[list[str], list, li
     for name in names:
         try:
             shapes.append(read_image(where / name).shape)
-        except InputError as exc:
+        except (InputError, FileNotFoundError) as exc:  # (a broken link: no such file)
             skipped.append({"view": name, "reason": str(exc)})
             continue
         kept.append(name)
@@ -309,8 +313,10 @@ def load_folder(folder: str | Path, cameras: str | None = None,
             cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)),
                                 sizes={name: (shape[1], shape[0])
                                        for name, shape in zip(names, shapes, strict=True)})
-        except ValueError as exc:
-            raise InputError(f"{source}: {exc}") from None
+        except ValueError as exc:  # the readers' messages name the file (or one inside)
+            message = str(exc)
+            raise InputError(message if str(source) in message else f"{source}: {message}"
+                             ) from None
         cams, holds = _match_cameras(cams, names)
         keep = []
         for k, (name, shape, cam) in enumerate(zip(names, shapes, cams, strict=True)):
