@@ -1,74 +1,32 @@
 """Closed Catmull-Rom curves through the control points of a section.
 
-The method's eq. (3,5): segment ``i`` of a closed uniform Catmull-Rom curve,
-for the local parameter ``t ∈ [0, 1]``, is::
+The method's eq. (3,5), segment ``i`` for ``t ∈ [0, 1]``::
 
-    Q_i(t) = ½ · [t³ t² t 1] · M_CR · [P_{i−3} P_{i−2} P_{i−1} P_i]ᵀ
+    Q_i(t) = ½ · [t³ t² t 1] · M_CR · [P_{i−3} P_{i−2} P_{i−1} P_i]ᵀ,
+    M_CR = [[−1, 3, −3, 1], [2, −5, 4, −1], [−1, 0, 1, 0], [0, 2, 0, 0]]
 
-    M_CR = [[−1,  3, −3,  1],
-            [ 2, −5,  4, −1],
-            [−1,  0,  1,  0],
-            [ 0,  2,  0,  0]]
+interpolates its control points with tangents ``m_j = (P_{j+1} − P_{j−1})/2``: the periodic
+cubic Hermite interpolant, evaluated by :class:`scipy.interpolate.CubicHermiteSpline` [1]_.
+Global parameter ``t ∈ [0, n)``, ``Q(j) = P_j``; moving ``P_j`` changes 4 segments only.
+``parametrisation="centripetal"`` / ``"chordal"`` use knot intervals ``|ΔP|^α`` (α = ½, 1) and
+the Barry–Goldman tangent, which avoids cusps and self-intersections [2]_.
 
-so ``Q_i(0) = P_{i−2}`` and ``Q_i(1) = P_{i−1}``: the curve interpolates its
-control points and is C1 with tangent ``m_j = (P_{j+1} − P_{j−1})/2`` at
-``P_j``.  That is exactly the cubic Hermite interpolant with central-difference
-tangents, so evaluation is delegated to :class:`scipy.interpolate.CubicHermiteSpline`
-(periodic) rather than re-derived.  Indices are cyclic (closed curve).
+*Smoothing* (a priori): ``smoothing`` data points per control point.  M ordered points are
+fitted by ``n = max(4, round(M / smoothing))`` control points, linear least squares in the
+Catmull-Rom basis plus a light fairness term on third differences (weight ``λ' = 0.01 g_0``),
+the data parametrised by arc length along a moving average; the curve's noise is about
+``σ/√smoothing`` for point noise σ.  ``smoothing ≤ 1`` interpolates.
 
-Global parameter: ``t ∈ [0, n)`` for ``n`` control points, ``Q(j) = P_j``; the
-segment between ``P_j`` and ``P_{j+1}`` is the paper's segment ``i = j + 2``.
-Moving one control point ``P_j`` changes the tangents at ``j−1, j, j+1`` and
-hence only the 4 segments ``[P_{j−2},P_{j−1}] … [P_{j+1},P_{j+2}]`` (local
-update).
+*Gaps* (:func:`bridge_gaps`, in :func:`fit_loop`): a step longer than the loop's expected
+largest step (``topology.Loop.bridge``) and than :data:`BRIDGE_SHARE` of its length gets
+points along its chord before the fit, so the curve is flat where nothing was seen.
 
-Options: ``parametrisation="centripetal"`` (α = ½) or ``"chordal"`` (α = 1)
-use knot intervals ``|P_{j+1} − P_j|^α`` and the Barry–Goldman tangent
-``m_j = (P_j−P_{j−1})/d_{j−1} − (P_{j+1}−P_{j−1})/(d_{j−1}+d_j) + (P_{j+1}−P_j)/d_j``,
-which avoids cusps and self-intersections [2]_.
-
-Smoothing level (a priori): ``smoothing`` is the number of data points per
-control point.  A noisy ordered section of M points is reduced to
-``n = max(4, round(M/smoothing))`` control points by linear least squares
-with the Catmull-Rom basis itself (the curve is linear in its control
-points), plus a light fairness term on third differences of the control
-points that keeps the system regular across gaps.  The data are parametrised
-by arc length along a moving average of ``max(smoothing, √M)`` points, each
-point placed at its own foot on it.  Each control point then averages about
-``smoothing`` points, so the curve's noise is about ``σ/√smoothing`` for point
-noise σ (measured: 0.93–1.1 × that on a noisy circle) and the noise does not
-become wiggles; the shape bias stays below 1e-7 of the radius on a circle at
-8 points per control point.  ``smoothing ≤ 1`` interpolates the points.
-
-Gaps (:func:`bridge_gaps`, used by :func:`fit_loop`): where consecutive points of a
-loop lie farther apart than its expected largest step (``topology.Loop.bridge``: data
-missing there, e.g. a side no view saw), the fit gets points along the straight
-chord across the gap, at the loop's median spacing (gaps over :data:`BRIDGE_SHARE` of the
-loop's length; a shorter one the fairness term continues closer than a chord).  Without
-them the control points over a long gap are held only by the fairness term, whose
-quadratic continuation of the arcs' ends bulges far out (the real temple ring's cloud,
-``../shared/data/real/temple_sparse_ring``: rings up to 0.136 outside their
-sections' points for an object 0.10 across, against ≤ 0.0065 bridged); the chord
-is the least the data say there: the curve is flat where nothing was seen.
-
-Precision of the fitted curve (:func:`precision_factor`, stored per ring by
-:func:`predict_sections` with ``fits=True``): the least-squares control points
-``P = K⁻¹Aᵀx`` with ``K = AᵀA + λDᵀD`` have covariance ``σ² K⁻¹AᵀA K⁻¹`` for
-independent point noise σ across the curve, so the curve's variance averaged over
-its parameter is ``σ²/n · tr(K⁻¹AᵀA K⁻¹ G)``, ``G = ∫ b(t) b(t)ᵀ dt`` the Gram
-matrix of the basis.  With the data spread evenly in ``t`` (``AᵀA ≈ (M/n) G``)
-every matrix is circulant and the trace is a sum over the n Fourier modes ω::
-
-    σ_curve² = σ² · (n / M) · ρ(n),   ρ(n) = (1/n) Σ_ω [ĝ(ω) / (ĝ(ω) + λ' d̂(ω))]²
-
-with ``ĝ(ω) = Σ_k g_k cos kω`` the symbol of the Catmull-Rom Gram matrix
-(``g_0 = 57/70``, ``g_±1 = 71/560``, ``g_±2 = −1/28``, ``g_±3 = 1/560``),
-``d̂(ω) = (2 − 2 cos ω)³`` that of the third differences and ``λ' = 0.01 g_0``
-(the fairness weight below).  Without the fairness term ρ = 1 and the curve's σ is
-the familiar ``σ/√s`` (n/M = 1/s: s points per control point, the trace of the hat
-matrix being n); the fairness term damps the highest modes, ρ ≈ 0.73 for n ≥ 8.
-Measured on noisy circles (random θ, 40 draws): 1.02-1.08 × the prediction for
-s = 32 … 4 (uneven data spacing raises the variance a little).
+*Precision* (:func:`precision_factor`): with ``K = AᵀA + λDᵀD`` the control points'
+covariance is ``σ² K⁻¹AᵀA K⁻¹``; for data spread evenly in ``t`` every matrix is circulant
+and the curve's mean variance is ``σ² (n / M) ρ(n)``,
+``ρ(n) = (1/n) Σ_ω [ĝ(ω) / (ĝ(ω) + λ' d̂(ω))]²``, ``ĝ`` the symbol of the basis' Gram matrix
+(``g_0 = 57/70``, ``g_±1 = 71/560``, ``g_±2 = −1/28``, ``g_±3 = 1/560``), ``d̂ = (2 − 2 cos ω)³``
+(ρ ≈ 0.73 for n ≥ 8).  Derivations and measurements: ``docs/method/catmull-rom.md``.
 
 References
 ----------
