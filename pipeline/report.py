@@ -162,9 +162,11 @@ def sections_plot(sections: Mapping[str, np.ndarray], curves: Mapping[str, np.nd
             side_curves.append(np.column_stack([(ring - origin) @ frame[0], ring @ frame[2]]))
         ring_heights = np.array([r[:, 1].mean() for r in side_curves])
         curve_colors = (viridis((ring_heights - heights.min()) / hspan) * 230).astype(np.uint8)
+    closed = curves is None or "u" not in curves  # open arcs (surface.open_surface) carry u
     left = _panel(top, top_curves, colors, curve_colors, f"{len(groups)} sections, top view",
-                  "e1", "e2", closed=True)
-    right = _panel(side, side_curves, colors, curve_colors, "side view", "e1", "h", closed=True)
+                  "e1", "e2", closed=closed)
+    right = _panel(side, side_curves, colors, curve_colors, "side view", "e1", "h",
+                   closed=closed)
     return np.concatenate([left, right], axis=1)
 
 
@@ -333,7 +335,8 @@ def _sections_section(root: Path) -> str:
         return ""
     curves = _load_npz(root / "curves" / "curves.npz")
     plot = sections_plot(sections, curves)
-    caption = ("sections (dots, coloured by height) and their closed Catmull-Rom curves (lines)"
+    kind = "open" if curves is not None and "u" in curves else "closed"
+    caption = (f"sections (dots, coloured by height) and their {kind} Catmull-Rom curves (lines)"
                if curves is not None else "sections (dots, coloured by height); no curves yet")
     return f"<section><h2>Sections and curves</h2>{_figure(png_data_uri(plot), caption)}</section>"
 
@@ -406,6 +409,11 @@ def _truth_section(root, screen, truth, params, info, read_mesh) -> str:
             f"each the mean over {int(params['samples'])} points sampled uniformly by area "
             "(exact point-to-triangle distances), ± its sampling error (standard error of "
             "the mean); the cloud's RMS over at most as many of its points.</p>")
+    stitch_notes = root / "stitch" / "stitch.json"
+    if stitch_notes.is_file() and json.loads(stitch_notes.read_text()).get("open"):
+        note += ("<p>The surface is open (one-sided data, surface/open_surface.py): its "
+                 "accuracy is measured over the part it covers, which the views saw; its "
+                 "completeness counts the unseen side of the object as missing.</p>")
     return f"<section><h2>Against the truth</h2>{''.join(blocks)}{table}{note}</section>"
 
 

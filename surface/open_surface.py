@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from surface._blas import one_blas_thread
 from surface.catmull_rom import _FAIRNESS, M_CR, _basis
 from surface.validate import TOL, check_finite, check_shape
 
@@ -168,7 +169,9 @@ def _least_squares(points: np.ndarray, m: int, smoothing: float) -> tuple[np.nda
     seg = np.minimum(np.floor(t).astype(np.int64), m - 2)
     weights = _basis(t - seg)                                      # (M, 4)
     ext = _extension(m)
-    design = np.einsum("mk,mkj->mj", weights, ext[seg[:, None] + np.arange(4)])  # (M, m)
+    full = np.zeros((len(points), m + 2))                         # weights of P_0 .. P_n
+    np.put_along_axis(full, seg[:, None] + np.arange(4), weights, axis=1)
+    design = full @ ext                                            # (M, m)
     normal = design.T @ design
     third = np.diff(np.eye(m + 2), n=3, axis=0) @ ext              # (m - 1, m)
     system = normal + _FAIRNESS * float(np.diagonal(normal).mean()) * (third.T @ third)
@@ -424,6 +427,7 @@ class OpenSurface:
                 "delaunay_fraction": float(self.delaunay_fraction)}
 
 
+@one_blas_thread
 def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step: float,
                 flip: bool = True, viewpoint: np.ndarray | None = None) -> OpenSurface:
     """Stitch consecutive resampled arcs into an open mesh.
@@ -566,6 +570,7 @@ def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
     return kept, loops, messages
 
 
+@one_blas_thread
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
               smoothing: float | str = "auto"):
     """Sections' loops → open arcs → open curves → arcs resampled on the common grid.

@@ -1,0 +1,175 @@
+"""Open surfaces from one-sided sections (surface/open_surface.py): open Catmull-Rom arcs,
+their common parameter, the strips between them and the bordered mesh they make."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from surface import open_surface as osf
+from surface.metrics import face_normals, mesh_topology
+
+
+class _Arc:
+    """The parts of a ``surface.topology.Loop`` the open surface reads."""
+
+    def __init__(self, points, height):
+        self.points = np.asarray(points, np.float64)
+        self.height = float(height)
+        self.frame = np.eye(3)
+
+    def __len__(self):
+        return len(self.points)
+
+
+def _circle_arc(theta, radius=1.0, z=0.0):
+    return np.stack([radius * np.cos(theta), radius * np.sin(theta),
+                     np.full_like(theta, z)], axis=1)
+
+
+def test_interpolating_open_curve_passes_through_its_points_and_is_c1():
+    theta = np.linspace(0.2, 2.5, 30)
+    points = _circle_arc(theta)
+    curve = osf.fit_open(points, smoothing=1)
+    # P_1 .. P_{n-1} are the points, at integer parameters: exact up to rounding
+    np.testing.assert_allclose(curve(np.arange(len(points), dtype=float)), points,
+                               atol=1e-14)
+    # the end control points are the reflections of their neighbours (linear ends)
+    cp = curve.control_points
+    np.testing.assert_allclose(cp[0], 2 * cp[1] - cp[2], atol=1e-14)
+    np.testing.assert_allclose(cp[-1], 2 * cp[-2] - cp[-3], atol=1e-14)
+    # C1: the tangent at every inner knot is the same from both segments, (P_{j+1}-P_{j-1})/2
+    knots = np.arange(1, curve.segments, dtype=float)
+    left = curve.derivative(knots - 1e-13)   # the segment before each knot, at local t ~ 1
+    right = curve.derivative(knots)
+    np.testing.assert_allclose(left, right, atol=1e-9)
+    np.testing.assert_allclose(right, 0.5 * (cp[3:-1] - cp[1:-3]), atol=1e-12)
+
+
+def test_fitted_open_curve_reduces_noise_and_ends_where_the_data_end():
+    rng = np.random.default_rng(0)
+    sigma = 0.002
+    theta = np.sort(rng.uniform(0.2, 2.5, 400))
+    points = _circle_arc(theta) + rng.normal(0, sigma, (400, 3)) * [1, 1, 0]
+    curve = osf.fit_open(points, "auto", frame=np.eye(3))
+    t = np.linspace(0, curve.segments, 2000)
+    radial = np.linalg.norm(curve(t)[:, :2], axis=1) - 1
+    # at s >= 4 points per control point the curve's noise is below sigma / sqrt(4) (the
+    # least-squares averaging, catmull_rom's module notes); 0.75 sigma leaves room for the
+    # sampling of 400 points
+    assert curve.smoothing >= 4
+    assert np.sqrt(np.mean(radial**2)) < 0.75 * sigma
+    # the ends: at the first and last data points' feet, within a few sigma along the arc
+    ends = np.arctan2(curve(np.array([0.0, curve.segments]))[:, 1],
+                      curve(np.array([0.0, curve.segments]))[:, 0])
+    np.testing.assert_allclose(ends, theta[[0, -1]], atol=5 * sigma)
+
+
+def test_zip_arcs_is_the_papers_pattern_for_n_and_2n():
+    n = 5
+    odd = np.arange(n + 1, dtype=float)          # u = 0, 1, ..., n
+    even = np.arange(2 * n + 1) / 2.0            # u = 0, 1/2, ..., n
+    faces = osf.zip_arcs(odd, even)
+    e = len(odd)
+    expected = []
+    for k in range(n):
+        expected += [(k, e + 2 * k + 1, e + 2 * k), (k, k + 1, e + 2 * k + 1),
+                     (k + 1, e + 2 * k + 2, e + 2 * k + 1)]
+    # the same triangles (o_k, e_2k, e_2k+1), (o_k, e_2k+1, o_k+1), (o_k+1, e_2k+1, e_2k+2),
+    # each in the orientation of stitch.zip_rings (lower arc first, counter-clockwise)
+    assert sorted(map(lambda f: tuple(np.roll(f, -int(np.argmin(f)))), faces)) == \
+        sorted(map(lambda f: tuple(np.roll(f, -int(np.argmin(f)))), expected))
+    assert len(faces) == len(odd) + len(even) - 2
+
+
+def _half_cylinder(rng, sigma=0.0, spacing=0.05, height=2.0, per_section=300):
+    """Arcs of the unit cylinder over a varying range of θ (one side seen)."""
+    loops, ranges = [], []
+    for z in np.arange(0.0, height, spacing):
+        lo, hi = 0.1 + 0.1 * np.sin(3 * z), np.pi - 0.1 - 0.05 * np.cos(2 * z)
+        theta = np.sort(rng.uniform(lo, hi, per_section))
+        points = _circle_arc(theta, z=z) + rng.normal(0, sigma, (per_section, 3)) * [1, 1, 0]
+        loops.append([_Arc(points, z)])
+        ranges.append((theta[0], theta[-1]))
+    return loops, np.array(ranges)
+
+
+def test_half_cylinder_arcs_stitch_to_one_open_manifold_sheet_on_the_cylinder():
+    spacing = 0.05
+    loops, ranges = _half_cylinder(np.random.default_rng(1), spacing=spacing)
+    surface, rings, params = osf.open_surface_from_loops(loops, spacing)
+    topo = mesh_topology(surface.vertices, surface.triangles)
+    assert topo["edge_manifold"] and topo["oriented"] and not topo["closed"]
+    assert topo["components"] == 1 and topo["euler"] == 1      # a disc: one sheet
+    assert len(surface.boundary) == 1
+    assert topo["degenerate_faces"] == 0
+    v, f = surface.vertices, surface.triangles
+    # the ring points lie on the curves fitted to exact points: the curve's error on a
+    # circle is O(h^4) for control spacing h ~ 0.04 here (measured 1.4e-4 at most)
+    assert np.abs(np.linalg.norm(v[:, :2], axis=1) - 1).max() < 1e-3
+    # a flat face inscribed in the cylinder lies inside it by at most e^2 / (8 r) for its
+    # longest edge e (the sagitta), plus the vertices' own error
+    centres = v[f].mean(axis=1)
+    edge = np.linalg.norm(v[f] - v[np.roll(f, -1, axis=1)], axis=2).max()
+    assert np.abs(np.linalg.norm(centres[:, :2], axis=1) - 1).max() < edge**2 / 8 + 1e-3
+    # outward (away from the axis): the arcs run counter-clockwise, sections upwards
+    outward = np.einsum("fi,fi->f", face_normals(v, f)[:, :2], centres[:, :2])
+    assert np.all(outward > 0)
+    # the sheet ends where the data end: no vertex past its section's arc by more than a
+    # quarter of the ring step (QUARTER_STEP; the odd rings' step is the section spacing)
+    theta = np.arctan2(v[:, 1], v[:, 0])
+    section = np.rint(v[:, 2] / spacing).astype(int)
+    slack = osf.QUARTER_STEP * spacing + 1e-3
+    assert np.all(theta >= ranges[section, 0] - slack)
+    assert np.all(theta <= ranges[section, 1] + slack)
+    # and covers them: every section's sheet spans its arc to within one ring step of
+    # either end, where the neighbours overlap it
+    for k in range(1, len(ranges) - 1):
+        mine = theta[section == k]
+        lo = max(ranges[k - 1:k + 2, 0])
+        hi = min(ranges[k - 1:k + 2, 1])
+        assert mine.min() <= lo + 2 * spacing and mine.max() >= hi - 2 * spacing
+
+
+def test_viewpoint_turns_the_faces_towards_it():
+    spacing = 0.1
+    loops, _ = _half_cylinder(np.random.default_rng(2), spacing=spacing, height=1.0)
+    inside = osf.open_surface_from_loops(loops, spacing, viewpoint=np.zeros(3))[0]
+    v, f = inside.vertices, inside.triangles
+    centres = v[f].mean(axis=1)
+    assert np.all(np.einsum("fi,fi->f", face_normals(v, f)[:, :2], centres[:, :2]) < 0)
+
+
+def test_noisy_half_cylinder_stays_within_the_noise_of_the_cylinder():
+    sigma, spacing = 0.003, 0.05
+    loops, _ = _half_cylinder(np.random.default_rng(3), sigma=sigma, spacing=spacing)
+    surface = osf.open_surface_from_loops(loops, spacing)[0]
+    radial = np.linalg.norm(surface.vertices[:, :2], axis=1) - 1
+    # 300 points over ~2.9 rad: s >= 4 points per control point, so the rings' noise is at
+    # most sigma / 2 (least squares) -- RMS below 0.75 sigma with sampling room
+    assert np.sqrt(np.mean(radial**2)) < 0.75 * sigma
+    assert len(surface.boundary) == 1
+
+
+@pytest.mark.parametrize("turn", [np.pi, 2 * np.pi])
+def test_one_sided_follows_the_bridged_share_rule(turn):
+    """A cylinder cloud seen over half a turn is one-sided; all round, it is not."""
+    from surface.reconstruct import slice_cloud
+
+    rng = np.random.default_rng(4)
+    theta = rng.uniform(0, turn, 20_000)
+    z = rng.uniform(0, 2, 20_000)
+    cloud = np.stack([np.cos(theta), np.sin(theta), z], axis=1)
+    sliced = slice_cloud(cloud, axis="z", sections=20)
+    kept, loops, _ = osf.organise_arcs(sliced.sections)
+    assert len(kept) >= 18
+    assert osf.one_sided(loops) == (turn < 2 * np.pi)
+
+
+def test_too_few_points_and_bad_smoothing_are_refused():
+    with pytest.raises(ValueError, match="at least 4 points"):
+        osf.fit_open(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="smoothing"):
+        osf.fit_open(_circle_arc(np.linspace(0, 1, 10)), smoothing="best")
+    with pytest.raises(ValueError, match="spacing"):
+        osf.open_arcs([[_Arc(_circle_arc(np.linspace(0, 1, 10)), 0.0)]], 0.0)
