@@ -33,19 +33,11 @@ eigenvalues lie in [1/4, 1], so noise in ``P`` is amplified at most 4x in
 ``X`` -- the surface itself only interpolates ``P``).  One ``spsolve`` with the
 three coordinates as right-hand sides: ``O(V)`` memory, sparse LU time.
 
-Measured (``benchmarks/surface.py``, vase cloud 50 000 points, sigma = 0.002,
-row ``stitched+bezier-interp``): on the smooth side the interpolating surface
-has no shrinkage bias (mean radial error -0.00001 against -0.00017 for the
-approximating one) but follows the vertex noise more closely, and at the
-vase's 90-degree rim (a crease a G1 surface cannot follow) the interpolation
-overshoots by up to 0.13 (control vertices move by up to 0.7): Chamfer 0.00090
-against 0.00056 for the approximating surface.  Use it on meshes without
-creases, or after the curve smoothing has removed the noise.  With the stitch
-stage's support rings at the rims (``surface.stitch.support_distance``) and
-the curve smoothing chosen by GCV (the pipeline's defaults since 2026-11-22)
-the overshoot is gone: Chamfer 0.00031 against the approximating surface's
-0.00032 -- a difference within the run-to-run spread, so the pipeline keeps
-the approximating surface (no sparse solve, no noise amplification).
+At a crease a G1 surface cannot follow, interpolating every vertex overshoots, so
+the pipeline (``smooth.interpolate = true``, the default) interpolates through
+:func:`surface.sizing.interpolating_control`, which keeps the vertices on sharp edges
+as they are (:func:`sharp_vertices`) and interpolates the convex creases
+(:func:`convex_creases`).  The measurements behind that: ``docs/decisions/sizing.md``.
 
 Closed meshes only: the ghost-layer border rule of :mod:`surface.bezier` has
 no one-ring limit mask, so a mesh with borders is a ``ValueError``.
