@@ -241,6 +241,8 @@ class MeshDistance:
     vertices : (V, 3) float64
     triangles : (F, 3) int
 
+    Notes
+    -----
     Calling it with ``points (N, 3)`` returns ``(N,) float64`` distances, as
     :func:`point_mesh_distance` (which builds one of these per call): build it once to
     measure several point sets against the same mesh.
