@@ -79,7 +79,7 @@ def _check(points, colours, sigma):
 
 
 def write_ply(path: str | os.PathLike, points, colours=None, sigma=None) -> Path:
-    """Write a binary little-endian PLY with x y z [red green blue] [sigma].
+    """Write a binary little-endian PLY with x y z, optionally red green blue and sigma.
 
     Parameters
     ----------
