@@ -12,6 +12,7 @@ and exits 1 if anything is).
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 from pathlib import Path
 
@@ -39,6 +40,20 @@ def expected_text(module: str) -> str:
     return f"# `{module}`\n\n::: {module}\n"
 
 
+def untracked_modules() -> set[str]:
+    """Modules git does not track yet (work in progress in this tree; a fresh clone has
+    none): not held against the docs until committed.  Empty outside a git checkout."""
+    try:
+        out = subprocess.run(["git", "ls-files", "--others", "--exclude-standard", *PACKAGES],
+                             cwd=ROOT, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return set()
+    if out.returncode != 0:
+        return set()
+    return {name.removesuffix(".py").replace("/", ".") for name in out.stdout.split()
+            if name.endswith(".py")}
+
+
 def missing_pages() -> list[str]:
     return [m for m in public_modules() if not page_of(m).is_file()]
 
@@ -56,6 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     missing, stale = missing_pages(), stale_pages()
     if args.check:
+        untracked = untracked_modules()
+        for m in sorted(set(missing) & untracked):
+            print(f"not committed yet, no page needed so far: {m}")
+        missing = [m for m in missing if m not in untracked]
         for m in missing:
             print(f"missing API page: {page_of(m).relative_to(ROOT)} (module {m})")
         for p in stale:
