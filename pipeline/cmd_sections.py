@@ -124,7 +124,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
                          f"(choose one of {', '.join(MESH_SUFFIXES)})")
     from pipeline import limits
-    from pipeline.guards import check_cloud_shape, check_output, unit_scale
+    from pipeline.guards import (
+        check_cloud_shape,
+        check_output,
+        check_section_cost,
+        drop_far_outliers,
+        unit_scale,
+    )
 
     if args.sections is not None and args.sections < 2:
         raise InputError(f"--sections must be >= 2, got {args.sections}")
@@ -147,10 +153,14 @@ def run(args: argparse.Namespace) -> int:
     if not np.all(np.isfinite(points)):
         bad = int(np.count_nonzero(~np.all(np.isfinite(points), axis=1)))
         raise InputError(f"{args.cloud}: {bad} points have NaN/inf coordinates")
+    # stray points far from the object would set the sections' extent: dropped, with a
+    # warning line (pipeline.guards.drop_far_outliers)
+    points, sigma, _ = drop_far_outliers(points, str(args.cloud), sigma)
     check_cloud_shape(points, str(args.cloud), axis=axis)
     # a cloud below the surface code's scale-invariant range is meshed at unit size: an
     # exact power of two, so its mesh is the unit copy's scaled back (guards.unit_scale)
     unit = unit_scale(points)
+    check_section_cost(points / unit, axis, str(args.cloud), sections=args.sections, n=args.n)
     # the surface code (numba, scipy: ~0.5 s of imports) only after every check
     from surface.reconstruct import surface_from_points
 

@@ -441,6 +441,75 @@ def check_cloud_shape(points: np.ndarray, name: str, axis=None) -> None:
                          "be a line segment, not a closed loop (no closed surface)")
 
 
+def drop_far_outliers(points: np.ndarray, name: str, *per_point) -> tuple:
+    """The cloud without its far outliers (:func:`surface.outliers.far_outliers`), and each
+    of ``per_point`` (``(N, ...)`` arrays or ``None``: sigma, colours) likewise.
+
+    Returns ``(points, *per_point, report)``; ``report`` is one line naming ``name`` (also
+    logged as a warning) or ``None`` when no point was dropped.
+    """
+    import logging
+
+    from surface.outliers import far_outliers
+
+    found = far_outliers(points)
+    if not found.count:
+        return (points, *per_point, None)
+    keep = ~found.mask
+    report = f"{name}: {found.report(len(points))}"
+    logging.getLogger("pipeline").warning("%s", report)
+    return (points[keep], *(None if a is None else np.asarray(a)[keep] for a in per_point),
+            report)
+
+
+def check_section_cost(points: np.ndarray, axis, where: str, sections: int | None = None,
+                       spacing: float | None = None, n: int | None = None) -> None:
+    """Refuse, before anything is sliced, a cloud whose sections or rings would pass
+    :mod:`pipeline.limits`, costed from what the data are: the extent along the slicing
+    axis in point spacings, not the count of points or the bounding box alone.
+
+    With the default spacing the sections are ``Δ = 2 s`` apart (``s`` the point spacing,
+    :func:`surface.sections.point_spacing`), so a cloud spanning ``L`` along the axis has
+    ``L / Δ`` sections; a ring's default point count is its loop's perimeter over ``Δ``,
+    at most about ``π W / Δ`` for a cloud ``W`` wide across the axis.
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    axis : "x", "y", "z", "auto" or (3,) array
+    where : str
+        The file or stage named in the message.
+    sections, spacing, n : as the section stage's options (given: costed as given).
+    """
+    from pipeline import limits
+    from surface.sections import point_spacing, resolve_axis
+
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 2:
+        return
+    direction = resolve_axis(axis, points)
+    heights = points @ direction
+    extent = float(np.ptp(heights))
+    if extent <= 0:
+        return
+    if sections is None:
+        s = point_spacing(points) if not spacing else 0.0
+        delta = float(spacing) if spacing else 2.0 * s
+        if delta <= 0:
+            return
+        limits.check("sections.count", extent / delta,
+                     where=f"{where}: {extent:.3g} along the slicing axis at sections "
+                           f"{delta:.3g} apart ({'given' if spacing else 'two point spacings'})")
+    else:
+        delta = extent / sections
+    if n is None:
+        across = points - np.outer(heights, direction)
+        width = float(np.linalg.norm(np.ptp(across, axis=0)))
+        limits.check("ring.points", np.pi * width / delta,
+                     where=f"{where}: loops up to pi x {width:.3g} around at ring points "
+                           f"{delta:.3g} apart")
+
+
 def unit_scale(points: np.ndarray) -> float:
     """An exact power of two ``u`` such that ``points / u`` spans [1, 2), when the cloud is
     smaller than :data:`MIN_EXTENT`; else 1.

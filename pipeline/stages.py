@@ -176,13 +176,20 @@ def sections(ctx: StageContext) -> dict:
 
     import numpy as np
 
-    from pipeline.guards import MIN_EXTENT, check_cloud_shape
+    from pipeline.guards import (
+        MIN_EXTENT,
+        check_cloud_shape,
+        check_section_cost,
+        drop_far_outliers,
+    )
     from surface import reconstruct as rc
     from surface import sections as sections_mod
 
     p = ctx.params["sections"]
     cloud = artifacts.read_cloud(ctx.stage_path("acquire"))
-    points = cloud["points"]
+    # far stray points would set the sections' extent: dropped, with a warning line
+    points, cap_sigma, outliers = drop_far_outliers(cloud["points"], "sections",
+                                                    cloud["sigma"])
     axis, axis_source = _section_axis(p["axis"], ctx.stage_path("acquire", RING_FILE))
     check_cloud_shape(points, "acquire: the cloud", axis=axis)  # a line or plane: no surface
     extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
@@ -191,6 +198,8 @@ def sections(ctx: StageContext) -> dict:
                          f"{MIN_EXTENT:g}, where the surface code's absolute tolerances change "
                          "the result; give the cloud in a smaller unit (or use photosurf "
                          "sections, which rescales it)")
+    check_section_cost(points, axis, "sections", sections=p["count"] or None,
+                       spacing=p["spacing"] or None)  # before anything is allocated
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
         sliced = rc.slice_cloud(
@@ -201,7 +210,7 @@ def sections(ctx: StageContext) -> dict:
         raise InputError(f"sections: only {len(kept)} non-empty sections; need at least 2 "
                          "(set sections.count or sections.spacing)")
     artifacts.write_sections(ctx.out, kept, sliced.cap_cloud, sliced.spacing,
-                             cloud["sigma"][sliced.cap_index])
+                             cap_sigma[sliced.cap_index])
     warned = [str(w.message) for w in caught]
     for message in warned:
         log.warning("sections: %s", message)
@@ -211,7 +220,8 @@ def sections(ctx: StageContext) -> dict:
     return {"sections": len(kept), "empty": len(sliced.sections) - len(kept),
             "spacing": sliced.spacing, "cap_points": len(sliced.cap_cloud),
             "axis": [round(float(a), 6) for a in used], "axis_source": axis_source,
-            "warnings": warned, "notes": list(sliced.notes)}
+            "warnings": warned, "notes": list(sliced.notes),
+            **({"outliers": outliers.split(": ", 1)[1]} if outliers else {})}
 
 
 def _section_axis(axis, ring_file: Path):

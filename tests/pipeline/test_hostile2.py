@@ -166,3 +166,104 @@ def test_stdout_full_on_a_failure_writes_nothing(tmp_path):
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert proc.returncode == 2 and len(lines) == 1 and "nope.xyz" in lines[0], proc.stderr
     assert_nothing_written(tmp_path / "o.ply")
+
+
+# =========================================================================== far outliers
+
+def _with_far_points(n: int, along_axis: bool, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """A ``n``-point unit cylinder and the same plus 5 points ~10^6 away (scattered, or
+    strung along its axis)."""
+    clean = cylinder_points(n, seed=seed)
+    if along_axis:
+        far = np.column_stack([np.zeros(5), np.zeros(5), 1e6 * np.arange(1, 6)])
+    else:
+        far = np.random.default_rng(seed).normal(size=(5, 3)) * 1e6
+    return clean, np.vstack([clean, far])
+
+
+def _limited(argv: list, cwd: Path) -> subprocess.CompletedProcess:
+    """The real program with its address space capped at 6 GB: a cost that is not bounded
+    fails at once instead of filling the machine (numba and open3d reserve ~2.5 GB)."""
+    import resource
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))
+
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *map(str, argv)], cwd=cwd,
+                          env=_env(), capture_output=True,
+                          text=True, timeout=300, preexec_fn=cap)
+
+
+@pytest.mark.parametrize("along_axis", [False, True], ids=["scattered", "along-axis"])
+def test_far_outliers_dropped_by_sections(tmp_path, along_axis):
+    """The 5 far points are dropped with one warning line and the mesh is the clean
+    cloud's, bit for bit (the same points reach the surface code)."""
+    from pipeline.cloud_io import write_cloud
+    from pipeline.mesh_io import read_mesh
+
+    clean, dirty = _with_far_points(2000, along_axis)
+    write_cloud(tmp_path / "clean.xyz", clean)
+    write_cloud(tmp_path / "dirty.xyz", dirty)
+    proc = _limited(["sections", "dirty.xyz", "--out", "dirty.ply"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and "5 far outlier point(s) of 2005 dropped" in lines[0], proc.stderr
+    assert "2000 points" in proc.stdout
+    assert call_main(["sections", tmp_path / "clean.xyz", "--out", tmp_path / "clean.ply",
+                      "-q"]) == 0
+    v_dirty, t_dirty = read_mesh(tmp_path / "dirty.ply")[:2]
+    v_clean, t_clean = read_mesh(tmp_path / "clean.ply")[:2]
+    np.testing.assert_array_equal(t_dirty, t_clean)
+    np.testing.assert_array_equal(v_dirty, v_clean)
+
+
+def test_far_outliers_dropped_by_run(tmp_path):
+    """Through ``photosurf run``: the sections stage drops them, says so, and no stage
+    temporary is left."""
+    import json
+
+    from pipeline.cloud_io import write_cloud
+
+    _, dirty = _with_far_points(1500, along_axis=False)
+    write_cloud(tmp_path / "dirty.npz", dirty)
+    proc = _limited(["run", "dirty.npz", "--out", "w", "--to", "sections"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "5 far outlier point(s) of 1505 dropped" in proc.stderr
+    left = [p.name for p in (tmp_path / "w").iterdir() if p.name.startswith(".")
+            and p.name != ".lock"]
+    assert left == [], left
+    manifest = json.loads((tmp_path / "w" / "manifest.json").read_text())
+    assert "5 far outlier" in json.dumps(manifest["stages"]["sections"])
+
+
+def test_a_far_group_too_large_to_drop_is_costed_before_slicing(tmp_path, capfd):
+    """20 points together 10^6 away are more than a stray (they could be a small piece):
+    kept, and the cloud is refused by its extent in point spacings before any slicing."""
+    from pipeline.cloud_io import write_cloud
+
+    rng = np.random.default_rng(3)
+    cloud = np.vstack([cylinder_points(2000), 1e6 + rng.normal(size=(20, 3))])
+    path = write_cloud(tmp_path / "group.xyz", cloud)
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", path, "--out", out], "sections.count",
+                  "along the slicing axis", "two point spacings", out=out)
+
+
+def test_far_outliers_rule():
+    from surface.outliers import GAP_SPACINGS, MIN_GROUP, far_outliers
+
+    clean = cylinder_points(3000)
+    assert far_outliers(clean).count == 0
+    # two objects far apart are two objects, not outliers
+    two = np.vstack([clean, clean + [1e4, 0.0, 0.0]])
+    assert far_outliers(two).count == 0
+    # a group of MIN_GROUP - 1 beyond the gap is dropped, one of MIN_GROUP kept
+    found = far_outliers(clean)
+    beyond = clean[:, 2].max() + 1.5 * GAP_SPACINGS * found.spacing
+    for size, dropped in ((MIN_GROUP - 1, MIN_GROUP - 1), (MIN_GROUP, 0)):
+        group = np.column_stack([np.zeros(size), np.zeros(size),
+                                 beyond + 0.1 * found.spacing * np.arange(size)])
+        assert far_outliers(np.vstack([clean, group])).count == dropped
+    # a stray just inside the gap is kept: the rule is the gap, not a distance
+    near = np.array([[0.0, 0.0, clean[:, 2].max() + 0.5 * GAP_SPACINGS * found.spacing]])
+    assert far_outliers(np.vstack([clean, near])).count == 0
