@@ -417,8 +417,9 @@ def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
         pairs = np.concatenate(a_b).reshape(-1, 2)
         for s in range(0, len(pairs), PAIR_BATCH):
             a, b = pairs[s:s + PAIR_BATCH, 0], pairs[s:s + PAIR_BATCH, 1]
+            ok = np.sum((centre[a] - centre[b]) ** 2, axis=1) <= (radius[a] + radius[b]) ** 2
+            a, b = a[ok], b[ok]
             ok = np.all(np.maximum(lo[a], lo[b]) <= np.minimum(hi[a], hi[b]), axis=1)
-            ok &= np.sum((centre[a] - centre[b]) ** 2, axis=1) <= (radius[a] + radius[b]) ** 2
             a, b = a[ok], b[ok]
             # most candidates are neighbours on a smooth surface: one wholly on one side
             # of the other's plane (a shared vertex in the plane) settles them cheaply
