@@ -100,7 +100,7 @@ STAGES: list[Stage] = [
     Stage("stitch", fn.stitch, params=("stitch",), needs=("curves", "sections"),
           optional_needs=("scene", "acquire"),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.stitch",
-                               "surface.open_surface")),
+                               "surface.open_surface", "pipeline.smoothing")),
     Stage("smooth", fn.smooth, params=("smooth", "stitch"), needs=("stitch",),
           optional_needs=("acquire", "sections", "curves"),
           modules=_ADAPTERS + ("pipeline.mesh_io", "pipeline.smoothing", "surface.metrics",

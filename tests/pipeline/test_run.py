@@ -304,10 +304,11 @@ def _check_scene_run(out: Path, proc) -> dict:
 def test_stereo_vase_acquires_an_accurate_one_sided_cloud(tmp_path, cli_run):
     """One stereo pair of the vase, small images, through acquisition and sections.
 
-    One pair sees one side: its sections are open arcs, which the curves stage refuses
-    (surface.stitch; tested deterministically in tests/surface/test_stitch.py::
-    test_one_sided_cloud_is_refused_not_closed_into_a_wrong_solid), so this run stops at
-    the sections and checks the cloud against the truth.
+    One pair sees one side: its sections are open arcs, which surface.reconstruct refuses
+    to close (tests/surface/test_stitch.py::
+    test_one_sided_cloud_is_refused_not_closed_into_a_wrong_solid) and the pipeline makes
+    an open surface of (tests/pipeline/test_open_run.py); this run stops at the sections
+    and checks the cloud against the truth.
     """
     out = tmp_path / "stereo"
     proc = cli_run(*_scene_args("vase.toml", out, 192, 144), "--to", "sections", "--json")
