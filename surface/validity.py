@@ -54,6 +54,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -415,22 +416,77 @@ def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
                                                    output_type="ndarray")
             a_b.append(np.stack([members[k][near["i"]], members[j][near["j"]]], axis=1))
         pairs = np.concatenate(a_b).reshape(-1, 2)
+        near = _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale,
+                          TOL.planar_rel)
+        pairs = pairs[near]
         for s in range(0, len(pairs), PAIR_BATCH):
             a, b = pairs[s:s + PAIR_BATCH, 0], pairs[s:s + PAIR_BATCH, 1]
-            ok = np.sum((centre[a] - centre[b]) ** 2, axis=1) <= (radius[a] + radius[b]) ** 2
-            a, b = a[ok], b[ok]
-            ok = np.all(np.maximum(lo[a], lo[b]) <= np.minimum(hi[a], hi[b]), axis=1)
-            a, b = a[ok], b[ok]
-            # most candidates are neighbours on a smooth surface: one wholly on one side
-            # of the other's plane (a shared vertex in the plane) settles them cheaply
-            A, B = corners[a], corners[b]
-            near = ~_apart(A, B, normal[a], normal[b], TOL.planar_rel
-                           * np.maximum(scale[a], scale[b]))[0]
-            a, b = a[near], b[near]
-            hit = _pairs_intersect(A[near], B[near], tri[a], tri[b], normal[a], normal[b],
-                                   scale[a], scale[b])
+            hit = _pairs_intersect(corners[a], corners[b], tri[a], tri[b], normal[a],
+                                   normal[b], scale[a], scale[b])
             if np.any(hit):
                 yield np.stack([a[hit], b[hit]], axis=1)
+
+
+@numba.njit(cache=True)
+def _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale, planar_rel):
+    """Candidates that may intersect, (P,) bool: bounding spheres and boxes overlap, and
+    neither face lies wholly on one side of the other's plane (pairs sharing an edge:
+    the opposite vertex in the other's plane).  Conservative: a pair is dropped only
+    beyond twice the narrow phase's zero, so last-bit differences drop no pair the
+    narrow phase would keep.  Most candidates are neighbours on a smooth surface, all
+    settled here."""
+    out = np.zeros(len(pairs), np.bool_)
+    for p in range(len(pairs)):
+        a, b = pairs[p, 0], pairs[p, 1]
+        gap2 = 0.0
+        for k in range(3):
+            gap2 += (centre[a, k] - centre[b, k]) ** 2
+        if gap2 > (radius[a] + radius[b]) ** 2:
+            continue
+        boxes = True
+        for k in range(3):
+            if max(lo[a, k], lo[b, k]) > min(hi[a, k], hi[b, k]):
+                boxes = False
+        if not boxes:
+            continue
+        shared = 0
+        for i in range(3):
+            for j in range(3):
+                if tri[a, i] == tri[b, j]:
+                    shared += 1
+        eps = 2.0 * planar_rel * max(scale[a], scale[b])
+        if shared >= 3:
+            out[p] = True
+        elif shared == 2:                 # folded only if coplanar
+            for j in range(3):
+                if tri[b, j] != tri[a, 0] and tri[b, j] != tri[a, 1] \
+                        and tri[b, j] != tri[a, 2]:
+                    d = 0.0
+                    for k in range(3):
+                        d += (corners[b, j, k] - corners[a, 0, k]) * normal[a, k]
+                    out[p] = abs(d) <= 10.0 * eps
+        else:                             # a shared vertex lies in both planes
+            out[p] = not (_one_side(corners[a], tri[a], tri[b], corners[b, 0], normal[b], eps)
+                          or _one_side(corners[b], tri[b], tri[a], corners[a, 0], normal[a],
+                                       eps))
+    return out
+
+
+@numba.njit(cache=True)
+def _one_side(face, ids, other_ids, origin, normal, eps):
+    """All corners of ``face`` not shared with the other face farther than ``eps`` on
+    one side of the other's plane (then the faces meet in the shared vertex at most)."""
+    above = below = count = 0
+    for i in range(3):
+        if ids[i] == other_ids[0] or ids[i] == other_ids[1] or ids[i] == other_ids[2]:
+            continue
+        count += 1
+        d = 0.0
+        for k in range(3):
+            d += (face[i, k] - origin[k]) * normal[k]
+        above += d > eps
+        below += d < -eps
+    return above == count or below == count
 
 
 def _dot(x, y):
