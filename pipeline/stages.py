@@ -354,7 +354,10 @@ def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> d
     from surface.open_surface import stitch_arcs
 
     eyes = _camera_centres(ctx)
-    result = stitch_arcs([r[0] for r in rings], params, step, viewpoint=eyes)
+    try:
+        result = stitch_arcs([r[0] for r in rings], params, step, viewpoint=eyes)
+    except ValueError as exc:  # no two neighbouring arcs overlap
+        raise InputError(f"stitch: {exc} (set sections.count or sections.spacing)") from exc
     topology = mesh_topology(result.vertices, result.triangles)
     notes = {**result.info(), "closed": False, "messages": list(result.notes),
              "faces_cameras": eyes is not None, "edge_manifold": topology["edge_manifold"],
@@ -539,7 +542,11 @@ def _smooth_open(ctx: StageContext, vertices, triangles, level) -> dict:
     from surface.open_surface import boundary_loops
 
     tolerance = _smooth_tolerance(ctx) if level in ("auto", "adaptive") else None
-    smoothed = smooth_mesh(vertices, triangles, level, tolerance)
+    try:
+        smoothed = smooth_mesh(vertices, triangles, level, tolerance)
+    except ValueError as exc:  # e.g. two strips meeting at one vertex only (a pinch)
+        raise StageSkipped(f"the open stitched mesh was refused by the Bezier construction: "
+                           f"{exc}") from exc
     artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
                            smoothed.surface)
     border = boundary_loops(smoothed.triangles)

@@ -482,6 +482,10 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
         tri, flips, _ = delaunay_flips(vertices, tri, region=reg, fixed_edges=fixed_edges)
     if viewpoint is not None and _faces_away(vertices, tri, viewpoint):
         tri = tri[:, ::-1].copy()
+    vertices, tri, pinches = _split_pinches(vertices, tri)
+    if pinches:
+        notes.append(f"{pinches} vertex(es) where two strips met at a point only were "
+                     "split (the border touches itself there)")
     used = np.unique(tri)
     remap = np.full(len(vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
@@ -491,6 +495,46 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
     length = float(sum(np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum()
                        for lp in loops))
     return OpenSurface(vertices, tri, loops, length, int(flips), fraction, notes)
+
+
+def _split_pinches(vertices: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Give every extra fan of a pinched vertex its own copy of the vertex.
+
+    Where the strips below and above an arc cover ranges of it that share one point only
+    (arcs drifting sideways), that point's faces form two fans joined at it alone: a
+    non-manifold vertex, which the Bézier construction refuses.  Such a vertex has more
+    than two border edges; its fans are the faces connected through edges at it.
+    """
+    directed = np.stack([tri, np.roll(tri, -1, axis=1)], axis=2).reshape(-1, 2)
+    n = len(vertices)
+    keys = directed[:, 0] * n + directed[:, 1]
+    border = directed[~np.isin(directed[:, 1] * n + directed[:, 0], keys)]
+    degree = np.bincount(border.ravel(), minlength=n)
+    candidates = np.flatnonzero(degree > 2)
+    if len(candidates) == 0:
+        return vertices, tri, 0
+    tri = tri.copy()
+    extra = []
+    for v in candidates.tolist():  # a few vertices at most, not one per point
+        faces = np.flatnonzero((tri == v).any(axis=1))
+        others = [set(tri[f][tri[f] != v].tolist()) for f in faces]
+        label = list(range(len(faces)))
+        changed = True
+        while changed:  # union through shared edges (v, w)
+            changed = False
+            for i in range(len(faces)):
+                for j in range(i + 1, len(faces)):
+                    if others[i] & others[j] and label[i] != label[j]:
+                        low = min(label[i], label[j])
+                        label = [low if x in (label[i], label[j]) else x for x in label]
+                        changed = True
+        for group in sorted(set(label))[1:]:
+            copy = n + len(extra)
+            extra.append(vertices[v])
+            for i, f in enumerate(faces):
+                if label[i] == group:
+                    tri[f][tri[f] == v] = copy
+    return np.concatenate([vertices, np.array(extra)]), tri, len(extra)
 
 
 def _drop_degenerate(vertices, tri, reg):

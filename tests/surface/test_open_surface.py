@@ -173,3 +173,26 @@ def test_too_few_points_and_bad_smoothing_are_refused():
         osf.fit_open(_circle_arc(np.linspace(0, 1, 10)), smoothing="best")
     with pytest.raises(ValueError, match="spacing"):
         osf.open_arcs([[_Arc(_circle_arc(np.linspace(0, 1, 10)), 0.0)]], 0.0)
+
+
+def test_strips_meeting_at_one_point_are_split_there_not_pinched():
+    """Arcs drifting sideways: the strips below and above the middle arc share one of its
+    points only; that point gets a copy so the mesh is a manifold the patches accept."""
+    from surface.bezier import control_net
+
+    h = 0.1
+    spans = [(0.0, 1.0), (0.0, 2.0), (1.0, 2.0)]      # the middle arc's strips meet at u = 1
+    params = [np.arange(lo, hi + 1e-9, h if k % 2 == 0 else h / 2)
+              for k, (lo, hi) in enumerate(spans)]
+    rings = [np.stack([u, np.zeros_like(u), np.full_like(u, 0.3 * k)], axis=1)
+             for k, u in enumerate(params)]
+    surface = osf.stitch_arcs(rings, params, h, flip=False)
+    assert any("split" in note for note in surface.notes)
+    topo = mesh_topology(surface.vertices, surface.triangles)
+    assert topo["edge_manifold"] and topo["oriented"]
+    # the construction refuses non-manifold vertices ("lies on the border twice"), as it
+    # did these strips before the split
+    control_net(surface.vertices, surface.triangles)
+    # one point, two copies
+    shared = surface.vertices[np.unique(surface.triangles)]
+    assert len(np.unique(shared.round(12), axis=0)) == len(shared) - 1
