@@ -161,7 +161,7 @@ def read_ply(path: str | os.PathLike) -> Cloud:
             colours = (np.column_stack([data["red"], data["green"], data["blue"]])
                        .astype(np.uint8) if {"red", "green", "blue"} <= set(names) else None)
             sigma = data["sigma"].astype(np.float64) if "sigma" in names else None
-            return Cloud(_finite(points, path), colours, sigma)
+            return Cloud(_finite(points, path), colours, _precision(sigma, path))
     import open3d as o3d
 
     from pipeline.guards import native_stderr
@@ -178,6 +178,22 @@ def read_ply(path: str | os.PathLike) -> Cloud:
     return Cloud(_finite(points, path), colours)
 
 
+def _precision(sigma: np.ndarray | None, path: Path) -> np.ndarray | None:
+    """``sigma`` (the points' standard deviation, scene units) if it can be one: no value
+    below zero, and at least one finite and above zero (all zero would be infinite
+    weights, :func:`surface.reconstruct._precision_weights`); else ``InputError``."""
+    if sigma is None or len(sigma) == 0:
+        return sigma
+    negative = int(np.count_nonzero(sigma < 0))
+    if negative:
+        raise InputError(f"{path}: 'sigma' is the points' standard deviation, never negative; "
+                         f"{negative} of {len(sigma)} values are (smallest {np.nanmin(sigma):.3g})")
+    if not np.any(np.isfinite(sigma) & (sigma > 0)):
+        raise InputError(f"{path}: 'sigma' is the points' standard deviation; none of its "
+                         f"{len(sigma)} values is finite and above zero")
+    return sigma
+
+
 def _finite(points: np.ndarray, path: Path) -> np.ndarray:
     from pipeline.guards import check_coordinates
 
@@ -187,36 +203,80 @@ def _finite(points: np.ndarray, path: Path) -> np.ndarray:
     return check_coordinates(points, str(path))
 
 
+#: Numbers a text line may hold without a header naming its columns: x y z, or x y z
+#: and three more (colours or a normal).  A header (``x,y,z,intensity``, or the comment
+#: ``# x y z sigma`` :func:`write_cloud` writes) allows the count of its names.
+TEXT_WIDTHS = (3, 6)
+
+
+def _header_names(text: str) -> list[str] | None:
+    """Column names of a header line (``x y z ...`` / ``x,y,z,...``), else ``None``."""
+    names = [w for w in text.replace(",", " ").split() if w]
+    return names if len(names) >= 3 and [n.lower() for n in names[:3]] == ["x", "y", "z"] \
+        else None
+
+
+def _text_values(text: str) -> list[str]:
+    """The fields of a data line: comma-separated (spaces around them allowed) or
+    whitespace-separated; a line mixing both inside a field is ``[]`` (a decimal comma:
+    ``-0,651928 -0,758701`` is not four numbers)."""
+    if "," not in text:
+        return text.split()
+    fields = [f.strip() for f in text.split(",")]
+    if any(not f or len(f.split()) != 1 for f in fields):
+        return []
+    return fields
+
+
 def read_text(path: str | os.PathLike) -> Cloud:
-    """Read ``x y z [extra ...]`` rows (whitespace or commas; ``#`` comments; header ok)."""
+    """Read ``x y z [extra ...]`` rows (whitespace or commas; ``#`` comments; header ok).
+
+    Every data line holds the same count of numbers: 3 or 6 (:data:`TEXT_WIDTHS`), or
+    as many as a header line names; any other line is refused, naming it (a decimal
+    comma, a missing or extra value).
+    """
     from pipeline import limits
-    from pipeline.guards import count_occurrences
+    from pipeline.guards import count_occurrences, escape
 
     path = Path(path)
     # its lines bound its rows: costed before a row is parsed (bounded memory, early stop)
     lines = count_occurrences(path, {"line": (b"\n",)}, limits.LIMITS["file.elements"].maximum,
                               start=b"")["line"]
     limits.check("file.elements", lines, where=f"{path}: line count {lines}")
-    rows = []
+    rows: list[list[float]] = []
+    widths = set(TEXT_WIDTHS)
     with open(path, encoding="utf-8", errors="replace") as fh:
         for number, line in enumerate(fh, 1):
-            text = line.split("#", 1)[0].replace(",", " ").strip()
+            body, _, comment = line.partition("#")
+            text = body.strip()
             if not text:
+                names = _header_names(comment) if not rows else None
+                widths |= {len(names)} if names else set()
                 continue
+            fields = _text_values(text)
             try:
-                rows.append([float(v) for v in text.split()])
+                values = [float(v) for v in fields] if fields else None
             except ValueError:
-                if not rows and number <= 2:  # a header line
-                    continue
-                raise InputError(f"{path}:{number}: not numbers: {line.strip()[:60]!r}") from None
+                values = None
+            if values is None and not rows and number <= 2 and fields:  # a header line
+                names = _header_names(text)
+                widths |= {len(names)} if names else set()
+                continue
+            width = len(rows[0]) if rows else None
+            if values is None or len(values) not in widths or (width and len(values) != width):
+                shown = escape(line.strip()[:60])
+                what = ("not numbers" if values is None else
+                        f"{len(values)} numbers, the lines before hold {width}" if width else
+                        f"{len(values)} numbers")
+                expected = " or ".join(str(w) for w in sorted(widths))
+                hint = " (a decimal comma?)" if "," in text and " " in text.strip() else ""
+                raise InputError(f"{path}:{number}: {what}{hint}: {shown!r}; each line holds "
+                                 f"x y z as {expected} numbers, separated by spaces or commas")
+            rows.append(values)
     if not rows:
         raise InputError(f"{path}: no points")
-    width = len(rows[0])
-    bad = next((i for i, r in enumerate(rows) if len(r) != width), None)
-    if width < 3 or bad is not None:
-        raise InputError(f"{path}: every row needs the same number (>= 3) of columns "
-                         f"x y z [extra]; got {width} then {len(rows[bad]) if bad else width}")
     data = np.array(rows, dtype=np.float64)
+    width = data.shape[1]
     if not np.isfinite(data[:, :3]).all():
         raise InputError(f"{path}: non-finite coordinates")
     return Cloud(_finite(data[:, :3], path), extra=data[:, 3:] if width > 3 else None)
@@ -278,7 +338,7 @@ def read_npz(path: str | os.PathLike) -> Cloud:
         points, colours, sigma = _check(points, colours, sigma)
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return Cloud(_finite(points, path), colours, sigma)
+    return Cloud(_finite(points, path), colours, _precision(sigma, path))
 
 
 def read_cloud(path: str | os.PathLike) -> Cloud:

@@ -72,7 +72,7 @@ def _read_checked(path: str | os.PathLike, want_normals: bool
     if suffix not in MESH_SUFFIXES + (".glb",):
         raise InputError(f"{path}: unknown mesh format {path.suffix!r} "
                          f"(expected one of {', '.join(MESH_SUFFIXES)})")
-    check_header_counts(path)
+    claimed = check_header_counts(path)
     read = _read_binary_ply(path) if suffix == ".ply" else None
     if read is None:
         import open3d as o3d
@@ -88,6 +88,11 @@ def _read_checked(path: str | os.PathLike, want_normals: bool
     vertices, triangles, normals = read
     if len(triangles) == 0:
         raise InputError(f"{path}: no triangles could be read")
+    if suffix in (".ply", ".off"):  # each face is one triangle at least (polygons: more)
+        for name, held in (("vertices", len(vertices)), ("faces", len(triangles))):
+            if held < claimed.get(name, 0):
+                raise InputError(f"{path}: the header claims {claimed[name]} {name} but the "
+                                 f"file holds {held}: truncated or not what it says")
     if not np.all(np.isfinite(vertices)):
         raise InputError(f"{path}: vertices contain NaN/inf")
     check_coordinates(vertices, str(path), "vertex coordinates")
@@ -204,8 +209,11 @@ def _read_binary_ply(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | N
                              "vertices")
         # a polygon (count != 3) would misalign every later face: read the counts first
         face_data = np.fromfile(fh, dtype=face_type, count=n_faces)
-    if len(face_data) < n_faces or np.any(face_data["n"] != 3):
-        return None  # polygons or a short file: open3d's reader decides
+    if len(face_data) < n_faces and np.all(face_data["n"] == 3):
+        raise InputError(f"{path}: the header claims {n_faces} faces but the file holds "
+                         f"{len(face_data)}: truncated or not what it says")
+    if np.any(face_data["n"] != 3):
+        return None  # polygons: open3d's reader decides
     vertices = np.column_stack([vertex_data[c] for c in "xyz"]).astype(np.float64)
     normals = (np.column_stack([vertex_data[c] for c in ("nx", "ny", "nz")])
                .astype(np.float64) if {"nx", "ny", "nz"} <= names else None)

@@ -267,3 +267,58 @@ def test_far_outliers_rule():
     # a stray just inside the gap is kept: the rule is the gap, not a distance
     near = np.array([[0.0, 0.0, clean[:, 2].max() + 0.5 * GAP_SPACINGS * found.spacing]])
     assert far_outliers(np.vstack([clean, near])).count == 0
+
+
+# =========================================================================== file contents
+
+@pytest.mark.parametrize(("text", "line", "needles"), [
+    ("-0,651928 -0,758701 1,299520\n-0,1 0,2 0,3\n", 1, ["decimal comma", "-0,651928"]),
+    ("1 2 3\n4 5 6\n7 8\n", 3, ["2 numbers", "'7 8'"]),
+    ("1 2 3 4\n5 6 7 8\n", 1, ["4 numbers", "3 or 6"]),
+    ("1 2 3\n4 5 6 7 8 9\n", 2, ["6 numbers, the lines before hold 3"]),
+    ("1,2,3\n4,,6\n", 2, ["not numbers"]),
+])
+def test_text_cloud_line_that_is_not_3_or_6_numbers(tmp_path, capfd, text, line, needles):
+    path = tmp_path / "c.xyz"
+    path.write_text(text)
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", path, "--out", out], f"c.xyz:{line}:", *needles, out=out)
+
+
+def test_text_cloud_header_names_its_columns(tmp_path):
+    from pipeline.cloud_io import read_cloud
+
+    path = tmp_path / "c.xyz"
+    path.write_text("# x y z sigma\n1 2 3 0.5\n4 5 6 0.25\n")
+    back = read_cloud(path)
+    np.testing.assert_array_equal(back.points, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(back.extra, [[0.5], [0.25]])
+
+
+@pytest.mark.parametrize(("sigma", "needle"), [(0.0, "none of its"), (-0.01, "never negative"),
+                                                (np.nan, "none of its")])
+def test_npz_sigma_that_is_not_a_precision(tmp_path, capfd, sigma, needle):
+    from pipeline.cloud_io import write_cloud
+
+    points = cylinder_points(600)
+    path = write_cloud(tmp_path / "c.npz", points, sigma=np.full(len(points), sigma))
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", path, "--out", out], "c.npz", "'sigma'", needle, out=out)
+
+
+@pytest.mark.parametrize("ascii_ply", [False, True], ids=["binary", "ascii"])
+def test_ply_header_claiming_more_faces_than_present(tmp_path, capfd, ascii_ply):
+    import open3d as o3d
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 8)
+    good = tmp_path / "good.ply"
+    o3d.io.write_triangle_mesh(str(good), sphere, write_ascii=ascii_ply)
+    faces = len(sphere.triangles)
+    data = good.read_bytes()
+    claim = f"element face {faces}\n".encode()
+    assert claim in data
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(data.replace(claim, f"element face {faces + 50}\n".encode()))
+    out = tmp_path / "s.ply"
+    fails_cleanly(capfd, ["smooth", bad, "--out", out], "bad.ply", f"claims {faces + 50} faces",
+                  f"holds {faces}", out=out, also=[out.with_suffix(".npz")])
