@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import datetime
 import json
 import math
 import sys
@@ -30,7 +31,7 @@ def purpose(name: str) -> str:
     if not path.is_file():
         return ""
     doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
-    return doc.strip().splitlines()[0] if doc.strip() else ""
+    return doc.strip().splitlines()[0].replace("``", "`") if doc.strip() else ""
 
 
 def fmt(value) -> str:
@@ -99,8 +100,10 @@ def section(path: Path) -> list[str]:
                 f"- commit: `{meta.get('commit')}`, {meta.get('utc')} UTC, load {meta.get('load')}",
                 ""]
     else:
-        out += [f"- command and commit: not recorded in `{path.name}` (written before "
-                "`write_result` recorded them); rerun the benchmark to record them", ""]
+        written = datetime.datetime.fromtimestamp(path.stat().st_mtime, datetime.UTC)
+        out += [f"- command: `python benchmarks/{name}.py` with arguments not recorded; commit "
+                f"not recorded (this benchmark writes its JSON without "
+                f"`_common.write_result`); file written {written:%Y-%m-%d %H:%M} UTC", ""]
     goals = data.get("goals")
     if isinstance(goals, dict) and goals:
         out += ["Goals: " + ", ".join(f"{k} **{'met' if v else 'not met'}**"
