@@ -36,16 +36,10 @@ every window smooths alike (the affine patch's model error against the centre pi
 ``benchmarks/matching.py``'s rippled vase errs 2.2x the σ with the factor, 6.8x
 without; forward-backward loops see even less of it, 0.54x σ).
 
-Measured (``benchmarks/matching.py``, one full run): rendered vase pair 1024x768
-k² = 1.27 (actual / reported σ 1.27 -> 1.01), 320x240 with 1 px correlated noise
-9.5 (3.0 -> 0.98); graffiti 21x21 7.1 (the forward-backward lower bound 3.2); temple
-pairs 10.5 to 76 (the old estimator -- residuals to a local quadratic over 2.5 patch
-sides -- gave ~745 on pair (0, 1): the facade's depth structure).  Per window class
-(:func:`class_variance_factors`, what ``match_pair`` applies since 2026-12-03): temple
-k² 5-85 for the windows clear of an edge, 74-240 for the ``edge`` windows; the cross-pair
-check (below) puts the errors at 0.75 / 0.64 of those σ k.  Unlike forward-backward matching
-(:mod:`matching.consistency`), whose two matches read the same pixels and so share
-their noise, the windows compared here share none.
+Unlike forward-backward matching (:mod:`matching.consistency`), whose two matches read
+the same pixels and so share their noise, the windows compared here share none.
+``match_pair`` applies one factor per window class (:func:`class_variance_factors`).
+Figures: ``docs/decisions/stereo-matching.md``.
 
 References
 ----------
