@@ -4,8 +4,8 @@ The docstrings are written for numpydoc (Sphinx roles, reST literals and math); 
 renders Markdown.  Before rendering, each docstring's ``:func:`name``` (any role) becomes
 ``name`` in code, a double-backquoted literal single-backquoted, ``:math:`x``` becomes
 ``\\(x\\)`` and a ``.. math::`` block ``\\[ ... \\]`` (MathJax through ``pymdownx.arithmatex``),
-and a ``[1]_`` citation mark is shown as ``[1]`` (escaped: not a Markdown link).  Nothing else changes, and
-the sources are not touched.
+and a ``[1]_`` citation mark is shown as ``[1]`` (escaped: not a Markdown link).  Nothing
+else changes, and the sources are not touched.
 """
 
 from __future__ import annotations
