@@ -208,6 +208,9 @@ def run(args: argparse.Namespace) -> int:
                               if sized.step > 1 or sized.n else "no thinning within the "
                               "goal: the stitched mesh")
     else:
+        from pipeline.smoothing import solid_report  # one warning line if not a valid solid
+
+        solid_report("sections", vertices, triangles, expect_closed=not args.open_ends)
         write_mesh(out, vertices, triangles)
     seconds = time.perf_counter() - start
     if not args.quiet:
