@@ -1,0 +1,48 @@
+"""pipeline.smoothing: the smooth surface's tessellation is checked as a solid, and a
+defect is logged in one line."""
+
+import numpy as np
+import open3d as o3d
+
+from pipeline.smoothing import smooth_mesh, solid_report
+
+
+def _icosphere(subdivisions=1, centre=(0.0, 0.0, 0.0)):
+    mesh = o3d.geometry.TriangleMesh.create_icosahedron(1.0).subdivide_midpoint(subdivisions)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    vertices /= np.linalg.norm(vertices, axis=1, keepdims=True)
+    return vertices + np.asarray(centre), np.asarray(mesh.triangles, dtype=np.int64)
+
+
+def test_smooth_sphere_is_a_valid_solid_in_the_manifest(caplog):
+    v, t = _icosphere()
+    with caplog.at_level("WARNING", logger="photosurf"):
+        smoothed = smooth_mesh(v, t, 1)
+    solid = smoothed.info()["solid"]
+    assert solid["valid"] and solid["genus"] == 0 and solid["components"] == 1
+    assert solid["faces"] == len(smoothed.triangles)
+    assert not caplog.records
+
+
+def test_crossing_spheres_are_reported_in_one_line(caplog):
+    v1, t1 = _icosphere()
+    v2, t2 = _icosphere(centre=(1.2, 0.1, 0.0))
+    v, t = np.vstack([v1, v2]), np.vstack([t1, t2 + len(v1)])
+    with caplog.at_level("WARNING", logger="photosurf"):
+        solid = solid_report("stitch", v, t)
+    (record,) = caplog.records
+    assert record.getMessage().startswith("stitch: the mesh self-intersects at "
+                                          f"{solid['self_intersecting_pairs']} triangle pairs")
+    assert solid["self_intersecting_pairs"] > 0 and not solid["valid"]
+
+
+def test_a_border_is_no_defect_when_the_mesh_is_open_by_design(caplog):
+    v, t = _icosphere()
+    t = t[~np.any(t == 0, axis=1)]
+    with caplog.at_level("WARNING", logger="photosurf"):
+        solid = solid_report("stitch", v, t, expect_closed=False)
+    assert not caplog.records and solid["boundary_loops"] == 1 and not solid["closed"]
+    with caplog.at_level("WARNING", logger="photosurf"):
+        solid_report("stitch", v, t)
+    (record,) = caplog.records
+    assert "is open: 1 border loops" in record.getMessage()
