@@ -35,6 +35,8 @@ sections.count         1e5          --sections / sections.count
 ring.points            1e5          --n / curves.n (odd sections; 2n on even)
 mesh.triangles         5e7          stitched mesh: about 3 x sections x n
 smooth.triangles       5e7          tessellation: 4 F x 4^level
+smooth.valence         1000         largest vertex valence n of a control mesh (its ring
+                                    operator costs ~n^2: 19 kB x n^2, 0.5 ms x n^2)
 iterations             1000         --max-iter / acquire.max_iter
 workers                64           local-cluster:N / executor.workers
 file.elements          1e8          vertices, faces or rows a mesh/cloud file claims:
@@ -72,6 +74,8 @@ class Limit:
         Time per unit on one core, seconds.
     unit : str
         What one unit is, for the message.
+    power : int
+        The cost grows as ``value ** power`` (1: linear).
     """
 
     key: str
@@ -79,6 +83,7 @@ class Limit:
     bytes_each: float
     seconds_each: float
     unit: str
+    power: int = 1
 
 
 _TABLE = (
@@ -103,6 +108,11 @@ _TABLE = (
     Limit("mesh.triangles", 5e7, 90, 1e-6, "triangle"),
     # vertices, normals (48 B / 2), faces (24 B), welding ids (~40 B)
     Limit("smooth.triangles", 5e7, 90, 3e-7, "triangle"),
+    # Loop's ring patches of a vertex of valence n: a (28n, 18n + 2) operator from a
+    # subdivided (~33n, 3n + 1) template; measured peak memory over the valence-50 run
+    # (photosurf smooth on a bipyramid, valence 200 / 300 / 400: 0.74 / 1.72 / 3.07 GB,
+    # 12 / 40 / 79 s): 19 kB and 0.5 ms per n^2, so 1000 needs ~19 GB, 2000 ~77 GB
+    Limit("smooth.valence", 1000, 1.92e4, 5e-4, "valence^2", power=2),
     # one Gauss-Newton iteration over every candidate of a 1024x768 pair at spacing 3
     Limit("iterations", 1000, 0, 0.05, "iteration"),
     # one Dask worker process (interpreter, numpy, open3d, numba)
@@ -171,11 +181,12 @@ def _duration(seconds: float) -> str:
 def estimate(key: str, value: float) -> str:
     """The estimated cost of ``value`` units of ``key``: ``"8 GB, 3 h"``."""
     limit = LIMITS[key]
+    units = float(value) ** limit.power
     parts = []
     if limit.bytes_each:
-        parts.append(_amount(value * limit.bytes_each, "B"))
+        parts.append(_amount(units * limit.bytes_each, "B"))
     if limit.seconds_each:
-        parts.append(_duration(value * limit.seconds_each))
+        parts.append(_duration(units * limit.seconds_each))
     return ", ".join(parts) or "unbounded"
 
 

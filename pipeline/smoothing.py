@@ -168,6 +168,10 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
         limits.check("smooth.triangles", 4 * len(triangles) * 4 ** finest,
                      where=f"level {finest} on {len(triangles)} control triangles")
     if surface is None:
+        if len(triangles):  # a vertex's ring patches cost ~valence^2 (limits: smooth.valence)
+            valence = int(np.bincount(np.asarray(triangles).ravel()).max())
+            limits.check("smooth.valence", valence,
+                         where=f"a control mesh vertex in {valence} triangles")
         surface = bezier.control_net(vertices, triangles)
     if level == "adaptive":  # a chord tolerance per patch, crack-free across patch edges
         if tolerance is None or not tolerance > 0:

@@ -322,3 +322,34 @@ def test_ply_header_claiming_more_faces_than_present(tmp_path, capfd, ascii_ply)
     out = tmp_path / "s.ply"
     fails_cleanly(capfd, ["smooth", bad, "--out", out], "bad.ply", f"claims {faces + 50} faces",
                   f"holds {faces}", out=out, also=[out.with_suffix(".npz")])
+
+
+# =========================================================================== smooth
+
+def _bipyramid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed mesh whose two apexes have valence ``n``."""
+    theta = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = np.column_stack([np.cos(theta), np.sin(theta), np.zeros(n)])
+    vertices = np.vstack([ring, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
+    i = np.arange(n)
+    j = (i + 1) % n
+    triangles = np.vstack([np.column_stack([i, j, np.full(n, n)]),
+                           np.column_stack([j, i, np.full(n, n + 1)])])
+    return vertices, triangles
+
+
+def test_smooth_vertex_of_valence_2000_refused_before_building(tmp_path, capfd):
+    """A vertex of valence n costs ~19 kB x n^2 (its ring operator): 2000 would need
+    ~77 GB; refused by the limit, before the control net is built."""
+    from pipeline.mesh_io import write_mesh
+
+    mesh = write_mesh(tmp_path / "fan.ply", *_bipyramid(2000))
+    out = tmp_path / "s.ply"
+    line = fails_cleanly(capfd, ["smooth", mesh, "--out", out], "smooth.valence = 2000",
+                         "estimated 76.8 GB", out=out, also=[out.with_suffix(".npz")])
+    assert "--allow-large" in line
+
+
+def test_valence_limit_costs_the_square():
+    assert limits.estimate("smooth.valence", 1000).startswith("19.2 GB")
+    assert limits.estimate("smooth.valence", 2000).startswith("76.8 GB")
