@@ -439,6 +439,55 @@ def check_cloud_shape(points: np.ndarray, name: str, axis=None) -> None:
         raise InputError(f"{name}: degenerate cloud: all {len(points)} points lie in one plane "
                          f"(normal {np.round(normal, 6).tolist()}) {where}: every section would "
                          "be a line segment, not a closed loop (no closed surface)")
+    _check_spread(points, centre, directions, name, axis)
+
+
+#: Sections are ``Δ = 2 s`` apart and a ring's points as far apart as the sections
+#: (:func:`surface.reconstruct.ring_count`); a closed cubic needs more than 3 of them
+#: (:func:`surface.reconstruct.min_loop_points`: 4), so a loop at least ``3 Δ`` long.  A
+#: convex loop of width ``W`` is at most ``π W`` long: a cloud narrower than
+#: ``3 Δ / π = 6 s / π`` across its line holds no loop.
+LINE_WIDTH_SPACINGS = 6.0 / np.pi
+
+
+def _check_spread(points: np.ndarray, centre: np.ndarray, directions: np.ndarray, name: str,
+                  axis) -> None:
+    """Refuse a cloud on a line within its noise, or in planes across the slicing axis with
+    no wall between them -- both judged against the point spacing ``s``
+    (:func:`surface.sections.point_spacing`), so a noisy line is a line.
+
+    * width across the principal direction below ``LINE_WIDTH_SPACINGS · s``;
+    * heights along the slicing axis in two or more levels, each thinner than the
+      section spacing ``Δ = 2 s`` and more than ``Δ`` apart: no point between two levels,
+      so no wall joins them, and every section is a level's filled area or empty.
+    """
+    from surface.sections import point_spacing, resolve_axis
+
+    s = point_spacing(points)
+    if not s > 0:
+        return
+    width = float(np.ptp((points - centre) @ directions[1]))
+    if width < LINE_WIDTH_SPACINGS * s:
+        raise InputError(f"{name}: degenerate cloud: all {len(points)} points lie on one line "
+                         f"within {width:.3g} ({width / s:.2g} point spacings; a closed loop "
+                         f"needs {LINE_WIDTH_SPACINGS:.2g}): no surface passes round them")
+    try:
+        direction = resolve_axis("z" if axis is None else axis, points)
+    except ValueError:
+        return
+    heights = np.sort(points @ direction)
+    cuts = np.flatnonzero(np.diff(heights) > 2 * s) + 1
+    if cuts.size == 0:
+        return
+    edges = np.concatenate([[0], cuts, [len(heights)]])
+    thickness = heights[edges[1:] - 1] - heights[edges[:-1]]
+    if np.all(thickness < 2 * s):
+        levels = ", ".join(f"{h:.3g}" for h in heights[edges[:-1]][:5])
+        raise InputError(f"{name}: degenerate cloud: all {len(points)} points lie in "
+                         f"{len(thickness)} planes across the slicing axis (heights {levels}"
+                         f"{' ...' if len(thickness) > 5 else ''}), none thicker than a section "
+                         "spacing, with nothing between them: no wall joins them (no closed "
+                         "surface)")
 
 
 def drop_far_outliers(points: np.ndarray, name: str, *per_point) -> tuple:

@@ -457,7 +457,20 @@ def _validate_cameras(table: _Table) -> dict:
     cams["principal_point"] = table.take("principal_point", "vector", centre, length=2)
     distortion = table.take("distortion", "vector", [0.0] * 5, length=5)
     cams["distortion"] = distortion
+    if any(distortion):  # invertible and a lens's over the image, before any scene is built
+        K, dist = _intrinsics(cams)
+        border = np.array([[u, v] for u in (-0.5, (cams["width"] - 1) / 2, cams["width"] - 0.5)
+                           for v in (-0.5, (cams["height"] - 1) / 2, cams["height"] - 0.5)])
+        try:
+            undistort_pixels(border, Camera(K, dist, np.eye(3), np.zeros(3), cams["width"],
+                                            cams["height"], "each view"))
+        except InputError as exc:
+            raise table.error("distortion", str(exc).removeprefix(
+                "field cameras.distortion: ")) from None
     cams["fill"] = table.take("fill", "float", 0.85, positive=True)
+    if cams["fill"] > 1:  # a share of the image: beyond 1 the object overflows every view
+        raise table.error("fill", f"{cams['fill']:g} is the share of the image the object "
+                          "fills, at most 1")
     cams["azimuth_deg"] = table.take("azimuth_deg", "float", 0.0)
     elevation = table.take("elevation_deg", "float", 0.0 if layout == "stereo" else 15.0)
     if abs(elevation) >= 89.0:
@@ -924,6 +937,11 @@ def _distort(xy: np.ndarray, dist: np.ndarray, jacobian: bool = False):
                        radial + y * y * slope + 6 * p1 * y + 2 * p2 * x)
 
 
+#: Smallest radial factor ``1 + k1 r² + k2 r⁴ + k3 r⁶`` over an image (and the inverse
+#: largest) accepted as a lens distortion (:func:`undistort_pixels`).
+MIN_RADIAL_FACTOR = 0.5
+
+
 def undistort_pixels(pixels: np.ndarray, camera: Camera) -> np.ndarray:
     """Normalised undistorted coordinates ``(N, 2)`` of distorted ``pixels (N, 2)``.
 
@@ -956,6 +974,15 @@ def undistort_pixels(pixels: np.ndarray, camera: Camera) -> np.ndarray:
     if not (error_px <= TOL.undistort_px and np.all(radial > 0) and np.all(a * d - b * c > 0)):
         raise InputError(f"field cameras.distortion: {camera.dist.tolist()} cannot be inverted "
                          f"over the image of {camera.name} (residual {error_px:.2g} px)")
+    # the 5-coefficient model is a lens's correction of the pinhole: a radial factor past
+    # [1/2, 2] moves image points by as much as their own distance from the centre (k1 =
+    # 1e6 shrinks the view to a pinhole's 1/100): no lens this model describes (a wide
+    # angle's barrel stays near 0.7 at the corners; fisheyes need another model)
+    if radial.min() < MIN_RADIAL_FACTOR or radial.max() > 1 / MIN_RADIAL_FACTOR:
+        raise InputError(f"field cameras.distortion: {camera.dist.tolist()} scales the image "
+                         f"of {camera.name} by {radial.min():.3g}..{radial.max():.3g} from its "
+                         f"centre: a lens distortion stays within {MIN_RADIAL_FACTOR:g}.."
+                         f"{1 / MIN_RADIAL_FACTOR:g}")
     return xy
 
 

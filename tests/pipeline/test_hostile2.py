@@ -353,3 +353,59 @@ def test_smooth_vertex_of_valence_2000_refused_before_building(tmp_path, capfd):
 def test_valence_limit_costs_the_square():
     assert limits.estimate("smooth.valence", 1000).startswith("19.2 GB")
     assert limits.estimate("smooth.valence", 2000).startswith("76.8 GB")
+
+
+# =========================================================================== degenerate clouds
+
+def test_noisy_line_is_a_line(tmp_path, capfd):
+    """Collinear to 1e-3 over a length of 7.5: the exact-collinearity test (s2 <= 1e-9 s1)
+    lets it through, but it is narrower than a loop at its own point spacing."""
+    from pipeline.cloud_io import write_cloud
+
+    rng = np.random.default_rng(0)
+    t = rng.uniform(0, 2, 2000)
+    cloud = np.column_stack([t, 2 * t, 3 * t]) + rng.normal(0, 1e-3, (2000, 3))
+    path = write_cloud(tmp_path / "line.xyz", cloud)
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", path, "--out", out], "one line", "point spacings",
+                  out=out)
+
+
+def test_thin_tube_is_not_a_line():
+    """A tube ~8 points round (width ~2.5 spacings) is kept: the line rule is a loop's need."""
+    from pipeline.guards import check_cloud_shape
+    from surface.sections import point_spacing
+
+    rng = np.random.default_rng(2)
+    theta, z = rng.uniform(0, 2 * np.pi, 4000), rng.uniform(0, 40, 4000)
+    tube = np.column_stack([0.3 * np.cos(theta), 0.3 * np.sin(theta), z])
+    assert 0.6 / point_spacing(tube) > 2.0
+    check_cloud_shape(tube, "tube", axis="z")
+
+
+def test_planes_across_the_axis_with_nothing_between(tmp_path, capfd):
+    from pipeline.cloud_io import write_cloud
+
+    rng = np.random.default_rng(0)
+    disc = rng.uniform(-1, 1, (1000, 2))
+    cloud = np.vstack([np.column_stack([disc, np.zeros(1000)]),
+                       np.column_stack([disc, np.full(1000, 0.5)])])
+    path = write_cloud(tmp_path / "planes.xyz", cloud)
+    out = tmp_path / "m.ply"
+    fails_cleanly(capfd, ["sections", path, "--out", out], "2 planes across the slicing axis",
+                  out=out)
+
+
+# =========================================================================== synth
+
+@pytest.mark.parametrize(("setting", "needle"), [
+    ("cameras.fill=100", "cameras.fill: 100"),
+    ("cameras.distortion=[1000000.0, 0.0, 0.0, 0.0, 0.0]", "cameras.distortion"),
+])
+def test_synth_camera_that_is_no_camera(tmp_path, capfd, setting, needle):
+    from tests.pipeline.test_fuzz_inputs import GOOD_RECIPE
+
+    recipe = tmp_path / "scene.toml"
+    recipe.write_text(GOOD_RECIPE)
+    out = tmp_path / "out"
+    fails_cleanly(capfd, ["synth", recipe, "--out", out, "--set", setting], needle, out=out)
