@@ -39,7 +39,7 @@ from _common import uptime, write_result  # noqa: E402
 
 from surface.validity import check_solid  # noqa: E402
 
-SIZES = [1_000, 10_000, 100_000, 500_000]
+SIZES = [1_000, 10_000, 30_000, 100_000, 500_000]
 
 
 def two_spheres(faces: int):
