@@ -55,6 +55,9 @@ def warm_up() -> float:
     cloud = np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
     stitched = surface_from_points(cloud + rng.normal(0.0, 0.002, cloud.shape), axis="z")
     bezier.tessellate(bezier.control_net(stitched.vertices, stitched.triangles), 1)
+    from surface.validity import check_solid  # the solid check's candidate prefilter
+
+    check_solid(stitched.vertices, stitched.triangles)
     # a kernel on a path the vase does not take: the tree walk of a loop whose θ folds
     from surface import topology
 
