@@ -66,6 +66,37 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+#: Bytes :func:`raise_if_full` tries to append: more than a file system's block (4 kB)
+#: and than the buffer a library flushes at once (OpenCascade, C stdio: 4-64 kB).
+PROBE_BYTES = 1 << 20
+
+
+def raise_if_full(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
+    """After a library's write failed without saying why (OpenCascade's ``Write`` returns
+    a status, not an errno): append :data:`PROBE_BYTES` to its temporary ``tmp`` and
+    raise that write's ``OSError`` -- "No space left on device", "File too large",
+    "Disk quota exceeded" -- naming the user's ``path``; return when the bytes fit (the
+    cause is elsewhere), the temporary cut back to its size."""
+    import errno
+
+    tmp = Path(tmp)
+    try:
+        size = tmp.stat().st_size
+        fd = os.open(tmp, os.O_WRONLY | os.O_APPEND)
+    except OSError:
+        return
+    try:
+        os.write(fd, b"\0" * PROBE_BYTES)
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+            raise OSError(exc.errno, os.strerror(exc.errno), str(path)) from None
+    finally:
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, size)
+        os.close(fd)
+
+
 def _fsync(path: Path) -> None:
     """Flush a file's data (or a folder's entries) to the disk; a failure is an OSError."""
     fd = os.open(path, os.O_RDONLY)

@@ -67,7 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_file
+from pipeline.atomic import atomic_file, raise_if_full
 from pipeline.errors import InputError
 from surface.validate import check_finite, check_shape
 
@@ -391,6 +391,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         else:
             ok = _write_iges(solid_from_nets(cp, tris), tmp)
         if not ok:
+            raise_if_full(tmp, path)  # a full disk says so (OpenCascade gives no errno)
             raise InputError(f"{path}: OpenCascade could not write the {suffix[1:].upper()} file")
     return path
 

@@ -409,3 +409,39 @@ def test_synth_camera_that_is_no_camera(tmp_path, capfd, setting, needle):
     recipe.write_text(GOOD_RECIPE)
     out = tmp_path / "out"
     fails_cleanly(capfd, ["synth", recipe, "--out", out, "--set", setting], needle, out=out)
+
+
+# =========================================================================== full disk
+
+_STEP_UNDER_LIMIT = """
+import resource, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of the signal
+from surface import bezier
+from tests.pipeline.test_fuzz_inputs import tetra_mesh
+from pipeline.step import write_cad
+net = bezier.control_net(*tetra_mesh())
+limit = int(sys.argv[1])
+if limit:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+try:
+    write_cad("s.step", net.control_points, net.domain_mesh[1])
+except Exception as exc:
+    print(type(exc).__name__, exc)
+"""
+
+
+def test_step_export_on_a_full_disk_says_so(tmp_path):
+    """OpenCascade's writer returns a status without the errno; the export finds the cause
+    (a file-size limit here, ENOSPC alike) instead of "OpenCascade could not write"."""
+    def write(limit: int) -> str:
+        return subprocess.run([sys.executable, "-c", _STEP_UNDER_LIMIT, str(limit)],
+                              cwd=tmp_path, env=_env(), capture_output=True, text=True,
+                              timeout=300).stdout.strip()
+
+    assert write(0) == ""
+    size = (tmp_path / "s.step").stat().st_size
+    (tmp_path / "s.step").unlink()
+    message = write(size // 3)
+    assert message.startswith("OSError") and "File too large" in message, message
+    assert "s.step" in message and "OpenCascade" not in message
+    assert list(tmp_path.iterdir()) == []
