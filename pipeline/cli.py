@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import importlib.abc
 import logging
 import os
 import signal
@@ -57,6 +58,7 @@ COMMANDS = [
     "sections",
     "smooth",
     "render",
+    "profile",
     "batch",
 ]
 
@@ -93,9 +95,50 @@ def _raise_terminated(signum, frame):
     raise Terminated(signum)
 
 
+#: Extension modules that install their own handler for SIGTERM when imported: pycolmap
+#: (glog's ``InstallFailureSignalHandler``, which prints a 30-line native stack trace and
+#: kills the process on SIGTERM).  The project's handlers are installed again after them.
+SIGNAL_TAKERS = ("pycolmap",)
+
+
+class _HandlersAfterImport(importlib.abc.MetaPathFinder):
+    """Import hook: once a module of :data:`SIGNAL_TAKERS` has run, put back the Python
+    handlers of SIGTERM, SIGHUP and SIGINT it replaced at the C level (main thread)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name not in SIGNAL_TAKERS:
+            return None
+        import importlib.util
+
+        sys.meta_path.remove(self)
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            sys.meta_path.insert(0, self)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run_module = spec.loader.exec_module
+
+        def exec_module(module):
+            handlers = {sig: signal.getsignal(sig)
+                        for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)}
+            try:
+                run_module(module)
+            finally:
+                if threading.current_thread() is threading.main_thread():
+                    for sig, handler in handlers.items():
+                        if handler is not None:
+                            with contextlib.suppress(ValueError, OSError, TypeError):
+                                signal.signal(sig, handler)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
 @contextlib.contextmanager
 def _signals_unwind():
-    """SIGTERM/SIGHUP raise :class:`Terminated` for the duration (main thread only)."""
+    """SIGTERM/SIGHUP raise :class:`Terminated` for the duration (main thread only), also
+    when a module imported meanwhile takes the signals (:data:`SIGNAL_TAKERS`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -103,9 +146,13 @@ def _signals_unwind():
     for sig in (signal.SIGTERM, signal.SIGHUP):
         with contextlib.suppress(ValueError, OSError):
             saved[sig] = signal.signal(sig, _raise_terminated)
+    hook = _HandlersAfterImport()
+    sys.meta_path.insert(0, hook)
     try:
         yield
     finally:
+        with contextlib.suppress(ValueError):
+            sys.meta_path.remove(hook)
         for sig, handler in saved.items():
             signal.signal(sig, handler)
 
