@@ -191,6 +191,8 @@ def sections(ctx: StageContext) -> dict:
     points, cap_sigma, outliers = drop_far_outliers(cloud["points"], "sections",
                                                     cloud["sigma"])
     axis, axis_source = _section_axis(p["axis"], ctx.stage_path("acquire", RING_FILE))
+    if isinstance(p["axis"], str) and p["axis"] == "data" and axis_source.startswith("z "):
+        axis, axis_source = _across_the_view(points, _cameras(ctx), axis, axis_source)
     check_cloud_shape(points, "acquire: the cloud", axis=axis)  # a line or plane: no surface
     extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
     if 0 < extent < MIN_EXTENT:  # the stages' lengths are in scene units: not rescaled here
@@ -236,6 +238,55 @@ def _section_axis(axis, ring_file: Path):
     if ring.get("frame") == "sfm":
         return "auto", "principal axis (SfM frame; cameras not a ring)"
     return "z", "z (no camera ring)"
+
+
+#: Largest angle (degrees) between the z axis and the cameras' mean viewing direction at
+#: which ``sections.axis = "data"`` moves off z: closer than 45° the section planes face
+#: the cameras more than they contain their rays, and a surface seen face-on is cut into
+#: depth slabs (a real stereo pair's rig frame has z along the left optical axis: on the
+#: chessboard pair 255 sections of blobs and a non-manifold stitched mesh).
+AXIS_VIEW_DEGREES = 45.0
+
+
+def _across_the_view(points, cameras, axis, source):
+    """The cloud's principal direction across the cameras' mean viewing direction ``d``
+    (the largest eigenvector of ``(I - d dᵀ) Σ (I - d dᵀ)``), when z lies within
+    :data:`AXIS_VIEW_DEGREES` of ``d``; else ``axis, source`` unchanged."""
+    import numpy as np
+
+    if not cameras:
+        return axis, source
+    view = np.mean([camera.R[2] for camera in cameras], axis=0)   # optical axes in world
+    view /= np.linalg.norm(view)
+    if abs(view[2]) < np.cos(np.radians(AXIS_VIEW_DEGREES)):
+        return axis, source
+    across = np.eye(3) - np.outer(view, view)
+    centred = np.asarray(points, np.float64) - np.median(points, axis=0)
+    scatter = across @ (centred.T @ centred) @ across
+    principal = np.linalg.eigh(scatter)[1][:, -1]
+    return ([round(float(a), 9) for a in principal],
+            f"principal axis across the cameras' view (z is within {AXIS_VIEW_DEGREES:g} "
+            "degrees of their viewing direction)")
+
+
+def _cameras(ctx: StageContext) -> list:
+    """The cameras the cloud was seen from (SfM's, the scene's or the rig's), or []."""
+    from matching.cameras import read_cameras_yml, read_rig
+
+    candidates = [ctx.stage_path("acquire", artifacts.CAMERAS)]
+    if ctx.kind == "scene":
+        candidates.append(ctx.stage_path("scene", "cameras.yml"))
+    elif ctx.rig is not None:
+        candidates.append(Path(ctx.rig))
+    for path in candidates:
+        if not path.is_file():
+            continue
+        for reader in (read_cameras_yml, lambda f: [read_rig(f).left, read_rig(f).right]):
+            try:
+                return list(reader(path))
+            except Exception:  # noqa: BLE001 - another format, or no cameras: try the next
+                continue
+    return []
 
 
 def curves(ctx: StageContext) -> dict:
@@ -310,8 +361,15 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
     _, _, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     if not spacing > 0:
         spacing = float(np.median(np.abs(np.diff([s.height for s in kept]))))
-    curves, rings, params, step, notes = osf.open_arcs(
-        loops, spacing, p["n"] or None, smoothing=smoothing)
+    try:
+        curves, rings, params, step, notes, run = osf.open_arcs(
+            loops, spacing, p["n"] or None, smoothing=smoothing)
+    except ValueError as exc:
+        raise InputError(f"curves: one-sided data, but no open surface: {exc}") from exc
+    if len(run) < 2:
+        raise InputError("curves: one-sided data, but no two neighbouring sections' arcs "
+                         "overlap: no open surface (set sections.count or sections.spacing)")
+    kept, loops = [kept[k] for k in run], [loops[k] for k in run]
     messages += notes
     for message in messages:
         log.warning("curves: %s", message)
@@ -329,22 +387,8 @@ def _camera_centres(ctx: StageContext):
     or cameras that cannot be read): the side the open surface faces."""
     import numpy as np
 
-    from matching.cameras import read_cameras_yml, read_rig
-
-    candidates = [ctx.stage_path("acquire", RING_FILE).parent / artifacts.CAMERAS]
-    if ctx.kind == "scene":
-        candidates.append(ctx.stage_path("scene", "cameras.yml"))
-    elif ctx.rig is not None:
-        candidates.append(Path(ctx.rig))
-    for path in candidates:
-        if not path.is_file():
-            continue
-        for reader in (read_cameras_yml, lambda f: [read_rig(f).left, read_rig(f).right]):
-            try:
-                return np.array([camera.center for camera in reader(path)], np.float64)
-            except Exception:  # noqa: BLE001 - another format, or no cameras: try the next
-                continue
-    return None
+    cameras = _cameras(ctx)
+    return np.array([camera.center for camera in cameras], np.float64) if cameras else None
 
 
 def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> dict:

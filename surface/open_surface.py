@@ -17,12 +17,13 @@ choice of the smoothing level), without the cyclic wrap.  The curve starts and e
 at the arc's first and last data points (their parameters are 0 and n − 2): it ends
 where the data end.
 
-Arcs are put on one common parameter ``u`` (:func:`align_arcs`): the longest arc's
-``u`` is its arc length; each neighbour's ``u`` is the affine function of its own arc
-length that best matches, in least squares, the ``u`` of its points' nearest points
-on the arc already placed (pairs whose nearest point is an end of that arc are left
-out: there the arcs do not overlap).  On a surface of revolution seen from one side
-``u`` is proportional to the angle θ.  Odd sections are resampled every ``h`` in
+Arcs are put on one common parameter ``u`` (:func:`align_arcs`): each arc is linked to
+the one below by the affine function of its own arc length that best matches, in least
+squares, the arc length of its points' nearest points on that arc (pairs whose nearest
+point is an end of it are left out: there the arcs do not overlap); the surface is the
+run of linked arcs with the most length, ``u`` the arc length of its longest arc carried
+along the links.  On a surface of revolution seen from one side ``u`` is proportional to
+the angle θ.  Odd sections are resampled every ``h`` in
 ``u``, even ones every ``h/2`` on the same grid (N and 2N per unit of ``u``; ``h`` is
 the section spacing on the widest arc, as the closed rings' ``N = P_max/Δ``), at the
 grid points within the arc's range (an arc end within a quarter step past the last
@@ -66,6 +67,14 @@ __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "ali
 #: end point there (the most the resampled arc reaches beyond its data is this share of
 #: the ring spacing).
 QUARTER_STEP = 0.25
+#: Most the length scale of ``u`` may change from one arc to the next (a factor): arcs
+#: one section spacing apart whose lengths per unit of ``u`` differ more are not one
+#: surface seen across them (a cluttered scene's unrelated arcs): the surface stops there
+#: (:func:`align_arcs`).
+MAX_SCALE_CHANGE = 2.0
+#: Most resampled points per data point: the rings are one section spacing apart, about
+#: two data spacings (surface.sections), so a sound alignment gives well under one.
+MAX_RING_POINTS_PER_POINT = 4.0
 #: Dense samples per curve segment for arc length and nearest points (chord error
 #: ~ (h/16)² κ / 8: below 1e-4 of the spacing for a segment turning 30°).
 _DENSE = 16
@@ -294,36 +303,62 @@ def _match(placed: _Placed, t, pts, length) -> tuple[float, float, int] | None:
     return float(a), float(c), int(np.count_nonzero(keep))
 
 
-def align_arcs(curves: list[OpenCurve]) -> tuple[list[OpenCurve], list[_Placed], list[str]]:
+def align_arcs(curves: list[OpenCurve]
+               ) -> tuple[list[OpenCurve], list[_Placed], list[str], range]:
     """Put the arcs on one parameter ``u`` (module notes), reversing arcs that run
     against their neighbours.
 
-    Returns the curves (some reversed), their placed dense samples and notes on
-    neighbours that do not overlap (placed end to end).
+    Each arc is linked to the one below by the affine map of :func:`_match` (its arc
+    length onto the lower arc's); a link fails where the arcs do not overlap or the map's
+    scale is off by more than :data:`MAX_SCALE_CHANGE`.  The surface is the run of
+    linked arcs with the most length; ``u`` is the arc length of its longest arc, carried
+    along the links.
+
+    Returns
+    -------
+    curves : list of OpenCurve
+        Some reversed.
+    placed : list
+        The run's arcs' dense samples and their ``u`` map (None outside the run).
+    notes : list of str
+    run : range
+        Indices of the arcs in the run.
     """
     curves = list(curves)
     dense = [c.dense() for c in curves]
-    ref = int(np.argmax([d[2][-1] for d in dense]))
-    placed: list = [None] * len(curves)
-    placed[ref] = _Placed(*dense[ref], 0.0, 1.0)
-    notes = []
-    order = [(k, k - 1) for k in range(ref + 1, len(curves))] + \
-        [(k, k + 1) for k in range(ref - 1, -1, -1)]
-    for k, nb in order:
-        t, pts, length = dense[k]
-        fit = _match(placed[nb], t, pts, length)
+    links: list = [None] * len(curves)     # links[k]: s_{k-1} = a + c * s_k
+    for k in range(1, len(curves)):
+        below = _Placed(*dense[k - 1], 0.0, 1.0)
+        fit = _match(below, *dense[k])
         if fit is not None and fit[1] < 0:  # runs the other way: reverse the arc
             curves[k] = OpenCurve(curves[k].control_points[::-1].copy(), curves[k].smoothing)
-            t, pts, length = dense[k] = curves[k].dense()
-            fit = _match(placed[nb], t, pts, length)
-        if fit is None or fit[1] <= 0:
-            notes.append(f"arc {k} does not overlap arc {nb}: placed end to end")
-            start = placed[nb].u[[0, -1]]
-            near_first = np.linalg.norm(pts[0] - placed[nb].points[[0, -1]], axis=1)
-            a = float(start[int(np.argmin(near_first))])
-            fit = (a, placed[nb].scale, 0)
-        placed[k] = _Placed(t, pts, length, fit[0], fit[1])
-    return curves, placed, notes
+            dense[k] = curves[k].dense()
+            fit = _match(below, *dense[k])
+        if fit is not None and MAX_SCALE_CHANGE ** -1 <= fit[1] <= MAX_SCALE_CHANGE:
+            links[k] = fit
+    runs, lo = [], 0
+    for k in range(1, len(curves) + 1):
+        if k == len(curves) or links[k] is None:
+            runs.append(range(lo, k))
+            lo = k
+    run = max(runs, key=lambda r: sum(dense[k][2][-1] for k in r))
+    notes = []
+    if len(run) < len(curves):
+        notes.append(f"{len(curves) - len(run)} of {len(curves)} arcs left out: they do not "
+                     f"overlap the run of arcs {run.start}..{run.stop - 1} (the surface's) "
+                     "section to section")
+    ref = max(run, key=lambda k: dense[k][2][-1])
+    placed: list = [None] * len(curves)
+    placed[ref] = _Placed(*dense[ref], 0.0, 1.0)
+    for k in range(ref + 1, run.stop):   # U_k(s) = U_{k-1}(a + c s)
+        a, c, _ = links[k]
+        prev = placed[k - 1]
+        placed[k] = _Placed(*dense[k], prev.offset + prev.scale * a, prev.scale * c)
+    for k in range(ref - 1, run.start - 1, -1):   # U_k(s) = U_{k+1}((s - a) / c)
+        a, c, _ = links[k + 1]
+        nxt = placed[k + 1]
+        placed[k] = _Placed(*dense[k], nxt.offset - nxt.scale * a / c, nxt.scale / c)
+    return curves, placed, notes, run
 
 
 def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float
@@ -640,6 +675,9 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     step : float
         The odd arcs' grid step in ``u``.
     notes : list of str
+    run : range
+        The sections (indices into ``loops``) the arcs come from: the run of arcs that
+        overlap section to section (:func:`align_arcs`).
     """
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
@@ -650,8 +688,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
             notes.append(f"section at height {best.height:.6g}: {len(section_loops)} loops, "
                          f"the arc of the largest ({len(best)} points) kept")
         curves.append(fit_open(loop_arc(best), smoothing, frame=best.frame))
-    curves, placed, align_notes = align_arcs(curves)
+    curves, placed, align_notes, run = align_arcs(curves)
     notes += align_notes
+    curves, placed = [curves[k] for k in run], [placed[k] for k in run]
+    loops = [loops[k] for k in run]
     if n is None:
         # the widest arc (smallest scale: most length per unit of u) gets ring points
         # one section spacing apart
@@ -659,8 +699,14 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     else:
         widest = max(placed, key=lambda p: float(p.u[-1] - p.u[0]))
         step = float(widest.u[-1] - widest.u[0]) / max(int(n) - 1, 1)
+    counts = [float(p.u[-1] - p.u[0]) / (step if k % 2 == 0 else step / 2) + 2
+              for k, p in enumerate(placed)]
+    data = sum(len(max(section_loops, key=len)) for section_loops in loops)
+    if sum(counts) > MAX_RING_POINTS_PER_POINT * data:
+        raise ValueError(f"the arcs do not line up as one surface: resampling them would "
+                         f"take {sum(counts):.3g} ring points for {data} data points")
     rings, params = resample_arcs(curves, placed, step)
-    return curves, rings, params, float(step), notes
+    return curves, rings, params, float(step), notes, run
 
 
 def open_surface_from_loops(loops: Sequence, spacing: float, n: int | None = None,
@@ -675,7 +721,7 @@ def open_surface_from_loops(loops: Sequence, spacing: float, n: int | None = Non
     rings, params : list of (n_k, 3) and (n_k,) float64
         The resampled arcs and their common parameter (for the workspace).
     """
-    _, rings, params, step, notes = open_arcs(loops, spacing, n, smoothing)
+    _, rings, params, step, notes, _ = open_arcs(loops, spacing, n, smoothing)
     result = stitch_arcs(rings, params, step, flip=flip, viewpoint=viewpoint)
     result.notes = notes + result.notes
     return result, rings, params
