@@ -709,9 +709,10 @@ def check_rig(rig, path: str | os.PathLike) -> None:
             check_coordinates(getattr(cam, name), f"{path}: {label} camera", f"{name} values")
     fs = None
     with native_stderr():
-        try:
-            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        except (cv2.error, SystemError):
+        try:  # parsed from memory: OpenCV crashes on a file name that is not UTF-8
+            fs = cv2.FileStorage(path.read_bytes().decode("utf-8", "replace"),
+                                 cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+        except (cv2.error, SystemError, OSError):
             fs = None
     if fs is not None and fs.isOpened():
         try:

@@ -170,13 +170,15 @@ _ANY_NAME_SCRIPT = textwrap.dedent("""
     from hypothesis import given, settings, strategies as st, HealthCheck
     from pipeline.errors import InputError
     from pipeline.inputs import read_image
-    from matching.cameras import read_cameras, write_cameras_yml, Camera
+    from matching.cameras import read_cameras, write_cameras_yml, write_rig, Camera, StereoRig
     from matching.image_file import imread
+    from pipeline.inputs import read_rig_for
 
     ok, png = cv2.imencode(".png", np.random.default_rng(0).integers(0, 255, (40, 40), np.uint8))
     folder = tempfile.mkdtemp()
     cam = Camera(np.array([[50.0, 0, 20], [0, 50, 20], [0, 0, 1]]), np.zeros(0), np.eye(3),
                  np.array([0.0, 0, 1]), 40, 40, "a.png")
+    right = Camera(cam.K, cam.dist, cam.R, np.array([-0.1, 0, 1]), 40, 40, "b.png")
     names = st.binary(min_size=1, max_size=120).filter(
         lambda b: b"/" not in b and b"\\0" not in b and b not in (b".", b".."))
 
@@ -200,6 +202,9 @@ _ANY_NAME_SCRIPT = textwrap.dedent("""
         write_cameras_yml(yml, [cam])
         assert read_cameras(yml)[0].allclose(cam)
         os.remove(yml)
+        write_rig(yml, StereoRig(cam, right))
+        assert read_rig_for(yml).baseline > 0
+        os.remove(yml)
 
     check()
     print("ok")
@@ -208,8 +213,9 @@ _ANY_NAME_SCRIPT = textwrap.dedent("""
 
 def test_any_file_name_never_crashes_the_reader(tmp_path):
     """File names of arbitrary bytes (not UTF-8 included: OpenCV's ``imread`` and
-    ``FileStorage`` crashed the process on them): the one image reader and the camera
-    file reader and writer work, in a child process so a crash is a failure here."""
+    ``FileStorage`` crashed the process on them): the one image reader, the camera file
+    reader and writer and the rig check work, in a child process so a crash is a
+    failure here."""
     pytest.importorskip("hypothesis")
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONWARNINGS="error::RuntimeWarning")
     run = subprocess.run([sys.executable, "-c", _ANY_NAME_SCRIPT], cwd=tmp_path, env=env,
