@@ -72,9 +72,23 @@ def thread_map(workers: int) -> Callable:
                 numba.set_num_threads(1)
             return func(item)
 
-        with ThreadPoolExecutor(min(workers, len(items))) as pool:
-            return list(pool.map(call, items))
+        return map_without_waiting(call, items, min(workers, len(items)))
     return run
+
+
+def map_without_waiting(func: Callable, items: list, workers: int) -> list:
+    """``list(pool.map(func, items))`` on a pool of ``workers`` threads; when the wait is
+    interrupted (Ctrl-C, SIGTERM raised in the main thread, a task's error) the queued
+    tasks are cancelled and the running ones are not waited for, so the interruption
+    acts at once (the CLI then ends the process; ``pipeline.cli``)."""
+    pool = ThreadPoolExecutor(workers)
+    try:
+        results = list(pool.map(func, items))
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return results
 
 
 def default_workers() -> int:

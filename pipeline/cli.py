@@ -240,6 +240,8 @@ def main(argv: list[str] | None = None) -> int:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"photosurf {args.command}: interrupted ({signal.Signals(signum).name})",
               file=sys.stderr)
+        if argv is None:  # the program itself, not a caller in this process
+            _end_without_worker_threads(128 + int(signum))
         return 128 + int(signum)
     finally:
         stdout.flush()
@@ -251,6 +253,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"photosurf {args.command}: warning: stdout: {escape(reason)}: the summary was "
               "not printed (the outputs were written)", file=sys.stderr)
     return int(status or 0)
+
+
+def _end_without_worker_threads(status: int) -> None:
+    """End the process now when worker threads still run (a view pair in its LSM rounds):
+    the interpreter would otherwise join them at exit, minutes on large images.  Every
+    temporary was removed as the main thread unwound; the streams are flushed first."""
+    if not any(t.is_alive() and not t.daemon for t in threading.enumerate()
+               if t is not threading.main_thread()):
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    logging.shutdown()
+    os._exit(status)
 
 
 def _open_closed_standard_fds() -> None:

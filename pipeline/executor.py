@@ -38,6 +38,7 @@ by the tasks in flight, not by the batch.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.machinery
 import inspect
@@ -48,7 +49,6 @@ import sys
 import types
 import warnings
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 
 from pipeline.errors import InputError
 from pipeline.workspace import OWN_PACKAGES
@@ -78,8 +78,9 @@ class LocalExecutor:
         items = list(items)
         if self.workers == 1 or len(items) < 2:
             return [func(item, **kwargs) for item in items]
-        with ThreadPoolExecutor(self.workers) as pool:
-            return list(pool.map(lambda item: func(item, **kwargs), items))
+        from matching.scheduler import map_without_waiting
+
+        return map_without_waiting(lambda item: func(item, **kwargs), items, self.workers)
 
     def close(self) -> None:
         pass
@@ -139,7 +140,12 @@ class DaskExecutor:
         # task graph; pure=False: every item is its own task even if two items are equal.
         data = self.client.scatter(items, hash=False)
         futures = self.client.map(func, data, pure=False, **kwargs)
-        return self.client.gather(futures)
+        try:
+            return self.client.gather(futures)
+        except BaseException:  # Ctrl-C, SIGTERM: the queued and running tasks are dropped
+            with contextlib.suppress(Exception):
+                self.client.cancel(futures)
+            raise
 
     def check_code(self, func: Callable | None = None) -> None:
         """``InputError`` unless every worker loaded the code this process runs.

@@ -484,3 +484,64 @@ def test_sigterm_during_structure_from_motion_is_one_line(tmp_path):
     assert lines == ["photosurf acquire: interrupted (SIGTERM)"], err
     assert time.monotonic() - sent < 30
     assert not (tmp_path / "c.ply").exists()
+
+
+_SLOW_COMMAND = """
+import sys, threading, time, types
+from pipeline import cli
+from matching.scheduler import thread_map
+
+
+def run(args):  # two view pairs at once, each 60 s of work in its thread
+    print("started", flush=True)
+    thread_map(2)(lambda item: time.sleep(60), range(6))
+
+
+cli._load = lambda name: types.SimpleNamespace(HELP="slow", add_arguments=lambda p: None,
+                                               run=run) if name == "run" else None
+sys.argv = ["photosurf", "run"]
+sys.exit(cli.main())
+"""
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_interrupt_does_not_wait_for_running_pairs(tmp_path, sig):
+    """Ctrl-C while pairs run on threads: the queued pairs are cancelled and the running
+    ones not waited for (before: the pool's exit, then the interpreter's, joined them)."""
+    import signal
+    import time
+
+    signum = getattr(signal, sig)
+    proc = subprocess.Popen([sys.executable, "-c", _SLOW_COMMAND], cwd=tmp_path, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "started"
+    time.sleep(0.5)
+    proc.send_signal(signum)
+    sent = time.monotonic()
+    _, err = proc.communicate(timeout=120)
+    assert time.monotonic() - sent < 10, "the interruption waited for the running tasks"
+    assert proc.returncode == 128 + signum, err
+    assert [ln for ln in err.splitlines() if ln.strip()] == [
+        f"photosurf run: interrupted ({sig})"], err
+
+
+def test_local_executor_cancels_queued_tasks():
+    """A task's error ends the map at once: the queued tasks never start."""
+    import threading
+
+    from pipeline.executor import LocalExecutor
+
+    started = []
+    lock = threading.Lock()
+
+    def task(item):
+        with lock:
+            started.append(item)
+        if item == 0:
+            raise ValueError("bad item")
+        threading.Event().wait(0.5)
+        return item
+
+    with pytest.raises(ValueError, match="bad item"):
+        LocalExecutor(workers=2).map(task, range(40))
+    assert len(started) < 10, started
