@@ -18,16 +18,18 @@ int64``:
 - *self-intersections*: every pair of triangles that meet other than in the vertices
   and edges they share.
 
-Self-intersections.  Broad phase: a hierarchical uniform grid (Ericson, *Real-Time
-Collision Detection* (2005) §7.2): a triangle whose bounding box is at most
-:math:`h_0 2^k` wide lives in level :math:`k` (cells :math:`h_0 2^k`, so it covers at
-most 2×2×2 cells), every triangle of level :math:`\le k` is looked up in level
-:math:`k`'s cells, and a pair is kept once, in the cell holding the low corner of the
-two boxes' overlap.  Narrow phase, batched over the candidate pairs: Möller's interval
-test [1]_: unless one triangle lies wholly on one side of the other's plane, both
-triangles cut the line :math:`L` of the two planes in an interval, and they meet iff
-the intervals overlap; coplanar pairs are tested in 2-D (edge crossings and
-containment).  Shared vertices are handled exactly:
+Self-intersections.  Broad phase: bounding spheres (box centre, half the box diagonal)
+in levels by radius (level :math:`k` holds radii :math:`\le r_0 2^k`, :math:`r_0` the
+median), ``scipy.spatial.cKDTree``: the faces of level :math:`k`, in slabs along the
+longest side (bounded memory), are paired within :math:`2 r_0 2^k` in their level and
+within :math:`r_0 2^k + r_0 2^j` with every smaller level :math:`j`.  A numba
+prefilter keeps the pairs whose spheres and boxes overlap and where neither face lies
+beyond the other's plane (a shared vertex ignored), by twice the narrow phase's zero.
+Narrow phase, batched over the candidate pairs: Möller's interval test [1]_: unless
+one triangle lies wholly on one side of the other's plane, both triangles cut the line
+:math:`L` of the two planes in an interval, and they meet iff the intervals overlap;
+coplanar pairs are tested in 2-D (edge crossings and containment).  Shared vertices
+are handled exactly:
 
 - two triangles sharing an edge meet elsewhere only when they are coplanar and folded
   onto each other (the two opposite vertices on the same side of the edge);
@@ -68,6 +70,9 @@ __all__ = ["SolidReport", "check_solid", "self_intersections"]
 #: Candidate pairs tested per batch of the narrow phase (bounds the temporaries: ~40
 #: float64 arrays of (batch, 3)).
 PAIR_BATCH = 200_000
+#: Faces of one level whose neighbours are looked up together (bounds the candidate list:
+#: ~30 candidates a face on a uniform mesh).
+QUERY_CHUNK = 65_536
 
 
 @dataclass(frozen=True)
@@ -406,25 +411,46 @@ def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
     level = np.maximum(np.ceil(np.log2(np.maximum(radius, r0) / r0)), 0).astype(np.int64)
     level += radius > r0 * 2.0 ** level              # log2's rounding: radius <= R_level
     levels = np.unique(level)
-    members = {k: np.flatnonzero(level == k) for k in levels}
+    # each level's faces in slabs along the longest side, so a chunk is compact in space
+    longest = int(np.argmax(np.ptp(centre, axis=0)))
+    members = {k: (lambda m: m[np.argsort(centre[m, longest], kind="stable")])(
+        np.flatnonzero(level == k)) for k in levels}
     trees = {k: cKDTree(centre[members[k]]) for k in levels}
     for i, k in enumerate(levels):
         big = r0 * 2.0 ** k
-        a_b = [members[k][trees[k].query_pairs(2.0 * big, output_type="ndarray")]]
-        for j in levels[:i]:                         # smaller faces against level k's
-            near = trees[k].sparse_distance_matrix(trees[j], big + r0 * 2.0 ** j,
+        ordered = members[k]
+        position = centre[ordered, longest]
+        for start in range(0, len(ordered), QUERY_CHUNK):
+            end = min(start + QUERY_CHUNK, len(ordered))
+            # the chunk and the slab just past it: a pair of this level is found in the
+            # chunk of its first face (in the slab order), once
+            reach = int(np.searchsorted(position, position[end - 1] + 2.0 * big, "right"))
+            group = ordered[start:reach]
+            local = cKDTree(centre[group]).query_pairs(2.0 * big, output_type="ndarray")
+            local = local[local.min(axis=1) < end - start].reshape(-1, 2)
+            a_b = [group[local]]
+            chunk = ordered[start:end]
+            if i:
+                tree = cKDTree(centre[chunk])
+            for j in levels[:i]:                     # against every smaller level
+                near = tree.sparse_distance_matrix(trees[j], big + r0 * 2.0 ** j,
                                                    output_type="ndarray")
-            a_b.append(np.stack([members[k][near["i"]], members[j][near["j"]]], axis=1))
-        pairs = np.concatenate(a_b).reshape(-1, 2)
-        near = _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale,
-                          TOL.planar_rel)
-        pairs = pairs[near]
-        for s in range(0, len(pairs), PAIR_BATCH):
-            a, b = pairs[s:s + PAIR_BATCH, 0], pairs[s:s + PAIR_BATCH, 1]
-            hit = _pairs_intersect(corners[a], corners[b], tri[a], tri[b], normal[a],
-                                   normal[b], scale[a], scale[b])
-            if np.any(hit):
-                yield np.stack([a[hit], b[hit]], axis=1)
+                a_b.append(np.stack([chunk[near["i"]], members[j][near["j"]]], axis=1))
+            pairs = np.concatenate(a_b).reshape(-1, 2)
+            yield from _narrow(pairs, corners, tri, centre, radius, lo, hi, normal, scale)
+
+
+def _narrow(pairs, corners, tri, centre, radius, lo, hi, normal, scale):
+    """The prefilter, then the batched narrow phase; yields the intersecting pairs."""
+    near = _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale,
+                      TOL.planar_rel)
+    pairs = pairs[near]
+    for s in range(0, len(pairs), PAIR_BATCH):
+        a, b = pairs[s:s + PAIR_BATCH, 0], pairs[s:s + PAIR_BATCH, 1]
+        hit = _pairs_intersect(corners[a], corners[b], tri[a], tri[b], normal[a],
+                               normal[b], scale[a], scale[b])
+        if np.any(hit):
+            yield np.stack([a[hit], b[hit]], axis=1)
 
 
 @numba.njit(cache=True)

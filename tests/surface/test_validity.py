@@ -240,6 +240,17 @@ def test_faces_of_very_different_sizes_meet_the_brute_force():
     np.testing.assert_array_equal(report.intersecting_pairs, expected)
 
 
+@pytest.mark.parametrize("chunk", [7, 64, 100_000])
+def test_chunked_lookup_finds_every_pair_once(monkeypatch, chunk):
+    # slabs of a few faces: pairs across slab borders and across levels all found, once
+    monkeypatch.setattr(validity, "QUERY_CHUNK", chunk)
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(0.3, 3.0, 8, 2)
+    v1, t1 = _arrays(cyl)
+    v2, t2 = _two_spheres()
+    v, t = np.vstack([v1, v2]), np.vstack([t1, t2 + len(v1)])
+    np.testing.assert_array_equal(self_intersections(v, t), _brute_force(v, t))
+
+
 def test_dented_sphere_agrees_with_open3d():
     rng = np.random.default_rng(3)
     v, t = _sphere(resolution=10)
