@@ -32,6 +32,7 @@ References
 from __future__ import annotations
 
 import os
+import stat
 import struct
 
 import cv2
@@ -163,8 +164,16 @@ def read_image_file(path: str | os.PathLike,
     """The upright image of a file and its EXIF orientation (:func:`decode_image`).
 
     The file is opened by Python, so any name the file system holds works (names that
-    are not UTF-8 included).  The caller checks that ``path`` is a regular file.
+    are not UTF-8 included).
+
+    Raises
+    ------
+    OSError
+        No such file, or not a regular file (a FIFO or a device would block or never
+        end; ``pipeline.guards`` names the kind).
     """
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise OSError(f"{os.fspath(path)}: not a regular file")
     data = np.fromfile(os.fspath(path), dtype=np.uint8).tobytes()
     return decode_image(data, flags), exif_orientation(data)
 

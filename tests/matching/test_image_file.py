@@ -222,3 +222,12 @@ def test_any_file_name_never_crashes_the_reader(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0 and run.stdout.strip().endswith("ok"), (
         f"exit {run.returncode}: {run.stderr[-2000:]}")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_special_files_are_not_read(tmp_path):
+    """A FIFO or a device is never opened for reading (it would block or never end):
+    ``imread`` says it cannot read it, as for a missing file or a folder."""
+    os.mkfifo(tmp_path / "pipe.png")
+    for path in (tmp_path / "pipe.png", Path("/dev/zero"), tmp_path / "none.png", tmp_path):
+        assert imread(path) is None
