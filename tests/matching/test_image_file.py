@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from matching.image_file import decode_image, exif_orientation, orient, to_uint8
+from matching.image_file import decode_image, exif_orientation, imread, orient, to_uint8
 from tests.matching.test_sfm_refine import exif_jpeg
 
 ROOT = Path(__file__).resolve().parents[2]
