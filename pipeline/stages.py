@@ -409,6 +409,10 @@ def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> d
     artifacts.write_stitched(ctx.out, result.vertices, result.triangles, notes)
     for message in result.notes:
         log.warning("stitch: %s", message)
+    from pipeline.smoothing import solid_report  # open by design: its border no defect
+
+    notes["solid"] = solid_report("stitch", result.vertices, result.triangles,
+                                  expect_closed=False)
     return {"vertices": len(result.vertices), "triangles": len(result.triangles), **notes}
 
 
