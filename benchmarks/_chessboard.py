@@ -171,10 +171,29 @@ def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | N
             "lsm": lsm, "sgbm": sgbm}
 
 
-def chessboard_figures(folder: Path, rig_path: Path, pairs=None,
-                       match_options: dict | None = None) -> list[dict]:
-    """:func:`pair_figures` of every ``leftNN.jpg``/``rightNN.jpg`` pair in ``folder``."""
-    rig = read_rig(rig_path)
+def calibrate_rig(folder: Path):
+    """The rig from every pair in ``folder`` (``matching.calibrate.stereo_calibrate``,
+    what ``photosurf calibrate --pattern 9x6 --square 1`` runs)."""
+    from matching.calibrate import stereo_calibrate
+
+    lefts = sorted(folder.glob("left*.jpg"))
+    rights = [folder / p.name.replace("left", "right") for p in lefts]
+    imgs_l = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in lefts]
+    imgs_r = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in rights]
+    return stereo_calibrate(imgs_l, imgs_r, PATTERN, 1.0)
+
+
+def chessboard_figures(folder: Path, rig_path: Path | None = None, pairs=None,
+                       match_options: dict | None = None) -> tuple[list[dict], dict]:
+    """:func:`pair_figures` of every ``leftNN.jpg``/``rightNN.jpg`` pair in ``folder``,
+    and the calibration's figures (rig from ``rig_path``, else calibrated here)."""
+    if rig_path is not None:
+        rig, calib = read_rig(rig_path), {"rig": str(rig_path)}
+    else:
+        result = calibrate_rig(folder)
+        rig = result.rig
+        calib = {"rms_px": float(result.rms_px), "baseline": float(rig.baseline),
+                 "pairs": len(result.used)}
     rows = []
     for lp in sorted(folder.glob("left*.jpg")):
         tag = lp.stem.replace("left", "")
@@ -183,4 +202,4 @@ def chessboard_figures(folder: Path, rig_path: Path, pairs=None,
         rp = folder / f"right{tag}.jpg"
         if rp.exists():
             rows.append(pair_figures(lp, rp, rig, match_options))
-    return rows
+    return rows, calib

@@ -43,8 +43,14 @@ LSM's reported σ), when the real data is found
 Usage::
 
     .venv/bin/python benchmarks/matching.py [--quick] [--json PATH] [--scene DIR]
-        [--real-data DIR] [--part {all,vase,real,graffiti,temple}] [--graffiti-patch N]
+        [--real-data DIR] [--part {all,vase,real,graffiti,temple,chessboard}]
+        [--graffiti-patch N] [--pairs 02,03,...]
 
+``--part chessboard``: the real calibrated chessboard rig (``chessboard_stereo``): the rig
+calibrated on its 12 pairs, then per pair the points ``match_pair`` + triangulation put
+inside the board's inner-corner outline against the plane, with the board's own corners
+as the reference flatness, SGBM (uniqueness ratio 12) on the same candidates beside it
+(``benchmarks/_chessboard.py`` says how each figure is made; not part of ``all``).
 ``--graffiti-patch`` sets the window side of LSM and its peers on graffiti (default 21);
 the ICI row tries that side, ~1.5x and ~2x it (``matching.ici``).  ``--part`` runs one
 part alone (its goals only; JSON to ``matching_<part>.json`` unless
@@ -76,7 +82,7 @@ from matching.seeds import approximate_calibrated, rectify, rectify_images, sele
 
 OUTLIER_PX = 1.0
 #: ``--part`` choices.
-PARTS = ("all", "vase", "real", "graffiti", "temple")
+PARTS = ("all", "vase", "real", "graffiti", "temple", "chessboard")
 
 
 def render(quick: bool, folder: Path) -> Path:
@@ -616,6 +622,46 @@ def real_figures(folder: Path, quick: bool, goals: dict,
     return out
 
 
+def chessboard(folder: Path, json_path: str, pairs=None) -> int:
+    """``--part chessboard``: the table, the goals and the JSON."""
+    from _chessboard import BLUNDER_K, chessboard_figures
+
+    if not folder.is_dir():
+        print(f"no chessboard data at {folder}: skipped")
+        return 0
+    rows, calib = chessboard_figures(folder, pairs=pairs)
+    print(f"chessboard rig: calibrated on {calib['pairs']} pairs, RMS {calib['rms_px']:.3f} px, "
+          f"baseline {calib['baseline']:.4f} squares")
+    print(f"blunder: farther than {BLUNDER_K:g}x the corners' RMS from the robust plane; "
+          "inl/c: inlier RMS over the corners' RMS; r/σ: RMS of residual / σ along the "
+          "normal over the inliers")
+    print(f"{'pair':>4s} {'corners':>8s} | {'LSM pts':>7s} {'blund':>6s} {'inl/c':>6s} "
+          f"{'r/σ':>5s} | {'SGBM pts':>8s} {'blund':>6s} {'inl/c':>6s}")
+    for r in rows:
+        if "error" in r:
+            print(f"{r['pair']:>4s} {r['error']}")
+            continue
+        lsm, sg = r["lsm"], r["sgbm"]
+        print(f"{r['pair']:>4s} {r['corners_rms']:8.4f} | {lsm['points']:7d} "
+              f"{100 * lsm['blunders']:5.1f}% {lsm['inlier_rms_over_corners']:6.2f} "
+              f"{lsm.get('residual_over_sigma', float('nan')):5.2f} | {sg['points']:8d} "
+              f"{100 * sg['blunders']:5.1f}% {sg['inlier_rms_over_corners']:6.2f}")
+    done = [r for r in rows if "error" not in r]
+    goals = {
+        "chessboard_blunders_le_1pct_every_pair": all(r["lsm"]["blunders"] <= 0.01
+                                                      for r in done),
+        "chessboard_inliers_le_1.5x_corners_every_pair": all(
+            r["lsm"]["inlier_rms_over_corners"] <= 1.5 for r in done),
+        "chessboard_residual_over_sigma_le_2_every_pair": all(
+            r["lsm"].get("residual_over_sigma", np.inf) <= 2 for r in done),
+        "chessboard_ge_1000_points_every_pair": all(r["lsm"]["points"] >= 1000 for r in done),
+    }
+    print_goals(goals)
+    write_result(json_path, {"part": "chessboard", "calibration": calib, "pairs": rows,
+                             "goals": goals})
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="512x384 render, fewer ECC calls")
@@ -630,11 +676,16 @@ def main(argv=None) -> int:
     parser.add_argument("--graffiti-patch", type=int, default=None,
                         help="window side of LSM and its peers on graffiti (odd px; default "
                              "21, the issue's)")
+    parser.add_argument("--pairs", default=None,
+                        help="chessboard: comma-separated pair numbers (default: all 12)")
     args = parser.parse_args(argv)
     results = ROOT / "benchmarks" / "results"
     if args.json is None:
         args.json = str(results / ("matching.json" if args.part == "all"
                                    else f"matching_{args.part}.json"))
+    if args.part == "chessboard":
+        return chessboard(Path(args.real_data) / "chessboard_stereo", args.json,
+                          None if args.pairs is None else args.pairs.split(","))
     if args.part in ("real", "graffiti", "temple"):
         goals: dict = {}
         sets = ("graffiti", "temple") if args.part == "real" else (args.part,)
