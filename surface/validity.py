@@ -105,6 +105,9 @@ class SolidReport:
         Face pairs that self-intersect, ``pairs[:, 0] < pairs[:, 1]``, sorted.
     first_intersection : (3,) float64 or None
         Centroid of the first intersecting pair's two faces.
+    coplanar_pairs : int
+        Intersecting pairs that overlap within one plane (a cap's or a section plane's
+        triangulation folded or doubled) rather than cross.
     """
 
     vertices: int
@@ -122,6 +125,7 @@ class SolidReport:
     genus: int | None
     intersecting_pairs: np.ndarray
     first_intersection: np.ndarray | None
+    coplanar_pairs: int = 0
 
     @property
     def edge_manifold(self) -> bool:
@@ -161,8 +165,10 @@ class SolidReport:
             if self.first_intersection is not None:
                 where = " (first near " + ",".join(f"{x:.4g}" for x in
                                                    self.first_intersection) + ")"
+            flat = f", {self.coplanar_pairs} of them coplanar overlaps" \
+                if self.coplanar_pairs else ""
             out.append(f"self-intersects at {len(self.intersecting_pairs)} triangle "
-                       f"pairs{where}")
+                       f"pairs{flat}{where}")
         if not self.edge_manifold:
             out.append(f"has {len(self.nonmanifold_edges)} edges with more than two faces")
         if not self.vertex_manifold:
@@ -188,6 +194,7 @@ class SolidReport:
             "valid": self.valid, "closed": self.closed, "edge_manifold": self.edge_manifold,
             "vertex_manifold": self.vertex_manifold, "oriented": self.oriented,
             "self_intersecting_pairs": int(len(self.intersecting_pairs)),
+            "coplanar_pairs": int(self.coplanar_pairs),
             "first_intersection": (None if self.first_intersection is None
                                    else [float(x) for x in self.first_intersection]),
             "intersecting_pairs_first": self.intersecting_pairs[:first].tolist(),
@@ -249,6 +256,7 @@ def check_solid(vertices: np.ndarray, triangles: np.ndarray,
     pairs = self_intersections(v, t, skip=degenerate) if intersections \
         else np.zeros((0, 2), np.int64)
     first = v[t[pairs[0]]].reshape(-1, 3).mean(axis=0) if len(pairs) else None
+    coplanar = _coplanar_count(v, t, pairs)
     return SolidReport(
         vertices=int(len(used)), faces=int(len(t)), edges=int(len(table.edges)),
         degenerate_faces=degenerate,
@@ -257,7 +265,21 @@ def check_solid(vertices: np.ndarray, triangles: np.ndarray,
         nonmanifold_vertices=np.flatnonzero(fans > 1).astype(np.int64),
         flipped_faces=flipped, nonorientable_components=nonorientable,
         components=int(labels.max() + 1), euler=euler, genus=genus,
-        intersecting_pairs=pairs, first_intersection=first)
+        intersecting_pairs=pairs, first_intersection=first, coplanar_pairs=coplanar)
+
+
+def _coplanar_count(v: np.ndarray, t: np.ndarray, pairs: np.ndarray) -> int:
+    """How many pairs have the second face's corners in the first's plane (within
+    ``TOL.planar_rel`` × the pair's longest edge, as the narrow phase)."""
+    if len(pairs) == 0:
+        return 0
+    A, B = v[t[pairs[:, 0]]], v[t[pairs[:, 1]]]
+    normal = np.cross(A[:, 1] - A[:, 0], A[:, 2] - A[:, 0])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    edges = np.concatenate([A - np.roll(A, 1, axis=1), B - np.roll(B, 1, axis=1)], axis=1)
+    scale = np.sqrt(np.max(np.sum(edges ** 2, axis=2), axis=1))
+    distance = np.abs(_dot(B - A[:, None, 0], normal[:, None]))    # (P, 3)
+    return int(np.count_nonzero(np.all(distance <= TOL.planar_rel * scale[:, None], axis=1)))
 
 
 # --------------------------------------------------------------------------- topology
