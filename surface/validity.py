@@ -70,6 +70,9 @@ __all__ = ["SolidReport", "check_solid", "self_intersections"]
 #: Candidate pairs tested per batch of the narrow phase (bounds the temporaries: ~40
 #: float64 arrays of (batch, 3)).
 PAIR_BATCH = 200_000
+#: Radians: intersecting faces whose planes are closer than this are reported as
+#: (nearly) coplanar overlaps — a diagnosis for the log line, not part of the test.
+FLAT_ANGLE = np.radians(1.0)
 #: Faces of one level whose neighbours are looked up together (bounds the candidate list:
 #: ~30 candidates a face on a uniform mesh).
 QUERY_CHUNK = 65_536
@@ -106,8 +109,9 @@ class SolidReport:
     first_intersection : (3,) float64 or None
         Centroid of the first intersecting pair's two faces.
     coplanar_pairs : int
-        Intersecting pairs that overlap within one plane (a cap's or a section plane's
-        triangulation folded or doubled) rather than cross.
+        Intersecting pairs whose planes are within :data:`FLAT_ANGLE`: faces overlapping
+        (nearly) flat — a cap's or a section plane's triangulation folded or doubled —
+        rather than two sheets crossing.
     """
 
     vertices: int
@@ -165,7 +169,7 @@ class SolidReport:
             if self.first_intersection is not None:
                 where = " (first near " + ",".join(f"{x:.4g}" for x in
                                                    self.first_intersection) + ")"
-            flat = f", {self.coplanar_pairs} of them coplanar overlaps" \
+            flat = f", {self.coplanar_pairs} of them overlapping flat" \
                 if self.coplanar_pairs else ""
             out.append(f"self-intersects at {len(self.intersecting_pairs)} triangle "
                        f"pairs{flat}{where}")
@@ -269,17 +273,14 @@ def check_solid(vertices: np.ndarray, triangles: np.ndarray,
 
 
 def _coplanar_count(v: np.ndarray, t: np.ndarray, pairs: np.ndarray) -> int:
-    """How many pairs have the second face's corners in the first's plane (within
-    ``TOL.planar_rel`` × the pair's longest edge, as the narrow phase)."""
+    """How many pairs have planes within :data:`FLAT_ANGLE` of each other."""
     if len(pairs) == 0:
         return 0
     A, B = v[t[pairs[:, 0]]], v[t[pairs[:, 1]]]
-    normal = np.cross(A[:, 1] - A[:, 0], A[:, 2] - A[:, 0])
-    normal /= np.linalg.norm(normal, axis=1)[:, None]
-    edges = np.concatenate([A - np.roll(A, 1, axis=1), B - np.roll(B, 1, axis=1)], axis=1)
-    scale = np.sqrt(np.max(np.sum(edges ** 2, axis=2), axis=1))
-    distance = np.abs(_dot(B - A[:, None, 0], normal[:, None]))    # (P, 3)
-    return int(np.count_nonzero(np.all(distance <= TOL.planar_rel * scale[:, None], axis=1)))
+    na = np.cross(A[:, 1] - A[:, 0], A[:, 2] - A[:, 0])
+    nb = np.cross(B[:, 1] - B[:, 0], B[:, 2] - B[:, 0])
+    cosine = np.abs(_dot(na, nb)) / (np.linalg.norm(na, axis=1) * np.linalg.norm(nb, axis=1))
+    return int(np.count_nonzero(cosine >= np.cos(FLAT_ANGLE)))
 
 
 # --------------------------------------------------------------------------- topology

@@ -168,7 +168,7 @@ def test_coplanar_overlapping_triangles_intersect():
     np.testing.assert_array_equal(self_intersections(v, np.array([[0, 1, 2], [3, 4, 5]])),
                                   [[0, 1]])
     report = check_solid(v, np.array([[0, 1, 2], [3, 4, 5]]))
-    assert report.coplanar_pairs == 1 and "1 of them coplanar overlaps" in report.problems()[0]
+    assert report.coplanar_pairs == 1 and "1 of them overlapping flat" in report.problems()[0]
     # side by side in the plane, 0.1 apart: no contact
     v2 = v.copy()
     v2[3:] = [[2.1, 0.1, 0], [4, 0, 0], [3, 2, 0]]
