@@ -623,7 +623,8 @@ def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
     """The loops of every non-empty section, open arcs kept (``surface.topology.organise``).
 
     ``surface.reconstruct.organise_sections`` without its refusal of open arcs and
-    without the loop-graph repairs (an open surface follows one arc per section).
+    without the loop-graph repairs (an open surface follows one arc per section); inner
+    sections with more loops than both neighbours (which agree) are dropped, as there.
 
     Returns
     -------
@@ -634,6 +635,7 @@ def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
     """
     import warnings
 
+    from surface.reconstruct import _drop_one_section_splits
     from surface.topology import SectionSkippedWarning, organise
 
     kept, loops, messages = [], [], []
@@ -646,7 +648,10 @@ def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
                 loops.append(found)
     messages += [str(w.message) for w in caught if issubclass(w.category,
                                                               SectionSkippedWarning)]
-    return kept, loops, messages
+    # a section broken into more loops than both its neighbours (a gap in the data there)
+    # is skipped as the closed path skips it: its largest piece would notch the surface
+    kept, loops, notes = _drop_one_section_splits(kept, loops)
+    return kept, loops, messages + notes
 
 
 @one_blas_thread
