@@ -108,7 +108,7 @@ class SolidReport:
         Face pairs that self-intersect, ``pairs[:, 0] < pairs[:, 1]``, sorted.
     first_intersection : (3,) float64 or None
         Centroid of the first intersecting pair's two faces.
-    coplanar_pairs : int
+    flat_pairs : int
         Intersecting pairs whose planes are within :data:`FLAT_ANGLE`: faces overlapping
         (nearly) flat — a cap's or a section plane's triangulation folded or doubled —
         rather than two sheets crossing.
@@ -129,7 +129,7 @@ class SolidReport:
     genus: int | None
     intersecting_pairs: np.ndarray
     first_intersection: np.ndarray | None
-    coplanar_pairs: int = 0
+    flat_pairs: int = 0
 
     @property
     def edge_manifold(self) -> bool:
@@ -169,8 +169,8 @@ class SolidReport:
             if self.first_intersection is not None:
                 where = " (first near " + ",".join(f"{x:.4g}" for x in
                                                    self.first_intersection) + ")"
-            flat = f", {self.coplanar_pairs} of them overlapping flat" \
-                if self.coplanar_pairs else ""
+            flat = f", {self.flat_pairs} of them overlapping flat" \
+                if self.flat_pairs else ""
             out.append(f"self-intersects at {len(self.intersecting_pairs)} triangle "
                        f"pairs{flat}{where}")
         if not self.edge_manifold:
@@ -198,7 +198,7 @@ class SolidReport:
             "valid": self.valid, "closed": self.closed, "edge_manifold": self.edge_manifold,
             "vertex_manifold": self.vertex_manifold, "oriented": self.oriented,
             "self_intersecting_pairs": int(len(self.intersecting_pairs)),
-            "coplanar_pairs": int(self.coplanar_pairs),
+            "flat_pairs": int(self.flat_pairs),
             "first_intersection": (None if self.first_intersection is None
                                    else [float(x) for x in self.first_intersection]),
             "intersecting_pairs_first": self.intersecting_pairs[:first].tolist(),
@@ -260,7 +260,7 @@ def check_solid(vertices: np.ndarray, triangles: np.ndarray,
     pairs = self_intersections(v, t, skip=degenerate) if intersections \
         else np.zeros((0, 2), np.int64)
     first = v[t[pairs[0]]].reshape(-1, 3).mean(axis=0) if len(pairs) else None
-    coplanar = _coplanar_count(v, t, pairs)
+    coplanar = _flat_count(v, t, pairs)
     return SolidReport(
         vertices=int(len(used)), faces=int(len(t)), edges=int(len(table.edges)),
         degenerate_faces=degenerate,
@@ -269,10 +269,10 @@ def check_solid(vertices: np.ndarray, triangles: np.ndarray,
         nonmanifold_vertices=np.flatnonzero(fans > 1).astype(np.int64),
         flipped_faces=flipped, nonorientable_components=nonorientable,
         components=int(labels.max() + 1), euler=euler, genus=genus,
-        intersecting_pairs=pairs, first_intersection=first, coplanar_pairs=coplanar)
+        intersecting_pairs=pairs, first_intersection=first, flat_pairs=coplanar)
 
 
-def _coplanar_count(v: np.ndarray, t: np.ndarray, pairs: np.ndarray) -> int:
+def _flat_count(v: np.ndarray, t: np.ndarray, pairs: np.ndarray) -> int:
     """How many pairs have planes within :data:`FLAT_ANGLE` of each other."""
     if len(pairs) == 0:
         return 0

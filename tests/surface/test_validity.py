@@ -96,7 +96,7 @@ def test_interpenetrating_spheres_are_found_pair_for_pair():
     pairs = report.intersecting_pairs
     assert np.all((pairs[:, 0] < half) & (pairs[:, 1] >= half))
     np.testing.assert_array_equal(report.intersecting_pairs, _open3d_pairs(v, t))
-    assert report.coplanar_pairs == 0
+    assert report.flat_pairs == 0
     # the crossing circle lies where |x - c1| = |x - c2| = 1: its plane is x·(c2-c1) = |c2|²/2
     c2 = np.array([1.1, 0.2, 0.1])
     assert abs(report.first_intersection @ c2 - c2 @ c2 / 2) < 0.2
@@ -168,7 +168,7 @@ def test_coplanar_overlapping_triangles_intersect():
     np.testing.assert_array_equal(self_intersections(v, np.array([[0, 1, 2], [3, 4, 5]])),
                                   [[0, 1]])
     report = check_solid(v, np.array([[0, 1, 2], [3, 4, 5]]))
-    assert report.coplanar_pairs == 1 and "1 of them overlapping flat" in report.problems()[0]
+    assert report.flat_pairs == 1 and "1 of them overlapping flat" in report.problems()[0]
     # side by side in the plane, 0.1 apart: no contact
     v2 = v.copy()
     v2[3:] = [[2.1, 0.1, 0], [4, 0, 0], [3, 2, 0]]
