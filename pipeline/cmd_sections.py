@@ -28,6 +28,7 @@ stitched triangle: on a 50 000-point cloud 213 208 patches, issue 15).
 from __future__ import annotations
 
 import argparse
+import logging
 import time
 from pathlib import Path
 
@@ -154,13 +155,15 @@ def run(args: argparse.Namespace) -> int:
         bad = int(np.count_nonzero(~np.all(np.isfinite(points), axis=1)))
         raise InputError(f"{args.cloud}: {bad} points have NaN/inf coordinates")
     # stray points far from the object would set the sections' extent: dropped, with a
-    # warning line (pipeline.guards.drop_far_outliers)
-    points, sigma, _ = drop_far_outliers(points, str(args.cloud), sigma)
+    # warning line once the cloud is accepted (pipeline.guards.drop_far_outliers)
+    points, sigma, dropped = drop_far_outliers(points, str(args.cloud), sigma)
     check_cloud_shape(points, str(args.cloud), axis=axis)
     # a cloud below the surface code's scale-invariant range is meshed at unit size: an
     # exact power of two, so its mesh is the unit copy's scaled back (guards.unit_scale)
     unit = unit_scale(points)
     check_section_cost(points / unit, axis, str(args.cloud), sections=args.sections, n=args.n)
+    if dropped:
+        logging.getLogger("pipeline").warning("%s", dropped)
     # the surface code (numba, scipy: ~0.5 s of imports) only after every check
     from surface.reconstruct import surface_from_points
 

@@ -494,11 +494,10 @@ def drop_far_outliers(points: np.ndarray, name: str, *per_point) -> tuple:
     """The cloud without its far outliers (:func:`surface.outliers.far_outliers`), and each
     of ``per_point`` (``(N, ...)`` arrays or ``None``: sigma, colours) likewise.
 
-    Returns ``(points, *per_point, report)``; ``report`` is one line naming ``name`` (also
-    logged as a warning) or ``None`` when no point was dropped.
+    Returns ``(points, *per_point, report)``; ``report`` is one line naming ``name`` or
+    ``None`` when no point was dropped (the caller logs it once the cloud is accepted: a
+    refusal that follows stays the one line).
     """
-    import logging
-
     from surface.outliers import far_outliers
 
     found = far_outliers(points)
@@ -506,7 +505,6 @@ def drop_far_outliers(points: np.ndarray, name: str, *per_point) -> tuple:
         return (points, *per_point, None)
     keep = ~found.mask
     report = f"{name}: {found.report(len(points))}"
-    logging.getLogger("pipeline").warning("%s", report)
     return (points[keep], *(None if a is None else np.asarray(a)[keep] for a in per_point),
             report)
 

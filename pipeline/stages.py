@@ -202,6 +202,8 @@ def sections(ctx: StageContext) -> dict:
                          "sections, which rescales it)")
     check_section_cost(points, axis, "sections", sections=p["count"] or None,
                        spacing=p["spacing"] or None)  # before anything is allocated
+    if outliers:
+        log.warning("%s", outliers)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", sections_mod.SectionSkippedWarning)
         sliced = rc.slice_cloud(
