@@ -55,7 +55,8 @@ def cli_run(capfd):
     return run
 
 
-def test_stereo_pair_ends_with_an_open_smooth_surface_on_the_seen_side(tmp_path, cli_run):
+def test_stereo_pair_ends_with_an_open_smooth_surface_on_the_seen_side(tmp_path, cli_run,
+                                                                       capfd):
     from matching.cameras import read_cameras_yml
     from pipeline.mesh_io import read_mesh
     from surface.metrics import MeshDistance, mesh_topology
@@ -100,3 +101,14 @@ def test_stereo_pair_ends_with_an_open_smooth_surface_on_the_seen_side(tmp_path,
     cameras = read_cameras_yml(out / "scene" / "cameras.yml")
     assert _seen_by_all(cameras, truth, foot).mean() > 0.99
     assert "The surface is open" in (out / "report.html").read_text()
+
+    # curves.open = false: the one-sided data is the one-line error it was, exit 2
+    from pipeline import cli
+
+    capfd.readouterr()
+    code = cli.main([str(a) for a in ("run", ROOT / "fixtures" / "scenes" / "vase.toml",
+                                      "--out", out, *HALF, "--from", "curves",
+                                      "--set", "curves.open=false")])
+    err = capfd.readouterr().err
+    assert code == 2 and "open arcs, not closed contours" in err
+    assert len([line for line in err.splitlines() if "error" in line]) == 1
