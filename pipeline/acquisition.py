@@ -62,6 +62,36 @@ def folder_masks(bases: list[Path], names: list[str], images, cameras,
     return masks, ", ".join(parts)
 
 
+def identical_views(folder: Path, names: list[str]) -> list[list[str]]:
+    """Groups of two or more views whose image files hold the same bytes (SHA-256), in
+    the order of ``names``; the files are read in 1 MB blocks."""
+    import hashlib
+
+    groups: dict[str, list[str]] = {}
+    for name in names:
+        digest = hashlib.sha256()
+        with open(folder / name, "rb") as fh:
+            while block := fh.read(1 << 20):
+                digest.update(block)
+        groups.setdefault(digest.hexdigest(), []).append(name)
+    return [group for group in groups.values() if len(group) > 1]
+
+
+def _warn_identical_views(folder: Path, names: list[str], cameras: list) -> None:
+    """One warning line per group of identical images under cameras at different places:
+    the pairs among them match every pixel at zero disparity, and the points they give
+    lie where the cameras say, not on the object."""
+    where = dict(zip(names, cameras, strict=False))
+    for group in identical_views(folder, names):
+        centres = np.array([np.asarray(where[n].center, dtype=np.float64) for n in group
+                            if n in where and getattr(where[n], "center", None) is not None])
+        moved = len(centres) > 1 and float(np.ptp(centres, axis=0).max()) > 0
+        shown = ", ".join(group[:4]) + (" ..." if len(group) > 4 else "")
+        log.warning("acquire: %d views are one and the same image (%s)%s", len(group), shown,
+                    " under cameras at different places: their pairs give points where the "
+                    "cameras say, not on the object" if moved else "")
+
+
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
                    check_views: int = 2, camera_model: str = "SIMPLE_RADIAL",
                    masks: str = "folder", roi=(), **options):
@@ -117,6 +147,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     loaded = load_folder(folder, cameras, camera_model=camera_model)
     where = Path(loaded["images"].paths[0]).parent if getattr(
         loaded["images"], "paths", None) else Path(folder)
+    _warn_identical_views(where, loaded["names"], loaded["cameras"])
     object_masks, mask_source = folder_masks([Path(folder), where], loaded["names"],
                                              loaded["images"],
                                              loaded["cameras"], masks)

@@ -545,3 +545,31 @@ def test_local_executor_cancels_queued_tasks():
     with pytest.raises(ValueError, match="bad item"):
         LocalExecutor(workers=2).map(task, range(40))
     assert len(started) < 10, started
+
+
+# =========================================================================== identical views
+
+def test_identical_images_under_different_cameras_warn(tmp_path, caplog):
+    """24 copies of one image under 24 cameras of a ring: one warning line naming them."""
+    import logging
+    from types import SimpleNamespace
+
+    from pipeline.acquisition import _warn_identical_views, identical_views
+    from tests.pipeline.test_fuzz_inputs import textured, write_png
+
+    names = [f"v{k:02d}.png" for k in range(24)]
+    for name in names:
+        write_png(tmp_path / name, textured(64, 48, 1))
+    write_png(tmp_path / "other.png", textured(64, 48, 2))
+    assert identical_views(tmp_path, names + ["other.png"]) == [names]
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    cameras = [SimpleNamespace(center=np.array([np.cos(a), np.sin(a), 0.0])) for a in angles]
+    with caplog.at_level(logging.WARNING, logger="photosurf"):
+        _warn_identical_views(tmp_path, names, cameras)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "24 views are one and the same image" in lines[0], lines
+    assert "cameras at different places" in lines[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="photosurf"):
+        _warn_identical_views(tmp_path, names[:1] + ["other.png"], cameras[:2])
+    assert caplog.records == []
