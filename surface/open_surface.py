@@ -26,18 +26,21 @@ along the links.  On a surface of revolution seen from one side ``u`` is proport
 the angle θ.  Odd sections are resampled every ``h`` in
 ``u``, even ones every ``h/2`` on the same grid (N and 2N per unit of ``u``; ``h`` is
 the section spacing on the widest arc, as the closed rings' ``N = P_max/Δ``), at the
-grid points within the arc's range (an arc end within a quarter step past the last
-grid point inside it gets an end point there, never farther: nothing is extrapolated
-beyond the data by more than a quarter of the spacing).
+grid points within the arc's range, plus the arc's end itself where it lies more than
+a quarter step past its last grid point: a ring never reaches past its data, and stops
+short of them by less than a quarter of its spacing.
 
 Strips (:func:`zip_arcs`): between two adjacent arcs, over the range of ``u`` both
-cover, the direction criterion as a merge by ``u`` (each step advances the arc whose
+cover (widened by a quarter step, so a strip's corner passes the other arc's end by at
+most that), the direction criterion as a merge by ``u`` (each step advances the arc whose
 next point comes first, the coarser on a tie: for N↔2N on the common grid exactly
 the paper's ``(o_k, e_2k, e_2k+1), (o_k, e_2k+1, o_k+1), (o_k+1, e_2k+1, e_2k+2)``),
 then Lawson flips (``surface.stitch.delaunay_flips``, never across a section contour).
-The result is an oriented, edge-manifold mesh with borders where the data end; faces
-are counter-clockwise seen from the side the arcs curve away from, or from
-``viewpoint`` when given (the cameras': they saw the surface's outside).
+The result is an oriented, manifold mesh with borders where the data end (a vertex
+where two strips meet at a point only is split); faces are counter-clockwise seen from
+outside each loop's centroid (the loops' counter-clockwise order), or facing
+``viewpoint`` when given (the cameras': they saw the surface's outside).  A section
+with several loops gives the arc of its largest.
 
 References
 ----------
