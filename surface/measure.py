@@ -35,8 +35,8 @@ normal): the cavity is closed below (the ray along ``-a`` hits the surface) and 
 ray radially away from the axis hits the surface).  The integral is evaluated on the
 tessellation, triangles clipped at the plane exactly (flat triangles: ``int (h - z) dA =
 area (h - z_centroid)``); its error is at most the tessellation's chord bound times the wet
-area.  The rim height is the lowest, over azimuth, of the highest cavity vertex: the level
-at which the vessel overflows.
+area.  The rim height is the lowest point of the longest loop of edges between cavity and
+other triangles (the lip's edge): the level at which the vessel overflows.
 
 References
 ----------
@@ -54,7 +54,7 @@ import numpy as np
 
 from surface.validate import TOL, check_finite, check_shape
 
-__all__ = ["Capacity", "capacity", "mesh_area", "mesh_volume", "surface_area",
+__all__ = ["Capacity", "capacity", "chord_bound", "mesh_area", "mesh_volume", "surface_area",
            "surface_integrals", "surface_volume", "triangle_rule"]
 
 #: The volume integrand S . (S_s x S_t) of a sextic patch has degree 6 + 5 + 5.
@@ -227,7 +227,7 @@ class Capacity:
     height : float
         The plane's height along the axis from ``origin`` (the rim when not given).
     rim_height : float or nan
-        Lowest over azimuth of the highest cavity point (nan: no cavity).
+        Lowest point of the cavity's rim (nan: no cavity).
     wet_area : float
         Area of the cavity's wall below ``height``, unit²: ``sigma_V ~ sigma_n * wet_area``.
     cavity_triangles : (F,) bool
@@ -289,15 +289,33 @@ def cavity_vertices(vertices, triangles, normals, axis, origin) -> np.ndarray:
     return t_hit[0] & t_hit[1]
 
 
-def _rim_height(z: np.ndarray, azimuth: np.ndarray, bins: int) -> float:
-    """Lowest over azimuth bins of the highest cavity point (the overflow level)."""
-    if len(z) == 0:
+def _rim_height(vertices: np.ndarray, triangles: np.ndarray, cavity: np.ndarray,
+                z: np.ndarray) -> float:
+    """Lowest point of the cavity's rim: the longest loop of edges between cavity and
+    other triangles (the lip's edge; a stray patch gives a short loop) -- where it spills."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if not np.any(cavity) or np.all(cavity):
         return float("nan")
-    which = np.minimum((azimuth / (2 * np.pi) * bins).astype(np.int64), bins - 1)
-    top = np.full(bins, -np.inf)
-    np.maximum.at(top, which, z)
-    filled = top[np.isfinite(top)]
-    return float(filled.min())
+    edges = np.sort(np.stack([triangles, np.roll(triangles, -1, axis=1)], 2).reshape(-1, 2),
+                    axis=1)
+    owner = np.repeat(cavity, 3)
+    key = edges[:, 0] * len(vertices) + edges[:, 1]
+    order = np.argsort(key, kind="stable")
+    key, edges, owner = key[order], edges[order], owner[order]
+    # an edge is on the rim when its two triangles are one cavity, one not
+    pair = np.flatnonzero((key[:-1] == key[1:]) & (owner[:-1] != owner[1:]))
+    rim = edges[pair]
+    if len(rim) == 0:
+        return float("nan")
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    length = np.linalg.norm(vertices[rim[:, 0]] - vertices[rim[:, 1]], axis=1)
+    totals = np.bincount(label[rim[:, 0]], weights=length, minlength=n)
+    longest = int(np.argmax(totals))
+    return float(z[rim[label[rim[:, 0]] == longest]].min())
 
 
 def _clip_below(tri: np.ndarray, z: np.ndarray, h: float) -> np.ndarray:
@@ -326,8 +344,7 @@ def _clip_below(tri: np.ndarray, z: np.ndarray, h: float) -> np.ndarray:
     return np.concatenate(pieces)
 
 
-def capacity(vertices, triangles, normals, axis, origin, height=None,
-             azimuth_bins: int = 72) -> Capacity:
+def capacity(vertices, triangles, normals, axis, origin, height=None) -> Capacity:
     """Volume of the cavity of a vessel up to its rim (or up to ``height``).
 
     Parameters
@@ -343,8 +360,6 @@ def capacity(vertices, triangles, normals, axis, origin, height=None,
         A point of the axis; heights are measured along ``axis`` from it.
     height : float, optional
         Fill level along the axis from ``origin``; default the rim (overflow) height.
-    azimuth_bins : int
-        Azimuth bins for the rim height (5 degrees each by default).
 
     Returns
     -------
@@ -359,10 +374,7 @@ def capacity(vertices, triangles, normals, axis, origin, height=None,
     # a triangle faces the cavity when most of its corners do (the rim's edge splits some)
     cavity_t = cavity_v[tris].sum(axis=1) >= 2
     z = (verts - o) @ a
-    e1, e2 = _perpendicular_frame(a)
-    rel = verts - o
-    azimuth = np.mod(np.arctan2(rel @ e2, rel @ e1), 2 * np.pi)
-    rim = _rim_height(z[cavity_v], azimuth[cavity_v], azimuth_bins)
+    rim = _rim_height(verts, tris, cavity_t, z)
     h = rim if height is None else float(height)
     if not np.any(cavity_t) or not np.isfinite(h):
         return Capacity(0.0, h, rim, 0.0, cavity_t)
@@ -373,3 +385,15 @@ def capacity(vertices, triangles, normals, axis, origin, height=None,
     volume = float(np.sum(depth * (cross @ a)) / 2.0)
     wet = float(np.linalg.norm(cross, axis=1).sum() / 2.0)
     return Capacity(volume, h, rim, wet, cavity_t)
+
+
+def chord_bound(control_points, level: int) -> float:
+    """Bound of the distance between the patches and their level-``level`` tessellation.
+
+    The second-difference bound ``n (n - 1) M2 / 2`` of each net
+    (:func:`surface.bezier.tessellation_level`'s), which shrinks by 4 per level: scene units.
+    """
+    from surface.bezier import _second_difference_bound
+
+    cp = _check_net(control_points)
+    return float(_second_difference_bound(cp).max()) / 4 ** int(level)

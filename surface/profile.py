@@ -128,8 +128,18 @@ def plane_section(vertices, triangles, origin, normal) -> list[tuple[np.ndarray,
     frac = (di / (di - dj))[:, None]
     points = verts[ends[:, 0]] + frac * (verts[ends[:, 1]] - verts[ends[:, 0]])
     order, starts, closed = _walk(following)
-    return [(points[order[starts[c]:starts[c + 1]]], bool(closed[c]))
-            for c in range(len(closed))]
+    # a vertex on the plane is reached by every edge from its negative side: one point
+    merge = TOL.merge_rel * float(np.linalg.norm(np.ptp(verts, axis=0)))
+    out = []
+    for c in range(len(closed)):
+        chain = points[order[starts[c]:starts[c + 1]]]
+        step = np.linalg.norm(np.diff(chain, axis=0, append=chain[:1]), axis=1)
+        keep = step > merge
+        if not closed[c]:
+            keep[-1] = True
+        if np.any(keep):
+            out.append((chain[keep], bool(closed[c])))
+    return out
 
 
 def _cut_at_axis(rz: np.ndarray, closed: bool) -> list[np.ndarray]:
@@ -222,7 +232,11 @@ def half_profile(vertices, triangles, axis, origin, azimuth: float = 0.0) -> Hal
     pieces = []
     for points, closed in plane_section(vertices, triangles, o, np.cross(a, u)):
         rz = np.column_stack([(points - o) @ u, (points - o) @ a])
-        pieces.extend(_cut_at_axis(rz, closed))
+        for piece in _cut_at_axis(rz, closed):
+            # a vertex on the axis and the cut's own point there: one point
+            step = np.linalg.norm(np.diff(piece, axis=0), axis=1)
+            pieces.append(piece[np.concatenate([[True], step > TOL.merge_rel * (
+                1.0 + np.abs(piece).max())])])
     if not pieces:
         raise ValueError(f"the half-plane at azimuth {np.degrees(azimuth):.1f} deg meets no "
                          "surface: is the axis inside the object?")
@@ -246,39 +260,51 @@ def _split_walls(piece: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     return piece[:top + 1], piece[top:]
 
 
-def silhouette(vertices, axis, origin, bins: int | None = None) -> np.ndarray:
+def silhouette(vertices, triangles, axis, origin, bins: int | None = None) -> np.ndarray:
     """The outer outline seen from outside: largest radius over all azimuths per height.
+
+    At each of ``bins`` heights the mesh's section by the plane perpendicular to the axis
+    is a polygon whose vertices are the edges' crossings; its largest radius is at one of
+    them, so the outline is exact for the mesh at those heights.
 
     Parameters
     ----------
     vertices : (V, 3) array_like
-        The tessellation's vertices.
+    triangles : (F, 3) int array_like
     bins : int, optional
-        Height bins; default ``sqrt(V)`` (about one vertex ring per bin on a
-        tessellated surface of revolution).
+        Heights; default ``sqrt(V)`` (about one per vertex ring of a tessellated
+        surface of revolution).
 
     Returns
     -------
-    (B, 2) float64
-        ``(r, z)``, from the bottom up, empty bins left out.
+    (B + 2, 2) float64
+        ``(r, z)`` from the lowest point on the axis up to the highest on the axis.
     """
-    verts = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
+    verts, tris = _check_mesh(vertices, triangles)
     _, _, a = frame(axis)
     rel = verts - np.asarray(origin, np.float64)
     z = rel @ a
-    r = np.linalg.norm(rel - np.outer(z, a), axis=1)
+    lo, hi = float(z.min()), float(z.max())
     bins = int(bins or max(8, np.sqrt(len(verts))))
-    lo, hi = z.min(), z.max()
-    which = np.minimum(((z - lo) / max(hi - lo, TOL.zero) * bins).astype(np.int64), bins - 1)
+    heights = lo + (np.arange(bins) + 0.5) * (hi - lo) / bins
+    edges = np.unique(np.sort(np.stack([tris, np.roll(tris, -1, axis=1)], 2).reshape(-1, 2),
+                              axis=1), axis=0)
+    z0, z1 = z[edges[:, 0]], z[edges[:, 1]]
+    step = (hi - lo) / bins
+    first = np.ceil((np.minimum(z0, z1) - lo) / step - 0.5).astype(np.int64)
+    last = np.floor((np.maximum(z0, z1) - lo) / step - 0.5).astype(np.int64)
+    first, last = np.maximum(first, 0), np.minimum(last, bins - 1)
+    count = np.maximum(last - first + 1, 0)
+    edge = np.repeat(np.arange(len(edges)), count)
+    k = first[edge] + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+    dz = z1[edge] - z0[edge]
+    frac = np.where(dz != 0, (heights[k] - z0[edge]) / np.where(dz == 0, 1.0, dz), 0.0)
+    point = rel[edges[edge, 0]] + frac[:, None] * (rel[edges[edge, 1]] - rel[edges[edge, 0]])
+    radius = np.linalg.norm(point - np.outer(point @ a, a), axis=1)
     best = np.full(bins, -1.0)
-    np.maximum.at(best, which, r)
-    at = np.full(bins, -1, np.int64)
-    hit = r >= best[which]
-    at[which[hit]] = np.flatnonzero(hit)
-    keep = at >= 0
-    out = np.column_stack([best[keep], z[at[keep]]])
-    # the outline closes on the axis at the lowest and highest points
-    return np.vstack([[0.0, lo], out, [0.0, hi]])
+    np.maximum.at(best, k, radius)
+    keep = best >= 0
+    return np.vstack([[0.0, lo], np.column_stack([best[keep], heights[keep]]), [0.0, hi]])
 
 
 def principal_azimuths(vertices, triangles, axis, origin, height: float | None = None):
@@ -382,13 +408,16 @@ def measure_profile(profile: HalfProfile, opposite: HalfProfile, heights=(),
             dist[ok] = _distance_to_polyline(np.column_stack([r_out[ok], zs[ok]]),
                                              profile.inner)
         thickness = {float(h): float(t) for h, t in zip(heights, dist, strict=True)}
+    # rounding: a band never narrower than the merge distance
+    tolerance = max(tolerance, TOL.merge_rel * (1.0 + np.abs(outer).max()))
     lip = tolerance
     if profile.inner is not None:
         # the lip is as thick as the wall just below it: the rim diameter is the widest
         # point of the top within that depth (a rounded lip's outer face)
         lip = max(lip, _top_thickness(profile))
-    rim = _band_diameter(outer, other, top - lip, top)
-    base_d = _band_diameter(outer, other, base, base + tolerance)
+    # each half's own top and base: the halves of an object off its axis end apart
+    rim = _band_diameter(outer, other, lip, top=True)
+    base_d = _band_diameter(outer, other, tolerance, top=False)
     return {"height": float(top - base), "base_z": float(base),
             "rim_diameter": rim, "base_diameter": base_d,
             "max_diameter": float(diam[k]), "max_diameter_height": float(grid[k] - base),
@@ -407,13 +436,14 @@ def _top_thickness(profile: HalfProfile) -> float:
     return float(_distance_to_polyline(np.column_stack([r_out, probe]), inner)[0])
 
 
-def _band_diameter(outer: np.ndarray, other: np.ndarray, lo: float, hi: float) -> float:
-    """Sum of the largest radii of both halves' points (and crossings) in ``[lo, hi]``."""
+def _band_diameter(outer: np.ndarray, other: np.ndarray, band: float, top: bool) -> float:
+    """Sum of both halves' largest radii within ``band`` of each half's top (or base)."""
     def widest(poly):
-        inside = poly[(poly[:, 1] >= lo) & (poly[:, 1] <= hi), 0]
+        z = poly[:, 1]
+        lo, hi = (z.max() - band, z.max()) if top else (z.min(), z.min() + band)
+        inside = poly[(z >= lo) & (z <= hi), 0]
         ends = _radius_at(poly, np.array([lo, hi]))
-        return float(np.nanmax(np.concatenate([inside, ends, [np.nan]]))) if (
-            len(inside) or np.any(np.isfinite(ends))) else float("nan")
+        return float(np.max(np.concatenate([inside, ends[np.isfinite(ends)]])))
     return widest(outer) + widest(other)
 
 
