@@ -293,7 +293,8 @@ def _cameras(ctx: StageContext) -> list:
 
 def curves(ctx: StageContext) -> dict:
     """``surface.reconstruct.organise_sections`` then ``section_rings`` (fit, predict) and
-    ``untangle`` (sections whose rings knot the loop graph dropped)."""
+    ``untangle`` (sections whose rings knot the loop graph dropped); for one-sided data
+    (``curves.open``), open arcs instead (:func:`_open_curves`)."""
     import numpy as np
 
     from surface import reconstruct as rc
