@@ -387,7 +387,9 @@ def test_rectified_pair_holds_the_rows(real_data_dir):
     """Real temple pair (8, 9) of the ring pipeline, rectified: every accepted window's
     rows map to rows (b1 = 0, b2 = 1: lsm_match's rigid_across), the accepted share of
     the object's candidates (grey > 0.19 x 255, dilated 5 px; benchmarks/matching.py's
-    definition) is 77.1 % (64.9 % with b1, b2 estimated), and the triangulated points
+    definition) is 67.0 % (77.1 % without the uniqueness test, ``unique=False``: 340
+    windows ambiguous, 127 failing the backward loop; 64.9 % with b1, b2 estimated and
+    no uniqueness test), and the triangulated points
     lie inside every view's silhouette (98.1 %: the rest are the cloth below the
     temple, within 2 mm of the object's box)."""
     import cv2
@@ -414,7 +416,7 @@ def test_rectified_pair_holds_the_rows(real_data_dir):
     xi = m.x_left.astype(int)
     on = obj[xi[:, 1], xi[:, 0]]
     assert on.sum() > 4000
-    assert ok[on].mean() > 0.74
+    assert ok[on].mean() > 0.64
     tri = triangulate_pair(cam_l, cam_r, m.x_left[ok & on], m.x_right[ok & on], refine=False,
                            reject_p=None)
     masks = [foreground_mask(im) for im in images]
