@@ -92,9 +92,15 @@ def test_empty_out_refused(cloud, tmp_path, capfd, monkeypatch):
 
 @pytest.mark.parametrize("value", ["banana", "2", "yes please"])
 def test_allow_large_unknown_value_is_an_error(cloud, tmp_path, capfd, monkeypatch, value):
+    import dataclasses
+
+    # the limit lowered to 10 sections: were the value taken as a yes, 20 sections cost
+    # nothing (10^9 would fill the machine)
+    monkeypatch.setitem(limits.LIMITS, "sections.count",
+                        dataclasses.replace(limits.LIMITS["sections.count"], maximum=10))
     monkeypatch.setenv(limits.ALLOW_ENV, value)
     out = tmp_path / "m.ply"
-    line = fails_cleanly(capfd, ["sections", cloud, "--sections", "1000000000", "--out", out],
+    line = fails_cleanly(capfd, ["sections", cloud, "--sections", "20", "--out", out],
                          limits.ALLOW_ENV, out=out)
     assert "neither yes" in line
 
