@@ -71,6 +71,20 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
 PROBE_BYTES = 1 << 20
 
 
+#: Temporary folders of :func:`atomic_dir` being filled -> the folder they become.
+_TEMP_DIRS: dict[Path, Path] = {}
+
+
+def user_path(path: str | os.PathLike) -> Path:
+    """``path`` as the user will find it: inside a temporary folder of :func:`atomic_dir`
+    (a stage of ``photosurf run`` being written), the same place in its final folder."""
+    path = Path(path)
+    for tmp, final in list(_TEMP_DIRS.items()):
+        if path == tmp or tmp in path.parents:
+            return final / path.relative_to(tmp)
+    return path
+
+
 def raise_if_full(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
     """After a library's write failed without saying why (OpenCascade's ``Write`` returns
     a status, not an errno): append :data:`PROBE_BYTES` to its temporary ``tmp`` and
@@ -90,7 +104,7 @@ def raise_if_full(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
         os.fsync(fd)
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
-            raise OSError(exc.errno, os.strerror(exc.errno), str(path)) from None
+            raise OSError(exc.errno, os.strerror(exc.errno), str(user_path(path))) from None
     finally:
         with contextlib.suppress(OSError):
             os.ftruncate(fd, size)
@@ -279,6 +293,7 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
             tmp = _temp_name(path, _TMP_PREFIX)
             try:
                 os.mkdir(tmp, 0o700)
+                _TEMP_DIRS[tmp] = path
                 with naming(path):
                     yield tmp
                     _fsync_tree(tmp)
@@ -286,6 +301,7 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
                 _merge_into(path, tmp, output_dir_state(path, kind) or [], kind)
                 _fsync(path)
             finally:
+                _TEMP_DIRS.pop(tmp, None)
                 shutil.rmtree(tmp, ignore_errors=True)
             return
     if path.exists() and not path.is_dir():
@@ -294,6 +310,7 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
     tmp = _temp_name(path.parent, f".{path.name}.")
     try:
         os.mkdir(tmp, 0o700)
+        _TEMP_DIRS[tmp] = path
         with naming(path):
             yield tmp
             _fsync_tree(tmp)
@@ -314,6 +331,7 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
             os.replace(tmp, path)
         _fsync(path.parent)
     finally:
+        _TEMP_DIRS.pop(tmp, None)
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
 

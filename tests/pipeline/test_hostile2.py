@@ -579,3 +579,18 @@ def test_identical_images_under_different_cameras_warn(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="photosurf"):
         _warn_identical_views(tmp_path, names[:1] + ["other.png"], cameras[:2])
     assert caplog.records == []
+
+
+def test_disk_full_names_the_final_path_not_the_stage_temporary(tmp_path):
+    """Inside a folder being written (a stage of photosurf run), the probe's error names
+    the place the file will have, not the temporary folder."""
+    from pipeline.atomic import atomic_dir, raise_if_full, user_path
+
+    final = tmp_path / "w" / "export"
+    with atomic_dir(final) as tmp:
+        inside = tmp / "surface.step"
+        assert user_path(inside) == final / "surface.step"
+        inside.write_bytes(b"x")
+        raise_if_full(inside, inside)  # room on this disk: no error, file as it was
+        assert inside.read_bytes() == b"x"
+    assert user_path(tmp / "surface.step") == tmp / "surface.step"
