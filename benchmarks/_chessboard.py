@@ -13,7 +13,9 @@ points of a matcher inside the outline (the convex hull of the left view's corne
 * **inlier RMS / corners' RMS**;
 * **residual / σ**: RMS over the inliers of the residual divided by the point's σ along the
   plane normal (sqrt(nᵀ C n) of its triangulation covariance) -- 1 for an honest σ;
-* **points on the board**.
+* **points on the board**;
+* **beyond one square** of the corners' own plane: the one-period slips (a slip is tens
+  of squares in depth), with and without the uniqueness test (``unique=False``).
 
 SGBM (OpenCV 3-way, uniqueness ratio 12, on the pair rectified by ``matching.rectify``)
 is sampled at the same left candidates and triangulated with the same rig; it reports no
@@ -144,6 +146,13 @@ def sgbm_points(rig, rect, left, right, x_left):
     return tri.points[tri.valid], int(ok.sum())
 
 
+def _beyond(points, centroid, normal, limit: float = 1.0) -> float:
+    """Share of points farther than ``limit`` squares from the plane."""
+    if len(points) == 0:
+        return float("nan")
+    return float(np.mean(np.abs((points - centroid) @ normal) > limit))
+
+
 def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | None = None,
                  seed: int = 0) -> dict:
     """Every measure of one chessboard pair: corners, LSM (``reconstruct_pair``), SGBM."""
@@ -161,12 +170,25 @@ def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | N
     seconds = time.perf_counter() - t0
     on = inside_outline(cl, rec.x_left)
     lsm = plane_measures(rec.points[on], rec.cov[on], corners_rms, rng)
+    # one period or more off: farther than one square from the corners' own plane (a
+    # slip of one period is tens of squares in depth)
+    lsm["beyond_1_square"] = _beyond(rec.points[on], centroid, normal)
+    if (match_options or {}).get("unique", True):
+        old = reconstruct_pair(left, right, rig, **{**(match_options or {}), "unique": False})
+        old_on = inside_outline(cl, old.x_left)
+        lsm["without_uniqueness"] = {
+            "points": int(old_on.sum()),
+            "beyond_1_square": _beyond(old.points[old_on], centroid, normal),
+            **{k: v for k, v in plane_measures(old.points[old_on], old.cov[old_on],
+                                               corners_rms, rng).items()
+               if k in ("blunders", "inlier_rms_over_corners", "residual_over_sigma")}}
     lsm["seconds"] = seconds
     lsm["status"] = rec.matches.status_counts()
     cand_on = inside_outline(cl, rec.matches.x_left)
     lsm["candidates_on_board"] = int(cand_on.sum())
     sg, _ = sgbm_points(rig, rectify(rig), left, right, rec.matches.x_left[cand_on])
     sgbm = plane_measures(sg, None, corners_rms, rng)
+    sgbm["beyond_1_square"] = _beyond(sg, centroid, normal)
     return {"pair": left_path.stem.replace("left", ""), "corners_rms": corners_rms,
             "lsm": lsm, "sgbm": sgbm}
 

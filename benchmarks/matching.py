@@ -635,17 +635,25 @@ def chessboard(folder: Path, json_path: str, pairs=None) -> int:
     print(f"blunder: farther than {BLUNDER_K:g}x the corners' RMS from the robust plane; "
           "inl/c: inlier RMS over the corners' RMS; r/σ: RMS of residual / σ along the "
           "normal over the inliers")
+    print("slip: farther than one square from the corners' plane; 'old': LSM without the "
+          "uniqueness test (unique=False)")
     print(f"{'pair':>4s} {'corners':>8s} | {'LSM pts':>7s} {'blund':>6s} {'inl/c':>6s} "
-          f"{'r/σ':>5s} | {'SGBM pts':>8s} {'blund':>6s} {'inl/c':>6s}")
+          f"{'r/σ':>5s} {'slip':>5s} | {'old pts':>7s} {'blund':>6s} {'slip':>5s} | "
+          f"{'SGBM pts':>8s} {'blund':>6s} {'inl/c':>6s} {'slip':>5s}")
     for r in rows:
         if "error" in r:
             print(f"{r['pair']:>4s} {r['error']}")
             continue
         lsm, sg = r["lsm"], r["sgbm"]
+        old = lsm.get("without_uniqueness", {})
         print(f"{r['pair']:>4s} {r['corners_rms']:8.4f} | {lsm['points']:7d} "
               f"{100 * lsm['blunders']:5.1f}% {lsm['inlier_rms_over_corners']:6.2f} "
-              f"{lsm.get('residual_over_sigma', float('nan')):5.2f} | {sg['points']:8d} "
-              f"{100 * sg['blunders']:5.1f}% {sg['inlier_rms_over_corners']:6.2f}")
+              f"{lsm.get('residual_over_sigma', float('nan')):5.2f} "
+              f"{100 * lsm['beyond_1_square']:4.1f}% | {old.get('points', 0):7d} "
+              f"{100 * old.get('blunders', float('nan')):5.1f}% "
+              f"{100 * old.get('beyond_1_square', float('nan')):4.1f}% | {sg['points']:8d} "
+              f"{100 * sg['blunders']:5.1f}% {sg['inlier_rms_over_corners']:6.2f} "
+              f"{100 * sg['beyond_1_square']:4.1f}%")
     done = [r for r in rows if "error" not in r]
     goals = {
         "chessboard_blunders_le_1pct_every_pair": all(r["lsm"]["blunders"] <= 0.01
@@ -655,6 +663,8 @@ def chessboard(folder: Path, json_path: str, pairs=None) -> int:
         "chessboard_residual_over_sigma_le_2_every_pair": all(
             r["lsm"].get("residual_over_sigma", np.inf) <= 2 for r in done),
         "chessboard_ge_1000_points_every_pair": all(r["lsm"]["points"] >= 1000 for r in done),
+        "chessboard_slips_le_1pct_every_pair": all(r["lsm"]["beyond_1_square"] <= 0.01
+                                                   for r in done),
     }
     print_goals(goals)
     write_result(json_path, {"part": "chessboard", "calibration": calib, "pairs": rows,

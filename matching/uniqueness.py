@@ -30,11 +30,20 @@ says what the window determines:
   (an edge parallel to it, the aperture problem) -- ambiguous too;
 * :math:`s_f \le` ``min_snr`` σ: no signal (a white square) -- **blank**.
 
-A match is kept only where its own disparity lies in the run of a unique profile
-(:func:`check_solution`): LSM converged to a peak other than the best one (an SGBM or
-region-growing start one period off) is rejected.  The profile's curvature against
-the margin gives the ambiguity's own share of the disparity uncertainty (the run's
-half width, :func:`ambiguity_sigma`).
+The plain profile alone cannot judge a *match*: a window's ZNCC at the true disparity
+drops with the perspective distortion between the views, while a repeat elsewhere may be
+less distorted (chessboard pair 02: 0.95 at the truth against 0.99 one period off).  So
+:func:`verify_matches` judges a least-squares match by the matcher itself: every separated
+local maximum of its profile that the matcher could accept (ZNCC >= its
+``min_correlation``) is matched again from there, and the match is **ambiguous** when such
+a rival is accepted outside the solution's lobe with a correlation within the margin m
+of the solution's (m from the match's residual σ0 when that exceeds the image noise: the
+noise the match actually sees).  A solution whose own plain ZNCC is below the matcher's
+floor while a peak elsewhere is higher by more than m is ambiguous too (an affine warp
+bent to fit a lesser repeat).  :func:`anchored` then resolves an ambiguous match by
+geometry that does not depend on its window: it is kept when every unique neighbour in
+reach -- at least two -- predicts its position (their affine warps) within 3σ, and the
+resolved join the anchors (region growing from where the period is pinned).
 
 Shapes: candidates (N, 2) float64 px in the rectified left image; profiles (N, D).
 
@@ -235,15 +244,6 @@ def check_solution(disparity: np.ndarray, verdict: np.ndarray, run: np.ndarray,
     """
     inside = (disparity >= run[:, 0] - tolerance) & (disparity <= run[:, 1] + tolerance)
     return (verdict == UNIQUE) & inside
-
-
-def ambiguity_sigma(run: np.ndarray) -> np.ndarray:
-    """(N,) px: the near-best run's half width as a σ (uniform over the run, width/√12).
-
-    The run is where the noise cannot tell disparities apart at one-pixel steps; a
-    solution's σ below this is LSM's sub-pixel precision, above it the window's.
-    """
-    return (run[:, 1] - run[:, 0]) / np.sqrt(12.0)
 
 
 def solution_lobe(cost: np.ndarray, solution_index: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -55,8 +55,11 @@ def test_default_max_patch_doubles_the_pixels_at_most():
 def moderate():
     """Contrast 0.3 on half the plane: textured, but σ ~ 3x the other half's."""
     rig, left, right = pair_with_low_contrast(0.3)
-    fixed = match_pair(left, right, rig, spacing=6, adaptive_patch=False, max_sigma_mad_k=None)
-    adaptive = match_pair(left, right, rig, spacing=6, max_sigma_mad_k=None)
+    # the adaptive patch alone: the uniqueness test (matching.uniqueness) rejects a
+    # different ~10 % of each at this low SNR
+    fixed = match_pair(left, right, rig, spacing=6, adaptive_patch=False, max_sigma_mad_k=None,
+                       unique=False)
+    adaptive = match_pair(left, right, rig, spacing=6, max_sigma_mad_k=None, unique=False)
     return rig, fixed, adaptive
 
 
