@@ -443,8 +443,11 @@ def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
         big = r0 * 2.0 ** k
         ordered = members[k]
         position = centre[ordered, longest]
-        for start in range(0, len(ordered), QUERY_CHUNK):
-            end = min(start + QUERY_CHUNK, len(ordered))
+        # a face of level k reaches ~4^k times the faces a base one does (area within
+        # its radius): chunks shrink alike to keep each candidate list ~QUERY_CHUNK x 30
+        step = max(1, QUERY_CHUNK >> (2 * int(k)))
+        for start in range(0, len(ordered), step):
+            end = min(start + step, len(ordered))
             # the chunk and the slab just past it: a pair of this level is found in the
             # chunk of its first face (in the slab order), once
             reach = int(np.searchsorted(position, position[end - 1] + 2.0 * big, "right"))
@@ -506,19 +509,87 @@ def _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale, plana
         eps = 2.0 * planar_rel * max(scale[a], scale[b])
         if shared >= 3:
             out[p] = True
-        elif shared == 2:                 # folded only if coplanar
-            for j in range(3):
-                if tri[b, j] != tri[a, 0] and tri[b, j] != tri[a, 1] \
-                        and tri[b, j] != tri[a, 2]:
-                    d = 0.0
-                    for k in range(3):
-                        d += (corners[b, j, k] - corners[a, 0, k]) * normal[a, k]
-                    out[p] = abs(d) <= 10.0 * eps
+        elif shared == 2:                 # folded only if coplanar, both on one side
+            out[p] = _maybe_folded(corners[a], corners[b], tri[a], tri[b], normal[a], eps,
+                                   max(scale[a], scale[b]))
         else:                             # a shared vertex lies in both planes
-            out[p] = not (_one_side(corners[a], tri[a], tri[b], corners[b, 0], normal[b], eps)
-                          or _one_side(corners[b], tri[b], tri[a], corners[a, 0], normal[a],
-                                       eps))
+            if _one_side(corners[a], tri[a], tri[b], corners[b, 0], normal[b], eps) \
+                    or _one_side(corners[b], tri[b], tri[a], corners[a, 0], normal[a], eps):
+                continue
+            # coplanar (flat regions, caps): apart if an edge line separates them in 2-D
+            out[p] = not (_in_plane(corners[b], corners[a, 0], normal[a], eps)
+                          and _separated_2d(corners[a], corners[b], tri[a], tri[b],
+                                            normal[a], eps * max(scale[a], scale[b])))
     return out
+
+
+@numba.njit(cache=True)
+def _maybe_folded(A, B, ids_a, ids_b, normal_a, eps, scale):
+    """Faces sharing an edge: B's own vertex within ``10 eps`` of A's plane and not
+    clearly across the shared edge from A's own vertex."""
+    own_a = own_b = 0
+    for i in range(3):
+        if ids_a[i] != ids_b[0] and ids_a[i] != ids_b[1] and ids_a[i] != ids_b[2]:
+            own_a = i
+        if ids_b[i] != ids_a[0] and ids_b[i] != ids_a[1] and ids_b[i] != ids_a[2]:
+            own_b = i
+    e0, e1 = (own_a + 1) % 3, (own_a + 2) % 3      # A's shared corners
+    d = 0.0
+    for k in range(3):
+        d += (B[own_b, k] - A[e0, k]) * normal_a[k]
+    if abs(d) > 10.0 * eps:
+        return False
+    axis = A[e1] - A[e0]
+    axis = axis / np.sqrt(np.sum(axis * axis))
+    pc = A[own_a] - A[e0]
+    pd = B[own_b] - A[e0]
+    pc = pc - np.sum(pc * axis) * axis
+    pd = pd - np.sum(pd * axis) * axis
+    return np.sum(pc * pd) > -1e-12 * scale * scale
+
+
+@numba.njit(cache=True)
+def _in_plane(face, origin, normal, eps):
+    for i in range(3):
+        d = 0.0
+        for k in range(3):
+            d += (face[i, k] - origin[k]) * normal[k]
+        if abs(d) > eps:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _separated_2d(A, B, ids_a, ids_b, normal, area_eps):
+    """Coplanar faces (dropping the normal's largest axis) lie on opposite sides of the
+    line of one of their edges, each vertex not on that edge farther than ``area_eps``
+    (twice a triangle area: distance × edge length).  Two triangles in a plane are
+    disjoint iff an edge line separates them; a shared vertex sits on the separating
+    edge when there is one."""
+    drop = 0
+    for k in range(1, 3):
+        if abs(normal[k]) > abs(normal[drop]):
+            drop = k
+    u, w = (1, 2) if drop == 0 else ((0, 2) if drop == 1 else (0, 1))
+    for side in range(2):
+        P, Q = (A, B) if side == 0 else (B, A)
+        ids_p, ids_q = (ids_a, ids_b) if side == 0 else (ids_b, ids_a)
+        for e in range(3):
+            i, j, r = e, (e + 1) % 3, (e + 2) % 3
+            ex, ey = P[j, u] - P[i, u], P[j, w] - P[i, w]
+            own = ex * (P[r, w] - P[i, w]) - ey * (P[r, u] - P[i, u])
+            sign = 1.0 if own > 0 else -1.0
+            apart = True
+            for m in range(3):
+                if ids_q[m] == ids_p[i] or ids_q[m] == ids_p[j]:
+                    continue
+                o = ex * (Q[m, w] - P[i, w]) - ey * (Q[m, u] - P[i, u])
+                if o * sign >= -area_eps:
+                    apart = False
+                    break
+            if apart:
+                return True
+    return False
 
 
 @numba.njit(cache=True)

@@ -254,6 +254,26 @@ def test_chunked_lookup_finds_every_pair_once(monkeypatch, chunk):
     np.testing.assert_array_equal(self_intersections(v, t), _brute_force(v, t))
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_folded_flat_grid_meets_the_brute_force(seed):
+    # a planar grid jittered in its plane by 0.35 spacing: coplanar folds and overlaps
+    # everywhere, tilted and moved off the axes (the 2-D prefilter on every pair kind)
+    rng = np.random.default_rng(seed)
+    n = 12
+    x, y = np.meshgrid(np.arange(n), np.arange(n))
+    v = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)]).astype(float)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a, b, c, d = (i * n + j).ravel(), (i * n + j + 1).ravel(), ((i + 1) * n + j + 1).ravel(), \
+        ((i + 1) * n + j).ravel()
+    t = np.vstack([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    v[:, :2] += rng.normal(0.0, 0.35, (n * n, 2))
+    rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    v = v @ rotation.T + rng.normal(0.0, 50.0, 3)
+    expected = _brute_force(v, t)
+    assert len(expected) > 50
+    np.testing.assert_array_equal(self_intersections(v, t), expected)
+
+
 def test_dented_sphere_agrees_with_open3d():
     rng = np.random.default_rng(3)
     v, t = _sphere(resolution=10)
