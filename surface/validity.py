@@ -23,13 +23,14 @@ in levels by radius (level :math:`k` holds radii :math:`\le r_0 2^k`, :math:`r_0
 median), ``scipy.spatial.cKDTree``: the faces of level :math:`k`, in slabs along the
 longest side (bounded memory), are paired within :math:`2 r_0 2^k` in their level and
 within :math:`r_0 2^k + r_0 2^j` with every smaller level :math:`j`.  A numba
-prefilter keeps the pairs whose spheres and boxes overlap and where neither face lies
-beyond the other's plane (a shared vertex ignored), by twice the narrow phase's zero.
-Narrow phase, batched over the candidate pairs: Möller's interval test [1]_: unless
-one triangle lies wholly on one side of the other's plane, both triangles cut the line
-:math:`L` of the two planes in an interval, and they meet iff the intervals overlap;
-coplanar pairs are tested in 2-D (edge crossings and containment).  Shared vertices
-are handled exactly:
+prefilter keeps the pairs whose spheres and boxes overlap, where neither face lies
+beyond the other's plane (a shared vertex ignored) and, for coplanar faces, no edge
+line separates them (faces sharing an edge: only folded ones), each by twice the
+narrow phase's zero.  Narrow phase, batched over the candidate pairs: Möller's
+interval test [1]_: unless one triangle lies wholly on one side of the other's plane,
+both triangles cut the line :math:`L` of the two planes in an interval, and they meet
+iff the intervals overlap; coplanar pairs are tested in 2-D (edge crossings and
+containment).  Shared vertices are handled exactly:
 
 - two triangles sharing an edge meet elsewhere only when they are coplanar and folded
   onto each other (the two opposite vertices on the same side of the edge);
