@@ -1041,6 +1041,10 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         weights = None if sigma is None else _precision_weights(sigma[candidates][near])
         end_step = (_weighted_quantile(outer, weights, _END_QUANTILE) / _END_QUANTILE
                     if len(outer) >= NORMAL_NEIGHBOURS else None)
+        # Standard error of that end: for M offsets spread evenly over [0, e] the
+        # p-quantile's is e sqrt(p (1 - p) / M), divided by p with the end.
+        end_error = (None if end_step is None else end_step * float(
+            np.sqrt(_END_QUANTILE * (1 - _END_QUANTILE) / len(outer))) / _END_QUANTILE)
         rim = None
         if end_step is not None and sigma is not None:
             rim = rim_line(outer, sigma[candidates][near], end_step)
@@ -1048,15 +1052,16 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
             end_step = rim
         if end_step is not None:
             end_step *= sign
-        new_rings, counts, dome = [], [], False
+        new_rings, counts, dome, errors = [], [], False, []
         for ring in ends:
             flat = ring @ frame[:2].T
             flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
             inside = beyond[_inside(beyond_flat, flat)]
             counts.append(len(inside))
-            cap = None if len(inside) < NORMAL_NEIGHBOURS else _cap_height(
+            found = None if len(inside) < NORMAL_NEIGHBOURS else _cap_height(
                 heights, candidates_flat, ring @ frame[:2].T, h_end, sign, delta,
-                None if sigma is None else sigma[candidates])
+                None if sigma is None else sigma[candidates], spread=True)
+            cap = None if found is None else found[0]
             if cap is None and _dome(ring @ frame[:2].T, *end_window(h_end, sign > 0, delta),
                                      points[candidates], frame) is not None:
                 # A rounded end (no flat cap across the plane, a dome past it): the
@@ -1069,13 +1074,19 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                 # outside the sphere (the capsule's 10⁶ Chamfer 0.000118 -> 0.000105).
                 dome = True
                 break
+            # a median's standard error: sqrt(π/2) s / sqrt(m), s the MAD scale
             if cap is not None:
                 step = cap - h_end
+                errors.append(_MEDIAN_ERROR * found[1] / np.sqrt(found[2]))
             elif len(inside) >= NORMAL_NEIGHBOURS:
                 cap_weights = None if sigma is None else _precision_weights(sigma[inside])
-                step = _weighted_quantile(points[inside] @ axis, cap_weights, 0.5) - h_end
+                inside_h = points[inside] @ axis
+                step = _weighted_quantile(inside_h, cap_weights, 0.5) - h_end
+                errors.append(_MEDIAN_ERROR * 1.4826 * float(np.median(np.abs(
+                    inside_h - h_end - step))) / np.sqrt(len(inside)))
             elif end_step is not None:
                 step = end_step
+                errors.append(end_error)
             else:
                 break
             chain, last = [], ring
@@ -1097,20 +1108,22 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                      new_rings[0] if len(new_rings) == 1 else new_rings)
         moved = np.mean([abs(float((r - e).mean(axis=0) @ axis))
                          for r, e in zip(new_rings, ends, strict=True)])
+        error = f" (± {max(errors):.2g}, its standard error)" if errors else ""
         if min(counts) >= NORMAL_NEIGHBOURS:
             notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {moved:.4g} to the "
-                         f"median height of {sum(counts)} cap points")
+                         f"median height of {sum(counts)} cap points{error}")
         else:
             notes.append(f"{'bottom' if end == 0 else 'top'} end extended {moved:.4g} to the "
                          + (f"rim line the points beyond the end plane bunch at (no cap points; "
                             f"{len(outer)} points beyond the plane)" if rim is not None else
                             f"end of the wall points (no cap points: the 95th percentile offset "
-                            f"of {len(outer)} points beyond the end plane, / 0.95)"))
+                            f"of {len(outer)} points beyond the end plane, / 0.95)") + error)
     return rings, notes
 
 
 def _cap_height(heights: np.ndarray, flat: np.ndarray, ring_flat: np.ndarray, h_end: float,
-                sign: float, delta: float, sigma: np.ndarray | None) -> float | None:
+                sign: float, delta: float, sigma: np.ndarray | None,
+                spread: bool = False) -> float | tuple[float, float, int] | None:
     """Height of a flat cap from its points on *both* sides of the end plane.
 
     The cap points inside the end ring (inset by ``CAP_INSET``) within ``2 delta``
@@ -1122,7 +1135,8 @@ def _cap_height(heights: np.ndarray, flat: np.ndarray, ring_flat: np.ndarray, h_
     sits about σ outwards -- the 10⁷-point vase's ends were 0.0020 / 0.0026 out, walls
     0.000044 (benchmarks/README.md).  ``None`` with fewer than ``NORMAL_NEIGHBOURS``
     points, or when the points inwards of the plane do not belong to a flat cap (a
-    dome's top has none there: the median of the outer ones is kept).
+    dome's top has none there: the median of the outer ones is kept).  With
+    ``spread``: ``(height, s, m)``, ``s`` the MAD scale of the ``m`` points kept about it.
     """
     offset = sign * (heights - h_end)
     near = np.flatnonzero((offset > -2 * delta) & (offset <= 2 * delta))
@@ -1142,6 +1156,9 @@ def _cap_height(heights: np.ndarray, flat: np.ndarray, ring_flat: np.ndarray, h_
             break
         centre = _weighted_quantile(values[keep], None if weights is None else weights[keep],
                                     0.5)
+    if spread:
+        kept = values[np.abs(values - centre) <= max(3.0 * scale, 0.5 * delta)]
+        return float(centre), 1.4826 * float(np.median(np.abs(kept - centre))), len(kept)
     return float(centre)
 
 
@@ -1164,9 +1181,18 @@ def _drop_sections_past_cap(rings: list, section_heights: list, this: int, sign:
                                                            else None)
         if ring is None:
             break
-        h = _cap_height(heights, flat, ring @ frame[:2].T, section_heights[this], sign,
-                        delta, sigma)
-        if h is None or sign * (section_heights[this] - h) <= 0:
+        found = _cap_height(heights, flat, ring @ frame[:2].T, section_heights[this], sign,
+                            delta, sigma, spread=True)
+        if found is None:
+            break
+        h, scale, _ = found
+        # Only a plane within the cap's noise band (3 MAD scales, or half a spacing, the
+        # slab's own half-width, when the cap is sharper) is the cap's noise; one farther
+        # out holds wall points past the cap -- a rim standing above a recessed lid (a
+        # can's top: its rim sections had been dropped and the end put on the lid, 4.7
+        # point spacings below the rim top).
+        past = sign * (section_heights[this] - h)
+        if past <= 0 or past > max(3.0 * scale, 0.5 * delta):
             break
         cap = h
         rings.pop(this)
@@ -1262,6 +1288,8 @@ def rim_line(offsets: np.ndarray, sigma: np.ndarray, end: float) -> float | None
     return float(line)
 
 
+#: Standard error of a median over that of a mean, for Gaussian values: sqrt(π / 2).
+_MEDIAN_ERROR = float(np.sqrt(np.pi / 2.0))
 #: φ(1), the standard normal density at 1.
 _PHI_1 = float(np.exp(-0.5) / np.sqrt(2.0 * np.pi))
 

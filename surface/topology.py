@@ -97,6 +97,22 @@ _DENSITY_RATIO = 2.0
 _SPLIT_TRIES = 2
 #: Angular sectors a closed loop must fill about its centroid (bridge test).
 _SECTORS = 16
+#: Neighbours searched for a point's half neighbour (:func:`_curve_graph`).
+_TANGENT_NEIGHBOURS = 8
+#: Largest bend, in degrees, between a point's nearest-neighbour edge and its
+#: half-neighbour edge (prolonged) for a curve to run on through it, and between a
+#: loose end's direction and the gap it is joined across (:func:`_curve_graph`).
+#: Along a noise-free curve sampled at gap g the bend is ~g/R rad; across a wall
+#: from a gap's end it is 45-90°.
+_CRUST_BEND = 30.0
+#: Longest half-neighbour edge, in mean gaps g, kept whatever its bend (a wall 2 point
+#: spacings thick is ~4 g across at a slab 2 spacings thick, 2 g at a half slab).
+_BRIDGE_GAPS = 2.0
+#: Nearest points a loose end may be joined to (:func:`_curve_graph`).
+_JOIN_CANDIDATES = 16
+#: A piece of a traced cluster holding more than ``1 - _WALL_SHARE`` of its points is
+#: taken for a loop by :func:`_wall_splits` (a wall's faces hold ~half each).
+_WALL_SHARE = 0.9
 
 
 @dataclass(frozen=True, eq=False)
@@ -475,7 +491,162 @@ def _clusters(uv: np.ndarray, link_distance, scale):
     if link_distance is None:
         keep &= ~_closed_splits(uv, tree, keep, gap, link)
     labels = _components(n, tree.row[keep], tree.col[keep])
+    if link_distance is None:
+        labels = _wall_splits(uv, labels, gap, link)
     return labels, gap, float(link)
+
+
+def _wall_splits(uv: np.ndarray, labels: np.ndarray, gap: float, link: float) -> np.ndarray:
+    """Labels ``(M,)`` with a cluster that holds both faces of a thin wall parted.
+
+    Where a wall is thinner than the largest gaps along its loops (gaps along a loop
+    are exponential with mean g, the largest of M about ``g (ln M + 0.58)``, ~7 g: a
+    rim 3-4 point spacings thick) the MST crosses the wall more than once and
+    :func:`_closed_splits` finds no single bridge.  Here each cluster is traced as
+    curves instead (:func:`_curve_graph`); the pieces holding at least
+    ``1 - _WALL_SHARE`` of its points (and :data:`_SECTORS`) take the rest, each
+    smaller piece (and then each big one that is not closed, smallest first) joining
+    the one at the nearest median distance from the centroid, and the cluster is parted when
+    there are two or more and each is a closed loop (:func:`_is_closed_loop`);
+    otherwise it is left as it was.
+    """
+    sizes = np.bincount(labels)
+    out = labels.copy()
+    for c in np.flatnonzero(sizes >= 2 * _SECTORS):
+        members = np.flatnonzero(labels == c)
+        pts = uv[members]
+        if float(np.ptp(pts, axis=0).max()) <= 2 * link:
+            continue
+        row, col = _curve_graph(pts, gap, link)
+        parts = _components(len(pts), row, col)
+        part_sizes = np.bincount(parts)
+        big = np.flatnonzero(part_sizes >= max(_SECTORS, (1 - _WALL_SHARE) * len(pts)))
+        if len(big) < 2:
+            continue
+        # the smaller pieces go to the big one at the nearest distance from the
+        # cluster's centroid (a wall's faces: the inner and the outer radius; nearest
+        # points would hand a piece of one face across a gap to the other)
+        radius = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
+        level = np.array([np.median(radius[parts == b]) for b in big])
+        piece_level = np.array([np.median(radius[parts == c]) if part_sizes[c] else 0.0
+                                for c in range(len(part_sizes))])
+        owner = big[np.argmin(np.abs(piece_level[:, None] - level[None, :]), axis=1)][parts]
+        owner[np.isin(parts, big)] = parts[np.isin(parts, big)]
+        # a big piece that is an arc of a face, not closed, joins the nearest level too
+        big = list(big)
+        while len(big) >= 2:
+            open_ = [b for b in big if not _is_closed_loop(pts[owner == b], link)]
+            if not open_:
+                break
+            b = min(open_, key=lambda c: np.count_nonzero(owner == c))
+            big.remove(b)
+            lv = np.array([np.median(radius[owner == c]) for c in big])
+            owner[owner == b] = big[int(np.argmin(np.abs(lv - np.median(radius[owner == b]))))]
+        if len(big) < 2:
+            continue
+        fresh = out.max() + 1
+        for j, b in enumerate(big[1:]):
+            out[members[owner == b]] = fresh + j
+    return out
+
+
+def _curve_graph(pts: np.ndarray, gap: float, link: float) -> tuple[np.ndarray, np.ndarray]:
+    """Edges ``(row, col)`` tracing points sampled along curves: NN-crust [1]_, pruned.
+
+    Each point joins its nearest neighbour q and its nearest neighbour r on the other
+    side (``(q - p)·(r - p) < 0``, the *half neighbour*).  Along a curve q and r lie
+    on either side, nearly opposite; the curve's line at p is the chord between
+    its nearest neighbours on either side at least g/2 away, where the bend there is
+    below :data:`_CRUST_BEND`.  Where a face of a wall has
+    a gap wider than the wall a neighbour lies across it: an edge longer than
+    :data:`_BRIDGE_GAPS` g (a short one bends with the noise, not across a wall)
+    more than :data:`_CRUST_BEND` off the line at either of its ends (or at p, for
+    a half-neighbour edge, where p has no line) is dropped.
+    Each loose end of the arcs left is then joined across its gap to the nearest
+    point of another arc within ℓ that lies ahead of it (within :data:`_CRUST_BEND`
+    of its direction, and of that point's line -- or, a loose end itself, facing
+    back within the same angle).
+
+    .. [1] T. K. Dey, P. Kumar, "A simple provable algorithm for curve
+       reconstruction", Proc. SODA (1999).
+    """
+    m = len(pts)
+    k = min(_TANGENT_NEIGHBOURS, m - 1)
+    tree = cKDTree(pts)
+    dist, nbr = tree.query(pts, k=k + 1)
+    dist, nbr = dist[:, 1:], nbr[:, 1:]
+    rel = pts[nbr] - pts[:, None, :]  # (m, k, 2)
+    rows = np.arange(m)
+
+    def opposite(first, usable):
+        # the nearest usable neighbour on the other side of ``first``: (index, has one)
+        other = usable & ((rel * first[:, None, :]).sum(axis=2) < 0)  # (m, k)
+        return np.argmax(other, axis=1), other.any(axis=1)
+
+    first = rel[:, 0]
+    pick, has = opposite(first, np.ones_like(dist, bool))
+    # The line through p: the chord between its nearest neighbours on either side at
+    # least half a gap away (nearer ones point wherever the points' scatter across the
+    # curve -- sliding, noise -- puts them).
+    far = dist >= 0.5 * gap
+    near_far = np.where(far.any(axis=1), np.argmax(far, axis=1), k - 1)
+    ahead = rel[rows, near_far]
+    pick_far, has_far = opposite(ahead, far)
+    behind = rel[rows, pick_far]
+    cos = -(ahead * behind).sum(axis=1) / np.maximum(
+        np.linalg.norm(ahead, axis=1) * np.linalg.norm(behind, axis=1), TOL.zero)
+    cos_bend = np.cos(np.radians(_CRUST_BEND))
+    straight = has_far & (cos >= cos_bend)  # the curve runs straight on through p
+    tangent = np.where(straight[:, None], ahead - behind, 0.0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1), TOL.zero)[:, None]
+    # a half-neighbour edge longer than the noise's bends must run along p's line
+    second = rel[rows, pick]
+    along = np.abs((second * tangent).sum(axis=1)) >= cos_bend * np.linalg.norm(second, axis=1)
+    half = has & ((straight & along) | (np.linalg.norm(second, axis=1) <= _BRIDGE_GAPS * gap))
+    row = np.r_[np.arange(m), np.flatnonzero(half)]
+    col = np.r_[nbr[:, 0], nbr[half, pick[half]]]
+    pairs = np.unique(np.sort(np.stack([row, col], axis=1), axis=1), axis=0)
+    # an edge longer than the noise's bends must run along the line at each end that
+    # has one: across a wall it leaves the other face's line at 45-90°
+    d = pts[pairs[:, 1]] - pts[pairs[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    d /= np.maximum(length, TOL.zero)[:, None]
+    off = np.zeros(len(pairs), bool)
+    for end in (0, 1):
+        at = pairs[:, end]
+        off |= straight[at] & (np.abs((d * tangent[at]).sum(axis=1)) < cos_bend)
+    pairs = pairs[~(off & (length > _BRIDGE_GAPS * gap))]
+    degree = np.bincount(pairs.ravel(), minlength=m)
+    ends = np.flatnonzero(degree == 1)
+    if len(ends) >= 2:
+        # each loose end's direction: out from the mean of its arc's points among its
+        # nearest neighbours (one neighbour alone, a fraction of g away, points anywhere)
+        arc = _components(m, pairs[:, 0], pairs[:, 1])
+        mine = (arc[nbr[ends]] == arc[ends][:, None]).astype(np.float64)  # (e, k)
+        back = (pts[nbr[ends]] * mine[:, :, None]).sum(axis=1) / np.maximum(
+            mine.sum(axis=1), 1.0)[:, None]
+        out_dir = np.where(mine.any(axis=1)[:, None], pts[ends] - back, 0.0)
+        out_dir /= np.maximum(np.linalg.norm(out_dir, axis=1), TOL.zero)[:, None]
+        dist, idx = tree.query(pts[ends], k=min(m, _JOIN_CANDIDATES),
+                               distance_upper_bound=link)
+        end_of = np.full(m, -1)
+        end_of[ends] = np.arange(len(ends))
+        best = np.full(len(ends), -1)
+        for j in range(1, idx.shape[1]):  # candidates nearest first
+            ok = (best < 0) & np.isfinite(dist[:, j])
+            cand = np.where(ok, idx[:, j], 0)
+            step = pts[cand] - pts[ends]
+            step /= np.maximum(np.linalg.norm(step, axis=1), TOL.zero)[:, None]
+            facing = (end_of[cand] >= 0) & (
+                (-step * out_dir[np.maximum(end_of[cand], 0)]).sum(axis=1) >= cos_bend)
+            along = facing | (straight[cand] & (
+                np.abs((step * tangent[cand]).sum(axis=1)) >= cos_bend))
+            ahead = ok & along & (arc[cand] != arc[ends]) & (
+                (step * out_dir).sum(axis=1) >= cos_bend)
+            best[ahead] = cand[ahead]
+        joined = best >= 0
+        pairs = np.concatenate([pairs, np.stack([ends[joined], best[joined]], axis=1)])
+    return pairs[:, 0], pairs[:, 1]
 
 
 def _closed_splits(uv, tree, keep, gap, link) -> np.ndarray:

@@ -1,0 +1,120 @@
+"""Ends within the noise: where the stitched surface puts an object's ends, over samplings.
+
+For each object, ``--samplings`` noise-free clouds of ``--points`` points drawn by area
+on its truth mesh (``surface.metrics.sample_mesh``, seeds 0, 1, ...) go through
+``surface.reconstruct.surface_from_points`` (axis z); the stitched mesh's lowest and
+highest point along the axis are its ends; the Chamfer distance to the truth (mean of
+both directions, 50 000 points each) says whether what lies between is right.  Against
+the truth's ends: bias (mean offset) and spread (max - min over the samplings; the
+standard deviation beside it), in point spacings ``s = sqrt(area / N)``.  Goals:
+spread <= 0.5 s, |bias| <= 0.25 s per end.
+
+Objects: a can with a raised rim round a recessed lid (``tests/_can.py``: its top is
+the rim's, the lid 0.004 below it) and the YCB mustard bottle of
+``../shared/data/real/scans`` (metres, +z; skipped when absent).
+
+Run: ``.venv/bin/python benchmarks/ends.py [--samplings 10] [--points 40000] [--json PATH]``
+(``--quick``: 3 samplings).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.append(str(ROOT / "benchmarks"))
+
+from _common import print_goals, write_result  # noqa: E402
+
+from surface import metrics  # noqa: E402
+from surface import reconstruct as rc  # noqa: E402
+from tests._can import can_truth  # noqa: E402
+
+#: Points sampled on each surface for the Chamfer distance (mean of both directions).
+CHAMFER_SAMPLES = 50_000
+MUSTARD = ROOT.parent / "shared" / "data" / "real" / "scans" / "ycb_mustard_bottle" / "mesh.obj"
+
+
+def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(V, 3)`` and triangles ``(F, 3)`` of an OBJ file (polygons as fans)."""
+    vertices, faces = [], []
+    for line in path.read_text().splitlines():
+        if line.startswith("v "):
+            vertices.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("f "):
+            idx = [int(tok.split("/")[0]) - 1 for tok in line.split()[1:]]
+            faces += [[idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1)]
+    return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+
+
+def measure(name: str, truth: tuple, points: int, samplings: int) -> dict:
+    vertices, triangles = truth
+    spacing = float(np.sqrt(metrics.triangle_areas(vertices, triangles).sum() / points))
+    lo, hi = float(vertices[:, 2].min()), float(vertices[:, 2].max())
+    bottoms, tops, seconds, notes, chamfer = [], [], [], [], []
+    for seed in range(samplings):
+        cloud = metrics.sample_mesh(vertices, triangles, points, seed=seed)
+        start = time.perf_counter()
+        mesh = rc.surface_from_points(cloud, axis="z")
+        seconds.append(time.perf_counter() - start)
+        on_mesh = metrics.sample_mesh(mesh.vertices, mesh.triangles, CHAMFER_SAMPLES, seed=1)
+        on_truth = metrics.sample_mesh(vertices, triangles, CHAMFER_SAMPLES, seed=2)
+        chamfer.append(0.5 * float(metrics.point_mesh_distance(on_mesh, vertices, triangles).mean()
+                                   + metrics.point_mesh_distance(on_truth, mesh.vertices,
+                                                                 mesh.triangles).mean()))
+        bottoms.append(float(mesh.vertices[:, 2].min()) - lo)
+        tops.append(float(mesh.vertices[:, 2].max()) - hi)
+        notes.append([m for m in mesh.messages if "bottom" in m or "top" in m])
+    row = {"object": name, "points": points, "spacing": spacing, "samplings": samplings,
+           "seconds": float(np.mean(seconds)), "notes_seed0": notes[0],
+           "chamfer_median": float(np.median(chamfer)), "chamfer_max": float(np.max(chamfer)),
+           "chamfer": chamfer}
+    for end, offsets in (("bottom", np.array(bottoms)), ("top", np.array(tops))):
+        row[end] = {"offsets": (offsets / spacing).tolist(),
+                    "bias": float(offsets.mean() / spacing),
+                    "spread": float(np.ptp(offsets) / spacing),
+                    "std": float(offsets.std(ddof=1) / spacing) if samplings > 1 else 0.0}
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samplings", type=int, default=10)
+    parser.add_argument("--points", type=int, default=40_000)
+    parser.add_argument("--quick", action="store_true", help="3 samplings")
+    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "ends.json"))
+    args = parser.parse_args(argv)
+    samplings = 3 if args.quick else args.samplings
+    objects = [("can, raised rim", can_truth())]
+    if MUSTARD.exists():
+        objects.append(("mustard bottle", read_obj(MUSTARD)))
+    else:
+        print(f"skipped the mustard bottle: {MUSTARD} not found")
+    rows, goals = [], {}
+    print(f"{'object':<16} {'spacing':>9} {'end':>6} {'bias/s':>7} {'spread/s':>8} "
+          f"{'std/s':>6} {'Chamfer/s med, max':>19} {'s/run':>6}")
+    for name, truth in objects:
+        row = measure(name, truth, args.points, samplings)
+        rows.append(row)
+        for end in ("bottom", "top"):
+            e = row[end]
+            print(f"{name:<16} {row['spacing']:>9.6f} {end:>6} {e['bias']:>+7.2f} "
+                  f"{e['spread']:>8.2f} {e['std']:>6.2f} "
+                  f"{row['chamfer_median'] / row['spacing']:>9.3f} "
+                  f"{row['chamfer_max'] / row['spacing']:>9.3f} {row['seconds']:>6.1f}", flush=True)
+            goals[f"{name} {end} spread <= 0.5 s"] = e["spread"] <= 0.5
+            goals[f"{name} {end} |bias| <= 0.25 s"] = abs(e["bias"]) <= 0.25
+    print()
+    print_goals(goals)
+    write_result(args.json, {"benchmark": "ends", "rows": rows, "goals": goals})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
