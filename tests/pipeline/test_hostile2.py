@@ -498,9 +498,13 @@ from pipeline import cli
 from matching.scheduler import thread_map
 
 
-def run(args):  # two view pairs at once, each 60 s of work in its thread
+def pair(item):  # a view pair: 60 s of work in its thread
     print("started", flush=True)
-    thread_map(2)(lambda item: time.sleep(60), range(6))
+    time.sleep(60)
+
+
+def run(args):  # two view pairs at once
+    thread_map(2)(pair, range(6))
 
 
 cli._load = lambda name: types.SimpleNamespace(HELP="slow", add_arguments=lambda p: None,
@@ -520,7 +524,7 @@ def test_interrupt_does_not_wait_for_running_pairs(tmp_path, sig):
     signum = getattr(signal, sig)
     proc = subprocess.Popen([sys.executable, "-c", _SLOW_COMMAND], cwd=tmp_path, env=_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stdout.readline().strip() == "started"
+    assert "started" in proc.stdout.readline()  # the pairs' threads are running
     time.sleep(0.5)
     proc.send_signal(signum)
     sent = time.monotonic()
@@ -532,24 +536,32 @@ def test_interrupt_does_not_wait_for_running_pairs(tmp_path, sig):
 
 
 def test_local_executor_cancels_queued_tasks():
-    """A task's error ends the map at once: the queued tasks never start."""
+    """A task's error ends the map at once: the queued tasks never start, the running one
+    is not waited for (it would take 5 s)."""
     import threading
+    import time
 
     from pipeline.executor import LocalExecutor
 
     started = []
     lock = threading.Lock()
+    release = threading.Event()
 
     def task(item):
         with lock:
             started.append(item)
         if item == 0:
+            time.sleep(0.2)  # the other worker is inside its task by then
             raise ValueError("bad item")
-        threading.Event().wait(0.5)
+        release.wait(5.0)
         return item
 
+    begin = time.monotonic()
     with pytest.raises(ValueError, match="bad item"):
         LocalExecutor(workers=2).map(task, range(40))
+    elapsed = time.monotonic() - begin
+    release.set()
+    assert elapsed < 2.5, f"waited {elapsed:.1f} s for the running task"
     assert len(started) < 10, started
 
 
