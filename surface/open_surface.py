@@ -40,7 +40,8 @@ The result is an oriented, manifold mesh with borders where the data end (a vert
 where two strips meet at a point only is split); faces are counter-clockwise seen from
 outside each loop's centroid (the loops' counter-clockwise order), or facing
 ``viewpoint`` when given (the cameras': they saw the surface's outside).  A section
-with several loops gives the arc of its largest.
+with several loops gives one arc of the pieces that continue one another
+(:func:`chain_arcs`).
 
 References
 ----------
@@ -64,7 +65,8 @@ from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
-           "open_surface_from_loops", "organise_arcs", "open_arcs", "QUARTER_STEP"]
+           "open_surface_from_loops", "organise_arcs", "open_arcs", "chain_arcs",
+           "QUARTER_STEP"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
 #: end point there (the most the resampled arc reaches beyond its data is this share of
@@ -259,6 +261,77 @@ def loop_arc(loop) -> np.ndarray:
     pts = np.asarray(loop.points, dtype=np.float64)
     step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
     return np.roll(pts, -(int(np.argmax(step)) + 1), axis=0)
+
+
+#: Largest angle between an arc's end tangent and the gap to the next piece for the
+#: piece to continue the arc (a window, an unmatched patch): the stitch's sharp-turn
+#: angle (``surface.stitch.SHARP_TURN``, 30°); a piece off to the side is another surface.
+CONTINUATION_ANGLE = np.pi / 6
+#: Points at each end of a piece its end tangent is taken over (a chord: noise averaged).
+_TANGENT_POINTS = 8
+
+
+def _end(arc: np.ndarray, last: bool) -> tuple[np.ndarray, np.ndarray]:
+    """An arc's end point and unit tangent pointing out of it."""
+    k = min(_TANGENT_POINTS, len(arc) - 1)
+    a, b = (arc[-1 - k], arc[-1]) if last else (arc[k], arc[0])
+    direction = b - a
+    return b, direction / max(float(np.linalg.norm(direction)), TOL.zero)
+
+
+def _length(arc: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(arc, axis=0), axis=1).sum())
+
+
+def chain_arcs(arcs: Sequence[np.ndarray]) -> tuple[np.ndarray, int]:
+    """One section's arcs chained into one where they continue one another.
+
+    Starting from the longest, a piece joins an end of the chain when the gap to it runs
+    along the chain's end tangent and along the piece's own end tangent (both within
+    :data:`CONTINUATION_ANGLE`) and is no longer than the longer of the two: a facade's
+    wall between windows, an arc broken where the matcher found nothing.  Pieces off to
+    the side (another layer, another object) are left out.
+
+    Parameters
+    ----------
+    arcs : sequence of (M_i, 3) float64
+        Ordered points of each piece (:func:`loop_arc`).
+
+    Returns
+    -------
+    arc : (M, 3) float64
+        The chain, in the longest piece's direction.
+    used : int
+        Pieces in it.
+    """
+    pieces = sorted((np.asarray(a, np.float64) for a in arcs), key=_length, reverse=True)
+    chain, rest = pieces[0], [p for p in pieces[1:] if len(p) >= 2]
+    cos_max = np.cos(CONTINUATION_ANGLE)
+    used, joined = 1, True
+    while rest and joined:
+        joined = False
+        for i, piece in enumerate(rest):
+            for at_end in (True, False):
+                tip, out = _end(chain, at_end)
+                for flip in (False, True):
+                    cand = piece[::-1] if flip else piece
+                    # the piece's end facing the chain: its first point when appended
+                    near, into = _end(cand, not at_end)
+                    gap = near - tip
+                    dist = float(np.linalg.norm(gap))
+                    if dist <= TOL.zero or dist > max(_length(chain), _length(cand)):
+                        continue
+                    along = gap / dist
+                    if along @ out >= cos_max and -along @ into >= cos_max:
+                        chain = np.concatenate([chain, cand] if at_end else [cand, chain])
+                        del rest[i]
+                        used, joined = used + 1, True
+                        break
+                if joined:
+                    break
+            if joined:
+                break
+    return chain, used
 
 
 def one_sided(loops: Sequence) -> bool:
@@ -666,7 +739,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     ----------
     loops : sequence of sequence of surface.topology.Loop
         Per section in height order (:func:`organise_arcs`); a section with several
-        loops gives the arc of its loop with the most points (the others are noted).
+        loops gives one arc of those that continue one another (:func:`chain_arcs`).
     spacing : float
         Distance between the sections, scene units: the odd arcs' ring spacing on the
         widest arc (the closed rings' rule ``N = P_max / Δ``) unless ``n`` is given.
@@ -689,13 +762,16 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     """
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
-    notes, curves = [], []
+    notes, curves, data = [], [], 0
     for section_loops in loops:
         best = max(section_loops, key=len)
-        if len(section_loops) > 1:
+        arc, used = chain_arcs([loop_arc(lp) for lp in section_loops])
+        data += len(arc)
+        if used < len(section_loops):
             notes.append(f"section at height {best.height:.6g}: {len(section_loops)} loops, "
-                         f"the arc of the largest ({len(best)} points) kept")
-        curves.append(fit_open(loop_arc(best), smoothing, frame=best.frame))
+                         f"{used} continuing one another kept as one arc "
+                         f"({len(arc)} points)")
+        curves.append(fit_open(arc, smoothing, frame=best.frame))
     curves, placed, align_notes, run = align_arcs(curves)
     notes += align_notes
     curves, placed = [curves[k] for k in run], [placed[k] for k in run]
@@ -709,7 +785,6 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         step = float(widest.u[-1] - widest.u[0]) / max(int(n) - 1, 1)
     counts = [float(p.u[-1] - p.u[0]) / (step if k % 2 == 0 else step / 2) + 2
               for k, p in enumerate(placed)]
-    data = sum(len(max(section_loops, key=len)) for section_loops in loops)
     if sum(counts) > MAX_RING_POINTS_PER_POINT * data:
         raise ValueError(f"the arcs do not line up as one surface: resampling them would "
                          f"take {sum(counts):.3g} ring points for {data} data points")

@@ -196,3 +196,17 @@ def test_strips_meeting_at_one_point_are_split_there_not_pinched():
     # one point, two copies
     shared = surface.vertices[np.unique(surface.triangles)]
     assert len(np.unique(shared.round(12), axis=0)) == len(shared) - 1
+
+
+def test_pieces_that_continue_an_arc_are_chained_and_a_side_piece_is_not():
+    theta = np.linspace(0.0, 3.0, 300)
+    arc = _circle_arc(theta)
+    # three pieces of one arc, with gaps of 0.15 rad (windows), given out of order and
+    # one reversed, and a piece of a parallel wall 0.3 behind (another layer)
+    pieces = [arc[100:180], arc[:90][::-1], arc[195:], _circle_arc(theta[100:200], 0.7)]
+    chain, used = osf.chain_arcs(pieces)
+    assert used == 3 and len(chain) == 80 + 90 + 105
+    # one arc, monotone in theta: every piece turned the chain's way
+    along = np.unwrap(np.arctan2(chain[:, 1], chain[:, 0]))
+    assert np.all(np.diff(along) > 0) or np.all(np.diff(along) < 0)
+    assert np.allclose(np.linalg.norm(chain[:, :2], axis=1), 1.0)
