@@ -217,6 +217,13 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
                 kind = "[x, y, z] or " if dotted == "sections.axis" else \
                     f"{type(example).__name__} (like {example!r}) or "
                 raise InputError(f"{origin}: {dotted} must be {kind}{words}, got {value!r}")
+            if dotted == "sections.axis" and vector and not ok:
+                # a direction: scaled by its largest component (no overflow of 1e308**2)
+                largest = max(abs(float(v)) for v in value)
+                if not all(math.isfinite(float(v)) for v in value) or largest == 0:
+                    raise InputError(f"{origin}: sections.axis must be a finite, non-zero "
+                                     f"direction [x, y, z], got {value!r}")
+                value = [float(v) / largest for v in value]
             base[key] = converted if ok else value
             _check_range(dotted, base[key], origin)
             continue

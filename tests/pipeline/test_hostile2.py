@@ -606,3 +606,21 @@ def test_disk_full_names_the_final_path_not_the_stage_temporary(tmp_path):
         raise_if_full(inside, inside)  # room on this disk: no error, file as it was
         assert inside.read_bytes() == b"x"
     assert user_path(tmp / "surface.step") == tmp / "surface.step"
+
+
+@pytest.mark.parametrize(("value", "expected"), [("[1e308, 1e308, 0]", [1.0, 1.0, 0.0]),
+                                                 ("[0, 0, 2]", [0.0, 0.0, 1.0])])
+def test_run_axis_vector_is_a_direction(value, expected):
+    from pipeline.config import resolve
+
+    config = resolve(None, [f"sections.axis={value}"])
+    assert config["sections"]["axis"] == expected
+
+
+@pytest.mark.parametrize("value", ["[0, 0, 0]", "[inf, 0, 0]", "[nan, 1, 0]"])
+def test_run_axis_vector_that_is_no_direction(value):
+    from pipeline.config import resolve
+    from pipeline.errors import InputError
+
+    with pytest.raises(InputError, match="sections.axis must be a finite, non-zero"):
+        resolve(None, [f"sections.axis={value}"])
