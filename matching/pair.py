@@ -400,7 +400,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         (right-to-left) LSM loop must close (:func:`_loop_closes`).  Measured
         (``benchmarks/matching.py --part chessboard``, docs/decisions/stereo-uniqueness.md):
         a real chessboard pair's points one period or more off the board 8.7 % -> 0.5 %;
-        a temple pair's accepted share 77.1 % -> 67.0 %.
+        a temple pair's accepted share 77.1 % -> 66.4 %.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 

@@ -461,6 +461,12 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         outside_lobe = (landed < lo[rows] + d0 - 1.0) | (landed > hi[rows] + d0 + 1.0)
         rival = ((again.status == 0) & outside_lobe
                  & (again.correlation >= result.correlation[i] - m[rows]))
+        # a peak the plain profile prefers to the solution by more than the margin, where
+        # the matcher cannot confirm either way (its re-match fails): undecided, not
+        # unique (chessboard pair 04: the truth at ZNCC 0.99 beside a slip at 0.85, its
+        # re-match out of pull-in range on the tilted board)
+        peak_c = filled[rows, np.clip(d.astype(np.int64) - d0, 0, filled.shape[1] - 1)]
+        rival |= (again.status != 0) & (peak_c > at_solution[rows] + m[rows])
         np.logical_or.at(ambiguous, rows, rival)
         np.add.at(tried, i, 1)
     sub, curvature = _parabola(prof.cost, top)

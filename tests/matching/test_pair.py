@@ -387,8 +387,8 @@ def test_rectified_pair_holds_the_rows(real_data_dir):
     """Real temple pair (8, 9) of the ring pipeline, rectified: every accepted window's
     rows map to rows (b1 = 0, b2 = 1: lsm_match's rigid_across), the accepted share of
     the object's candidates (grey > 0.19 x 255, dilated 5 px; benchmarks/matching.py's
-    definition) is 67.0 % (77.1 % without the uniqueness test, ``unique=False``: 340
-    windows ambiguous, 127 failing the backward loop; 64.9 % with b1, b2 estimated and
+    definition) is 66.4 % (77.1 % without the uniqueness test, ``unique=False``: 379
+    windows ambiguous, 120 failing the backward loop; 64.9 % with b1, b2 estimated and
     no uniqueness test), and the triangulated points
     lie inside every view's silhouette (98.1 %: the rest are the cloth below the
     temple, within 2 mm of the object's box)."""
