@@ -17,7 +17,9 @@ file name cannot split the line or reach the terminal raw).
 SIGINT, SIGTERM and SIGHUP end a command the same way: the work unwinds (every
 temporary of :mod:`pipeline.atomic` is removed), one line ``photosurf CMD:
 interrupted (SIGTERM)`` is printed and the exit status is 128 + the signal
-number (130, 143, 129).  ``photosurf`` without a command prints one line naming
+number (130, 143, 129); worker threads still inside a task (a view pair) are not
+waited for, and pycolmap's own SIGTERM handler (glog's) is replaced by ours after its
+import.  ``photosurf`` without a command prints one line naming
 the commands, exit status 2.  ``--allow-large`` lifts the limits of
 :mod:`pipeline.limits` (as ``PHOTOSURF_ALLOW_LARGE=1``; any value of that variable
 other than a plain yes or no is an error naming it).
