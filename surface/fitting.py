@@ -38,6 +38,10 @@ the pipeline (``smooth.interpolate = true``, the default) interpolates through
 :func:`surface.sizing.interpolating_control`, which keeps the vertices on sharp edges
 as they are (:func:`sharp_vertices`) and interpolates the convex creases
 (:func:`convex_creases`).  The measurements behind that: ``docs/decisions/sizing.md``.
+Where the correction ``X - P`` folds the control mesh (a face turned over against the
+target mesh's, or faces crossing that the target mesh does not cross: :func:`folded_faces`)
+the surface over it folds too; :func:`surface.sizing.interpolating_control` keeps those
+faces' vertices as well (``docs/decisions/smooth-folds.md``).
 
 Closed meshes only: the ghost-layer border rule of :mod:`surface.bezier` has
 no one-ring limit mask, so a mesh with borders is a ``ValueError``.
@@ -59,7 +63,8 @@ from scipy.sparse.linalg import spsolve
 
 from surface.validate import check_finite, check_shape
 
-__all__ = ["convex_creases", "flat_vertices", "grow_vertices", "interpolating_control_mesh",
+__all__ = ["convex_creases", "flat_vertices", "folded_faces", "grow_vertices",
+           "interpolating_control_mesh",
            "limit_matrix", "limit_positions", "sharp_vertices"]
 
 
@@ -253,3 +258,37 @@ def interpolating_control_mesh(vertices, triangles, keep=None) -> np.ndarray:
         raise ValueError("triangles: the Loop limit-position system of this mesh is singular "
                          "(no control mesh interpolates the vertices)")
     return solution
+
+
+def folded_faces(target, control, triangles, intersections: bool = True,
+                 target_pairs=None) -> np.ndarray:
+    """Faces of the control mesh folded by the interpolating correction, ``(F,) bool``.
+
+    A face is folded when its normal in ``control`` points against its normal in
+    ``target`` (the same connectivity; the correction turned it over), or, with
+    ``intersections``, when it crosses another face of ``control`` while the two faces do
+    not cross in ``target`` (:func:`surface.validity.check_solid`'s pairs;
+    ``target_pairs``, ``(K, 2)``, when known already).  Both are
+    tests of sign, no tolerance: a fold of the control polygon is a fold of the G1
+    surface over it (Loop's patches lie near their control triangles), and a crossing
+    the target mesh already has is not the correction's doing.
+    """
+    p, t = _check_mesh(target, triangles)
+    x, _ = _check_mesh(control, t)
+
+    def normals(v):
+        return np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+
+    folded = np.einsum("ij,ij->i", normals(p), normals(x)) < 0.0
+    if intersections:
+        from surface.validity import check_solid
+
+        crossing = np.asarray(check_solid(x, t).intersecting_pairs, dtype=np.int64).reshape(-1, 2)
+        if len(crossing):
+            if target_pairs is None:
+                target_pairs = check_solid(p, t).intersecting_pairs
+            before = np.asarray(target_pairs, dtype=np.int64).reshape(-1, 2)
+            key = np.sort(crossing, axis=1) @ np.array([len(t), 1])
+            old = np.sort(before, axis=1) @ np.array([len(t), 1]) if len(before) else key[:0]
+            folded[crossing[~np.isin(key, old)].ravel()] = True
+    return folded
