@@ -13,6 +13,12 @@ Objects: a can with a raised rim round a recessed lid (``tests/_can.py``: its to
 the rim's, the lid 0.004 below it) and the YCB mustard bottle of
 ``../shared/data/real/scans`` (metres, +z; skipped when absent).
 
+Walls and mouths: the bowl of ``tests/_can.py`` (60 000 points, σ = 0.002, one
+sampling) with walls 2, 3, 4 and 8 point spacings and 30σ thick: closed or not, the share
+of the mesh over the mouth (more than 5σ inside the inner face, above the floor), the
+mean distance of the truth's outer and inner wall (0.15 < z < 0.75) to the mesh, and the
+Chamfer distance.  Goal: nothing over the mouth, each wall within σ/2.
+
 Run: ``.venv/bin/python benchmarks/ends.py [--samplings 10] [--points 40000] [--json PATH]``
 (``--quick``: 3 samplings).
 """
@@ -34,7 +40,7 @@ from _common import print_goals, write_result  # noqa: E402
 
 from surface import metrics  # noqa: E402
 from surface import reconstruct as rc  # noqa: E402
-from tests._can import can_truth  # noqa: E402
+from tests._can import BOWL_FLOOR, bowl_outer_radius, bowl_truth, can_truth  # noqa: E402
 
 #: Points sampled on each surface for the Chamfer distance (mean of both directions).
 CHAMFER_SAMPLES = 50_000
@@ -83,6 +89,37 @@ def measure(name: str, truth: tuple, points: int, samplings: int) -> dict:
     return row
 
 
+BOWL_POINTS, BOWL_SIGMA = 60_000, 0.002
+
+
+def measure_bowl(walls_in_spacings: float | None) -> dict:
+    """One bowl row; ``None``: the wall 30σ thick."""
+    vertices, triangles = bowl_truth(0.06)
+    spacing = float(np.sqrt(metrics.triangle_areas(vertices, triangles).sum() / BOWL_POINTS))
+    wall = 30 * BOWL_SIGMA if walls_in_spacings is None else walls_in_spacings * spacing
+    vertices, triangles = bowl_truth(wall)
+    cloud = metrics.sample_mesh(vertices, triangles, BOWL_POINTS, seed=0)
+    cloud += np.random.default_rng(50).normal(0.0, BOWL_SIGMA, cloud.shape)
+    start = time.perf_counter()
+    mesh = rc.surface_from_points(cloud, axis="z")
+    seconds = time.perf_counter() - start
+    on_mesh = metrics.sample_mesh(mesh.vertices, mesh.triangles, CHAMFER_SAMPLES, seed=1)
+    on_truth = metrics.sample_mesh(vertices, triangles, CHAMFER_SAMPLES, seed=2)
+    to_truth = metrics.point_mesh_distance(on_mesh, vertices, triangles)
+    to_mesh = metrics.point_mesh_distance(on_truth, mesh.vertices, mesh.triangles)
+    r = np.hypot(on_mesh[:, 0], on_mesh[:, 1])
+    cavity = (on_mesh[:, 2] > BOWL_FLOOR + 5 * BOWL_SIGMA) & (
+        r < bowl_outer_radius(on_mesh[:, 2]) - wall - 5 * BOWL_SIGMA)
+    r = np.hypot(on_truth[:, 0], on_truth[:, 1])
+    band = (on_truth[:, 2] > 0.15) & (on_truth[:, 2] < 0.75)
+    outer = band & (r > bowl_outer_radius(on_truth[:, 2]) - wall / 2)
+    inner = band & ~outer
+    return {"wall": wall, "wall_spacings": wall / spacing, "spacing": spacing,
+            "closed": bool(mesh.closed), "over_mouth": float(cavity.mean()),
+            "outer_wall": float(to_mesh[outer].mean()), "inner_wall": float(to_mesh[inner].mean()),
+            "chamfer": 0.5 * float(to_truth.mean() + to_mesh.mean()), "seconds": seconds}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samplings", type=int, default=10)
@@ -110,9 +147,21 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['chamfer_max'] / row['spacing']:>9.3f} {row['seconds']:>6.1f}", flush=True)
             goals[f"{name} {end} spread <= 0.5 s"] = e["spread"] <= 0.5
             goals[f"{name} {end} |bias| <= 0.25 s"] = abs(e["bias"]) <= 0.25
+    print(f"\n{'bowl wall':>12} {'closed':>6} {'over mouth':>10} {'outer wall':>10} "
+          f"{'inner wall':>10} {'Chamfer':>9} {'s':>5}")
+    bowls = []
+    for walls in (2.0, 3.0, 4.0, None, 8.0):
+        row = measure_bowl(walls)
+        bowls.append(row)
+        label = f"{row['wall_spacings']:.1f} s" + (" (30σ)" if walls is None else "")
+        print(f"{label:>12} {'yes' if row['closed'] else 'no':>6} {row['over_mouth']:>10.3f} "
+              f"{row['outer_wall']:>10.5f} {row['inner_wall']:>10.5f} {row['chamfer']:>9.5f} "
+              f"{row['seconds']:>5.1f}", flush=True)
+        goals[f"bowl wall {label}: open mouth, walls within σ/2"] = (
+            row["over_mouth"] == 0 and max(row["outer_wall"], row["inner_wall"]) < BOWL_SIGMA / 2)
     print()
     print_goals(goals)
-    write_result(args.json, {"benchmark": "ends", "rows": rows, "goals": goals})
+    write_result(args.json, {"benchmark": "ends", "rows": rows, "bowls": bowls, "goals": goals})
     return 0
 
 

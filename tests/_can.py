@@ -1,4 +1,5 @@
-"""Shared test support: a can with a raised rim round a recessed lid, built analytically.
+"""Shared test support: a can with a raised rim round a recessed lid, and a bowl, built
+analytically as surfaces of revolution.
 
 The profile of revolution (r, z), from the axis round to the axis::
 
@@ -6,8 +7,11 @@ The profile of revolution (r, z), from the axis round to the axis::
 
 a flat base, the outer wall, the rim's top (an annulus ``w`` wide), the rim's inner
 face down to the lid, and the lid ``d`` below the rim.  Default sizes are a drinks
-can's (metres): R = 0.033, H = 0.1019, rim 0.003 wide and 0.004 deep.  Used by
-``tests/surface/test_ends.py`` and ``benchmarks/ends.py``.
+can's (metres): R = 0.033, H = 0.1019, rim 0.003 wide and 0.004 deep.  The bowl
+(:func:`bowl_truth`): outer radius ``0.5 + 0.5 sin(πz / 1.6)`` over z in [0, 0.8], an
+inner face a given wall thickness inside it (measured across the axis) down to a floor
+at z = 0.1, open mouth.  Used by ``tests/surface/test_ends.py``,
+``tests/surface/test_mouths.py`` and ``benchmarks/ends.py``.
 """
 
 import numpy as np
@@ -62,3 +66,21 @@ def can_truth(radius: float = RADIUS, height: float = HEIGHT, rim_width: float =
         profile = [(0.0, 0.0), (radius, 0.0), (radius, height), (radius - rim_width, height),
                    (radius - rim_width, height - rim_depth), (0.0, height - rim_depth)]
     return revolve(profile)
+
+
+BOWL_HEIGHT, BOWL_FLOOR = 0.8, 0.1
+
+
+def bowl_outer_radius(z):
+    """The bowl's outer radius at height ``z`` (array-like)."""
+    return 0.5 + 0.5 * np.sin(np.pi * np.asarray(z) / (2 * BOWL_HEIGHT))
+
+
+def bowl_truth(wall: float):
+    """The bowl's mesh ``(V, 3), (F, 3)`` with its inner face ``wall`` inside the outer."""
+    z = np.linspace(0, BOWL_HEIGHT, 41)
+    zi = np.linspace(BOWL_FLOOR, BOWL_HEIGHT, 36)[::-1]
+    profile = ([(0.0, 0.0)] + list(zip(bowl_outer_radius(z), z, strict=True))
+               + list(zip(bowl_outer_radius(zi) - wall, zi, strict=True))
+               + [(0.0, BOWL_FLOOR)])
+    return revolve(profile, step=0.01)
