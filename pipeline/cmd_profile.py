@@ -5,7 +5,7 @@ or a workspace's ``smooth/control_net.npz``), a workspace folder (its smooth sta
 control net, else its stitched mesh; the sections' axis and the cloud's σ come with it),
 or a closed triangle mesh (.ply .obj .stl .gltf .off).
 
-The surface is tessellated (a control net: level 1-3, at most ~2 M triangles; the chord
+The surface is tessellated (a control net: level 1-3, at most ~0.5 M triangles; the chord
 bound is stated) and cut by the half-plane through the axis at ``--azimuth`` (default: the
 major principal direction of the section at mid height, the widest profile), and at the
 opposite azimuth for the diameters (:mod:`surface.profile`).  The axis passes through the
@@ -35,8 +35,9 @@ from pipeline.errors import InputError
 HELP = "profile drawing (SVG/DXF), volume, area and capacity of an object with an axis"
 
 DRAWING_SUFFIXES = (".svg", ".dxf")
-#: Triangles of the tessellation a control net is cut at, at most (about 200 MB of arrays).
-MAX_TRIANGLES = 2 ** 21
+#: Triangles of the tessellation a control net is cut at, at most (~100 MB of arrays with
+#: the ray-casting scene and the profile's work arrays).
+MAX_TRIANGLES = 2 ** 19
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -131,14 +132,19 @@ def _read_npz(path: Path) -> dict:
 
 
 def _read_mesh(path: Path) -> dict:
-    from pipeline.export import vertex_normals
     from pipeline.mesh_io import MESH_SUFFIXES, read_mesh, weld_vertices
 
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{path}: not a control net (.npz), workspace or mesh "
                          f"({' '.join(MESH_SUFFIXES)})")
     vertices, triangles = read_mesh(path)
-    vertices, triangles = weld_vertices(vertices, triangles)
+    return mesh_surface(*weld_vertices(vertices, triangles))
+
+
+def mesh_surface(vertices: np.ndarray, triangles: np.ndarray) -> dict:
+    """A closed triangle mesh ``(V, 3)``, ``(F, 3)`` as :func:`read_surface` returns it."""
+    from pipeline.export import vertex_normals
+
     return {"vertices": vertices, "triangles": triangles,
             "normals": vertex_normals(vertices, triangles), "control_points": None,
             "chord": 0.0, "level": None}

@@ -345,8 +345,16 @@ def principal_azimuths(vertices, triangles, axis, origin, height: float | None =
             widths, centre - ((centre - o) @ a) * a)
 
 
+#: Heights (or points) per block in the (G, S) work arrays against polyline segments:
+#: ~10 MB a block at 5 000 segments.
+_BLOCK = 256
+
+
 def _radius_at(polyline: np.ndarray, heights: np.ndarray) -> np.ndarray:
     """Largest ``r`` where ``polyline`` (M, 2) crosses each height ``(G,)`` (nan: none)."""
+    if len(heights) > _BLOCK:
+        return np.concatenate([_radius_at(polyline, heights[k:k + _BLOCK])
+                               for k in range(0, len(heights), _BLOCK)])
     a, b = polyline[:-1], polyline[1:]
     lo, hi = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
     z = heights[:, None]
@@ -362,6 +370,9 @@ def _radius_at(polyline: np.ndarray, heights: np.ndarray) -> np.ndarray:
 
 def _distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Distance of each point ``(G, 2)`` to a polyline ``(M, 2)``."""
+    if len(points) > _BLOCK:
+        return np.concatenate([_distance_to_polyline(points[k:k + _BLOCK], polyline)
+                               for k in range(0, len(points), _BLOCK)])
     a, b = polyline[:-1], polyline[1:]
     ab = b - a
     t = np.clip(np.einsum("gsd,sd->gs", points[:, None] - a[None], ab)
