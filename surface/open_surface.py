@@ -77,6 +77,12 @@ QUARTER_STEP = 0.25
 #: surface seen across them (a cluttered scene's unrelated arcs): the surface stops there
 #: (:func:`align_arcs`).
 MAX_SCALE_CHANGE = 2.0
+#: Least share of the sections the run of overlapping arcs must hold (:func:`align_arcs`):
+#: below it the arcs are not one surface seen from one side but pieces (a cluttered scene,
+#: a facade's layers and windows: on the Sceaux facade at a quarter size the longest run
+#: held 2 of 80 sections and Loop's patches over its one strip folded), and an open surface
+#: of a few of them would be a wrong one.
+MIN_RUN_SHARE = 0.5
 #: Most resampled points per data point: the rings are one section spacing apart, about
 #: two data spacings (surface.sections), so a sound alignment gives well under one.
 MAX_RING_POINTS_PER_POINT = 4.0
@@ -774,6 +780,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         curves.append(fit_open(arc, smoothing, frame=best.frame))
     curves, placed, align_notes, run = align_arcs(curves)
     notes += align_notes
+    if len(run) < MIN_RUN_SHARE * len(curves) or len(run) < 2:
+        raise ValueError(f"the arcs do not line up as one surface: the longest run of arcs "
+                         f"that overlap section to section holds {len(run)} of "
+                         f"{len(curves)} sections")
     curves, placed = [curves[k] for k in run], [placed[k] for k in run]
     loops = [loops[k] for k in run]
     if n is None:
