@@ -348,9 +348,10 @@ def _open_mode(value) -> bool | str:
 def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
                  forced: bool = False) -> dict | None:
     """The curves stage for one-sided data (``surface.open_surface``): every section's
-    largest loop as an open arc, its open Catmull-Rom curve, resampled on the arcs'
-    common parameter; None when the loops go round the object (``one_sided`` false)
-    and the open surface was not asked for."""
+    loops as one open arc (the pieces that continue one another), its open Catmull-Rom
+    curve, resampled on the arcs' common parameter, over the run of arcs that overlap;
+    None when the loops go round the object (``one_sided`` false) and the open surface
+    was not asked for."""
     import numpy as np
 
     from surface import open_surface as osf
