@@ -134,3 +134,30 @@ def test_missing_and_foreign_inputs(tmp_path, capsys):
     assert "junk.npz" in err and "control_points" in err
     assert main(["profile", str(tmp_path)]) == 2  # a folder that is no workspace
     assert "not a photosurf workspace" in capsys.readouterr().err
+
+
+def test_workspace_brings_its_axis_and_sigma(tmp_path, capsys):
+    from pipeline import artifacts
+    from surface import bezier
+
+    vertices, triangles = revolve(_cup.cup_profile(wall=12, base=6, lip=5), 24)
+    # the cup lying along x (a rotation about y: (x, y, z) -> (z, y, -x)), mouth to +x:
+    # the workspace's sections axis says so
+    vertices = vertices[:, [2, 1, 0]] * [1.0, 1.0, -1.0]
+    net = bezier.control_net(vertices, triangles)
+    tv, tt, tn = bezier.tessellate(net, 1)
+    (tmp_path / "smooth").mkdir()
+    artifacts.write_smooth(tmp_path / "smooth", tv, tt, tn, net)
+    (tmp_path / "curves").mkdir()
+    np.savez(tmp_path / "curves" / "curves.npz", axis=np.array([1.0, 0.0, 0.0]))
+    (tmp_path / "acquire").mkdir()
+    sigma = np.full(10, 0.5)
+    sigma[0] = np.nan  # unknown: left out of the median
+    np.savez(tmp_path / "acquire" / "cloud.npz", points=np.zeros((10, 3)), sigma=sigma)
+    assert main(["profile", str(tmp_path), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out)
+    assert figures["axis"] == pytest.approx([1.0, 0.0, 0.0])
+    assert figures["sigma"] == 0.5 and figures["uncertainty"] >= 0.5
+    assert figures["height"] == pytest.approx(_cup.H, abs=2 * figures["uncertainty"])
+    assert figures["capacity"] is not None
+    assert figures["volume_sigma"] == pytest.approx(figures["uncertainty"] * figures["area"])
