@@ -249,7 +249,7 @@ _FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
 #: Default pixel footprint variance of ``lsm_match``'s ``footprint_var``, px² per axis.
 #: Measured, not derived: a box pixel alone has 1/12, but the smoothing also takes the
 #: weight off the band the foreshortened view aliases, and every case measured is best
-#: near 0.25 (flat from 0.2 to 0.33; one sweep in session 6, the value changed by hand
+#: near 0.25 (flat from 0.2 to 0.33; one sweep on 2026-12-02, the value changed by hand
 #: in benchmarks/_real_matching.py -- no benchmark row repeats it): graffiti (21x21,
 #: first pass, the wall) residual to
 #: the smooth mapping 0.227 px without, 0.218 / 0.195 / 0.182 / 0.187 at 1/12 / 0.15 /
