@@ -46,7 +46,7 @@ Measured on the vase (``benchmarks/matching.py``, 12 785 candidates with truth):
 =====================================  =========  ========  ========
 pair pipeline                          RMS px     σ ratio   accepted
 =====================================  =========  ========  ========
-fixed 15x15 (session-1 code)           0.0371     1.15      12 305
+fixed 15x15 (2026-11-22 code)          0.0371     1.15      12 305
 fixed 15x15, second-order terms from   0.0350     1.09      12 309
 all neighbours in the radius
 + adaptive patch 15..21                0.0290     1.17      12 217
