@@ -219,7 +219,7 @@ def _crossings(x0, y0, x1, y1, r0, r1, c0, c1):
     """Per grid row ``r0 .. r1 - 1`` and cell column, the edges ``(x0, y0) -> (x1, y1)``
     (cell-centre units) that cross the row's centre line first right of that cell:
     ``(r1 - r0, c1 - c0 + 1)`` counts, one loop over each edge's own rows (the array form
-    before session 17 evaluated every edge at every row: 0.25 ms a loop, 17 loop graphs
+    before 2026-12-06 evaluated every edge at every row: 0.25 ms a loop, 17 loop graphs
     of the real temple's 235 loops 1.05 s of its 10 s).  The same arithmetic, so the same
     cells: an edge crosses row ``r`` when exactly one end lies above it."""
     toggles = np.zeros((r1 - r0, c1 - c0 + 1), np.int64)
