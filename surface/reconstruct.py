@@ -995,7 +995,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         dark rim) move an end less than the precise ones do.  Measured on the demo
         (24-view ring, no cap seen): bottom end 0.0016 -> 0.0013 below the rim, top
         0.0008 -> 0.0007 above it, smooth-surface Chamfer 0.000334 -> 0.000284 (the report's,
-        one run, session 7).  ``None`` or any non-finite / non-positive σ: equal weights.
+        one run, 2026-12-03).  ``None`` or any non-finite / non-positive σ: equal weights.
 
     Returns
     -------
