@@ -1213,7 +1213,7 @@ def _snapped(points: np.ndarray) -> np.ndarray:
     the last bits of its coordinates (another BLAS, another CPU, a solver changed
     elsewhere) chose other Steiner points and another number of cap triangles (the
     10⁴-point torus's dense mesh: 12 106-12 168 triangles under perturbations of 1e-13
-    of the coordinates, session 18).  Snapped, perturbations that small give the same
+    of the coordinates, 2026-12-06).  Snapped, perturbations that small give the same
     input and so the same triangulation, unless a coordinate sits within them of a
     rounding boundary (a chance of about their size / 1.5e-8 each).
     """
