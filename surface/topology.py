@@ -880,7 +880,7 @@ def _two_opt(points: np.ndarray, tour: np.ndarray) -> np.ndarray:
     candidate moves are the vertex pairs closer than that (a k-d tree query,
     renewed when the longest edge outgrows it), and every move takes the
     candidate of the largest gain (:func:`_two_opt_moves`, a numba kernel since
-    session 17: the array form spent 0.5 s of the real temple's 3 s of curves in
+    2026-12-06: the array form spent 0.5 s of the real temple's 3 s of curves in
     per-move array calls; the same moves, the same tours).
 
     The work is bounded: at most ``10 n`` moves and :data:`TWO_OPT_WORK` candidate
@@ -888,7 +888,7 @@ def _two_opt(points: np.ndarray, tour: np.ndarray) -> np.ndarray:
     permutation, only less short).  A loop is a curve and its candidates are few; a
     filled disk of points (a cap taken for a section) has a long edge, so every pair is a
     candidate at every move: on the first 10⁷-point vase two such sections of 197 433 and
-    368 516 points kept this loop busy for over 20 minutes (session 7).
+    368 516 points kept this loop busy for over 20 minutes (2026-12-03).
     """
     n = len(tour)
     if n < 5:
@@ -986,7 +986,7 @@ def _centre_mst(centres: np.ndarray):
     so Kruskal's stable tie-breaking, and hence the tree and any walk of it,
     are the complete graph's.  Near-coincident or collinear centres take the
     complete graph, its upper triangle (each lower twin would come after its upper
-    one in Kruskal's order and close a cycle).  Until session 19 that fallback went
+    one in Kruskal's order and close a cycle).  Until 2026-12-06 that fallback went
     through scipy's dense-matrix input, which drops weights within 1e-8 of zero
     (absolute), so coincident centres lost their edge at any scene scale; here every
     pair keeps its floored length.
