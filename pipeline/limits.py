@@ -122,7 +122,7 @@ _TABLE = (
     # OpenCV's chessboard search grows with the corners and the image
     Limit("calibrate.corners", 1e4, 1e4, 1e-3, "corner"),
     # OpenCascade's STEP model of a patch (~43 entities) and its text: measured on the demo's
-    # 34 216 patches, 0.8 GB of peak memory and 9.3 s (session 19); a dense real surface
+    # 34 216 patches, 0.8 GB of peak memory and 9.3 s (2026-12-06); a dense real surface
     # (the temple posed by SfM: 424 832 patches) would take ~10 GB and a 1.7 GB file
     Limit("cad.patches", 5e5, 2.4e4, 2.7e-4, "patch"),
 )
