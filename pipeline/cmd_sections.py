@@ -22,7 +22,7 @@ truth than the stitched mesh), its vertices interpolated
 tessellated within its estimated error (``--level adaptive``, the default;
 :func:`pipeline.smoothing.smooth_to_files`): ``--out`` receives the tessellation and
 ``OUT.npz`` the control net.  ``--no-size`` smooths the stitched mesh itself (4 patches a
-stitched triangle: on a 50 000-point cloud 213 208 patches, issue 15).
+stitched triangle: on a 50 000-point cloud 213 208 patches).
 """
 
 from __future__ import annotations
