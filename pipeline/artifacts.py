@@ -27,7 +27,7 @@ file                        arrays (shapes; lengths in scene units)
                             (R,) int64, ``loop_noise`` (R,) the loop's sigma-hat,
                             ``precision`` (R,) the ring's own sigma, ``ring_precision`` ()
                             their median (:func:`surface.sizing.ring_precision`); absent in
-                            files written before session 5 (:func:`read_curve_fits`: None)
+                            files written before 2026-12-01 (:func:`read_curve_fits`: None)
 ``stitch/mesh.ply``         the stitched mesh (:func:`pipeline.mesh_io.write_mesh`);
 ``stitch/stitch.json``      its notes (closed, messages, open interfaces, flips ...)
 ``smooth/surface.ply``      the tessellated Bézier surface with its exact normals
