@@ -38,7 +38,7 @@ exact cameras in ``templeSR_par.txt``, a black cloth behind the object):
   its adjustment's σ, re-adjusted, compared after a similarity (mean of 12 trials);
 * ``photosurf-sfm``      photosurf's cloud with the ``pycolmap-sfm-K-lsm`` cameras, aligned.
 
-Goals (issue 12): >= 40 000 points with the given cameras, >= 99 % inside the box + 5 mm
+Goals: >= 40 000 points with the given cameras, >= 99 % inside the box + 5 mm
 and >= 99 % inside every silhouette; SfM: all 16 views, rotations within 0.1 degrees
 and centres within 0.1 % of the ring radius.
 
