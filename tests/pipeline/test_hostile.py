@@ -1,4 +1,4 @@
-"""Hostile and extreme input (issue 17): no crash, no hang, no silent success, no lost data.
+"""Hostile and extreme input: no crash, no hang, no silent success, no lost data.
 
 One section per kind of the issue; each case runs the real command (in-process,
 stderr captured at file-descriptor level, or as a real process where the case
