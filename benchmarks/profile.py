@@ -11,7 +11,8 @@ maximum diameters, wall thickness (normal to the wall) at mid height, the solid'
 height.  Beside the exact patch integral, the volume of the smooth surface's tessellation
 (signed tetrahedra of its flat triangles): the chord error the exact integral avoids.
 open3d's ``TriangleMesh.get_volume`` is no peer here: it first checks watertightness with its
-all-pairs self-intersection test, which ran for minutes on the 43 k-triangle cup mesh.
+all-pairs self-intersection test, which had not finished after 3.5 CPU-minutes on the
+45 824-triangle cup mesh (killed).
 
 The real scan: the YCB mustard bottle (``../shared/data/real/scans``, metres, closed):
 its mesh's profile (height and the major/minor profiles' maximum diameters against the
