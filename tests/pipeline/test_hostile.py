@@ -6,7 +6,7 @@ needs one: a file-size limit, a signal, a lock held by another process) and
 asserts exit status 2 (128 + signal for a signal), exactly one line on stderr
 naming the problem, and that nothing was written, deleted or left behind.
 
-Kinds (the README's "Bad input" table counts them): limits, numbers, files,
+Kinds (the table under "Hostile and extreme input" in docs/cli.md counts them): limits, numbers, files,
 writes, config, lock, one-line.
 """
 
