@@ -6,8 +6,8 @@ needs one: a file-size limit, a signal, a lock held by another process) and
 asserts exit status 2 (128 + signal for a signal), exactly one line on stderr
 naming the problem, and that nothing was written, deleted or left behind.
 
-Kinds (the table under "Hostile and extreme input" in docs/cli.md counts them): limits, numbers, files,
-writes, config, lock, one-line.
+Kinds (the table under "Hostile and extreme input" in docs/cli.md counts them): limits,
+numbers, files, writes, config, lock, one-line.
 """
 
 from __future__ import annotations
