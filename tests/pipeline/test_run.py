@@ -168,7 +168,7 @@ def test_rerun_skips_and_a_parameter_reruns_only_downstream(cloud, tmp_path, cli
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["stages"]["curves"]["params"] == {
         "curves": {"n": 0, "smoothing": 4.0, "parametrisation": "uniform",
-                   "outlier_threshold": 4.0, "min_loop_points": 0}}
+                   "outlier_threshold": 4.0, "min_loop_points": 0, "open": "auto"}}
     assert {"numpy", "open3d", "python"} <= set(manifest["versions"])
 
 
