@@ -80,7 +80,11 @@ def test_dask_local_cluster_gives_identical_results(tmp_path, capfd):
                            "--to", "smooth", *extra])
         assert status == 0
     err = capfd.readouterr().err
-    assert err == "", err  # quiet: no dask warnings about ports, dashboards or the network
+    # quiet: no dask warnings about ports, dashboards or the network (a stage's own
+    # one-line warning, the same in both runs, may stand)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert all(line.startswith(("smooth: ", "photosurf: smooth: ")) for line in lines), err
+    assert not any(w in err.lower() for w in ("distributed", "dashboard", "port ")), err
     for name in ("vase0", "vase1"):
         local_files = _outputs(tmp_path / "local" / name)
         assert "smooth/control_net.npz" in local_files
