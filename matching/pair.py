@@ -650,7 +650,12 @@ def _verify_unique(left, right, rig, rect, rectified, fprep, gprep, points, res:
     the rivals are re-matched by the first pass's matcher (base ``patch``, no
     second-order terms) in the original images.
     """
-    from matching.rectify import left_to_rectified, rectified_to_original, rectify_images
+    from matching.rectify import (
+        left_to_rectified,
+        rectified_to_original,
+        rectify_images,
+        right_to_rectified,
+    )
 
     ok = res.accepted
     xr_rect = np.full((len(points), 2), np.nan)
@@ -663,7 +668,7 @@ def _verify_unique(left, right, rig, rect, rectified, fprep, gprep, points, res:
     else:
         left_rect, right_rect = rectify_images(rect, left, right)
         xl_rect = left_to_rectified(rect, rig.left, points)
-        xr_rect[ok] = uniqueness.right_to_rectified(rect, rig.right, res.position[ok])
+        xr_rect[ok] = right_to_rectified(rect, rig.right, res.position[ok])
 
         def to_right(p):
             return rectified_to_original(rect, rig.right, p)

@@ -47,7 +47,8 @@ import numpy as np
 from matching.validate import TOL, check_shape
 
 __all__ = ["Rectification", "rectifying_rotation", "rectify", "rectify_images", "resample",
-           "left_to_rectified", "rectified_to_original", "row_residuals"]
+           "left_to_rectified", "right_to_rectified", "rectified_to_original",
+           "row_residuals"]
 
 #: cv2.undistortPoints iterates 5 times by default (1e-3 px errors at strong distortion).
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
@@ -228,11 +229,20 @@ def resample(image, maps, interpolation=cv2.INTER_CUBIC) -> np.ndarray:
 
 def left_to_rectified(rect: Rectification, camera, points) -> np.ndarray:
     """Original left pixels (N, 2) -> rectified left pixels (N, 2), exact (undistortPoints)."""
+    return _to_rectified(camera, points, rect.R1, rect.P1)
+
+
+def right_to_rectified(rect: Rectification, camera, points) -> np.ndarray:
+    """Original right pixels (N, 2) -> rectified right pixels (N, 2), exact."""
+    return _to_rectified(camera, points, rect.R2, rect.P2)
+
+
+def _to_rectified(camera, points, rotation: np.ndarray, projection: np.ndarray) -> np.ndarray:
     points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
     if len(points) == 0:
         return points.copy()
-    out = cv2.undistortPoints(points.reshape(-1, 1, 2), camera.K, _dist(camera), R=rect.R1,
-                              P=rect.P1, criteria=_UNDISTORT_CRITERIA)
+    out = cv2.undistortPoints(points.reshape(-1, 1, 2), camera.K, _dist(camera), R=rotation,
+                              P=projection, criteria=_UNDISTORT_CRITERIA)
     return out.reshape(-1, 2)
 
 

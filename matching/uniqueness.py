@@ -587,15 +587,3 @@ def anchored(points, position, sigma, affine, anchors, candidates, radius: float
         resolved[cand[agree]] = True
         todo[cand[agree]] = False
     return resolved
-
-
-def right_to_rectified(rect, camera, points) -> np.ndarray:
-    """Original right pixels (N, 2) -> rectified right pixels (N, 2), exact."""
-    from matching.rectify import _UNDISTORT_CRITERIA, _dist
-
-    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
-    if len(points) == 0:
-        return points.copy()
-    out = cv2.undistortPoints(points.reshape(-1, 1, 2), camera.K, _dist(camera), R=rect.R2,
-                              P=rect.P2, criteria=_UNDISTORT_CRITERIA)
-    return out.reshape(-1, 2)
