@@ -680,7 +680,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", nargs="+", choices=[m[0] for m in METHODS],
                         help="run only these methods (default: all)")
     parser.add_argument("--scaling-fresh", nargs="*", type=int, metavar="SIZE",
-                        help="only the issue-15 scaling: cloud -> sized smooth surface, a fresh "
+                        help="only the scaling runs: cloud -> sized smooth surface, a fresh "
                              "process per size with its peak memory (default sizes "
                              "10^5 10^6 3*10^6 10^7)")
     parser.add_argument("--fresh-child", type=int, help=argparse.SUPPRESS)

@@ -58,6 +58,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 
 from surface._blas import one_blas_thread
 from surface.catmull_rom import _FAIRNESS, M_CR, _basis
@@ -634,23 +636,18 @@ def _split_pinches(vertices: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, n
     extra = []
     for v in candidates.tolist():  # a few vertices at most, not one per point
         faces = np.flatnonzero((tri == v).any(axis=1))
-        others = [set(tri[f][tri[f] != v].tolist()) for f in faces]
-        label = list(range(len(faces)))
-        changed = True
-        while changed:  # union through shared edges (v, w)
-            changed = False
-            for i in range(len(faces)):
-                for j in range(i + 1, len(faces)):
-                    if others[i] & others[j] and label[i] != label[j]:
-                        low = min(label[i], label[j])
-                        label = [low if x in (label[i], label[j]) else x for x in label]
-                        changed = True
-        for group in sorted(set(label))[1:]:
-            copy = n + len(extra)
+        # fans: faces joined through an edge (v, w), i.e. sharing a vertex w other than v
+        others = tri[faces][tri[faces] != v].reshape(-1, 2)
+        ws, w_index = np.unique(others, return_inverse=True)
+        f, m = len(faces), len(ws)
+        graph = sparse.coo_matrix((np.ones(2 * f), (np.repeat(np.arange(f), 2),
+                                                     f + w_index.ravel())), shape=(f + m, f + m))
+        label = csgraph.connected_components(graph, directed=False)[1][:f]
+        for group in np.unique(label)[1:]:
             extra.append(vertices[v])
-            for i, f in enumerate(faces):
-                if label[i] == group:
-                    tri[f][tri[f] == v] = copy
+            fan = tri[faces[label == group]]
+            fan[fan == v] = n + len(extra) - 1
+            tri[faces[label == group]] = fan
     return np.concatenate([vertices, np.array(extra)]), tri, len(extra)
 
 
