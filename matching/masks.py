@@ -94,8 +94,13 @@ def mask_path(folder: str | os.PathLike, image_name: str) -> Path | None:
     return None
 
 
-def read_mask(path: str | os.PathLike, size: tuple[int, int]) -> np.ndarray:
+def read_mask(path: str | os.PathLike, size: tuple[int, int],
+              full_size: tuple[int, int] | None = None) -> np.ndarray:
     """(H, W) bool object mask (file pixel != 0) of an image of ``size = (width, height)``.
+
+    ``full_size``: the image's stored size when it is read at a working scale
+    (:mod:`matching.resolution`); a mask of that size is resized to ``size`` (area
+    average, kept where at least half of a pixel is on the mask).
 
     Raises
     ------
@@ -109,6 +114,12 @@ def read_mask(path: str | os.PathLike, size: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"{path}: not a readable mask image")
     if img.ndim == 3:
         img = img.max(axis=2)
+    if full_size is not None and tuple(full_size) != tuple(size) and \
+            (img.shape[1], img.shape[0]) == tuple(full_size):
+        import cv2
+
+        on = (img != 0).astype(np.float32)
+        return cv2.resize(on, tuple(size), interpolation=cv2.INTER_AREA) >= 0.5
     if (img.shape[1], img.shape[0]) != tuple(size):
         raise ValueError(f"{path}: mask is {img.shape[1]}x{img.shape[0]} px but its image is "
                          f"{size[0]}x{size[1]} px")

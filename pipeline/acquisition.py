@@ -27,7 +27,7 @@ MATCH_KEYS = ("spacing", "patch", "interpolation", "min_texture_snr", "max_iter"
 
 
 def folder_masks(bases: list[Path], names: list[str], images, cameras,
-                 mode: str = "auto") -> tuple[list | None, str]:
+                 mode: str = "auto", full_sizes=None) -> tuple[list | None, str]:
     """Object masks of a folder's images and where they came from.
 
     ``mode`` ``"auto"``: ``BASE/masks/NAME.png`` (COLMAP's layout, 0 = ignore; the first
@@ -45,7 +45,8 @@ def folder_masks(bases: list[Path], names: list[str], images, cameras,
         path = next((p for p in (mask_path(b, name) for b in bases) if p is not None), None)
         if path is not None:
             try:
-                masks.append(read_mask(path, cam.size))
+                masks.append(read_mask(path, cam.size,
+                                       full_sizes[v] if full_sizes is not None else None))
             except ValueError as exc:
                 raise InputError(str(exc)) from None
             files += 1
@@ -144,13 +145,16 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
             raise InputError(f"roi {list(roi)!r}: give [x0, y0, z0, x1, y1, z1] with "
                              "x1 > x0, y1 > y0, z1 > z0")
         box = box.reshape(2, 3)
-    loaded = load_folder(folder, cameras, camera_model=camera_model)
+    loaded = load_folder(folder, cameras, camera_model=camera_model,
+                         spacing=float(options.get("spacing", 3)),
+                         points_across=int(options.get("points_across", 0)))
     where = Path(loaded["images"].paths[0]).parent if getattr(
         loaded["images"], "paths", None) else Path(folder)
     _warn_identical_views(where, loaded["names"], loaded["cameras"])
     object_masks, mask_source = folder_masks([Path(folder), where], loaded["names"],
                                              loaded["images"],
-                                             loaded["cameras"], masks)
+                                             loaded["cameras"], masks,
+                                             loaded.get("full_sizes"))
     match = {k: v for k, v in options.items() if k in MATCH_KEYS}
     map_func = None if executor is None or isinstance(executor, LocalExecutor) else executor.map
     try:
@@ -164,6 +168,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
                        skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"],
                        cameras=loaded["cameras"],
                        view_names=loaded["names"], masks=mask_source,
+                       working_scale=loaded.get("working_scale", 1.0),
                        ring=fit_ring(loaded["cameras"]).as_dict())
     for skip in cloud.stats.get("skipped", []):
         log.warning("acquire: pair %s skipped: %s", " - ".join(skip["views"]), skip["reason"])

@@ -199,14 +199,19 @@ class FolderImages(Sequence):
     names : list of str
         Image file names, in camera order.
     shapes : list of tuple
-        Each image's array shape, same order.
+        Each image's array shape as read (at ``scale``), same order.
+    scale : float
+        Working scale (:mod:`matching.resolution`): each image is resized to the size
+        in ``shapes`` (``cv2.INTER_AREA``) as it is read; 1.0: as stored.
     """
 
     lazy = True
 
-    def __init__(self, where: Path, names: list[str], shapes: list[tuple]):
+    def __init__(self, where: Path, names: list[str], shapes: list[tuple],
+                 scale: float = 1.0):
         self.paths = [Path(where) / name for name in names]
         self.shapes = list(shapes)  # read once by load_folder, which checks every file
+        self.scale = float(scale)
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -214,7 +219,13 @@ class FolderImages(Sequence):
     def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        return read_image(self.paths[index])
+        image = read_image(self.paths[index])
+        if self.scale != 1.0:
+            import cv2
+
+            height, width = self.shapes[index][:2]
+            image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+        return image
 
 
 def _camera_source(folder: Path, where: Path, cameras: str | None) -> Path | None:
@@ -268,13 +279,20 @@ def _enough_views(names: list[str], skipped: list[dict], where: Path) -> None:
 
 def load_folder(folder: str | Path, cameras: str | None = None,
                 sfm_work_dir: str | Path | None = None,
-                camera_model: str = "SIMPLE_RADIAL") -> dict:
+                camera_model: str = "SIMPLE_RADIAL", spacing: float = 3.0,
+                points_across: int = 0) -> dict:
     """Images and cameras of an image folder, checked.
 
     Cameras come from ``cameras`` (any format :func:`matching.cameras.read_cameras`
     reads), else ``FOLDER/cameras.yml`` or the COLMAP model ``FOLDER/sparse``, else
     pycolmap SfM (:func:`matching.sfm.run_sfm`, in its arbitrary similarity frame);
     they are matched to the images by file name.
+
+    ``points_across`` > 0 reads the views at the working scale of
+    :func:`matching.resolution.working_scale` (the object's extent in the images from
+    SfM's sparse points, else the image size; ``spacing`` the LSM cell in pixels): the
+    images are resized as they are read and the cameras scaled with them; the dict's
+    ``working_scale`` and ``full_sizes`` (each view's stored ``(W, H)``) say so.
 
     Returns
     -------
@@ -351,10 +369,35 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         if result.unregistered:
             log.warning("SfM did not register %s; left out", ", ".join(result.unregistered))
         names = keep
+        out["sparse_points"] = result.points
     for skip in skipped:
         log.warning("view %s left out: %s", skip["view"], skip["reason"])
-    out.update(images=FolderImages(where, names, shapes), cameras=cams, names=names)
+    full_sizes = [(shape[1], shape[0]) for shape in shapes]
+    scale, shapes, cams = _working_resolution(cams, shapes, out.get("sparse_points"),
+                                              spacing, points_across)
+    out.update(images=FolderImages(where, names, shapes, scale), cameras=cams, names=names,
+               working_scale=scale, full_sizes=full_sizes)
     return out
+
+
+def _working_resolution(cams: list, shapes: list, points, spacing: float,
+                        points_across: int) -> tuple[float, list, list]:
+    """The working scale (:mod:`matching.resolution`), the shapes and cameras at it."""
+    from matching.resolution import object_extent_px, scale_camera, scaled_size, working_scale
+
+    full = [(shape[1], shape[0]) for shape in shapes]
+    if not points_across:
+        return 1.0, shapes, cams
+    extent = object_extent_px(cams, points)
+    scale = working_scale(extent, spacing, points_across)
+    if scale >= 1.0:
+        return 1.0, shapes, cams
+    sizes = [scaled_size(size, scale) for size in full]
+    shapes = [(h, w, *shape[2:]) for (w, h), shape in zip(sizes, shapes, strict=True)]
+    log.info("acquire: views read at %.3g of their size (%dx%d -> %dx%d px): the object spans "
+             "%.0f px, %d points across at spacing %g", scale, *full[0], *sizes[0], extent,
+             points_across, spacing)
+    return scale, shapes, [scale_camera(cam, scale) for cam in cams]
 
 
 # --------------------------------------------------------------------------- kinds

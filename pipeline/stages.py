@@ -145,7 +145,7 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
 
     rig = read_rig_for(rig_path)  # and pipeline.guards.check_rig: format, values, baseline
     options = dict(params)
-    for key in ("eccentric", "densify", "masks", "roi"):  # image folders only (defaults.toml)
+    for key in ("eccentric", "densify", "masks", "roi", "points_across"):  # image folders only
         options.pop(key, None)
     max_reproj = options.pop("max_reprojection_px") or None
     result = reconstruct_pair(*read_pair(left, right, need_same_size=False), rig,
