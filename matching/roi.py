@@ -1,0 +1,266 @@
+r"""The object, not the scene: the region the cameras look at and a support plane cut.
+
+**Where the cameras look.**  The point closest to all optical axes (centre
+:math:`C_i`, unit direction :math:`d_i`) in the least-squares sense solves
+
+.. math::  \Big(\sum_i (I - d_i d_i^\mathsf{T})\Big) X = \sum_i (I - d_i d_i^\mathsf{T}) C_i .
+
+The axes *converge* (a ring, an orbit, a hemisphere of views) when the smallest
+eigenvalue of :math:`\tfrac1n\sum_i (I - d_i d_i^\mathsf{T})` is at least
+:math:`\sin^2 10^\circ`: the axes then span more than ~10 degrees in every direction
+and :math:`X` is determined.  The region is the ball about :math:`X` that the views
+see: radius the median over the views of :math:`D_i \sin\alpha_i` (:math:`D_i` the
+distance of the camera from :math:`X`, :math:`\alpha_i` half its field of view across
+the longer image side).  Otherwise the views form a *path* (walking past a facade,
+parallel axes): each view keeps the depth range it actually matched (the 1st to 99th
+percentile of the depths of the points it saw) and the region is the union of those
+truncated frusta.
+
+**A support plane.**  The largest plane of the kept points (RANSAC, open3d's
+``segment_plane`` [1]_, inlier band :math:`\tau = \max(3\tilde\sigma, 2\tilde s)`:
+three times the points' median σ, at least twice their median spacing) is the ground or
+a table and is cut when it lies *under the object*: its normal is within 30 degrees of
+the cameras' mean image "up" (:math:`-R_i^\mathsf{T} e_y`, so a facade or a wall the
+cameras face is never cut), it holds at least 10 % of the points, at least 90 % of the
+other points lie above it (on the cameras' side) and it reaches past them: its inliers'
+extent in the plane is at least 1.5 times theirs (an object's own flat bottom has its
+footprint).  Then the points within :math:`\tau` of it and below it go.
+
+References
+----------
+.. [1] M. A. Fischler and R. C. Bolles, "Random Sample Consensus", Communications of
+   the ACM 24(6), 381-395 (1981).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from matching.validate import check_shape
+
+__all__ = ["RoiResult", "axes_convergence", "camera_region", "support_plane", "select_object"]
+
+#: Smallest eigenvalue (per view) of the axes' normal matrix for a convergent capture.
+CONVERGENCE_MIN = float(np.sin(np.radians(10.0)) ** 2)
+#: Largest angle (degrees) between a support plane's normal and the cameras' "up".
+PLANE_UP_DEG = 30.0
+
+
+@dataclass(frozen=True)
+class RoiResult:
+    """What :func:`select_object` kept.
+
+    Attributes
+    ----------
+    keep : (N,) bool
+        Points kept.
+    method : str
+        ``"convergence"`` (a ball about the axes' meeting point) or ``"path"``
+        (each view's matched depth range).
+    outside : int
+        Points outside the cameras' region.
+    plane : int
+        Points of the support plane (and below it) cut.
+    info : dict
+        Plain-type figures: centre and radius, or the plane's coefficients, the band.
+    """
+
+    keep: np.ndarray
+    method: str
+    outside: int
+    plane: int
+    info: dict = field(default_factory=dict)
+
+    def report(self) -> dict:
+        return {"roi": self.method, "roi_kept": int(self.keep.sum()),
+                "roi_outside": int(self.outside), "roi_support_plane": int(self.plane),
+                **self.info}
+
+
+def _axes(cameras) -> tuple[np.ndarray, np.ndarray]:
+    centres = np.array([np.asarray(c.center, dtype=np.float64) for c in cameras])
+    directions = np.array([np.asarray(c.R, dtype=np.float64)[2] for c in cameras])  # (V, 3)
+    return centres, directions
+
+
+def axes_convergence(cameras: Sequence) -> tuple[np.ndarray, float]:
+    """The point closest to every optical axis and the smallest eigenvalue per view of
+    the normal matrix (module docstring; below :data:`CONVERGENCE_MIN`: no meeting point).
+
+    Returns
+    -------
+    point : (3,) float64
+    conditioning : float in [0, 1]
+    """
+    centres, d = _axes(cameras)
+    projector = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # (V, 3, 3)
+    A, b = projector.sum(axis=0), np.einsum("vij,vj->i", projector, centres)
+    conditioning = float(np.linalg.eigvalsh(A)[0] / len(centres))
+    point = np.linalg.lstsq(A, b, rcond=None)[0]
+    return point, conditioning
+
+
+def _half_field(cam) -> float:
+    """Half the field of view across the image's longer side, radians."""
+    if cam.width >= cam.height:
+        return float(np.arctan2(max(cam.K[0, 2] + 0.5, cam.width - cam.K[0, 2] - 0.5),
+                                cam.K[0, 0]))
+    return float(np.arctan2(max(cam.K[1, 2] + 0.5, cam.height - cam.K[1, 2] - 0.5),
+                            cam.K[1, 1]))
+
+
+def camera_region(points, cameras: Sequence, views=None) -> tuple[np.ndarray, str, dict]:
+    """Points inside the region the cameras look at (module docstring).
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    cameras : sequence of V Camera
+    views : (N, V) bool, optional
+        Which views matched each point (the path rule's depth ranges); default every
+        view in front of which the point projects into the image.
+
+    Returns
+    -------
+    inside : (N,) bool
+    method : {"convergence", "path"}
+    info : dict
+    """
+    points = check_shape(points, "(N, 3)", "points", dtype=np.float64)
+    centre, conditioning = axes_convergence(cameras)
+    if conditioning >= CONVERGENCE_MIN:
+        distances = [np.linalg.norm(np.asarray(c.center) - centre) for c in cameras]
+        radius = float(np.median([dist * np.sin(_half_field(c))
+                                  for dist, c in zip(distances, cameras, strict=True)]))
+        inside = np.linalg.norm(points - centre, axis=1) <= radius
+        return inside, "convergence", {"roi_centre": [round(float(v), 6) for v in centre],
+                                       "roi_radius": round(radius, 6),
+                                       "roi_conditioning": round(conditioning, 4)}
+    inside = np.zeros(len(points), dtype=bool)
+    for v, cam in enumerate(cameras):
+        depth = cam.depth(points)
+        front = depth > 0
+        uv = np.full((len(points), 2), -1.0)
+        uv[front] = cam.project(points[front])
+        seen = front & (uv[:, 0] >= -0.5) & (uv[:, 0] < cam.width - 0.5) & \
+            (uv[:, 1] >= -0.5) & (uv[:, 1] < cam.height - 0.5)
+        matched = seen if views is None else np.asarray(views)[:, v] & front
+        if matched.sum() < 10:
+            continue
+        lo, hi = np.percentile(depth[matched], [1.0, 99.0])
+        inside |= seen & (depth >= lo) & (depth <= hi)
+    return inside, "path", {"roi_conditioning": round(conditioning, 4)}
+
+
+def support_plane(points, sigma, cameras: Sequence, seed: int = 0) -> tuple[np.ndarray, dict]:
+    """Points of a support plane under the object and below it (module docstring).
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    sigma : (N,) float64 or None
+        Each point's σ (scene units); None: the band is from the spacing alone.
+    cameras : sequence of Camera
+    seed : int
+        open3d's RANSAC seed (repeatable runs).
+
+    Returns
+    -------
+    cut : (N,) bool
+        True for the points cut (all False when no plane qualifies).
+    info : dict
+        ``plane`` ``[a, b, c, d]`` (unit normal towards the cameras), ``band``, and
+        ``plane_reason`` when a plane was found but kept.
+    """
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    points = check_shape(points, "(N, 3)", "points", dtype=np.float64)
+    cut = np.zeros(len(points), dtype=bool)
+    if len(points) < 100:
+        return cut, {}
+    spacing = float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
+    band = max(3.0 * float(np.median(sigma)) if sigma is not None else 0.0, 2.0 * spacing)
+    o3d.utility.random.seed(int(seed))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    model, inliers = cloud.segment_plane(distance_threshold=band, ransac_n=3,
+                                         num_iterations=1000)
+    normal, offset = np.asarray(model[:3], dtype=np.float64), float(model[3])
+    scale = np.linalg.norm(normal)
+    normal, offset = normal / scale, offset / scale
+    centres, _ = _axes(cameras)
+    if np.median(centres @ normal + offset) < 0:
+        normal, offset = -normal, -offset
+    info = {"plane": [round(float(v), 6) for v in (*normal, offset)], "band": round(band, 6)}
+    on = np.zeros(len(points), dtype=bool)
+    on[np.asarray(inliers, dtype=np.int64)] = True
+    height = points @ normal + offset
+    up = np.mean([-np.asarray(c.R, dtype=np.float64)[1] for c in cameras], axis=0)
+    up_norm = float(np.linalg.norm(up))
+    others = ~on
+    angle = (float(np.degrees(np.arccos(np.clip(abs(up @ normal) / up_norm, 0, 1))))
+             if up_norm > 0.5 else 90.0)
+    reason = ""
+    if angle > PLANE_UP_DEG:
+        reason = f"its normal is {angle:.0f} degrees from the cameras' up (a wall, not a floor)"
+    elif on.mean() < 0.1:
+        reason = f"it holds {100 * on.mean():.1f} % of the points (< 10 %)"
+    elif others.sum() < 50 or np.mean(height[others] > 0) < 0.9:
+        reason = "the other points do not stand on it"
+    else:
+        ratio = _extent(points[on], normal) / max(_extent(points[others], normal), 1e-300)
+        info["plane_extent_ratio"] = round(ratio, 3)
+        if ratio < 1.5:
+            reason = (f"it reaches {ratio:.2f} times as far as the other points (< 1.5: the "
+                      "object's own flat face)")
+    if reason:
+        info["plane_reason"] = reason
+        return cut, info
+    return height <= band, info
+
+
+def _extent(points: np.ndarray, normal: np.ndarray) -> float:
+    """The 5-95 % extent of points within a plane (its two in-plane axes, the larger)."""
+    basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]  # (3, 2)
+    coords = points @ basis
+    low, high = np.percentile(coords, [5.0, 95.0], axis=0)
+    return float(np.max(high - low))
+
+
+def select_object(points, cameras: Sequence, sigma=None, views=None,
+                  plane: bool = True, seed: int = 0) -> RoiResult:
+    """The points of the object: inside the cameras' region, support plane cut.
+
+    Parameters
+    ----------
+    points : (N, 3) float64
+    cameras : sequence of V Camera
+    sigma : (N,) float64, optional
+    views : (N, V) bool, optional
+        As :func:`camera_region`.
+    plane : bool
+        Look for a support plane (:func:`support_plane`).
+    seed : int
+
+    Returns
+    -------
+    RoiResult
+    """
+    points = check_shape(points, "(N, 3)", "points", dtype=np.float64)
+    if len(cameras) < 2:
+        raise ValueError(f"select_object needs at least 2 cameras, got {len(cameras)}")
+    inside, method, info = camera_region(points, cameras, views)
+    keep = inside.copy()
+    cut_count = 0
+    if plane and keep.sum() >= 100:
+        index = np.flatnonzero(keep)
+        cut, plane_info = support_plane(points[index], None if sigma is None else
+                                        np.asarray(sigma)[index], cameras, seed)
+        info.update(plane_info)
+        keep[index[cut]] = False
+        cut_count = int(cut.sum())
+    return RoiResult(keep=keep, method=method, outside=int((~inside).sum()), plane=cut_count,
+                     info=info)
