@@ -36,6 +36,7 @@ from pipeline import __version__, progress
 from pipeline.atomic import atomic_dir, atomic_file
 from pipeline.errors import InputError, StageSkipped
 from pipeline.inputs import detect_kind
+from pipeline.memory import PeakRSS
 from pipeline.plan import STAGE_ORDER, Stage, plan
 from pipeline.workspace import (
     CONFIG,
@@ -337,7 +338,7 @@ def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
     t0 = time.perf_counter()
     try:
         holder = atomic_file(target) if stage.is_file else atomic_dir(target)
-        with holder as tmp:
+        with holder as tmp, PeakRSS() as memory:
             ctx = StageContext(stage.name, ws, Path(tmp), params, run.config, run.inputs,
                                run.kind, run.rig, run.executor, run.plan)
             info = stage.func(ctx) or {}
@@ -360,7 +361,7 @@ def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
     ws.set_record(stage.name, {
         "status": "done", "inputs": inputs, "params": params, "params_sha256": params_sha,
         "outputs": outputs, "seconds": round(seconds, 4), "started": started,
-        "finished": time.time(), "info": _jsonable(info),
+        "finished": time.time(), "peak_rss_mib": memory.peak_mib, "info": _jsonable(info),
     })
     return StageResult(stage.name, "done", seconds, info=_jsonable(info))
 

@@ -80,7 +80,7 @@ import numba
 import numpy as np
 
 from matching.cameras import Camera, StereoRig, write_cameras_yml, write_colmap_text
-from pipeline import limits
+from pipeline import limits, scene_cache
 from pipeline.errors import InputError
 from pipeline.raycast import RayCaster, look_at
 from pipeline.raycast import direction as view_direction
@@ -1308,9 +1308,13 @@ def render_scene(recipe_or_path: dict | str | os.PathLike, outdir: str | os.Path
     else:
         source = str(recipe_or_path)
         recipe = load_recipe(recipe_or_path)
-    scene = build_scene(recipe, source)
+    key = scene_cache.cache_key(recipe, Path(source).name)
     outdir = Path(outdir)
     with atomic_dir(outdir, kind="synth") as tmp:  # never deletes files it did not write
+        # the same recipe, code and libraries render the same bytes (pipeline.scene_cache)
+        if scene_cache.fetch(key, tmp):
+            return outdir
+        scene = build_scene(recipe, source)
         (tmp / "images").mkdir()
         (tmp / "truth").mkdir()
         first_points = None
@@ -1329,6 +1333,7 @@ def render_scene(recipe_or_path: dict | str | os.PathLike, outdir: str | os.Path
         write_cameras_yml(tmp / "cameras.yml", scene.cameras, rig=rig)
         write_colmap_text(tmp / "sparse", scene.cameras)
         (tmp / "scene.json").write_text(_scene_json(scene, source))
+        scene_cache.store(key, tmp)
     return outdir
 
 
