@@ -93,6 +93,26 @@ def _warn_identical_views(folder: Path, names: list[str], cameras: list) -> None
                     "cameras say, not on the object" if moved else "")
 
 
+def _object_only(cloud, cameras):
+    """The cloud without the points outside the cameras' region and on a support plane
+    under the object (:func:`matching.roi.select_object`); ``stats["roi"]`` says what
+    was kept and dropped."""
+    from dataclasses import replace
+
+    from matching.roi import select_object
+
+    if len(cloud) == 0:
+        return cloud
+    result = select_object(cloud.points, cameras, sigma=cloud.sigma, views=cloud.views)
+    keep = result.keep
+    log.info("acquire: kept %d of %d points (%s region; %d outside it, %d on a support "
+             "plane)", int(keep.sum()), len(keep), result.method, result.outside, result.plane)
+    stats = {**cloud.stats, "roi": result.report()}
+    return replace(cloud, points=cloud.points[keep], colours=cloud.colours[keep],
+                   sigma=cloud.sigma[keep], views=cloud.views[keep], pair=cloud.pair[keep],
+                   stats=stats)
+
+
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
                    check_views: int = 2, camera_model: str = "SIMPLE_RADIAL",
                    masks: str = "folder", roi=(), **options):
@@ -170,6 +190,8 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
                        view_names=loaded["names"], masks=mask_source,
                        working_scale=loaded.get("working_scale", 1.0),
                        ring=fit_ring(loaded["cameras"]).as_dict())
+    if box is None and options.get("object_only", False):
+        cloud = _object_only(cloud, loaded["cameras"])
     for skip in cloud.stats.get("skipped", []):
         log.warning("acquire: pair %s skipped: %s", " - ".join(skip["views"]), skip["reason"])
     if len(cloud) == 0:
