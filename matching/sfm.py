@@ -69,6 +69,10 @@ REFINEMENTS = ("auto", "lsm", "none")
 #: "auto" matches exhaustively up to this many images: n(n-1)/2 pairs, ~1200
 #: pairs at 50 images, a few minutes of SIFT matching on 2 cores.
 EXHAUSTIVE_MAX_IMAGES = 50
+#: SIFT runs on each image reduced to this longer side (COLMAP's own default,
+#: ``FeatureExtractionOptions.max_image_size``, set here explicitly): the 2x upsampled
+#: first octave of a 12 MP image would otherwise hold ~5 GB of scale space per thread.
+SIFT_MAX_IMAGE_SIZE = 3200
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,6 +241,17 @@ def list_images(folder: str | os.PathLike) -> tuple[list[str], list[str]]:
     images = [p.name for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
     others = [p.name for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
     return images, others
+
+
+def exif_focal_px(path: str | os.PathLike) -> float | None:
+    """The focal length in pixels of the stored image that its EXIF gives (focal length in
+    mm and the sensor width of COLMAP's camera database, or the 35 mm equivalent), as
+    COLMAP reads it; None when the file has none."""
+    import pycolmap
+
+    bitmap = pycolmap.Bitmap.read(str(path), False)
+    focal = bitmap.exif_focal_length() if bitmap is not None else None
+    return float(focal) if focal is not None and np.isfinite(focal) and focal > 0 else None
 
 
 def _image_sizes(folder: Path, names: list[str]) -> tuple[dict[str, tuple[int, int]], set[str]]:
@@ -499,6 +514,16 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         database.unlink(missing_ok=True)
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
+        focal = _staged_focal(image_dir, original, turned, restage, single_camera, intrinsics)
+        if focal is not None:  # the staged PNGs carry no EXIF: its focal length given here
+            width, height = next(iter(sizes))
+            extra = {"SIMPLE_PINHOLE": "", "PINHOLE": None, "SIMPLE_RADIAL": ",0",
+                     "RADIAL": ",0,0"}.get(camera_model)
+            if camera_model == "PINHOLE":
+                reader.camera_params = f"{focal},{focal},{width / 2},{height / 2}"
+            elif extra is not None:
+                reader.camera_params = f"{focal},{width / 2},{height / 2}{extra}"
+            log.info("SfM: starting focal length %.1f px from the EXIF of the originals", focal)
         if intrinsics is not None:
             K = check_shape(intrinsics, "(3, 3)", "intrinsics", dtype=np.float64)
             if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K))):
@@ -512,18 +537,25 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
                                  f"{len(sizes)} sizes: {sorted(sizes)}")
         extraction = pycolmap.FeatureExtractionOptions()
         extraction.num_threads = threads
+        extraction.max_image_size = SIFT_MAX_IMAGE_SIZE
         mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+        step = _Steps()
+        step("extracting SIFT features of %d images (longer side <= %d px)", len(names),
+             SIFT_MAX_IMAGE_SIZE)
         pycolmap.extract_features(database, read_dir, image_names=names, camera_mode=mode,
                                   reader_options=reader, extraction_options=extraction,
                                   device=pycolmap.Device.cpu)
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = threads
+        step("matching features (%s%s)", matcher, f", {len(names) * (len(names) - 1) // 2} "
+             "pairs" if matcher == "exhaustive" else "")
         if matcher == "exhaustive":
             pycolmap.match_exhaustive(database, matching_options=matching,
                                       device=pycolmap.Device.cpu)
         else:
             pycolmap.match_sequential(database, matching_options=matching,
                                       device=pycolmap.Device.cpu)
+        step("incremental mapping")
         sparse = work / "sparse"
         sparse.mkdir(exist_ok=True)
         options = pycolmap.IncrementalPipelineOptions()
@@ -540,6 +572,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             options.mapper.abs_pose_min_num_inliers = 15
             options.mapper.init_min_num_inliers = 50
             options.min_num_matches = 10
+            step("mapping again with halved registration thresholds (%d of %d registered)",
+                 max(r.num_reg_images() for r in reconstructions.values()), len(names))
             retry = work / "sparse_relaxed"
             retry.mkdir(exist_ok=True)
             again = pycolmap.incremental_mapping(database, read_dir, retry, options=options)
@@ -556,6 +590,7 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
     if refine == "lsm":
         from matching.sfm_refine import bundle_adjust, refine_tracks_lsm
 
+        step("re-measuring the tie points by LSM and adjusting")
         with _quiet_colmap():
             before = float(best.compute_mean_reprojection_error())
             refinement = refine_tracks_lsm(best, read_dir)
@@ -577,9 +612,38 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
     if result.unregistered:
         log.warning("SfM did not register %d image(s): %s", len(result.unregistered),
                     ", ".join(result.unregistered))
+    step("done: %d of %d images registered, reprojection %.3f px", len(result.registered),
+         len(names), result.mean_reprojection_error_px)
     if known_distance is not None:
         result = fix_scale(result, *known_distance)
     return result
+
+
+class _Steps:
+    """One INFO line per step of SfM, with the seconds the previous step took."""
+
+    def __init__(self):
+        import time
+
+        self._clock = time.monotonic
+        self._last = self._clock()
+
+    def __call__(self, message: str, *args) -> None:
+        now = self._clock()
+        log.info("SfM: " + message + " (previous step %.1f s)", *args, now - self._last)
+        self._last = now
+
+
+def _staged_focal(image_dir: Path, original: dict, turned: dict, restage: set,
+                  single_camera: bool, intrinsics) -> float | None:
+    """The EXIF focal length (px) to start from when COLMAP sees staged PNG copies (which
+    carry no EXIF): one camera, no intrinsics given, and the originals' EXIF agree (their
+    median; a quarter turn leaves the focal length as it is)."""
+    if intrinsics is not None or not single_camera or not (turned or restage):
+        return None
+    focals = [exif_focal_px(image_dir / name) for name in original.values()]
+    focals = [f for f in focals if f is not None]
+    return float(np.median(focals)) if focals else None
 
 
 def _result_from(reconstruction, names: list[str], others: list[str], matcher: str) -> SfmResult:
