@@ -113,6 +113,48 @@ def _object_only(cloud, cameras):
                    stats=stats)
 
 
+def _metric_scale(cloud, loaded: dict, folder, spec: str, marker_side: float):
+    """The cloud and its cameras in real units: ``spec`` ``"A_X,A_Y B_X,B_Y@IMAGE=DIST"``
+    (pixels of the image as the user sees it, at full size) or ArUco markers of side
+    ``marker_side`` (:mod:`matching.scale`); ``stats["scale"]`` states the source and
+    its uncertainty."""
+    from dataclasses import replace
+
+    from matching.scale import detect_markers, parse_scale, scale_from_markers, scale_from_points
+    from matching.sfm import transform_cameras
+    from pipeline.inputs import read_image
+
+    cameras, names = loaded["cameras"], loaded["names"]
+    full = loaded.get("full_sizes") or [cam.size for cam in cameras]
+
+    def to_working(v: int, pixels: np.ndarray) -> np.ndarray:  # x' = s (x + 1/2) - 1/2
+        ratio = np.array(cameras[v].size, float) / np.array(full[v], float)
+        return ratio * (np.asarray(pixels, float) + 0.5) - 0.5
+
+    try:
+        if spec:
+            a, b, image, distance = parse_scale(spec)
+            if image not in names:
+                raise ValueError(f"scale: no view {image!r} among the {len(names)} views used")
+            v = names.index(image)
+            result = scale_from_points(to_working(v, a), to_working(v, b), cameras[v].name
+                                       or image, distance, cameras, cloud.points)
+        else:
+            detections, used = [], ""
+            for v, path in enumerate(loaded["images"].paths):
+                name, found = detect_markers(read_image(path), used or None)
+                used = used or (name if found else "")
+                detections.append({i: to_working(v, c) for i, c in found.items()})
+            result = scale_from_markers(detections, cameras, marker_side, used)
+    except ValueError as exc:
+        raise InputError(f"{folder}: {exc}") from None
+    factor = result.factor
+    log.info("acquire: scale %.6g +- %.2g (%s)", factor, result.sigma, result.source)
+    scaled = transform_cameras(cameras, factor, np.eye(3), np.zeros(3))
+    return replace(cloud, points=cloud.points * factor, sigma=cloud.sigma * factor,
+                   stats={**cloud.stats, "scale": result.report(), "cameras": scaled})
+
+
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
                    check_views: int = 2, camera_model: str = "SIMPLE_RADIAL",
                    masks: str = "folder", roi=(), **options):
@@ -192,6 +234,9 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
                        ring=fit_ring(loaded["cameras"]).as_dict())
     if box is None and options.get("object_only", False):
         cloud = _object_only(cloud, loaded["cameras"])
+    if options.get("scale") or options.get("markers"):
+        cloud = _metric_scale(cloud, loaded, folder, options.get("scale") or "",
+                              float(options.get("markers") or 0.0))
     for skip in cloud.stats.get("skipped", []):
         log.warning("acquire: pair %s skipped: %s", " - ".join(skip["views"]), skip["reason"])
     if len(cloud) == 0:

@@ -46,6 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cameras of an image folder (as photosurf acquire --cameras: "
                              "cameras.yml, COLMAP model, projection-matrix .txt); default "
                              "FOLDER/cameras.yml or FOLDER/sparse, else pycolmap SfM")
+    parser.add_argument("--scale", metavar="A_X,A_Y B_X,B_Y@IMAGE=DIST",
+                        help="image folder: two pixels of IMAGE (as shown, full size) DIST "
+                             "apart give the SfM frame real units (= --set acquire.scale=...)")
+    parser.add_argument("--markers", type=float, metavar="SIDE",
+                        help="image folder: ArUco markers of side SIDE in the images give "
+                             "the SfM frame real units (= --set acquire.markers=SIDE)")
     add_config_arguments(parser)
     parser.add_argument("--from", dest="start", choices=STAGE_ORDER, metavar="STAGE",
                         help=f"first stage to run ({', '.join(STAGE_ORDER)})")
@@ -77,7 +83,20 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.executor import get_executor
 
     progress.set_quiet(args.quiet or args.json)
-    config = config_mod.resolve(args.config, args.assignments)
+    assignments = list(args.assignments or [])
+    if args.scale is not None:
+        from matching.scale import parse_scale
+
+        try:
+            parse_scale(args.scale)  # a bad form fails before any stage runs
+        except ValueError as exc:
+            raise InputError(f"--{exc}") from None
+        assignments.append(f"acquire.scale={json.dumps(args.scale)}")
+    if args.markers is not None:
+        if not args.markers > 0:
+            raise InputError(f"--markers {args.markers:g}: the marker side must be positive")
+        assignments.append(f"acquire.markers={float(args.markers)!r}")
+    config = config_mod.resolve(args.config, assignments)
     scheduler = args.scheduler or config["executor"]["scheduler"]
     with get_executor(scheduler, config["executor"]["workers"]) as executor:
         try:

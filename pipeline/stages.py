@@ -133,6 +133,8 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
             "ring": bool(stats.get("ring", {}).get("is_ring", False)),
             **_densify_info(stats.get("densify")),
             "working_scale": round(float(stats.get("working_scale", 1.0)), 4),
+            **{k: (round(v, 6) if isinstance(v, float) else v)
+               for k, v in stats.get("scale", {}).items()},
             **{k: v for k, v in stats.get("roi", {}).items() if k.startswith("roi")
                and not isinstance(v, list)},
             **_sfm_info(stats.get("sfm"), len(stats.get("view_names", []))
@@ -149,7 +151,7 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
     rig = read_rig_for(rig_path)  # and pipeline.guards.check_rig: format, values, baseline
     options = dict(params)
     for key in ("eccentric", "densify", "masks", "roi", "points_across",
-                "object_only"):  # image folders only (defaults.toml)
+                "object_only", "scale", "markers"):  # image folders only (defaults.toml)
         options.pop(key, None)
     max_reproj = options.pop("max_reprojection_px") or None
     result = reconstruct_pair(*read_pair(left, right, need_same_size=False), rig,
