@@ -44,6 +44,7 @@ from scipy.stats import chi2
 from matching.cameras import Camera
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, Status, lsm_match, prepare_image
 from matching.precision import variance_factor
+from matching.scheduler import check_stop
 from matching.second_order import second_order_terms
 from matching.seeds import DEFAULT_SPACING
 from matching.triangulate import triangulate_multiview
@@ -375,6 +376,7 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         # matched again while the estimate moves (at most _OFFSET_PASSES passes)
         start_bias = np.zeros(2)
         for _ in range(_OFFSET_PASSES):
+            check_stop()  # an interrupted run ends between LSM passes
             ok, position, lsm_cov, first = _match_further(
                 template, images[k], centres[idx], approx + start_bias, affine, off, quad,
                 second_order, patch, interpolation, lsm_options)

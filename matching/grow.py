@@ -46,6 +46,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from matching.lsm import LSMResult, Status, lsm_match
+from matching.scheduler import check_stop
 from matching.validate import check_shape
 
 #: Accepted neighbours whose predictions are combined (median) per candidate.
@@ -178,6 +179,7 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
     rounds = 0
     current = replace(result, **arrays)
     while rounds < max_rounds and accepted.any():
+        check_stop()  # an interrupted run ends between rounds, not after them all
         acc = np.flatnonzero(accepted)
         todo = np.flatnonzero(growable & ~accepted & (tries < max_tries))
         if not len(todo):

@@ -75,7 +75,7 @@ from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
 from matching.masks import foreground_mask, grey, inside_masks, near_foreground, signed_distance
 from matching.pair import match_pair
 from matching.rectify import Rectification, rectify, rectify_images, resample
-from matching.scheduler import ViewRef, default_workers, load_image, thread_map
+from matching.scheduler import ViewRef, check_stop, default_workers, load_image, thread_map
 from matching.search_range import SceneVolume, pair_disparity_range, scene_volume
 from matching.seeds import DEFAULT_SPACING, disparity_range
 from matching.triangulate import triangulate_pair
@@ -486,6 +486,7 @@ def _pair_task(item: dict) -> PairCloud | SkippedPair:
     A ``ValueError`` is the data's verdict (no overlap, no usable rectification, too few
     matches): the pair is skipped and the run goes on; any other error is a fault.
     """
+    check_stop()  # a task picked up as the map was interrupted does nothing
     try:
         return reconstruct_view_pair(load_image(item["left_image"]),
                                      load_image(item["right_image"]),
@@ -498,6 +499,7 @@ def _pair_task(item: dict) -> PairCloud | SkippedPair:
 
 
 def _consistency_task(item: dict) -> Consistency:
+    check_stop()
     cloud = item["cloud"]
     i, j = cloud.pair
     template = rectified_template(load_image(item["template_image"]), item["cameras"][i],

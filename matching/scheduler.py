@@ -6,18 +6,41 @@ single-threaded in each), or on any ``map_func`` (a Dask executor's).  A task ca
 :class:`ViewRef` (a lazily loading image sequence and an index) instead of pixels, so an
 image is in memory only while a task uses it.  Results do not depend on the thread
 count: every kernel works per point.
+
+A stop (Ctrl-C, SIGTERM raised in the main thread) acts at once: the tasks run off
+the main thread even with one worker, so the main thread waits where a signal can
+interrupt it (not inside a minutes-long numba call); the queued tasks are cancelled, and
+:data:`STOP` is set, which the running tasks check between their LSM rounds and steps
+(:func:`check_stop`) and end on.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ViewRef", "load_image", "thread_map", "default_workers"]
+__all__ = ["ViewRef", "load_image", "thread_map", "default_workers", "STOP", "Stopped",
+           "check_stop"]
+
+#: Set when a map of this module is interrupted; running tasks end at their next
+#: :func:`check_stop`.  Cleared when a new map starts.
+STOP = threading.Event()
+
+
+class Stopped(Exception):
+    """A task ended early because its map was interrupted (:data:`STOP`)."""
+
+
+def check_stop() -> None:
+    """Raise :class:`Stopped` when the map running this task was interrupted (a few
+    microseconds: call it between LSM rounds, pairs and the steps of a task)."""
+    if STOP.is_set():
+        raise Stopped("interrupted")
 
 
 @dataclass(frozen=True)
@@ -61,8 +84,13 @@ def thread_map(workers: int) -> Callable:
     """
     def run(func, items):
         items = list(items)
+        if not items:
+            return []
         if workers <= 1 or len(items) < 2:
-            return [func(item) for item in items]
+            if threading.current_thread() is not threading.main_thread():
+                return [func(item) for item in items]
+            # one worker thread, so that the main thread waits interruptibly
+            return map_without_waiting(func, items, 1)
         single = kernels_release_gil()
 
         def call(item):
@@ -79,12 +107,14 @@ def thread_map(workers: int) -> Callable:
 def map_without_waiting(func: Callable, items: list, workers: int) -> list:
     """``list(pool.map(func, items))`` on a pool of ``workers`` threads; when the wait is
     interrupted (Ctrl-C, SIGTERM raised in the main thread, a task's error) the queued
-    tasks are cancelled and the running ones are not waited for, so the interruption
-    acts at once (the CLI then ends the process; ``pipeline.cli``)."""
+    tasks are cancelled, :data:`STOP` is set and the running ones are not waited for, so
+    the interruption acts at once (the CLI then ends the process; ``pipeline.cli``)."""
+    STOP.clear()
     pool = ThreadPoolExecutor(workers)
     try:
         results = list(pool.map(func, items))
     except BaseException:
+        STOP.set()  # the running tasks end at their next check_stop
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
