@@ -510,8 +510,129 @@ def print_table(rows: list[dict]) -> None:
                      if "other_latitude" in b else ""))
 
 
+class _Peak:
+    """Peak resident memory (GB) of this process over a block, sampled every 0.1 s from
+    /proc/self/status (ru_maxrss cannot be reset between phases), with wall and CPU
+    seconds (all threads; the machine is shared, so CPU seconds say more than wall)."""
+
+    def __enter__(self):
+        import threading
+
+        self.peak, self._stop = 0.0, threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._wall, self._cpu = time.time(), time.process_time()
+        self._thread.start()
+        return self
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            for line in Path("/proc/self/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    self.peak = max(self.peak, int(line.split()[1]) / 1e6)
+            self._stop.wait(0.1)
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self.seconds, self.cpu_seconds = time.time() - self._wall, \
+            time.process_time() - self._cpu
+        return False
+
+
+def photo_folder_row(name: str, folder: Path, spacing: int = 3) -> dict:
+    """A photo folder without cameras as ``photosurf run`` takes it: SfM (pycolmap, SIFT
+    on a <= 3 200 px image), the working scale, the multi-view cloud and the object
+    selection (:func:`pipeline.acquisition.acquire_folder` with the run's defaults);
+    seconds, CPU seconds and peak memory of SfM and of the cloud apart."""
+    import matching.sfm as sfm_module
+    from matching.roi import support_plane
+    from pipeline import config
+    from pipeline.acquisition import acquire_folder
+
+    params = dict(config.resolve(None, [])["acquire"], spacing=spacing)
+    phases = {}
+    real_run_sfm = sfm_module.run_sfm
+
+    def timed_sfm(*args, **kwargs):
+        with _Peak() as peak:
+            result = real_run_sfm(*args, **kwargs)
+        phases["sfm"] = peak
+        return result
+
+    sfm_module.run_sfm = timed_sfm
+    try:
+        with _Peak() as total:
+            cloud = acquire_folder(folder, **params)
+    finally:
+        sfm_module.run_sfm = real_run_sfm
+    stats, sfm = cloud.stats, cloud.stats.get("sfm") or {}
+    row = {"method": name, "views": len(stats["view_names"]) + len(stats["unregistered"]),
+           "registered": sfm.get("registered", len(stats["view_names"])),
+           "reprojection_px": sfm.get("mean_reprojection_error_px"),
+           "working_scale": stats.get("working_scale", 1.0),
+           "points": len(cloud), "median_sigma": float(np.median(cloud.sigma)),
+           "seconds_total": total.seconds, "cpu_seconds_total": total.cpu_seconds,
+           "peak_gb_total": total.peak, "roi": stats.get("roi", {}), "load": uptime()}
+    if "sfm" in phases:
+        row.update(sfm_seconds=phases["sfm"].seconds, sfm_cpu_seconds=phases["sfm"].cpu_seconds,
+                   sfm_peak_gb=phases["sfm"].peak,
+                   cloud_seconds=total.seconds - phases["sfm"].seconds,
+                   cloud_cpu_seconds=total.cpu_seconds - phases["sfm"].cpu_seconds)
+    # the largest plane of the kept cloud (a facade's wall): its inliers' RMS distance
+    # against the points' median sigma
+    cut, plane = support_plane(cloud.points, cloud.sigma, stats["cameras"])
+    if "plane" in plane:
+        n, d = np.array(plane["plane"][:3]), plane["plane"][3]
+        dist = np.abs(cloud.points @ n + d)
+        inliers = dist <= plane["band"]
+        row.update(plane_share=float(inliers.mean()),
+                   plane_rms_over_sigma=float(np.sqrt(np.mean(dist[inliers] ** 2))
+                                              / np.median(cloud.sigma[inliers])))
+    return row, cloud
+
+
+def photos_main(args) -> int:
+    """``--sceaux`` / ``--phone FOLDER``: the photo-folder rows (SfM, cloud, memory)."""
+    rows = []
+    sceaux = DATA.parent / "sceaux_castle"
+    if args.sceaux and sceaux.is_dir():
+        row, cloud = photo_folder_row("sceaux", sceaux)
+        rows.append(row)
+        if args.save_cloud:
+            from pipeline.cloud_io import write_ply
+
+            write_ply(args.save_cloud, cloud.points, cloud.colours, cloud.sigma)
+    if args.phone:
+        row, _ = photo_folder_row("phone-" + Path(args.phone).name, Path(args.phone))
+        rows.append(row)
+    keys = ("views", "registered", "reprojection_px", "sfm_seconds", "sfm_cpu_seconds",
+            "sfm_peak_gb", "working_scale", "points", "cloud_seconds", "cloud_cpu_seconds",
+            "peak_gb_total", "seconds_total", "plane_rms_over_sigma")
+    print(f"{'folder':16s}" + "".join(f"{k[:11]:>12s}" for k in keys))
+    for r in rows:
+        print(f"{r['method'][:16]:16s}" + "".join(
+            f"{r[k]:>12.4g}" if isinstance(r.get(k), int | float) else " " * 12 for k in keys))
+        print(f"  {r['method']}: object selection {r['roi']}")
+    goals = {}
+    for r in rows:
+        goals[f"{r['method']}_all_views_registered"] = r["registered"] == r["views"]
+        goals[f"{r['method']}_peak_le_6GB"] = r["peak_gb_total"] <= 6.0
+        if r["method"].startswith("phone"):
+            goals[f"{r['method']}_le_3min_to_cloud"] = r["seconds_total"] <= 180.0
+    print_goals(goals)
+    write_result(args.json, {"benchmark": "real-photos", "rows": rows, "goals": goals})
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sceaux", action="store_true",
+                        help="the Sceaux castle photos (SfM, cloud, memory) instead of the "
+                             "temple rows")
+    parser.add_argument("--phone", metavar="FOLDER",
+                        help="a phone-sized photo folder (e.g. 30 views of 12 MP rendered by "
+                             "photosurf synth) instead of the temple rows")
+    parser.add_argument("--save-cloud", metavar="PLY", help="with --sceaux: write its cloud")
     parser.add_argument("--quick", action="store_true",
                         help="spacing 3, no photosurf cloud on SfM cameras")
     parser.add_argument("--sfm-only", action="store_true",
@@ -522,6 +643,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spacing", type=int, default=None,
                         help="candidate spacing, px (default 2; --quick 3)")
     args = parser.parse_args(argv)
+    if args.sceaux or args.phone:
+        if args.json.endswith("real.json"):
+            args.json = str(Path(args.json).with_name("real_photos.json"))
+        return photos_main(args)
     if not (DATA / "templeSR_par.txt").is_file():
         print(f"real data not found at {DATA}; nothing to measure")
         return 0
