@@ -227,6 +227,12 @@ def test_sizing_tolerance_from_the_rings_and_from_an_older_curves_file(
      "--set sections.count=1: sections.count must be >= 2"),
     (["run", "{cloud}", "--out", "{out}", "--set", "sections.spacing=100.0"],
      "stage sections failed: sections: only 1 non-empty sections"),
+    (["run", "{cloud}", "--out", "{out}", "--scale", "10,20 30,40=1.5"],
+     "--scale '10,20 30,40=1.5': give A_X,A_Y B_X,B_Y@IMAGE=DIST"),
+    (["run", "{cloud}", "--out", "{out}", "--scale", "10,20 30,40@a.png=0"],
+     "the distance must be positive"),
+    (["run", "{cloud}", "--out", "{out}", "--markers", "-0.1"],
+     "--markers -0.1: the marker side must be positive"),
 ])
 def test_errors_are_one_line_exit_2(cloud, tmp_path, args, message, cli_run):
     args = [a.format(cloud=cloud, out=tmp_path / "o") for a in args]
