@@ -79,8 +79,11 @@ docs: $(DOCS_STAMP)
 	$(PY) docs/gen_api.py --check
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
+# ruff, then the import contract of pyproject.toml [tool.importlinter] (docs/architecture.md,
+# "The import rule": the layers, tests and benchmarks apart, no cycle inside a package)
 lint: setup
-	$(VENV)/bin/ruff check matching surface pipeline tests benchmarks
+	$(VENV)/bin/ruff check matching surface pipeline testkit tests benchmarks
+	$(VENV)/bin/lint-imports --no-cache
 
 clean:
 	rm -rf $(VENV) $(OUT) *.egg-info .pytest_cache site docs/figures.md

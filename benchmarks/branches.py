@@ -1,8 +1,8 @@
 """Shapes that are not one tube: photosurf beside screened Poisson, same clouds.
 
-Each procedural shape of ``tests/_shapes.py`` (torus, pants, mug, amphora, vase with an
+Each procedural shape of ``testkit/shapes.py`` (torus, pants, mug, amphora, vase with an
 opening; exact implicit truth, known genus) is sampled with isotropic Gaussian noise
-(σ = ``tests._shapes.SIGMA``) and reconstructed, in the same run, by
+(σ = ``testkit.shapes.SIGMA``) and reconstructed, in the same run, by
 
 * ``stitched``        ``surface.reconstruct.surface_from_points`` (axis z, defaults);
 * ``stitched+bezier`` the same mesh smoothed by Loop's G1 sextic Bézier patches

@@ -5,7 +5,7 @@ sections (``surface.sizing.crease_vertices``, 2026-12-06); before, every vertex 
 sharper than 30° was kept as it is, and Loop's limit rounded the edge inwards.  Both rules
 in one process on the same data:
 
-* the procedural shapes of ``tests/_shapes.py`` (30 000 points, σ = ``_shapes.SIGMA``,
+* the procedural shapes of ``testkit/shapes.py`` (30 000 points, σ = ``_shapes.SIGMA``,
   seeds 0 and 1): ``surface.sizing.sized_from_points``, Loop's surface through the sized
   mesh, adaptive tessellation; patches, crease vertices, Chamfer to the implicit truth;
 * with ``--workspace W`` (a ``photosurf run`` of ``../shared/data/real/temple_sparse_ring``

@@ -9,11 +9,11 @@ the truth's ends: bias (mean offset) and spread (max - min over the samplings; t
 standard deviation beside it), in point spacings ``s = sqrt(area / N)``.  Goals:
 spread <= 0.5 s, |bias| <= 0.25 s per end.
 
-Objects: a can with a raised rim round a recessed lid (``tests/_can.py``: its top is
+Objects: a can with a raised rim round a recessed lid (``testkit/can.py``: its top is
 the rim's, the lid 0.004 below it) and the YCB mustard bottle of
 ``../shared/data/real/scans`` (metres, +z; skipped when absent).
 
-Walls and mouths: the bowl of ``tests/_can.py`` (60 000 points, σ = 0.002, one
+Walls and mouths: the bowl of ``testkit/can.py`` (60 000 points, σ = 0.002, one
 sampling) with walls 2, 3, 4 and 8 point spacings and 30σ thick: closed or not, the share
 of the mesh over the mouth (more than 5σ inside the inner face, above the floor), the
 mean distance of the truth's outer and inner wall (0.15 < z < 0.75) to the mesh, and the

@@ -7,7 +7,7 @@ perturbations ``x (1 + eps N(0, 1))`` (eps 0, then 1e-13 and 1e-12) and taken to
 sized surface again; the table shows, per cloud, the dense stitched triangles and the
 sized step / ring points / triangles of every run and whether they all agree.
 
-* the shapes of ``tests/_shapes.py`` (torus, amphora, pants, mug, vase; ``--points``,
+* the shapes of ``testkit/shapes.py`` (torus, amphora, pants, mug, vase; ``--points``,
   default 10⁴, seed 1), through ``surface.sizing.sized_from_points``;
 * with ``--workspace W`` (a workspace of the real temple ring with its cameras, e.g.
   ``benchmarks/real_surface.py --workspace W``'s), the pipeline from the sections to the

@@ -29,7 +29,7 @@ from _common import uptime, write_result  # noqa: E402
 
 from surface import metrics  # noqa: E402
 from surface import reconstruct as rc  # noqa: E402
-from tests._vase import noisy_cloud, vase_truth  # noqa: E402
+from testkit.vase import noisy_cloud, vase_truth  # noqa: E402
 
 CLOUDS = [(100_000, 0.002), (100_000, 0.02), (30_000, 0.035)]
 SAMPLES = 200_000

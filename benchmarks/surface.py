@@ -61,7 +61,7 @@ from surface import bezier, metrics  # noqa: E402
 from surface.fitting import interpolating_control_mesh  # noqa: E402
 from surface.reconstruct import surface_from_points  # noqa: E402
 from surface.sections import point_spacing  # noqa: E402
-from tests._vase import noisy_cloud, vase_truth  # noqa: E402  (the tests' vase, finer here)
+from testkit.vase import noisy_cloud, vase_truth  # noqa: E402  (the tests' vase, finer here)
 
 SIGMA = 0.002
 TAU = 0.005

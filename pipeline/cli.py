@@ -11,7 +11,7 @@ Errors a user can fix (bad input, missing file, invalid recipe) are raised as
 ``ValueError`` / ``FileNotFoundError`` / :class:`pipeline.errors.InputError`
 and printed here as one line, ``photosurf CMD: error: ...``, with exit
 status 2.  ``-v`` also prints the traceback.  Every message is escaped
-(:func:`pipeline.guards.escape`: a newline or a terminal escape sequence in a
+(:func:`pipeline.errors.escape`: a newline or a terminal escape sequence in a
 file name cannot split the line or reach the terminal raw).
 
 SIGINT, SIGTERM and SIGHUP end a command the same way: the work unwinds (every
@@ -46,8 +46,7 @@ import threading
 import traceback
 
 from pipeline import __version__
-from pipeline.errors import InputError
-from pipeline.guards import escape
+from pipeline.errors import InputError, escape
 
 #: Subcommands in the order ``--help`` lists them.
 COMMANDS = [

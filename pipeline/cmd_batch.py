@@ -14,6 +14,7 @@ import sys
 
 from pipeline import config as config_mod
 from pipeline import progress
+from pipeline.errors import escape
 from pipeline.options import add_config_arguments
 from pipeline.plan import STAGE_ORDER
 
@@ -65,8 +66,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"photosurf batch: {len(results) - len(failed)} of {len(results)} objects done "
               f"-> {ws.root}")
     if failed:  # one line, whatever the number of failures; batch.json lists each
-        from pipeline.guards import escape
-
         first = failed[0]
         more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
         print(f"photosurf batch: error: {len(failed)} of {len(results)} objects failed "

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from matching.fd_capture import Captured, captured_fd2
-from pipeline.errors import InputError
+from pipeline.errors import InputError, escape  # noqa: F401  (escape: re-exported)
 
 #: Largest |coordinate| accepted, in scene units.  Geometry forms products of up
 #: to six coordinates (the squared norm of a cross product is a 4th power, a squared
@@ -64,23 +64,6 @@ MIN_EXTENT = 1e-4
 #: Smallest extent float64 resolves to ~10 digits: below the normal range (2.2e-308)
 #: numbers are subnormal, spaced 4.9e-324 apart (4.9e-324 / 1e-10 = 4.9e-314).
 MIN_NORMAL_EXTENT = float(np.finfo(np.float64).smallest_subnormal) / MIN_RELATIVE_EXTENT
-
-
-# --------------------------------------------------------------------------- names
-
-
-def escape(text: object) -> str:
-    """``text`` with every non-printable character as a Python escape (``\\n``, ``\\x1b``).
-
-    Printable text (letters of any script, spaces) is unchanged; a backslash is
-    kept as it is.  Used for every message the CLI prints, so that a file named
-    ``"a\\nb"`` or holding ``"\\x1b[2J"`` cannot split the error line or drive the
-    terminal.
-    """
-    text = str(text)
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 # --------------------------------------------------------------------------- files

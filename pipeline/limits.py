@@ -54,7 +54,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, escape
 
 #: Environment variable that lifts every limit (``photosurf --allow-large`` sets it).
 ALLOW_ENV = "PHOTOSURF_ALLOW_LARGE"
@@ -155,8 +155,6 @@ def allowed() -> bool:
         return True
     if value in ALLOW_NO:
         return False
-    from pipeline.guards import escape
-
     raise InputError(f"{ALLOW_ENV}={escape(raw)!s} is neither yes ({', '.join(ALLOW_YES)}) "
                      f"nor no ({', '.join(v for v in ALLOW_NO if v)}, or unset)")
 

@@ -6,7 +6,7 @@ import pytest
 from pipeline.cli import main
 from pipeline.mesh_io import read_mesh
 from surface import metrics as M
-from tests._vase import SIGMA, noisy_cloud, vase_truth
+from testkit.vase import SIGMA, noisy_cloud, vase_truth
 
 
 @pytest.fixture(scope="module")
@@ -185,7 +185,7 @@ def test_smooth_sizes_the_control_mesh_as_photosurf_run_does(tmp_path, capsys):
 def test_a_mug_with_a_handle_closes_with_genus_1(tmp_path, capsys):
     """The user case: a mug (nested walls, open top, a handle) is one closed surface
     of genus 1, not a refusal listing every section pair."""
-    from tests import _shapes
+    from testkit import shapes as _shapes
 
     cloud = tmp_path / "mug.npz"
     np.savez(cloud, points=_shapes.sample("mug", 30_000, seed=4))

@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.mesh_io import read_mesh
 from surface import metrics as M
-from tests._vase import SIGMA, noisy_cloud, vase_truth
+from testkit.vase import SIGMA, noisy_cloud, vase_truth
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Shapes that are not one tube: the loop graph, branch tiling, genus.
 
 Unit tests on analytic rings (exact circles), then procedural shapes with exact truth
-(tests/_shapes.py: implicit solids of known genus, sampled with noise) from points to a
+(testkit/shapes.py: implicit solids of known genus, sampled with noise) from points to a
 closed surface.
 """
 

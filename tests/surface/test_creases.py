@@ -103,7 +103,7 @@ def test_the_sizing_interpolates_a_stepped_columns_ledge_and_not_its_rims():
     # (a valley) -- and the surface built to judge the candidate interpolates them: its
     # limit points there are the control mesh's vertices.
     from surface.sizing import sized_from_points
-    from tests._vase import noisy_cloud
+    from testkit.vase import noisy_cloud
 
     v, t, _, _ = _stepped(rows=41, n_theta=256)
     points = noisy_cloud(v, t, 20_000, seed=3)

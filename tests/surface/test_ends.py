@@ -10,7 +10,7 @@ import pytest
 
 from surface import metrics as M
 from surface import reconstruct as rc
-from tests._can import HEIGHT, can_truth
+from testkit.can import HEIGHT, can_truth
 
 POINTS = 40_000
 

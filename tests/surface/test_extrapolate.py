@@ -135,7 +135,7 @@ def test_normal_neighbours_follow_the_noise_against_the_point_spacing():
     """12 neighbours where the noise is well below the point spacing; more where it is not
     (ρ/√k, the normals' estimated tilt, above 0.1 rad at 12)."""
     from surface.reconstruct import normal_neighbours
-    from tests._vase import noisy_cloud, vase_truth
+    from testkit.vase import noisy_cloud, vase_truth
 
     truth = vase_truth(n_theta=256, n_z=192)
     # 3·10⁴ points: spacing ≈ 0.029
@@ -151,7 +151,7 @@ def test_noise_as_large_as_the_point_spacing_still_gives_the_caps(monkeypatch):
     neighbours from the noise (48) 0.0023-0.0029 (Chamfer 0.0052-0.0062)."""
     from surface import metrics
     from surface import reconstruct as rc
-    from tests._vase import noisy_cloud, vase_truth
+    from testkit.vase import noisy_cloud, vase_truth
 
     truth = vase_truth(n_theta=256, n_z=192)
     points = noisy_cloud(*truth, 30_000, seed=0, sigma=0.035)

@@ -11,7 +11,7 @@ from surface import metrics as M
 from surface import reconstruct as rc
 from surface.sections import Section
 from surface.topology import organise
-from tests._can import BOWL_FLOOR, bowl_outer_radius, bowl_truth
+from testkit.can import BOWL_FLOOR, bowl_outer_radius, bowl_truth
 
 SIGMA = 0.002
 

@@ -125,7 +125,7 @@ def test_section_weights_along_the_profile_follow_a_dome():
 def test_rounded_ends_tell_domes_from_rims(monkeypatch):
     # the dense stitched mesh of a 10⁴-point capsule (σ = 0.002) has no sharp edge at its
     # ends; a flat-capped vase's has one all round each end ring (measured: every ring point)
-    from tests._vase import noisy_cloud, vase_truth
+    from testkit.vase import noisy_cloud, vase_truth
     from tests.surface.test_extrapolate import _capsule_cloud
 
     ends = []
@@ -206,7 +206,7 @@ def test_walk_when_none_passes_chooses_what_trying_every_level_chooses(monkeypat
     branches: 10 000 points of the branched shapes), the walk -- the step-1 levels, then
     coarser levels only while their estimates stay within a standard error of the
     closest -- keeps what trying every level keeps, from fewer candidates."""
-    from tests import _shapes
+    from testkit import shapes as _shapes
 
     points = _shapes.sample(shape, 10_000, seed=1)
     chosen = {}
@@ -245,7 +245,7 @@ def test_sized_surface_keeps_the_stitched_accuracy_of_a_noisy_cloud():
     # farther") with 4.1x fewer patches (63 392 -> 15 640); the points' noise as the
     # tolerance (the 2026-12-01 scale) thins on to far fewer triangles, a surface 2x
     # worse (asserted: > 1.6x)
-    from tests._vase import SIGMA, noisy_cloud, vase_truth
+    from testkit.vase import SIGMA, noisy_cloud, vase_truth
 
     truth = vase_truth(512, 384)  # chord sagitta 2.4e-5, a twentieth of the errors here
     points = noisy_cloud(*truth, 20_000, seed=0)

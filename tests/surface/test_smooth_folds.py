@@ -1,6 +1,6 @@
 """The smooth surface over an interpolating control mesh is a valid solid.
 
-A can (raised rim round a recessed lid, ``tests/_can.py``), noise-free points: the
+A can (raised rim round a recessed lid, ``testkit/can.py``), noise-free points: the
 interpolating correction of ``surface.sizing.interpolating_control`` used to turn the
 caps' fan triangles and the rim's faces over (20 709 crossing pairs on the smooth surface
 at 40 000 points); the vertices of the faces it folds are kept now

@@ -9,7 +9,7 @@ from scipy.spatial import Delaunay
 
 from surface import metrics as M
 from surface.stitch import cap_triangles, delaunay_flips, stitch_rings, zip_rings
-from tests._vase import SIGMA, noisy_cloud, radius, vase_truth
+from testkit.vase import SIGMA, noisy_cloud, radius, vase_truth
 
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 

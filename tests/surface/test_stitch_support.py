@@ -163,7 +163,7 @@ def test_noisy_cylinder_cloud_keeps_its_rims():
     them Loop's surface rounds the rim by about Delta sin 45°/3 (Delta the section
     spacing) and the band's mean distance is several times larger."""
     from surface.reconstruct import slice_cloud
-    from tests._vase import noisy_cloud
+    from testkit.vase import noisy_cloud
 
     truth_rings = [ring(z, 256) for z in np.linspace(0.0, HEIGHT, 65)]
     truth = stitch_rings(truth_rings, Z_AXIS, flip=False)

@@ -1,0 +1,25 @@
+"""The import contract of ``pyproject.toml`` (``[tool.importlinter]``), also run by ``make lint``.
+
+``pipeline`` drives ``matching`` and ``surface``, which never import each other nor
+``pipeline``; the installed packages never import the tests, the benchmarks or ``testkit``;
+tests and benchmarks share helpers only through ``testkit``; no run-time import cycle
+inside a package (the exceptions are listed, with a comment, in ``pyproject.toml``).
+"""
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_import_contract_is_kept(monkeypatch, capsys):
+    cli = pytest.importorskip("importlinter.cli")
+    monkeypatch.chdir(ROOT)
+    status = cli.lint_imports(config_filename=os.fspath(ROOT / "pyproject.toml"),
+                              no_cache=True, no_logo=True)
+    report = capsys.readouterr().out
+    assert status == cli.EXIT_STATUS_SUCCESS, report
+    assert "0 broken" in report
+
