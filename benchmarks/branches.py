@@ -40,7 +40,7 @@ import surface.topology  # noqa: E402, F401  (imported before timing, as open3d 
 from pipeline.smoothing import default_level  # noqa: E402
 from surface import bezier, metrics  # noqa: E402
 from surface.reconstruct import surface_from_points  # noqa: E402
-from tests import _shapes  # noqa: E402
+from testkit import shapes as _shapes  # noqa: E402
 
 SEED = 14
 

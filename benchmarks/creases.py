@@ -35,7 +35,7 @@ from _common import uptime, write_result  # noqa: E402
 
 from matching.image_file import imread  # noqa: E402
 from surface import bezier, sizing  # noqa: E402
-from tests import _shapes  # noqa: E402
+from testkit import shapes as _shapes  # noqa: E402
 
 SEEDS = (0, 1)
 POINTS = 30_000

@@ -40,7 +40,7 @@ from _common import print_goals, write_result  # noqa: E402
 
 from surface import metrics  # noqa: E402
 from surface import reconstruct as rc  # noqa: E402
-from tests._can import BOWL_FLOOR, bowl_outer_radius, bowl_truth, can_truth  # noqa: E402
+from testkit.can import BOWL_FLOOR, bowl_outer_radius, bowl_truth, can_truth  # noqa: E402
 
 #: Points sampled on each surface for the Chamfer distance (mean of both directions).
 CHAMFER_SAMPLES = 50_000

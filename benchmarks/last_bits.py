@@ -55,7 +55,7 @@ def _moved(points: np.ndarray, seed: int, eps: float) -> np.ndarray:
 
 def shape_runs(shape: str, points: int, runs: int) -> dict:
     from surface import sizing
-    from tests import _shapes
+    from testkit import shapes as _shapes
 
     cloud = _shapes.sample(shape, points, seed=1)
     outcomes = []

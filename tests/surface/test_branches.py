@@ -13,7 +13,7 @@ import pytest
 from surface import metrics as M
 from surface.loop_graph import loop_graph, nesting, rasterise
 from surface.stitch import _bridge_split, stitch_rings
-from tests import _shapes as S
+from testkit import shapes as S
 
 Z = np.array([0.0, 0.0, 1.0])
 

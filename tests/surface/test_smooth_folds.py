@@ -18,7 +18,7 @@ from surface.fitting import folded_faces, interpolating_control_mesh
 from surface.metrics import compare_meshes, sample_mesh
 from surface.sizing import interpolating_control, sized_from_points
 from surface.validity import check_solid
-from tests import _can
+from testkit import can as _can
 
 
 @pytest.fixture(scope="module")
