@@ -61,6 +61,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
+from surface.loop_weights import limit_weight
 from surface.validate import check_finite, check_shape
 
 __all__ = ["convex_creases", "flat_vertices", "folded_faces", "grow_vertices",
@@ -119,8 +120,7 @@ def limit_matrix(triangles, count: int) -> sp.csr_matrix:
     if np.any(valence == 0):
         raise ValueError(f"vertices: {int(np.sum(valence == 0))} isolated vertices (used by no "
                          f"triangle, e.g. vertex {int(np.argmin(valence))}); remove them first")
-    beta = (5.0 / 8.0 - (3.0 / 8.0 + np.cos(2.0 * np.pi / valence) / 4.0) ** 2) / valence
-    beta_limit = 1.0 / (valence + 3.0 / (8.0 * beta))
+    beta_limit = limit_weight(valence)  # Loop's chi(n): surface/loop_weights.py
     return (sp.diags(1.0 - valence * beta_limit) + sp.diags(beta_limit) @ adjacency).tocsr()
 
 
