@@ -503,7 +503,6 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         else:
             work = Path(work_dir)
             work.mkdir(parents=True, exist_ok=True)
-        stack.enter_context(_quiet_colmap())
         original, read_dir = {name: name for name in names}, image_dir
         if turned or restage:
             read_dir, original = _stage_upright(image_dir, names, turned, work, restage)
@@ -542,19 +541,21 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         step = _Steps()
         step("extracting SIFT features of %d images (longer side <= %d px)", len(names),
              SIFT_MAX_IMAGE_SIZE)
-        pycolmap.extract_features(database, read_dir, image_names=names, camera_mode=mode,
-                                  reader_options=reader, extraction_options=extraction,
-                                  device=pycolmap.Device.cpu)
+        with _quiet_colmap():  # per call: the step lines between calls reach stderr
+            pycolmap.extract_features(database, read_dir, image_names=names, camera_mode=mode,
+                                      reader_options=reader, extraction_options=extraction,
+                                      device=pycolmap.Device.cpu)
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = threads
         step("matching features (%s%s)", matcher, f", {len(names) * (len(names) - 1) // 2} "
              "pairs" if matcher == "exhaustive" else "")
-        if matcher == "exhaustive":
-            pycolmap.match_exhaustive(database, matching_options=matching,
-                                      device=pycolmap.Device.cpu)
-        else:
-            pycolmap.match_sequential(database, matching_options=matching,
-                                      device=pycolmap.Device.cpu)
+        with _quiet_colmap():
+            if matcher == "exhaustive":
+                pycolmap.match_exhaustive(database, matching_options=matching,
+                                          device=pycolmap.Device.cpu)
+            else:
+                pycolmap.match_sequential(database, matching_options=matching,
+                                          device=pycolmap.Device.cpu)
         step("incremental mapping")
         sparse = work / "sparse"
         sparse.mkdir(exist_ok=True)
@@ -565,8 +566,9 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             options.ba_refine_focal_length = False
             options.ba_refine_principal_point = False
             options.ba_refine_extra_params = False
-        reconstructions = pycolmap.incremental_mapping(database, read_dir, sparse,
-                                                       options=options)
+        with _quiet_colmap():
+            reconstructions = pycolmap.incremental_mapping(database, read_dir, sparse,
+                                                           options=options)
         if reconstructions and max(r.num_reg_images() for r in reconstructions.values()) \
                 < len(names):
             options.mapper.abs_pose_min_num_inliers = 15
@@ -576,7 +578,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
                  max(r.num_reg_images() for r in reconstructions.values()), len(names))
             retry = work / "sparse_relaxed"
             retry.mkdir(exist_ok=True)
-            again = pycolmap.incremental_mapping(database, read_dir, retry, options=options)
+            with _quiet_colmap():
+                again = pycolmap.incremental_mapping(database, read_dir, retry, options=options)
             if again and (max(r.num_reg_images() for r in again.values())
                           > max(r.num_reg_images() for r in reconstructions.values())):
                 reconstructions = again
