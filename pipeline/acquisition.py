@@ -93,6 +93,13 @@ def _warn_identical_views(folder: Path, names: list[str], cameras: list) -> None
                     "cameras say, not on the object" if moved else "")
 
 
+def _peak_memory_gb() -> float:
+    """This process's peak resident memory so far, GB (Linux ``ru_maxrss`` is in kB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+
+
 def _object_only(cloud, cameras):
     """The cloud without the points outside the cameras' region and on a support plane
     under the object (:func:`matching.roi.select_object`); ``stats["roi"]`` says what
@@ -231,6 +238,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
                        cameras=loaded["cameras"],
                        view_names=loaded["names"], masks=mask_source,
                        working_scale=loaded.get("working_scale", 1.0),
+                       peak_memory_gb=_peak_memory_gb(),
                        ring=fit_ring(loaded["cameras"]).as_dict())
     if box is None and options.get("object_only", False):
         cloud = _object_only(cloud, loaded["cameras"])

@@ -133,6 +133,7 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
             "ring": bool(stats.get("ring", {}).get("is_ring", False)),
             **_densify_info(stats.get("densify")),
             "working_scale": round(float(stats.get("working_scale", 1.0)), 4),
+            "peak_memory_gb": round(float(stats.get("peak_memory_gb", 0.0)), 2),
             **{k: (round(v, 6) if isinstance(v, float) else v)
                for k, v in stats.get("scale", {}).items()},
             **{k: v for k, v in stats.get("roi", {}).items() if k.startswith("roi")
