@@ -78,12 +78,9 @@ TRUTH_GENUS = {"cow": 0, "teapot": 1}
 
 # ----------------------------------------------------------------------------- data
 def _shapes_module():
-    """The procedural shapes with exact truth (``testkit.shapes``; ``tests._shapes`` before
-    the test helpers moved)."""
-    try:
-        from testkit import shapes
-    except ImportError:
-        from tests import _shapes as shapes
+    """The procedural shapes with exact truth (``testkit.shapes``)."""
+    from testkit import shapes
+
     return shapes
 
 
