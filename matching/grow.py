@@ -85,6 +85,7 @@ def _row_median(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     The same numbers as ``np.nanmedian(values, axis=1)`` (the middle element, or the
     two middle ones' sum halved, bit for bit), without its masked-array path for short
     rows: 4-13x faster on 200 000 rows of 1-4 values."""
+    valid = valid & ~np.isnan(values)  # as nanmedian: a NaN value is no value
     ordered = np.sort(np.where(valid, values, np.inf), axis=1)
     count = np.count_nonzero(valid, axis=1)
     rows = np.arange(len(values))
