@@ -11,6 +11,9 @@ only Python loops run over ring positions (<= max valence) and valence classes.
 
 from __future__ import annotations
 
+import hashlib
+import os
+import tempfile
 from dataclasses import dataclass
 from functools import cache, cached_property
 from pathlib import Path
@@ -19,6 +22,8 @@ import numba
 import numpy as np
 import scipy.linalg
 
+from surface.bezier_patch import _blossom_matrix, _empty_pages, bernstein_matrix, elevate
+from surface.loop_weights import limit_weight, loop_beta
 from surface.validate import TOL
 
 DEGREE = 6
@@ -178,19 +183,13 @@ def _check_vertex_manifold(mesh: HalfEdges) -> None:
 
 
 # ----------------------------------------------------------------------------- Loop subdivision
-def loop_beta(n: np.ndarray) -> np.ndarray:
-    """Loop's (1987) vertex weight ``beta(n) = (5/8 - (3/8 + cos(2 pi/n)/4)^2) / n``."""
-    n = np.asarray(n, dtype=np.float64)
-    return (5.0 / 8.0 - (3.0 / 8.0 + 0.25 * np.cos(2.0 * np.pi / n)) ** 2) / n
-
-
 def limit_positions(mesh: HalfEdges, points: np.ndarray) -> np.ndarray:
     """Loop limit positions ``(1 - n chi) v + chi sum(w)``, ``chi = 1 / (3 / (8 beta) + n)``.
 
     ``points`` may have any trailing width (``(V, D)``).
     """
     n = np.maximum(mesh.valence, 1)
-    chi = 1.0 / (3.0 / (8.0 * loop_beta(n)) + n)
+    chi = limit_weight(n)
     ring_sum = _ring_sum(mesh, points)
     return (1.0 - n * chi)[:, None] * points + chi[:, None] * ring_sum
 
@@ -366,7 +365,6 @@ def corner_rotation(corner: int, degree: int = DEGREE) -> np.ndarray:
 @cache
 def bernstein_interpolation_inverse(degree: int) -> np.ndarray:
     """Inverse of the Bernstein matrix at the uniform grid ``(i, j, k) / degree``."""
-    from surface.bezier import bernstein_matrix
 
     return np.linalg.inv(bernstein_matrix(_index_table(degree) / degree, degree))
 
@@ -556,7 +554,6 @@ def _ring_problem(n: int):
     fit to Loop's limit --, ``free (28,)``, ``weight (14, 14) = G_u^T G_u``,
     and the spoke-0 rows ``left``, ``right`` (11, 28).
     """
-    from surface.bezier import _blossom_matrix, bernstein_matrix, elevate
 
     v_exp = _index_table(DEGREE)[:, 0]
     free = (v_exp >= 2) & (v_exp <= 5)
@@ -592,7 +589,6 @@ OPERATOR_CACHE = Path(__file__).resolve().parent / "__pycache__"
 def _operator_cache_key() -> str:
     """What the ring operators depend on: this module's and ``surface.bezier``'s source
     and numpy's version (a stale file is never read)."""
-    import hashlib
 
     digest = hashlib.sha256(np.__version__.encode())
     for name in ("_loop_patches.py", "bezier.py"):
@@ -606,8 +602,6 @@ def ring_operator(n: int) -> np.ndarray:
     (``surface/__pycache__``, keyed by :func:`_operator_cache_key`): each valence costs
     20-30 ms to build, and a real mesh has many (the temple's sized meshes 24: 0.5 s a
     run); where the folder cannot be written it is built every time."""
-    import os
-    import tempfile
 
     folder = OPERATOR_CACHE
     path = folder / f"ring_operator.{_operator_cache_key()}.{int(n)}.npy"
@@ -717,7 +711,6 @@ def _coordinate_operator(matrix_key: str) -> np.ndarray:
     ``(P, K, 3) -> (P, N, 3)`` then is one GEMM ``(P, 3K) x (3K, 3N)`` with no
     transposed copies (the zero blocks cost flops, not memory traffic).
     """
-    from surface.bezier import elevate
 
     matrix = BOX_SPLINE_QUARTIC if matrix_key == "quartic" else elevate(BOX_SPLINE_QUARTIC, DEGREE)
     operator = np.kron(matrix, np.eye(3)).T
@@ -831,7 +824,6 @@ def build_surface(vertices: np.ndarray, triangles: np.ndarray):
     ghost layers (:func:`add_ghost_layer`) so that every input vertex is
     interior; only the patches of the input faces are returned.
     """
-    from surface.bezier import _empty_pages
 
     if len(triangles) == 0:
         raise ValueError("triangles is empty")

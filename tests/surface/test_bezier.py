@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from surface import _loop_patches as lp
 from surface import bezier as bz
+from surface import bezier_patch, bezier_tessellation
 
 # ----------------------------------------------------------------------------- meshes
 
@@ -630,7 +631,7 @@ def test_second_difference_fallback_is_rigorous_and_coarser(surfaces, monkeypatc
     cp = surface.control_points
     tolerance = 1e-3 * _size(vertices)
     exact = bz.tessellation_level(cp, tolerance)
-    monkeypatch.setattr(bz, "_LEVEL_BUDGET", 1)  # fall back at once
+    monkeypatch.setattr(bezier_tessellation, "_LEVEL_BUDGET", 1)  # fall back at once
     fallback = bz.tessellation_level(cp, tolerance)
     assert fallback >= exact
     sub = cp
@@ -644,7 +645,7 @@ def test_second_difference_fallback_is_rigorous_and_coarser(surfaces, monkeypatc
 def test_tessellation_in_chunks_equals_one_pass(surfaces, monkeypatch):
     _, surface = surfaces["band"]
     whole = bz.tessellate(surface, 2)
-    monkeypatch.setattr(bz, "_CHUNK_ROWS", 100)  # 6 patches per chunk
+    monkeypatch.setattr(bezier_tessellation, "_CHUNK_ROWS", 100)  # 6 patches per chunk
     chunked = bz.tessellate(surface, 2)
     assert np.array_equal(whole[1], chunked[1])  # same triangles, same vertex ids
     # same points up to the GEMM's blocking (rounding only)
@@ -711,9 +712,9 @@ def test_border_rule_continues_a_regular_grid_exactly(shape, corner):
 
 def test_large_outputs_are_plain_writable_arrays(monkeypatch):
     """_empty_pages maps big arrays itself; they behave as np.empty's (and outlive views)."""
-    monkeypatch.setattr(bz, "_PAGES_MIN_BYTES", 1024)
-    big = bz._empty_pages((100, 28, 3))
-    small = bz._empty_pages((2, 3), np.int64)
+    monkeypatch.setattr(bezier_patch, "_PAGES_MIN_BYTES", 1024)
+    big = bezier_patch._empty_pages((100, 28, 3))
+    small = bezier_patch._empty_pages((2, 3), np.int64)
     assert big.shape == (100, 28, 3) and big.dtype == np.float64 and big.flags.writeable
     assert small.dtype == np.int64 and small.flags.owndata  # below the threshold: np.empty
     big[:] = 2.0
@@ -722,7 +723,7 @@ def test_large_outputs_are_plain_writable_arrays(monkeypatch):
     assert np.all(view == 2.0)
     surface = bz.control_net(*icosphere(1))
     whole = bz.tessellate(surface, 1)
-    monkeypatch.setattr(bz, "_PAGES_MIN_BYTES", 2 ** 40)
+    monkeypatch.setattr(bezier_patch, "_PAGES_MIN_BYTES", 2 ** 40)
     again = bz.tessellate(surface, 1)
     assert all(np.array_equal(x, y) for x, y in zip(whole, again, strict=True))
 
@@ -733,7 +734,7 @@ def test_tessellation_closes_gaps_in_the_domain_vertex_ids(surfaces, level, monk
     _, surface = surfaces["icosphere"]
     cp, tris = surface.control_points, surface.domain_mesh[1]
     dense = bz.tessellate(cp, level, tris)
-    monkeypatch.setattr(bz, "_CHUNK_ROWS", 50)  # several chunks
+    monkeypatch.setattr(bezier_tessellation, "_CHUNK_ROWS", 50)  # several chunks
     gapped = bz.tessellate(cp, level, 2 * tris + 5)  # same order, ids with gaps
     assert np.array_equal(dense[1], gapped[1])
     # the chunked GEMM may round differently (see test_tessellation_in_chunks_equals_one_pass)
