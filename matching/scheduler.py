@@ -38,9 +38,53 @@ class Stopped(Exception):
 
 def check_stop() -> None:
     """Raise :class:`Stopped` when the map running this task was interrupted (a few
-    microseconds: call it between LSM rounds, pairs and the steps of a task)."""
+    microseconds: call it between LSM rounds, pairs and the steps of a task).
+
+    Also the point where a task of :func:`thread_map` takes the cores its map leaves
+    idle: once no task waits in the queue, the running ones share every worker's core
+    among them for their next numba kernels (the last view pair of a map no longer runs
+    on one core while the other idles)."""
     if STOP.is_set():
         raise Stopped("interrupted")
+    share = getattr(_LOCAL, "share", None)
+    if share is not None:
+        share.rebalance()
+
+
+_LOCAL = threading.local()
+
+
+class _CoreShare:
+    """The cores of one :func:`thread_map` call, shared by its running tasks."""
+
+    def __init__(self, workers: int, tasks: int):
+        self.lock = threading.Lock()
+        self.workers, self.unstarted, self.running = workers, tasks, 0
+
+    def enter(self) -> None:
+        with self.lock:
+            self.unstarted -= 1
+            self.running += 1
+        _LOCAL.share = self
+        self._threads(1)
+
+    def leave(self) -> None:
+        _LOCAL.share = None
+        with self.lock:
+            self.running -= 1
+
+    def rebalance(self) -> None:
+        with self.lock:
+            threads = self.workers // max(1, self.running) if self.unstarted <= 0 else 1
+        self._threads(max(1, threads))
+
+    @staticmethod
+    def _threads(n: int) -> None:
+        import numba
+
+        n = min(n, numba.config.NUMBA_NUM_THREADS)
+        if numba.get_num_threads() != n:
+            numba.set_num_threads(n)
 
 
 @dataclass(frozen=True)
@@ -78,9 +122,10 @@ def thread_map(workers: int) -> Callable:
     rectification, numpy), so two pairs at once keep two cores busy where one pair's
     numba ``prange`` kernels alone leave them half idle.  When the kernels release the
     GIL each thread runs them on one numba thread (``numba.set_num_threads`` is
-    per thread), else they keep numba's default and the other threads overlap them with
-    GIL-free OpenCV/numpy work.  Results do not depend on the thread count (every
-    kernel works per point).
+    per thread) while tasks wait in the queue, and on a share of the idle cores once
+    none does (:func:`check_stop`); else they keep numba's default and the other threads
+    overlap them with GIL-free OpenCV/numpy work.  Results do not depend on the thread
+    count (every kernel works per point).
     """
     def run(func, items):
         items = list(items)
@@ -91,16 +136,18 @@ def thread_map(workers: int) -> Callable:
                 return [func(item) for item in items]
             # one worker thread, so that the main thread waits interruptibly
             return map_without_waiting(func, items, 1)
-        single = kernels_release_gil()
+        if not kernels_release_gil():
+            return map_without_waiting(func, items, min(workers, len(items)))
+        share = _CoreShare(min(workers, len(items)), len(items))
 
         def call(item):
-            if single:
-                import numba
+            share.enter()  # one numba thread while others wait (check_stop rebalances)
+            try:
+                return func(item)
+            finally:
+                share.leave()
 
-                numba.set_num_threads(1)
-            return func(item)
-
-        return map_without_waiting(call, items, min(workers, len(items)))
+        return map_without_waiting(call, items, share.workers)
     return run
 
 

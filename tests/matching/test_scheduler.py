@@ -100,3 +100,33 @@ def test_an_interrupted_map_stops_its_running_tasks_at_their_next_check():
     assert ended_by_stop == [1]
     assert scheduler.thread_map(2)(lambda x: x * 2, [1, 2, 3]) == [2, 4, 6]
     assert not scheduler.STOP.is_set()
+
+
+def test_the_last_running_task_takes_the_idle_cores():
+    """Two workers, three tasks: while one waits in the queue each runs one numba
+    thread; once the queue is empty and one task is left, its next check takes both."""
+    import threading
+
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2 or not scheduler.kernels_release_gil():
+        pytest.skip("needs 2 numba threads and GIL-free kernels")
+    others_done = threading.Event()
+    seen = {}
+
+    def task(item):
+        scheduler.check_stop()
+        seen[item] = numba.get_num_threads()
+        if item == 0:  # the long task: waits for the others to finish
+            deadline = time.monotonic() + 30
+            while numba.get_num_threads() < 2 and time.monotonic() < deadline:
+                others_done.wait(0.01)
+                scheduler.check_stop()
+            seen["last"] = numba.get_num_threads()
+        elif item == 2:
+            others_done.set()
+        return item
+
+    assert scheduler.thread_map(2)(task, [0, 1, 2]) == [0, 1, 2]
+    assert seen[1] == 1  # the third task was still queued (it starts when 1 ends)
+    assert seen["last"] == 2
