@@ -21,6 +21,11 @@ Goals: photosurf >= 20x the sparse points with <= 0.5x its RMS error; the folder
 object's height.
 
     .venv/bin/python benchmarks/multiview.py [--quick] [--json PATH] [--scene DIR]
+
+``--temple DIR`` instead times ``photosurf acquire``'s work on the real temple ring with
+its cameras (``templeSR_par.txt``), counts the LSM kernel's windows and iterations, and
+runs OpenCV's SGBM on the same rectified pairs in the same process (goals: acquire
+<= 10 s, <= 2x SGBM's time); ``--reference`` compares the cloud with an earlier one.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -170,6 +176,109 @@ def run_surface(points: np.ndarray, truth, height: float) -> dict:
             "chamfer_rel_height": float(scores["chamfer"]) / height}
 
 
+class _KernelCount:
+    """Windows and Gauss-Newton iterations the LSM kernel (``matching.lsm._lsm_batch``)
+    solved while installed (a wrapper keeping the kernel's ``targetoptions``, so the
+    scheduler still sees it release the GIL)."""
+
+    def __init__(self):
+        from matching import lsm
+
+        self._lsm, self._kernel = lsm, lsm._lsm_batch
+        self.windows = self.iterations = self.calls = 0
+        self._lock = threading.Lock()
+
+    def __enter__(self):
+        kernel = self._kernel
+
+        def counted(*args):
+            kernel(*args)
+            with self._lock:
+                self.calls += 1
+                self.windows += len(args[3])
+                self.iterations += int(args[-2].sum())
+
+        counted.targetoptions = kernel.targetoptions
+        self._lsm._lsm_batch = counted
+        return self
+
+    def __exit__(self, *exc):
+        self._lsm._lsm_batch = self._kernel
+
+
+def _chamfer(a: np.ndarray, b: np.ndarray) -> dict:
+    """Mean nearest-neighbour distance each way between two clouds and their mean."""
+    from scipy.spatial import cKDTree
+
+    ab = cKDTree(b).query(a, workers=-1)[0]
+    ba = cKDTree(a).query(b, workers=-1)[0]
+    return {"a_to_b_mean": float(ab.mean()), "b_to_a_mean": float(ba.mean()),
+            "chamfer": float(0.5 * (ab.mean() + ba.mean())),
+            "a_to_b_median": float(np.median(ab))}
+
+
+def run_temple(folder: Path, reference: str | None, cloud_out: str | None) -> dict:
+    """The real temple ring with its cameras: ``photosurf acquire``'s work, timed and its
+    LSM windows counted, against OpenCV's SGBM on the same rectified pairs, triangulated
+    and fused the same way (``benchmarks/real.py``'s ``run_sgbm``), in this process."""
+    from real import run_sgbm
+
+    from pipeline.acquisition import acquire_folder
+
+    cameras_file = folder / "templeSR_par.txt"
+    load_before, cpu0, start = uptime(), time.process_time(), time.perf_counter()
+    with _KernelCount() as count:
+        cloud = acquire_folder(folder, str(cameras_file))
+    seconds, cpu = time.perf_counter() - start, time.process_time() - cpu0
+    st = cloud.stats
+    row = {"method": "photosurf", "points": len(cloud), "seconds": seconds,
+           "cpu_seconds": cpu, "load_before": load_before, "load_after": uptime(),
+           "workers": st.get("workers"), "pairs": st["pairs"],
+           "pair_seconds": st["pair_seconds"], "consistency_seconds": st["consistency_seconds"],
+           "merge_seconds": st["merge_seconds"], "lsm_calls": count.calls,
+           "lsm_windows": count.windows, "lsm_iterations": count.iterations,
+           "points_per_s": len(cloud) / seconds, "points_per_cpu_s": len(cloud) / cpu,
+           "median_sigma": float(np.median(cloud.sigma))}
+    if cloud_out:
+        np.savez(cloud_out, points=cloud.points, sigma=cloud.sigma)
+    if reference:
+        with np.load(reference) as ref:
+            row["against_reference"] = {"reference": str(reference),
+                                        "reference_points": int(len(ref["points"])),
+                                        **_chamfer(cloud.points, ref["points"])}
+    cameras = read_cameras(cameras_file)
+    images = [imread(str(folder / c.name)) for c in cameras]
+    cpu0, load = time.process_time(), uptime()
+    sgbm = run_sgbm(images, cameras, [None] * len(cameras), 3)
+    sgbm.update(cpu_seconds=time.process_time() - cpu0, load_before=load, load_after=uptime())
+    return {"photosurf": row, "sgbm": sgbm,
+            "ratio_to_sgbm": seconds / sgbm["seconds"],
+            "cpu_ratio_to_sgbm": cpu / sgbm["cpu_seconds"]}
+
+
+def temple_main(args) -> int:
+    folder = Path(args.temple)
+    result = run_temple(folder, args.reference, args.cloud_out)
+    ps, sg = result["photosurf"], result["sgbm"]
+    print(f"{'method':12s}{'points':>9s}{'seconds':>9s}{'CPU s':>8s}  load before -> after")
+    for r in (ps, sg):
+        print(f"{r['method']:12s}{r['points']:9d}{r['seconds']:9.1f}{r['cpu_seconds']:8.1f}"
+              f"  {r['load_before']} -> {r['load_after']}")
+    print(f"photosurf / SGBM: {result['ratio_to_sgbm']:.2f} (wall), "
+          f"{result['cpu_ratio_to_sgbm']:.2f} (CPU); LSM {ps['lsm_windows']} windows, "
+          f"{ps['lsm_iterations']} iterations in {ps['lsm_calls']} calls; "
+          f"{ps['points_per_s']:.0f} points/s ({ps['points_per_cpu_s']:.0f} per CPU-s)")
+    if "against_reference" in ps:
+        ref = ps["against_reference"]
+        print(f"against {ref['reference']}: {ps['points']} vs {ref['reference_points']} "
+              f"points, Chamfer {ref['chamfer']:.3g} (median {ref['a_to_b_median']:.3g})")
+    goals = {"temple_acquire_le_10s": ps["seconds"] <= 10.0,
+             "temple_ratio_to_sgbm_le_2": result["ratio_to_sgbm"] <= 2.0}
+    print_goals(goals)
+    write_result(args.json, {"benchmark": "multiview-temple", **result, "goals": goals})
+    return 0
+
+
 def print_table(rows: list[dict]) -> None:
     print(f"{'method':18s}{'points':>9s}{'RMS':>11s}{'RMS icp':>11s}{'median':>11s}"
           f"{'seconds':>9s}{'CPU s':>8s}"
@@ -199,7 +308,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="candidate spacing, px (default 3, photosurf's default)")
     parser.add_argument("--cloud-out", default=None,
                         help="also save photosurf's cloud (known cameras) to this .npz")
+    parser.add_argument("--temple", default=None, metavar="DIR",
+                        help="instead: the real temple ring with its cameras (e.g. "
+                             "../shared/data/real/temple_sparse_ring) against SGBM")
+    parser.add_argument("--reference", default=None, metavar="CLOUD.npz",
+                        help="with --temple: a previous cloud (--cloud-out) to compare with")
     args = parser.parse_args(argv)
+    if args.temple:
+        return temple_main(args)
 
     import open3d as o3d
 
