@@ -5,12 +5,13 @@ part crosses the sections; a part nearly parallel to them (a column under a roof
 ear, a handle at a grazing angle) is cut in few sections at a grazing angle, and the
 stitched mesh bridges it with slabs or loses it.  There a control mesh that knows no axis
 takes over: the screened Poisson iso-surface of the cloud (Kazhdan and Hoppe 2013 [1]_,
-open3d's octree solver, normals by PCA of ``NORMAL_NEIGHBOURS`` neighbours oriented by the
-tangent-plane graph of Hoppe et al. 1992 [2]_), decimated by quadric error (Garland and
-Heckbert 1997 [3]_) to triangles of the sections' spacing ``h`` (about
-``area / (sqrt(3) / 4 h^2)`` of them), cleaned to a closed 2-manifold, its vertices put back
-on the data's side by the interpolating control of :mod:`surface.fitting`, so that Loop's
-patches (:mod:`surface.bezier`) still cover the whole object with one G1 surface.
+open3d's octree solver at cells of about a point spacing, normals by PCA of
+``NORMAL_NEIGHBOURS`` neighbours oriented by the tangent-plane graph of Hoppe et al. 1992
+[2]_), where it balloons past the data pressed onto their convex hull, decimated by quadric
+error (Garland and Heckbert 1997 [3]_) to triangles of the sections' spacing ``h`` (about
+``area / (sqrt(3) / 4 h^2)`` of them), repaired to a closed 2-manifold; the interpolating
+control of :mod:`surface.fitting` puts the limit surface through its vertices, and Loop's
+patches (:mod:`surface.bezier`) cover the whole object with one G1 surface.
 
 Which control mesh an object gets is decided on its fidelity to its own cloud
 (:func:`cloud_fidelity`), the measures a cloud without a truth allows:
@@ -53,6 +54,11 @@ POISSON_DEPTH = 8
 #: Surface samples per cloud point for ``A`` (at least :data:`MIN_SAMPLES`).
 SAMPLES_PER_POINT = 1.0
 MIN_SAMPLES = 20_000
+#: The octree's cube over the cloud's largest extent (open3d's ``scale``; its default 1.1):
+#: padded by 50 % so that the iso-surface closes inside the cube where the data are open (the
+#: temple's unseen base: at 1.1 it met the cube's faces and came out cut open there, 64 / 108
+#: / 116 border edges at depths 6 / 7 / 8; at 1.5, none).
+POISSON_SCALE = 1.5
 #: Relative margin by which the general mesh must be nearer the cloud on ``A`` or ``C`` (and
 #: no farther on the other) to replace the section mesh: well above the sampling spread of a
 #: 90th percentile and a median of >= 10^4 samples (relative standard errors ~1-2 %), so
@@ -137,10 +143,11 @@ def _largest_components(mesh, keep_share: float):
 
 
 def poisson_depth(points: np.ndarray, point_spacing: float, finest: int = POISSON_DEPTH) -> int:
-    """Octree depth whose cells are about one point spacing across (open3d pads the cloud's
-    largest extent by 10 %): finer cells only fit the noise (on the cow's 10^4 noisy points
-    depths 7 and 8 grew 6 spurious handles, depth 5 none), at most ``finest``."""
-    extent = 1.1 * float(np.ptp(points, axis=0).max())
+    """Octree depth whose cells are about one point spacing across (the cube is the cloud's
+    largest extent times :data:`POISSON_SCALE`): finer cells only fit the noise (on the
+    cow's 10^4 noisy points depths 7 and 8 grew 6 spurious handles, depth 5 none), at most
+    ``finest``."""
+    extent = POISSON_SCALE * float(np.ptp(points, axis=0).max())
     return int(np.clip(np.ceil(np.log2(extent / point_spacing)), 4, finest))
 
 
@@ -197,16 +204,22 @@ def poisson_control_mesh(points: np.ndarray, spacing: float, point_spacing: floa
         raise ValueError(f"spacings must be > 0, got {spacing}, {point_spacing}")
     cloud = _normals_cloud(p)
     depth = poisson_depth(p, point_spacing) if depth is None else int(depth)
+    hull = _hull_planes(p)
     problem = ""
     for level in range(depth, max(depth - 3, 3), -1):
-        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=level)
+        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=level,
+                                                                     scale=POISSON_SCALE)
         mesh = _largest_components(mesh, keep_share)
+        vertices, triangles = _repaired(*_clean(mesh))
         # equilateral triangles of edge h have area sqrt(3)/4 h^2
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(clamp_to_hull(vertices,
+                                                                                  hull)),
+                                         o3d.utility.Vector3iVector(triangles))
         target = max(int(mesh.get_surface_area() / (np.sqrt(3) / 4 * spacing ** 2)), 64)
         for _ in range(3):
             decimated = (mesh.simplify_quadric_decimation(target)
                          if target < len(mesh.triangles) else o3d.geometry.TriangleMesh(mesh))
-            vertices, triangles = _clean(decimated)
+            vertices, triangles = _repaired(*_clean(decimated))
             problem = _closed_problem(vertices, triangles)
             if not problem:
                 from surface.metrics import signed_volume
@@ -216,6 +229,75 @@ def poisson_control_mesh(points: np.ndarray, spacing: float, point_spacing: floa
                 return vertices, triangles
             target = max(int(0.7 * min(target, len(mesh.triangles))), 64)
     raise ValueError(f"the general control mesh is {problem}")
+
+
+def _hull_planes(points: np.ndarray) -> np.ndarray:
+    """The cloud's convex hull as outward planes ``(K, 4)``: ``n . x + d <= 0`` inside."""
+    from scipy.spatial import ConvexHull
+
+    return ConvexHull(points).equations
+
+
+def clamp_to_hull(vertices: np.ndarray, planes: np.ndarray, rounds: int = 30,
+                  chunk: int = 8192) -> np.ndarray:
+    """Vertices moved into the convex hull ``planes (K, 4)``: ``(V, 3) float64``.
+
+    Where the data are open (an object's unseen base), the Poisson iso-surface closes in a
+    balloon past every point; pressed onto the hull it becomes the flattest fill the data's
+    extent allows.  Each round moves every vertex outside onto its most violated plane
+    (cyclic projections onto convex sets converge into their intersection); vertices inside
+    do not move.
+    """
+    out = np.array(vertices, dtype=np.float64, copy=True)
+    normals, offsets = planes[:, :3], planes[:, 3]
+    for start in range(0, len(out), chunk):
+        block = out[start:start + chunk]          # a view: moved in place
+        for _ in range(rounds):
+            violation = block @ normals.T + offsets  # (B, K)
+            worst = np.argmax(violation, axis=1)
+            amount = violation[np.arange(len(block)), worst]
+            outside = amount > 0
+            if not outside.any():
+                break
+            block[outside] -= amount[outside, None] * normals[worst[outside]]
+    return out
+
+
+def _repaired(vertices: np.ndarray, triangles: np.ndarray, rounds: int = 3
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The faces at non-manifold edges and vertices removed and each hole so made closed by
+    a fan about its centroid (the holes are a few faces wide: open3d's iso-surface leaves a
+    handful of such edges, 2-44 on the temple cloud at depths 7-8)."""
+    from surface.open_surface import boundary_loops
+    from surface.validity import check_solid
+
+    v, t = vertices, triangles
+    for _ in range(rounds):
+        report = check_solid(v, t, intersections=False)
+        bad = np.union1d(np.asarray(report.nonmanifold_edges).ravel(),
+                         np.asarray(report.nonmanifold_vertices).ravel())
+        if not bad.size and not report.boundary_edges:
+            break
+        if bad.size:
+            t = t[~np.isin(t, bad).any(axis=1)]
+        try:
+            loops = boundary_loops(t)
+        except (ValueError, IndexError):
+            break
+        fans, extra = [], []
+        for loop in loops:
+            centre = len(v) + len(extra)
+            extra.append(v[loop].mean(axis=0))
+            # a border edge (a, b) of the remaining faces is closed by the face (b, a, centre)
+            fans.append(np.c_[np.roll(loop, -1), loop, np.full(len(loop), centre)])
+        if extra:
+            v = np.vstack([v, np.array(extra)])
+            t = np.vstack([t, *fans])
+        used = np.unique(t)
+        remap = np.full(len(v), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        v, t = v[used], remap[t]
+    return v, t
 
 
 def _closed_problem(vertices: np.ndarray, triangles: np.ndarray) -> str:
