@@ -206,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
             smooth = smooth_to_files(control, sized.triangles, out,
                                      level="adaptive" if level is None else level,
                                      tolerance=sized.chord_tolerance() * unit,
+                                     spacing=sized.spacing * unit,
                                      source=str(args.cloud))
             smooth["size"] = (f"sized step {sized.step}, n {sized.n}"
                               if sized.step > 1 or sized.n else "no thinning within the "

@@ -65,7 +65,7 @@ from surface.loop_weights import limit_weight
 from surface.validate import check_finite, check_shape
 
 __all__ = ["convex_creases", "flat_vertices", "folded_faces", "grow_vertices",
-           "interpolating_control_mesh",
+           "interpolating_control_mesh", "surface_folds",
            "limit_matrix", "limit_positions", "sharp_vertices"]
 
 
@@ -214,7 +214,7 @@ def flat_vertices(vertices, triangles, angle: float = 1e-6) -> np.ndarray:
     return worst >= np.cos(angle)
 
 
-def interpolating_control_mesh(vertices, triangles, keep=None) -> np.ndarray:
+def interpolating_control_mesh(vertices, triangles, keep=None, at=None) -> np.ndarray:
     """Control vertices whose Loop limit positions are ``vertices``.
 
     Parameters
@@ -226,6 +226,8 @@ def interpolating_control_mesh(vertices, triangles, keep=None) -> np.ndarray:
     keep : (V,) bool array_like, optional
         Vertices that stay as they are (e.g. :func:`sharp_vertices`): the surface
         approximates them and interpolates the others.
+    at : (V, 3) array_like, optional
+        Where the ``keep`` vertices are held (default: ``vertices``, as they are).
 
     Returns
     -------
@@ -247,9 +249,9 @@ def interpolating_control_mesh(vertices, triangles, keep=None) -> np.ndarray:
         # kept vertices stay control vertices; the others interpolate: M_ff X_f = P_f - M_fk P_k
         keep = np.asarray(keep, dtype=bool)
         free = np.flatnonzero(~keep)
-        solution = v.copy()
+        solution = v.copy() if at is None else np.array(at, dtype=np.float64).reshape(v.shape)
         if len(free):
-            rhs = v[free] - matrix[free][:, np.flatnonzero(keep)] @ v[keep]
+            rhs = v[free] - matrix[free][:, np.flatnonzero(keep)] @ solution[keep]
             part = np.asarray(spsolve(matrix[free][:, free].tocsc(), rhs)).reshape(-1, 3)
             solution[free] = part
     else:
@@ -291,4 +293,61 @@ def folded_faces(target, control, triangles, intersections: bool = True,
             key = np.sort(crossing, axis=1) @ np.array([len(t), 1])
             old = np.sort(before, axis=1) @ np.array([len(t), 1]) if len(before) else key[:0]
             folded[crossing[~np.isin(key, old)].ravel()] = True
+    return folded
+
+
+def surface_folds(target, control, triangles, faces=None, target_pairs=None,
+                  level: int = 1) -> np.ndarray:
+    """Faces of the control mesh over which Loop's surface folds, ``(F,) bool``.
+
+    The surface over ``(control, triangles)`` (:func:`surface.bezier.control_net`) is
+    tessellated at ``level`` over the patches of ``faces`` (all when None) and their
+    two rings of neighbours; a face is folded when a triangle of its patches crosses
+    another (:func:`surface.validity.self_intersections`) or is turned against the
+    target face it lies over (normals of opposite sign).  Pairs that involve a face of
+    ``target_pairs`` (``(K, 2)``, the target mesh's own crossings) or one of its
+    neighbours are the target's, not the correction's, and are left out.  Both are
+    tests of sign, no tolerance.
+
+    A folded *control* face (:func:`folded_faces`) is where the surface may fold: on
+    the 10⁴-point cylinder of ``benchmarks/surface.py`` 249 of 1 340 control faces were
+    folded and the surface over them crossed itself on 5 faces' patches
+    (``docs/decisions/smooth-folds.md``).
+    """
+    from surface import bezier
+    from surface.validity import self_intersections
+
+    p, t = _check_mesh(target, triangles)
+    x, _ = _check_mesh(control, t)
+    count = len(t)
+    chosen = np.ones(count, dtype=bool) if faces is None else np.asarray(faces, dtype=bool)
+    folded = np.zeros(count, dtype=bool)
+    if not chosen.any():
+        return folded
+    region = chosen.copy()
+    for _ in range(2):
+        near = np.zeros(len(p), dtype=bool)
+        near[t[region].ravel()] = True
+        region = near[t].any(axis=1)
+    own = np.zeros(count, dtype=bool)
+    if target_pairs is not None and len(target_pairs):
+        own[np.asarray(target_pairs, dtype=np.int64).ravel()] = True
+        near = np.zeros(len(p), dtype=bool)
+        near[t[own].ravel()] = True
+        own = near[t].any(axis=1)
+    surface = bezier.control_net(x, t)
+    patches = np.flatnonzero(region[surface.source_face])
+    per = 4 ** int(level)
+    tv, tt, _ = bezier.tessellate(surface.control_points[patches], int(level),
+                                  surface.domain_mesh[1][patches])
+    face_of = surface.source_face[patches][np.arange(len(tt)) // per]
+    normal = np.cross(tv[tt[:, 1]] - tv[tt[:, 0]], tv[tt[:, 2]] - tv[tt[:, 0]])
+    target_normal = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
+    turned = np.einsum("ij,ij->i", normal, target_normal[face_of]) < 0.0
+    folded[face_of[turned]] = True
+    pairs = face_of[self_intersections(tv, tt)]
+    if len(pairs):
+        pairs = pairs[~own[pairs].any(axis=1)]
+        folded[pairs.ravel()] = True
+    folded &= ~own
     return folded

@@ -1055,6 +1055,12 @@ def _largest_perimeter(rings: Sequence) -> float:
 #: Most solves of :func:`interpolating_control`'s unfolding (each keeps the vertices of the
 #: faces the last one folded; the mustard bottle needed 4).
 UNFOLD_ROUNDS = 8
+#: The shares of its interpolating correction a folding vertex is moved by, round after
+#: round (:func:`interpolating_control`): halved each time its faces fold, then none.
+UNFOLD_SHARES = (0.5, 0.25)
+#: Keep only the vertices of the folded control faces the surface itself folds over
+#: (:func:`surface.fitting.surface_folds`); False: of every folded control face.
+SURFACE_FOLDS = True
 
 
 @one_blas_thread
@@ -1116,6 +1122,7 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
         folded_faces,
         interpolating_control_mesh,
         sharp_vertices,
+        surface_folds,
     )
     from surface.validity import check_solid
 
@@ -1125,22 +1132,29 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
             keep &= ~np.asarray(creases, dtype=bool)
         triangles = np.asarray(triangles, dtype=np.int64)
         crossing = check_solid(vertices, triangles).intersecting_pairs  # the mesh's own
+        crease = None if creases is None else np.asarray(creases, dtype=bool)
+        # each vertex's share of its interpolating correction: 1 free, 0 kept as it is
+        share = np.where(keep, 0.0, 1.0)
+        full = control = interpolating_control_mesh(vertices, triangles, keep=keep)
         for _ in range(UNFOLD_ROUNDS):
-            control = interpolating_control_mesh(vertices, triangles, keep=keep)
             folded = folded_faces(vertices, control, triangles, target_pairs=crossing)
-            grown = keep.copy()
-            grown[triangles[folded].ravel()] = True
-            if creases is not None:   # a crease's vertices only where nothing else unfolds it
-                crease = np.asarray(creases, dtype=bool)
-                others = (grown & ~keep & ~crease)[triangles].any(axis=1)
-                spared = np.zeros_like(keep)
+            if folded.any() and SURFACE_FOLDS:   # those the surface itself folds over
+                folded = surface_folds(vertices, control, triangles, folded, crossing)
+            flag = np.zeros(len(share), dtype=bool)
+            flag[triangles[folded].ravel()] = True
+            flag &= share > 0.0
+            if crease is not None:   # a crease's vertices only where nothing else unfolds it
+                others = (flag & ~crease)[triangles].any(axis=1)
+                spared = np.zeros_like(flag)
                 spared[triangles[folded & others].ravel()] = True
-                grown &= ~(crease & spared & ~keep)
-            if not np.any(grown & ~keep):   # no fold left the correction made
+                flag &= ~(crease & spared)
+            if not flag.any():   # no fold left the correction made
                 break
-            keep = grown
-        else:
-            control = interpolating_control_mesh(vertices, triangles, keep=keep)
+            share[flag] = np.where(share[flag] > UNFOLD_SHARES[-1], share[flag] / 2.0, 0.0)
+            held = share < 1.0
+            control = interpolating_control_mesh(
+                vertices, triangles, keep=held,
+                at=vertices + share[:, None] * (full - np.asarray(vertices, np.float64)))
         return control
     except ValueError:  # borders: no limit-point system
         return np.asarray(vertices, dtype=np.float64)
@@ -1304,6 +1318,10 @@ class SizedMesh:
     creases : (V,) bool or None
         The vertices on the object's convex creases (:func:`crease_vertices`), which the
         surface interpolates: ``interpolating_control(vertices, triangles, creases)``.
+    spacing : float
+        The cloud's point spacing (``surface.sections.point_spacing``; 0 when not known):
+        no facet of the tessellation need be finer
+        (``pipeline.smoothing.spacing_cuts``).
     """
 
     vertices: np.ndarray
@@ -1318,6 +1336,7 @@ class SizedMesh:
     variogram: Variogram | None = None
     surface: object = field(default=None, repr=False)
     creases: np.ndarray | None = field(default=None, repr=False)
+    spacing: float = 0.0
 
     def chord_tolerance(self) -> float:
         """Chord tolerance of the surface's tessellation: ``CHORD_FRACTION`` of its
@@ -1733,4 +1752,7 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
                               lambda r, p: (lambda s: (s.vertices, s.triangles))(build(r, p)),
                               (dense.vertices, dense.triangles),
                               float(tolerance) if tolerance else None, noise=ring_sigma)
+    from surface.sections import point_spacing
+
+    sized.spacing = float(point_spacing(np.asarray(points, dtype=np.float64)))
     return sized, dense

@@ -46,3 +46,29 @@ def test_a_border_is_no_defect_when_the_mesh_is_open_by_design(caplog):
         solid_report("stitch", v, t)
     (record,) = caplog.records
     assert "is open: 1 border loops" in record.getMessage()
+
+
+def test_spacing_caps_the_adaptive_cuts_before_tessellating():
+    # noise-free data give a chord tolerance near zero (here 1e-4 of the radius: 8 cuts a
+    # patch edge): the cuts are certified to it,
+    # then capped so that no facet's edge is shorter than the data's point spacing
+    v, t = _icosphere(2)                       # 320 control faces, 1 280 patches
+    fine = smooth_mesh(v, t, "adaptive", 1e-4, check=False)
+    spacing = 0.05
+    capped = smooth_mesh(v, t, "adaptive", 1e-4, spacing=spacing)
+    assert len(fine.triangles) > 4 * len(capped.triangles)
+    # no facet edge shorter than the spacing but where a patch side is itself shorter
+    from pipeline.smoothing import spacing_cuts
+
+    cuts = spacing_cuts(capped.surface.control_points, spacing)
+    side = np.linalg.norm(capped.vertices[capped.triangles]
+                          - capped.vertices[np.roll(capped.triangles, 1, axis=1)], axis=2)
+    assert np.all(cuts >= 1) and np.all((cuts & (cuts - 1)) == 0)   # powers of two
+    # each patch edge of length l is cut into m <= l / spacing pieces: pieces >= spacing
+    # along the patch (the facets' chords are shorter by the curvature: cos of the half
+    # angle a piece subtends on the unit sphere, > 0.99 here)
+    assert np.median(side) >= 0.99 * spacing
+    # the bound known before tessellating: the template triangles per patch, m^2
+    assert len(capped.triangles) <= 1.5 * int((cuts ** 2).sum())
+    solid = capped.solid
+    assert solid["valid"] and solid["genus"] == 0
