@@ -93,6 +93,29 @@ def _warn_identical_views(folder: Path, names: list[str], cameras: list) -> None
                     "cameras say, not on the object" if moved else "")
 
 
+def _progress_map(inner):
+    """``inner`` (a ``map(func, items)``) with one INFO line as each task ends: the view
+    pairs and their consistency checks of a long acquisition show where it is."""
+    import threading
+    import time
+
+    def run(func, items):
+        items, lock, done, start = list(items), threading.Lock(), [0], time.monotonic()
+        what = {"_pair_task": "view pair", "_consistency_task": "pair check"}.get(
+            getattr(func, "__name__", ""), "task")
+
+        def call(item):
+            result = func(item)
+            with lock:
+                done[0] += 1
+                log.info("acquire: %s %d of %d done (%.0f s)", what, done[0], len(items),
+                         time.monotonic() - start)
+            return result
+
+        return inner(call, items)
+    return run
+
+
 def _peak_memory_gb() -> float:
     """This process's peak resident memory so far, GB (Linux ``ru_maxrss`` is in kB)."""
     import resource
@@ -202,6 +225,7 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     """
     from matching.multiview import reconstruct_multiview
     from matching.ring import fit_ring
+    from matching.scheduler import default_workers, thread_map
     from pipeline.executor import LocalExecutor
     from pipeline.inputs import load_folder
 
@@ -225,7 +249,8 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
                                              loaded["cameras"], masks,
                                              loaded.get("full_sizes"))
     match = {k: v for k, v in options.items() if k in MATCH_KEYS}
-    map_func = None if executor is None or isinstance(executor, LocalExecutor) else executor.map
+    map_func = (_progress_map(thread_map(default_workers()))
+                if executor is None or isinstance(executor, LocalExecutor) else executor.map)
     try:
         cloud = reconstruct_multiview(loaded["images"], loaded["cameras"], map_func=map_func,
                                       check_views=check_views, masks=object_masks, roi=box,
