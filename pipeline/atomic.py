@@ -21,6 +21,7 @@ before anything moves.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import secrets
@@ -91,8 +92,6 @@ def raise_if_full(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
     raise that write's ``OSError`` -- "No space left on device", "File too large",
     "Disk quota exceeded" -- naming the user's ``path``; return when the bytes fit (the
     cause is elsewhere), the temporary cut back to its size."""
-    import errno
-
     tmp = Path(tmp)
     try:
         size = tmp.stat().st_size

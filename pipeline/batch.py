@@ -28,6 +28,7 @@ from pathlib import Path
 from pipeline import config as config_mod
 from pipeline import progress
 from pipeline.errors import InputError
+from pipeline.guards import load_toml
 from pipeline.inputs import KINDS
 
 _OBJECT_KEYS = {"name", "input", "inputs", "kind", "rig", "set"}
@@ -43,8 +44,6 @@ def read_manifest(path: str | os.PathLike) -> list[dict]:
         Missing file, invalid TOML, an unknown key, an object without input,
         a duplicate name.
     """
-    from pipeline.guards import load_toml
-
     path = Path(path)
     if not path.exists() or path.is_dir():
         raise FileNotFoundError(f"{path}: no such batch manifest")

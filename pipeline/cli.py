@@ -38,6 +38,7 @@ import argparse
 import contextlib
 import importlib
 import importlib.abc
+import importlib.util
 import logging
 import os
 import signal
@@ -45,7 +46,7 @@ import sys
 import threading
 import traceback
 
-from pipeline import __version__
+from pipeline import __version__, limits
 from pipeline.errors import InputError, escape
 
 #: Subcommands in the order ``--help`` lists them.
@@ -109,7 +110,6 @@ class _HandlersAfterImport(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name not in SIGNAL_TAKERS:
             return None
-        import importlib.util
 
         sys.meta_path.remove(self)
         try:
@@ -191,7 +191,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"photosurf: error: a command is required: photosurf COMMAND ..., COMMAND one "
               f"of {', '.join(COMMANDS)} (see photosurf --help)", file=sys.stderr)
         return 2
-    from pipeline import limits
 
     try:
         limits.allowed()  # PHOTOSURF_ALLOW_LARGE=banana: an error now, not a lifted limit

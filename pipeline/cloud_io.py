@@ -22,13 +22,17 @@ optional header line), and ``.npz`` with ``points`` (and optionally ``colours``,
 from __future__ import annotations
 
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from pipeline import limits
 from pipeline.atomic import atomic_file
-from pipeline.errors import InputError
+from pipeline.errors import InputError, escape
+from pipeline.guards import check_coordinates, count_occurrences, native_stderr, regular_file
+from pipeline.mesh_io import PLY_KINDS, check_header_counts, ply_count, ply_header
 from pipeline.workspace import write_npz_to
 
 SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npz")
@@ -120,9 +124,6 @@ def _parse_header(path: Path):
     meshes and clouds); None: vertex properties this fast path does not read (lists,
     unknown types), open3d reads the file instead.
     """
-    from pipeline import limits
-    from pipeline.mesh_io import PLY_KINDS, ply_count, ply_header
-
     with open(path, "rb") as fh:
         head = fh.read(65536)
     parsed = ply_header(head)
@@ -164,9 +165,6 @@ def read_ply(path: str | os.PathLike) -> Cloud:
             return Cloud(_finite(points, path), colours, _precision(sigma, path))
     import open3d as o3d
 
-    from pipeline.guards import native_stderr
-    from pipeline.mesh_io import check_header_counts
-
     check_header_counts(path)  # a header claiming 10^9 points is refused before reading
     with native_stderr():  # RPly's own lines
         pcd = o3d.io.read_point_cloud(str(path))
@@ -195,8 +193,6 @@ def _precision(sigma: np.ndarray | None, path: Path) -> np.ndarray | None:
 
 
 def _finite(points: np.ndarray, path: Path) -> np.ndarray:
-    from pipeline.guards import check_coordinates
-
     if not np.isfinite(points).all():
         bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
         raise InputError(f"{path}: {bad} points with non-finite coordinates")
@@ -235,9 +231,6 @@ def read_text(path: str | os.PathLike) -> Cloud:
     as many as a header line names; any other line is refused, naming it (a decimal
     comma, a missing or extra value).
     """
-    from pipeline import limits
-    from pipeline.guards import count_occurrences, escape
-
     path = Path(path)
     # its lines bound its rows: costed before a row is parsed (bounded memory, early stop)
     lines = count_occurrences(path, {"line": (b"\n",)}, limits.LIMITS["file.elements"].maximum,
@@ -285,10 +278,6 @@ def read_text(path: str | os.PathLike) -> Cloud:
 def _check_npz_shapes(path: Path) -> None:
     """The shapes in the ``.npy`` headers of ``points`` (and ``colours``, ``sigma``) before
     any array is read: an archive of a few kB can claim 10^12 rows (zeros compress well)."""
-    import zipfile
-
-    from pipeline import limits
-
     try:
         with open(path, "rb") as fh, zipfile.ZipFile(fh) as archive:
             shapes = {}
@@ -315,8 +304,6 @@ def _check_npz_shapes(path: Path) -> None:
 
 def read_npz(path: str | os.PathLike) -> Cloud:
     """Read ``points`` (and ``colours``, ``sigma`` if present) from an ``.npz``."""
-    import zipfile
-
     path = Path(path)
     _check_npz_shapes(path)
     try:
@@ -343,8 +330,6 @@ def read_npz(path: str | os.PathLike) -> Cloud:
 
 def read_cloud(path: str | os.PathLike) -> Cloud:
     """Read a point cloud by suffix: .ply, .xyz/.txt/.csv, .npz."""
-    from pipeline.guards import regular_file
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")

@@ -14,9 +14,12 @@ import sys
 
 from pipeline import config as config_mod
 from pipeline import progress
+from pipeline.batch import read_manifest, run_object
 from pipeline.errors import escape
+from pipeline.executor import get_executor
 from pipeline.options import add_config_arguments
 from pipeline.plan import STAGE_ORDER
+from pipeline.workspace import Workspace, write_text
 
 HELP = "run the pipeline on many inputs listed in a TOML manifest (Dask with --scheduler)"
 
@@ -35,10 +38,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.batch import read_manifest, run_object
-    from pipeline.executor import get_executor
-    from pipeline.workspace import Workspace, write_text
-
     progress.set_quiet(args.quiet or args.json)
     tasks = read_manifest(args.manifest)
     base_config = config_mod.resolve(args.config, args.assignments)  # fail early, once

@@ -22,7 +22,9 @@ from importlib import resources
 
 import tomli_w
 
+from pipeline import limits
 from pipeline.errors import InputError
+from pipeline.guards import load_toml
 
 #: Keys that take a value of the default's type *or* one of these words (``axis`` also a
 #: vector ``[x, y, z]``): ``axis = "auto"``, ``smoothing = "auto"``, ``level = "auto"``.
@@ -104,12 +106,8 @@ def _check_range(dotted: str, value, origin: str) -> None:
     if not test(value):
         raise InputError(f"{origin}: {dotted} must be {wording}, got {value!r}")
     if dotted in LIMITED:
-        from pipeline import limits
-
         limits.check(LIMITED[dotted], value, where=f"{origin}: {dotted}")
     if dotted in ("report.width", "report.height"):
-        from pipeline import limits
-
         limits.check("render.pixels", 4 * value * value, where=f"{origin}: {dotted} (squared)")
 
 
@@ -121,8 +119,6 @@ def defaults() -> dict:
 
 def load_file(path: str | os.PathLike) -> dict:
     """Read a TOML config file; errors name the file and the TOML problem."""
-    from pipeline.guards import load_toml
-
     return load_toml(path, "config file")
 
 

@@ -32,9 +32,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from pipeline import __version__, progress
+from pipeline import config as config_mod
 from pipeline.atomic import atomic_dir, atomic_file
 from pipeline.errors import InputError, StageSkipped
+from pipeline.executor import LocalExecutor
+from pipeline.guards import check_output
 from pipeline.inputs import detect_kind
 from pipeline.memory import PeakRSS
 from pipeline.plan import STAGE_ORDER, Stage, plan
@@ -232,9 +237,6 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     -------
     RunSummary
     """
-    from pipeline import config as config_mod
-    from pipeline.executor import LocalExecutor
-
     input_paths = [Path(p) for p in inputs]
     rig_path = Path(rig) if rig is not None else None
     if rig_path is not None and not rig_path.is_file():
@@ -242,6 +244,25 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     kind = detect_kind(input_paths, rig_path, kind) if stages is None else (kind or "custom")
     plan_stages = list(stages) if stages is not None else plan(kind)
     names = [s.name for s in plan_stages]
+    lo, hi = _stage_range(names, start, stop)
+
+    if not Path(outdir).is_file():  # (a file: Workspace says --out must be a folder)
+        check_output(outdir, [*input_paths, rig_path], folder=True)  # never over an input
+    ws = Workspace(outdir)
+    run = _Run(ws, config, input_paths, kind, rig_path, executor or LocalExecutor(), force,
+               lo, hi, tuple(names))
+    with ws.lock():
+        _prepare_workspace(run, plan_stages)
+        results = _run_stages(run, plan_stages)
+    # a failure blocks what depends on it; the report still shows the run, then the error
+    failed = next((r for r in results if r.status == "failed"), None)
+    if failed is not None:
+        raise StageError(f"stage {failed.name} failed: {failed.reason}") from failed.error
+    return RunSummary(Path(outdir), kind, results)
+
+
+def _stage_range(names: list[str], start: str | None, stop: str | None) -> tuple[int, int]:
+    """Indices of the first and last stage to run (``--from`` / ``--to``), checked."""
     for label, value in (("--from", start), ("--to", stop)):
         if value is not None and value not in names:
             raise InputError(f"{label} {value!r}: choose one of {', '.join(names)}")
@@ -249,66 +270,67 @@ def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     hi = names.index(stop) if stop else len(names) - 1
     if lo > hi:
         raise InputError(f"--from {start} comes after --to {stop}")
+    return lo, hi
 
-    from pipeline.guards import check_output
 
-    if not Path(outdir).is_file():  # (a file: Workspace says --out must be a folder)
-        check_output(outdir, [*input_paths, rig_path], folder=True)  # never over an input
-    ws = Workspace(outdir)
-    run = _Run(ws, config, input_paths, kind, rig_path, executor or LocalExecutor(), force,
-               lo, hi, tuple(names))
+def _prepare_workspace(run: _Run, plan_stages: list[Stage]) -> None:
+    """Under the workspace's lock, before any stage: temporaries of an interrupted run and
+    stages of another input kind removed, the inputs hashed, config.toml and the manifest's
+    head written."""
+    ws, kind, config, names = run.workspace, run.kind, run.config, run.plan
+    input_paths, rig_path = run.inputs, run.rig
+    for name in ws.clean_temporaries([s.output for s in plan_stages] + [MANIFEST, CONFIG]):
+        log.info("removed %s, left by an interrupted run", name)
+    for p in input_paths + ([rig_path] if rig_path else []):
+        run.external.update({f"input:{p.resolve()}/{k}": v
+                             for k, v in hash_tree(p, p).items()}
+                            if p.is_dir() else {f"input:{p.resolve()}": sha256_file(p)})
+    for stale in [n for n in ws.manifest["stages"] if n not in names]:
+        # a stage of another input kind (e.g. the scene of an earlier recipe run):
+        # its outputs must not be mistaken for this input's
+        log.info("%s: removed, not a stage of this %s input", stale, kind)
+        ws.forget(stale)
+        if stale in STAGE_ORDER and ws.stage_dir(stale).is_dir():
+            shutil.rmtree(ws.stage_dir(stale))
+    write_text(ws.root / CONFIG, config_mod.dumps(config))
+    ws.manifest.update({
+        "photosurf": __version__, "kind": kind,
+        "inputs": [{"path": str(p), "sha256": sha256_file(p) if p.is_file() else
+                    sha256_json(hash_tree(p, p))} for p in input_paths],
+        "rig": ({"path": str(rig_path), "sha256": sha256_file(rig_path)}
+                if rig_path else None),
+        "versions": package_versions(), "config": config,
+        "config_sha256": sha256_json(config),
+    })
+    ws.save()
+
+
+def _run_stages(run: _Run, plan_stages: list[Stage]) -> list[StageResult]:
+    """Every stage of the plan in order: run, skipped, or blocked by an earlier failure."""
+    lo, hi, ws = run.lo, run.hi, run.workspace
     results: list[StageResult] = []
-    with ws.lock():
-        for name in ws.clean_temporaries([s.output for s in plan_stages] + [MANIFEST, CONFIG]):
-            log.info("removed %s, left by an interrupted run", name)
-        for p in input_paths + ([rig_path] if rig_path else []):
-            run.external.update({f"input:{p.resolve()}/{k}": v
-                                 for k, v in hash_tree(p, p).items()}
-                                if p.is_dir() else {f"input:{p.resolve()}": sha256_file(p)})
-        for stale in [n for n in ws.manifest["stages"] if n not in names]:
-            # a stage of another input kind (e.g. the scene of an earlier recipe run):
-            # its outputs must not be mistaken for this input's
-            log.info("%s: removed, not a stage of this %s input", stale, kind)
-            ws.forget(stale)
-            if stale in STAGE_ORDER and ws.stage_dir(stale).is_dir():
-                shutil.rmtree(ws.stage_dir(stale))
-        write_text(ws.root / CONFIG, config_mod.dumps(config))
-        ws.manifest.update({
-            "photosurf": __version__, "kind": kind,
-            "inputs": [{"path": str(p), "sha256": sha256_file(p) if p.is_file() else
-                        sha256_json(hash_tree(p, p))} for p in input_paths],
-            "rig": ({"path": str(rig_path), "sha256": sha256_file(rig_path)}
-                    if rig_path else None),
-            "versions": package_versions(), "config": config,
-            "config_sha256": sha256_json(config),
-        })
-        ws.save()
-        with progress.bar(total=hi - lo + 1, desc="photosurf run", unit="stage") as bar:
-            failed_stage = None
-            for index, stage in enumerate(plan_stages):
-                bar.set_description_str(f"photosurf run: {stage.name}")
-                if failed_stage and stage.name != "report" and lo <= index <= hi:
-                    # the run stops at a failure (only the report still shows it): no
-                    # later stage runs and none logs about what is missing
-                    reason = f"{failed_stage} failed"
-                    ws.set_record(stage.name, {"status": "blocked", "reason": reason})
-                    result = StageResult(stage.name, "blocked", reason=reason)
-                else:
-                    result = _run_one(run, index, stage)
-                if result.status == "failed" and failed_stage is None:
-                    failed_stage = stage.name
-                results.append(result)
-                if result.status in ("blocked", "failed", "skipped"):
-                    run.unusable[stage.name] = result.status
-                if lo <= index <= hi:
-                    bar.update(1)
-                log.info("%s: %s%s", stage.name, result.status,
-                         f" in {result.seconds:.2f} s" if result.status == "done" else "")
-    # a failure blocks what depends on it; the report still shows the run, then the error
-    failed = next((r for r in results if r.status == "failed"), None)
-    if failed is not None:
-        raise StageError(f"stage {failed.name} failed: {failed.reason}") from failed.error
-    return RunSummary(Path(outdir), kind, results)
+    with progress.bar(total=hi - lo + 1, desc="photosurf run", unit="stage") as bar:
+        failed_stage = None
+        for index, stage in enumerate(plan_stages):
+            bar.set_description_str(f"photosurf run: {stage.name}")
+            if failed_stage and stage.name != "report" and lo <= index <= hi:
+                # the run stops at a failure (only the report still shows it): no
+                # later stage runs and none logs about what is missing
+                reason = f"{failed_stage} failed"
+                ws.set_record(stage.name, {"status": "blocked", "reason": reason})
+                result = StageResult(stage.name, "blocked", reason=reason)
+            else:
+                result = _run_one(run, index, stage)
+            if result.status == "failed" and failed_stage is None:
+                failed_stage = stage.name
+            results.append(result)
+            if result.status in ("blocked", "failed", "skipped"):
+                run.unusable[stage.name] = result.status
+            if lo <= index <= hi:
+                bar.update(1)
+            log.info("%s: %s%s", stage.name, result.status,
+                     f" in {result.seconds:.2f} s" if result.status == "done" else "")
+    return results
 
 
 def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
@@ -377,8 +399,6 @@ def _publish_permissions(path: Path) -> None:
 
 def _jsonable(value):
     """Numbers and arrays in stage info as plain JSON types."""
-    import numpy as np
-
     if isinstance(value, Mapping):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):

@@ -50,6 +50,7 @@ import types
 import warnings
 from collections.abc import Callable, Iterable
 
+from pipeline import limits
 from pipeline.errors import InputError
 from pipeline.workspace import OWN_PACKAGES
 
@@ -239,8 +240,6 @@ def code_fingerprint(names: list[str]) -> dict[str, str]:
     runs, as loaded, not the file on disk now); a module that cannot be imported
     maps to ``"unimportable"``.
     """
-    import importlib
-
     out = {}
     for name in names:
         try:
@@ -297,14 +296,10 @@ def get_executor(scheduler: str | None = None, workers: int = 1):
         Threads of the in-process executor.
     """
     if scheduler in (None, "", "local"):
-        from pipeline import limits
-
         limits.check_positive("executor.workers", int(workers), "workers")
         return LocalExecutor(workers)
     match = _LOCAL_CLUSTER.match(scheduler)
     if match:
-        from pipeline import limits
-
         n_workers = int(match.group(1) or 2)
         limits.check_positive(f"--scheduler {scheduler}: workers", n_workers, "workers")
         return DaskExecutor(None, n_workers)

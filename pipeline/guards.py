@@ -27,6 +27,7 @@ the TOML readers), so that
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import stat
 import struct
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from matching.fd_capture import Captured, captured_fd2
+from pipeline import limits
 from pipeline.errors import InputError, escape  # noqa: F401  (escape: re-exported)
 
 #: Largest |coordinate| accepted, in scene units.  Geometry forms products of up
@@ -308,8 +310,6 @@ def check_image_file(path: str | os.PathLike) -> tuple[int, int] | None:
 
     Returns the header's ``(width, height)`` (``None`` if the header does not say).
     """
-    from pipeline import limits
-
     _, size = image_header_size(path)
     if size is not None:
         width, height = size
@@ -511,7 +511,6 @@ def check_section_cost(points: np.ndarray, axis, where: str, sections: int | Non
         The file or stage named in the message.
     sections, spacing, n : as the section stage's options (given: costed as given).
     """
-    from pipeline import limits
     from surface.sections import point_spacing, resolve_axis
 
     points = np.asarray(points, dtype=np.float64)
@@ -572,8 +571,6 @@ def _resolved(path: str | os.PathLike) -> Path:
 def symlink_loop_reason(exc: BaseException) -> str:
     """The reason a path could not be followed: ``"symbolic link loop"`` for pathlib's
     ``RuntimeError`` and for ``ELOOP``, else the system's own words."""
-    import errno
-
     if isinstance(exc, RuntimeError) or getattr(exc, "errno", None) == errno.ELOOP:
         return "a symbolic link loop (the link leads back to itself)"
     return getattr(exc, "strerror", None) or str(exc)

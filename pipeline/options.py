@@ -5,7 +5,9 @@ and ``photosurf stereo``, the configuration options of ``photosurf run`` and ``b
 from __future__ import annotations
 
 import argparse
+import math
 
+from pipeline import limits
 from pipeline.errors import InputError
 
 #: ``--window`` -> ``match_pair(adaptive_patch=...)``.
@@ -39,15 +41,12 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
 
 def match_options(args: argparse.Namespace) -> dict:
     """The matching keyword arguments, checked (``InputError`` naming the option)."""
-    import math
-
     if args.patch < 5 or args.patch % 2 == 0:
         raise InputError(f"--patch must be an odd integer >= 5, got {args.patch}")
     if args.spacing < 1:
         raise InputError(f"--spacing must be a positive integer, got {args.spacing}")
     if args.max_iter < 1:
         raise InputError(f"--max-iter must be a positive integer, got {args.max_iter}")
-    from pipeline import limits
 
     limits.check("iterations", args.max_iter, where="--max-iter")
     if not (math.isfinite(args.min_correlation) and -1.0 <= args.min_correlation <= 1.0):

@@ -46,6 +46,7 @@ import numpy as np
 
 from pipeline.atomic import atomic_file
 from pipeline.errors import InputError
+from pipeline.guards import regular_file
 
 MANIFEST = "manifest.json"
 CONFIG = "config.toml"
@@ -354,8 +355,6 @@ class Workspace:
         if not os.path.lexists(path):
             return fresh
         try:
-            from pipeline.guards import regular_file
-
             data = json.loads(regular_file(path, "workspace manifest").read_text(
                 encoding="utf-8"))
         except (OSError, ValueError, RecursionError) as exc:
