@@ -211,7 +211,10 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     **options
         ``[acquire]`` options of pipeline/defaults.toml; the matching ones
         (:data:`MATCH_KEYS`) are passed on (``max_reprojection_px`` has no multi-view
-        meaning and is ignored).
+        meaning and is ignored); ``points_across`` sets the working scale
+        (:func:`pipeline.inputs.load_folder`), ``object_only`` drops what is not the
+        object (:func:`matching.roi.select_object`, not with ``roi``), ``scale`` /
+        ``markers`` give an SfM frame real units (:mod:`matching.scale`).
 
     Returns
     -------
