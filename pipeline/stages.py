@@ -578,10 +578,72 @@ def smooth(ctx: StageContext) -> dict:
         if border:  # an open stitched mesh (e.g. one stereo pair sees one side only)
             raise StageSkipped(f"the stitched mesh is open ({border} border edges) and the "
                                f"Bezier construction refused it: {exc}") from exc
-        raise
+        general = _general_surface(ctx, level, tolerance, None, reason=str(exc))
+        if general is None:
+            raise
+        smoothed, chosen = general
+        info.update(chosen)
+    else:
+        general = _general_surface(ctx, level, tolerance, smoothed)
+        if general is not None:
+            smoothed, chosen = general
+            info.update(chosen)
     artifacts.write_smooth(ctx.out, smoothed.vertices, smoothed.triangles, smoothed.normals,
                            smoothed.surface)
     return {**smoothed.info(), **info}
+
+
+def _general_surface(ctx: StageContext, level, tolerance, section, reason: str = ""):
+    """``smooth.general``: where one family of parallel sections cannot organise the
+    points, the control mesh that knows no axis (``surface.general_mesh``).  ``"auto"``
+    builds it beside the section surface and keeps the one nearer the cloud
+    (``surface.general_mesh.prefer_general`` on A and C, ``cloud_fidelity``);
+    ``"always"`` takes it; ``"never"`` does not build it.  Returns ``(Smoothed, info)`` when
+    the stage's surface changes or was measured, ``None`` when not asked or possible (no
+    cloud, too few points).  With ``section`` None (the section surface was refused) the
+    general surface stands in when asked."""
+    import numpy as np
+
+    from pipeline.smoothing import smooth_mesh
+    from surface import general_mesh
+    from surface.fitting import interpolating_control_mesh
+    from surface.sections import point_spacing
+
+    mode = ctx.params["smooth"]["general"]
+    if mode not in ("auto", "always", "never"):
+        raise InputError(f"smooth.general must be one of auto, always, never, got {mode!r}")
+    if mode == "never" or not ctx.has_output("acquire") or not ctx.has_output("sections"):
+        return None
+    points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
+    heights = artifacts.section_heights(ctx.stage_path("sections"))
+    if len(points) < 4 * general_mesh.NORMAL_NEIGHBOURS or len(heights) < 2:
+        return None
+    spacing = float(np.median(np.diff(np.sort(heights))))
+    try:  # triangles of the section spacing: as fine as the section mesh it stands in for
+        vertices, triangles = general_mesh.poisson_control_mesh(points, spacing,
+                                                                point_spacing(points))
+        control = interpolating_control_mesh(vertices, triangles)
+        if tolerance is None and level in ("auto", "adaptive"):
+            tolerance = _smooth_tolerance(ctx)
+        general = smooth_mesh(control, triangles, level, tolerance)
+    except ValueError as exc:
+        log.warning("smooth: no general control mesh (%s): the section surface stays", exc)
+        return None
+    fidelity = general_mesh.cloud_fidelity(general.vertices, general.triangles, points)
+    info = {"general_mode": mode, "general_fidelity": fidelity.to_json(),
+            "general_control_triangles": len(triangles)}
+    if section is None:
+        log.warning("smooth: the section surface was refused (%s): the general control mesh "
+                    "stands in", reason)
+        return general, {**info, "control": "general", "control_triangles": len(triangles)}
+    own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
+    info["sections_fidelity"] = own.to_json()
+    if mode == "always" or general_mesh.prefer_general(own, fidelity):
+        log.info("smooth: the general control mesh is nearer the cloud (A %.3g / C %.3g "
+                 "against the sections' %.3g / %.3g): it carries the surface", fidelity.a90,
+                 fidelity.c50, own.a90, own.c50)
+        return general, {**info, "control": "general", "control_triangles": len(triangles)}
+    return section, {**info, "control": "sections"}
 
 
 def _stitched_open(ctx: StageContext) -> bool:
