@@ -52,3 +52,35 @@ def test_a_view_not_in_the_folder_is_a_one_line_error():
     _, loaded, cloud = _loaded_and_cloud()
     with pytest.raises(InputError, match="folder: scale: no view 'x.jpg'"):
         _metric_scale(cloud, loaded, "folder", "1,2 30,40@x.jpg=1", 0.0)
+
+
+def test_views_read_at_the_working_scale_with_their_cameras_and_masks(tmp_path):
+    import cv2
+
+    from matching.cameras import write_cameras_yml
+    from pipeline.inputs import load_folder
+
+    rng = np.random.default_rng(7)
+    cams = [_look_at(np.array([x, -3.0, 0.0]), (0.0, 0.0, 0.0), f=400.0, size=(400, 300),
+                     name=f"v{k}.png") for k, x in enumerate((-0.5, 0.5))]
+    (tmp_path / "masks").mkdir()
+    for cam in cams:
+        cv2.imwrite(str(tmp_path / cam.name), rng.integers(0, 255, (300, 400), np.uint8))
+        mask = np.zeros((300, 400), np.uint8)
+        mask[100:200, 100:300] = 255
+        cv2.imwrite(str(tmp_path / "masks" / f"{cam.name}.png"), mask)
+    write_cameras_yml(tmp_path / "cameras.yml", cams)
+    # no sparse points: the extent is the image's 400 px; 40 points at spacing 3 -> 0.3
+    loaded = load_folder(tmp_path, spacing=3, points_across=40)
+    assert loaded["working_scale"] == pytest.approx(0.3)
+    assert loaded["full_sizes"] == [(400, 300), (400, 300)]
+    assert loaded["images"][0].shape == (90, 120) == loaded["images"].shapes[0][:2]
+    assert loaded["cameras"][0].size == (120, 90)
+    full = load_folder(tmp_path, spacing=3, points_across=0)
+    assert full["working_scale"] == 1.0 and full["images"][1].shape == (300, 400)
+    from pipeline.acquisition import folder_masks
+
+    masks, source = folder_masks([tmp_path], loaded["names"], loaded["images"],
+                                 loaded["cameras"], "folder", loaded["full_sizes"])
+    assert source == "2 from masks/" and masks[0].shape == (90, 120)
+    assert masks[0].sum() == pytest.approx(0.09 * 100 * 200, rel=0.05)  # the area, scaled
