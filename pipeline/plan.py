@@ -115,7 +115,8 @@ STAGES: list[Stage] = [
           modules=_ADAPTERS + ("pipeline.export", "pipeline.mesh_io", "pipeline.step")),
     Stage("report", fn.report, params=("report",), target="report.html",
           optional_needs=("scene", "acquire", "sections", "curves", "stitch", "smooth"),
-          modules=_ADAPTERS + ("pipeline.report",)),
+          modules=_ADAPTERS + ("pipeline.report", "surface.general_mesh", "matching.masks",
+                               "matching.cameras", "matching.image_file")),
 ]
 assert tuple(s.name for s in STAGES) == STAGE_ORDER
 

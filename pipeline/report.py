@@ -17,7 +17,10 @@ Contents, each present when the run produced what it needs:
   F-score at τ, Hausdorff, the means ± their sampling errors; one
   :class:`surface.metrics.MeshDistance` of the truth for all of them), with the
   cloud's RMS distance to the truth;
-* the topology of each mesh (:func:`surface.metrics.mesh_topology`).
+* the topology of each mesh (:func:`surface.metrics.mesh_topology`);
+* for an image folder with cameras: each input view beside the surface rendered from
+  that view's camera (and, with ``report.poisson``, beside screened Poisson's surface of
+  the same cloud), with the per-view silhouette IoU (:func:`_views_section`).
 
 Images are PNGs embedded as base64 ``data:`` URIs, so the file can be mailed
 or archived alone.  A four-line script records on ``<body data-images>`` how
@@ -187,7 +190,8 @@ def _final_mesh(root: Path) -> tuple[str, Path] | None:
 
 
 def build_report(root: str | Path, config: Mapping, out_html: str | Path,
-                 track=lambda items, desc="": items, order=()) -> dict:
+                 track=lambda items, desc="": items, order=(), views=(),
+                 peer=None) -> dict:
     """Write the report of the workspace ``root`` to ``out_html``; return its key figures.
 
     Parameters
@@ -204,6 +208,11 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     order : sequence of str
         Stage names in run order (the run's plan); the stages table lists them so,
         then any others by name (default: the manifest's order).
+    views : sequence of (image (H, W, 3) uint8 RGB, camera, silhouette (H, W) bool or None)
+        The input views with their cameras (``matching.cameras.Camera``), for
+        :func:`_views_section`.
+    peer : (label, vertices, triangles), optional
+        Another surface of the same cloud drawn beside ours in each view.
 
     Returns
     -------
@@ -239,10 +248,12 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     screen = _Screen(root, final, params, read_mesh) if final is not None else None
     parts: list[str] = []
     info: dict = {}
-    jobs = ["surface", "sections", "truth"]
+    jobs = ["surface", "views", "sections", "truth"]
     for job in track(jobs, "report"):
         if job == "surface" and screen is not None:
             parts.append(_surface_section(root, screen, params, info, read_mesh))
+        elif job == "views" and screen is not None and views:
+            parts.append(_views_section(screen, views, peer, params, info))
         elif job == "sections":
             parts.append(_sections_section(root))
         elif job == "truth" and truth is not None:
@@ -327,6 +338,55 @@ def _surface_section(root: Path, screen: _Screen, params, info, read_mesh) -> st
     caption = f"{screen.label}: six views{screen.note()}"
     return (f"<section><h2>Surface</h2>{_figure(png_data_uri(sheet), caption)}"
             f"{'<h3>Topology</h3>' if rows else ''}{table}</section>")
+
+
+def _view_camera(camera, width: int):
+    """The camera scaled to an image ``width`` pixels wide (pixel centres kept)."""
+    from matching.resolution import scale_camera
+
+    return scale_camera(camera, min(1.0, width / float(camera.width)))
+
+
+def _views_section(screen: _Screen, views, peer, params, info) -> str:
+    """Each input view, the surface rendered from its camera (and the peer's), the
+    silhouette IoU of each surface's outline (:func:`surface.metrics.silhouette_scores`,
+    the silhouette from the view's mask or its uniform background), at the report's
+    ``width``."""
+    import cv2
+
+    from pipeline.raycast import RayCaster
+    from pipeline.render import render_view
+    from surface.metrics import silhouette_scores
+
+    sheets = [("ours", screen.vertices, screen.triangles, screen.normals, screen.caster)]
+    if peer is not None:
+        from pipeline.export import vertex_normals
+
+        label, v, t = peer
+        sheets.append((label, v, t, vertex_normals(v, t), RayCaster(v, t)))
+    rows, figures, ious = [], [], {name: [] for name, *_ in sheets}
+    for index, (image, camera, silhouette) in enumerate(views):
+        cam = _view_camera(camera, int(params["width"]))
+        size = (int(cam.width), int(cam.height))
+        tiles = [cv2.resize(image, size, interpolation=cv2.INTER_AREA)]
+        sil = None if silhouette is None else cv2.resize(
+            silhouette.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        row = [camera.name or str(index)]
+        for name, v, t, n, caster in sheets:
+            tiles.append(render_view(caster, v, t, n, cam.K, cam.R, cam.t, *size))
+            iou = None if sil is None else silhouette_scores(v, t, [cam], [sil])["iou"][0]
+            ious[name].append(iou)
+            row.append("-" if iou is None else f"{iou:.3f}")
+        rows.append(row)
+        figures.append(_figure(png_data_uri(np.hstack(tiles)),
+                               f"{row[0]}: photograph | " + " | ".join(
+                                   f"{name} (IoU {value})" for (name, *_), value
+                                   in zip(sheets, row[1:], strict=True))))
+    info["views"] = {name: [x for x in values if x is not None] for name, values in ious.items()}
+    table = _table(rows, ["view"] + [f"silhouette IoU, {name}" for name, *_ in sheets])
+    return (f"<section><h2>The surface as the photographs saw it</h2><p>Each input view, "
+            f"then the surface rendered from its camera; the IoU compares the surface's "
+            f"outline with the view's silhouette.</p>{table}{''.join(figures)}</section>")
 
 
 def _sections_section(root: Path) -> str:

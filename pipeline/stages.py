@@ -779,5 +779,52 @@ def report(ctx: StageContext) -> dict:
     """``pipeline.report.build_report``: ``OUTDIR/report.html``."""
     from pipeline.report import build_report
 
+    views = _report_views(ctx)
+    peer = None
+    if views and ctx.params["report"]["poisson"] and ctx.has_output("acquire"):
+        from surface.general_mesh import poisson_surface
+
+        points = artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
+        peer = ("Poisson-8", *poisson_surface(points))
     return build_report(ctx.workspace.root, ctx.config, ctx.out,
-                        track=lambda items, desc="": ctx.track(items, desc), order=ctx.plan)
+                        track=lambda items, desc="": ctx.track(items, desc), order=ctx.plan,
+                        views=views, peer=peer)
+
+
+def _report_views(ctx: StageContext) -> list:
+    """An image folder's views with known cameras (given, or SfM's ``acquire/cameras.yml``),
+    each ``(RGB image, camera, silhouette or None)``: the silhouette from the view's mask
+    file (``FOLDER/masks``), else its uniform background (``matching.masks``), else None."""
+    import cv2
+
+    from matching import masks
+    from matching.cameras import read_cameras
+    from matching.image_file import imread
+
+    if ctx.kind != "folder" or not ctx.inputs:
+        return []
+    folder = Path(ctx.inputs[0])
+    sources = [ctx.stage_path("acquire", artifacts.CAMERAS)]
+    if ctx.rig is not None:
+        sources.insert(0, Path(ctx.rig))
+    cameras = []
+    for source in sources:
+        if source.exists():
+            try:
+                cameras = read_cameras(source)
+                break
+            except Exception:  # noqa: BLE001 - a file the acquisition read another way
+                continue
+    views = []
+    for camera in cameras:
+        path = folder / camera.name
+        if not camera.name or not path.is_file():
+            continue
+        image = imread(str(path), cv2.IMREAD_COLOR)
+        if image is None or image.shape[:2] != (camera.height, camera.width):
+            continue
+        mask_file = masks.mask_path(folder, camera.name)
+        silhouette = (masks.read_mask(mask_file, (camera.width, camera.height))
+                      if mask_file is not None else masks.foreground_mask(image))
+        views.append((cv2.cvtColor(image, cv2.COLOR_BGR2RGB), camera, silhouette))
+    return views

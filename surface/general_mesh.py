@@ -142,6 +142,18 @@ def _largest_components(mesh, keep_share: float):
     return mesh
 
 
+def poisson_surface(points: np.ndarray, depth: int = POISSON_DEPTH
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The peer: open3d's screened Poisson surface of the cloud as users run it (normals as
+    :data:`NORMAL_NEIGHBOURS`, the default cube, no trimming): ``(V, 3)``, ``(F, 3) int64``."""
+    import open3d as o3d
+
+    p = check_shape(points, "(N, 3)", "points", dtype=np.float64)
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(_normals_cloud(p),
+                                                                         depth=depth)
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int64)
+
+
 def poisson_depth(points: np.ndarray, point_spacing: float, finest: int = POISSON_DEPTH) -> int:
     """Octree depth whose cells are about one point spacing across (the cube is the cloud's
     largest extent times :data:`POISSON_SCALE`): finer cells only fit the noise (on the
