@@ -9,42 +9,8 @@ camera and its file imports one module.
 
 from __future__ import annotations
 
-from matching.camera_files import (
-    cameras_from_pycolmap,
-    read_cameras,
-    read_cameras_yml,
-    read_colmap,
-    read_colmap_text,
-    read_projection_txt,
-    read_rig,
-    read_stereo_calibration,
-    write_cameras_yml,
-    write_colmap_text,
-    write_rig,
-)
-from matching.camera_model import (
-    Camera,
-    StereoRig,
-    quaternion_to_rotation,
-    rotation_to_quaternion,
-    turn_camera,
-)
+from matching import camera_files, camera_model
+from matching.camera_files import *  # noqa: F403
+from matching.camera_model import *  # noqa: F403
 
-__all__ = [
-    "Camera",
-    "StereoRig",
-    "write_cameras_yml",
-    "read_cameras_yml",
-    "write_rig",
-    "read_rig",
-    "read_stereo_calibration",
-    "write_colmap_text",
-    "read_colmap_text",
-    "read_colmap",
-    "cameras_from_pycolmap",
-    "read_projection_txt",
-    "read_cameras",
-    "rotation_to_quaternion",
-    "quaternion_to_rotation",
-    "turn_camera",
-]
+__all__ = [*camera_model.__all__, *camera_files.__all__]

@@ -48,6 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.cloud_io import write_ply
+from pipeline.mesh_io import read_mesh, write_mesh
 from pipeline.workspace import save_npz, write_text
 
 CLOUD = "cloud.npz"
@@ -68,15 +70,16 @@ def _members(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 # --------------------------------------------------------------------------- cloud
-def write_cloud(folder: str | os.PathLike, points, colors=None,
+def write_cloud(folder: str | os.PathLike, points, colours=None,
                 sigma=None) -> dict[str, np.ndarray]:
     """``folder/cloud.npz`` and ``folder/cloud.ply`` (for viewers: MeshLab, CloudCompare).
 
     Parameters
     ----------
     points : (N, 3) array_like
-    colors : (N, 3) array_like, optional
-        0..255 (cast to uint8); zeros when absent.
+    colours : (N, 3) array_like, optional
+        0..255 (cast to uint8); zeros when absent.  Stored as the file's ``colors``
+        array (the on-disk name, kept: workspaces written before read the same).
     sigma : (N,) array_like, optional
         Per-point standard deviation, scene units; NaN when absent.
 
@@ -85,16 +88,14 @@ def write_cloud(folder: str | os.PathLike, points, colors=None,
     dict
         The arrays as written (``points``, ``colors``, ``sigma``).
     """
-    from pipeline.cloud_io import write_ply
-
     folder = Path(folder)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    colors = (np.zeros((len(points), 3), np.uint8) if colors is None
-              else np.asarray(colors).astype(np.uint8).reshape(-1, 3))
+    colours = (np.zeros((len(points), 3), np.uint8) if colours is None
+               else np.asarray(colours).astype(np.uint8).reshape(-1, 3))
     sigma = np.full(len(points), np.nan) if sigma is None else np.asarray(sigma, np.float64)
-    save_npz(folder / CLOUD, points=points, colors=colors, sigma=sigma)
-    write_ply(folder / CLOUD_PLY, points, colors, sigma)
-    return {"points": points, "colors": colors, "sigma": sigma}
+    save_npz(folder / CLOUD, points=points, colors=colours, sigma=sigma)
+    write_ply(folder / CLOUD_PLY, points, colours, sigma)
+    return {"points": points, "colors": colours, "sigma": sigma}
 
 
 def read_cloud(folder: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -290,16 +291,12 @@ def read_curve_fits(folder: str | os.PathLike) -> dict | None:
 def write_stitched(folder: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
                    notes: Mapping) -> None:
     """``folder/mesh.ply`` and its notes ``folder/stitch.json`` (sorted keys, one space)."""
-    from pipeline.mesh_io import write_mesh
-
     write_mesh(Path(folder) / MESH, vertices, triangles)
     write_text(Path(folder) / STITCH_NOTES, json.dumps(notes, indent=1, sort_keys=True) + "\n")
 
 
 def read_stitched(folder: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(vertices, triangles, notes)`` of ``folder/mesh.ply`` and ``stitch.json``."""
-    from pipeline.mesh_io import read_mesh
-
     vertices, triangles = read_mesh(Path(folder) / MESH)
     notes_path = Path(folder) / STITCH_NOTES
     notes = json.loads(notes_path.read_text(encoding="utf-8")) if notes_path.is_file() else {}
@@ -314,7 +311,6 @@ def write_smooth(folder: str | os.PathLike, vertices: np.ndarray, triangles: np.
     ``surface`` is a :class:`surface.bezier.BezierSurface` (``control_points``,
     ``source_face``, ``domain_mesh``).
     """
-    from pipeline.mesh_io import write_mesh
     from surface import bezier
 
     folder = Path(folder)

@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 import logging
 
-from pipeline.errors import InputError
-
 HELP = "render a synthetic scene (TOML recipe) with exact ground truth into a folder"
 
 log = logging.getLogger(__name__)
@@ -33,14 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_override(text: str) -> tuple[str, object]:
     """``"cameras.width=320"`` -> ``("cameras.width", 320)``; a bare word stays a string."""
-    if "=" not in text:
-        raise InputError(f"--set {text!r}: expected TABLE.KEY=VALUE")
-    from pipeline.config import parse_value
+    from pipeline.config import parse_assignment
 
-    key, raw = (part.strip() for part in text.split("=", 1))
-    if not key:
-        raise InputError(f"--set {text!r}: empty key")
-    return key, parse_value(raw, f"--set {key}")
+    path, value = parse_assignment(text, "TABLE.KEY=VALUE", min_parts=1)
+    return ".".join(path), value
 
 
 def _precheck(path: str, overrides: dict) -> None:
@@ -48,15 +42,11 @@ def _precheck(path: str, overrides: dict) -> None:
     ``--set`` values, before the scene code (numba, scipy, open3d: ~0.7 s of imports) is
     loaded: an oversized request is refused at the cost of the interpreter's start-up."""
     from pipeline import limits
+    from pipeline.config import deep_update
     from pipeline.guards import load_toml
 
     raw = load_toml(path, "recipe file")  # regular file, bounded size and nesting
-    for key, value in overrides.items():
-        node, parts = raw, key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {}) if isinstance(node, dict) else None
-        if isinstance(node, dict):
-            node[parts[-1]] = value  # a key that is no table is the validation's to report
+    deep_update(raw, overrides, dotted=True)  # as load_recipe will
     limits.check_recipe(raw, path)
 
 

@@ -122,18 +122,22 @@ def load_file(path: str | os.PathLike) -> dict:
     return load_toml(path, "config file")
 
 
-def parse_assignment(text: str) -> tuple[list[str], object]:
-    """Split ``"section.key=value"`` into ``(["section", "key"], value)``.
+def parse_assignment(text: str, form: str = "section.key=value",
+                     min_parts: int = 2) -> tuple[list[str], object]:
+    """Split ``"section.key=value"`` into ``(["section", "key"], value)``: every ``--set``.
 
     The value is parsed as a TOML value; when that fails (a bare word such as
-    ``auto``) it is kept as a string.
+    ``auto``) it is kept as a string.  ``form`` names the expected form in the errors
+    (``photosurf synth``'s ``TABLE.KEY=VALUE``); the key needs ``min_parts`` dotted
+    parts, none empty (``photosurf run``: a section and a key; ``synth``: one is enough).
     """
     if "=" not in text:
-        raise InputError(f"--set {text!r}: expected section.key=value")
+        raise InputError(f"--set {text!r}: expected {form}")
     key, raw = text.split("=", 1)
     path = [part.strip() for part in key.strip().split(".")]
-    if len(path) < 2 or not all(path):
-        raise InputError(f"--set {text!r}: the key must be section.key (e.g. sections.count=24)")
+    if len(path) < min_parts or not all(path):
+        example = " (e.g. sections.count=24)" if min_parts >= 2 else ""
+        raise InputError(f"--set {text!r}: the key must be {form.split('=')[0]}{example}")
     return path, parse_value(raw, f"--set {key.strip()}")
 
 
@@ -237,13 +241,25 @@ def _merge(base: dict, update: Mapping, origin: str, prefix: str = "") -> None:
         base[key] = converted
 
 
-def deep_update(base: dict, update: Mapping) -> None:
-    """Merge nested ``update`` into ``base`` in place (no checks)."""
+def deep_update(base: dict, update: Mapping, dotted: bool = False) -> None:
+    """Merge nested ``update`` into ``base`` in place (no checks on keys or types): the one
+    merge of configurations, batch ``set`` tables and scene recipes.
+
+    With ``dotted``, a string key ``"cameras.width"`` stands for ``{"cameras": {"width": ...}}``
+    (tables made on the way; a part that exists and is no table is an ``InputError``).
+    """
     for key, value in update.items():
-        if isinstance(value, Mapping) and isinstance(base.get(key), dict):
-            deep_update(base[key], value)
+        node, leaf = base, key
+        if dotted and isinstance(key, str):
+            *parts, leaf = key.split(".")
+            for part in parts:
+                node = node.setdefault(part, {})
+                if not isinstance(node, dict):
+                    raise InputError(f"override {key!r}: {part!r} is not a table")
+        if isinstance(value, Mapping) and isinstance(node.get(leaf), dict):
+            deep_update(node[leaf], value, dotted)
         else:
-            base[key] = copy.deepcopy(value)
+            node[leaf] = copy.deepcopy(value)
 
 
 def resolve(config_file: str | os.PathLike | Sequence[str | os.PathLike] | None = None,

@@ -67,7 +67,6 @@ References
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 import os
@@ -211,24 +210,6 @@ def _convert(value, kind: str, length: int | None):
     raise AssertionError(kind)
 
 
-def _deep_merge(base: dict, overrides: Mapping) -> dict:
-    """Merge ``overrides`` into a copy of ``base``; dotted keys (``"cameras.width"``) allowed."""
-    out = copy.deepcopy(base)
-    for key, value in overrides.items():
-        path = key.split(".") if isinstance(key, str) else [key]
-        node = out
-        for part in path[:-1]:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise InputError(f"override {key!r}: {part!r} is not a table")
-        leaf = path[-1]
-        if isinstance(value, Mapping) and isinstance(node.get(leaf), dict):
-            node[leaf] = _deep_merge(node[leaf], value)
-        else:
-            node[leaf] = copy.deepcopy(value)
-    return out
-
-
 def load_recipe(path: str | os.PathLike = DEFAULT_RECIPE, overrides: Mapping | None = None) -> dict:
     """Read, override and validate a scene recipe; return it with every default filled.
 
@@ -253,12 +234,13 @@ def load_recipe(path: str | os.PathLike = DEFAULT_RECIPE, overrides: Mapping | N
         ``"FILE: field shape.profile: ..."`` for invalid TOML, an unknown or
         missing field, a value of the wrong type or range.
     """
+    from pipeline.config import deep_update
     from pipeline.guards import load_toml
 
     path = Path(path)
     raw = load_toml(path, "recipe file")  # regular file, bounded size and nesting
     if overrides:
-        raw = _deep_merge(raw, overrides)
+        deep_update(raw, overrides, dotted=True)
     return validate_recipe(raw, source=str(path), base_dir=path.parent)
 
 
