@@ -44,6 +44,7 @@ import cv2
 import numpy as np
 
 from matching.camera_model import Camera, StereoRig, quaternion_to_rotation, rotation_to_quaternion
+from matching.image_file import imread
 from matching.validate import TOL, check_shape
 
 __all__ = [
@@ -327,8 +328,6 @@ def _read_rig_yml(path: Path) -> StereoRig:
 # --------------------------------------------- OpenCV stereo calibration sample files
 def _image_size(image: str | os.PathLike) -> tuple[int, int]:
     """(width, height) of an image file as the user sees it (its EXIF orientation applied)."""
-    from matching.image_file import imread
-
     image = Path(image)
     _check_exists(image)
     array = imread(image)

@@ -28,6 +28,7 @@ from pathlib import Path
 from pipeline import limits
 from pipeline.errors import InputError
 from pipeline.guards import check_output, regular_file
+from pipeline.mesh_io import check_header_counts, read_mesh_with_normals, weld_vertices
 
 HELP = "smooth a triangle mesh into Loop's G1 sextic Bezier surface (mesh + control net)"
 
@@ -48,7 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.mesh_io import check_header_counts, read_mesh_with_normals, weld_vertices
     from pipeline.smoothing import EDGE_SAMPLES, default_level, smooth_to_files
 
     mesh_path = Path(args.mesh)

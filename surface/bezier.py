@@ -45,6 +45,7 @@ References
 
 from __future__ import annotations
 
+from fractions import Fraction
 from functools import cache
 from math import factorial
 
@@ -311,8 +312,6 @@ def _corner_quad_matrix() -> np.ndarray:
     triangle's edge depends on that edge's 7 control points only).
     Row ``7 k + l`` is the pole of u-index k and v-index l.
     """
-    from fractions import Fraction
-
     def bernstein1(k, x):
         return Fraction(factorial(DEGREE), factorial(k) * factorial(DEGREE - k)) \
             * x ** k * (1 - x) ** (DEGREE - k)

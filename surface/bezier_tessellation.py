@@ -16,6 +16,7 @@ from functools import cache
 
 import numba
 import numpy as np
+from scipy.spatial import Delaunay
 
 from surface._blas import one_blas_thread
 from surface.bezier_patch import (
@@ -393,8 +394,6 @@ def _adaptive_template(m: int, e0: int, e1: int, e2: int):
     index), ``triangles (T, 3)`` counter-clockwise, and the largest triangle edge in units
     of the patch's edge (``diameter``).
     """
-    from scipy.spatial import Delaunay
-
     eye = np.eye(3)
     bary, kind, slot, pos = [eye], [np.zeros(3, int)], [np.arange(3)], [np.zeros(3, int)]
     for j, e in enumerate((e0, e1, e2)):
