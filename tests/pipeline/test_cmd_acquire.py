@@ -278,3 +278,43 @@ def test_portrait_and_landscape_without_cameras(real_data_dir, tmp_path, capsys)
     silhouettes = [cv2.dilate((g > 0.19 * 255).astype(np.uint8), kernel) > 0 for g in grey]
     inside = inside_masks(points, cameras, silhouettes)
     assert len(points) > 5000 and inside.mean() > 0.97, (len(points), inside.mean())
+
+
+def test_ctrl_c_on_one_core_exits_at_once_one_line_nothing_written(arc, tmp_path):
+    """SIGINT while the view pairs run on one core (one worker: the tasks run off the
+    main thread, which waits interruptibly): exit 130 within seconds, one line, no
+    cloud and no temporary beside it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    core = min(os.sched_getaffinity(0))
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "acquire", str(arc), "--out", str(out / "c.ply")],
+        env=env, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: os.sched_setaffinity(0, {core}))
+    try:
+        # a worker thread and numba's pool exist once the first pair's kernels run
+        deadline = time.monotonic() + 120
+        while proc.poll() is None and time.monotonic() < deadline:
+            if len(os.listdir(f"/proc/{proc.pid}/task")) >= 3:
+                break
+            time.sleep(0.05)
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+        sent = time.monotonic()
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    if proc.returncode == 0:
+        pytest.skip("acquire finished before the signal")
+    assert time.monotonic() - sent < 10, "the stop waited for the running pair"
+    assert proc.returncode == 128 + signal.SIGINT, err
+    assert [ln for ln in err.splitlines() if ln.strip()] == [
+        "photosurf acquire: interrupted (SIGINT)"], err
+    assert sorted(os.listdir(out)) == []
