@@ -1,0 +1,90 @@
+"""The general control mesh: closed, of the shape's genus, near its cloud; the choice rule."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from surface import general_mesh
+from surface.general_mesh import Fidelity, clamp_to_hull, prefer_general
+from testkit import shapes
+
+SIGMA = 0.002
+
+
+@pytest.fixture(scope="module")
+def torus_mesh():
+    """A noisy torus cloud, its point spacing and its general control mesh (edge 2 spacings)."""
+    from surface.sections import point_spacing
+
+    cloud = shapes.sample("torus", 6_000, seed=3, sigma=SIGMA)
+    spacing = point_spacing(cloud)
+    return spacing, *general_mesh.poisson_control_mesh(cloud, 2 * spacing, spacing)
+
+
+def test_poisson_control_mesh_is_a_closed_manifold_of_the_torus_genus(torus_mesh):
+    from surface.validity import check_solid
+
+    spacing, v, t = torus_mesh
+    report = check_solid(v, t, intersections=False)
+    assert report.boundary_edges == 0 and report.components == 1
+    assert report.genus == shapes.genus("torus")
+    # triangles of about the asked edge: the torus's area 4 pi^2 R r = 13.8 over
+    # sqrt(3)/4 (2 s)^2 each, within a factor 2 (decimation stops at whole collapses)
+    expected = 4 * np.pi ** 2 * 1.0 * 0.35 / (np.sqrt(3) / 4 * (2 * spacing) ** 2)
+    assert 0.5 * expected < len(t) < 2 * expected
+
+
+def test_loop_surface_over_it_stays_within_the_noise_of_the_truth(torus_mesh):
+    from pipeline.smoothing import smooth_mesh
+    from surface.fitting import interpolating_control_mesh
+
+    _, v, t = torus_mesh
+    smooth = smooth_mesh(interpolating_control_mesh(v, t), t, 1, check=False)
+    distance = shapes.distance_to_truth("torus", smooth.vertices)
+    # the vertices' distance to the exact torus: the points' noise sigma averaged over the
+    # Poisson cells' neighbours, plus the chord/curvature error of cells ~ a spacing
+    # (0.05 across on r = 0.35: sagitta 0.05^2 / (8 x 0.35) ~ 1e-3): a few sigma at most
+    assert np.median(distance) < 2 * SIGMA
+    assert np.percentile(distance, 99) < 6 * SIGMA
+    assert smooth.g1_angle < 1e-6
+
+
+def test_fidelity_measures_a_shifted_surface_by_its_shift():
+    import open3d as o3d
+
+    from pipeline.mesh_io import read_mesh  # noqa: F401  (open3d through the package)
+    from surface.metrics import sample_mesh
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 80)
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles, np.int64)
+    cloud = sample_mesh(v, t, 40_000, seed=1)
+    near = general_mesh.cloud_fidelity(v, t, cloud)
+    far = general_mesh.cloud_fidelity(1.02 * v, t, cloud)
+    # a sphere grown by 2 %: every cloud point 0.02 from it (C), every surface sample at
+    # least 0.02 from the cloud (A); on the sphere itself both stay at the point spacing
+    assert far.c50 == pytest.approx(0.02, rel=0.05)
+    assert far.a90 > 0.02 and near.a90 < 0.02 and near.c50 < 1e-3
+
+
+def test_clamp_moves_outside_vertices_onto_the_hull_and_leaves_the_inside():
+    from scipy.spatial import ConvexHull
+
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    planes = ConvexHull(corners).equations
+    vertices = np.array([[0.5, 0.5, 0.5], [0.5, 0.5, 1.3], [1.4, 0.5, -0.2]])
+    out = clamp_to_hull(vertices, planes)
+    np.testing.assert_array_equal(out[0], vertices[0])
+    np.testing.assert_allclose(out[1], [0.5, 0.5, 1.0], atol=1e-12)
+    np.testing.assert_allclose(out[2], [1.0, 0.5, 0.0], atol=1e-9)
+
+
+@pytest.mark.parametrize("section, general, expected", [
+    (Fidelity(1.0, 1.0), Fidelity(1.0, 1.0), False),       # equal: the sections stay
+    (Fidelity(1.0, 2.0), Fidelity(1.0, 1.0), True),        # the sections leave the data
+    (Fidelity(1.0, 2.0), Fidelity(1.5, 1.0), False),       # ... but the general invents
+    (Fidelity(1.05, 1.05), Fidelity(1.0, 1.0), False),     # within the margin
+    (Fidelity(1.5, 1.0), Fidelity(1.0, 1.05), True),       # slabs gone, data as near
+])
+def test_prefer_general(section, general, expected):
+    assert prefer_general(section, general) is expected
