@@ -142,15 +142,20 @@ def _largest_components(mesh, keep_share: float):
     return mesh
 
 
-def poisson_surface(points: np.ndarray, depth: int = POISSON_DEPTH
+def poisson_surface(points: np.ndarray, depth: int = POISSON_DEPTH, trim: float = 0.0
                     ) -> tuple[np.ndarray, np.ndarray]:
     """The peer: open3d's screened Poisson surface of the cloud as users run it (normals as
-    :data:`NORMAL_NEIGHBOURS`, the default cube, no trimming): ``(V, 3)``, ``(F, 3) int64``."""
+    :data:`NORMAL_NEIGHBOURS`, the default cube): ``(V, 3)``, ``(F, 3) int64``; ``trim`` > 0
+    removes the vertices of the lowest ``trim`` share of the solver's density (users trim
+    at 5 %: the surface opens where the data are thin)."""
     import open3d as o3d
 
     p = check_shape(points, "(N, 3)", "points", dtype=np.float64)
-    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(_normals_cloud(p),
-                                                                         depth=depth)
+    mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+        _normals_cloud(p), depth=depth)
+    if trim > 0:
+        density = np.asarray(density)
+        mesh.remove_vertices_by_mask(density < np.quantile(density, trim))
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int64)
 
 
