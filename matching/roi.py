@@ -16,15 +16,17 @@ parallel axes): each view keeps the depth range it actually matched (the 1st to 
 percentile of the depths of the points it saw) and the region is the union of those
 truncated frusta.
 
-**A support plane.**  The largest plane of the kept points (RANSAC, open3d's
-``segment_plane`` [1]_, inlier band :math:`\tau = \max(3\tilde\sigma, 2\tilde s)`:
-three times the points' median σ, at least twice their median spacing) is the ground or
-a table and is cut when it lies *under the object*: its normal is within 30 degrees of
-the cameras' mean image "up" (:math:`-R_i^\mathsf{T} e_y`, so a facade or a wall the
-cameras face is never cut), it holds at least 10 % of the points, at least 90 % of the
-other points lie above it (on the cameras' side) and it reaches past them: its inliers'
-extent in the plane is at least 1.5 times theirs (an object's own flat bottom has its
-footprint).  Then the points within :math:`\tau` of it and below it go.
+**A support plane.**  The largest planes of the kept points (up to three, largest
+first; RANSAC, open3d's ``segment_plane`` [1]_, inlier band
+:math:`\tau = \max(3\tilde\sigma, 2\tilde s)`: three times the points' median σ, at
+least twice their median spacing) are tried as the ground or a table; the first that
+lies *under the object* is cut: its normal is within 30 degrees of the cameras' mean
+image "up" (:math:`-R_i^\mathsf{T} e_y`, so a facade or a wall the cameras face is never
+cut; nothing is cut when that mean is shorter than 0.5: views rolled every way), it
+holds at least 5 % of the points, at least 90 % of the other points lie above it (on
+the cameras' side), and it reaches past them: at least half its points lie outside the
+convex hull of the others' footprint on it (an object's own flat bottom lies inside
+its footprint).  Then the points within :math:`\tau` of it and below it go.
 
 References
 ----------
@@ -47,6 +49,10 @@ __all__ = ["RoiResult", "axes_convergence", "camera_region", "support_plane", "s
 CONVERGENCE_MIN = float(np.sin(np.radians(10.0)) ** 2)
 #: Largest angle (degrees) between a support plane's normal and the cameras' "up".
 PLANE_UP_DEG = 30.0
+#: Smallest share of the points on a support plane.
+MIN_PLANE_SHARE = 0.05
+#: Planes tried, largest first (a facade's own wall is the largest; the ground next).
+MAX_PLANES = 3
 
 
 @dataclass(frozen=True)
@@ -185,49 +191,72 @@ def support_plane(points, sigma, cameras: Sequence, seed: int = 0) -> tuple[np.n
     spacing = float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
     band = max(3.0 * float(np.median(sigma)) if sigma is not None else 0.0, 2.0 * spacing)
     o3d.utility.random.seed(int(seed))
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    model, inliers = cloud.segment_plane(distance_threshold=band, ransac_n=3,
-                                         num_iterations=1000)
-    normal, offset = np.asarray(model[:3], dtype=np.float64), float(model[3])
-    scale = np.linalg.norm(normal)
-    normal, offset = normal / scale, offset / scale
     centres, _ = _axes(cameras)
-    if np.median(centres @ normal + offset) < 0:
-        normal, offset = -normal, -offset
-    info = {"plane": [round(float(v), 6) for v in (*normal, offset)], "band": round(band, 6)}
-    on = np.zeros(len(points), dtype=bool)
-    on[np.asarray(inliers, dtype=np.int64)] = True
-    height = points @ normal + offset
     up = np.mean([-np.asarray(c.R, dtype=np.float64)[1] for c in cameras], axis=0)
-    up_norm = float(np.linalg.norm(up))
-    others = ~on
-    angle = (float(np.degrees(np.arccos(np.clip(abs(up @ normal) / up_norm, 0, 1))))
-             if up_norm > 0.5 else 90.0)
-    reason = ""
-    if angle > PLANE_UP_DEG:
-        reason = f"its normal is {angle:.0f} degrees from the cameras' up (a wall, not a floor)"
-    elif on.mean() < 0.1:
-        reason = f"it holds {100 * on.mean():.1f} % of the points (< 10 %)"
-    elif others.sum() < 50 or np.mean(height[others] > 0) < 0.9:
-        reason = "the other points do not stand on it"
-    else:
-        ratio = _extent(points[on], normal) / max(_extent(points[others], normal), 1e-300)
-        info["plane_extent_ratio"] = round(ratio, 3)
-        if ratio < 1.5:
-            reason = (f"it reaches {ratio:.2f} times as far as the other points (< 1.5: the "
-                      "object's own flat face)")
-    if reason:
-        info["plane_reason"] = reason
+    pool = np.ones(len(points), dtype=bool)  # not yet in a plane tried
+    info, reasons = {"band": round(band, 6)}, []
+    if np.linalg.norm(up) <= 0.5:  # views rolled every way (a turntable's top views...)
+        info["plane_reason"] = "the cameras share no up direction"
         return cut, info
-    return height <= band, info
+    for _ in range(MAX_PLANES):
+        if pool.sum() < 100:
+            break
+        index = np.flatnonzero(pool)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[index]))
+        model, inliers = cloud.segment_plane(distance_threshold=band, ransac_n=3,
+                                             num_iterations=1000)
+        normal, offset = np.asarray(model[:3], dtype=np.float64), float(model[3])
+        scale = np.linalg.norm(normal)
+        normal, offset = normal / scale, offset / scale
+        if np.median(centres @ normal + offset) < 0:  # the cameras' side is positive
+            normal, offset = -normal, -offset
+        on = np.zeros(len(points), dtype=bool)
+        on[index[np.asarray(inliers, dtype=np.int64)]] = True
+        pool &= ~on
+        height = points @ normal + offset
+        reason = _not_support(points, on, height, normal, up)
+        plane = [round(float(v), 6) for v in (*normal, offset)]
+        if not reason:
+            info["plane"] = plane
+            return height <= band, info
+        info.setdefault("plane", plane)  # the largest plane, kept
+        reasons.append(reason)
+    if reasons:
+        info["plane_reason"] = "; ".join(reasons)
+    return cut, info
 
 
-def _extent(points: np.ndarray, normal: np.ndarray) -> float:
-    """The 5-95 % extent of points within a plane (its two in-plane axes, the larger)."""
+def _not_support(points: np.ndarray, on: np.ndarray, height: np.ndarray, normal: np.ndarray,
+                 up: np.ndarray) -> str:
+    """Why the plane of the points ``on`` is not a support plane ("" when it is one)."""
+    angle = float(np.degrees(np.arccos(np.clip(abs(up @ normal) / np.linalg.norm(up), 0, 1))))
+    others = ~on
+    if angle > PLANE_UP_DEG:
+        return f"a plane {angle:.0f} degrees from the cameras' up (a wall, not a floor)"
+    if on.mean() < MIN_PLANE_SHARE:
+        return f"a level plane with {100 * on.mean():.1f} % of the points"
+    if others.sum() < 50 or np.mean(height[others] > 0) < 0.9:
+        return "a level plane the other points do not stand on"
+    outside = _outside_footprint(points[on], points[others], normal)
+    if outside < 0.5:
+        return (f"a level plane with {100 * outside:.0f} % of its points beyond the others' "
+                "footprint (the object's own flat face)")
+    return ""
+
+
+def _outside_footprint(plane_points: np.ndarray, others: np.ndarray,
+                       normal: np.ndarray) -> float:
+    """Share of ``plane_points`` outside the convex hull of ``others`` projected on the
+    plane (in-plane coordinates)."""
+    from scipy.spatial import ConvexHull, Delaunay, QhullError
+
     basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]  # (3, 2)
-    coords = points @ basis
-    low, high = np.percentile(coords, [5.0, 95.0], axis=0)
-    return float(np.max(high - low))
+    flat = others @ basis
+    try:
+        hull = Delaunay(flat[ConvexHull(flat).vertices])
+    except QhullError:  # the others' footprint is a line: nothing lies inside it
+        return 1.0
+    return float(np.mean(hull.find_simplex(plane_points @ basis) < 0))
 
 
 def select_object(points, cameras: Sequence, sigma=None, views=None,
