@@ -283,7 +283,7 @@ def _view_outline(camera: Camera, grey, mask, points, sigma) -> tuple:
 
 
 def outline_points(images: Sequence, cameras: Sequence[Camera], masks: Sequence | None,
-                   points, sigma, auto_masks: bool = False) -> OutlinePoints:
+                   points, sigma, auto_masks: bool = False, map_func=map) -> OutlinePoints:
     """Outline points of every view with a mask (the module docstring).
 
     Parameters
@@ -298,6 +298,9 @@ def outline_points(images: Sequence, cameras: Sequence[Camera], masks: Sequence 
     auto_masks : bool
         Where a view has no mask, the automatic foreground of a uniform background
         (:func:`matching.masks.foreground_mask`, no margin; none on a textured one).
+    map_func : callable
+        ``map_func(func, views)`` runs the views (default the built-in ``map``; e.g.
+        :func:`matching.scheduler.thread_map`'s: the result does not depend on it).
 
     Returns
     -------
@@ -308,18 +311,20 @@ def outline_points(images: Sequence, cameras: Sequence[Camera], masks: Sequence 
 
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     sigma = np.asarray(sigma, dtype=np.float64).reshape(-1)
-    parts = []
-    for v, cam in enumerate(cameras):
+
+    def one(v: int):
         mask = masks[v] if masks is not None else None
         if (mask is None and not auto_masks) or len(points) < MIN_NEIGHBOURS:
-            continue
+            return None
         image = images[v]
         if mask is None:
             mask = foreground_mask(image, margin_px=0)
             if mask is None:
-                continue
-        P, s, e, nb = _view_outline(cam, to_grey(image), mask, points, sigma)
-        parts.append((P, s, np.full(len(P), v, np.int64), e, nb))
+                return None
+        P, s, e, nb = _view_outline(cameras[v], to_grey(image), mask, points, sigma)
+        return P, s, np.full(len(P), v, np.int64), e, nb
+
+    parts = [part for part in map_func(one, range(len(cameras))) if part is not None]
     if not parts:
         return OutlinePoints(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64),
                              np.zeros((0, 2)), np.zeros(0, np.int64))

@@ -407,12 +407,12 @@ def _search_volume(cameras: Sequence[Camera], masks, roi) -> SceneVolume | None:
 
 
 def _outline_points(cameras: Sequence[Camera], masks, roi, points: np.ndarray,
-                    sigma: np.ndarray, image) -> OutlinePoints:
+                    sigma: np.ndarray, image, map_func: Callable = map) -> OutlinePoints:
     """Outline points (:mod:`matching.contours`) of every view with a mask (given, or
     the automatic foreground of a uniform background), on the object and in ``roi``;
     each image read once, one in memory at a time."""
     extra = outline_points(_Lazy(image, len(cameras)), cameras, masks, points, sigma,
-                           auto_masks=True)
+                           auto_masks=True, map_func=map_func)
     if len(extra) and (masks is not None or roi is not None):
         extra = extra.take(_inside_object(extra.points, cameras, masks, roi))
     return extra
@@ -431,16 +431,16 @@ class _Lazy:
         return self._image(v)
 
 
-def _foreground_distances(n: int, image) -> list:
+def _foreground_distances(n: int, image, map_func: Callable = map) -> list:
     """Per view, the signed distance (px) from its automatic foreground's boundary
     (:func:`matching.masks.foreground_mask` without dilation,
     :func:`matching.masks.signed_distance`), or None where the background is not
-    uniform; each image read once, one in memory at a time."""
-    out = []
-    for v in range(n):
+    uniform; each image read once, one per ``map_func`` worker in memory at a time."""
+    def one(v: int):
         fg = foreground_mask(image(v), margin_px=0)
-        out.append(None if fg is None else signed_distance(fg))
-    return out
+        return None if fg is None else signed_distance(fg)
+
+    return list(map_func(one, range(n)))
 
 
 def _inside_object(points: np.ndarray, cameras: Sequence[Camera], masks, roi) -> np.ndarray:
@@ -736,7 +736,9 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         reasons = np.where(out, OUTSIDE, reasons).astype(reasons.dtype)
         keep &= ~out
         del all_pts
-    distances = (_foreground_distances(len(cameras), lambda v: load_image(ref(v)))
+    # per view on the worker threads (OpenCV's distance transform and PNG decoding
+    # release the GIL): this tail ran on one core
+    distances = (_foreground_distances(len(cameras), lambda v: load_image(ref(v)), local_map)
                  if silhouettes else [None] * len(cameras))
     quantile = float(norm.ppf(0.5 + 0.5 * reject_p))
     n_silhouette = 0
@@ -760,7 +762,8 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     del checks
     n_outline, matched_sigma = 0, sigma
     if outline and len(points):
-        extra = _outline_points(cameras, masks, roi, points, sigma, lambda v: load_image(ref(v)))
+        extra = _outline_points(cameras, masks, roi, points, sigma, lambda v: load_image(ref(v)),
+                                local_map)
         if len(extra) and any(d is not None for d in distances):
             near = near_foreground(extra.points, extra.sigma, cameras, distances, quantile)
             n_silhouette += int(np.count_nonzero(~near))
