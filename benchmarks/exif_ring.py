@@ -45,8 +45,8 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 
 from matching.image_file import imread  # noqa: E402
-from tests.matching.test_image_file import _stored_for  # noqa: E402
-from tests.matching.test_sfm_refine import exif_jpeg  # noqa: E402
+from testkit.images import exif_jpeg  # noqa: E402
+from testkit.images import stored_for as _stored_for  # noqa: E402
 
 SCENE = ROOT / "fixtures" / "scenes" / "vase_ring_small.toml"
 

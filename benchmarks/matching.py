@@ -287,7 +287,7 @@ def distance_3d(scene_dir, rig, matches, disparity_rms):
 
 def synthetic(quick: bool):
     """Resampler and final-linearisation choice on exact synthetic affine warps."""
-    from tests.matching.test_lsm import grid_points, start_near, truth_of, warped_pair
+    from testkit.warps import grid_points, start_near, truth_of, warped_pair
 
     size = 200 if quick else 320
     rows = []

@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 
 from matching.image_file import imread  # noqa: E402
-from tests.pipeline.test_inputs_turned import turned_temple  # noqa: E402
+from testkit.temple import turned_temple  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "temple_sparse_ring"
 SILHOUETTE_GREY = 0.19 * 255

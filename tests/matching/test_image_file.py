@@ -13,8 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
-from matching.image_file import decode_image, exif_orientation, imread, orient, to_uint8
-from tests.matching.test_sfm_refine import exif_jpeg
+from matching.image_file import decode_image, exif_orientation, imread, to_uint8
+from testkit.images import exif_jpeg
+from testkit.images import stored_for as _stored_for
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = ROOT / "fixtures" / "scenes" / "vase_ring_small.toml"
@@ -22,18 +23,6 @@ SCENE = ROOT / "fixtures" / "scenes" / "vase_ring_small.toml"
 
 def _textured(shape=(40, 56, 3), seed=0) -> np.ndarray:
     return (np.random.default_rng(seed).random(shape) * 255).astype(np.uint8)
-
-
-def _stored_for(upright: np.ndarray, orientation: int) -> np.ndarray:
-    """The array a camera stores so that a viewer applying ``orientation`` shows ``upright``."""
-    for candidate in range(4):  # the inverse of each of the 8 maps is one of them composed
-        for flip in (False, True):
-            stored = np.rot90(upright, candidate)
-            stored = np.ascontiguousarray(stored[:, ::-1] if flip else stored)
-            shown = orient(stored, orientation)
-            if shown.shape == upright.shape and np.array_equal(shown, upright):
-                return stored
-    raise AssertionError(f"no inverse for orientation {orientation}")
 
 
 @pytest.mark.parametrize("orientation", range(1, 9))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from matching.sfm import align_to_reference, run_sfm
+from testkit.images import exif_jpeg
 from tests.matching.test_sfm import make_scene, render, ring_cameras
 
 
@@ -86,20 +87,6 @@ def test_quiet_colmap_drops_glog_lines_keeps_the_rest(capfd):
         os.write(2, b"\x1b[0;33mW20261201 23:37:03.558940 1 lm.cc:123] Linear solver failure.\n")
         os.write(2, b"\x1b[mplain line\n")
     assert capfd.readouterr().err == "plain line\n"
-
-
-def exif_jpeg(image: np.ndarray, orientation: int) -> bytes:
-    """JPEG bytes of ``image`` with an EXIF APP1 segment holding only Orientation
-    (tag 0x0112; 6 = "turn 90° clockwise to view", as a phone writes for a portrait shot)."""
-    import struct
-
-    ok, buffer = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
-    assert ok
-    tiff = (b"II*\x00" + struct.pack("<I", 8) + struct.pack("<H", 1)
-            + struct.pack("<HHIHH", 0x0112, 3, 1, orientation, 0) + struct.pack("<I", 0))
-    payload = b"Exif\x00\x00" + tiff
-    data = buffer.tobytes()
-    return data[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + data[2:]
 
 
 def test_tie_point_images_are_in_colmaps_pixel_frame(tmp_path):
