@@ -106,7 +106,7 @@ from matching.lsm import (
     prepare_image,
     robust_upper_limit,
 )
-from matching.precision import class_variance_factors
+from matching.precision import class_variance_factors, midpoint_variance_factor
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
@@ -127,10 +127,12 @@ IMPRECISE = 10
 AMBIGUOUS = 12
 BLANK = 13
 BACKWARD = 14
+APERTURE = 15
 #: Every pair status code -> name (LSM's codes 0-7 and 11, then 8-10 and 12-14).
 PAIR_STATUS_NAMES = {**STATUS_NAMES, NO_APPROXIMATION: "no_approximation",
                      TRIANGULATION: "triangulation", IMPRECISE: "imprecise",
-                     AMBIGUOUS: "ambiguous", BLANK: "blank", BACKWARD: "backward"}
+                     AMBIGUOUS: "ambiguous", BLANK: "blank", BACKWARD: "backward",
+                     APERTURE: "aperture"}
 
 
 @dataclass(frozen=True)
@@ -276,7 +278,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                search_range: tuple[int, int] | None = None,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
                densify: bool | str = False, robust: bool | str = False,
-               unique: bool = True, **lsm_options) -> PairMatches:
+               unique: bool = True, epipolar_pass: bool = True,
+               aperture_k: float | None = 1.0, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -585,6 +588,17 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                         fprep, gprep, points, start, res, quad, second, sides, patch,
                         options, shifted, edge[idx], clear_at)
                 res = second
+            geo_var, first_pass = None, None
+            if epipolar_pass and not rectified and res.accepted.sum() >= 30:
+                # Gruen & Baltsavias' geometric constraint: the y-shift is the rig's,
+                # only the shift and shape along the epipolar line are solved
+                first_pass = res
+                res, geo_var, epi_dirs, sides, epi_factor = _epipolar_refine(
+                    left, right, rig, rect, points, start, res, sides, options, aperture_k,
+                    interpolation, second_order=second_order, spacing=spacing)
+                status_ill = res.accepted & ~np.isfinite(geo_var)
+                res = replace(res, status=np.where(status_ill, APERTURE, res.status)
+                              .astype(res.status.dtype))
             verdict = None
             if unique and res.accepted.any():
                 verdict = _verify_unique(left, right, rig, rect, rectified, fprep, gprep,
@@ -610,14 +624,21 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 # add only grows it (an estimate below 1 is the estimator's own scatter,
                 # ~10 % for a few thousand matches); windows clear of and reaching over
                 # an edge are two populations (class_variance_factors)
-                per_window, factors = class_variance_factors(
-                    points, res.affine, res.affine_cov, ok_final,
-                    edge[idx].astype(np.int64), patch=sides)
+                if first_pass is None:
+                    per_window, factors = class_variance_factors(
+                        points, res.affine, res.affine_cov, ok_final,
+                        edge[idx].astype(np.int64), patch=sides)
+                else:  # the epipolar pass's covariances carry their own factor
+                    per_window, factors = np.ones(len(idx)), np.array([epi_factor])
                 factor = float(factors[0]) if len(factors) else 1.0
                 factor_edge = float(factors[1]) if len(factors) > 1 else factor
             out["x_right"][idx] = res.position
             out["cov"][idx] = res.cov * per_window[:, None, None]
-            out["sigma"][idx] = res.sigma * np.sqrt(per_window)
+            if geo_var is not None:
+                # what the rig's epipolar error leaves along the line (_epipolar_refine)
+                out["cov"][idx] += (np.nan_to_num(geo_var)[:, None, None]
+                                    * epi_dirs[:, :, None] * epi_dirs[:, None, :])
+            out["sigma"][idx] = np.sqrt(np.trace(out["cov"][idx], axis1=1, axis2=2) / 2.0)
             out["sigma0"][idx] = res.sigma0
             out["correlation"][idx] = res.correlation
             out["iterations"][idx] = res.iterations
@@ -699,6 +720,216 @@ def _verify_unique(left, right, rig, rect, rectified, fprep, gprep, points, res:
                                                              ver.lobe[:, 1] - solution))
         verdict[resolved] = uniqueness.UNIQUE
     return verdict
+
+
+def _structure_tensors(image: np.ndarray, points: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) mean structure tensor (central differences) of each ``sides`` x ``sides``
+    window of ``image`` centred on the integer ``points``."""
+    import cv2
+
+    img = np.asarray(image, dtype=np.float64)
+    gx = np.zeros_like(img)
+    gy = np.zeros_like(img)
+    gx[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
+    gy[1:-1, :] = 0.5 * (img[2:, :] - img[:-2, :])
+    xi = np.rint(points).astype(np.intp)
+    xi[:, 0] = np.clip(xi[:, 0], 0, img.shape[1] - 1)
+    xi[:, 1] = np.clip(xi[:, 1], 0, img.shape[0] - 1)
+    out = np.zeros((len(points), 2, 2))
+    for side in np.unique(sides):
+        sel = np.flatnonzero(sides == side)
+        box = [cv2.boxFilter(p, -1, (int(side), int(side)), borderType=cv2.BORDER_REFLECT)
+               for p in (gx * gx, gx * gy, gy * gy)]
+        vals = [b[xi[sel, 1], xi[sel, 0]] for b in box]
+        out[sel] = np.stack([np.stack([vals[0], vals[1]], -1),
+                             np.stack([vals[1], vals[2]], -1)], -2)
+    return out
+
+
+def _jacobians(fn, points: np.ndarray, step: float = 0.5) -> np.ndarray:
+    """(N, 2, 2) central-difference Jacobians of the point map ``fn`` at ``points``."""
+    cols = [(fn(points + e) - fn(points - e)) / (2.0 * step)
+            for e in (np.array([step, 0.0]), np.array([0.0, step]))]
+    return np.stack(cols, axis=2)
+
+
+def _odd_at_least(value) -> np.ndarray:
+    """Smallest odd integers >= ``value`` (array_like)."""
+    side = np.ceil(np.asarray(value, dtype=np.float64) - 1e-9).astype(np.int32)
+    return side + 1 - side % 2
+
+
+def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, sides,
+                     options: dict,
+                     aperture_k: float | None, interpolation: str,
+                     max_inflation: float | None = 2.0, grow_sides=(1.5, 2.0),
+                     second_order: bool = True, spacing: int = DEFAULT_SPACING):
+    """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
+
+    Every accepted 2-D match is re-matched in the rectified images (:mod:`matching.rectify`),
+    where the y-shift is the rig's: the template at the left point's rectified position,
+    the search window started at the 2-D solution's rectified column on the left point's
+    row, its warp taken into the rectified frame through the two rectifications'
+    Jacobians, and only the shift and the shape along the row solved with the radiometry
+    (``lsm_match``'s ``direction`` (1, 0) + ``rigid_across``: rows map to rows, exact).  A
+    window whose texture is one straight edge slides along it in 2-D LSM; constrained, its
+    x-shift is the edge's crossing of the row -- which the rig's own row error δy moves by
+    ``slope`` δy, ``slope = |N_xy / N_xx|`` of the rectified template's structure tensor N.
+    δy's spread σ_g is measured on the pair: 1.4826 MAD of the 2-D matches' rectified row
+    differences over the windows textured in both directions (λmin/λmax >= 1/4).
+
+    Returns the constrained result in the original images (position, rank-1 covariance
+    along the line; the 2-D matches it loses are rejected with its status, the others
+    keep theirs), the variance ``(slope σ_g)²`` (px², along the line in the right image,
+    NaN where rejected as ``aperture``: it exceeds ``aperture_k``² times the match's own
+    variance along the line with the 2-D matches' variance factor k²) and the (N, 2) line
+    directions in the right image.
+    """
+    from matching.rectify import (
+        left_to_rectified,
+        rectified_to_original,
+        rectify_images,
+        right_to_rectified,
+    )
+
+    n = len(points)
+    accepted = res.accepted
+    # every window LSM tried from an approximation: the 2-D solution where it was
+    # accepted, else the approximation (a 2-D window sliding along an edge fails the
+    # pull-in test that the constrained one passes)
+    tried = accepted | (np.isfinite(start).all(1) & ~np.isin(
+        res.status, (Status.TEXTURELESS, Status.OUTSIDE_IMAGE)))
+    ok = np.flatnonzero(tried)
+    from_2d = accepted[ok]
+    x_start = np.where(from_2d[:, None], res.position[ok], start[ok])
+    xl_r = left_to_rectified(rect, rig.left, points[ok])
+    xr_r = right_to_rectified(rect, rig.right, x_start)
+    dy = (xr_r[:, 1] - xl_r[:, 1])[from_2d]
+    left_r, right_r = rectify_images(rect, left, right, interpolation="spline")
+    jl = _jacobians(lambda p: left_to_rectified(rect, rig.left, p), points[ok])
+    jr = _jacobians(lambda p: right_to_rectified(rect, rig.right, p), x_start)
+    # the 2-D warp (template -> search) in the rectified frame: Jr A Jl⁻¹ (A = I
+    # from an approximation)
+    amat = np.tile(np.eye(2), (len(ok), 1, 1))
+    amat[from_2d] = res.affine[ok[from_2d]][:, [1, 2, 4, 5]].reshape(-1, 2, 2)
+    a_rect = jr @ amat @ np.linalg.inv(jl)
+    init = np.zeros((len(ok), 8))
+    # the template window on the rectified image's pixel grid (a template resampled at a
+    # fraction of a pixel smooths its noise: σ0²N⁻¹ would under-report), the left point
+    # reported through the warp as an eccentric pixel (lsm_match's ``offset``)
+    centre_r = np.rint(xl_r)
+    frac = xl_r - centre_r
+    init[:, [1, 2, 4, 5]] = a_rect.reshape(-1, 4)
+    init[:, 0] = xr_r[:, 0] - a_rect[:, 0, 0] * frac[:, 0] - a_rect[:, 0, 1] * frac[:, 1]
+    init[:, 3] = centre_r[:, 1]
+    init[:, 6], init[:, 7] = 0.0, 1.0
+    init[from_2d, 6:] = res.radiometric[ok[from_2d]]
+    fprep = prepare_image(left_r, interpolation)
+    gprep = prepare_image(right_r, interpolation)
+    opts = {k: v for k, v in options.items()
+            if k not in ("offset", "robust", "quadratic", "direction", "rigid_across")}
+    m = len(ok)
+    side_of = np.asarray(sides, np.int32)[ok].copy()
+    base = side_of.copy()
+    sigma_g = 0.0
+    found = {"status": np.array(res.status[ok]), "position": np.full((m, 2), np.nan),
+             "cov": np.full((m, 2, 2), np.nan), "sigma0": np.full(m, np.nan),
+             "correlation": np.full(m, np.nan), "inflation": np.full(m, np.nan),
+             "slope": np.full(m, np.nan), "affine": np.full((m, 6), np.nan),
+             "affine_cov": np.full((m, 6, 6), np.nan)}
+    todo = np.ones(m, bool)
+    for step, factor in enumerate((1.0,) + tuple(grow_sides)):
+        # the base side, then (where the window is ill-conditioned along the line) the
+        # larger ones: a window that reaches the next corner of the texture is
+        side_of[todo] = _odd_at_least(factor * base[todo])
+        for side in np.unique(side_of[todo]):
+            sel = np.flatnonzero(todo & (side_of == side))
+            tensor = _structure_tensors(left_r, centre_r[sel], np.full(len(sel), side))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                found["slope"][sel] = np.abs(tensor[:, 0, 1] / tensor[:, 0, 0])
+            opts["patch"] = int(side)
+            r = lsm_match(fprep, gprep, centre_r[sel], init[sel][:, [0, 3]],
+                          initial=init[sel], direction=(1.0, 0.0), rigid_across=True,
+                          offset=frac[sel], **opts)
+            found["status"][sel] = r.status
+            found["position"][sel] = r.position
+            found["cov"][sel] = r.cov
+            found["sigma0"][sel], found["correlation"][sel] = r.sigma0, r.correlation
+            found["affine"][sel], found["affine_cov"][sel] = r.affine, r.affine_cov
+            with np.errstate(divide="ignore", invalid="ignore"):
+                # what the shape unknowns take from the shift: its variance over the one
+                # the texture's gradients along the line alone give, σ0² / Σ f_x²
+                found["inflation"][sel] = (r.cov[:, 0, 0] * tensor[:, 0, 0] * side**2
+                                           / r.sigma0**2)
+        if step == 0:
+            # the rig's row error, from the windows textured in both directions
+            eig = np.linalg.eigvalsh(_structure_tensors(left_r, centre_r[from_2d],
+                                                        base[from_2d]))
+            round_ = eig[:, 0] >= 0.25 * eig[:, 1]
+            ref = dy[round_] if round_.sum() >= 30 else dy
+            sigma_g = (1.4826 * float(np.median(np.abs(ref - np.median(ref))))
+                       if len(ref) else 0.0)
+        good = found["status"] == Status.OK
+        if step == 0:
+            # the variance factor of the constrained matches (independent neighbouring
+            # windows predicting their midpoint, along the row: 1 degree of freedom);
+            # the rectified images' resampling correlates their noise
+            k2 = max(1.0, float(np.nan_to_num(midpoint_variance_factor(
+                centre_r, found["affine"], found["affine_cov"], good, patch=side_of).factor,
+                nan=1.0)))
+        cond = good.copy()
+        geo_r = (found["slope"] * sigma_g) ** 2  # rectified px²
+        if aperture_k is not None:
+            cond &= geo_r <= aperture_k**2 * k2 * found["cov"][:, 0, 0]
+        if max_inflation is not None:
+            cond &= found["inflation"] <= max_inflation
+        todo = todo & good & ~cond
+        if not todo.any():
+            break
+    good = found["status"] == Status.OK
+    if second_order and good.sum() >= 8:
+        # the fixed second-order terms along the row from the neighbours' shapes (the
+        # curvature bias of an affine window, :mod:`matching.second_order`), one more pass
+        quad = second_order_terms(centre_r, found["affine"], good,
+                                  radius_px=max(20.0, 5.0 * float(spacing)))
+        quad[:, 3:] = 0.0
+        again = np.concatenate([found["affine"], init[:, 6:]], axis=1)
+        for side in np.unique(side_of[good]):
+            sel = np.flatnonzero(good & (side_of == side))
+            opts["patch"] = int(side)
+            r = lsm_match(fprep, gprep, centre_r[sel], init[sel][:, [0, 3]],
+                          initial=again[sel], direction=(1.0, 0.0), rigid_across=True,
+                          offset=frac[sel], quadratic=np.nan_to_num(quad[sel]), **opts)
+            keep = r.accepted
+            sub = sel[keep]
+            found["position"][sub], found["cov"][sub] = r.position[keep], r.cov[keep]
+            found["sigma0"][sub] = r.sigma0[keep]
+            found["correlation"][sub] = r.correlation[keep]
+    position, cov = np.array(res.position), np.array(res.cov)
+    status = np.array(res.status)
+    status[ok] = found["status"]
+    sigma0, corr = np.array(res.sigma0), np.array(res.correlation)
+    dirs = np.tile([1.0, 0.0], (n, 1))
+    geo = np.full(n, np.nan)
+    good = np.flatnonzero(found["status"] == Status.OK)
+    g = ok[good]
+    position[g] = rectified_to_original(rect, rig.right, found["position"][good])
+    jinv = np.linalg.inv(_jacobians(lambda p: right_to_rectified(rect, rig.right, p),
+                                    position[g]))
+    cov[g] = k2 * jinv @ found["cov"][good] @ jinv.transpose(0, 2, 1)
+    d = jinv[:, :, 0]  # right-image step of one rectified column
+    stretch = np.einsum("ni,ni->n", d, d)
+    dirs[g] = d / np.sqrt(stretch)[:, None]
+    geo[g] = (found["slope"][good] * sigma_g) ** 2 * stretch
+    geo[g[todo[good]]] = np.nan  # ill-conditioned at every side: aperture
+    sigma0[g], corr[g] = found["sigma0"][good], found["correlation"][good]
+    new_sides = np.asarray(sides, np.int32).copy()
+    new_sides[ok] = side_of
+    affine = np.array(res.affine)
+    affine[:, 0], affine[:, 3] = position[:, 0], position[:, 1]
+    out = replace(res, position=position, cov=cov, status=status.astype(res.status.dtype),
+                  sigma0=sigma0, correlation=corr, affine=affine, window_cov=None)
+    return out, geo, dirs, new_sides, k2
 
 
 def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,

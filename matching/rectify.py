@@ -200,9 +200,35 @@ def rectify(rig, alpha: float | None = None) -> Rectification:
 
 
 def rectify_images(rect: Rectification, left, right, interpolation=cv2.INTER_CUBIC):
-    """Resample both images into the rectified frame (:func:`resample`), float32."""
+    """Resample both images into the rectified frame (:func:`resample`), float32.
+
+    ``interpolation="spline"``: :func:`resample_spline` (float64), for sub-pixel matching.
+    """
+    if isinstance(interpolation, str) and interpolation == "spline":
+        return (resample_spline(left, rect.maps_left), resample_spline(right, rect.maps_right))
     return (resample(left, rect.maps_left, interpolation),
             resample(right, rect.maps_right, interpolation))
+
+
+def resample_spline(image, maps) -> np.ndarray:
+    """One image into the rectified frame by cubic B-spline interpolation at the maps' exact
+    coordinates (``scipy.ndimage.map_coordinates``, zero outside), float64, kept within
+    the source's value range (as :func:`resample`).
+
+    ``cv2.remap`` quantises the sampling positions to 1/32 px: a constrained LSM in the
+    rectified images of a rendered plane then erred 0.039 px RMS without noise (0.0001 px
+    in the original images); with this resampler the error is the matcher's.
+    """
+    from scipy import ndimage
+
+    source = np.asarray(image, dtype=np.float64)
+    coords = np.stack([np.asarray(maps[1], np.float64), np.asarray(maps[0], np.float64)])
+    out = ndimage.map_coordinates(source, coords, order=3, mode="constant", cval=0.0,
+                                  prefilter=True)
+    if source.size:
+        lo, hi = min(float(source.min()), 0.0), float(source.max())
+        np.clip(out, lo, hi, out=out)
+    return out
 
 
 def resample(image, maps, interpolation=cv2.INTER_CUBIC) -> np.ndarray:
