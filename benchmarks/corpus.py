@@ -172,17 +172,24 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
     from surface.general_mesh import poisson_control_mesh
     from surface.sections import point_spacing
     from surface.sizing import interpolating_control
+    from surface.validity import check_solid
 
     start = _clock()
     spacing = point_spacing(points)
     edge = edge or 1.5 * spacing
     vertices, triangles = poisson_control_mesh(points, edge, spacing)
     control = interpolating_control(vertices, triangles)
-    smooth = smooth_mesh(control, triangles, "adaptive", tolerance or 0.1 * spacing,
-                         check=False)
+    tolerance = tolerance or 0.1 * spacing
+    smooth = smooth_mesh(control, triangles, "adaptive", tolerance, check=False)
+    # as the smooth stage (pipeline.stages._general_smooth): the approximating surface
+    # where the interpolating one self-intersects
+    approximating = len(check_solid(smooth.vertices, smooth.triangles).intersecting_pairs) > 0
+    if approximating:
+        smooth = smooth_mesh(vertices, triangles, "adaptive", tolerance, check=False)
     seconds, cpu = _since(start)
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
-            "patches": len(smooth.surface.control_points), "seconds": seconds, "cpu": cpu}
+            "patches": len(smooth.surface.control_points), "seconds": seconds, "cpu": cpu,
+            "approximating": approximating}
 
 
 def run_poisson(points: np.ndarray, depth: int = 8) -> dict:
