@@ -123,7 +123,7 @@ def test_step_file_shares_the_poles_of_neighbouring_faces(tmp_path, ellipsoid):
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
     path = step.write_cad(tmp_path / "s.step", cp, tris)
-    points = len(re.findall(r"= CARTESIAN_POINT\(", path.read_text()))
+    points = len(re.findall(r"CARTESIAN_POINT\('',\([^,)]*,[^,)]*,[^,)]*\)\)", path.read_text()))
     n_vertices, n_edges = int(tris.max()) + 1, len(tris) * 3 // 2
     distinct = n_vertices + 5 * n_edges + 25 * len(tris)
     assert distinct <= points <= distinct + 1
@@ -145,23 +145,57 @@ def test_clockwise_domain_gives_the_same_outward_solid(tmp_path, ellipsoid):
     assert volumes[1] == pytest.approx(volumes[0], rel=1e-12)
 
 
-def test_unexpected_template_falls_back_to_the_shape_transfer(tmp_path, ellipsoid, monkeypatch):
-    # a writer whose template solid has other roots: the shape transfer writes the solid
-    from OCP.BRepCheck import BRepCheck_Analyzer
+def _bernstein(t: np.ndarray) -> np.ndarray:
+    from math import comb
+
+    return np.array([comb(6, k) * t ** k * (1 - t) ** (6 - k) for k in range(7)])
+
+
+def test_step_edges_carry_their_pcurves_on_both_faces(tmp_path, ellipsoid):
+    # each edge's SURFACE_CURVE holds a PCURVE on each of its two faces (six shared 2D
+    # lines); evaluated from the file's own entities, each face's surface at the
+    # pcurve's point is the edge curve's point at the same parameter (a pcurve run the
+    # wrong way, or on the wrong side, misses by up to the edge's length).  Checked in
+    # the text: OpenCascade's reader repairs wrong pcurves silently.
+    import re
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
-    transferred = []
-    transfer = step._write_step
-    monkeypatch.setattr(step, "_write_step", lambda *a: transferred.append(1) or transfer(*a))
-    step.write_cad(tmp_path / "direct.step", cp, tris)
-    assert transferred == []
-    monkeypatch.setattr(step, "_STEP_ROOTS", ("NoSuchEntity",))
-    path = step.write_cad(tmp_path / "t.step", cp, tris)
-    assert transferred == [1]
-    shape = step.read_cad_solid(path)
-    assert BRepCheck_Analyzer(shape).IsValid()
-    assert sum(1 for _ in _faces(shape)) == len(cp)
-    assert "PLANE(" not in path.read_text()  # no template box left in the file
+    path = step.write_cad(tmp_path / "s.step", cp, tris)
+    text = path.read_text()
+    entity = dict(re.findall(r"^#(\d+)=([A-Z_]+\(.*\));$", text, re.MULTILINE))
+    refs = lambda body: [int(i) for i in re.findall(r"#(\d+)", body)]  # noqa: E731
+    numbers = lambda body: [float(x) for x in re.findall(r"\(([^()#']*)\)", body)[0].split(",")]  # noqa: E731,E501
+    n_edges = len(tris) * 3 // 2
+    surface_curves = [body for body in entity.values() if body.startswith("SURFACE_CURVE(")]
+    assert len(surface_curves) == n_edges
+    assert sum(body.startswith("PCURVE(") for body in entity.values()) == 2 * n_edges
+    size = float(np.ptp(cp.reshape(-1, 3), axis=0).max())
+    uncertainty = re.search(r"LENGTH_MEASURE\(([^)]*)\)", text).group(1)
+    assert float(uncertainty) == pytest.approx(step.step_uncertainty(size), rel=1e-5)
+    t = np.linspace(0.0, 1.0, 5)
+    worst = 0.0
+    for body in surface_curves:
+        curve, *pcurves = refs(body)
+        poles = np.array([numbers(entity[str(i)]) for i in refs(entity[str(curve)])])
+        on_curve = _bernstein(t).T @ poles  # (5, 3)
+        assert len(pcurves) == 2
+        for pcurve in pcurves:
+            surface, representation = refs(entity[str(pcurve)])
+            net = np.array([numbers(entity[str(i)]) for i in refs(entity[str(surface)])])
+            line = refs(entity[str(representation)])[0]
+            origin, vector = refs(entity[str(line)])
+            direction = numbers(entity[str(refs(entity[str(vector)])[0])])
+            u = numbers(entity[str(origin)])[0] + t * direction[0]
+            v = numbers(entity[str(origin)])[1] + t * direction[1]
+            on_surface = np.einsum("ki,li,kld->id", _bernstein(u), _bernstein(v),
+                                   net.reshape(7, 7, 3))
+            worst = max(worst, float(np.abs(on_surface - on_curve).max()))
+    assert worst <= 1e-9 * size
+
+
+def test_step_reals_have_their_decimal_point():
+    # Part 21: a REAL is digits "." digits [E exponent]; %G drops the point
+    assert step._reals("(1E-05,0,-2,1.5E-05,0.25,-3E+16)") == "(1.E-05,0.,-2.,1.5E-05,0.25,-3.E+16)"
 
 
 def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
