@@ -163,6 +163,7 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None,
     ``SizedMesh.chord_tolerance``); file sizes after the clock (the STEP file up to
     ``step_max_patches`` patches)."""
     from surface.sizing import interpolating_control, sized_from_points
+    from surface.validity import check_solid
 
     level = defaults()["smooth"]["level"] if level is None else level
     start = time.perf_counter()
@@ -178,6 +179,7 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None,
     check = (time.perf_counter(), time.process_time())
     sizes = file_sizes(vertices, triangles, smooth, step_max_patches)
     gap, angle = bezier.edge_continuity(smooth.control_points, smooth.domain_mesh[1])
+    solid = check_solid(vertices, triangles)
     excluded = (time.perf_counter() - check[0], time.process_time() - check[1])
     return {"vertices": vertices, "triangles": triangles, "level": level,
             "stitched_triangles": int(len(dense.triangles)),
@@ -186,6 +188,7 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None,
             "size_tolerance": sized.tolerance, "size_error": sized.error,
             "size_noise": sized.noise, "patches": len(smooth.control_points),
             "g1_angle": angle, "g1_gap": gap, "wall_seconds_inner": seconds, **sizes,
+            "crossing_pairs": int(len(solid.intersecting_pairs)), "valid_solid": bool(solid.valid),
             "excluded_seconds": excluded}
 
 
@@ -662,7 +665,8 @@ def shapes_table(sizes: list[int], only: list[str] | None = None,
                                f"{sized['step_bytes'] / p8['ply_bytes']:.1f}x Poisson-8's PLY)")
                 print(f"{'':<18s}sized / poisson-8: Chamfer {verdict['chamfer_ratio']:.2f}x, PLY "
                       f"{verdict['ply_ratio']:.2f}x, CPU {verdict['cpu_ratio']:.2f}x -> "
-                      f"{'met' if verdict['met'] else 'NOT met'}{written}", flush=True)
+                      f"{'met' if verdict['met'] else 'NOT met'}{written}; sized surface: "
+                      f"{sized.get('crossing_pairs', '-')} crossing pairs", flush=True)
     return rows
 
 

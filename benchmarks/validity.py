@@ -125,14 +125,17 @@ def _run_sections(cloud: Path, out: Path, smooth: bool) -> dict:
     return row
 
 
-def scans(points: int, noise: float) -> list[dict]:
+def scans(points: int, noise: float, only: list[str] | None = None) -> list[dict]:
     from pipeline.cloud_io import read_cloud, write_cloud
     from pipeline.mesh_io import read_mesh
     from surface.metrics import sample_mesh
 
     rows = []
     rng = np.random.default_rng(0)
-    for folder in sorted(p for p in SCANS.iterdir() if p.is_dir()):
+    folders = sorted(p for p in SCANS.iterdir() if p.is_dir())
+    if only:   # in the order given
+        folders = [SCANS / name for name in only if (SCANS / name).is_dir()]
+    for folder in folders:
         mesh_file = next(iter(sorted(folder.glob("mesh.*"))))
         row = {"scan": folder.name}
         try:
@@ -186,6 +189,8 @@ def main(argv=None) -> int:
                         help="the real scans through photosurf sections, outputs checked")
     parser.add_argument("--points", type=int, default=40_000)
     parser.add_argument("--noise", type=float, default=0.0, help="σ / diagonal")
+    parser.add_argument("--only", nargs="+", metavar="SCAN",
+                        help="with --scans: these scans only, in this order")
     args = parser.parse_args(argv)
     if args.scans:
         if not SCANS.is_dir():
@@ -193,7 +198,7 @@ def main(argv=None) -> int:
             return 0
         print(f"load (1, 5, 15 min): {uptime()}\n(c components, g genus, x intersecting "
               "pairs, nme/nmv non-manifold edges/vertices, b border loops)")
-        rows = scans(args.points, args.noise)
+        rows = scans(args.points, args.noise, args.only)
         write_result(args.json, {"scans": rows, "points": args.points, "noise": args.noise,
                                  "load": uptime()})
         return 0

@@ -130,16 +130,17 @@ def default_level() -> int:
 
 
 def spacing_cuts(control_points: np.ndarray, spacing: float) -> np.ndarray:
-    """Most cuts per patch edge that keep the facets' edges no shorter than ``spacing``,
-    ``(P,) int64``: the largest power of two ``m <= ℓ_p / spacing`` (at least 1), ``ℓ_p`` the
-    longest side of patch ``p``'s corner triangle.
+    """Most cuts per patch edge that keep the facets about ``spacing`` wide, ``(P,) int64``:
+    the smallest power of two ``m >= ℓ_p / spacing`` (at least 1), ``ℓ_p`` the longest side
+    of patch ``p``'s corner triangle, so that the facets' sides lie between half the spacing
+    and the spacing (or the patch's own, where it is smaller).
 
     The data resolve no shape finer than their point spacing: a facet smaller than it
     shows the surface's interpolation between samples, not a measurement.  Capping the
-    adaptive cuts there floors the chord tolerance at what one spacing's facet can hold
-    on each patch's own curvature (``κ s² / 8``), and bounds the tessellation -- and
-    the solid check, linear in its triangles -- before either runs: at most
-    ``Σ_p m_p²`` (times ~1.5 for the transitions between patches).  Noise-free data
+    adaptive cuts there floors the chord tolerance at what a facet of half a spacing to
+    one spacing can hold on each patch's own curvature (``κ s² / 32 .. κ s² / 8``), and
+    bounds the tessellation -- and the solid check, linear in its triangles -- before
+    either runs: at most ``Σ_p m_p²`` (times ~1.5 for the transitions between patches).  Noise-free data
     give a tolerance from their error estimate near zero (a noise-free can: 6.9·10⁻⁷,
     5.7 M triangles certified); the cap is what bounds them.
     """
@@ -149,7 +150,7 @@ def spacing_cuts(control_points: np.ndarray, spacing: float) -> np.ndarray:
     corners = cp[:, [control_index(6, 0, 0), control_index(0, 6, 0), control_index(0, 0, 6)]]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     ratio = np.maximum(longest / float(spacing), 1.0)
-    return (2 ** np.floor(np.log2(ratio))).astype(np.int64)
+    return (2 ** np.ceil(np.log2(ratio) - 1e-9)).astype(np.int64)
 
 
 def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,

@@ -40,8 +40,9 @@ as they are (:func:`sharp_vertices`) and interpolates the convex creases
 (:func:`convex_creases`).  The measurements behind that: ``docs/decisions/sizing.md``.
 Where the correction ``X - P`` folds the control mesh (a face turned over against the
 target mesh's, or faces crossing that the target mesh does not cross: :func:`folded_faces`)
-the surface over it folds too; :func:`surface.sizing.interpolating_control` keeps those
-faces' vertices as well (``docs/decisions/smooth-folds.md``).
+the surface over it may fold too; where it does (:func:`surface_folds`)
+:func:`surface.sizing.interpolating_control` moves those faces' vertices part of the way,
+then keeps them (``docs/decisions/smooth-folds.md``).
 
 Closed meshes only: the ghost-layer border rule of :mod:`surface.bezier` has
 no one-ring limit mask, so a mesh with borders is a ``ValueError``.
@@ -309,7 +310,9 @@ def surface_folds(target, control, triangles, faces=None, target_pairs=None,
     neighbours are the target's, not the correction's, and are left out.  Both are
     tests of sign, no tolerance.
 
-    A folded *control* face (:func:`folded_faces`) is where the surface may fold: on
+    A level-1 tessellation missed crossings a finer one showed (the sizing looks at level
+    2: ``surface.sizing.FOLD_LEVEL``).  A folded *control* face (:func:`folded_faces`) is
+    where the surface may fold: on
     the 10⁴-point cylinder of ``benchmarks/surface.py`` 249 of 1 340 control faces were
     folded and the surface over them crossed itself on 5 faces' patches
     (``docs/decisions/smooth-folds.md``).

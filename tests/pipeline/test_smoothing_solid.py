@@ -54,20 +54,21 @@ def test_spacing_caps_the_adaptive_cuts_before_tessellating():
     # then capped so that no facet's edge is shorter than the data's point spacing
     v, t = _icosphere(2)                       # 320 control faces, 1 280 patches
     fine = smooth_mesh(v, t, "adaptive", 1e-4, check=False)
-    spacing = 0.05
+    spacing = 0.1
     capped = smooth_mesh(v, t, "adaptive", 1e-4, spacing=spacing)
     assert len(fine.triangles) > 4 * len(capped.triangles)
-    # no facet edge shorter than the spacing but where a patch side is itself shorter
+    # facets about the spacing: no side shorter than half of it, but where a patch side is
+    # itself shorter
     from pipeline.smoothing import spacing_cuts
 
     cuts = spacing_cuts(capped.surface.control_points, spacing)
     side = np.linalg.norm(capped.vertices[capped.triangles]
                           - capped.vertices[np.roll(capped.triangles, 1, axis=1)], axis=2)
     assert np.all(cuts >= 1) and np.all((cuts & (cuts - 1)) == 0)   # powers of two
-    # each patch edge of length l is cut into m <= l / spacing pieces: pieces >= spacing
+    # each patch edge of length l is cut into m < 2 l / spacing pieces: pieces > spacing / 2
     # along the patch (the facets' chords are shorter by the curvature: cos of the half
     # angle a piece subtends on the unit sphere, > 0.99 here)
-    assert np.median(side) >= 0.99 * spacing
+    assert np.median(side) >= 0.99 * spacing / 2 and np.median(side) <= spacing
     # the bound known before tessellating: the template triangles per patch, m^2
     assert len(capped.triangles) <= 1.5 * int((cuts ** 2).sum())
     solid = capped.solid
