@@ -97,15 +97,21 @@ def _row_median(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return median
 
 
-def _predict(points, cand, acc, result: LSMResult, tree: cKDTree, radius: float):
-    """Median prediction of ``cand`` from its nearest accepted neighbours ``acc``.
+def _neighbours(tree: cKDTree, points: np.ndarray, cand, n_acc: int, radius: float):
+    """The ``_NEIGHBOURS`` nearest accepted neighbours of ``cand`` within ``radius``:
+    ``dist, nb`` (M, k), nb indexing the tree's points (inf / n_acc: none)."""
+    k = min(_NEIGHBOURS, n_acc)
+    dist, nb = tree.query(points[cand], k=k, distance_upper_bound=radius)
+    return dist.reshape(len(cand), k), nb.reshape(len(cand), k)
+
+
+def _predict(points, cand, acc, result: LSMResult, dist, nb):
+    """Median prediction of ``cand`` from its nearest accepted neighbours ``acc``
+    (``dist, nb`` of :func:`_neighbours`).
 
     Returns positions (M, 2), initial parameters (M, 8), nearest neighbour (M,)
     (index into ``points``; -1: none within the radius).
     """
-    k = min(_NEIGHBOURS, len(acc))
-    dist, nb = tree.query(points[cand], k=k, distance_upper_bound=radius)
-    dist, nb = dist.reshape(len(cand), k), nb.reshape(len(cand), k)
     found = np.isfinite(dist)
     nb_safe = np.where(found, nb, 0)
     j = acc[nb_safe]  # (M, k) indices into points
@@ -202,12 +208,13 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
         if not len(todo):
             break
         tree = cKDTree(points[acc])
-        # only candidates with an accepted neighbour in reach (cheap pre-filter)
-        dist, _ = tree.query(points[todo], k=1, distance_upper_bound=radius)
-        todo = todo[np.isfinite(dist)]
+        # only candidates with an accepted neighbour in reach (one query serves both)
+        dist, nb = _neighbours(tree, points, todo, len(acc), radius)
+        reach = np.isfinite(dist[:, 0])
+        todo, dist, nb = todo[reach], dist[reach], nb[reach]
         if not len(todo):
             break
-        pos, init, nearest = _predict(points, todo, acc, current, tree, radius)
+        pos, init, nearest = _predict(points, todo, acc, current, dist, nb)
         fresh = (nearest >= 0) & (nearest != last[todo]) & np.isfinite(pos).all(1)
         todo, pos, init, nearest = todo[fresh], pos[fresh], init[fresh], nearest[fresh]
         if not len(todo):
