@@ -595,18 +595,18 @@ def _face_split(uv: np.ndarray, loop: Loop, gap: float) -> list[np.ndarray] | No
     """The two faces of a wall that the clustering left as one band, or None.
 
     A wall thinner than the largest gaps along its faces (under ~3.5 point spacings,
-    :func:`_wall_splits`) is often ordered as one loop zig-zagging across it.  Its
+    :func:`_wall_splits`) is often ordered as one loop zig-zagging across it. Its
     points' signed offsets ``o`` from the band's midline (the mean of the
     :data:`_FACE_WINDOW` points around each along the order; its sag on a curve of
-    radius R, ~(16 g)²/(24 R), is far below a) are then two groups ±a.  A run of the
-    order (one of :data:`_SECTORS`, of at least :data:`_FACE_RUN` points) is a wall when both signs hold at least 15 %
-    of its points and the two groups' medians are :data:`_FACE_SEPARATION` robust σ of
-    their spread apart and at least a mean gap g (a noise-free single face scatters by
-    less than g about its midline).  When at least half the runs are walls their points
-    (but those whose midline window reaches past the run) are parted by the sign of
-    ``o``; where some runs are not (a handle or spout joins the wall) every point then
-    takes the face whose curve through the parted points, bridged across the rest, is
-    nearer (:func:`_face_curves_labels`).
+    radius R, ~(16 g)²/(24 R), is far below a) are then two groups ±a. A run of the
+    order (one of :data:`_SECTORS`, of at least :data:`_FACE_RUN` points) is a wall when
+    both signs hold at least 15 % of its points and the two groups' medians are
+    :data:`_FACE_SEPARATION` robust σ of their spread apart and at least a mean gap g (a
+    noise-free single face scatters by less than g about its midline). When at least
+    half the runs are walls their points (but those whose midline window reaches past
+    the run) are parted by the sign of ``o``; where some runs are not (a handle or spout
+    joins the wall) every point then takes the face whose curve through the parted
+    points, bridged across the rest, is nearer (:func:`_face_curves_labels`).
 
     Returns the two faces' indices into ``uv`` (outer first is not implied), or None.
     """
@@ -661,10 +661,10 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
 
     Each face's curve: the means of runs of :data:`_FACE_BLOCK` consecutive points of
     that face along the order (never across a stretch of half a :data:`_FACE_WINDOW`
-    without one), spikes peeled (the
-    node farthest from the line through its two neighbours goes while that is more than
-    half the wall's ``separation``, at most a quarter of them, the nodes taken by θ about the face's mean when that
-    tour is shorter than the loop's order: a handle's neck is a thin wall too, and its sides
+    without one), spikes peeled (the node farthest from the line through its two
+    neighbours goes while that is more than half the wall's ``separation``, at most a
+    quarter of them, the nodes taken by θ about the face's mean when that tour is
+    shorter than the loop's order: a handle's neck is a thin wall too, and its sides
     took both labels), joined by a periodic cubic spline over their chord lengths,
     which bridges the stretches left smoothly (a handle's root bulges the outer face
     there; the inner face runs on), sampled every g/2.
