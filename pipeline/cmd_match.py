@@ -2,11 +2,14 @@
 
 Writes ``OUT/matches.npz`` (every candidate: ``x_left``, ``x_right``, ``approx``,
 ``cov``, ``sigma``, ``sigma0``, ``correlation``, ``iterations``, ``affine``,
-``radiometric``, ``texture``, ``status`` and the ``status_names`` table) and, for a
-rectified pair, ``OUT/disparity.npy`` (float32, left-image size,
-``x_left - x_right``, NaN where not matched); with ``--dense`` (rectified only) every
-pixel is a candidate (spacing 1) and ``OUT/sigma.npy`` (float32, the σ of each
-disparity, px, NaN where not matched) is written beside it, and the speed is printed.
+``radiometric``, ``texture``, ``status`` and the ``status_names`` table) and the maps of
+:mod:`pipeline.match_maps`: ``OUT/disparity.npy`` (float32, left-image size,
+``x_left - x_right``, NaN where not matched), ``OUT/sigma.npy`` (float32, the σ of each
+disparity, px, NaN where not matched), ``OUT/status.npy`` (uint8 status code per
+candidate pixel, 255 elsewhere), each also as a colour-mapped PNG with its legend
+(``disparity.png``, ``sigma.png``, ``status.png``: where and why the matcher said no).
+With ``--dense`` (rectified only) every pixel is a candidate (spacing 1) and the speed
+is printed.
 The folder appears complete or not at all.  Images are read by
 :func:`pipeline.inputs.read_image` (the rules of every command that reads images).
 """
@@ -17,11 +20,10 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
-
 from pipeline.atomic import atomic_dir
 from pipeline.errors import InputError
 from pipeline.inputs import check_rig_size, read_pair, read_rig_for
+from pipeline.match_maps import write_maps
 from pipeline.options import add_match_options, check_some_matched, match_options, summary
 from pipeline.workspace import write_npz_to
 
@@ -39,8 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the images are rectified: corresponding points share a row")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--dense", action="store_true",
-                        help="rectified pair: match every pixel (spacing 1) and also write "
-                             "sigma.npy beside disparity.npy")
+                        help="rectified pair: match every pixel (spacing 1)")
     add_match_options(parser)
 
 
@@ -72,10 +73,8 @@ def run(args: argparse.Namespace) -> int:
     check_some_matched(matches, args.left)
     with atomic_dir(args.out, kind="match") as tmp:
         write_npz_to(tmp / "matches.npz", **matches.as_dict())  # byte-reproducible
-        if args.rectified:
-            np.save(tmp / "disparity.npy", matches.disparity_map())
-        if dense:
-            np.save(tmp / "sigma.npy", matches.sigma_map())
+        # where and why the matcher said no: disparity, σ and status maps (.npy + .png)
+        write_maps(tmp, matches)
     if not getattr(args, "quiet", False):
         speed = (f"; dense: {len(matches) / seconds:.0f} px/s "
                  f"({int(matches.accepted.sum())} accepted in {seconds:.1f} s)" if dense else "")

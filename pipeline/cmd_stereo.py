@@ -4,13 +4,16 @@ Writes ``OUT.ply`` (binary: x y z, red green blue, ``sigma`` as a float vertex
 property, scene units) and ``OUT.npz`` beside it with every per-point quantity
 (``points``, ``colours``, ``sigma``, ``cov``, ``x_left``, ``x_right``, ``cov_2d``,
 ``sigma_px``, ``sigma0``, ``correlation``, ``iterations``, ``reprojection_error``,
-``index``) plus the candidates' ``status`` and ``status_names``.  Both files
-appear together or not at all.
+``index``) plus the candidates' ``status`` and ``status_names``, and beside them the
+maps of :mod:`pipeline.match_maps` -- ``OUT.disparity.npy``/``.png``,
+``OUT.sigma.npy``/``.png``, ``OUT.status.npy``/``.png`` (where and why the matcher said
+no).  The files appear together or not at all.
 """
 
 from __future__ import annotations
 
 import argparse
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +22,7 @@ from pipeline.atomic import atomic_file, naming
 from pipeline.cloud_io import write_ply
 from pipeline.errors import InputError
 from pipeline.inputs import check_rig_size, read_pair, read_rig_for
+from pipeline.match_maps import write_maps
 from pipeline.options import add_match_options, check_some_matched, match_options, summary
 from pipeline.workspace import write_npz_to
 
@@ -59,12 +63,16 @@ def run(args: argparse.Namespace) -> int:
     per_point = rec.per_point()
     per_point["status"] = rec.matches.status
     per_point["status_names"] = np.array([PAIR_STATUS_NAMES[k] for k in sorted(PAIR_STATUS_NAMES)])
-    # the .ply (inner) is renamed first: if that fails the .npz is never renamed
-    with atomic_file(out.with_suffix(".npz")) as tmp_npz, atomic_file(out) as tmp_ply:
+    # the .ply (inner) is renamed first: if that fails the .npz and the maps are never
+    # renamed
+    with ExitStack() as maps, atomic_file(out.with_suffix(".npz")) as tmp_npz, \
+            atomic_file(out) as tmp_ply:
         with naming(out.with_suffix(".npz")):  # each failure names its own file
             write_npz_to(tmp_npz, **per_point)  # byte-reproducible (np.savez stamps the time)
         with naming(out):
             write_ply(tmp_ply, rec.points, rec.colours, rec.sigma)
+        # where and why the matcher said no, beside the cloud (OUT.disparity.png, ...)
+        write_maps(out.parent, rec.matches, prefix=f"{out.stem}.", stack=maps)
     if not getattr(args, "quiet", False):
         print(f"{summary(rec.matches)}; {len(rec)} points triangulated (median sigma "
               f"{float(np.median(rec.sigma)):.3g}); wrote {out}")
