@@ -273,7 +273,9 @@ def one_row(case: str, size: int, noise: float, workspace: Path) -> dict:
         fg = cloud_fidelity(results["general"]["vertices"], results["general"]["triangles"],
                             points)
         choose_s = _since(start)
-        chosen = "general" if prefer_general(fs, fg) else "sections"
+        valid = [row["methods"][m]["valid"] for m in ("sections", "general")]
+        chosen = "general" if prefer_general(fs, fg, section_valid=valid[0],
+                                             general_valid=valid[1]) else "sections"
     else:
         choose_s = (0.0, 0.0)
         chosen = "sections" if "sections" in results else "general"

@@ -635,7 +635,9 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
         return general, {**info, "control": "general", "control_triangles": len(triangles)}
     own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
     info["sections_fidelity"] = own.to_json()
-    if mode == "always" or general_mesh.prefer_general(own, fidelity):
+    valid = [bool((smoothed.solid or {}).get("valid", True)) for smoothed in (section, general)]
+    if mode == "always" or general_mesh.prefer_general(own, fidelity, section_valid=valid[0],
+                                                       general_valid=valid[1]):
         log.info("smooth: the general control mesh is nearer the cloud (A %.3g / C %.3g "
                  "against the sections' %.3g / %.3g): it carries the surface", fidelity.a90,
                  fidelity.c50, own.a90, own.c50)

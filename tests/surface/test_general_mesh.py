@@ -88,3 +88,10 @@ def test_clamp_moves_outside_vertices_onto_the_hull_and_leaves_the_inside():
 ])
 def test_prefer_general(section, general, expected):
     assert prefer_general(section, general) is expected
+
+
+def test_prefer_general_takes_the_only_valid_solid_when_as_near():
+    near = (Fidelity(1.05, 1.05), Fidelity(1.0, 1.0))
+    assert prefer_general(*near, section_valid=False)
+    assert not prefer_general(*near[::-1], general_valid=False)
+    assert not prefer_general(Fidelity(1.0, 1.0), Fidelity(1.5, 1.0), section_valid=False)
