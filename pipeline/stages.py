@@ -584,7 +584,8 @@ def smooth(ctx: StageContext) -> dict:
         smoothed, chosen = general
         info.update(chosen)
     else:
-        general = _general_surface(ctx, level, tolerance, smoothed)
+        general = _general_surface(ctx, level, tolerance, smoothed,
+                                   noise=sized.noise if sized is not None else None)
         if general is not None:
             smoothed, chosen = general
             info.update(chosen)
@@ -593,7 +594,8 @@ def smooth(ctx: StageContext) -> dict:
     return {**smoothed.info(), **info}
 
 
-def _general_surface(ctx: StageContext, level, tolerance, section, reason: str = ""):
+def _general_surface(ctx: StageContext, level, tolerance, section, reason: str = "",
+                     noise: float | None = None):
     """``smooth.general``: where one family of parallel sections cannot organise the
     points, the control mesh that knows no axis (``surface.general_mesh``).  ``"auto"``
     builds it beside the section surface and keeps the one nearer the cloud
@@ -601,7 +603,9 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
     ``"always"`` takes it; ``"never"`` does not build it.  Returns ``(Smoothed, info)`` when
     the stage's surface changes or was measured, ``None`` when not asked or possible (no
     cloud, too few points).  With ``section`` None (the section surface was refused) the
-    general surface stands in when asked."""
+    general surface stands in when asked.  ``"auto"`` builds it only where the section
+    surface gives cause (``surface.general_mesh.needs_general``: not a valid solid, or its
+    C beyond what the points' noise ``noise`` and the sizing's goal explain)."""
     import numpy as np
 
     from surface import general_mesh
@@ -617,6 +621,13 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
     if len(points) < 4 * general_mesh.NORMAL_NEIGHBOURS or len(heights) < 2:
         return None
     spacing = float(np.median(np.diff(np.sort(heights))))
+    own = None
+    if section is not None and mode == "auto":
+        own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
+        valid = bool((section.solid or {}).get("valid", True))
+        if not general_mesh.needs_general(own, valid, noise):
+            return section, {"general_mode": mode, "sections_fidelity": own.to_json(),
+                             "control": "sections"}
     try:  # triangles of the section spacing: as fine as the section mesh it stands in for
         vertices, triangles = general_mesh.poisson_control_mesh(points, spacing,
                                                                 point_spacing(points))
@@ -633,7 +644,8 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
         log.warning("smooth: the section surface was refused (%s): the general control mesh "
                     "stands in", reason)
         return general, {**info, "control": "general", "control_triangles": len(triangles)}
-    own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
+    if own is None:
+        own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
     info["sections_fidelity"] = own.to_json()
     valid = [bool((smoothed.solid or {}).get("valid", True)) for smoothed in (section, general)]
     if mode == "always" or general_mesh.prefer_general(own, fidelity, section_valid=valid[0],

@@ -115,6 +115,20 @@ def cloud_fidelity(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarr
     return Fidelity(float(np.percentile(a, 90)), float(np.median(c)))
 
 
+def needs_general(section: Fidelity, valid: bool, noise: float | None) -> bool:
+    """Whether the section surface gives cause to build the general one: it is not a valid
+    solid, or no noise estimate exists, or its C exceeds what the noise explains.
+
+    Points with noise ``sigma`` about the truth and a surface within ``sigma`` of it (the
+    sizing's goal) lie at ``|N(0, 2 sigma^2)|`` from the surface, whose median is
+    ``0.6745 sqrt(2) sigma``; beyond that by more than :data:`MARGIN` the surface leaves
+    the data (the temple: C 2.47e-4 against 0.6745 sqrt 2 x 1.78e-4 = 1.70e-4).
+    """
+    if not valid or noise is None or not noise > 0:
+        return True
+    return bool(section.c50 > (1 + MARGIN) * 0.6745 * np.sqrt(2.0) * noise)
+
+
 def prefer_general(section: Fidelity, general: Fidelity, margin: float = MARGIN,
                    section_valid: bool = True, general_valid: bool = True) -> bool:
     """Whether the general mesh replaces the section mesh: nearer the cloud on one measure

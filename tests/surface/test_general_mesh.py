@@ -95,3 +95,14 @@ def test_prefer_general_takes_the_only_valid_solid_when_as_near():
     assert prefer_general(*near, section_valid=False)
     assert not prefer_general(*near[::-1], general_valid=False)
     assert not prefer_general(Fidelity(1.0, 1.0), Fidelity(1.5, 1.0), section_valid=False)
+
+
+def test_needs_general_when_the_sections_leave_the_data_beyond_their_noise():
+    from surface.general_mesh import needs_general
+
+    sigma = 1e-3
+    explained = 0.6745 * np.sqrt(2.0) * sigma        # median |N(0, 2 sigma^2)|
+    assert not needs_general(Fidelity(1.0, explained), True, sigma)
+    assert needs_general(Fidelity(1.0, 1.5 * explained), True, sigma)
+    assert needs_general(Fidelity(1.0, explained), False, sigma)      # not a valid solid
+    assert needs_general(Fidelity(1.0, explained), True, None)        # no noise estimate
