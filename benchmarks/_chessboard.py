@@ -15,7 +15,10 @@ points of a matcher inside the outline (the convex hull of the left view's corne
   plane normal (sqrt(nᵀ C n) of its triangulation covariance) -- 1 for an honest σ;
 * **points on the board**;
 * **beyond one square** of the corners' own plane: the one-period slips (a slip is tens
-  of squares in depth), with and without the uniqueness test (``unique=False``).
+  of squares in depth);
+
+each also for the same run without the epipolar pass (``epipolar_pass=False``: the 2-D LSM
+matches, uniqueness-tested).
 
 SGBM (OpenCV 3-way, uniqueness ratio 12, on the pair rectified by ``matching.rectify``)
 is sampled at the same left candidates and triangulated with the same rig; it reports no
@@ -173,10 +176,12 @@ def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | N
     # one period or more off: farther than one square from the corners' own plane (a
     # slip of one period is tens of squares in depth)
     lsm["beyond_1_square"] = _beyond(rec.points[on], centroid, normal)
-    if (match_options or {}).get("unique", True):
-        old = reconstruct_pair(left, right, rig, **{**(match_options or {}), "unique": False})
+    if (match_options or {}).get("epipolar_pass", True):
+        # the same run without the epipolar pass: the 2-D LSM matches, uniqueness-tested
+        old = reconstruct_pair(left, right, rig,
+                               **{**(match_options or {}), "epipolar_pass": False})
         old_on = inside_outline(cl, old.x_left)
-        lsm["without_uniqueness"] = {
+        lsm["without_epipolar_pass"] = {
             "points": int(old_on.sum()),
             "beyond_1_square": _beyond(old.points[old_on], centroid, normal),
             **{k: v for k, v in plane_measures(old.points[old_on], old.cov[old_on],

@@ -635,8 +635,8 @@ def chessboard(folder: Path, json_path: str, pairs=None) -> int:
     print(f"blunder: farther than {BLUNDER_K:g}x the corners' RMS from the robust plane; "
           "inl/c: inlier RMS over the corners' RMS; r/σ: RMS of residual / σ along the "
           "normal over the inliers")
-    print("slip: farther than one square from the corners' plane; 'old': LSM without the "
-          "uniqueness test (unique=False)")
+    print("slip: farther than one square from the corners' plane; 'old': the same run "
+          "without the epipolar pass (epipolar_pass=False: 2-D LSM, uniqueness-tested)")
     print(f"{'pair':>4s} {'corners':>8s} | {'LSM pts':>7s} {'blund':>6s} {'inl/c':>6s} "
           f"{'r/σ':>5s} {'slip':>5s} | {'old pts':>7s} {'blund':>6s} {'slip':>5s} | "
           f"{'SGBM pts':>8s} {'blund':>6s} {'inl/c':>6s} {'slip':>5s}")
@@ -645,7 +645,7 @@ def chessboard(folder: Path, json_path: str, pairs=None) -> int:
             print(f"{r['pair']:>4s} {r['error']}")
             continue
         lsm, sg = r["lsm"], r["sgbm"]
-        old = lsm.get("without_uniqueness", {})
+        old = lsm.get("without_epipolar_pass", {})
         print(f"{r['pair']:>4s} {r['corners_rms']:8.4f} | {lsm['points']:7d} "
               f"{100 * lsm['blunders']:5.1f}% {lsm['inlier_rms_over_corners']:6.2f} "
               f"{lsm.get('residual_over_sigma', float('nan')):5.2f} "
@@ -653,7 +653,8 @@ def chessboard(folder: Path, json_path: str, pairs=None) -> int:
               f"{100 * old.get('blunders', float('nan')):5.1f}% "
               f"{100 * old.get('beyond_1_square', float('nan')):4.1f}% | {sg['points']:8d} "
               f"{100 * sg['blunders']:5.1f}% {sg['inlier_rms_over_corners']:6.2f} "
-              f"{100 * sg['beyond_1_square']:4.1f}%")
+              f"{100 * sg['beyond_1_square']:4.1f}% | {lsm['seconds']:5.1f} s "
+              f"aperture {lsm['status'].get('aperture', 0)}")
     done = [r for r in rows if "error" not in r]
     goals = {
         "chessboard_blunders_le_1pct_every_pair": all(r["lsm"]["blunders"] <= 0.01

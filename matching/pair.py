@@ -106,7 +106,7 @@ from matching.lsm import (
     prepare_image,
     robust_upper_limit,
 )
-from matching.precision import class_variance_factors, midpoint_variance_factor
+from matching.precision import class_variance_factors
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
@@ -595,7 +595,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 first_pass = res
                 res, geo_var, epi_dirs, sides, epi_factor = _epipolar_refine(
                     left, right, rig, rect, points, start, res, sides, options, aperture_k,
-                    interpolation, second_order=second_order, spacing=spacing)
+                    interpolation, second_order=second_order, spacing=spacing,
+                    classes=edge[idx])
                 status_ill = res.accepted & ~np.isfinite(geo_var)
                 res = replace(res, status=np.where(status_ill, APERTURE, res.status)
                               .astype(res.status.dtype))
@@ -628,8 +629,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                     per_window, factors = class_variance_factors(
                         points, res.affine, res.affine_cov, ok_final,
                         edge[idx].astype(np.int64), patch=sides)
-                else:  # the epipolar pass's covariances carry their own factor
-                    per_window, factors = np.ones(len(idx)), np.array([epi_factor])
+                else:  # the epipolar pass's covariances carry their own factors
+                    per_window, factors = np.ones(len(idx)), np.array(epi_factor)
                 factor = float(factors[0]) if len(factors) else 1.0
                 factor_edge = float(factors[1]) if len(factors) > 1 else factor
             out["x_right"][idx] = res.position
@@ -763,7 +764,8 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                      options: dict,
                      aperture_k: float | None, interpolation: str,
                      max_inflation: float | None = 2.0, grow_sides=(1.5, 2.0),
-                     second_order: bool = True, spacing: int = DEFAULT_SPACING):
+                     second_order: bool = True, spacing: int = DEFAULT_SPACING,
+                     classes=None):
     """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
 
     Every accepted 2-D match is re-matched in the rectified images (:mod:`matching.rectify`),
@@ -874,13 +876,18 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
             # the variance factor of the constrained matches (independent neighbouring
             # windows predicting their midpoint, along the row: 1 degree of freedom);
             # the rectified images' resampling correlates their noise
-            k2 = max(1.0, float(np.nan_to_num(midpoint_variance_factor(
-                centre_r, found["affine"], found["affine_cov"], good, patch=side_of).factor,
-                nan=1.0)))
+            # per window class (``edge`` windows reach over an untextured region: a
+            # second population, class_variance_factors)
+            k2_each, k2_classes = class_variance_factors(
+                centre_r, found["affine"], found["affine_cov"], good,
+                (np.zeros(n, np.int64) if classes is None
+                 else np.asarray(classes, np.int64))[ok], patch=side_of)
+            k2_each = np.maximum(k2_each, 1.0)
+            k2 = float(k2_classes[0]) if len(k2_classes) else 1.0
         cond = good.copy()
         geo_r = (found["slope"] * sigma_g) ** 2  # rectified px²
         if aperture_k is not None:
-            cond &= geo_r <= aperture_k**2 * k2 * found["cov"][:, 0, 0]
+            cond &= geo_r <= aperture_k**2 * k2_each * found["cov"][:, 0, 0]
         if max_inflation is not None:
             cond &= found["inflation"] <= max_inflation
         todo = todo & good & ~cond
@@ -916,7 +923,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     position[g] = rectified_to_original(rect, rig.right, found["position"][good])
     jinv = np.linalg.inv(_jacobians(lambda p: right_to_rectified(rect, rig.right, p),
                                     position[g]))
-    cov[g] = k2 * jinv @ found["cov"][good] @ jinv.transpose(0, 2, 1)
+    cov[g] = k2_each[good, None, None] * jinv @ found["cov"][good] @ jinv.transpose(0, 2, 1)
     d = jinv[:, :, 0]  # right-image step of one rectified column
     stretch = np.einsum("ni,ni->n", d, d)
     dirs[g] = d / np.sqrt(stretch)[:, None]
@@ -929,7 +936,8 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     affine[:, 0], affine[:, 3] = position[:, 0], position[:, 1]
     out = replace(res, position=position, cov=cov, status=status.astype(res.status.dtype),
                   sigma0=sigma0, correlation=corr, affine=affine, window_cov=None)
-    return out, geo, dirs, new_sides, k2
+    factors = (k2, float(k2_classes[1]) if len(k2_classes) > 1 else k2)
+    return out, geo, dirs, new_sides, factors
 
 
 def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,
