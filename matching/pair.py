@@ -76,7 +76,18 @@ Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
 13    ``blank``             no signal in the window (std <= 2 noise σ)
 14    ``backward``          the right-to-left LSM from the solution does not
                             return within the loop's 99.9 % bound
+15    ``aperture``          calibrated pair: the window is ill-conditioned along
+                            the epipolar line at every side tried
+                            (:func:`_epipolar_refine`)
 ====  ====================  ==================================================
+
+Epipolar pass (calibrated pairs, ``epipolar_pass``).  On a real chessboard rig 2-D LSM
+started *at the truth* still ended 0.78 px (median, along the line) off it: a window
+whose texture is one straight edge slides along the edge, and the chessboard's
+near-horizontal edges turn that slide into disparity.  Re-matched in the rectified
+images with the y-shift fixed by the rig (Gruen & Baltsavias 1988) the same windows
+end 0.38 px off, and the remaining error is concentrated where the window is
+ill-conditioned along the line (docs/decisions/stereo-epipolar.md), which is rejected.
 
 References
 ----------
@@ -404,6 +415,17 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         (``benchmarks/matching.py --part chessboard``, docs/decisions/stereo-uniqueness.md):
         a real chessboard pair's points one period or more off the board 8.7 % -> 0.5 %;
         a temple pair's accepted share 77.1 % -> 66.4 %.
+    epipolar_pass : bool
+        Calibrated pairs (default on): every window LSM tried is matched again in the
+        rectified images with the y-shift fixed by the rig -- shift and shape along the row
+        only (:func:`_epipolar_refine`) -- and rejected as ``aperture`` where it is
+        ill-conditioned along the line; the covariance is then rank 1 along the line.
+        Measured on the real chessboard rig (``benchmarks/matching.py --part chessboard``,
+        docs/decisions/stereo-epipolar.md).
+    aperture_k : float or None
+        The ``aperture`` test's bound on the rig's row error carried through the window's
+        edge slope, in units of the match's own σ along the line (default 1: it may not
+        exceed it); None: that part of the test off.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -768,24 +790,32 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                      classes=None):
     """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
 
-    Every accepted 2-D match is re-matched in the rectified images (:mod:`matching.rectify`),
-    where the y-shift is the rig's: the template at the left point's rectified position,
-    the search window started at the 2-D solution's rectified column on the left point's
-    row, its warp taken into the rectified frame through the two rectifications'
-    Jacobians, and only the shift and the shape along the row solved with the radiometry
-    (``lsm_match``'s ``direction`` (1, 0) + ``rigid_across``: rows map to rows, exact).  A
-    window whose texture is one straight edge slides along it in 2-D LSM; constrained, its
-    x-shift is the edge's crossing of the row -- which the rig's own row error δy moves by
-    ``slope`` δy, ``slope = |N_xy / N_xx|`` of the rectified template's structure tensor N.
-    δy's spread σ_g is measured on the pair: 1.4826 MAD of the 2-D matches' rectified row
-    differences over the windows textured in both directions (λmin/λmax >= 1/4).
+    Every window LSM tried (the 2-D solution where it was accepted, else the approximation
+    ``start``) is matched again in the rectified images (cubic B-spline resampling at the
+    maps' exact coordinates), where the y-shift is the rig's: the template on the rectified
+    pixel grid with the left point reported through the warp (``offset``), the search
+    window started on the left point's row, the 2-D warp taken into the rectified frame
+    through the rectifications' Jacobians (Jr A Jl⁻¹), and only the shift and the shape
+    along the row solved with the radiometry (``lsm_match``'s ``direction`` (1, 0) +
+    ``rigid_across``: rows map to rows, exact), then once more with fixed second-order
+    terms along the row from the neighbours (``second_order``).
 
-    Returns the constrained result in the original images (position, rank-1 covariance
-    along the line; the 2-D matches it loses are rejected with its status, the others
-    keep theirs), the variance ``(slope σ_g)²`` (px², along the line in the right image,
-    NaN where rejected as ``aperture``: it exceeds ``aperture_k``² times the match's own
-    variance along the line with the 2-D matches' variance factor k²) and the (N, 2) line
-    directions in the right image.
+    Ill-conditioned along the line (``aperture``), tried again at ``grow_sides`` x the
+    side (a window reaching the texture's next corner is conditioned), rejected if still:
+
+    * the shape unknowns take the shift's information: its variance exceeds
+      ``max_inflation`` x σ0² / Σ f_x², what the template's x-gradients alone give (a
+      single edge off the window's centre trades the shift for the scale along the row);
+    * the rig's own row error δy, moved by the edge slope ``|N_xy / N_xx|`` of the window's
+      structure tensor into the column, exceeds ``aperture_k`` x the match's σ along the
+      line (δy's spread σ_g: 1.4826 MAD of the accepted 2-D matches' rectified row
+      differences over windows textured in both directions, λmin/λmax >= 1/4).
+
+    Returns the result in the original images (rank-1 covariance along the line, with the
+    constrained matches' own variance factor per window class ``classes``; a window the
+    pass loses keeps its rejection), the variance ``(slope σ_g)²`` along the line (px²;
+    NaN: ``aperture``), the (N, 2) line directions in the right image, the sides used and
+    the variance factors (clear windows, edge windows).
     """
     from matching.rectify import (
         left_to_rectified,
