@@ -298,12 +298,12 @@ def folded_faces(target, control, triangles, intersections: bool = True,
 
 
 def surface_folds(target, control, triangles, faces=None, target_pairs=None,
-                  level: int = 1) -> np.ndarray:
+                  level: int = 1, rings: int = 1) -> np.ndarray:
     """Faces of the control mesh over which Loop's surface folds, ``(F,) bool``.
 
     The surface over ``(control, triangles)`` (:func:`surface.bezier.control_net`) is
-    tessellated at ``level`` over the patches of ``faces`` (all when None) and their
-    two rings of neighbours; a face is folded when a triangle of its patches crosses
+    tessellated at ``level`` over the patches of ``faces`` (all when None) and ``rings``
+    rings of their neighbours; a face is folded when a triangle of its patches crosses
     another (:func:`surface.validity.self_intersections`) or is turned against the
     target face it lies over (normals of opposite sign).  Pairs that involve a face of
     ``target_pairs`` (``(K, 2)``, the target mesh's own crossings) or one of its
@@ -328,7 +328,7 @@ def surface_folds(target, control, triangles, faces=None, target_pairs=None,
     if not chosen.any():
         return folded
     region = chosen.copy()
-    for _ in range(2):
+    for _ in range(int(rings)):
         near = np.zeros(len(p), dtype=bool)
         near[t[region].ravel()] = True
         region = near[t].any(axis=1)
