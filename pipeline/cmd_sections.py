@@ -60,6 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "loop by generalised cross-validation of its own residuals")
     parser.add_argument("--open-ends", action="store_true",
                         help="do not cap the first and last sections")
+    parser.add_argument("--open", action="store_true",
+                        help="leave an end the data do not cover (a hole where the scanner "
+                             "never looked, an open mouth) as a border instead of filling it "
+                             "flat: an open surface of what was seen (with --smooth: the "
+                             "stitched mesh is the control mesh, no sizing)")
     parser.add_argument("--smooth", action="store_true",
                         help="write the G1 sextic Bezier surface over the stitched mesh instead "
                              "(control net beside it as OUT.npz; needs a closed mesh)")
@@ -170,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     sized = None
     try:
-        if args.smooth and not args.no_size:
+        if args.smooth and not args.no_size and not args.open:
             from surface.sizing import sized_from_points
 
             sized, result = sized_from_points(points / unit, axis=axis, smoothing=smoothing,
@@ -180,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
             result = surface_from_points(points / unit, axis=axis, sections=args.sections,
                                          n=args.n, smoothing=smoothing,
                                          close_ends=not args.open_ends,
-                                         sigma=None if sigma is None else sigma / unit)
+                                         sigma=None if sigma is None else sigma / unit,
+                                         open_holes=args.open)
     except ValueError as exc:
         raise InputError(f"{args.cloud}: {exc}") from exc
     vertices, triangles = result.vertices * unit, result.triangles
@@ -189,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
                          f"({'; '.join(result.messages) or 'no loops'})")
     smooth = None
     if args.smooth:
-        if not result.closed:
+        if not result.closed and not (args.open and not result.problems):
             raise InputError(f"{args.cloud}: the stitched mesh is open "
                              f"({result.problem_line()}): --smooth needs a "
                              "closed mesh (drop --open-ends, or smooth the mesh with "
@@ -214,7 +220,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         from pipeline.smoothing import solid_report  # one warning line if not a valid solid
 
-        solid_report("sections", vertices, triangles, expect_closed=not args.open_ends)
+        solid_report("sections", vertices, triangles,
+                     expect_closed=not args.open_ends and (result.closed or not args.open))
         write_mesh(out, vertices, triangles)
     seconds = time.perf_counter() - start
     if not args.quiet:

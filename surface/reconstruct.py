@@ -28,13 +28,24 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from surface._blas import one_blas_thread
-from surface.stitch import StitchResult, _dome, _inside, _nearest_loop, end_window, stitch_rings
+from surface.stitch import (
+    CAP_SHRINK,
+    HOLE_SHARE,
+    StitchResult,
+    _dome,
+    _inside,
+    _nearest_loop,
+    _scaled,
+    end_window,
+    stitch_rings,
+    uncovered_share,
+)
 from surface.validate import TOL
 
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
            "min_loop_points", "section_noise", "untangle", "choose_axis", "rim_line",
-           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects"]
+           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "hole_ends"]
 
 #: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
 NORMAL_NEIGHBOURS = 12
@@ -852,7 +863,8 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
                         n: int | None = None, smoothing: float | str = "auto",
                         projection: str = "surface", extend_ends: bool = True,
                         close_ends: bool = True, flip: bool = True,
-                        support: bool = True, sigma: np.ndarray | None = None) -> StitchResult:
+                        support: bool = True, sigma: np.ndarray | None = None,
+                        open_holes: bool = False) -> StitchResult:
     """Unorganised points to a stitched mesh: slice → organise → fit/predict → stitch.
 
     The steps are public (:func:`slice_cloud`, :func:`organise_sections`,
@@ -912,6 +924,10 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         The points' precision (scene units): the ends are placed with inverse-variance
         weights (:func:`extend_to_caps`); without it (or with any σ unknown) every point
         weighs the same.
+    open_holes : bool
+        Leave an end the data do not cover (:func:`hole_ends`: a hole where the scanner
+        never looked, an open mouth) as a border instead of capping it flat: an open
+        surface of what was seen.
 
     Returns
     -------
@@ -944,7 +960,14 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing,
                                       sigma=cap_sigma)
         messages += notes
-    result = stitch_rings(rings, kept[0].frame[2], close_ends=close_ends, flip=flip,
+    ends = close_ends
+    if close_ends:
+        holes, notes = hole_ends(rings, kept[0].frame, sliced.cap_cloud, sliced.spacing,
+                                 open_holes)
+        messages += notes
+        if open_holes:
+            ends = (not holes[0], not holes[1])
+    result = stitch_rings(rings, kept[0].frame[2], close_ends=ends, flip=flip,
                           support_sigma=section_noise(loops) if support else None,
                           cap_points=sliced.cap_cloud)
     if len(result.triangles) == 0:
@@ -955,6 +978,66 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
 
         result = replace(result, messages=tuple(messages) + result.messages)
     return result
+
+
+def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: float,
+              leave_open: bool = False) -> tuple[tuple[bool, bool], list[str]]:
+    """Which of the two end sections is a hole in the data, and a note for each.
+
+    An end is a hole when, for one of its outermost loops, more than
+    ``stitch.HOLE_SHARE`` of the region inside it (shrunk by ``stitch.CAP_SHRINK``, the
+    wall's own points kept out) and outside its inner loops is farther than
+    ``stitch.COVER_RADIUS`` point spacings from every cap point of the end's window
+    (``stitch.end_window``: beyond the end, from two section spacings inside):
+    ``stitch.uncovered_share``.  A cap seen by the scanner, flat or domed, covers its
+    contour; a bust cut at the chest and never scanned there, an animal's unseen base or
+    the mouth of a wall too thin to part do not.
+
+    Parameters
+    ----------
+    rings : list
+        One entry per section (an ``(n, 3)`` array or a list of them), along the axis.
+    frame : (3, 3) float64
+        Section frame (rows e1, e2, axis).
+    cap_points : (C, 3) float64
+        The cloud's cap points (``SlicedCloud.cap_cloud``).
+    spacing : float
+        Section spacing.
+    leave_open : bool
+        Only the notes' wording: the hole is left open, or capped flat.
+
+    Returns
+    -------
+    (bool, bool)
+        The first and the last section's end is a hole.
+    notes : list of str
+    """
+    from surface.loop_graph import nesting
+
+    cap_points = np.asarray(cap_points, np.float64).reshape(-1, 3)
+    heights = cap_points @ frame[2]
+    flat_all = cap_points @ frame[:2].T
+    found, notes = [], []
+    for end, up in ((0, False), (-1, True)):
+        loops = [rings[end]] if isinstance(rings[end], np.ndarray) else list(rings[end])
+        flats = [lp @ frame[:2].T for lp in loops]
+        height = float(np.mean(np.concatenate([lp @ frame[2] for lp in loops])))
+        lo, hi = end_window(height, up, spacing)
+        flat = flat_all[(heights > lo) & (heights < hi)]
+        depth, parent = nesting(flats)
+        share = 0.0
+        for k in np.flatnonzero(depth == 0):
+            inner = [_scaled(flats[j], 1.0 / CAP_SHRINK) for j in np.flatnonzero(parent == k)]
+            share = max(share, uncovered_share(_scaled(flats[k], CAP_SHRINK), inner, flat))
+        hole = share > HOLE_SHARE
+        found.append(hole)
+        if hole:
+            notes.append(f"{'bottom' if end == 0 else 'top'}: a hole in the data "
+                         f"({100 * share:.0f} % of the end out of reach of every point): "
+                         + ("left open, a border where the data end" if leave_open else
+                            "closed by the flattest fill within the data's heights (open = "
+                            "true leaves it open)"))
+    return (found[0], found[1]), notes
 
 
 #: Quantile of the wall points' offsets past the last section that, divided by itself,

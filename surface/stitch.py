@@ -1156,7 +1156,7 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
                 continue
             if end is None:
                 legs_a = _read_at(ring, sections[s - 1][0]) - ring
-            elif close_ends:
+            elif _closes(close_ends, end):
                 legs_a = ring.mean(axis=0) - ring     # into the cap, towards its centre
             else:
                 continue
@@ -1400,6 +1400,57 @@ def _local_quadratic(flat: np.ndarray, h: np.ndarray, query: np.ndarray,
     return (heights, factors) if variance else heights
 
 
+#: Share of a contour's inside the cap points may leave uncovered for it to be capped by
+#: their height field (:func:`_dome`); more is a hole in the data (:func:`uncovered_share`).
+HOLE_SHARE = 0.05
+#: A point of a contour's inside is covered when a cap point lies within this many of
+#: their median nearest-neighbour distances ν: for points spread at random with density
+#: ρ, ν ≈ 0.47 / √ρ, and an empty disc of radius 4ν holds no point with probability
+#: exp(-π ρ (4ν)²) ≈ 1.5e-5, so a covered cap is never taken for a hole.
+COVER_RADIUS = 4.0
+
+
+def uncovered_share(ring2d: np.ndarray, holes2d: list, flat: np.ndarray) -> float:
+    """Share of the region inside ``ring2d`` and outside each of ``holes2d`` (``(n, 2)``
+    contours) farther than :data:`COVER_RADIUS` ν from every point of ``flat`` ``(P, 2)``.
+
+    Measured on a grid of cell 2ν (ν the points' median nearest-neighbour distance);
+    1.0 with fewer than 3 points, 0.0 when the region holds no grid point.
+    """
+    from scipy.spatial import cKDTree
+
+    inside = flat[_inside(flat, ring2d)] if len(flat) else flat
+    for hole in holes2d:
+        inside = inside[~_inside(inside, hole)]
+    if len(inside) < 3:
+        return 1.0
+    tree = cKDTree(inside)
+    nu = float(np.median(tree.query(inside, k=2)[0][:, 1]))
+    lo, hi = ring2d.min(axis=0), ring2d.max(axis=0)
+    cell = 2.0 * max(nu, TOL.zero * float(np.ptp(ring2d, axis=0).max()))
+    steps = np.ceil((hi - lo) / cell).astype(np.int64) + 1
+    if steps.prod() > INSIDE_PAIRS // 4:     # a coarser grid past ~500 000 cells
+        cell *= float(np.sqrt(steps.prod() / (INSIDE_PAIRS // 4)))
+        steps = np.ceil((hi - lo) / cell).astype(np.int64) + 1
+    gx, gy = np.meshgrid(lo[0] + cell * np.arange(steps[0]), lo[1] + cell * np.arange(steps[1]))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    grid = grid[_inside(grid, ring2d)]
+    for hole in holes2d:
+        grid = grid[~_inside(grid, hole)]
+    if len(grid) == 0:
+        return 0.0
+    far = tree.query(grid, distance_upper_bound=COVER_RADIUS * nu)[0] == np.inf
+    return float(far.mean())
+
+
+def _closes(close_ends, end: int) -> bool:
+    """Whether end ``end`` (0 the first section, -1 the last) is capped: ``close_ends``
+    is one bool for both or a pair."""
+    if np.ndim(close_ends) == 0:
+        return bool(close_ends)
+    return bool(close_ends[0 if end == 0 else 1])
+
+
 def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | None,
           frame: np.ndarray, field_ring: np.ndarray | None = None):
     """The cap points' height field over an end contour, or None for a flat cap.
@@ -1415,7 +1466,13 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
     absolute deviation) about their least-squares plane exceeds
     :data:`DOME_RATIO` times that about local quadratics of
     :data:`DOME_NEIGHBOURS` points (the noise), the latter measured at no more
-    than :data:`DOME_TEST_POINTS` of them.  The height field is fitted to the points
+    than :data:`DOME_TEST_POINTS` of them, and they cover the contour: where more than
+    :data:`HOLE_SHARE` of its inside lies farther from every one of them than
+    :data:`COVER_RADIUS` spacings (:func:`uncovered_share`: the scanner never saw the
+    middle of an animal's base, a bust's cut, a dome's pole), the quadratics would run
+    on from the hole's rim into a dome far from every point, so the heights are held
+    within those of the points over the contour (a plateau over the hole at the height
+    its rim allows).  The height field is fitted to the points
     over ``field_ring`` (default ``ring2d``: a ringed cap decides on its innermost ring
     and fits over its rim), each height to as many of them as the dome's shape allows
     (:func:`_dome_neighbours`).
@@ -1438,6 +1495,7 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
     flat, h = every[inside], h_every[inside]
     if len(flat) < 2 * DOME_NEIGHBOURS:
         return None
+    hole = uncovered_share(_scaled(ring2d, CAP_SHRINK), [], flat) > HOLE_SHARE
     design = np.column_stack([np.ones(len(flat)), flat])
     plane = h - design @ np.linalg.lstsq(design, h, rcond=None)[0]
     test = np.unique(np.linspace(0, len(flat) - 1, min(len(flat), DOME_TEST_POINTS)).astype(
@@ -1462,7 +1520,9 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
         # (reconstruct.extend_to_caps) does not pay for it
         if not chosen:
             chosen.append(_dome_neighbours(every, h_every, flat[test], noise))
-        return _local_quadratic(every, h_every, np.asarray(query, np.float64), chosen[0])
+        heights = _local_quadratic(every, h_every, np.asarray(query, np.float64), chosen[0])
+        # over a hole the quadratics run on from its rim: held within the points' heights
+        return np.clip(heights, h_every.min(), h_every.max()) if hole else heights
     return field
 
 
@@ -1537,8 +1597,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         ring's start, e.g. θ = 0 from ``catmull_rom.predict_sections``).
     axis : (3,) float64
         Direction of the section normals (need not be unit length).
-    close_ends : bool
-        Cap the first and last sections' loops.
+    close_ends : bool or (2,) of bool
+        Cap the first and last sections' loops (a pair: the first's, the last's; an end
+        left open is a border, e.g. a hole in the data, :func:`uncovered_share`).
     flip : bool
         Apply Lawson flips (inside each strip and each cap).
     constrain_contours : bool
@@ -1601,6 +1662,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     steps = np.diff(heights)
     if np.all(steps < 0):
         sections, heights = sections[::-1], heights[::-1]
+        if np.ndim(close_ends):
+            close_ends = tuple(close_ends)[::-1]
     elif not np.all(steps > 0):
         raise ValueError("rings must be ordered along the axis (heights strictly monotone), "
                          f"got heights {np.round(heights, 6).tolist()}")
@@ -1832,7 +1895,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     other_caps = 0
     for (s, up), loops_here in sorted(cap_requests.items()):
         end = 0 if (s == 0 and not up) else (-1 if (s == last and up) else None)
-        if end is not None and not close_ends:
+        if end is not None and not _closes(close_ends, end):
             continue
         requested = set(loops_here)
         parents = graph.parent[s]
