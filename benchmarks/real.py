@@ -539,7 +539,7 @@ class _Peak:
         return False
 
 
-def photo_folder_row(name: str, folder: Path, spacing: int = 3) -> dict:
+def photo_folder_row(name: str, folder: Path, spacing: int = 3, cameras=None) -> dict:
     """A photo folder without cameras as ``photosurf run`` takes it: SfM (pycolmap, SIFT
     on a <= 3 200 px image), the working scale, the multi-view cloud and the object
     selection (:func:`pipeline.acquisition.acquire_folder` with the run's defaults);
@@ -562,7 +562,7 @@ def photo_folder_row(name: str, folder: Path, spacing: int = 3) -> dict:
     sfm_module.run_sfm = timed_sfm
     try:
         with _Peak() as total:
-            cloud = acquire_folder(folder, **params)
+            cloud = acquire_folder(folder, cameras, **params)
     finally:
         sfm_module.run_sfm = real_run_sfm
     stats, sfm = cloud.stats, cloud.stats.get("sfm") or {}
@@ -596,7 +596,7 @@ def photos_main(args) -> int:
     rows = []
     sceaux = DATA.parent / "sceaux_castle"
     if args.sceaux and sceaux.is_dir():
-        row, cloud = photo_folder_row("sceaux", sceaux)
+        row, cloud = photo_folder_row("sceaux", sceaux, cameras=args.cameras)
         rows.append(row)
         if args.save_cloud:
             from pipeline.cloud_io import write_ply
@@ -633,6 +633,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="a phone-sized photo folder (e.g. 30 views of 12 MP rendered by "
                              "photosurf synth) instead of the temple rows")
     parser.add_argument("--save-cloud", metavar="PLY", help="with --sceaux: write its cloud")
+    parser.add_argument("--cameras", metavar="MODEL",
+                        help="with --sceaux: the cameras (and sparse points) of an earlier "
+                             "SfM run's COLMAP model instead of running SfM again")
     parser.add_argument("--quick", action="store_true",
                         help="spacing 3, no photosurf cloud on SfM cameras")
     parser.add_argument("--sfm-only", action="store_true",

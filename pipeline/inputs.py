@@ -350,6 +350,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         names, shapes, cams = ([seq[k] for k in keep] for seq in (names, shapes, cams))
         _enough_views(names, skipped, where)
         out["camera_source"] = str(source)
+        out["sparse_points"] = _model_points(source)
     else:
         # images of several sizes: SfM turns one sensor's portrait shots upright to share
         # one camera with its landscape ones, else gives each image its own camera
@@ -378,6 +379,18 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     out.update(images=FolderImages(where, names, shapes, scale), cameras=cams, names=names,
                working_scale=scale, full_sizes=full_sizes)
     return out
+
+
+def _model_points(source: Path):
+    """The sparse points of a COLMAP model folder (the object's extent in the images), or
+    None for any other camera file."""
+    if not (source.is_dir() and any((source / f"points3D.{ext}").is_file()
+                                    for ext in ("bin", "txt"))):
+        return None
+    import pycolmap
+
+    model = pycolmap.Reconstruction(str(source))
+    return np.array([p.xyz for p in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
 
 
 def _working_resolution(cams: list, shapes: list, points, spacing: float,
