@@ -401,6 +401,10 @@ def main(argv: list[str] | None = None) -> int:
                 row = _row_in_child(case, size, noise, workspace, args.timeout)
                 rows.append(row)
                 print_row(row)
+                # the rows so far, so that a run stopped part way keeps them
+                Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+                Path(args.json).write_text(json.dumps({"rows": rows, "partial": True},
+                                                      default=float))
     met = goals(rows)
     print_goals(met)
     print(f"load (1, 5, 15 min): {uptime()}")
