@@ -1,0 +1,69 @@
+"""surface/uncertainty.py: 1σ along the normal from the points' σ, the fit's bias, gaps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from surface.uncertainty import normal_sigma
+
+
+def _sphere_points(count: int, sigma: float, seed: int, keep=None):
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(count, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    if keep is not None:
+        u = u[keep(u)]
+    return u * (1.0 + sigma * rng.normal(size=(len(u), 1))), np.full(len(u), sigma)
+
+
+def _surface(count: int = 2000, radius: float = 1.0):
+    # a Fibonacci sphere of surface points with exact normals
+    i = np.arange(count) + 0.5
+    z = 1 - 2 * i / count
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    n = np.column_stack([np.sqrt(1 - z ** 2) * np.cos(phi), np.sqrt(1 - z ** 2) * np.sin(phi), z])
+    return radius * n, n
+
+
+def test_unbiased_surface_gets_the_propagated_sigma_of_the_mean():
+    # surface on the truth, points with sigma 0.01: sigma is the weighted mean's standard
+    # error, between sigma / sqrt(K) (equal weights) and sigma (one point)
+    points, sigma = _sphere_points(40_000, 0.01, seed=1)
+    x, n = _surface()
+    out = normal_sigma(x, n, points, sigma)
+    assert np.all(out.gap[np.abs(x[:, 2]) < 0.9] == 0)
+    med = float(np.median(out.sigma))
+    assert 0.01 / 4 <= med <= 0.01 / 2  # K = 16, Gaussian weights: ~1/3
+    # and the surface's true deviation (0 here plus the mean's noise) is not what is
+    # measured: the bias estimate stays below the propagated sigma
+    assert np.median(out.bias) <= np.median(out.propagated)
+
+
+def test_offset_surface_gets_its_offset_as_sigma():
+    # the surface 0.02 outside points of sigma 0.002: the deviation is the fit's bias
+    points, sigma = _sphere_points(40_000, 0.002, seed=2)
+    x, n = _surface(radius=1.02)
+    out = normal_sigma(x, n, points, sigma)
+    assert np.median(out.sigma) == pytest.approx(0.02, rel=0.15)
+    assert np.mean(0.02 <= 2 * out.sigma) > 0.95
+
+
+def test_a_bridged_cap_is_more_uncertain_the_further_it_is_from_the_data():
+    points, sigma = _sphere_points(40_000, 0.002, seed=3, keep=lambda u: u[:, 2] < 0.7)
+    x, n = _surface()
+    out = normal_sigma(x, n, points, sigma)
+    cap = x[:, 2] > 0.8
+    assert np.all(out.gap[cap] > 0) and np.all(out.gap[x[:, 2] < 0.6] == 0)
+    assert np.median(out.sigma[cap]) > 5 * np.median(out.sigma[x[:, 2] < 0.6])
+    deep, shallow = x[:, 2] > 0.97, cap & (x[:, 2] < 0.85)
+    assert np.median(out.sigma[deep]) > np.median(out.sigma[shallow])
+    assert out.curvature == pytest.approx(1.0, rel=0.3)  # the unit sphere's curvature
+
+
+def test_bad_input_is_refused():
+    x, n = _surface(100)
+    with pytest.raises(ValueError):
+        normal_sigma(x, n, x[:10], np.ones(10))
+    with pytest.raises(ValueError):
+        normal_sigma(x, n, x, np.ones(5))
