@@ -954,19 +954,18 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     rings = section_rings(kept, loops, n, smoothing=smoothing)
     kept, loops, rings, notes = untangle(kept, loops, rings)
     messages += notes
+    holes = (False, False)
+    if close_ends:   # on the sections' own end loops: an extended ring may drift off the data
+        holes, notes = hole_ends(rings, kept[0].frame, sliced.cap_cloud, sliced.spacing,
+                                 open_holes)
+        messages += notes
     if extend_ends and close_ends:
         cap = sliced.cap_cloud
         cap_sigma = None if sigma is None else np.asarray(sigma, np.float64)[sliced.cap_index]
         rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing,
                                       sigma=cap_sigma)
         messages += notes
-    ends = close_ends
-    if close_ends:
-        holes, notes = hole_ends(rings, kept[0].frame, sliced.cap_cloud, sliced.spacing,
-                                 open_holes)
-        messages += notes
-        if open_holes:
-            ends = (not holes[0], not holes[1])
+    ends = (not holes[0], not holes[1]) if close_ends and open_holes else close_ends
     result = stitch_rings(rings, kept[0].frame[2], close_ends=ends, flip=flip,
                           support_sigma=section_noise(loops) if support else None,
                           cap_points=sliced.cap_cloud)
