@@ -68,6 +68,7 @@ import numpy as np
 
 from pipeline.atomic import atomic_file, naming
 from pipeline.errors import InputError
+from pipeline.mesh_io import vertex_normals, write_mesh_to
 from pipeline.workspace import write_npz_to
 from surface.validate import TOL, check_finite, check_shape
 
@@ -123,35 +124,9 @@ def _check_mesh(vertices, triangles, normals=None, colors=None):
     return vertices, triangles, normals, colors
 
 
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals.
-
-    Parameters
-    ----------
-    vertices : (V, 3) float64
-    triangles : (F, 3) int64, counter-clockwise seen from outside
-
-    Returns
-    -------
-    normals : (V, 3) float64
-        Unit normals; a vertex used by no triangle (or only by degenerate
-        ones) gets ``(0, 0, 1)`` so that no writer ever sees a NaN.
-    """
-    corners = vertices[triangles]  # (F, 3, 3)
-    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])  # 2·area·n
-    normals = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(normals, triangles[:, c], face)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    scale = float(np.abs(vertices).max()) if len(vertices) else 1.0
-    empty = length[:, 0] <= TOL.zero * max(scale, 1.0) ** 2  # |Σ 2·area·n| ~ size²
-    normals[~empty] /= length[~empty]
-    normals[empty] = (0.0, 0.0, 1.0)
-    return normals
-
-
 def export_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray,
-                normals: np.ndarray | None = None, colors: np.ndarray | None = None) -> Path:
+                normals: np.ndarray | None = None, colors: np.ndarray | None = None,
+                sigma: np.ndarray | None = None) -> Path:
     """Write a triangle mesh atomically, the format chosen by the suffix.
 
     Parameters
@@ -165,6 +140,9 @@ def export_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.nda
         normals are computed when omitted.  STL keeps only face normals.
     colors : (V, 3) uint8 or float in [0, 1], optional
         Vertex colours (PLY, glTF, GLB).
+    sigma : (V,) float, optional
+        Each vertex's 1σ along its normal (``surface.uncertainty``), scene units: the
+        PLY's ``float sigma`` vertex property (other formats have no place for it).
 
     Returns
     -------
@@ -184,28 +162,33 @@ def export_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.nda
     vertices, triangles, normals, colors = _check_mesh(vertices, triangles, normals, colors)
     if normals is None:
         normals = vertex_normals(vertices, triangles)
+    if sigma is not None:
+        sigma = check_finite(np.asarray(sigma, dtype=np.float64).reshape(-1), "sigma")
+        if len(sigma) != len(vertices):
+            raise ValueError(f"sigma must have one value per vertex ({len(vertices)}), "
+                             f"got {len(sigma)}")
     with atomic_file(path) as tmp:
-        _write_mesh_to(tmp, suffix, vertices, triangles, normals, colors)
+        _write_mesh_to(tmp, suffix, vertices, triangles, normals, colors, sigma)
     return path
 
 
-def _write_mesh_to(tmp: Path, suffix: str, vertices, triangles, normals, colors) -> None:
+def _write_mesh_to(tmp: Path, suffix: str, vertices, triangles, normals, colors,
+                   sigma=None) -> None:
     """Write the (validated) mesh to ``tmp`` in the format of ``suffix``."""
     if suffix == ".glb":
         _write_glb_to(tmp, vertices, triangles, normals, colors)
     elif suffix == ".obj":
         _write_obj_to(tmp, vertices, triangles, normals)
     else:
-        _write_open3d_to(tmp, suffix, vertices, triangles, normals, colors)
+        _write_open3d_to(tmp, suffix, vertices, triangles, normals, colors, sigma)
 
 
-def _write_open3d_to(tmp: Path, suffix: str, vertices, triangles, normals, colors) -> None:
+def _write_open3d_to(tmp: Path, suffix: str, vertices, triangles, normals, colors,
+                     sigma=None) -> None:
     # PLY/STL by photosurf's own checked writers, glTF by open3d with its result and
     # fd-2 lines checked (pipeline.mesh_io.write_mesh_to): a full disk is an error
-    from pipeline.mesh_io import write_mesh_to
-
     write_mesh_to(tmp, suffix, vertices, triangles, None if suffix == ".stl" else normals,
-                  colors)
+                  colors, sigma)
 
 
 def _write_obj_to(tmp: Path, vertices, triangles, normals) -> None:

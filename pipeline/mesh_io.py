@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline.atomic import atomic_file
 from pipeline.errors import InputError
+from surface.validate import TOL
 
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".gltf", ".off")
 
@@ -395,9 +396,9 @@ def check_header_counts(path: str | os.PathLike) -> dict[str, int]:
     return {canonical[e]: c for e, c, _ in counts if e in canonical}
 
 
-def _write_ply_to(tmp: Path, vertices, triangles, normals, colors) -> None:
-    """Binary little-endian PLY: double x y z [float nx ny nz] [uchar rgb], int
-    vertex_indices.
+def _write_ply_to(tmp: Path, vertices, triangles, normals, colors, sigma=None) -> None:
+    """Binary little-endian PLY: double x y z [float nx ny nz] [uchar rgb] [float sigma],
+    int vertex_indices.
 
     Positions stay float64 (georeferenced coordinates need every bit); unit normals are
     float32: 6e-8 rad, and 12 of the 48 bytes a vertex took."""
@@ -411,6 +412,9 @@ def _write_ply_to(tmp: Path, vertices, triangles, normals, colors) -> None:
     if colors is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
         header += ["property uchar red", "property uchar green", "property uchar blue"]
+    if sigma is not None:  # 1 sigma along the normal, scene units
+        fields += [("sigma", "<f4")]
+        header += ["property float sigma"]
     header += [f"element face {len(triangles)}", "property list uchar int vertex_indices",
                "end_header"]
     data = np.empty(len(vertices), dtype=np.dtype(fields))
@@ -421,6 +425,8 @@ def _write_ply_to(tmp: Path, vertices, triangles, normals, colors) -> None:
         c = np.asarray(colors)
         c = c if c.dtype == np.uint8 else np.clip(np.rint(c * 255), 0, 255).astype(np.uint8)
         data["red"], data["green"], data["blue"] = c.T
+    if sigma is not None:
+        data["sigma"] = np.asarray(sigma, dtype=np.float32).reshape(-1)
     faces = np.empty(len(triangles), dtype=np.dtype([("n", "u1"), ("v", "<i4", (3,))]))
     faces["n"] = 3
     faces["v"] = triangles
@@ -465,9 +471,39 @@ def _write_text_to(tmp: Path, suffix: str, vertices, triangles, normals) -> None
             out.write(("f %d %d %d\n" * n_f) % tuple((np.asarray(triangles) + 1).ravel().tolist()))
 
 
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64, counter-clockwise seen from outside
+
+    Returns
+    -------
+    normals : (V, 3) float64
+        Unit normals; a vertex used by no triangle (or only by degenerate
+        ones) gets ``(0, 0, 1)`` so that no writer ever sees a NaN.
+    """
+    corners = vertices[triangles]  # (F, 3, 3)
+    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])  # 2·area·n
+    normals = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(normals, triangles[:, c], face)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    scale = float(np.abs(vertices).max()) if len(vertices) else 1.0
+    empty = length[:, 0] <= TOL.zero * max(scale, 1.0) ** 2  # |Σ 2·area·n| ~ size²
+    normals[~empty] /= length[~empty]
+    normals[empty] = (0.0, 0.0, 1.0)
+    return normals
+
+
 def write_mesh_to(tmp: str | os.PathLike, suffix: str, vertices, triangles, normals=None,
-                  colors=None) -> None:
+                  colors=None, sigma=None) -> None:
     """Write a mesh to ``tmp`` (not atomic: for a temporary the caller renames).
+
+    ``sigma`` (V,), optional: each vertex's 1σ along its normal, a ``float sigma``
+    vertex property of a PLY (other formats have no place for it).
 
     PLY, STL, OFF and OBJ are written here with Python's own ``write``, so a
     full disk or an I/O error is an ``OSError``; glTF goes through open3d,
@@ -476,7 +512,7 @@ def write_mesh_to(tmp: str | os.PathLike, suffix: str, vertices, triangles, norm
     """
     tmp = Path(tmp)
     if suffix == ".ply":
-        _write_ply_to(tmp, vertices, triangles, normals, colors)
+        _write_ply_to(tmp, vertices, triangles, normals, colors, sigma)
     elif suffix == ".stl":
         _write_stl_to(tmp, vertices, triangles)
     elif suffix in (".off", ".obj"):
@@ -516,8 +552,6 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndar
     if len(triangles) == 0:  # an empty mesh is no output (open3d's writer refused it too)
         raise InputError(f"{path}: no triangles to write")
     if normals is None and compute_normals and suffix not in (".stl", ".off"):
-        from pipeline.export import vertex_normals  # export imports this module lazily
-
         normals = vertex_normals(vertices, triangles)
     with atomic_file(path) as tmp:
         write_mesh_to(tmp, suffix, vertices, triangles,

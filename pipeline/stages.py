@@ -798,8 +798,10 @@ def export(ctx: StageContext) -> dict:
             from pipeline.step import write_cad
 
             write_cad(path, net["control_points"], net["domain_triangles"])
-        else:
-            export_mod.export_mesh(path, vertices, triangles, normals=normals)
+        else:  # a PLY of the smooth surface carries each vertex's 1 sigma along its normal
+            sigma = _surface_sigma(ctx, vertices, normals) if smoothed and fmt == "ply" \
+                else None
+            export_mod.export_mesh(path, vertices, triangles, normals=normals, sigma=sigma)
         written.append(path.name)
     if smoothed:
         domain = (net["domain_vertices"], net["domain_triangles"]) \
@@ -808,6 +810,19 @@ def export(ctx: StageContext) -> dict:
                                      net["index"], net["source_face"], domain_mesh=domain)
         written.append("surface.npz")
     return {"files": written, "source": "smooth surface" if smoothed else "stitched mesh"}
+
+
+def _surface_sigma(ctx: StageContext, vertices, normals):
+    """``surface.uncertainty.normal_sigma`` of the surface's vertices from the acquired
+    points and their sigma (None without them)."""
+    from surface.uncertainty import normal_sigma
+
+    if not ctx.has_output("acquire"):
+        return None
+    cloud = artifacts.read_cloud(ctx.stage_path("acquire"))
+    if "sigma" not in cloud or len(cloud["points"]) < 16:
+        return None
+    return normal_sigma(vertices, normals, cloud["points"], cloud["sigma"]).sigma
 
 
 def report(ctx: StageContext) -> dict:

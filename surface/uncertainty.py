@@ -19,8 +19,8 @@ fit leaves (smoothing, the chord of the patches) is ``b^2 = max(0, <m^2> - s_pro
 
 Where the surface bridges a gap or closes a cap there are no points within the
 fit's support: ``g = max(0, d_0 - h)``, ``d_0`` the distance to the nearest point
-(on a covered surface ``d_0`` is about the points' spacing, far below ``h``).  The bridge is a smooth curve across
-``2 g`` whose curvature is not measured: it may miss a bend of curvature up to
+(on a covered surface ``d_0`` is about the points' spacing, far below ``h``).
+The bridge is a smooth curve across ``2 g`` whose curvature is not measured: it may miss a bend of curvature up to
 ``kappa`` (the 90th percentile of the surface's own curvature, from its normals,
 over the covered part) by the sagitta ``kappa g^2 / 2``, so
 

@@ -377,3 +377,19 @@ def test_export_is_byte_reproducible(tmp_path, sphere):
                                       control_points, index, np.arange(len(triangles)))
         files.append({p.name: p.read_bytes() for p in written})
     assert files[0] == files[1]
+
+
+def test_ply_carries_each_vertex_sigma(tmp_path, sphere):
+    # the surface's 1 sigma along the normal as a float vertex property, after the normals
+    vertices, triangles, normals = sphere
+    sigma = np.linspace(1e-4, 2e-3, len(vertices))
+    path = export_mesh(tmp_path / "s.ply", vertices, triangles, normals, sigma=sigma)
+    raw = path.read_bytes()
+    head, body = raw.split(b"end_header\n", 1)
+    assert b"property float sigma" in head
+    record = np.dtype([("p", "<f8", 3), ("n", "<f4", 3), ("sigma", "<f4")])
+    data = np.frombuffer(body[:record.itemsize * len(vertices)], dtype=record)
+    np.testing.assert_array_equal(data["p"], vertices)
+    np.testing.assert_allclose(data["sigma"], sigma, rtol=1e-7)
+    with pytest.raises(ValueError):
+        export_mesh(tmp_path / "bad.ply", vertices, triangles, normals, sigma=sigma[:-1])
