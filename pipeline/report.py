@@ -248,10 +248,12 @@ def build_report(root: str | Path, config: Mapping, out_html: str | Path,
     screen = _Screen(root, final, params, read_mesh) if final is not None else None
     parts: list[str] = []
     info: dict = {}
-    jobs = ["surface", "views", "sections", "truth"]
+    jobs = ["surface", "uncertainty", "views", "sections", "truth"]
     for job in track(jobs, "report"):
         if job == "surface" and screen is not None:
             parts.append(_surface_section(root, screen, params, info, read_mesh))
+        elif job == "uncertainty" and screen is not None and screen.tolerance is not None:
+            parts.append(_uncertainty_section(root, screen))
         elif job == "views" and screen is not None and views:
             parts.append(_views_section(screen, views, peer, params, info))
         elif job == "sections":
@@ -338,6 +340,35 @@ def _surface_section(root: Path, screen: _Screen, params, info, read_mesh) -> st
     caption = f"{screen.label}: six views{screen.note()}"
     return (f"<section><h2>Surface</h2>{_figure(png_data_uri(sheet), caption)}"
             f"{'<h3>Topology</h3>' if rows else ''}{table}</section>")
+
+
+def _uncertainty_section(root: Path, screen: _Screen) -> str:
+    """The smooth surface coloured by its 1 sigma along the normal
+    (``surface.uncertainty``), three views, viridis from 0 to the 95th percentile."""
+    from pipeline.render import look_at, render_view, viridis
+    from surface.uncertainty import normal_sigma
+
+    cloud = root / "acquire" / "cloud.npz"
+    if not cloud.is_file():
+        return ""
+    with np.load(cloud) as data:
+        if "sigma" not in data.files or len(data["points"]) < 16:
+            return ""
+        result = normal_sigma(screen.vertices, screen.normals, data["points"], data["sigma"])
+    top = float(np.percentile(result.sigma, 95)) or 1.0
+    width, height = screen.size[0] // 3, screen.size[1] // 2
+    centre = 0.5 * (screen.vertices.min(axis=0) + screen.vertices.max(axis=0))
+    radius = _radius(screen.vertices)
+    tiles = [render_view(screen.caster, screen.vertices, screen.triangles, screen.normals,
+                         *look_at(centre, radius, azimuth, 20.0, width, height), width, height,
+                         vertex_values=np.clip(result.sigma / top, 0.0, 1.0), colormap=viridis)
+             for azimuth in (0.0, 120.0, 240.0)]
+    bridged = float(np.mean(result.gap > 0))
+    caption = (f"1σ of the surface along its normal, from the points' σ (dark 0, yellow "
+               f"≥ {top:.3g}, the 95th percentile; median {np.median(result.sigma):.3g}); "
+               f"{100 * bridged:.1f} % of the surface bridges a gap or closes a cap")
+    return (f"<section><h2>Where the surface is uncertain</h2>"
+            f"{_figure(png_data_uri(np.hstack(tiles)), caption)}</section>")
 
 
 def _view_camera(camera, width: int):
