@@ -21,7 +21,13 @@ triangles, unit radius, exact radial normals):
   duplicate entities, writing), merged and unmerged; IGES; the PLY of the
   tessellation for scale.
 
-Run: ``.venv/bin/python benchmarks/export.py [--quick] [--net W/smooth] [--json PATH]``
+The STEP read-back rows (``bench_step_read``): the text writer's variants, with and
+without pcurves, at the old and the current distance uncertainty, read by
+OpenCascade (parse, transfer, BRepCheck) and opened by FreeCAD when ``freecadcmd``
+is installed (``--step-only`` runs only these).
+
+Run: ``.venv/bin/python benchmarks/export.py [--quick] [--step-only] [--net W/smooth]
+[--json PATH]``
 (default JSON: ``benchmarks/results/export.json``).
 """
 
@@ -260,6 +266,114 @@ def bench_step(control_points, triangles, folder: Path, read_back: bool = True) 
     return rows
 
 
+_FREECAD_SCRIPT = """
+import resource, sys, time
+import FreeCAD, Import
+path = sys.argv[-1]
+start, cpu = time.perf_counter(), time.process_time()
+doc = FreeCAD.newDocument("d")
+Import.insert(path, "d")
+wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+shape = doc.Objects[0].Shape
+print("FCRESULT %.3f %.3f %d %d %d %d %.0f" % (wall, cpu, len(shape.Faces), len(shape.Solids),
+      shape.isValid(), shape.isClosed(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+"""
+
+
+def _freecad_open(path: Path, folder: Path) -> dict:
+    """FreeCAD opening ``path`` (``freecadcmd``, its STEP importer into a document), when
+    installed: wall and CPU seconds of the import, faces, solids, validity, peak RSS."""
+    import shutil
+    import subprocess
+
+    if shutil.which("freecadcmd") is None:
+        return {}
+    script = folder / "freecad_open.py"
+    script.write_text(_FREECAD_SCRIPT)
+    done = subprocess.run(["freecadcmd", str(script), str(path)], capture_output=True,
+                          text=True, timeout=3600)
+    for line in (done.stdout + done.stderr).splitlines():
+        if "FCRESULT" in line:
+            cells = line.split("FCRESULT", 1)[1].split()
+            return {"freecad_open_s": float(cells[0]), "freecad_open_cpu_s": float(cells[1]),
+                    "freecad_faces": int(cells[2]), "freecad_solids": int(cells[3]),
+                    "freecad_valid": bool(int(cells[4])), "freecad_closed": bool(int(cells[5])),
+                    "freecad_rss_mb": float(cells[6])}
+    return {"freecad_error": (done.stderr or done.stdout)[-300:]}
+
+
+def bench_step_read(control_points, triangles, folder: Path, freecad: bool = True) -> list[dict]:
+    """What a CAD program does with the STEP file: the variants of ``write_cad``'s text
+    (pcurves or not; distance uncertainty ``1e-9 size`` as before, or
+    ``step_uncertainty``), each written, read by OpenCascade (``ReadFile``,
+    ``TransferRoots``, ``BRepCheck_Analyzer``; CPU seconds), volume and area against the
+    level-3 tessellation, and opened by FreeCAD when ``freecadcmd`` is installed."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    from pipeline import step
+    from surface import bezier
+
+    step._quiet()
+    v, t, _ = bezier.tessellate(control_points, 3, triangles)
+    a, b, c = (v[t[:, i]] for i in range(3))
+    mesh_volume = abs(float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0))
+    mesh_area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+    size = float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
+    rows = []
+    for pcurves, floor in ((False, False), (False, True), (True, False), (True, True)):
+        row = {"variant": f"{'pcurves' if pcurves else 'no pcurves'}, uncertainty "
+                          f"{'max(1e-9 size, 1e-7)' if floor else '1e-9 size'}",
+               "pcurves": pcurves, "uncertainty": step.step_uncertainty(size) if floor
+               else step.REL_TOLERANCE * size, "patches": len(control_points)}
+        path = folder / f"read_{int(pcurves)}{int(floor)}.step"
+        _clocked(row, "write", lambda p=path, c=pcurves, r=row: step._write_step_text(
+            control_points, triangles, p, c, r["uncertainty"]))
+        row["bytes"] = path.stat().st_size
+        reader = STEPControl_Reader()
+        _clocked(row, "occ_parse", lambda r=reader, p=path: r.ReadFile(str(p)))
+        _clocked(row, "occ_transfer", reader.TransferRoots)
+        shape = reader.OneShape()
+        row["occ_solid"] = shape.ShapeType() == TopAbs_SOLID
+        row["occ_valid"] = bool(_clocked(row, "occ_check",
+                                         lambda s=shape: BRepCheck_Analyzer(s).IsValid()))
+        row["occ_read_cpu_s"] = row["occ_parse_cpu_s"] + row["occ_transfer_cpu_s"]
+        faces, explorer = 0, TopExp_Explorer(shape, TopAbs_FACE)
+        while explorer.More():
+            faces += 1
+            explorer.Next()
+        row["faces"] = faces
+        volume, area = GProp_GProps(), GProp_GProps()
+        BRepGProp.VolumeProperties_s(shape, volume)
+        BRepGProp.SurfaceProperties_s(shape, area)
+        row["volume_rel_error"] = abs(volume.Mass() - mesh_volume) / mesh_volume
+        row["area_rel_error"] = abs(area.Mass() - mesh_area) / mesh_area
+        if freecad:
+            row.update(_freecad_open(path, folder))
+        rows.append(row)
+        path.unlink()
+    return rows
+
+
+def _print_step_read(rows: list[dict]) -> None:
+    print(f"\nSTEP read back: {rows[0]['patches']} patches (OpenCascade CPU seconds; FreeCAD "
+          "wall/CPU seconds of its import, when installed)")
+    print(f"{'variant':<44}{'MB':>7}{'write':>7}{'parse':>7}{'transfer':>9}{'check':>7}"
+          f"{'valid':>6}{'faces':>7}{'dV':>9}{'dA':>9}{'FC wall':>8}{'FC cpu':>8}{'FC MB':>7}")
+    for r in rows:
+        fc = "".join(f"{r[k]:>{w}.{d}f}" if k in r else f"{'-':>{w}}" for k, w, d in
+                     (("freecad_open_s", 8, 1), ("freecad_open_cpu_s", 8, 1),
+                      ("freecad_rss_mb", 7, 0)))
+        print(f"{r['variant']:<44}{r['bytes'] / 1e6:>7.1f}{r['write_cpu_s']:>7.1f}"
+              f"{r['occ_parse_cpu_s']:>7.1f}{r['occ_transfer_cpu_s']:>9.1f}"
+              f"{r['occ_check_cpu_s']:>7.1f}{str(r['occ_valid'] and r['occ_solid']):>6}"
+              f"{r['faces']:>7}{r['volume_rel_error']:>9.1e}{r['area_rel_error']:>9.1e}{fc}")
+
+
 def _print_step(rows: list[dict], source: str) -> None:
     print(f"\nCAD export of {source}: {rows[0]['patches']} patches "
           f"(CPU seconds; wall in the JSON)")
@@ -290,17 +404,15 @@ def main(argv=None) -> int:
                         help="a workspace's smooth/ folder: write its control net instead")
     parser.add_argument("--no-read-back", action="store_true",
                         help="skip reading the STEP file back (large nets)")
+    parser.add_argument("--step-only", action="store_true",
+                        help="only the STEP rows (no mesh formats, no renders)")
+    parser.add_argument("--no-freecad", action="store_true",
+                        help="skip opening the STEP variants in FreeCAD (freecadcmd)")
     parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "export.json"))
     args = parser.parse_args(argv)
     import open3d as o3d
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # open3d's GLB warning
-    count = args.triangles or (50_000 if args.quick else 1_000_000)
-    repeats = 1 if args.quick else 3
-    vertices, triangles, normals = _sphere(count)
-    with tempfile.TemporaryDirectory() as tmp:
-        formats = bench_formats(vertices, triangles, normals, Path(tmp))
-    renders = bench_render(vertices, triangles, normals, repeats)
     if args.net:
         from pipeline.artifacts import read_control_net
 
@@ -311,25 +423,38 @@ def main(argv=None) -> int:
         control_points, domain = _ellipsoid_net(args.patches or (500 if args.quick else 4000))
         cad_source = "Loop's surface over an ellipsoid"
     with tempfile.TemporaryDirectory() as tmp:
-        cad = bench_step(control_points, domain, Path(tmp), read_back=not args.no_read_back)
-
-    print(f"mesh: sphere, {len(vertices)} vertices, {len(triangles)} triangles")
-    print(f"{'writer':<16}{'write s':>9}{'MB':>8}{'read s':>8}{'read tris':>11}"
-          f"{'pos err':>10}{'normal err':>11}")
-    for r in formats:
-        pe = "-" if r["position_error"] is None else f"{r['position_error']:.1e}"
-        ne = "-" if r["normal_error"] is None else f"{r['normal_error']:.1e}"
-        print(f"{r['writer']:<16}{r['write_s']:>9.3f}{r['bytes'] / 1e6:>8.1f}{r['read_s']:>8.3f}"
-              f"{r['triangles_read']:>11}{pe:>10}{ne:>11}")
-    print()
-    for r in renders:
-        print(f"{r['render']:<45}{r['seconds']:>8.3f} s")
-    _print_step(cad, cad_source)
+        cad_read = bench_step_read(control_points, domain, Path(tmp),
+                                   freecad=not args.no_freecad)
+    result = {"cad_read": {"source": cad_source, "rows": cad_read}}
+    if not args.step_only:
+        count = args.triangles or (50_000 if args.quick else 1_000_000)
+        repeats = 1 if args.quick else 3
+        vertices, triangles, normals = _sphere(count)
+        with tempfile.TemporaryDirectory() as tmp:
+            formats = bench_formats(vertices, triangles, normals, Path(tmp))
+        renders = bench_render(vertices, triangles, normals, repeats)
+        with tempfile.TemporaryDirectory() as tmp:
+            cad = bench_step(control_points, domain, Path(tmp), read_back=not args.no_read_back)
+        print(f"mesh: sphere, {len(vertices)} vertices, {len(triangles)} triangles")
+        print(f"{'writer':<16}{'write s':>9}{'MB':>8}{'read s':>8}{'read tris':>11}"
+              f"{'pos err':>10}{'normal err':>11}")
+        for r in formats:
+            pe = "-" if r["position_error"] is None else f"{r['position_error']:.1e}"
+            ne = "-" if r["normal_error"] is None else f"{r['normal_error']:.1e}"
+            print(f"{r['writer']:<16}{r['write_s']:>9.3f}{r['bytes'] / 1e6:>8.1f}"
+                  f"{r['read_s']:>8.3f}{r['triangles_read']:>11}{pe:>10}{ne:>11}")
+        print()
+        for r in renders:
+            print(f"{r['render']:<45}{r['seconds']:>8.3f} s")
+        _print_step(cad, cad_source)
+        result.update({"vertices": len(vertices), "triangles": len(triangles),
+                       "formats": formats, "render": renders,
+                       "cad": {"source": cad_source, "rows": cad}})
+    print(f"\nCAD: {cad_source}")
+    _print_step_read(cad_read)
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"vertices": len(vertices), "triangles": len(triangles),
-                               "formats": formats, "render": renders,
-                               "cad": {"source": cad_source, "rows": cad}}, indent=1))
+    out.write_text(json.dumps(result, indent=1))
     print(f"\nwrote {out}")
     return 0
 

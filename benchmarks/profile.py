@@ -4,8 +4,11 @@ Synthetic vessels of revolution with analytic profiles (exact truth): the tapere
 ``tests/_cup.py`` (flat base, straight walls 5 mm apart, round lip) and a hemispherical
 bowl (spherical shell, outer radius 60, inner 55, cut flat at 45 mm).  Each is measured
 two ways: (1) ``mesh``: the revolved polygon mesh (128 azimuths) itself; (2) ``smooth``:
-Loop's sextic surface over a coarser revolved mesh (96 azimuths), volume and area exact
-over its patches, profile and capacity on its tessellation.  Truth: height, rim, base and
+Loop's sextic surface through a coarser revolved mesh (96 and 48 azimuths; the pipeline's
+interpolating control mesh, sharp edges kept: ``surface.sizing.interpolating_control``),
+volume and area exact over its patches, profile and capacity on its tessellation; and,
+as the cause of the earlier 48-azimuth shortfall, Loop's approximating surface over the
+mesh's vertices themselves, which lies inside their polygon.  Truth: height, rim, base and
 maximum diameters, wall thickness (normal to the wall) at mid height, the solid's volume
 ``pi int (r_out^2 - r_in^2) dz`` and the capacity ``pi int r_in^2 dz`` up to 2/3 of the
 height.  Beside the exact patch integral, the volume of the smooth surface's tessellation
@@ -42,6 +45,7 @@ from _common import print_goals, uptime, write_result  # noqa: E402
 from pipeline import cmd_profile  # noqa: E402
 from surface import bezier  # noqa: E402
 from surface.profile import revolve  # noqa: E402
+from surface.sizing import interpolating_control  # noqa: E402
 from tests import _cup  # noqa: E402
 
 SCANS = ROOT.parent / "shared" / "data" / "real" / "scans"
@@ -123,12 +127,20 @@ def vessel_rows(name: str) -> list[dict]:
     mesh = cmd_profile.mesh_surface(vertices, triangles)
     rows.append({"vessel": name, "route": "mesh 128", **_measures(mesh, truth),
                  "tessellation_volume": None})
-    coarse_v, coarse_t = revolve(truth["coarse"], 96)
-    net = bezier.control_net(coarse_v, coarse_t)
-    smooth = cmd_profile._net_surface(net.control_points, net.domain_mesh[1], name)
-    rows.append({"vessel": name, "route": f"smooth ({len(net.control_points)} patches)",
-                 **_measures(smooth, truth), "level": smooth["level"],
-                 "tessellation_volume": _tessellation_volume(smooth)})
+    for azimuths, construction in ((96, "interpolating"), (48, "interpolating"),
+                                   (48, "approximating")):
+        coarse_v, coarse_t = revolve(truth["coarse"], azimuths)
+        # the pipeline's surface passes through the mesh's vertices (sharp edges kept);
+        # Loop's surface over the vertices themselves lies inside their polygon
+        control = (interpolating_control(coarse_v, coarse_t)
+                   if construction == "interpolating" else coarse_v)
+        net = bezier.control_net(control, coarse_t)
+        smooth = cmd_profile._net_surface(net.control_points, net.domain_mesh[1], name)
+        rows.append({"vessel": name, "route": f"{construction[:6]}. {azimuths} az",
+                     "azimuths": azimuths, "construction": construction,
+                     "patches": len(net.control_points),
+                     **_measures(smooth, truth), "level": smooth["level"],
+                     "tessellation_volume": _tessellation_volume(smooth)})
     for r in rows:
         r["truth"] = {k: v for k, v in truth.items() if not isinstance(v, np.ndarray)}
     return rows
@@ -245,8 +257,12 @@ def main(argv=None) -> int:
     scan = scan_rows(args.points, args.quick)
     if scan:
         print_scan(scan)
-    goals = {"capacity within 0.5 % on the synthetic vessels":
-             all(abs(_rel(r["capacity"], r["truth"]["capacity"])) <= 0.005 for r in vessels)}
+    goals = {"capacity within 0.5 % on the synthetic vessels (mesh and interpolating routes)":
+             all(abs(_rel(r["capacity"], r["truth"]["capacity"])) <= 0.005 for r in vessels
+                 if r.get("construction") != "approximating"),
+             "capacity within 0.5 % at 48 azimuths":
+             all(abs(_rel(r["capacity"], r["truth"]["capacity"])) <= 0.005 for r in vessels
+                 if r.get("azimuths") == 48 and r["construction"] == "interpolating")}
     print()
     print_goals(goals)
     print(f"load (1, 5, 15 min): {uptime()}")
