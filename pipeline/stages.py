@@ -584,8 +584,7 @@ def smooth(ctx: StageContext) -> dict:
         smoothed, chosen = general
         info.update(chosen)
     else:
-        general = _general_surface(ctx, level, tolerance, smoothed,
-                                   noise=sized.noise if sized is not None else None)
+        general = _general_surface(ctx, level, tolerance, smoothed)
         if general is not None:
             smoothed, chosen = general
             info.update(chosen)
@@ -605,7 +604,8 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
     cloud, too few points).  With ``section`` None (the section surface was refused) the
     general surface stands in when asked.  ``"auto"`` builds it only where the section
     surface gives cause (``surface.general_mesh.needs_general``: not a valid solid, or its
-    C beyond what the points' noise ``noise`` and the sizing's goal explain)."""
+    C beyond what the points' noise about their curves (the curves stage's estimate, else
+    ``noise``) and the sizing's goal explain)."""
     import numpy as np
 
     from surface import general_mesh
@@ -622,6 +622,8 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
         return None
     spacing = float(np.median(np.diff(np.sort(heights))))
     own = None
+    if ctx.has_output("curves"):  # the points' noise about their sections' curves
+        noise = artifacts.read_curves(ctx.stage_path("curves"))[2]
     if section is not None and mode == "auto":
         own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
         valid = bool((section.solid or {}).get("valid", True))

@@ -248,8 +248,10 @@ def poisson_control_mesh(points: np.ndarray, spacing: float, point_spacing: floa
     hull = _hull_planes(p)
     problem = ""
     for level in range(depth, max(depth - 3, 3), -1):
-        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=level,
-                                                                     scale=POISSON_SCALE)
+        # one thread: the solver's parallel sums differ run to run in the last bits, and a
+        # workspace's outputs must be byte-reproducible
+        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+            cloud, depth=level, scale=POISSON_SCALE, n_threads=1)
         mesh = _largest_components(mesh, keep_share)
         vertices, triangles = _repaired(*_clean(mesh))
         # equilateral triangles of edge h have area sqrt(3)/4 h^2
