@@ -22,7 +22,8 @@ time bound (``--timeout``; a row past it is printed as such).  Methods, in the r
   control edge, or 1.5 point spacings without one) through the same interpolating control
   and patches;
 * ``auto``: the smooth stage's choice between the two (``surface.general_mesh.prefer_general``
-  on A and C);
+  on A, C and validity; without the stage's gate ``needs_general``, whose noise estimate is
+  the curves stage's: here both surfaces are always built and compared);
 * ``poisson-8``: open3d's screened Poisson, depth 8, PCA normals of 30 neighbours oriented by
   the tangent-plane graph, closed (no density trimming).
 
