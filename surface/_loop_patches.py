@@ -587,11 +587,11 @@ OPERATOR_CACHE = Path(__file__).resolve().parent / "__pycache__"
 
 @cache
 def _operator_cache_key() -> str:
-    """What the ring operators depend on: this module's and ``surface.bezier``'s source
-    and numpy's version (a stale file is never read)."""
-
+    """What the ring operators depend on: the source of this module and of the modules it
+    builds them with (the patch algebra, Loop's weights) and numpy's version (a stale file
+    is never read)."""
     digest = hashlib.sha256(np.__version__.encode())
-    for name in ("_loop_patches.py", "bezier.py"):
+    for name in ("_loop_patches.py", "bezier_patch.py", "loop_weights.py", "validate.py"):
         digest.update((Path(__file__).parent / name).read_bytes())
     return digest.hexdigest()[:16]
 
