@@ -574,8 +574,10 @@ _FACE_WINDOW = 32
 #: points about its own median, below which they are one band (:func:`_face_split`):
 #: one noisy face split at its midline gives 2.7 whatever its noise (half-normal means
 #: ±0.80σ, MAD-scale 0.60σ), two faces ±a apart give 2a/σ' (σ' the noise and the
-#: midline's error together), so 4 parts a wall a > 2σ' in every one of the
-#: runs; a single face (2.7 ± ~0.4 over 64 points) passes none.
+#: midline's error together), so 4 takes a run for a wall when a > 2σ'; a single face
+#: (2.7 ± ~0.4 over 64 points) passes none.  3.3 parted more of the σ = 0.15-spacing
+#: bowl's 3-spacing wall (0.61 -> 0.38 of the mesh over the mouth) but put a few
+#: triangles into the 4.4-spacing bowl's cavity (0.0001 of the mesh).
 _FACE_SEPARATION = 4.0
 #: Fewest points of a run of the order judged a wall or not (:func:`_face_split`):
 #: the ratio above scatters by ~±0.4 over 64 points (a section of 600 points: 9 runs).
@@ -620,7 +622,16 @@ def _face_split(uv: np.ndarray, loop: Loop, gap: float) -> list[np.ndarray] | No
     if np.any(norm <= TOL.zero * max(gap, TOL.zero)):
         return None
     normal = np.column_stack([-tangent[:, 1], tangent[:, 0]]) / norm[:, None]
-    offset = np.einsum("ij,ij->i", pts - mid, normal)
+    labels = _faces_from_offsets(pts, np.einsum("ij,ij->i", pts - mid, normal), gap)
+    if labels is None:
+        return None
+    return [loop.indices[labels == 1], loop.indices[labels == 0]]
+
+
+def _faces_from_offsets(pts: np.ndarray, offset: np.ndarray, gap: float) -> np.ndarray | None:
+    """Face labels ``(M,)`` (1: positive offset) by the runs test of :func:`_face_split`,
+    or None; points whose midline window reaches past a wall run are not trusted."""
+    m = len(pts)
     side = offset > 0
     bounds = np.linspace(0, m, min(_SECTORS, m // _FACE_RUN) + 1).astype(int)
     wall = np.zeros(m, bool)
@@ -638,14 +649,11 @@ def _face_split(uv: np.ndarray, loop: Loop, gap: float) -> list[np.ndarray] | No
             separations.append(separation)
     if 2 * wall.sum() < m:
         return None
-    # a point whose midline window reaches into a run that is no wall is not trusted
     wall &= _rolling(wall.astype(np.float64), _FACE_WINDOW + 1, np.min) > 0
     labels = np.where(wall, side.astype(np.int64), -1)
     if not wall.all():
         labels = _face_curves_labels(pts, labels, gap, float(np.median(separations)))
-        if labels is None:
-            return None
-    return [loop.indices[labels == 1], loop.indices[labels == 0]]
+    return labels
 
 
 #: Face points averaged into one node of the face curve that the points outside the
