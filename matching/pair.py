@@ -573,7 +573,11 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             sides = np.full(len(points), patch, np.int32)
             population_grown = False
             quad = None
-            if (second_order or adaptive_patch) and res.accepted.sum() >= 8:
+            # a calibrated pair's epipolar pass re-matches every window with its own
+            # second-order terms and grown sides: the 2-D second pass would be redone
+            epipolar_next = epipolar_pass and not rectified
+            if ((second_order or adaptive_patch) and res.accepted.sum() >= 8
+                    and not epipolar_next):
                 quad = (second_order_terms(points, res.affine, res.accepted,
                                            radius_px=max(20.0, 5.0 * spacing))
                         if second_order else None)
@@ -868,6 +872,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
              "cov": np.full((m, 2, 2), np.nan), "sigma0": np.full(m, np.nan),
              "correlation": np.full(m, np.nan), "inflation": np.full(m, np.nan),
              "slope": np.full(m, np.nan), "affine": np.full((m, 6), np.nan),
+             "radiometric": np.full((m, 2), np.nan),
              "affine_cov": np.full((m, 6, 6), np.nan)}
     todo = np.ones(m, bool)
     for step, factor in enumerate((1.0,) + tuple(grow_sides)):
@@ -888,6 +893,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
             found["cov"][sel] = r.cov
             found["sigma0"][sel], found["correlation"][sel] = r.sigma0, r.correlation
             found["affine"][sel], found["affine_cov"][sel] = r.affine, r.affine_cov
+            found["radiometric"][sel] = r.radiometric
             with np.errstate(divide="ignore", invalid="ignore"):
                 # what the shape unknowns take from the shift: its variance over the one
                 # the texture's gradients along the line alone give, σ0² / Σ f_x²
@@ -962,10 +968,15 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     sigma0[g], corr[g] = found["sigma0"][good], found["correlation"][good]
     new_sides = np.asarray(sides, np.int32).copy()
     new_sides[ok] = side_of
-    affine = np.array(res.affine)
+    # the warp back in the original images (Jr⁻¹ A Jl), for the backward loop and the maps
+    affine, radiometric = np.array(res.affine), np.array(res.radiometric)
+    a_rect = found["affine"][good][:, [1, 2, 4, 5]].reshape(-1, 2, 2)
+    affine[np.ix_(g, [1, 2, 4, 5])] = (jinv @ a_rect @ jl[good]).reshape(-1, 4)
     affine[:, 0], affine[:, 3] = position[:, 0], position[:, 1]
-    out = replace(res, position=position, cov=cov, status=status.astype(res.status.dtype),
-                  sigma0=sigma0, correlation=corr, affine=affine, window_cov=None)
+    radiometric[g] = found["radiometric"][good]
+    out = replace(res, radiometric=radiometric, position=position, cov=cov,
+                  status=status.astype(res.status.dtype), sigma0=sigma0, correlation=corr,
+                  affine=affine, window_cov=None)
     factors = (k2, float(k2_classes[1]) if len(k2_classes) > 1 else k2)
     return out, geo, dirs, new_sides, factors
 
