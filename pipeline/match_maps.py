@@ -12,7 +12,7 @@ size, one value at each candidate's left pixel) and a colour-mapped PNG with its
   255 where the pixel is no candidate).
 
 The candidates lie one per ``spacing`` x ``spacing`` cell, so a PNG paints every pixel with
-its nearest candidate within a cell's diagonal (the ``.npy`` keep the candidates only);
+its nearest candidate within one cell side (the ``.npy`` keep the candidates only);
 pixels farther from any candidate are dark grey.  The colour scales of the two continuous
 maps run over the 2nd-98th percentile of their values (printed in the legend), the status
 map gives every code present a fixed colour with its name and count.
@@ -142,7 +142,7 @@ def write_maps(target, matches, prefix: str = "", stack: ExitStack | None = None
     from matching.pair import PAIR_STATUS_NAMES
 
     arrays = map_arrays(matches)
-    reach = 0.75 * _spacing(matches)  # a cell's half-diagonal, and a little
+    reach = _spacing(matches)  # the candidates are one per cell, not on a lattice
     images = {
         "disparity": render_continuous(arrays["disparity"], "disparity",
                                        "x_left - x_right, px", reach),
