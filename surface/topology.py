@@ -697,8 +697,8 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
         kept = len(nodes)
         while len(nodes) > max(5, kept - kept // 4):
             before, after = np.roll(nodes, 1, axis=0), np.roll(nodes, -1, axis=0)
-            chord = after - before
-            across = np.abs(np.cross(chord, nodes - before)) / np.maximum(
+            chord, rel = after - before, nodes - before
+            across = np.abs(chord[:, 0] * rel[:, 1] - chord[:, 1] * rel[:, 0]) / np.maximum(
                 np.linalg.norm(chord, axis=1), TOL.zero)
             worst = int(np.argmax(across))
             if across[worst] <= 0.5 * separation:
