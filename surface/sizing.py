@@ -1060,6 +1060,11 @@ UNFOLD_ROUNDS = 8
 UNFOLD_SHARES = (0.5, 0.25)
 #: Tessellation level the surface's folds are looked for at (:func:`surface.fitting.surface_folds`).
 FOLD_LEVEL = 2
+#: The level the sizing's candidates are unfolded at while they are judged; the chosen
+#: one's surface is built again at :data:`FOLD_LEVEL` (level 2 doubled the sizing's CPU
+#: seconds on the shapes table's 10⁴-point rows; what it finds beyond level 1 is a few
+#: pairs on a rim, which move no candidate's estimate).
+JUDGE_FOLD_LEVEL = 1
 #: Keep only the vertices of the folded control faces the surface itself folds over
 #: (:func:`surface.fitting.surface_folds`); False: of every folded control face.
 SURFACE_FOLDS = True
@@ -1067,7 +1072,8 @@ SURFACE_FOLDS = True
 
 @one_blas_thread
 def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
-                          creases: np.ndarray | None = None) -> np.ndarray:
+                          creases: np.ndarray | None = None,
+                          fold_level: int | None = None) -> np.ndarray:
     """Control vertices of the surface through the mesh's vertices, sharp edges kept (but
     ``creases``).
 
@@ -1126,6 +1132,8 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
     of a coarse candidate's vertices off the data and sent the sizing to the dense mesh
     (the 10⁴-point cylinder: 25 160 patches); now 6 512, 0 crossing pairs, and the
     capsule's 339 pairs -> 0 at Chamfer 0.000787 (keeping: 0.001075 on the same mesh).
+    ``fold_level``: the tessellation level the folds are looked for at (default
+    :data:`FOLD_LEVEL`; the sizing judges its candidates at :data:`JUDGE_FOLD_LEVEL`).
     """
     from surface.fitting import (
         flat_vertices,
@@ -1150,7 +1158,8 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
             folded = folded_faces(vertices, control, triangles, target_pairs=crossing)
             if folded.any() and SURFACE_FOLDS:   # those the surface itself folds over
                 folded = surface_folds(vertices, control, triangles, folded, crossing,
-                                       level=FOLD_LEVEL)
+                                       level=FOLD_LEVEL if fold_level is None
+                                       else fold_level)
             flag = np.zeros(len(share), dtype=bool)
             flag[triangles[folded].ravel()] = True
             flag &= share > 0.0
@@ -1273,7 +1282,7 @@ def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray,
     from surface import bezier
     from surface.metrics import MeshDistance
 
-    control = interpolating_control(vertices, triangles, creases)
+    control = interpolating_control(vertices, triangles, creases, JUDGE_FOLD_LEVEL)
     surface = bezier.control_net(control, triangles)
     v, t, _ = bezier.tessellate(surface, 1)
     return surface, MeshDistance(v, t)
@@ -1620,15 +1629,28 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
             break
     if found is not None:
         between = judge(found[0] * np.sqrt(H_RATIO))   # half way (in log h) to the previous
-        return between if between is not None else found[1]
+        return _refolded(between if between is not None else found[1])
     best = _closest_failed(failed)
     if best is not None and best.error < floor:
         # none passed, but one is estimated closer to the truth than the dense mesh's own
         # smooth surface can be (at least the sill): the fewest patches among the closest
-        return best
+        return _refolded(best)
     return SizedMesh(dense_vertices, dense_triangles.astype(np.int64), 1, 0, 0.0,
                      tolerance if tolerance is not None else stitched_error(variogram),
                      tried, 0.0, noise, variogram, creases=dense_creases)
+
+
+def _refolded(sized: SizedMesh) -> SizedMesh:
+    """The chosen candidate with its surface built again over the control mesh unfolded at
+    :data:`FOLD_LEVEL` (it was judged at :data:`JUDGE_FOLD_LEVEL`): the surface the smooth
+    stage writes."""
+    if sized.surface is None or FOLD_LEVEL == JUDGE_FOLD_LEVEL:
+        return sized
+    from surface import bezier
+
+    control = interpolating_control(sized.vertices, sized.triangles, sized.creases)
+    sized.surface = bezier.control_net(control, sized.triangles)
+    return sized
 
 
 def _risk_se(distances: np.ndarray, error: float) -> float:
