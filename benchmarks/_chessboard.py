@@ -169,7 +169,8 @@ def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | N
     centroid, normal = fit_plane(ctri.points)
     corners_rms = float(np.sqrt(np.mean(((ctri.points - centroid) @ normal) ** 2)))
     t0 = time.perf_counter()
-    rec = reconstruct_pair(left, right, rig, **(match_options or {}))
+    match_options = {"epipolar_pass": True, **(match_options or {})}  # photosurf stereo's
+    rec = reconstruct_pair(left, right, rig, **match_options)
     seconds = time.perf_counter() - t0
     on = inside_outline(cl, rec.x_left)
     lsm = plane_measures(rec.points[on], rec.cov[on], corners_rms, rng)

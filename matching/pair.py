@@ -289,7 +289,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                search_range: tuple[int, int] | None = None,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
                densify: bool | str = False, robust: bool | str = False,
-               unique: bool = True, epipolar_pass: bool = True,
+               unique: bool = True, epipolar_pass: bool = False,
                aperture_k: float | None = 1.0, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
@@ -416,12 +416,16 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         a real chessboard pair's points one period or more off the board 8.7 % -> 0.5 %;
         a temple pair's accepted share 77.1 % -> 66.4 %.
     epipolar_pass : bool
-        Calibrated pairs (default on): every window LSM tried is matched again in the
+        Calibrated pairs (default off here; ``photosurf stereo`` and ``photosurf match
+        --rig`` turn it on): every window LSM tried is matched again in the
         rectified images with the y-shift fixed by the rig -- shift and shape along the row
         only (:func:`_epipolar_refine`) -- and rejected as ``aperture`` where it is
         ill-conditioned along the line; the covariance is then rank 1 along the line.
         Measured on the real chessboard rig (``benchmarks/matching.py --part chessboard``,
-        docs/decisions/stereo-epipolar.md).
+        docs/decisions/stereo-epipolar.md): blunders 20-70 % -> 0-9 % per pair, at the cost
+        of points; on the rendered vase the error along the line 0.0376 -> 0.0404 px and σ
+        less honest on a specular highlight (actual / reported 1.66 against <= 1.45), so not
+        the library default (nor multiview's).
     aperture_k : float or None
         The ``aperture`` test's bound on the rig's row error carried through the window's
         edge slope, in units of the match's own σ along the line (default 1: it may not

@@ -68,7 +68,10 @@ def run(args: argparse.Namespace) -> int:
     from matching.pair import match_pair
 
     start = time.perf_counter()
-    matches = match_pair(left, right, rig, rectified=args.rectified, **options)
+    # a calibrated rig: LSM constrained to the epipolar line, windows ill-conditioned
+    # along it rejected (match_pair's epipolar_pass; a rectified pair is already)
+    matches = match_pair(left, right, rig, rectified=args.rectified,
+                         epipolar_pass=not args.rectified, **options)
     seconds = time.perf_counter() - start
     check_some_matched(matches, args.left)
     with atomic_dir(args.out, kind="match") as tmp:

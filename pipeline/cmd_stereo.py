@@ -57,8 +57,11 @@ def run(args: argparse.Namespace) -> int:
     # the matcher (numba, scipy: ~0.6 s of imports) only after every check of the inputs
     from matching.pair import PAIR_STATUS_NAMES, reconstruct_pair
 
+    # a calibrated rig: LSM constrained to the epipolar line, windows ill-conditioned
+    # along it rejected (match_pair's epipolar_pass)
     rec = reconstruct_pair(left, right, rig, epipolar=args.epipolar,
-                           max_reprojection_px=args.max_reprojection, **options)
+                           max_reprojection_px=args.max_reprojection, epipolar_pass=True,
+                           **options)
     check_some_matched(rec.matches, args.left)
     per_point = rec.per_point()
     per_point["status"] = rec.matches.status

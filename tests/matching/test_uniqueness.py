@@ -139,7 +139,8 @@ def test_chessboard_pair_has_no_period_slips():
     board = triangulate_pair(rig.left, rig.right, *corners, reject_p=None).points
     centre = board.mean(axis=0)
     normal = np.linalg.svd(board - centre)[2][2]
-    rec = reconstruct_pair(imgs_l[k].astype(np.float64), imgs_r[k].astype(np.float64), rig)
+    rec = reconstruct_pair(imgs_l[k].astype(np.float64), imgs_r[k].astype(np.float64), rig,
+                           epipolar_pass=True)  # as photosurf stereo
     hull = cv2.convexHull(corners[0].astype(np.float32))
     on = np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), False) >= 0
                    for x, y in rec.x_left])
