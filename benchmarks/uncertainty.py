@@ -1,7 +1,8 @@
 """Coverage of the surface's 1σ along the normal (``surface.uncertainty``) on rendered scenes.
 
 For each workspace of a rendered scene (``photosurf run RECIPE --out W``): the smooth
-surface (``W/smooth``'s control net, tessellated at level 1 with exact normals), the
+surface (``W/smooth``'s control net, tessellated at level 1 with exact normals; the
+stitched mesh ``W/stitch/mesh.ply`` when there is no smooth surface yet), the
 points and their σ (``W/acquire/cloud.npz``), and the scene's truth mesh
 (``W/scene/truth/mesh.ply``).  The true deviation of each surface point is its distance
 to the truth mesh (open3d ray casting); the figures are the shares of points whose
@@ -25,6 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.artifacts import read_control_net  # noqa: E402
+from pipeline.mesh_io import read_mesh, vertex_normals  # noqa: E402
 from surface import bezier  # noqa: E402
 from surface.uncertainty import normal_sigma  # noqa: E402
 
@@ -52,15 +54,20 @@ def _shares(deviation: np.ndarray, sigma: np.ndarray) -> dict:
 
 
 def workspace_row(workspace: Path, level: int = 1) -> dict:
-    net = read_control_net(workspace / "smooth")
-    vertices, triangles, normals = bezier.tessellate(net["control_points"], level,
-                                                     net["domain_triangles"])
+    if (workspace / "smooth" / "control_net.npz").is_file():
+        net = read_control_net(workspace / "smooth")
+        vertices, triangles, normals = bezier.tessellate(net["control_points"], level,
+                                                         net["domain_triangles"])
+        surface = f"smooth, level {level}"
+    else:  # --surface stitch, or a run stopped before smooth: the stitched mesh
+        vertices, triangles = read_mesh(workspace / "stitch" / "mesh.ply")
+        normals, surface = vertex_normals(vertices, triangles), "stitched mesh"
     with np.load(workspace / "acquire" / "cloud.npz") as cloud:
         points, sigma = cloud["points"], cloud["sigma"]
     result = normal_sigma(vertices, normals, points, sigma)
     deviation = _truth_distance(vertices, workspace / "scene" / "truth" / "mesh.ply")
     covered = result.gap == 0
-    return {"workspace": str(workspace), "vertices": int(len(vertices)),
+    return {"workspace": str(workspace), "surface": surface, "vertices": int(len(vertices)),
             "points": int(len(points)), "curvature": result.curvature,
             "all": _shares(deviation, result.sigma),
             "covered": _shares(deviation[covered], result.sigma[covered]),
@@ -78,6 +85,8 @@ def main(argv=None) -> int:
     print(f"{'workspace':<24}{'part':<17}{'n':>8}{'<=1s':>7}{'<=2s':>7}{'dev med':>10}"
           f"{'dev p95':>10}{'sig med':>10}{'sig p95':>10}")
     for r in rows:
+        print(f"{r['workspace']}: {r['surface']}, {r['vertices']} vertices, {r['points']} "
+              f"points, curvature {r['curvature']:.3g}")
         for part in ("all", "covered", "bridged", "propagated_only"):
             s = r[part]
             if not s["n"]:

@@ -4,25 +4,28 @@ The surface is fitted to points that each carry a σ (``acquire``'s per-point σ
 At a surface point ``x`` with unit normal ``n`` the fit is, locally, a weighted
 mean of the ``K`` nearest points' offsets along ``n`` (the ring fits average the
 points of a section near a ring sample; the patches blend neighbouring ring
-samples): with Gaussian weights ``w_i = exp(-(d_i / h)^2)`` (``h`` the median
-distance to the K-th point over the surface)
+samples): with Gaussian weights ``w_i = exp(-(d_i^2 - d_1^2) / h^2)`` (``h`` the
+median distance to the K-th point over the surface)
 
     m(x) = sum w_i r_i / sum w_i,         r_i = (p_i - x) . n,
-    s_prop^2(x) = sum w_i^2 sigma_i^2 / (sum w_i)^2    (the mean's variance).
+    s_prop^2(x) = sum w_i^2 max(sigma_i^2, v) / (sum w_i)^2,
 
-``m`` is what the data say the surface is off by; its square estimates
-``bias^2 + s_prop^2`` (an unbiased fit has ``E m^2 = s_prop^2``), so the bias the
-fit leaves (smoothing, the chord of the patches) is ``b^2 = max(0, <m^2> - s_prop^2)``,
-``<.>`` the mean over the ``K_v`` nearest surface points, and
+``v`` the points' weighted scatter about ``m`` (a point's σ as stated, or as the
+points show it where they scatter more).  ``m`` is the surface's offset from the
+points' local mean, which is itself uncertain by ``s_prop``: the deviation from
+the truth is ``-m ± s_prop``, so (``<.>`` the mean over the ``K_v`` nearest
+surface points)
 
-    sigma_data^2 = s_prop^2 + b^2.
+    sigma_data^2 = <m^2> + s_prop^2.
 
 Where the surface bridges a gap or closes a cap there are no points within the
 fit's support: ``g = max(0, d_0 - h)``, ``d_0`` the distance to the nearest point
 (on a covered surface ``d_0`` is about the points' spacing, far below ``h``).
-The bridge is a smooth curve across ``2 g`` whose curvature is not measured: it may miss a bend of curvature up to
-``kappa`` (the 90th percentile of the surface's own curvature, from its normals,
-over the covered part) by the sagitta ``kappa g^2 / 2``, so
+The bridge is a smooth curve across ``2 g`` whose bend no point measured: it may
+miss a bend of the object's typical curvature ``kappa`` (the median over the
+covered part, from the normals; not the bridge's own, whose rim is often a crease)
+by the sagitta ``kappa g^2 / 2``, taken as the bridge's 1σ beside the covered
+part's median data term (a bridge's nearest points lie on other parts), so
 
     sigma^2 = sigma_data^2 + (kappa g^2 / 2)^2.
 
@@ -51,12 +54,13 @@ K_SURFACE = 8
 @dataclass(frozen=True)
 class NormalSigma:
     """Per surface point, scene units: ``sigma`` the total 1σ along the normal,
-    ``propagated`` the points' σ through the local fit, ``bias`` the fit's bias,
-    ``gap`` the bridged distance beyond the data's reach (0 where covered)."""
+    ``propagated`` the points' σ through the local fit, ``offset`` the surface's RMS
+    offset from the points' local mean, ``gap`` the bridged distance beyond the data's
+    reach (0 where covered); ``curvature`` the bridges' bend, 1 / scene units."""
 
     sigma: np.ndarray
     propagated: np.ndarray
-    bias: np.ndarray
+    offset: np.ndarray
     gap: np.ndarray
     curvature: float
 
@@ -91,23 +95,32 @@ def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
     tree = cKDTree(p)
     d, idx = tree.query(x, k=K_POINTS)
     h = float(np.median(d[:, -1])) or 1.0
-    w = np.exp(-(d / h) ** 2)
+    # Gaussian weights relative to the nearest point's (no underflow far from the data)
+    w = np.exp(-(d ** 2 - d[:, :1] ** 2) / h ** 2)
     wsum = w.sum(axis=1)
     r = np.einsum("vkd,vd->vk", p[idx] - x[:, None, :], n)
     m = (w * r).sum(axis=1) / wsum
-    prop2 = (w ** 2 * s[idx] ** 2).sum(axis=1) / wsum ** 2
+    scatter = (w * (r - m[:, None]) ** 2).sum(axis=1) / wsum
+    # each point's sigma, or the points' scatter about their local mean where larger
+    prop2 = (w ** 2 * np.maximum(s[idx] ** 2, scatter[:, None])).sum(axis=1) / wsum ** 2
     surface_tree = cKDTree(x)
     _, near = surface_tree.query(x, k=min(K_SURFACE, len(x)))
     near = near.reshape(len(x), -1)
-    bias2 = np.maximum(0.0, (m ** 2)[near].mean(axis=1) - prop2[near].mean(axis=1))
+    offset2 = (m ** 2)[near].mean(axis=1)
     d0 = d[:, 0]
     gap = np.maximum(0.0, d0 - h)
-    # curvature from the normals: |n_i - n_j| / |x_i - x_j| over a vertex's neighbours
+    # curvature from the normals: |n_i - n_j| / |x_i - x_j|, median over a vertex's neighbours
     dn = np.linalg.norm(n[near[:, 1:]] - n[:, None, :], axis=2)
     dx = np.linalg.norm(x[near[:, 1:]] - x[:, None, :], axis=2)
-    kappa_v = np.where(dx > 0, dn / np.where(dx > 0, dx, 1.0), 0.0).max(axis=1)
+    kappa_v = np.median(np.where(dx > 0, dn / np.where(dx > 0, dx, 1.0), 0.0), axis=1)
     covered = gap == 0
-    kappa = float(np.percentile(kappa_v[covered], 90)) if covered.any() else 0.0
-    total = np.sqrt(prop2 + bias2 + (kappa * gap ** 2 / 2.0) ** 2)
-    return NormalSigma(sigma=total, propagated=np.sqrt(prop2), bias=np.sqrt(bias2), gap=gap,
-                       curvature=kappa)
+    kappa = float(np.median(kappa_v[covered])) if covered.any() else 0.0
+    if covered.any() and not covered.all():
+        # a bridge's nearest points belong to other parts (a cap's are on the wall below
+        # its rim, and so are its rim's, across a crease): it takes the covered part's
+        # median data term
+        prop2[~covered] = np.median(prop2[covered])
+        offset2[~covered] = np.median(offset2[covered])
+    total = np.sqrt(prop2 + offset2 + (kappa * gap ** 2 / 2.0) ** 2)
+    return NormalSigma(sigma=total, propagated=np.sqrt(prop2), offset=np.sqrt(offset2),
+                       gap=gap, curvature=kappa)
