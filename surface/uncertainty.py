@@ -80,7 +80,8 @@ def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
     points : (N, 3) array_like
         The points the surface was fitted to.
     sigma : (N,) array_like
-        Their 1σ (isotropic), scene units.
+        Their 1σ (isotropic), scene units; NaN where unknown (the points' scatter
+        stands in).
 
     Returns
     -------
@@ -101,8 +102,9 @@ def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
     r = np.einsum("vkd,vd->vk", p[idx] - x[:, None, :], n)
     m = (w * r).sum(axis=1) / wsum
     scatter = (w * (r - m[:, None]) ** 2).sum(axis=1) / wsum
-    # each point's sigma, or the points' scatter about their local mean where larger
-    prop2 = (w ** 2 * np.maximum(s[idx] ** 2, scatter[:, None])).sum(axis=1) / wsum ** 2
+    # each point's sigma, or the points' scatter about their local mean where larger or
+    # where the sigma is unknown (NaN)
+    prop2 = (w ** 2 * np.fmax(s[idx] ** 2, scatter[:, None])).sum(axis=1) / wsum ** 2
     surface_tree = cKDTree(x)
     _, near = surface_tree.query(x, k=min(K_SURFACE, len(x)))
     near = near.reshape(len(x), -1)

@@ -66,3 +66,12 @@ def test_bad_input_is_refused():
         normal_sigma(x, n, x[:10], np.ones(10))
     with pytest.raises(ValueError):
         normal_sigma(x, n, x, np.ones(5))
+
+
+def test_unknown_sigma_is_taken_from_the_points_scatter():
+    points, sigma = _sphere_points(40_000, 0.01, seed=4)
+    x, n = _surface()
+    known = normal_sigma(x, n, points, sigma)
+    unknown = normal_sigma(x, n, points, np.full(len(points), np.nan))
+    assert np.all(np.isfinite(unknown.sigma))
+    assert np.median(unknown.sigma) == pytest.approx(np.median(known.sigma), rel=0.25)
