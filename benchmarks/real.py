@@ -593,6 +593,10 @@ def photo_folder_row(name: str, folder: Path, spacing: int = 3, cameras=None) ->
 
 def photos_main(args) -> int:
     """``--sceaux`` / ``--phone FOLDER``: the photo-folder rows (SfM, cloud, memory)."""
+    import logging
+
+    # the run's progress lines (SfM steps, each view pair) on stderr, as photosurf run -v
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     rows = []
     sceaux = DATA.parent / "sceaux_castle"
     if args.sceaux and sceaux.is_dir():
