@@ -47,8 +47,10 @@ Usage::
         [--graffiti-patch N] [--pairs 02,03,...]
 
 ``--part chessboard``: the real calibrated chessboard rig (``chessboard_stereo``): the rig
-calibrated on its 12 pairs, then per pair the points ``match_pair`` + triangulation put
-inside the board's inner-corner outline against the plane, with the board's own corners
+calibrated on its 12 pairs, then per pair the points ``photosurf stereo``'s matching
+(``match_pair`` with the epipolar pass) + triangulation put inside the board's
+inner-corner outline against the plane, and the same without the epipolar pass (the 2-D
+LSM matches), with the board's own corners
 as the reference flatness, SGBM (uniqueness ratio 12) on the same candidates beside it
 (``benchmarks/_chessboard.py`` says how each figure is made; not part of ``all``).
 ``--graffiti-patch`` sets the window side of LSM and its peers on graffiti (default 21);

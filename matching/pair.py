@@ -626,7 +626,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 res, geo_var, epi_dirs, sides, epi_factor = _epipolar_refine(
                     left, right, rig, rect, points, start, res, sides, options, aperture_k,
                     interpolation, second_order=second_order, spacing=spacing,
-                    classes=edge[idx])
+                    classes=edge[idx], scale_cov=bool(sigma_factor))
                 status_ill = res.accepted & ~np.isfinite(geo_var)
                 res = replace(res, status=np.where(status_ill, APERTURE, res.status)
                               .astype(res.status.dtype))
@@ -795,7 +795,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                      aperture_k: float | None, interpolation: str,
                      max_inflation: float | None = 2.0, grow_sides=(1.5, 2.0),
                      second_order: bool = True, spacing: int = DEFAULT_SPACING,
-                     classes=None):
+                     classes=None, scale_cov: bool = True):
     """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
 
     Every window LSM tried (the 2-D solution where it was accepted, else the approximation
@@ -820,10 +820,11 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
       differences over windows textured in both directions, λmin/λmax >= 1/4).
 
     Returns the result in the original images (rank-1 covariance along the line, with the
-    constrained matches' own variance factor per window class ``classes``; a window the
-    pass loses keeps its rejection), the variance ``(slope σ_g)²`` along the line (px²;
-    NaN: ``aperture``), the (N, 2) line directions in the right image, the sides used and
-    the variance factors (clear windows, edge windows).
+    constrained matches' own variance factor per window class ``classes``, unless
+    ``scale_cov`` is off; a window the pass loses keeps its rejection), the variance
+    ``(slope σ_g)²`` along the line (px²; NaN: ``aperture``), the (N, 2) line directions
+    in the right image, the sides used and the variance factors (clear windows, edge
+    windows).
     """
     from matching.rectify import (
         left_to_rectified,
@@ -963,7 +964,8 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     position[g] = rectified_to_original(rect, rig.right, found["position"][good])
     jinv = np.linalg.inv(_jacobians(lambda p: right_to_rectified(rect, rig.right, p),
                                     position[g]))
-    cov[g] = k2_each[good, None, None] * jinv @ found["cov"][good] @ jinv.transpose(0, 2, 1)
+    scale = k2_each[good, None, None] if scale_cov else 1.0  # (sigma_factor off: σ0²N⁻¹)
+    cov[g] = scale * jinv @ found["cov"][good] @ jinv.transpose(0, 2, 1)
     d = jinv[:, :, 0]  # right-image step of one rectified column
     stretch = np.einsum("ni,ni->n", d, d)
     dirs[g] = d / np.sqrt(stretch)[:, None]
