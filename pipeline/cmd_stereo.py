@@ -22,7 +22,7 @@ from pipeline.atomic import atomic_file, naming
 from pipeline.cloud_io import write_ply
 from pipeline.errors import InputError
 from pipeline.inputs import check_rig_size, read_pair, read_rig_for
-from pipeline.match_maps import write_maps
+from pipeline.match_maps import map_paths, write_maps
 from pipeline.options import add_match_options, check_some_matched, match_options, summary
 from pipeline.workspace import write_npz_to
 
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: --out must end in .ply")
     from pipeline.guards import check_output
 
-    for target in (out, out.with_suffix(".npz")):
+    for target in (out, out.with_suffix(".npz"), *map_paths(out.parent, f"{out.stem}.")):
         if target.is_dir():
             raise InputError(f"{target}: is a folder; --out must name a file")
         check_output(target, [args.left, args.right, args.rig])

@@ -129,6 +129,12 @@ def render_status(status: np.ndarray, names: dict[int, str], reach: float) -> np
     return canvas
 
 
+def map_paths(target, prefix: str = "") -> list[Path]:
+    """The six files :func:`write_maps` writes into folder ``target``."""
+    return [Path(target) / f"{prefix}{name}{suffix}" for name in ("disparity", "sigma", "status")
+            for suffix in (".npy", ".png")]
+
+
 def write_maps(target, matches, prefix: str = "", stack: ExitStack | None = None
                ) -> list[Path]:
     """Write the three maps' ``.npy`` and ``.png`` (module docstring) into folder ``target``.
