@@ -299,13 +299,13 @@ def test_ctrl_c_on_one_core_exits_at_once_one_line_nothing_written(arc, tmp_path
         env=env, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: os.sched_setaffinity(0, {core}))
     try:
-        # a worker thread and numba's pool exist once the first pair's kernels run
+        # on one core the process is one thread until the view pairs' worker starts
         deadline = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < deadline:
-            if len(os.listdir(f"/proc/{proc.pid}/task")) >= 3:
+            if len(os.listdir(f"/proc/{proc.pid}/task")) >= 2:
                 break
-            time.sleep(0.05)
-        time.sleep(0.3)
+            time.sleep(0.02)
+        time.sleep(0.5)
         proc.send_signal(signal.SIGINT)
         sent = time.monotonic()
         _, err = proc.communicate(timeout=120)
