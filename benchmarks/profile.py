@@ -1,7 +1,7 @@
 """Benchmark of the profile measures, volume and capacity against exact and real truth.
 
 Synthetic vessels of revolution with analytic profiles (exact truth): the tapered cup of
-``tests/_cup.py`` (flat base, straight walls 5 mm apart, round lip) and a hemispherical
+``testkit/cup.py`` (flat base, straight walls 5 mm apart, round lip) and a hemispherical
 bowl (spherical shell, outer radius 60, inner 55, cut flat at 45 mm).  Each is measured
 two ways: (1) ``mesh``: the revolved polygon mesh (128 azimuths) itself; (2) ``smooth``:
 Loop's sextic surface through a coarser revolved mesh (96 and 48 azimuths; the pipeline's
@@ -46,7 +46,7 @@ from pipeline import cmd_profile  # noqa: E402
 from surface import bezier  # noqa: E402
 from surface.profile import revolve  # noqa: E402
 from surface.sizing import interpolating_control  # noqa: E402
-from tests import _cup  # noqa: E402
+from testkit import cup as _cup  # noqa: E402
 
 SCANS = ROOT.parent / "shared" / "data" / "real" / "scans"
 Z = np.array([0.0, 0.0, 1.0])

@@ -1,6 +1,6 @@
 """Thin-walled vessels, handles and holes in the data: what the section method makes of them.
 
-Vessels: the pot of ``tests/_cup.py`` (outer r 1, height 2, floor 0.25 thick, open mouth;
+Vessels: the pot of ``testkit/cup.py`` (outer r 1, height 2, floor 0.25 thick, open mouth;
 optionally a handle, a half torus joined at z = 0.4 and 1.6, genus 1) with walls 2, 4
 and 8 point spacings thick, ``--points`` area-uniform points (spacing s = sqrt(area/N)
 of the 0.1-wall pot) with noise 0.1 s, through ``surface.reconstruct.surface_from_points``
@@ -38,7 +38,7 @@ from _common import print_goals, write_result  # noqa: E402
 from surface import metrics  # noqa: E402
 from surface import reconstruct as rc  # noqa: E402
 from surface.open_surface import boundary_loops  # noqa: E402
-from tests import _cup  # noqa: E402
+from testkit import cup as _cup  # noqa: E402
 
 SCANS = ROOT.parent / "shared" / "data" / "real" / "scans"
 SAMPLES = 30_000

@@ -10,8 +10,10 @@ count: every kernel works per point.
 A stop (Ctrl-C, SIGTERM raised in the main thread) acts at once: the tasks run off
 the main thread even with one worker, so the main thread waits where a signal can
 interrupt it (not inside a minutes-long numba call); the queued tasks are cancelled, and
-:data:`STOP` is set, which the running tasks check between their LSM rounds and steps
-(:func:`check_stop`) and end on.
+the map's own stop flag is set, which its running tasks (and the maps they started)
+check between their LSM rounds and steps (:func:`check_stop`) and end on.  The flag
+belongs to one map: an interrupted map leaves no state behind for the next run in the
+same process.
 """
 
 from __future__ import annotations
@@ -24,16 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ViewRef", "load_image", "thread_map", "default_workers", "STOP", "Stopped",
+__all__ = ["ViewRef", "load_image", "thread_map", "default_workers", "Stopped",
            "check_stop"]
-
-#: Set when a map of this module is interrupted; running tasks end at their next
-#: :func:`check_stop`.  Cleared when a new map starts.
-STOP = threading.Event()
 
 
 class Stopped(Exception):
-    """A task ended early because its map was interrupted (:data:`STOP`)."""
+    """A task ended early because its map (or a map it runs in) was interrupted."""
 
 
 def check_stop() -> None:
@@ -44,7 +42,7 @@ def check_stop() -> None:
     idle: once no task waits in the queue, the running ones share every worker's core
     among them for their next numba kernels (the last view pair of a map no longer runs
     on one core while the other idles)."""
-    if STOP.is_set():
+    if any(flag.is_set() for flag in getattr(_LOCAL, "stops", ())):
         raise Stopped("interrupted")
     share = getattr(_LOCAL, "share", None)
     if share is not None:
@@ -154,14 +152,25 @@ def thread_map(workers: int) -> Callable:
 def map_without_waiting(func: Callable, items: list, workers: int) -> list:
     """``list(pool.map(func, items))`` on a pool of ``workers`` threads; when the wait is
     interrupted (Ctrl-C, SIGTERM raised in the main thread, a task's error) the queued
-    tasks are cancelled, :data:`STOP` is set and the running ones are not waited for, so
-    the interruption acts at once (the CLI then ends the process; ``pipeline.cli``)."""
-    STOP.clear()
+    tasks are cancelled, this map's stop flag is set and the running ones are not waited
+    for, so the interruption acts at once (the CLI then ends the process;
+    ``pipeline.cli``).  A task sees the flags of its own map and of the maps around it
+    (:func:`check_stop`); no other thread does."""
+    stop = threading.Event()
+    stops = (*getattr(_LOCAL, "stops", ()), stop)
+
+    def call(item):
+        _LOCAL.stops = stops
+        try:
+            return func(item)
+        finally:
+            _LOCAL.stops = ()
+
     pool = ThreadPoolExecutor(workers)
     try:
-        results = list(pool.map(func, items))
+        results = list(pool.map(call, items))
     except BaseException:
-        STOP.set()  # the running tasks end at their next check_stop
+        stop.set()  # the running tasks end at their next check_stop
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)

@@ -140,9 +140,10 @@ def spacing_cuts(control_points: np.ndarray, spacing: float) -> np.ndarray:
     adaptive cuts there floors the chord tolerance at what a facet of half a spacing to
     one spacing can hold on each patch's own curvature (``κ s² / 32 .. κ s² / 8``), and
     bounds the tessellation -- and the solid check, linear in its triangles -- before
-    either runs: at most ``Σ_p m_p²`` (times ~1.5 for the transitions between patches).  Noise-free data
-    give a tolerance from their error estimate near zero (a noise-free can: 6.9·10⁻⁷,
-    5.7 M triangles certified); the cap is what bounds them.
+    either runs: at most ``Σ_p m_p²`` (times ~1.5 for the transitions between
+    patches).  Noise-free data give a tolerance from their error estimate near zero
+    (a noise-free can: 6.9·10⁻⁷, 5.7 M triangles certified); the cap is what bounds
+    them.
     """
     from surface.bezier import control_index
 

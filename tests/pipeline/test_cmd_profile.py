@@ -9,7 +9,7 @@ import pytest
 from pipeline.cli import main
 from pipeline.mesh_io import write_mesh
 from surface.profile import revolve
-from tests import _cup
+from testkit import cup as _cup
 
 SVG = "{http://www.w3.org/2000/svg}"
 

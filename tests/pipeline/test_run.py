@@ -300,7 +300,8 @@ def _check_scene_run(out: Path, proc) -> dict:
     assert status["scene"] == status["acquire"] == status["stitch"] == "done", status
     assert status["export"] == status["report"] == "done", status
     page = (out / "report.html").read_text()
-    assert page.count('<img src="data:image/png;base64,') == 3  # surface, sections, error map
+    # surface, sections, error map, uncertainty
+    assert page.count('<img src="data:image/png;base64,') == 4
     manifest = json.loads((out / "manifest.json").read_text())
     metrics = manifest["stages"]["report"]["info"]["metrics"]
     assert metrics["cloud_rms"] > 0 and "stitched mesh" in metrics

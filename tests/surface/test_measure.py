@@ -7,7 +7,7 @@ import pytest
 
 from surface import bezier, measure
 from surface.profile import revolve
-from tests import _cup
+from testkit import cup as _cup
 
 
 def _normals(vertices, triangles):

@@ -11,7 +11,7 @@ from surface.profile import (
     revolve,
     silhouette,
 )
-from tests import _cup
+from testkit import cup as _cup
 
 Z = np.array([0.0, 0.0, 1.0])
 ORIGIN = np.zeros(3)

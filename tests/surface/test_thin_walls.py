@@ -11,7 +11,7 @@ from surface import metrics as M
 from surface import reconstruct as rc
 from surface.sections import Section
 from surface.topology import organise
-from tests import _cup
+from testkit import cup as _cup
 
 
 def _section(points: np.ndarray) -> Section:
@@ -59,7 +59,7 @@ def test_one_band_of_noise_is_not_parted_by_its_offsets(seed):
 
 
 def test_a_pot_with_a_wall_two_spacings_thick_keeps_its_inside():
-    """The pot of ``tests/_cup.py`` (outer r 1, height 2, floor 0.25; 20 000 points,
+    """The pot of ``testkit/cup.py`` (outer r 1, height 2, floor 0.25; 20 000 points,
     spacing s = 0.038, wall 2 s, noise 0.1 s): one closed component of genus 0 running
     outer wall -> rim -> inner wall -> inner floor: nothing of the mesh inside the
     cavity more than 5σ from the inner face above the floor (before, the wall's faces
