@@ -52,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--markers", type=float, metavar="SIDE",
                         help="image folder: ArUco markers of side SIDE in the images give "
                              "the SfM frame real units (= --set acquire.markers=SIDE)")
+    parser.add_argument("--open", action="store_true",
+                        help="leave holes in the data (an end the points do not cover) as "
+                             "borders instead of filling them (= --set sections.open=true)")
     add_config_arguments(parser)
     parser.add_argument("--from", dest="start", choices=STAGE_ORDER, metavar="STAGE",
                         help=f"first stage to run ({', '.join(STAGE_ORDER)})")
@@ -96,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.markers > 0:
             raise InputError(f"--markers {args.markers:g}: the marker side must be positive")
         assignments.append(f"acquire.markers={float(args.markers)!r}")
+    if args.open:
+        assignments.append("sections.open=true")
     config = config_mod.resolve(args.config, assignments)
     scheduler = args.scheduler or config["executor"]["scheduler"]
     with get_executor(scheduler, config["executor"]["workers"]) as executor:

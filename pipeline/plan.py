@@ -100,7 +100,8 @@ STAGES: list[Stage] = [
           modules=_ADAPTERS + ("surface.reconstruct", "surface.sizing",
                                "surface.open_surface")),
     # scene / acquire: the cameras an open surface faces (pipeline.stages._camera_centres)
-    Stage("stitch", fn.stitch, params=("stitch",), needs=("curves", "sections"),
+    # sections.open: an end the data do not cover left as a border (pipeline.stages._stitcher)
+    Stage("stitch", fn.stitch, params=("stitch", "sections"), needs=("curves", "sections"),
           optional_needs=("scene", "acquire"),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.stitch",
                                "surface.open_surface", "pipeline.smoothing",

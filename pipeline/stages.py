@@ -428,11 +428,14 @@ def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> d
 
 
 def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float,
-              cap_sigma=None):
+              cap_sigma=None, leave_holes: bool = False):
     """``(rings, planes) -> (StitchResult, notes)`` with the stitch stage's rules: end rings
     moved to the cap points (``stitch.extend_ends``, weighted by their precision
     ``cap_sigma`` where known), caps, support rings at sharp rims (``stitch.support``),
-    inner caps at their cap points' height; ``notes`` are the end extension's."""
+    inner caps at their cap points' height; ``notes`` are the end extension's.  With
+    ``leave_holes`` (``sections.open``) an end the data do not cover
+    (``surface.reconstruct.hole_ends``, judged on the un-extended end loops) is left as a
+    border; ``build.holes`` is then the last build's ``(bottom, top)`` holes left open."""
     import numpy as np
 
     from surface import reconstruct as rc
@@ -444,16 +447,23 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
         # a lone loop as itself, as surface.reconstruct.surface_from_points passes it
         rings = [item[0] if isinstance(item, list) and len(item) == 1 else item
                  for item in rings]
-        notes_ends = []
+        notes_ends, close = [], params["caps"]
+        if params["caps"] and leave_holes and spacing > 0:
+            holes, notes_ends = rc.hole_ends(rings, ring_planes[0].frame, cap_cloud, spacing,
+                                             leave_open=True)
+            close = (not holes[0], not holes[1])
+            build.holes = holes
         if params["caps"] and params["extend_ends"] and spacing > 0:
-            rings, notes_ends = rc.extend_to_caps(rings, ring_planes, cap_cloud,
-                                                  np.arange(len(cap_cloud)), spacing,
-                                                  sigma=cap_sigma)
-        result = st.stitch_rings(rings, planes[0].frame[2], close_ends=params["caps"],
+            rings, notes_extend = rc.extend_to_caps(rings, ring_planes, cap_cloud,
+                                                    np.arange(len(cap_cloud)), spacing,
+                                                    sigma=cap_sigma)
+            notes_ends += notes_extend
+        result = st.stitch_rings(rings, planes[0].frame[2], close_ends=close,
                                  support_sigma=support, cap_points=cap_cloud,
                                  diagnostics=diagnostics)
         return result, notes_ends
 
+    build.holes = (False, False)
     return build
 
 
@@ -469,10 +479,13 @@ def stitch(ctx: StageContext) -> dict:
         return _stitch_open(ctx, rings, *arcs)
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     cap_sigma = artifacts.read_cap_sigma(ctx.stage_path("sections"))
-    result, notes_ends = _stitcher(p, planes, noise, cap_cloud, spacing,
-                                   cap_sigma)(rings, planes)
+    build = _stitcher(p, planes, noise, cap_cloud, spacing, cap_sigma,
+                      leave_holes=bool(ctx.params["sections"]["open"]))
+    result, notes_ends = build(rings, planes)
     messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
+             # sections.open: a hole in the data left as a border (the smooth stage's open path)
+             **({"open": True, "holes": [bool(h) for h in build.holes]} if any(build.holes) else {}),
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
              "delaunay_fraction": float(result.delaunay_fraction),
              "branch_events": result.graph.counts() if result.graph else {}}
