@@ -539,60 +539,181 @@ class _Peak:
         return False
 
 
-def photo_folder_row(name: str, folder: Path, spacing: int = 3, cameras=None) -> dict:
-    """A photo folder without cameras as ``photosurf run`` takes it: SfM (pycolmap, SIFT
-    on a <= 3 200 px image), the working scale, the multi-view cloud and the object
-    selection (:func:`pipeline.acquisition.acquire_folder` with the run's defaults);
-    seconds, CPU seconds and peak memory of SfM and of the cloud apart."""
+def run_in_process(argv: list[str]) -> tuple[int, dict, dict]:
+    """``photosurf run ARGV`` in this process (the command a user types), timed: the whole
+    run, and apart the SfM call and the acquire stage of an image folder
+    (:class:`_Peak` each; the stages run in this process with the default local
+    executor).  Returns the exit status, ``{phase: _Peak}`` and the acquired cloud's stats."""
     import matching.sfm as sfm_module
-    from matching.roi import support_plane
-    from pipeline import config
-    from pipeline.acquisition import acquire_folder
+    import pipeline.acquisition as acquisition
+    from pipeline.cli import main as cli_main
 
-    params = dict(config.resolve(None, [])["acquire"], spacing=spacing)
-    phases = {}
-    real_run_sfm = sfm_module.run_sfm
+    phases, stats = {}, {}
+    real_sfm, real_acquire = sfm_module.run_sfm, acquisition.acquire_folder
 
-    def timed_sfm(*args, **kwargs):
+    def timed_sfm(*a, **k):
         with _Peak() as peak:
-            result = real_run_sfm(*args, **kwargs)
+            result = real_sfm(*a, **k)
         phases["sfm"] = peak
         return result
 
-    sfm_module.run_sfm = timed_sfm
+    def timed_acquire(*a, **k):
+        with _Peak() as peak:
+            cloud = real_acquire(*a, **k)
+        phases["acquire"] = peak
+        stats.update(cloud.stats)
+        return cloud
+
+    sfm_module.run_sfm, acquisition.acquire_folder = timed_sfm, timed_acquire
     try:
         with _Peak() as total:
-            cloud = acquire_folder(folder, cameras, **params)
+            status = cli_main(["run", *argv])
     finally:
-        sfm_module.run_sfm = real_run_sfm
-    stats, sfm = cloud.stats, cloud.stats.get("sfm") or {}
-    row = {"method": name, "views": len(stats["view_names"]) + len(stats["unregistered"]),
-           "registered": sfm.get("registered", len(stats["view_names"])),
+        sfm_module.run_sfm, acquisition.acquire_folder = real_sfm, real_acquire
+    phases["total"] = total
+    return status, phases, stats
+
+
+def _phase_figures(phases: dict) -> dict:
+    row = {}
+    for name, p in phases.items():
+        row.update({f"{name}_seconds": p.seconds, f"{name}_cpu_seconds": p.cpu_seconds,
+                    f"{name}_peak_gb": p.peak})
+    if "sfm" in phases and "acquire" in phases:
+        row.update(cloud_seconds=phases["acquire"].seconds - phases["sfm"].seconds,
+                   cloud_cpu_seconds=phases["acquire"].cpu_seconds - phases["sfm"].cpu_seconds)
+    return row
+
+
+def vase_main(args) -> int:
+    """``--vase``: ``photosurf run fixtures/scenes/vase.toml`` (the default stereo recipe)
+    end to end, then ``benchmarks/open_surface.py``'s scores of its workspace (the open
+    surface against the truth on the part both views see, its border against that part's)."""
+    import json
+
+    import open_surface
+
+    ws = Path(args.workspace or tempfile.mkdtemp(prefix="real-vase-"))
+    status, phases, _ = run_in_process([str(open_surface.RECIPE), "--out", str(ws), "-q"])
+    if status != 0:
+        print(f"photosurf run {open_surface.RECIPE.name}: exit {status}")
+        return status
+    ran = {"seconds": phases["total"].seconds}
+    # score the workspace photosurf run wrote (open_surface's own run() is not repeated)
+    open_surface.run = lambda workspace: {**ran, "summary": None}
+    if args.json.endswith("real.json"):
+        args.json = str(Path(args.json).with_name("real_vase.json"))
+    open_surface.main(["--workspace", str(ws), "--json", args.json])
+    result = json.loads(Path(args.json).read_text())
+    result.pop("_meta", None)
+    result.update(benchmark="real-vase", command="photosurf run fixtures/scenes/vase.toml",
+                  run=_phase_figures(phases), load=uptime())
+    print(f"photosurf run: {phases['total'].seconds:.1f} s, {phases['total'].cpu_seconds:.1f} "
+          f"CPU-s, peak {phases['total'].peak:.2f} GB (load {uptime()})")
+    write_result(args.json, result)
+    return 0
+
+
+def wall_flatness(points: np.ndarray, sigma: np.ndarray, cameras) -> dict:
+    """The largest plane of the cloud (a facade's wall, :func:`matching.roi.support_plane`'s
+    RANSAC, band ``max(3 σ̃, 2 spacing)``): its share of the points and its inliers' RMS
+    distance against their median σ (a flat wall measured with σ: about 1)."""
+    from matching.roi import support_plane
+
+    sigma = np.where(np.isfinite(sigma), sigma, np.nanmedian(sigma))
+    _, plane = support_plane(points, sigma, cameras)
+    if "plane" not in plane:
+        return {}
+    n, d = np.array(plane["plane"][:3]), plane["plane"][3]
+    dist = np.abs(points @ n + d)
+    inliers = dist <= plane["band"]
+    return {"plane_share": float(inliers.mean()), "plane_band": float(plane["band"]),
+            "plane_rms": float(np.sqrt(np.mean(dist[inliers] ** 2))),
+            "plane_median_sigma": float(np.median(sigma[inliers])),
+            "plane_rms_over_sigma": float(np.sqrt(np.mean(dist[inliers] ** 2))
+                                          / np.median(sigma[inliers]))}
+
+
+def render_beside(ws: Path, folder: Path, out: Path, views: int = 3, width: int = 640) -> dict:
+    """The run's surface (the smooth one, else the stitched mesh) rendered from ``views``
+    of its cameras (first, middle, last), each row: the photo, the render, the two blended
+    half and half (registration shows as edges that line up); one PNG."""
+    import cv2
+
+    from pipeline import artifacts
+    from pipeline.mesh_io import read_mesh, vertex_normals
+    from pipeline.raycast import RayCaster
+    from pipeline.render import render_view, write_png
+
+    for path in (ws / "smooth" / artifacts.SURFACE, ws / "stitch" / artifacts.MESH):
+        if path.is_file():
+            break
+    else:
+        return {"rendered": None}
+    vertices, triangles = read_mesh(path)
+    normals = vertex_normals(vertices, triangles)
+    cameras = artifacts.read_cameras(ws / "acquire")
+    caster = RayCaster(vertices, triangles)
+    picks = sorted({0, len(cameras) // 2, len(cameras) - 1})[:views]
+    rows, covered = [], []
+    for v in picks:
+        cam = cameras[v]
+        s = width / cam.width
+        K = cam.K.copy()
+        K[:2] *= s
+        K[:2, 2] += 0.5 * s - 0.5  # pixel-centre mapping of cv2.resize
+        h = int(round(cam.height * s))
+        shaded = render_view(caster, vertices, triangles, normals, K, cam.R, cam.t, width, h)
+        photo = cv2.cvtColor(imread(str(folder / cam.name)), cv2.COLOR_BGR2RGB)
+        photo = cv2.resize(photo, (width, h), interpolation=cv2.INTER_AREA)
+        hit = np.any(shaded != 255, axis=2)
+        covered.append(float(hit.mean()))
+        blend = photo.copy()
+        blend[hit] = (0.5 * photo[hit] + 0.5 * shaded[hit]).astype(np.uint8)
+        rows.append(np.hstack([photo, shaded, blend]))
+    write_png(out, np.vstack(rows))
+    print(f"rendered {path.relative_to(ws)} from views "
+          f"{', '.join(cameras[v].name for v in picks)} -> {out}")
+    return {"rendered": str(path.relative_to(ws)), "render_png": str(out),
+            "render_views": [cameras[v].name for v in picks], "render_cover": covered}
+
+
+def folder_run_main(args, name: str, folder: Path) -> dict:
+    """``photosurf run FOLDER`` end to end (SfM, cloud, object selection, sections ... the
+    report) in this process: registered views, reprojection, seconds / CPU seconds / peak
+    memory of SfM, the cloud and the whole run, the stages that ran, the wall's flatness,
+    and the surface rendered from three of its cameras beside the photos."""
+    import json
+
+    from pipeline import artifacts
+
+    ws = Path(args.workspace or tempfile.mkdtemp(prefix=f"real-{name}-"))
+    argv = [str(folder), "--out", str(ws)] + (["--to", args.to] if args.to else []) \
+        + (["--cameras", args.cameras] if args.cameras else [])
+    status, phases, stats = run_in_process(argv)
+    sfm = stats.get("sfm") or {}
+    row = {"method": name, "exit": status, "workspace": str(ws), "load": uptime(),
+           "views": len(stats.get("view_names", ())) + len(stats.get("unregistered", ())),
+           "registered": sfm.get("registered", len(stats.get("view_names", ()))),
            "reprojection_px": sfm.get("mean_reprojection_error_px"),
-           "working_scale": stats.get("working_scale", 1.0),
-           "points": len(cloud), "median_sigma": float(np.median(cloud.sigma)),
-           "seconds_total": total.seconds, "cpu_seconds_total": total.cpu_seconds,
-           "peak_gb_total": total.peak, "roi": stats.get("roi", {}), "load": uptime()}
-    if "sfm" in phases:
-        row.update(sfm_seconds=phases["sfm"].seconds, sfm_cpu_seconds=phases["sfm"].cpu_seconds,
-                   sfm_peak_gb=phases["sfm"].peak,
-                   cloud_seconds=total.seconds - phases["sfm"].seconds,
-                   cloud_cpu_seconds=total.cpu_seconds - phases["sfm"].cpu_seconds)
-    # the largest plane of the kept cloud (a facade's wall): its inliers' RMS distance
-    # against the points' median sigma
-    cut, plane = support_plane(cloud.points, cloud.sigma, stats["cameras"])
-    if "plane" in plane:
-        n, d = np.array(plane["plane"][:3]), plane["plane"][3]
-        dist = np.abs(cloud.points @ n + d)
-        inliers = dist <= plane["band"]
-        row.update(plane_share=float(inliers.mean()),
-                   plane_rms_over_sigma=float(np.sqrt(np.mean(dist[inliers] ** 2))
-                                              / np.median(cloud.sigma[inliers])))
-    return row, cloud
+           "working_scale": stats.get("working_scale", 1.0), "roi": stats.get("roi_kept"),
+           **_phase_figures(phases)}
+    manifest = ws / "manifest.json"
+    if manifest.is_file():
+        row["stages_done"] = sorted(json.loads(manifest.read_text()).get("stages", {}))
+    if (ws / "acquire" / "cloud.npz").is_file():
+        cloud = artifacts.read_cloud(ws / "acquire")
+        row["points"] = int(len(cloud["points"]))
+        row["median_sigma"] = float(np.nanmedian(cloud["sigma"]))
+        row.update(wall_flatness(cloud["points"], cloud["sigma"],
+                                 artifacts.read_cameras(ws / "acquire")))
+        row.update(render_beside(ws, folder, Path(args.renders) / f"{name}_beside.png"))
+    return row
 
 
 def photos_main(args) -> int:
-    """``--sceaux`` / ``--phone FOLDER``: the photo-folder rows (SfM, cloud, memory)."""
+    """``--sceaux`` / ``--phone FOLDER``: ``photosurf run`` of a photo folder (the phone
+    folder to the cloud, ``--to acquire`` unless ``--to`` says otherwise)."""
     import logging
 
     # the run's progress lines (SfM steps, each view pair) on stderr, as photosurf run -v
@@ -600,29 +721,29 @@ def photos_main(args) -> int:
     rows = []
     sceaux = DATA.parent / "sceaux_castle"
     if args.sceaux and sceaux.is_dir():
-        row, cloud = photo_folder_row("sceaux", sceaux, cameras=args.cameras)
-        rows.append(row)
-        if args.save_cloud:
-            from pipeline.cloud_io import write_ply
-
-            write_ply(args.save_cloud, cloud.points, cloud.colours, cloud.sigma)
+        rows.append(folder_run_main(args, "sceaux", sceaux))
     if args.phone:
-        row, _ = photo_folder_row("phone-" + Path(args.phone).name, Path(args.phone))
-        rows.append(row)
-    keys = ("views", "registered", "reprojection_px", "sfm_seconds", "sfm_cpu_seconds",
-            "sfm_peak_gb", "working_scale", "points", "cloud_seconds", "cloud_cpu_seconds",
-            "peak_gb_total", "seconds_total", "plane_rms_over_sigma")
+        args.to = args.to or "acquire"
+        rows.append(folder_run_main(args, "phone-" + Path(args.phone).name, Path(args.phone)))
+    keys = ("views", "registered", "reprojection_px", "sfm_cpu_seconds", "sfm_peak_gb",
+            "working_scale", "points", "cloud_cpu_seconds", "acquire_seconds",
+            "acquire_peak_gb", "total_cpu_seconds", "total_peak_gb", "plane_rms_over_sigma")
     print(f"{'folder':16s}" + "".join(f"{k[:11]:>12s}" for k in keys))
     for r in rows:
         print(f"{r['method'][:16]:16s}" + "".join(
             f"{r[k]:>12.4g}" if isinstance(r.get(k), int | float) else " " * 12 for k in keys))
-        print(f"  {r['method']}: object selection {r['roi']}")
+        print(f"  {r['method']}: exit {r['exit']}, stages done {r.get('stages_done')}, "
+              f"object selection kept {r['roi']}; load {r['load']}")
     goals = {}
     for r in rows:
         goals[f"{r['method']}_all_views_registered"] = r["registered"] == r["views"]
-        goals[f"{r['method']}_peak_le_6GB"] = r["peak_gb_total"] <= 6.0
+        goals[f"{r['method']}_peak_le_6GB"] = r["total_peak_gb"] <= 6.0
         if r["method"].startswith("phone"):
-            goals[f"{r['method']}_le_3min_to_cloud"] = r["seconds_total"] <= 180.0
+            goals[f"{r['method']}_le_3min_to_cloud"] = r.get("acquire_seconds", 1e9) <= 180.0
+            goals[f"{r['method']}_le_3_cpu_min_to_cloud"] = \
+                r.get("acquire_cpu_seconds", 1e9) <= 180.0
+        else:
+            goals[f"{r['method']}_surface"] = r.get("rendered") is not None
     print_goals(goals)
     write_result(args.json, {"benchmark": "real-photos", "rows": rows, "goals": goals})
     return 0
@@ -636,10 +757,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--phone", metavar="FOLDER",
                         help="a phone-sized photo folder (e.g. 30 views of 12 MP rendered by "
                              "photosurf synth) instead of the temple rows")
-    parser.add_argument("--save-cloud", metavar="PLY", help="with --sceaux: write its cloud")
     parser.add_argument("--cameras", metavar="MODEL",
                         help="with --sceaux: the cameras (and sparse points) of an earlier "
                              "SfM run's COLMAP model instead of running SfM again")
+    parser.add_argument("--vase", action="store_true",
+                        help="photosurf run of the default stereo recipe against its truth "
+                             "(benchmarks/open_surface.py's scores) instead of the temple rows")
+    parser.add_argument("--turned", action="store_true",
+                        help="the turned temple with its par file (benchmarks/turned_ring.py)")
+    parser.add_argument("--exif", action="store_true",
+                        help="the rendered ring's EXIF-tagged JPEG copies "
+                             "(benchmarks/exif_ring.py)")
+    parser.add_argument("--workspace", help="--vase/--sceaux/--phone: the run's workspace "
+                                            "(default a new temporary folder)")
+    parser.add_argument("--to", help="--sceaux/--phone: last stage (--phone: acquire)")
+    parser.add_argument("--renders", default="/tmp",
+                        help="--sceaux: folder of the surface-beside-photos PNG")
     parser.add_argument("--quick", action="store_true",
                         help="spacing 3, no photosurf cloud on SfM cameras")
     parser.add_argument("--sfm-only", action="store_true",
@@ -650,6 +783,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spacing", type=int, default=None,
                         help="candidate spacing, px (default 2; --quick 3)")
     args = parser.parse_args(argv)
+    results = Path(args.json).parent
+    if args.vase:
+        return vase_main(args)
+    if args.turned:
+        import turned_ring
+
+        return turned_ring.main(["--spacing", str(args.spacing or 2),
+                                 "--json", str(results / "real_turned.json")])
+    if args.exif:
+        import exif_ring
+
+        return exif_ring.main(["--json", str(results / "real_exif.json")]
+                              + (["--spacing", str(args.spacing)] if args.spacing else []))
     if args.sceaux or args.phone:
         if args.json.endswith("real.json"):
             args.json = str(Path(args.json).with_name("real_photos.json"))
