@@ -150,16 +150,18 @@ def naming(path: str | os.PathLike) -> Iterator[None]:
 
     :func:`atomic_file` applies it to its own temporary; a caller writing two files in
     nested ``atomic_file`` blocks wraps each write in its own ``naming`` (else the inner
-    block would name the other file)."""
+    block would name the other file).  Inside a folder :func:`atomic_dir` is filling, the
+    name is the place the file will have (:func:`user_path`), not the temporary folder."""
     try:
         yield
     except OSError as exc:
         if exc.filename is None and exc.errno is not None:
-            raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
+            raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno),
+                          str(user_path(path))) from exc
         if exc.filename is None and "requested and" in str(exc):
             # numpy's tofile (np.save) reports a short write without errno or name
-            raise OSError(f"{path}: short write ({exc} bytes): the disk is full or a file-size "
-                          "limit was reached") from exc
+            raise OSError(f"{user_path(path)}: short write ({exc} bytes): the disk is full or "
+                          "a file-size limit was reached") from exc
         raise
 
 

@@ -430,7 +430,12 @@ limit = int(sys.argv[1])
 if limit:
     resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 try:
-    write_cad("s.step", net.control_points, net.domain_mesh[1])
+    if len(sys.argv) > 2:  # inside a stage folder being written, as photosurf run's export
+        from pipeline.atomic import atomic_dir
+        with atomic_dir(sys.argv[2]) as stage:
+            write_cad(stage / "s.step", net.control_points, net.domain_mesh[1])
+    else:
+        write_cad("s.step", net.control_points, net.domain_mesh[1])
 except Exception as exc:
     print(type(exc).__name__, exc)
 """
@@ -449,6 +454,18 @@ def test_step_export_on_a_full_disk_says_so(tmp_path):
     assert message.startswith("OSError") and "File too large" in message, message
     assert "s.step" in message and "OpenCascade" not in message
     assert list(tmp_path.iterdir()) == []
+
+
+def test_step_export_inside_a_stage_on_a_full_disk_names_the_final_path(tmp_path):
+    """The STEP text is written by Python, whose failed write names no file: inside a
+    stage folder being filled (``photosurf run``'s export) the error names the file where
+    the user will find it, not the stage's temporary folder."""
+    proc = subprocess.run([sys.executable, "-c", _STEP_UNDER_LIMIT, "8192", "w/export"],
+                          cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300)
+    message = proc.stdout.strip()
+    assert message.startswith("OSError") and "File too large" in message, message
+    assert "'w/export/s.step'" in message and "/.export." not in message, message
+    assert [p for p in tmp_path.rglob("*") if not p.is_dir()] == []
 
 
 # =========================================================================== signals
