@@ -435,7 +435,9 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
     inner caps at their cap points' height; ``notes`` are the end extension's.  With
     ``leave_holes`` (``sections.open``) an end the data do not cover
     (``surface.reconstruct.hole_ends``, judged on the un-extended end loops) is left as a
-    border; ``build.holes`` is then the last build's ``(bottom, top)`` holes left open."""
+    border; ``build.holes`` is then the last build's ``(bottom, top)`` holes left open.
+    ``build.ends``: the last build's end placements and their standard errors
+    (``surface.reconstruct.extend_to_caps``)."""
     import numpy as np
 
     from surface import reconstruct as rc
@@ -454,16 +456,17 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
             close = (not holes[0], not holes[1])
             build.holes = holes
         if params["caps"] and params["extend_ends"] and spacing > 0:
+            build.ends = {}
             rings, notes_extend = rc.extend_to_caps(rings, ring_planes, cap_cloud,
                                                     np.arange(len(cap_cloud)), spacing,
-                                                    sigma=cap_sigma)
+                                                    sigma=cap_sigma, ends=build.ends)
             notes_ends += notes_extend
         result = st.stitch_rings(rings, planes[0].frame[2], close_ends=close,
                                  support_sigma=support, cap_points=cap_cloud,
                                  diagnostics=diagnostics)
         return result, notes_ends
 
-    build.holes = (False, False)
+    build.holes, build.ends = (False, False), {}
     return build
 
 
@@ -486,6 +489,8 @@ def stitch(ctx: StageContext) -> dict:
     notes = {"closed": bool(result.closed), "messages": messages,
              # sections.open: a hole in the data left as a border (the smooth stage's open path)
              **({"open": True, "holes": [bool(h) for h in build.holes]} if any(build.holes) else {}),
+             # where each end was placed, how, and the placement's own standard error
+             "ends": build.ends,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
              "delaunay_fraction": float(result.delaunay_fraction),
              "branch_events": result.graph.counts() if result.graph else {}}

@@ -864,7 +864,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
                         projection: str = "surface", extend_ends: bool = True,
                         close_ends: bool = True, flip: bool = True,
                         support: bool = True, sigma: np.ndarray | None = None,
-                        open_holes: bool = False) -> StitchResult:
+                        open_holes: bool = False, ends: dict | None = None) -> StitchResult:
     """Unorganised points to a stitched mesh: slice → organise → fit/predict → stitch.
 
     The steps are public (:func:`slice_cloud`, :func:`organise_sections`,
@@ -928,6 +928,8 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         Leave an end the data do not cover (:func:`hole_ends`: a hole where the scanner
         never looked, an open mouth) as a border instead of capping it flat: an open
         surface of what was seen.
+    ends : dict, optional
+        Filled with each end's placement and its standard error (:func:`extend_to_caps`).
 
     Returns
     -------
@@ -963,7 +965,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         cap = sliced.cap_cloud
         cap_sigma = None if sigma is None else np.asarray(sigma, np.float64)[sliced.cap_index]
         rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing,
-                                      sigma=cap_sigma)
+                                      sigma=cap_sigma, ends=ends)
         messages += notes
     ends = (not holes[0], not holes[1]) if close_ends and open_holes else close_ends
     result = stitch_rings(rings, kept[0].frame[2], close_ends=ends, flip=flip,
@@ -1048,7 +1050,8 @@ _END_QUANTILE = 0.95
 
 
 def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.ndarray,
-                 delta: float, sigma: np.ndarray | None = None) -> tuple[list, list[str]]:
+                 delta: float, sigma: np.ndarray | None = None,
+                 ends: dict | None = None) -> tuple[list, list[str]]:
     """Add an end section at each end's cap height (see ``surface_from_points``).
 
     Every loop of an end section is moved to the median height of the cap
@@ -1078,6 +1081,12 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         (24-view ring, no cap seen): bottom end 0.0016 -> 0.0013 below the rim, top
         0.0008 -> 0.0007 above it, smooth-surface Chamfer 0.000334 -> 0.000284 (the report's,
         one run, 2026-12-03).  ``None`` or any non-finite / non-positive σ: equal weights.
+    ends : dict, optional
+        Filled with each end's placement, ``ends["bottom"]`` and ``ends["top"]``:
+        ``{"how": "cap" | "wall end" | "rim line" | "dome" | "last section", "height": h,
+        "standard_error": u}`` -- ``h`` the end ring's mean height along the axis, ``u``
+        the placement's own standard error (the largest of its loops'; ``None`` where the
+        end stays at its last section: a dome, or too few points beyond it).
 
     Returns
     -------
@@ -1103,7 +1112,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                          f"beyond the cap dropped (cap points' height {dropped[1]:.6g}, "
                          f"inside the last section plane: those sections were the cap's "
                          f"noise)")
-        ends = [rings[this]] if isinstance(rings[this], np.ndarray) else list(rings[this])
+        end_loops = [rings[this]] if isinstance(rings[this], np.ndarray) else list(rings[this])
         h_end = section_heights[this]
         offset = sign * (heights - h_end)
         # Within two spacings: a section emptied as a cap may lie in between.
@@ -1135,7 +1144,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         if end_step is not None:
             end_step *= sign
         new_rings, counts, dome, errors = [], [], False, []
-        for ring in ends:
+        for ring in end_loops:
             flat = ring @ frame[:2].T
             flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
             inside = beyond[_inside(beyond_flat, flat)]
@@ -1180,17 +1189,27 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
                 last = _nearest_loop(last, loops, frame)
                 chain.append(last)
             new_rings.append(_extrapolate_ring(ring, chain, step, axis))
-        if dome:
-            notes.append(f"{'bottom' if end == 0 else 'top'}: a dome past the last section "
-                         f"(its height field closes the end)")
-            continue
-        if len(new_rings) < len(ends):
+        name = "bottom" if end == 0 else "top"
+        if dome or len(new_rings) < len(end_loops):
+            if ends is not None:
+                ends[name] = {"how": "dome" if dome else "last section",
+                              "height": float(np.mean([float(np.mean(lp @ axis))
+                                                       for lp in end_loops])),
+                              "standard_error": None}
+            if dome:
+                notes.append(f"{name}: a dome past the last section "
+                             f"(its height field closes the end)")
             continue
         rings.insert(0 if end == 0 else len(rings),
                      new_rings[0] if len(new_rings) == 1 else new_rings)
         moved = np.mean([abs(float((r - e).mean(axis=0) @ axis))
-                         for r, e in zip(new_rings, ends, strict=True)])
+                         for r, e in zip(new_rings, end_loops, strict=True)])
         error = f" (± {max(errors):.2g}, its standard error)" if errors else ""
+        if ends is not None:
+            ends[name] = {"how": "cap" if min(counts) >= NORMAL_NEIGHBOURS else
+                          "rim line" if rim is not None else "wall end",
+                          "height": float(np.mean([float(np.mean(r @ axis)) for r in new_rings])),
+                          "standard_error": float(max(errors)) if errors else None}
         if min(counts) >= NORMAL_NEIGHBOURS:
             notes.append(f"{'bottom' if end == 0 else 'top'} cap moved {moved:.4g} to the "
                          f"median height of {sum(counts)} cap points{error}")

@@ -38,6 +38,14 @@ def test_run_open_leaves_the_unseen_top_of_a_capsule_open(tmp_path):
         assert abs(np.median(radius) - 0.6) < 0.15, (mesh, np.median(radius))
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["stages"]["smooth"]["info"]["boundary_loops"] == 1
+    # the ends' placements in the stitch stage's record: the flat base (z = 0) from its
+    # cap points, noise-free, within a quarter point spacing (s = sqrt(area / N) ~ 0.033);
+    # the hole's end from the wall points past the last section
+    ends = manifest["stages"]["stitch"]["info"]["ends"]
+    spacing = np.sqrt(7 * np.pi / 20_000)
+    assert ends["bottom"]["how"] == "cap" and abs(ends["bottom"]["height"]) < 0.25 * spacing
+    assert 0 <= ends["bottom"]["standard_error"] < 0.25 * spacing
+    assert ends["top"]["how"] == "wall end" and 2.5 < ends["top"]["height"] < 3.0
 
     assert main(["run", str(path), "--out", str(out), "--to", "stitch", "--quiet"]) == 0
     notes = json.loads((out / "stitch" / "stitch.json").read_text())
