@@ -226,10 +226,6 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
         ``sfm``, ``view_names``, ``masks`` (where they came from), ``ring``
         (:func:`matching.ring.fit_ring` of the cameras, ``as_dict``).
     """
-    from matching.multiview import reconstruct_multiview
-    from matching.ring import fit_ring
-    from matching.scheduler import default_workers, thread_map
-    from pipeline.executor import LocalExecutor
     from pipeline.inputs import load_folder
 
     if masks not in MASK_MODES:
@@ -244,6 +240,13 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     loaded = load_folder(folder, cameras, camera_model=camera_model,
                          spacing=float(options.get("spacing", 3)),
                          points_across=int(options.get("points_across", 0)))
+    # the matching modules after the folder and its cameras are read: a bad camera file
+    # is refused before their imports (scipy.stats, numba: 1.2 CPU-s)
+    from matching.multiview import reconstruct_multiview
+    from matching.ring import fit_ring
+    from matching.scheduler import default_workers, thread_map
+    from pipeline.executor import LocalExecutor
+
     where = Path(loaded["images"].paths[0]).parent if getattr(
         loaded["images"], "paths", None) else Path(folder)
     _warn_identical_views(where, loaded["names"], loaded["cameras"])
