@@ -39,6 +39,12 @@ log = logging.getLogger("photosurf")
 EDGE_SAMPLES = 9
 #: Largest level ``"auto"`` chooses (4^3 = 64 triangles per patch).
 MAX_AUTO_LEVEL = 3
+#: Repair of a self-crossing surface (:func:`_untangled`): rings of control faces around
+#: the crossing ones in the first round (one more each round), rounds, and the largest
+#: share of the control faces relaxed (beyond it the tangle is not local: reported).
+REPAIR_RINGS = 1
+REPAIR_ROUNDS = 4
+REPAIR_SHARE = 0.1
 
 
 @dataclass
@@ -82,7 +88,8 @@ class Smoothed:
 
 
 def solid_report(stage: str, vertices: np.ndarray, triangles: np.ndarray,
-                 expect_closed: bool = True) -> dict:
+                 expect_closed: bool = True, report=None, seconds: float | None = None,
+                 note: str = "") -> dict:
     """Check a mesh as a solid, log one warning line if it is not one, return the figures.
 
     Parameters
@@ -94,6 +101,10 @@ def solid_report(stage: str, vertices: np.ndarray, triangles: np.ndarray,
     expect_closed : bool
         ``False`` for a surface open by design (one-sided data, ``--open``): its border
         is not a defect and is not logged (it is still counted).
+    report, seconds : optional
+        The check already made (:func:`surface.validity.check_solid`) and its time.
+    note : str
+        Appended to the warning line (e.g. what a repair left).
 
     Returns
     -------
@@ -104,14 +115,16 @@ def solid_report(stage: str, vertices: np.ndarray, triangles: np.ndarray,
 
     from surface.validity import check_solid
 
-    start = time.perf_counter()
-    report = check_solid(vertices, triangles)
+    if report is None:
+        start = time.perf_counter()
+        report = check_solid(vertices, triangles)
+        seconds = round(time.perf_counter() - start, 3)
     problems = [p for p in report.problems()
                 if expect_closed or not p.startswith("is open")]
     if problems:
-        log.warning("%s: the mesh %s", stage, "; ".join(problems))
+        log.warning("%s: the mesh %s%s", stage, "; ".join(problems), note)
     return {**report.to_json(), "expect_closed": bool(expect_closed),
-            "seconds": round(time.perf_counter() - start, 3)}
+            "seconds": seconds}
 
 
 #: Level of the stand-alone commands (``photosurf smooth``, ``sections --smooth``) when the
@@ -156,7 +169,8 @@ def spacing_cuts(control_points: np.ndarray, spacing: float) -> np.ndarray:
 
 def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
                 tolerance: float | None = None, surface=None,
-                check: bool = True, spacing: float | None = None) -> Smoothed:
+                check: bool = True, spacing: float | None = None,
+                repair: bool = True) -> Smoothed:
     """Build, tessellate and check the Bézier surface over a control mesh.
 
     Parameters
@@ -179,6 +193,10 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     spacing : float, optional
         The data's point spacing, scene units: ``"adaptive"`` cuts no patch finer than
         it (:func:`spacing_cuts`).
+    repair : bool
+        With ``check``: where the surface crosses itself, relax the control mesh there
+        and rebuild (:func:`_untangled`, :mod:`surface.repair`); the figures go to
+        ``solid["repair"]``.
 
     Raises
     ------
@@ -220,12 +238,92 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
     gap, angle = bezier.edge_continuity(surface.control_points, surface.domain_mesh[1],
                                         samples=EDGE_SAMPLES)
     solid = None
+    smoothed = Smoothed(surface, v, t, n, level, float(gap), float(angle), None)
     if check:
         from surface.metrics import edge_table
 
         closed_control = not np.any(edge_table(triangles).counts == 1)
-        solid = solid_report("smooth", v, t, expect_closed=closed_control)
-    return Smoothed(surface, v, t, n, level, float(gap), float(angle), solid)
+        report, seconds = _checked(v, t)
+        if repair and report.self_intersecting:
+            smoothed, report, seconds, solid = _untangled(
+                smoothed, report, seconds, vertices, triangles, level, tolerance, spacing)
+        smoothed.solid = {**solid_report("smooth", smoothed.vertices, smoothed.triangles,
+                                         expect_closed=closed_control, report=report,
+                                         seconds=seconds, note=_repair_note(solid)),
+                          **({"repair": solid} if solid else {})}
+    return smoothed
+
+
+def _checked(v, t):
+    import time
+
+    from surface.validity import check_solid
+
+    start = time.perf_counter()
+    report = check_solid(v, t)
+    return report, round(time.perf_counter() - start, 3)
+
+
+def _repair_note(repair: dict | None) -> str:
+    if not repair:
+        return ""
+    return (f" (left after relaxing {repair['faces']} control faces around the "
+            f"{repair['pairs_before']} crossing pairs found first, {repair['rounds']} rounds)")
+
+
+def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, tolerance,
+               spacing):
+    """The surface rebuilt over its control mesh relaxed where it crosses itself
+    (:mod:`surface.repair`): the control faces under the crossing facets, grown by
+    :data:`REPAIR_RINGS` rings, their interior vertices on the membrane of the region's
+    border; again with the new crossings added and one ring more, at most
+    :data:`REPAIR_ROUNDS` rounds or until the region passes :data:`REPAIR_SHARE` of the
+    faces.  Returns the surface with the fewest crossing pairs (the first on a tie), its
+    report and the repair's figures (``None`` when nothing better was found: the surface
+    is reported as it is)."""
+    from surface.repair import crossing_faces, grow_faces, membrane
+
+    x = np.asarray(control, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    before = len(report.intersecting_pairs)
+    best = (smoothed, report, seconds, None)
+    region = np.zeros(len(t), dtype=bool)
+    current = smoothed, report
+    for round_ in range(1, REPAIR_ROUNDS + 1):
+        tv, tt = current[0].vertices, current[0].triangles
+        corners = tv[tt[np.unique(current[1].intersecting_pairs.ravel())].ravel()]
+        region = grow_faces(region | crossing_faces(x, t, corners), t, REPAIR_RINGS + round_ - 1)
+        if round_ > 1 and region.mean() > REPAIR_SHARE:
+            break
+        moved_x, moved = membrane(x, t, region)
+        if len(moved) == 0:
+            break
+        try:
+            candidate = smooth_mesh(moved_x, t, level, tolerance, check=False,
+                                    spacing=spacing, repair=False)
+        except ValueError:
+            break
+        rep, sec = _checked(candidate.vertices, candidate.triangles)
+        shift = float(np.linalg.norm(moved_x[moved] - x[moved], axis=1).max())
+        figures = {"pairs_before": int(before), "rounds": round_,
+                   "faces": int(region.sum()), "vertices_moved": int(len(moved)),
+                   "largest_move": shift,
+                   "largest_move_spacings": (shift / spacing if spacing else None)}
+        current = candidate, rep
+        if len(rep.intersecting_pairs) < len(best[1].intersecting_pairs):
+            best = (candidate, rep, sec, figures)
+        if not rep.self_intersecting:
+            break
+    smoothed, report, seconds, figures = best
+    if figures is not None:
+        log.info("smooth: the surface crossed itself at %d triangle pairs: %d control faces "
+                 "around them relaxed (%d vertices moved, at most %.3g): %d pairs left",
+                 before, figures["faces"], figures["vertices_moved"], figures["largest_move"],
+                 len(report.intersecting_pairs))
+    else:
+        figures = {"pairs_before": int(before), "rounds": 0, "faces": 0, "vertices_moved": 0,
+                   "largest_move": 0.0, "largest_move_spacings": 0.0}
+    return smoothed, report, seconds, figures
 
 
 def smooth_to_files(vertices, triangles, out, level: int | str | None = None,
