@@ -3,11 +3,13 @@
 Each row runs the real program, ``python -m pipeline.cli ...``, as a child
 process and reads its wall time and peak resident memory (``os.wait4``: the
 child's own ``ru_maxrss``, i.e. RUSAGE_CHILDREN of that one child).  Every
-request must be refused (exit status 2, one line on stderr) in under 2 s and
+request must be refused (exit status 2, one line on stderr, no file written or left
+behind: the inputs' folder is listed before and after each row) in under 2 s and
 500 MB; before they were checked these requests crashed (``sections`` on a 1e300 cloud:
 exit -11), printed tracebacks, or ran until killed by time or memory.  Rows marked
-*handled* are odd but usable input (a cylinder with 5 points 10^6 away): exit 0 with
-at most one warning line, the far points dropped (before: 12 GiB and killed).
+*handled* are odd but usable input (a cylinder with 5 points 10^6 away, a stdout that
+is closed or full): exit 0 with at most one warning line and no temporary left, the far
+points dropped (before: 12 GiB and killed).
 
 The peer row is ``photosurf --help`` in the same way: the interpreter and the
 imports every command pays before it can refuse anything.
@@ -101,6 +103,7 @@ def _inputs(tmp: Path) -> dict:
     os.mkfifo(tmp / "pipe.xyz")
     files["fifo"] = tmp / "pipe.xyz"
     _hostile_two(tmp, files, rng)
+    _hostile_views(tmp, files, image, rng)
     for name, extra in (("views", '[cameras]\nlayout = "ring"\nwidth = 48\nheight = 40\n'
                                   "n = 1000000000\n"),
                         ("ring2", '[cameras]\nlayout = "ring"\nwidth = 48\nheight = 40\nn = 8\n'
@@ -162,6 +165,8 @@ def _hostile_two(tmp: Path, files: dict, rng) -> None:
     files["faces_claim"].write_bytes(data.replace(b"element face 25920",
                                                   b"element face 25970"))
     files["sigma_zero"] = write_cloud(tmp / "sigma0.npz", cylinder[:600], sigma=np.zeros(600))
+    files["sigma_negative"] = write_cloud(tmp / "sigma_negative.npz", cylinder[:600],
+                                          sigma=-np.ones(600))
     (tmp / "commas.xyz").write_text("".join(f"{x:.6f} {y:.6f} {z:.6f}\n".replace(".", ",")
                                             for x, y, z in cylinder[:600]))
     files["commas"] = tmp / "commas.xyz"
@@ -173,11 +178,63 @@ def _hostile_two(tmp: Path, files: dict, rng) -> None:
         [np.column_stack([disc, np.zeros(1000)]), np.column_stack([disc, np.full(1000, 0.5)])]))
 
 
+def _hostile_views(tmp: Path, files: dict, image, rng) -> None:
+    """Image and camera files of the second round: a view named in bytes that are not
+    UTF-8, a float TIFF with NaN pixels, camera files naming an image twice (cameras.yml,
+    a Middlebury par file, a COLMAP images.txt), an images.txt without its points lines,
+    a cameras.yml that is no camera file."""
+    import shutil
+
+    import cv2
+    import numpy as np
+
+    from matching.cameras import Camera, write_cameras_yml, write_colmap_text
+
+    files["left_nonutf8"] = os.fsencode(tmp) + b"/l_caf\xe9.png"
+    shutil.copy(tmp / "left.png", files["left_nonutf8"])
+    floats = image.astype(np.float32)
+    floats[10:12, 20:30] = np.nan
+    cv2.imwrite(str(tmp / "nan.tif"), floats)
+    files["nan_tiff"] = tmp / "nan.tif"
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
+    names = [f"v{k}.png" for k in range(6)]
+    cameras = [Camera(K, np.zeros(5), np.eye(3), np.array([0.1 * k, 0, 2]), 64, 48, name)
+               for k, name in enumerate(names)]
+    for label in ("yml_twice", "par_twice", "colmap_twice", "colmap_no_points", "yml_bad"):
+        folder = tmp / label
+        folder.mkdir()
+        for name in names:
+            cv2.imwrite(str(folder / name), np.roll(image, 2 * int(name[1]), axis=1))
+        files[label] = folder
+    twice = [*cameras[:5], Camera(K, np.zeros(5), np.eye(3), np.array([0.7, 0, 2]), 64, 48,
+                                  "v2.png")]
+    write_cameras_yml(tmp / "yml_twice" / "cameras.yml", twice)
+    (tmp / "par_twice" / "views_par.txt").write_text(f"{len(twice)}\n" + "".join(
+        f"{c.name} " + " ".join(f"{v:.17g}" for v in (*c.K.ravel(), *c.R.ravel(), *c.t))
+        + "\n" for c in twice))
+    files["par_file"] = tmp / "par_twice" / "views_par.txt"
+    write_colmap_text(tmp / "colmap_twice" / "sparse", [  # v2.png's second pose, renamed
+        *cameras[:5], Camera(K, np.zeros(5), np.eye(3), np.array([0.7, 0, 2]), 64, 48,
+                             "v5.png")])
+    images_txt = tmp / "colmap_twice" / "sparse" / "images.txt"
+    images_txt.write_text(images_txt.read_text().replace(" v5.png", " v2.png"))
+    write_colmap_text(tmp / "colmap_no_points" / "sparse", cameras)
+    text = (tmp / "colmap_no_points" / "sparse" / "images.txt").read_text()
+    (tmp / "colmap_no_points" / "sparse" / "images.txt").write_text(
+        "\n".join(ln for ln in text.splitlines() if ln.strip()) + "\n")
+    (tmp / "yml_bad" / "cameras.yml").write_text("%YAML:1.0\n---\nn_views: 2\nview_00: 3\n")
+
+
 #: Requests that are odd but usable: exit 0 expected (see the module notes).
 HANDLED = ("sections cylinder + 5 points 1e6 away", "sections cylinder + 5 points 1e6 along z",
-           "run cylinder + 5 points 1e6 away", "sections --axis 1e308,1e308,0")
+           "run cylinder + 5 points 1e6 away", "sections --axis 1e308,1e308,0",
+           "sections, stdout closed (>&-)", "sections, stdout /dev/full")
 #: Environment of a row besides the defaults.
-ROW_ENV = {"PHOTOSURF_ALLOW_LARGE=banana": {"PHOTOSURF_ALLOW_LARGE": "banana"}}
+ROW_ENV = {"PHOTOSURF_ALLOW_LARGE=banana": {"PHOTOSURF_ALLOW_LARGE": "banana"},
+           "PHOTOSURF_ALLOW_LARGE=off, --sections 1e9": {"PHOTOSURF_ALLOW_LARGE": "off"}}
+#: Where a row's stdout goes besides /dev/null: closed, or a device that is always full.
+ROW_STDOUT = {"sections, stdout closed (>&-)": "closed",
+              "sections, stdout /dev/full": "/dev/full"}
 
 
 def _cases(f: dict, out: Path) -> list[tuple[str, list]]:
@@ -252,6 +309,29 @@ def _cases(f: dict, out: Path) -> list[tuple[str, list]]:
                                       "cameras.fill=100"]),
         ("synth distortion k1 = 1e6", ["synth", f["recipe"], "--out", out / "s", "--set",
                                        "cameras.distortion=[1000000.0, 0.0, 0.0, 0.0, 0.0]"]),
+        ("PHOTOSURF_ALLOW_LARGE=off, --sections 1e9", ["sections", f["cloud"], "--out",
+                                                       out / "m.ply", "--sections",
+                                                       "1000000000"]),
+        ("run --out ''", ["run", f["cloud"], "--out", ""]),
+        ("sections npz sigma negative", ["sections", f["sigma_negative"], "--out",
+                                         out / "m.ply"]),
+        ("stereo left named l_caf\\xe9.png (no overlap)", ["stereo", f["left_nonutf8"],
+                                                            f["right"], "--rig", f["rig"],
+                                                            "--out", out / "c.ply"]),
+        ("stereo float TIFF with NaN pixels", ["stereo", f["nan_tiff"], f["right"], "--rig",
+                                               f["rig"], "--out", out / "c.ply"]),
+        ("acquire cameras.yml naming an image twice", ["acquire", f["yml_twice"], "--out",
+                                                       out / "c.ply"]),
+        ("acquire par file naming an image twice", ["acquire", f["par_twice"], "--cameras",
+                                                    f["par_file"], "--out", out / "c.ply"]),
+        ("acquire images.txt naming an image twice", ["acquire", f["colmap_twice"], "--out",
+                                                      out / "c.ply"]),
+        ("acquire images.txt without points lines", ["acquire", f["colmap_no_points"],
+                                                     "--out", out / "c.ply"]),
+        ("acquire cameras.yml that is no camera file", ["acquire", f["yml_bad"], "--out",
+                                                        out / "c.ply"]),
+        ("sections, stdout closed (>&-)", ["sections", f["cloud"], "--out", out / "m.ply"]),
+        ("sections, stdout /dev/full", ["sections", f["cloud"], "--out", out / "m.ply"]),
     ]
 
 
@@ -264,15 +344,21 @@ def _make_inputs(tmp: Path) -> dict:
     return json.loads((tmp / "files.json").read_text())
 
 
-def _measure(argv: list, timeout: float = 60.0, extra_env: dict | None = None) -> dict:
-    """Run ``photosurf ARGV`` as a child; its wall time, peak RSS, status and stderr."""
+def _measure(argv: list, timeout: float = 60.0, extra_env: dict | None = None,
+             stdout: str | None = None) -> dict:
+    """Run ``photosurf ARGV`` as a child; its wall time, peak RSS, status and stderr.
+    ``stdout``: "closed" (the shell's ``>&-``) or a file to write it to (``/dev/full``)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     env.pop("PHOTOSURF_ALLOW_LARGE", None)
     env.update(extra_env or {})
+    out = open(stdout, "wb") if stdout and stdout != "closed" else subprocess.DEVNULL  # noqa: SIM115
     with tempfile.TemporaryFile() as err:
         start = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *map(str, argv)],
-                                stdout=subprocess.DEVNULL, stderr=err, env=env)
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *map(os.fsencode, argv)],
+                                stdout=out, stderr=err, env=env,
+                                preexec_fn=(lambda: os.close(1)) if stdout == "closed" else None)
+        if out is not subprocess.DEVNULL:
+            out.close()
         deadline = start + timeout
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
@@ -293,6 +379,29 @@ def _measure(argv: list, timeout: float = 60.0, extra_env: dict | None = None) -
             "message": lines[0] if lines else ""}
 
 
+#: The hidden files an output may hold: a workspace's lock, an output folder's marker.
+MARKER = ".photosurf-output.json"
+
+
+def _tree(root: Path) -> set[str]:
+    """Every path under ``root`` (links not followed), relative."""
+    found = set()
+    for folder, dirs, names in os.walk(root):
+        found.update(os.path.relpath(os.path.join(folder, n), root) for n in dirs + names)
+    return found
+
+
+def _remove(root: Path, paths: list[str]) -> None:
+    import shutil
+
+    for rel in sorted(paths, key=len):
+        path = root / rel
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        elif os.path.lexists(path):
+            path.unlink()
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a third of the rows")
@@ -302,7 +411,8 @@ def main(argv=None) -> int:
     if args.make_inputs:  # in a child: this process stays small (see _make_inputs)
         files = _inputs(Path(args.make_inputs))
         (Path(args.make_inputs) / "files.json").write_text(
-            json.dumps({k: str(v) for k, v in files.items()}))
+            json.dumps({k: os.fsdecode(v) if isinstance(v, bytes) else str(v)
+                        for k, v in files.items()}))
         return 0
     rows = []
     load_before = os.getloadavg()
@@ -316,19 +426,29 @@ def main(argv=None) -> int:
         peer = _measure(["--help"])
         rows.append({"request": "peer: photosurf --help (start-up)", **peer})
         for label, command in cases:
-            rows.append({"request": label, "expect": "handled" if label in HANDLED else
-                         "refused", **_measure(command, extra_env=ROW_ENV.get(label))})
+            before = _tree(tmp)
+            expect = "handled" if label in HANDLED else "refused"
+            row = {"request": label, "expect": expect,  # handled rows do the work: 5 min
+                   **_measure(command, timeout=300.0 if expect == "handled" else 60.0,
+                              extra_env=ROW_ENV.get(label), stdout=ROW_STDOUT.get(label))}
+            new = sorted(_tree(tmp) - before)
+            # a refusal leaves nothing; a handled request its outputs, but no temporary
+            row["left"] = [p for p in new if row["expect"] == "refused" or Path(p).name
+                           .startswith(".") and Path(p).name not in (".lock", MARKER)]
+            rows.append(row)
+            _remove(tmp, new)  # the next row starts from the same files
     load = [round(max(a, b), 2) for a, b in zip(load_before, os.getloadavg(), strict=True)]
     width = max(len(r["request"]) for r in rows)
-    print(f"{'request':<{width}}  status  wall s  CPU s  peak MB  lines  message")
+    print(f"{'request':<{width}}  status  wall s  CPU s  peak MB  lines  left  message")
     for r in rows:
         message = r["message"].split(": error: ", 1)[-1][:60]
         print(f"{r['request']:<{width}}  {r['status']:>6}  {r['seconds']:>6.2f}  "
-              f"{r['cpu_s']:>5.2f}  {r['peak_mb']:>7.0f}  {r['lines']:>5}  {message}")
+              f"{r['cpu_s']:>5.2f}  {r['peak_mb']:>7.0f}  {r['lines']:>5}  "
+              f"{len(r.get('left', [])):>4}  {message}")
     refused = [r for r in rows[1:] if r["expect"] == "refused" and r["status"] == 2
-               and r["lines"] == 1]
+               and r["lines"] == 1 and not r["left"]]
     handled = [r for r in rows[1:] if r["expect"] == "handled" and r["status"] == 0
-               and r["lines"] <= 1]
+               and r["lines"] <= 1 and not r["left"]]
     expected_refusals = sum(r["expect"] == "refused" for r in rows[1:])
     worst_s = max(r["seconds"] for r in rows[1:])
     worst_cpu = max(r["cpu_s"] for r in rows[1:])
