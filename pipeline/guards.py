@@ -576,6 +576,19 @@ def symlink_loop_reason(exc: BaseException) -> str:
     return getattr(exc, "strerror", None) or str(exc)
 
 
+def missing_reason(path: str | os.PathLike) -> str:
+    """Why ``path``, whose ``exists()`` is false, cannot be read: a link in a loop, a link
+    to nothing, or no such file."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return symlink_loop_reason(exc)
+    if os.path.islink(path):
+        return f"a link to {os.readlink(path)}, which does not exist"
+    return "no such file"
+
+
 def _inside(child: Path, parent: Path) -> bool:
     return child == parent or parent in child.parents
 

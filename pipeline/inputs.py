@@ -64,7 +64,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
+        raise FileNotFoundError(f"{path}: {guards.missing_reason(path)}")
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, expected an image")
     # a regular file, its format by signature, its header size within the limits (before

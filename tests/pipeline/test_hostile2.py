@@ -639,3 +639,20 @@ def test_run_axis_vector_that_is_no_direction(value):
 
     with pytest.raises(InputError, match="sections.axis must be a finite, non-zero"):
         resolve(None, [f"sections.axis={value}"])
+
+
+def test_view_that_is_a_link_loop_or_a_dangling_link_says_so(tmp_path):
+    """An image that is a link in a loop, or a link to nothing, was left out as "no such
+    file": the reason names the link."""
+    from pipeline.inputs import read_image
+
+    (tmp_path / "a.png").symlink_to("b.png")
+    (tmp_path / "b.png").symlink_to("a.png")
+    (tmp_path / "c.png").symlink_to("gone.png")
+    with pytest.raises(FileNotFoundError, match=r"a\.png: a symbolic link loop"):
+        read_image(tmp_path / "a.png")
+    with pytest.raises(FileNotFoundError, match=r"c\.png: a link to gone\.png, which does not "
+                                                r"exist"):
+        read_image(tmp_path / "c.png")
+    with pytest.raises(FileNotFoundError, match=r"d\.png: no such file$"):
+        read_image(tmp_path / "d.png")
