@@ -72,7 +72,9 @@ Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
                             matches + 4 robust spreads (``max_sigma_mad_k``)
 12    ``ambiguous``         a rival along the epipolar search range matches as
                             well within the noise (:mod:`matching.uniqueness`),
-                            and its unique neighbours do not pin it
+                            and its unique neighbours do not pin it (epipolar
+                            pass: the matcher does not refute the rival, or the
+                            rivals' mixture variance exceeds the match's own)
 13    ``blank``             no signal in the window (std <= 2 noise σ)
 14    ``backward``          the right-to-left LSM from the solution does not
                             return within the loop's 99.9 % bound
@@ -414,7 +416,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         (right-to-left) LSM loop must close (:func:`_loop_closes`).  Measured
         (``benchmarks/matching.py --part chessboard``, docs/decisions/stereo-uniqueness.md):
         a real chessboard pair's points one period or more off the board 8.7 % -> 0.5 %;
-        a temple pair's accepted share 77.1 % -> 66.4 %.
+        a temple pair's accepted share 77.1 % -> 66.4 %.  With the epipolar pass the test
+        runs in the rectified frame with the constrained matcher and is strict (a rival
+        within the noise margin that the matcher does not refute rejects the match;
+        :func:`_verify_unique_rectified`), the survivors' σ along the line includes the
+        rivals' mixture variance, the backward loop is constrained too
+        (:func:`_loop_closes_rectified`), and the growth runs from verified matches only
+        (:func:`_grow_verified`).
     epipolar_pass : bool
         Calibrated pairs (default off here; ``photosurf stereo`` and ``photosurf match
         --rig`` turn it on): every window LSM tried is matched again in the
@@ -623,26 +631,45 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 # Gruen & Baltsavias' geometric constraint: the y-shift is the rig's,
                 # only the shift and shape along the epipolar line are solved
                 first_pass = res
-                res, geo_var, epi_dirs, sides, epi_factor = _epipolar_refine(
+                res, geo_var, epi_dirs, sides, epi_factor, frame = _epipolar_refine(
                     left, right, rig, rect, points, start, res, sides, options, aperture_k,
                     interpolation, second_order=second_order, spacing=spacing,
                     classes=edge[idx], scale_cov=bool(sigma_factor))
                 status_ill = res.accepted & ~np.isfinite(geo_var)
                 res = replace(res, status=np.where(status_ill, APERTURE, res.status)
                               .astype(res.status.dtype))
-            verdict = None
+            verdict, rival_var = None, None
             if unique and res.accepted.any():
-                verdict = _verify_unique(left, right, rig, rect, rectified, fprep, gprep,
-                                         points, res, approx.range, patch, options)
+                if first_pass is not None:
+                    verdict, rival_var = _verify_unique_rectified(frame, points, res,
+                                                                  approx.range, patch)
+                else:
+                    verdict = _verify_unique(left, right, rig, rect, rectified, fprep,
+                                             gprep, points, res, approx.range, patch,
+                                             options)
             status[idx] = res.status
             if verdict is not None:
                 status[idx[verdict == uniqueness.AMBIGUOUS]] = AMBIGUOUS
                 status[idx[verdict == uniqueness.BLANK]] = BLANK
                 survivors = verdict == uniqueness.UNIQUE
-                status[idx[survivors & ~_loop_closes(fprep, gprep, points, res, survivors,
-                                                     patch, options)]] = BACKWARD
+                closes = (_loop_closes_rectified(frame, survivors) if first_pass is not None
+                          else _loop_closes(fprep, gprep, points, res, survivors, patch,
+                                            options))
+                status[idx[survivors & ~closes]] = BACKWARD
             if grow:
                 status[idx[unapproximated]] = NO_APPROXIMATION
+            if first_pass is not None and unique and grow:
+                def refine(start_, sub, sides_):
+                    return _epipolar_refine(
+                        left, right, rig, rect, points, start_, sub, sides_, options,
+                        aperture_k, interpolation, second_order=second_order,
+                        spacing=spacing, classes=edge[idx], scale_cov=bool(sigma_factor),
+                        fixed=frame)
+
+                local = status[idx].copy()
+                res, _ = _grow_verified(local, points, res, frame, geo_var, epi_dirs, sides,
+                                        refine, patch)
+                status[idx] = local
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch,
@@ -667,7 +694,18 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["cov"][idx] = res.cov * per_window[:, None, None]
             if geo_var is not None:
                 # what the rig's epipolar error leaves along the line (_epipolar_refine)
-                out["cov"][idx] += (np.nan_to_num(geo_var)[:, None, None]
+                along = np.nan_to_num(geo_var)
+                if rival_var is not None:
+                    # what the rivals along the line leave (rectified px² -> right px²);
+                    # a match whose uncertainty they dominate -- more than the texture and
+                    # the rig leave -- is not unique at any precision it could claim
+                    stretch = np.ones(len(idx))
+                    stretch[frame["index"]] = np.nan_to_num(frame["stretch"], nan=1.0)
+                    own = np.einsum("ni,nij,nj->n", epi_dirs, out["cov"][idx], epi_dirs)
+                    rivals = rival_var * stretch
+                    status[idx[(status[idx] == Status.OK) & (rivals > own + along)]] = AMBIGUOUS
+                    along = along + rivals
+                out["cov"][idx] += (along[:, None, None]
                                     * epi_dirs[:, :, None] * epi_dirs[:, None, :])
             out["sigma"][idx] = np.sqrt(np.trace(out["cov"][idx], axis1=1, axis2=2) / 2.0)
             out["sigma0"][idx] = res.sigma0
@@ -753,6 +791,66 @@ def _verify_unique(left, right, rig, rect, rectified, fprep, gprep, points, res:
     return verdict
 
 
+def _verify_unique_rectified(frame: dict, points, res: LSMResult, search_range,
+                             patch: int) -> tuple[np.ndarray, np.ndarray]:
+    """Uniqueness of the epipolar pass's matches, judged in the rectified frame by the
+    matcher that made them (:mod:`matching.uniqueness` ``strict``).
+
+    Every separated peak of the plain ZNCC profile along the row that is as good as the
+    solution's within the noise margin (or better) makes the match ambiguous unless the
+    constrained matcher, started there with the solution's shape and radiometry, refutes
+    it.  Ambiguous matches are not resolved by their neighbours here (measured on the
+    chessboard rig, pair 06: the 228 that :func:`matching.uniqueness.anchored` would pin
+    put 13.6 % of themselves beyond the blunder band against 4.3 % of the rest): the
+    region growing from verified matches (:func:`_grow_verified`) is where geometry
+    pins a window.  Returns the (N,) verdicts and (N,) variance the rivals leave along
+    the row (rectified px², ``Verification.rival_var``).
+    """
+    from types import SimpleNamespace
+
+    n = len(points)
+    ok = frame["index"]
+    status = np.where(res.status[ok] == Status.OK, 0, 1)
+    sub = SimpleNamespace(status=status, sigma0=frame["sigma0"],
+                          correlation=frame["correlation"])
+    shape = np.concatenate([frame["affine"], frame["radiometric"]], axis=1)
+    fprep, gprep, frac = frame["fprep"], frame["gprep"], frame["frac"]
+    sides = frame["sides"]
+
+    def match(index, start, init, population, direction):
+        # the rival's window centre on the template's pixel grid (the point is eccentric
+        # by ``frac``), the search centre moved by the shape
+        a0 = start[:, 0] - init[:, 1] * frac[index, 0] - init[:, 2] * frac[index, 1]
+        init = init.copy()
+        init[:, 0], init[:, 3] = a0, frame["centre"][index, 1]
+        init[:, 4], init[:, 5] = 0.0, 1.0
+        approx = init[:, [0, 3]]
+        status_r = np.full(len(index), Status.PULL_IN, np.uint8)
+        position = np.full((len(index), 2), np.nan)
+        corr = np.full(len(index), np.nan)
+        opts = dict(frame["opts"])
+        opts["max_shift_px"] = float(patch) / 4.0
+        for side in np.unique(sides[index]):
+            sel = np.flatnonzero(sides[index] == side)
+            opts["patch"] = int(side)
+            r = lsm_match(fprep, gprep, frame["centre"][index[sel]], approx[sel],
+                          initial=init[sel], direction=(1.0, 0.0), rigid_across=True,
+                          offset=frac[index[sel]], sigma0_population=population, **opts)
+            status_r[sel], position[sel], corr[sel] = r.status, r.position, r.correlation
+        return SimpleNamespace(status=status_r, position=position, correlation=corr)
+
+    ver = uniqueness.verify_matches(match, frame["xl"], sub, fprep.raw, gprep.raw,
+                                    frame["xl"], frame["position"], lambda q: q,
+                                    search_range, fprep.noise, patch,
+                                    float(frame["opts"].get("min_correlation", 0.7)),
+                                    shape=shape, strict=True)
+    verdict = np.full(n, uniqueness.OUTSIDE, np.uint8)
+    verdict[ok] = ver.verdict
+    rival_var = np.zeros(n)
+    rival_var[ok] = ver.rival_var
+    return verdict, rival_var
+
+
 def _structure_tensors(image: np.ndarray, points: np.ndarray, sides: np.ndarray) -> np.ndarray:
     """(N, 2, 2) mean structure tensor (central differences) of each ``sides`` x ``sides``
     window of ``image`` centred on the integer ``points``."""
@@ -795,7 +893,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                      aperture_k: float | None, interpolation: str,
                      max_inflation: float | None = 2.0, grow_sides=(1.5, 2.0),
                      second_order: bool = True, spacing: int = DEFAULT_SPACING,
-                     classes=None, scale_cov: bool = True):
+                     classes=None, scale_cov: bool = True, fixed: dict | None = None):
     """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
 
     Every window LSM tried (the 2-D solution where it was accepted, else the approximation
@@ -823,8 +921,10 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     constrained matches' own variance factor per window class ``classes``, unless
     ``scale_cov`` is off; a window the pass loses keeps its rejection), the variance
     ``(slope σ_g)²`` along the line (px²; NaN: ``aperture``), the (N, 2) line directions
-    in the right image, the sides used and the variance factors (clear windows, edge
-    windows).
+    in the right image, the sides used, the variance factors (clear windows, edge
+    windows) and the rectified frame's matches (a dict of (N, ...) arrays, NaN where the
+    pass did not run, with the prepared rectified images; ``fixed``: σ_g and the
+    variance factors taken from an earlier call's frame instead of estimated).
     """
     from matching.rectify import (
         left_to_rectified,
@@ -846,7 +946,10 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     xl_r = left_to_rectified(rect, rig.left, points[ok])
     xr_r = right_to_rectified(rect, rig.right, x_start)
     dy = (xr_r[:, 1] - xl_r[:, 1])[from_2d]
-    left_r, right_r = rectify_images(rect, left, right, interpolation="spline")
+    if fixed is not None and "fprep" in fixed:  # the earlier call's rectified pair
+        left_r, right_r = fixed["fprep"].raw, fixed["gprep"].raw
+    else:
+        left_r, right_r = rectify_images(rect, left, right, interpolation="spline")
     jl = _jacobians(lambda p: left_to_rectified(rect, rig.left, p), points[ok])
     jr = _jacobians(lambda p: right_to_rectified(rect, rig.right, p), x_start)
     # the 2-D warp (template -> search) in the rectified frame: Jr A Jl⁻¹ (A = I
@@ -865,8 +968,11 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     init[:, 3] = centre_r[:, 1]
     init[:, 6], init[:, 7] = 0.0, 1.0
     init[from_2d, 6:] = res.radiometric[ok[from_2d]]
-    fprep = prepare_image(left_r, interpolation)
-    gprep = prepare_image(right_r, interpolation)
+    if fixed is not None and "fprep" in fixed:
+        fprep, gprep = fixed["fprep"], fixed["gprep"]
+    else:
+        fprep = prepare_image(left_r, interpolation)
+        gprep = prepare_image(right_r, interpolation)
     opts = {k: v for k, v in options.items()
             if k not in ("offset", "robust", "quadratic", "direction", "rigid_across")}
     m = len(ok)
@@ -904,7 +1010,9 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                 # the texture's gradients along the line alone give, σ0² / Σ f_x²
                 found["inflation"][sel] = (r.cov[:, 0, 0] * tensor[:, 0, 0] * side**2
                                            / r.sigma0**2)
-        if step == 0:
+        if step == 0 and fixed is not None:
+            sigma_g = fixed["sigma_g"]
+        elif step == 0:
             # the rig's row error, from the windows textured in both directions
             eig = np.linalg.eigvalsh(_structure_tensors(left_r, centre_r[from_2d],
                                                         base[from_2d]))
@@ -913,7 +1021,13 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
             sigma_g = (1.4826 * float(np.median(np.abs(ref - np.median(ref))))
                        if len(ref) else 0.0)
         good = found["status"] == Status.OK
-        if step == 0:
+        if step == 0 and fixed is not None:
+            cls = (np.zeros(n, np.int64) if classes is None
+                   else np.asarray(classes, np.int64))[ok]
+            k2_classes = np.asarray(fixed["factors"], np.float64)
+            k2_each = np.maximum(k2_classes[np.minimum(cls, len(k2_classes) - 1)], 1.0)
+            k2 = float(k2_classes[0])
+        elif step == 0:
             # the variance factor of the constrained matches (independent neighbouring
             # windows predicting their midpoint, along the row: 1 degree of freedom);
             # the rectified images' resampling correlates their noise
@@ -970,6 +1084,8 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     stretch = np.einsum("ni,ni->n", d, d)
     dirs[g] = d / np.sqrt(stretch)[:, None]
     geo[g] = (found["slope"][good] * sigma_g) ** 2 * stretch
+    stretch_ok = np.full(len(ok), np.nan)
+    stretch_ok[good] = stretch
     geo[g[todo[good]]] = np.nan  # ill-conditioned at every side: aperture
     sigma0[g], corr[g] = found["sigma0"][good], found["correlation"][good]
     new_sides = np.asarray(sides, np.int32).copy()
@@ -984,7 +1100,20 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                   status=status.astype(res.status.dtype), sigma0=sigma0, correlation=corr,
                   affine=affine, window_cov=None)
     factors = (k2, float(k2_classes[1]) if len(k2_classes) > 1 else k2)
-    return out, geo, dirs, new_sides, factors
+    # the rectified frame's matches, for the uniqueness test and the backward loop there
+    frame = {"fprep": fprep, "gprep": gprep, "opts": opts, "sigma_g": sigma_g,
+             "factors": factors, "index": np.arange(n)}
+    for key, value in (("centre", centre_r), ("frac", frac), ("xl", xl_r),
+                       ("position", found["position"]), ("affine", found["affine"]),
+                       ("radiometric", found["radiometric"]), ("cov", found["cov"]),
+                       ("sides", side_of), ("k2", k2_each), ("sigma0", found["sigma0"]),
+                       ("correlation", found["correlation"]), ("stretch", stretch_ok)):
+        value = np.asarray(value)
+        full = (np.full(n, -1, np.int32) if key == "sides"
+                else np.full((n,) + value.shape[1:], np.nan))
+        full[ok] = value
+        frame[key] = full
+    return out, geo, dirs, new_sides, factors, frame
 
 
 def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,
@@ -1029,6 +1158,175 @@ def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,
     # a backward match that fails its own tests (pull-in, σ0, convergence: 30 % of a
     # temple pair's, whose forward matches are sound) gives no verdict
     out[sel] = ~converged | (ratio <= np.sqrt(2.0 * np.log(1000.0)) * k)
+    return out
+
+
+#: LSM failures a better approximation may turn into a match (grown again from verified
+#: neighbours); the others are properties of the window (texture, conditioning)
+_REGROW = (Status.NO_CONVERGENCE, Status.SIGMA0_TOO_LARGE, Status.PULL_IN,
+           Status.DEGENERATE_AFFINE, Status.LOW_CORRELATION, NO_APPROXIMATION)
+
+
+def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides,
+                   refine, patch: int, max_rounds: int = 60, reach: float | None = None):
+    """Region growing in the rectified frame from the matches already shown unique.
+
+    A candidate whose window failed from its approximation (``_REGROW``) is started at
+    the median prediction of its verified accepted neighbours within ``patch`` px
+    (their warps, at least two within 1 px of each other; shape and radiometry of the
+    nearest), matched by the epipolar pass (``refine``: :func:`_epipolar_refine` with
+    the first call's σ_g and variance factors), and kept only where every verified
+    neighbour in reach agrees with it within 3σ (:func:`matching.uniqueness.anchored`,
+    at least two: a one-period slip is a period off every prediction) and its backward
+    loop closes (:func:`_loop_closes_rectified`).  Rounds until the front stops: only
+    verified matches seed, so growth cannot carry a slip across a repeated pattern.
+    Updates the arrays in place; returns the number of matches grown.
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(points)
+    reach = float(patch) / 2.0 if reach is None else float(reach)
+    tried = np.zeros(n, bool)
+    grown = 0
+    position, cov = np.array(res.position), np.array(res.cov)
+    affine, radiometric = np.array(res.affine), np.array(res.radiometric)
+    sigma0, corr = np.array(res.sigma0), np.array(res.correlation)
+    for _ in range(max_rounds):
+        verified = np.flatnonzero(status == Status.OK)
+        cand = np.flatnonzero(np.isin(status, _REGROW) & ~tried)
+        if len(verified) < 2 or not len(cand):
+            break
+        tree = cKDTree(points[verified])
+        k = min(4, len(verified))
+        dist, nb = tree.query(points[cand], k=k, distance_upper_bound=reach)
+        dist, nb = dist.reshape(len(cand), k), nb.reshape(len(cand), k)
+        found = np.isfinite(dist)
+        j = verified[np.where(found, nb, 0)]
+        d = points[cand][:, None, :] - points[j]
+        aff = affine[j]
+        pu = aff[..., 0] + aff[..., 1] * d[..., 0] + aff[..., 2] * d[..., 1]
+        pv = aff[..., 3] + aff[..., 4] * d[..., 0] + aff[..., 5] * d[..., 1]
+        pu, pv = np.where(found, pu, np.nan), np.where(found, pv, np.nan)
+        two = found.sum(axis=1) >= 2
+        # the median of the predictions (nearest first; NaN where not found)
+        mu = np.full(len(cand), np.nan)
+        mv = np.full(len(cand), np.nan)
+        if two.any():
+            mu[two] = np.nanmedian(pu[two], axis=1)
+            mv[two] = np.nanmedian(pv[two], axis=1)
+        off = np.hypot(pu - mu[:, None], pv - mv[:, None])
+        spread = np.max(np.where(found, off, 0.0), axis=1)
+        usable = two & (spread <= 1.0)
+        tried[cand[found.any(axis=1)]] = True
+        if not usable.any():
+            continue
+        sel, nearest = cand[usable], j[usable, 0]
+        start_aff = affine[nearest].copy()
+        start_aff[:, 0], start_aff[:, 3] = mu[usable], mv[usable]
+        sub_status = np.full(n, Status.TEXTURELESS, np.uint8)
+        sub_status[sel] = Status.OK
+        sub_pos = np.full((n, 2), np.nan)
+        sub_pos[sel] = start_aff[:, [0, 3]]
+        sub_aff = np.full((n, 6), np.nan)
+        sub_aff[sel] = start_aff
+        sub_rad = np.full((n, 2), np.nan)
+        sub_rad[sel] = radiometric[nearest]
+        sub = replace(res, status=sub_status, position=sub_pos, affine=sub_aff,
+                      radiometric=sub_rad)
+        out, geo_s, dirs_s, sides_s, _, frame_s = refine(sub_pos, sub, sides)
+        ok_s = sel[(out.status[sel] == Status.OK) & np.isfinite(geo_s[sel])]
+        if not len(ok_s):
+            continue
+        new = np.zeros(n, bool)
+        new[ok_s] = True
+        sigma_now = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0) / 2.0)
+        pinned = uniqueness.anchored(points, np.where(new[:, None], out.position, position),
+                                     np.where(new, out.sigma, sigma_now),
+                                     np.where(new[:, None], out.affine, affine),
+                                     status == Status.OK, new, radius=float(patch),
+                                     max_rounds=1)
+        keep = ok_s[pinned[ok_s]]
+        if len(keep):
+            mask = np.zeros(n, bool)
+            mask[keep] = True
+            frame_s["loop_k"] = frame.get("loop_k", 1.0)
+            closes = _loop_closes_rectified(frame_s, mask)
+            keep = keep[closes[keep]]
+        if not len(keep):
+            continue
+        position[keep], cov[keep] = out.position[keep], out.cov[keep]
+        affine[keep], radiometric[keep] = out.affine[keep], out.radiometric[keep]
+        sigma0[keep], corr[keep] = out.sigma0[keep], out.correlation[keep]
+        geo[keep], dirs[keep], sides[keep] = geo_s[keep], dirs_s[keep], sides_s[keep]
+        for key, value in frame.items():
+            if isinstance(value, np.ndarray) and value.shape[:1] == (n,) and key != "index":
+                value[keep] = frame_s[key][keep]
+        status[keep] = Status.OK
+        grown += len(keep)
+    res = replace(res, position=position, cov=cov, affine=affine, radiometric=radiometric,
+                  sigma0=sigma0, correlation=corr,
+                  status=np.where(status == Status.OK, Status.OK, res.status).astype(
+                      res.status.dtype))
+    return res, grown
+
+
+def _loop_closes_rectified(frame: dict, which) -> np.ndarray:
+    """(N,) bool: the backward (right-to-left) constrained LSM from each epipolar-pass
+    solution in ``which`` returns to its left point within the loop's 99.9 % bound along
+    the row; True where not checked or where the backward match itself failed.
+
+    The template is the right rectified image on its pixel grid at the solution (the
+    solution eccentric by its fraction of a pixel), started in the left image at the
+    inverse of the solution's warp along the row (x_l = (x_r - a0 - a2 dy) / a1) and
+    radiometry; the loop's bound is the forward and backward σ along the row combined,
+    times the loops' own variance factor (their median |loop| / 0.6745 σ, at least 1).
+    """
+    n = len(which)
+    out = np.ones(n, bool)
+    ok = frame["index"]
+    local = np.flatnonzero(np.asarray(which, bool)[ok]
+                           & np.isfinite(frame["position"]).all(1))
+    if not len(local):
+        return out
+    aff = frame["affine"][local]
+    rad = frame["radiometric"][local]
+    a1 = aff[:, 1]
+    usable = (np.abs(a1) > TOL.zero) & (np.abs(rad[:, 1]) > TOL.zero)
+    out[ok[local[~usable]]] = False
+    local, aff, rad, a1 = local[usable], aff[usable], rad[usable], a1[usable]
+    pos = frame["position"][local]
+    centre = np.rint(pos)
+    frac = pos - centre
+    # the left point of the template centre: x_l = c_l + (x_r - a0 - a2 dy) / a1, dy the
+    # row offset (0 here: rows map to rows)
+    xl_c = frame["centre"][local]
+    init = np.zeros((len(local), 8))
+    init[:, 0] = xl_c[:, 0] + (centre[:, 0] - aff[:, 0]) / a1
+    init[:, 1], init[:, 2] = 1.0 / a1, -aff[:, 2] / a1
+    init[:, 3], init[:, 5] = centre[:, 1], 1.0
+    init[:, 6], init[:, 7] = -rad[:, 0] / rad[:, 1], 1.0 / rad[:, 1]
+    opts = dict(frame["opts"])
+    back_x = np.full(len(local), np.nan)
+    back_var = np.full(len(local), np.nan)
+    converged = np.zeros(len(local), bool)
+    sides = frame["sides"][local]
+    for side in np.unique(sides):
+        sel = np.flatnonzero(sides == side)
+        opts["patch"] = int(side)
+        r = lsm_match(frame["gprep"], frame["fprep"], centre[sel], init[sel][:, [0, 3]],
+                      initial=init[sel], direction=(1.0, 0.0), rigid_across=True,
+                      offset=frac[sel], **opts)
+        back_x[sel], back_var[sel] = r.position[:, 0], r.cov[:, 0, 0]
+        converged[sel] = r.status == Status.OK
+    loop = back_x - frame["xl"][local, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.abs(loop) / np.sqrt(frame["cov"][local, 0, 0] + back_var)
+    k = float(frame.get("loop_k", 1.0))  # an earlier, larger population's
+    if converged.sum() >= 30:
+        k = max(1.0, float(np.median(ratio[converged])) / 0.6745)
+        frame["loop_k"] = k
+    # 99.9 % of a normal loop of standard deviation σ k within 3.29 σ k
+    out[ok[local]] = ~converged | (ratio <= 3.29 * k)
     return out
 
 

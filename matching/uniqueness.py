@@ -45,6 +45,10 @@ geometry that does not depend on its window: it is kept when every unique neighb
 reach -- at least two -- predicts its position (their affine warps) within 3σ, and the
 resolved join the anchors (region growing from where the period is pinned).
 
+``strict`` (the calibrated pair's epipolar pass): a rival peak within the margin m of the
+solution's plain ZNCC is ambiguous unless the matcher refutes it, and a survivor's σ carries
+the rivals' mixture variance ``rival_var`` (:class:`Verification`).
+
 Shapes: candidates (N, 2) float64 px in the rectified left image; profiles (N, D).
 
 References
@@ -346,6 +350,12 @@ class Verification:
     peak_sigma : (N,) float64
         :math:`\sqrt{2 m / \kappa}`: the disparity change over which the peak (curvature
         :math:`\kappa`) drops by the margin m -- how far the noise lets the peak move, px.
+    rival_var : (N,) float64
+        What the rivals leave to a unique match's disparity, px²:
+        :math:`\sum_p P_p (d_p - d)^2` over its separated peaks, :math:`P_p =
+        \Phi(-3 (c - c_p) / m)` the chance that noise (the difference of two correlation
+        estimates has standard deviation m/3) puts the rival peak :math:`c_p` above the
+        solution's :math:`c` (the variance of the two-hypothesis mixture; 0: no rival).
     """
 
     verdict: np.ndarray
@@ -354,11 +364,13 @@ class Verification:
     lobe: np.ndarray
     peak: np.ndarray
     peak_sigma: np.ndarray
+    rival_var: np.ndarray | None = None
 
 
 def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
                    xr_rect, rect_to_right, search_range: tuple[int, int], noise: float,
-                   patch: int, min_correlation: float = 0.7, max_peaks: int = 4) -> Verification:
+                   patch: int, min_correlation: float = 0.7, max_peaks: int = 4,
+                   shape=None, strict: bool = False) -> Verification:
     """Check every accepted match for a second solution along its epipolar line.
 
     The plain ZNCC profile (:func:`zncc_profiles`) finds the candidates cheaply; it cannot
@@ -399,6 +411,16 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         re-matched.
     max_peaks : int
         Separated peaks re-matched per window at most.
+    shape : (N, 8) array_like, optional
+        Warp and radiometry ``a0 a1 a2 b0 b1 b2 r0 r1`` to start each rival's re-match from
+        (its shift replaced by the rival's; default: identity shape and radiometry).
+    strict : bool
+        The rule of a match that must show it is unique: a rival peak whose plain ZNCC
+        is within the margin m of the solution's (or above it) makes the match
+        ambiguous unless its re-match refutes it (accepted in the solution's lobe, or
+        outside it with a correlation lower by more than m); default False: only an
+        accepted rival as good within m, or a failed re-match of a peak above the
+        solution's by more than m, does.
 
     Returns
     -------
@@ -412,8 +434,9 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     peak = np.full(n, np.nan)
     peak_sigma = np.full(n, np.nan)
     ok = np.flatnonzero(result.status == 0)
+    rival_var = np.zeros(n)
     if not len(ok):
-        return Verification(verdict, tried, margin, lobe, peak, peak_sigma)
+        return Verification(verdict, tried, margin, lobe, peak, peak_sigma, rival_var)
     solution = xl_rect[ok, 0] - xr_rect[ok, 0]
     window_noise = np.maximum(float(noise), np.nan_to_num(result.sigma0[ok], nan=0.0))
     prof = zncc_profiles(left_rect, right_rect, xl_rect[ok], search_range, patch,
@@ -448,8 +471,11 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         # started as the first pass starts (identity shape and radiometry): the
         # solution's own warp may be the distortion that fitted a wrong repeat
         init = np.zeros((len(i), 8))
+        if shape is not None:
+            init[:] = np.asarray(shape, np.float64)[i]
+        else:
+            init[:, [1, 5, 7]] = 1.0
         init[:, [0, 3]] = start
-        init[:, [1, 5, 7]] = 1.0
         # along the epipolar line only: a free 2-D shift slides along the straight edges
         # of a repeated pattern (a chessboard's) and leaves the pull-in range
         ahead = rect_to_right(np.column_stack([xl_rect[i, 0] - d + 1.0, xl_rect[i, 1]]))
@@ -467,8 +493,23 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         # re-match out of pull-in range on the tilted board)
         peak_c = filled[rows, np.clip(d.astype(np.int64) - d0, 0, filled.shape[1] - 1)]
         rival |= (again.status != 0) & (peak_c > at_solution[rows] + m[rows])
+        if strict:
+            # a second optimum as good within the noise that the matcher does not refute
+            refuted = (again.status == 0) & (~outside_lobe | (again.correlation
+                                                             < result.correlation[i] - m[rows]))
+            rival |= (peak_c >= at_solution[rows] - m[rows]) & ~refuted
         np.logical_or.at(ambiguous, rows, rival)
         np.add.at(tried, i, 1)
+        # the two-hypothesis mixture's variance: each rival peak's chance of being the
+        # better one under the noise (the difference of two correlation estimates has
+        # standard deviation m / 3), times its squared distance
+        from scipy.special import ndtr
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = 3.0 * (at_solution[rows] - peak_c) / m[rows]
+        chance = np.where(np.isfinite(z), ndtr(-z), 1.0)
+        sol_d = solution[rows]
+        np.add.at(rival_var, i, chance * (d - sol_d) ** 2)
     sub, curvature = _parabola(prof.cost, top)
     peak[ok] = top + d0 + sub
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -477,7 +518,7 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     v[prof.template_std <= MIN_SNR * float(noise)] = BLANK
     v[~has] = OUTSIDE
     verdict[ok] = v
-    return Verification(verdict, tried, margin, lobe, peak, peak_sigma)
+    return Verification(verdict, tried, margin, lobe, peak, peak_sigma, rival_var)
 
 
 def _parabola(cost, index):
