@@ -158,13 +158,15 @@ def run_sections(points: np.ndarray) -> dict:
     start = _clock()
     sized, _ = sized_from_points(points / unit, axis="auto")
     control = interpolating_control(sized.vertices, sized.triangles, sized.creases) * unit
+    # checked and, where it crosses itself, repaired (pipeline.smoothing.smooth_mesh), as
+    # photosurf sections --smooth writes it
     smooth = smooth_mesh(control, sized.triangles, "adaptive", sized.chord_tolerance() * unit,
-                         check=False)
+                         spacing=sized.spacing * unit)
     seconds, cpu = _since(start)
     edges = control[sized.triangles] - control[np.roll(sized.triangles, 1, axis=1)]
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
             "patches": len(smooth.surface.control_points), "seconds": seconds, "cpu": cpu,
-            "tolerance": sized.chord_tolerance() * unit,
+            "tolerance": sized.chord_tolerance() * unit, "repair": _repair(smooth),
             "control_edge": float(np.median(np.linalg.norm(edges, axis=2)))}
 
 
@@ -185,12 +187,17 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
     # as the smooth stage (pipeline.stages._general_smooth): the approximating surface
     # where the interpolating one self-intersects
     approximating = len(check_solid(smooth.vertices, smooth.triangles).intersecting_pairs) > 0
-    if approximating:
-        smooth = smooth_mesh(vertices, triangles, "adaptive", tolerance, check=False)
+    if approximating:   # checked and repaired where it crosses itself, as the stage
+        smooth = smooth_mesh(vertices, triangles, "adaptive", tolerance)
     seconds, cpu = _since(start)
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
             "patches": len(smooth.surface.control_points), "seconds": seconds, "cpu": cpu,
-            "approximating": approximating}
+            "approximating": approximating, "repair": _repair(smooth)}
+
+
+def _repair(smooth) -> dict | None:
+    """The smooth surface's repair figures (``pipeline.smoothing.smooth_mesh``), if any."""
+    return (smooth.solid or {}).get("repair")
 
 
 def run_poisson(points: np.ndarray, depth: int = 8) -> dict:

@@ -39,12 +39,18 @@ log = logging.getLogger("photosurf")
 EDGE_SAMPLES = 9
 #: Largest level ``"auto"`` chooses (4^3 = 64 triangles per patch).
 MAX_AUTO_LEVEL = 3
-#: Repair of a self-crossing surface (:func:`_untangled`): rings of control faces around
-#: the crossing ones in the first round (one more each round), rounds, and the largest
-#: share of the control faces relaxed (beyond it the tangle is not local: reported).
-REPAIR_RINGS = 1
-REPAIR_ROUNDS = 4
+#: Repair of a self-crossing surface (:func:`_untangled`): per round, the rings of control
+#: faces grown around the crossing ones (and the previous rounds' region) and the move
+#: (:func:`surface.repair.membrane`: Jacobi steps, the thin-plate fill, the membrane
+#: itself) -- the smallest move and the one keeping the shape first; and
+#: the largest share of the control faces relaxed after the first round (beyond it the
+#: tangle is not local: reported).
+REPAIR_SCHEDULE = ((1, 3), (1, "biharmonic"), (1, None), (1, "biharmonic"), (1, None),
+                   (2, None))
 REPAIR_SHARE = 0.1
+#: Once a region's move untangles the surface: the shares of that move tried, least first
+#: (the first that leaves no crossing is kept; the whole move otherwise).
+REPAIR_SHARES = (0.25, 0.5)
 
 
 @dataclass
@@ -275,10 +281,10 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
                spacing):
     """The surface rebuilt over its control mesh relaxed where it crosses itself
     (:mod:`surface.repair`): the control faces under the crossing facets, grown by
-    :data:`REPAIR_RINGS` rings, their interior vertices on the membrane of the region's
-    border; again with the new crossings added and one ring more, at most
-    :data:`REPAIR_ROUNDS` rounds or until the region passes :data:`REPAIR_SHARE` of the
-    faces.  Returns the surface with the fewest crossing pairs (the first on a tie), its
+    rings, their interior vertices moved towards the membrane of the region's border (a
+    few Jacobi steps first, then the membrane itself); again with the new crossings added,
+    by :data:`REPAIR_SCHEDULE`, until none is left or the region passes
+    :data:`REPAIR_SHARE` of the faces.  Returns the surface with the fewest crossing pairs (the first on a tie), its
     report and the repair's figures (``None`` when nothing better was found: the surface
     is reported as it is)."""
     from surface.repair import crossing_faces, grow_faces, membrane
@@ -289,13 +295,13 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
     best = (smoothed, report, seconds, None)
     region = np.zeros(len(t), dtype=bool)
     current = smoothed, report
-    for round_ in range(1, REPAIR_ROUNDS + 1):
+    for round_, (rings, steps) in enumerate(REPAIR_SCHEDULE, start=1):
         tv, tt = current[0].vertices, current[0].triangles
         corners = tv[tt[np.unique(current[1].intersecting_pairs.ravel())].ravel()]
-        region = grow_faces(region | crossing_faces(x, t, corners), t, REPAIR_RINGS + round_ - 1)
+        region = grow_faces(region | crossing_faces(x, t, corners), t, rings)
         if round_ > 1 and region.mean() > REPAIR_SHARE:
             break
-        moved_x, moved = membrane(x, t, region)
+        moved_x, moved = membrane(x, t, region, steps)
         if len(moved) == 0:
             break
         try:
@@ -307,12 +313,27 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
         shift = float(np.linalg.norm(moved_x[moved] - x[moved], axis=1).max())
         figures = {"pairs_before": int(before), "rounds": round_,
                    "faces": int(region.sum()), "vertices_moved": int(len(moved)),
+                   "steps": steps, "share": 1.0,
                    "largest_move": shift,
                    "largest_move_spacings": (shift / spacing if spacing else None)}
         current = candidate, rep
         if len(rep.intersecting_pairs) < len(best[1].intersecting_pairs):
             best = (candidate, rep, sec, figures)
-        if not rep.self_intersecting:
+        if not rep.self_intersecting:   # the least share of the move that still untangles
+            for share in REPAIR_SHARES:
+                partial = x + share * (moved_x - x)
+                try:
+                    candidate = smooth_mesh(partial, t, level, tolerance, check=False,
+                                            spacing=spacing, repair=False)
+                except ValueError:
+                    continue
+                rep, sec = _checked(candidate.vertices, candidate.triangles)
+                if not rep.self_intersecting:
+                    best = (candidate, rep, sec,
+                            {**figures, "share": share, "largest_move": share * shift,
+                             "largest_move_spacings": (share * shift / spacing
+                                                       if spacing else None)})
+                    break
             break
     smoothed, report, seconds, figures = best
     if figures is not None:

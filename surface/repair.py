@@ -77,7 +77,8 @@ def grow_faces(faces, triangles, rings: int = 1) -> np.ndarray:
     return region
 
 
-def membrane(vertices, triangles, region) -> tuple[np.ndarray, np.ndarray]:
+def membrane(vertices, triangles, region, steps: int | str | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """The region's interior vertices moved to the uniform-Laplacian membrane of its border.
 
     Parameters
@@ -89,6 +90,14 @@ def membrane(vertices, triangles, region) -> tuple[np.ndarray, np.ndarray]:
         on a border of the mesh) move; the vertices on its border, and every other vertex,
         stay.  An interior part with no
         border (a whole closed component) stays as it is.
+    steps : int or "biharmonic", optional
+        Jacobi steps towards the membrane (each interior vertex to its neighbours' mean,
+        all at once) instead of the membrane itself: a smaller move, each step spreading
+        one ring farther from the tangle.  ``"biharmonic"``: the thin-plate fill instead
+        (the squared uniform Laplacian zero at the moving vertices, every other vertex
+        fixed): it continues the surrounding surface's slope into the region, so a curved
+        region (an object's tip) is filled curved rather than flattened; no fold-free
+        guarantee.
 
     Returns
     -------
@@ -110,9 +119,7 @@ def membrane(vertices, triangles, region) -> tuple[np.ndarray, np.ndarray]:
     out = v.copy()
     if not interior.any():
         return out, np.zeros(0, dtype=np.int64)
-    edges = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    edges = edges[interior[edges].any(axis=1)]
-    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    edges = unique       # every edge once: the thin-plate fill needs the neighbours' rows
     n = len(v)
     adjacency = sp.coo_matrix((np.ones(2 * len(edges)), (np.r_[edges[:, 0], edges[:, 1]],
                                                        np.r_[edges[:, 1], edges[:, 0]])),
@@ -132,10 +139,20 @@ def membrane(vertices, triangles, region) -> tuple[np.ndarray, np.ndarray]:
     fixed[moving] = False
     a_mm = adjacency[moving][:, moving]
     degree = np.asarray(adjacency[moving].sum(axis=1)).ravel()
-    laplacian = (sp.diags(degree) - a_mm).tocsc()
     rhs = adjacency[moving][:, np.flatnonzero(fixed)] @ v[fixed]
-    solution = spsolve(laplacian, rhs)
-    solution = np.asarray(solution).reshape(len(moving), 3)
+    if steps is None:
+        laplacian = (sp.diags(degree) - a_mm).tocsc()
+        solution = np.asarray(spsolve(laplacian, rhs)).reshape(len(moving), 3)
+    elif steps == "biharmonic":
+        # L = D - A over the rows that reach a moving vertex (theirs and their neighbours')
+        full = (sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency).tocsr()
+        square = (full[moving] @ full).tocsc()
+        rhs2 = -(square[:, np.flatnonzero(fixed)] @ v[fixed])
+        solution = np.asarray(spsolve(square[:, moving].tocsc(), rhs2)).reshape(len(moving), 3)
+    else:
+        solution = v[moving].copy()
+        for _ in range(int(steps)):
+            solution = (a_mm @ solution + rhs) / degree[:, None]
     if not np.all(np.isfinite(solution)):
         return v.copy(), np.zeros(0, dtype=np.int64)
     out[moving] = solution

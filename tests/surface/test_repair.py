@@ -101,3 +101,24 @@ def test_smooth_mesh_repairs_a_crossing_surface_locally():
     unrepaired = smooth_mesh(control, t, 2, repair=False)
     assert unrepaired.solid["self_intersecting_pairs"] == before
     assert "repair" not in unrepaired.solid
+
+
+def test_thin_plate_fill_keeps_a_curved_cap_curved():
+    """A cap of a unit sphere (the faces within 40 degrees of a pole), its interior vertices
+    pulled in to the pole's tangent plane's depth: the membrane fills it flat (as deep as
+    the cap's sagitta, 1 - cos 40 deg = 0.234), the thin-plate fill continues the
+    surrounding slope and stays within a quarter of that of the sphere."""
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, 24)
+    v = np.asarray(mesh.vertices).copy()
+    t = np.asarray(mesh.triangles).astype(np.int64)
+    region = (v[t][:, :, 2].min(axis=1) > np.cos(np.radians(40)))
+    flat, moved = membrane(v, t, region)
+    thin, moved_thin = membrane(v, t, region, "biharmonic")
+    assert len(moved) > 20 and np.array_equal(moved, moved_thin)
+    sagitta = 1 - np.cos(np.radians(40))
+    off_flat = np.abs(np.linalg.norm(flat[moved], axis=1) - 1).max()
+    off_thin = np.abs(np.linalg.norm(thin[moved], axis=1) - 1).max()
+    assert off_flat > 0.5 * sagitta
+    assert off_thin < 0.25 * sagitta
