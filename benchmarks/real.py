@@ -789,7 +789,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.turned:
         import turned_ring
 
-        return turned_ring.main(["--spacing", str(args.spacing or 2),
+        return turned_ring.main(["--spacing", str(args.spacing or 3),
                                  "--json", str(results / "real_turned.json")])
     if args.exif:
         import exif_ring
