@@ -624,10 +624,26 @@ def wall_flatness(points: np.ndarray, sigma: np.ndarray, cameras) -> dict:
     _, plane = support_plane(points, sigma, cameras)
     if "plane" not in plane:
         return {}
+    from scipy.spatial import cKDTree
+
     n, d = np.array(plane["plane"][:3]), plane["plane"][3]
     dist = np.abs(points @ n + d)
     inliers = dist <= plane["band"]
-    return {"plane_share": float(inliers.mean()), "plane_band": float(plane["band"]),
+    # locally, between the windows: the RMS distance of each wall point's 32 nearest
+    # points to their own least-squares plane over their median sigma (a wall flat within
+    # the points' sigma: a little under 1, as the fit takes up some noise -- 0.92 and 0.83
+    # on a synthetic 10 x 6 wall with recessed windows, 60 000 points, sigma 0.01 and 0.03;
+    # 12 000 seeded wall points)
+    wall = np.flatnonzero(inliers)
+    wall = np.random.default_rng(0).choice(wall, min(len(wall), 12_000), replace=False)
+    _, near = cKDTree(points).query(points[wall], k=32)
+    nb = points[near] - points[near].mean(axis=1, keepdims=True)
+    smallest = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", nb, nb) / 32)[:, 0]
+    local = np.sqrt(np.maximum(smallest, 0)) / np.median(sigma[near], axis=1)
+    return {"plane_local_rms_over_sigma_median": float(np.median(local)),
+            "plane_local_rms_over_sigma_p25_p75": [float(q) for q in
+                                                   np.quantile(local, [0.25, 0.75])],
+            "plane_share": float(inliers.mean()), "plane_band": float(plane["band"]),
             "plane_rms": float(np.sqrt(np.mean(dist[inliers] ** 2))),
             "plane_median_sigma": float(np.median(sigma[inliers])),
             "plane_rms_over_sigma": float(np.sqrt(np.mean(dist[inliers] ** 2))
@@ -727,7 +743,8 @@ def photos_main(args) -> int:
         rows.append(folder_run_main(args, "phone-" + Path(args.phone).name, Path(args.phone)))
     keys = ("views", "registered", "reprojection_px", "sfm_cpu_seconds", "sfm_peak_gb",
             "working_scale", "points", "cloud_cpu_seconds", "acquire_seconds",
-            "acquire_peak_gb", "total_cpu_seconds", "total_peak_gb", "plane_rms_over_sigma")
+            "acquire_peak_gb", "total_cpu_seconds", "total_peak_gb", "plane_rms_over_sigma",
+            "plane_local_rms_over_sigma_median")
     print(f"{'folder':16s}" + "".join(f"{k[:11]:>12s}" for k in keys))
     for r in rows:
         print(f"{r['method'][:16]:16s}" + "".join(
