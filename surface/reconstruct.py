@@ -651,7 +651,11 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
     An end section whose number of loops differs from the two next to it (which
     agree) is dropped too: the end sections hold only their inner half-slab,
     and a thin wall's inner loop is the first to go missing there, which would
-    seal a hollow's rim into a closed cavity (a second component).
+    seal a hollow's rim into a closed cavity (a second component).  An end section
+    whose extra loops are holes (inside another loop, where the neighbours have fewer
+    holes) is kept: a rim standing above a recessed lid or base, its inner face seen
+    at the end only (a can's rim 3.3 point spacings tall at 20 000 points was dropped
+    and the top put on the lid, 3.3 spacings low, on 5 samplings of 6).
     """
     counts = [len(found) for found in loops]
     drop = {k for k in range(1, len(kept) - 1)
@@ -660,7 +664,9 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
     ends = set()
     if len(kept) >= 8:  # a long enough stack that two ends and their pairs are a few
         ends = {k for k, a, b in ((0, 1, 2), (last, last - 1, last - 2))
-                if counts[a] == counts[b] != counts[k] and a not in drop and b not in drop}
+                if counts[a] == counts[b] != counts[k] and a not in drop and b not in drop
+                and not (counts[k] > counts[a] and _holes(kept[k], loops[k])
+                         - _holes(kept[a], loops[a]) >= counts[k] - counts[a])}
     notes = [f"section {kept[k].section_id} at height {kept[k].height:.6g} skipped: "
              f"{counts[k]} loop(s) between sections of {counts[k - 1]} (a one-section split "
              "or merge: a gap in the data at this section spacing)" for k in sorted(drop)]
@@ -670,6 +676,16 @@ def _drop_one_section_splits(kept: list, loops: list) -> tuple[list, list, list[
     drop |= ends
     keep = [k for k in range(len(kept)) if k not in drop]
     return [kept[k] for k in keep], [loops[k] for k in keep], notes
+
+
+def _holes(section, section_loops: list) -> int:
+    """How many of a section's loops are holes: inside an odd number of its other loops."""
+    from surface.loop_graph import nesting
+
+    if len(section_loops) < 2:
+        return 0
+    depth, _ = nesting([loop.points @ section.frame[:2].T for loop in section_loops])
+    return int(np.count_nonzero(depth % 2))
 
 
 def _tangle(planar: list, rasters: dict | None = None) -> int | None:
