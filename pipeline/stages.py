@@ -488,7 +488,8 @@ def stitch(ctx: StageContext) -> dict:
     messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
              # sections.open: a hole in the data left as a border (the smooth stage's open path)
-             **({"open": True, "holes": [bool(h) for h in build.holes]} if any(build.holes) else {}),
+             **({"open": True, "holes": [bool(h) for h in build.holes]}
+                if any(build.holes) else {}),
              # where each end was placed, how, and the placement's own standard error
              "ends": build.ends,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
