@@ -77,6 +77,7 @@ CAD_SUFFIXES = (".step", ".stp", ".iges", ".igs")
 #: below any modelling scale.
 REL_TOLERANCE = 1e-9
 _DEGREE = 6
+MERGE_SPANS = 2
 
 __all__ = ["CAD_SUFFIXES", "degenerate_nets", "read_cad_solid", "shell_topology",
            "solid_from_nets", "step_uncertainty", "write_cad"]
@@ -341,8 +342,17 @@ def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
 
 
 def write_cad(path: str | os.PathLike, control_points: np.ndarray,
-              triangles: np.ndarray) -> Path:
-    """Write the exact surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
+              triangles: np.ndarray, source_face: np.ndarray | None = None,
+              tolerance: float | None = None, report: dict | None = None) -> Path:
+    """Write the surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
+
+    By default every patch is one face, exact.  Given ``source_face`` and a
+    ``tolerance`` (scene units), a closed surface's STEP has one face per control
+    triangle instead, a fourth of the faces (``surface.bezier_merge``): the same edges
+    and vertices, faces within ``tolerance`` of the patches along the normal and
+    tangent-plane continuous across their sides; where any face is farther than
+    ``tolerance`` (or the patches are not four per control triangle) the exact
+    per-patch file is written.
 
     Parameters
     ----------
@@ -352,6 +362,16 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     triangles : (P, 3) int64
         Oriented domain mesh of the patches: closed, the file holds a closed solid;
         with a border, the open shell of the faces.
+
+    source_face : (P,) int64, optional
+        Each patch's control triangle (``BezierSurface.source_face``).
+    tolerance : float, optional
+        Largest distance a merged face may lie from the patches.
+    report : dict, optional
+        Filled with ``faces``, ``merged`` (bool), and for a merge attempt
+        ``deviation`` (largest distance along the normal), ``slide`` (largest
+        parameter-induced offset along the surface) and ``angle_deg`` (largest angle
+        between a merged face's normal and the patches' along its sides).
 
     Returns
     -------
@@ -380,11 +400,23 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     if len(tris) != len(cp) or len(tris) == 0:
         raise ValueError(f"triangles must have one row per patch ({len(cp)}), got {len(tris)}")
     limits.check("cad.patches", len(cp), where=f"{path}: {len(cp)} patches")
+    if tolerance is not None and not tolerance > 0:
+        raise ValueError(f"tolerance must be positive, got {tolerance}")
+    report = report if report is not None else {}
+    report.update(faces=len(cp), merged=False)
+    merged = None
+    if suffix in (".step", ".stp") and source_face is not None and tolerance is not None:
+        merged = _merged(cp, tris, source_face, tolerance, report, MERGE_SPANS)
     _quiet()
     with atomic_file(path) as tmp:
         if suffix in (".step", ".stp"):
             # the text directly; an open shell through the shape transfer
-            ok = _write_step_text(cp, tris, tmp)
+            ok = merged is not None and (
+                _write_merged_step_text(merged, tmp) if merged["poles"].shape[1] == 13
+                else _write_step_text(None, merged["corners"], tmp, nets=merged["poles"]))
+            if ok:
+                report.update(faces=len(merged["poles"]), merged=True)
+            ok = ok or _write_step_text(cp, tris, tmp)
             ok = ok or _write_step(solid_from_nets(cp, tris), tmp)
         else:
             ok = _write_iges(solid_from_nets(cp, tris), tmp)
@@ -392,6 +424,30 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
             raise_if_full(tmp, path)  # a full disk says so (OpenCascade gives no errno)
             raise InputError(f"{path}: OpenCascade could not write the {suffix[1:].upper()} file")
     return path
+
+
+def _merged(cp: np.ndarray, tris: np.ndarray, source_face, tolerance: float,
+            report: dict, spans: int = 1) -> dict | None:
+    """The control-triangle faces when all lie within ``tolerance`` of the patches."""
+    from surface.bezier_merge import merged_faces
+
+    source = np.asarray(source_face, dtype=np.int64)
+    if source.shape != (len(tris),):
+        raise ValueError(f"source_face must have one entry per patch ({len(tris)}), "
+                         f"got shape {source.shape}")
+    if _signed_volume(cp, tris) < 0:  # faces must point outward
+        cp, tris = _reversed_nets(cp, tris)
+    merged = merged_faces(cp, tris, source, spans=spans)
+    if merged is None:
+        report["reason"] = "the patches are not four per control triangle"
+        return None
+    deviation = float(merged["deviation"].max())
+    report.update(deviation=deviation, slide=float(merged["slide"].max()),
+                  angle_deg=float(np.degrees(merged["angle"].max())), tolerance=tolerance)
+    if deviation > tolerance:
+        report["reason"] = f"a merged face lies {deviation:.3g} from the patches"
+        return None
+    return merged
 
 
 def _quiet() -> None:
@@ -466,8 +522,9 @@ def _pole_ids(triangles: np.ndarray, topo: dict) -> tuple[np.ndarray, int]:
     return ids.reshape(n_patches, 49), first + 25 * n_patches
 
 
-def _write_step_text(control_points: np.ndarray, triangles: np.ndarray, path: Path,
-                     pcurves: bool = True, uncertainty: float | None = None) -> bool:
+def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, path: Path,
+                     pcurves: bool = True, uncertainty: float | None = None,
+                     nets: np.ndarray | None = None) -> bool:
     """The closed solid written as ISO 10303-21 text by numpy and Python's string
     formatting, every distinct pole one ``CARTESIAN_POINT``; False (nothing written)
     for an open shell, which the shape transfer writes.
@@ -487,14 +544,16 @@ def _write_step_text(control_points: np.ndarray, triangles: np.ndarray, path: Pa
     what OpenCascade's writer gives with ``write.surfacecurve.mode`` 1, which the
     binding could not make directly at speed (a ``PcurveOrSurface`` select costs
     ~9 ms a call through OCP).  The file's distance uncertainty is
-    :func:`step_uncertainty`.
+    :func:`step_uncertainty`.  ``nets`` ``(F, 7, 7, 3)``: degenerate nets over
+    ``triangles`` given directly (outward, in :func:`degenerate_nets`' layout; the
+    control-triangle faces of ``surface.bezier_merge``), ``control_points`` unused.
     """
-    if _signed_volume(control_points, triangles) < 0:  # faces must point outward
+    if nets is None and _signed_volume(control_points, triangles) < 0:  # point outward
         control_points, triangles = _reversed_nets(control_points, triangles)
     topo = shell_topology(triangles)
     if not topo["closed"]:
         return False
-    poles = degenerate_nets(control_points).reshape(-1, 49, 3)
+    poles = (degenerate_nets(control_points) if nets is None else nets).reshape(-1, 49, 3)
     ids, n_points = _pole_ids(triangles, topo)
     xyz = np.empty((n_points, 3))
     xyz[ids.ravel()] = poles.reshape(-1, 3)  # shared poles are equal bit for bit
@@ -517,25 +576,7 @@ def _write_step_text(control_points: np.ndarray, triangles: np.ndarray, path: Pa
     first_tail = first_face + n_faces
     out: list[str] = []
     write = out.append
-    stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime())
-    write("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('photosurf surface'),'2;1');\n"
-          f"FILE_NAME('photosurf surface','{stamp}',(''),(''),'photosurf','photosurf','');\n"
-          "FILE_SCHEMA(('AUTOMOTIVE_DESIGN { 1 0 10303 214 1 1 1 1 }'));\nENDSEC;\nDATA;\n")
-    context, length = first_tail, first_tail + 1
-    write("#1=APPLICATION_PROTOCOL_DEFINITION('international standard','automotive_design',"
-          "2000,#2);\n#2=APPLICATION_CONTEXT('core data for automotive mechanical design "
-          "processes');\n#3=SHAPE_DEFINITION_REPRESENTATION(#4,#10);\n"
-          "#4=PRODUCT_DEFINITION_SHAPE('','',#5);\n#5=PRODUCT_DEFINITION('design','',#6,#9);\n"
-          "#6=PRODUCT_DEFINITION_FORMATION('','',#7);\n"
-          "#7=PRODUCT('photosurf surface','photosurf surface','',(#8));\n"
-          "#8=PRODUCT_CONTEXT('',#2,'mechanical');\n"
-          "#9=PRODUCT_DEFINITION_CONTEXT('part definition',#2,'design');\n"
-          f"#10=ADVANCED_BREP_SHAPE_REPRESENTATION('',(#11,#15),#{context});\n"
-          "#11=AXIS2_PLACEMENT_3D('',#12,#13,#14);\n#12=CARTESIAN_POINT('',(0.,0.,0.));\n"
-          "#13=DIRECTION('',(0.,0.,1.));\n#14=DIRECTION('',(1.,0.,0.));\n"
-          "#15=MANIFOLD_SOLID_BREP('',#16);\n#16=CLOSED_SHELL('',(")
-    write(",".join(f"#{i}" for i in range(first_face, first_face + n_faces)))
-    write("));\n")
+    _write_step_head(write, first_tail, first_face, n_faces)
     # points: 12 significant digits; a REAL needs its decimal point ("1.E-05", "0.")
     text = "\n".join(f"#{i}=CARTESIAN_POINT('',(%.12G,%.12G,%.12G));" % tuple(p) for i, p in
                      zip(range(first_point, first_vertex), xyz.tolist(), strict=True))
@@ -605,8 +646,40 @@ def _write_step_text(control_points: np.ndarray, triangles: np.ndarray, path: Pa
                     f"#{first_face + f}=ADVANCED_FACE('',(#{first_bound + f}),"
                     f"#{first_surface + f},.T.);" for f in range(n_faces)))
     write("\n")
-    if uncertainty is None:  # given: benchmarks/export.py's variants
-        uncertainty = step_uncertainty(size)
+    _write_step_tail(write, first_tail, uncertainty if uncertainty is not None
+                     else step_uncertainty(size))
+    with open(path, "w", encoding="ascii") as handle:
+        handle.writelines(out)
+    return True
+
+
+def _write_step_head(write, first_tail: int, first_face: int, n_faces: int) -> None:
+    """Header, product structure, brep and the closed shell of faces ``first_face ...``
+    (``#1``-``#16``); the representation context is entity ``first_tail``."""
+    stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime())
+    write("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('photosurf surface'),'2;1');\n"
+          f"FILE_NAME('photosurf surface','{stamp}',(''),(''),'photosurf','photosurf','');\n"
+          "FILE_SCHEMA(('AUTOMOTIVE_DESIGN { 1 0 10303 214 1 1 1 1 }'));\nENDSEC;\nDATA;\n")
+    context = first_tail
+    write("#1=APPLICATION_PROTOCOL_DEFINITION('international standard','automotive_design',"
+          "2000,#2);\n#2=APPLICATION_CONTEXT('core data for automotive mechanical design "
+          "processes');\n#3=SHAPE_DEFINITION_REPRESENTATION(#4,#10);\n"
+          "#4=PRODUCT_DEFINITION_SHAPE('','',#5);\n#5=PRODUCT_DEFINITION('design','',#6,#9);\n"
+          "#6=PRODUCT_DEFINITION_FORMATION('','',#7);\n"
+          "#7=PRODUCT('photosurf surface','photosurf surface','',(#8));\n"
+          "#8=PRODUCT_CONTEXT('',#2,'mechanical');\n"
+          "#9=PRODUCT_DEFINITION_CONTEXT('part definition',#2,'design');\n"
+          f"#10=ADVANCED_BREP_SHAPE_REPRESENTATION('',(#11,#15),#{context});\n"
+          "#11=AXIS2_PLACEMENT_3D('',#12,#13,#14);\n#12=CARTESIAN_POINT('',(0.,0.,0.));\n"
+          "#13=DIRECTION('',(0.,0.,1.));\n#14=DIRECTION('',(1.,0.,0.));\n"
+          "#15=MANIFOLD_SOLID_BREP('',#16);\n#16=CLOSED_SHELL('',(")
+    write(",".join(f"#{i}" for i in range(first_face, first_face + n_faces)))
+    write("));\n")
+
+
+def _write_step_tail(write, context: int, uncertainty: float) -> None:
+    """The representation context (``#context``), its units and distance uncertainty."""
+    length = context + 1
     uncertainty = _reals(f"({uncertainty:.6G})")[1:-1]
     write(f"#{context}=(GEOMETRIC_REPRESENTATION_CONTEXT(3)"
           f"GLOBAL_UNCERTAINTY_ASSIGNED_CONTEXT((#{context + 4}))"
@@ -619,6 +692,163 @@ def _write_step_text(control_points: np.ndarray, triangles: np.ndarray, path: Pa
           f"#{length},'distance_accuracy_value','confusion accuracy');\n"
           f"#{context + 5}=PRODUCT_RELATED_PRODUCT_CATEGORY('part',$,(#7));\n"
           "ENDSEC;\nEND-ISO-10303-21;\n")
+
+
+# ------------------------------------------------- STEP text: one face per control triangle
+#: The pcurve of each half side of a control-triangle face (``surface.bezier_merge``,
+#: parameters over ``[0, 2]^2``): side 0 ``v = 0``, 1 ``u = 2``, 2 ``v = 2``; half 0 or 1
+#: (increasing u or v); origin and unit direction of the edge curve's parameter 0 -> 1
+#: when it runs with (``same``) or against the side's increasing parameter.
+def _half_line(side: int, half: int, same: bool) -> tuple[tuple, tuple]:
+    start, step = float(half), (1.0 if same else -1.0)
+    if not same:
+        start += 1.0
+    if side == 0:
+        return (start, 0.0), (step, 0.0)
+    if side == 1:
+        return (2.0, start), (0.0, step)
+    return (start, 2.0), (step, 0.0)
+
+
+def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None = None
+                            ) -> bool:
+    """The closed solid with one face per control triangle (``surface.bezier_merge.
+    merged_faces``) as ISO 10303-21 text; False (nothing written) for an open shell.
+
+    Every face is a degree (6, 6) ``B_SPLINE_SURFACE_WITH_KNOTS`` of 13 x 13 poles (knots
+    0, 1, 2 with multiplicities 7, 6, 7), collapsed at its corner A along ``u = 0``, and
+    bounded by six edges: the two halves of each control edge, sextic Bézier curves
+    whose poles are the face's boundary poles (shared by id with the neighbour, so the
+    solid is watertight exactly).  Each edge carries its pcurve on both faces: a unit
+    segment of a side of the face's ``[0, 2]^2`` (twelve shared
+    ``DEFINITIONAL_REPRESENTATION`` s), traversed at the edge curve's own parameter.
+    """
+    corners, mids, poles = merged["corners"], merged["mids"], merged["poles"]
+    topo = shell_topology(corners)
+    if not topo["closed"]:
+        return False
+    n_faces, n_super = len(corners), len(topo["start"])
+    edge, same = topo["edge"], topo["same"]  # (F, 3) sides 0 A->B, 1 B->C, 2 A->C
+    n_vertices = int(max(corners.max(), mids.max())) + 1
+    # the midpoint vertex of each control edge
+    mid_of = np.empty(n_super, dtype=np.int64)
+    mid_of[edge.ravel()] = mids[:, [0, 1, 2]].ravel()  # side 0 mAB, 1 mBC, 2 mCA
+    n_edges = 2 * n_super  # halves: 2e start -> mid, 2e + 1 mid -> end
+    first_face_pole = n_vertices + 5 * n_edges
+    ids = np.empty((n_faces, 13, 13), dtype=np.int64)
+    inner = np.arange(5)
+
+    def along(side: int) -> np.ndarray:  # (F, 11): a side's poles 1..11, increasing u or v
+        e, s = edge[:, side][:, None], same[:, side][:, None]
+        first = np.where(s, 2 * e, 2 * e + 1)  # the half met first walking up the side
+        second = np.where(s, 2 * e + 1, 2 * e)
+        pos = np.where(s, inner[None, :], 4 - inner[None, :])
+        return np.concatenate([n_vertices + 5 * first + pos, mids[:, [0, 1, 2][side]][:, None],
+                               n_vertices + 5 * second + pos], axis=1)
+
+    ids[:, 0, :] = corners[:, 0][:, None]  # the collapsed side at A
+    ids[:, 12, 0], ids[:, 12, 12] = corners[:, 1], corners[:, 2]
+    ids[:, 1:12, 0], ids[:, 12, 1:12], ids[:, 1:12, 12] = along(0), along(1), along(2)
+    ids[:, 1:12, 1:12] = (first_face_pole + 121 * np.arange(n_faces))[:, None, None] \
+        + np.arange(121).reshape(11, 11)
+    n_points = first_face_pole + 121 * n_faces
+    xyz = np.empty((n_points, 3))
+    xyz[ids.ravel()] = poles.reshape(-1, 3)
+    size = float(np.ptp(xyz, axis=0).max()) or 1.0
+    # each half edge's poles: start, 5 inner, end, in its own direction
+    start = np.empty(n_edges, dtype=np.int64)
+    end = np.empty(n_edges, dtype=np.int64)
+    start[0::2], end[0::2] = topo["start"], mid_of
+    start[1::2], end[1::2] = mid_of, topo["end"]
+    curve_points = np.column_stack([start, n_vertices + 5 * np.arange(n_edges)[:, None]
+                                    + inner, end])
+    # id blocks; #1-#16 the product structure, brep and shell
+    first_point = 17
+    first_vertex = first_point + n_points
+    first_curve = first_vertex + n_vertices
+    first_surface = first_curve + n_edges
+    first_2d = first_surface + n_faces  # context, then 12 x (representation, line, point,
+    first_pcurve = first_2d + 1 + 12 * 5  # vector, direction)
+    first_surface_curve = first_pcurve + 2 * n_edges
+    first_edge = first_surface_curve + n_edges
+    first_oriented = first_edge + n_edges
+    first_loop = first_oriented + 6 * n_faces
+    first_bound = first_loop + n_faces
+    first_face = first_bound + n_faces
+    first_tail = first_face + n_faces
+    out: list[str] = []
+    write = out.append
+    _write_step_head(write, first_tail, first_face, n_faces)
+    text = "\n".join(f"#{i}=CARTESIAN_POINT('',(%.12G,%.12G,%.12G));" % tuple(p) for i, p in
+                     zip(range(first_point, first_vertex), xyz.tolist(), strict=True))
+    write(_reals(text))
+    write("\n")
+    write("\n".join(f"#{first_vertex + v}=VERTEX_POINT('',#{first_point + v});"
+                    for v in range(n_vertices)))
+    write("\n")
+    write("\n".join(f"#{first_curve + e}=B_SPLINE_CURVE_WITH_KNOTS('',6,(#%d,#%d,#%d,#%d,#%d,"
+                    "#%d,#%d),.UNSPECIFIED.,.F.,.F.,(7,7),(0.,1.),.PIECEWISE_BEZIER_KNOTS.);"
+                    % tuple(row) for e, row in enumerate((first_point + curve_points).tolist())))
+    write("\n")
+    grid = (first_point + ids).tolist()
+    write("\n".join(f"#{first_surface + f}=B_SPLINE_SURFACE_WITH_KNOTS('',6,6,("
+                    + ",".join("(" + ",".join(f"#{q}" for q in r) + ")" for r in rows)
+                    + "),.UNSPECIFIED.,.F.,.F.,.F.,(7,6,7),(7,6,7),(0.,1.,2.),(0.,1.,2.),"
+                    ".UNSPECIFIED.);" for f, rows in enumerate(grid)))
+    write("\n")
+    write(f"#{first_2d}=(GEOMETRIC_REPRESENTATION_CONTEXT(2)"
+          "PARAMETRIC_REPRESENTATION_CONTEXT()REPRESENTATION_CONTEXT('2D SPACE',''));\n")
+    for k in range(12):  # k = 4 side + 2 half + same
+        (x, y), (dx, dy) = _half_line(k // 4, (k // 2) % 2, bool(k % 2))
+        i = first_2d + 1 + 5 * k
+        write(f"#{i}=DEFINITIONAL_REPRESENTATION('',(#{i + 1}),#{first_2d});\n"
+              f"#{i + 1}=LINE('',#{i + 2},#{i + 3});\n"
+              f"#{i + 2}=CARTESIAN_POINT('',({x:.1f},{y:.1f}));\n"
+              f"#{i + 3}=VECTOR('',#{i + 4},1.);\n"
+              f"#{i + 4}=DIRECTION('',({dx:.1f},{dy:.1f}));\n")
+    # every (face, side, half): its half edge and pcurve representation
+    face = np.repeat(np.arange(n_faces), 6)
+    side = np.tile(np.repeat(np.arange(3), 2), n_faces)
+    half = np.tile(np.array([0, 1] * 3), n_faces)
+    s = same[face, side]
+    half_edge = 2 * edge[face, side] + np.where(s, half, 1 - half)
+    representation = first_2d + 1 + 5 * (4 * side + 2 * half + s.astype(np.int64))
+    order = np.argsort(half_edge, kind="stable").reshape(n_edges, 2)
+    if not np.array_equal(half_edge[order[:, 0]], np.arange(n_edges)):
+        return False
+    write("\n".join(f"#{first_pcurve + j}=PCURVE('',#{first_surface + f},#{r});" for j, (f, r) in
+                    enumerate(zip(face[order].ravel().tolist(),
+                                  representation[order].ravel().tolist(), strict=True))))
+    write("\n")
+    write("\n".join(f"#{first_surface_curve + e}=SURFACE_CURVE('',#{first_curve + e},"
+                    f"(#{first_pcurve + 2 * e},#{first_pcurve + 2 * e + 1}),.PCURVE_S1.);"
+                    for e in range(n_edges)))
+    write("\n")
+    write("\n".join(f"#{first_edge + e}=EDGE_CURVE('',#{first_vertex + a},#{first_vertex + b},"
+                    f"#{first_surface_curve + e},.T.);" for e, (a, b) in
+                    enumerate(zip(start.tolist(), end.tolist(), strict=True))))
+    write("\n")
+    # the outer wire, counter-clockwise: side 0 and side 1 walked up, side 2 walked down
+    walk = []
+    for sd, backwards in ((0, False), (1, False), (2, True)):
+        e, s = edge[:, sd], same[:, sd]
+        agree = s != backwards  # the curve runs the way the wire walks
+        first = np.where(s != backwards, 2 * e, 2 * e + 1)
+        walk += [(first, agree), (np.where(s != backwards, 2 * e + 1, 2 * e), agree)]
+    halves = np.stack([w for w, _ in walk], axis=1)  # (F, 6)
+    senses = np.stack([a for _, a in walk], axis=1)
+    write("\n".join(f"#{first_oriented + j}=ORIENTED_EDGE('',*,*,#{first_edge + e},"
+                    f"{'.T.' if a else '.F.'});" for j, (e, a) in
+                    enumerate(zip(halves.ravel().tolist(), senses.ravel().tolist(), strict=True))))
+    write("\n")
+    write("\n".join(f"#{first_loop + f}=EDGE_LOOP('',("
+                    + ",".join(f"#{first_oriented + 6 * f + k}" for k in range(6)) + "));\n"
+                    f"#{first_bound + f}=FACE_BOUND('',#{first_loop + f},.T.);\n"
+                    f"#{first_face + f}=ADVANCED_FACE('',(#{first_bound + f}),"
+                    f"#{first_surface + f},.T.);" for f in range(n_faces)))
+    write("\n")
+    _write_step_tail(write, first_tail, uncertainty if uncertainty is not None
+                     else step_uncertainty(size))
     with open(path, "w", encoding="ascii") as handle:
         handle.writelines(out)
     return True
