@@ -168,19 +168,20 @@ def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | N
     ctri = triangulate_pair(rig.left, rig.right, cl, cr, refine=True, reject_p=None)
     centroid, normal = fit_plane(ctri.points)
     corners_rms = float(np.sqrt(np.mean(((ctri.points - centroid) @ normal) ** 2)))
-    t0 = time.perf_counter()
-    match_options = {"epipolar_pass": True, **(match_options or {})}  # photosurf stereo's
+    match_options = dict(match_options or {})
+    compare_2d = match_options.pop("compare_2d", True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    match_options = {"epipolar_pass": True, **match_options}  # photosurf stereo's
     rec = reconstruct_pair(left, right, rig, **match_options)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     on = inside_outline(cl, rec.x_left)
     lsm = plane_measures(rec.points[on], rec.cov[on], corners_rms, rng)
     # one period or more off: farther than one square from the corners' own plane (a
     # slip of one period is tens of squares in depth)
     lsm["beyond_1_square"] = _beyond(rec.points[on], centroid, normal)
-    if (match_options or {}).get("epipolar_pass", True):
+    if compare_2d and match_options.get("epipolar_pass", True):
         # the same run without the epipolar pass: the 2-D LSM matches, uniqueness-tested
-        old = reconstruct_pair(left, right, rig,
-                               **{**(match_options or {}), "epipolar_pass": False})
+        old = reconstruct_pair(left, right, rig, **{**match_options, "epipolar_pass": False})
         old_on = inside_outline(cl, old.x_left)
         lsm["without_epipolar_pass"] = {
             "points": int(old_on.sum()),
@@ -189,6 +190,7 @@ def pair_figures(left_path: Path, right_path: Path, rig, match_options: dict | N
                                                corners_rms, rng).items()
                if k in ("blunders", "inlier_rms_over_corners", "residual_over_sigma")}}
     lsm["seconds"] = seconds
+    lsm["cpu_seconds"] = cpu  # this process's CPU (numba threads included)
     lsm["status"] = rec.matches.status_counts()
     cand_on = inside_outline(cl, rec.matches.x_left)
     lsm["candidates_on_board"] = int(cand_on.sum())

@@ -624,14 +624,19 @@ def real_figures(folder: Path, quick: bool, goals: dict,
     return out
 
 
-def chessboard(folder: Path, json_path: str, pairs=None) -> int:
+def chessboard(folder: Path, json_path: str, pairs=None, spacing: int | None = None,
+               compare_2d: bool = True) -> int:
     """``--part chessboard``: the table, the goals and the JSON."""
     from _chessboard import BLUNDER_K, chessboard_figures
 
     if not folder.is_dir():
         print(f"no chessboard data at {folder}: skipped")
         return 0
-    rows, calib = chessboard_figures(folder, pairs=pairs)
+    options = {} if spacing is None else {"spacing": int(spacing)}
+    if not compare_2d:
+        options["compare_2d"] = False
+    rows, calib = chessboard_figures(folder, pairs=pairs, match_options=options)
+    calib["spacing"] = spacing
     print(f"chessboard rig: calibrated on {calib['pairs']} pairs, RMS {calib['rms_px']:.3f} px, "
           f"baseline {calib['baseline']:.4f} squares")
     print(f"blunder: farther than {BLUNDER_K:g}x the corners' RMS from the robust plane; "
@@ -691,6 +696,11 @@ def main(argv=None) -> int:
                              "21, the issue's)")
     parser.add_argument("--pairs", default=None,
                         help="chessboard: comma-separated pair numbers (default: all 12)")
+    parser.add_argument("--spacing", type=int, default=None,
+                        help="chessboard: candidate lattice spacing, px (default: "
+                             "match_pair's, 3)")
+    parser.add_argument("--no-2d", action="store_true",
+                        help="chessboard: skip the same run without the epipolar pass")
     args = parser.parse_args(argv)
     results = ROOT / "benchmarks" / "results"
     if args.json is None:
@@ -698,7 +708,8 @@ def main(argv=None) -> int:
                                    else f"matching_{args.part}.json"))
     if args.part == "chessboard":
         return chessboard(Path(args.real_data) / "chessboard_stereo", args.json,
-                          None if args.pairs is None else args.pairs.split(","))
+                          None if args.pairs is None else args.pairs.split(","),
+                          spacing=args.spacing, compare_2d=not args.no_2d)
     if args.part in ("real", "graffiti", "temple"):
         goals: dict = {}
         sets = ("graffiti", "temple") if args.part == "real" else (args.part,)

@@ -658,6 +658,15 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 status[idx[survivors & ~closes]] = BACKWARD
             if grow:
                 status[idx[unapproximated]] = NO_APPROXIMATION
+            if rival_var is not None:
+                # what the rivals along the line leave (rectified px² -> right px²); a
+                # match whose uncertainty they dominate -- more than the texture and the
+                # rig leave -- is not unique at any precision it could claim
+                rival_stretch = np.ones(len(idx))
+                rival_stretch[frame["index"]] = np.nan_to_num(frame["stretch"], nan=1.0)
+                own = np.einsum("ni,nij,nj->n", epi_dirs, res.cov, epi_dirs)
+                dominated = rival_var * rival_stretch > own + np.nan_to_num(geo_var)
+                status[idx[(status[idx] == Status.OK) & dominated]] = AMBIGUOUS
             if first_pass is not None and unique and grow:
                 def refine(start_, sub, sides_):
                     return _epipolar_refine(
@@ -667,9 +676,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                         fixed=frame)
 
                 local = status[idx].copy()
-                res, _ = _grow_verified(local, points, res, frame, geo_var, epi_dirs, sides,
-                                        refine, patch)
+                res, grown_mask = _grow_verified(local, points, res, frame, geo_var, epi_dirs,
+                                                 sides, refine, patch,
+                                                 reach=max(patch / 2.0, 1.5 * spacing))
                 status[idx] = local
+                # pinned by their verified neighbours within the pull-in range: the
+                # rivals a period away are excluded
+                rival_var[grown_mask] = 0.0
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch,
@@ -699,12 +712,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                     # what the rivals along the line leave (rectified px² -> right px²);
                     # a match whose uncertainty they dominate -- more than the texture and
                     # the rig leave -- is not unique at any precision it could claim
-                    stretch = np.ones(len(idx))
-                    stretch[frame["index"]] = np.nan_to_num(frame["stretch"], nan=1.0)
-                    own = np.einsum("ni,nij,nj->n", epi_dirs, out["cov"][idx], epi_dirs)
-                    rivals = rival_var * stretch
-                    status[idx[(status[idx] == Status.OK) & (rivals > own + along)]] = AMBIGUOUS
-                    along = along + rivals
+                    along = along + rival_var * rival_stretch
                 out["cov"][idx] += (along[:, None, None]
                                     * epi_dirs[:, :, None] * epi_dirs[:, None, :])
             out["sigma"][idx] = np.sqrt(np.trace(out["cov"][idx], axis1=1, axis2=2) / 2.0)
@@ -1164,15 +1172,16 @@ def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,
 #: LSM failures a better approximation may turn into a match (grown again from verified
 #: neighbours); the others are properties of the window (texture, conditioning)
 _REGROW = (Status.NO_CONVERGENCE, Status.SIGMA0_TOO_LARGE, Status.PULL_IN,
-           Status.DEGENERATE_AFFINE, Status.LOW_CORRELATION, NO_APPROXIMATION)
+           Status.DEGENERATE_AFFINE, Status.LOW_CORRELATION, NO_APPROXIMATION, AMBIGUOUS)
 
 
 def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides,
                    refine, patch: int, max_rounds: int = 60, reach: float | None = None):
     """Region growing in the rectified frame from the matches already shown unique.
 
-    A candidate whose window failed from its approximation (``_REGROW``) is started at
-    the median prediction of its verified accepted neighbours within ``patch`` px
+    A candidate whose window failed from its approximation or was ambiguous (``_REGROW``)
+    is started at the median prediction of its verified accepted neighbours within
+    ``reach`` px (default half the patch)
     (their warps, at least two within 1 px of each other; shape and radiometry of the
     nearest), matched by the epipolar pass (``refine``: :func:`_epipolar_refine` with
     the first call's σ_g and variance factors), and kept only where every verified
@@ -1180,14 +1189,15 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
     at least two: a one-period slip is a period off every prediction) and its backward
     loop closes (:func:`_loop_closes_rectified`).  Rounds until the front stops: only
     verified matches seed, so growth cannot carry a slip across a repeated pattern.
-    Updates the arrays in place; returns the number of matches grown.
+    Updates ``status``, ``geo``, ``dirs``, ``sides`` and ``frame`` in place; returns the
+    updated result and the (N,) mask of the matches grown.
     """
     from scipy.spatial import cKDTree
 
     n = len(points)
     reach = float(patch) / 2.0 if reach is None else float(reach)
     tried = np.zeros(n, bool)
-    grown = 0
+    grown = np.zeros(n, bool)
     position, cov = np.array(res.position), np.array(res.cov)
     affine, radiometric = np.array(res.affine), np.array(res.radiometric)
     sigma0, corr = np.array(res.sigma0), np.array(res.correlation)
@@ -1217,9 +1227,9 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
         off = np.hypot(pu - mu[:, None], pv - mv[:, None])
         spread = np.max(np.where(found, off, 0.0), axis=1)
         usable = two & (spread <= 1.0)
-        tried[cand[found.any(axis=1)]] = True
         if not usable.any():
-            continue
+            break
+        tried[cand[usable]] = True
         sel, nearest = cand[usable], j[usable, 0]
         start_aff = affine[nearest].copy()
         start_aff[:, 0], start_aff[:, 3] = mu[usable], mv[usable]
@@ -1262,7 +1272,7 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
             if isinstance(value, np.ndarray) and value.shape[:1] == (n,) and key != "index":
                 value[keep] = frame_s[key][keep]
         status[keep] = Status.OK
-        grown += len(keep)
+        grown[keep] = True
     res = replace(res, position=position, cov=cov, affine=affine, radiometric=radiometric,
                   sigma0=sigma0, correlation=corr,
                   status=np.where(status == Status.OK, Status.OK, res.status).astype(

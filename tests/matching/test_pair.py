@@ -446,3 +446,41 @@ def test_epipolar_pass_keeps_points_on_the_line_with_an_honest_sigma(scene):
     rms = np.sqrt(np.mean(along**2))
     assert rms < 0.025, rms
     assert 0.75 < rms / np.sqrt(np.mean(eig[:, 1])) < 1.25
+
+
+def _render_half_periodic(cam, coef, noise, seed, gain=1.0, offset=0.0, period=0.1):
+    """The plane's texture: for X < 0 a sinusoid of ``period`` (~13 px in the images)
+    along X over a random profile along Y (every window repeats along the epipolar
+    line), for X >= 0 the band-limited random texture."""
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    P = plane_point(cam, np.column_stack([xs.ravel(), ys.ravel()]))
+    X, Y = P[:, 0], P[:, 1]
+    rows = sample(coef, np.full_like(Y, 80.0), 80 + 50 * Y)
+    periodic = 100 + 40 * np.sin(2 * np.pi * X / period) + 0.8 * (rows - 100)
+    img = np.where(X < 0.0, periodic, sample(coef, 80 + 50 * X, 80 + 50 * Y)).reshape(H, W)
+    return gain * img + offset + np.random.default_rng(seed).normal(0, noise, img.shape)
+
+
+def test_epipolar_pass_on_a_repeated_pattern_grows_only_from_verified_matches():
+    """Half the plane repeats every ~13 px along the epipolar line: there no window is
+    unique by itself (strict uniqueness: ambiguous), and the matches it keeps are grown
+    from verified neighbours (within half a patch, agreeing with them within 3σ): none
+    more than 0.5 px off the truth along the line (measured 0.09 px at most; 167 of the
+    periodic half's 918 candidates kept, 82 ambiguous), while the random half keeps
+    >= 90 % of its candidates (measured 96 %)."""
+    from matching.rectify import rectify, right_to_rectified
+
+    rig = make_rig()
+    coef = texture_coefficients(160, blur=1.2, seed=9)
+    left = _render_half_periodic(rig.left, coef, 2.0, 1)
+    right = _render_half_periodic(rig.right, coef, 2.0, 2, gain=1.1, offset=-8.0)
+    m = match_pair(left, right, rig, spacing=6, epipolar_pass=True)
+    ok = m.accepted
+    rect = rectify(rig)
+    err = (right_to_rectified(rect, rig.right, m.x_right[ok])[:, 0]
+           - right_to_rectified(rect, rig.right, truth_right(rig, m.x_left[ok]))[:, 0])
+    assert np.abs(err).max() < 0.5
+    X = plane_point(rig.left, m.x_left)[:, 0]
+    assert ok[X > 0.05].mean() > 0.9
+    assert ok[X < -0.05].sum() >= 100
+    assert m.status_counts().get("ambiguous", 0) > 0

@@ -104,6 +104,44 @@ def test_one_period_slip_is_rejected():
         assert np.all(ver.verdict[ok] == expect)
 
 
+def test_strict_rule_needs_the_matcher_to_refute_a_rival():
+    """A slip whose rival re-match fails (a matcher that cannot reach the true peak: the
+    chessboard's tilted squares put it out of pull-in): the default rule keeps it as
+    unique -- the plain profile does not prefer the truth by more than the margin --
+    while the strict rule (the epipolar pass's) calls it ambiguous, the truth is
+    ambiguous too, and a unique window on random texture stays unique under both with
+    nothing left by rivals (``rival_var`` ~ 0), while the periodic windows' rivals one
+    period away leave at least P(Φ(-3)) period² = 0.00135 x 144 px²."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(5)
+    pts = _centres()
+
+    def failing(index, approx, initial, population, direction):
+        k = len(index)
+        return SimpleNamespace(status=np.full(k, 3), position=np.full((k, 2), np.nan),
+                               correlation=np.full(k, np.nan))
+
+    for texture, shifts, periodic in ((_periodic(rng), (SHIFT + PERIOD, SHIFT), True),
+                                      (_random(rng), (SHIFT,), False)):
+        left, right = _pair(texture, rng)
+        for shift in shifts:
+            start = pts - [shift, 0.0]
+            res = lsm_match(left, right, pts, start, direction=(1.0, 0.0), rigid_across=True)
+            ok = res.accepted
+            assert ok.mean() > 0.9
+            loose, strict = (uq.verify_matches(failing, pts, res, left, right, pts,
+                                               res.position, lambda p: p, (-20, 60), NOISE,
+                                               WINDOW, strict=flag) for flag in (False, True))
+            assert np.all(loose.verdict[ok] == uq.UNIQUE)
+            expect = uq.AMBIGUOUS if periodic else uq.UNIQUE
+            assert np.all(strict.verdict[ok] == expect)
+            if periodic:
+                assert np.all(strict.rival_var[ok] >= 0.00135 * PERIOD**2 * 0.99)
+            else:
+                assert np.all(strict.rival_var[ok] < 1e-6)
+
+
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / \
     "chessboard_stereo"
 
