@@ -199,7 +199,8 @@ class LSMResult:
         The motion-step test's statistic (module docstring, :func:`_step_score`): the
         largest score, over the lines splitting the window, of a shift of one side
         against the other, in units of the residual variance (NaN with
-        ``jacobian="search"`` or where no solution was reached).
+        ``jacobian="search"``, where no solution was reached, and where the kernel
+        rejected the window: not converged, degenerate affine).
     support : (N,) float64 or None
         Robust LSM (``lsm_match``'s ``robust``): the share of the window's pixels in the
         final support; NaN where the equal-weight solution stands (not robust, or no
@@ -708,10 +709,20 @@ def _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c):
     for i in range(8):
         c[i] = 0.0
     n = 0
+    # without second-order terms (most windows) the warp is affine: the same values
+    # (the zero terms added nothing) for fewer operations in every iteration
+    flat = (q[0] == 0.0 and q[1] == 0.0 and q[2] == 0.0 and q[3] == 0.0 and q[4] == 0.0
+            and q[5] == 0.0)
     for iy in range(-half, half + 1):
         for ix in range(-half, half + 1):
-            u = p[0] + p[1] * ix + p[2] * iy + q[0] * ix * ix + q[1] * ix * iy + q[2] * iy * iy
-            v = p[3] + p[4] * ix + p[5] * iy + q[3] * ix * ix + q[4] * ix * iy + q[5] * iy * iy
+            if flat:
+                u = p[0] + p[1] * ix + p[2] * iy
+                v = p[3] + p[4] * ix + p[5] * iy
+            else:
+                u = (p[0] + p[1] * ix + p[2] * iy + q[0] * ix * ix + q[1] * ix * iy
+                     + q[2] * iy * iy)
+                v = (p[3] + p[4] * ix + p[5] * iy + q[3] * ix * ix + q[4] * ix * iy
+                     + q[5] * iy * iy)
             _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
             res = fv[n] - p[6] - p[7] * out[0]
             rx = fx[n] * res
@@ -1422,7 +1433,9 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         p_out[i] = p[i]
     sig0sq = max(vtv, 0.0) / (sw - m)
     sig0_out[0] = np.sqrt(sig0sq)
-    if not exact_final:
+    if not exact_final and converged and status == 0:
+        # only a window the kernel accepts is judged by its step score (the populations
+        # and the test take the accepted ones): the rest skip its ~1/6 of the kernel
         split = np.empty(2, np.int64)
         corr_out[2] = _step_score(fv, fx, fy, vres, wts, sw, half, 2 * (2 * half + 1),
                                   hmat, step_noise_var, split)
