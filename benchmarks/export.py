@@ -130,7 +130,19 @@ def bench_render(vertices, triangles, normals, repeats: int) -> list[dict]:
     return rows
 
 
-def _ellipsoid_net(patches: int):
+def _recorded_tolerance(net: str | None) -> float | None:
+    """The chord tolerance the smooth stage recorded in the workspace of ``net``."""
+    if not net:
+        return None
+    manifest = Path(net).parent / "manifest.json"
+    try:
+        info = json.loads(manifest.read_text())["stages"]["smooth"]["info"]
+        return float(info["chord_tolerance"])
+    except (OSError, KeyError, TypeError, ValueError):
+        return None
+
+
+def _ellipsoid_net(patches: int, with_source: bool = False):
     """Loop's surface over an ellipsoid (axes 1, 0.7, 0.5) with about ``patches`` patches."""
     import open3d as o3d
 
@@ -140,6 +152,8 @@ def _ellipsoid_net(patches: int):
     mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution)
     surface = bezier.control_net(np.asarray(mesh.vertices) * [1.0, 0.7, 0.5],
                                  np.asarray(mesh.triangles))
+    if with_source:
+        return surface.control_points, surface.domain_mesh[1], surface.source_face
     return surface.control_points, surface.domain_mesh[1]
 
 
@@ -302,12 +316,17 @@ def _freecad_open(path: Path, folder: Path) -> dict:
     return {"freecad_error": (done.stderr or done.stdout)[-300:]}
 
 
-def bench_step_read(control_points, triangles, folder: Path, freecad: bool = True) -> list[dict]:
+def bench_step_read(control_points, triangles, folder: Path, freecad: bool = True,
+                    source_face=None, tolerance: float | None = None,
+                    variants: str = "all") -> list[dict]:
     """What a CAD program does with the STEP file: the variants of ``write_cad``'s text
     (pcurves or not; distance uncertainty ``1e-9 size`` as before, or
-    ``step_uncertainty``), each written, read by OpenCascade (``ReadFile``,
-    ``TransferRoots``, ``BRepCheck_Analyzer``; CPU seconds), volume and area against the
-    level-3 tessellation, and opened by FreeCAD when ``freecadcmd`` is installed."""
+    ``step_uncertainty``; given ``source_face`` and ``tolerance``, also one face per
+    control triangle, ``spans`` 2 and 1), each written, read by OpenCascade
+    (``ReadFile``, ``TransferRoots``, ``BRepCheck_Analyzer``; CPU seconds), volume and
+    area against the level-3 tessellation, and opened by FreeCAD when ``freecadcmd`` is
+    installed.  ``variants`` ``"faces"``: only the per-patch file as written now and
+    the merged ones."""
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
@@ -325,14 +344,28 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
     mesh_area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
     size = float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
     rows = []
-    for pcurves, floor in ((False, False), (False, True), (True, False), (True, True)):
+    plans = [(pcurves, floor, None) for pcurves, floor in
+             ((False, False), (False, True), (True, False), (True, True))]
+    if variants == "faces":
+        plans = [(True, True, None)]
+    if source_face is not None and tolerance is not None:
+        plans += [(True, True, 2), (True, True, 1)]
+    for pcurves, floor, spans in plans:
         row = {"variant": f"{'pcurves' if pcurves else 'no pcurves'}, uncertainty "
                           f"{'max(1e-9 size, 1e-7)' if floor else '1e-9 size'}",
                "pcurves": pcurves, "uncertainty": step.step_uncertainty(size) if floor
                else step.REL_TOLERANCE * size, "patches": len(control_points)}
-        path = folder / f"read_{int(pcurves)}{int(floor)}.step"
-        _clocked(row, "write", lambda p=path, c=pcurves, r=row: step._write_step_text(
-            control_points, triangles, p, c, r["uncertainty"]))
+        path = folder / f"read_{int(pcurves)}{int(floor)}{spans or 0}.step"
+        if spans is None:
+            _clocked(row, "write", lambda p=path, c=pcurves, r=row: step._write_step_text(
+                control_points, triangles, p, c, r["uncertainty"]))
+        else:
+            row["variant"] = f"a face per control triangle, {spans} span(s)"
+            report: dict = {}
+            _clocked(row, "write", lambda p=path, r=report, n=spans: step.write_cad(
+                p, control_points, triangles, source_face=source_face,
+                tolerance=tolerance, report=r, spans=n))
+            row.update({f"merge_{k}": v for k, v in report.items()})
         row["bytes"] = path.stat().st_size
         reader = STEPControl_Reader()
         _clocked(row, "occ_parse", lambda r=reader, p=path: r.ReadFile(str(p)))
@@ -368,10 +401,16 @@ def _print_step_read(rows: list[dict]) -> None:
         fc = "".join(f"{r[k]:>{w}.{d}f}" if k in r else f"{'-':>{w}}" for k, w, d in
                      (("freecad_open_s", 8, 1), ("freecad_open_cpu_s", 8, 1),
                       ("freecad_rss_mb", 7, 0)))
-        print(f"{r['variant']:<44}{r['bytes'] / 1e6:>7.1f}{r['write_cpu_s']:>7.1f}"
+        print(f"{r['variant'][:43]:<44}{r['bytes'] / 1e6:>7.1f}{r['write_cpu_s']:>7.1f}"
               f"{r['occ_parse_cpu_s']:>7.1f}{r['occ_transfer_cpu_s']:>9.1f}"
               f"{r['occ_check_cpu_s']:>7.1f}{str(r['occ_valid'] and r['occ_solid']):>6}"
               f"{r['faces']:>7}{r['volume_rel_error']:>9.1e}{r['area_rel_error']:>9.1e}{fc}")
+    for r in rows:
+        if "merge_deviation" in r:
+            print(f"  {r['variant']}: merged {r['merge_merged']}, normal offset "
+                  f"{r['merge_deviation']:.2e} (tolerance {r['merge_tolerance']:.2e}), slide "
+                  f"{r['merge_slide']:.2e}, largest angle to the patches' normal along the "
+                  f"sides {r['merge_angle_deg']:.3g} deg")
 
 
 def _print_step(rows: list[dict], source: str) -> None:
@@ -408,6 +447,11 @@ def main(argv=None) -> int:
                         help="only the STEP rows (no mesh formats, no renders)")
     parser.add_argument("--no-freecad", action="store_true",
                         help="skip opening the STEP variants in FreeCAD (freecadcmd)")
+    parser.add_argument("--cad-tolerance", type=float, default=None,
+                        help="largest distance of a merged face from the patches (default: "
+                             "the smooth stage's chord tolerance of --net, else 1e-5 size)")
+    parser.add_argument("--faces-only", action="store_true",
+                        help="STEP read rows: only the per-patch file and the merged ones")
     parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "export.json"))
     args = parser.parse_args(argv)
     import open3d as o3d
@@ -419,12 +463,21 @@ def main(argv=None) -> int:
         net = read_control_net(args.net)
         cad_source = f"the control net in {args.net}"
         control_points, domain = net["control_points"], net["domain_triangles"]
+        source_face = net.get("source_face")
     else:
-        control_points, domain = _ellipsoid_net(args.patches or (500 if args.quick else 4000))
+        control_points, domain, source_face = _ellipsoid_net(
+            args.patches or (500 if args.quick else 4000), with_source=True)
         cad_source = "Loop's surface over an ellipsoid"
+    # the merged faces' tolerance: given, else the chord tolerance the smooth stage
+    # recorded for the net, else 1e-5 of the size
+    tolerance = args.cad_tolerance or _recorded_tolerance(args.net) or \
+        1e-5 * float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
+    cad_source += f"; merged faces within {tolerance:.3g}"
     with tempfile.TemporaryDirectory() as tmp:
         cad_read = bench_step_read(control_points, domain, Path(tmp),
-                                   freecad=not args.no_freecad)
+                                   freecad=not args.no_freecad, source_face=source_face,
+                                   tolerance=tolerance,
+                                   variants="faces" if args.faces_only else "all")
     result = {"cad_read": {"source": cad_source, "rows": cad_read}}
     if not args.step_only:
         count = args.triangles or (50_000 if args.quick else 1_000_000)

@@ -77,7 +77,6 @@ CAD_SUFFIXES = (".step", ".stp", ".iges", ".igs")
 #: below any modelling scale.
 REL_TOLERANCE = 1e-9
 _DEGREE = 6
-MERGE_SPANS = 2
 
 __all__ = ["CAD_SUFFIXES", "degenerate_nets", "read_cad_solid", "shell_topology",
            "solid_from_nets", "step_uncertainty", "write_cad"]
@@ -343,7 +342,8 @@ def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
 
 def write_cad(path: str | os.PathLike, control_points: np.ndarray,
               triangles: np.ndarray, source_face: np.ndarray | None = None,
-              tolerance: float | None = None, report: dict | None = None) -> Path:
+              tolerance: float | None = None, report: dict | None = None,
+              spans: int = 2) -> Path:
     """Write the surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
 
     By default every patch is one face, exact.  Given ``source_face`` and a
@@ -367,6 +367,11 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         Each patch's control triangle (``BezierSurface.source_face``).
     tolerance : float, optional
         Largest distance a merged face may lie from the patches.
+    spans : {2, 1}
+        Merged faces' form (``surface.bezier_merge``): 2, 13 x 13 B-spline faces whose
+        edges are the patch edges, exact; 1, 7 x 7 Bézier faces with fitted edges (a
+        third of OpenCascade's reading time, but kinks and folded parametrisations on
+        thin control triangles: measured in ``benchmarks/export.py``, not the default).
     report : dict, optional
         Filled with ``faces``, ``merged`` (bool), and for a merge attempt
         ``deviation`` (largest distance along the normal), ``slide`` (largest
@@ -406,7 +411,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     report.update(faces=len(cp), merged=False)
     merged = None
     if suffix in (".step", ".stp") and source_face is not None and tolerance is not None:
-        merged = _merged(cp, tris, source_face, tolerance, report, MERGE_SPANS)
+        merged = _merged(cp, tris, source_face, tolerance, report, spans)
     _quiet()
     with atomic_file(path) as tmp:
         if suffix in (".step", ".stp"):

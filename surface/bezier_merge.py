@@ -313,6 +313,53 @@ def _side_angles(poles: np.ndarray, cp: np.ndarray, patches: np.ndarray) -> np.n
     return np.arccos(np.clip(cos, -1.0, 1.0)).max(axis=1)
 
 
+#: Weight of a sample's whole offset (against 1 for its offset along the normal) in the
+#: one-span fit: small, it only keeps the parametrisation from folding; the shape is
+#: fitted along the normal, where a parametrisation's kinks cannot pull it.
+PARAMETER_WEIGHT = 0.1
+_GEOMETRIC_SAMPLES = 13
+
+
+@cache
+def _geometric_operators():
+    u, v, pieces = _samples(_GEOMETRIC_SAMPLES)
+    points = _tensor(u, v, 1)
+    su, sv, across_u, *_ = _sides()
+    slopes = np.where(across_u[:, None], _tensor(su, sv, 1, du=True),
+                      _tensor(su, sv, 1, dv=True))
+    return points, slopes, pieces
+
+
+def _geometric_fit(cp: np.ndarray, patches: np.ndarray, net: np.ndarray,
+                   fixed: np.ndarray) -> np.ndarray:
+    """``(F, 25, 3)`` inner poles of one-span faces: least squares of the offset from the
+    patches along their normal at 13 x 13 samples (weight 1), of the face's derivative
+    across each side along the patches' normal there (weight :data:`DERIVATIVE_WEIGHT`:
+    the face's tangent plane the patches', so neighbours meet G1 to the accuracy of
+    their shared edge's tangent) and of the whole offset (weight
+    :data:`PARAMETER_WEIGHT`).  Linear in the poles, one 75 x 75 system a face."""
+    points, slopes, pieces = _geometric_operators()
+    target = _exact(cp, patches, pieces)
+    normal = _exact(cp, patches, pieces, normals=True)
+    side_normal = _exact(cp, patches, _sides()[4][0], normals=True)
+    free = ~fixed
+    known = np.einsum("sk,fkd->fsd", points[:, fixed], net[:, fixed])
+    known_slope = np.einsum("sk,fkd->fsd", slopes[:, fixed], net[:, fixed])
+    # rows over the unknowns (pole k, coordinate d), flattened k * 3 + d
+    rows_n = np.einsum("sk,fsd->fskd", points[:, free], normal).reshape(len(patches), -1, 75)
+    rhs_n = np.einsum("fsd,fsd->fs", target - known, normal)
+    rows_t = np.einsum("sk,fsd->fskd", slopes[:, free], side_normal).reshape(
+        len(patches), -1, 75) * DERIVATIVE_WEIGHT
+    rhs_t = -np.einsum("fsd,fsd->fs", known_slope, side_normal) * DERIVATIVE_WEIGHT
+    gram = np.einsum("fsa,fsb->fab", rows_n, rows_n) + np.einsum("fsa,fsb->fab", rows_t, rows_t)
+    rhs = np.einsum("fsa,fs->fa", rows_n, rhs_n) + np.einsum("fsa,fs->fa", rows_t, rhs_t)
+    b = points[:, free]
+    gram += PARAMETER_WEIGHT ** 2 * np.kron(b.T @ b, np.eye(3))[None]
+    rhs += PARAMETER_WEIGHT ** 2 * np.einsum("sk,fsd->fkd", b, target - known).reshape(
+        len(patches), 75)
+    return np.linalg.solve(gram, rhs[..., None])[..., 0].reshape(len(patches), 25, 3)
+
+
 def merged_faces(control_points: np.ndarray, triangles: np.ndarray,
                  source_face: np.ndarray, spans: int = 1) -> dict | None:
     """One face per control triangle, fitted to its four patches.
@@ -357,12 +404,15 @@ def merged_faces(control_points: np.ndarray, triangles: np.ndarray,
     for start in range(0, len(patches), _CHUNK):
         part = slice(start, start + _CHUNK)
         net, chunk = boundary[part], patches[part]
-        residual = _exact(cp, chunk, fit_pieces) \
-            - np.einsum("sk,fkd->fsd", points[:, fixed], net[:, fixed])
-        slope = _cross_derivatives(cp, chunk) \
-            - np.einsum("sk,fkd->fsd", slopes[:, fixed], net[:, fixed])
-        residual = np.concatenate([residual, DERIVATIVE_WEIGHT * slope], axis=1)
-        net[:, ~fixed] = np.einsum("ks,fsd->fkd", operator, residual)
+        if spans == 1:
+            net[:, ~fixed] = _geometric_fit(cp, chunk, net, fixed)
+        else:
+            residual = _exact(cp, chunk, fit_pieces) \
+                - np.einsum("sk,fkd->fsd", points[:, fixed], net[:, fixed])
+            slope = _cross_derivatives(cp, chunk) \
+                - np.einsum("sk,fkd->fsd", slopes[:, fixed], net[:, fixed])
+            residual = np.concatenate([residual, DERIVATIVE_WEIGHT * slope], axis=1)
+            net[:, ~fixed] = np.einsum("ks,fsd->fkd", operator, residual)
         poles[part] = net.reshape(-1, n, n, 3)
         offset = np.einsum("sk,fkd->fsd", check_basis, net) - _exact(cp, chunk, check_pieces)
         along = np.einsum("fsd,fsd->fs", offset, _exact(cp, chunk, check_pieces, normals=True))

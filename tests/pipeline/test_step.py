@@ -277,3 +277,55 @@ def test_run_exports_a_step_solid_of_the_sized_surface(tmp_path):
     shape = step.read_cad_solid(out / "export" / "surface.step")
     assert BRepCheck_Analyzer(shape).IsValid()
     assert sum(1 for _ in _faces(shape)) == smooth["patches"]
+
+
+def test_step_with_a_face_per_control_triangle_is_the_same_solid(tmp_path, ellipsoid):
+    """Given a CAD tolerance, a fourth of the faces (surface.bezier_merge, two spans):
+    a valid closed solid sharing every edge, its volume and area those of the patches to
+    within the faces' measured offset times the area."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
+    from OCP.TopAbs import TopAbs_SOLID
+
+    from surface.measure import surface_integrals
+
+    cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
+    report: dict = {}
+    path = step.write_cad(tmp_path / "merged.step", cp, tris, source_face=source,
+                          tolerance=1e-3, report=report)
+    assert report["merged"] and report["faces"] == len(cp) // 4
+    assert report["deviation"] <= 1e-3
+    shape = step.read_cad_solid(path)
+    assert shape.ShapeType() == TopAbs_SOLID
+    assert BRepCheck_Analyzer(shape).IsValid()
+    shells = ShapeAnalysis_Shell()
+    shells.LoadShells(shape)
+    assert not shells.CheckOrientedShells(shape, True)
+    assert not shells.HasFreeEdges()
+    assert len(list(_faces(shape))) == len(cp) // 4
+    exact = surface_integrals(cp)
+    volume, area = _props(shape)
+    # OpenCascade's integration of a B-spline solid is itself approximate (~1e-6 here)
+    bound = report["deviation"] * exact["area"] + 1e-5 * exact["area"]
+    assert abs(volume - exact["volume"]) <= bound
+    assert area == pytest.approx(exact["area"], rel=1e-4)
+    # the turned-over domain gives the same outward solid
+    flipped = step.write_cad(tmp_path / "flipped.step", cp[:, _swap_jk()], tris[:, [0, 2, 1]],
+                             source_face=source, tolerance=1e-3)
+    assert _props(step.read_cad_solid(flipped))[0] == pytest.approx(volume, rel=1e-9)
+
+
+def _swap_jk() -> np.ndarray:
+    table = bezier.index_table()
+    return bezier.control_index(table[:, 0], table[:, 2], table[:, 1])
+
+
+def test_step_keeps_the_patches_where_a_merged_face_misses_the_tolerance(tmp_path, ellipsoid):
+    cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
+    report: dict = {}
+    path = step.write_cad(tmp_path / "exact.step", cp, tris, source_face=source,
+                          tolerance=1e-12, report=report)
+    assert not report["merged"] and report["deviation"] > 1e-12 and "reason" in report
+    assert len(list(_faces(step.read_cad_solid(path)))) == len(cp)
+    with pytest.raises(ValueError, match="tolerance"):
+        step.write_cad(tmp_path / "bad.step", cp, tris, source_face=source, tolerance=0.0)
