@@ -26,6 +26,12 @@ object's height.
 its cameras (``templeSR_par.txt``), counts the LSM kernel's windows and iterations, and
 runs OpenCV's SGBM on the same rectified pairs in the same process (goals: acquire
 <= 10 s, <= 2x SGBM's time); ``--reference`` compares the cloud with an earlier one.
+
+``--kernel DIR`` (the temple folder) measures the LSM kernel alone on real windows: the
+kernel calls of two of the ring's view pairs (``--kernel-pairs``) are recorded, then
+replayed (``--repeats`` times, the fastest kept): windows per CPU-second, iterations,
+and where the iterations end (the kernel's own status, before ``lsm_match``'s σ0,
+correlation and step tests).
 """
 
 from __future__ import annotations
@@ -279,6 +285,102 @@ def temple_main(args) -> int:
     return 0
 
 
+class _KernelRecorder:
+    """Records every ``matching.lsm._lsm_batch`` call's inputs (and the caller) while
+    installed, so that the calls can be replayed on the kernel alone."""
+
+    def __init__(self):
+        from matching import lsm
+
+        self._lsm, self._kernel = lsm, lsm._lsm_batch
+        self.calls: list[tuple[str, tuple]] = []
+
+    def __enter__(self):
+        import inspect
+
+        kernel = self._kernel
+
+        def recorded(*args):
+            caller = inspect.stack()[2].function  # the lsm_match caller
+            self.calls.append((caller, tuple(a.copy() if isinstance(a, np.ndarray) else a
+                                            for a in args[:23])))
+            kernel(*args)
+
+        recorded.targetoptions = kernel.targetoptions
+        self._lsm._lsm_batch = recorded
+        return self
+
+    def __exit__(self, *exc):
+        self._lsm._lsm_batch = self._kernel
+
+
+def _replay(kernel, inputs: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """One recorded call on ``kernel``: (status, iterations) per window."""
+    n = len(inputs[3])
+    out = [np.full((n, 8), np.nan), np.full((n, 2, 2), np.nan), np.full((n, 2, 2), np.nan),
+           np.full((n, 6, 6), np.nan), np.full(n, np.nan), np.full((n, 4), np.nan),
+           np.zeros(n, np.uint8), np.zeros(n, np.int32), np.zeros(n, np.bool_)]
+    kernel(*inputs, *out)
+    return out[6], out[7]
+
+
+def run_kernel(folder: Path, pairs: list[int], repeats: int) -> dict:
+    """The LSM kernel's rate on the windows of ``pairs`` (indices into
+    :func:`matching.view_pairs.select_pairs`) of the temple ring."""
+    from matching import lsm
+    from matching.multiview import _search_volume, reconstruct_view_pair
+    from matching.view_pairs import select_pairs
+
+    cameras = read_cameras(folder / "templeSR_par.txt")
+    images = [imread(str(folder / c.name)) for c in cameras]
+    chosen = select_pairs(cameras)
+    volume = _search_volume(cameras, None, None)
+    with _KernelRecorder() as rec:
+        for p in pairs:
+            a, b = chosen[p]
+            reconstruct_view_pair(images[a], images[b], cameras[a], cameras[b], (a, b),
+                                  volume=volume)
+    windows = sum(len(inputs[3]) for _, inputs in rec.calls)
+    best, load = float("inf"), uptime()
+    for _ in range(repeats):
+        cpu0 = time.process_time()
+        results = [_replay(lsm._lsm_batch, inputs) for _, inputs in rec.calls]
+        best = min(best, time.process_time() - cpu0)
+    status = np.concatenate([r[0] for r in results])
+    iters = np.concatenate([r[1] for r in results]).astype(np.int64)
+    by_caller: dict = {}
+    for (caller, inputs), (_, it) in zip(rec.calls, results, strict=True):
+        row = by_caller.setdefault(caller, {"windows": 0, "iterations": 0})
+        row["windows"] += len(inputs[3])
+        row["iterations"] += int(it.sum())
+    names = {int(s): s.name.lower() for s in lsm.Status}
+    ends = {names.get(int(s), str(int(s))): {"windows": int(np.sum(status == s)),
+                                             "iterations": int(iters[status == s].sum())}
+            for s in np.unique(status)}
+    return {"pairs": [list(chosen[p]) for p in pairs], "calls": len(rec.calls),
+            "windows": windows, "iterations": int(iters.sum()), "cpu_seconds": best,
+            "repeats": repeats, "windows_per_cpu_s": windows / best,
+            "iterations_per_cpu_s": float(iters.sum()) / best, "load_before": load,
+            "load_after": uptime(), "by_caller": by_caller, "ends": ends}
+
+
+def kernel_main(args) -> int:
+    pairs = [int(v) for v in args.kernel_pairs.split(",")]
+    row = run_kernel(Path(args.kernel), pairs, args.repeats)
+    print(f"LSM kernel on {row['windows']} temple windows (pairs {row['pairs']}, "
+          f"{row['calls']} calls): {row['cpu_seconds']:.2f} CPU-s, "
+          f"{row['windows_per_cpu_s']:.0f} windows/CPU-s, {row['iterations']} iterations; "
+          f"load {row['load_before']} -> {row['load_after']}")
+    print(f"{'ends as':20s}{'windows':>9s}{'iterations':>12s}{'share':>7s}")
+    for name, r in row["ends"].items():
+        print(f"{name:20s}{r['windows']:9d}{r['iterations']:12d}"
+              f"{r['iterations'] / max(row['iterations'], 1):7.1%}")
+    goals = {"kernel_windows_per_s_2_cores_ge_150000": 2 * row["windows_per_cpu_s"] >= 150_000}
+    print_goals(goals)
+    write_result(args.json, {"benchmark": "lsm-kernel-temple", **row, "goals": goals})
+    return 0
+
+
 def print_table(rows: list[dict]) -> None:
     print(f"{'method':18s}{'points':>9s}{'RMS':>11s}{'RMS icp':>11s}{'median':>11s}"
           f"{'seconds':>9s}{'CPU s':>8s}"
@@ -313,7 +415,15 @@ def main(argv: list[str] | None = None) -> int:
                              "../shared/data/real/temple_sparse_ring) against SGBM")
     parser.add_argument("--reference", default=None, metavar="CLOUD.npz",
                         help="with --temple: a previous cloud (--cloud-out) to compare with")
+    parser.add_argument("--kernel", default=None, metavar="DIR",
+                        help="instead: the LSM kernel alone on the temple ring's windows")
+    parser.add_argument("--kernel-pairs", default="0,5",
+                        help="with --kernel: indices of the ring's view pairs (default 0,5)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="with --kernel: replays, the fastest kept (default 3)")
     args = parser.parse_args(argv)
+    if args.kernel:
+        return kernel_main(args)
     if args.temple:
         return temple_main(args)
 
