@@ -66,12 +66,15 @@ def run(args: argparse.Namespace) -> int:
         check_rig_size(rig, (left, right), (args.left, args.right))
     # the matcher (numba, scipy: ~0.6 s of imports) only after every check of the inputs
     from matching.pair import match_pair
+    from matching.scheduler import thread_map
 
     start = time.perf_counter()
     # a calibrated rig: LSM constrained to the epipolar line, windows ill-conditioned
     # along it rejected (match_pair's epipolar_pass; a rectified pair is already)
-    matches = match_pair(left, right, rig, rectified=args.rectified,
-                         epipolar_pass=not args.rectified, **options)
+    # off the main thread, which waits where Ctrl-C reaches it (matching.scheduler)
+    matches, = thread_map(1)(lambda _: match_pair(left, right, rig, rectified=args.rectified,
+                                                  epipolar_pass=not args.rectified,
+                                                  **options), [None])
     seconds = time.perf_counter() - start
     check_some_matched(matches, args.left)
     with atomic_dir(args.out, kind="match") as tmp:

@@ -56,12 +56,14 @@ def run(args: argparse.Namespace) -> int:
     options.pop("epipolar")
     # the matcher (numba, scipy: ~0.6 s of imports) only after every check of the inputs
     from matching.pair import PAIR_STATUS_NAMES, reconstruct_pair
+    from matching.scheduler import thread_map
 
     # a calibrated rig: LSM constrained to the epipolar line, windows ill-conditioned
     # along it rejected (match_pair's epipolar_pass)
-    rec = reconstruct_pair(left, right, rig, epipolar=args.epipolar,
-                           max_reprojection_px=args.max_reprojection, epipolar_pass=True,
-                           **options)
+    # off the main thread, which waits where Ctrl-C reaches it (matching.scheduler)
+    rec, = thread_map(1)(lambda _: reconstruct_pair(
+        left, right, rig, epipolar=args.epipolar, max_reprojection_px=args.max_reprojection,
+        epipolar_pass=True, **options), [None])
     check_some_matched(rec.matches, args.left)
     per_point = rec.per_point()
     per_point["status"] = rec.matches.status

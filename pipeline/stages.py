@@ -147,6 +147,7 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
 def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> tuple:
     """``matching.pair.reconstruct_pair`` on two image files and a rig file."""
     from matching.pair import reconstruct_pair
+    from matching.scheduler import thread_map
     from pipeline.inputs import read_pair, read_rig_for
 
     rig = read_rig_for(rig_path)  # and pipeline.guards.check_rig: format, values, baseline
@@ -155,8 +156,10 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
                 "object_only", "scale", "markers"):  # image folders only (defaults.toml)
         options.pop(key, None)
     max_reproj = options.pop("max_reprojection_px") or None
-    result = reconstruct_pair(*read_pair(left, right, need_same_size=False), rig,
-                              max_reprojection_px=max_reproj, **options)
+    images = read_pair(left, right, need_same_size=False)
+    # off the main thread, which waits where Ctrl-C reaches it (matching.scheduler)
+    result, = thread_map(1)(lambda _: reconstruct_pair(
+        *images, rig, max_reprojection_px=max_reproj, **options), [None])
     return result.points, result.colours, result.sigma
 
 

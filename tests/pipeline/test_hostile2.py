@@ -656,3 +656,49 @@ def test_view_that_is_a_link_loop_or_a_dangling_link_says_so(tmp_path):
         read_image(tmp_path / "c.png")
     with pytest.raises(FileNotFoundError, match=r"d\.png: no such file$"):
         read_image(tmp_path / "d.png")
+
+
+_SINGLE_PAIR = """
+import hashlib, sys
+import matching.pair as pair
+from pipeline import cli
+
+
+def busy(*args, **kwargs):  # one C call of ~14 CPU-s (> 10 s wall), no signal interrupts
+    print("started", flush=True)
+    hashlib.pbkdf2_hmac("sha256", b"x", b"y", 6 * 10 ** 7)
+
+
+pair.reconstruct_pair = pair.match_pair = busy
+sys.argv = ["photosurf", *sys.argv[1:]]
+sys.exit(cli.main())
+"""
+
+
+@pytest.mark.parametrize("command", ["stereo", "match"])
+def test_interrupt_does_not_wait_for_a_single_pair(tmp_path, command):
+    """Ctrl-C into ``stereo`` or ``match``: the pair ran in the main thread, where a signal
+    waits until the running C call returns (OpenCV's SGBM, an LSM kernel: 20-45 s each
+    on a 12-megapixel pair at load 20); it now runs off it and the stop acts at once."""
+    import signal
+    import time
+
+    from tests.pipeline.test_fuzz_inputs import textured, write_png, write_rig_file
+
+    left = write_png(tmp_path / "l.png", textured(64, 48, 1))
+    right = write_png(tmp_path / "r.png", textured(64, 48, 2))
+    rig = write_rig_file(tmp_path / "rig.yml")
+    out = tmp_path / ("c.ply" if command == "stereo" else "m")
+    proc = subprocess.Popen([sys.executable, "-c", _SINGLE_PAIR, command, str(left), str(right),
+                             "--rig", str(rig), "--out", str(out)], cwd=tmp_path, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert "started" in proc.stdout.readline(), proc.stderr.read()
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    _, err = proc.communicate(timeout=300)
+    assert time.monotonic() - sent < 10, "the interruption waited for the pair's C call"
+    assert proc.returncode == 128 + signal.SIGINT, err
+    assert [ln for ln in err.splitlines() if ln.strip()] == [
+        f"photosurf {command}: interrupted (SIGINT)"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["l.png", "r.png", "rig.yml"]
