@@ -295,14 +295,16 @@ def clamp_to_hull(vertices: np.ndarray, planes: np.ndarray, rounds: int = 30,
     normals, offsets = planes[:, :3], planes[:, 3]
     for start in range(0, len(out), chunk):
         block = out[start:start + chunk]          # a view: moved in place
+        rows = np.arange(len(block))              # the vertices still outside
         for _ in range(rounds):
-            violation = block @ normals.T + offsets  # (B, K)
+            violation = block[rows] @ normals.T + offsets  # (B, K)
             worst = np.argmax(violation, axis=1)
-            amount = violation[np.arange(len(block)), worst]
+            amount = violation[np.arange(len(rows)), worst]
             outside = amount > 0
             if not outside.any():
                 break
-            block[outside] -= amount[outside, None] * normals[worst[outside]]
+            rows = rows[outside]   # a vertex inside stays inside: never looked at again
+            block[rows] -= amount[outside, None] * normals[worst[outside]]
     return out
 
 
