@@ -174,14 +174,14 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
     from pipeline.smoothing import smooth_mesh
     from surface.general_mesh import poisson_control_mesh
     from surface.sections import point_spacing
-    from surface.sizing import interpolating_control
+    from surface.sizing import JUDGE_FOLD_LEVEL, interpolating_control
     from surface.validity import check_solid
 
     start = _clock()
     spacing = point_spacing(points)
     edge = edge or 1.5 * spacing
     vertices, triangles = poisson_control_mesh(points, edge, spacing)
-    control = interpolating_control(vertices, triangles)
+    control = interpolating_control(vertices, triangles, fold_level=JUDGE_FOLD_LEVEL)
     tolerance = tolerance or 0.1 * spacing
     smooth = smooth_mesh(control, triangles, "adaptive", tolerance, check=False)
     # as the smooth stage (pipeline.stages._general_smooth): the approximating surface

@@ -689,11 +689,15 @@ def _general_smooth(vertices, triangles, level, tolerance):
     import time
 
     from pipeline.smoothing import smooth_mesh
-    from surface.sizing import interpolating_control
+    from surface.sizing import JUDGE_FOLD_LEVEL, interpolating_control
     from surface.validity import check_solid
 
     start = time.perf_counter()
-    smoothed = smooth_mesh(interpolating_control(vertices, triangles), triangles, level,
+    # folds looked for at level 1: the iso-surface's triangles are well shaped, and the
+    # check below catches what that misses (banana 10^4 points: 9.5 -> 6.7 CPU-s, Chamfer
+    # +0.1 %, valid either way)
+    smoothed = smooth_mesh(interpolating_control(vertices, triangles,
+                                                 fold_level=JUDGE_FOLD_LEVEL), triangles, level,
                            tolerance, check=False)
     solid = check_solid(smoothed.vertices, smoothed.triangles)
     if len(solid.intersecting_pairs) == 0:
