@@ -651,9 +651,10 @@ def wall_flatness(points: np.ndarray, sigma: np.ndarray, cameras) -> dict:
 
 
 def render_beside(ws: Path, folder: Path, out: Path, views: int = 3, width: int = 640) -> dict:
-    """The run's surface (the smooth one, else the stitched mesh) rendered from ``views``
-    of its cameras (first, middle, last), each row: the photo, the render, the two blended
-    half and half (registration shows as edges that line up); one PNG."""
+    """The run's surface (the smooth one, else the stitched mesh; with neither, the cloud's
+    points where they project, grey by depth) rendered from ``views`` of its cameras
+    (first, middle, last), each row: the photo, the render, the two blended half and half
+    (registration shows as edges that line up); one PNG."""
     import cv2
 
     from pipeline import artifacts
@@ -663,13 +664,17 @@ def render_beside(ws: Path, folder: Path, out: Path, views: int = 3, width: int 
 
     for path in (ws / "smooth" / artifacts.SURFACE, ws / "stitch" / artifacts.MESH):
         if path.is_file():
+            vertices, triangles = read_mesh(path)
+            normals = vertex_normals(vertices, triangles)
+            caster = RayCaster(vertices, triangles)
             break
-    else:
-        return {"rendered": None}
-    vertices, triangles = read_mesh(path)
-    normals = vertex_normals(vertices, triangles)
-    cameras = artifacts.read_cameras(ws / "acquire")
-    caster = RayCaster(vertices, triangles)
+    else:  # no surface: the cloud's points drawn where they project, grey by depth
+        path = ws / "acquire" / "cloud.npz"
+        if not path.is_file():
+            return {"rendered": None}
+        cloud = artifacts.read_cloud(ws / "acquire")["points"]
+    given = ws / "acquire" / artifacts.CAMERAS  # SfM's cameras; a scene's are its own
+    cameras = artifacts.read_cameras(given.parent if given.is_file() else ws / "scene")
     picks = sorted({0, len(cameras) // 2, len(cameras) - 1})[:views]
     rows, covered = [], []
     for v in picks:
@@ -679,7 +684,19 @@ def render_beside(ws: Path, folder: Path, out: Path, views: int = 3, width: int 
         K[:2] *= s
         K[:2, 2] += 0.5 * s - 0.5  # pixel-centre mapping of cv2.resize
         h = int(round(cam.height * s))
-        shaded = render_view(caster, vertices, triangles, normals, K, cam.R, cam.t, width, h)
+        if path.suffix == ".npz":
+            x_c = cloud @ cam.R.T + cam.t
+            front = x_c[:, 2] > 0
+            uv = np.rint(x_c[front, :2] / x_c[front, 2:] @ K[:2, :2].T + K[:2, 2]).astype(int)
+            depth = x_c[front, 2]
+            grey = 40 + 180 * (depth - depth.min()) / max(np.ptp(depth), 1e-12)
+            ok = (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+            order = np.argsort(-depth[ok])  # far first: the nearest point is drawn last
+            shaded = np.full((h, width, 3), 255, np.uint8)
+            shaded[uv[ok][order, 1], uv[ok][order, 0]] = grey[ok][order, None].astype(np.uint8)
+        else:
+            shaded = render_view(caster, vertices, triangles, normals, K, cam.R, cam.t,
+                                 width, h)
         photo = cv2.cvtColor(imread(str(folder / cam.name)), cv2.COLOR_BGR2RGB)
         photo = cv2.resize(photo, (width, h), interpolation=cv2.INTER_AREA)
         hit = np.any(shaded != 255, axis=2)
