@@ -292,6 +292,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
                densify: bool | str = False, robust: bool | str = False,
                unique: bool = True, epipolar_pass: bool = False,
+               regrow_ambiguous: bool = False,
                aperture_k: float | None = 1.0, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
@@ -434,6 +435,12 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         of points; on the rendered vase the error along the line 0.0376 -> 0.0404 px and σ
         less honest on a specular highlight (actual / reported 1.66 against <= 1.45), so not
         the library default (nor multiview's).
+    regrow_ambiguous : bool
+        Epipolar pass: grow the ambiguous windows again from verified neighbours too, not
+        only those that failed from their approximation (:func:`_grow_verified`).  Default
+        off: on the chessboard rig it adds 20-55 % of the board's points but raises the
+        blunders on the pairs that have them (06: 3.7 -> 6.3 %, 11: 2.9 -> 4.0 %, 04:
+        1.2 -> 1.9 %; docs/decisions/stereo-ambiguity.md).
     aperture_k : float or None
         The ``aperture`` test's bound on the rig's row error carried through the window's
         edge slope, in units of the match's own σ along the line (default 1: it may not
@@ -678,7 +685,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 local = status[idx].copy()
                 res, grown_mask = _grow_verified(local, points, res, frame, geo_var, epi_dirs,
                                                  sides, refine, patch,
-                                                 reach=max(patch / 2.0, 1.5 * spacing))
+                                                 reach=max(patch / 2.0, 1.5 * spacing),
+                                                 ambiguous=regrow_ambiguous)
                 status[idx] = local
                 # pinned by their verified neighbours within the pull-in range: the
                 # rivals a period away are excluded
@@ -1172,16 +1180,17 @@ def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,
 #: LSM failures a better approximation may turn into a match (grown again from verified
 #: neighbours); the others are properties of the window (texture, conditioning)
 _REGROW = (Status.NO_CONVERGENCE, Status.SIGMA0_TOO_LARGE, Status.PULL_IN,
-           Status.DEGENERATE_AFFINE, Status.LOW_CORRELATION, NO_APPROXIMATION, AMBIGUOUS)
+           Status.DEGENERATE_AFFINE, Status.LOW_CORRELATION, NO_APPROXIMATION)
 
 
 def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides,
-                   refine, patch: int, max_rounds: int = 60, reach: float | None = None):
+                   refine, patch: int, max_rounds: int = 60, reach: float | None = None,
+                   ambiguous: bool = False):
     """Region growing in the rectified frame from the matches already shown unique.
 
-    A candidate whose window failed from its approximation or was ambiguous (``_REGROW``)
-    is started at the median prediction of its verified accepted neighbours within
-    ``reach`` px (default half the patch)
+    A candidate whose window failed from its approximation (``_REGROW``; with
+    ``ambiguous`` also the ambiguous ones) is started at the median prediction of its
+    verified accepted neighbours within ``reach`` px (default half the patch)
     (their warps, at least two within 1 px of each other; shape and radiometry of the
     nearest), matched by the epipolar pass (``refine``: :func:`_epipolar_refine` with
     the first call's σ_g and variance factors), and kept only where every verified
@@ -1203,7 +1212,8 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
     sigma0, corr = np.array(res.sigma0), np.array(res.correlation)
     for _ in range(max_rounds):
         verified = np.flatnonzero(status == Status.OK)
-        cand = np.flatnonzero(np.isin(status, _REGROW) & ~tried)
+        regrow = _REGROW + ((AMBIGUOUS,) if ambiguous else ())
+        cand = np.flatnonzero(np.isin(status, regrow) & ~tried)
         if len(verified) < 2 or not len(cand):
             break
         tree = cKDTree(points[verified])
