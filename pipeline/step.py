@@ -343,7 +343,7 @@ def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
 def write_cad(path: str | os.PathLike, control_points: np.ndarray,
               triangles: np.ndarray, source_face: np.ndarray | None = None,
               tolerance: float | None = None, report: dict | None = None,
-              spans: int = 2) -> Path:
+              spans: int = 2, angle_tolerance: float | None = None) -> Path:
     """Write the surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
 
     By default every patch is one face, exact.  Given ``source_face`` and a
@@ -351,8 +351,8 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     triangle instead, a fourth of the faces (``surface.bezier_merge``): the same edges
     and vertices, faces within ``tolerance`` of the patches along the normal and
     tangent-plane continuous across their sides; where any face is farther than
-    ``tolerance`` (or the patches are not four per control triangle) the exact
-    per-patch file is written.
+    ``tolerance`` or turns more than ``angle_tolerance`` (or the patches are not four per
+    control triangle) the exact per-patch file is written.
 
     Parameters
     ----------
@@ -372,6 +372,11 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         edges are the patch edges, exact; 1, 7 x 7 Bézier faces with fitted edges (a
         third of OpenCascade's reading time, but kinks and folded parametrisations on
         thin control triangles: measured in ``benchmarks/export.py``, not the default).
+    angle_tolerance : float, optional
+        Largest angle (radians) a merged face's normal may make with the patches' along
+        its sides (the kink between two faces is at most twice it); default the slope
+        ``tolerance`` allows over a control edge, ``tolerance / median control edge``
+        (the demo: 0.064 degrees); ``numpy.inf`` to accept kinks.
     report : dict, optional
         Filled with ``faces``, ``merged`` (bool), and for a merge attempt
         ``deviation`` (largest distance along the normal), ``slide`` (largest
@@ -411,7 +416,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     report.update(faces=len(cp), merged=False)
     merged = None
     if suffix in (".step", ".stp") and source_face is not None and tolerance is not None:
-        merged = _merged(cp, tris, source_face, tolerance, report, spans)
+        merged = _merged(cp, tris, source_face, tolerance, report, spans, angle_tolerance)
     _quiet()
     with atomic_file(path) as tmp:
         if suffix in (".step", ".stp"):
@@ -432,8 +437,10 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
 
 
 def _merged(cp: np.ndarray, tris: np.ndarray, source_face, tolerance: float,
-            report: dict, spans: int = 1) -> dict | None:
-    """The control-triangle faces when all lie within ``tolerance`` of the patches."""
+            report: dict, spans: int = 1, angle_tolerance: float | None = None
+            ) -> dict | None:
+    """The control-triangle faces when all lie within ``tolerance`` of the patches and
+    their normals along the sides within ``angle_tolerance`` (radians) of the patches'."""
     from surface.bezier_merge import merged_faces
 
     source = np.asarray(source_face, dtype=np.int64)
@@ -447,10 +454,22 @@ def _merged(cp: np.ndarray, tris: np.ndarray, source_face, tolerance: float,
         report["reason"] = "the patches are not four per control triangle"
         return None
     deviation = float(merged["deviation"].max())
+    angle = float(merged["angle"].max())
+    if angle_tolerance is None:  # the slope the distance tolerance allows over an edge
+        # corner 0 of the corner patches at A and B: A and m_AB, half the control edge
+        first = cp[merged["patches"][:, :2], 0]
+        edge = 2.0 * float(np.median(np.linalg.norm(first[:, 1] - first[:, 0], axis=1)))
+        angle_tolerance = tolerance / max(edge, 1e-300)
     report.update(deviation=deviation, slide=float(merged["slide"].max()),
-                  angle_deg=float(np.degrees(merged["angle"].max())), tolerance=tolerance)
+                  angle_deg=float(np.degrees(angle)), tolerance=tolerance,
+                  angle_tolerance_deg=float(np.degrees(angle_tolerance)),
+                  folded=int(np.count_nonzero(merged["angle"] > np.pi / 2)))
     if deviation > tolerance:
         report["reason"] = f"a merged face lies {deviation:.3g} from the patches"
+        return None
+    if angle > angle_tolerance:
+        report["reason"] = (f"a merged face's normal turns {np.degrees(angle):.3g} degrees "
+                            "from the patches' along its sides (not G1)")
         return None
     return merged
 

@@ -329,3 +329,14 @@ def test_step_keeps_the_patches_where_a_merged_face_misses_the_tolerance(tmp_pat
     assert len(list(_faces(step.read_cad_solid(path)))) == len(cp)
     with pytest.raises(ValueError, match="tolerance"):
         step.write_cad(tmp_path / "bad.step", cp, tris, source_face=source, tolerance=0.0)
+    # one-span faces lie within 1e-3 here but kink across their sides: not G1, refused,
+    # unless kinks are accepted
+    report = {}
+    step.write_cad(tmp_path / "one.step", cp, tris, source_face=source, tolerance=1e-3,
+                   report=report, spans=1)
+    assert not report["merged"] and "not G1" in report["reason"]
+    assert report["deviation"] <= 1e-3 and report["angle_deg"] > report["angle_tolerance_deg"]
+    report = {}
+    path = step.write_cad(tmp_path / "kinked.step", cp, tris, source_face=source,
+                          tolerance=1e-3, report=report, spans=1, angle_tolerance=np.inf)
+    assert report["merged"] and len(list(_faces(step.read_cad_solid(path)))) == len(cp) // 4
