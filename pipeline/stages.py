@@ -814,7 +814,7 @@ def export(ctx: StageContext) -> dict:
     vertices, triangles, normals = read_mesh_with_normals(source) if smoothed else \
         (*read_mesh(source), None)
     net = artifacts.read_control_net(ctx.stage_path("smooth")) if smoothed else None
-    written = []
+    written, cad_faces = [], None
     for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):
         fmt = str(fmt).lower().lstrip(".")
         path = ctx.out / f"surface.{fmt}"
@@ -825,7 +825,14 @@ def export(ctx: StageContext) -> dict:
                 continue
             from pipeline.step import write_cad
 
-            write_cad(path, net["control_points"], net["domain_triangles"])
+            # a face per control triangle where it stays within the smooth stage's chord
+            # tolerance and G1 (pipeline.step.write_cad), else a face per patch
+            tolerance = ((ctx.workspace.record("smooth") or {}).get("info") or {}).get(
+                "chord_tolerance")
+            cad = {}
+            write_cad(path, net["control_points"], net["domain_triangles"],
+                      source_face=net.get("source_face"), tolerance=tolerance, report=cad)
+            cad_faces = cad["faces"]
         else:  # a PLY of the smooth surface carries each vertex's 1 sigma along its normal
             sigma = _surface_sigma(ctx, vertices, normals) if smoothed and fmt == "ply" \
                 else None
@@ -837,7 +844,10 @@ def export(ctx: StageContext) -> dict:
         export_mod.write_control_net(ctx.out / "surface.npz", net["control_points"],
                                      net["index"], net["source_face"], domain_mesh=domain)
         written.append("surface.npz")
-    return {"files": written, "source": "smooth surface" if smoothed else "stitched mesh"}
+    info = {"files": written, "source": "smooth surface" if smoothed else "stitched mesh"}
+    if cad_faces is not None:
+        info["cad_faces"] = cad_faces
+    return info
 
 
 def _surface_sigma(ctx: StageContext, vertices, normals):
