@@ -725,6 +725,8 @@ def _faces(pts: np.ndarray, gap: float, link: float, chord: float, neighbours: i
     parts = _components(len(pts), row, col)
     part_sizes = np.bincount(parts)
     big = np.flatnonzero(part_sizes >= max(_SECTORS, (1 - _WALL_SHARE) * len(pts)))
+    if len(big) == 0:  # only small pieces (a facade's broken section): no parting
+        return None, []
     # the smaller pieces go to the big one at the nearest distance from the
     # cluster's centroid (a wall's faces: the inner and the outer radius; nearest
     # points would hand a piece of one face across a gap to the other)
