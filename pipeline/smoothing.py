@@ -307,8 +307,13 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
         try:
             candidate = smooth_mesh(moved_x, t, level, tolerance, check=False,
                                     spacing=spacing, repair=False)
-        except ValueError:
-            break
+        except ValueError:   # the membrane collapsed faces to zero area: half of the move
+            moved_x = x + 0.5 * (moved_x - x)
+            try:
+                candidate = smooth_mesh(moved_x, t, level, tolerance, check=False,
+                                        spacing=spacing, repair=False)
+            except ValueError:
+                continue
         rep, sec = _checked(candidate.vertices, candidate.triangles)
         shift = float(np.linalg.norm(moved_x[moved] - x[moved], axis=1).max())
         figures = {"pairs_before": int(before), "rounds": round_,
