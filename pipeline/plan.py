@@ -89,7 +89,7 @@ STAGES: list[Stage] = [
     Stage("acquire", fn.acquire, params=("acquire",), external=True,
           optional_needs=("scene",), modules=_ADAPTERS,
           kind_modules=(("cloud", ("pipeline.cloud_io",)),
-                        ("stereo", ("matching.pair", "matching.cameras")),
+                        ("stereo", ("matching.pair", "matching.cameras", "matching.scheduler")),
                         ("folder", ("pipeline.acquisition",)))),
     # scene: its cameras (sections.axis = "data" across their view, pipeline.stages._cameras)
     Stage("sections", fn.sections, params=("sections",), needs=("acquire",),

@@ -199,7 +199,8 @@ def test_config_resolution(tmp_path):
 
 @pytest.mark.parametrize("assignment, message", [
     ("sections.cuont=3",
-     r"unknown parameter 'sections.cuont' \(known: axis, count, projection, spacing, thickness\)"),
+     r"unknown parameter 'sections.cuont' "
+     r"\(known: axis, count, open, projection, spacing, thickness\)"),
     ("nosuch.key=3", r"unknown section 'nosuch'"),
     ("smooth.level=high",
      r"smooth.level must be int \(like 1\) or 'auto' or 'adaptive', got 'high'"),
