@@ -285,8 +285,8 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
     few Jacobi steps first, then the membrane itself); again with the new crossings added,
     by :data:`REPAIR_SCHEDULE`, until none is left or the region passes
     :data:`REPAIR_SHARE` of the faces.  Returns the surface with the fewest crossing
-    pairs (the first on a tie), its report and the repair's figures (``None`` when nothing better was found: the surface
-    is reported as it is)."""
+    pairs (the first on a tie), its report and the repair's figures (``None`` when
+    nothing better was found: the surface is reported as it is)."""
     from surface.repair import crossing_faces, grow_faces, membrane
 
     x = np.asarray(control, dtype=np.float64)
