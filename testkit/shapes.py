@@ -175,3 +175,18 @@ def score(name: str, vertices: np.ndarray, triangles: np.ndarray, count: int = 2
     truth = sample(name, count, seed=seed + 1, sigma=0.0)
     return metrics.distance_scores(distance_to_truth(name, rec),
                                    metrics.point_mesh_distance(truth, vertices, triangles), tau)
+
+
+def plane_section(points: np.ndarray):
+    """``points`` (in the plane z = 0) as one :class:`surface.sections.Section` at height 0
+    in the world frame."""
+    from surface.sections import Section
+
+    return Section(height=0.0, points=points, origin=np.zeros(3), frame=np.eye(3),
+                   section_id=0)
+
+
+def random_circle(radius: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` points at uniformly random angles on a circle of ``radius`` in z = 0."""
+    t = rng.uniform(0, 2 * np.pi, count)
+    return np.column_stack([radius * np.cos(t), radius * np.sin(t), np.zeros(count)])

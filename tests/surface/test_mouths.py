@@ -9,20 +9,15 @@ import pytest
 
 from surface import metrics as M
 from surface import reconstruct as rc
-from surface.sections import Section
 from surface.topology import organise
 from testkit.can import BOWL_FLOOR, bowl_outer_radius, bowl_truth
+from testkit.shapes import plane_section, random_circle
 
 SIGMA = 0.002
 
 
-def _section(points: np.ndarray) -> Section:
-    return Section(height=0.0, points=points, origin=np.zeros(3), frame=np.eye(3), section_id=0)
-
-
-def _circle(radius, count, rng):
-    t = rng.uniform(0, 2 * np.pi, count)
-    return np.column_stack([radius * np.cos(t), radius * np.sin(t), np.zeros(count)])
+_section = plane_section
+_circle = random_circle
 
 
 @pytest.mark.parametrize("seed", range(5))
