@@ -601,21 +601,9 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     out: list[str] = []
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
-    # points: 12 significant digits; a REAL needs its decimal point ("1.E-05", "0.")
-    text = "\n".join(f"#{i}=CARTESIAN_POINT('',(%.12G,%.12G,%.12G));" % tuple(p) for i, p in
-                     zip(range(first_point, first_vertex), xyz.tolist(), strict=True))
-    write(_reals(text))
-    write("\n")
-    write("\n".join(f"#{first_vertex + v}=VERTEX_POINT('',#{first_point + v});"
-                    for v in range(n_vertices)))
-    write("\n")
     start, end = topo["start"], topo["end"]
-    curve_ids = first_point + np.column_stack(
-        [start, n_vertices + 5 * np.arange(n_edges)[:, None] + np.arange(5), end])
-    write("\n".join(f"#{first_curve + e}=B_SPLINE_CURVE_WITH_KNOTS('',6,(#%d,#%d,#%d,#%d,#%d,"
-                    "#%d,#%d),.UNSPECIFIED.,.F.,.F.,(7,7),(0.,1.),.PIECEWISE_BEZIER_KNOTS.);"
-                    % tuple(row) for e, row in enumerate(curve_ids.tolist())))
-    write("\n")
+    _write_points_and_curves(write, xyz, first_point, n_vertices, first_curve, np.column_stack(
+        [start, n_vertices + 5 * np.arange(n_edges)[:, None] + np.arange(5), end]))
     grid = (first_point + ids).reshape(-1, 7, 7).tolist()
     write("\n".join(f"#{first_surface + f}=B_SPLINE_SURFACE_WITH_KNOTS('',6,6,("
                     + ",".join("(" + ",".join(f"#{q}" for q in r) + ")" for r in rows)
@@ -624,18 +612,13 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     write("\n")
     geometry = np.arange(first_curve, first_curve + n_edges)
     if pcurves:
-        write(f"#{first_2d}=(GEOMETRIC_REPRESENTATION_CONTEXT(2)"
-              "PARAMETRIC_REPRESENTATION_CONTEXT()REPRESENTATION_CONTEXT('2D SPACE',''));\n")
-        for k, (side, along) in enumerate((s, a) for s in range(3) for a in (False, True)):
+        lines = []
+        for side, along in ((s, a) for s in range(3) for a in (False, True)):
             (x, y), (dx, dy) = _SIDE_LINES[side]
             if not along:  # from the side's far end back
                 x, y, dx, dy = x + dx, y + dy, -dx, -dy
-            i = first_2d + 1 + 5 * k
-            write(f"#{i}=DEFINITIONAL_REPRESENTATION('',(#{i + 1}),#{first_2d});\n"
-                  f"#{i + 1}=LINE('',#{i + 2},#{i + 3});\n"
-                  f"#{i + 2}=CARTESIAN_POINT('',({x:.1f},{y:.1f}));\n"
-                  f"#{i + 3}=VECTOR('',#{i + 4},1.);\n"
-                  f"#{i + 4}=DIRECTION('',({dx:.1f},{dy:.1f}));\n")
+            lines.append(((x, y), (dx, dy)))
+        _write_lines_2d(write, first_2d, lines)
         # each edge's two face sides, the owner's first
         flat = topo["edge"].ravel()
         order = np.argsort(flat, kind="stable").reshape(n_edges, 2)
@@ -664,17 +647,64 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
                     f"{'.T.' if s else '.F.'});" for j, (e, s) in
                     enumerate(zip(sides.ravel().tolist(), senses.ravel().tolist(), strict=True))))
     write("\n")
-    write("\n".join(f"#{first_loop + f}=EDGE_LOOP('',(#{first_oriented + 3 * f},"
-                    f"#{first_oriented + 3 * f + 1},#{first_oriented + 3 * f + 2}));\n"
+    _write_faces_and_tail(write, first_oriented, first_loop, first_surface, n_faces, 3,
+                          first_tail, uncertainty if uncertainty is not None
+                          else step_uncertainty(size))
+    with open(path, "w", encoding="ascii") as handle:
+        handle.writelines(out)
+    return True
+
+
+def _write_points_and_curves(write, xyz: np.ndarray, first_point: int, n_vertices: int,
+                             first_curve: int, curve_points: np.ndarray) -> None:
+    """The ``CARTESIAN_POINT`` entities from ``first_point`` (12 significant digits; a REAL
+    needs its decimal point, "1.E-05", "0."), a ``VERTEX_POINT`` on each of the first
+    ``n_vertices`` (right after the points), and one sextic Bézier
+    ``B_SPLINE_CURVE_WITH_KNOTS`` per row of ``curve_points`` (7 point indices)."""
+    first_vertex = first_point + len(xyz)
+    text = "\n".join(f"#{i}=CARTESIAN_POINT('',(%.12G,%.12G,%.12G));" % tuple(p) for i, p in
+                     zip(range(first_point, first_vertex), xyz.tolist(), strict=True))
+    write(_reals(text))
+    write("\n")
+    write("\n".join(f"#{first_vertex + v}=VERTEX_POINT('',#{first_point + v});"
+                    for v in range(n_vertices)))
+    write("\n")
+    write("\n".join(f"#{first_curve + e}=B_SPLINE_CURVE_WITH_KNOTS('',6,(#%d,#%d,#%d,#%d,#%d,"
+                    "#%d,#%d),.UNSPECIFIED.,.F.,.F.,(7,7),(0.,1.),.PIECEWISE_BEZIER_KNOTS.);"
+                    % tuple(row) for e, row in enumerate((first_point + curve_points).tolist())))
+    write("\n")
+
+
+def _write_lines_2d(write, first_2d: int, lines) -> None:
+    """The 2-D parameter context at ``first_2d``, then per ``((x, y), (dx, dy))`` of
+    ``lines`` its pcurve representation (representation, line, point, vector, direction:
+    five entities)."""
+    write(f"#{first_2d}=(GEOMETRIC_REPRESENTATION_CONTEXT(2)"
+          "PARAMETRIC_REPRESENTATION_CONTEXT()REPRESENTATION_CONTEXT('2D SPACE',''));\n")
+    for k, ((x, y), (dx, dy)) in enumerate(lines):
+        i = first_2d + 1 + 5 * k
+        write(f"#{i}=DEFINITIONAL_REPRESENTATION('',(#{i + 1}),#{first_2d});\n"
+              f"#{i + 1}=LINE('',#{i + 2},#{i + 3});\n"
+              f"#{i + 2}=CARTESIAN_POINT('',({x:.1f},{y:.1f}));\n"
+              f"#{i + 3}=VECTOR('',#{i + 4},1.);\n"
+              f"#{i + 4}=DIRECTION('',({dx:.1f},{dy:.1f}));\n")
+
+
+def _write_faces_and_tail(write, first_oriented: int, first_loop: int, first_surface: int,
+                          n_faces: int, per_face: int, first_tail: int,
+                          uncertainty: float) -> None:
+    """Per face its ``EDGE_LOOP`` of ``per_face`` consecutive oriented edges, its bound and
+    its ``ADVANCED_FACE`` (loops, bounds and faces in three blocks of ``n_faces`` from
+    ``first_loop``), then the tail."""
+    first_bound, first_face = first_loop + n_faces, first_loop + 2 * n_faces
+    write("\n".join(f"#{first_loop + f}=EDGE_LOOP('',("
+                    + ",".join(f"#{first_oriented + per_face * f + k}" for k in range(per_face))
+                    + "));\n"
                     f"#{first_bound + f}=FACE_BOUND('',#{first_loop + f},.T.);\n"
                     f"#{first_face + f}=ADVANCED_FACE('',(#{first_bound + f}),"
                     f"#{first_surface + f},.T.);" for f in range(n_faces)))
     write("\n")
-    _write_step_tail(write, first_tail, uncertainty if uncertainty is not None
-                     else step_uncertainty(size))
-    with open(path, "w", encoding="ascii") as handle:
-        handle.writelines(out)
-    return True
+    _write_step_tail(write, first_tail, uncertainty)
 
 
 def _write_step_head(write, first_tail: int, first_face: int, n_faces: int) -> None:
@@ -803,33 +833,16 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
     out: list[str] = []
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
-    text = "\n".join(f"#{i}=CARTESIAN_POINT('',(%.12G,%.12G,%.12G));" % tuple(p) for i, p in
-                     zip(range(first_point, first_vertex), xyz.tolist(), strict=True))
-    write(_reals(text))
-    write("\n")
-    write("\n".join(f"#{first_vertex + v}=VERTEX_POINT('',#{first_point + v});"
-                    for v in range(n_vertices)))
-    write("\n")
-    write("\n".join(f"#{first_curve + e}=B_SPLINE_CURVE_WITH_KNOTS('',6,(#%d,#%d,#%d,#%d,#%d,"
-                    "#%d,#%d),.UNSPECIFIED.,.F.,.F.,(7,7),(0.,1.),.PIECEWISE_BEZIER_KNOTS.);"
-                    % tuple(row) for e, row in enumerate((first_point + curve_points).tolist())))
-    write("\n")
+    _write_points_and_curves(write, xyz, first_point, n_vertices, first_curve, curve_points)
     grid = (first_point + ids).tolist()
     write("\n".join(f"#{first_surface + f}=B_SPLINE_SURFACE_WITH_KNOTS('',6,6,("
                     + ",".join("(" + ",".join(f"#{q}" for q in r) + ")" for r in rows)
                     + "),.UNSPECIFIED.,.F.,.F.,.F.,(7,6,7),(7,6,7),(0.,1.,2.),(0.,1.,2.),"
                     ".UNSPECIFIED.);" for f, rows in enumerate(grid)))
     write("\n")
-    write(f"#{first_2d}=(GEOMETRIC_REPRESENTATION_CONTEXT(2)"
-          "PARAMETRIC_REPRESENTATION_CONTEXT()REPRESENTATION_CONTEXT('2D SPACE',''));\n")
-    for k in range(12):  # k = 4 side + 2 half + same
-        (x, y), (dx, dy) = _half_line(k // 4, (k // 2) % 2, bool(k % 2))
-        i = first_2d + 1 + 5 * k
-        write(f"#{i}=DEFINITIONAL_REPRESENTATION('',(#{i + 1}),#{first_2d});\n"
-              f"#{i + 1}=LINE('',#{i + 2},#{i + 3});\n"
-              f"#{i + 2}=CARTESIAN_POINT('',({x:.1f},{y:.1f}));\n"
-              f"#{i + 3}=VECTOR('',#{i + 4},1.);\n"
-              f"#{i + 4}=DIRECTION('',({dx:.1f},{dy:.1f}));\n")
+    # k = 4 side + 2 half + same
+    _write_lines_2d(write, first_2d, [_half_line(k // 4, (k // 2) % 2, bool(k % 2))
+                                      for k in range(12)])
     # every (face, side, half): its half edge and pcurve representation
     face = np.repeat(np.arange(n_faces), 6)
     side = np.tile(np.repeat(np.arange(3), 2), n_faces)
@@ -865,14 +878,9 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
                     f"{'.T.' if a else '.F.'});" for j, (e, a) in
                     enumerate(zip(halves.ravel().tolist(), senses.ravel().tolist(), strict=True))))
     write("\n")
-    write("\n".join(f"#{first_loop + f}=EDGE_LOOP('',("
-                    + ",".join(f"#{first_oriented + 6 * f + k}" for k in range(6)) + "));\n"
-                    f"#{first_bound + f}=FACE_BOUND('',#{first_loop + f},.T.);\n"
-                    f"#{first_face + f}=ADVANCED_FACE('',(#{first_bound + f}),"
-                    f"#{first_surface + f},.T.);" for f in range(n_faces)))
-    write("\n")
-    _write_step_tail(write, first_tail, uncertainty if uncertainty is not None
-                     else step_uncertainty(size))
+    _write_faces_and_tail(write, first_oriented, first_loop, first_surface, n_faces, 6,
+                          first_tail, uncertainty if uncertainty is not None
+                          else step_uncertainty(size))
     with open(path, "w", encoding="ascii") as handle:
         handle.writelines(out)
     return True
