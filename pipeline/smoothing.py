@@ -295,6 +295,16 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
     best = (smoothed, report, seconds, None)
     region = np.zeros(len(t), dtype=bool)
     current = smoothed, report
+
+    def rebuilt(moved_control):
+        """The surface over the moved control mesh, None where the Bézier construction
+        refuses it (a face collapsed to zero area)."""
+        try:
+            return smooth_mesh(moved_control, t, level, tolerance, check=False,
+                               spacing=spacing, repair=False)
+        except ValueError:
+            return None
+
     for round_, (rings, steps) in enumerate(REPAIR_SCHEDULE, start=1):
         tv, tt = current[0].vertices, current[0].triangles
         corners = tv[tt[np.unique(current[1].intersecting_pairs.ravel())].ravel()]
@@ -304,15 +314,11 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
         moved_x, moved = membrane(x, t, region, steps)
         if len(moved) == 0:
             break
-        try:
-            candidate = smooth_mesh(moved_x, t, level, tolerance, check=False,
-                                    spacing=spacing, repair=False)
-        except ValueError:   # the membrane collapsed faces to zero area: half of the move
+        candidate = rebuilt(moved_x)
+        if candidate is None:   # the membrane collapsed faces to zero area: half of the move
             moved_x = x + 0.5 * (moved_x - x)
-            try:
-                candidate = smooth_mesh(moved_x, t, level, tolerance, check=False,
-                                        spacing=spacing, repair=False)
-            except ValueError:
+            candidate = rebuilt(moved_x)
+            if candidate is None:
                 continue
         rep, sec = _checked(candidate.vertices, candidate.triangles)
         shift = float(np.linalg.norm(moved_x[moved] - x[moved], axis=1).max())
@@ -326,11 +332,8 @@ def _untangled(smoothed: Smoothed, report, seconds, control, triangles, level, t
             best = (candidate, rep, sec, figures)
         if not rep.self_intersecting:   # the least share of the move that still untangles
             for share in REPAIR_SHARES:
-                partial = x + share * (moved_x - x)
-                try:
-                    candidate = smooth_mesh(partial, t, level, tolerance, check=False,
-                                            spacing=spacing, repair=False)
-                except ValueError:
+                candidate = rebuilt(x + share * (moved_x - x))
+                if candidate is None:
                     continue
                 rep, sec = _checked(candidate.vertices, candidate.triangles)
                 if not rep.self_intersecting:
