@@ -583,21 +583,10 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     xyz[ids.ravel()] = poles.reshape(-1, 3)  # shared poles are equal bit for bit
     size = float(np.ptp(xyz, axis=0).max()) or 1.0
     n_faces, n_vertices, n_edges = len(ids), topo["n_vertices"], len(topo["start"])
-    # id blocks; #1-#16 the product structure, brep and shell
-    first_point = 17
-    first_vertex = first_point + n_points
-    first_curve = first_vertex + n_vertices
-    first_surface = first_curve + n_edges
-    first_2d = first_surface + n_faces  # context, then 6 x (representation, line, point,
-    n_2d = 1 + 6 * 5 if pcurves else 0  # vector, direction)
-    first_pcurve = first_2d + n_2d
-    first_surface_curve = first_pcurve + (2 * n_edges if pcurves else 0)
-    first_edge = first_surface_curve + (n_edges if pcurves else 0)
-    first_oriented = first_edge + n_edges
-    first_loop = first_oriented + 3 * n_faces
-    first_bound = first_loop + n_faces
-    first_face = first_bound + n_faces
-    first_tail = first_face + n_faces
+    (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
+     first_surface_curve, first_edge, first_oriented, first_loop, first_face,
+     first_tail) = _entity_blocks(n_points, n_vertices, n_edges, n_faces,
+                                  6 if pcurves else None, 3)
     out: list[str] = []
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
@@ -653,6 +642,31 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     with open(path, "w", encoding="ascii") as handle:
         handle.writelines(out)
     return True
+
+
+def _entity_blocks(n_points: int, n_vertices: int, n_edges: int, n_faces: int,
+                   n_lines: int | None, per_face: int) -> tuple[int, ...]:
+    """The first entity id of each block of a STEP text file: ``#1``-``#16`` the product
+    structure, brep and shell, then points, vertices, edge curves, face surfaces, the
+    2-D context with ``n_lines`` pcurve representations (five entities each; ``None``:
+    no pcurves), two pcurves and one surface curve per edge, edges, ``per_face`` oriented
+    edges a face, loops, bounds, faces, the tail.  Returns the firsts of points,
+    vertices, curves, surfaces, 2-D context, pcurves, surface curves, edges, oriented
+    edges, loops, faces and the tail (bounds follow the loops)."""
+    first_point = 17
+    first_vertex = first_point + n_points
+    first_curve = first_vertex + n_vertices
+    first_surface = first_curve + n_edges
+    first_2d = first_surface + n_faces
+    first_pcurve = first_2d + (0 if n_lines is None else 1 + 5 * n_lines)
+    first_surface_curve = first_pcurve + (0 if n_lines is None else 2 * n_edges)
+    first_edge = first_surface_curve + (0 if n_lines is None else n_edges)
+    first_oriented = first_edge + n_edges
+    first_loop = first_oriented + per_face * n_faces
+    first_face = first_loop + 2 * n_faces
+    return (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
+            first_surface_curve, first_edge, first_oriented, first_loop, first_face,
+            first_face + n_faces)
 
 
 def _write_points_and_curves(write, xyz: np.ndarray, first_point: int, n_vertices: int,
@@ -816,20 +830,9 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
     start[1::2], end[1::2] = mid_of, topo["end"]
     curve_points = np.column_stack([start, n_vertices + 5 * np.arange(n_edges)[:, None]
                                     + inner, end])
-    # id blocks; #1-#16 the product structure, brep and shell
-    first_point = 17
-    first_vertex = first_point + n_points
-    first_curve = first_vertex + n_vertices
-    first_surface = first_curve + n_edges
-    first_2d = first_surface + n_faces  # context, then 12 x (representation, line, point,
-    first_pcurve = first_2d + 1 + 12 * 5  # vector, direction)
-    first_surface_curve = first_pcurve + 2 * n_edges
-    first_edge = first_surface_curve + n_edges
-    first_oriented = first_edge + n_edges
-    first_loop = first_oriented + 6 * n_faces
-    first_bound = first_loop + n_faces
-    first_face = first_bound + n_faces
-    first_tail = first_face + n_faces
+    (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
+     first_surface_curve, first_edge, first_oriented, first_loop, first_face,
+     first_tail) = _entity_blocks(n_points, n_vertices, n_edges, n_faces, 12, 6)
     out: list[str] = []
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
