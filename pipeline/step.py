@@ -632,15 +632,9 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     sides = topo["edge"][:, [side for side, _ in _WIRE[:3]]]
     senses = topo["same"][:, [side for side, _ in _WIRE[:3]]] \
         != np.array([backwards for _, backwards in _WIRE[:3]])
-    write("\n".join(f"#{first_oriented + j}=ORIENTED_EDGE('',*,*,#{first_edge + e},"
-                    f"{'.T.' if s else '.F.'});" for j, (e, s) in
-                    enumerate(zip(sides.ravel().tolist(), senses.ravel().tolist(), strict=True))))
-    write("\n")
-    _write_faces_and_tail(write, first_oriented, first_loop, first_surface, n_faces, 3,
-                          first_tail, uncertainty if uncertainty is not None
+    _write_faces_and_tail(out, path, first_edge, sides, senses, first_oriented, first_loop,
+                          first_surface, first_tail, uncertainty if uncertainty is not None
                           else step_uncertainty(size))
-    with open(path, "w", encoding="ascii") as handle:
-        handle.writelines(out)
     return True
 
 
@@ -704,12 +698,19 @@ def _write_lines_2d(write, first_2d: int, lines) -> None:
               f"#{i + 4}=DIRECTION('',({dx:.1f},{dy:.1f}));\n")
 
 
-def _write_faces_and_tail(write, first_oriented: int, first_loop: int, first_surface: int,
-                          n_faces: int, per_face: int, first_tail: int,
-                          uncertainty: float) -> None:
-    """Per face its ``EDGE_LOOP`` of ``per_face`` consecutive oriented edges, its bound and
-    its ``ADVANCED_FACE`` (loops, bounds and faces in three blocks of ``n_faces`` from
-    ``first_loop``), then the tail."""
+def _write_faces_and_tail(out: list, path: Path, first_edge: int, edges: np.ndarray,
+                          senses: np.ndarray, first_oriented: int, first_loop: int,
+                          first_surface: int, first_tail: int, uncertainty: float) -> None:
+    """Per face (a row of ``edges``, edge indices in wire order, and ``senses``, whether
+    each runs the wire's way) its ``ORIENTED_EDGE`` entities from ``first_oriented``, its
+    ``EDGE_LOOP``, bound and ``ADVANCED_FACE`` (loops, bounds and faces in three blocks
+    from ``first_loop``), then the tail; ``out`` written to ``path``."""
+    write = out.append
+    n_faces, per_face = edges.shape
+    write("\n".join(f"#{first_oriented + j}=ORIENTED_EDGE('',*,*,#{first_edge + e},"
+                    f"{'.T.' if a else '.F.'});" for j, (e, a) in
+                    enumerate(zip(edges.ravel().tolist(), senses.ravel().tolist(), strict=True))))
+    write("\n")
     first_bound, first_face = first_loop + n_faces, first_loop + 2 * n_faces
     write("\n".join(f"#{first_loop + f}=EDGE_LOOP('',("
                     + ",".join(f"#{first_oriented + per_face * f + k}" for k in range(per_face))
@@ -719,6 +720,8 @@ def _write_faces_and_tail(write, first_oriented: int, first_loop: int, first_sur
                     f"#{first_surface + f},.T.);" for f in range(n_faces)))
     write("\n")
     _write_step_tail(write, first_tail, uncertainty)
+    with open(path, "w", encoding="ascii") as handle:
+        handle.writelines(out)
 
 
 def _write_step_head(write, first_tail: int, first_face: int, n_faces: int) -> None:
@@ -877,15 +880,9 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
         walk += [(first, agree), (np.where(s != backwards, 2 * e + 1, 2 * e), agree)]
     halves = np.stack([w for w, _ in walk], axis=1)  # (F, 6)
     senses = np.stack([a for _, a in walk], axis=1)
-    write("\n".join(f"#{first_oriented + j}=ORIENTED_EDGE('',*,*,#{first_edge + e},"
-                    f"{'.T.' if a else '.F.'});" for j, (e, a) in
-                    enumerate(zip(halves.ravel().tolist(), senses.ravel().tolist(), strict=True))))
-    write("\n")
-    _write_faces_and_tail(write, first_oriented, first_loop, first_surface, n_faces, 6,
-                          first_tail, uncertainty if uncertainty is not None
+    _write_faces_and_tail(out, path, first_edge, halves, senses, first_oriented, first_loop,
+                          first_surface, first_tail, uncertainty if uncertainty is not None
                           else step_uncertainty(size))
-    with open(path, "w", encoding="ascii") as handle:
-        handle.writelines(out)
     return True
 
 
