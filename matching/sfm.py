@@ -632,7 +632,9 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
 
 
 class _Steps:
-    """One INFO line per step of SfM, with the seconds the previous step took."""
+    """One progress line per step of SfM (logger ``photosurf.progress``, shown at the
+    command line's default verbosity: :mod:`pipeline.logs`), with the seconds the previous
+    step took."""
 
     def __init__(self):
         import time
@@ -642,7 +644,8 @@ class _Steps:
 
     def __call__(self, message: str, *args) -> None:
         now = self._clock()
-        log.info("SfM: " + message + " (previous step %.1f s)", *args, now - self._last)
+        logging.getLogger("photosurf.progress").info(
+            "SfM: " + message + " (previous step %.1f s)", *args, now - self._last)
         self._last = now
 
 

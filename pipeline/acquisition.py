@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import logs
 from pipeline.errors import InputError
 
 log = logging.getLogger("photosurf")
@@ -94,8 +95,9 @@ def _warn_identical_views(folder: Path, names: list[str], cameras: list) -> None
 
 
 def _progress_map(inner):
-    """``inner`` (a ``map(func, items)``) with one INFO line as each task ends: the view
-    pairs and their consistency checks of a long acquisition show where it is."""
+    """``inner`` (a ``map(func, items)``) with one progress line (:mod:`pipeline.logs`) as
+    each task ends: the view pairs and their consistency checks of a long acquisition show
+    where it is."""
     import threading
     import time
 
@@ -108,8 +110,8 @@ def _progress_map(inner):
             result = func(item)
             with lock:
                 done[0] += 1
-                log.info("acquire: %s %d of %d done (%.0f s)", what, done[0], len(items),
-                         time.monotonic() - start)
+                logs.logger().info("acquire: %s %d of %d done (%.0f s)", what, done[0],
+                                   len(items), time.monotonic() - start)
             return result
 
         return inner(call, items)

@@ -46,7 +46,7 @@ import sys
 import threading
 import traceback
 
-from pipeline import __version__, limits
+from pipeline import __version__, limits, logs
 from pipeline.errors import InputError, escape
 
 #: Subcommands in the order ``--help`` lists them.
@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     _quiet_opencv(args.verbose)
     stdout = _ReportStream(sys.stdout)
     try:
-        with _signals_unwind(), _replaced_stdout(stdout):
+        with _signals_unwind(), _replaced_stdout(stdout), logs.lines(args.verbose, args.quiet):
             status = args._module.run(args)
     except USER_ERRORS as exc:
         if args.verbose:

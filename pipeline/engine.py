@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import __version__, progress
+from pipeline import __version__, logs, progress
 from pipeline import config as config_mod
 from pipeline.atomic import atomic_dir, atomic_file
 from pipeline.errors import InputError, StageSkipped
@@ -328,8 +328,9 @@ def _run_stages(run: _Run, plan_stages: list[Stage]) -> list[StageResult]:
                 run.unusable[stage.name] = result.status
             if lo <= index <= hi:
                 bar.update(1)
-            log.info("%s: %s%s", stage.name, result.status,
-                     f" in {result.seconds:.2f} s" if result.status == "done" else "")
+            (log if result.status == "outside range" else logs.logger()).info(
+                "%s: %s%s", stage.name, result.status,
+                f" in {result.seconds:.2f} s" if result.status == "done" else "")
     return results
 
 
@@ -354,7 +355,7 @@ def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
         rec = ws.record(stage.name) or {}
         return StageResult(stage.name, "up to date", reason="", info=rec.get("info", {}))
     ws.forget(stage.name)  # from here until the new record, the stage counts as not run
-    log.info("%s: started", stage.name)
+    logs.logger().info("%s: started", stage.name)
     target = ws.root / stage.output
     started = time.time()
     t0 = time.perf_counter()

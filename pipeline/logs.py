@@ -1,0 +1,113 @@
+"""Progress lines: one line per long step on stderr, with or without a terminal.
+
+Long work logs one line on the logger ``photosurf.progress`` (:data:`NAME`), at INFO,
+as each step starts or ends: SfM's feature extraction, matching and mapping
+(:mod:`matching.sfm`), each view pair of an acquisition and its check
+(:mod:`pipeline.acquisition`), each stage of ``photosurf run`` (:mod:`pipeline.engine`).
+Progress bars (:mod:`pipeline.progress`) are drawn only on a terminal; these lines
+reach stderr whatever it is (a file, a pipe, a batch system's log).
+
+Under the command line (:func:`lines`, entered by :func:`pipeline.cli.main`):
+
+* default verbosity: the progress lines are shown, no other INFO line;
+* ``-q`` or ``PHOTOSURF_PROGRESS=0``: none; ``-v``: every INFO line, these included.
+
+Quiet start: a command's first :data:`AFTER` seconds print no progress line, so a
+quick command, and a refusal of bad input (the inputs are checked before any long
+work), keeps its one summary or error line.  If the command is still working at that
+moment, the latest held line (the step running then) is printed, then every line as it
+comes.  Nothing is printed once the command's work has ended (a timer still pending
+is cancelled before the error or summary line).
+
+Outside the command line (a library caller, a benchmark) the logger inherits the
+root logger's level: the lines show with INFO logging, like any other.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+
+#: The progress lines' logger.
+NAME = "photosurf.progress"
+#: Seconds from a command's start during which progress lines are held back.
+AFTER = 10.0
+
+
+def logger() -> logging.Logger:
+    """The progress lines' logger (``logging.getLogger(NAME)``)."""
+    return logging.getLogger(NAME)
+
+
+def off_by_environment() -> bool:
+    """``PHOTOSURF_PROGRESS`` set to an empty string, 0, false or no (bars and lines off)."""
+    forced = os.environ.get("PHOTOSURF_PROGRESS")
+    return forced is not None and forced.strip().lower() in ("", "0", "false", "no")
+
+
+class _HoldFirst(logging.Filter):
+    """Holds back the progress records of the first ``after`` seconds (the latest kept);
+    :meth:`release` prints the held one, :meth:`close` ends both."""
+
+    def __init__(self, after: float):
+        super().__init__()
+        self._start, self._after = time.monotonic(), float(after)
+        self._lock = threading.Lock()
+        self._held: logging.LogRecord | None = None
+        self._closed = False
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        with self._lock:
+            if self._closed:
+                return False
+            if time.monotonic() - self._start >= self._after:
+                self._held = None
+                return True
+            self._held = record
+            return False
+
+    def release(self) -> None:
+        with self._lock:  # under the lock: close() (before an error line) waits for it
+            record, self._held = self._held, None
+            if record is None or self._closed:
+                return
+            for handler in logging.getLogger().handlers:
+                if record.levelno >= handler.level:
+                    handler.handle(record)
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed, self._held = True, None
+
+
+@contextlib.contextmanager
+def lines(verbose: int = 0, quiet: bool = False, after: float | None = None):
+    """Progress lines for one command (see the module's text): ``-q`` / ``PHOTOSURF_PROGRESS=0``
+    none, ``-v`` all, else all but those of the first ``after`` (default :data:`AFTER`)
+    seconds, the latest of which is printed when they end with the work still going."""
+    log = logger()
+    for old in [f for f in log.filters if isinstance(f, _HoldFirst)]:
+        log.removeFilter(old)
+    if quiet or off_by_environment():
+        log.setLevel(logging.WARNING)
+        yield
+        return
+    if verbose:
+        log.setLevel(logging.NOTSET)  # the root's INFO or DEBUG
+        yield
+        return
+    log.setLevel(logging.INFO)
+    hold = _HoldFirst(AFTER if after is None else after)
+    log.addFilter(hold)
+    timer = threading.Timer(hold._after, hold.release)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        hold.close()
+        log.removeFilter(hold)
