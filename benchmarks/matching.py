@@ -43,7 +43,7 @@ LSM's reported σ), when the real data is found
 Usage::
 
     .venv/bin/python benchmarks/matching.py [--quick] [--json PATH] [--scene DIR]
-        [--real-data DIR] [--part {all,vase,real,graffiti,temple,chessboard}]
+        [--real-data DIR] [--part {all,vase,real,graffiti,temple,chessboard,tiles}]
         [--graffiti-patch N] [--pairs 02,03,...]
 
 ``--part chessboard``: the real calibrated chessboard rig (``chessboard_stereo``): the rig
@@ -53,6 +53,10 @@ inner-corner outline against the plane, and the same without the epipolar pass (
 LSM matches), with the board's own corners
 as the reference flatness, SGBM (uniqueness ratio 12) on the same candidates beside it
 (``benchmarks/_chessboard.py`` says how each figure is made; not part of ``all``).
+``--part tiles``: a rendered rectified pair with exact disparity (``testkit.tiles``: glazed
+tiles, a blank strip, a fluted box, a random poster): LSM's share more than 1 px off
+against SGBM's (uniqueness ratio 10 and 15) on the candidates both keep, and LSM's
+accepted share (``testkit.tiles``; not part of ``all``).
 ``--graffiti-patch`` sets the window side of LSM and its peers on graffiti (default 21);
 the ICI row tries that side, ~1.5x and ~2x it (``matching.ici``).  ``--part`` runs one
 part alone (its goals only; JSON to ``matching_<part>.json`` unless
@@ -84,7 +88,7 @@ from matching.seeds import approximate_calibrated, rectify, rectify_images, sele
 
 OUTLIER_PX = 1.0
 #: ``--part`` choices.
-PARTS = ("all", "vase", "real", "graffiti", "temple", "chessboard")
+PARTS = ("all", "vase", "real", "graffiti", "temple", "chessboard", "tiles")
 
 
 def render(quick: bool, folder: Path) -> Path:
@@ -680,6 +684,46 @@ def chessboard(folder: Path, json_path: str, pairs=None, spacing: int | None = N
     return 0
 
 
+def tiles_part(json_path: str) -> int:
+    """``--part tiles``: the table, the goals and the JSON."""
+    from testkit.tiles import SGBM_RATIOS, tiles_figures
+
+    fig = tiles_figures()
+    lsm = fig["lsm"]
+    print(f"tiles pair {fig['image'][0]}x{fig['image'][1]} (rectified, exact disparity): "
+          f"{fig['candidates']} candidates, {fig['answerable']} not textureless / outside; "
+          f"LSM {fig['cpu_seconds']:.1f} CPU-s")
+    print(f"LSM accepted {lsm['accepted']} ({100 * lsm['accepted_share']:.1f} % of all, "
+          f"{100 * lsm['accepted_share_of_answerable']:.1f} % of those with an answer), "
+          f"{100 * lsm['beyond_1px']:.2f} % more than 1 px off; {lsm['accepted_occluded']} "
+          "accepted where the right view is occluded")
+    print(f"{'peer':>12s} {'kept':>7s} {'>1px own':>9s} | {'both':>6s} {'LSM >1px':>9s} "
+          f"{'peer >1px':>9s}")
+    for ratio in SGBM_RATIOS:
+        s = fig["sgbm"][str(ratio)]
+        print(f"{'SGBM ur ' + str(ratio):>12s} {100 * s['kept_share']:6.1f}% "
+              f"{100 * s['beyond_1px']:8.2f}% | {s['both']:6d} "
+              f"{100 * s['both_lsm_beyond_1px']:8.2f}% {100 * s['both_sgbm_beyond_1px']:8.2f}%")
+    print(f"{'region':>12s} {'cands':>6s} {'LSM acc':>8s} {'>1px':>6s} {'med |e|':>8s} | "
+          f"SGBM ur {SGBM_RATIOS[0]}: {'kept':>6s} {'>1px':>6s}")
+    for name, r in lsm["regions"].items():
+        s = fig["sgbm"][str(SGBM_RATIOS[0])]["regions"][name]
+        print(f"{name:>12s} {r['candidates']:6d} {100 * r['accepted_share']:7.1f}% "
+              f"{100 * r['beyond_1px']:5.1f}% {r['median_abs_error_px']:8.3f} | "
+              f"{' ' * 13}{100 * s['kept_share']:5.1f}% {100 * s['beyond_1px']:5.1f}%")
+    goals = {
+        "tiles_lsm_beyond_1px_le_sgbm_on_both_kept": all(
+            fig["sgbm"][str(r)]["both_lsm_beyond_1px"]
+            <= fig["sgbm"][str(r)]["both_sgbm_beyond_1px"] for r in SGBM_RATIOS),
+        "tiles_lsm_accepts_ge_70pct_of_candidates_with_an_answer":
+            lsm["accepted_share_of_answerable"] >= 0.70,
+        "tiles_lsm_accepts_ge_70pct_of_all_candidates": lsm["accepted_share"] >= 0.70,
+    }
+    print_goals(goals)
+    write_result(json_path, {"part": "tiles", **fig, "goals": goals})
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="512x384 render, fewer ECC calls")
@@ -710,6 +754,8 @@ def main(argv=None) -> int:
         return chessboard(Path(args.real_data) / "chessboard_stereo", args.json,
                           None if args.pairs is None else args.pairs.split(","),
                           spacing=args.spacing, compare_2d=not args.no_2d)
+    if args.part == "tiles":
+        return tiles_part(args.json)
     if args.part in ("real", "graffiti", "temple"):
         goals: dict = {}
         sets = ("graffiti", "temple") if args.part == "real" else (args.part,)
