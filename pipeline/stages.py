@@ -409,11 +409,12 @@ def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> d
     """``surface.open_surface.stitch_arcs`` of the curves stage's open arcs, facing the
     cameras when they are known."""
     from surface.metrics import mesh_topology
-    from surface.open_surface import stitch_arcs
+    from surface.open_surface import BORDER_REACH, stitch_arcs
 
     eyes = _camera_centres(ctx)
-    try:
-        result = stitch_arcs([r[0] for r in rings], params, step, viewpoint=eyes)
+    try:  # the rings end on the smooth border curves: strips join their ends
+        result = stitch_arcs([r[0] for r in rings], params, step, viewpoint=eyes,
+                             reach=BORDER_REACH)
     except ValueError as exc:  # no two neighbouring arcs overlap
         raise InputError(f"stitch: {exc} (set sections.count or sections.spacing)") from exc
     topology = mesh_topology(result.vertices, result.triangles)

@@ -68,12 +68,26 @@ from surface.validate import TOL, check_finite, check_shape
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
            "open_surface_from_loops", "organise_arcs", "open_arcs", "chain_arcs",
-           "QUARTER_STEP"]
+           "smooth_border", "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
 #: end point there (the most the resampled arc reaches beyond its data is this share of
 #: the ring spacing).
 QUARTER_STEP = 0.25
+#: Most the border may move along ``u`` from one section to the next, in grid steps
+#: (:func:`smooth_border`): one step a section spacing is a 45° border on the widest arc,
+#: and the fan of triangles that joins two arc ends then spans at most one ring step
+#: along ``u``, no longer than the strips' own triangles (their chords' sagitta h²κ/8).
+BORDER_SLOPE = 1.0
+#: Passes of the (1, 2, 1)/4 filter over the sections in :func:`smooth_border`: a
+#: Gaussian of σ = √(passes / 2) = 2 section spacings (where the matcher stops is noise
+#: from section to section; the object's own border changes over many sections).
+BORDER_PASSES = 8
+#: How far past the overlap of two arcs (in grid steps) their strip reaches: the
+#: trimmed ends of neighbours differ by at most :data:`BORDER_SLOPE` steps, and the
+#: strip joins them (a fan from the shorter arc's end) instead of stopping at the
+#: shorter one (a step in the border).
+BORDER_REACH = BORDER_SLOPE + QUARTER_STEP
 #: Most the length scale of ``u`` may change from one arc to the next (a factor): arcs
 #: one section spacing apart whose lengths per unit of ``u`` differ more are not one
 #: surface seen across them (a cluttered scene's unrelated arcs): the surface stops there
@@ -445,27 +459,80 @@ def align_arcs(curves: list[OpenCurve]
     return curves, placed, notes, run
 
 
-def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float
-                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def smooth_border(ends: np.ndarray, step: float) -> np.ndarray:
+    """Where each arc's ring ends on the border's side of larger ``u``: a smooth curve
+    over the sections that never passes an arc's own end.
+
+    Where LSM stops changes from section to section by the matcher's luck (a texture
+    patch, a window that failed): on the default stereo recipe neighbouring arcs end
+    0.5 (median) to 2 (90th percentile) grid steps apart.  Strips that stop where the
+    shorter of their two arcs ends make a staircase of that size.  The border is instead
+    the largest curve ``b`` under the arcs' ends (``b_k ≤ e_k``: nothing past the data)
+    that is smooth -- :data:`BORDER_PASSES` passes of the (1, 2, 1)/4 filter over the
+    sections, each clipped to the ends again (an obstacle problem: it rests on the
+    shortest arcs and spans the others) -- and whose slope is at most
+    :data:`BORDER_SLOPE` steps a section (the least such envelope of the result, so a
+    short arc pulls its neighbours in gradually, never by a jump).
+
+    Parameters
+    ----------
+    ends : (K,) float64
+        The arcs' ends in ``u``, in section order.
+    step : float
+        The odd arcs' grid step in ``u``.
+
+    Returns
+    -------
+    (K,) float64, ``≤ ends``.
+    """
+    e = np.asarray(ends, np.float64)
+    if len(e) < 3:
+        return e.copy()
+    gap = BORDER_SLOPE * step * np.abs(np.subtract.outer(np.arange(len(e)), np.arange(len(e))))
+    b = e.copy()
+    for _ in range(BORDER_PASSES):
+        padded = np.concatenate([b[:1], b, b[-1:]])
+        b = np.minimum(e, 0.25 * padded[:-2] + 0.5 * padded[1:-1] + 0.25 * padded[2:])
+    return np.min(b[None, :] + gap, axis=1)   # slope bound (the least Lipschitz envelope)
+
+
+def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float,
+                  smooth: bool = True) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Resample every arc on the common grid of ``u``: section ``k`` every ``step``
     (``k`` even: the paper's odd sections, N points) or ``step/2`` (2N).
 
-    Returns the rings ``(n_k, 3)`` and their ``u`` ``(n_k,)`` (increasing).  Grid
-    points inside the arc's range are kept; an end lying past its last grid point by
-    more than :data:`QUARTER_STEP` of the step gets an extra point at the end itself.
+    Returns the rings ``(n_k, 3)`` and their ``u`` ``(n_k,)`` (increasing).  With
+    ``smooth`` each ring runs between the border curves of :func:`smooth_border` (both
+    sides), which lie within the arc's data: its grid points more than a quarter of its
+    step inside them, and a point on each border curve itself.  Without, between the
+    arc's own ends: the grid points inside its range, and an end lying past its last grid
+    point by more than :data:`QUARTER_STEP` of the step gets an extra point at the end.
     """
     origin = min(float(p.u.min()) for p in placed)
+    lo = np.array([float(p.u[0]) for p in placed])
+    hi = np.array([float(p.u[-1]) for p in placed])
+    if smooth:
+        b_lo, b_hi = -smooth_border(-lo, step), smooth_border(hi, step)
+        # an arc the border curves would cut to less than a step keeps its own ends
+        short = b_hi - b_lo < step
+        b_lo, b_hi = np.where(short, lo, b_lo), np.where(short, hi, b_hi)
     rings, params = [], []
     for k, (curve, where) in enumerate(zip(curves, placed, strict=True)):
         h = step if k % 2 == 0 else step / 2
-        u_lo, u_hi = float(where.u[0]), float(where.u[-1])
-        first = math.ceil((u_lo - origin) / h - TOL.angle)
-        last = math.floor((u_hi - origin) / h + TOL.angle)
-        u = origin + h * np.arange(first, last + 1)
-        if len(u) == 0 or u[0] - u_lo > QUARTER_STEP * h:
-            u = np.concatenate([[u_lo], u])
-        if u_hi - u[-1] > QUARTER_STEP * h:
-            u = np.append(u, u_hi)
+        if smooth:
+            u_lo, u_hi = float(b_lo[k]), float(b_hi[k])
+            first = math.ceil((u_lo - origin) / h + QUARTER_STEP)
+            last = math.floor((u_hi - origin) / h - QUARTER_STEP)
+            u = np.concatenate([[u_lo], origin + h * np.arange(first, last + 1), [u_hi]])
+        else:
+            u_lo, u_hi = lo[k], hi[k]
+            first = math.ceil((u_lo - origin) / h - TOL.angle)
+            last = math.floor((u_hi - origin) / h + TOL.angle)
+            u = origin + h * np.arange(first, last + 1)
+            if len(u) == 0 or u[0] - u_lo > QUARTER_STEP * h:
+                u = np.concatenate([[u_lo], u])
+            if u_hi - u[-1] > QUARTER_STEP * h:
+                u = np.append(u, u_hi)
         s = (u - where.offset) / where.scale
         t = np.interp(s, where.length, where.t)
         rings.append(curve(t))
@@ -548,7 +615,8 @@ class OpenSurface:
 
 @one_blas_thread
 def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step: float,
-                flip: bool = True, viewpoint: np.ndarray | None = None) -> OpenSurface:
+                flip: bool = True, viewpoint: np.ndarray | None = None,
+                reach: float = QUARTER_STEP) -> OpenSurface:
     """Stitch consecutive resampled arcs into an open mesh.
 
     Parameters
@@ -559,8 +627,12 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
     params : sequence of (n_k,) float64
         Their common parameter ``u``.
     step : float
-        The odd sections' grid step in ``u``: points within a quarter of it beyond
-        the overlap of two arcs still join their strip.
+        The odd sections' grid step in ``u``.
+    reach : float
+        Points within ``reach`` steps beyond the overlap of two arcs still join their
+        strip (a fan from the shorter arc's end): :data:`BORDER_REACH` for rings
+        resampled between :func:`smooth_border` curves (the border then runs from arc
+        end to arc end), a quarter step for rings that end where their own data end.
     flip : bool
         Lawson flips after stitching.
     viewpoint : (3,) or (K, 3) float64, optional
@@ -578,7 +650,7 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])]).astype(np.int64)
     vertices = np.concatenate([np.asarray(r, np.float64) for r in rings])
     faces, region, fixed, notes = [], [], [], []
-    tol = QUARTER_STEP * step
+    tol = reach * step
     for k in range(len(rings) - 1):
         ia, ib = _overlap(params[k], params[k + 1], tol)
         if len(ia) < 1 or len(ib) < 1 or len(ia) + len(ib) < 3:
@@ -812,6 +884,7 @@ def open_surface_from_loops(loops: Sequence, spacing: float, n: int | None = Non
         The resampled arcs and their common parameter (for the workspace).
     """
     _, rings, params, step, notes, _ = open_arcs(loops, spacing, n, smoothing)
-    result = stitch_arcs(rings, params, step, flip=flip, viewpoint=viewpoint)
+    result = stitch_arcs(rings, params, step, flip=flip, viewpoint=viewpoint,
+                         reach=BORDER_REACH)
     result.notes = notes + result.notes
     return result, rings, params

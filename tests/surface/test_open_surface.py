@@ -82,11 +82,13 @@ def test_zip_arcs_is_the_papers_pattern_for_n_and_2n():
     assert len(faces) == len(odd) + len(even) - 2
 
 
-def _half_cylinder(rng, sigma=0.0, spacing=0.05, height=2.0, per_section=300):
-    """Arcs of the unit cylinder over a varying range of θ (one side seen)."""
+def _half_cylinder(rng, sigma=0.0, spacing=0.05, height=2.0, per_section=300, jitter=0.0):
+    """Arcs of the unit cylinder over a varying range of θ (one side seen); ``jitter``:
+    each end moved by a uniform amount in ±jitter rad (where a matcher stops)."""
     loops, ranges = [], []
     for z in np.arange(0.0, height, spacing):
         lo, hi = 0.1 + 0.1 * np.sin(3 * z), np.pi - 0.1 - 0.05 * np.cos(2 * z)
+        lo, hi = lo + jitter * (1 + rng.uniform(-1, 1)), hi - jitter * (1 + rng.uniform(-1, 1))
         theta = np.sort(rng.uniform(lo, hi, per_section))
         points = _circle_arc(theta, z=z) + rng.normal(0, sigma, (per_section, 3)) * [1, 1, 0]
         loops.append([_Arc(points, z)])
@@ -210,3 +212,63 @@ def test_pieces_that_continue_an_arc_are_chained_and_a_side_piece_is_not():
     along = np.unwrap(np.arctan2(chain[:, 1], chain[:, 0]))
     assert np.all(np.diff(along) > 0) or np.all(np.diff(along) < 0)
     assert np.allclose(np.linalg.norm(chain[:, :2], axis=1), 1.0)
+
+
+def test_smooth_border_stays_under_the_ends_smooths_them_and_bounds_its_slope():
+    rng = np.random.default_rng(5)
+    step = 0.05
+    k = np.arange(80)
+    trend = 2.0 + 0.3 * np.sin(k / 12)                     # the object's own border
+    ends = trend + step * rng.uniform(-1.5, 1.5, len(k))   # where a matcher stops
+    ends[40] -= 6 * step                                   # one short arc: a notch
+    border = osf.smooth_border(ends, step)
+    assert np.all(border <= ends + 1e-12)                   # never past the data
+    assert np.abs(np.diff(border)).max() <= osf.BORDER_SLOPE * step + 1e-12
+    # smooth: its second differences (turning) a fraction of the ends' (measured 0.12)
+    assert np.std(np.diff(border, 2)) < 0.3 * np.std(np.diff(ends, 2))
+    # and it keeps to the data: away from the notch within the noise's reach of the
+    # ends' lowest values nearby (the filter's 8 passes see 8 sections either side)
+    low = np.array([ends[max(0, i - 8):i + 9].min() for i in k])
+    far = np.abs(k - 40) > 8
+    assert np.all(border[far] >= low[far] - 1e-12)
+    assert np.median(ends[far] - border[far]) < 1.5 * step
+
+
+def _border_runs(surface, spacing):
+    """Border edges joining two points of one section (a staircase's tread), and the
+    sections, excluding the first and last (whose whole ring is border)."""
+    loop = surface.boundary[0]
+    section = np.rint(surface.vertices[loop, 2] / spacing).astype(int)
+    same = section == np.roll(section, -1)
+    inner = (section > section.min()) & (section < section.max())
+    return int(np.count_nonzero(same & inner))
+
+
+def test_jagged_arc_ends_give_a_border_through_the_ends_not_a_staircase():
+    """Arcs whose ends jump ±1.5 ring steps from section to section (a matcher's luck):
+    the border runs from end to end (one border vertex a section on each side), within
+    the data, instead of stepping along the longer arcs."""
+    spacing = 0.05
+    loops, ranges = _half_cylinder(np.random.default_rng(6), spacing=spacing,
+                                   jitter=1.5 * spacing)
+    surface = osf.open_surface_from_loops(loops, spacing)[0]
+    topo = mesh_topology(surface.vertices, surface.triangles)
+    assert topo["edge_manifold"] and topo["oriented"] and topo["euler"] == 1
+    assert len(surface.boundary) == 1 and topo["degenerate_faces"] == 0
+    assert _border_runs(surface, spacing) == 0
+    theta = np.arctan2(surface.vertices[:, 1], surface.vertices[:, 0])
+    section = np.rint(surface.vertices[:, 2] / spacing).astype(int)
+    assert np.all(theta >= ranges[section, 0] - 1e-3)      # the curves' own error only
+    assert np.all(theta <= ranges[section, 1] + 1e-3)
+    # the rings' ends at most one ring step (the border's slope) from their neighbours'
+    lo = np.array([theta[section == k].min() for k in range(len(ranges))])
+    hi = np.array([theta[section == k].max() for k in range(len(ranges))])
+    assert max(np.abs(np.diff(lo)).max(), np.abs(np.diff(hi)).max()) < \
+        osf.BORDER_SLOPE * spacing + 2e-3
+    # the same arcs stitched where each ends (the former rule) step along the longer ones
+    curves = [osf.fit_open(lp[0].points, frame=np.eye(3)) for lp in loops]
+    curves, placed, _, _ = osf.align_arcs(curves)
+    step = spacing * min(p.scale for p in placed)
+    rings, params = osf.resample_arcs(curves, placed, step, smooth=False)
+    stairs = osf.stitch_arcs(rings, params, step)
+    assert _border_runs(stairs, spacing) > 20
