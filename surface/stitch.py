@@ -1452,7 +1452,8 @@ def _closes(close_ends, end: int) -> bool:
 
 
 def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | None,
-          frame: np.ndarray, field_ring: np.ndarray | None = None):
+          frame: np.ndarray, field_ring: np.ndarray | None = None,
+          rim: tuple[float, bool] | None = None):
     """The cap points' height field over an end contour, or None for a flat cap.
 
     The section planes stop where the surface turns within 60° of them
@@ -1475,7 +1476,10 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
     its rim allows).  The height field is fitted to the points
     over ``field_ring`` (default ``ring2d``: a ringed cap decides on its innermost ring
     and fits over its rim), each height to as many of them as the dome's shape allows
-    (:func:`_dome_neighbours`).
+    (:func:`_dome_neighbours`).  With ``rim = (height, up)`` the heights are held on the
+    cap's side of the contour's plane (``up``: at or above ``height``): the strips the
+    contour ends lie on the other side, and a dome dipping back through the plane would
+    cross them (the quadratics near the rim also take the wall's last points below it).
 
     Returns
     -------
@@ -1522,7 +1526,11 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
             chosen.append(_dome_neighbours(every, h_every, flat[test], noise))
         heights = _local_quadratic(every, h_every, np.asarray(query, np.float64), chosen[0])
         # over a hole the quadratics run on from its rim: held within the points' heights
-        return np.clip(heights, h_every.min(), h_every.max()) if hole else heights
+        if hole:
+            heights = np.clip(heights, h_every.min(), h_every.max())
+        if rim is not None:   # never back through the contour's plane, into the strips
+            heights = np.maximum(heights, rim[0]) if rim[1] else np.minimum(heights, rim[0])
+        return heights
     return field
 
 
@@ -1847,7 +1855,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
         inner_flat = rings_in[-1] @ frame[:2].T
         height = float(np.mean(rings_in[-1] @ frame[2]))
         dome = _dome(inner_flat, *dome_window(height, up, None), cap_points, frame,
-                     field_ring=rim) if support else None
+                     field_ring=rim, rim=(height, up)) if support else None
         try:
             added, cap = _quality_cap(inner_flat, outward_up=face_up,
                                       max_area=dome_area(inner_flat) if dome else None)
@@ -1912,7 +1920,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                 if ringed_cap(s, lp, end, up, face_up, label, cap_inset[(end, lp)], True):
                     continue
             dome = None if holes else _dome(flat, *dome_window(float(heights_all[s]), up,
-                                                                end is None), cap_points, frame)
+                                                                end is None), cap_points, frame,
+                                            rim=(float(heights_all[s]), up))
             if dome is not None:
                 try:
                     added, cap = _quality_cap(flat, outward_up=face_up, max_area=dome_area(flat))
