@@ -620,8 +620,9 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
                      noise: float | None = None):
     """``smooth.general``: where one family of parallel sections cannot organise the
     points, the control mesh that knows no axis (``surface.general_mesh``).  ``"auto"``
-    builds it beside the section surface and keeps the one nearer the cloud
-    (``surface.general_mesh.prefer_general`` on A and C, ``cloud_fidelity``);
+    builds it beside the section surface and keeps the valid solid, then the one of the
+    genus the data support, then the one nearer the cloud
+    (``surface.general_mesh.prefer_general``, ``evidence_genus``, ``cloud_fidelity``);
     ``"always"`` takes it; ``"never"`` does not build it.  Returns ``(Smoothed, info)`` when
     the stage's surface changes or was measured, ``None`` when not asked or possible (no
     cloud, too few points).  With ``section`` None (the section surface was refused) the
@@ -673,11 +674,20 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
         own = general_mesh.cloud_fidelity(section.vertices, section.triangles, points)
     info["sections_fidelity"] = own.to_json()
     valid = [bool((smoothed.solid or {}).get("valid", True)) for smoothed in (section, general)]
-    if mode == "always" or general_mesh.prefer_general(own, fidelity, section_valid=valid[0],
-                                                       general_valid=valid[1]):
-        log.info("smooth: the general control mesh is nearer the cloud (A %.3g / C %.3g "
-                 "against the sections' %.3g / %.3g): it carries the surface", fidelity.a90,
-                 fidelity.c50, own.a90, own.c50)
+    genera = [(smoothed.solid or {}).get("genus") for smoothed in (section, general)]
+    evidence = None
+    if mode == "auto" and None not in genera and genera[0] != genera[1]:
+        evidence = general_mesh.evidence_genus(
+            section.vertices, section.triangles, points,
+            general_mesh.support_reach(point_spacing(points), noise))
+        info["evidence_genus"] = evidence
+    if mode == "always" or general_mesh.prefer_general(
+            own, fidelity, section_valid=valid[0], general_valid=valid[1],
+            section_genus=genera[0], general_genus=genera[1], evidence_genus=evidence):
+        log.info("smooth: the general control mesh carries the surface (valid %s, genus %s, "
+                 "A %.3g / C %.3g against the sections' %s, %s, %.3g / %.3g; the data's "
+                 "genus %s)", valid[1], genera[1], fidelity.a90, fidelity.c50, valid[0],
+                 genera[0], own.a90, own.c50, evidence)
         return general, {**info, "control": "general", "control_triangles": len(triangles)}
     return section, {**info, "control": "sections"}
 

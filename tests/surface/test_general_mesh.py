@@ -90,11 +90,30 @@ def test_prefer_general(section, general, expected):
     assert prefer_general(section, general) is expected
 
 
-def test_prefer_general_takes_the_only_valid_solid_when_as_near():
-    near = (Fidelity(1.05, 1.05), Fidelity(1.0, 1.0))
-    assert prefer_general(*near, section_valid=False)
-    assert not prefer_general(*near[::-1], general_valid=False)
-    assert not prefer_general(Fidelity(1.0, 1.0), Fidelity(1.5, 1.0), section_valid=False)
+def test_prefer_general_a_valid_solid_beats_one_that_is_not():
+    near, farther = Fidelity(1.0, 1.0), Fidelity(1.5, 1.5)
+    # the valid one wins whatever A and C say (the cow: a valid general surface 0.80x
+    # Poisson's Chamfer against a crossing section surface nearer on C)
+    assert prefer_general(near, farther, section_valid=False)
+    assert not prefer_general(farther, near, general_valid=False)
+    # ... and whatever the genus says
+    assert prefer_general(near, farther, section_valid=False, section_genus=1,
+                          general_genus=3, evidence_genus=1)
+
+
+def test_prefer_general_then_the_genus_the_data_support():
+    near, farther = Fidelity(1.0, 1.0), Fidelity(1.5, 1.5)
+    # both valid: the general surface nearer, but with tunnels the data do not see (the
+    # teapot: genus 13 against the evidence's 1) -> the sections' genus-1 surface stays
+    assert not prefer_general(farther, near, section_genus=1, general_genus=13,
+                              evidence_genus=1)
+    # the sections miss a handle the data show: the general one, though farther
+    assert prefer_general(near, farther, section_genus=0, general_genus=1, evidence_genus=1)
+    # neither or both of the evidence's genus: A and C decide
+    assert prefer_general(farther, near, section_genus=2, general_genus=3, evidence_genus=1)
+    assert not prefer_general(near, farther, section_genus=1, general_genus=1,
+                              evidence_genus=1)
+    assert prefer_general(farther, near, section_genus=1, general_genus=13)  # no evidence
 
 
 def test_needs_general_when_the_sections_leave_the_data_beyond_their_noise():
@@ -106,3 +125,33 @@ def test_needs_general_when_the_sections_leave_the_data_beyond_their_noise():
     assert needs_general(Fidelity(1.0, 1.5 * explained), True, sigma)
     assert needs_general(Fidelity(1.0, explained), False, sigma)      # not a valid solid
     assert needs_general(Fidelity(1.0, explained), True, None)        # no noise estimate
+
+
+@pytest.fixture(scope="module")
+def torus_and_cloud():
+    """A fine torus mesh (R = 1, r = 0.5: genus 1) and 20 000 points on it."""
+    import open3d as o3d
+
+    from surface.metrics import sample_mesh
+
+    torus = o3d.geometry.TriangleMesh.create_torus(1.0, 0.5, 120, 60)
+    v, t = np.asarray(torus.vertices), np.asarray(torus.triangles, np.int64)
+    return v, t, sample_mesh(v, t, 20_000, seed=2)
+
+
+def test_supported_genus_drops_a_handle_through_no_data_and_keeps_holes(torus_and_cloud):
+    from surface.general_mesh import support_reach, supported_genus
+    from surface.sections import point_spacing
+
+    v, t, cloud = torus_and_cloud
+    reach = support_reach(point_spacing(cloud))
+    assert supported_genus(v, t, cloud, reach) == 1            # every handle seen
+    # no points across a band of the tube (0.6 rad wide: >= 0.3 apart, 6 reaches): the
+    # handle runs through no data, as an iso-surface's tunnel between two close parts
+    angle = np.arctan2(cloud[:, 1], cloud[:, 0])
+    assert 0.3 > 6 * reach
+    assert supported_genus(v, t, cloud[np.abs(angle) > 0.3], reach) == 0
+    # a hole in the data (a disc, as an unseen base) leaves the genus as it was
+    hole = np.linalg.norm(cloud - [1.5, 0.0, 0.0], axis=1) < 0.3
+    assert supported_genus(v, t, cloud[~hole], reach) == 1
+    assert support_reach(1.0, 0.1) == pytest.approx(np.sqrt(np.log(1e3) / np.pi) + 0.3)
