@@ -22,8 +22,9 @@ time bound (``--timeout``; a row past it is printed as such).  Methods, in the r
   control edge, or 1.5 point spacings without one) through the same interpolating control
   and patches;
 * ``auto``: the smooth stage's choice between the two (``surface.general_mesh.prefer_general``
-  on A, C and validity; without the stage's gate ``needs_general``, whose noise estimate is
-  the curves stage's: here both surfaces are always built and compared);
+  on validity, then the genus the data support, then A and C; without the stage's gate
+  ``needs_general``, whose noise estimate is the curves stage's: here both surfaces are
+  always built and compared);
 * ``poisson-8``: open3d's screened Poisson, depth 8, PCA normals of 30 neighbours oriented by
   the tangent-plane graph, closed (no density trimming).
 
@@ -253,7 +254,9 @@ def one_row(case: str, size: int, noise: float, workspace: Path) -> dict:
     import surface.general_mesh  # noqa: F401
     import surface.reconstruct  # noqa: F401
     import surface.sizing  # noqa: F401
-    from surface.general_mesh import cloud_fidelity, prefer_general
+    from surface.general_mesh import (cloud_fidelity, evidence_genus, prefer_general,
+                                      support_reach)
+    from surface.sections import point_spacing
 
     points, truth = load_case(case, size, noise, workspace)
     row = {"case": case, "points": int(len(points)), "noise": noise,
@@ -280,10 +283,21 @@ def one_row(case: str, size: int, noise: float, workspace: Path) -> dict:
                             points)
         fg = cloud_fidelity(results["general"]["vertices"], results["general"]["triangles"],
                             points)
-        choose_s = _since(start)
         valid = [row["methods"][m]["valid"] for m in ("sections", "general")]
+        genera = [row["methods"][m]["genus"] for m in ("sections", "general")]
+        evidence = None
+        if None not in genera and genera[0] != genera[1]:
+            # the points' noise is not known to a user here: the reach from the spacing
+            # alone (3 sigma is < 3 % of it on every row of the corpus)
+            evidence = evidence_genus(results["sections"]["vertices"],
+                                      results["sections"]["triangles"], points,
+                                      support_reach(point_spacing(points)))
+        choose_s = _since(start)
+        row["evidence_genus"] = evidence
         chosen = "general" if prefer_general(fs, fg, section_valid=valid[0],
-                                             general_valid=valid[1]) else "sections"
+                                             general_valid=valid[1], section_genus=genera[0],
+                                             general_genus=genera[1],
+                                             evidence_genus=evidence) else "sections"
     else:
         choose_s = (0.0, 0.0)
         chosen = "sections" if "sections" in results else "general"
@@ -324,6 +338,8 @@ def print_row(row: dict) -> None:
     for name in METHODS:
         m = row["methods"].get(name)
         extra = f"  <- {m['chosen']}" if m and "chosen" in m else ""
+        if extra and row.get("evidence_genus") is not None:
+            extra += f" (the data's genus {row['evidence_genus']})"
         print(f"{row['case']:<19s}{row['points']:>7d} {row['noise']:7.4f} "
               f"{row['truth_genus']!s:>3s} {name:<10s}{_cell(m)}{extra}", flush=True)
 
