@@ -254,8 +254,7 @@ def one_row(case: str, size: int, noise: float, workspace: Path) -> dict:
     import surface.general_mesh  # noqa: F401
     import surface.reconstruct  # noqa: F401
     import surface.sizing  # noqa: F401
-    from surface.general_mesh import (cloud_fidelity, evidence_genus, prefer_general,
-                                      support_reach)
+    from surface.general_mesh import cloud_fidelity, evidence_genus, prefer_general, support_reach
     from surface.sections import point_spacing
 
     points, truth = load_case(case, size, noise, workspace)
