@@ -6,7 +6,10 @@ side of the object: the sections are open arcs and the run ends with an open sur
 (``curves.open = "auto"``, :mod:`surface.open_surface`).  Rows, on the same cloud:
 
 * ``photosurf-open``      the smooth surface (Loop's patches over the stitched arcs);
-* ``photosurf-stitched``  its control mesh, the stitched open arcs;
+* ``photosurf-stitched``  its control mesh, the stitched open arcs (rings ending on the
+  smooth border curves, ``surface.open_surface.smooth_border``);
+* ``stitched-arc-ends``   the same sections stitched by the former rule (each ring ends
+  where its arc's data end, strips stop at the shorter arc: a staircase border);
 * ``poisson-trimmed``     open3d's screened Poisson reconstruction (depth 8) of the same
   cloud with normals oriented to the cameras, its vertices of the lowest 10 % density
   removed (the usual way to make an open surface of a one-sided scan).
@@ -16,11 +19,14 @@ RMS distance beside it), the share of the part both views see that lies within �
 surface (``cover``: all of it; ``cover wall``: the wall, where the truth normal is more
 than 30° from the axis, as the sections take it), the share of the surface's area whose
 nearest truth point neither view pair sees (``beyond``), and where the border lies against
-the border of the part both views see: for each border vertex, the distance from its
+the border of the part both views see: for each point of the border (sampled every quarter
+section spacing along its edges), the distance from its
 nearest truth point to the other side of that border (positive: inside the seen part),
 median and 90th percentile of its size, in section spacings; and, beside it, the
-distance from each border vertex to the nearest cloud point (``data``: the border lies
-where the data end), in section spacings.  The cloud's own cover of the seen part (within
+distance from each of those points to the nearest cloud point (``data``: the border lies
+where the data end), in section spacings; the border's roughness (``excess``: its length
+over its moving average's over two section spacings, minus 1; ``turn``: its turning angle
+every half spacing, median and 90th percentile, :func:`border_roughness`).  The cloud's own cover of the seen part (within
 two point spacings) is printed above the table: the border cannot lie past the data.
 "Seen by both" is exact: a truth point is seen by a camera when it projects into the
 image and the ray from the camera centre meets the truth mesh first at it (open3d ray
@@ -109,16 +115,26 @@ def scores(vertices, triangles, truth, to_truth, visibility: dict, tau: float,
     truth_tree = cKDTree(visibility["points"])
     _, near = truth_tree.query(samples)
     table = edge_table(triangles)
-    border = np.unique(table.edges[table.counts == 1])
+    edges = table.edges[table.counts == 1]
+    border = np.unique(edges)
     inset = to_data = np.zeros(0)
     if len(border):
-        _, b_near = truth_tree.query(vertices[border])
+        # the border sampled every quarter spacing along its edges (per length, not per
+        # vertex: a staircase's treads hold many vertices, a smooth border one a section)
+        ends = vertices[edges]
+        count = np.maximum(1, np.ceil(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+                                      / (spacing / 4)).astype(np.int64))
+        edge = np.repeat(np.arange(len(edges)), count)
+        frac = (np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)) \
+            / np.repeat(count, count)
+        along = ends[edge, 0] + frac[:, None] * (ends[edge, 1] - ends[edge, 0])
+        _, b_near = truth_tree.query(along)
         seen_tree = cKDTree(visibility["points"][both])
         unseen_tree = cKDTree(visibility["points"][~both])
         inside = both[b_near]
         q = visibility["points"][b_near]
         inset = np.where(inside, unseen_tree.query(q)[0], -seen_tree.query(q)[0])
-        to_data = cloud_tree.query(vertices[border])[0]
+        to_data = cloud_tree.query(along)[0]
     topo = mesh_topology(vertices, triangles)
     return {"mean": float(d.mean()), "p90": float(np.quantile(d, 0.9)),
             "cover": float(np.mean(gap[both] <= tau)),
@@ -130,8 +146,63 @@ def scores(vertices, triangles, truth, to_truth, visibility: dict, tau: float,
             "border_to_data_median": float(np.median(to_data) / spacing) if len(inset) else None,
             "border_to_data_p90": float(np.quantile(to_data, 0.9) / spacing)
             if len(inset) else None,
+            **border_roughness(vertices, triangles, spacing),
             "border_vertices": int(len(border)), "components": topo["components"],
             "boundary_edges": topo["boundary_edges"], "faces": topo["faces"]}
+
+
+def border_roughness(vertices: np.ndarray, triangles: np.ndarray, spacing: float) -> dict:
+    """How jagged the longest border loop is, independent of its tessellation: the loop
+    resampled every half section spacing by arc length; ``excess``: its length over the
+    length of its moving average over two section spacings, minus 1 (a staircase of
+    treads and risers one spacing high: ~0.3; a smooth curve: ~0); ``turn``: the
+    resampled loop's turning angle at each point, degrees (median, 90th percentile)."""
+    from surface.open_surface import boundary_loops
+
+    loops = [lp for lp in boundary_loops(triangles) if len(lp) >= 8]
+    if not loops:
+        return {}
+    pts = vertices[max(loops, key=len)]
+    closed = np.vstack([pts, pts[:1]])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+    length = float(arc[-1])
+    n = max(8, int(round(length / (spacing / 2))))
+    at = np.linspace(0.0, length, n, endpoint=False)
+    ring = np.stack([np.interp(at, arc, closed[:, i]) for i in range(3)], axis=1)
+    window = 5  # samples every half spacing: ±1 spacing, a window of two spacings
+    kernel = np.ones(window) / window
+    wrapped = np.vstack([ring[-(window // 2):], ring, ring[:window // 2]])
+    smooth = np.stack([np.convolve(wrapped[:, i], kernel, mode="valid") for i in range(3)],
+                      axis=1)
+    smooth_length = float(np.linalg.norm(np.roll(smooth, -1, axis=0) - smooth, axis=1).sum())
+    seg = np.roll(ring, -1, axis=0) - ring
+    seg /= np.maximum(np.linalg.norm(seg, axis=1), 1e-15)[:, None]
+    turn = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", seg, np.roll(seg, 1, axis=0)),
+                                        -1, 1)))
+    return {"border_length": length, "border_excess": length / smooth_length - 1,
+            "border_turn_median_deg": float(np.median(turn)),
+            "border_turn_p90_deg": float(np.quantile(turn, 0.9)), "border_loops": len(loops)}
+
+
+def former_rule(ws: Path, spacing: float, eyes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stitched open mesh of the same sections by the former rule: each ring ends
+    where its own arc's data end and strips stop where the shorter arc ends (the
+    staircase border), for comparison in the same process."""
+    from pipeline import artifacts
+    from pipeline.config import resolve
+    from surface import open_surface as osf
+    from surface import reconstruct as rc
+
+    p = resolve()["curves"]
+    smoothing = p["smoothing"] or "auto"
+    sliced = artifacts.read_sections(ws / "sections")[0]
+    options = {"outlier_threshold": p["outlier_threshold"],
+               "min_points": p["min_loop_points"] or rc.min_loop_points(smoothing)}
+    loops = osf.organise_arcs(sliced, **options)[1]
+    _, rings, params, step, _, _ = osf.open_arcs(loops, spacing, p["n"] or None,
+                                                 smoothing=smoothing, border=False)
+    result = osf.stitch_arcs(rings, params, step, viewpoint=eyes, reach=osf.QUARTER_STEP)
+    return result.vertices, result.triangles
 
 
 def poisson_trimmed(points: np.ndarray, eyes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -208,8 +279,10 @@ def main(argv=None) -> int:
         stitched = read_mesh(ws / "stitch" / artifacts.MESH)
         rows["photosurf-stitched"] = scores(*stitched, truth, to_truth, visibility, tau,
                                             spacing, cloud_tree)
-        t0 = time.perf_counter()
         eyes = np.array([cam.center for cam in cameras])
+        rows["stitched-arc-ends"] = scores(*former_rule(ws, spacing, eyes), truth, to_truth,
+                                           visibility, tau, spacing, cloud_tree)
+        t0 = time.perf_counter()
         rows["poisson-trimmed"] = scores(*poisson_trimmed(cloud, eyes), truth, to_truth,
                                          visibility, tau, spacing, cloud_tree)
         rows["poisson-trimmed"]["seconds"] = time.perf_counter() - t0
@@ -223,12 +296,15 @@ def main(argv=None) -> int:
     print(f"the cloud covers {cloud_row['cover']:.3f} of the part both views see "
           f"({cloud_row['cover_wall']:.3f} of its wall) within {reach:.4f} (2 point spacings)")
     header = ("row", "mean", "p90", "cover", "cover wall", "beyond", "inset med",
-              "|off| p90", "data med", "data p90", "comp", "faces")
+              "|off| p90", "data med", "data p90", "excess", "turn med", "turn p90",
+              "comp", "faces")
     print(" | ".join(f"{h:>10}" for h in header))
     for name, r in rows.items():
         values = (r["mean"], r["p90"], r["cover"], r["cover_wall"], r["beyond"],
                   r["border_inset_median"], r["border_offset_p90"],
-                  r["border_to_data_median"], r["border_to_data_p90"])
+                  r["border_to_data_median"], r["border_to_data_p90"],
+                  r.get("border_excess"), r.get("border_turn_median_deg"),
+                  r.get("border_turn_p90_deg"))
         print(" | ".join([f"{name:>10}"] + [f"{v:10.5f}" if v is not None else f"{'-':>10}"
                                              for v in values]
                          + [f"{r['components']:10d}", f"{r['faces']:10d}"]))

@@ -807,7 +807,7 @@ def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
 
 @one_blas_thread
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
-              smoothing: float | str = "auto"):
+              smoothing: float | str = "auto", border: bool = True):
     """Sections' loops → open arcs → open curves → arcs resampled on the common grid.
 
     Parameters
@@ -822,6 +822,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         Points on the widest odd arc instead.
     smoothing : float or "auto"
         :func:`fit_open`.
+    border : bool
+        The rings end on the smooth border curves (:func:`smooth_border`; stitch them
+        with ``reach=BORDER_REACH``); False: where each arc's data end (the former rule,
+        a staircase border; for comparison).
 
     Returns
     -------
@@ -867,7 +871,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     if sum(counts) > MAX_RING_POINTS_PER_POINT * data:
         raise ValueError(f"the arcs do not line up as one surface: resampling them would "
                          f"take {sum(counts):.3g} ring points for {data} data points")
-    rings, params = resample_arcs(curves, placed, step)
+    rings, params = resample_arcs(curves, placed, step, smooth=border)
     return curves, rings, params, float(step), notes, run
 
 
