@@ -45,7 +45,7 @@ from surface.validate import TOL
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
            "min_loop_points", "section_noise", "untangle", "choose_axis", "rim_line",
-           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "hole_ends"]
+           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "keyhole", "hole_ends"]
 
 #: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
 NORMAL_NEIGHBOURS = 12
@@ -736,11 +736,17 @@ def untangle(kept: list, loops: list, rings: list | None = None):
         crossing = [k for k, item in enumerate(rings)
                     if any(self_intersects(r @ frame[:2].T) for r in
                            ([item] if isinstance(item, np.ndarray) else item))]
+        crossing = sorted(set(crossing) | {
+            k for k, item in enumerate(rings) if k not in crossing and
+            any(keyhole(r @ frame[:2].T) for r in
+                ([item] if isinstance(item, np.ndarray) else item))})
         if len(kept) - len(crossing) >= 2:
             for k in crossing[::-1]:
                 notes.append(f"section {kept[k].section_id} at height {kept[k].height:.6g} "
-                             "skipped: its ring crosses itself (points of a face across the "
-                             "section plane, or a sliver of noise, taken for a contour)")
+                             "skipped: its ring crosses itself or is two nested contours "
+                             "joined through a neck (points of a face across the section "
+                             "plane, a sliver of noise, or a gap narrower than the sections "
+                             "resolve, taken for one contour)")
                 del kept[k], loops[k], rings[k]
     if any(len(found) > 1 for found in loops):
         frame = kept[0].frame
@@ -795,6 +801,66 @@ def self_intersects(uv: np.ndarray) -> bool:
     crosses = ((orientation(a[i], b[i], a[j]) * orientation(a[i], b[i], b[j]) < 0)
                & (orientation(a[j], b[j], a[i]) * orientation(a[j], b[j], b[i]) < 0))
     return bool(crosses.any())
+
+
+#: A ring passing within this many of its own median point spacings of itself, away
+#: from its neighbours along it, has a neck narrower than the sections resolve (the
+#: rings are spaced about as the sections are).
+NECK_SPACINGS = 2.0
+#: Shortest way round the ring (median point spacings) between the two sides of a neck:
+#: a U-turn of width w runs πw/2, so 4 necks' width keeps tight bends out.
+NECK_ARC = 4 * NECK_SPACINGS
+#: Share of one side's points inside the other's polygon for the sides to be nested.
+NESTED_SHARE = 0.9
+#: Necks tested per ring (the narrowest first).
+NECK_CANDIDATES = 8
+
+
+def keyhole(uv: np.ndarray) -> bool:
+    """Whether the closed ring ``uv`` ``(n, 2)`` is two nested contours joined through a neck.
+
+    A ring that runs round an outer contour, in through a channel narrower than
+    :data:`NECK_SPACINGS` of its point spacings, round an inner contour and back out
+    (a teapot's body and its lid at the rim's height, taken for one loop) is a keyhole:
+    cut at the neck, one side lies inside the other (:data:`NESTED_SHARE` of its
+    points).  Neither neighbour section has the channel, so the strips on both sides
+    fold across it.  Side-by-side lobes joined at a waist, and a thin finger, are not
+    nested and pass.
+    """
+    from scipy.spatial import cKDTree
+
+    from surface.loop_graph import _inside as inside_polygon
+
+    a = np.asarray(uv, dtype=np.float64)
+    n = len(a)
+    if n < 8:
+        return False
+    edge = np.linalg.norm(np.roll(a, -1, axis=0) - a, axis=1)
+    step = float(np.median(edge))
+    if not step > 0:
+        return False
+    along = np.concatenate([[0.0], np.cumsum(edge)])
+    length = along[-1]
+    pairs = cKDTree(a).query_pairs(NECK_SPACINGS * step, output_type="ndarray")
+    if not len(pairs):
+        return False
+    i, j = pairs.min(axis=1), pairs.max(axis=1)
+    arc = along[j] - along[i]
+    far = np.minimum(arc, length - arc) > NECK_ARC * step
+    i, j = i[far], j[far]
+    order = np.argsort(np.linalg.norm(a[i] - a[j], axis=1), kind="stable")
+    tried: list[tuple[int, int]] = []
+    for k in order:
+        if len(tried) == NECK_CANDIDATES:
+            break
+        if any(abs(int(i[k]) - p) + abs(int(j[k]) - q) < NECK_ARC for p, q in tried):
+            continue      # the same neck, a point along
+        tried.append((int(i[k]), int(j[k])))
+        one, other = a[i[k]:j[k] + 1], np.vstack([a[j[k]:], a[:i[k] + 1]])
+        if (np.mean(inside_polygon(one, other)) >= NESTED_SHARE
+                or np.mean(inside_polygon(other, one)) >= NESTED_SHARE):
+            return True
+    return False
 
 
 def min_loop_points(smoothing: float | str) -> int:

@@ -46,3 +46,87 @@ def test_an_end_dome_stays_beyond_its_contour_plane():
         assert top[:, 2].min() >= 1.0 - 1e-12
         centre = top[np.argmin(np.linalg.norm(top[:, :2], axis=1))]
         assert abs(centre[2] - 1.3) < 0.01
+
+
+def _resampled(path: np.ndarray, step: float) -> np.ndarray:
+    closed = np.vstack([path, path[:1]])
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+    t = np.arange(0.0, along[-1], step)
+    return np.column_stack([np.interp(t, along, closed[:, 0]), np.interp(t, along, closed[:, 1])])
+
+
+def _arc(radius: float, start: float, stop: float, centre=(0.0, 0.0)) -> np.ndarray:
+    a = np.linspace(start, stop, 400)
+    return np.column_stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a)])
+
+
+def _keyhole(width: float = 0.07, step: float = 0.05) -> np.ndarray:
+    """Round a unit circle, in through a channel ``width`` wide (1.4 point spacings), round
+    a circle of radius 0.4 inside it and back out: a teapot's body and lid as one loop."""
+    out, inn, top = np.arcsin(width / 2), np.arcsin(width / 0.8), np.pi / 2
+    return _resampled(np.vstack([_arc(1.0, top + out, top - out + 2 * np.pi),
+                                 _arc(0.4, top - inn, top + inn - 2 * np.pi)]), step)
+
+
+def _lobes(step: float = 0.05) -> np.ndarray:
+    """Two disks of radius 0.5 side by side, joined at a waist 0.07 wide."""
+    return _resampled(np.vstack([_arc(0.5, np.pi + 0.07, 3 * np.pi - 0.07, (0.5, 0.0)),
+                                 _arc(0.5, 0.07, 2 * np.pi - 0.07, (-0.5, 0.0))]), step)
+
+
+def _finger(step: float = 0.05) -> np.ndarray:
+    """A unit disk with a finger 0.07 wide and 0.8 long."""
+    d = np.arcsin(0.035)
+    return _resampled(np.vstack([_arc(1.0, d, 2 * np.pi - d), [[1.8, -0.035], [1.8, 0.035]]]),
+                      step)
+
+
+def _c_shape(step: float = 0.05) -> np.ndarray:
+    """A thick C (radii 1 and 0.5) with a mouth 0.6 wide."""
+    return _resampled(np.vstack([_arc(1.0, 0.6, 2 * np.pi - 0.6),
+                                 _arc(0.5, 2 * np.pi - 1.2, 1.2)]), step)
+
+
+def test_keyhole_is_two_nested_contours_through_a_neck():
+    """Only the keyhole is nested at its neck; lobes at a waist and a thin finger have
+    necks as narrow (1.4 spacings) but side by side, and a C's mouth is 12 spacings."""
+    from surface.reconstruct import keyhole, self_intersects
+
+    assert keyhole(_keyhole()) and not self_intersects(_keyhole())
+    assert keyhole(_keyhole()[::-1]) and keyhole(np.roll(_keyhole(), 57, axis=0))
+    for ring in (_lobes(), _finger(), _c_shape()):
+        assert not keyhole(ring)
+    assert not keyhole(_keyhole(width=0.15))   # a channel 3 spacings wide is resolved
+
+
+def _sections(step: float = 0.05):
+    body = [_circle(1.0, z, 126) for z in np.arange(0.0, 0.61, 0.1)]
+    lid = [_circle(0.4, z, 50) for z in (0.8, 0.9, 1.0)]
+    ring = _keyhole(step=step)
+    return body, np.column_stack([ring, np.full(len(ring), 0.7)]), lid
+
+
+def test_a_keyhole_section_is_skipped_and_the_stitch_is_valid():
+    """A body (unit circles) under a lid (radius 0.4), the section between them a
+    keyhole: stitched as it is, the strips on both sides of it fold across its channel
+    (35 crossing pairs; 5 with support rings); ``untangle`` skips it, with a note, and
+    the body's top ring is stitched to the lid's: a valid solid, with and without the
+    support rings."""
+    from types import SimpleNamespace
+
+    from surface.reconstruct import untangle
+    from surface.stitch import axis_frame
+
+    body, key, lid = _sections()
+    rings = body + [key] + lid
+    crossed = stitch_rings(rings, AXIS)
+    assert len(check_solid(crossed.vertices, crossed.triangles).intersecting_pairs) > 0
+    kept = [SimpleNamespace(section_id=k, height=float(r[0, 2]), frame=axis_frame(AXIS))
+            for k, r in enumerate(rings)]
+    kept, loops, rings, notes = untangle(kept, [[None]] * len(rings), rings)
+    assert [k.section_id for k in kept] == [0, 1, 2, 3, 4, 5, 6, 8, 9, 10]
+    assert len(notes) == 1 and "section 7 " in notes[0] and "neck" in notes[0]
+    for support in (None, 0.002):
+        result = stitch_rings(rings, AXIS, support_sigma=support)
+        report = check_solid(result.vertices, result.triangles)
+        assert result.closed and report.valid and report.genus == 0, report.problems()
