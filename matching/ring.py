@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from matching.view_pairs import scene_centre
+
 __all__ = ["RingFit", "fit_ring"]
 
 #: Largest off-plane and radial RMS residual, as a share of the radius.
@@ -131,8 +133,6 @@ def _orient(normal: np.ndarray, cams: list, centre: np.ndarray) -> np.ndarray:
     if abs(float(up @ normal)) > 0.1:
         return normal if up @ normal > 0 else -normal
     try:
-        from matching.multiview import scene_centre
-
         towards = centre - scene_centre(cams)
     except ValueError:
         return normal

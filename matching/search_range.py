@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from matching.validate import check_shape
+from matching.view_pairs import scene_centre
 
 __all__ = ["SceneVolume", "scene_volume", "pair_disparity_range"]
 
@@ -133,8 +134,6 @@ def scene_volume(cameras: Sequence, masks: Sequence | None = None,
     ValueError
         No sample is seen by ``min_views`` views (and no sparse points).
     """
-    from matching.multiview import scene_centre
-
     cameras = list(cameras)
     if masks is not None and len(masks) != len(cameras):
         raise ValueError(f"masks: got {len(masks)} for {len(cameras)} cameras")

@@ -37,9 +37,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import re
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -47,7 +46,7 @@ import cv2
 import numpy as np
 
 from matching.cameras import Camera, cameras_from_pycolmap, turn_camera
-from matching.fd_capture import captured_fd2
+from matching.colmap_log import quiet_colmap as _quiet_colmap
 from matching.image_file import read_image_file
 from matching.validate import TOL, check_shape
 
@@ -338,46 +337,6 @@ def _turn_back(result: SfmResult, original: dict[str, str],
     return replace(result, cameras=cameras,
                    registered=[original[n] for n in result.registered],
                    unregistered=[original[n] for n in result.unregistered])
-
-
-#: A glog line (COLMAP, Ceres): severity letter, yyyymmdd, time -- after any colour code.
-_GLOG_LINE = re.compile(r"^(?:\x1b\[[0-9;]*m)*[IWEF]\d{8} \d\d:\d\d:\d\d")
-_ANSI_LEAD = re.compile(r"^(?:\x1b\[[0-9;]*m)+")
-
-
-@contextlib.contextmanager
-def _quiet_colmap() -> Iterator[None]:
-    """COLMAP's and Ceres' glog lines kept off stderr (shown with DEBUG logging).
-
-    ``pycolmap.logging.minloglevel`` alone does not reach every line (bundle
-    adjustment's "=== Global bundle adjustment ===" and Ceres' solver warnings
-    were printed with it at 3), so file descriptor 2 itself is redirected to a
-    temporary file for the block; whatever else was written there (Python's own
-    messages) is written back on exit, the glog lines are dropped.
-    """
-    import pycolmap
-
-    previous = pycolmap.logging.minloglevel
-    if log.getEffectiveLevel() <= logging.DEBUG:
-        yield
-        return
-    # 3 = FATAL only: COLMAP's own ERROR lines ("Failed to create any sparse model") are
-    # reported by run_sfm's ValueError, as one line; -vv (DEBUG) shows them all.
-    pycolmap.logging.minloglevel = 3
-    captured = None
-    try:
-        # fd 2 itself, shared with any other thread's capture (matching.fd_capture)
-        with captured_fd2() as captured:
-            yield
-    finally:
-        pycolmap.logging.minloglevel = previous
-        # a coloured glog line's reset code starts the next line: dropped with it
-        text = captured.text if captured is not None else ""
-        kept = [_ANSI_LEAD.sub("", line) for line in text.splitlines(keepends=True)
-                if not _GLOG_LINE.match(line)]
-        kept = [line for line in kept if line.strip()]
-        if kept:
-            os.write(2, "".join(kept).encode())
 
 
 def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = None,

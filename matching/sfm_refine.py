@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from matching.cameras import cameras_from_pycolmap
+from matching.colmap_log import quiet_colmap
 from matching.visibility import plane_affine
 
 __all__ = ["refine_tracks_lsm", "bundle_adjust"]
@@ -239,10 +240,8 @@ def bundle_adjust(reconstruction, refine_intrinsics: bool = True, rounds: int = 
     options.print_summary = False
     options.ceres.solver_options.max_num_iterations = 500
     rejected, sigma, converged = 0, float("nan"), False
-    from matching.sfm import _quiet_colmap
-
     for round_ in range(rounds + 1):
-        with _quiet_colmap():  # COLMAP/Ceres log lines ("Global bundle adjustment") on fd 2
+        with quiet_colmap():  # COLMAP/Ceres log lines ("Global bundle adjustment") on fd 2
             summary = pycolmap.bundle_adjustment(reconstruction, options)
         converged = _converged(summary)
         pid, iid, p2d, xy = _observations(reconstruction)
