@@ -22,10 +22,12 @@ Which control mesh an object gets is decided on its fidelity to its own cloud
 * ``C`` -- the median distance from the cloud's points to the surface (does it leave the
   data: a lost branch, a melted column?).
 
-:func:`prefer_general` keeps the section mesh unless the general one is nearer the cloud on
-one measure by more than :data:`MARGIN` and not farther on the other by more than it (or is
-the only valid solid of the two, and as near): the section method stays the default
-wherever it organises the points.
+:func:`prefer_general` weighs validity first (a valid solid beats one that is not), then
+the genus the data support (:func:`evidence_genus`: the section surface's handles that run
+along the points, not the tunnels a Poisson iso-surface draws between close parts), then
+``A`` and ``C`` (the general mesh must be nearer on one by more than :data:`MARGIN` and not
+farther on the other): the section method stays the default wherever it organises the
+points.
 
 Boundary: ``points (N, 3) float64``; meshes ``(V, 3) float64`` / ``(F, 3) int64``, closed,
 oriented outward.
