@@ -7,7 +7,8 @@ Writes ``OUT/matches.npz`` (every candidate: ``x_left``, ``x_right``, ``approx``
 ``x_left - x_right``, NaN where not matched), ``OUT/sigma.npy`` (float32, the σ of each
 disparity, px, NaN where not matched), ``OUT/status.npy`` (uint8 status code per
 candidate pixel, 255 elsewhere), each also as a colour-mapped PNG with its legend
-(``disparity.png``, ``sigma.png``, ``status.png``: where and why the matcher said no).
+(``disparity.png``, ``sigma.png``, ``status.png``: where and why the matcher said no) and
+``OUT/report.html`` showing them with every status's count and meaning.
 With ``--dense`` (rectified only) every pixel is a candidate (spacing 1) and the speed
 is printed.
 The folder appears complete or not at all.  Images are read by

@@ -7,7 +7,7 @@ property, scene units) and ``OUT.npz`` beside it with every per-point quantity
 ``index``) plus the candidates' ``status`` and ``status_names``, and beside them the
 maps of :mod:`pipeline.match_maps` -- ``OUT.disparity.npy``/``.png``,
 ``OUT.sigma.npy``/``.png``, ``OUT.status.npy``/``.png`` (where and why the matcher said
-no).  The files appear together or not at all.
+no) and ``OUT.report.html`` showing them.  The files appear together or not at all.
 """
 
 from __future__ import annotations

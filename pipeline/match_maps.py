@@ -11,6 +11,10 @@ size, one value at each candidate's left pixel) and a colour-mapped PNG with its
 * ``status``: the candidate's status code (uint8, :data:`matching.pair.PAIR_STATUS_NAMES`;
   255 where the pixel is no candidate).
 
+and ``report.html``: one self-contained page (the three PNGs embedded) with the table of
+the statuses -- each reason's count, share and meaning -- so a user sees where and why the
+matcher said no without opening the arrays.
+
 The candidates lie one per ``spacing`` x ``spacing`` cell, so a PNG paints every pixel with
 its nearest candidate within one cell side (the ``.npy`` keep the candidates only);
 pixels farther from any candidate are dark grey.  The colour scales of the two continuous
@@ -33,6 +37,28 @@ STATUS_COLOURS = {
     4: (250, 220, 150), 5: (120, 60, 160), 6: (200, 80, 200), 7: (100, 100, 100),
     8: (150, 150, 150), 9: (40, 40, 230), 10: (60, 200, 230), 11: (160, 160, 40),
     12: (30, 80, 240), 13: (230, 230, 230), 14: (40, 160, 250), 15: (190, 40, 250),
+}
+#: Status code -> what it means to a user (the report's table).
+STATUS_MEANINGS = {
+    0: "accepted: a unique match with its sigma",
+    1: "LSM did not converge",
+    2: "residual larger than the image noise allows (occlusion, specularity, a window "
+       "over two surfaces)",
+    3: "the solution left the pull-in range of its approximation",
+    4: "degenerate shape (the window would fold or collapse)",
+    5: "correlation below the floor",
+    6: "the window leaves an image",
+    7: "no texture above the noise (a blank region)",
+    8: "no approximation (SGBM gave none, region growing did not reach it)",
+    9: "rejected by triangulation (behind a camera, reprojection, ill-conditioned)",
+    10: "sigma far above the pair's median (imprecise)",
+    11: "two motions in one window (a depth edge)",
+    12: "ambiguous: a rival along the epipolar line matches as well within the noise "
+        "(repeated texture)",
+    13: "blank: no signal in the window",
+    14: "the backward (right-to-left) match does not return",
+    15: "aperture: the texture does not determine the shift along the epipolar line "
+        "(an edge parallel to it)",
 }
 NO_CANDIDATE = 255
 _PANEL = 230  # legend panel width, px
@@ -130,18 +156,51 @@ def render_status(status: np.ndarray, names: dict[int, str], reach: float) -> np
 
 
 def map_paths(target, prefix: str = "") -> list[Path]:
-    """The six files :func:`write_maps` writes into folder ``target``."""
+    """The seven files :func:`write_maps` writes into folder ``target``."""
     return [Path(target) / f"{prefix}{name}{suffix}" for name in ("disparity", "sigma", "status")
-            for suffix in (".npy", ".png")]
+            for suffix in (".npy", ".png")] + [Path(target) / f"{prefix}report.html"]
+
+
+def report_html(matches, pngs: dict[str, bytes], title: str) -> str:
+    """The page of ``report.html``: the status table and the three maps (PNG bytes)."""
+    import base64
+    import html
+
+    from matching.pair import PAIR_STATUS_NAMES
+
+    codes, counts = np.unique(np.asarray(matches.status), return_counts=True)
+    total = max(int(counts.sum()), 1)
+    rows = "".join(
+        f"<tr><td>{html.escape(PAIR_STATUS_NAMES.get(int(c), str(c)))}</td>"
+        f"<td style='text-align:right'>{int(n)}</td>"
+        f"<td style='text-align:right'>{100 * n / total:.1f} %</td>"
+        f"<td>{html.escape(STATUS_MEANINGS.get(int(c), ''))}</td></tr>"
+        for c, n in sorted(zip(codes, counts, strict=True), key=lambda t: -t[1]))
+    captions = {"status": "why each candidate gave no point (status, nearest candidate)",
+                "disparity": "disparity x_left - x_right of the accepted matches, px",
+                "sigma": "sigma of each accepted match along the rows, px"}
+    figures = "".join(
+        f"<figure><img alt='{name}' src='data:image/png;base64,"
+        f"{base64.b64encode(pngs[name]).decode('ascii')}'>"
+        f"<figcaption>{captions[name]}</figcaption></figure>"
+        for name in ("status", "disparity", "sigma"))
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+            "</title><style>body{font-family:sans-serif;margin:1.5em}td,th{padding:2px 8px}"
+            "img{max-width:100%}</style></head><body>"
+            f"<h1>{html.escape(title)}</h1><p>{int((np.asarray(matches.status) == 0).sum())} "
+            f"of {total} candidates accepted.</p>"
+            "<table><tr><th>status</th><th>count</th><th>share</th><th>meaning</th></tr>"
+            f"{rows}</table>{figures}</body></html>\n")
 
 
 def write_maps(target, matches, prefix: str = "", stack: ExitStack | None = None
                ) -> list[Path]:
-    """Write the three maps' ``.npy`` and ``.png`` (module docstring) into folder ``target``.
+    """Write the three maps' ``.npy`` and ``.png`` and the page that shows them (module
+    docstring) into folder ``target``.
 
-    The files are ``PREFIXdisparity.npy``, ``PREFIXdisparity.png``, ``PREFIXsigma.*`` and
-    ``PREFIXstatus.*``.  With ``stack`` each goes to a temporary file of
-    :func:`pipeline.atomic.atomic_file` entered on it: renamed when the caller's stack
+    The files are ``PREFIXdisparity.npy``, ``PREFIXdisparity.png``, ``PREFIXsigma.*``,
+    ``PREFIXstatus.*`` and ``PREFIXreport.html``.  With ``stack`` each goes to a temporary
+    file of :func:`pipeline.atomic.atomic_file` entered on it: renamed when the caller's stack
     closes without an error (with its other outputs), else removed; without, written
     directly (into a folder that is itself renamed whole, :func:`pipeline.atomic.atomic_dir`).
     """
@@ -157,6 +216,12 @@ def write_maps(target, matches, prefix: str = "", stack: ExitStack | None = None
     }
     written = []
     folder = Path(target)
+    pngs = {}
+    for name, image in images.items():
+        ok, data = cv2.imencode(".png", image)
+        if not ok:
+            raise OSError(f"{folder / (prefix + name + '.png')}: PNG encoding failed")
+        pngs[name] = data.tobytes()
     for name in ("disparity", "sigma", "status"):
         for suffix in (".npy", ".png"):
             path = folder / f"{prefix}{name}{suffix}"
@@ -170,9 +235,16 @@ def write_maps(target, matches, prefix: str = "", stack: ExitStack | None = None
                 with open(tmp, "wb") as fh:
                     np.save(fh, arrays[name])
             else:
-                ok, data = cv2.imencode(".png", images[name])
-                if not ok:
-                    raise OSError(f"{path}: PNG encoding failed")
-                Path(tmp).write_bytes(data.tobytes())
+                Path(tmp).write_bytes(pngs[name])
             written.append(path)
+    path = folder / f"{prefix}report.html"
+    if stack is None:
+        tmp = path
+    else:
+        from pipeline.atomic import atomic_file
+
+        tmp = stack.enter_context(atomic_file(path))
+    title = f"{prefix.rstrip('.') or folder.name}: where and why the matcher said no"
+    Path(tmp).write_text(report_html(matches, pngs, title), encoding="utf-8")
+    written.append(path)
     return written

@@ -8,8 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
-from matching.pair import AMBIGUOUS, APERTURE, PairMatches
-from pipeline.match_maps import NO_CANDIDATE, STATUS_COLOURS, map_arrays, write_maps
+from matching.pair import AMBIGUOUS, APERTURE, PAIR_STATUS_NAMES, PairMatches
+from pipeline.match_maps import (
+    NO_CANDIDATE,
+    STATUS_COLOURS,
+    STATUS_MEANINGS,
+    map_arrays,
+    write_maps,
+)
 
 
 def _matches(w=64, h=48, spacing=4):
@@ -63,6 +69,18 @@ def test_written_files_and_status_colours(tmp_path, staged):
     assert tuple(status_png[20, 50]) == STATUS_COLOURS[APERTURE]
     assert tuple(status_png[20, 10]) == STATUS_COLOURS[0]
     assert np.array_equal(np.load(tmp_path / "c.status.npy"), map_arrays(m)["status"])
+    # the page shows the three maps and every status present with its count and meaning
+    page = (tmp_path / "c.report.html").read_text(encoding="utf-8")
+    assert page.count("<img ") == 3 and page.count("data:image/png;base64,") == 3
+    for code in np.unique(m.status):
+        count = int((m.status == code).sum())
+        assert (f"<td>{PAIR_STATUS_NAMES[int(code)]}</td><td style='text-align:right'>"
+                f"{count}</td>") in page
+        assert STATUS_MEANINGS[int(code)].split(" (")[0] in page
+
+
+def test_every_status_has_a_meaning():
+    assert set(STATUS_MEANINGS) == set(PAIR_STATUS_NAMES)
 
 
 def test_a_failed_write_leaves_nothing(tmp_path):
