@@ -38,7 +38,8 @@ def test_match_against_rendered_correspondence(vase, tmp_path):
     assert main(["match", *_args(vase), "--rig", str(vase / "cameras.yml"), "--out",
                  str(out), "-q"]) == 0
     # the maps (pipeline.match_maps) beside the matches; the marker lists the files
-    maps = [f"{n}.{s}" for n in ("disparity", "sigma", "status") for s in ("npy", "png")] + ["report.html"]
+    maps = [f"{n}.{s}" for n in ("disparity", "sigma", "status") for s in ("npy", "png")]
+    maps.append("report.html")
     assert sorted(p.name for p in out.iterdir()) == sorted([".photosurf-output.json",
                                                             "matches.npz", *maps])
     m = np.load(out / "matches.npz")
