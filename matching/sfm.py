@@ -63,11 +63,22 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm", ".pgm", ".webp")
-MATCHERS = ("auto", "exhaustive", "sequential")
+MATCHERS = ("auto", "exhaustive", "selected", "sequential")
 REFINEMENTS = ("auto", "lsm", "none")
 #: "auto" matches exhaustively up to this many images: n(n-1)/2 pairs, ~1200
 #: pairs at 50 images, a few minutes of SIFT matching on 2 cores.
 EXHAUSTIVE_MAX_IMAGES = 50
+#: "selected" pairs: a coarse pass (SIFT on each image at this longer side, at most
+#: ``COARSE_FEATURES`` features, every pair matched and verified) finds which pairs
+#: overlap; only those are matched at full size (:func:`_overlapping_pairs`).
+COARSE_SIDE = 800
+COARSE_FEATURES = 1024
+#: A pair the coarse pass verified with at least this many inlier matches is matched at
+#: full size: COLMAP's mapper uses no pair with fewer (``min_num_matches``, 15).
+COARSE_MIN_INLIERS = 15
+#: ... and each image's best pairs by coarse inliers, whatever their count (so that no
+#: image is left without a pair to be registered by).
+COARSE_BEST_PER_IMAGE = 3
 #: SIFT runs on each image reduced to this longer side (COLMAP's own default,
 #: ``FeatureExtractionOptions.max_image_size``, set here explicitly).
 SIFT_MAX_IMAGE_SIZE = 3200
@@ -460,6 +471,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
                          f"{sorted(sizes)}")
     if matcher == "auto":
         matcher = "exhaustive" if len(names) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
+    if matcher == "selected" and any(any(c.isspace() for c in n) for n in names):
+        matcher = "exhaustive"  # COLMAP's pair list separates the names by a space
     threads = int(num_threads) if num_threads else (os.cpu_count() or 1)
 
     with contextlib.ExitStack() as stack:
@@ -521,6 +534,16 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
             if matcher == "exhaustive":
                 pycolmap.match_exhaustive(database, matching_options=matching,
                                           device=pycolmap.Device.cpu)
+            elif matcher == "selected":
+                pairs = _overlapping_pairs(read_dir, names, reader, mode, threads, work)
+                listed = work / "pairs.txt"
+                listed.write_text("".join(f"{a} {b}\n" for a, b in pairs))
+                step("matching %d of %d pairs at full size (those a coarse pass found "
+                     "overlapping)", len(pairs), len(names) * (len(names) - 1) // 2)
+                pycolmap.match_image_pairs(
+                    database, matching_options=matching,
+                    pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(listed)),
+                    device=pycolmap.Device.cpu)
             else:
                 pycolmap.match_sequential(database, matching_options=matching,
                                           device=pycolmap.Device.cpu)
@@ -593,19 +616,20 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
 class _Steps:
     """One progress line per step of SfM (logger ``photosurf.progress``, shown at the
     command line's default verbosity: :mod:`pipeline.logs`), with the seconds the previous
-    step took."""
+    step took (wall and the process's CPU seconds, every thread)."""
 
     def __init__(self):
         import time
 
-        self._clock = time.monotonic
-        self._last = self._clock()
+        self._clock, self._cpu = time.monotonic, time.process_time
+        self._last, self._last_cpu = self._clock(), self._cpu()
 
     def __call__(self, message: str, *args) -> None:
-        now = self._clock()
+        now, cpu = self._clock(), self._cpu()
         logging.getLogger("photosurf.progress").info(
-            "SfM: " + message + " (previous step %.1f s)", *args, now - self._last)
-        self._last = now
+            "SfM: " + message + " (previous step %.1f s, %.1f CPU-s)", *args, now - self._last,
+            cpu - self._last_cpu)
+        self._last, self._last_cpu = now, cpu
 
 
 def _staged_focal(image_dir: Path, original: dict, turned: dict, restage: set,
@@ -618,6 +642,48 @@ def _staged_focal(image_dir: Path, original: dict, turned: dict, restage: set,
     focals = [exif_focal_px(image_dir / name) for name in original.values()]
     focals = [f for f in focals if f is not None]
     return float(np.median(focals)) if focals else None
+
+
+def _overlapping_pairs(read_dir: Path, names: list[str], reader, mode,
+                       threads: int, work: Path) -> list[tuple[str, str]]:
+    """The image pairs worth matching at full size, from a coarse SfM matching pass.
+
+    Every pair is matched on small images (``COARSE_SIDE`` px, ``COARSE_FEATURES``
+    features: (1024 / ~6 000)^2, about 1/35 of a full pair's descriptor comparisons) and
+    verified by COLMAP's two-view geometry; kept are the pairs with at least
+    ``COARSE_MIN_INLIERS`` inliers and each image's ``COARSE_BEST_PER_IMAGE`` best pairs.
+    Views that share nothing (the far side of a ring, the two ends of a walk) are not
+    matched at full size.
+    """
+    import sqlite3
+
+    import pycolmap
+
+    coarse = work / "coarse.db"
+    coarse.unlink(missing_ok=True)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = threads
+    extraction.max_image_size = COARSE_SIDE
+    extraction.sift.max_num_features = COARSE_FEATURES
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = threads
+    with _quiet_colmap():
+        pycolmap.extract_features(coarse, read_dir, image_names=names, camera_mode=mode,
+                                  reader_options=reader, extraction_options=extraction,
+                                  device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(coarse, matching_options=matching,
+                                  device=pycolmap.Device.cpu)
+    with contextlib.closing(sqlite3.connect(coarse)) as db:
+        ids = dict(db.execute("SELECT image_id, name FROM images"))
+        rows = db.execute("SELECT pair_id, rows FROM two_view_geometries WHERE rows > 0")
+        inliers = {tuple(sorted(ids[i] for i in pycolmap.pair_id_to_image_pair(pair_id))): int(n)
+                   for pair_id, n in rows}
+    coarse.unlink(missing_ok=True)
+    keep = {pair for pair, n in inliers.items() if n >= COARSE_MIN_INLIERS}
+    for name in names:
+        mine = sorted((n, pair) for pair, n in inliers.items() if name in pair)
+        keep.update(pair for _, pair in mine[-COARSE_BEST_PER_IMAGE:])
+    return sorted(keep)
 
 
 def _result_from(reconstruction, names: list[str], others: list[str], matcher: str) -> SfmResult:

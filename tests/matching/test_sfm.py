@@ -235,3 +235,31 @@ def test_portrait_and_landscape_views_share_one_camera(real_data_dir, tmp_path):
               for c in aligned.cameras]
     # a camera turned the wrong way would be 90 or 180 degrees off
     assert np.median(angles) < 1.5 and max(angles) < 2.5, angles
+
+
+def test_selected_pairs_register_the_ring(scene_folder, sfm_result, tmp_path):
+    """matcher="selected": the pairs a coarse pass verified (and each image's best 3) are
+    matched at full size.  The 8 views on a 150 degree arc and the stray image: fewer
+    pairs than all 36, the stray still named, the poses within the exhaustive run's
+    bounds (test_poses_match_truth_after_similarity)."""
+    from matching import sfm
+
+    folder, truth = scene_folder
+    names = sorted(p.name for p in folder.glob("*.png"))
+    reader = pycolmap.ImageReaderOptions()
+    pairs = sfm._overlapping_pairs(folder, names, reader, pycolmap.CameraMode.SINGLE, 2,
+                                   tmp_path)
+    assert set(pairs) <= {(a, b) for i, a in enumerate(names) for b in names[i + 1:]}
+    assert len(pairs) < len(names) * (len(names) - 1) // 2
+    # every ring view keeps its neighbours on the arc
+    for i in range(7):
+        assert (f"img_{i:02d}.png", f"img_{i + 1:02d}.png") in pairs
+    result = run_sfm(folder, work_dir=tmp_path / "work", num_threads=2, matcher="selected")
+    assert result.registered == sfm_result.registered
+    assert result.unregistered == ["zz_stray.png"] and result.matcher == "selected"
+    aligned, rms = align_to_reference(result, truth)
+    assert rms < 0.01 * 4.5
+    by_name = {cam.name: cam for cam in truth}
+    for cam in aligned.cameras:
+        angle = np.linalg.norm(cv2.Rodrigues(cam.R @ by_name[cam.name].R.T)[0])
+        assert np.rad2deg(angle) < 0.5, cam.name
