@@ -48,6 +48,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from surface.polygon import inside_polygon as _inside
+
 __all__ = ["LoopGraph", "loop_graph", "nesting", "rasterise", "EVENT_KINDS"]
 
 #: Raster cells across the largest extent of the sectioned object.
@@ -252,14 +254,6 @@ def _raster(polygon: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[i
     raster = rasterise(polygon, origin, cell, shape)
     rasters[id(polygon)] = (polygon, grid, raster)
     return raster
-
-
-def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Even-odd test of ``points`` against ``polygon``: :func:`surface.stitch._inside`
-    (imported here: ``surface.stitch`` imports this module)."""
-    from surface.stitch import _inside as inside
-
-    return inside(points, polygon)
 
 
 def _area(polygon: np.ndarray) -> float:

@@ -88,6 +88,8 @@ import numpy as np
 from surface._blas import one_blas_thread
 from surface.loop_graph import LoopGraph, loop_graph, nesting
 from surface.metrics import delaunay_fraction, edge_table, mesh_topology
+from surface.polygon import INSIDE_PAIRS
+from surface.polygon import inside_polygon as _inside
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["StitchResult", "stitch_rings", "zip_rings", "cap_triangles", "delaunay_flips",
@@ -528,14 +530,13 @@ def _folds(v: np.ndarray, tri: np.ndarray, f1: int, f2: int, c: int, a: int, d: 
 
 @numba.njit(cache=True, nogil=True)
 def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarray,
-            plane: np.ndarray, cos_limit: float, angle_tol: float, zero: float,
+            cos_limit: float, angle_tol: float, zero: float,
             max_sweeps: int, max_load: float) -> tuple:  # pragma: no cover - numba
     """:func:`delaunay_flips`' sweeps on ``tri`` in place: ``(flips, converged)``.
 
     Each sweep (i) finds the interior edges (exactly two faces) of the active faces
     whose faces share a region, run opposite ways and are not ``fixed`` (sorted keys),
     whose opposite angles sum above ``π + angle_tol``, whose new edge does not exist yet
-    nor, in a region ``>= 0``, joins two vertices of one ``plane`` label ``>= 0``,
     and whose new faces keep their normals within ``cos_limit`` of the pair's
     area-weighted normal, and orders them by their keys ``lo·V + hi``; (ii) takes a
     maximal set of them no two of which share a face, by rounds of "each face keeps its
@@ -584,8 +585,6 @@ def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarra
                 ex = _angle_at(v, c, a, b) + _angle_at(v, d, b, a) - np.pi
                 if not ex > angle_tol or c == d:
                     continue
-                if region[f1] >= 0 and plane[c] >= 0 and plane[c] == plane[d]:
-                    continue   # a chord of one section: a flat face in its plane
                 new_key = min(c, d) * n_v + max(c, d)
                 if count[_slot(table, new_key)] > 0 or _folds(v, tri, f1, f2, c, a, d, b,
                                                               cos_limit, zero):
@@ -674,8 +673,7 @@ def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarra
 def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarray | None = None,
                    fixed_edges: np.ndarray | None = None,
                    max_normal_change: float = MAX_NORMAL_CHANGE,
-                   max_sweeps: int = 1000,
-                   plane: np.ndarray | None = None) -> tuple[np.ndarray, int, bool]:
+                   max_sweeps: int = 1000) -> tuple[np.ndarray, int, bool]:
     """Lawson flips until every flippable interior edge is locally Delaunay.
 
     Parameters
@@ -700,12 +698,6 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
         only spoil the four edges of its own quad); a last full sweep
         confirms the fixed point.
 
-    plane : (V,) int, optional
-        Each vertex's section (``-1``: none).  In a region ``>= 0`` (a strip between
-        two rings) no flip makes an edge between two vertices of one section: that
-        face would lie flat in the section's plane, and where the strips on both sides
-        of a thin loop (a finger, a spike) both take such faces they overlap.
-
     Returns
     -------
     triangles : (F, 3) int64
@@ -721,9 +713,7 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
         np.ascontiguousarray(region, dtype=np.int64)
     fixed = (np.zeros(0, np.int64) if fixed_edges is None or len(fixed_edges) == 0
              else np.unique(_edge_keys(np.asarray(fixed_edges, np.int64), len(v))))
-    labels = (np.full(len(v), -1, np.int64) if plane is None
-              else np.ascontiguousarray(plane, dtype=np.int64))
-    total, converged = _lawson(v, tri, reg, fixed, labels, float(np.cos(max_normal_change)),
+    total, converged = _lawson(v, tri, reg, fixed, float(np.cos(max_normal_change)),
                                TOL.angle, TOL.zero, max_sweeps, EDGE_TABLE_LOAD)
     return tri, int(total), bool(converged)
 
@@ -762,50 +752,6 @@ def _as_sections(rings) -> list[list[np.ndarray]]:
             checked.append(arr)
         sections.append(checked)
     return sections
-
-
-#: Point-edge pairs :func:`_inside` forms at once (about 60 bytes each: bounds its memory).
-INSIDE_PAIRS = 1 << 21
-
-
-def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Even-odd point-in-polygon test, ``(P, 2)`` points against an ``(n, 2)`` ring.
-
-    A point's rightward ray crosses edge (p0, p1) when ``min(y0, y1) <= y <
-    max(y0, y1)`` and ``x`` is left of the edge's x at that height.  With the
-    points sorted by y, each edge's candidates are one run of the sorted order
-    (``searchsorted``), so only the straddling (point, edge) pairs are formed,
-    about two a point on a star-shaped ring instead of all P n of them, in
-    batches of at most :data:`INSIDE_PAIRS` pairs; each pair's crossing is the
-    same expression as the dense test's, so the answer is the same bit for bit.
-
-    Returns
-    -------
-    (P,) bool
-    """
-    count = len(points)
-    if count == 0 or len(polygon) == 0:
-        return np.zeros(count, bool)
-    x, y = points[:, 0], points[:, 1]
-    order = np.argsort(y, kind="stable")
-    x0, y0 = polygon[:, 0], polygon[:, 1]                        # (n,)
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-    dy = np.where(y1 == y0, 1.0, y1 - y0)
-    start = np.searchsorted(y[order], np.minimum(y0, y1), side="left")
-    runs = np.searchsorted(y[order], np.maximum(y0, y1), side="left") - start
-    edges = np.flatnonzero(runs > 0)
-    ends = np.cumsum(runs[edges])
-    batch = (ends - runs[edges]) // INSIDE_PAIRS                 # batch of each edge's first pair
-    crossings = np.zeros(count, np.int64)
-    for b in np.unique(batch):
-        e = edges[batch == b]
-        run = runs[e]
-        edge = np.repeat(e, run)                                 # (pairs,)
-        first = np.cumsum(run) - run
-        point = order[np.arange(len(edge)) - np.repeat(first - start[e], run)]
-        x_cross = x0[edge] + (y[point] - y0[edge]) * (x1[edge] - x0[edge]) / dy[edge]
-        crossings += np.bincount(point[x[point] < x_cross], minlength=count)
-    return crossings % 2 == 1
 
 
 # --------------------------------------------------------------------------- branch points
@@ -1839,7 +1785,6 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             n = len(flat)
             idx = offsets[s][lp] + np.arange(n)
             fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
-    ring_vertices = count     # the sections' own points; bridge points follow
     if extra_vertices:
         vertices = np.vstack([vertices] + extra_vertices)
         count = len(vertices)
@@ -1995,11 +1940,8 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     if not constrain_contours:
         flip_region = np.where(flip_region >= 0, 0, flip_region)
     if flip and len(triangles):
-        plane = np.concatenate(sec_of).astype(np.int64)
-        plane[ring_vertices:ring_vertices + sum(len(x) for x in extra_vertices)] = -1
         triangles, flips, converged = delaunay_flips(vertices, triangles, flip_region, fixed,
-                                                     max_normal_change=max_normal_change,
-                                                     plane=plane)
+                                                     max_normal_change=max_normal_change)
         if not converged:
             messages.append(f"Lawson flips stopped after the sweep limit ({flips} flips)")
     topo = mesh_topology(vertices, triangles)

@@ -5,6 +5,7 @@ the answers of their all-at-once forms."""
 import numpy as np
 import pytest
 
+import surface.polygon as polygon_module
 import surface.stitch as stitch
 from surface.stitch import _dome, _inside, _local_quadratic
 
@@ -27,7 +28,7 @@ def _inside_all_pairs(points, polygon):
 def test_inside_equals_all_pairs_test(monkeypatch, seed, pairs):
     # Star-shaped, self-intersecting and grid-snapped polygons (points on vertices and
     # on horizontal edges), batches of 1 pair up to one batch: the same answer, exactly.
-    monkeypatch.setattr(stitch, "INSIDE_PAIRS", pairs)
+    monkeypatch.setattr(polygon_module, "INSIDE_PAIRS", pairs)
     rng = np.random.default_rng(seed)
     n = int(rng.integers(3, 80))
     theta = np.sort(rng.random(n)) * 2 * np.pi
