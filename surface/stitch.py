@@ -530,13 +530,14 @@ def _folds(v: np.ndarray, tri: np.ndarray, f1: int, f2: int, c: int, a: int, d: 
 
 @numba.njit(cache=True, nogil=True)
 def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarray,
-            cos_limit: float, angle_tol: float, zero: float,
+            plane: np.ndarray, cos_limit: float, angle_tol: float, zero: float,
             max_sweeps: int, max_load: float) -> tuple:  # pragma: no cover - numba
     """:func:`delaunay_flips`' sweeps on ``tri`` in place: ``(flips, converged)``.
 
     Each sweep (i) finds the interior edges (exactly two faces) of the active faces
     whose faces share a region, run opposite ways and are not ``fixed`` (sorted keys),
     whose opposite angles sum above ``π + angle_tol``, whose new edge does not exist yet
+    nor, in a region ``>= 0``, joins two vertices of one ``plane`` label ``>= 0``,
     and whose new faces keep their normals within ``cos_limit`` of the pair's
     area-weighted normal, and orders them by their keys ``lo·V + hi``; (ii) takes a
     maximal set of them no two of which share a face, by rounds of "each face keeps its
@@ -585,6 +586,8 @@ def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarra
                 ex = _angle_at(v, c, a, b) + _angle_at(v, d, b, a) - np.pi
                 if not ex > angle_tol or c == d:
                     continue
+                if region[f1] >= 0 and plane[c] >= 0 and plane[c] == plane[d]:
+                    continue   # a chord of one section: a flat face in its plane
                 new_key = min(c, d) * n_v + max(c, d)
                 if count[_slot(table, new_key)] > 0 or _folds(v, tri, f1, f2, c, a, d, b,
                                                               cos_limit, zero):
@@ -673,7 +676,8 @@ def _lawson(v: np.ndarray, tri: np.ndarray, region: np.ndarray, fixed: np.ndarra
 def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarray | None = None,
                    fixed_edges: np.ndarray | None = None,
                    max_normal_change: float = MAX_NORMAL_CHANGE,
-                   max_sweeps: int = 1000) -> tuple[np.ndarray, int, bool]:
+                   max_sweeps: int = 1000,
+                   plane: np.ndarray | None = None) -> tuple[np.ndarray, int, bool]:
     """Lawson flips until every flippable interior edge is locally Delaunay.
 
     Parameters
@@ -698,6 +702,12 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
         only spoil the four edges of its own quad); a last full sweep
         confirms the fixed point.
 
+    plane : (V,) int, optional
+        Each vertex's section (``-1``: none).  In a region ``>= 0`` (a strip between
+        two rings) no flip makes an edge between two vertices of one section: that
+        face would lie flat in the section's plane, and where the strips on both sides
+        of a thin loop (a finger, a spike) both take such faces they overlap.
+
     Returns
     -------
     triangles : (F, 3) int64
@@ -713,7 +723,9 @@ def delaunay_flips(vertices: np.ndarray, triangles: np.ndarray, region: np.ndarr
         np.ascontiguousarray(region, dtype=np.int64)
     fixed = (np.zeros(0, np.int64) if fixed_edges is None or len(fixed_edges) == 0
              else np.unique(_edge_keys(np.asarray(fixed_edges, np.int64), len(v))))
-    total, converged = _lawson(v, tri, reg, fixed, float(np.cos(max_normal_change)),
+    labels = (np.full(len(v), -1, np.int64) if plane is None
+              else np.ascontiguousarray(plane, dtype=np.int64))
+    total, converged = _lawson(v, tri, reg, fixed, labels, float(np.cos(max_normal_change)),
                                TOL.angle, TOL.zero, max_sweeps, EDGE_TABLE_LOAD)
     return tri, int(total), bool(converged)
 
@@ -1785,6 +1797,7 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             n = len(flat)
             idx = offsets[s][lp] + np.arange(n)
             fixed.append(np.stack([idx, np.roll(idx, -1)], axis=1))
+    ring_vertices = count     # the sections' own points; bridge points follow
     if extra_vertices:
         vertices = np.vstack([vertices] + extra_vertices)
         count = len(vertices)
@@ -1940,8 +1953,11 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
     if not constrain_contours:
         flip_region = np.where(flip_region >= 0, 0, flip_region)
     if flip and len(triangles):
+        plane = np.concatenate(sec_of).astype(np.int64)
+        plane[ring_vertices:ring_vertices + sum(len(x) for x in extra_vertices)] = -1
         triangles, flips, converged = delaunay_flips(vertices, triangles, flip_region, fixed,
-                                                     max_normal_change=max_normal_change)
+                                                     max_normal_change=max_normal_change,
+                                                     plane=plane)
         if not converged:
             messages.append(f"Lawson flips stopped after the sweep limit ({flips} flips)")
     topo = mesh_topology(vertices, triangles)
