@@ -1,4 +1,4 @@
-"""Creases interpolated or kept (``surface.sizing.INTERPOLATE_CREASES``), side by side.
+"""Creases interpolated or kept (``surface.interpolation.INTERPOLATE_CREASES``), side by side.
 
 The smooth surface passes through the vertices of the object's ridges inside its end
 sections (``surface.sizing.crease_vertices``, 2026-12-06); before, every vertex on an edge
@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 from _common import uptime, write_result  # noqa: E402
 
 from matching.image_file import imread  # noqa: E402
-from surface import bezier, sizing  # noqa: E402
+from surface import bezier, interpolation, sizing  # noqa: E402
 from testkit import shapes as _shapes  # noqa: E402
 
 SEEDS = (0, 1)
@@ -46,7 +46,7 @@ def shape_row(shape: str, seed: int) -> dict:
     points = _shapes.sample(shape, POINTS, seed=seed)
     row = {"shape": shape, "seed": seed}
     for label, on in (("kept", False), ("interpolated", True)):
-        sizing.INTERPOLATE_CREASES = on
+        interpolation.INTERPOLATE_CREASES = on
         try:
             sized, _ = sizing.sized_from_points(points, axis="z")
         except ValueError as exc:   # a refusal is a result too
@@ -59,7 +59,7 @@ def shape_row(shape: str, seed: int) -> dict:
         row[label] = {"patches": len(surface.control_points),
                       "creases": 0 if sized.creases is None else int(sized.creases.sum()),
                       "chamfer": score["chamfer"]}
-    sizing.INTERPOLATE_CREASES = True
+    interpolation.INTERPOLATE_CREASES = True
     if "chamfer" in row["kept"] and "chamfer" in row["interpolated"]:
         row["chamfer_ratio"] = row["interpolated"]["chamfer"] / row["kept"]["chamfer"]
     return row
@@ -88,7 +88,7 @@ def temple_rows(workspace: Path) -> dict:
         " unsized", ["--set", "smooth.size=false"])) for label, on in (("kept", False),
                                                                          ("interpolated", True))]
     for label, on, extra in runs:
-        sizing.INTERPOLATE_CREASES = on
+        interpolation.INTERPOLATE_CREASES = on
         with tempfile.TemporaryDirectory() as scratch:
             copy = Path(scratch) / "w"
             shutil.copytree(workspace, copy)
@@ -101,7 +101,7 @@ def temple_rows(workspace: Path) -> dict:
         out[label] = {"patches": info["patches"], "iou": values.tolist(),
                       "iou_min": float(values.min()), "iou_median": float(np.median(values)),
                       "mean_over_stitched": float(np.mean(values - stitched))}
-    sizing.INTERPOLATE_CREASES = True
+    interpolation.INTERPOLATE_CREASES = True
     return out
 
 

@@ -37,7 +37,7 @@ from _common import uptime, write_result  # noqa: E402
 
 from pipeline import artifacts  # noqa: E402
 from pipeline.mesh_io import read_mesh  # noqa: E402
-from surface import metrics, sizing  # noqa: E402
+from surface import metrics, section_chains, sizing  # noqa: E402
 
 SAMPLES = 200_000
 LAGS = (1, 2, 4, 8, 12)
@@ -81,15 +81,15 @@ def variograms(workspace: Path, truth) -> dict:
     rings, planes, _ = artifacts.read_curves(workspace / "curves")
     axis = np.asarray(planes[0].frame[2], dtype=np.float64)
     measured = sizing.section_variogram(rings, axis)
-    frame = sizing._plane_frame(axis)
+    frame = section_chains.plane_frame(axis)
     distance = metrics.MeshDistance(*truth)
-    loops = [sizing._single(e) for e in rings]
+    loops = [section_chains.single_loop(e) for e in rings]
     count = min(len(loop) for loop in loops if loop is not None)
     errors = np.full((len(rings), count), np.nan)
     for k, loop in enumerate(loops):
         if loop is None:
             continue
-        centre = sizing._area_centroid(loop, frame)
+        centre = section_chains.area_centroid(loop, frame)
         aligned = sizing.resample_at_angles(loop, count, centre, frame)
         if aligned is not None:
             errors[k] = distance(aligned, signed=True)

@@ -1,12 +1,12 @@
 """Creases the smooth surface interpolates (2026-12-06): ``surface.fitting.convex_creases``,
-``surface.sizing.crease_vertices`` and ``interpolating_control(..., creases)``."""
+``surface.interpolation.crease_vertices`` and ``interpolating_control(..., creases)``."""
 
 from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
 
-from surface import sizing
+from surface import interpolation, sizing
 from surface.fitting import convex_creases, limit_positions
 
 
@@ -66,12 +66,12 @@ def test_crease_vertices_leave_the_ends_and_need_a_dense_crease_nearby():
     assert sizing.crease_vertices(v, t, axis, inner, far, 0.1) is None
     near = v[ledge][::4] + 0.01
     assert np.array_equal(sizing.crease_vertices(v, t, axis, inner, near, 0.3), ledge)
-    sizing_flag = sizing.INTERPOLATE_CREASES
+    sizing_flag = interpolation.INTERPOLATE_CREASES
     try:
-        sizing.INTERPOLATE_CREASES = False
+        interpolation.INTERPOLATE_CREASES = False
         assert sizing.crease_vertices(v, t, axis, inner) is None
     finally:
-        sizing.INTERPOLATE_CREASES = sizing_flag
+        interpolation.INTERPOLATE_CREASES = sizing_flag
 
 
 def test_interpolated_creases_pass_through_the_ledge_kept_ones_round_it_off():
@@ -116,12 +116,12 @@ def test_the_sizing_interpolates_a_stepped_columns_ledge_and_not_its_rims():
     control = sizing.interpolating_control(sized.vertices, sized.triangles, sized.creases)
     limit = limit_positions(control, sized.triangles)
     np.testing.assert_allclose(limit[sized.creases], at, rtol=0, atol=1e-9)
-    sizing_flag = sizing.INTERPOLATE_CREASES
+    sizing_flag = interpolation.INTERPOLATE_CREASES
     try:
-        sizing.INTERPOLATE_CREASES = False
+        interpolation.INTERPOLATE_CREASES = False
         assert sized_from_points(points, axis="z")[0].creases is None
     finally:
-        sizing.INTERPOLATE_CREASES = sizing_flag
+        interpolation.INTERPOLATE_CREASES = sizing_flag
 
 
 def test_mesh_creases_of_a_stitched_mesh_take_the_band_from_its_rings():

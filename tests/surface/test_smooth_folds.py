@@ -1,7 +1,7 @@
 """The smooth surface over an interpolating control mesh is a valid solid.
 
 A can (raised rim round a recessed lid, ``testkit/can.py``), 12 000 noise-free points:
-the interpolating correction of ``surface.sizing.interpolating_control`` turns the caps'
+the interpolating correction of ``surface.interpolation.interpolating_control`` turns the caps'
 fan triangles and the rim's faces over, and Loop's surface over the corrected mesh
 crosses itself there.  Where the surface folds (``surface.fitting.surface_folds``) the
 folding vertices are moved part of the way, then kept, so the surface has no crossing
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pipeline.smoothing import smooth_mesh
-from surface import sizing
+from surface import interpolation
 from surface.fitting import folded_faces, surface_folds
 from surface.metrics import compare_meshes, sample_mesh
 from surface.sizing import interpolating_control, sized_from_points
@@ -69,7 +69,7 @@ def test_can_smooth_surface_is_a_valid_solid(can_sized, monkeypatch):
 
     # without the unfolding the surface crosses itself (the case the rule is for)
     with monkeypatch.context() as m:
-        m.setattr(sizing, "UNFOLD_ROUNDS", 0)
+        m.setattr(interpolation, "UNFOLD_ROUNDS", 0)
         plain = interpolating_control(sized.vertices, sized.triangles, sized.creases)
     assert len(surface_of(plain)[1].intersecting_pairs) > 0
     smooth, report = surface_of(interpolating_control(sized.vertices, sized.triangles,
