@@ -368,13 +368,15 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
     from surface import reconstruct as rc
 
     p = ctx.params["curves"]
+    _, _, spacing = artifacts.read_sections(ctx.stage_path("sections"))
+    if not spacing > 0 and len(sliced) > 1:
+        spacing = float(np.median(np.abs(np.diff([s.height for s in sliced]))))
+    sliced, piece = osf.main_piece(sliced, spacing) if spacing > 0 else (sliced, None)
     kept, loops, messages = osf.organise_arcs(sliced, **options)
+    messages += [piece] if piece else []
     share = rc.bridged_share(loops)
     if len(kept) < 2 or not (forced or osf.one_sided(loops)):
         return None
-    _, _, spacing = artifacts.read_sections(ctx.stage_path("sections"))
-    if not spacing > 0:
-        spacing = float(np.median(np.abs(np.diff([s.height for s in kept]))))
     try:
         curves, rings, params, step, notes, run = osf.open_arcs(
             loops, spacing, p["n"] or None, smoothing=smoothing)

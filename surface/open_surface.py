@@ -67,7 +67,7 @@ from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
-           "open_surface_from_loops", "organise_arcs", "open_arcs", "chain_arcs",
+           "open_surface_from_loops", "organise_arcs", "main_piece", "open_arcs", "chain_arcs",
            "smooth_border", "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
@@ -273,16 +273,57 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
 
 
 # --------------------------------------------------------------------------- arcs
+#: A loop whose path is longer than this many times its points' spine went along them
+#: and back: a thin, noisy line (a flat board seen edge-on in a section, a facade's wall)
+#: is traced as a closed loop round it.  Once along an arc the path is about the spine's
+#: length (noise adds a little); there and back, twice it: halfway between.
+DOUBLED_PATH = 1.5
+#: Neighbours per point in the graph whose minimum spanning tree gives the spine.
+_SPINE_NEIGHBOURS = 12
+
+
+def _spine_order(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """The points' order along their spine and its length: the geodesic distance, in the
+    minimum spanning tree of their neighbour graph (k nearest plus the loop's own steps,
+    which keep it connected), from one end of the tree's longest path."""
+    from scipy.spatial import cKDTree
+
+    m = len(points)
+    k = min(_SPINE_NEIGHBOURS, m - 1)
+    dist, near = cKDTree(points).query(points, k=k + 1)
+    rows = np.concatenate([np.repeat(np.arange(m), k), np.arange(m)])
+    cols = np.concatenate([near[:, 1:].ravel(), np.roll(np.arange(m), -1)])
+    weight = np.concatenate([dist[:, 1:].ravel(),
+                             np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)])
+    weight = np.maximum(weight, TOL.zero)   # coincident points: an edge, not a missing one
+    graph = sparse.coo_matrix((weight, (rows, cols)), shape=(m, m)).tocsr()
+    tree = csgraph.minimum_spanning_tree(graph)
+    end = int(np.argmax(csgraph.dijkstra(tree, directed=False, indices=0)))
+    along = csgraph.dijkstra(tree, directed=False, indices=end)
+    return np.argsort(along, kind="stable"), float(along.max())
+
+
 def loop_arc(loop) -> np.ndarray:
     """The ordered points ``(M, 3)`` of a ``surface.topology.Loop`` as an open arc.
 
     The loop's cyclic order is cut at its longest step (the unseen side) and the arc
     runs from the point after it to the point before it, keeping the loop's
-    counter-clockwise direction.
+    counter-clockwise direction.  A loop that went along its points and back (its path
+    more than :data:`DOUBLED_PATH` times its spine: a thin noisy line) is instead
+    ordered along its spine (:func:`_spine_order`), in the direction of its cut order.
     """
     pts = np.asarray(loop.points, dtype=np.float64)
     step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
-    return np.roll(pts, -(int(np.argmax(step)) + 1), axis=0)
+    arc = np.roll(pts, -(int(np.argmax(step)) + 1), axis=0)
+    if len(arc) < 4:
+        return arc
+    path = float(np.sort(step)[:-1].sum())     # the loop without its cut step
+    order, spine = _spine_order(arc)
+    if path <= DOUBLED_PATH * spine:
+        return arc
+    if order[0] > order[-1]:                    # keep the cut order's direction
+        order = order[::-1]
+    return arc[order]
 
 
 #: Largest angle between an arc's end tangent and the gap to the next piece for the
@@ -768,6 +809,59 @@ def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
             v = nxt[v]
         loops.append(np.array(loop, np.int64))
     return loops
+
+
+#: Reach, in section spacings, within which points of the sections are one piece
+#: (:func:`main_piece`): a strip joins sections one spacing apart, and along a section
+#: the arcs are chained across gaps, so a point within one spacing over and one along
+#: belongs to the same sheet; two spacings.
+PIECE_REACH = 2.0
+
+
+def main_piece(sections, spacing: float) -> tuple[list, str | None]:
+    """The sections' points in the largest connected piece of all of them (points within
+    :data:`PIECE_REACH` section spacings linked), the others left out.
+
+    An open surface is one sheet (:func:`align_arcs` keeps one run of arcs); a stereo
+    pair's cloud holds the scene -- on the chessboard rig the board and, apart from it,
+    a keyboard, a monitor, the wall -- whose pieces break every section into arcs of
+    several objects.  The largest piece is the object the pair was aimed at.
+
+    Returns
+    -------
+    sections : list of Section
+        The same sections with the points of the largest piece (some may be empty).
+    note : str or None
+        What was left out.
+    """
+    from dataclasses import replace
+
+    from scipy.spatial import cKDTree
+
+    sizes = [len(s) for s in sections]
+    if sum(sizes) == 0:
+        return list(sections), None
+    points = np.concatenate([np.asarray(s.points, np.float64).reshape(-1, 3)
+                             for s in sections])
+    tree = cKDTree(points)
+    pairs = tree.query_pairs(PIECE_REACH * spacing, output_type="ndarray")
+    graph = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                              shape=(len(points), len(points)))
+    count, label = csgraph.connected_components(graph, directed=False)
+    if count == 1:
+        return list(sections), None
+    size = np.bincount(label)
+    keep = label == int(np.argmax(size))
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    out = []
+    for k, section in enumerate(sections):
+        mine = keep[offsets[k]:offsets[k + 1]]
+        index = np.asarray(section.source_index)
+        out.append(replace(section, points=np.asarray(section.points)[mine],
+                           source_index=index[mine] if len(index) == len(mine) else index))
+    return out, (f"{int((~keep).sum())} of {len(points)} section points in {count - 1} "
+                 f"piece(s) apart from the largest ({int(keep.sum())} points, within "
+                 f"{PIECE_REACH:g} section spacings) left out: one sheet is made")
 
 
 def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:

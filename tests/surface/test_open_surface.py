@@ -272,3 +272,43 @@ def test_jagged_arc_ends_give_a_border_through_the_ends_not_a_staircase():
     rings, params = osf.resample_arcs(curves, placed, step, smooth=False)
     stairs = osf.stitch_arcs(rings, params, step)
     assert _border_runs(stairs, spacing) > 20
+
+
+def test_a_loop_traced_round_a_thin_noisy_line_is_ordered_along_it():
+    """A flat board cut by a section is a noisy line; its loop goes along one side and
+    back along the other.  The arc follows the line once; a real arc keeps its order."""
+    rng = np.random.default_rng(7)
+    x = np.sort(rng.uniform(0, 4, 200))
+    y = rng.normal(0, 0.02, 200)
+    top, bottom = np.flatnonzero(y >= 0), np.flatnonzero(y < 0)[::-1]
+    order = np.concatenate([top, bottom])                 # there along y >= 0, back along y < 0
+    line = np.stack([x, y, np.zeros_like(x)], axis=1)[order]
+    arc = osf.loop_arc(_Arc(line, 0.0))
+    assert abs(np.corrcoef(np.arange(len(arc)), arc[:, 0])[0, 1]) > 0.999
+    # along x: backward steps only between neighbours across the noise (measured 0.16;
+    # the cut order, there and back: half)
+    assert np.mean(np.diff(arc[:, 0]) < 0) < 0.3
+    cut = np.roll(line, -(int(np.argmax(np.linalg.norm(np.roll(line, -1, 0) - line,
+                                                       axis=1))) + 1), axis=0)
+    assert np.mean(np.diff(cut[:, 0]) < 0) > 0.4           # the loop's own order: back
+    # a half circle seen from one side keeps the loop's own order
+    half = _circle_arc(np.linspace(0.1, 3.0, 150)) + rng.normal(0, 0.002, (150, 3)) * [1, 1, 0]
+    np.testing.assert_array_equal(osf.loop_arc(_Arc(half, 0.0)), half)
+
+
+def test_main_piece_keeps_the_largest_sheet_of_the_sections():
+    from surface.sections import Section
+
+    spacing = 0.1
+    sections = []
+    for k in range(10):
+        sheet = np.stack([np.linspace(0, 2, 60), np.zeros(60), np.full(60, k * spacing)], 1)
+        other = np.stack([np.linspace(5, 5.5, 15), np.zeros(15), np.full(15, k * spacing)], 1)
+        points = np.concatenate([sheet, other])
+        sections.append(Section(height=k * spacing, points=points, origin=np.zeros(3),
+                                frame=np.eye(3), section_id=k, source_index=np.arange(75)))
+    kept, note = osf.main_piece(sections, spacing)
+    assert all(len(s) == 60 and s.points[:, 0].max() <= 2 for s in kept)
+    assert all(np.array_equal(s.source_index, np.arange(60)) for s in kept)
+    assert note is not None and "150 of 750" in note
+    assert osf.main_piece(kept, spacing)[1] is None        # one piece: nothing left out
