@@ -172,28 +172,23 @@ def run_sections(points: np.ndarray) -> dict:
 
 
 def run_general(points: np.ndarray, edge: float | None, tolerance: float | None) -> dict:
-    from pipeline.smoothing import smooth_mesh
+    from pipeline.smoothing import smooth_general
     from surface.general_mesh import poisson_control_mesh
     from surface.sections import point_spacing
-    from surface.sizing import JUDGE_FOLD_LEVEL, interpolating_control
-    from surface.validity import check_solid
 
     start = _clock()
     spacing = point_spacing(points)
     edge = edge or 1.5 * spacing
     vertices, triangles = poisson_control_mesh(points, edge, spacing)
-    control = interpolating_control(vertices, triangles, fold_level=JUDGE_FOLD_LEVEL)
     tolerance = tolerance or 0.1 * spacing
-    smooth = smooth_mesh(control, triangles, "adaptive", tolerance, check=False)
-    # as the smooth stage (pipeline.stages._general_smooth): the approximating surface
-    # where the interpolating one self-intersects
-    approximating = len(check_solid(smooth.vertices, smooth.triangles).intersecting_pairs) > 0
-    if approximating:   # checked and repaired where it crosses itself, as the stage
-        smooth = smooth_mesh(vertices, triangles, "adaptive", tolerance)
+    # as the smooth stage (pipeline.stages._general_smooth)
+    smooth = smooth_general(vertices, triangles, "adaptive", tolerance)
     seconds, cpu = _since(start)
+    control = (smooth.solid or {}).get("general_control")
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
             "patches": len(smooth.surface.control_points), "seconds": seconds, "cpu": cpu,
-            "approximating": approximating, "repair": _repair(smooth)}
+            "approximating": control == "approximating", "general_control": control,
+            "repair": _repair(smooth)}
 
 
 def _repair(smooth) -> dict | None:

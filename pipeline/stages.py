@@ -695,31 +695,12 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
 
 
 def _general_smooth(vertices, triangles, level, tolerance):
-    """Loop's patches over the general control mesh, through its vertices
-    (``surface.sizing.interpolating_control``); where that surface self-intersects (the
-    interpolation overshoots across a thin gap of a decimated iso-surface: the cow's 10^4
-    points, 136 pairs), over the mesh itself (the approximating surface: 0 pairs there)."""
-    import time
+    """Loop's patches over the general control mesh: ``pipeline.smoothing.smooth_general``
+    (through its vertices where that is a valid solid, else with the folds held back, else
+    over the mesh itself)."""
+    from pipeline.smoothing import smooth_general
 
-    from pipeline.smoothing import smooth_mesh
-    from surface.sizing import JUDGE_FOLD_LEVEL, interpolating_control
-    from surface.validity import check_solid
-
-    start = time.perf_counter()
-    # folds looked for at level 1: the iso-surface's triangles are well shaped, and the
-    # check below catches what that misses (banana 10^4 points: 9.5 -> 6.7 CPU-s, Chamfer
-    # +0.1 %, valid either way)
-    smoothed = smooth_mesh(interpolating_control(vertices, triangles,
-                                                 fold_level=JUDGE_FOLD_LEVEL), triangles, level,
-                           tolerance, check=False)
-    solid = check_solid(smoothed.vertices, smoothed.triangles)
-    if len(solid.intersecting_pairs) == 0:
-        smoothed.solid = {**solid.to_json(), "expect_closed": True,
-                          "seconds": round(time.perf_counter() - start, 3)}
-        return smoothed
-    log.info("smooth: the interpolating general surface self-intersects at %d pairs: the "
-             "approximating one", len(solid.intersecting_pairs))
-    return smooth_mesh(vertices, triangles, level, tolerance)
+    return smooth_general(vertices, triangles, level, tolerance)
 
 
 def _stitched_open(ctx: StageContext) -> bool:

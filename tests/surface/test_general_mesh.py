@@ -155,3 +155,24 @@ def test_supported_genus_drops_a_handle_through_no_data_and_keeps_holes(torus_an
     hole = np.linalg.norm(cloud - [1.5, 0.0, 0.0], axis=1) < 0.3
     assert supported_genus(v, t, cloud[~hole], reach) == 1
     assert support_reach(1.0, 0.1) == pytest.approx(np.sqrt(np.log(1e3) / np.pi) + 0.3)
+
+
+def test_smooth_general_takes_the_plain_interpolation_when_it_is_a_valid_solid(torus_mesh):
+    from pipeline.smoothing import smooth_general
+
+    _, v, t = torus_mesh
+    smooth = smooth_general(v, t, 1)
+    assert smooth.solid["valid"] and smooth.solid["genus"] == 1
+    assert smooth.solid["general_control"] == "interpolating"
+    assert np.median(shapes.distance_to_truth("torus", smooth.vertices)) < 2 * SIGMA
+
+
+def test_evidence_genus_is_the_section_surface_s_supported_genus(torus_and_cloud):
+    from surface.general_mesh import evidence_genus, support_reach
+    from surface.sections import point_spacing
+
+    v, t, cloud = torus_and_cloud
+    reach = support_reach(point_spacing(cloud))
+    assert evidence_genus(v, t, cloud, reach) == 1
+    # a surface that is no closed manifold (a face doubled) has no genus to give
+    assert evidence_genus(v, np.vstack([t, t[:1]]), cloud, reach) is None
