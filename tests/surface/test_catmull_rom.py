@@ -471,10 +471,10 @@ def test_a_lone_loop_in_a_list_keeps_n():
 def test_interleaved_order_turns_the_cyclic_band_into_a_band():
     """Unknowns cyclically at most 3 apart sit at most 6 apart in the interleaved order
     (so the banded Cholesky of the least-squares fit sees every non-zero)."""
-    from surface.catmull_rom import _interleaved
+    from surface.cyclic_band import interleaved
 
     for n in range(7, 80):
-        order = _interleaved(n)
+        order = interleaved(n)
         assert np.array_equal(np.sort(order), np.arange(n))
         where = np.argsort(order)                 # each unknown's place in the order
         i, j = np.meshgrid(np.arange(n), np.arange(n))
@@ -500,7 +500,7 @@ def test_least_squares_band_cholesky_is_the_sparse_lu(monkeypatch, seed):
         n = max(4, min(m, int(round(m / s))))
         got, t = cr._least_squares(pts, n, s)
         with monkeypatch.context() as patch:
-            patch.setattr(cr, "_cholesky_cyclic_band", lambda *args: False)
+            patch.setattr(cr, "cholesky_cyclic_band", lambda *args: False)
             want, t_lu = cr._least_squares(pts, n, s)
         assert np.array_equal(t, t_lu)
         worst = max(worst, float(np.abs(got - want).max()))

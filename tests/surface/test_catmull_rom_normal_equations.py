@@ -14,6 +14,7 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from surface import catmull_rom as cr
+from surface import cyclic_band
 
 
 def _sparse_reference(pts, n_ctrl, smoothing):
@@ -27,7 +28,7 @@ def _sparse_reference(pts, n_ctrl, smoothing):
     design = sparse.csr_matrix(
         (weights.ravel(), (np.repeat(np.arange(m), 4), cols.ravel())), shape=(m, n_ctrl))
     normal = (design.T @ design).tocsc()
-    fair = cr._periodic_third_difference(n_ctrl)
+    fair = cyclic_band.periodic_third_difference(n_ctrl)
     system = (normal + cr._FAIRNESS * normal.diagonal().mean() * (fair.T @ fair)).tocsc()
     return np.asarray(spsolve(system, design.T @ pts)).reshape(n_ctrl, 3), t
 
@@ -83,8 +84,8 @@ def test_uniform_evaluation_is_scipys_spline_to_the_bit(seed):
 def test_third_difference_band_is_the_sparse_gram(n):
     """The constant band (the stencil's autocorrelation) is DᵀD of the periodic third
     difference, entry (i, j) at [j, (i − j + 3) mod n], exactly."""
-    fair = cr._periodic_third_difference(n)
+    fair = cyclic_band.periodic_third_difference(n)
     gram = (fair.T @ fair).toarray()
     j = np.arange(n)[:, None]
-    assert np.array_equal(cr._third_difference_band(n), gram[(j + np.arange(-3, 4)) % n, j])
+    assert np.array_equal(cyclic_band.third_difference_band(n), gram[(j + np.arange(-3, 4)) % n, j])
     assert np.count_nonzero(gram) == 7 * n
