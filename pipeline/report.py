@@ -501,7 +501,12 @@ def _truth_section(root, screen, truth, params, info, read_mesh) -> str:
             "(exact point-to-triangle distances), ± its sampling error (standard error of "
             "the mean); the cloud's RMS over at most as many of its points.</p>")
     stitch_notes = root / "stitch" / "stitch.json"
-    if stitch_notes.is_file() and json.loads(stitch_notes.read_text()).get("open"):
+    stitched = json.loads(stitch_notes.read_text()) if stitch_notes.is_file() else {}
+    if stitched.get("open") and "holes" in stitched:   # sections.open: ends left open
+        note += ("<p>The surface is open where the data end at an end of the object "
+                 "(sections.open = true: an end the data do not cover is left as a border, "
+                 "not filled): its completeness counts that end as missing.</p>")
+    elif stitched.get("open"):
         note += ("<p>The surface is open (one-sided data, surface/open_surface.py): its "
                  "accuracy is measured over the part it covers, which the views saw; its "
                  "completeness counts the unseen side of the object as missing.</p>")

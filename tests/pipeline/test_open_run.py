@@ -100,7 +100,7 @@ def test_stereo_pair_ends_with_an_open_smooth_surface_on_the_seen_side(tmp_path,
     foot = to_truth.scene.compute_closest_points(query)["points"].numpy() + to_truth.centre
     cameras = read_cameras_yml(out / "scene" / "cameras.yml")
     assert _seen_by_all(cameras, truth, foot).mean() > 0.99
-    assert "The surface is open" in (out / "report.html").read_text()
+    assert "The surface is open (one-sided data" in (out / "report.html").read_text()
 
     # curves.open = false: the one-sided data is the one-line error it was, exit 2
     from pipeline import cli
