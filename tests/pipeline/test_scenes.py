@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from matching.cameras import read_cameras_yml, read_colmap_text
-from pipeline import scenes
+from pipeline import scene_geometry, scenes
 from pipeline.errors import InputError
 from pipeline.mesh_io import read_mesh
 from pipeline.raycast import look_at
@@ -83,7 +83,7 @@ def _silhouette(mask):
 
 def test_vase_profile_is_the_analytic_vase(fixtures_dir):
     recipe = scenes.load_recipe(fixtures_dir / "scenes" / "vase.toml")
-    radius, _, _ = scenes._revolution_functions(recipe["shape"])
+    radius, _, _ = scene_geometry.revolution_functions(recipe["shape"])
     z = np.linspace(0.0, 3.0, 20001)
     # 61 knots, h = 0.05: the not-a-knot end intervals dominate; measured 3.2e-7
     assert np.abs(radius(z) - (1 + 0.3 * np.sin(2 * z))).max() < 4e-7
@@ -101,7 +101,7 @@ def test_shipped_mesh_is_closed_outward_and_has_the_analytic_volume(fixtures_dir
     assert all((b, a) in directed for a, b in directed)
     tri = vertices[triangles]
     volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6
-    _, rx, ry = scenes._revolution_functions(recipe["shape"])
+    _, rx, ry = scene_geometry.revolution_functions(recipe["shape"])
     profile = np.asarray(recipe["shape"]["profile"])
     z = np.linspace(profile[0, 0], profile[-1, 0], 200001)
     exact = np.pi * np.trapezoid(rx(z) * ry(z), z)
@@ -431,7 +431,7 @@ def test_mesh_shape_with_ring(tmp_path):
 
 
 def test_undistort_inverts_the_distortion_model():
-    cam = scenes._make_camera(0, np.array([0.0, -5.0, 0.0]),
+    cam = scenes.make_camera(0, np.array([0.0, -5.0, 0.0]),
                               look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)),
                               np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]]),
                               np.array([-0.25, 0.08, 0.001, -0.002, -0.01]),
@@ -444,7 +444,7 @@ def test_undistort_inverts_the_distortion_model():
 
 
 def test_non_invertible_distortion_is_an_input_error():
-    cam = scenes._make_camera(0, np.array([0.0, -5.0, 0.0]),
+    cam = scenes.make_camera(0, np.array([0.0, -5.0, 0.0]),
                               look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)),
                               np.array([[100.0, 0, 159.5], [0, 100.0, 119.5], [0, 0, 1]]),
                               np.array([-0.9, 0.0, 0.0, 0.0, 0.0]),
