@@ -80,10 +80,12 @@ docs: $(DOCS_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
 # ruff, then the import contract of pyproject.toml [tool.importlinter] (docs/architecture.md,
-# "The import rule": the layers, tests and benchmarks apart, no cycle inside a package)
+# "The import rule": the layers, tests and benchmarks apart, no cycle inside a package), then the rule for
+# imports inside functions (tests/function_imports.py)
 lint: setup
 	$(VENV)/bin/ruff check matching surface pipeline testkit tests benchmarks
 	$(VENV)/bin/lint-imports --no-cache
+	$(VENV)/bin/python tests/function_imports.py
 
 clean:
 	rm -rf $(VENV) $(OUT) *.egg-info .pytest_cache site docs/figures.md

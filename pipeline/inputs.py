@@ -25,6 +25,7 @@ One set of rules for every command that reads images (``photosurf run``, ``match
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from collections.abc import Sequence
@@ -477,8 +478,6 @@ def scene_source(scene_dir: str | os.PathLike) -> str:
     The recipe's camera layout in ``scene.json`` decides; without one, two images are a
     stereo pair and more an image folder.
     """
-    import json
-
     scene_dir = Path(scene_dir)
     meta = scene_dir / "scene.json"
     layout = None

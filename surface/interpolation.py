@@ -22,9 +22,20 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from surface._blas import one_blas_thread
+from surface.fitting import (
+    convex_creases,
+    flat_vertices,
+    folded_faces,
+    grow_vertices,
+    interpolating_control_mesh,
+    sharp_vertices,
+    surface_folds,
+)
 from surface.section_chains import section_heights
+from surface.validity import check_solid
 
 __all__ = ["FOLD_LEVEL", "INTERPOLATE_CREASES", "JUDGE_FOLD_LEVEL", "crease_band",
            "crease_vertices", "interpolating_control", "mesh_creases", "off_rim_vertices",
@@ -128,14 +139,6 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
     ``fold_level``: the tessellation level the folds are looked for at (default
     :data:`FOLD_LEVEL`; the sizing judges its candidates at :data:`JUDGE_FOLD_LEVEL`).
     """
-    from surface.fitting import (
-        flat_vertices,
-        folded_faces,
-        interpolating_control_mesh,
-        sharp_vertices,
-        surface_folds,
-    )
-    from surface.validity import check_solid
 
     try:
         keep = sharp_vertices(vertices, triangles, rings=0) | flat_vertices(vertices, triangles)
@@ -208,8 +211,6 @@ def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tu
     Why (2026-12-06): the kept creases round the real temple's edges inwards; the
     figures are :func:`interpolating_control`'s.
     """
-    from surface.fitting import convex_creases
-
     if not INTERPOLATE_CREASES:
         return None
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -218,7 +219,6 @@ def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tu
     if dense is not None:
         if len(dense) == 0:
             return None
-        from scipy.spatial import cKDTree
 
         near = np.zeros(len(vertices), dtype=bool)
         if mask.any():
@@ -231,8 +231,6 @@ def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tu
 def rim_vertices(vertices, triangles) -> np.ndarray | None:
     """Vertices on a sharp edge (``surface.fitting.sharp_vertices``), None when the mesh
     has borders."""
-    from surface.fitting import sharp_vertices
-
     try:
         return sharp_vertices(vertices, triangles, rings=0)
     except ValueError:
@@ -242,8 +240,6 @@ def rim_vertices(vertices, triangles) -> np.ndarray | None:
 def off_rim_vertices(vertices, triangles, sharp: np.ndarray | None = None) -> np.ndarray:
     """Vertices neither on nor next to a sharp edge (all of them if the mesh has borders);
     ``sharp``: :func:`rim_vertices` of the mesh, if known."""
-    from surface.fitting import grow_vertices
-
     sharp = rim_vertices(vertices, triangles) if sharp is None else sharp
     if sharp is None:
         return np.ones(len(vertices), dtype=bool)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from surface.catmull_rom import perimeter
+from surface.loop_graph import loop_graph
 from surface.ring_resample import resample_rings_at_angles
 
 __all__ = ["SectionLayout", "aligned_rings", "area_centroid", "largest_perimeter", "loop_chains",
@@ -76,8 +78,6 @@ def aligned_rings(rings: Sequence, sections: np.ndarray, count: int, frame: np.n
 
 
 def largest_perimeter(rings: Sequence) -> float:
-    from surface.catmull_rom import perimeter
-
     return max((perimeter(loop) for entry in rings for loop in section_loops(entry)), default=0.0)
 
 
@@ -127,7 +127,6 @@ def loop_chains(rings: Sequence, frame: np.ndarray) -> list[tuple[np.ndarray, li
     loops = [section_loops(entry) for entry in rings]
     if all(len(found) == 1 for found in loops):
         return [(np.arange(len(loops)), [found[0] for found in loops])]
-    from surface.loop_graph import loop_graph
 
     graph = loop_graph([[loop @ frame[:2].T for loop in found] for found in loops])
     after = {(e.section, e.lower[0]): e.upper[0] for e in graph.events

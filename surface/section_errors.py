@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from surface.ring_resample import resample_at_angles
 from surface.section_chains import (
@@ -249,8 +250,6 @@ def section_variogram(rings: Sequence, axis=(0.0, 0.0, 1.0), max_lag: int = MAX_
     Variogram or None
         None when fewer than seven consecutive single-loop sections exist.
     """
-    from scipy.optimize import least_squares
-
     axis = np.asarray(axis, dtype=np.float64)
     if len(rings) < len(_D6) or sum(single_loop(e) is not None for e in rings) < len(_D6):
         return None

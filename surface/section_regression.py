@@ -19,7 +19,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
+from surface import reconstruct as rc
+from surface.catmull_rom import branch_ring_size, perimeter, ring_size
 from surface.interpolation import rim_vertices
 from surface.ring_resample import resample_ring
 from surface.section_chains import (
@@ -218,8 +221,6 @@ def smoothing_matrix(heights: np.ndarray, keep: Sequence[int],
     through them (the interpolating Loop surface is a G1 interpolant of the kept rings).
     Rows sum to 1 (constants are reproduced).
     """
-    from scipy.interpolate import CubicSpline
-
     count, keep = len(heights), np.asarray(keep)
     smooth = np.zeros((len(keep), count))
     for row, (index, w) in enumerate(weights):
@@ -291,8 +292,6 @@ def coarsen_rings(rings: Sequence, planes: Sequence, step: int, n: int,
     -------
     (rings, planes) : lists
     """
-    from surface.catmull_rom import branch_ring_size, perimeter, ring_size
-
     frame = plane_frame(axis)
     layout = section_layout(rings, frame) if layout is None else layout
     keep, weights = thinning(section_heights(rings, frame[2]), layout, step, length, smooth)
@@ -334,7 +333,5 @@ def untangled(rings: Sequence, planes: Sequence) -> tuple[list, list]:
     the dense mesh: 424 776 patches for 54 393 points.  The risk model's smoothing
     matrix still counts the dropped sections (a few, at the branch events).
     """
-    from surface import reconstruct as rc
-
     planes, _, rings, _ = rc.untangle(list(planes), [section_loops(e) for e in rings], list(rings))
     return rings, planes

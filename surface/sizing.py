@@ -28,7 +28,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from surface import bezier
+from surface import reconstruct as rc
 from surface._blas import one_blas_thread
+from surface.bezier import closest_points
 from surface.interpolation import (
     FOLD_LEVEL,
     JUDGE_FOLD_LEVEL,
@@ -39,6 +42,7 @@ from surface.interpolation import (
     off_rim_vertices,
     rim_vertices,
 )
+from surface.metrics import MeshDistance, sample_mesh, triangle_areas
 from surface.ring_resample import (
     periodic_cubic,
     resample_at_angles,
@@ -78,6 +82,8 @@ from surface.section_regression import (
     thinning,
     untangled,
 )
+from surface.sections import point_spacing
+from surface.stitch import stitch_rings
 
 __all__ = ["FOLD_LEVEL", "JUDGE_FOLD_LEVEL",
            "SectionLayout", "SizedMesh", "Variogram", "coarsen_rings", "crease_band",
@@ -162,8 +168,6 @@ def _vertex_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """A third of the area of each vertex's faces: the reference vertices are drawn by it,
     so that their mean squares weigh the surface as the points spread over its faces do
     (:func:`stitched_surface_error` compares the two)."""
-    from surface.metrics import triangle_areas
-
     tri = np.asarray(triangles, dtype=np.int64)
     area = triangle_areas(np.asarray(vertices, dtype=np.float64), tri)
     return np.bincount(tri.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
@@ -175,8 +179,6 @@ def _smooth_surface(vertices: np.ndarray, triangles: np.ndarray,
     and the distance function of its level-1 tessellation (``surface.metrics.MeshDistance``:
     one raycasting scene for several point sets, and the start of
     :func:`surface.bezier.closest_points`)."""
-    from surface import bezier
-    from surface.metrics import MeshDistance
 
     control = interpolating_control(vertices, triangles, creases, JUDGE_FOLD_LEVEL)
     surface = bezier.control_net(control, triangles)
@@ -536,7 +538,6 @@ class _LevelSearch:
         goal = self.tolerance if self.tolerance is not None else stitched_surface_error(
             distances, None if on_faces is None else measure(on_faces), variogram)
         if error <= EXACT_WITHIN * goal:   # near: exact distances to the candidate
-            from surface.bezier import closest_points
             faces = self.tolerance is None and on_faces is not None
             exact = closest_points(surface, np.vstack([reference, on_faces]) if faces
                                    else reference, tessellated=measure)[0]
@@ -612,7 +613,6 @@ def _refolded(sized: SizedMesh) -> SizedMesh:
     stage writes."""
     if sized.surface is None or FOLD_LEVEL == JUDGE_FOLD_LEVEL:
         return sized
-    from surface import bezier
 
     control = interpolating_control(sized.vertices, sized.triangles, sized.creases)
     sized.surface = bezier.control_net(control, sized.triangles)
@@ -656,8 +656,6 @@ def _points_on_faces(vertices, triangles, off_rims, count, axis, heights, order,
     """``count`` points spread by area over the dense mesh's faces whose vertices are all
     off the sharp rims and off the end planes (as the reference vertices); None if there
     are none."""
-    from surface.metrics import sample_mesh
-
     eligible = off_rims.copy()
     section = nearest_section(vertices @ axis, heights, order)
     eligible &= (section > 0) & (section < len(heights) - 1)
@@ -692,8 +690,6 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
     (SizedMesh, StitchResult)
         The sized control mesh and the dense stitched mesh.
     """
-    from surface import reconstruct as rc
-    from surface.stitch import stitch_rings
 
     sliced = rc.slice_cloud(points, axis=axis, sections=sections)
     kept, loops, _ = rc.organise_sections(sliced.sections,
@@ -721,7 +717,6 @@ def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = No
                               lambda r, p: (lambda s: (s.vertices, s.triangles))(build(r, p)),
                               (dense.vertices, dense.triangles),
                               float(tolerance) if tolerance else None, noise=ring_sigma)
-    from surface.sections import point_spacing
 
     sized.spacing = float(point_spacing(np.asarray(points, dtype=np.float64)))
     return sized, dense

@@ -23,3 +23,12 @@ def test_the_import_contract_is_kept(monkeypatch, capsys):
     assert status == cli.EXIT_STATUS_SUCCESS, report
     assert "0 broken" in report
 
+
+def test_imports_inside_functions_follow_the_rule():
+    """docs/architecture.md, "Imports inside functions": no module gains an import inside a
+    function that the rule does not allow (``tests/function_imports.py``, its count per
+    module of those still in the tree)."""
+    from tests.function_imports import problems
+
+    errors, _ = problems()
+    assert not errors, "\n".join(errors)
