@@ -37,6 +37,7 @@ from surface.stitch import (
     _nearest_loop,
     _scaled,
     end_window,
+    self_intersects,
     stitch_rings,
     uncovered_share,
 )
@@ -773,36 +774,6 @@ def untangle(kept: list, loops: list, rings: list | None = None):
     return (kept, loops, notes) if rings is None else (kept, loops, rings, notes)
 
 
-def self_intersects(uv: np.ndarray) -> bool:
-    """Whether the closed polygon ``uv`` ``(n, 2)`` crosses itself.
-
-    Two edges that cross have midpoints closer than the longest edge: candidate
-    pairs come from a k-d tree of the midpoints (``cKDTree.query_pairs``), and
-    each non-adjacent pair is tested exactly by the signs of its four
-    orientations (edges that only touch or overlap along a line do not count).
-    """
-    from scipy.spatial import cKDTree
-
-    a = np.asarray(uv, dtype=np.float64)
-    n = len(a)
-    if n < 4:
-        return False
-    b = np.roll(a, -1, axis=0)
-    longest = float(np.linalg.norm(b - a, axis=1).max())
-    pairs = cKDTree(0.5 * (a + b)).query_pairs(longest, output_type="ndarray")
-    i, j = pairs[:, 0], pairs[:, 1]
-    apart = (np.abs(i - j) != 1) & (np.abs(i - j) != n - 1)  # not sharing a vertex
-    i, j = i[apart], j[apart]
-
-    def orientation(p, q, r):
-        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
-                       - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
-
-    crosses = ((orientation(a[i], b[i], a[j]) * orientation(a[i], b[i], b[j]) < 0)
-               & (orientation(a[j], b[j], a[i]) * orientation(a[j], b[j], b[i]) < 0))
-    return bool(crosses.any())
-
-
 #: A ring passing within this many of its own median point spacings of itself, away
 #: from its neighbours along it, has a neck narrower than the sections resolve (the
 #: rings are spaced about as the sections are).
@@ -828,8 +799,6 @@ def keyhole(uv: np.ndarray) -> bool:
     nested and pass.
     """
     from scipy.spatial import cKDTree
-
-    from surface.loop_graph import _inside as inside_polygon
 
     a = np.asarray(uv, dtype=np.float64)
     n = len(a)
@@ -857,8 +826,8 @@ def keyhole(uv: np.ndarray) -> bool:
             continue      # the same neck, a point along
         tried.append((int(i[k]), int(j[k])))
         one, other = a[i[k]:j[k] + 1], np.vstack([a[j[k]:], a[:i[k] + 1]])
-        if (np.mean(inside_polygon(one, other)) >= NESTED_SHARE
-                or np.mean(inside_polygon(other, one)) >= NESTED_SHARE):
+        if (np.mean(_inside(one, other)) >= NESTED_SHARE
+                or np.mean(_inside(other, one)) >= NESTED_SHARE):
             return True
     return False
 

@@ -1549,6 +1549,36 @@ def _dome_neighbours(flat: np.ndarray, h: np.ndarray, test: np.ndarray, noise: f
     return k
 
 
+def self_intersects(uv: np.ndarray) -> bool:
+    """Whether the closed polygon ``uv`` ``(n, 2)`` crosses itself.
+
+    Two edges that cross have midpoints closer than the longest edge: candidate
+    pairs come from a k-d tree of the midpoints (``cKDTree.query_pairs``), and
+    each non-adjacent pair is tested exactly by the signs of its four
+    orientations (edges that only touch or overlap along a line do not count).
+    """
+    from scipy.spatial import cKDTree
+
+    a = np.asarray(uv, dtype=np.float64)
+    n = len(a)
+    if n < 4:
+        return False
+    b = np.roll(a, -1, axis=0)
+    longest = float(np.linalg.norm(b - a, axis=1).max())
+    pairs = cKDTree(0.5 * (a + b)).query_pairs(longest, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    apart = (np.abs(i - j) != 1) & (np.abs(i - j) != n - 1)  # not sharing a vertex
+    i, j = i[apart], j[apart]
+
+    def orientation(p, q, r):
+        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
+                       - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+
+    crosses = ((orientation(a[i], b[i], a[j]) * orientation(a[i], b[i], b[j]) < 0)
+               & (orientation(a[j], b[j], a[i]) * orientation(a[j], b[j], b[i]) < 0))
+    return bool(crosses.any())
+
+
 def _inset_ring(ring: np.ndarray, d: float) -> np.ndarray:
     """``ring`` moved ``d`` towards its centroid (in its plane): the cap's support ring."""
     to_centre = ring.mean(axis=0) - ring
@@ -1823,6 +1853,15 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                 return False
         for _ in range(CAP_GUARD_RINGS + 1):
             rings_in.append(_inset_ring(rings_in[-1], d))
+            # moved towards the centroid, the two sides of a waist narrower than 2d
+            # (a contour like a peanut's) cross: such rings would fold the cap
+            outer_flat, inset_flat = rings_in[-2] @ frame[:2].T, rings_in[-1] @ frame[:2].T
+            if self_intersects(inset_flat) or not _inside(inset_flat, outer_flat).all():
+                if support:
+                    messages.append(f"cap of section {s} loop {lp}: no support ring inside "
+                                    "the cap (the inset contour would cross itself or "
+                                    "the rim)")
+                return False
         inner_flat = rings_in[-1] @ frame[:2].T
         height = float(np.mean(rings_in[-1] @ frame[2]))
         dome = _dome(inner_flat, *dome_window(height, up, None), cap_points, frame,

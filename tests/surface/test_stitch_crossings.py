@@ -158,3 +158,31 @@ def test_a_thin_finger_between_two_strips_is_not_tiled_flat_twice():
         sections = result.section_of_vertex[strips]
         assert not np.any((sections[:, 0] == sections[:, 1]) & (sections[:, 1] == sections[:, 2]))
         assert result.flips > 0 and result.delaunay_fraction > 0.95
+
+
+def _dumbbell(waist: float, big: float = 0.6, small: float = 0.3, step: float = 0.05):
+    """Disks of radius ``big`` and ``small`` side by side, joined at a waist."""
+    a, b = np.arcsin(waist / 2 / big), np.arcsin(waist / 2 / small)
+    return _resampled(np.vstack([_arc(big, np.pi + a, 3 * np.pi - a, (big * np.cos(a), 0.0)),
+                                 _arc(small, b, 2 * np.pi - b, (-small * np.cos(b), 0.0))]),
+                      step)
+
+
+def test_a_capped_end_of_a_dumbbell_contour_does_not_fold():
+    """A prism over a dumbbell (disks of radius 0.6 and 0.3, waist 0.05 or 0.1), capped at
+    both ends with support rings (σ̂ 0.002 and 0.01).  The support ring inside a cap is
+    the rim moved towards the centroid, which lies in the big disk: the small disk's
+    ring is pushed through the waist and the cap folded over (426-746 crossing pairs).
+    An inset ring that would cross itself or the rim is not made (a note says so) and
+    the cap is flat inside its rim: a valid solid."""
+    for waist in (0.05, 0.1):
+        contour = _dumbbell(waist)
+        rings = [np.column_stack([contour, np.full(len(contour), z)])
+                 for z in np.linspace(0.0, 1.0, 11)]
+        for sigma in (0.002, 0.01):
+            result = stitch_rings(rings, AXIS, support_sigma=sigma)
+            report = check_solid(result.vertices, result.triangles)
+            assert result.closed and report.valid, (waist, sigma, report.problems())
+            assert any("inset contour would cross" in m for m in result.messages)
+            ends = result.vertices[np.unique(result.triangles[result.region < 0])][:, 2]
+            assert np.all((np.abs(ends) < 1e-12) | (np.abs(ends - 1.0) < 1e-12))
