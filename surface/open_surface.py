@@ -74,10 +74,12 @@ __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "ali
 #: end point there (the most the resampled arc reaches beyond its data is this share of
 #: the ring spacing).
 QUARTER_STEP = 0.25
-#: Most the border may move along ``u`` from one section to the next, in grid steps
-#: (:func:`smooth_border`): one step a section spacing is a 45° border on the widest arc,
-#: and the fan of triangles that joins two arc ends then spans at most one ring step
-#: along ``u``, no longer than the strips' own triangles (their chords' sagitta h²κ/8).
+#: How far along ``u`` (in grid steps) a strip's fan may join two neighbouring arcs'
+#: ends: one step a section spacing is a border crossing the sections at 45° on the
+#: widest arc, and the fan's triangles then span at most one ring step along ``u``, no
+#: longer than the strips' own triangles (their chords' sagitta h²κ/8).  Where the
+#: border runs closer to along the sections the ends differ more and the strip keeps
+#: its step there: the border follows the data.
 BORDER_SLOPE = 1.0
 #: Passes of the (1, 2, 1)/4 filter over the sections in :func:`smooth_border`: a
 #: Gaussian of σ = √(passes / 2) = 2 section spacings (where the matcher stops is noise
@@ -334,10 +336,18 @@ CONTINUATION_ANGLE = np.pi / 6
 _TANGENT_POINTS = 8
 
 
-def _end(arc: np.ndarray, last: bool) -> tuple[np.ndarray, np.ndarray]:
-    """An arc's end point and unit tangent pointing out of it."""
-    k = min(_TANGENT_POINTS, len(arc) - 1)
-    a, b = (arc[-1 - k], arc[-1]) if last else (arc[k], arc[0])
+def _end(arc: np.ndarray, last: bool, reach: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """An arc's end point and unit tangent pointing out of it: the chord from the end to
+    the point ``reach`` along the arc from it (at least :data:`_TANGENT_POINTS` points
+    in, at most the whole arc) -- directions compared at the scale of the gap they
+    bridge, so a short noisy piece is judged by its whole chord, not by its last few
+    points' noise."""
+    ordered = arc[::-1] if last else arc
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ordered, axis=0),
+                                                            axis=1))])
+    k = max(min(_TANGENT_POINTS, len(arc) - 1), int(np.searchsorted(along, reach)))
+    k = min(k, len(arc) - 1)
+    a, b = ordered[k], ordered[0]
     direction = b - a
     return b, direction / max(float(np.linalg.norm(direction)), TOL.zero)
 
@@ -375,15 +385,17 @@ def chain_arcs(arcs: Sequence[np.ndarray]) -> tuple[np.ndarray, int]:
         joined = False
         for i, piece in enumerate(rest):
             for at_end in (True, False):
-                tip, out = _end(chain, at_end)
+                tip = chain[-1] if at_end else chain[0]
                 for flip in (False, True):
                     cand = piece[::-1] if flip else piece
                     # the piece's end facing the chain: its first point when appended
-                    near, into = _end(cand, not at_end)
+                    near = cand[0] if at_end else cand[-1]
                     gap = near - tip
                     dist = float(np.linalg.norm(gap))
                     if dist <= TOL.zero or dist > max(_length(chain), _length(cand)):
                         continue
+                    out = _end(chain, at_end, dist)[1]
+                    into = _end(cand, not at_end, dist)[1]
                     along = gap / dist
                     if along @ out >= cos_max and -along @ into >= cos_max:
                         chain = np.concatenate([chain, cand] if at_end else [cand, chain])
@@ -508,12 +520,14 @@ def smooth_border(ends: np.ndarray, step: float) -> np.ndarray:
     patch, a window that failed): on the default stereo recipe neighbouring arcs end
     0.5 (median) to 2 (90th percentile) grid steps apart.  Strips that stop where the
     shorter of their two arcs ends make a staircase of that size.  The border is instead
-    the largest curve ``b`` under the arcs' ends (``b_k ≤ e_k``: nothing past the data)
-    that is smooth -- :data:`BORDER_PASSES` passes of the (1, 2, 1)/4 filter over the
-    sections, each clipped to the ends again (an obstacle problem: it rests on the
-    shortest arcs and spans the others) -- and whose slope is at most
-    :data:`BORDER_SLOPE` steps a section (the least such envelope of the result, so a
-    short arc pulls its neighbours in gradually, never by a jump).
+    a smooth curve ``b`` under the arcs' ends (``b_k ≤ e_k``: nothing past the data):
+    :data:`BORDER_PASSES` passes of the (1, 2, 1)/4 filter over the sections, each
+    clipped to the ends again (an obstacle problem: it rests on the shortest arcs and
+    spans the others; a straight run of ends is kept as it is).  No bound on its slope:
+    where an object's border runs nearly along the sections (a board's edge, the last
+    sections of a run) the ends move many steps a section, and a slope bound carried
+    along would trim every arc to the shortest one's reach (on the chessboard pair 03 it
+    kept 28 % of the stitched area; without it 93 %).
 
     Parameters
     ----------
@@ -529,12 +543,11 @@ def smooth_border(ends: np.ndarray, step: float) -> np.ndarray:
     e = np.asarray(ends, np.float64)
     if len(e) < 3:
         return e.copy()
-    gap = BORDER_SLOPE * step * np.abs(np.subtract.outer(np.arange(len(e)), np.arange(len(e))))
     b = e.copy()
     for _ in range(BORDER_PASSES):
         padded = np.concatenate([b[:1], b, b[-1:]])
         b = np.minimum(e, 0.25 * padded[:-2] + 0.5 * padded[1:-1] + 0.25 * padded[2:])
-    return np.min(b[None, :] + gap, axis=1)   # slope bound (the least Lipschitz envelope)
+    return b
 
 
 def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float,

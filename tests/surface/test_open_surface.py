@@ -223,8 +223,10 @@ def test_smooth_border_stays_under_the_ends_smooths_them_and_bounds_its_slope():
     ends[40] -= 6 * step                                   # one short arc: a notch
     border = osf.smooth_border(ends, step)
     assert np.all(border <= ends + 1e-12)                   # never past the data
-    assert np.abs(np.diff(border)).max() <= osf.BORDER_SLOPE * step + 1e-12
-    # smooth: its second differences (turning) a fraction of the ends' (measured 0.12)
+    # ends a step or so apart (the noise) give a border moving less than a step a
+    # section away from the notch, where the fan joins them (measured 0.85)
+    assert np.abs(np.diff(border))[np.abs(k[1:] - 40) > 3].max() <= osf.BORDER_SLOPE * step
+    # smooth: its second differences (turning) a fraction of the ends' (measured 0.18)
     assert np.std(np.diff(border, 2)) < 0.3 * np.std(np.diff(ends, 2))
     # and it keeps to the data: away from the notch within the noise's reach of the
     # ends' lowest values nearby (the filter's 8 passes see 8 sections either side)
@@ -260,7 +262,7 @@ def test_jagged_arc_ends_give_a_border_through_the_ends_not_a_staircase():
     section = np.rint(surface.vertices[:, 2] / spacing).astype(int)
     assert np.all(theta >= ranges[section, 0] - 1e-3)      # the curves' own error only
     assert np.all(theta <= ranges[section, 1] + 1e-3)
-    # the rings' ends at most one ring step (the border's slope) from their neighbours'
+    # the rings' ends within a ring step (the fan's reach) of their neighbours'
     lo = np.array([theta[section == k].min() for k in range(len(ranges))])
     hi = np.array([theta[section == k].max() for k in range(len(ranges))])
     assert max(np.abs(np.diff(lo)).max(), np.abs(np.diff(hi)).max()) < \
