@@ -316,6 +316,10 @@ def curves(ctx: StageContext) -> dict:
     options = {"outlier_threshold": p["outlier_threshold"],
                "min_points": p["min_loop_points"] or rc.min_loop_points(smoothing)}
     mode = _open_mode(p["open"])
+    if mode == "auto" and len(_cameras(ctx)) == 2:
+        # one stereo pair sees one side: a loop that looks closed is a thin line traced
+        # there and back (a flat board: chessboard pair 12 stitched non-manifold rings)
+        mode = True
     try:
         if mode is True:
             raise ValueError("curves.open = true")
