@@ -1032,6 +1032,12 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     return result
 
 
+def _area(ring2d: np.ndarray) -> float:
+    """Area of the closed polygon ``ring2d`` ``(n, 2)`` (shoelace)."""
+    x, y = ring2d[:, 0], ring2d[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
 def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: float,
               leave_open: bool = False) -> tuple[tuple[bool, bool], list[str]]:
     """Which of the two end sections is a hole in the data, and a note for each.
@@ -1080,7 +1086,10 @@ def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: f
         share = 0.0
         for k in np.flatnonzero(depth == 0):
             inner = [_scaled(flats[j], 1.0 / CAP_SHRINK) for j in np.flatnonzero(parent == k)]
-            share = max(share, uncovered_share(_scaled(flats[k], CAP_SHRINK), inner, flat))
+            outer = _scaled(flats[k], CAP_SHRINK)
+            if _area(outer) <= sum(_area(ring) for ring in inner):
+                continue    # a rim narrower than the margins: no inside to be a hole
+            share = max(share, uncovered_share(outer, inner, flat))
         hole = share > HOLE_SHARE
         found.append(hole)
         if hole:
