@@ -39,7 +39,8 @@ from math import comb
 
 import numpy as np
 
-from surface.bezier_patch import _apply, _normals, bernstein_matrix, control_index
+from surface.bezier_patch import (_apply, _normals, _points_and_normals_sp, bernstein_matrix,
+                                  control_index)
 
 __all__ = ["DERIVATIVE_WEIGHT", "control_triangles", "face_points", "merged_faces"]
 
@@ -91,6 +92,13 @@ def control_triangles(triangles: np.ndarray, source_face: np.ndarray) -> dict | 
                     "mids": np.stack([m_ab, m_bc, m_ca], axis=1),
                     "patches": group[:, list(slots)]}
     return None
+
+
+def _times(basis: np.ndarray, nets: np.ndarray) -> np.ndarray:
+    """``(S, K) x (F, K, 3) -> (F, S, 3)``: every face's poles through one basis as a
+    single matrix product (numpy's ``einsum`` loops here: 70 % of the fit's time)."""
+    flat = nets.transpose(1, 0, 2).reshape(nets.shape[1], -1)
+    return (basis @ flat).reshape(len(basis), len(nets), 3).transpose(1, 0, 2)
 
 
 def _bernstein_1d(t: np.ndarray, derivative: bool) -> np.ndarray:
@@ -169,6 +177,18 @@ def _exact(cp: np.ndarray, patches: np.ndarray, pieces: list, normals: bool = Fa
             out[:, sel] = _normals(cp[patches[:, s]], mu) if normals else \
                 _apply(matrix, cp[patches[:, s]]).transpose(1, 0, 2)
     return out
+
+
+def _exact_with_normals(cp: np.ndarray, patches: np.ndarray, pieces: list
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_exact`'s points and unit normals from one product a slot."""
+    count = sum(len(sel) for sel, _, _ in pieces)
+    points, normals = np.empty((2, len(patches), count, 3))
+    for s, (sel, mu, _) in enumerate(pieces):
+        if sel.size:
+            at, unit = _points_and_normals_sp(cp[patches[:, s]], mu)
+            points[:, sel], normals[:, sel] = at.transpose(1, 0, 2), unit.transpose(1, 0, 2)
+    return points, normals
 
 
 @cache
@@ -291,7 +311,7 @@ def face_points(poles: np.ndarray, u, v, du: bool = False, dv: bool = False) -> 
     ``[0, 2]`` (or a first derivative)."""
     spans = (poles.shape[1] - 1) // 6
     basis = _tensor(np.asarray(u, float), np.asarray(v, float), spans, du, dv)
-    return np.einsum("sk,fkd->fsd", basis, poles.reshape(len(poles), -1, 3))
+    return _times(basis, poles.reshape(len(poles), -1, 3))
 
 
 @cache
@@ -345,8 +365,8 @@ def _geometric_fit(cp: np.ndarray, patches: np.ndarray, net: np.ndarray,
     normal = _exact(cp, patches, pieces, normals=True)
     side_normal = _exact(cp, patches, _sides()[4][0], normals=True)
     free = ~fixed
-    known = np.einsum("sk,fkd->fsd", points[:, fixed], net[:, fixed])
-    known_slope = np.einsum("sk,fkd->fsd", slopes[:, fixed], net[:, fixed])
+    known = _times(points[:, fixed], net[:, fixed])
+    known_slope = _times(slopes[:, fixed], net[:, fixed])
     # rows over the unknowns (pole k, coordinate d), flattened k * 3 + d
     rows_n = np.einsum("sk,fsd->fskd", points[:, free], normal).reshape(len(patches), -1, 75)
     rhs_n = np.einsum("fsd,fsd->fs", target - known, normal)
@@ -357,8 +377,7 @@ def _geometric_fit(cp: np.ndarray, patches: np.ndarray, net: np.ndarray,
     rhs = np.einsum("fsa,fs->fa", rows_n, rhs_n) + np.einsum("fsa,fs->fa", rows_t, rhs_t)
     b = points[:, free]
     gram += PARAMETER_WEIGHT ** 2 * np.kron(b.T @ b, np.eye(3))[None]
-    rhs += PARAMETER_WEIGHT ** 2 * np.einsum("sk,fsd->fkd", b, target - known).reshape(
-        len(patches), 75)
+    rhs += PARAMETER_WEIGHT ** 2 * _times(b.T, target - known).reshape(len(patches), 75)
     return np.linalg.solve(gram, rhs[..., None])[..., 0].reshape(len(patches), 25, 3)
 
 
@@ -409,15 +428,14 @@ def merged_faces(control_points: np.ndarray, triangles: np.ndarray,
         if spans == 1:
             net[:, ~fixed] = _geometric_fit(cp, chunk, net, fixed)
         else:
-            residual = _exact(cp, chunk, fit_pieces) \
-                - np.einsum("sk,fkd->fsd", points[:, fixed], net[:, fixed])
-            slope = _cross_derivatives(cp, chunk) \
-                - np.einsum("sk,fkd->fsd", slopes[:, fixed], net[:, fixed])
+            residual = _exact(cp, chunk, fit_pieces) - _times(points[:, fixed], net[:, fixed])
+            slope = _cross_derivatives(cp, chunk) - _times(slopes[:, fixed], net[:, fixed])
             residual = np.concatenate([residual, DERIVATIVE_WEIGHT * slope], axis=1)
-            net[:, ~fixed] = np.einsum("ks,fsd->fkd", operator, residual)
+            net[:, ~fixed] = _times(operator, residual)
         poles[part] = net.reshape(-1, n, n, 3)
-        offset = np.einsum("sk,fkd->fsd", check_basis, net) - _exact(cp, chunk, check_pieces)
-        along = np.einsum("fsd,fsd->fs", offset, _exact(cp, chunk, check_pieces, normals=True))
+        exact, normal = _exact_with_normals(cp, chunk, check_pieces)
+        offset = _times(check_basis, net) - exact
+        along = np.einsum("fsd,fsd->fs", offset, normal)
         deviation[part] = np.abs(along).max(axis=1)
         slide[part] = np.sqrt(np.maximum(np.einsum("fsd,fsd->fs", offset, offset) - along ** 2,
                                          0.0)).max(axis=1)
