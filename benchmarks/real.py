@@ -801,6 +801,9 @@ def main(argv: list[str] | None = None) -> int:
                              "(benchmarks/open_surface.py's scores) instead of the temple rows")
     parser.add_argument("--turned", action="store_true",
                         help="the turned temple with its par file (benchmarks/turned_ring.py)")
+    parser.add_argument("--pairs", metavar="NN,NN",
+                        help="photosurf run of these chessboard rig pairs (e.g. 03,06,12) to "
+                             "open surfaces, flatness beside Poisson (benchmarks/real_pair.py)")
     parser.add_argument("--exif", action="store_true",
                         help="the rendered ring's EXIF-tagged JPEG copies "
                              "(benchmarks/exif_ring.py)")
@@ -822,6 +825,12 @@ def main(argv: list[str] | None = None) -> int:
     results = Path(args.json).parent
     if args.vase:
         return vase_main(args)
+    if args.pairs:
+        import real_pair
+
+        return real_pair.main(["--pairs", args.pairs, "--renders", args.renders,
+                               "--json", str(results / "real_pairs.json")]
+                              + (["--workspace", args.workspace] if args.workspace else []))
     if args.turned:
         import turned_ring
 
