@@ -25,7 +25,7 @@ are CPU seconds.  The stitched rows also give the ends' stated standard error
 (``extend_to_caps(ends=)``, as the stitch stage records it), mean over the samplings, in s.
 
 Run: ``.venv/bin/python benchmarks/ends.py [--samplings 10] [--points 40000] [--json PATH]``
-(``--quick``: 3 samplings; ``--no-bowls``: the ends only).
+(``--quick``: 3 samplings; ``--no-bowls``: the ends only; ``--bowls-only``: the bowls only).
 """
 
 from __future__ import annotations
@@ -179,11 +179,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-smooth", action="store_true",
                         help="the stitched mesh's ends only (not the smooth surface's)")
     parser.add_argument("--no-bowls", action="store_true", help="skip the bowl rows")
+    parser.add_argument("--bowls-only", action="store_true", help="the bowl rows alone")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "ends.json"))
     args = parser.parse_args(argv)
     samplings = 3 if args.quick else args.samplings
-    objects = [("can, raised rim", can_truth())]
-    if MUSTARD.exists():
+    objects = [] if args.bowls_only else [("can, raised rim", can_truth())]
+    if args.bowls_only:
+        pass
+    elif MUSTARD.exists():
         objects.append(("mustard bottle", read_obj(MUSTARD)))
     else:
         print(f"skipped the mustard bottle: {MUSTARD} not found")

@@ -123,12 +123,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--points", type=int, default=60_000)
     parser.add_argument("--cut", type=float, default=0.002)
     parser.add_argument("--quick", action="store_true", help="walls 2 and 4 only, no scans")
+    parser.add_argument("--walls", type=float, nargs="+",
+                        help="wall thicknesses in spacings (default 2 3 4 8; --quick: 2 4)")
+    parser.add_argument("--no-scans", action="store_true", help="the vessels only")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "vessels.json"))
     args = parser.parse_args(argv)
     rows = []
     print(f"{'wall/s':>6} {'handle':>6} {'closed':>6} {'comp':>4} {'genus':>5} {'truth':>5} "
           f"{'mouth':>6} {'outer/s':>8} {'inner/s':>8} {'chamfer/s':>9} {'s':>6}")
-    for walls in ((2.0, 4.0) if args.quick else (2.0, 4.0, 8.0)):
+    for walls in args.walls or ((2.0, 4.0) if args.quick else (2.0, 3.0, 4.0, 8.0)):
         for handle in (False, True):
             row = vessel_row(walls, handle, args.points)
             rows.append(row)
@@ -139,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['inner_wall'] / s:>8.3f} {row['chamfer'] / s:>9.3f} "
                   f"{row['seconds']:>6.1f}", flush=True)
     holes = []
-    if not args.quick:
+    if not (args.quick or args.no_scans):
         print(f"\n{'scan':>20} {'axis':>4} {'open':>5} {'closed':>6} {'comp':>4} "
               f"{'borders':>7} {'max/diag':>8} {'p99/diag':>8} {'s':>6}")
         for name, axis in (("nefertiti", "z"), ("cow", "y"), ("ycb_mustard_bottle", "z")):

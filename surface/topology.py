@@ -516,16 +516,18 @@ def _face_members(section, uv, labels, whole, gap, link, threshold, k, min_point
     members = []
     for c in range(int(whole.max()) + 1 if len(whole) else 0):
         mine = np.flatnonzero(whole == c)
-        faces = None
+        walls = None
         if len(mine) >= 2 * min_points:
             built = _organise_loop(section, uv, mine, gap, link, threshold, k, min_points)
-            faces = None if built is None else _face_split(uv, built, gap)
-        if faces is not None:
+            walls = None if built is None else _face_split(uv, built, gap)
+        for faces in walls or []:
             parted = [_organise_loop(section, uv, face, gap, link, threshold, k, min_points)
                       for face in faces]
             if all(lp is not None and lp.closed for lp in parted):
                 members += [(face, lp) for face, lp in zip(faces, parted, strict=True)]
-                continue
+                mine = np.setdiff1d(mine, np.concatenate(faces))
+        if len(mine) == 0:
+            continue
         sub = labels[mine]
         members += [(mine[sub == value], None) for value in np.unique(sub)]
     return sorted(members, key=lambda pair: len(pair[0]), reverse=True)
@@ -566,94 +568,148 @@ def _wall_splits(uv: np.ndarray, labels: np.ndarray, gap: float, link: float) ->
     return out
 
 
-#: Points of the window along an ordered loop whose mean is its midline
-#: (:func:`_face_split`): both faces of a wall 2 spacings thick are ~4 g from each other,
-#: and 32 points (16 g of arc, 16 per face) place the midline to a/√32 ≈ 0.18 a.
+#: Points along the loop's order within which a face's curve nodes are not bridged
+#: (:func:`_face_curves_labels`: half of it): both faces of a wall 2 spacings thick
+#: are ~4 g apart, and 32 points are ~16 g of arc, 16 per face.
 _FACE_WINDOW = 32
-#: Separation of a wall's two faces, in robust standard deviations of either face's
-#: points about its own median, below which they are one band (:func:`_face_split`):
-#: one noisy face split at its midline gives 2.7 whatever its noise (half-normal means
-#: ±0.80σ, MAD-scale 0.60σ), two faces ±a apart give 2a/σ' (σ' the noise and the
-#: midline's error together), so 4 takes a run for a wall when a > 2σ'; a single face
-#: (2.7 ± ~0.4 over 64 points) passes none.  3.3 parted more of the σ = 0.15-spacing
-#: bowl's 3-spacing wall (0.61 -> 0.38 of the mesh over the mouth) but put a few
-#: triangles into the 4.4-spacing bowl's cavity (0.0001 of the mesh).
+#: Separation of a wall's two faces, in pooled standard deviations of either face's
+#: offsets about its own mean, below which a disc is one band (:func:`_disc_walls`):
+#: one noisy face split at its midline gives 2.65 whatever its noise (half-normal
+#: means ±0.80σ, within-half σ 0.60σ), two faces ±a apart give 2a/σ' (σ' the in-section
+#: noise), so 4 takes a disc for a wall when a > 2σ'; a single face (2.65 ± ~0.3 over
+#: the ~32 points of its disc) passes none, and a disc is a wall only when most of
+#: its points' discs are.
 _FACE_SEPARATION = 4.0
-#: Fewest points of a run of the order judged a wall or not (:func:`_face_split`):
-#: the ratio above scatters by ~±0.4 over 64 points (a section of 600 points: 9 runs).
+#: Fewest points of a loop, over 4, that :func:`_face_split` tries to part.
 _FACE_RUN = 64
+#: Radius, in mean gaps g, of the disc about each point whose centroid and principal
+#: parabola are the wall's midline (:func:`_disc_walls`): a wall up to ~4 spacings
+#: (8 g at a slab 2 spacings thick) has both faces in it, each ~32 points long.  A
+#: line would put the sag of a curve of radius R, ~(16 g)²/(2R), into the offsets.
+_FACE_DISC = 16.0
+#: Mean points per disc, in units of its radius in gaps, beyond which a cluster is
+#: an area of points rather than faces along curves (two faces hold ~4 per unit; 16
+#: allows the twofold density variation along a loop and a wider noise band), and
+#: :func:`_disc_walls` does not try it (its pairs would grow as M·disc area).
+_FACE_DISC_LOAD = 16.0
 
 
-def _rolling(values: np.ndarray, window: int, how) -> np.ndarray:
-    """``how`` (np.mean / np.median along axis 1) of each cyclic window of ``values``
-    ``(M, ...)`` centred on its element."""
-    half = window // 2
-    padded = np.concatenate([values[-half:], values, values[:window - half - 1]])
-    view = np.lib.stride_tricks.sliding_window_view(padded, window, axis=0)
-    return how(view, axis=-1)
-
-
-def _face_split(uv: np.ndarray, loop: Loop, gap: float) -> list[np.ndarray] | None:
+def _face_split(uv: np.ndarray, loop: Loop, gap: float
+                ) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """The two faces of a wall that the clustering left as one band, or None.
 
     A wall thinner than the largest gaps along its faces (under ~3.5 point spacings,
-    :func:`_wall_splits`) is often ordered as one loop zig-zagging across it. Its
-    points' signed offsets ``o`` from the band's midline (the mean of the
-    :data:`_FACE_WINDOW` points around each along the order; its sag on a curve of
-    radius R, ~(16 g)²/(24 R), is far below a) are then two groups ±a. A run of the
-    order (one of :data:`_SECTORS`, of at least :data:`_FACE_RUN` points) is a wall when
-    both signs hold at least 15 % of its points and the two groups' medians are
-    :data:`_FACE_SEPARATION` robust σ of their spread apart and at least a mean gap g (a
-    noise-free single face scatters by less than g about its midline). When at least
-    half the runs are walls their points (but those whose midline window reaches past
-    the run) are parted by the sign of ``o``; where some runs are not (a handle or spout
-    joins the wall) every point then takes the face whose curve through the parted
-    points, bridged across the rest, is nearer (:func:`_face_curves_labels`).
+    :func:`_wall_splits`) is ordered as one loop, zig-zagging across it or running
+    along one face and back along the other. Each point's disc (radius
+    :data:`_FACE_DISC` g) holds both faces of such a wall, whatever the order does
+    between them; their offsets from the disc's centroid across its principal line
+    are two groups ±a (:func:`_disc_walls`). A point's disc is a wall when both signs
+    hold at least 15 % of it and the groups' means are :data:`_FACE_SEPARATION`
+    pooled σ apart and at least a mean gap g (a noise-free single face scatters by
+    less than g about its line). When at least half the points are walls, those whose
+    disc holds no other point are parted by the sign of their own offset (the discs'
+    normals oriented alike along the points' spanning tree, :func:`_tree_signs`);
+    the rest (a handle or spout joins the wall there) take the face whose curve
+    through the parted points, bridged across them, is nearer
+    (:func:`_face_curves_labels`).
 
-    Returns the two faces' indices into ``uv`` (outer first is not implied), or None.
+    Returns the two faces' indices into ``uv`` (outer first is not implied) of each
+    wall, or None.
     """
     m = len(loop.indices)
-    if not loop.closed or m < 4 * _FACE_RUN:
+    if m < 4 * _FACE_RUN:
         return None
-    pts = uv[loop.indices]
-    mid = _rolling(pts, _FACE_WINDOW, np.mean)                       # (M, 2)
-    tangent = np.roll(mid, -1, axis=0) - np.roll(mid, 1, axis=0)
-    norm = np.linalg.norm(tangent, axis=1)
-    if np.any(norm <= TOL.zero * max(gap, TOL.zero)):
+    # the outliers too: where the faces interleave, the local curve fit of one loop
+    # rejects stretches of a face (the 3-spacing bowl: 140-210 points of ~1 900)
+    index = np.concatenate([loop.indices, loop.outliers])
+    pts = uv[index]
+    tree = cKDTree(pts)
+    held = tree.query_ball_point(pts, _FACE_DISC * gap, return_length=True)
+    if held.mean() > _FACE_DISC_LOAD * _FACE_DISC:   # an area of points, not a band
         return None
-    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]]) / norm[:, None]
-    labels = _faces_from_offsets(pts, np.einsum("ij,ij->i", pts - mid, normal), gap)
-    if labels is None:
-        return None
-    return [loop.indices[labels == 1], loop.indices[labels == 0]]
+    # loops of one cluster farther apart than a disc (a handle's section beside the
+    # wall, within the link distance ℓ of it) are tried each on its own
+    pairs = tree.query_pairs(_FACE_DISC * gap, output_type="ndarray")
+    part = _components(len(pts), pairs[:, 0], pairs[:, 1])
+    faces = []
+    for c in np.flatnonzero(np.bincount(part) >= 4 * _FACE_RUN):
+        mine = np.flatnonzero(part == c)
+        labels = _disc_walls(pts[mine], int(np.count_nonzero(mine < m)), gap)
+        if labels is not None:
+            faces.append((np.sort(index[mine[labels == 1]]), np.sort(index[mine[labels == 0]])))
+    return faces or None
 
 
-def _faces_from_offsets(pts: np.ndarray, offset: np.ndarray, gap: float) -> np.ndarray | None:
-    """Face labels ``(M,)`` (1: positive offset) by the runs test of :func:`_face_split`,
-    or None; points whose midline window reaches past a wall run are not trusted."""
+def _disc_walls(pts: np.ndarray, ordered: int, gap: float) -> np.ndarray | None:
+    """Face labels ``(M,)`` (1: positive offset) by the disc test of :func:`_face_split`,
+    or None; the first ``ordered`` points are in the loop's order."""
     m = len(pts)
-    side = offset > 0
-    bounds = np.linspace(0, m, min(_SECTORS, m // _FACE_RUN) + 1).astype(int)
-    wall = np.zeros(m, bool)
-    separations = []
-    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-        o, s = offset[lo:hi], side[lo:hi]
-        if not 0.15 <= s.mean() <= 0.85:
-            continue
-        up, down = o[s], o[~s]
-        spread = _MAD_TO_SIGMA * float(np.median(np.concatenate(
-            [np.abs(up - np.median(up)), np.abs(down - np.median(down))])))
-        separation = float(np.median(up) - np.median(down))
-        wall[lo:hi] = separation >= max(_FACE_SEPARATION * spread, gap)
-        if wall[lo]:
-            separations.append(separation)
+    pairs = cKDTree(pts).query_pairs(_FACE_DISC * gap, output_type="ndarray")
+    row = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
+    col = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
+    count = np.bincount(row, minlength=m).astype(np.float64)
+    centre = np.column_stack([np.bincount(row, pts[col, k], m) for k in (0, 1)]) / count[:, None]
+    d = pts[col] - centre[row]
+    sxx = np.bincount(row, d[:, 0] * d[:, 0], m)
+    sxy = np.bincount(row, d[:, 0] * d[:, 1], m)
+    syy = np.bincount(row, d[:, 1] * d[:, 1], m)
+    angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)          # the principal direction
+    normal = np.column_stack([-np.sin(angle), np.cos(angle)])
+    normal *= _tree_signs(pts, normal)[:, None]
+    # offsets from the parabola y = c0 + c1 x + c2 x² fitted to each disc in its
+    # principal frame, x in units of the radius (the 1e-9 ridge: a disc of one point)
+    x = np.einsum("ij,ij->i", d, normal[row][:, ::-1] * np.array([1.0, -1.0]))
+    y = np.einsum("ij,ij->i", d, normal[row])
+    scale = _FACE_DISC * gap
+    x = x / scale
+    moments = np.stack([np.bincount(row, x ** k, m) for k in range(5)], axis=1)
+    normal_eq = moments[:, [[0, 1, 2], [1, 2, 3], [2, 3, 4]]]
+    normal_eq += 1e-9 * np.eye(3)
+    rhs = np.stack([np.bincount(row, y * x ** k, m) for k in range(3)], axis=1)
+    coef = np.linalg.solve(normal_eq, rhs[:, :, None])[:, :, 0]
+    o = y - (coef[row, 0] + coef[row, 1] * x + coef[row, 2] * x * x)
+    up = o > 0
+    n_up = np.bincount(row, up, m)
+    n_down = count - n_up
+    share = n_up / count
+    mean_up = np.bincount(row, np.where(up, o, 0.0), m) / np.maximum(n_up, 1)
+    mean_down = np.bincount(row, np.where(up, 0.0, o), m) / np.maximum(n_down, 1)
+    resid = o - np.where(up, mean_up[row], mean_down[row])
+    pooled = np.sqrt(np.bincount(row, resid * resid, m) / np.maximum(count - 2, 1))
+    separation = mean_up - mean_down
+    wall = ((share >= 0.15) & (share <= 0.85) & (separation >= gap)
+            & (separation >= _FACE_SEPARATION * pooled))
+    # each disc's test scatters (~64 points); a disc is a wall when most of it is
+    wall = 2 * np.bincount(row, wall[col], m) >= count
     if 2 * wall.sum() < m:
         return None
-    wall &= _rolling(wall.astype(np.float64), _FACE_WINDOW + 1, np.min) > 0
-    labels = np.where(wall, side.astype(np.int64), -1)
-    if not wall.all():
-        labels = _face_curves_labels(pts, labels, gap, float(np.median(separations)))
+    own = o[2 * len(pairs):]       # each point's offset in its own disc
+    trusted = wall & (np.bincount(row, ~wall[col], m) == 0)
+    labels = np.where(trusted, (own > 0).astype(np.int64), -1)
+    if not trusted.all():
+        labels = _face_curves_labels(pts[:ordered], labels[:ordered], gap,
+                                     float(np.median(separation[wall])), query=pts)
     return labels
+
+
+def _tree_signs(pts: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Signs ``(M,)`` that orient the unsigned ``normal`` consistently: each agrees with
+    its parent's along the points' minimum spanning tree (rooted at point 0), the parity
+    of the flips to the root found by pointer jumping (log2 M vectorised rounds)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order
+
+    m = len(pts)
+    tree = _mst(pts, float(np.ptp(pts, axis=0).max()))
+    graph = coo_matrix((np.ones(len(tree.row)), (tree.row, tree.col)), shape=(m, m))
+    _, parent = breadth_first_order(graph, 0, directed=False)
+    root = parent < 0            # point 0, and any point the tree does not reach
+    parent = np.where(root, np.arange(m), parent)
+    parity = (np.einsum("ij,ij->i", normal, normal[parent]) < 0).astype(np.int8)
+    for _ in range(int(np.ceil(np.log2(max(m, 2)))) + 1):
+        parity ^= parity[parent]
+        parent = parent[parent]
+    return np.where(parity == 1, -1.0, 1.0)
 
 
 #: Face points averaged into one node of the face curve that the points outside the
@@ -662,8 +718,10 @@ _FACE_BLOCK = 8
 
 
 def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
-                        separation: float) -> np.ndarray | None:
-    """Labels ``(M,)``: each point on the face whose curve is nearer (None: a face's
+                        separation: float, query: np.ndarray | None = None
+                        ) -> np.ndarray | None:
+    """Labels ``(Q,)`` of the ``query`` points (default ``pts``, ordered along the loop)
+    : each on the face whose curve is nearer (None: a face's
     curve would lose more than a quarter of its nodes to the peeling below, and the band
     is not parted).
 
@@ -698,8 +756,13 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
         while len(nodes) > max(5, kept - kept // 4):
             before, after = np.roll(nodes, 1, axis=0), np.roll(nodes, -1, axis=0)
             chord, rel = after - before, nodes - before
+            span = np.linalg.norm(chord, axis=1)
             across = np.abs(chord[:, 0] * rel[:, 1] - chord[:, 1] * rel[:, 0]) / np.maximum(
-                np.linalg.norm(chord, axis=1), TOL.zero)
+                span, TOL.zero)
+            # a spike turns by more than ~50° (across > span/4); a node at the end of
+            # a stretch bridged (a face's gap at a handle's root) lies off the chord
+            # over the gap by its sag, span²/(8R), under span/4 where span < 2R
+            across = np.where(across > 0.25 * span, across, 0.0)
             worst = int(np.argmax(across))
             if across[worst] <= 0.5 * separation:
                 break
@@ -709,11 +772,12 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
         nodes = np.vstack([nodes, nodes[:1]])
         chord = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
         if np.any(chord <= 0):
-            return np.where(labels < 0, 0, labels)
+            return None
         t = np.concatenate([[0.0], np.cumsum(chord)])
         spline = CubicSpline(t, nodes, bc_type="periodic")
         curves.append(spline(np.linspace(0.0, t[-1], int(np.ceil(2 * t[-1] / gap)) + 1)))
-    dist = np.column_stack([cKDTree(c).query(pts)[0] for c in curves])
+    query = pts if query is None else query
+    dist = np.column_stack([cKDTree(c).query(query)[0] for c in curves])
     return np.argmin(dist, axis=1)
 
 

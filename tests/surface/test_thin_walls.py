@@ -78,3 +78,54 @@ def test_a_pot_with_a_wall_two_spacings_thick_keeps_its_inside():
         np.hypot(truth[:, 0], truth[:, 1]) < _cup.VESSEL_RADIUS - wall / 2)
     d = M.point_mesh_distance(truth[inner], mesh.vertices, mesh.triangles)
     assert d.mean() < 0.25 * spacing, d.mean() / spacing
+
+
+def test_a_bowl_wall_three_spacings_thick_is_two_loops_in_every_section():
+    """The bowl of ``testkit/can.py`` with a wall 3 point spacings thick (20 000 points,
+    noise 0.15 spacing, as ``benchmarks/ends.py``'s bowl rows): every section through
+    the wall (0.15 < z < 0.75) holds its two faces as two loops.  Before, the loop
+    order ran along one face and back along the other (the order's window mean then
+    lies on a face, and no run of the order was a wall), and the local curve fit
+    rejected 140-210 points of one face as outliers where the faces interleave:
+    most sections came out one loop and the mouth was capped (0.635 of the mesh over
+    it at 60 000 points)."""
+    from testkit.can import bowl_truth
+
+    points = 20_000
+    vertices, triangles = bowl_truth(0.06)
+    spacing = float(np.sqrt(M.triangle_areas(vertices, triangles).sum() / points))
+    vertices, triangles = bowl_truth(3 * spacing)
+    cloud = M.sample_mesh(vertices, triangles, points, seed=0)
+    cloud += np.random.default_rng(50).normal(0.0, 0.15 * spacing, cloud.shape)
+    sliced = rc.slice_cloud(cloud, axis="z")
+    counts = [len(organise(s, min_points=4)) for s in sliced.sections
+              if len(s) and 0.15 < float(np.mean(s.points[:, 2])) < 0.75]
+    assert len(counts) >= 10 and counts == [2] * len(counts), counts
+
+
+def test_a_handle_root_on_a_wall_two_spacings_thick_keeps_both_faces():
+    """The pot with a handle (``testkit/cup.py``, 60 000 points, wall 2 spacings, noise
+    0.1 spacing): every section through the handle's lower root (0.3 < z < 0.5, where
+    the handle's section is a lobe of the outer face) holds the inner face as its own
+    loop at the inner radius, and the outer loop runs round the lobe (reaches the
+    handle's lobe, x > 1.3).  Before, the faces' curves were peeled across the
+    root's stretch (a face's nodes at either end of a gap lie off the chord over it by
+    its sag) and each of these sections came out one loop: the pot in 2 pieces, a
+    quarter of the mesh over the mouth."""
+    points = 60_000
+    spacing = float(np.sqrt(_cup.vessel_area(_cup.vessel(0.1, False)) / points))
+    wall = 2 * spacing
+    cloud = _cup.vessel_sample(_cup.vessel(wall, True), points, seed=0, sigma=0.1 * spacing)
+    sliced = rc.slice_cloud(cloud, axis="z")
+    tried = 0
+    for section in sliced.sections:
+        if not len(section) or not 0.3 < float(np.mean(section.points[:, 2])) < 0.5:
+            continue
+        tried += 1
+        loops = organise(section, min_points=4)
+        radius = [float(np.median(np.hypot(lp.points[:, 0], lp.points[:, 1]))) for lp in loops]
+        assert len(loops) == 2, [len(lp.indices) for lp in loops]
+        inner, outer = (loops[0], loops[1]) if radius[0] < radius[1] else (loops[1], loops[0])
+        assert min(radius) == pytest.approx(_cup.VESSEL_RADIUS - wall, abs=0.25 * wall)
+        assert outer.points[:, 0].max() > 1.3 and inner.points[:, 0].max() < 1.0
+    assert tried >= 4
