@@ -90,6 +90,8 @@ near-horizontal edges turn that slide into disparity.  Re-matched in the rectifi
 images with the y-shift fixed by the rig (Gruen & Baltsavias 1988) the same windows
 end 0.38 px off, and the remaining error is concentrated where the window is
 ill-conditioned along the line (docs/decisions/stereo-epipolar.md), which is rejected.
+Each accepted match is then reported where its window determines it, at the pixel
+nearest the warp's least-variance point (docs/decisions/stereo-information-centre.md).
 
 References
 ----------
@@ -156,7 +158,8 @@ class PairMatches:
     ----------
     x_left : (N, 2) float64
         Candidates in the left image (integer pixels), px: the matched points (their
-        LSM window is centred at ``x_left + offset``).
+        LSM window is centred at ``x_left + offset``; with the epipolar pass an accepted
+        match is the pixel nearest its window's information centre, ``centre_points``).
     x_right : (N, 2) float64
         Matched positions in the right image, px (NaN where no LSM result).
     approx : (N, 2) float64
@@ -181,7 +184,8 @@ class PairMatches:
         Codes of :data:`PAIR_STATUS_NAMES`.
     offset : (N, 2) float64
         Window centre minus ``x_left``, px: non-zero for an eccentric window moved off a
-        textureless cell (:func:`matching.seeds.window_offsets`); ``x_right`` and
+        textureless cell (:func:`matching.seeds.window_offsets`), or for a match the
+        epipolar pass reports at its window's information centre; ``x_right`` and
         ``cov`` are then ``x_left``'s, transferred through the warp.
     edge : (N,) bool
         The window still reaches into an untextured region or unmatched pixels (no
