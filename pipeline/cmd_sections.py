@@ -109,8 +109,10 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     return np.asarray(cloud.points, dtype=np.float64), sigma
 
 
-def run(args: argparse.Namespace) -> int:
-    from pipeline.mesh_io import MESH_SUFFIXES, write_mesh
+def _checked_options(args: argparse.Namespace) -> tuple[Path, object]:
+    """The options checked together, before the cloud is read (one-line errors), and the
+    outputs checked against the input: ``(out, level)``."""
+    from pipeline.mesh_io import MESH_SUFFIXES
 
     out = Path(args.out)
     if args.level is not None and not args.smooth:
@@ -130,13 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: cannot write mesh format {out.suffix!r} "
                          f"(choose one of {', '.join(MESH_SUFFIXES)})")
     from pipeline import limits
-    from pipeline.guards import (
-        check_cloud_shape,
-        check_output,
-        check_section_cost,
-        drop_far_outliers,
-        unit_scale,
-    )
+    from pipeline.guards import check_output
 
     if args.sections is not None and args.sections < 2:
         raise InputError(f"--sections must be >= 2, got {args.sections}")
@@ -151,8 +147,20 @@ def run(args: argparse.Namespace) -> int:
     targets = [out] + ([out.with_suffix(".npz")] if args.smooth else [])
     for target in targets:
         check_output(target, [args.cloud])
-    smoothing = _smoothing(args.smoothing)
-    axis = parse_axis(args.axis)
+    return out, level
+
+
+def _read_cloud(args: argparse.Namespace, axis) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """The cloud read and checked, far outliers dropped (a warning line once accepted):
+    ``(points, sigma, unit)``, ``unit`` the exact power of two the surface code sees it
+    divided by (:func:`pipeline.guards.unit_scale`)."""
+    from pipeline.guards import (
+        check_cloud_shape,
+        check_section_cost,
+        drop_far_outliers,
+        unit_scale,
+    )
+
     points, sigma = read_points(args.cloud)
     if len(points) == 0:
         raise InputError(f"{args.cloud}: the point cloud is empty")
@@ -169,6 +177,43 @@ def run(args: argparse.Namespace) -> int:
     check_section_cost(points / unit, axis, str(args.cloud), sections=args.sections, n=args.n)
     if dropped:
         logging.getLogger("pipeline").warning("%s", dropped)
+    return points, sigma, unit
+
+
+def _smoothed(args: argparse.Namespace, result, sized, vertices: np.ndarray,
+              triangles: np.ndarray, out: Path, level, unit: float) -> dict:
+    """``--smooth``: Loop's surface over the stitched mesh (or the sized control mesh, as
+    ``photosurf run``'s smooth stage) written to ``out`` and its ``.npz``; its report."""
+    if not result.closed and not (args.open and not result.problems):
+        raise InputError(f"{args.cloud}: the stitched mesh is open "
+                         f"({result.problem_line()}): --smooth needs a "
+                         "closed mesh (drop --open-ends, or smooth the mesh with "
+                         "'photosurf smooth')")
+    from pipeline.smoothing import smooth_to_files
+
+    if sized is None:
+        smooth = smooth_to_files(vertices, triangles, out, level=level,
+                                 source=str(args.cloud))
+    else:  # as photosurf run's smooth stage: interpolated vertices, adaptive cuts
+        from surface.sizing import interpolating_control
+
+        control = interpolating_control(sized.vertices, sized.triangles, sized.creases) * unit
+        smooth = smooth_to_files(control, sized.triangles, out,
+                                 level="adaptive" if level is None else level,
+                                 tolerance=sized.chord_tolerance() * unit,
+                                 spacing=sized.spacing * unit,
+                                 source=str(args.cloud))
+        smooth["size"] = (f"sized step {sized.step}, n {sized.n}"
+                          if sized.step > 1 or sized.n else "no thinning within the "
+                          "goal: the stitched mesh")
+    return smooth
+
+
+def run(args: argparse.Namespace) -> int:
+    out, level = _checked_options(args)
+    smoothing = _smoothing(args.smoothing)
+    axis = parse_axis(args.axis)
+    points, sigma, unit = _read_cloud(args, axis)
     # the surface code (numba, scipy: ~0.5 s of imports) only after every check
     from surface.reconstruct import surface_from_points
 
@@ -195,33 +240,14 @@ def run(args: argparse.Namespace) -> int:
                          f"({'; '.join(result.messages) or 'no loops'})")
     smooth = None
     if args.smooth:
-        if not result.closed and not (args.open and not result.problems):
-            raise InputError(f"{args.cloud}: the stitched mesh is open "
-                             f"({result.problem_line()}): --smooth needs a "
-                             "closed mesh (drop --open-ends, or smooth the mesh with "
-                             "'photosurf smooth')")
-        from pipeline.smoothing import smooth_to_files
-
-        if sized is None:
-            smooth = smooth_to_files(vertices, triangles, out, level=level,
-                                     source=str(args.cloud))
-        else:  # as photosurf run's smooth stage: interpolated vertices, adaptive cuts
-            from surface.sizing import interpolating_control
-
-            control = interpolating_control(sized.vertices, sized.triangles, sized.creases) * unit
-            smooth = smooth_to_files(control, sized.triangles, out,
-                                     level="adaptive" if level is None else level,
-                                     tolerance=sized.chord_tolerance() * unit,
-                                     spacing=sized.spacing * unit,
-                                     source=str(args.cloud))
-            smooth["size"] = (f"sized step {sized.step}, n {sized.n}"
-                              if sized.step > 1 or sized.n else "no thinning within the "
-                              "goal: the stitched mesh")
+        smooth = _smoothed(args, result, sized, vertices, triangles, out, level, unit)
     else:
         from pipeline.smoothing import solid_report  # one warning line if not a valid solid
 
         solid_report("sections", vertices, triangles,
                      expect_closed=not args.open_ends and (result.closed or not args.open))
+        from pipeline.mesh_io import write_mesh
+
         write_mesh(out, vertices, triangles)
     seconds = time.perf_counter() - start
     if not args.quiet:
