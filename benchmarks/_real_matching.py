@@ -498,10 +498,81 @@ def _sgbm_loop(left, right, points):
     return (xr + back) - points[:, 0], d_left
 
 
+def _temple_row(d: dict, robust: dict, reference: np.ndarray) -> dict:
+    """One temple pair's figures (:func:`temple`): acceptance on the object, its interior
+    and outline, forward-backward loops against LSM's σ and SGBM's, eccentric windows and
+    robust LSM on the edge windows (``robust``: the same pair's data with robust="edge")."""
+    from _visibility import seen_in_both
+
+    from matching.pair import PAIR_STATUS_NAMES, match_pair
+
+    i, j = d["pair"]
+    left, right, valid = d["left"], d["right"], d["valid"]
+    fg = (left > 0.19 * 255).astype(np.float32)
+    obj = cv2.dilate(fg.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    # interior: no background pixel in the 15x15 window (match_pair's base patch);
+    # the rest of the object's candidates straddle its outline (a depth edge)
+    background = 1.0 - cv2.boxFilter(fg, -1, (15, 15), normalize=True,
+                                      borderType=cv2.BORDER_CONSTANT)
+    m, seconds = d["matches"], d["seconds"]
+    xi = m.x_left.astype(int)
+    on_obj = obj[xi[:, 1], xi[:, 0]]
+    interior = on_obj & (background[xi[:, 1], xi[:, 0]] < 1e-6)
+    ecc = match_pair(left, right, rectified=True, mask=valid, spacing=4, eccentric=True)
+    forward = LSMResult(position=m.x_right, affine=m.affine, radiometric=m.radiometric,
+                        converged=m.accepted, iterations=m.iterations, sigma0=m.sigma0,
+                        cov=m.cov, correlation=m.correlation, status=m.status,
+                        noise_sigma0=float("nan"))
+    fb = forward_backward(prepare_image(left), prepare_image(right), m.x_left, forward)
+    use = fb.used & on_obj
+    loop_x = fb.loop[:, 0]
+    lsm_fb = float(np.sqrt(np.mean(loop_x[use] ** 2) / 2))
+    sig_x = float(np.sqrt(np.mean(m.cov[use, 0, 0])))
+    try:
+        sgbm_loop, _ = _sgbm_loop(left, right, m.x_left)
+    except ValueError as exc:  # SIFT finds no row-consistent match on this pair
+        sgbm_loop = np.full(len(m.x_left), np.nan)
+        print(f"temple pair {(i, j)}: SGBM left-right loop skipped ({exc})")
+    same = use & np.isfinite(sgbm_loop) & (np.abs(sgbm_loop) < 3)
+    mp = robust["matches"]
+    surface, seen = seen_in_both(reference, d["cams"][0], d["cams"][1], m.x_left)
+    both = on_obj & seen
+    row = {
+        "reference_surface_share_of_object": float(surface[on_obj].mean()),
+        "seen_in_both_share_of_object": float(both.sum() / on_obj.sum()),
+        "accepted_share_seen_in_both": float(m.accepted[both].mean()),
+        "status_seen_in_both": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
+            *np.unique(m.status[both], return_counts=True), strict=True)},
+        "pair": [i, j], "candidates_on_object": int(on_obj.sum()),
+        "accepted_share_on_object": float(m.accepted[on_obj].mean()),
+        "accepted_share_on_object_robust_edge": float(mp.accepted[on_obj].mean()),
+        "edge_share_of_accepted": float(m.edge[m.accepted].mean()),
+        "edge_share_of_accepted_robust_edge": float(mp.edge[mp.accepted].mean()),
+        "interior_share_of_object": float(interior.sum() / on_obj.sum()),
+        "accepted_share_interior": float(m.accepted[interior].mean()),
+        "accepted_share_outline": float(m.accepted[on_obj & ~interior].mean()),
+        "accepted_share_on_object_eccentric": float(ecc.accepted[on_obj].mean()),
+        "accepted_share_interior_eccentric": float(ecc.accepted[interior].mean()),
+        "status_on_object": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
+            *np.unique(m.status[on_obj], return_counts=True), strict=True)},
+        "lsm_fb_loop_rms_px": lsm_fb, "lsm_reported_sigma_x_rms_px": sig_x,
+        "lsm_fb_over_sigma": lsm_fb / sig_x, "fb_variance_factor": fb.variance_factor,
+        "variance_factor": m.sigma_factor, "variance_factor_edge": m.sigma_factor_edge,
+        "lsm_sigma_x_without_factor_rms_px": float(np.sqrt(np.mean(
+            m.cov[use, 0, 0] / np.where(m.edge[use], m.sigma_factor_edge,
+                                        m.sigma_factor)))),
+        "same_pixels": int(same.sum()),
+        "lsm_fb_loop_rms_same_px": float(np.sqrt(np.mean(loop_x[same] ** 2) / 2)),
+        "sgbm_lr_loop_rms_same_px": float(np.sqrt(np.mean(sgbm_loop[same] ** 2) / 2)),
+        "seconds": seconds}
+    row["sgbm_over_lsm"] = row["sgbm_lr_loop_rms_same_px"] / row["lsm_fb_loop_rms_same_px"]
+    return row
+
+
 def temple(folder: Path, quick: bool) -> dict:
     """Temple neighbouring-pair figures (module docstring)."""
     from matching.cameras import read_projection_txt
-    from matching.pair import PAIR_STATUS_NAMES, match_pair
+    from matching.pair import match_pair
 
     cams = read_projection_txt(folder / "templeSR_par.txt", image_dir=folder)
     images = [imread(str(folder / c.name), cv2.IMREAD_COLOR) for c in cams]
@@ -515,8 +586,6 @@ def temple(folder: Path, quick: bool) -> dict:
     data = [_pair_data(cams, images, i, j) for i, j in chosen]
     # which object pixels the right view sees at all: the 16-view cloud as a reference
     # (benchmarks/_visibility.py; with the given cameras, the ring pipeline's defaults)
-    from _visibility import seen_in_both
-
     from matching.multiview import reconstruct_multiview
 
     reference = reconstruct_multiview(images, cams).points
@@ -524,69 +593,7 @@ def temple(folder: Path, quick: bool) -> dict:
     robust = [_pair_data(cams, images, i, j, robust="edge") for i, j in chosen]
     robust_by_pair = {d["pair"]: d for d in robust}
     by_pair = {d["pair"]: d for d in data}
-    rows = []
-    for i, j in pairs:
-        d = by_pair[(i, j)]
-        left, right, valid = d["left"], d["right"], d["valid"]
-        fg = (left > 0.19 * 255).astype(np.float32)
-        obj = cv2.dilate(fg.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-        # interior: no background pixel in the 15x15 window (match_pair's base patch);
-        # the rest of the object's candidates straddle its outline (a depth edge)
-        background = 1.0 - cv2.boxFilter(fg, -1, (15, 15), normalize=True,
-                                          borderType=cv2.BORDER_CONSTANT)
-        m, seconds = d["matches"], d["seconds"]
-        xi = m.x_left.astype(int)
-        on_obj = obj[xi[:, 1], xi[:, 0]]
-        interior = on_obj & (background[xi[:, 1], xi[:, 0]] < 1e-6)
-        ecc = match_pair(left, right, rectified=True, mask=valid, spacing=4, eccentric=True)
-        forward = LSMResult(position=m.x_right, affine=m.affine, radiometric=m.radiometric,
-                            converged=m.accepted, iterations=m.iterations, sigma0=m.sigma0,
-                            cov=m.cov, correlation=m.correlation, status=m.status,
-                            noise_sigma0=float("nan"))
-        fb = forward_backward(prepare_image(left), prepare_image(right), m.x_left, forward)
-        use = fb.used & on_obj
-        loop_x = fb.loop[:, 0]
-        lsm_fb = float(np.sqrt(np.mean(loop_x[use] ** 2) / 2))
-        sig_x = float(np.sqrt(np.mean(m.cov[use, 0, 0])))
-        try:
-            sgbm_loop, _ = _sgbm_loop(left, right, m.x_left)
-        except ValueError as exc:  # SIFT finds no row-consistent match on this pair
-            sgbm_loop = np.full(len(m.x_left), np.nan)
-            print(f"temple pair {(i, j)}: SGBM left-right loop skipped ({exc})")
-        same = use & np.isfinite(sgbm_loop) & (np.abs(sgbm_loop) < 3)
-        mp = robust_by_pair[(i, j)]["matches"]
-        surface, seen = seen_in_both(reference, d["cams"][0], d["cams"][1], m.x_left)
-        both = on_obj & seen
-        rows.append({
-            "reference_surface_share_of_object": float(surface[on_obj].mean()),
-            "seen_in_both_share_of_object": float(both.sum() / on_obj.sum()),
-            "accepted_share_seen_in_both": float(m.accepted[both].mean()),
-            "status_seen_in_both": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
-                *np.unique(m.status[both], return_counts=True), strict=True)},
-            "pair": [i, j], "candidates_on_object": int(on_obj.sum()),
-            "accepted_share_on_object": float(m.accepted[on_obj].mean()),
-            "accepted_share_on_object_robust_edge": float(mp.accepted[on_obj].mean()),
-            "edge_share_of_accepted": float(m.edge[m.accepted].mean()),
-            "edge_share_of_accepted_robust_edge": float(mp.edge[mp.accepted].mean()),
-            "interior_share_of_object": float(interior.sum() / on_obj.sum()),
-            "accepted_share_interior": float(m.accepted[interior].mean()),
-            "accepted_share_outline": float(m.accepted[on_obj & ~interior].mean()),
-            "accepted_share_on_object_eccentric": float(ecc.accepted[on_obj].mean()),
-            "accepted_share_interior_eccentric": float(ecc.accepted[interior].mean()),
-            "status_on_object": {PAIR_STATUS_NAMES[int(k)]: int(v) for k, v in zip(
-                *np.unique(m.status[on_obj], return_counts=True), strict=True)},
-            "lsm_fb_loop_rms_px": lsm_fb, "lsm_reported_sigma_x_rms_px": sig_x,
-            "lsm_fb_over_sigma": lsm_fb / sig_x, "fb_variance_factor": fb.variance_factor,
-            "variance_factor": m.sigma_factor, "variance_factor_edge": m.sigma_factor_edge,
-            "lsm_sigma_x_without_factor_rms_px": float(np.sqrt(np.mean(
-                m.cov[use, 0, 0] / np.where(m.edge[use], m.sigma_factor_edge,
-                                            m.sigma_factor)))),
-            "same_pixels": int(same.sum()),
-            "lsm_fb_loop_rms_same_px": float(np.sqrt(np.mean(loop_x[same] ** 2) / 2)),
-            "sgbm_lr_loop_rms_same_px": float(np.sqrt(np.mean(sgbm_loop[same] ** 2) / 2)),
-            "seconds": seconds})
-        r = rows[-1]
-        r["sgbm_over_lsm"] = r["sgbm_lr_loop_rms_same_px"] / r["lsm_fb_loop_rms_same_px"]
+    rows = [_temple_row(by_pair[(i, j)], robust_by_pair[(i, j)], reference) for i, j in pairs]
     # dense mode: every pixel of the first rectified pair (640x480 transposed)
     left, right, valid = _rectified_pair(cams, images, *pairs[0])
     t0 = time.perf_counter()

@@ -333,6 +333,101 @@ def memory(workdir: Path, quick: bool) -> dict:
             "imports_peak_rss_mib": base["imports_peak_rss_mib"], "runs": runs}
 
 
+def _print_runs(figures: dict, quick: bool) -> None:
+    """The demo's and the stereo pair's stages: seconds and peak memory."""
+    for key, title in (("demo", "Default demo = 24-view ring (make demo)"),
+                       ("stereo_pair", "Stereo pair (one side only: stops after curves)")):
+        if key not in figures:
+            continue
+        d = figures[key]
+        print(f"{title} ({d['recipe']}{', quick: 256x192' if quick else ''}): "
+              f"{d['total_seconds']:.2f} s (CPU {d['cpu_seconds']:.1f} s; load "
+              f"{d['load_before']} -> {d['load_after']}), peak RSS so far "
+              f"{d['peak_rss_mib']:.0f} MiB")
+        print(f"  {'stage':<10} {'seconds':>9} {'peak MiB':>9}  status")
+        for name, rec in d["stages"].items():
+            secs = f"{rec['seconds']:.2f}" if rec.get("seconds") is not None else ""
+            peak = f"{rec['peak_rss_mib']:.0f}" if rec.get("peak_rss_mib") is not None else ""
+            note = f" ({rec['reason']})" if rec.get("reason") else ""
+            print(f"  {name:<10} {secs:>9} {peak:>9}  {rec['status']}{note}")
+        if key == "demo" and "scene_cached" in figures:
+            c = figures["scene_cached"]
+            print(f"  scene again from the cache: {c['stage_seconds']:.2f} s "
+                  f"(rendered: {c['rendered_seconds']:.2f} s)")
+        if d["error"]:
+            print(f"  error: {d['error']}")
+        print()
+
+
+def _print_back_end(b: dict) -> None:
+    """The demo's back end (smooth, export, report): its run and a rerun against the goal."""
+    print(f"Demo back end ({b['patches']} patches, {b['triangles']} triangles exported; "
+          f"load {b['load_before']} -> {b['load_after']})")
+    print(f"  {'stage':<10} {'demo run s':>10} {'rerun s':>9}")
+    for name in BACK_END:
+        first, again = b["first_run"][name], b["rerun"][name]
+        print(f"  {name:<10} {first if first is not None else float('nan'):10.2f} "
+              f"{again if again is not None else float('nan'):9.2f}")
+    print(f"  {'total':<10} {b['first_total']:10.2f} {b['rerun_total']:9.2f}")
+    print(f"  goal smooth + export + report <= {BACK_END_GOAL_SECONDS:g} s: "
+          f"{'met' if b['first_total'] <= BACK_END_GOAL_SECONDS else 'NOT met'} in the demo run "
+          f"({b['first_total']:.1f} s), "
+          f"{'met' if b['rerun_total'] <= BACK_END_GOAL_SECONDS else 'NOT met'} on the rerun "
+          f"({b['rerun_total']:.1f} s)\n")
+
+
+def _print_dask(p: dict, k: dict) -> None:
+    """View pairs and a batch in process and on a Dask LocalCluster(2)."""
+    print(f"{p['pairs']} view pairs of the {p['views']}-view ring "
+          f"({p['image_size'][0]}x{p['image_size'][1]}, {p['points']} points), 2 cores")
+    print(f"  {'executor':<28} {'seconds':>9} {'speed-up':>9}")
+    print(f"  {'in-process (default)':<28} {p['in_process_seconds']:9.2f} {1.0:9.2f}"
+          f"   CPU {p['in_process_cpu_seconds']:.1f} s on {p['in_process_workers']} threads "
+          f"(numba kernels one thread each)")
+    print(f"  {'Dask LocalCluster(2)':<28} {p['dask_seconds']:9.2f} {p['speedup']:9.2f}"
+          f"   CPU client {p['dask_client_cpu_seconds']:.1f} s + workers "
+          f"{p['dask_workers_cpu_seconds_incl_startup']:.1f} s (with start-up)")
+    print(f"  (cluster start-up {p['dask_startup_seconds']:.1f} s; load {p['load_before']} -> "
+          f"{p['load_between']} -> {p['load_after']}); identical to in-process: "
+          f"{p['identical']}")
+    print(f"  goal Dask LocalCluster(2) identical to the in-process default: "
+          f"{'met' if p['identical_points'] else 'NOT met'}; speed-up {p['speedup']:.2f} "
+          "(a figure, no goal; both use the 2 cores)\n")
+    print(f"Batch of {k['objects']} objects ({k['points_per_object']} points each, cloud -> "
+          f"export), {k['cpu_count']} cores")
+    print(f"  {'executor':<28} {'seconds':>9} {'speed-up':>9}")
+    print(f"  {'in-process (default)':<28} {k['in_process_seconds']:9.2f} {1.0:9.2f}")
+    print(f"  {'Dask LocalCluster(2) tasks':<28} {k['dask_tasks_seconds']:9.2f} "
+          f"{k['speedup_tasks']:9.2f}")
+    print(f"  {'  + cluster start-up':<28} {k['dask_total_seconds']:9.2f} "
+          f"{k['speedup_with_startup']:9.2f}")
+    print(f"  identical outputs: {k['identical_outputs']}")
+
+
+def _print_memory(m: dict) -> None:
+    """Peak memory of photosurf acquire at 24 and 72 views."""
+    print(f"\nPeak memory of photosurf acquire (fresh process; after imports + kernels "
+          f"{m['imports_rss_mib']:.0f} MiB resident, {m['imports_peak_rss_mib']:.0f} MiB "
+          "peak while importing)")
+    print(f"  {'views':>5} {'pairs':>5} {'points':>8} {'peak MiB':>9} {'cloud MiB':>9} "
+          f"{'beyond MiB':>10} {'seconds':>8} {'CPU s':>7}  load")
+    for n, r in m["runs"].items():
+        print(f"  {n:>5} {r['pairs']:>5} {r['points']:>8} {r['peak_rss_mib']:9.0f} "
+              f"{r['cloud_mib']:9.1f} {r['beyond_imports_and_cloud_mib']:10.0f} "
+              f"{r['seconds']:8.1f} {r['cpu_seconds']:7.1f}  {r['load_before']} -> "
+              f"{r['load_after']}")
+    r24, r72 = m["runs"]["24"], m["runs"]["72"]
+    grows = r72["beyond_imports_and_cloud_mib"] / max(r24["beyond_imports_and_cloud_mib"], 1.0)
+    # the working arrays of the pair points, fusion and outlier removal scale with the
+    # points (a multiple of the cloud); what must not grow is the part per point
+    per_point = ((r72["beyond_imports_and_cloud_mib"] / r72["points"])
+                 / (r24["beyond_imports_and_cloud_mib"] / r24["points"]))
+    print(f"  beyond imports and cloud, 72 vs 24 views: x{grows:.2f} in all, x{per_point:.2f} "
+          f"per cloud point ({r72['points'] / r24['points']:.2f}x the points)")
+    print(f"  goal memory bounded by streaming (per cloud point, 72 vs 24 views <= 1.25): "
+          f"{'met' if per_point <= 1.25 else 'NOT met'}")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="small demo images, fewer objects")
@@ -371,92 +466,13 @@ def main(argv=None) -> int:
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
 
-    for key, title in (("demo", "Default demo = 24-view ring (make demo)"),
-                       ("stereo_pair", "Stereo pair (one side only: stops after curves)")):
-        if key not in figures:
-            continue
-        d = figures[key]
-        print(f"{title} ({d['recipe']}{', quick: 256x192' if args.quick else ''}): "
-              f"{d['total_seconds']:.2f} s (CPU {d['cpu_seconds']:.1f} s; load "
-              f"{d['load_before']} -> {d['load_after']}), peak RSS so far "
-              f"{d['peak_rss_mib']:.0f} MiB")
-        print(f"  {'stage':<10} {'seconds':>9} {'peak MiB':>9}  status")
-        for name, rec in d["stages"].items():
-            secs = f"{rec['seconds']:.2f}" if rec.get("seconds") is not None else ""
-            peak = f"{rec['peak_rss_mib']:.0f}" if rec.get("peak_rss_mib") is not None else ""
-            note = f" ({rec['reason']})" if rec.get("reason") else ""
-            print(f"  {name:<10} {secs:>9} {peak:>9}  {rec['status']}{note}")
-        if key == "demo" and "scene_cached" in figures:
-            c = figures["scene_cached"]
-            print(f"  scene again from the cache: {c['stage_seconds']:.2f} s "
-                  f"(rendered: {c['rendered_seconds']:.2f} s)")
-        if d["error"]:
-            print(f"  error: {d['error']}")
-        print()
-    b = figures["back_end"]
-    print(f"Demo back end ({b['patches']} patches, {b['triangles']} triangles exported; "
-          f"load {b['load_before']} -> {b['load_after']})")
-    print(f"  {'stage':<10} {'demo run s':>10} {'rerun s':>9}")
-    for name in BACK_END:
-        first, again = b["first_run"][name], b["rerun"][name]
-        print(f"  {name:<10} {first if first is not None else float('nan'):10.2f} "
-              f"{again if again is not None else float('nan'):9.2f}")
-    print(f"  {'total':<10} {b['first_total']:10.2f} {b['rerun_total']:9.2f}")
-    print(f"  goal smooth + export + report <= {BACK_END_GOAL_SECONDS:g} s: "
-          f"{'met' if b['first_total'] <= BACK_END_GOAL_SECONDS else 'NOT met'} in the demo run "
-          f"({b['first_total']:.1f} s), "
-          f"{'met' if b['rerun_total'] <= BACK_END_GOAL_SECONDS else 'NOT met'} on the rerun "
-          f"({b['rerun_total']:.1f} s)\n")
+    _print_runs(figures, args.quick)
+    _print_back_end(figures["back_end"])
     if args.back_end:
         print(f"wrote {out}")
         return 0
-    p = figures["dask_pairs"]
-    print(f"{p['pairs']} view pairs of the {p['views']}-view ring "
-          f"({p['image_size'][0]}x{p['image_size'][1]}, {p['points']} points), 2 cores")
-    print(f"  {'executor':<28} {'seconds':>9} {'speed-up':>9}")
-    print(f"  {'in-process (default)':<28} {p['in_process_seconds']:9.2f} {1.0:9.2f}"
-          f"   CPU {p['in_process_cpu_seconds']:.1f} s on {p['in_process_workers']} threads "
-          f"(numba kernels one thread each)")
-    print(f"  {'Dask LocalCluster(2)':<28} {p['dask_seconds']:9.2f} {p['speedup']:9.2f}"
-          f"   CPU client {p['dask_client_cpu_seconds']:.1f} s + workers "
-          f"{p['dask_workers_cpu_seconds_incl_startup']:.1f} s (with start-up)")
-    print(f"  (cluster start-up {p['dask_startup_seconds']:.1f} s; load {p['load_before']} -> "
-          f"{p['load_between']} -> {p['load_after']}); identical to in-process: "
-          f"{p['identical']}")
-    print(f"  goal Dask LocalCluster(2) identical to the in-process default: "
-          f"{'met' if p['identical_points'] else 'NOT met'}; speed-up {p['speedup']:.2f} "
-          "(a figure, no goal; both use the 2 cores)\n")
-    k = figures["dask"]
-    print(f"Batch of {k['objects']} objects ({k['points_per_object']} points each, cloud -> "
-          f"export), {k['cpu_count']} cores")
-    print(f"  {'executor':<28} {'seconds':>9} {'speed-up':>9}")
-    print(f"  {'in-process (default)':<28} {k['in_process_seconds']:9.2f} {1.0:9.2f}")
-    print(f"  {'Dask LocalCluster(2) tasks':<28} {k['dask_tasks_seconds']:9.2f} "
-          f"{k['speedup_tasks']:9.2f}")
-    print(f"  {'  + cluster start-up':<28} {k['dask_total_seconds']:9.2f} "
-          f"{k['speedup_with_startup']:9.2f}")
-    print(f"  identical outputs: {k['identical_outputs']}")
-    m = figures["memory"]
-    print(f"\nPeak memory of photosurf acquire (fresh process; after imports + kernels "
-          f"{m['imports_rss_mib']:.0f} MiB resident, {m['imports_peak_rss_mib']:.0f} MiB "
-          "peak while importing)")
-    print(f"  {'views':>5} {'pairs':>5} {'points':>8} {'peak MiB':>9} {'cloud MiB':>9} "
-          f"{'beyond MiB':>10} {'seconds':>8} {'CPU s':>7}  load")
-    for n, r in m["runs"].items():
-        print(f"  {n:>5} {r['pairs']:>5} {r['points']:>8} {r['peak_rss_mib']:9.0f} "
-              f"{r['cloud_mib']:9.1f} {r['beyond_imports_and_cloud_mib']:10.0f} "
-              f"{r['seconds']:8.1f} {r['cpu_seconds']:7.1f}  {r['load_before']} -> "
-              f"{r['load_after']}")
-    r24, r72 = m["runs"]["24"], m["runs"]["72"]
-    grows = r72["beyond_imports_and_cloud_mib"] / max(r24["beyond_imports_and_cloud_mib"], 1.0)
-    # the working arrays of the pair points, fusion and outlier removal scale with the
-    # points (a multiple of the cloud); what must not grow is the part per point
-    per_point = ((r72["beyond_imports_and_cloud_mib"] / r72["points"])
-                 / (r24["beyond_imports_and_cloud_mib"] / r24["points"]))
-    print(f"  beyond imports and cloud, 72 vs 24 views: x{grows:.2f} in all, x{per_point:.2f} "
-          f"per cloud point ({r72['points'] / r24['points']:.2f}x the points)")
-    print(f"  goal memory bounded by streaming (per cloud point, 72 vs 24 views <= 1.25): "
-          f"{'met' if per_point <= 1.25 else 'NOT met'}")
+    _print_dask(figures["dask_pairs"], figures["dask"])
+    _print_memory(figures["memory"])
     print(f"\nwrote {out}")
     return 0
 
