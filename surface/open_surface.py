@@ -67,7 +67,7 @@ from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
-           "open_surface_from_loops", "organise_arcs", "main_piece", "open_arcs", "chain_arcs",
+           "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps", "open_arcs", "chain_arcs",
            "smooth_border", "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
@@ -407,6 +407,39 @@ def chain_arcs(arcs: Sequence[np.ndarray]) -> tuple[np.ndarray, int]:
             if joined:
                 break
     return chain, used
+
+
+def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:
+    """An open arc with straight chords across its wide gaps, as the closed rings'
+    (``surface.catmull_rom.bridge_gaps``, without the wrap: an open arc's ends are where
+    the data end): a step longer than ``link`` (the loop's expected largest step,
+    ``topology.Loop.bridge``) and than ``catmull_rom.BRIDGE_SHARE`` of the arc's length
+    gets points along its chord every median step before the fit.
+
+    Over a wide gap the fit's fairness continues the arc's bend from both sides: on the
+    chessboard pair 03 a board section's curve bulged 1.6 squares off the board across a
+    3.5-square gap (white squares and the matcher's holes), where the data lie within
+    0.27 of it."""
+    from surface.catmull_rom import BRIDGE_SHARE
+
+    pts = np.asarray(arc, np.float64)
+    if len(pts) < 3:
+        return pts
+    step = np.diff(pts, axis=0)
+    length = np.linalg.norm(step, axis=1)
+    wide = (length > link) & (length > BRIDGE_SHARE * length.sum())
+    if not wide.any() or wide.all():
+        return pts
+    spacing = float(np.median(length[~wide]))
+    if spacing <= TOL.zero:
+        return pts
+    count = np.where(wide, np.ceil(length / spacing).astype(np.int64) - 1, 0)
+    count = np.append(count, 0)                       # the last point starts no step
+    step = np.vstack([step, np.zeros((1, 3))])
+    source = np.repeat(np.arange(len(pts)), count + 1)
+    first = np.repeat(np.cumsum(count + 1) - (count + 1), count + 1)
+    fraction = (np.arange(len(source)) - first) / (count[source] + 1)
+    return pts[source] + fraction[:, None] * step[source]
 
 
 def one_sided(loops: Sequence) -> bool:
@@ -957,6 +990,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
             notes.append(f"section at height {best.height:.6g}: {len(section_loops)} loops, "
                          f"{used} continuing one another kept as one arc "
                          f"({len(arc)} points)")
+        arc = bridge_open_gaps(arc, getattr(best, "bridge", math.inf))
         curves.append(fit_open(arc, smoothing, frame=best.frame))
     curves, placed, align_notes, run = align_arcs(curves)
     notes += align_notes
