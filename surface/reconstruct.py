@@ -1019,6 +1019,13 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
                                       sigma=cap_sigma, ends=ends)
         messages += notes
     ends = (not holes[0], not holes[1]) if close_ends and open_holes else close_ends
+    if close_ends and not open_holes:
+        mouths, notes = thin_mouths(holes, loops, kept[0].frame, points, sliced.spacing)
+        if any(mouths):     # the mouth's note replaces the hole's
+            ends = (not mouths[0], not mouths[1])
+            gone = tuple(f"{name}: a hole" for name, m in zip(("bottom", "top"), mouths,
+                                                               strict=True) if m)
+            messages = [m for m in messages if not m.startswith(gone)] + notes
     result = stitch_rings(rings, kept[0].frame[2], close_ends=ends, flip=flip,
                           support_sigma=section_noise(loops) if support else None,
                           cap_points=sliced.cap_cloud)
@@ -1098,6 +1105,91 @@ def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: f
                          + ("left open, a border where the data end" if leave_open else
                             "closed by the flattest fill within the data's heights (open = "
                             "true leaves it open)"))
+    return (found[0], found[1]), notes
+
+
+#: Columns along the axis inside an end's contour that :func:`thin_mouths` counts the
+#: cloud's sheets in (a grid over the contour shrunk by ``CAP_SHRINK``, at most this many).
+MOUTH_COLUMNS = 64
+#: Radius of a column, in point spacings: ~12 points of a sheet crossing it.
+MOUTH_COLUMN_RADIUS = 2.0
+#: Gap between consecutive heights in a column, in section spacings, that parts two
+#: sheets: within one sheet crossing at up to ~80° from the plane the heights of the
+#: ~12 points step by ~2 point spacings (1 section spacing); a floor and a base, or a
+#: head's top and its chin, lie farther apart than the 3 sections a cap needs anyway.
+MOUTH_SHEET_GAP = 3.0
+
+
+def thin_mouths(holes: tuple, loops: list, frame: np.ndarray, points: np.ndarray,
+                spacing: float) -> tuple[tuple[bool, bool], list[str]]:
+    """Which hole ends (:func:`hole_ends`) are the open mouth of a cavity whose wall the
+    sections could not part into its two faces, and a one-line note for each.
+
+    From a point just inside such an end the axis runs through the cavity, meets its
+    floor and then the object's base: an even number of sheets of the cloud, so the
+    point is outside the solid.  From an unseen base (a bust cut at the chest) it runs
+    through the solid to the surface beyond: an odd number.  The sheets are counted in
+    up to :data:`MOUTH_COLUMNS` columns (radius :data:`MOUTH_COLUMN_RADIUS` point
+    spacings) inside the end's single outer loop, heights parted at gaps of
+    :data:`MOUTH_SHEET_GAP` section spacings; an end is a mouth when most columns that
+    meet any sheet meet an even number.  Its wall is then a band of points too thin for
+    the faces to be told apart; its thickness is given in point spacings as 1.35 robust
+    σ of the end loops' points about their local curve (``Loop.noise``: two faces ±a
+    about their midline have a robust σ of 1.48 a, so 2a ≈ 1.35 σ̂; the noise adds to
+    it, so this is an upper bound).
+
+    Parameters
+    ----------
+    holes : (bool, bool)
+        The first and the last section's end is a hole (:func:`hole_ends`).
+    loops : list
+        The kept sections' loops (:func:`organise_sections`), along the axis.
+    frame : (3, 3) float64
+        Section frame (rows e1, e2, axis).
+    points : (P, 3) float64
+        The whole cloud.
+    spacing : float
+        Section spacing.
+    """
+    from scipy.spatial import cKDTree
+
+    from surface.polygon import inside_polygon
+    from surface.sections import point_spacing
+
+    found, notes = [False, False], []
+    if not any(holes):
+        return (False, False), notes
+    pts = np.asarray(points, np.float64)
+    flat, heights = pts @ frame[:2].T, pts @ frame[2]
+    tree = cKDTree(flat)
+    nu = point_spacing(pts)
+    for end, up in ((0, False), (-1, True)):
+        ends = loops[end] if loops else []
+        if not holes[0 if end == 0 else 1] or len(ends) != 1:
+            continue           # parted faces (nested loops) close their own annulus
+        loop = ends[0]
+        contour = _scaled(loop.points @ frame[:2].T, CAP_SHRINK)
+        lo, hi = contour.min(axis=0), contour.max(axis=0)
+        step = float(np.sqrt(np.prod(hi - lo) / MOUTH_COLUMNS))
+        gx, gy = np.meshgrid(np.arange(lo[0], hi[0], step), np.arange(lo[1], hi[1], step))
+        grid = np.column_stack([gx.ravel(), gy.ravel()])
+        grid = grid[inside_polygon(grid, contour)]
+        h_end = float(np.mean(loop.points @ frame[2]))
+        parity = []
+        for column in tree.query_ball_point(grid, MOUTH_COLUMN_RADIUS * nu):
+            h = heights[column]
+            h = np.sort(h[h < h_end] if up else h[h > h_end])
+            if len(h):
+                parity.append(1 + int(np.count_nonzero(np.diff(h) > MOUTH_SHEET_GAP * spacing)))
+        parity = np.array(parity)
+        if len(parity) == 0 or 2 * np.count_nonzero(parity % 2 == 0) <= len(parity):
+            continue
+        found[0 if end == 0 else 1] = True
+        near = [lp for sec in (loops[:3] if end == 0 else loops[-3:]) for lp in sec]
+        wall = 1.35 * float(np.median([lp.noise for lp in near])) / nu
+        notes.append(f"{'bottom' if end == 0 else 'top'}: an open mouth on a wall too thin "
+                     f"for the data to resolve (~{wall:.1f} point spacings thick, its two faces "
+                     "one band of points): left open, the outer surface only")
     return (found[0], found[1]), notes
 
 
