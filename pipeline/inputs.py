@@ -278,6 +278,40 @@ def _enough_views(names: list[str], skipped: list[dict], where: Path) -> None:
     raise InputError(f"{where}: need at least 2 images, found {len(names)}")
 
 
+def _cameras_from_file(source: Path, where: Path, names: list, shapes: list, sizes: set,
+                       skipped: list) -> tuple[list, list, list]:
+    """The folder's cameras read from ``source`` and matched to its images by name: a view
+    without a camera or of another size is left out (``skipped`` gets its reason);
+    ``(names, shapes, cameras)`` of the views kept (at least two)."""
+    from matching.cameras import read_cameras
+
+    try:
+        # a file without sizes (Middlebury par): each camera takes its image's size,
+        # so a portrait view with its K, R, t turned with it is used
+        cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)),
+                            sizes={name: (shape[1], shape[0])
+                                   for name, shape in zip(names, shapes, strict=True)})
+    except ValueError as exc:  # the readers' messages name the file (or one inside)
+        message = str(exc)
+        raise InputError(message if str(source) in message else f"{source}: {message}"
+                         ) from None
+    cams, holds = _match_cameras(cams, names)
+    keep = []
+    for k, (name, shape, cam) in enumerate(zip(names, shapes, cams, strict=True)):
+        if cam is None:
+            skipped.append({"view": name,
+                            "reason": f"{source}: no camera for image {name} {holds}"})
+        elif (shape[1], shape[0]) != cam.size:
+            skipped.append({"view": name, "reason": (
+                f"{where / name}: image is {shape[1]}x{shape[0]} px but its camera in "
+                f"{source} is {cam.size[0]}x{cam.size[1]} px")})
+        else:
+            keep.append(k)
+    names, shapes, cams = ([seq[k] for k in keep] for seq in (names, shapes, cams))
+    _enough_views(names, skipped, where)
+    return names, shapes, cams
+
+
 def load_folder(folder: str | Path, cameras: str | None = None,
                 sfm_work_dir: str | Path | None = None,
                 camera_model: str = "SIMPLE_RADIAL", spacing: float = 3.0,
@@ -312,8 +346,6 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         Fewer than two usable views (the first left-out view's reason), a camera file
         that cannot be read, SfM registering fewer than two images.
     """
-    from matching.cameras import read_cameras
-
     folder = Path(folder)
     where, names, others = image_dir(folder)
     if len(names) < 2:
@@ -326,30 +358,7 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     source = _camera_source(folder, where, cameras)
     out = {"ignored": others, "unregistered": [], "sfm": None, "skipped_views": skipped}
     if source is not None:
-        try:
-            # a file without sizes (Middlebury par): each camera takes its image's size,
-            # so a portrait view with its K, R, t turned with it is used
-            cams = read_cameras(source, *(next(iter(sizes)) if len(sizes) == 1 else (None, None)),
-                                sizes={name: (shape[1], shape[0])
-                                       for name, shape in zip(names, shapes, strict=True)})
-        except ValueError as exc:  # the readers' messages name the file (or one inside)
-            message = str(exc)
-            raise InputError(message if str(source) in message else f"{source}: {message}"
-                             ) from None
-        cams, holds = _match_cameras(cams, names)
-        keep = []
-        for k, (name, shape, cam) in enumerate(zip(names, shapes, cams, strict=True)):
-            if cam is None:
-                skipped.append({"view": name,
-                                "reason": f"{source}: no camera for image {name} {holds}"})
-            elif (shape[1], shape[0]) != cam.size:
-                skipped.append({"view": name, "reason": (
-                    f"{where / name}: image is {shape[1]}x{shape[0]} px but its camera in "
-                    f"{source} is {cam.size[0]}x{cam.size[1]} px")})
-            else:
-                keep.append(k)
-        names, shapes, cams = ([seq[k] for k in keep] for seq in (names, shapes, cams))
-        _enough_views(names, skipped, where)
+        names, shapes, cams = _cameras_from_file(source, where, names, shapes, sizes, skipped)
         out["camera_source"] = str(source)
         out["sparse_points"] = _model_points(source)
     else:
