@@ -46,7 +46,8 @@ from surface.validate import TOL
 __all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
            "min_loop_points", "section_noise", "untangle", "choose_axis", "rim_line",
-           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "keyhole", "hole_ends"]
+           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "keyhole", "hole_ends",
+           "thin_mouths"]
 
 #: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
 NORMAL_NEIGHBOURS = 12
