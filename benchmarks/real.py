@@ -785,6 +785,54 @@ def photos_main(args) -> int:
     return 0
 
 
+def phone_sfm_main(args) -> int:
+    """``--phone-sfm FOLDER``: :func:`matching.sfm.run_sfm` alone on a photo folder at each
+    SIFT size of ``--sift`` (and each matcher of ``--matchers``): views registered,
+    reprojection, CPU seconds of every thread (and per step, from SfM's progress lines),
+    peak RSS, and with ``--truth CAMERAS`` (the true cameras of a rendered folder, matched
+    by file stem, intrinsics scaled to the folder's size) the poses' errors after a
+    similarity."""
+    import logging
+    import resource
+    from dataclasses import replace
+
+    from matching import sfm
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    folder, rows = Path(args.phone_sfm), []
+    truth = None
+    if args.truth:
+        truth = [replace(c, name=Path(c.name).stem) for c in read_cameras(args.truth)]
+    for size in (int(v) for v in args.sift.split(",")):
+        for matcher in args.matchers.split(","):
+            sfm.SIFT_MAX_IMAGE_SIZE = size
+            cpu0, wall0 = time.process_time(), time.perf_counter()
+            with tempfile.TemporaryDirectory(prefix="phone-sfm-") as work:
+                res = sfm.run_sfm(folder, work_dir=work, matcher=matcher)
+            row = {"method": f"sift{size}-{matcher}", "sift_px": size, "matcher": matcher,
+                   "views": len(res.registered) + len(res.unregistered),
+                   "registered": len(res.registered),
+                   "reprojection_px": res.mean_reprojection_error_px,
+                   "sparse_points": len(res.points),
+                   "cpu_seconds": time.process_time() - cpu0,
+                   "seconds": time.perf_counter() - wall0,
+                   "peak_gb_so_far": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+                   "focal_median_px": float(np.median([c.K[0, 0] for c in res.cameras]))}
+            if truth:
+                cams = [replace(c, name=Path(c.name).stem) for c in res.cameras]
+                row.update(pose_errors(cams, truth)[0])
+                width = max(c.width for c in res.cameras)
+                row["focal_truth_px"] = float(truth[0].K[0, 0] * width / truth[0].width)
+            print("  " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                  for k, v in row.items()), flush=True)
+            rows.append(row)
+    goals = {"phone_sfm_all_registered": all(r["registered"] == r["views"] for r in rows)}
+    print_goals(goals)
+    write_result(args.json, {"benchmark": "real-phone-sfm", "folder": str(folder),
+                             "load": uptime(), "rows": rows, "goals": goals})
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sceaux", action="store_true",
@@ -793,6 +841,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--phone", metavar="FOLDER",
                         help="a phone-sized photo folder (e.g. 30 views of 12 MP rendered by "
                              "photosurf synth) instead of the temple rows")
+    parser.add_argument("--phone-sfm", metavar="FOLDER",
+                        help="SfM alone on a photo folder at each --sift size (CPU-s, peak, "
+                             "poses against --truth)")
+    parser.add_argument("--truth", metavar="CAMERAS",
+                        help="--phone-sfm: the folder's true cameras (a rendered scene's "
+                             "cameras.yml, any image size)")
+    parser.add_argument("--sift", default="1600",
+                        help="--phone-sfm: SIFT longer sides, comma-separated")
+    parser.add_argument("--matchers", default="exhaustive",
+                        help="--phone-sfm: run_sfm matchers, comma-separated")
     parser.add_argument("--cameras", metavar="MODEL",
                         help="with --sceaux: the cameras (and sparse points) of an earlier "
                              "SfM run's COLMAP model instead of running SfM again")
@@ -841,6 +899,10 @@ def main(argv: list[str] | None = None) -> int:
 
         return exif_ring.main(["--json", str(results / "real_exif.json")]
                               + (["--spacing", str(args.spacing)] if args.spacing else []))
+    if args.phone_sfm:
+        if args.json.endswith("real.json"):
+            args.json = str(Path(args.json).with_name("real_phone_sfm.json"))
+        return phone_sfm_main(args)
     if args.sceaux or args.phone:
         if args.json.endswith("real.json"):
             args.json = str(Path(args.json).with_name("real_photos.json"))
