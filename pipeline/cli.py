@@ -24,6 +24,9 @@ the commands, exit status 2.  ``--allow-large`` lifts the limits of
 :mod:`pipeline.limits` (as ``PHOTOSURF_ALLOW_LARGE=1``; any value of that variable
 other than a plain yes or no is an error naming it).
 
+Progress: one line per long step on stderr at the default verbosity, with or without a
+terminal, none in a command's first seconds, none with ``-q`` (:mod:`pipeline.logs`).
+
 Standard streams: a closed descriptor 0, 1 or 2 (``>&-``) is opened on
 ``/dev/null`` before any work, so no file the command opens can take its number
 and receive a library's ``printf``; the summary lines are then dropped.  Stdout
