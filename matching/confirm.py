@@ -247,6 +247,136 @@ def _visible(cloud: PairCloud, cam_k: Camera, zbuf: np.ndarray, normals: np.ndar
     return ok, x, cos_inc
 
 
+def _match_view(cloud: PairCloud, camera: Camera, image: PreparedImage,
+                template: PreparedImage, idx: np.ndarray, x_pred: np.ndarray,
+                normals: np.ndarray, centres: np.ndarray, offset: np.ndarray, eccentric: bool,
+                second_order: str, patch: int, interpolation: str, epipolar: bool,
+                lsm_options: dict):
+    """The points ``idx`` of a pair matched by LSM in one further view (``camera``,
+    ``image``) and tested against their reprojections ``x_pred`` (:func:`check_consistency`).
+
+    Returns ``(idx, ok, position, lsm_cov, d2, bias)``: the points with a finite
+    local-plane mapping, which of them LSM matched, their positions in the view (the
+    view's systematic offset ``bias`` taken off) and LSM covariances, and the squared
+    Mahalanobis distances of the matches from the reprojections.
+    """
+    cam_t = cloud.cameras[0]
+    affine = _plane_affine(cam_t, camera, cloud.x_template[idx], cloud.points[idx],
+                           normals[idx])
+    good_aff = np.all(np.isfinite(affine), axis=(1, 2))
+    idx, affine = idx[good_aff], affine[good_aff]
+    # the window centre's approximation: the point's, moved along the tangent plane
+    approx = x_pred[idx] + np.einsum("mij,mj->mi", affine, offset[idx])
+    off = -offset[idx] if eccentric else None
+    quad = None
+    if second_order == "geometric":  # the terms of the local-plane mappings' field
+        aff6 = np.zeros((len(idx), 6))
+        aff6[:, [1, 2]], aff6[:, [4, 5]] = affine[:, 0], affine[:, 1]
+        quad = second_order_terms(centres[idx], aff6, radius_px=1.5 * patch)
+    _, jac = _project(camera, cloud.points[idx], with_jacobian=True)
+    s_pred = jac @ cloud.cov[idx] @ np.swapaxes(jac, 1, 2)
+    s_pred += TOL.match_cov_floor_px**2 * np.eye(2)
+    # the view's systematic offset (an orientation error of view k or of the pair,
+    # _systematic_offset): LSM is started from the reprojection moved by it, and
+    # matched again while the estimate moves (at most _OFFSET_PASSES passes)
+    start_bias = np.zeros(2)
+    for _ in range(_OFFSET_PASSES):
+        check_stop()  # an interrupted run ends between LSM passes
+        ok, position, lsm_cov, first = _match_further(
+            template, image, centres[idx], approx + start_bias, affine, off, quad,
+            second_order, patch, interpolation, lsm_options)
+        bias = _systematic_offset(position[ok] - x_pred[idx][ok])
+        if np.all(np.abs(bias - start_bias) <= _OFFSET_STOP_PX):
+            break
+        start_bias = bias
+    lost = np.flatnonzero(np.isin(first.status, _LOST))
+    if epipolar and len(lost):
+        # the template ray's image in k: its direction at the point, J_k d (none
+        # where view k's centre lies on the ray)
+        _, ray = cam_t.ray(centres[idx[lost]])
+        direction = np.einsum("mij,mj->mi", jac[lost], ray)
+        along = np.linalg.norm(direction, axis=1) > TOL.zero
+        lost, direction = lost[along], direction[along]
+    if epipolar and len(lost):
+        q = None if quad is None else quad[lost]
+        ok2, pos2, cov2 = _match_along_epipolar(
+            template, image, centres[idx[lost]], approx[lost] + bias,
+            affine[lost], None if off is None else off[lost], q, direction, patch,
+            interpolation, lsm_options, first)
+        ok, position, lsm_cov = ok.copy(), position.copy(), lsm_cov.copy()
+        ok[lost], position[lost], lsm_cov[lost] = ok2, pos2, cov2
+    s_pred = s_pred + lsm_cov
+    d = position - x_pred[idx] - bias
+    with np.errstate(invalid="ignore"):
+        d2 = np.einsum("mi,mij,mj->m", d, np.linalg.inv(np.where(
+            np.isfinite(s_pred), s_pred, np.eye(2))), d)
+    return idx, ok, position - bias, lsm_cov, d2, bias
+
+
+def _further_views(cameras: Sequence[Camera], images: dict, pair: tuple[int, int],
+                   max_incidence_deg: float) -> list[int]:
+    """The views a pair's points may be checked in, nearest the template view first
+    (:func:`_check_order`): those with an image that do not face away from the template
+    view (axes more than twice ``max_incidence_deg`` apart cannot both see a point within
+    it)."""
+    i, j = pair
+    axis_i = cameras[i].R[2]
+    facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
+    return _check_order(cameras, (i, j), [
+        k for k in range(len(cameras)) if k not in (i, j) and k in images
+        and float(cameras[k].R[2] @ axis_i) >= facing])
+
+
+def _retriangulated(cloud: PairCloud, cameras: Sequence[Camera], others: list[int],
+                    tests: list, factor: float, bound: float, views: np.ndarray,
+                    reason: np.ndarray, tried: np.ndarray, matched: np.ndarray,
+                    reject_p: float):
+    """The further views' matches within ``bound · factor`` of their reprojections taken as
+    observations (``views``, ``reason`` filled in place), and the points they confirm
+    triangulated again from all their views: ``(points, cov, sigma)``
+    (:func:`check_consistency`)."""
+    i, j = cloud.pair
+    m = len(cloud)
+    # observations only in the views that can take part (the pair and its further views,
+    # in camera order): (M, len(cols), ...) instead of (M, V, ...) keeps a task's memory
+    # independent of the number of views
+    cols = sorted({i, j, *others})
+    col = {v: c for c, v in enumerate(cols)}
+    obs = np.full((m, len(cols), 2), np.nan)
+    cov = np.full((m, len(cols), 2, 2), np.nan)
+    obs[:, col[i]] = cloud.x_template  # the rectified cameras stand in for views i and j
+    obs[:, col[j]] = cloud.x_right
+    cov[:, col[i]] = cloud.cov_2d
+    cov[:, col[j]] = cloud.cov_2d
+    confirmed = np.zeros(m, np.int64)
+    cov[:, col[i]] *= factor
+    cov[:, col[j]] *= factor
+    for k, idx, ok, position, lsm_cov, d2 in tests:
+        agree = ok & (d2 <= bound * factor)
+        hit = idx[agree]
+        obs[hit, col[k]] = position[agree]
+        cov[hit, col[k]] = factor * (0.5 * lsm_cov[agree]
+                                     + TOL.match_cov_floor_px**2 * np.eye(2))
+        views[hit, k] = True
+        confirmed[hit] += 1
+    reason[(tried > 0) & ~matched] = NO_FURTHER_MATCH
+    reason[matched & (confirmed == 0)] = INCONSISTENT
+    multi = confirmed > 0
+    points, pcov, sigma = cloud.points.copy(), cloud.cov.copy(), cloud.sigma.copy()
+    if multi.any():
+        cams = [cameras[v] for v in cols]
+        cams[col[i]], cams[col[j]] = cloud.cameras
+        tri = triangulate_multiview(cams, obs[multi], np.where(
+            np.isfinite(cov[multi]), cov[multi], np.eye(2)), reject_p=reject_p)
+        idx = np.flatnonzero(multi)
+        reason[idx] = np.where(tri.valid, MULTIVIEW, TRIANGULATION)
+        good = idx[tri.valid]
+        points[good] = tri.points[tri.valid]
+        pcov[good] = tri.cov[tri.valid]
+        sigma[good] = tri.sigma[tri.valid]
+    return points, pcov, sigma
+
+
 def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                       zbuffers: dict, template: PreparedImage, *, check_views: int = 2,
                       patch: int = 15,
@@ -283,11 +413,8 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         (default) fits them (:func:`matching.second_order.second_order_terms`) to the
         local-plane mappings i -> k of the neighbouring pair points, known before any
         matching, so one LSM pass suffices; ``"matched"`` fits them to the affine
-        parameters of a first, affine-only LSM pass and matches again.  Measured on the
-        24-view 1024x768 ring at spacing 3 (eccentric windows on): geometric 315 524
-        points, RMS 0.000228, acquisition 45.6 s / 85.7 CPU s; matched 311 988 points,
-        RMS 0.000226, 53.2 s / 100.8 CPU s (the consistency step 19.3 s against 28.7 s);
-        with no second-order terms at all the RMS doubles (0.000446).
+        parameters of a first, affine-only LSM pass and matches again (the figures:
+        ``docs/decisions/multiview-acquisition.md``).
     epipolar : bool
         Match the windows a free LSM lost (``pull_in``, ``no_convergence``) again along
         the epipolar line (:func:`_match_along_epipolar`; default True).
@@ -305,7 +432,6 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     i, j = cloud.pair
     n_views = len(cameras)
     m = len(cloud)
-    cam_t = cloud.cameras[0]
     views = np.zeros((m, n_views), bool)
     views[:, [i, j]] = True
     reason = np.full(m, PAIR_ONLY, np.int8)
@@ -314,27 +440,9 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
                            np.zeros(0, np.int64), time.perf_counter() - start)
     normals = _normals(cloud.points, cameras[i].center)
     window = 2 * spacing + 1
-    # views facing away from the template view (axes > 2 max_incidence apart) cannot see
-    # a point that view i sees within max_incidence
-    axis_i = cameras[i].R[2]
-    facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
-    others = _check_order(cameras, (i, j), [
-        k for k in range(n_views) if k not in (i, j) and k in images
-        and float(cameras[k].R[2] @ axis_i) >= facing])
-    # observations only in the views that can take part (the pair and its further views,
-    # in camera order): (M, len(cols), ...) instead of (M, V, ...) keeps a task's memory
-    # independent of the number of views
-    cols = sorted({i, j, *others})
-    col = {v: c for c, v in enumerate(cols)}
-    obs = np.full((m, len(cols), 2), np.nan)
-    cov = np.full((m, len(cols), 2, 2), np.nan)
-    obs[:, col[i]] = cloud.x_template  # the rectified cameras stand in for views i and j
-    obs[:, col[j]] = cloud.x_right
-    cov[:, col[i]] = cloud.cov_2d
-    cov[:, col[j]] = cloud.cov_2d
+    others = _further_views(cameras, images, (i, j), max_incidence_deg)
     tried = np.zeros(m, np.int64)
     matched = np.zeros(m, bool)
-    confirmed = np.zeros(m, np.int64)
     # eccentric windows (moved off a textureless cell in the pair): the same window is
     # matched in view k and the point transferred through the warp, as in the pair
     offset = (np.zeros((m, 2)) if cloud.offset is None
@@ -356,59 +464,12 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
         if len(idx) == 0:
             continue
         tried[idx] += 1
-        affine = _plane_affine(cam_t, cameras[k], cloud.x_template[idx], cloud.points[idx],
-                               normals[idx])
-        good_aff = np.all(np.isfinite(affine), axis=(1, 2))
-        idx, affine = idx[good_aff], affine[good_aff]
-        # the window centre's approximation: the point's, moved along the tangent plane
-        approx = x_pred[idx] + np.einsum("mij,mj->mi", affine, offset[idx])
-        off = -offset[idx] if eccentric else None
-        quad = None
-        if second_order == "geometric":  # the terms of the local-plane mappings' field
-            aff6 = np.zeros((len(idx), 6))
-            aff6[:, [1, 2]], aff6[:, [4, 5]] = affine[:, 0], affine[:, 1]
-            quad = second_order_terms(centres[idx], aff6, radius_px=1.5 * patch)
-        _, jac = _project(cameras[k], cloud.points[idx], with_jacobian=True)
-        s_pred = jac @ cloud.cov[idx] @ np.swapaxes(jac, 1, 2)
-        s_pred += TOL.match_cov_floor_px**2 * np.eye(2)
-        # the view's systematic offset (an orientation error of view k or of the pair,
-        # _systematic_offset): LSM is started from the reprojection moved by it, and
-        # matched again while the estimate moves (at most _OFFSET_PASSES passes)
-        start_bias = np.zeros(2)
-        for _ in range(_OFFSET_PASSES):
-            check_stop()  # an interrupted run ends between LSM passes
-            ok, position, lsm_cov, first = _match_further(
-                template, images[k], centres[idx], approx + start_bias, affine, off, quad,
-                second_order, patch, interpolation, lsm_options)
-            bias = _systematic_offset(position[ok] - x_pred[idx][ok])
-            if np.all(np.abs(bias - start_bias) <= _OFFSET_STOP_PX):
-                break
-            start_bias = bias
-        lost = np.flatnonzero(np.isin(first.status, _LOST))
-        if epipolar and len(lost):
-            # the template ray's image in k: its direction at the point, J_k d (none
-            # where view k's centre lies on the ray)
-            _, ray = cam_t.ray(centres[idx[lost]])
-            direction = np.einsum("mij,mj->mi", jac[lost], ray)
-            along = np.linalg.norm(direction, axis=1) > TOL.zero
-            lost, direction = lost[along], direction[along]
-        if epipolar and len(lost):
-            q = None if quad is None else quad[lost]
-            ok2, pos2, cov2 = _match_along_epipolar(
-                template, images[k], centres[idx[lost]], approx[lost] + bias,
-                affine[lost], None if off is None else off[lost], q, direction, patch,
-                interpolation, lsm_options, first)
-            ok, position, lsm_cov = ok.copy(), position.copy(), lsm_cov.copy()
-            ok[lost], position[lost], lsm_cov[lost] = ok2, pos2, cov2
+        idx, ok, position, lsm_cov, d2, bias = _match_view(
+            cloud, cameras[k], images[k], template, idx, x_pred, normals, centres, offset,
+            eccentric, second_order, patch, interpolation, epipolar, lsm_options)
         if np.any(bias):
             offsets[k] = bias
         matched[idx[ok]] = True
-        s_pred = s_pred + lsm_cov
-        d = position - x_pred[idx] - bias
-        with np.errstate(invalid="ignore"):
-            d2 = np.einsum("mi,mij,mj->m", d, np.linalg.inv(np.where(
-                np.isfinite(s_pred), s_pred, np.eye(2))), d)
-        position = position - bias
         tests.append((k, idx, ok, position, lsm_cov, d2))
     # the a-posteriori variance factor of the pair's matches (Förstner 1979): on real
     # images LSM's σ is several times optimistic (correlated noise, blur, shading), and
@@ -419,31 +480,8 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
     # for itself.  Never below 1 (rendered scenes: the σ are right)
     factor = min([variance_factor(t[5][t[2]]) for t in tests if t[2].sum() >= 30],
                  default=1.0)
-    cov[:, col[i]] *= factor
-    cov[:, col[j]] *= factor
-    for k, idx, ok, position, lsm_cov, d2 in tests:
-        agree = ok & (d2 <= bound * factor)
-        hit = idx[agree]
-        obs[hit, col[k]] = position[agree]
-        cov[hit, col[k]] = factor * (0.5 * lsm_cov[agree]
-                                     + TOL.match_cov_floor_px**2 * np.eye(2))
-        views[hit, k] = True
-        confirmed[hit] += 1
-    reason[(tried > 0) & ~matched] = NO_FURTHER_MATCH
-    reason[matched & (confirmed == 0)] = INCONSISTENT
-    multi = confirmed > 0
-    points, pcov, sigma = cloud.points.copy(), cloud.cov.copy(), cloud.sigma.copy()
-    if multi.any():
-        cams = [cameras[v] for v in cols]
-        cams[col[i]], cams[col[j]] = cloud.cameras
-        tri = triangulate_multiview(cams, obs[multi], np.where(
-            np.isfinite(cov[multi]), cov[multi], np.eye(2)), reject_p=reject_p)
-        idx = np.flatnonzero(multi)
-        reason[idx] = np.where(tri.valid, MULTIVIEW, TRIANGULATION)
-        good = idx[tri.valid]
-        points[good] = tri.points[tri.valid]
-        pcov[good] = tri.cov[tri.valid]
-        sigma[good] = tri.sigma[tri.valid]
+    points, pcov, sigma = _retriangulated(cloud, cameras, others, tests, factor, bound, views,
+                                          reason, tried, matched, reject_p)
     if not require_confirmation:
         reason[reason == NO_FURTHER_MATCH] = PAIR_ONLY
     return Consistency(points, pcov, sigma, reason, views, tried,

@@ -1,8 +1,7 @@
 r"""All-round multi-view acquisition: view pairs, multi-image consistency, one merged cloud.
 
-A ring of calibrated views becomes one cloud in four steps, each in its own module; tasks
-run through :mod:`matching.scheduler` (one thread per core, or any ``map_func``, e.g. Dask's;
-the results do not depend on where they run, and no task keeps an image).
+A ring of calibrated views becomes one cloud in four steps (:func:`reconstruct_multiview`,
+its options :class:`MultiViewOptions`); tasks run through :mod:`matching.scheduler`.
 
 1. **View pairs** (:mod:`matching.view_pairs`): a pair is usable when its baseline-to-depth
    ratio lies in ``[min_ratio, max_ratio]`` and its optical axes are within
@@ -25,9 +24,8 @@ the results do not depend on where they run, and no task keeps an image).
    spacing fused by 1/σ² weights; a statistical outlier removal (after Rusu et al. 2008
    [2]_) by neighbour distance and distance to the neighbours' PCA plane.
 
-**Silhouette consistency** (``silhouettes=True``, :func:`matching.masks.near_foreground`):
-where a view's background is uniform, a point must project within
-:math:`\sqrt2/2 + q\,\sigma f/z` px of that view's foreground.
+**Silhouettes** (:func:`matching.masks.near_foreground`): where a view's background is
+uniform, a point must project within :math:`\sqrt2/2 + q\,\sigma f/z` px of its foreground.
 
 Per-point reasons: :data:`REASON_NAMES` (0 ``multiview``, 1 ``pair_only``,
 2 ``no_further_match``, 3 ``inconsistent``, 4 ``triangulation``, 5 ``outlier``,
@@ -47,7 +45,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import cv2
 import numpy as np
@@ -97,6 +95,7 @@ __all__ = [
     "merge_clouds",
     "zbuffer",
     "reconstruct_multiview",
+    "MultiViewOptions",
 ]
 
 #: Where SGBM's disparity range comes from (:func:`reconstruct_multiview`).
@@ -540,35 +539,12 @@ def _image_shape(images: Sequence, v: int) -> tuple:
     return tuple(shapes[v]) if shapes is not None else np.shape(images[v])
 
 
-def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
-                          pairs: Sequence[tuple[int, int]] | None = None,
-                          map_func: Callable | None = None, workers: int | None = None,
-                          chunk_pairs: int = 8, check_views: int = 2,
-                          max_incidence_deg: float = 60.0, reject_p: float = 0.999,
-                          require_confirmation: bool = True, second_order: str = "geometric",
-                          keep_unchecked: bool | None = None, sor_neighbours: int = 16,
-                          sor_std: float = 3.0, pair_options: dict | None = None,
-                          min_covered: float = 0.5, masks: Sequence | None = None,
-                          roi=None, search: str = "geometry", outline: bool = True,
-                          silhouettes: bool = True, **match_options) -> MultiViewCloud:
-    """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
+@dataclass(frozen=True)
+class MultiViewOptions:
+    """How :func:`reconstruct_multiview` pairs, checks and merges the views.
 
-    Parameters
+    Attributes
     ----------
-    images : sequence of V (H, W) or (H, W, 3) array_like
-        Images in camera order (colour in BGR order).  A sequence with a true ``lazy``
-        attribute (and ``shapes``, the V image shapes) reads an image on item access,
-        e.g. :class:`pipeline.inputs.FolderImages`: tasks then carry the sequence
-        and a view index, and an image is in memory only while a task uses it.
-    cameras : sequence of V Camera
-    pairs : sequence of (int, int), optional
-        View pairs (default :func:`select_pairs` with ``pair_options``).
-    map_func : callable, optional
-        ``map_func(func, items) -> list``, e.g. ``executor.map`` of
-        :mod:`pipeline.executor` (default: ``workers`` threads of this process).
-    workers : int, optional
-        Threads for the view pairs and consistency checks when ``map_func`` is not
-        given, and for the per-view preparation always (default: the usable cores).
     chunk_pairs : int
         Consistency checks are mapped ``chunk_pairs`` pairs at a time (pairs in the
         given order: neighbours on a ring); only the views those pairs check in are
@@ -590,13 +566,6 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         skipped (``stats["skipped"]``: pair, view names, one-line reason); the run fails
         only when fewer than this share of the views in the pairs (and fewer than 2)
         remain in a reconstructed pair.
-    masks : sequence of V (H, W) bool or None, optional
-        Object masks (:mod:`matching.masks`; None entries: no mask for that view):
-        candidates only on the mask, the search volume is the visual hull, and points
-        off a mask where they project into its image are dropped (``outside``).
-    roi : (2, 3) array_like, optional
-        Region of interest, lower and upper world corner: the search volume is cut to it
-        and points outside are dropped (``outside``).
     search : {"geometry", "features"}
         Where SGBM's disparity range comes from: ``"geometry"`` (default) the common
         volume of the frusta, the visual hull with masks, cut to ``roi``
@@ -614,13 +583,68 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         ``outside``; ``stats["silhouette_rejected"]`` counts the matched and outline
         points it removed, ``stats["silhouette_views"]`` the views that had a
         foreground).  Default True; views without a uniform background do not take part.
-    **match_options
-        ``spacing``, ``patch``, ``interpolation``, ``min_correlation``,
-        ``sigma0_factor``, ``max_iter``, ``shift_stop_px``, ``min_texture_snr``,
-        ``sgbm_block``, ``adaptive_patch`` (default False: see
-        :func:`reconstruct_view_pair`), ``max_patch``, ``max_sigma_mad_k``,
-        ``eccentric`` (default True here: see :func:`reconstruct_view_pair`)
-        (:func:`matching.pair.match_pair`).
+    """
+
+    chunk_pairs: int = 8
+    check_views: int = 2
+    max_incidence_deg: float = 60.0
+    reject_p: float = 0.999
+    require_confirmation: bool = True
+    second_order: str = "geometric"
+    keep_unchecked: bool | None = None
+    sor_neighbours: int = 16
+    sor_std: float = 3.0
+    pair_options: dict | None = None
+    min_covered: float = 0.5
+    search: str = "geometry"
+    outline: bool = True
+    silhouettes: bool = True
+
+
+_OPTION_KEYS = tuple(f.name for f in fields(MultiViewOptions))
+
+
+def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
+                          pairs: Sequence[tuple[int, int]] | None = None,
+                          map_func: Callable | None = None, workers: int | None = None,
+                          masks: Sequence | None = None, roi=None,
+                          options: MultiViewOptions | None = None,
+                          **keywords) -> MultiViewCloud:
+    """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
+
+    Parameters
+    ----------
+    images : sequence of V (H, W) or (H, W, 3) array_like
+        Images in camera order (colour in BGR order).  A sequence with a true ``lazy``
+        attribute (and ``shapes``, the V image shapes) reads an image on item access,
+        e.g. :class:`pipeline.inputs.FolderImages`: tasks then carry the sequence
+        and a view index, and an image is in memory only while a task uses it.
+    cameras : sequence of V Camera
+    pairs : sequence of (int, int), optional
+        View pairs (default :func:`select_pairs` with ``pair_options``).
+    map_func : callable, optional
+        ``map_func(func, items) -> list``, e.g. ``executor.map`` of
+        :mod:`pipeline.executor` (default: ``workers`` threads of this process).
+    workers : int, optional
+        Threads for the view pairs and consistency checks when ``map_func`` is not
+        given, and for the per-view preparation always (default: the usable cores).
+    masks : sequence of V (H, W) bool or None, optional
+        Object masks (:mod:`matching.masks`; None entries: no mask for that view):
+        candidates only on the mask, the search volume is the visual hull, and points
+        off a mask where they project into its image are dropped (``outside``).
+    roi : (2, 3) array_like, optional
+        Region of interest, lower and upper world corner: the search volume is cut to it
+        and points outside are dropped (``outside``).
+    options : MultiViewOptions, optional
+        How the views are paired, checked and merged; any of its fields may be given as
+        a keyword instead (``check_views=3``), which overrides it.
+    **keywords
+        :class:`MultiViewOptions` fields, and the matching options ``spacing``,
+        ``patch``, ``interpolation``, ``min_correlation``, ``sigma0_factor``,
+        ``max_iter``, ``shift_stop_px``, ``min_texture_snr``, ``sgbm_block``,
+        ``adaptive_patch`` (default False: see :func:`reconstruct_view_pair`),
+        ``max_patch``, ``max_sigma_mad_k``, ``eccentric`` (default True here: see
+        :func:`reconstruct_view_pair`) (:func:`matching.pair.match_pair`).
 
     Returns
     -------
@@ -628,51 +652,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         Identical whatever ``map_func``, ``workers`` and ``chunk_pairs`` (every task is
         deterministic and independent of the others).
     """
+    opts = replace(options or MultiViewOptions(),
+                   **{k: v for k, v in keywords.items() if k in _OPTION_KEYS})
+    match_options = {k: v for k, v in keywords.items() if k not in _OPTION_KEYS}
     cameras = list(cameras)
-    if len(images) != len(cameras):
-        raise ValueError(f"images: got {len(images)} images for {len(cameras)} cameras")
-    if len(cameras) < 2:
-        raise ValueError(f"cameras: need at least 2 views, got {len(cameras)}")
-    for v, cam in enumerate(cameras):
-        shape = _image_shape(images, v)
-        if len(shape) < 2 or (shape[1], shape[0]) != cam.size:
-            got = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
-            raise ValueError(f"images[{v}] ({cam.name or v}) is {got} px but its camera is "
-                             f"{cam.size[0]}x{cam.size[1]} px")
-    if int(check_views) < 1:
-        raise ValueError(f"check_views must be >= 1, got {check_views}")
-    if second_order not in SECOND_ORDER_MODES:
-        raise ValueError(f"second_order must be one of {SECOND_ORDER_MODES}, "
-                         f"got {second_order!r}")
-    if not 0.0 < max_incidence_deg < 90.0:
-        raise ValueError(f"max_incidence_deg must lie in (0, 90), got {max_incidence_deg}")
-    if not 0.0 < reject_p < 1.0:
-        raise ValueError(f"reject_p must lie in (0, 1), got {reject_p}")
     workers = default_workers() if workers is None else int(workers)
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
-    if not 0.0 <= min_covered <= 1.0:
-        raise ValueError(f"min_covered must lie in [0, 1], got {min_covered}")
-    if int(chunk_pairs) < 1:
-        raise ValueError(f"chunk_pairs must be >= 1, got {chunk_pairs}")
-    if search not in SEARCH_MODES:
-        raise ValueError(f"search must be one of {SEARCH_MODES}, got {search!r}")
-    if masks is not None:
-        masks = list(masks)
-        if len(masks) != len(cameras):
-            raise ValueError(f"masks: got {len(masks)} for {len(cameras)} cameras")
-        for v, (m, cam) in enumerate(zip(masks, cameras, strict=True)):
-            if m is not None and np.shape(m) != (cam.height, cam.width):
-                raise ValueError(f"masks[{v}] ({cam.name or v}) is {np.shape(m)[::-1]} px "
-                                 f"but its camera is {cam.size[0]}x{cam.size[1]} px")
-    if roi is not None:
-        roi = check_shape(roi, "(2, 3)", "roi", dtype=np.float64)
-        if not np.all(roi[1] > roi[0]):
-            raise ValueError(f"roi: the upper corner must exceed the lower, got {roi.tolist()}")
-    unknown = set(match_options) - set(_MATCH_KEYS)
-    if unknown:
-        raise ValueError(f"unknown matching option(s) {sorted(unknown)}; choose from "
-                         f"{', '.join(_MATCH_KEYS)}")
+    masks, roi = _checked_inputs(images, cameras, opts, workers, masks, roi, match_options)
     local_map = thread_map(workers)
     map_func = local_map if map_func is None else map_func
     lazy = bool(getattr(images, "lazy", False))
@@ -680,116 +665,41 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     def ref(v: int):
         return ViewRef(images, v) if lazy else images[v]
 
-    pairs = select_pairs(cameras, **(pair_options or {})) if pairs is None else [
+    pairs = select_pairs(cameras, **(opts.pair_options or {})) if pairs is None else [
         (int(a), int(b)) for a, b in pairs]
     if not pairs:
         raise ValueError("cameras: no view pair has a usable baseline-to-depth ratio and "
                          "viewing angle")
     t0 = time.perf_counter()
-    volume = (_search_volume(cameras, masks, roi) if search == "geometry" else None)
-    results = map_func(_pair_task, [
-        {"left_image": ref(a), "right_image": ref(b), "left": cameras[a],
-         "right": cameras[b], "pair": (a, b), "volume": volume,
-         "mask": None if masks is None else masks[a], "options": match_options}
-        for a, b in pairs])
+    volume = (_search_volume(cameras, masks, roi) if opts.search == "geometry" else None)
+    results = map_func(_pair_task, [_pair_item(ref, cameras, masks, volume, match_options, a, b)
+                                    for a, b in pairs])
     skipped = [r for r in results if isinstance(r, SkippedPair)]
     clouds = [r for r in results if not isinstance(r, SkippedPair)]
-    _check_coverage(cameras, [c.pair for c in clouds], skipped, min_covered)
+    _check_coverage(cameras, [c.pair for c in clouds], skipped, opts.min_covered)
     pairs = [c.pair for c in clouds]
     densify = _densify_stats(clouds)
     t1 = time.perf_counter()
-    patch = int(match_options.get("patch", 15))
-    spacing = int(match_options.get("spacing", DEFAULT_SPACING))
     all_points = np.concatenate([c.points for c in clouds]) if clouds else np.zeros((0, 3))
     median_sigma_pair = (float(np.median(np.concatenate([c.sigma for c in clouds])))
                          if len(all_points) else float("nan"))
-    window = 2 * spacing + 1
-    interpolation = match_options.get("interpolation", DEFAULT_INTERPOLATION)
-    options = {"check_views": check_views, "patch": patch, "spacing": spacing,
-               "interpolation": interpolation,
-               "max_incidence_deg": max_incidence_deg, "reject_p": reject_p,
-               "require_confirmation": require_confirmation, "second_order": second_order,
-               **{k: v for k, v in match_options.items() if k in LSM_KEYS}}
-    near = [further_views(cameras, pr, 2 * check_views + 2, max_incidence_deg)
-            for pr in pairs]
-    chunks = [range(s, min(s + int(chunk_pairs), len(pairs)))
-              for s in range(0, len(pairs), int(chunk_pairs))]
-    view_data: dict = {}
-    checks: list = []
-    prepared_views = 0
-    for c, chunk in enumerate(chunks):
-        need = sorted({k for p in chunk for k in near[p]})
-        missing = [k for k in need if k not in view_data]
-        prepared_views += len(missing)
-        view_data.update(zip(missing, local_map(_view_task, [
-            {"image": ref(k), "camera": cameras[k], "points": all_points,
-             "window": window, "interpolation": interpolation} for k in missing]),
-            strict=True))
-        checks += map_func(_consistency_task, [
-            {"cloud": clouds[p], "cameras": cameras, "template_image": ref(pairs[p][0]),
-             "images": {k: view_data[k][0] for k in near[p]},
-             "zbuffers": {k: view_data[k][1] for k in near[p]}, "options": options}
-            for p in chunk])
-        for p in chunk:
-            clouds[p] = None  # the pair's points live on in its check
-        later = {k for p in chunks[c + 1] for k in near[p]} if c + 1 < len(chunks) else set()
-        view_data = {k: d for k, d in view_data.items() if k in later}
-    del view_data, all_points
+    checks, prepared_views = _consistency_checks(clouds, pairs, cameras, all_points, ref,
+                                                 local_map, map_func, opts, match_options)
+    del all_points
     t2 = time.perf_counter()
-    reasons = np.concatenate([c.reason for c in checks]) if checks else np.zeros(0, np.int8)
-    if keep_unchecked is None:
-        keep_unchecked = len(cameras) < 3
-    keep = np.isin(reasons, (MULTIVIEW, PAIR_ONLY) if keep_unchecked else (MULTIVIEW,))
-    if masks is not None or roi is not None:
-        all_pts = np.concatenate([c.points for c in checks])
-        out = np.zeros(len(keep), bool)
-        out[keep] = ~_inside_object(all_pts[keep], cameras, masks, roi)
-        reasons = np.where(out, OUTSIDE, reasons).astype(reasons.dtype)
-        keep &= ~out
-        del all_pts
-    # per view on the worker threads (OpenCV's distance transform and PNG decoding
-    # release the GIL): this tail ran on one core
-    distances = (_foreground_distances(len(cameras), lambda v: load_image(ref(v)), local_map)
-                 if silhouettes else [None] * len(cameras))
-    quantile = float(norm.ppf(0.5 + 0.5 * reject_p))
-    n_silhouette = 0
-    if any(d is not None for d in distances):
-        idx = np.flatnonzero(keep)
-        off = ~_near_foreground(np.concatenate([c.points for c in checks])[idx],
-                                np.concatenate([c.sigma for c in checks])[idx], cameras,
-                                distances, quantile, local_map, workers)
-        reasons[idx[off]] = OUTSIDE
-        keep[idx[off]] = False
-        n_silhouette = int(off.sum())
-    points = np.concatenate([c.points for c in checks])[keep]
-    sigma = np.concatenate([c.sigma for c in checks])[keep]
-    views = np.unpackbits(np.concatenate([c.views for c in checks])[keep], axis=1,
-                          count=len(cameras)).astype(bool)
-    source = np.concatenate([np.full(len(c.reason), p, np.int64)
-                             for p, c in enumerate(checks)])[keep]
-    factors = [c.variance_factor for c in checks]
-    offsets = [{"pair": list(pr), "view": int(k), "offset_px": [float(v) for v in b]}
-               for pr, c in zip(pairs, checks, strict=True) for k, b in c.offsets.items()]
+    reasons, keep, distances, quantile, n_silhouette = _kept(
+        checks, cameras, masks, roi, opts, lambda v: load_image(ref(v)), local_map, workers)
+    points, sigma, views, source, factors, offsets = _assembled(checks, keep, pairs,
+                                                                len(cameras))
     del checks
-    n_outline, matched_sigma = 0, sigma
-    if outline and len(points):
-        extra = _outline_points(cameras, masks, roi, points, sigma, lambda v: load_image(ref(v)),
-                                local_map)
-        if len(extra) and any(d is not None for d in distances):
-            near = near_foreground(extra.points, extra.sigma, cameras, distances, quantile)
-            n_silhouette += int(np.count_nonzero(~near))
-            extra = extra.take(near)
-        n_outline = len(extra)
-        if n_outline:
-            points = np.vstack([points, extra.points])
-            sigma = np.concatenate([sigma, extra.sigma])
-            seen = views[extra.neighbour].copy()  # the surface beside it, and its view
-            seen[np.arange(n_outline), extra.view] = True
-            views = np.vstack([views, seen])
-            source = np.concatenate([source, -1 - extra.view])  # fused across views
+    matched_sigma = sigma
+    points, sigma, views, source, n_outline, n_outside = _with_outline(
+        points, sigma, views, source, cameras, masks, roi, opts.outline, distances, quantile,
+        lambda v: load_image(ref(v)), local_map)
+    n_silhouette += n_outside
     colours = point_colours(points, views, cameras, lambda v: load_image(ref(v)))
     merged = merge_clouds(points, sigma, views, source, colours,
-                          sor_neighbours=sor_neighbours, sor_std=sor_std)
+                          sor_neighbours=opts.sor_neighbours, sor_std=opts.sor_std)
     t3 = time.perf_counter()
     counts = {REASON_NAMES[c]: int(np.count_nonzero(reasons == c)) for c in REASON_NAMES}
     counts[REASON_NAMES[OUTLIER]] = merged["outliers"]
@@ -819,3 +729,178 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     return MultiViewCloud(points=merged["points"], colours=merged["colours"],
                           sigma=merged["sigma"], views=merged["views"], pair=merged["pair"],
                           pairs=list(pairs), reason_counts=counts, stats=stats)
+
+
+def _pair_item(ref: Callable, cameras: list, masks, volume, match_options: dict, a: int,
+               b: int) -> dict:
+    """The task of view pair ``(a, b)`` (:func:`_pair_task`)."""
+    return {"left_image": ref(a), "right_image": ref(b), "left": cameras[a],
+            "right": cameras[b], "pair": (a, b), "volume": volume,
+            "mask": None if masks is None else masks[a], "options": match_options}
+
+
+def _assembled(checks: list, keep: np.ndarray, pairs: list, n_views: int):
+    """The kept points of every pair's check in one cloud: ``(points, sigma, views (N, V)
+    bool, source pair, variance factors, further views' offsets)``."""
+    points = np.concatenate([c.points for c in checks])[keep]
+    sigma = np.concatenate([c.sigma for c in checks])[keep]
+    views = np.unpackbits(np.concatenate([c.views for c in checks])[keep], axis=1,
+                          count=n_views).astype(bool)
+    source = np.concatenate([np.full(len(c.reason), p, np.int64)
+                             for p, c in enumerate(checks)])[keep]
+    factors = [c.variance_factor for c in checks]
+    offsets = [{"pair": list(pr), "view": int(k), "offset_px": [float(v) for v in b]}
+               for pr, c in zip(pairs, checks, strict=True) for k, b in c.offsets.items()]
+    return points, sigma, views, source, factors, offsets
+
+
+def _kept(checks: list, cameras: list, masks, roi, opts: MultiViewOptions, image: Callable,
+          local_map: Callable, workers: int):
+    """Which checked points are kept: confirmed in a further view (or unchecked, with
+    ``keep_unchecked``), inside the masks and the ``roi``, and not outside a view's
+    automatic foreground by more than their σ allows.  Returns ``(reasons, keep,
+    foreground distances per view, the σ quantile, points left out by the silhouettes)``."""
+    reasons = np.concatenate([c.reason for c in checks]) if checks else np.zeros(0, np.int8)
+    keep_unchecked = len(cameras) < 3 if opts.keep_unchecked is None else opts.keep_unchecked
+    keep = np.isin(reasons, (MULTIVIEW, PAIR_ONLY) if keep_unchecked else (MULTIVIEW,))
+    if masks is not None or roi is not None:
+        all_pts = np.concatenate([c.points for c in checks])
+        out = np.zeros(len(keep), bool)
+        out[keep] = ~_inside_object(all_pts[keep], cameras, masks, roi)
+        reasons = np.where(out, OUTSIDE, reasons).astype(reasons.dtype)
+        keep &= ~out
+        del all_pts
+    # per view on the worker threads (OpenCV's distance transform and PNG decoding
+    # release the GIL): this tail ran on one core
+    distances = (_foreground_distances(len(cameras), image, local_map)
+                 if opts.silhouettes else [None] * len(cameras))
+    quantile = float(norm.ppf(0.5 + 0.5 * opts.reject_p))
+    n_silhouette = 0
+    if any(d is not None for d in distances):
+        idx = np.flatnonzero(keep)
+        off = ~_near_foreground(np.concatenate([c.points for c in checks])[idx],
+                                np.concatenate([c.sigma for c in checks])[idx], cameras,
+                                distances, quantile, local_map, workers)
+        reasons[idx[off]] = OUTSIDE
+        keep[idx[off]] = False
+        n_silhouette = int(off.sum())
+    return reasons, keep, distances, quantile, n_silhouette
+
+
+def _checked_inputs(images: Sequence, cameras: list, opts: MultiViewOptions, workers: int,
+                    masks, roi, match_options: dict):
+    """:func:`reconstruct_multiview`'s inputs checked (a ValueError naming the first
+    problem); returns ``(masks, roi)`` as lists / arrays."""
+    if len(images) != len(cameras):
+        raise ValueError(f"images: got {len(images)} images for {len(cameras)} cameras")
+    if len(cameras) < 2:
+        raise ValueError(f"cameras: need at least 2 views, got {len(cameras)}")
+    for v, cam in enumerate(cameras):
+        shape = _image_shape(images, v)
+        if len(shape) < 2 or (shape[1], shape[0]) != cam.size:
+            got = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
+            raise ValueError(f"images[{v}] ({cam.name or v}) is {got} px but its camera is "
+                             f"{cam.size[0]}x{cam.size[1]} px")
+    if int(opts.check_views) < 1:
+        raise ValueError(f"check_views must be >= 1, got {opts.check_views}")
+    if opts.second_order not in SECOND_ORDER_MODES:
+        raise ValueError(f"second_order must be one of {SECOND_ORDER_MODES}, "
+                         f"got {opts.second_order!r}")
+    if not 0.0 < opts.max_incidence_deg < 90.0:
+        raise ValueError(f"max_incidence_deg must lie in (0, 90), got "
+                         f"{opts.max_incidence_deg}")
+    if not 0.0 < opts.reject_p < 1.0:
+        raise ValueError(f"reject_p must lie in (0, 1), got {opts.reject_p}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if not 0.0 <= opts.min_covered <= 1.0:
+        raise ValueError(f"min_covered must lie in [0, 1], got {opts.min_covered}")
+    if int(opts.chunk_pairs) < 1:
+        raise ValueError(f"chunk_pairs must be >= 1, got {opts.chunk_pairs}")
+    if opts.search not in SEARCH_MODES:
+        raise ValueError(f"search must be one of {SEARCH_MODES}, got {opts.search!r}")
+    if masks is not None:
+        masks = list(masks)
+        if len(masks) != len(cameras):
+            raise ValueError(f"masks: got {len(masks)} for {len(cameras)} cameras")
+        for v, (m, cam) in enumerate(zip(masks, cameras, strict=True)):
+            if m is not None and np.shape(m) != (cam.height, cam.width):
+                raise ValueError(f"masks[{v}] ({cam.name or v}) is {np.shape(m)[::-1]} px "
+                                 f"but its camera is {cam.size[0]}x{cam.size[1]} px")
+    if roi is not None:
+        roi = check_shape(roi, "(2, 3)", "roi", dtype=np.float64)
+        if not np.all(roi[1] > roi[0]):
+            raise ValueError(f"roi: the upper corner must exceed the lower, got {roi.tolist()}")
+    unknown = set(match_options) - set(_MATCH_KEYS)
+    if unknown:
+        raise ValueError(f"unknown matching option(s) {sorted(unknown)}; choose from "
+                         f"{', '.join(_MATCH_KEYS)}")
+    return masks, roi
+
+
+def _consistency_checks(clouds: list, pairs: list, cameras: list, all_points: np.ndarray,
+                        ref: Callable, local_map: Callable, map_func: Callable,
+                        opts: MultiViewOptions, match_options: dict) -> tuple[list, int]:
+    """Every pair's points checked in its further views (:func:`check_consistency`),
+    ``chunk_pairs`` pairs at a time, each chunk's views prepared once (grey image and
+    z-buffer of ``all_points``) and dropped when no later chunk needs them; the pairs'
+    clouds are released as they are checked.  Returns ``(checks, prepared views)``."""
+    patch = int(match_options.get("patch", 15))
+    spacing = int(match_options.get("spacing", DEFAULT_SPACING))
+    window = 2 * spacing + 1
+    interpolation = match_options.get("interpolation", DEFAULT_INTERPOLATION)
+    options = {"check_views": opts.check_views, "patch": patch, "spacing": spacing,
+               "interpolation": interpolation,
+               "max_incidence_deg": opts.max_incidence_deg, "reject_p": opts.reject_p,
+               "require_confirmation": opts.require_confirmation,
+               "second_order": opts.second_order,
+               **{k: v for k, v in match_options.items() if k in LSM_KEYS}}
+    near = [further_views(cameras, pr, 2 * opts.check_views + 2, opts.max_incidence_deg)
+            for pr in pairs]
+    chunks = [range(s, min(s + int(opts.chunk_pairs), len(pairs)))
+              for s in range(0, len(pairs), int(opts.chunk_pairs))]
+    view_data: dict = {}
+    checks: list = []
+    prepared_views = 0
+    for c, chunk in enumerate(chunks):
+        need = sorted({k for p in chunk for k in near[p]})
+        missing = [k for k in need if k not in view_data]
+        prepared_views += len(missing)
+        view_data.update(zip(missing, local_map(_view_task, [
+            {"image": ref(k), "camera": cameras[k], "points": all_points,
+             "window": window, "interpolation": interpolation} for k in missing]),
+            strict=True))
+        checks += map_func(_consistency_task, [
+            {"cloud": clouds[p], "cameras": cameras, "template_image": ref(pairs[p][0]),
+             "images": {k: view_data[k][0] for k in near[p]},
+             "zbuffers": {k: view_data[k][1] for k in near[p]}, "options": options}
+            for p in chunk])
+        for p in chunk:
+            clouds[p] = None  # the pair's points live on in its check
+        later = {k for p in chunks[c + 1] for k in near[p]} if c + 1 < len(chunks) else set()
+        view_data = {k: d for k, d in view_data.items() if k in later}
+    return checks, prepared_views
+
+
+def _with_outline(points: np.ndarray, sigma: np.ndarray, views: np.ndarray,
+                  source: np.ndarray, cameras: list, masks, roi, outline: bool,
+                  distances: list, quantile: float, image: Callable, local_map: Callable):
+    """The matched points with the outline points added (:func:`_outline_points`; those
+    outside a view's foreground by more than their σ allows left out): ``(points, sigma,
+    views, source, outline points added, outline points left out)``."""
+    n_outline, n_outside = 0, 0
+    if outline and len(points):
+        extra = _outline_points(cameras, masks, roi, points, sigma, image, local_map)
+        if len(extra) and any(d is not None for d in distances):
+            near = near_foreground(extra.points, extra.sigma, cameras, distances, quantile)
+            n_outside = int(np.count_nonzero(~near))
+            extra = extra.take(near)
+        n_outline = len(extra)
+        if n_outline:
+            points = np.vstack([points, extra.points])
+            sigma = np.concatenate([sigma, extra.sigma])
+            seen = views[extra.neighbour].copy()  # the surface beside it, and its view
+            seen[np.arange(n_outline), extra.view] = True
+            views = np.vstack([views, seen])
+            source = np.concatenate([source, -1 - extra.view])  # fused across views
+    return points, sigma, views, source, n_outline, n_outside
