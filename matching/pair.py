@@ -1352,10 +1352,11 @@ def _information_centres(frame: dict, rect, rig, accepted: np.ndarray, x_left: n
     the line at the window centres, 0.11 px at p* (16 % -> 0.8 % beyond 0.4 px).
 
     Each accepted window (``accepted``, over the frame's candidates) is moved to the
-    left image's pixel nearest its p* when that pixel lies inside the window and is no
+    left image's pixel nearest its p* (of the 3 x 3 around the nearest pixel) that is no
     other candidate's (``taken``: (M,) int64 keys y * ``width`` + x of every candidate's
-    pixel);
-    its right position and its variance along the row are those of the warp there.
+    pixel) when that pixel lies inside the window; two windows aiming at one pixel: the
+    first moves.  Its right position and its variance along the row are those of the warp
+    there.
     Returns (moved indices into the frame's candidates, their new left pixels (K, 2),
     right positions (K, 2), covariances (K, 2, 2) in the original right image, unit
     line directions (K, 2)).
@@ -1380,12 +1381,21 @@ def _information_centres(frame: dict, rect, rig, accepted: np.ndarray, x_left: n
     k, pstar, centre, half = k[fine], pstar[fine], centre[fine], half[fine]
     if len(k) == 0:
         return empty
-    q = np.rint(rectified_to_original(rect, rig.left, centre + pstar, which="left"))
+    target = rectified_to_original(rect, rig.left, centre + pstar, which="left")
     own = (np.rint(x_left[k, 1]) * width + np.rint(x_left[k, 0])).astype(np.int64)
-    key = (q[:, 1] * width + q[:, 0]).astype(np.int64)
+    # the pixel nearest p* that is no other candidate's (of the 3 x 3 around the nearest)
+    steps = np.array([(i, j) for j in (-1, 0, 1) for i in (-1, 0, 1)], np.float64)
+    near = np.rint(target)[:, None, :] + steps[None]  # (K, 9, 2)
+    dist = np.linalg.norm(near - target[:, None, :], axis=2)
+    keys9 = (near[..., 1] * width + near[..., 0]).astype(np.int64)
+    free = ~np.isin(keys9, taken) | (keys9 == own[:, None])
+    pick = np.argmin(np.where(free, dist, np.inf), axis=1)
+    rows = np.arange(len(k))
+    q = near[rows, pick]
+    key = keys9[rows, pick]
     frac_new = left_to_rectified(rect, rig.left, q) - centre
-    move = ((key != own) & (np.abs(frac_new) <= half[:, None]).all(axis=1)
-            & ~np.isin(key, taken))
+    move = (free[rows, pick] & (key != own)
+            & (np.abs(frac_new) <= half[:, None]).all(axis=1))
     # two windows to one pixel: the first keeps it, the other stays where it was
     first = np.zeros(len(k), bool)
     _, at = np.unique(np.where(move, key, -1 - np.arange(len(k))), return_index=True)
