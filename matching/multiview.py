@@ -701,6 +701,24 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     merged = merge_clouds(points, sigma, views, source, colours,
                           sor_neighbours=opts.sor_neighbours, sor_std=opts.sor_std)
     t3 = time.perf_counter()
+    counts, stats = _summary(cameras, pairs, skipped, volume, reasons, keep, factors, offsets,
+                             merged, n_outline=n_outline, densify=densify,
+                             n_silhouette=n_silhouette, distances=distances,
+                             median_sigma_pair=median_sigma_pair, matched_sigma=matched_sigma,
+                             prepared_views=prepared_views, workers=workers,
+                             times=(t0, t1, t2, t3))
+    return MultiViewCloud(points=merged["points"], colours=merged["colours"],
+                          sigma=merged["sigma"], views=merged["views"], pair=merged["pair"],
+                          pairs=list(pairs), reason_counts=counts, stats=stats)
+
+
+def _summary(cameras: list, pairs: list, skipped: list, volume, reasons: np.ndarray,
+             keep: np.ndarray, factors: list, offsets: list, merged: dict, *, n_outline: int,
+             densify: dict, n_silhouette: int, distances: list, median_sigma_pair: float,
+             matched_sigma: np.ndarray, prepared_views: int, workers: int,
+             times: tuple) -> tuple[dict, dict]:
+    """:func:`reconstruct_multiview`'s reason counts and ``stats``."""
+    t0, t1, t2, t3 = times
     counts = {REASON_NAMES[c]: int(np.count_nonzero(reasons == c)) for c in REASON_NAMES}
     counts[REASON_NAMES[OUTLIER]] = merged["outliers"]
     is_multi = reasons[keep] == MULTIVIEW
@@ -726,9 +744,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
         "pair_seconds": t1 - t0, "consistency_seconds": t2 - t1, "merge_seconds": t3 - t2,
         "seconds_per_pair": (t2 - t0) / len(pairs), "seconds": t3 - t0,
     }
-    return MultiViewCloud(points=merged["points"], colours=merged["colours"],
-                          sigma=merged["sigma"], views=merged["views"], pair=merged["pair"],
-                          pairs=list(pairs), reason_counts=counts, stats=stats)
+    return counts, stats
 
 
 def _pair_item(ref: Callable, cameras: list, masks, volume, match_options: dict, a: int,
