@@ -106,8 +106,21 @@ def lines(verbose: int = 0, quiet: bool = False, after: float | None = None):
     timer.daemon = True
     timer.start()
     try:
-        yield
+        with _above_bars():
+            yield
     finally:
         timer.cancel()
         hold.close()
         log.removeFilter(hold)
+
+
+def _above_bars():
+    """With progress bars drawn (a terminal), log lines go through ``tqdm.write`` so that
+    each is printed above the bars instead of through them."""
+    from pipeline import progress
+
+    if not progress.enabled():
+        return contextlib.nullcontext()
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm()
