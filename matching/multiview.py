@@ -221,6 +221,45 @@ def rectify_pair(left: Camera, right: Camera) -> tuple[Rectification, Camera, Ca
     return rect, cam_l, cam_r
 
 
+def _pair_options(match_options: dict) -> dict:
+    """``match_pair``'s options for a pair of a ring (:func:`reconstruct_view_pair`): the
+    caller's, with this module's defaults where it gives none (each with its reason)."""
+    options = {k: v for k, v in match_options.items() if k != "epipolar"}
+    # fixed patches here (match_pair's adaptive default grows imprecise patches): the
+    # further-view check re-matches every point at the fixed patch, so a larger pair
+    # patch is paid and then overridden (small test ring: adaptive 14 064 points,
+    # RMS 0.00105 vs fixed 14 348, 0.00111); the 'imprecise' σ test stays
+    options.setdefault("adaptive_patch", False)
+    # eccentric windows near untextured regions (match_pair's default is off): a point
+    # near a rim is matched with its window moved onto the surface instead of being
+    # dropped as a silhouette straddler -- 24-view ring: the cloud reaches the rims to
+    # within ~1 px (was ~4 px short) and the surface Chamfer falls from 0.156 % to
+    # 0.042 % of the height; transfer errors at occluding contours are caught by the
+    # further-view check (cloud RMS 0.000229 -> 0.000228)
+    options.setdefault("eccentric", True)
+    # a second candidate lattice, half a cell off, matched between accepted centred
+    # windows, "auto": only as many candidates as the first lattice left cells of the
+    # matched surface unaccepted (match_pair's density_deficit: the density ``spacing``
+    # asks for, where a share of the candidates was rejected).  Everywhere (True) it
+    # costs the demo's rendered ring, whose matched surface is accepted nearly
+    # completely, 51 % more acquisition time and 53 % more patches (381 k -> 551 k
+    # points, Hausdorff 0.0016 -> 0.0031, the same Chamfer; README); the temple ring,
+    # spacing 3, is where it pays: 33 910 -> 49 768 points with True
+    options.setdefault("densify", "auto")
+    # the pair's own variance factor (match_pair's default) is left to the further-view
+    # check (matching.confirm), which estimates it from a third view's matches of the
+    # same points and scales the pair's covariances by it: applying both would count
+    # what real images add twice
+    options.setdefault("sigma_factor", False)
+    # no pair-level uniqueness test here (match_pair's default is on): every point of a
+    # ring is re-matched in further views (matching.confirm), which rejects a one-period
+    # slip by geometry that does not depend on the pair's texture; the pair test on top
+    # cost the rendered test rings 15-30 % of their points (densify and portrait tests:
+    # 3 862 of > 5 000) and ~4x the pair's matching time
+    options.setdefault("unique", False)
+    return options
+
+
 def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
                           pair: tuple[int, int] = (0, 1), *, volume: SceneVolume | None = None,
                           mask=None, **match_options) -> PairCloud:
@@ -263,39 +302,7 @@ def reconstruct_view_pair(left_image, right_image, left: Camera, right: Camera,
     valid = cv2.remap(source, *rect.maps_left, cv2.INTER_NEAREST,
                       borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
     search = _search_range(volume, cam_l, cam_r, grey_l, grey_r)
-    options = {k: v for k, v in match_options.items() if k != "epipolar"}
-    # fixed patches here (match_pair's adaptive default grows imprecise patches): the
-    # further-view check re-matches every point at the fixed patch, so a larger pair
-    # patch is paid and then overridden (small test ring: adaptive 14 064 points,
-    # RMS 0.00105 vs fixed 14 348, 0.00111); the 'imprecise' σ test stays
-    options.setdefault("adaptive_patch", False)
-    # eccentric windows near untextured regions (match_pair's default is off): a point
-    # near a rim is matched with its window moved onto the surface instead of being
-    # dropped as a silhouette straddler -- 24-view ring: the cloud reaches the rims to
-    # within ~1 px (was ~4 px short) and the surface Chamfer falls from 0.156 % to
-    # 0.042 % of the height; transfer errors at occluding contours are caught by the
-    # further-view check (cloud RMS 0.000229 -> 0.000228)
-    options.setdefault("eccentric", True)
-    # a second candidate lattice, half a cell off, matched between accepted centred
-    # windows, "auto": only as many candidates as the first lattice left cells of the
-    # matched surface unaccepted (match_pair's density_deficit: the density ``spacing``
-    # asks for, where a share of the candidates was rejected).  Everywhere (True) it
-    # costs the demo's rendered ring, whose matched surface is accepted nearly
-    # completely, 51 % more acquisition time and 53 % more patches (381 k -> 551 k
-    # points, Hausdorff 0.0016 -> 0.0031, the same Chamfer; README); the temple ring,
-    # spacing 3, is where it pays: 33 910 -> 49 768 points with True
-    options.setdefault("densify", "auto")
-    # the pair's own variance factor (match_pair's default) is left to the further-view
-    # check (matching.confirm), which estimates it from a third view's matches of the
-    # same points and scales the pair's covariances by it: applying both would count
-    # what real images add twice
-    options.setdefault("sigma_factor", False)
-    # no pair-level uniqueness test here (match_pair's default is on): every point of a
-    # ring is re-matched in further views (matching.confirm), which rejects a one-period
-    # slip by geometry that does not depend on the pair's texture; the pair test on top
-    # cost the rendered test rings 15-30 % of their points (densify and portrait tests:
-    # 3 862 of > 5 000) and ~4x the pair's matching time
-    options.setdefault("unique", False)
+    options = _pair_options(match_options)
     # both rectified images are prepared (spline prefilter, noise) once for all LSM passes
     interpolation = options.get("interpolation", DEFAULT_INTERPOLATION)
     prep_l, prep_r = prepare_image(grey_l, interpolation), prepare_image(grey_r, interpolation)
