@@ -311,6 +311,52 @@ def _factor_figures(row, pts, res, mapping, patch):
                                                                              inl.shape)[inl])))
 
 
+def _window_rules(rows: list, fp, gp, pts, approx, init, patch: int, res, truth, smooth,
+                  n_cand: int, t_grown: float) -> None:
+    """The graffiti rows of LSM's window chosen per point (:func:`graffiti`): by ICI and by
+    the population rule over the same ladder of sides (appended to ``rows``)."""
+    # LSM's window per point by ICI (matching.ici) over a ladder from the benchmark's side
+    # to twice it: each side matched and grown as above, then each point keeps the
+    # largest side that agrees with every smaller one within ±Γ σk
+    ladder = ici_ladder(patch)
+    t0 = time.perf_counter()
+    grown = [res] + [_lsm_grown(fp, gp, pts, approx, init, side)[1].result
+                     for side in ladder[1:]]
+    t_ladder = time.perf_counter() - t0  # the larger sides' passes, shared by both rules
+    sig = [interval_sigmas(r, pts, side, None)[0] for r, side in zip(grown, ladder, strict=True)]
+    choice = ici_choice(np.stack([r.position for r in grown]), np.stack(sig),
+                        np.stack([r.accepted for r in grown]))
+    ici = select_results(grown, choice)
+    sides = np.asarray(ladder)[np.maximum(choice, 0)]
+    rows.append(_judge(f"LSM + growing, window by ICI ({'/'.join(map(str, ladder))})",
+                       np.where(ici.accepted[:, None], ici.position, np.nan), truth, smooth,
+                       pts, time.perf_counter() - t0 + t_grown, n_cand, ici.sigma,
+                       extra={"sides": {int(s): int(np.sum((choice >= 0) & (sides == s)))
+                                        for s in ladder}}))
+    _factor_figures(rows[-1], pts, ici, smooth, sides)
+    # the same sides by the population rule (matching.ici.population_sides, what
+    # match_pair(adaptive_patch="population") adds above Gruen's sides): the wall is one
+    # class, the image's variance factor is the 21 px side's
+    t0 = time.perf_counter()
+    k2 = interval_sigmas(res, pts, patch, None)[1]
+    accepted = np.stack([r.accepted for r in grown])
+    cap = population_sides(np.stack([r.position for r in grown]),
+                           np.stack([r.cov for r in grown]), accepted, k2,
+                           np.zeros(len(pts), np.int64), np.stack([r.sigma0 for r in grown]))
+    pop_choice = population_choice(accepted, np.full(len(pts), cap[0]))
+    population = select_results(grown, pop_choice)
+    pop_sides = np.asarray(ladder)[pop_choice]
+    rows.append(_judge(f"LSM + growing, population rule "
+                       f"({'/'.join(map(str, ladder))})",
+                       np.where(population.accepted[:, None], population.position, np.nan),
+                       truth, smooth, pts, time.perf_counter() - t0 + t_ladder + t_grown,
+                       n_cand, population.sigma,
+                       extra={"sides": {int(s): int(np.sum(population.accepted
+                                                           & (pop_sides == s)))
+                                        for s in ladder}}))
+    _factor_figures(rows[-1], pts, population, smooth, pop_sides)
+
+
 def graffiti(folder: Path, quick: bool, patch: int = GRAFFITI_PATCH) -> dict:
     """Graffiti figures (module docstring); ``patch``: the window side of LSM and its peers
     (odd, px)."""
@@ -364,46 +410,7 @@ def graffiti(folder: Path, quick: bool, patch: int = GRAFFITI_PATCH) -> dict:
     lsm_row["residual_over_sigma_with_fb_factor"] = lsm_row["residual_over_sigma"] / k
     lsm_row["fb_seconds"] = t3 - t2
     _factor_figures(lsm_row, pts, res, smooth, patch)
-    # LSM's window per point by ICI (matching.ici) over a ladder from the benchmark's side
-    # to twice it: each side matched and grown as above, then each point keeps the
-    # largest side that agrees with every smaller one within ±Γ σk
-    ladder = ici_ladder(patch)
-    t0 = time.perf_counter()
-    grown = [res] + [_lsm_grown(fp, gp, pts, approx, init, side)[1].result
-                     for side in ladder[1:]]
-    t_ladder = time.perf_counter() - t0  # the larger sides' passes, shared by both rules
-    sig = [interval_sigmas(r, pts, side, None)[0] for r, side in zip(grown, ladder, strict=True)]
-    choice = ici_choice(np.stack([r.position for r in grown]), np.stack(sig),
-                        np.stack([r.accepted for r in grown]))
-    ici = select_results(grown, choice)
-    sides = np.asarray(ladder)[np.maximum(choice, 0)]
-    rows.append(_judge(f"LSM + growing, window by ICI ({'/'.join(map(str, ladder))})",
-                       np.where(ici.accepted[:, None], ici.position, np.nan), truth, smooth,
-                       pts, time.perf_counter() - t0 + t_grown, n_cand, ici.sigma,
-                       extra={"sides": {int(s): int(np.sum((choice >= 0) & (sides == s)))
-                                        for s in ladder}}))
-    _factor_figures(rows[-1], pts, ici, smooth, sides)
-    # the same sides by the population rule (matching.ici.population_sides, what
-    # match_pair(adaptive_patch="population") adds above Gruen's sides): the wall is one
-    # class, the image's variance factor is the 21 px side's
-    t0 = time.perf_counter()
-    k2 = interval_sigmas(res, pts, patch, None)[1]
-    accepted = np.stack([r.accepted for r in grown])
-    cap = population_sides(np.stack([r.position for r in grown]),
-                           np.stack([r.cov for r in grown]), accepted, k2,
-                           np.zeros(len(pts), np.int64), np.stack([r.sigma0 for r in grown]))
-    pop_choice = population_choice(accepted, np.full(len(pts), cap[0]))
-    population = select_results(grown, pop_choice)
-    pop_sides = np.asarray(ladder)[pop_choice]
-    rows.append(_judge(f"LSM + growing, population rule "
-                       f"({'/'.join(map(str, ladder))})",
-                       np.where(population.accepted[:, None], population.position, np.nan),
-                       truth, smooth, pts, time.perf_counter() - t0 + t_ladder + t_grown,
-                       n_cand, population.sigma,
-                       extra={"sides": {int(s): int(np.sum(population.accepted
-                                                           & (pop_sides == s)))
-                                        for s in ladder}}))
-    _factor_figures(rows[-1], pts, population, smooth, pop_sides)
+    _window_rules(rows, fp, gp, pts, approx, init, patch, res, truth, smooth, n_cand, t_grown)
     m = min(len(pts), 600 if quick else 3000)
     pick = np.random.default_rng(1).choice(len(pts), m, replace=False)
     t0 = time.perf_counter()
