@@ -20,14 +20,15 @@ surface (``cover``: all of it; ``cover wall``: the wall, where the truth normal 
 than 30° from the axis, as the sections take it), the share of the surface's area whose
 nearest truth point neither view pair sees (``beyond``), and where the border lies against
 the border of the part both views see: for each point of the border (sampled every quarter
-section spacing along its edges), the distance from its
-nearest truth point to the other side of that border (positive: inside the seen part),
+section spacing along its edges), the distance from its nearest truth point to the other
+side of that border (positive: inside the seen part),
 median and 90th percentile of its size, in section spacings; and, beside it, the
 distance from each of those points to the nearest cloud point (``data``: the border lies
 where the data end), in section spacings; the border's roughness (``excess``: its length
 over its moving average's over two section spacings, minus 1; ``turn``: its turning angle
-every half spacing, median and 90th percentile, :func:`border_roughness`).  The cloud's own cover of the seen part (within
-two point spacings) is printed above the table: the border cannot lie past the data.
+every half spacing, median and 90th percentile, :func:`border_roughness`).  The cloud's
+own cover of the seen part (within two point spacings) is printed above the table: the
+border cannot lie past the data.
 "Seen by both" is exact: a truth point is seen by a camera when it projects into the
 image and the ray from the camera centre meets the truth mesh first at it (open3d ray
 casting).

@@ -104,8 +104,8 @@ def _undistorted(cam, pixels: np.ndarray) -> np.ndarray:
 def mesh_flatness(vertices, triangles, cam, outline, plane, image_size) -> dict:
     """The surface measures inside the board's outline (module notes)."""
     import cv2
-
     from _chessboard import fit_plane, inside_outline
+
     from surface.metrics import sample_mesh
 
     samples = sample_mesh(vertices, triangles, count=SURFACE_SAMPLES, seed=0)
@@ -137,12 +137,12 @@ def mesh_flatness(vertices, triangles, cam, outline, plane, image_size) -> dict:
 def pair_row(name: str, ws: Path, rig_path: Path, renders: Path) -> dict:
     """``photosurf run`` of one chessboard pair and its measures (module notes)."""
     import cv2
-
     from _chessboard import board_corners, fit_plane
+    from open_surface import poisson_trimmed
+
     from matching.camera_files import read_rig
     from matching.image_file import imread
     from matching.triangulate import triangulate_pair
-    from open_surface import poisson_trimmed
     from pipeline import artifacts
     from pipeline.render import write_png
 
@@ -169,7 +169,7 @@ def pair_row(name: str, ws: Path, rig_path: Path, renders: Path) -> dict:
         return row
     corners = triangulate_pair(rig.left, rig.right, cl, cr, refine=True, reject_p=None).points
     c0, n0 = fit_plane(corners)
-    row["corners_rms"] = corners_rms = float(np.sqrt(np.mean(((corners - c0) @ n0) ** 2)))
+    row["corners_rms"] = float(np.sqrt(np.mean(((corners - c0) @ n0) ** 2)))
     cloud = artifacts.read_cloud(ws / "acquire")["points"] if \
         (ws / "acquire" / "cloud.npz").is_file() else np.zeros((0, 3))
     from _chessboard import inside_outline

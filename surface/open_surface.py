@@ -67,7 +67,8 @@ from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
-           "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps", "open_arcs", "chain_arcs",
+           "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps",
+           "open_arcs", "chain_arcs",
            "smooth_border", "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
