@@ -39,8 +39,13 @@ from math import comb
 
 import numpy as np
 
-from surface.bezier_patch import (_apply, _normals, _points_and_normals_sp, bernstein_matrix,
-                                  control_index)
+from surface.bezier_patch import (
+    _apply,
+    _normals,
+    _points_and_normals_sp,
+    bernstein_matrix,
+    control_index,
+)
 
 __all__ = ["DERIVATIVE_WEIGHT", "control_triangles", "face_points", "merged_faces"]
 
