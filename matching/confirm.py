@@ -327,6 +327,21 @@ def _further_views(cameras: Sequence[Camera], images: dict, pair: tuple[int, int
         and float(cameras[k].R[2] @ axis_i) >= facing])
 
 
+def _pair_variance_factor(tests: list) -> float:
+    """The a-posteriori variance factor of the pair's matches (Förstner 1979), from the
+    further views' tests of :func:`check_consistency`.
+
+    On real images LSM's σ is several times optimistic (correlated noise, blur, shading),
+    and the χ² tests would then reject correct matches.  The median Mahalanobis distance of
+    each further view's matches estimates it robustly; the smallest over the views is
+    taken: a view whose camera disagrees with the pair's (temple ring: views 5 and 14 sit a
+    systematic ~1.4 px off every other pair's points) must not widen the test for itself.
+    Never below 1 (rendered scenes: the σ are right).
+    """
+    return min([variance_factor(t[5][t[2]]) for t in tests if t[2].sum() >= 30],
+               default=1.0)
+
+
 def _retriangulated(cloud: PairCloud, cameras: Sequence[Camera], others: list[int],
                     tests: list, factor: float, bound: float, views: np.ndarray,
                     reason: np.ndarray, tried: np.ndarray, matched: np.ndarray,
@@ -471,15 +486,7 @@ def check_consistency(cloud: PairCloud, cameras: Sequence[Camera], images: dict,
             offsets[k] = bias
         matched[idx[ok]] = True
         tests.append((k, idx, ok, position, lsm_cov, d2))
-    # the a-posteriori variance factor of the pair's matches (Förstner 1979): on real
-    # images LSM's σ is several times optimistic (correlated noise, blur, shading), and
-    # the χ² tests would then reject correct matches.  The median Mahalanobis distance of
-    # each further view's matches estimates it robustly; the smallest over the views is
-    # taken: a view whose camera disagrees with the pair's (temple ring: views 5 and 14
-    # sit a systematic ~1.4 px off every other pair's points) must not widen the test
-    # for itself.  Never below 1 (rendered scenes: the σ are right)
-    factor = min([variance_factor(t[5][t[2]]) for t in tests if t[2].sum() >= 30],
-                 default=1.0)
+    factor = _pair_variance_factor(tests)
     points, pcov, sigma = _retriangulated(cloud, cameras, others, tests, factor, bound, views,
                                           reason, tried, matched, reject_p)
     if not require_confirmation:
