@@ -50,7 +50,8 @@ def off_by_environment() -> bool:
 
 class _HoldFirst(logging.Filter):
     """Holds back the progress records of the first ``after`` seconds (the latest kept);
-    :meth:`release` prints the held one, :meth:`close` ends both."""
+    a timer started by the first of them calls :meth:`release`, which prints the held one
+    at ``after`` s; :meth:`close` ends both."""
 
     def __init__(self, after: float):
         super().__init__()
@@ -58,15 +59,22 @@ class _HoldFirst(logging.Filter):
         self._lock = threading.Lock()
         self._held: logging.LogRecord | None = None
         self._closed = False
+        self._timer: threading.Timer | None = None
 
     def filter(self, record: logging.LogRecord) -> bool:
         with self._lock:
             if self._closed:
                 return False
-            if time.monotonic() - self._start >= self._after:
+            waited = time.monotonic() - self._start
+            if waited >= self._after:
                 self._held = None
                 return True
             self._held = record
+            if self._timer is None:  # started by the first held line: a command that
+                # logs no progress line runs no extra thread
+                self._timer = threading.Timer(self._after - waited, self.release)
+                self._timer.daemon = True
+                self._timer.start()
             return False
 
     def release(self) -> None:
@@ -81,6 +89,8 @@ class _HoldFirst(logging.Filter):
     def close(self) -> None:
         with self._lock:
             self._closed, self._held = True, None
+            if self._timer is not None:
+                self._timer.cancel()
 
 
 @contextlib.contextmanager
@@ -102,14 +112,10 @@ def lines(verbose: int = 0, quiet: bool = False, after: float | None = None):
     log.setLevel(logging.INFO)
     hold = _HoldFirst(AFTER if after is None else after)
     log.addFilter(hold)
-    timer = threading.Timer(hold._after, hold.release)
-    timer.daemon = True
-    timer.start()
     try:
         with _above_bars():
             yield
     finally:
-        timer.cancel()
         hold.close()
         log.removeFilter(hold)
 
