@@ -146,9 +146,10 @@ def test_normal_neighbours_follow_the_noise_against_the_point_spacing():
 def test_noise_as_large_as_the_point_spacing_still_gives_the_caps(monkeypatch):
     """A 3·10⁴-point vase with σ = 0.035, above its point spacing (≈ 0.029), as a dense
     cloud's is (10⁷ points at σ = 0.002: spacing 0.0016).  With 12-neighbour normals
-    the cap points pass as walls, the sections next to the caps become filled disks and
-    the ends lie 0.021-0.029 off the truth (Chamfer 0.014-0.016, seeds 0-1); with the
-    neighbours from the noise (48) 0.0023-0.0029 (Chamfer 0.0052-0.0062)."""
+    the cap points pass as walls and the sections next to the caps become filled disks:
+    the ends lie 0.014 off the truth on average (Chamfer 0.011, seed 0; the end rules
+    that place a cap from the data keep it from the 0.021-0.029 it once was); with the
+    neighbours from the noise (48) 0.0024 (Chamfer 0.0058)."""
     from surface import metrics
     from surface import reconstruct as rc
     from testkit.vase import noisy_cloud, vase_truth
@@ -166,8 +167,9 @@ def test_noise_as_large_as_the_point_spacing_still_gives_the_caps(monkeypatch):
         z = mesh.vertices[:, 2]
         near_ends = mesh.vertices[(z < 0.1) | (z > 2.9)]
         ends[name] = float(metrics.point_mesh_distance(near_ends, *truth).mean())
-    assert ends["auto"] < 0.006 < 0.015 < ends["twelve"]
-    assert scores["auto"] < 0.5 * scores["twelve"]
+    assert ends["auto"] < 0.006
+    assert ends["twelve"] > 3 * ends["auto"]
+    assert scores["auto"] < 0.65 * scores["twelve"]
 
 
 def _capsule_cloud(count: int, sigma: float, seed: int) -> np.ndarray:
