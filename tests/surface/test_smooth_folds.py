@@ -3,10 +3,11 @@
 A can (raised rim round a recessed lid, ``testkit/can.py``), 8 000 noise-free points
 (seed 0: without the unfolding its surface crosses itself at 765 pairs; at 12 000 points
 it happens not to): the interpolating correction of
-``surface.interpolation.interpolating_control`` turns the caps' fan triangles and the rim's faces over, and Loop's surface over the corrected mesh
-crosses itself there.  Where the surface folds (``surface.fitting.surface_folds``) the
-folding vertices are moved part of the way, then kept, so the surface has no crossing
-pair and stays as near the truth as the stitched mesh it is built on.
+``surface.interpolation.interpolating_control`` turns the caps' fan triangles and the
+rim's faces over, and Loop's surface over the corrected mesh crosses itself there.
+Where the surface folds (``surface.fitting.surface_folds``) the folding vertices are
+moved part of the way, then kept, so the surface has no crossing pair and stays as near
+the truth as the stitched mesh it is built on.
 """
 
 from __future__ import annotations
