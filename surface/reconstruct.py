@@ -43,7 +43,8 @@ from surface.stitch import (
 )
 from surface.validate import TOL
 
-__all__ = ["surface_from_points", "slide_to_planes", "extend_to_caps", "largest_perimeter",
+__all__ = ["OneSidedError", "surface_from_points", "slide_to_planes", "extend_to_caps",
+           "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
            "min_loop_points", "section_noise", "untangle", "choose_axis", "rim_line",
            "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "keyhole", "hole_ends",
@@ -615,6 +616,12 @@ def bridged_share(loops: list) -> float:
     return bridged / total if total > 0 else 0.0
 
 
+class OneSidedError(ValueError):
+    """The sections are open arcs over much of their length (:func:`_refuse_open_arcs`):
+    the points do not go round the object.  The pipeline's curves stage takes the open
+    path on it (``curves.open = "auto"``)."""
+
+
 def _refuse_open_arcs(loops: list) -> None:
     """Raise when the sections are open arcs, not closed contours, over much of their length.
 
@@ -632,7 +639,7 @@ def _refuse_open_arcs(loops: list) -> None:
     if share > MAX_BRIDGED_SHARE:
         open_count = sum(not loop.closed for section_loops in loops for loop in section_loops)
         total = sum(len(section_loops) for section_loops in loops)
-        raise ValueError(
+        raise OneSidedError(
             f"{open_count} of {total} section loops are open arcs, not closed contours, "
             f"and {100 * share:.0f} % of their length lies across their gaps (more than "
             f"{100 * MAX_BRIDGED_SHARE:.0f} %): parts of the object unseen -- one stereo "

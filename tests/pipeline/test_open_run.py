@@ -112,3 +112,25 @@ def test_stereo_pair_ends_with_an_open_smooth_surface_on_the_seen_side(tmp_path,
     err = capfd.readouterr().err
     assert code == 2 and "open arcs, not closed contours" in err
     assert len([line for line in err.splitlines() if "error" in line]) == 1
+
+
+def test_open_arcs_found_by_the_closed_rule_take_the_open_path(tmp_path, cli_run,
+                                                                monkeypatch):
+    """``curves.open = "auto"``: when the closed-contour rule finds the sections to be open
+    arcs (``reconstruct.OneSidedError``), the open path does not judge again on its own
+    chained arcs.  Their share across gaps can fall to the threshold once chained (the
+    Sceaux facade: 27 % bridged, 25 % chained), and the stage then refused in a line that
+    contradicted itself.  Forced here: the open path's own test says "not one-sided"."""
+    from surface import open_surface as osf
+    from testkit.vase import noisy_cloud, vase_truth
+
+    points = noisy_cloud(*vase_truth(), 8000, seed=3)
+    half = points[points[:, 0] > 0.2]            # an arc of ~130 degrees of every section
+    cloud = tmp_path / "half.xyz"
+    np.savetxt(cloud, half)
+    monkeypatch.setattr(osf, "one_sided", lambda loops: False)
+    out = tmp_path / "w"
+    cli_run("run", cloud, "--out", out, "--to", "curves", "-q")
+    manifest = json.loads((out / "manifest.json").read_text())
+    info = manifest["stages"]["curves"]["info"]
+    assert info["open"] is True and info["rings"] >= 10
