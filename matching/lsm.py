@@ -245,8 +245,11 @@ class LSMResult:
 # numba kernels
 # --------------------------------------------------------------------------------------
 
-#: fast-math without "no NaN / no inf", so the NaN checks stay meaningful
-_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
+#: fast-math without "no NaN / no inf", so the NaN checks stay meaningful, and without
+#: "reassoc" and "contract": with them a kernel compiled in the process and the same
+#: kernel loaded from numba's cache gave results different in the last bits (the
+#: cloud then differed between a first run and the next ones); the same CPU time without
+_FM = {"nsz", "arcp", "afn"}
 #: Default pixel footprint variance of ``lsm_match``'s ``footprint_var``, px² per axis.
 #: Measured, not derived: a box pixel alone has 1/12, but the smoothing also takes the
 #: weight off the band the foreshortened view aliases, and every case measured is best

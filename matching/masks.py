@@ -67,6 +67,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from matching.validate import check_shape
 
@@ -214,14 +215,15 @@ def signed_distance(mask) -> np.ndarray:
     Positive outside the mask, negative inside; the boundary runs halfway between an
     object and a background pixel centre (so a background pixel next to the object is
     at +0.5, an object pixel next to the background at -0.5).  Exact Euclidean
-    distances (``cv2.DIST_MASK_PRECISE``).
+    distances (scipy's, float64, the same bits on every run: OpenCV's precise transform
+    is float32 and not bitwise reproducible from run to run).
     """
-    m = np.asarray(mask, bool).astype(np.uint8)
+    m = np.asarray(mask, bool)
     if not m.any() or m.all():  # no boundary: farther than any distance in the image
         return np.full(m.shape, (-1.0 if m.all() else 1.0) * sum(m.shape), np.float32)
-    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return np.where(m > 0, 0.5 - inside, outside - 0.5).astype(np.float32)
+    outside = ndimage.distance_transform_edt(~m)
+    inside = ndimage.distance_transform_edt(m)
+    return np.where(m, 0.5 - inside, outside - 0.5).astype(np.float32)
 
 
 def near_foreground(points, sigma, cameras: Sequence, distances: Sequence,

@@ -107,6 +107,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
+from scipy import ndimage
 
 from matching import uniqueness
 from matching.grow import grow_matches
@@ -1547,12 +1548,15 @@ def _fill_deficit(corner_cells: np.ndarray, texture: np.ndarray, deficit: np.nda
 
     ``corner_cells`` (M, 4, 2) int64: the four first-lattice cells (column, row) around
     each candidate.  Returns (M,) bool.
-    """
-    import cv2
 
+    The distances are scipy's exact float64 ones, the same bits on every run: OpenCV's
+    precise transform (float32) differs run to run in the last bit at some cells (the
+    same input), which reorders candidates at equal distances and so changes which are
+    matched -- the multi-view cloud then differed from run to run.
+    """
     counts = np.bincount(labels[deficit], minlength=int(labels.max()) + 1)
     # distance (cells) of every cell to the nearest deficit cell (zeros of the source)
-    far = cv2.distanceTransform((~deficit).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    far = ndimage.distance_transform_edt(~deficit)
     dist = far[corner_cells[..., 1], corner_cells[..., 0]].mean(axis=1)
     label = labels[corner_cells[:, 0, 1], corner_cells[:, 0, 0]]
     order = np.lexsort((np.arange(len(label)), -texture, dist, label))
