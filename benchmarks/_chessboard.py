@@ -40,6 +40,7 @@ from matching.pair import reconstruct_pair
 from matching.rectify import left_to_rectified, rectified_to_original, rectify, rectify_images
 from matching.seeds import disparity_range, sample_disparity
 from matching.triangulate import triangulate_pair
+from testkit.tiles import sgbm_disparity
 
 PATTERN = (9, 6)
 #: blunder band, in units of the corners' RMS flatness (the issue's definition)
@@ -131,15 +132,7 @@ def sgbm_points(rig, rect, left, right, x_left):
     """SGBM (uniqueness ratio 12) at left pixels (N, 2), triangulated with the rig."""
     lr, rr = rectify_images(rect, left, right)
     dmin, count = disparity_range(lr, rr)
-    block = 5
-    sgbm = cv2.StereoSGBM_create(minDisparity=int(dmin), numDisparities=int(count),
-                                 blockSize=block, P1=8 * block * block, P2=32 * block * block,
-                                 disp12MaxDiff=1, uniquenessRatio=SGBM_UNIQUENESS,
-                                 speckleWindowSize=100, speckleRange=2,
-                                 mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    u8 = [np.clip(img, 0, 255).astype(np.uint8) for img in (lr, rr)]
-    disp = sgbm.compute(u8[0], u8[1]).astype(np.float32) / 16.0
-    disp[disp < dmin] = np.nan
+    disp = sgbm_disparity(lr, rr, SGBM_UNIQUENESS, int(dmin), int(count))
     xl_rect = left_to_rectified(rect, rig.left, x_left)
     d = sample_disparity(disp, xl_rect)
     ok = np.isfinite(d)

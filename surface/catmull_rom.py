@@ -652,16 +652,21 @@ def _bisect_cubics(cubic, hi, steps):  # pragma: no cover - compiled
 BRIDGE_SHARE = 0.05
 
 
-def bridge_gaps(points: np.ndarray, link: float) -> np.ndarray:
-    """The ordered closed loop ``points`` with straight chords across its wide gaps.
+def bridge_gaps(points: np.ndarray, link: float, closed: bool = True) -> np.ndarray:
+    """The ordered closed loop ``points`` (or, with ``closed`` false, the open arc: no
+    step from its last point back to its first) with straight chords across its wide
+    gaps.
 
     Parameters
     ----------
     points : (M, 3) float64
-        Points in their order around the loop (cyclic).
+        Points in their order around the loop (cyclic) or along the arc.
     link : float
         Gaps between consecutive points longer than this, and than
         :data:`BRIDGE_SHARE` of the loop's length, are bridged.
+    closed : bool
+        The points go round a loop (default); false: an open arc, fewer than 3 points
+        returned as they are.
 
     Returns
     -------
@@ -671,7 +676,9 @@ def bridge_gaps(points: np.ndarray, link: float) -> np.ndarray:
         when no gap is that wide.
     """
     pts = np.asarray(points, dtype=np.float64)
-    step = np.roll(pts, -1, axis=0) - pts
+    if not closed and len(pts) < 3:
+        return pts
+    step = np.roll(pts, -1, axis=0) - pts if closed else np.diff(pts, axis=0)
     length = np.linalg.norm(step, axis=1)
     wide = (length > link) & (length > BRIDGE_SHARE * length.sum())
     if not wide.any() or wide.all():
@@ -680,6 +687,9 @@ def bridge_gaps(points: np.ndarray, link: float) -> np.ndarray:
     if spacing <= TOL.zero:
         return pts
     count = np.where(wide, np.ceil(length / spacing).astype(np.int64) - 1, 0)
+    if not closed:                                    # the last point starts no step
+        count = np.append(count, 0)
+        step = np.vstack([step, np.zeros((1, 3))])
     source = np.repeat(np.arange(len(pts)), count + 1)  # each output point's start point
     first = np.repeat(np.cumsum(count + 1) - (count + 1), count + 1)
     fraction = (np.arange(len(source)) - first) / (count[source] + 1)

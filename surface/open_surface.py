@@ -421,26 +421,9 @@ def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:
     chessboard pair 03 a board section's curve bulged 1.6 squares off the board across a
     3.5-square gap (white squares and the matcher's holes), where the data lie within
     0.27 of it."""
-    from surface.catmull_rom import BRIDGE_SHARE
+    from surface.catmull_rom import bridge_gaps
 
-    pts = np.asarray(arc, np.float64)
-    if len(pts) < 3:
-        return pts
-    step = np.diff(pts, axis=0)
-    length = np.linalg.norm(step, axis=1)
-    wide = (length > link) & (length > BRIDGE_SHARE * length.sum())
-    if not wide.any() or wide.all():
-        return pts
-    spacing = float(np.median(length[~wide]))
-    if spacing <= TOL.zero:
-        return pts
-    count = np.where(wide, np.ceil(length / spacing).astype(np.int64) - 1, 0)
-    count = np.append(count, 0)                       # the last point starts no step
-    step = np.vstack([step, np.zeros((1, 3))])
-    source = np.repeat(np.arange(len(pts)), count + 1)
-    first = np.repeat(np.cumsum(count + 1) - (count + 1), count + 1)
-    fraction = (np.arange(len(source)) - first) / (count[source] + 1)
-    return pts[source] + fraction[:, None] * step[source]
+    return bridge_gaps(arc, link, closed=False)
 
 
 def one_sided(loops: Sequence) -> bool:
