@@ -49,7 +49,7 @@ from matching.second_order import second_order_terms
 from matching.seeds import DEFAULT_SPACING
 from matching.triangulate import triangulate_multiview
 from matching.validate import TOL
-from matching.view_pairs import check_order as _check_order
+from matching.view_pairs import further_views
 from matching.visibility import normals as _normals
 from matching.visibility import plane_affine as _plane_affine
 from matching.visibility import project as _project
@@ -315,16 +315,11 @@ def _match_view(cloud: PairCloud, camera: Camera, image: PreparedImage,
 
 def _further_views(cameras: Sequence[Camera], images: dict, pair: tuple[int, int],
                    max_incidence_deg: float) -> list[int]:
-    """The views a pair's points may be checked in, nearest the template view first
-    (:func:`_check_order`): those with an image that do not face away from the template
-    view (axes more than twice ``max_incidence_deg`` apart cannot both see a point within
-    it)."""
-    i, j = pair
-    axis_i = cameras[i].R[2]
-    facing = np.cos(np.radians(min(2.0 * max_incidence_deg, 180.0)))
-    return _check_order(cameras, (i, j), [
-        k for k in range(len(cameras)) if k not in (i, j) and k in images
-        and float(cameras[k].R[2] @ axis_i) >= facing])
+    """The views a pair's points may be checked in, nearest the template view first:
+    ``view_pairs.further_views`` (not facing away from the template view) of those with
+    an image."""
+    return [k for k in further_views(cameras, pair, len(cameras), max_incidence_deg)
+            if k in images]
 
 
 def _pair_variance_factor(tests: list) -> float:

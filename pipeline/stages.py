@@ -318,7 +318,7 @@ def curves(ctx: StageContext) -> dict:
     mode = _open_mode(p["open"])
     if mode == "auto" and len(_cameras(ctx)) == 2:
         # one stereo pair sees one side: a loop that looks closed is a thin line traced
-        # there and back (a flat board: chessboard pair 12 stitched non-manifold rings)
+        # there and back (docs/decisions/open-surfaces.md)
         mode = True
     try:
         if mode is True:
@@ -328,8 +328,7 @@ def curves(ctx: StageContext) -> dict:
     except ValueError as exc:
         # one-sided data (open arcs over most of the object): an open surface, not an error
         # the closed rule found open arcs (OneSidedError): the open path does not judge
-        # again on its own chained arcs (27 % bridged there, 25 % after chaining on the
-        # Sceaux facade: a refusal that contradicted its own message)
+        # again on its own chained arcs, whose bridged share is lower once chained
         arcs = None if mode is False else _open_curves(
             ctx, sliced, options, smoothing,
             forced=mode is True or isinstance(exc, rc.OneSidedError))

@@ -49,6 +49,7 @@ import numba
 import numpy as np
 
 from surface.polygon import inside_polygon as _inside
+from surface.polygon import polygon_area
 
 __all__ = ["LoopGraph", "loop_graph", "nesting", "rasterise", "EVENT_KINDS"]
 
@@ -256,11 +257,6 @@ def _raster(polygon: np.ndarray, origin: np.ndarray, cell: float, shape: tuple[i
     return raster
 
 
-def _area(polygon: np.ndarray) -> float:
-    x, y = polygon[:, 0], polygon[:, 1]
-    x1, y1 = np.concatenate([x[1:], x[:1]]), np.concatenate([y[1:], y[:1]])
-    return 0.5 * abs(float(np.sum(x * y1 - x1 * y)))
-
 
 def nesting(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Nesting depth and parent of each loop of one section.
@@ -307,7 +303,7 @@ def _nesting_and_areas(loops: list[np.ndarray], kept: dict | None) -> tuple:
     if found is not None and all(a is b for a, b in zip(found[0], loops, strict=True)):
         return found[1]
     depth, parent = nesting(loops)
-    result = (depth, parent, np.array([_area(lp) for lp in loops]))
+    result = (depth, parent, np.array([polygon_area(lp) for lp in loops]))
     if kept is not None:
         kept[key] = (tuple(loops), result)
     return result

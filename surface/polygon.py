@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["INSIDE_PAIRS", "inside_polygon"]
+__all__ = ["INSIDE_PAIRS", "inside_polygon", "polygon_area"]
 
 
 #: Point-edge pairs :func:`inside_polygon` forms at once (about 60 bytes each: bounds its memory).
@@ -55,3 +55,11 @@ def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
         x_cross = x0[edge] + (y[point] - y0[edge]) * (x1[edge] - x0[edge]) / dy[edge]
         crossings += np.bincount(point[x[point] < x_cross], minlength=count)
     return crossings % 2 == 1
+
+
+def polygon_area(polygon: np.ndarray) -> float:
+    """Area of the closed ring ``polygon`` ``(n, 2)`` (shoelace; its last point joins its
+    first)."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    x1, y1 = np.concatenate([x[1:], x[:1]]), np.concatenate([y[1:], y[:1]])
+    return 0.5 * abs(float(np.sum(x * y1 - x1 * y)))

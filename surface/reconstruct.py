@@ -28,12 +28,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from surface._blas import one_blas_thread
+from surface.polygon import inside_polygon, polygon_area
 from surface.stitch import (
     CAP_SHRINK,
     HOLE_SHARE,
     StitchResult,
     _dome,
-    _inside,
     _nearest_loop,
     _scaled,
     end_window,
@@ -834,8 +834,8 @@ def keyhole(uv: np.ndarray) -> bool:
             continue      # the same neck, a point along
         tried.append((int(i[k]), int(j[k])))
         one, other = a[i[k]:j[k] + 1], np.vstack([a[j[k]:], a[:i[k] + 1]])
-        if (np.mean(_inside(one, other)) >= NESTED_SHARE
-                or np.mean(_inside(other, one)) >= NESTED_SHARE):
+        if (np.mean(inside_polygon(one, other)) >= NESTED_SHARE
+                or np.mean(inside_polygon(other, one)) >= NESTED_SHARE):
             return True
     return False
 
@@ -1047,11 +1047,6 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     return result
 
 
-def _area(ring2d: np.ndarray) -> float:
-    """Area of the closed polygon ``ring2d`` ``(n, 2)`` (shoelace)."""
-    x, y = ring2d[:, 0], ring2d[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-
 
 def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: float,
               leave_open: bool = False) -> tuple[tuple[bool, bool], list[str]]:
@@ -1102,7 +1097,7 @@ def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: f
         for k in np.flatnonzero(depth == 0):
             inner = [_scaled(flats[j], 1.0 / CAP_SHRINK) for j in np.flatnonzero(parent == k)]
             outer = _scaled(flats[k], CAP_SHRINK)
-            if _area(outer) <= sum(_area(ring) for ring in inner):
+            if polygon_area(outer) <= sum(polygon_area(ring) for ring in inner):
                 continue    # a rim narrower than the margins: no inside to be a hole
             share = max(share, uncovered_share(outer, inner, flat))
         hole = share > HOLE_SHARE
@@ -1161,7 +1156,6 @@ def thin_mouths(holes: tuple, loops: list, frame: np.ndarray, points: np.ndarray
     """
     from scipy.spatial import cKDTree
 
-    from surface.polygon import inside_polygon
     from surface.sections import point_spacing
 
     found, notes = [False, False], []
@@ -1307,7 +1301,7 @@ def extend_to_caps(rings: list, kept: list, points: np.ndarray, cap_points: np.n
         for ring in end_loops:
             flat = ring @ frame[:2].T
             flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
-            inside = beyond[_inside(beyond_flat, flat)]
+            inside = beyond[inside_polygon(beyond_flat, flat)]
             counts.append(len(inside))
             found = None if len(inside) < NORMAL_NEIGHBOURS else _cap_height(
                 heights, candidates_flat, ring @ frame[:2].T, h_end, sign, delta,
@@ -1404,7 +1398,7 @@ def _cap_height(heights: np.ndarray, flat: np.ndarray, ring_flat: np.ndarray, h_
     if len(near) < NORMAL_NEIGHBOURS:
         return None
     mean = ring_flat.mean(axis=0)
-    near = near[_inside(flat[near], mean + CAP_INSET * (ring_flat - mean))]
+    near = near[inside_polygon(flat[near], mean + CAP_INSET * (ring_flat - mean))]
     if len(near) < NORMAL_NEIGHBOURS or not np.any(offset[near] <= 0):
         return None
     values = heights[near]
