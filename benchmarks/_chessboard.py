@@ -38,9 +38,8 @@ from matching.cameras import read_rig
 from matching.image_file import imread
 from matching.pair import reconstruct_pair
 from matching.rectify import left_to_rectified, rectified_to_original, rectify, rectify_images
-from matching.seeds import disparity_range, sample_disparity
+from matching.seeds import disparity_range, sample_disparity, sgbm_disparity
 from matching.triangulate import triangulate_pair
-from testkit.tiles import sgbm_disparity
 
 PATTERN = (9, 6)
 #: blunder band, in units of the corners' RMS flatness (the issue's definition)
@@ -132,7 +131,7 @@ def sgbm_points(rig, rect, left, right, x_left):
     """SGBM (uniqueness ratio 12) at left pixels (N, 2), triangulated with the rig."""
     lr, rr = rectify_images(rect, left, right)
     dmin, count = disparity_range(lr, rr)
-    disp = sgbm_disparity(lr, rr, SGBM_UNIQUENESS, int(dmin), int(count))
+    disp = sgbm_disparity(lr, rr, int(dmin), int(count), uniqueness=SGBM_UNIQUENESS)
     xl_rect = left_to_rectified(rect, rig.left, x_left)
     d = sample_disparity(disp, xl_rect)
     ok = np.isfinite(d)

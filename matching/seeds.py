@@ -523,7 +523,7 @@ def _ratio_matches(pairs, ratio: float = 0.75) -> dict[int, int]:
 
 
 def sgbm_disparity(left_rect, right_rect, min_disparity: int, num_disparities: int,
-                   block: int = 5) -> np.ndarray:
+                   block: int = 5, uniqueness: int = 10) -> np.ndarray:
     """Coarse disparity of a rectified pair by ``cv2.StereoSGBM`` (3-way mode).
 
     Parameters
@@ -535,6 +535,8 @@ def sgbm_disparity(left_rect, right_rect, min_disparity: int, num_disparities: i
     block : int
         Matching block side, px; P1 = 8 block², P2 = 32 block² (OpenCV's recommendation
         for one channel).
+    uniqueness : int
+        SGBM's uniqueness ratio, % (the best cost must beat the second by this margin).
 
     Returns
     -------
@@ -544,7 +546,8 @@ def sgbm_disparity(left_rect, right_rect, min_disparity: int, num_disparities: i
     sgbm = cv2.StereoSGBM_create(minDisparity=int(min_disparity),
                                  numDisparities=int(num_disparities), blockSize=block,
                                  P1=8 * block * block, P2=32 * block * block,
-                                 disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100,
+                                 disp12MaxDiff=1, uniquenessRatio=int(uniqueness),
+                                 speckleWindowSize=100,
                                  speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     raw = sgbm.compute(_to_uint8(left_rect), _to_uint8(right_rect)).astype(np.float32) / 16.0
     raw[raw < min_disparity] = np.nan

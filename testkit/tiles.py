@@ -29,10 +29,10 @@ from __future__ import annotations
 
 import time
 
-import cv2
 import numpy as np
 
 from matching.pair import PAIR_STATUS_NAMES, match_pair
+from matching.seeds import sgbm_disparity
 from testkit.warps import sample, texture_coefficients
 
 W, H = 400, 300
@@ -124,20 +124,6 @@ def regions(x_left: np.ndarray) -> np.ndarray:
     return np.where(on_box, np.where(X < -0.15, "flutes", "box poster"), wall)
 
 
-def sgbm_disparity(left, right, ratio: int, dmin: int, count: int) -> np.ndarray:
-    """(H, W) SGBM 3-way disparity (NaN: rejected), block 5."""
-    block = 5
-    sgbm = cv2.StereoSGBM_create(minDisparity=dmin, numDisparities=count, blockSize=block,
-                                 P1=8 * block * block, P2=32 * block * block,
-                                 disp12MaxDiff=1, uniquenessRatio=ratio,
-                                 speckleWindowSize=100, speckleRange=2,
-                                 mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    u8 = [np.clip(img, 0, 255).astype(np.uint8) for img in (left, right)]
-    disp = sgbm.compute(u8[0], u8[1]).astype(np.float32) / 16.0
-    disp[disp < dmin] = np.nan
-    return disp.astype(np.float64)
-
-
 def tiles_figures(seed: int = 0, **match_options) -> dict:
     """Every figure of the tiles pair (``match_options`` go to ``match_pair``)."""
     left, right, truth, visible = tiles_pair(seed=seed)
@@ -164,7 +150,7 @@ def tiles_figures(seed: int = 0, **match_options) -> dict:
            "sgbm": {}}
     reg = regions(m.x_left)
     for ratio in SGBM_RATIOS:
-        disp = sgbm_disparity(left, right, ratio, dmin, count)
+        disp = sgbm_disparity(left, right, dmin, count, uniqueness=ratio).astype(np.float64)
         d_s = disp[xi[:, 1], xi[:, 0]]
         kept = np.isfinite(d_s)
         s_off = kept & (np.abs(d_s - d_true) > 1.0)

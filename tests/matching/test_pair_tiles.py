@@ -38,4 +38,5 @@ def test_lsm_errs_less_than_sgbm_where_both_answer(figures):
         # SGBM slips on the periodic and blank texture LSM refuses
         assert s["beyond_1px"] >= 0.04, ratio
         assert s["both_lsm_beyond_1px"] <= 0.01, ratio
+        assert s["both_lsm_beyond_1px"] < s["both_sgbm_beyond_1px"], ratio
         assert s["both"] >= 0.5 * figures["candidates"], ratio

@@ -38,10 +38,11 @@ def test_fill_deficit_gives_the_same_choice_on_every_call():
     deficit[4, 4] = True
     labels = np.ones((9, 9), np.int32)
     # four candidates whose corner cells lie at the same exact distances from the hole
-    base = np.array([[2, 3], [6, 3], [3, 6], [5, 2]])
+    # (mean 1.66257 cells each): the tie is broken by texture, then by order
+    base = np.array([[2, 3], [5, 3], [3, 2], [3, 5]])
     corners = np.stack([base + d for d in ([0, 0], [1, 0], [0, 1], [1, 1])], 1)
     texture = np.array([1.0, 3.0, 2.0, 3.0])
     first = _fill_deficit(corners, texture, deficit, labels)
-    assert first.sum() == 1
+    assert np.flatnonzero(first).tolist() == [1]
     assert all(np.array_equal(first, _fill_deficit(corners, texture, deficit, labels))
                for _ in range(20))
