@@ -273,18 +273,13 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
        decimated iso-surface: the cow's 10^4 points, 136 pairs), over the mesh itself (the
        approximating surface: 0 pairs there), checked and repaired as :func:`smooth_mesh`.
 
-    The first step skips the fold search, which was 40 % of the general path's CPU on the
-    cow's 4·10^4 points (``docs/decisions/complex-shapes.md``).  ``solid["general_control"]``
-    says which step carries the surface.
+    The first step skips the fold search (its cost: ``docs/decisions/complex-shapes.md``).
+    ``solid["general_control"]`` says which step carries the surface.
     """
-    import time
-
     from surface.fitting import flat_vertices, interpolating_control_mesh, sharp_vertices
     from surface.interpolation import JUDGE_FOLD_LEVEL, interpolating_control
-    from surface.validity import check_solid
 
     for step in ("interpolating", "unfolded"):
-        start = time.perf_counter()
         try:
             if step == "interpolating":
                 keep = (sharp_vertices(vertices, triangles, rings=0)
@@ -296,10 +291,10 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
             smoothed = smooth_mesh(control, triangles, level, tolerance, check=False)
         except ValueError:   # a control net the construction refuses: the next step
             continue
-        solid = check_solid(smoothed.vertices, smoothed.triangles)
+        solid, seconds = _checked(smoothed.vertices, smoothed.triangles)
         if len(solid.intersecting_pairs) == 0:
-            smoothed.solid = {**solid.to_json(), "expect_closed": True,
-                              "seconds": round(time.perf_counter() - start, 3),
+            smoothed.solid = {**solid_report("smooth", smoothed.vertices, smoothed.triangles,
+                                             report=solid, seconds=seconds),
                               "general_control": step}
             return smoothed
         log.info("smooth: the %s general surface self-intersects at %d pairs", step,

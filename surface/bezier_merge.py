@@ -366,8 +366,7 @@ def _geometric_fit(cp: np.ndarray, patches: np.ndarray, net: np.ndarray,
     their shared edge's tangent) and of the whole offset (weight
     :data:`PARAMETER_WEIGHT`).  Linear in the poles, one 75 x 75 system a face."""
     points, slopes, pieces = _geometric_operators()
-    target = _exact(cp, patches, pieces)
-    normal = _exact(cp, patches, pieces, normals=True)
+    target, normal = _exact_with_normals(cp, patches, pieces)
     side_normal = _exact(cp, patches, _sides()[4][0], normals=True)
     free = ~fixed
     known = _times(points[:, fixed], net[:, fixed])
