@@ -443,9 +443,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     regrow_ambiguous : bool
         Epipolar pass: grow the ambiguous windows again from verified neighbours too, not
         only those that failed from their approximation (:func:`_grow_verified`).  Default
-        off: on the chessboard rig it adds 20-55 % of the board's points but raises the
-        blunders on the pairs that have them (06: 3.7 -> 6.3 %, 11: 2.9 -> 4.0 %, 04:
-        1.2 -> 1.9 %; docs/decisions/stereo-ambiguity.md).
+        off: on the chessboard rig it adds points but also blunders
+        (docs/decisions/stereo-ambiguity.md).
     centre_points : bool
         Epipolar pass: report each accepted match at the left pixel nearest its window's
         information centre (where the warp's shift is best determined; ``x_left`` moves
@@ -1225,8 +1224,8 @@ def _loop_closes(fprep, gprep, points, res: LSMResult, which, patch: int,
 #: neighbours); the others are properties of the window (texture, conditioning) or of
 #: what it holds: a window that converged to a residual above the image noise
 #: (``SIGMA0_TOO_LARGE``) or a low correlation holds what one affine plane does not fit
-#: (an occluding rim, background), and a new start only finds a biased fit of it (on the
-#: rendered vase pair those retries added 428 points of which 30 lay beyond 6σ)
+#: (an occluding rim, background), and a new start only finds a biased fit of it
+#: (docs/decisions/stereo-ambiguity.md)
 _REGROW = (Status.NO_CONVERGENCE, Status.PULL_IN, Status.DEGENERATE_AFFINE,
            NO_APPROXIMATION)
 
@@ -1348,9 +1347,8 @@ def _information_centres(frame: dict, rect, rig, accepted: np.ndarray, x_left: n
     information centre (Förstner's optimal point of a window): where its gradients are.
     Anywhere else the match is extrapolated from there through the shape a1, a2, and
     the shape carries what the window model does not (the two cameras' different blur
-    and resampling at an edge or a corner), multiplied by the lever arm |p - p*|.  On
-    the chessboard rig, pair 06, the same windows matched at the truth: 0.35 px RMS along
-    the line at the window centres, 0.11 px at p* (16 % -> 0.8 % beyond 0.4 px).
+    and resampling at an edge or a corner), multiplied by the lever arm |p - p*|
+    (measured on the chessboard rig: docs/decisions/stereo-information-centre.md).
 
     Each accepted window (``accepted``, over the frame's candidates) is moved to the
     left image's pixel nearest its p* (of the 3 x 3 around the nearest pixel) that is no

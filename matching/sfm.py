@@ -71,9 +71,8 @@ EXHAUSTIVE_MAX_IMAGES = 50
 #: "selected" pairs: a coarse pass (SIFT on each image at this longer side, at most
 #: ``COARSE_FEATURES`` features, every pair matched and verified) finds which pairs
 #: overlap; only those are matched at full size (:func:`_overlapping_pairs`).  Not the
-#: default: on the rendered phone ring (30 views, SIFT at 1 600 px) it kept 242 of 435
-#: pairs, and the coarse pass (35.8 CPU-s, mostly reading the 12 MP JPEGs again) plus
-#: their matching (28.1) cost more than matching all 435 (42 CPU-s).
+#: default: on the rendered phone ring it cost more than matching every pair
+#: (docs/decisions/photo-folders.md).
 COARSE_SIDE = 800
 COARSE_FEATURES = 1024
 #: A pair the coarse pass verified with at least this many inlier matches is matched at
