@@ -27,9 +27,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import threading
 import time
+
+from pipeline.progress import off_by_environment
 
 #: The progress lines' logger.
 NAME = "photosurf.progress"
@@ -40,12 +41,6 @@ AFTER = 10.0
 def logger() -> logging.Logger:
     """The progress lines' logger (``logging.getLogger(NAME)``)."""
     return logging.getLogger(NAME)
-
-
-def off_by_environment() -> bool:
-    """``PHOTOSURF_PROGRESS`` set to an empty string, 0, false or no (bars and lines off)."""
-    forced = os.environ.get("PHOTOSURF_PROGRESS")
-    return forced is not None and forced.strip().lower() in ("", "0", "false", "no")
 
 
 class _HoldFirst(logging.Filter):

@@ -27,11 +27,16 @@ def set_quiet(quiet: bool) -> None:
     _quiet = bool(quiet)
 
 
+def off_by_environment() -> bool:
+    """``PHOTOSURF_PROGRESS`` set to an empty string, 0, false or no (bars and lines off)."""
+    forced = os.environ.get("PHOTOSURF_PROGRESS")
+    return forced is not None and forced.strip().lower() in ("", "0", "false", "no")
+
+
 def enabled() -> bool:
     """Whether bars are drawn: not quiet and stderr is a terminal (or forced by the environment)."""
-    forced = os.environ.get("PHOTOSURF_PROGRESS")
-    if forced is not None:
-        return forced not in ("", "0", "false", "no")
+    if os.environ.get("PHOTOSURF_PROGRESS") is not None:   # forced on or off
+        return not off_by_environment()
     if _quiet:
         return False
     try:

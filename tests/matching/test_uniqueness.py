@@ -152,11 +152,11 @@ def test_chessboard_pair_has_no_period_slips():
     2 % lie farther than one square from the plane of the board's own corners (triangulated
     with the same rig); a one-period slip is tens of squares in depth.  Measured 0 %
     (8.7 % with ``unique=False``).  And at most 1 % farther than 5x the corners' RMS
-    flatness from it (the issue's blunder band): measured 0.1 % with the epipolar pass and
+    flatness from it (the blunder band): measured 0.1 % with the epipolar pass and
     its strict uniqueness (docs/decisions/stereo-ambiguity.md), ~50 % without the pass
     (LSM's ~1 px slide along the board's edges, docs/decisions/stereo-epipolar.md).  The
     pass rejects the windows ill-conditioned along the epipolar line: 762 points on the
-    board (the issue asks >= 1 000: not met; >= 650 asserted)."""
+    board (the goal is >= 1 000: not met; >= 650 asserted)."""
     import cv2
 
     from matching.calibrate import stereo_calibrate
