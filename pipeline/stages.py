@@ -313,8 +313,7 @@ def curves(ctx: StageContext) -> dict:
     p = ctx.params["curves"]
     smoothing = p["smoothing"] or "auto"  # 0: from the data (as the other "0:" keys)
     sliced, _, _ = artifacts.read_sections(ctx.stage_path("sections"))
-    options = {"outlier_threshold": p["outlier_threshold"],
-               "min_points": p["min_loop_points"] or rc.min_loop_points(smoothing)}
+    options = loop_options(p, smoothing)
     mode = _open_mode(p["open"])
     if mode == "auto" and len(_cameras(ctx)) == 2:
         # one stereo pair sees one side: a loop that looks closed is a thin line traced
@@ -337,11 +336,7 @@ def curves(ctx: StageContext) -> dict:
                              + (")" if mode is False else
                                 ", or curves.open = true for an open surface)")) from exc
         return arcs
-    rings, fits = rc.section_rings(kept, loops, p["n"] or None, smoothing=smoothing,
-                                   parametrisation=p["parametrisation"], fits=True)
-    fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
-    kept, loops, rings, untangled = rc.untangle(kept, loops, rings)
-    fits = [fit_of[id(section)] for section in kept]
+    kept, loops, rings, fits, untangled = fitted_rings(kept, loops, p, smoothing)
     messages += untangled
     for message in messages:
         log.warning("curves: %s", message)
@@ -353,6 +348,27 @@ def curves(ctx: StageContext) -> dict:
             "sections_without_loop": len(sliced) - len(kept), "warnings": messages,
             "ring_precision": ring_precision(records),
             "smoothing_median": float(np.median([f.smoothing for f in records]))}
+
+
+def loop_options(params: Mapping, smoothing) -> dict:
+    """``surface.reconstruct.organise_sections``' options from the ``curves`` parameters."""
+    from surface import reconstruct as rc
+
+    return {"outlier_threshold": params["outlier_threshold"],
+            "min_points": params["min_loop_points"] or rc.min_loop_points(smoothing)}
+
+
+def fitted_rings(kept: list, loops: list, params: Mapping, smoothing) -> tuple:
+    """The curves stage's closed rings from organised sections: ``section_rings`` (fit,
+    predict) then ``untangle``; ``(kept, loops, rings, fits, messages)``, ``fits`` one entry
+    per kept section."""
+    from surface import reconstruct as rc
+
+    rings, fits = rc.section_rings(kept, loops, params["n"] or None, smoothing=smoothing,
+                                   parametrisation=params["parametrisation"], fits=True)
+    fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
+    kept, loops, rings, untangled = rc.untangle(kept, loops, rings)
+    return kept, loops, rings, [fit_of[id(section)] for section in kept], untangled
 
 
 def _open_mode(value) -> bool | str:
@@ -532,27 +548,40 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     their fits' precision stored by the curves stage, else the points' noise σ̂);
     ``None`` when not asked or not possible (no noise estimate, an open mesh), with the
     reason logged."""
+    if not ctx.params["smooth"]["size"] or not ctx.has_output("curves") \
+            or not ctx.has_output("sections"):
+        return None
+    rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
+    fits = artifacts.read_curve_fits(ctx.stage_path("curves"))
+    _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
+    return sized_rings(ctx.params, rings, planes, noise,
+                       fits["ring_precision"] if fits is not None else 0.0, cap_cloud, spacing,
+                       artifacts.read_cap_sigma(ctx.stage_path("sections")),
+                       (vertices, triangles))
+
+
+def sized_rings(params: Mapping, rings: list, planes: list, noise: float | None,
+                precision: float, cap_cloud, spacing: float, cap_sigma, dense: tuple):
+    """The smooth stage's sizing of the curves' rings (``rings`` a list of loops per
+    section, ``planes`` their sections, as ``pipeline.artifacts.read_curves`` gives them;
+    ``precision`` the fits' ring precision; the sections' cap cloud, spacing and cap σ;
+    ``dense`` the stitched ``(vertices, triangles)``) with the stitch stage's rules
+    (``params``: the run's parameters): a ``surface.sizing.SizedMesh``, or ``None`` with
+    the reason logged (:func:`_sized_control_mesh`)."""
     import numpy as np
 
     from surface import sizing
 
-    p = ctx.params["smooth"]
-    if not p["size"] or not ctx.has_output("curves") or not ctx.has_output("sections"):
-        return None
-    rings, planes, noise = artifacts.read_curves(ctx.stage_path("curves"))
-    fits = artifacts.read_curve_fits(ctx.stage_path("curves"))
-    precision = fits["ring_precision"] if fits is not None else 0.0
+    p = params["smooth"]
     variogram = sizing.section_variogram(rings, planes[0].frame[2])
     ring_sigma = sizing.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0) \
         if variogram is None else float(np.sqrt(variogram(1)))
     tolerance = float(p["size_tolerance"]) or None
-    _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     if (tolerance is None and variogram is None and ring_sigma <= 0) or spacing <= 0:
         log.info("smooth: no sizing (no noise estimate or section spacing); the stitched "
                  "mesh is the control mesh")
         return None
-    build = _stitcher(ctx.params["stitch"], planes, noise, cap_cloud, spacing,
-                      artifacts.read_cap_sigma(ctx.stage_path("sections")))
+    build = _stitcher(params["stitch"], planes, noise, cap_cloud, spacing, cap_sigma)
 
     def mesh(thin_rings, thin_planes):
         result, _ = build(thin_rings, thin_planes, diagnostics=False)
@@ -560,7 +589,7 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
             raise ValueError("the thinned rings stitch to an open mesh")
         return result.vertices, result.triangles
 
-    return sizing.size_control_mesh(rings, planes, spacing, mesh, (vertices, triangles),
+    return sizing.size_control_mesh(rings, planes, spacing, mesh, dense,
                                     tolerance, noise=ring_sigma, variogram=variogram)
 
 
