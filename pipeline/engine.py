@@ -14,8 +14,10 @@ A stage is up to date when the hashes of its inputs — the run's external input
 reads them, its upstream stages' outputs, the source of its code — and of its
 parameters equal the recorded ones and its outputs are still there untouched.  Its code
 is the source of the modules it declares (:meth:`pipeline.plan.Stage.code_modules`),
-followed through their imports (:func:`pipeline.workspace.code_hash`), and of the
-module holding its function: where an import statement sits cannot change what reruns.
+followed through their imports (:func:`pipeline.workspace.code_hash`), and its
+function with the definitions of its module that it uses
+(:func:`pipeline.workspace.function_code`): where an import statement sits cannot change
+what reruns, and an edit to another stage's function does not rerun this one.
 
 No algorithm lives here and no stage: the plan (which stages, in which order) is
 :mod:`pipeline.plan`, the stage functions are :mod:`pipeline.stages`.
@@ -190,10 +192,11 @@ class _Run:
 def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str],
                   kind: str) -> dict[str, str]:
     hashes: dict[str, str] = dict(external) if stage.external else {}
-    # the code is an input too: an upgraded photosurf reruns the stages it changes.  The
-    # stage functions' module imports every stage's code, so it is taken alone (shallow).
-    hashes["code"] = code_hash(stage.code_modules(kind, ws.root),
-                               shallow=[stage.func.__module__])
+    # the code is an input too: an upgraded photosurf reruns the stages it changes.  Of
+    # the stage functions' module (which imports every stage's code) only the stage's
+    # function and the definitions it uses count: an edit to a later stage's function
+    # does not rerun acquisition.
+    hashes["code"] = code_hash(stage.code_modules(kind, ws.root), functions=[stage.func])
     for upstream in stage.needs + stage.optional_needs:
         outputs = ws.outputs_of(upstream)
         if outputs:

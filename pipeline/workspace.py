@@ -207,12 +207,15 @@ def code_files(modules: Iterable[str], shallow: Iterable[str] = ()) -> list[Path
     return sorted(files)
 
 
-def code_hash(modules: Iterable[str], shallow: Iterable[str] = ()) -> str:
-    """SHA-256 over the sources :func:`code_files` names (path and content).
+def code_hash(modules: Iterable[str], shallow: Iterable[str] = (),
+              functions: Iterable = ()) -> str:
+    """SHA-256 over the sources :func:`code_files` names (path and content) and the
+    code of ``functions`` (:func:`function_code`: each function and the module-level
+    definitions it uses, not its whole module).
 
     Part of every stage's inputs: a stage whose code changed (an upgraded
-    photosurf) is out of date, while an unrelated change — say to the report —
-    does not rerun acquisition.
+    photosurf) is out of date, while an unrelated change — say to the report, or to
+    another stage's function in the same module — does not rerun acquisition.
     """
     record = {}
     for path in code_files(modules, shallow):
@@ -221,7 +224,65 @@ def code_hash(modules: Iterable[str], shallow: Iterable[str] = ()) -> str:
         except ValueError:
             key = path.name
         record[key] = sha256_file(path)
+    for func in functions:
+        record[f"{func.__module__}:{func.__qualname__}"] = function_code(func)
     return sha256_json(record)
+
+
+def function_code(func) -> str:
+    """SHA-256 of the code a module-level function runs from its own module: its
+    definition and, followed through the names they use, the module-level definitions
+    (functions, classes, assignments, imports) those names refer to.
+
+    The syntax trees are hashed (``ast.dump``), not the text, so an edit elsewhere in the
+    module that moves the function's lines does not change it; an edit to a helper it
+    calls, a constant it reads or an import it uses does.  The modules it imports are
+    the stage's declared modules (:func:`code_files`), hashed apart.
+    """
+    path = Path(func.__code__.co_filename)
+    return _definitions_hash(str(path), sha256_file(path), func.__name__)
+
+
+def _definitions_hash(path: str, content_sha: str, name: str) -> str:
+    """:func:`function_code` of the module-level ``name`` in the source at ``path``."""
+    dumps, binds, uses = _module_definitions(path, content_sha)
+    if name not in binds:
+        raise ValueError(f"{path}: no module-level definition of {name!r}")
+    seen: set[int] = set()
+    todo = [name]
+    while todo:
+        for index in binds.get(todo.pop(), ()):
+            if index not in seen:
+                seen.add(index)
+                todo.extend(uses[index])
+    return sha256_json([dumps[i] for i in sorted(seen)])
+
+
+@functools.lru_cache(maxsize=16)
+def _module_definitions(path: str, content_sha: str) -> tuple[list, dict, list]:
+    """The top-level statements of the source at ``path`` parsed once (``content_sha``
+    keys the cache: an edited file is parsed again): their syntax trees (``ast.dump``),
+    the statements binding each name, the names each statement uses."""
+    tree = ast.parse(Path(path).read_text(encoding="utf-8"), path)
+    binds: dict[str, list[int]] = {}
+    for index, node in enumerate(tree.body):
+        for bound in _bound_names(node):
+            binds.setdefault(bound, []).append(index)
+    uses = [sorted({n.id for n in ast.walk(node) if isinstance(n, ast.Name)})
+            for node in tree.body]
+    return [ast.dump(node) for node in tree.body], binds, uses
+
+
+def _bound_names(node: ast.stmt) -> list[str]:
+    """The module-level names a top-level statement binds."""
+    if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+        return [node.name]
+    if isinstance(node, ast.Import | ast.ImportFrom):
+        return [alias.asname or alias.name.partition(".")[0] for alias in node.names]
+    if isinstance(node, ast.Assign | ast.AnnAssign | ast.AugAssign):
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+        return [n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)]
+    return []
 
 
 def package_versions() -> dict[str, str]:
