@@ -307,6 +307,7 @@ def curves(ctx: StageContext) -> dict:
     (``curves.open``), open arcs instead (:func:`_open_curves`)."""
     import numpy as np
 
+    from surface import open_surface as osf
     from surface import reconstruct as rc
     from surface.sizing import ring_precision
 
@@ -315,15 +316,15 @@ def curves(ctx: StageContext) -> dict:
     sliced, _, _ = artifacts.read_sections(ctx.stage_path("sections"))
     options = loop_options(p, smoothing)
     mode = _open_mode(p["open"])
-    if mode == "auto" and len(_cameras(ctx)) == 2:
-        # one stereo pair sees one side: a loop that looks closed is a thin line traced
-        # there and back (docs/decisions/open-surfaces.md)
-        mode = True
     try:
         if mode is True:
             raise ValueError("curves.open = true")
         kept, loops, messages = rc.organise_sections(
             ctx.track(sliced, "loops", total=len(sliced), unit="section"), **options)
+        if mode == "auto" and osf.one_sided(loops):
+            # loops that look closed but are lines traced there and back (a board, a
+            # wall): open by the same rule (docs/decisions/open-surfaces.md)
+            raise rc.OneSidedError("the sections' loops are open or lines")
     except ValueError as exc:
         # one-sided data (open arcs over most of the object): an open surface, not an error
         # the closed rule found open arcs (OneSidedError): the open path does not judge
@@ -457,16 +458,17 @@ def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> d
 
 
 def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spacing: float,
-              cap_sigma=None, leave_holes: bool = False):
+              cap_sigma=None, leave_holes: bool = False, points=None):
     """``(rings, planes) -> (StitchResult, notes)`` with the stitch stage's rules: end rings
     moved to the cap points (``stitch.extend_ends``, weighted by their precision
     ``cap_sigma`` where known), caps, support rings at sharp rims (``stitch.support``),
-    inner caps at their cap points' height; ``notes`` are the end extension's.  With
-    ``leave_holes`` (``sections.open``) an end the data do not cover
-    (``surface.reconstruct.hole_ends``, judged on the un-extended end loops) is left as a
-    border; ``build.holes`` is then the last build's ``(bottom, top)`` holes left open.
-    ``build.ends``: the last build's end placements and their standard errors
-    (``surface.reconstruct.extend_to_caps``)."""
+    inner caps at their cap points' height; ``notes`` are the end extension's.  Each end
+    is classified on the un-extended end loops (``surface.reconstruct.classify_ends``,
+    the cloud ``points`` counting a mouth's sheets): a mouth on a wall too thin to part is
+    left as a border, and with ``leave_holes`` (``sections.open``) a hole in the data;
+    ``build.holes`` / ``build.mouths`` are then the last build's ``(bottom, top)`` ends
+    left open.  ``build.ends``: the last build's end placements, their standard errors
+    (``surface.reconstruct.extend_to_caps``) and kinds with the evidence."""
     import numpy as np
 
     from surface import reconstruct as rc
@@ -478,24 +480,28 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
         # a lone loop as itself, as surface.reconstruct.surface_from_points passes it
         rings = [item[0] if isinstance(item, list) and len(item) == 1 else item
                  for item in rings]
-        notes_ends, close = [], params["caps"]
-        if params["caps"] and leave_holes and spacing > 0:
-            holes, notes_ends = rc.hole_ends(rings, ring_planes[0].frame, cap_cloud, spacing,
-                                             leave_open=True)
-            close = (not holes[0], not holes[1])
-            build.holes = holes
+        notes_ends, close, kinds = [], params["caps"], None
+        if params["caps"] and spacing > 0 and (leave_holes or points is not None):
+            kinds = rc.classify_ends(rings, ring_planes[0].frame, cap_cloud, spacing, points,
+                                     open_holes=leave_holes)
+            notes_ends = [k.note for k in kinds if k.note]
+            close = tuple(k.closed(leave_holes) for k in kinds)
+            build.holes = tuple(k.kind == "hole" and leave_holes for k in kinds)
+            build.mouths = tuple(k.kind == "mouth" and not k.parted for k in kinds)
+        build.ends = {}
         if params["caps"] and params["extend_ends"] and spacing > 0:
-            build.ends = {}
             rings, notes_extend = rc.extend_to_caps(rings, ring_planes, cap_cloud,
                                                     np.arange(len(cap_cloud)), spacing,
                                                     sigma=cap_sigma, ends=build.ends)
             notes_ends += notes_extend
+        for kind in kinds or ():
+            build.ends.setdefault(kind.end, {}).update(kind.record())
         result = st.stitch_rings(rings, planes[0].frame[2], close_ends=close,
                                  support_sigma=support, cap_points=cap_cloud,
                                  diagnostics=diagnostics)
         return result, notes_ends
 
-    build.holes, build.ends = (False, False), {}
+    build.holes, build.mouths, build.ends = (False, False), (False, False), {}
     return build
 
 
@@ -511,15 +517,21 @@ def stitch(ctx: StageContext) -> dict:
         return _stitch_open(ctx, rings, *arcs)
     _, cap_cloud, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     cap_sigma = artifacts.read_cap_sigma(ctx.stage_path("sections"))
+    points = (artifacts.read_cloud(ctx.stage_path("acquire"))["points"]
+              if ctx.has_output("acquire") else None)   # a mouth's sheets are counted in it
     build = _stitcher(p, planes, noise, cap_cloud, spacing, cap_sigma,
-                      leave_holes=bool(ctx.params["sections"]["open"]))
+                      leave_holes=bool(ctx.params["sections"]["open"]), points=points)
     result, notes_ends = build(rings, planes)
     messages = notes_ends + list(result.notes) + list(result.messages)
     notes = {"closed": bool(result.closed), "messages": messages,
-             # sections.open: a hole in the data left as a border (the smooth stage's open path)
+             # sections.open: a hole in the data left as a border; a mouth on a wall too
+             # thin to part left open (either: the smooth stage's open path)
              **({"open": True, "holes": [bool(h) for h in build.holes]}
                 if any(build.holes) else {}),
-             # where each end was placed, how, and the placement's own standard error
+             **({"open": True, "mouths": [bool(m) for m in build.mouths]}
+                if any(build.mouths) else {}),
+             # each end: where and how it was placed, the placement's own standard error,
+             # its kind (none, hole, mouth) and the evidence
              "ends": build.ends,
              "open_interfaces": list(result.open_interfaces), "flips": int(result.flips),
              "delaunay_fraction": float(result.delaunay_fraction),
@@ -527,9 +539,10 @@ def stitch(ctx: StageContext) -> dict:
     artifacts.write_stitched(ctx.out, result.vertices, result.triangles,
                              {**notes, "loop_graph": result.graph.to_json() if result.graph
                               else None})
-    for message in result.messages:
+    thin = [m for m in notes_ends if "too thin" in m]   # the one line a user must read
+    for message in thin + list(result.messages):
         log.warning("stitch: %s", message)
-    for message in notes_ends + list(result.notes):
+    for message in [m for m in notes_ends if m not in thin] + list(result.notes):
         log.info("stitch: %s", message)
     from pipeline.smoothing import solid_report  # one warning line when not a valid solid
 

@@ -47,8 +47,8 @@ __all__ = ["OneSidedError", "surface_from_points", "slide_to_planes", "extend_to
            "largest_perimeter",
            "SlicedCloud", "slice_cloud", "organise_sections", "ring_count", "section_rings",
            "min_loop_points", "section_noise", "untangle", "choose_axis", "rim_line",
-           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "keyhole", "hole_ends",
-           "thin_mouths"]
+           "bridged_share", "MAX_BRIDGED_SHARE", "self_intersects", "keyhole", "EndKind",
+           "classify_ends"]
 
 #: Neighbours of the PCA normal estimate (a plane fit needs >= 3; 12 averages noise).
 NORMAL_NEIGHBOURS = 12
@@ -984,11 +984,12 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         weights (:func:`extend_to_caps`); without it (or with any σ unknown) every point
         weighs the same.
     open_holes : bool
-        Leave an end the data do not cover (:func:`hole_ends`: a hole where the scanner
+        Leave an end the data do not cover (:func:`classify_ends`: a hole where the scanner
         never looked, an open mouth) as a border instead of capping it flat: an open
         surface of what was seen.
     ends : dict, optional
-        Filled with each end's placement and its standard error (:func:`extend_to_caps`).
+        Filled with each end's placement and its standard error (:func:`extend_to_caps`)
+        and its kind with the evidence (:func:`classify_ends`, ``EndKind.record``).
 
     Returns
     -------
@@ -1015,26 +1016,22 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
     rings = section_rings(kept, loops, n, smoothing=smoothing)
     kept, loops, rings, notes = untangle(kept, loops, rings)
     messages += notes
-    holes = (False, False)
+    kinds = None
     if close_ends:   # on the sections' own end loops: an extended ring may drift off the data
-        holes, notes = hole_ends(rings, kept[0].frame, sliced.cap_cloud, sliced.spacing,
-                                 open_holes)
-        messages += notes
+        kinds = classify_ends(rings, kept[0].frame, sliced.cap_cloud, sliced.spacing,
+                              points, open_holes)
+        messages += [k.note for k in kinds if k.note]
     if extend_ends and close_ends:
         cap = sliced.cap_cloud
         cap_sigma = None if sigma is None else np.asarray(sigma, np.float64)[sliced.cap_index]
         rings, notes = extend_to_caps(rings, kept, cap, np.arange(len(cap)), sliced.spacing,
                                       sigma=cap_sigma, ends=ends)
         messages += notes
-    ends = (not holes[0], not holes[1]) if close_ends and open_holes else close_ends
-    if close_ends and not open_holes:
-        mouths, notes = thin_mouths(holes, loops, kept[0].frame, points, sliced.spacing)
-        if any(mouths):     # the mouth's note replaces the hole's
-            ends = (not mouths[0], not mouths[1])
-            gone = tuple(f"{name}: a hole" for name, m in zip(("bottom", "top"), mouths,
-                                                               strict=True) if m)
-            messages = [m for m in messages if not m.startswith(gone)] + notes
-    result = stitch_rings(rings, kept[0].frame[2], close_ends=ends, flip=flip,
+    if kinds is not None and ends is not None:   # the placement and the kind, per end
+        for kind in kinds:
+            ends.setdefault(kind.end, {}).update(kind.record())
+    ends_closed = tuple(k.closed(open_holes) for k in kinds) if kinds else close_ends
+    result = stitch_rings(rings, kept[0].frame[2], close_ends=ends_closed, flip=flip,
                           support_sigma=section_noise(loops) if support else None,
                           cap_points=sliced.cap_cloud)
     if len(result.triangles) == 0:
@@ -1048,18 +1045,67 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
 
 
 
-def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: float,
-              leave_open: bool = False) -> tuple[tuple[bool, bool], list[str]]:
-    """Which of the two end sections is a hole in the data, and a note for each.
+@dataclass(frozen=True)
+class EndKind:
+    """What one end of the sections is (:func:`classify_ends`), with the evidence.
 
-    An end is a hole when, for one of its outermost loops, more than
+    ``kind`` is ``"none"`` (a cap the data cover: closed at the cap points), ``"hole"``
+    (the data do not cover the end's inside: closed by the flattest fill, or left as a
+    border with ``open_holes``) or ``"mouth"`` (the opening of a cavity: ``parted``, the
+    end holds both faces of the wall as nested loops and the annulus between them is the
+    rim, capped, the inside open through the inner loop; else the wall is too thin for
+    the sections to part and the end is left open, the outer surface only).  ``uncovered``:
+    the share of the end's inside beyond reach of every cap point; ``even_columns``: the
+    share of axis columns from inside a hole end that meet an even number of the cloud's
+    sheets (counted only for a hole with one loop); ``wall``: the wall's thickness at the
+    end in point spacings (a parted rim's mean width, or 1.35 robust σ of a single band's
+    points about its ring); ``sigma``: that robust σ, scene units."""
+
+    end: str
+    kind: str
+    uncovered: float
+    parted: bool = False
+    even_columns: float | None = None
+    wall: float | None = None
+    sigma: float | None = None
+    note: str | None = None
+
+    def closed(self, open_holes: bool = False) -> bool:
+        """Whether the stitch caps this end (a parted mouth's rim annulus is capped)."""
+        if self.kind == "mouth":
+            return self.parted
+        return not (self.kind == "hole" and open_holes)
+
+    def record(self) -> dict:
+        """The classification and its evidence as JSON-ready values (the note left out)."""
+        return {"kind": self.kind, "uncovered": round(self.uncovered, 4),
+                "parted": self.parted,
+                **({"even_columns": round(self.even_columns, 4)}
+                   if self.even_columns is not None else {}),
+                **({"wall_spacings": round(self.wall, 3)} if self.wall is not None else {}),
+                **({"band_sigma": self.sigma} if self.sigma is not None else {})}
+
+
+def classify_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: float,
+                  points: np.ndarray | None = None,
+                  open_holes: bool = False) -> tuple[EndKind, EndKind]:
+    """The one classification of the first and the last section's end, used by every path
+    (``surface_from_points``, the pipeline's stitch stage, the sized surface).
+
+    An end is a **hole** when, for one of its outermost loops, more than
     ``stitch.HOLE_SHARE`` of the region inside it (shrunk by ``stitch.CAP_SHRINK``, the
     wall's own points kept out) and outside its inner loops is farther than
     ``stitch.COVER_RADIUS`` point spacings from every cap point of the end's window
     (``stitch.end_window``: beyond the end, from two section spacings inside):
     ``stitch.uncovered_share``.  A cap seen by the scanner, flat or domed, covers its
-    contour; a bust cut at the chest and never scanned there, an animal's unseen base or
-    the mouth of a wall too thin to part do not.
+    contour; a bust cut at the chest, an animal's unseen base or the mouth of a wall too
+    thin to part do not.  A hole end with one loop is a **mouth** on a wall too thin to
+    part when most axis columns from inside it meet an even number of the cloud's sheets
+    (:func:`_even_columns`: the cavity's floor, then the base; an unseen base meets an
+    odd number).  An end whose outer loop holds inner loops and whose annulus is covered
+    is a parted **mouth** (the rim of a wall seen from both sides; the can's rim above
+    its recessed lid too).  Judged on the sections' own end loops: an extended end ring
+    may drift off the data.
 
     Parameters
     ----------
@@ -1071,47 +1117,93 @@ def hole_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacing: f
         The cloud's cap points (``SlicedCloud.cap_cloud``).
     spacing : float
         Section spacing.
-    leave_open : bool
-        Only the notes' wording: the hole is left open, or capped flat.
+    points : (P, 3) float64, optional
+        The whole cloud: without it no sheet is counted (a hole stays a hole) and no wall
+        is measured.
+    open_holes : bool
+        Only the hole notes' wording: the hole is left open, or capped flat.
 
     Returns
     -------
-    (bool, bool)
-        The first and the last section's end is a hole.
-    notes : list of str
+    (EndKind, EndKind)
+        The bottom and the top end.
     """
     from surface.loop_graph import nesting
 
     cap_points = np.asarray(cap_points, np.float64).reshape(-1, 3)
     heights = cap_points @ frame[2]
     flat_all = cap_points @ frame[:2].T
-    found, notes = [], []
+    cloud = None if points is None else np.asarray(points, np.float64).reshape(-1, 3)
+    nu = [None]
+
+    def point_gap() -> float:    # the cloud's point spacing, once
+        if nu[0] is None:
+            from surface.sections import point_spacing
+
+            nu[0] = point_spacing(cloud)
+        return nu[0]
+
+    kinds = []
     for end, up in ((0, False), (-1, True)):
+        name = "bottom" if end == 0 else "top"
         loops = [rings[end]] if isinstance(rings[end], np.ndarray) else list(rings[end])
         flats = [lp @ frame[:2].T for lp in loops]
         height = float(np.mean(np.concatenate([lp @ frame[2] for lp in loops])))
         lo, hi = end_window(height, up, spacing)
         flat = flat_all[(heights > lo) & (heights < hi)]
         depth, parent = nesting(flats)
-        share = 0.0
+        share, parted, rim = 0.0, False, []
         for k in np.flatnonzero(depth == 0):
-            inner = [_scaled(flats[j], 1.0 / CAP_SHRINK) for j in np.flatnonzero(parent == k)]
+            children = np.flatnonzero(parent == k)
+            parted |= len(children) > 0
+            inner = [_scaled(flats[j], 1.0 / CAP_SHRINK) for j in children]
             outer = _scaled(flats[k], CAP_SHRINK)
+            if len(children):   # the rim's mean width: area between the faces / mean length
+                length = _perimeter(flats[k]) + sum(_perimeter(flats[j]) for j in children)
+                rim.append(2.0 * (polygon_area(flats[k]) - sum(
+                    polygon_area(flats[j]) for j in children)) / max(length, 1e-300))
             if polygon_area(outer) <= sum(polygon_area(ring) for ring in inner):
                 continue    # a rim narrower than the margins: no inside to be a hole
             share = max(share, uncovered_share(outer, inner, flat))
-        hole = share > HOLE_SHARE
-        found.append(hole)
-        if hole:
-            notes.append(f"{'bottom' if end == 0 else 'top'}: a hole in the data "
-                         f"({100 * share:.0f} % of the end out of reach of every point): "
-                         + ("left open, a border where the data end" if leave_open else
-                            "closed by the flattest fill within the data's heights (open = "
-                            "true leaves it open)"))
-    return (found[0], found[1]), notes
+        if share > HOLE_SHARE:
+            kinds.append(_hole_or_thin_mouth(name, share, loops, frame, height, up, spacing,
+                                             cloud, point_gap, open_holes))
+        elif parted:
+            wall = float(np.median(rim)) / point_gap() if cloud is not None else None
+            kinds.append(EndKind(name, "mouth", share, parted=True, wall=wall))
+        else:
+            kinds.append(EndKind(name, "none", share))
+    return kinds[0], kinds[1]
 
 
-#: Columns along the axis inside an end's contour that :func:`thin_mouths` counts the
+def _perimeter(ring: np.ndarray) -> float:
+    return float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
+
+
+def _hole_or_thin_mouth(name, share, loops, frame, height, up, spacing, cloud, point_gap,
+                        open_holes) -> EndKind:
+    """A hole end (:func:`classify_ends`): a mouth on a wall too thin to part when it has
+    one loop and most columns from inside it meet an even number of sheets; its note."""
+    if cloud is not None and len(loops) == 1:
+        even = _even_columns(loops[0], frame, cloud, height, up, spacing, point_gap())
+        if even is not None and even > 0.5:
+            sigma = _band_sigma(loops[0], frame, cloud, height, spacing)
+            wall = 1.35 * sigma / point_gap()
+            return EndKind(name, "mouth", share, even_columns=even, wall=wall, sigma=sigma,
+                           note=f"{name}: an open mouth on a wall too thin for the data to "
+                                f"resolve (~{wall:.1f} point spacings thick, its two faces one "
+                                "band of points): left open, the outer surface only")
+    else:
+        even = None
+    return EndKind(name, "hole", share, even_columns=even,
+                   note=f"{name}: a hole in the data ({100 * share:.0f} % of the end out of "
+                        "reach of every point): "
+                        + ("left open, a border where the data end" if open_holes else
+                           "closed by the flattest fill within the data's heights (open = "
+                           "true leaves it open)"))
+
+
+#: Columns along the axis inside an end's contour that :func:`_even_columns` counts the
 #: cloud's sheets in (a grid over the contour shrunk by ``CAP_SHRINK``, at most this many).
 MOUTH_COLUMNS = 64
 #: Radius of a column, in point spacings: ~12 points of a sheet crossing it.
@@ -1123,76 +1215,65 @@ MOUTH_COLUMN_RADIUS = 2.0
 MOUTH_SHEET_GAP = 3.0
 
 
-def thin_mouths(holes: tuple, loops: list, frame: np.ndarray, points: np.ndarray,
-                spacing: float) -> tuple[tuple[bool, bool], list[str]]:
-    """Which hole ends (:func:`hole_ends`) are the open mouth of a cavity whose wall the
-    sections could not part into its two faces, and a one-line note for each.
+def _even_columns(ring: np.ndarray, frame: np.ndarray, points: np.ndarray, h_end: float,
+                  up: bool, spacing: float, nu: float) -> float | None:
+    """Share of the columns inside an end's single loop that meet an even number of the
+    cloud's sheets below it (``up``: the top end) or above it; None when no column meets
+    one.
 
-    From a point just inside such an end the axis runs through the cavity, meets its
-    floor and then the object's base: an even number of sheets of the cloud, so the
-    point is outside the solid.  From an unseen base (a bust cut at the chest) it runs
-    through the solid to the surface beyond: an odd number.  The sheets are counted in
-    up to :data:`MOUTH_COLUMNS` columns (radius :data:`MOUTH_COLUMN_RADIUS` point
-    spacings) inside the end's single outer loop, heights parted at gaps of
-    :data:`MOUTH_SHEET_GAP` section spacings; an end is a mouth when most columns that
-    meet any sheet meet an even number.  Its wall is then a band of points too thin for
-    the faces to be told apart; its thickness is given in point spacings as 1.35 robust
-    σ of the end loops' points about their local curve (``Loop.noise``: two faces ±a
-    about their midline have a robust σ of 1.48 a, so 2a ≈ 1.35 σ̂; the noise adds to
-    it, so this is an upper bound).
-
-    Parameters
-    ----------
-    holes : (bool, bool)
-        The first and the last section's end is a hole (:func:`hole_ends`).
-    loops : list
-        The kept sections' loops (:func:`organise_sections`), along the axis.
-    frame : (3, 3) float64
-        Section frame (rows e1, e2, axis).
-    points : (P, 3) float64
-        The whole cloud.
-    spacing : float
-        Section spacing.
+    From a point just inside a mouth the axis runs through the cavity, meets its floor
+    and then the object's base: an even number of sheets, the point is outside the
+    solid.  From an unseen base (a bust cut at the chest) it runs through the solid to
+    the surface beyond: an odd number.  Up to :data:`MOUTH_COLUMNS` columns of radius
+    :data:`MOUTH_COLUMN_RADIUS` point spacings ``nu`` on a grid inside the loop shrunk by
+    ``CAP_SHRINK``; heights parted at gaps of :data:`MOUTH_SHEET_GAP` section spacings.
     """
     from scipy.spatial import cKDTree
 
-    from surface.sections import point_spacing
+    contour = _scaled(np.asarray(ring) @ frame[:2].T, CAP_SHRINK)
+    lo, hi = contour.min(axis=0), contour.max(axis=0)
+    step = float(np.sqrt(np.prod(hi - lo) / MOUTH_COLUMNS))
+    if not step > 0:
+        return None
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], step), np.arange(lo[1], hi[1], step))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    grid = grid[inside_polygon(grid, contour)]
+    if len(grid) == 0:
+        return None
+    heights = points @ frame[2]
+    tree = cKDTree(points @ frame[:2].T)
+    parity = []
+    for column in tree.query_ball_point(grid, MOUTH_COLUMN_RADIUS * nu):
+        h = heights[column]
+        h = np.sort(h[h < h_end] if up else h[h > h_end])
+        if len(h):
+            parity.append(1 + int(np.count_nonzero(np.diff(h) > MOUTH_SHEET_GAP * spacing)))
+    if not parity:
+        return None
+    return float(np.mean(np.array(parity) % 2 == 0))
 
-    found, notes = [False, False], []
-    if not any(holes):
-        return (False, False), notes
-    pts = np.asarray(points, np.float64)
-    flat, heights = pts @ frame[:2].T, pts @ frame[2]
-    tree = cKDTree(flat)
-    nu = point_spacing(pts)
-    for end, up in ((0, False), (-1, True)):
-        ends = loops[end] if loops else []
-        if not holes[0 if end == 0 else 1] or len(ends) != 1:
-            continue           # parted faces (nested loops) close their own annulus
-        loop = ends[0]
-        contour = _scaled(loop.points @ frame[:2].T, CAP_SHRINK)
-        lo, hi = contour.min(axis=0), contour.max(axis=0)
-        step = float(np.sqrt(np.prod(hi - lo) / MOUTH_COLUMNS))
-        gx, gy = np.meshgrid(np.arange(lo[0], hi[0], step), np.arange(lo[1], hi[1], step))
-        grid = np.column_stack([gx.ravel(), gy.ravel()])
-        grid = grid[inside_polygon(grid, contour)]
-        h_end = float(np.mean(loop.points @ frame[2]))
-        parity = []
-        for column in tree.query_ball_point(grid, MOUTH_COLUMN_RADIUS * nu):
-            h = heights[column]
-            h = np.sort(h[h < h_end] if up else h[h > h_end])
-            if len(h):
-                parity.append(1 + int(np.count_nonzero(np.diff(h) > MOUTH_SHEET_GAP * spacing)))
-        parity = np.array(parity)
-        if len(parity) == 0 or 2 * np.count_nonzero(parity % 2 == 0) <= len(parity):
-            continue
-        found[0 if end == 0 else 1] = True
-        near = [lp for sec in (loops[:3] if end == 0 else loops[-3:]) for lp in sec]
-        wall = 1.35 * float(np.median([lp.noise for lp in near])) / nu
-        notes.append(f"{'bottom' if end == 0 else 'top'}: an open mouth on a wall too thin "
-                     f"for the data to resolve (~{wall:.1f} point spacings thick, its two faces "
-                     "one band of points): left open, the outer surface only")
-    return (found[0], found[1]), notes
+
+def _band_sigma(ring: np.ndarray, frame: np.ndarray, points: np.ndarray, h_end: float,
+                spacing: float) -> float:
+    """Robust σ (1.4826 MAD) of the cloud's points within a section spacing of an end's
+    height about the end's ring, across it in the plane: a wall's two faces ±a about
+    their midline give 1.48 a, so 2a ≈ 1.35 σ̂ (the noise adds to it: an upper bound)."""
+    from scipy.spatial import cKDTree
+
+    flat_ring = np.asarray(ring) @ frame[:2].T
+    near = points[np.abs(points @ frame[2] - h_end) < spacing] @ frame[:2].T
+    if len(near) < 3 or len(flat_ring) < 3:
+        return 0.0
+    tangent = np.roll(flat_ring, -1, axis=0) - np.roll(flat_ring, 1, axis=0)
+    normal = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    distance, nearest = cKDTree(flat_ring).query(near)
+    mine = distance < 2.0 * spacing   # the end's own wall, not another part at its height
+    offset = np.einsum("ij,ij->i", near[mine] - flat_ring[nearest[mine]],
+                       normal[nearest[mine]])
+    if len(offset) < 3:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(offset - np.median(offset))))
 
 
 #: Quantile of the wall points' offsets past the last section that, divided by itself,
