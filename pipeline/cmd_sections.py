@@ -15,9 +15,9 @@ that carries its points' precision (PLY ``sigma``, npz ``sigma``) has its ends p
 them (inverse-variance weights, as ``photosurf run`` does).
 Output: any mesh format of :mod:`pipeline.mesh_io`, written atomically.  With
 ``--smooth``, cloud -> smooth surface is one command, the one ``photosurf run``'s smooth
-stage makes: the stitched mesh is thinned to the control mesh the data need
-(:func:`surface.sizing.sized_from_points`: the coarsest estimated no farther from the
-truth than the stitched mesh), its vertices interpolated
+stage makes, by the stages' own steps (:func:`pipeline.section_surface.sized_surface`):
+the stitched mesh is thinned to the control mesh the data need (the coarsest estimated no
+farther from the truth than the stitched mesh), its vertices interpolated
 (:func:`surface.sizing.interpolating_control`), and the G1 sextic Bézier surface over it
 tessellated within its estimated error (``--level adaptive``, the default;
 :func:`pipeline.smoothing.smooth_to_files`): ``--out`` receives the tessellation and
@@ -221,11 +221,12 @@ def run(args: argparse.Namespace) -> int:
     sized = None
     try:
         if args.smooth and not args.no_size and not args.open:
-            from surface.sizing import sized_from_points
+            from pipeline.section_surface import sized_surface
 
-            sized, result = sized_from_points(points / unit, axis=axis, smoothing=smoothing,
-                                              sections=args.sections, n=args.n,
-                                              sigma=None if sigma is None else sigma / unit)
+            made = sized_surface(points / unit, axis=axis, smoothing=smoothing,
+                                 sections=args.sections, n=args.n,
+                                 sigma=None if sigma is None else sigma / unit)
+            sized, result = made.sized, made.dense
         else:
             result = surface_from_points(points / unit, axis=axis, sections=args.sections,
                                          n=args.n, smoothing=smoothing,

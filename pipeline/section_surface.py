@@ -1,0 +1,147 @@
+"""A cloud's sized control mesh in memory, by the steps of ``photosurf run``'s stages.
+
+``photosurf run`` hands each stage's result to the next as workspace files;
+``photosurf sections --smooth``, the surface benchmarks and tests want the same result for
+one cloud in memory.  :func:`sized_surface` calls the functions the stages call
+(:mod:`pipeline.stages`), with the run's default parameters (``pipeline/defaults.toml``)
+but for the ones given:
+
+- sections: ``surface.reconstruct.slice_cloud``, the empty sections dropped;
+- curves: ``organise_sections`` with ``stages.loop_options``, then ``stages.fitted_rings``
+  (fit, predict, untangle) and the loops' noise ``surface.reconstruct.section_noise``;
+- stitch: the stitch stage's stitcher (end rings to the cap points, caps, support rings);
+- smooth: ``stages.sized_rings``, the sizing of the rings (``surface.sizing``).
+
+Between the steps the rings and their planes take the form the workspace files give the
+next stage (``pipeline.artifacts.read_curves``: a list of loops per section, planes without
+points), so the sized control mesh is the one the smooth stage sizes from the same cloud.
+The smooth stage's other control mesh (``smooth.general``, Poisson's) is not built here.
+
+Scene units throughout; the cloud ``(P, 3)`` float64, its precision σ ``(P,)`` optional.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline import config, stages
+from surface import reconstruct as rc
+from surface.sections import Section, point_spacing
+from surface.sizing import SizedMesh, ring_precision
+from surface.stitch import StitchResult
+
+
+@dataclass
+class SectionSurface:
+    """What :func:`sized_surface` made.
+
+    Attributes
+    ----------
+    sized : SizedMesh or None
+        The sized control mesh (``SizedMesh.spacing``: the cloud's point spacing); None
+        where the smooth stage would not size (no noise estimate, ``smooth.size`` false).
+    dense : StitchResult
+        The stitched mesh of the dense rings (closed).
+    rings : list of list of (n, 3) float64
+        The dense rings, a list of loops per section.
+    planes : list of Section
+        Their sections (height and frame; no points).
+    spacing : float
+        Distance between the sections.
+    messages : list of str
+        The curves' and the stitch's warnings.
+    """
+
+    sized: SizedMesh | None
+    dense: StitchResult
+    rings: list
+    planes: list
+    spacing: float
+    messages: list
+
+
+def run_parameters(axis="z", sections: int | None = None, n: int | None = None,
+                   smoothing: float | str = "auto", tolerance: float | None = None) -> dict:
+    """The run's default parameters with the given ones set (``sections.count``,
+    ``curves.n``, ``curves.smoothing``, ``smooth.size_tolerance``; 0 / None: from the data)."""
+    params = config.defaults()
+    params["sections"]["axis"] = axis
+    params["sections"]["count"] = int(sections or 0)
+    params["curves"]["n"] = int(n or 0)
+    params["curves"]["smoothing"] = 0.0 if smoothing == "auto" else float(smoothing)
+    params["smooth"]["size_tolerance"] = float(tolerance or 0.0)
+    return params
+
+
+def sized_surface(points: np.ndarray, axis="z", sections: int | None = None,
+                  n: int | None = None, smoothing: float | str = "auto",
+                  sigma: np.ndarray | None = None, tolerance: float | None = None,
+                  params: dict | None = None) -> SectionSurface:
+    """Cloud -> sections -> curves -> dense stitched mesh -> sized control mesh.
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+    axis : "x", "y", "z", "auto" or (3,) float
+        The slicing axis (``surface.reconstruct.slice_cloud``).
+    sections, n, smoothing, tolerance
+        ``sections.count``, ``curves.n``, ``curves.smoothing``, ``smooth.size_tolerance``
+        (:func:`run_parameters`); ignored when ``params`` is given.
+    sigma : (P,) float64, optional
+        The points' precision: the ends are placed with inverse-variance weights.
+    params : dict, optional
+        The run's parameters (``pipeline.config.defaults()`` and changes).
+
+    Raises
+    ------
+    ValueError
+        Fewer than two non-empty sections, no loops, or an open stitched mesh.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if params is None:
+        params = run_parameters(axis, sections, n, smoothing, tolerance)
+    p = params["sections"]
+    sliced = rc.slice_cloud(points, axis=axis, sections=p["count"] or None,
+                            spacing=p["spacing"] or None, thickness=p["thickness"] or None,
+                            projection=p["projection"])
+    kept = [s for s in sliced.sections if len(s) > 0]
+    if len(kept) < 2:
+        raise ValueError(f"only {len(kept)} non-empty sections; need at least 2")
+    curves = params["curves"]
+    smoothing = curves["smoothing"] or "auto"
+    kept, loops, messages = rc.organise_sections(kept, **stages.loop_options(curves, smoothing))
+    kept, loops, rings, fits, untangled = stages.fitted_rings(kept, loops, curves, smoothing)
+    messages += untangled
+    noise = float(rc.section_noise(loops))
+    rings, planes = _as_read(rings, kept)
+    cap_sigma = None
+    if sigma is not None:
+        cap_sigma = np.asarray(sigma, dtype=np.float64)[sliced.cap_index]
+        cap_sigma = cap_sigma if np.isfinite(cap_sigma).any() else None
+    build = stages._stitcher(params["stitch"], planes, noise, sliced.cap_cloud, sliced.spacing,
+                             cap_sigma)
+    dense, _ = build(rings, planes)
+    messages += list(dense.messages)
+    if not dense.closed:
+        raise ValueError(f"the rings stitch to an open mesh ({dense.problem_line()})")
+    sized = stages.sized_rings(params, rings, planes, noise, ring_precision(fits),
+                               sliced.cap_cloud, sliced.spacing, cap_sigma,
+                               (dense.vertices, dense.triangles))
+    if sized is not None:
+        sized.spacing = float(point_spacing(points))
+    return SectionSurface(sized, dense, rings, planes, float(sliced.spacing), messages)
+
+
+def _as_read(rings: list, kept: list) -> tuple[list, list]:
+    """The rings and their planes as the stitch and smooth stages read them from the curves
+    stage's file (``pipeline.artifacts.read_curves``): a list of float64 loops per section,
+    planes with the first section's frame and no points."""
+    rings = [[np.asarray(ring, np.float64)] if getattr(ring, "ndim", 0) == 2
+             else [np.asarray(loop, np.float64) for loop in ring] for ring in rings]
+    frame = kept[0].frame
+    planes = [Section(height=float(section.height), points=np.zeros((0, 3)),
+                      origin=np.zeros(3), frame=frame, section_id=k)
+              for k, section in enumerate(kept)]
+    return rings, planes
