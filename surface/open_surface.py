@@ -69,7 +69,8 @@ __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "ali
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
            "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps",
            "open_arcs", "chain_arcs",
-           "smooth_border", "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
+           "smooth_border", "open_share", "LINE_BAND", "QUARTER_STEP", "BORDER_SLOPE",
+           "BORDER_PASSES", "BORDER_REACH"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
 #: end point there (the most the resampled arc reaches beyond its data is this share of
@@ -426,13 +427,56 @@ def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:
     return bridge_gaps(arc, link, closed=False)
 
 
-def one_sided(loops: Sequence) -> bool:
-    """True when the loops are open arcs over much of their length: the share of
-    their length across gaps (``surface.reconstruct.bridged_share``) exceeds
-    ``surface.reconstruct.MAX_BRIDGED_SHARE`` (the rule that refuses closed rings)."""
-    from surface.reconstruct import MAX_BRIDGED_SHARE, bridged_share
+#: Thickness (enclosed area over spine length) below which a loop traced along its
+#: points and back is a line, in units of the loop's own noise ``Loop.noise``: a noisy
+#: line's points scatter over a band of ±2σ across it, so a loop round them encloses at
+#: most about 4σ of thickness; a thin closed object seen all round (two sides) is thicker
+#: than its noise band, or its two sides could not be told apart.
+LINE_BAND = 4.0
 
-    return bridged_share(list(loops)) > MAX_BRIDGED_SHARE
+
+def _is_line(loop) -> bool:
+    """Whether a closed-looking loop is a thin line traced there and back: its path more
+    than :data:`DOUBLED_PATH` times its spine, and thinner than :data:`LINE_BAND` σ."""
+    from surface.polygon import polygon_area
+
+    pts = np.asarray(loop.points, np.float64)
+    if len(pts) < 4:
+        return False
+    step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    spine = _spine_order(pts)[1]
+    if not float(step.sum() - step.max()) > DOUBLED_PATH * spine:
+        return False
+    area = polygon_area((pts - pts.mean(axis=0)) @ np.asarray(loop.frame)[:2].T)
+    return area / max(spine, TOL.zero) < LINE_BAND * float(getattr(loop, "noise", 0.0))
+
+
+def open_share(loops: Sequence) -> float:
+    """Share of the loops' length that does not go round anything: across their gaps
+    (``surface.reconstruct.bridged_share``'s steps longer than ``Loop.bridge``) or along
+    a loop that is a line traced there and back (:func:`_is_line`; a flat board, a wall
+    or a relief cut by a section is a noisy line, which the loop tracer closes by going
+    along it and back).  0 for sections that go round the object."""
+    across = total = 0.0
+    for section_loops in loops:
+        for loop in section_loops:
+            pts = np.asarray(loop.points, np.float64)
+            step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+            length = float(step.sum())
+            gaps = float(step[step > loop.bridge].sum())
+            total += length
+            across += length if _is_line(loop) else gaps
+    return across / total if total > 0 else 0.0
+
+
+def one_sided(loops: Sequence) -> bool:
+    """True when the loops are open over much of their length: :func:`open_share`
+    exceeds ``surface.reconstruct.MAX_BRIDGED_SHARE`` (the share of gaps at which the
+    closed rings are refused).  One rule from the sections alone, whatever the cameras:
+    a stereo pair, a ring of views over a relief, a one-sided folder (a facade)."""
+    from surface.reconstruct import MAX_BRIDGED_SHARE
+
+    return open_share(list(loops)) > MAX_BRIDGED_SHARE
 
 
 @dataclass(frozen=True)
