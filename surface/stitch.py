@@ -290,6 +290,13 @@ def _star_shaped(ring2d: np.ndarray) -> bool:
     return bool(np.all(step > TOL.angle)) and float(step.sum()) < 2 * np.pi
 
 
+MIN_SPAN_STARTS = 4
+"""Start pairs :func:`tile_min_span` tries, spread evenly round the lower ring."""
+MIN_SPAN_TIE = 1e-9
+"""Relative shortening another start's tiling needs to replace the closest pair's: the
+same tiling from another start sums its spans in another order (rounding)."""
+
+
 @numba.njit(cache=True, nogil=True)
 def _min_span_moves(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
     """Moves of the shortest monotone path through the span lengths ``|a_i - b_j|``.
@@ -362,7 +369,27 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     n_a, n_b = len(lower), len(upper)
     gap, nearest = cKDTree(upper).query(lower)
     i0 = int(np.argmin(gap))
-    j0 = int(nearest[i0])
+    # The path is forced through its start pair.  The closest pair can sit at a pinch
+    # (a spur's or a stick's root, where one ring enters the spur as the other leaves
+    # it): through it, one ring's whole spur fans to one point of the other and the two
+    # fans overlap.  So the path is also started at the nearest pairs a quarter, a half
+    # and three quarters round the lower ring, and the shortest of the four is kept (the
+    # closest pair's unless another is shorter beyond rounding).
+    best = None
+    for k in range(MIN_SPAN_STARTS):
+        i_s = (i0 + (k * n_a) // MIN_SPAN_STARTS) % n_a
+        if k and i_s == best[0]:
+            continue
+        tiling = _min_span_from(lower, upper, i_s, int(nearest[i_s]))
+        if best is None or tiling[1] < best[2] * (1.0 - MIN_SPAN_TIE):
+            best = (i_s, *tiling)
+    return best[1]
+
+
+def _min_span_from(lower: np.ndarray, upper: np.ndarray, i0: int, j0: int) -> tuple:
+    """:func:`tile_min_span`'s faces for the path started at the pair ``(i0, j0)``, and
+    the path's total span length."""
+    n_a, n_b = len(lower), len(upper)
     ia = (i0 + np.arange(n_a + 1)) % n_a
     jb = (j0 + np.arange(n_b + 1)) % n_b
     moves = _min_span_moves(lower[ia[:-1]], upper[jb[:-1]])
@@ -370,9 +397,13 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     pos_b = np.concatenate([[0], np.cumsum(~moves)])[:-1]
     # (a position may reach n_a once a's moves are done: its "next" is then unused)
     a0, a1 = ia[np.minimum(pos_a, n_a)], ia[np.minimum(pos_a + 1, n_a)]
-    b0, b1 = n_a + jb[np.minimum(pos_b, n_b)], n_a + jb[np.minimum(pos_b + 1, n_b)]
-    return np.where(moves[:, None], np.stack([a0, a1, b0], axis=1),
-                    np.stack([a0, b1, b0], axis=1)).astype(np.int64)
+    b0, b1 = jb[np.minimum(pos_b, n_b)], jb[np.minimum(pos_b + 1, n_b)]
+    # every span of the path once: the one each move ends on
+    span = np.linalg.norm(lower[np.where(moves, a1, a0)] - upper[np.where(moves, b0, b1)],
+                          axis=1).sum()
+    faces = np.where(moves[:, None], np.stack([a0, a1, n_a + b0], axis=1),
+                     np.stack([a0, n_a + b1, n_a + b0], axis=1)).astype(np.int64)
+    return faces, float(span)
 
 
 # --------------------------------------------------------------------------- caps

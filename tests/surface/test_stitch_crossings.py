@@ -186,3 +186,40 @@ def test_a_capped_end_of_a_dumbbell_contour_does_not_fold():
             assert any("inset contour would cross" in m for m in result.messages)
             ends = result.vertices[np.unique(result.triangles[result.region < 0])][:, 2]
             assert np.all((np.abs(ends) < 1e-12) | (np.abs(ends - 1.0) < 1e-12))
+
+
+def _spur_ring(radius: float, z: float, width: float, tilt: float, base: float,
+               length: float = 0.6, step: float = 0.05) -> np.ndarray:
+    """A circle with a thin straight spur along +x (``width`` wide, its midline at
+    ``base + tilt * (x - radius)``), counter-clockwise: out along the spur's lower side,
+    back along its upper side, round the circle."""
+    half = width / 2
+    a0 = np.arcsin(half / radius)
+    ang = np.linspace(a0, 2 * np.pi - a0, int(2 * np.pi * radius / step))
+    xs = np.arange(radius, radius + length, step)
+    mid = base + tilt * (xs - radius)
+    ring = np.vstack([np.column_stack([xs, mid - half]),
+                      [[radius + length, base + tilt * length]],
+                      np.column_stack([xs[::-1], mid[::-1] + half]),
+                      np.column_stack([radius * np.cos(ang), base + radius * np.sin(ang)])])
+    return np.column_stack([ring, np.full(len(ring), z)])
+
+
+def test_a_strip_is_not_tiled_through_a_pinch_at_a_spurs_root():
+    """Two rings with a spur (a stick to a lobe, sub-spacing wide), the upper one's a
+    spur's width to the side and turned by ``tilt``: the rings' closest pair of points is
+    at the spur's root, where the lower ring leaves its spur as the upper one enters it.
+    The shortest-span tiling started there fanned each ring's whole spur to one point of
+    the other, and the fans crossed (22-24 pairs); started also a quarter, a half and
+    three quarters round, the shortest tiling is a valid solid."""
+    from scipy.spatial import cKDTree
+    for width in (0.02, 0.04):
+        for tilt, radius in ((0.1, 1.05), (0.3, 1.1)):
+            lower = _spur_ring(1.0, 0.0, width, 0.0, 0.0)
+            upper = _spur_ring(radius, 0.1, width, tilt, width)
+            gap, nearest = cKDTree(upper).query(lower)
+            root = lower[np.argmin(gap), :2]
+            assert abs(root[0] - radius) < 1e-9 and abs(root[1] - width / 2) < 1e-9
+            result = stitch_rings([lower, upper], AXIS)
+            report = check_solid(result.vertices, result.triangles)
+            assert result.closed and report.valid, (width, tilt, report.problems())
