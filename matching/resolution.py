@@ -1,18 +1,21 @@
 r"""The working resolution of least-squares matching: from the object's size in the images.
 
-LSM measures one point per ``spacing x spacing`` cell of a view.  A view in which the
-object spans :math:`E` pixels (its extent, the longer side of the box its points fill)
-gives about :math:`E / \text{spacing}` points across it; the surface stages need a few
-hundred (sections, rings), not the thousand-odd a 12 MP phone photo gives at full size,
-whose cost (patches, memory) grows with the square.  The working scale is
+The sections need points a spacing :math:`d` apart on the object (about
+:math:`n_\text{across}` across it, ``points_across``: sections ~2 d apart, rings as
+fine); LSM measures one point per ``spacing`` = :math:`k` px cell of the image it
+matches (3 px, a fifth of its 15 px window).  The spacing :math:`d` projected into a
+view at the object's depth is :math:`p = f d / z` px at full size, so the view is
+matched at the scale where :math:`p` becomes :math:`k` px.  With :math:`E` the object's
+extent in the images (the median over the views of the box holding its central 90 %,
+:func:`object_extent_px`; :math:`E = n_\text{across}\, p`):
 
-.. math::  s = \min\Big(1, \frac{\text{spacing}\cdot n_\text{across}}{E}\Big),
+.. math::  s = \min\Big(1, \frac{k}{p}\Big) = \min\Big(1, \frac{k\, n_\text{across}}{E}\Big).
 
-with :math:`n_\text{across}` the points wanted across the object (``points_across``).
-Precision is not the limit at that scale: LSM's σ is ~0.03-0.2 px, a relative
-precision of :math:`\sigma/E \approx 10^{-4}` of the object's size at
-:math:`E \approx 1\,500` px, far below the distance between neighbouring points
-(:math:`1/n_\text{across}`).  Views are then read downsampled (``cv2.INTER_AREA``) to
+The sensor's pixel count does not enter: a 12 MP photo of an object 1 900 px across is
+matched as one of 600 px.  Precision at that scale: LSM's σ of ~0.1 px is
+:math:`\sigma / (k\, n_\text{across})` of the object's size per point, the demo ring's
+own (its vase spans 513-563 px, 171-188 points across, and its surface meets 1e-4).
+Views are then read downsampled (``cv2.INTER_AREA``) to
 :math:`W' = \operatorname{round}(s W)`, :math:`H' = \operatorname{round}(s H)`, and
 their cameras scaled with them (pixel centres at integer coordinates):
 
@@ -20,7 +23,7 @@ their cameras scaled with them (pixel centres at integer coordinates):
            f_x' = s_x f_x,\quad c_x' = s_x (c_x + \tfrac12) - \tfrac12,
 
 :math:`s_x = W'/W` (the same in y); lens distortion acts on normalised coordinates and is
-unchanged.
+unchanged.  Figures: ``docs/decisions/photo-folders.md``.
 """
 
 from __future__ import annotations
@@ -33,32 +36,38 @@ import numpy as np
 from matching.cameras import Camera
 from matching.validate import check_shape
 
-__all__ = ["object_extent_px", "working_scale", "scale_camera", "scaled_size"]
+__all__ = ["object_extent_px", "foreground_extent_px", "working_scale", "scale_camera",
+           "scaled_size"]
 
 
-def object_extent_px(cameras: Sequence[Camera], points=None, share: float = 0.9) -> float:
+def object_extent_px(cameras: Sequence[Camera], points=None, share: float = 0.9,
+                     images=None, probe_views: int = 8) -> float:
     """Median over the views of the object's extent in pixels.
 
     Parameters
     ----------
     cameras : sequence of Camera
     points : (N, 3) float64, optional
-        Points on the object (e.g. SfM's sparse points).  None or fewer than 20 in a
-        view: that view's extent is its image's longer side (the object fills it).
+        Points on the object (e.g. SfM's sparse points).
     share : float
-        Each view's box holds this central share of the points it sees (the
-        ``(1 - share) / 2`` quantiles on each side cut stray points).
+        Each view's box holds this central share of the points it sees, or of its
+        foreground's pixels (the ``(1 - share) / 2`` quantiles on each side cut strays).
+    images : sequence of images, optional
+        The views' images, for the views where fewer than 20 points fall: their
+        automatic foreground on a uniform background (:func:`foreground_extent_px`, at
+        most ``probe_views`` of them evenly spread, read once each), else (no points, no
+        uniform background) the image's longer side (the object fills it).
 
     Returns
     -------
     float
         The median of the views' extents: the longer side of each box, pixels.
     """
-    extents = []
+    extents: list[float | None] = []
     pts = None if points is None else check_shape(points, "(N, 3)", "points", dtype=np.float64)
     low, high = 50.0 * (1.0 - share), 50.0 * (1.0 + share)
     for cam in cameras:
-        extent = float(max(cam.size))
+        extent = None
         if pts is not None and len(pts):
             depth = cam.depth(pts)
             uv = cam.project(pts[depth > 0])
@@ -68,7 +77,41 @@ def object_extent_px(cameras: Sequence[Camera], points=None, share: float = 0.9)
                 lo, hi = np.percentile(uv[inside], [low, high], axis=0)
                 extent = float(np.max(hi - lo))
         extents.append(extent)
+    missing = [v for v, e in enumerate(extents) if e is None]
+    if missing and images is not None:
+        probe = [missing[int(i)] for i in np.unique(np.linspace(
+            0, len(missing) - 1, min(probe_views, len(missing))).round())]
+        found = [e for e in (foreground_extent_px(images[v], share) for v in probe)
+                 if e is not None]
+        if found:
+            fill = float(np.median(found))
+            extents = [fill if e is None else e for e in extents]
+    extents = [float(max(cam.size)) if e is None else e
+               for e, cam in zip(extents, cameras, strict=True)]
     return float(np.median(extents)) if extents else 0.0
+
+
+def foreground_extent_px(image, share: float = 0.9, probe_px: int = 1000) -> float | None:
+    """The longer side (px, at the image's size) of the box holding the central ``share``
+    of the image's automatic foreground (:func:`matching.masks.foreground_mask`, no
+    dilation), found on a copy at most ``probe_px`` long; None: no uniform background."""
+    import cv2
+
+    from matching.masks import foreground_mask
+
+    image = np.asarray(image)
+    h, w = image.shape[:2]
+    ratio = min(1.0, probe_px / max(h, w))
+    small = image if ratio == 1.0 else cv2.resize(
+        image, (max(1, round(w * ratio)), max(1, round(h * ratio))),
+        interpolation=cv2.INTER_AREA)
+    mask = foreground_mask(small, margin_px=0)
+    if mask is None or mask.sum() < 20:
+        return None
+    ys, xs = np.nonzero(mask)
+    low, high = 50.0 * (1.0 - share), 50.0 * (1.0 + share)
+    lo, hi = np.percentile(np.c_[xs, ys], [low, high], axis=0)
+    return float(np.max(hi - lo)) / ratio
 
 
 def working_scale(extent_px: float, spacing: float, points_across: int) -> float:

@@ -385,7 +385,8 @@ def load_folder(folder: str | Path, cameras: str | None = None,
         log.warning("view %s left out: %s", skip["view"], skip["reason"])
     full_sizes = [(shape[1], shape[0]) for shape in shapes]
     scale, shapes, cams = _working_resolution(cams, shapes, out.get("sparse_points"),
-                                              spacing, points_across)
+                                              spacing, points_across,
+                                              FolderImages(where, names, shapes))
     out.update(images=FolderImages(where, names, shapes, scale), cameras=cams, names=names,
                working_scale=scale, full_sizes=full_sizes)
     return out
@@ -404,14 +405,15 @@ def _model_points(source: Path):
 
 
 def _working_resolution(cams: list, shapes: list, points, spacing: float,
-                        points_across: int) -> tuple[float, list, list]:
-    """The working scale (:mod:`matching.resolution`), the shapes and cameras at it."""
+                        points_across: int, images=None) -> tuple[float, list, list]:
+    """The working scale (:mod:`matching.resolution`), the shapes and cameras at it (the
+    object's extent from ``points``, else from the foreground of ``images``)."""
     from matching.resolution import object_extent_px, scale_camera, scaled_size, working_scale
 
     full = [(shape[1], shape[0]) for shape in shapes]
     if not points_across:
         return 1.0, shapes, cams
-    extent = object_extent_px(cams, points)
+    extent = object_extent_px(cams, points, images=images)
     scale = working_scale(extent, spacing, points_across)
     if scale >= 1.0:
         return 1.0, shapes, cams

@@ -44,3 +44,24 @@ def test_object_extent_from_points_and_without():
     extent = object_extent_px([cam, cam], np.r_[square, stray])
     assert 540 < extent < 700
     assert object_extent_px([cam]) == 4000.0  # no points: the image fills it
+
+
+def test_object_extent_from_the_foreground_without_points():
+    """No sparse points (given cameras): a uniform background's foreground gives the
+    extent; without one the image fills it."""
+    rng = np.random.default_rng(3)
+    image = np.full((1200, 1600), 20, np.uint8)
+    image[500:700, 600:900] = rng.integers(60, 250, (200, 300))  # 300 x 200 px object
+    from matching.resolution import foreground_extent_px
+
+    # the central 90 % of the object's columns: 270 px, and the foreground's blurred edge
+    # (a few px of the 1000 px copy it is found on, x 1.6)
+    assert 270.0 <= foreground_extent_px(image) <= 300.0
+    cam = _camera(1600, 1200)
+    assert 270.0 <= object_extent_px([cam] * 3, images=[image] * 3) <= 300.0
+    noise = rng.integers(0, 255, (1200, 1600)).astype(np.uint8)
+    assert foreground_extent_px(noise) is None
+    assert object_extent_px([cam], images=[noise]) == 1600.0
+    # the object's own points win over the images
+    square = np.c_[rng.uniform(-0.5, 0.5, (400, 2)), np.zeros(400)]
+    assert 540 < object_extent_px([cam], square, images=[image]) < 700
