@@ -1454,7 +1454,7 @@ def _closes(close_ends, end: int) -> bool:
 
 def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | None,
           frame: np.ndarray, field_ring: np.ndarray | None = None,
-          rim: tuple[float, bool] | None = None):
+          rim: tuple[float, bool] | None = None, reach: float | None = None):
     """The cap points' height field over an end contour, or None for a flat cap.
 
     The section planes stop where the surface turns within 60° of them
@@ -1481,6 +1481,10 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
     cap's side of the contour's plane (``up``: at or above ``height``): the strips the
     contour ends lie on the other side, and a dome dipping back through the plane would
     cross them (the quadratics near the rim also take the wall's last points below it).
+    With ``reach`` as well they are held short of that height (``up``: at or below it):
+    where a loop vanishes under one section and another appears over the next, both
+    inside the slab between them, their two domes are fitted to the same points and
+    cross wherever the contours overlap; each is held to its half of the slab.
 
     Returns
     -------
@@ -1531,6 +1535,8 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
             heights = np.clip(heights, h_every.min(), h_every.max())
         if rim is not None:   # never back through the contour's plane, into the strips
             heights = np.maximum(heights, rim[0]) if rim[1] else np.minimum(heights, rim[0])
+            if reach is not None:     # nor past the half-slab of a facing cap
+                heights = np.minimum(heights, reach) if rim[1] else np.maximum(heights, reach)
         return heights
     return field
 
@@ -1942,6 +1948,18 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
 
     last = len(sections) - 1
     other_caps = 0
+
+    def facing_half(s: int, lp: int, up: bool) -> float | None:
+        """The height halfway to the next section when a cap over loop ``lp`` of ``s``
+        faces one across that slab (a loop vanishing under it, ``up``, and one appearing
+        over it, or the reverse) and their contours overlap; None otherwise."""
+        t = s + 1 if up else s - 1
+        mine = planar[s][lp]
+        for k in cap_requests.get((t, not up), []):
+            other = planar[t][k]
+            if _inside(mine, other).any() or _inside(other, mine).any():
+                return 0.5 * float(heights_all[s] + heights_all[t])
+        return None
     for (s, up), loops_here in sorted(cap_requests.items()):
         end = 0 if (s == 0 and not up) else (-1 if (s == last and up) else None)
         if end is not None and not _closes(close_ends, end):
@@ -1962,7 +1980,9 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
                     continue
             dome = None if holes else _dome(flat, *dome_window(float(heights_all[s]), up,
                                                                 end is None), cap_points, frame,
-                                            rim=(float(heights_all[s]), up))
+                                            rim=(float(heights_all[s]), up),
+                                            reach=facing_half(s, lp, up) if end is None
+                                            else None)
             if dome is not None:
                 try:
                     added, cap = _quality_cap(flat, outward_up=face_up, max_area=dome_area(flat))

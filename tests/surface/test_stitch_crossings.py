@@ -223,3 +223,28 @@ def test_a_strip_is_not_tiled_through_a_pinch_at_a_spurs_root():
             result = stitch_rings([lower, upper], AXIS)
             report = check_solid(result.vertices, result.triangles)
             assert result.closed and report.valid, (width, tilt, report.problems())
+
+
+def test_two_domes_facing_across_one_slab_do_not_cross():
+    """A tube ends under one section and another, beside it, starts over the next; their
+    unit-circle contours overlap by a lens (3.7 % of a disc: too little to relate them).
+    Both caps are domes fitted to the same points in the slab between the sections (a
+    bump 0.1 high, σ 0.002), and where the contours overlap the rising dome and the
+    falling one crossed (119-204 pairs); each is now held to its half of the slab, and
+    the mesh is a valid solid."""
+    gap = 1.8
+    rings = [[_circle(1.0, z)] for z in np.arange(0.0, 0.55, 0.1)]
+    rings += [[_circle(1.0, z, centre=(gap, 0.0))] for z in np.arange(0.6, 1.15, 0.1)]
+    for seed in (0, 1):
+        rng = np.random.default_rng(seed)
+        x, y = rng.uniform(-1, gap + 1, 6000), rng.uniform(-1, 1, 6000)
+        keep = (np.hypot(x, y) < 1) | (np.hypot(x - gap, y) < 1)
+        x, y = x[keep], y[keep]
+        h = 0.5 + 0.1 * np.exp(-((x - gap / 2) ** 2 + y ** 2) / 0.3) \
+            + rng.normal(0, 0.002, len(x))
+        result = stitch_rings(rings, AXIS, cap_points=np.column_stack([x, y, h]))
+        assert sum("a dome" in note for note in result.notes) == 2
+        report = check_solid(result.vertices, result.triangles)
+        assert result.closed and report.valid, (seed, report.problems())
+        inner = result.vertices[np.unique(result.triangles[result.region == -3])]
+        assert inner[:, 2].min() >= 0.5 - 1e-12 and inner[:, 2].max() <= 0.6 + 1e-12
