@@ -309,7 +309,7 @@ def curves(ctx: StageContext) -> dict:
 
     from surface import open_surface as osf
     from surface import reconstruct as rc
-    from surface.sizing import ring_precision
+    from surface.section_errors import ring_precision
 
     p = ctx.params["curves"]
     smoothing = p["smoothing"] or "auto"  # 0: from the data (as the other "0:" keys)
@@ -487,7 +487,9 @@ def _stitcher(params: Mapping, planes: list, noise: float | None, cap_cloud, spa
             notes_ends = [k.note for k in kinds if k.note]
             close = tuple(k.closed(leave_holes) for k in kinds)
             build.holes = tuple(k.kind == "hole" and leave_holes for k in kinds)
-            build.mouths = tuple(k.kind == "mouth" and not k.parted for k in kinds)
+            build.mouths = tuple(k.kind == "mouth" and not k.closed() for k in kinds)
+            if any(k.outer_only for k in kinds):   # a wall too thin to build both faces
+                rings = rc.outer_loops(rings, ring_planes[0].frame)
         build.ends = {}
         if params["caps"] and params["extend_ends"] and spacing > 0:
             rings, notes_extend = rc.extend_to_caps(rings, ring_planes, cap_cloud,
@@ -557,7 +559,7 @@ def _sized_control_mesh(ctx: StageContext, vertices, triangles):
     interpolating surface is estimated within ``smooth.size_tolerance`` of the truth (0:
     no farther than the dense stitched mesh, ``surface.sizing.stitched_error`` of the
     rings' variogram across sections, ``surface.sizing.section_variogram``; where it
-    cannot be measured, their independent scatter ``surface.sizing.ring_noise``, else
+    cannot be measured, their independent scatter ``surface.section_errors.ring_noise``, else
     their fits' precision stored by the curves stage, else the points' noise σ̂);
     ``None`` when not asked or not possible (no noise estimate, an open mesh), with the
     reason logged."""
@@ -583,11 +585,11 @@ def sized_rings(params: Mapping, rings: list, planes: list, noise: float | None,
     the reason logged (:func:`_sized_control_mesh`)."""
     import numpy as np
 
-    from surface import sizing
+    from surface import section_errors, sizing
 
     p = params["smooth"]
     variogram = sizing.section_variogram(rings, planes[0].frame[2])
-    ring_sigma = sizing.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0) \
+    ring_sigma = section_errors.ring_noise(rings, planes[0].frame[2], precision, noise or 0.0) \
         if variogram is None else float(np.sqrt(variogram(1)))
     tolerance = float(p["size_tolerance"]) or None
     if (tolerance is None and variogram is None and ring_sigma <= 0) or spacing <= 0:
@@ -787,15 +789,15 @@ def _smooth_open(ctx: StageContext, vertices, triangles, level) -> dict:
 
 
 def _mesh_creases(ctx: StageContext, vertices, triangles):
-    """``surface.sizing.mesh_creases`` of the stitched mesh, the sections' heights from the
+    """``surface.interpolation.mesh_creases`` of the stitched mesh, the sections' heights from the
     curves stage; None without curves (a mesh given as input)."""
-    from surface import sizing
+    from surface import interpolation
 
     if not ctx.has_output("curves"):
         return None
     rings, planes, _ = artifacts.read_curves(ctx.stage_path("curves"))
     try:
-        return sizing.mesh_creases(vertices, triangles, rings, planes[0].frame[2])
+        return interpolation.mesh_creases(vertices, triangles, rings, planes[0].frame[2])
     except ValueError:   # borders or a degenerate mesh: the sharp vertices kept as before
         return None
 
