@@ -16,7 +16,7 @@ diagonal (default 0 and 0.0005), axis ``auto``, one row each, run in its own pro
 time bound (``--timeout``; a row past it is printed as such).  Methods, in the row's process:
 
 * ``sections``: what ``photosurf sections --smooth --axis auto`` does
-  (``surface.sizing.sized_from_points``, ``interpolating_control``, Loop's patches tessellated
+  (``pipeline.section_surface.sized_mesh``, ``interpolating_control``, Loop's patches tessellated
   within the sizing's chord tolerance); a refusal is printed with its reason;
 * ``general``: ``surface.general_mesh.poisson_control_mesh`` (triangles of the sections'
   control edge, or 1.5 point spacings without one) through the same interpolating control
@@ -152,12 +152,13 @@ def _since(start) -> tuple[float, float]:
 
 def run_sections(points: np.ndarray) -> dict:
     from pipeline.guards import unit_scale
+    from pipeline.section_surface import sized_mesh
     from pipeline.smoothing import smooth_mesh
-    from surface.sizing import interpolating_control, sized_from_points
+    from surface.sizing import interpolating_control
 
     unit = unit_scale(points)
     start = _clock()
-    sized, _ = sized_from_points(points / unit, axis="auto")
+    sized, _ = sized_mesh(points / unit, axis="auto")
     control = interpolating_control(sized.vertices, sized.triangles, sized.creases) * unit
     # checked and, where it crosses itself, repaired (pipeline.smoothing.smooth_mesh), as
     # photosurf sections --smooth writes it
@@ -182,7 +183,8 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
     vertices, triangles = poisson_control_mesh(points, edge, spacing)
     tolerance = tolerance or 0.1 * spacing
     # as the smooth stage (pipeline.stages._general_smooth)
-    smooth = smooth_general(vertices, triangles, "adaptive", tolerance)
+    smooth = smooth_general(vertices, triangles, "adaptive", tolerance, points=points,
+                            spacing=spacing)
     seconds, cpu = _since(start)
     control = (smooth.solid or {}).get("general_control")
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,

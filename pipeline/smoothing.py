@@ -261,10 +261,14 @@ def smooth_mesh(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
 
 
 def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str,
-                   tolerance: float | None = None) -> Smoothed:
-    """Loop's surface over a general control mesh (``surface.general_mesh``), the cheapest
-    valid solid first:
+                   tolerance: float | None = None, points: np.ndarray | None = None,
+                   spacing: float | None = None) -> Smoothed:
+    """Loop's surface over a general control mesh (``surface.general_mesh``), the first
+    valid solid of:
 
+    0. with ``points`` (the cloud): the control mesh fitted to the points
+       (``surface.fitting.fitted_control_mesh``), repaired where it crosses itself as
+       :func:`smooth_mesh` does (``spacing``: the points' spacing);
     1. through its vertices with the interpolating correction in full
        (``surface.fitting.interpolating_control_mesh``, sharp and flat vertices kept);
     2. where that crosses itself, the correction held back where the surface folds
@@ -276,15 +280,42 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
     The first step skips the fold search (its cost: ``docs/decisions/complex-shapes.md``).
     ``solid["general_control"]`` says which step carries the surface.
     """
-    from surface.fitting import flat_vertices, interpolating_control_mesh, sharp_vertices
+    from surface.fitting import (fitted_control_mesh, flat_vertices, interpolating_control_mesh,
+                                 sharp_vertices)
     from surface.interpolation import JUDGE_FOLD_LEVEL, interpolating_control
 
+    try:
+        keep = sharp_vertices(vertices, triangles, rings=0) | flat_vertices(vertices, triangles)
+    except ValueError:   # the construction below refuses the mesh and says why
+        keep = None
+    start = None
+    if points is not None:
+        try:
+            start = interpolating_control_mesh(vertices, triangles, keep=keep)
+            control, fit = fitted_control_mesh(vertices, triangles, points, start=start)
+            smoothed = smooth_mesh(control, triangles, level, tolerance, check=False,
+                                   spacing=spacing)
+            report, seconds = _checked(smoothed.vertices, smoothed.triangles)
+            repair = None
+            if len(report.intersecting_pairs):
+                smoothed, report, seconds, repair = _untangled(
+                    smoothed, report, seconds, control, triangles, level, tolerance, spacing)
+        except ValueError as exc:
+            log.info("smooth: no fitted general surface (%s)", exc)
+        else:
+            if len(report.intersecting_pairs) == 0:
+                smoothed.solid = {**solid_report("smooth", smoothed.vertices, smoothed.triangles,
+                                                 report=report, seconds=seconds),
+                                  **({"repair": repair} if repair else {}),
+                                  "general_control": "fitted", "fit_weight": fit["weight"]}
+                return smoothed
+            log.info("smooth: the fitted general surface self-intersects at %d pairs",
+                     len(report.intersecting_pairs))
     for step in ("interpolating", "unfolded"):
         try:
             if step == "interpolating":
-                keep = (sharp_vertices(vertices, triangles, rings=0)
-                        | flat_vertices(vertices, triangles))
-                control = interpolating_control_mesh(vertices, triangles, keep=keep)
+                control = (start if start is not None
+                           else interpolating_control_mesh(vertices, triangles, keep=keep))
             else:
                 control = interpolating_control(vertices, triangles,
                                                 fold_level=JUDGE_FOLD_LEVEL)

@@ -712,7 +712,7 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
                                                                 point_spacing(points))
         if tolerance is None and level in ("auto", "adaptive"):
             tolerance = _smooth_tolerance(ctx)
-        general = _general_smooth(vertices, triangles, level, tolerance)
+        general = _general_smooth(vertices, triangles, level, tolerance, points)
     except ValueError as exc:
         log.info("smooth: no general control mesh (%s): the section surface stays", exc)
         return None
@@ -745,13 +745,15 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
     return section, {**info, "control": "sections"}
 
 
-def _general_smooth(vertices, triangles, level, tolerance):
+def _general_smooth(vertices, triangles, level, tolerance, points=None):
     """Loop's patches over the general control mesh: ``pipeline.smoothing.smooth_general``
-    (through its vertices where that is a valid solid, else with the folds held back, else
-    over the mesh itself)."""
+    (fitted to ``points`` where that is a valid solid, else through its vertices, else with
+    the folds held back, else over the mesh itself)."""
     from pipeline.smoothing import smooth_general
+    from surface.sections import point_spacing
 
-    return smooth_general(vertices, triangles, level, tolerance)
+    return smooth_general(vertices, triangles, level, tolerance, points=points,
+                          spacing=None if points is None else point_spacing(points))
 
 
 def _stitched_open(ctx: StageContext) -> bool:
