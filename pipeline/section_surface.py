@@ -9,7 +9,9 @@ but for the ones given:
 - sections: ``surface.reconstruct.slice_cloud``, the empty sections dropped;
 - curves: ``organise_sections`` with ``stages.loop_options``, then ``stages.fitted_rings``
   (fit, predict, untangle) and the loops' noise ``surface.reconstruct.section_noise``;
-- stitch: the stitch stage's stitcher (end rings to the cap points, caps, support rings);
+  closed rings only (``curves.open = false``: one-sided data take ``photosurf run``);
+- stitch: the stitch stage's stitcher (each end classified with the cloud, end rings to
+  the cap points, caps, support rings);
 - smooth: ``stages.sized_rings``, the sizing of the rings (``surface.sizing``).
 
 Between the steps the rings and their planes take the form the workspace files give the
@@ -28,8 +30,9 @@ import numpy as np
 
 from pipeline import config, stages
 from surface import reconstruct as rc
+from surface.section_errors import ring_precision
 from surface.sections import Section, point_spacing
-from surface.sizing import SizedMesh, ring_precision
+from surface.sizing import SizedMesh
 from surface.stitch import StitchResult
 
 
@@ -41,9 +44,9 @@ class SectionSurface:
     ----------
     sized : SizedMesh or None
         The sized control mesh (``SizedMesh.spacing``: the cloud's point spacing); None
-        where the smooth stage would not size (no noise estimate, ``smooth.size`` false).
+        where the smooth stage would not size (no noise estimate, an open stitched mesh).
     dense : StitchResult
-        The stitched mesh of the dense rings (closed).
+        The stitched mesh of the dense rings.
     rings : list of list of (n, 3) float64
         The dense rings, a list of loops per section.
     planes : list of Section
@@ -97,7 +100,7 @@ def sized_surface(points: np.ndarray, axis="z", sections: int | None = None,
     Raises
     ------
     ValueError
-        Fewer than two non-empty sections, no loops, or an open stitched mesh.
+        Fewer than two non-empty sections, or no loops.
     """
     points = np.asarray(points, dtype=np.float64)
     if params is None:
@@ -120,12 +123,14 @@ def sized_surface(points: np.ndarray, axis="z", sections: int | None = None,
     if sigma is not None:
         cap_sigma = np.asarray(sigma, dtype=np.float64)[sliced.cap_index]
         cap_sigma = cap_sigma if np.isfinite(cap_sigma).any() else None
+    # each end classified with the cloud, as the stitch stage does (a mouth on a wall too
+    # thin to part is left open: the smooth stage then takes its open path, not the sizing)
     build = stages._stitcher(params["stitch"], planes, noise, sliced.cap_cloud, sliced.spacing,
-                             cap_sigma)
-    dense, _ = build(rings, planes)
-    messages += list(dense.messages)
+                             cap_sigma, points=points)
+    dense, notes = build(rings, planes)
+    messages += [m for m in notes if "too thin" in m] + list(dense.messages)
     if not dense.closed:
-        raise ValueError(f"the rings stitch to an open mesh ({dense.problem_line()})")
+        return SectionSurface(None, dense, rings, planes, float(sliced.spacing), messages)
     sized = stages.sized_rings(params, rings, planes, noise, ring_precision(fits),
                                sliced.cap_cloud, sliced.spacing, cap_sigma,
                                (dense.vertices, dense.triangles))
@@ -145,3 +150,15 @@ def _as_read(rings: list, kept: list) -> tuple[list, list]:
                       origin=np.zeros(3), frame=frame, section_id=k)
               for k, section in enumerate(kept)]
     return rings, planes
+
+
+def sized_mesh(points: np.ndarray, **options) -> tuple[SizedMesh, StitchResult]:
+    """``(sized control mesh, dense stitched mesh)`` of :func:`sized_surface` (same
+    options); a ValueError where it sizes none (an open stitched mesh, no noise estimate)."""
+    made = sized_surface(points, **options)
+    if made.sized is None:
+        raise ValueError(f"no sized control mesh: {made.dense.problem_line()}"
+                         if not made.dense.closed else
+                         "no sized control mesh: no noise estimate of the rings "
+                         "(give a tolerance)")
+    return made.sized, made.dense
