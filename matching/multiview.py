@@ -43,6 +43,7 @@ References
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -497,6 +498,50 @@ class SkippedPair:
     reason: str
 
 
+@dataclass(frozen=True, eq=False)
+class StoredPair:
+    """A :class:`PairCloud` kept on disk until its consistency check: in memory only
+    what the steps before it read (the pair, its points for the further views'
+    z-buffers, σ, the status counts); :meth:`load` reads the rest back and removes the
+    file.  Held per pair instead of the cloud, 32 bytes a point instead of ~190."""
+
+    pair: tuple[int, int]
+    points: np.ndarray
+    sigma: np.ndarray
+    cameras: tuple[Camera, Camera]
+    status_counts: dict
+    seconds: float
+    path: str
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def load(self) -> PairCloud:
+        import os
+
+        with np.load(self.path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        os.remove(self.path)
+        return PairCloud(pair=self.pair, points=self.points, sigma=self.sigma,
+                         cameras=self.cameras, status_counts=self.status_counts,
+                         seconds=self.seconds, offset=arrays.pop("offset", None), **arrays)
+
+
+def _stored(cloud: PairCloud, folder: str) -> StoredPair:
+    """``cloud`` written to ``folder`` (:class:`StoredPair`), its arrays bit for bit."""
+    import os
+
+    path = os.path.join(folder, f"pair_{cloud.pair[0]}_{cloud.pair[1]}.npy.npz")
+    extra = {} if cloud.offset is None else {"offset": cloud.offset}
+    tmp = path + ".part.npz"
+    np.savez(tmp, cov=cloud.cov, x_template=cloud.x_template, x_right=cloud.x_right,
+             cov_2d=cloud.cov_2d, **extra)
+    os.replace(tmp, path)
+    return StoredPair(pair=cloud.pair, points=cloud.points, sigma=cloud.sigma,
+                      cameras=cloud.cameras, status_counts=cloud.status_counts,
+                      seconds=cloud.seconds, path=path)
+
+
 def _pair_task(item: dict) -> PairCloud | SkippedPair:
     """One pair's cloud, or a :class:`SkippedPair` when its data do not allow one.
 
@@ -505,11 +550,12 @@ def _pair_task(item: dict) -> PairCloud | SkippedPair:
     """
     check_stop()  # a task picked up as the map was interrupted does nothing
     try:
-        return reconstruct_view_pair(load_image(item["left_image"]),
-                                     load_image(item["right_image"]),
-                                     item["left"], item["right"], item["pair"],
-                                     volume=item.get("volume"), mask=item.get("mask"),
-                                     **item["options"])
+        cloud = reconstruct_view_pair(load_image(item["left_image"]),
+                                      load_image(item["right_image"]),
+                                      item["left"], item["right"], item["pair"],
+                                      volume=item.get("volume"), mask=item.get("mask"),
+                                      **item["options"])
+        return _stored(cloud, item["store"]) if item.get("store") else cloud
     except ValueError as exc:
         return SkippedPair(tuple(item["pair"]), str(exc).splitlines()[0] if str(exc)
                            else type(exc).__name__)
@@ -518,6 +564,8 @@ def _pair_task(item: dict) -> PairCloud | SkippedPair:
 def _consistency_task(item: dict) -> Consistency:
     check_stop()
     cloud = item["cloud"]
+    if isinstance(cloud, StoredPair):
+        cloud = cloud.load()
     i, j = cloud.pair
     template = rectified_template(load_image(item["template_image"]), item["cameras"][i],
                                   item["cameras"][j], item["options"]["interpolation"])
@@ -616,6 +664,7 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
                           map_func: Callable | None = None, workers: int | None = None,
                           masks: Sequence | None = None, roi=None,
                           options: MultiViewOptions | None = None,
+                          pair_store: str | None = None,
                           **keywords) -> MultiViewCloud:
     """Images of calibrated views all round an object -> one merged cloud (steps 1-4).
 
@@ -645,6 +694,12 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     options : MultiViewOptions, optional
         How the views are paired, checked and merged; any of its fields may be given as
         a keyword instead (``check_views=3``), which overrides it.
+    pair_store : str, optional
+        A folder the pair tasks can write to (this machine's disk): each pair's cloud
+        waits there for its consistency check (:class:`StoredPair`), so the memory the
+        finished pairs hold is their points and σ, not their covariances and matches.
+        Default: a temporary folder when the tasks run on this process's threads
+        (``map_func`` not given), else in memory (a remote worker's disk is not ours).
     **keywords
         :class:`MultiViewOptions` fields, and the matching options ``spacing``,
         ``patch``, ``interpolation``, ``min_correlation``, ``sigma0_factor``,
@@ -677,10 +732,25 @@ def reconstruct_multiview(images: Sequence, cameras: Sequence[Camera], *,
     if not pairs:
         raise ValueError("cameras: no view pair has a usable baseline-to-depth ratio and "
                          "viewing angle")
+    own_store = tempfile.TemporaryDirectory(prefix="photosurf-pairs-") if (
+        pair_store is None and map_func is local_map) else None
+    store = own_store.name if own_store is not None else pair_store
+    try:
+        return _reconstruct(cameras, pairs, map_func, local_map, ref, workers, masks, roi,
+                            opts, match_options, store)
+    finally:
+        if own_store is not None:
+            own_store.cleanup()
+
+
+def _reconstruct(cameras: list, pairs: list, map_func: Callable, local_map: Callable,
+                 ref: Callable, workers: int, masks, roi, opts: MultiViewOptions,
+                 match_options: dict, store: str | None) -> MultiViewCloud:
+    """:func:`reconstruct_multiview` after its inputs are checked (steps 1-4)."""
     t0 = time.perf_counter()
     volume = (_search_volume(cameras, masks, roi) if opts.search == "geometry" else None)
-    results = map_func(_pair_task, [_pair_item(ref, cameras, masks, volume, match_options, a, b)
-                                    for a, b in pairs])
+    results = map_func(_pair_task, [_pair_item(ref, cameras, masks, volume, match_options, a, b,
+                                               store) for a, b in pairs])
     skipped = [r for r in results if isinstance(r, SkippedPair)]
     clouds = [r for r in results if not isinstance(r, SkippedPair)]
     _check_coverage(cameras, [c.pair for c in clouds], skipped, opts.min_covered)
@@ -755,11 +825,13 @@ def _summary(cameras: list, pairs: list, skipped: list, volume, reasons: np.ndar
 
 
 def _pair_item(ref: Callable, cameras: list, masks, volume, match_options: dict, a: int,
-               b: int) -> dict:
-    """The task of view pair ``(a, b)`` (:func:`_pair_task`)."""
+               b: int, store: str | None = None) -> dict:
+    """The task of view pair ``(a, b)`` (:func:`_pair_task`; ``store``: the folder its
+    cloud waits in for its check, None: returned whole)."""
     return {"left_image": ref(a), "right_image": ref(b), "left": cameras[a],
             "right": cameras[b], "pair": (a, b), "volume": volume,
-            "mask": None if masks is None else masks[a], "options": match_options}
+            "mask": None if masks is None else masks[a], "options": match_options,
+            "store": store}
 
 
 def _assembled(checks: list, keep: np.ndarray, pairs: list, n_views: int):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +117,69 @@ def _progress_map(inner):
 
         return inner(call, items)
     return run
+
+
+class WorkingViews:
+    """A folder's views at the working scale, each decoded and resized once.
+
+    :class:`pipeline.inputs.FolderImages` decodes the stored file on every access; a view
+    is read some seven times in an acquisition (its pairs, the further-view checks, the
+    foregrounds, outlines and colours), and decoding a 12 MP JPEG costs ~0.3 CPU-s
+    against ~0.01 s for its working-scale copy read back as ``.npy``.  So when the views
+    are read reduced, the first read of each view writes its working-scale pixels to a
+    private temporary folder (removed with this object) and later reads load them:
+    memory stays one image per running task, the disk holds the reduced views.  Pickles
+    as the folder's images (a Dask worker elsewhere reads the files itself).
+    """
+
+    lazy = True
+
+    def __init__(self, images):
+        import tempfile
+        import weakref
+
+        self.images, self.shapes = images, list(images.shapes)
+        self.paths = getattr(images, "paths", None)
+        self._dir = Path(tempfile.mkdtemp(prefix="photosurf-views-"))
+        self._cleanup = weakref.finalize(self, _remove_tree, self._dir)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __reduce__(self):
+        return (_identity, (self.images,))
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        import os
+        import threading
+
+        path = self._dir / f"{int(index)}.npy"
+        try:
+            return np.load(path)
+        except (OSError, ValueError):
+            pass
+        image = np.asarray(self.images[index])
+        try:  # written under a name of its own, then renamed: a reader sees all or nothing
+            tmp = self._dir / f".{index}.{os.getpid()}.{threading.get_ident()}.npy"
+            np.save(tmp, image)
+            os.replace(tmp, path)
+        except OSError:
+            pass  # a full disk: the view is decoded again next time
+        return image
+
+    def close(self) -> None:
+        """Remove the reduced copies now (else when the object is collected)."""
+        self._cleanup()
+
+
+def _remove_tree(path: Path) -> None:
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def _identity(value):
+    return value
 
 
 def _peak_memory_gb() -> float:
@@ -249,22 +313,33 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     from matching.scheduler import default_workers, thread_map
     from pipeline.executor import LocalExecutor
 
+    # each view decoded and reduced once (WorkingViews) when it is read reduced
+    images = (WorkingViews(loaded["images"]) if loaded.get("working_scale", 1.0) < 1.0
+              else loaded["images"])
     where = Path(loaded["images"].paths[0]).parent if getattr(
         loaded["images"], "paths", None) else Path(folder)
     _warn_identical_views(where, loaded["names"], loaded["cameras"])
     object_masks, mask_source = folder_masks([Path(folder), where], loaded["names"],
-                                             loaded["images"],
+                                             images,
                                              loaded["cameras"], masks,
                                              loaded.get("full_sizes"))
     match = {k: v for k, v in options.items() if k in MATCH_KEYS}
-    map_func = (_progress_map(thread_map(default_workers()))
-                if executor is None or isinstance(executor, LocalExecutor) else executor.map)
+    local = executor is None or isinstance(executor, LocalExecutor)
+    map_func = _progress_map(thread_map(default_workers())) if local else executor.map
+    # in this process, each pair's cloud waits on disk for its check (memory: its points)
+    store = tempfile.TemporaryDirectory(prefix="photosurf-pairs-") if local else None
     try:
-        cloud = reconstruct_multiview(loaded["images"], loaded["cameras"], map_func=map_func,
+        cloud = reconstruct_multiview(images, loaded["cameras"], map_func=map_func,
                                       check_views=check_views, masks=object_masks, roi=box,
+                                      pair_store=None if store is None else store.name,
                                       **match)
     except ValueError as exc:
         raise InputError(f"{folder}: {exc}") from None
+    finally:
+        if isinstance(images, WorkingViews):
+            images.close()
+        if store is not None:
+            store.cleanup()
     cloud.stats.update(camera_source=loaded["camera_source"],
                        unregistered=loaded["unregistered"], ignored=loaded["ignored"],
                        skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"],

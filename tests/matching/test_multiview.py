@@ -435,3 +435,20 @@ def test_outline_points_put_the_rims_where_they_are(ring):
     assert abs(np.quantile(zo[bottom], 0.1)) < 0.3 * px
     assert zo.max() < 3.0 + 1.0 * px and zo.min() > -1.0 * px
     assert np.quantile(_distance(ring["truth"], out.points), 0.9) < 0.5 * px
+
+
+def test_pairs_waiting_on_disk_give_the_same_cloud(ring, tmp_path):
+    """The pairs' clouds kept in a folder until their checks (what the in-process run
+    does) give the cloud bit for bit, and the folder is left empty."""
+    from matching.scheduler import thread_map
+
+    views = list(range(4))
+    images, cameras = [ring["images"][v] for v in views], [ring["cameras"][v] for v in views]
+    pairs = [(v, v + 1) for v in range(3)]
+    kept = reconstruct_multiview(images, cameras, pairs=pairs, map_func=thread_map(2))
+    stored = reconstruct_multiview(images, cameras, pairs=pairs, map_func=thread_map(2),
+                                   pair_store=str(tmp_path))
+    assert len(kept) > 1000
+    for name in ("points", "sigma", "views", "pair", "colours"):
+        np.testing.assert_array_equal(getattr(stored, name), getattr(kept, name))
+    assert list(tmp_path.iterdir()) == []
