@@ -111,8 +111,9 @@ def _progress_map(inner):
             result = func(item)
             with lock:
                 done[0] += 1
-                logs.logger().info("acquire: %s %d of %d done (%.0f s)", what, done[0],
-                                   len(items), time.monotonic() - start)
+                logs.logger().info("acquire: %s %d of %d done (%.0f s, %.2f GB resident)",
+                                   what, done[0], len(items), time.monotonic() - start,
+                                   _resident_gb())
             return result
 
         return inner(call, items)
@@ -180,6 +181,18 @@ def _remove_tree(path: Path) -> None:
 
 def _identity(value):
     return value
+
+
+def _resident_gb() -> float:
+    """This process's resident memory now, GB (``VmRSS``; 0 where /proc is not there)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024 / 1e9
+    except OSError:
+        pass
+    return 0.0
 
 
 def _peak_memory_gb() -> float:
