@@ -255,9 +255,10 @@ def test_any_ring_counts_close_the_surface(counts, seed):
     assert len(result.triangles) == (sum(sizes[k] + sizes[k + 1] for k in range(len(sizes) - 1))
                                      + sizes[0] - 2 + sizes[-1] - 2)
     # The flips stopped at a fixed point: no legal flip is left (none in a strip joins
-    # two points of one section).
+    # two points of one section, none turns a cap's face over along the axis).
     _, more, converged = delaunay_flips(result.vertices, result.triangles, result.region,
-                                        _contours(result), plane=result.section_of_vertex)
+                                        _contours(result), plane=result.section_of_vertex,
+                                        axis=Z_AXIS)
     assert converged and more == 0
 
 

@@ -248,3 +248,26 @@ def test_two_domes_facing_across_one_slab_do_not_cross():
         assert result.closed and report.valid, (seed, report.problems())
         inner = result.vertices[np.unique(result.triangles[result.region == -3])]
         assert inner[:, 2].min() >= 0.5 - 1e-12 and inner[:, 2].max() <= 0.6 + 1e-12
+
+
+def test_no_flip_turns_a_cap_face_over_along_the_axis():
+    """A pair of faces both facing up the axis whose quad is not convex seen along it:
+    the flip is legal in 3-D (the opposite angles sum past π, the normals turn less than
+    45°) and turns one new face over, so in a cap (a height field over the section plane:
+    the noisy teapot's lid dome had 43 such faces crossing their neighbours) it is
+    refused; in a strip (region >= 0) and without the axis it is made."""
+    from surface.stitch import delaunay_flips
+    v = np.array([[0.07, -0.52, -0.34], [-0.31, -0.06, 0.97], [-0.26, -0.46, -0.22],
+                  [0.62, -0.85, 0.51]])
+    faces = np.array([[0, 1, 2], [1, 0, 3]])
+
+    def up(tri):   # twice the faces' areas seen along the axis
+        e = v[tri][:, :, :2] - v[tri][:, :1, :2]
+        return e[:, 1, 0] * e[:, 2, 1] - e[:, 2, 0] * e[:, 1, 1]
+    assert (up(faces) > 0.1).all()
+    flipped, flips, _ = delaunay_flips(v, faces, np.array([-1, -1]))
+    assert flips == 1 and (up(flipped) < 0).any()
+    kept, flips, _ = delaunay_flips(v, faces, np.array([-1, -1]), axis=AXIS)
+    assert flips == 0 and np.array_equal(kept, faces)
+    _, flips, _ = delaunay_flips(v, faces, np.array([0, 0]), axis=AXIS)
+    assert flips == 1

@@ -148,7 +148,7 @@ def test_the_edge_table_rebuilt_on_the_way_changes_nothing():
     raw, _ = _noisy_vase(5)
     v = np.ascontiguousarray(raw.vertices)
     args = (np.zeros(len(raw.triangles), np.int64), np.zeros(0, np.int64),
-            np.full(len(v), -1, np.int64), float(np.cos(stitch.MAX_NORMAL_CHANGE)),
+            np.full(len(v), -1, np.int64), np.zeros(3), float(np.cos(stitch.MAX_NORMAL_CHANGE)),
             TOL.angle, TOL.zero, 1000)
     tight = np.array(raw.triangles, np.int64)
     loose = tight.copy()
