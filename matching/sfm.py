@@ -388,12 +388,8 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         sensor's portrait and landscape shots (two sizes, each the other's transpose;
         not with ``intrinsics`` or the OPENCV model): those of the less common
         orientation are matched turned upright (lossless copies in the work folder)
-        and their cameras turned back (:func:`matching.cameras.turn_camera`).  Temple
-        ring with 6 of 16 views turned by ±90 degrees: 16 registered, rotations
-        0.86 / 1.21 degrees (median / max) and centres 0.49 % of the ring radius
-        against the given cameras, as upright (0.79 / 1.21, 0.47 %); with a camera per
-        image (``False``) the focal lengths scatter over 1 403-1 689 px and the centres
-        are 4.4 % off.  Other mixed sizes: a camera per image.
+        and their cameras turned back (:func:`matching.cameras.turn_camera`).  Other
+        mixed sizes: a camera per image.
     camera_model : str
         COLMAP model: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV.
     known_distance : (name_a, name_b, distance), optional
@@ -406,35 +402,23 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         The images' known camera matrix K (OpenCV convention, one camera for all;
         e.g. from a cameras file without poses): a PINHOLE camera with these values
         (COLMAP's principal point is OpenCV's + 0.5), held fixed in every bundle
-        adjustment.  Unknown intrinsics trade against the poses on a narrow field of
-        view: the temple ring's principal point is 18 px off the image centre that
-        SIMPLE_RADIAL assumes, 0.7 degrees at f = 1520 px.
+        adjustment (unknown intrinsics trade against the poses on a narrow field of
+        view).
     refine : {"auto", "lsm", "none"}
         "lsm": re-measure every track by least-squares matching against one
         reference observation and bundle-adjust again, with outlier rounds
         (:func:`matching.sfm_refine.refine_tracks_lsm`, :func:`~matching.sfm_refine.
         bundle_adjust`; intrinsics held if given).  "auto" (default): "lsm" when
-        ``intrinsics`` are given, else "none".  Temple ring with its K (``benchmarks/
-        real.py --quick --sfm-only``, rows ``pycolmap-sfm-K`` and ``-K-lsm``, three
-        runs): rotations against the given cameras 0.33-0.35 -> 0.12-0.19 degrees
-        (median), 0.58-0.61 -> 0.22-0.30 (max), centres 0.49-0.51 -> 0.20-0.25 % of the
-        ring radius, reprojection 0.21 -> 0.03-0.04 px.  With focal length and
-        distortion free it is not the default: one run gained 0.81 -> 0.72 degrees,
-        but with an earlier form of the outlier rounds (σ without the redundancy
-        correction) the focal length ran off (centres 18 % of the radius).
+        ``intrinsics`` are given, else "none" (the figures that decided both:
+        ``docs/decisions/photo-folders.md``, *SfM: turned views, known K, LSM refinement*).
 
     Notes
     -----
     Cameras refer to the images as the user sees them (:mod:`matching.image_file`): an
     image with an EXIF orientation other than 1, or whose name is not UTF-8, is given to
     COLMAP as an upright lossless copy in the work folder (COLMAP would read the stored
-    pixels, or fail on the name).
-
-    When the mapper leaves images out, it is run once more with the registration
-    thresholds halved (at least 15 inlier correspondences for a new image instead of
-    30, 50 for the initial pair instead of 100): a small object against a plain
-    background gives neighbouring views few common features, and a ring whose views
-    are all registered closes its loop.
+    pixels, or fail on the name).  When the mapper leaves images out, it is run once more
+    with the registration thresholds halved (:func:`_mapped`).
 
     Returns
     -------
@@ -449,9 +433,107 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         Fewer than 2 images, unreadable image, unknown matcher/model, mixed
         sizes with ``single_camera=True``, or no image registered.
     """
-    import pycolmap
 
     image_dir = Path(image_dir)
+    names, others, matcher = _checked_request(image_dir, image_names, matcher, refine,
+                                              camera_model)
+    by_name, restage = _image_sizes(image_dir, names)
+    turned, sizes, single_camera = _camera_sharing(image_dir, names, by_name, single_camera,
+                                                   intrinsics, camera_model)
+    threads = int(num_threads) if num_threads else (os.cpu_count() or 1)
+
+    reconstructions, names, original, read_dir, step = _sparse_models(
+        image_dir, names, work_dir, turned, restage, sizes, by_name,
+        dict(single_camera=single_camera, intrinsics=intrinsics, camera_model=camera_model,
+             threads=threads, matcher=matcher, seed=seed))
+    if not reconstructions:
+        raise ValueError(f"{image_dir}: SfM registered no image ({len(names)} images; too "
+                         "little texture or overlap for SIFT matches?)")
+    best = max(reconstructions.values(), key=lambda r: r.num_reg_images())
+    if refine == "auto":
+        refine = "lsm" if intrinsics is not None else "none"
+    refinement = (_refined(best, read_dir, intrinsics is None, work_dir, step)
+                  if refine == "lsm" else {})
+    result = replace(_result_from(best, names, others, matcher), refinement=refinement)
+    if turned or restage:
+        result = _turn_back(result, original, turned)
+    _log_outcome(result, len(reconstructions), len(names), step)
+    return fix_scale(result, *known_distance) if known_distance is not None else result
+
+
+def _sparse_models(image_dir: Path, names: list, work_dir, turned: dict, restage: set,
+                   sizes: set, by_name: dict, how: dict) -> tuple:
+    """In the work folder (a temporary one unless ``work_dir``): the images staged upright
+    where needed (:func:`_stage_upright`), their features extracted and matched, and
+    mapped (:func:`_mapped`); ``how``: ``single_camera``, ``intrinsics``, ``camera_model``,
+    ``threads``, ``matcher``, ``seed``.  Returns ``(reconstructions, names, original,
+    read_dir, step)``: the names COLMAP saw, each one's original and the folder read."""
+    import pycolmap
+
+    single_camera, intrinsics, threads = how["single_camera"], how["intrinsics"], how["threads"]
+    with contextlib.ExitStack() as stack:
+        if work_dir is None:
+            work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="photosurf-sfm-")))
+        else:
+            work = Path(work_dir)
+            work.mkdir(parents=True, exist_ok=True)
+        original, read_dir = {name: name for name in names}, image_dir
+        if turned or restage:
+            read_dir, original = _stage_upright(image_dir, names, turned, work, restage)
+            names = sorted(original)
+            log.info("SfM: %d of %d images turned upright to share one camera, %d by their "
+                     "EXIF orientation or name", len(turned), len(names), len(restage))
+        database = work / "database.db"
+        database.unlink(missing_ok=True)
+        reader, single_camera = _reader_options(
+            image_dir, original, turned, restage, single_camera, intrinsics, how["camera_model"],
+            sizes)
+        mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+        step = _Steps()
+        _extract_and_match(database, read_dir, names, reader, mode, threads, how["matcher"], work,
+                           min(min(max(size), SIFT_MAX_IMAGE_SIZE) for size in by_name.values()),
+                           step)
+        reconstructions = _mapped(database, read_dir, work, len(names), threads, how["seed"],
+                                  intrinsics is not None, step)
+    return reconstructions, names, original, read_dir, step
+
+
+def _camera_sharing(image_dir: Path, names: list, by_name: dict, single_camera, intrinsics,
+                    camera_model: str) -> tuple[dict, set, bool]:
+    """Which images share one camera: ``(turned, sizes, single_camera)`` -- portrait and
+    landscape shots of one camera (:func:`_turned_views`; not with ``intrinsics`` or the
+    OPENCV model, nor a given ``single_camera``) turned upright, the image sizes SfM
+    sees, and one camera by default when they are all of one size."""
+    sizes = set(by_name.values())
+    turned = (_turned_views(by_name) if single_camera is None and intrinsics is None
+              and camera_model != "OPENCV" else {})
+    if turned:  # the images SfM sees: all of one size
+        sizes = {by_name[name] for name in names if name not in turned}
+    if single_camera is None:
+        single_camera = len(sizes) == 1
+    elif single_camera and len(sizes) > 1:
+        raise ValueError(f"{image_dir}: single_camera but the images have {len(sizes)} sizes: "
+                         f"{sorted(sizes)}")
+    return turned, sizes, single_camera
+
+
+def _log_outcome(result: SfmResult, models: int, count: int, step: _Steps) -> None:
+    """The warnings on a split model or unregistered images, and the last step line."""
+    if models > 1:
+        log.warning("SfM split the images into %d models; kept the largest (%d images)",
+                    models, len(result.registered))
+    if result.unregistered:
+        log.warning("SfM did not register %d image(s): %s", len(result.unregistered),
+                    ", ".join(result.unregistered))
+    step("done: %d of %d images registered, reprojection %.3f px", len(result.registered),
+         count, result.mean_reprojection_error_px)
+
+
+def _checked_request(image_dir: Path, image_names, matcher: str, refine: str,
+                     camera_model: str) -> tuple[list, list, str]:
+    """:func:`run_sfm`'s options checked, the images it uses and the matcher:
+    ``(names, others, matcher)`` (``others``: the folder's files that are not images;
+    "auto" resolved)."""
     names, others = list_images(image_dir)
     if image_names is not None:
         missing = sorted(set(image_names) - set(names))
@@ -468,160 +550,146 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
     models = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
     if camera_model not in models:
         raise ValueError(f"camera_model must be one of {', '.join(models)}, got {camera_model!r}")
-    by_name, restage = _image_sizes(image_dir, names)
-    sizes = set(by_name.values())
-    # portrait and landscape shots of one camera: matched turned upright with one camera
-    turned = (_turned_views(by_name) if single_camera is None and intrinsics is None
-              and camera_model != "OPENCV" else {})
-    if turned:  # the images SfM sees: all of one size
-        sizes = {by_name[name] for name in names if name not in turned}
-    if single_camera is None:
-        single_camera = len(sizes) == 1
-    elif single_camera and len(sizes) > 1:
-        raise ValueError(f"{image_dir}: single_camera but the images have {len(sizes)} sizes: "
-                         f"{sorted(sizes)}")
     if matcher == "auto":
         matcher = "exhaustive" if len(names) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
     if matcher == "selected" and any(any(c.isspace() for c in n) for n in names):
         matcher = "exhaustive"  # COLMAP's pair list separates the names by a space
-    threads = int(num_threads) if num_threads else (os.cpu_count() or 1)
+    return names, others, matcher
 
-    with contextlib.ExitStack() as stack:
-        if work_dir is None:
-            work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="photosurf-sfm-")))
-        else:
-            work = Path(work_dir)
-            work.mkdir(parents=True, exist_ok=True)
-        original, read_dir = {name: name for name in names}, image_dir
-        if turned or restage:
-            read_dir, original = _stage_upright(image_dir, names, turned, work, restage)
-            names = sorted(original)
-            log.info("SfM: %d of %d images turned upright to share one camera, %d by their "
-                     "EXIF orientation or name", len(turned), len(names), len(restage))
-        database = work / "database.db"
-        database.unlink(missing_ok=True)
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = camera_model
-        focal = _staged_focal(image_dir, original, turned, restage, single_camera, intrinsics)
-        if focal is not None:  # the staged PNGs carry no EXIF: its focal length given here
-            width, height = next(iter(sizes))
-            extra = {"SIMPLE_PINHOLE": "", "PINHOLE": None, "SIMPLE_RADIAL": ",0",
-                     "RADIAL": ",0,0"}.get(camera_model)
-            if camera_model == "PINHOLE":
-                reader.camera_params = f"{focal},{focal},{width / 2},{height / 2}"
-            elif extra is not None:
-                reader.camera_params = f"{focal},{width / 2},{height / 2}{extra}"
-            log.info("SfM: starting focal length %.1f px from the EXIF of the originals", focal)
-        if intrinsics is not None:
-            K = check_shape(intrinsics, "(3, 3)", "intrinsics", dtype=np.float64)
-            if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K))):
-                raise ValueError(f"intrinsics must have positive focal lengths, got {K.tolist()}")
-            reader.camera_model = "PINHOLE"
-            reader.camera_params = (f"{float(K[0, 0])},{float(K[1, 1])},{float(K[0, 2]) + 0.5},"
-                                    f"{float(K[1, 2]) + 0.5}")
-            single_camera = True
-            if len(sizes) > 1:
-                raise ValueError(f"{image_dir}: one intrinsics matrix but the images have "
-                                 f"{len(sizes)} sizes: {sorted(sizes)}")
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = threads
-        extraction.max_image_size = SIFT_MAX_IMAGE_SIZE
-        sift_side = min(min(max(size), SIFT_MAX_IMAGE_SIZE) for size in by_name.values())
-        if sift_side >= SIFT_FULL_SCALE_PX:
-            extraction.sift.first_octave = 0
-        mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
-        step = _Steps()
-        step("extracting SIFT features of %d images (longer side <= %d px)", len(names),
-             SIFT_MAX_IMAGE_SIZE)
-        with _quiet_colmap():  # per call: the step lines between calls reach stderr
-            pycolmap.extract_features(database, read_dir, image_names=names, camera_mode=mode,
-                                      reader_options=reader, extraction_options=extraction,
+
+def _reader_options(image_dir: Path, original: dict, turned: dict, restage: set,
+                    single_camera: bool, intrinsics, camera_model: str, sizes: set):
+    """COLMAP's image reader options: the camera model and its starting parameters (the
+    originals' EXIF focal length for staged copies, or the given ``intrinsics``, held as a
+    PINHOLE camera); ``(reader, single_camera)``."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    focal = _staged_focal(image_dir, original, turned, restage, single_camera, intrinsics)
+    if focal is not None:  # the staged PNGs carry no EXIF: its focal length given here
+        width, height = next(iter(sizes))
+        extra = {"SIMPLE_PINHOLE": "", "PINHOLE": None, "SIMPLE_RADIAL": ",0",
+                 "RADIAL": ",0,0"}.get(camera_model)
+        if camera_model == "PINHOLE":
+            reader.camera_params = f"{focal},{focal},{width / 2},{height / 2}"
+        elif extra is not None:
+            reader.camera_params = f"{focal},{width / 2},{height / 2}{extra}"
+        log.info("SfM: starting focal length %.1f px from the EXIF of the originals", focal)
+    if intrinsics is not None:
+        K = check_shape(intrinsics, "(3, 3)", "intrinsics", dtype=np.float64)
+        if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K))):
+            raise ValueError(f"intrinsics must have positive focal lengths, got {K.tolist()}")
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = (f"{float(K[0, 0])},{float(K[1, 1])},{float(K[0, 2]) + 0.5},"
+                                f"{float(K[1, 2]) + 0.5}")
+        single_camera = True
+        if len(sizes) > 1:
+            raise ValueError(f"{image_dir}: one intrinsics matrix but the images have "
+                             f"{len(sizes)} sizes: {sorted(sizes)}")
+    return reader, single_camera
+
+
+def _extract_and_match(database: Path, read_dir: Path, names: list, reader, mode,
+                       threads: int, matcher: str, work: Path, sift_side: int,
+                       step: _Steps) -> None:
+    """SIFT features of the images into ``database`` (full scale from the first octave when
+    the smallest image's side used is at least ``SIFT_FULL_SCALE_PX``), then matched by
+    ``matcher`` ("selected": the pairs :func:`_overlapping_pairs` finds, listed in
+    ``work/pairs.txt``)."""
+    import pycolmap
+
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = threads
+    extraction.max_image_size = SIFT_MAX_IMAGE_SIZE
+    if sift_side >= SIFT_FULL_SCALE_PX:
+        extraction.sift.first_octave = 0
+    step("extracting SIFT features of %d images (longer side <= %d px)", len(names),
+         SIFT_MAX_IMAGE_SIZE)
+    with _quiet_colmap():  # per call: the step lines between calls reach stderr
+        pycolmap.extract_features(database, read_dir, image_names=names, camera_mode=mode,
+                                  reader_options=reader, extraction_options=extraction,
+                                  device=pycolmap.Device.cpu)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = threads
+    step("matching features (%s%s)", matcher, f", {len(names) * (len(names) - 1) // 2} "
+         "pairs" if matcher == "exhaustive" else "")
+    with _quiet_colmap():
+        if matcher == "exhaustive":
+            pycolmap.match_exhaustive(database, matching_options=matching,
                                       device=pycolmap.Device.cpu)
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = threads
-        step("matching features (%s%s)", matcher, f", {len(names) * (len(names) - 1) // 2} "
-             "pairs" if matcher == "exhaustive" else "")
-        with _quiet_colmap():
-            if matcher == "exhaustive":
-                pycolmap.match_exhaustive(database, matching_options=matching,
-                                          device=pycolmap.Device.cpu)
-            elif matcher == "selected":
-                pairs = _overlapping_pairs(read_dir, names, reader, mode, threads, work)
-                listed = work / "pairs.txt"
-                listed.write_text("".join(f"{a} {b}\n" for a, b in pairs))
-                step("matching %d of %d pairs at full size (those a coarse pass found "
-                     "overlapping)", len(pairs), len(names) * (len(names) - 1) // 2)
-                pycolmap.match_image_pairs(
-                    database, matching_options=matching,
-                    pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(listed)),
-                    device=pycolmap.Device.cpu)
-            else:
-                pycolmap.match_sequential(database, matching_options=matching,
-                                          device=pycolmap.Device.cpu)
-        step("incremental mapping")
-        sparse = work / "sparse"
-        sparse.mkdir(exist_ok=True)
-        options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = threads
-        options.random_seed = seed
-        if intrinsics is not None:
-            options.ba_refine_focal_length = False
-            options.ba_refine_principal_point = False
-            options.ba_refine_extra_params = False
-        with _quiet_colmap():
-            reconstructions = pycolmap.incremental_mapping(database, read_dir, sparse,
-                                                           options=options)
-        if reconstructions and max(r.num_reg_images() for r in reconstructions.values()) \
-                < len(names):
-            options.mapper.abs_pose_min_num_inliers = 15
-            options.mapper.init_min_num_inliers = 50
-            options.min_num_matches = 10
-            step("mapping again with halved registration thresholds (%d of %d registered)",
-                 max(r.num_reg_images() for r in reconstructions.values()), len(names))
-            retry = work / "sparse_relaxed"
-            retry.mkdir(exist_ok=True)
-            with _quiet_colmap():
-                again = pycolmap.incremental_mapping(database, read_dir, retry, options=options)
-            if again and (max(r.num_reg_images() for r in again.values())
-                          > max(r.num_reg_images() for r in reconstructions.values())):
-                reconstructions = again
-    if not reconstructions:
-        raise ValueError(f"{image_dir}: SfM registered no image ({len(names)} images; too "
-                         "little texture or overlap for SIFT matches?)")
-    best = max(reconstructions.values(), key=lambda r: r.num_reg_images())
-    refinement = {}
-    if refine == "auto":
-        refine = "lsm" if intrinsics is not None else "none"
-    if refine == "lsm":
-        from matching.sfm_refine import bundle_adjust, refine_tracks_lsm
+        elif matcher == "selected":
+            pairs = _overlapping_pairs(read_dir, names, reader, mode, threads, work)
+            listed = work / "pairs.txt"
+            listed.write_text("".join(f"{a} {b}\n" for a, b in pairs))
+            step("matching %d of %d pairs at full size (those a coarse pass found "
+                 "overlapping)", len(pairs), len(names) * (len(names) - 1) // 2)
+            pycolmap.match_image_pairs(
+                database, matching_options=matching,
+                pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(listed)),
+                device=pycolmap.Device.cpu)
+        else:
+            pycolmap.match_sequential(database, matching_options=matching,
+                                      device=pycolmap.Device.cpu)
 
-        step("re-measuring the tie points by LSM and adjusting")
+
+def _mapped(database: Path, read_dir: Path, work: Path, count: int, threads: int, seed: int,
+            fixed_intrinsics: bool, step: _Steps) -> dict:
+    """COLMAP's incremental mapping of the matched images (``work/sparse``); when it leaves
+    images out, once more with the registration thresholds halved (at least 15 inlier
+    correspondences for a new image instead of 30, 50 for the initial pair instead of
+    100; ``work/sparse_relaxed``), kept if it registers more: a small object against a
+    plain background gives neighbouring views few common features, and a ring whose views
+    are all registered closes its loop.  Returns the reconstructions by index."""
+    import pycolmap
+
+    step("incremental mapping")
+    sparse = work / "sparse"
+    sparse.mkdir(exist_ok=True)
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = threads
+    options.random_seed = seed
+    if fixed_intrinsics:
+        options.ba_refine_focal_length = False
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+    with _quiet_colmap():
+        reconstructions = pycolmap.incremental_mapping(database, read_dir, sparse,
+                                                       options=options)
+    if reconstructions and max(r.num_reg_images() for r in reconstructions.values()) < count:
+        options.mapper.abs_pose_min_num_inliers = 15
+        options.mapper.init_min_num_inliers = 50
+        options.min_num_matches = 10
+        step("mapping again with halved registration thresholds (%d of %d registered)",
+             max(r.num_reg_images() for r in reconstructions.values()), count)
+        retry = work / "sparse_relaxed"
+        retry.mkdir(exist_ok=True)
         with _quiet_colmap():
-            before = float(best.compute_mean_reprojection_error())
-            refinement = refine_tracks_lsm(best, read_dir)
-            adjustment = bundle_adjust(best, refine_intrinsics=intrinsics is None)
-            if work_dir is not None:
-                refined = Path(work_dir) / "sparse_refined"
-                refined.mkdir(exist_ok=True)
-                best.write(refined)
-        refinement = {"method": "lsm", "reprojection_before_px": before, **refinement,
-                      "ba_rejected": adjustment["rejected"],
-                      "ba_sigma_px": adjustment["sigma_px"],
-                      "ba_converged": adjustment["converged"]}
-    result = replace(_result_from(best, names, others, matcher), refinement=refinement)
-    if turned or restage:
-        result = _turn_back(result, original, turned)
-    if len(reconstructions) > 1:
-        log.warning("SfM split the images into %d models; kept the largest (%d images)",
-                    len(reconstructions), len(result.registered))
-    if result.unregistered:
-        log.warning("SfM did not register %d image(s): %s", len(result.unregistered),
-                    ", ".join(result.unregistered))
-    step("done: %d of %d images registered, reprojection %.3f px", len(result.registered),
-         len(names), result.mean_reprojection_error_px)
-    if known_distance is not None:
-        result = fix_scale(result, *known_distance)
-    return result
+            again = pycolmap.incremental_mapping(database, read_dir, retry, options=options)
+        if again and (max(r.num_reg_images() for r in again.values())
+                      > max(r.num_reg_images() for r in reconstructions.values())):
+            reconstructions = again
+    return reconstructions
+
+
+def _refined(best, read_dir: Path, refine_intrinsics: bool, work_dir, step: _Steps) -> dict:
+    """``refine="lsm"``: every track re-measured by LSM and the model bundle-adjusted again
+    (:mod:`matching.sfm_refine`; written to ``work_dir/sparse_refined`` when kept); the
+    refinement's record."""
+    from matching.sfm_refine import bundle_adjust, refine_tracks_lsm
+
+    step("re-measuring the tie points by LSM and adjusting")
+    with _quiet_colmap():
+        before = float(best.compute_mean_reprojection_error())
+        refinement = refine_tracks_lsm(best, read_dir)
+        adjustment = bundle_adjust(best, refine_intrinsics=refine_intrinsics)
+        if work_dir is not None:
+            refined = Path(work_dir) / "sparse_refined"
+            refined.mkdir(exist_ok=True)
+            best.write(refined)
+    return {"method": "lsm", "reprojection_before_px": before, **refinement,
+            "ba_rejected": adjustment["rejected"], "ba_sigma_px": adjustment["sigma_px"],
+            "ba_converged": adjustment["converged"]}
 
 
 class _Steps:

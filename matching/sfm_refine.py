@@ -111,42 +111,9 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
     ray = centres - X
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
 
-    # reference of each track: the observation closest to the track's mean ray
-    upid, inv = np.unique(pid, return_inverse=True)
-    mean = np.zeros((len(upid), 3))
-    np.add.at(mean, inv, ray)
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
-    score = np.sum(ray * mean[inv], axis=1)
-    order = np.lexsort((-score, inv))
-    first = np.r_[True, inv[order][1:] != inv[order][:-1]]
-    ref_of = np.empty(len(upid), np.int64)
-    ref_of[inv[order][first]] = order[first]
-    ref = ref_of[inv]
-    is_ref = ref == np.arange(len(pid))
+    upid, inv, ref, is_ref = _references(pid, ray)
     p_ref = np.rint(xy[ref])
-
-    # affine start: the plane through X whose normal bisects the two rays
-    normal = ray + ray[ref]
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    pair = iid[ref] * (int(iid.max()) + 1) + iid
-    # observations grouped by (reference view, view): one sort instead of a scan per pair
-    others = np.flatnonzero(~is_ref)
-    codes, inverse = np.unique(pair[others], return_inverse=True)
-    groups = np.split(others[np.argsort(inverse, kind="stable")],
-                      np.cumsum(np.bincount(inverse, minlength=len(codes)))[:-1])
-    A = np.zeros((len(pid), 2, 2))
-    for m in groups:
-        ci, cj = cams[int(iid[ref[m[0]]])], cams[int(iid[m[0]])]
-        # the Jacobian at the point's own projection (a plane's homography is smooth on
-        # the sub-pixel scale that separates it from the reference keypoint)
-        A[m] = plane_affine(ci, cj, ci.project(X[m]), X[m], normal[m])
-    # the reference keypoint moved to the pixel grid: move its partners with the affine map
-    approx = xy + np.einsum("nij,nj->ni", A, p_ref - xy[ref])
-    init = np.zeros((len(pid), 8))
-    init[:, 0], init[:, 3] = approx[:, 0], approx[:, 1]
-    init[:, 1], init[:, 2], init[:, 4], init[:, 5] = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
-    init[:, 7] = 1.0
-
+    groups, approx, init = _affine_starts(cams, iid, ref, is_ref, X, ray, xy, p_ref)
     prepared = _prepare(image_dir, names)
     new = np.full_like(xy, np.nan)
     new[is_ref] = p_ref[is_ref]
@@ -177,6 +144,52 @@ def refine_tracks_lsm(reconstruction, image_dir: str | os.PathLike, patch: int =
     log.info("LSM tie points: %d of %d observations re-measured (%.1f %%), %d points removed",
              report["matched"], int(others.sum()), 100 * report["share_accepted"], removed)
     return report
+
+
+def _references(pid: np.ndarray, ray: np.ndarray) -> tuple:
+    """The reference of each track: its observation whose ray is closest to the track's
+    mean ray.  ``(upid, inv, ref, is_ref)``: the tracks, each observation's track, its
+    reference observation, and whether it is one."""
+    upid, inv = np.unique(pid, return_inverse=True)
+    mean = np.zeros((len(upid), 3))
+    np.add.at(mean, inv, ray)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    score = np.sum(ray * mean[inv], axis=1)
+    order = np.lexsort((-score, inv))
+    first = np.r_[True, inv[order][1:] != inv[order][:-1]]
+    ref_of = np.empty(len(upid), np.int64)
+    ref_of[inv[order][first]] = order[first]
+    ref = ref_of[inv]
+    return upid, inv, ref, ref == np.arange(len(pid))
+
+
+def _affine_starts(cams: dict, iid, ref, is_ref, X, ray, xy, p_ref) -> tuple:
+    """LSM's start of each non-reference observation: the affine map of the plane through
+    its point whose normal bisects its ray and its reference's, the reference keypoint
+    moved to the pixel grid (``p_ref``) and its partner moved with it.  ``(groups, approx,
+    init)``: the observations grouped by (reference view, view), their approximate
+    positions ``(N, 2)`` and LSM's initial parameters ``(N, 8)``."""
+    normal = ray + ray[ref]
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    pair = iid[ref] * (int(iid.max()) + 1) + iid
+    # observations grouped by (reference view, view): one sort instead of a scan per pair
+    others = np.flatnonzero(~is_ref)
+    codes, inverse = np.unique(pair[others], return_inverse=True)
+    groups = np.split(others[np.argsort(inverse, kind="stable")],
+                      np.cumsum(np.bincount(inverse, minlength=len(codes)))[:-1])
+    A = np.zeros((len(iid), 2, 2))
+    for m in groups:
+        ci, cj = cams[int(iid[ref[m[0]]])], cams[int(iid[m[0]])]
+        # the Jacobian at the point's own projection (a plane's homography is smooth on
+        # the sub-pixel scale that separates it from the reference keypoint)
+        A[m] = plane_affine(ci, cj, ci.project(X[m]), X[m], normal[m])
+    # the reference keypoint moved to the pixel grid: move its partners with the affine map
+    approx = xy + np.einsum("nij,nj->ni", A, p_ref - xy[ref])
+    init = np.zeros((len(iid), 8))
+    init[:, 0], init[:, 3] = approx[:, 0], approx[:, 1]
+    init[:, 1], init[:, 2], init[:, 4], init[:, 5] = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+    init[:, 7] = 1.0
+    return groups, approx, init
 
 
 #: Points seen under a smaller angle are dropped after each adjustment: COLMAP's
