@@ -79,8 +79,9 @@ class Stage:
         return bool(Path(self.output).suffix)
 
 
-#: What every stage function runs besides its own imports: ``pipeline.stages`` itself
-#: (hashed alone) imports these at module level.
+#: What every stage function runs besides its own imports: ``pipeline.stages`` (of which
+#: only the stage's function and the definitions it uses are hashed) imports these at
+#: module level.
 _ADAPTERS = ("pipeline.artifacts", "pipeline.errors", "pipeline.inputs", "pipeline.progress")
 
 STAGES: list[Stage] = [
