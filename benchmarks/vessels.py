@@ -10,7 +10,7 @@ mouth (inside the cavity more than 5σ from the inner face, above the floor), th
 distance of the truth's outer and inner wall (0.5 < z < 1.8, away from the handle) to
 the mesh, Chamfer (mean of both directions; mesh samples to the implicit surface by
 Newton projection), seconds. A wall the sections cannot part
-(``reconstruct.thin_mouths``'s one line "too thin") is judged as what the data allow:
+(``reconstruct.classify_ends``: a thin mouth, one line "too thin") is judged as what the data allow:
 one piece, one border at the mouth, nothing over it, the outer surface within half the
 wall and σ of the truth's outer wall.
 

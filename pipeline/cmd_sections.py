@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -184,7 +185,12 @@ def _smoothed(args: argparse.Namespace, result, sized, vertices: np.ndarray,
               triangles: np.ndarray, out: Path, level, unit: float) -> dict:
     """``--smooth``: Loop's surface over the stitched mesh (or the sized control mesh, as
     ``photosurf run``'s smooth stage) written to ``out`` and its ``.npz``; its report."""
-    if not result.closed and not (args.open and not result.problems):
+    # a mouth left open on a wall too thin to part (surface.reconstruct.classify_ends): the
+    # open mesh is smoothed as it is (its border rule), and its one line is said
+    thin = [m for m in result.messages if "too thin" in m]
+    for message in thin:
+        logging.getLogger("pipeline").warning("sections: %s", message)
+    if not result.closed and not ((args.open or thin) and not result.problems):
         raise InputError(f"{args.cloud}: the stitched mesh is open "
                          f"({result.problem_line()}): --smooth needs a "
                          "closed mesh (drop --open-ends, or smooth the mesh with "
@@ -227,6 +233,9 @@ def run(args: argparse.Namespace) -> int:
                                  sections=args.sections, n=args.n,
                                  sigma=None if sigma is None else sigma / unit)
             sized, result = made.sized, made.dense
+            if made.sized is None and not result.closed:   # a mouth too thin to part: its line
+                result = replace(result, messages=tuple(
+                    m for m in made.messages if "too thin" in m) + tuple(result.messages))
         else:
             result = surface_from_points(points / unit, axis=axis, sections=args.sections,
                                          n=args.n, smoothing=smoothing,

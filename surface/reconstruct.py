@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from surface._blas import one_blas_thread
+from surface.loop_graph import nesting
 from surface.polygon import inside_polygon, polygon_area
 from surface.stitch import (
     CAP_SHRINK,
@@ -1138,8 +1139,6 @@ def classify_ends(rings: list, frame: np.ndarray, cap_points: np.ndarray, spacin
     (EndKind, EndKind)
         The bottom and the top end.
     """
-    from surface.loop_graph import nesting
-
     cap_points = np.asarray(cap_points, np.float64).reshape(-1, 3)
     heights = cap_points @ frame[2]
     flat_all = cap_points @ frame[:2].T
@@ -1209,8 +1208,6 @@ def outer_loops(rings: list, frame: np.ndarray) -> list:
     """``rings`` (one entry per section: an ``(n, 3)`` ring or a list of them) with every
     loop that lies inside another of its section dropped: the outer surface of a wall too
     thin to build both faces of (``EndKind.outer_only``)."""
-    from surface.loop_graph import nesting
-
     kept = []
     for entry in rings:
         if isinstance(entry, np.ndarray) or len(entry) < 2:

@@ -92,3 +92,27 @@ def test_run_keeps_the_inner_wall_and_floor_of_a_wall_two_spacings_thick(tmp_pat
         np.hypot(truth[:, 0], truth[:, 1]) < _cup.VESSEL_RADIUS - wall / 2)
     d = M.point_mesh_distance(truth[inner], vertices, triangles)
     assert d.mean() < 0.25 * spacing, d.mean() / spacing
+
+
+def test_sections_smooth_leaves_the_mouth_of_a_wall_too_thin_to_part_open(tmp_path, caplog):
+    """``photosurf sections --smooth`` (the stages' own steps) on the pot with a wall half a
+    spacing thick: no sizing (the stitched mesh is open at the mouth), the open mesh
+    smoothed with its border rule, exit 0, exactly one warning line saying the wall is
+    too thin, and the smooth surface one piece with one border at the rim.  Before, it
+    stopped with "the stitched mesh is open"."""
+    spacing = _spacing()
+    wall, sigma = 0.5 * spacing, 0.1 * spacing
+    path = tmp_path / "cloud.npz"
+    np.savez(path, points=_cup.vessel_sample(_cup.vessel(wall, False), POINTS, seed=0,
+                                             sigma=sigma))
+    out = tmp_path / "pot.ply"   # its control net beside it as pot.npz
+    with caplog.at_level("WARNING", logger="pipeline"):
+        assert main(["sections", str(path), "--out", str(out), "--smooth", "--quiet"]) == 0
+    lines = [r.getMessage() for r in caplog.records if "too thin" in r.getMessage()]
+    assert len(lines) == 1, [r.getMessage() for r in caplog.records]
+    vertices, triangles = read_mesh(out)
+    assert M.mesh_topology(vertices, triangles)["components"] == 1
+    borders = boundary_loops(triangles)
+    assert len(borders) == 1
+    assert vertices[borders[0], 2].min() > _cup.VESSEL_HEIGHT - 3 * spacing
+    assert _over_the_mouth(vertices, triangles, wall, sigma) == 0

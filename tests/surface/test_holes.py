@@ -1,5 +1,5 @@
 """Holes in the data: an end the scanner never saw is closed by the flattest fill within
-the data (``surface.stitch.uncovered_share``, ``surface.reconstruct.hole_ends``), never a
+the data (``surface.stitch.uncovered_share``, ``surface.reconstruct.classify_ends``), never a
 dome beyond them, or left as a border with ``open_holes``."""
 
 from __future__ import annotations
