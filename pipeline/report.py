@@ -506,6 +506,10 @@ def _truth_section(root, screen, truth, params, info, read_mesh) -> str:
         note += ("<p>The surface is open where the data end at an end of the object "
                  "(sections.open = true: an end the data do not cover is left as a border, "
                  "not filled): its completeness counts that end as missing.</p>")
+    elif stitched.get("open") and "mouths" in stitched:   # a thin wall's mouth left open
+        note += ("<p>The surface is open at a vessel's mouth whose wall is too thin for the "
+                 "data to part into its two faces: the outer surface only, so its "
+                 "completeness counts the inner wall as missing.</p>")
     elif stitched.get("open"):
         note += ("<p>The surface is open (one-sided data, surface/open_surface.py): its "
                  "accuracy is measured over the part it covers, which the views saw; its "
