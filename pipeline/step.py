@@ -14,43 +14,29 @@ Farin, *Curves and Surfaces for CAGD*, 5th ed., §§17-18: the tensor-product
 form of a triangular patch, and degree elevation).  The side ``u = 0`` collapses
 to corner 0; the other three sides are the patch's edges, whose poles are the
 triangular net's 7 edge control points, exactly, so neighbouring faces share
-their edge curves bit for bit.  One face per patch instead of the three
-non-degenerate quadrilaterals of a centroid split (``surface.bezier.
-tensor_product_nets``): a third of the faces, no spokes, 49 surface poles a
-patch instead of 147 (33 distinct ones once shared with the neighbours).
+their edge curves bit for bit (one face a patch: a third of the faces of a centroid
+split, ``surface.bezier.tensor_product_nets``).  The shell is assembled by topology, not
+by sewing: every vertex and edge is made once and shared by the faces that meet there.
 
-The shell is assembled by topology, not by sewing: every vertex and edge is made
-once and shared by the faces that meet there (sewing: 18 240 faces in 91 s).
-
-STEP (AP214): the file's text is written directly (:func:`_write_step_text`):
-one ``CARTESIAN_POINT`` per distinct pole (a corner per domain vertex, 5 per
-domain edge, 25 per face), ``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 and
-``B_SPLINE_CURVE_WITH_KNOTS`` of degree 6 with Bézier knots, each edge's
-``SURFACE_CURVE`` with its ``PCURVE`` on both faces (a straight side of the
-(u, v) square), ``EDGE_CURVE``, ``ADVANCED_FACE`` bounded by its three real
-edges (the collapsed side has none, as in OpenCascade's own output; readers
-restore a degenerated edge), ``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``, in the
-product structure OpenCascade's writer makes for one solid, at the distance
-uncertainty :func:`step_uncertainty`.  What a reader spends its time on
-(``benchmarks/export.py``): without pcurves, projecting every edge onto both
-faces; at an uncertainty below OpenCascade's confusion distance, re-checking
-them.  The shape transfer of the same solid (``TopoDS`` built by
-:func:`solid_from_nets`, ``STEPControl_Writer.Transfer``) remains the path of
-an open shell.
-IGES: the ``TopoDS`` solid (faces with straight pcurves, degenerated edges
-along ``u = 0``) through ``IGESControl_Writer`` (5.3, BRep mode).
+STEP (AP214): the file's text is written directly (:func:`_write_step_text`): one
+``CARTESIAN_POINT`` per distinct pole, ``B_SPLINE_SURFACE_WITH_KNOTS`` of degree 6 x 6 and
+``B_SPLINE_CURVE_WITH_KNOTS`` of degree 6 with Bézier knots, each edge's ``SURFACE_CURVE``
+with its ``PCURVE`` on both faces, ``EDGE_CURVE``, ``ADVANCED_FACE`` bounded by its three
+real edges (the collapsed side has none, as in OpenCascade's own output),
+``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``, at the distance uncertainty
+:func:`step_uncertainty`; given a tolerance, one face per control triangle where the
+patches merge (:func:`_write_merged_step_text`).  An open shell goes through the shape
+transfer (:func:`solid_from_nets`, ``STEPControl_Writer``).  IGES: the ``TopoDS`` solid
+through ``IGESControl_Writer`` (5.3, BRep mode).  Why each choice (sewing's time, what a
+reader spends its time on): ``docs/decisions/export.md``.
 
 Geometry is exact up to float64 rounding of the degree elevation (~1e-16 of the
 size) and the writer's 12-13 significant digits.
 
-References
-----------
-.. [1] ISO 10303-21, "Clear text encoding of the exchange structure" (STEP),
-   and ISO 10303-214 (automotive design, AP214).
-.. [2] C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH 1994.
-.. [3] G. Farin, "Curves and Surfaces for CAGD", 5th ed., Morgan Kaufmann (2002).
-.. [4] M. G. Duffy, "Quadrature over a pyramid or cube of integrands with a
-   singularity at a vertex", SIAM J. Numer. Anal. 19 (1982): the collapsed square.
+References: ISO 10303-21 (clear text encoding, STEP) and ISO 10303-214 (AP214); C. Loop,
+"Smooth spline surfaces over irregular meshes", SIGGRAPH 1994; G. Farin, "Curves and
+Surfaces for CAGD", 5th ed. (2002); M. G. Duffy, SIAM J. Numer. Anal. 19 (1982): the
+collapsed square.
 """
 
 from __future__ import annotations
@@ -805,24 +791,9 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
     mid_of = np.empty(n_super, dtype=np.int64)
     mid_of[edge.ravel()] = mids[:, [0, 1, 2]].ravel()  # side 0 mAB, 1 mBC, 2 mCA
     n_edges = 2 * n_super  # halves: 2e start -> mid, 2e + 1 mid -> end
-    first_face_pole = n_vertices + 5 * n_edges
-    ids = np.empty((n_faces, 13, 13), dtype=np.int64)
+    ids = _face_pole_ids(corners, mids, edge, same, n_vertices, n_edges)
+    n_points = n_vertices + 5 * n_edges + 121 * n_faces
     inner = np.arange(5)
-
-    def along(side: int) -> np.ndarray:  # (F, 11): a side's poles 1..11, increasing u or v
-        e, s = edge[:, side][:, None], same[:, side][:, None]
-        first = np.where(s, 2 * e, 2 * e + 1)  # the half met first walking up the side
-        second = np.where(s, 2 * e + 1, 2 * e)
-        pos = np.where(s, inner[None, :], 4 - inner[None, :])
-        return np.concatenate([n_vertices + 5 * first + pos, mids[:, [0, 1, 2][side]][:, None],
-                               n_vertices + 5 * second + pos], axis=1)
-
-    ids[:, 0, :] = corners[:, 0][:, None]  # the collapsed side at A
-    ids[:, 12, 0], ids[:, 12, 12] = corners[:, 1], corners[:, 2]
-    ids[:, 1:12, 0], ids[:, 12, 1:12], ids[:, 1:12, 12] = along(0), along(1), along(2)
-    ids[:, 1:12, 1:12] = (first_face_pole + 121 * np.arange(n_faces))[:, None, None] \
-        + np.arange(121).reshape(11, 11)
-    n_points = first_face_pole + 121 * n_faces
     xyz = np.empty((n_points, 3))
     xyz[ids.ravel()] = poles.reshape(-1, 3)
     size = float(np.ptp(xyz, axis=0).max()) or 1.0
@@ -871,19 +842,52 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
                     f"#{first_surface_curve + e},.T.);" for e, (a, b) in
                     enumerate(zip(start.tolist(), end.tolist(), strict=True))))
     write("\n")
-    # the outer wire, counter-clockwise: side 0 and side 1 walked up, side 2 walked down
+    halves, senses = _outer_wire(edge, same)
+    _write_faces_and_tail(out, path, first_edge, halves, senses, first_oriented, first_loop,
+                          first_surface, first_tail, uncertainty if uncertainty is not None
+                          else step_uncertainty(size))
+    return True
+
+
+def _face_pole_ids(corners: np.ndarray, mids: np.ndarray, edge: np.ndarray,
+                   same: np.ndarray, n_vertices: int, n_edges: int) -> np.ndarray:
+    """Point ids ``(F, 13, 13)`` of each merged face's poles: the collapsed side at its
+    corner A, the corners B and C, its three sides' poles shared with the neighbour (the
+    five inner poles of each half edge after the ``n_vertices`` vertices, the side's
+    midpoint vertex between them), and its own 121 inner poles after all the edges'."""
+    n_faces = len(corners)
+    first_face_pole = n_vertices + 5 * n_edges
+    ids = np.empty((n_faces, 13, 13), dtype=np.int64)
+    inner = np.arange(5)
+
+    def along(side: int) -> np.ndarray:  # (F, 11): a side's poles 1..11, increasing u or v
+        e, s = edge[:, side][:, None], same[:, side][:, None]
+        first = np.where(s, 2 * e, 2 * e + 1)  # the half met first walking up the side
+        second = np.where(s, 2 * e + 1, 2 * e)
+        pos = np.where(s, inner[None, :], 4 - inner[None, :])
+        return np.concatenate([n_vertices + 5 * first + pos, mids[:, [0, 1, 2][side]][:, None],
+                               n_vertices + 5 * second + pos], axis=1)
+
+    ids[:, 0, :] = corners[:, 0][:, None]  # the collapsed side at A
+    ids[:, 12, 0], ids[:, 12, 12] = corners[:, 1], corners[:, 2]
+    ids[:, 1:12, 0], ids[:, 12, 1:12], ids[:, 1:12, 12] = along(0), along(1), along(2)
+    ids[:, 1:12, 1:12] = (first_face_pole + 121 * np.arange(n_faces))[:, None, None] \
+        + np.arange(121).reshape(11, 11)
+    return ids
+
+
+def _outer_wire(edge: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each merged face's outer wire, counter-clockwise (side 0 and side 1 walked up, side
+    2 walked down): its six half edges ``(F, 6)`` and whether each curve runs the way the
+    wire walks ``(F, 6) bool``."""
     walk = []
     for sd, backwards in ((0, False), (1, False), (2, True)):
         e, s = edge[:, sd], same[:, sd]
         agree = s != backwards  # the curve runs the way the wire walks
         first = np.where(s != backwards, 2 * e, 2 * e + 1)
         walk += [(first, agree), (np.where(s != backwards, 2 * e + 1, 2 * e), agree)]
-    halves = np.stack([w for w, _ in walk], axis=1)  # (F, 6)
-    senses = np.stack([a for _, a in walk], axis=1)
-    _write_faces_and_tail(out, path, first_edge, halves, senses, first_oriented, first_loop,
-                          first_surface, first_tail, uncertainty if uncertainty is not None
-                          else step_uncertainty(size))
-    return True
+    return (np.stack([w for w, _ in walk], axis=1),
+            np.stack([a for _, a in walk], axis=1))
 
 
 def step_uncertainty(size: float) -> float:
