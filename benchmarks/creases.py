@@ -6,7 +6,7 @@ sharper than 30° was kept as it is, and Loop's limit rounded the edge inwards. 
 in one process on the same data:
 
 * the procedural shapes of ``testkit/shapes.py`` (30 000 points, σ = ``_shapes.SIGMA``,
-  seeds 0 and 1): ``surface.sizing.sized_from_points``, Loop's surface through the sized
+  seeds 0 and 1): ``pipeline.section_surface.sized_mesh``, Loop's surface through the sized
   mesh, adaptive tessellation; patches, crease vertices, Chamfer to the implicit truth;
 * with ``--workspace W`` (a ``photosurf run`` of ``../shared/data/real/temple_sparse_ring``
   with its cameras): the smooth stage rerun on a copy of W under each rule, sized and with
@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 from _common import uptime, write_result  # noqa: E402
 
 from matching.image_file import imread  # noqa: E402
+from pipeline.section_surface import sized_mesh  # noqa: E402
 from surface import bezier, interpolation, sizing  # noqa: E402
 from testkit import shapes as _shapes  # noqa: E402
 
@@ -48,7 +49,7 @@ def shape_row(shape: str, seed: int) -> dict:
     for label, on in (("kept", False), ("interpolated", True)):
         interpolation.INTERPOLATE_CREASES = on
         try:
-            sized, _ = sizing.sized_from_points(points, axis="z")
+            sized, _ = sized_mesh(points, axis="z")
         except ValueError as exc:   # a refusal is a result too
             row[label] = {"error": str(exc)}
             continue

@@ -37,7 +37,7 @@ from _common import uptime, write_result  # noqa: E402
 
 from pipeline import artifacts  # noqa: E402
 from pipeline.mesh_io import read_mesh  # noqa: E402
-from surface import metrics, section_chains, sizing  # noqa: E402
+from surface import metrics, ring_resample, section_chains, sizing  # noqa: E402
 
 SAMPLES = 200_000
 LAGS = (1, 2, 4, 8, 12)
@@ -90,7 +90,7 @@ def variograms(workspace: Path, truth) -> dict:
         if loop is None:
             continue
         centre = section_chains.area_centroid(loop, frame)
-        aligned = sizing.resample_at_angles(loop, count, centre, frame)
+        aligned = ring_resample.resample_at_angles(loop, count, centre, frame)
         if aligned is not None:
             errors[k] = distance(aligned, signed=True)
     errors = errors[5:-5]

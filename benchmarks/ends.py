@@ -74,13 +74,14 @@ def _chamfer(vertices, triangles, mesh_vertices, mesh_triangles) -> float:
 
 def smooth_surface(cloud: np.ndarray):
     """The smooth surface as ``photosurf sections CLOUD --smooth`` builds it: the sized
-    control mesh (``surface.sizing.sized_from_points``), its vertices interpolated
+    control mesh (``pipeline.section_surface.sized_mesh``), its vertices interpolated
     (``interpolating_control``), Loop's patches tessellated adaptively within the sizing's
     chord tolerance, no finer than the point spacing, checked (and repaired) as a solid."""
+    from pipeline.section_surface import sized_mesh
     from pipeline.smoothing import smooth_mesh
-    from surface.sizing import interpolating_control, sized_from_points
+    from surface.sizing import interpolating_control
 
-    sized, _ = sized_from_points(cloud, axis="z")
+    sized, _ = sized_mesh(cloud, axis="z")
     control = interpolating_control(sized.vertices, sized.triangles, sized.creases)
     return smooth_mesh(control, sized.triangles, "adaptive",
                        tolerance=sized.chord_tolerance(), spacing=sized.spacing)

@@ -8,7 +8,7 @@ sized surface again; the table shows, per cloud, the dense stitched triangles an
 sized step / ring points / triangles of every run and whether they all agree.
 
 * the shapes of ``testkit/shapes.py`` (torus, amphora, pants, mug, vase; ``--points``,
-  default 10⁴, seed 1), through ``surface.sizing.sized_from_points``;
+  default 10⁴, seed 1), through ``pipeline.section_surface.sized_mesh``;
 * with ``--workspace W`` (a workspace of the real temple ring with its cameras, e.g.
   ``benchmarks/real_surface.py --workspace W``'s), the pipeline from the sections to the
   smooth surface on a copy of W per run (``photosurf run --from sections``): rings,
@@ -54,14 +54,14 @@ def _moved(points: np.ndarray, seed: int, eps: float) -> np.ndarray:
 
 
 def shape_runs(shape: str, points: int, runs: int) -> dict:
-    from surface import sizing
+    from pipeline.section_surface import sized_mesh
     from testkit import shapes as _shapes
 
     cloud = _shapes.sample(shape, points, seed=1)
     outcomes = []
     for seed, eps in _epsilons(runs):
         try:
-            sized, dense = sizing.sized_from_points(_moved(cloud, seed, eps), axis="z")
+            sized, dense = sized_mesh(_moved(cloud, seed, eps), axis="z")
             outcomes.append([len(dense.triangles), sized.step, sized.n, len(sized.triangles)])
         except ValueError as exc:   # e.g. an open dense stitch
             outcomes.append(f"refused: {str(exc)[:60]}")

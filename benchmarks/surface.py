@@ -162,12 +162,13 @@ def run_stitched_sized(points: np.ndarray, level: int | None = None,
     Bezier surface -> tessellation at ``smooth.level`` ("adaptive": chord tolerance
     ``SizedMesh.chord_tolerance``); file sizes after the clock (the STEP file up to
     ``step_max_patches`` patches)."""
-    from surface.sizing import interpolating_control, sized_from_points
+    from pipeline.section_surface import sized_mesh
+    from surface.sizing import interpolating_control
     from surface.validity import check_solid
 
     level = defaults()["smooth"]["level"] if level is None else level
     start = time.perf_counter()
-    sized, dense = sized_from_points(points, axis="z")
+    sized, dense = sized_mesh(points, axis="z")
     smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles,
                                                       sized.creases),
                                 sized.triangles)
@@ -351,14 +352,15 @@ def fresh_one(size: int, samples: int = SAMPLES) -> dict:
     scoring); it includes the interpreter, the imports, the truth mesh and the cloud
     (``rss_before_gib``: the resident set just before the clock starts).
     """
-    from surface.sizing import interpolating_control, sized_from_points
+    from pipeline.section_surface import sized_mesh
+    from surface.sizing import interpolating_control
 
     truth = vase_truth(n_theta=1024, n_z=768)
     points = noisy_cloud(*truth, size, seed=SEED + 1, sigma=SIGMA)
     level = defaults()["smooth"]["level"]
     rss_before = _rss_gib()
     start, cpu_start = time.perf_counter(), time.process_time()
-    sized, dense = sized_from_points(points, axis="z")
+    sized, dense = sized_mesh(points, axis="z")
     smooth = bezier.control_net(interpolating_control(sized.vertices, sized.triangles,
                                                       sized.creases),
                                 sized.triangles)

@@ -26,7 +26,7 @@ file                        arrays (shapes; lengths in scene units)
                             per control point, ``controls`` (R,) int64, ``data_points``
                             (R,) int64, ``loop_noise`` (R,) the loop's sigma-hat,
                             ``precision`` (R,) the ring's own sigma, ``ring_precision`` ()
-                            their median (:func:`surface.sizing.ring_precision`); absent in
+                            their median (:func:`surface.section_errors.ring_precision`); absent in
                             files written before 2026-12-01 (:func:`read_curve_fits`: None)
 ``stitch/mesh.ply``         the stitched mesh (:func:`pipeline.mesh_io.write_mesh`);
 ``stitch/stitch.json``      its notes (closed, messages, open interfaces, flips ...)
@@ -217,7 +217,7 @@ def write_curves(folder: str | os.PathLike, rings: Sequence, sections: Sequence,
     frame = sections[0].frame
     extra = {}
     if fits is not None:
-        from surface.sizing import ring_precision
+        from surface.section_errors import ring_precision
 
         records = [f for item in fits for f in ([item] if hasattr(item, "precision")
                                                  else list(item))]

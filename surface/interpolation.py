@@ -43,8 +43,8 @@ __all__ = ["FOLD_LEVEL", "INTERPOLATE_CREASES", "JUDGE_FOLD_LEVEL", "crease_band
 
 
 #: Interpolate the object's convex creases away from its ends (:func:`crease_vertices`,
-#: :func:`interpolating_control`; 2026-12-06): False keeps every sharp vertex as it is,
-#: the rule before.
+#: :func:`interpolating_control`); False keeps every sharp vertex as it is (the benchmark
+#: ``benchmarks/creases.py`` compares the two).
 INTERPOLATE_CREASES = True
 
 
@@ -69,11 +69,6 @@ FOLD_LEVEL = 2
 JUDGE_FOLD_LEVEL = 1
 
 
-#: Keep only the vertices of the folded control faces the surface itself folds over
-#: (:func:`surface.fitting.surface_folds`); False: of every folded control face.
-SURFACE_FOLDS = True
-
-
 @one_blas_thread
 def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
                           creases: np.ndarray | None = None,
@@ -83,59 +78,21 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
 
     :func:`surface.fitting.interpolating_control_mesh` with the vertices on an edge
     sharper than 30° (the stitch's support-ring threshold) kept as they are
-    (:func:`surface.fitting.sharp_vertices`, ``rings=0``): interpolating a rim ring
-    and its support ring one noise width away overshoots the edge (measured on the
-    demo's step-7 thinning, 2026-12-01: Hausdorff distance to the truth 0.015
-    interpolating everything, 0.0018 with the sharp vertices and their one-rings
-    kept).  With the caps' guard rings (``surface.stitch.CAP_GUARD_RINGS``) keeping
-    the rim vertices alone is enough and rounds the rims less: 10⁵-point vase sized
-    Chamfer 0.000222 -> 0.000206 (rim band 0.00120 -> 0.00085), Hausdorff 0.021 ->
-    0.015; demo Hausdorff 0.0072 -> 0.0054, Chamfer unchanged; 5·10⁴ points 0.000319
-    -> 0.000311.  Open: at 5·10⁴ points (step 5, n = 34) the bottom rim still
-    overshoots outward, about in the cap plane, to 0.024 from the truth (the stitched
-    mesh's Hausdorff distance 0.0053); keeping two rings (``rings=2``) gave 0.0101 and
-    Chamfer 0.000268 (stitched 0.000288) but a candidate twice as fine (18 248 patches),
-    and without the guard ring the overshoot is 0.035 (``rings=0``) / 0.013 (``rings=1``,
-    at the top rim).  A mesh with borders gets its own vertices back.
+    (:func:`surface.fitting.sharp_vertices`, ``rings=0``): interpolating a rim ring and its
+    support ring one noise width away overshoots the edge; with the caps' guard rings
+    (``surface.stitch.CAP_GUARD_RINGS``) keeping the rim vertices alone is enough.  A mesh
+    with borders gets its own vertices back.  ``creases``: vertices on the object's convex
+    creases inside its end sections (:func:`crease_vertices`), interpolated too (kept, a
+    crease's vertices round it inwards).
 
-    ``creases`` (2026-12-06): vertices on the object's convex creases inside its end
-    sections (:func:`crease_vertices`), which are interpolated too.  Kept, a crease's
-    vertices round it inwards: the real temple's smooth surface lay 0.0027 IoU below its
-    stitched mesh's silhouettes on average over the 16 views (its unsized dense surface
-    alike, -0.0028).  Measured (one-off scripts; the temple against its silhouettes, the
-    shapes against their truth, seeds 0 / 1 of 30 000 points): the rule as it is, temple
-    +0.0051 above the stitched mesh (min / median IoU 0.807 / 0.856 against 0.796 / 0.851;
-    63 840 patches against 75 624: the sizing passes step 2 at n = 81 now); at spacing 5
-    (18 998 points) -0.0152 against -0.0125 before, at 16 480 patches against 27 816;
-    torus +3 / -3 %, pants -5 / -8 %, mug +1 / -3 %, amphora -7 / -8 %, the vase with an
-    opening and the five shapes of revolution unchanged bit for bit.  The variants tried:
-    every sharp vertex interpolated, temple +0.0039 but the mug +46-56 % and the vase with
-    an opening +28-30 % (their lips' and floors' creases); the valleys kept, the mug still
-    +21-25 % (its lip: two ridges 0.25 apart at the top end, kept now as an end's); a
-    candidate's own sharp vertices, without the dense mesh's, the 10⁴-point elliptic
-    cylinder 1.9x (its sections' tips, 24-34 ring points, are "sharp" at 30° by their
-    sampling alone).
-
-    Folds (2026-12-07): where the correction turns a control face over or makes control
-    faces cross that the mesh does not (:func:`surface.fitting.folded_faces`: signs, no
-    tolerance), that face's vertices are kept too and the system solved again, until no
-    such face is left (at most :data:`UNFOLD_ROUNDS` solves); a ``creases`` vertex only where
-    the face has no other vertex to keep (the stepped column of ``tests/surface/test_creases.py``:
-    keeping every folded face's vertices kept all 110 crease vertices, Chamfer 0.00444 ->
-    0.00392; sparing them, all 110 still interpolated, 3 164 crossing pairs -> 0, Chamfer
-    0.00389).  The mustard bottle (40 000 points, noise-free, stitched mesh 54 414 faces):
-    3 691 control faces turned over and
-    10 382 crossing pairs in the caps' fans and rims, the smooth surface 16 705 crossing
-    pairs; after three rounds (5 838 of 27 209 vertices kept) 0 pairs and Chamfer
-    3.53e-5 -> 3.37e-5 (``docs/decisions/smooth-folds.md``).
-
-    Part way, where the surface folds (2026-12-07, the rule now): of the folded control
-    faces only those whose patches cross or turn over (:func:`surface.fitting.surface_folds`)
-    count, and their vertices move by half, then a quarter of their correction
-    (:data:`UNFOLD_SHARES`), then none.  Keeping every folded face's vertices had held ~20 %
-    of a coarse candidate's vertices off the data and sent the sizing to the dense mesh
-    (the 10⁴-point cylinder: 25 160 patches); now 6 512, 0 crossing pairs, and the
-    capsule's 339 pairs -> 0 at Chamfer 0.000787 (keeping: 0.001075 on the same mesh).
+    Folds: where the correction turns a control face over or makes control faces cross
+    that the mesh does not (:func:`surface.fitting.folded_faces`: signs, no tolerance), and
+    the surface's patches there cross or turn over (:func:`surface.fitting.surface_folds`),
+    that face's vertices move by half, then a quarter of their correction
+    (:data:`UNFOLD_SHARES`), then none, the system solved again each round (at most
+    :data:`UNFOLD_ROUNDS` solves); a ``creases`` vertex only where the face has no other
+    vertex to keep.  The figures behind each rule: ``docs/decisions/sizing.md``,
+    *Interpolating control and creases*, and ``docs/decisions/smooth-folds.md``.
     ``fold_level``: the tessellation level the folds are looked for at (default
     :data:`FOLD_LEVEL`; the sizing judges its candidates at :data:`JUDGE_FOLD_LEVEL`).
     """
@@ -152,7 +109,7 @@ def interpolating_control(vertices: np.ndarray, triangles: np.ndarray,
         full = control = interpolating_control_mesh(vertices, triangles, keep=keep)
         for _ in range(UNFOLD_ROUNDS):
             folded = folded_faces(vertices, control, triangles, target_pairs=crossing)
-            if folded.any() and SURFACE_FOLDS:   # those the surface itself folds over
+            if folded.any():   # of the folded control faces, those the surface folds over
                 folded = surface_folds(vertices, control, triangles, folded, crossing,
                                        level=FOLD_LEVEL if fold_level is None
                                        else fold_level)
@@ -208,8 +165,8 @@ def crease_vertices(vertices: np.ndarray, triangles: np.ndarray, axis, inner: tu
     coarse sampling of a smooth bend (an elliptic section's tips at 24-34 ring points
     are "sharp" at 30°; at the dense mesh's resolution they are not).
 
-    Why (2026-12-06): the kept creases round the real temple's edges inwards; the
-    figures are :func:`interpolating_control`'s.
+    Why: kept, the creases round the object's edges inwards
+    (``docs/decisions/sizing.md``, *Interpolating control and creases*).
     """
     if not INTERPOLATE_CREASES:
         return None

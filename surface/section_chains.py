@@ -172,7 +172,7 @@ def section_layout(rings: Sequence, frame: np.ndarray) -> SectionLayout:
     along them.
 
     A stack of single loops is one chain and each section reaches as far as the nearer
-    end (the regression rule before 2026-12-06, which read only single-loop sections).
+    end.
     Several loops a section -- a temple's columns, a torus's two sides -- are regressed
     along their own chains; the sections where loops split, merge, appear or end reach
     no farther than the event.

@@ -240,10 +240,9 @@ def section_variogram(rings: Sequence, axis=(0.0, 0.0, 1.0), max_lag: int = MAX_
     windows, because one odd ring spoils every window that holds it (the densified
     demo's cloud: one ring made 3 % of the lag-1 windows 12× the rest, and a mean
     square with the largest 1 % clipped gave 2.6× the truth's sill).  The lags
-    ``1 .. max_lag`` are fitted by the model of :class:`Variogram` (log least squares).
-    Fitted against the truth (``benchmarks/demo_truth.py W``), √γ at k = 1, 4, 8: 9.1,
-    11.8, 12.7e-5 against 8.9, 11.7, 12.6e-5 (2026-12-03 demo cloud), 8.9, 11.6, 12.5e-5
-    against 8.7, 11.5, 12.5e-5 (merged main's).
+    ``1 .. max_lag`` are fitted by the model of :class:`Variogram` (log least squares);
+    checked against the truth by ``benchmarks/demo_truth.py`` (``docs/decisions/sizing.md``,
+    *The variogram against the truth*).
 
     Returns
     -------
@@ -393,7 +392,8 @@ def error_estimate(distances: np.ndarray, noise: float, influence_mean: float) -
     Stein's unbiased risk estimate (Mallows' Cp): for points ``x = truth + ε``,
     ``ε ~ N(0, σ²)`` independent, and a fit ``S x`` linear in them, the mean squared
     error to the truth is ``E|Sx - x|² - σ² + 2σ²·tr(S)/N``; ``tr(S)/N`` is the mean
-    influence of a point on the fit at itself (:func:`influence`).  A fit that copies the
+    influence of a point on the fit at itself (the diagonal of
+    ``surface.section_regression.smoothing_matrix``).  A fit that copies the
     points (influence 1) gets σ, one that ignores them (0) ``sqrt(mean d² - σ²)``.
 
     Parameters

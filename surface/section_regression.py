@@ -36,7 +36,7 @@ from surface.section_chains import (
     section_loops,
 )
 
-__all__ = ["coarsen_rings", "influence", "kept_sections", "rounded_ends", "section_weights",
+__all__ = ["coarsen_rings", "kept_sections", "rounded_ends", "section_weights",
            "smoothing_matrix", "thinning", "untangled"]
 
 
@@ -47,23 +47,14 @@ def kept_sections(count: int, step: int, length: np.ndarray | None = None) -> li
     usually a rim (a sharp turn of the profile, held by support rings one noise
     width away, ``surface.stitch.support_distance``), and a G1 surface
     interpolating a rim ring, its support ring and a wall ring ``step`` sections
-    further overshoots the edge (measured on the demo, step 7 without grading:
-    0.015 outward at the bottom rim).  A rounded end gains from it too (below).
+    further overshoots the edge.  A rounded end gains from it too.
 
     With the profile's ``length`` the sections between the graded ends are kept
     ``step`` apart *along the profile*, not by their count: the dense sections are
     equally spaced in height, but where the profile leans (a dome, a flaring neck)
     they lie farther apart on the surface, and an interpolating surface over kept
-    rings unevenly spaced along it undulates.  Measured on exact rings of a capsule
-    (``r = 1`` hemispheres on a cylinder, rings 0.2 apart, 25 / 50 points, the
-    interpolating Loop surface, one-off script): mean distance 0.000905 with the rings
-    equally spaced in height, 0.000463 along the profile (0.1 apart, 50 / 100 points:
-    0.000158 against 0.000073); the error sat where the dome leans (0.0033 against
-    0.0016 at 44-58° latitude).  With the ends graded (gaps ¼, ½, then 1 of the step):
-    0.000413 in height (the rule before), 0.000259 along the profile; rings 0.4 apart,
-    12 / 24 points: 0.00184 against 0.00135 -- the grading holds the junction of the
-    last ring with the dome's own triangulation (there, 44-58° latitude, 0.00055 / 0.0016
-    graded, 0.0016 / 0.0085 not).
+    rings unevenly spaced along it undulates (the figures: ``docs/decisions/sizing.md``,
+    *Kept sections: grading and the profile*).
 
     Parameters
     ----------
@@ -101,10 +92,8 @@ def rounded_ends(rings: Sequence, dense: tuple[np.ndarray, np.ndarray], axis,
     """Whether the dense stitched mesh's first / last end is rounded: no sharp edge
     (dihedral angle over 30°, ``surface.fitting.sharp_vertices``) at as many as a quarter
     of its end section's ring points among the vertices nearest that section.  A rim (a
-    flat cap's edge) has a sharp edge all round.  Measured on the σ = 0.002 clouds of
-    ``benchmarks/surface.py`` (10⁴ and 10⁵ points, one-off script): 0 sharp vertices at both
-    ends of the capsule; at each end of the flat-capped vase, cylinder, amphora and ellipse
-    every point of the end ring (67-478).  ``sharp``: the dense mesh's sharp vertices
+    flat cap's edge) has a sharp edge all round (``docs/decisions/sizing.md``, *Rounded
+    ends*).  ``sharp``: the dense mesh's sharp vertices
     (:func:`rim_vertices`), if known."""
     vertices, triangles = (np.asarray(a) for a in dense)
     axis = np.asarray(axis, dtype=np.float64)
@@ -164,8 +153,6 @@ def section_weights(heights: np.ndarray, keep: Sequence[int], reach: Sequence[in
     a quadratic's weights reproduce the profile up to its curvature.  The window is
     narrowed to the section's ``reach`` (as far as its loops continue one to one,
     :func:`section_layout`); where that leaves ``w < 2`` the section is kept as it is.
-    (Before 2026-12-06 a window reaching a section with several loops kept it as it was:
-    a temple's columns or a torus's two sides were never regressed.)
 
     ``heights`` may be any coordinate along the profile: with the sections' positions
     along it (:func:`profile_length`) the quadratic follows a rounded end, whose radius
@@ -231,19 +218,6 @@ def smoothing_matrix(heights: np.ndarray, keep: Sequence[int],
         interp = np.stack([np.interp(heights, heights[keep], col)
                            for col in np.eye(len(keep))], axis=1)
     return interp @ smooth
-
-
-def influence(heights: np.ndarray, keep: Sequence[int],
-              weights: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """The weight of each dense section's own ring in the thinned surface at its height:
-    the diagonal of :func:`smoothing_matrix`, the trace term of Stein's unbiased risk
-    estimate (:func:`error_estimate`).
-
-    Returns
-    -------
-    (K,) float64
-    """
-    return np.diag(smoothing_matrix(heights, keep, weights)).copy()
 
 
 def thinning(heights: np.ndarray, layout: SectionLayout, step: int,

@@ -16,8 +16,11 @@ levels of step ≥ 2, then the step-1 levels, then a walk outwards from the clos
 none passes, the candidate estimated closest is kept if it beats the rings' sill, else the dense
 mesh.  A step-1 candidate is judged against the goal the last coarser candidate measured.
 
-Scene units throughout.  The names of the modules it is built from are re-exported here.  The
-rules' history and the figures that decided them: ``docs/decisions/sizing.md``.
+Scene units throughout.  The names of its parts (:mod:`surface.section_chains`,
+:mod:`surface.section_errors`, :mod:`surface.section_regression`, :mod:`surface.interpolation`)
+that the sizing's callers use are re-exported here (``__all__``); the others are imported from
+their own modules.  The rules' history and the figures that decided them:
+``docs/decisions/sizing.md``.
 """
 
 from __future__ import annotations
@@ -29,7 +32,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from surface import bezier
-from surface import reconstruct as rc
 from surface._blas import one_blas_thread
 from surface.bezier import closest_points
 from surface.interpolation import (
@@ -38,21 +40,13 @@ from surface.interpolation import (
     crease_band,
     crease_vertices,
     interpolating_control,
-    mesh_creases,
     off_rim_vertices,
     rim_vertices,
 )
 from surface.metrics import MeshDistance, sample_mesh, triangle_areas
-from surface.ring_resample import (
-    periodic_cubic,
-    resample_at_angles,
-    resample_ring,
-    resample_rings_at_angles,
-)
 from surface.section_chains import (
     SectionLayout,
     largest_perimeter,
-    loop_chains,
     nearest_section,
     plane_frame,
     profile_length,
@@ -62,9 +56,6 @@ from surface.section_chains import (
 )
 from surface.section_errors import (
     Variogram,
-    error_estimate,
-    ring_noise,
-    ring_precision,
     risk_estimate,
     section_scatter,
     section_variogram,
@@ -74,7 +65,6 @@ from surface.section_errors import (
 )
 from surface.section_regression import (
     coarsen_rings,
-    influence,
     kept_sections,
     rounded_ends,
     section_weights,
@@ -82,19 +72,13 @@ from surface.section_regression import (
     thinning,
     untangled,
 )
-from surface.sections import point_spacing
-from surface.stitch import stitch_rings
 
-__all__ = ["FOLD_LEVEL", "JUDGE_FOLD_LEVEL",
-           "SectionLayout", "SizedMesh", "Variogram", "coarsen_rings", "crease_band",
-           "crease_vertices", "error_estimate", "influence", "interpolating_control",
-           "kept_sections", "loop_chains", "mesh_creases", "periodic_cubic", "profile_length",
-           "reference_vertices", "resample_at_angles", "resample_ring",
-           "resample_rings_at_angles", "ring_noise", "ring_precision", "risk_estimate",
-           "rounded_ends", "section_layout", "section_scatter", "section_variogram",
-           "section_weights", "size_control_mesh", "sized_from_points", "smooth_deviation",
-           "smoothing_matrix", "stitched_error", "stitched_surface_error", "thinning",
-           "unshared_noise", "untangled"]
+__all__ = ["FOLD_LEVEL", "SizedMesh", "Variogram", "coarsen_rings", "crease_band",
+           "crease_vertices", "interpolating_control", "kept_sections", "profile_length",
+           "reference_vertices", "risk_estimate", "rounded_ends", "section_layout",
+           "section_scatter", "section_variogram", "section_weights", "size_control_mesh",
+           "smooth_deviation", "smoothing_matrix", "stitched_error", "stitched_surface_error",
+           "untangled"]
 
 
 #: Tessellation chord tolerance as a share of the sized surface's estimated error
@@ -124,17 +108,6 @@ EXACT_WITHIN = 2.0
 
 #: Shortest step kept along the profile (:func:`size_control_mesh`, ``along_profile``).
 ALONG_PROFILE_STEP = 4
-
-
-#: Find the coarsest passing candidate by bisection over the candidate levels (step >= 2)
-#: instead of trying each from the coarsest (:func:`size_control_mesh`).
-SEARCH_BISECT = True
-
-
-#: When the bisection finds none: the step-1 levels, then coarser levels outwards from the
-#: closest estimate only while they stay within its standard error, instead of every level
-#: (:func:`size_control_mesh`; 2026-12-06).
-WALK_WHEN_NONE_PASS = True
 
 
 def reference_vertices(vertices: np.ndarray, triangles: np.ndarray,
@@ -261,15 +234,8 @@ class SizedMesh:
         estimated error to the truth (of the dense rings' noise when the dense mesh was
         kept), 0 when neither is known.
 
-        The flat triangles then lie within what the data leave open anyway.  Measured
-        (one run each, 2026-12-03): on the 5*10^4-point σ = 0.002 vase (9 304 patches,
-        estimated error 0.00041) the smooth surface's Chamfer distance to the truth is
-        0.000249 tessellated at level 3 (595 456 triangles), 0.000247 at half the error
-        (160 516), 0.000261 at the error (74 920) and 0.000322 at the former fixed
-        level 1 (37 216), the dense stitched mesh's 0.000287; on the demo (108 376
-        patches, error 6.3e-5) half the error gives 884 166 triangles and Chamfer
-        0.000331, level 1 433 504 and 0.000334, the error itself at least 381 052.
-        Half the error doubles the demo's files for 1 % of its Chamfer distance.
+        The flat triangles then lie within what the data leave open anyway (the figures:
+        ``docs/decisions/sizing.md``, *Chord tolerance*).
         """
         scale = self.error if self.error > 0 else self.noise
         return CHORD_FRACTION * scale if np.isfinite(scale) and scale > 0 else 0.0
@@ -327,7 +293,7 @@ def size_control_mesh(rings: Sequence, planes: Sequence, spacing: float,
     along_profile : bool
         Keep the sections ``step`` apart along the profile (:func:`profile_length`) when
         both ends are rounded (:func:`rounded_ends`; module docstring, *Along the
-        profile*); False: every ``step``-th section (the rule before 2026-12-06).
+        profile*); False: every ``step``-th section.
 
     Returns
     -------
@@ -548,7 +514,7 @@ class _LevelSearch:
         return vertices, triangles, creases, surface, distances, error, goal
 
     def walk(self, levels: list):
-        """After a bisection that found none (WALK_WHEN_NONE_PASS): the step-1 levels in
+        """After a bisection that found none: the step-1 levels in
         order, then, from the level estimated closest, coarser levels outwards while
         their estimates stay within one standard error of it (each coarser one beyond is
         farther still, as the bisection assumes): what trying every level finds -- the
@@ -578,13 +544,13 @@ class _LevelSearch:
         return passes[-1] if passes else None
 
     def coarsest_passing(self):
-        """``(h, SizedMesh)`` of the coarsest level that passes, or None."""
+        """``(h, SizedMesh)`` of the coarsest level that passes, or None: bisection over the
+        levels of step >= 2 (the estimate falls as h does), then, when it finds none,
+        :meth:`walk`."""
         levels = self.levels()
-        # the coarsest level that passes, by bisection over the levels of step >= 2 (the
-        # estimate falls as h does: SEARCH_BISECT)
         coarse = [h for h in levels if int(np.floor(h / self.spacing)) >= 2]
         found = None
-        lo, hi = 0, len(coarse) if SEARCH_BISECT else 0
+        lo, hi = 0, len(coarse)
         while lo < hi:
             mid = (lo + hi) // 2
             passed = self.judge(coarse[mid])
@@ -592,19 +558,7 @@ class _LevelSearch:
                 hi, found = mid, (coarse[mid], passed)
             else:
                 lo = mid + 1
-        if found is None and SEARCH_BISECT and WALK_WHEN_NONE_PASS:
-            found = self.walk(levels)
-        # none found: every level in order (those judged already are skipped; the step-1
-        # ones against the finest coarser level's goal, module docstring), as without the
-        # bisection -- a level it stepped over may pass, and the closest estimate, kept when
-        # none does, is chosen among all of them
-        for h in ([] if found is not None or (SEARCH_BISECT and WALK_WHEN_NONE_PASS)
-                  else levels):
-            passed = self.judge(h)
-            if passed is not None:
-                found = (h, passed)
-                break
-        return found
+        return found if found is not None else self.walk(levels)
 
 
 def _refolded(sized: SizedMesh) -> SizedMesh:
@@ -663,60 +617,3 @@ def _points_on_faces(vertices, triangles, off_rims, count, axis, heights, order,
     if len(faces) == 0:
         return None
     return sample_mesh(vertices, faces, count=count, seed=seed + 1)
-
-
-@one_blas_thread
-def sized_from_points(points: np.ndarray, axis="z", tolerance: float | None = None,
-                      smoothing: float | str = "auto", support: bool = True,
-                      sections: int | None = None, n: int | None = None,
-                      sigma: np.ndarray | None = None):
-    """Cloud -> dense stitched mesh -> sized control mesh, the steps of
-    ``surface.reconstruct.surface_from_points`` with its defaults, then
-    :func:`size_control_mesh` (what ``photosurf run``'s smooth stage does).
-
-    Parameters
-    ----------
-    points : (P, 3) float64
-    axis : as ``surface_from_points``
-    tolerance : float, optional
-        Largest estimated error to the truth; default :func:`ring_noise` of the dense
-        rings (the thinned surface no farther from the truth than they are).
-    smoothing, support, sections, n, sigma
-        As ``surface_from_points`` (``sigma``: the points' precision, which places the
-        ends by inverse-variance weights).
-
-    Returns
-    -------
-    (SizedMesh, StitchResult)
-        The sized control mesh and the dense stitched mesh.
-    """
-
-    sliced = rc.slice_cloud(points, axis=axis, sections=sections)
-    kept, loops, _ = rc.organise_sections(sliced.sections,
-                                          min_points=rc.min_loop_points(smoothing))
-    rings, fits = rc.section_rings(kept, loops, n, smoothing=smoothing, fits=True)
-    fit_of = {id(section): fit for section, fit in zip(kept, fits, strict=True)}
-    kept, loops, rings, _ = rc.untangle(kept, loops, rings)
-    noise = rc.section_noise(loops)
-    precision = ring_precision([fit_of[id(section)] for section in kept])
-    cap = sliced.cap_cloud
-    cap_sigma = None if sigma is None else np.asarray(sigma, np.float64)[sliced.cap_index]
-
-    def build(ring_list, planes):
-        extended, _ = rc.extend_to_caps(ring_list, planes, cap, np.arange(len(cap)),
-                                        sliced.spacing, sigma=cap_sigma)
-        result = stitch_rings(extended, kept[0].frame[2], close_ends=True,
-                              support_sigma=noise if support else None, cap_points=cap)
-        if not result.closed:
-            raise ValueError("the thinned rings stitch to an open mesh")
-        return result
-
-    dense = build(rings, kept)
-    ring_sigma = ring_noise(rings, kept[0].frame[2], precision, noise)
-    sized = size_control_mesh(rings, kept, sliced.spacing,
-                              lambda r, p: (lambda s: (s.vertices, s.triangles))(build(r, p)),
-                              (dense.vertices, dense.triangles),
-                              float(tolerance) if tolerance else None, noise=ring_sigma)
-
-    sized.spacing = float(point_spacing(np.asarray(points, dtype=np.float64)))
-    return sized, dense

@@ -113,7 +113,7 @@ def test_curves_round_trip_with_several_loops(tmp_path, rng, frame):
 def test_curves_store_how_each_ring_was_fitted_and_old_files_still_read(tmp_path, rng,
                                                                        frame):
     from surface.catmull_rom import RingFit
-    from surface.sizing import ring_precision
+    from surface.section_errors import ring_precision
 
     sections = _sections(rng, frame)
     rings = [rng.normal(size=(6, 3)), [rng.normal(size=(12, 3)), rng.normal(size=(5, 3))],

@@ -102,12 +102,12 @@ def test_the_sizing_interpolates_a_stepped_columns_ledge_and_not_its_rims():
     # z = 1), none at the rims of the ends (z = 0, 2) nor on the ledge's inner corner
     # (a valley) -- and the surface built to judge the candidate interpolates them: its
     # limit points there are the control mesh's vertices.
-    from surface.sizing import sized_from_points
+    from pipeline.section_surface import sized_surface
     from testkit.vase import noisy_cloud
 
     v, t, _, _ = _stepped(rows=41, n_theta=256)
     points = noisy_cloud(v, t, 20_000, seed=3)
-    sized, _ = sized_from_points(points, axis="z")
+    sized = sized_surface(points, axis="z").sized
     assert sized.creases is not None and sized.creases.any()
     at = sized.vertices[sized.creases]
     r, z = np.hypot(at[:, 0], at[:, 1]), at[:, 2]
@@ -119,7 +119,7 @@ def test_the_sizing_interpolates_a_stepped_columns_ledge_and_not_its_rims():
     sizing_flag = interpolation.INTERPOLATE_CREASES
     try:
         interpolation.INTERPOLATE_CREASES = False
-        assert sized_from_points(points, axis="z")[0].creases is None
+        assert sized_surface(points, axis="z").sized.creases is None
     finally:
         interpolation.INTERPOLATE_CREASES = sizing_flag
 
@@ -133,7 +133,7 @@ def test_mesh_creases_of_a_stitched_mesh_take_the_band_from_its_rings():
     heights = np.array([z for _, z in profile])
     lo, hi = sizing.crease_band(heights)
     assert lo == 0.125 - 0.0625 and hi == 1.875 + 0.0625    # spacing 0.125: the median gap
-    mask = sizing.mesh_creases(v, t, rings, (0.0, 0.0, 1.0))
+    mask = interpolation.mesh_creases(v, t, rings, (0.0, 0.0, 1.0))
     r, z = np.hypot(v[:, 0], v[:, 1]), v[:, 2]
     assert np.array_equal(mask, (np.abs(r - 1.0) < 1e-9) & (np.abs(z - 1.0) < 1e-9))
     assert sizing.crease_band(heights[:3]) == (np.inf, -np.inf)

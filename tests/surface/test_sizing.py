@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from surface import bezier, sizing
+from pipeline.section_surface import sized_surface
+from surface import bezier, ring_resample, section_chains, section_errors, sizing
 from surface import metrics as M
 from surface.fitting import interpolating_control_mesh, limit_positions, sharp_vertices
 from surface.sections import Section
@@ -52,12 +53,12 @@ def test_resample_ring_stays_on_the_curve():
     # with h = 2 pi / 240, is ~1e-9; resampled points must lie on the ellipse to 1e-7
     t = 2.0 * np.pi * np.arange(240) / 240
     ring = np.column_stack([1.5 * np.cos(t), 0.7 * np.sin(t), np.zeros_like(t)])
-    out = sizing.resample_ring(ring, 37)
+    out = ring_resample.resample_ring(ring, 37)
     assert out.shape == (37, 3)
     np.testing.assert_allclose(out[0], ring[0], atol=1e-15)  # the first point stays
     np.testing.assert_allclose((out[:, 0] / 1.5) ** 2 + (out[:, 1] / 0.7) ** 2, 1.0, atol=1e-7)
     with pytest.raises(ValueError, match="count must be >= 3"):
-        sizing.resample_ring(ring, 2)
+        ring_resample.resample_ring(ring, 2)
 
 
 @pytest.mark.parametrize("count,step", [(189, 7), (20, 3), (5, 9), (2, 4), (50, 1)])
@@ -138,7 +139,7 @@ def test_rounded_ends_tell_domes_from_rims(monkeypatch):
     for cloud in (_capsule_cloud(10_000, 0.002, seed=3),
                   noisy_cloud(*vase_truth(256, 192), 10_000, seed=0)):
         with pytest.raises(StopIteration):
-            sizing.sized_from_points(cloud)
+            sized_surface(cloud)
     assert ends == [(True, True), (False, False)]
 
 
@@ -185,39 +186,24 @@ def test_sized_vase_is_coarser_and_within_tolerance():
     assert truth_distance(sample).mean() <= truth_distance(dense_sample).mean() + tolerance
 
 
-def test_bisection_takes_the_candidate_the_search_from_the_coarsest_takes(monkeypatch):
+def test_bisection_takes_the_candidate_the_search_from_the_coarsest_takes():
     """The coarsest passing candidate found by bisection over the candidate levels is the
     one trying every level from the coarsest finds, with fewer candidates built."""
     rings, planes, spacing = noisy_vase_rings(1e-3)
     dense = build(rings, planes)
-    found = {}
-    for bisect in (False, True):
-        monkeypatch.setattr(sizing, "SEARCH_BISECT", bisect)
-        sized = sizing.size_control_mesh(rings, planes, spacing, build, dense)
-        built = [c for c in sized.tried if "triangles" in c]
-        found[bisect] = (sized.step, sized.n, len(built))
-    assert found[False][0] > 1 and found[True][:2] == found[False][:2]
-    assert found[True][2] < found[False][2]
-
-
-@pytest.mark.parametrize("shape", ["amphora", "torus"])
-def test_walk_when_none_passes_chooses_what_trying_every_level_chooses(monkeypatch, shape):
-    """When the bisection finds no candidate within its goal (a handle's or a hole's
-    branches: 10 000 points of the branched shapes), the walk -- the step-1 levels, then
-    coarser levels only while their estimates stay within a standard error of the
-    closest -- keeps what trying every level keeps, from fewer candidates."""
-    from testkit import shapes as _shapes
-
-    points = _shapes.sample(shape, 10_000, seed=1)
-    chosen = {}
-    for walk in (False, True):
-        monkeypatch.setattr(sizing, "WALK_WHEN_NONE_PASS", walk)
-        sized, _ = sizing.sized_from_points(points, axis="z")
-        built = [c for c in sized.tried if "triangles" in c]
-        assert all(c["error"] > c["tolerance"] for c in built)     # none passed
-        chosen[walk] = (sized.step, sized.n, len(sized.triangles), len(built))
-    assert chosen[True][:3] == chosen[False][:3]
-    assert chosen[True][3] < chosen[False][3]
+    sized = sizing.size_control_mesh(rings, planes, spacing, build, dense)
+    bisected = [c for c in sized.tried if "triangles" in c]
+    # every level judged in order from the coarsest, then the one half way to the previous
+    axis, variogram, noise = sizing._checked_noise(rings, planes, spacing, None, None, None)
+    search = sizing._level_search(rings, planes, spacing, build, dense, None, 0, True,
+                                  variogram, noise, True, axis)
+    first = next(((h, passed) for h in search.levels()
+                  if (passed := search.judge(h)) is not None), None)
+    assert first is not None and first[1].step > 1
+    between = search.judge(first[0] * np.sqrt(sizing.H_RATIO))
+    every = between if between is not None else first[1]
+    assert (sized.step, sized.n) == (every.step, every.n)
+    assert len(bisected) < len([c for c in search.tried if "triangles" in c])
 
 
 def test_ring_points_of_the_levels_do_not_read_rounding():
@@ -259,13 +245,14 @@ def test_sized_surface_keeps_the_stitched_accuracy_of_a_noisy_cloud():
         surface = bezier.control_net(control, sized.triangles)
         return surface, chamfer(*bezier.tessellate(surface, 1)[:2])
 
-    sized, dense = sizing.sized_from_points(points)
+    made = sized_surface(points)
+    sized, dense = made.sized, made.dense
     stitched = chamfer(dense.vertices, dense.triangles)
     surface, sized_chamfer = smooth(sized)
     assert sized.step > 1 and sized.error <= sized.tolerance < 0.5 * SIGMA
     assert sized_chamfer <= stitched
     assert len(surface.control_points) <= 4 * len(dense.triangles) / 3
-    coarse, _ = sizing.sized_from_points(points, tolerance=SIGMA)
+    coarse = sized_surface(points, tolerance=SIGMA).sized
     assert len(coarse.triangles) < len(sized.triangles) / 2
     assert smooth(coarse)[1] > 1.6 * stitched
 
@@ -314,20 +301,20 @@ def test_section_scatter_measures_the_rings_independent_noise():
 
 def test_section_scatter_follows_each_branch_through_sections_of_several_loops():
     """Two vases side by side (every section two loops, as a temple's columns): the
-    scatter is read along each loop's chain (sizing.loop_chains); single-loop sections
+    scatter is read along each loop's chain (section_chains.loop_chains); single-loop sections
     alone gave nothing here (nan), and on the real temple one window of five."""
     sigma = 1e-3
     left, _, _ = noisy_vase_rings(sigma, seed=3)
     right, _, _ = noisy_vase_rings(sigma, seed=4)
     shift = np.array([4.0, 0.0, 0.0])
     rings = [[a, b + shift] for a, b in zip(left, right, strict=True)]
-    chains = sizing.loop_chains(rings, np.eye(3))
+    chains = section_chains.loop_chains(rings, np.eye(3))
     assert sorted(len(members) for _, members in chains) == [61, 61]
     assert sizing.section_scatter(rings) == pytest.approx(sigma, rel=0.05)
     # a branch that stops (a split, an end) starts a new chain
     cut = [[a, b + shift] if k < 30 else [a]
            for k, (a, b) in enumerate(zip(left, right, strict=True))]
-    assert sorted(len(m) for _, m in sizing.loop_chains(cut, np.eye(3))) == [30, 61]
+    assert sorted(len(m) for _, m in section_chains.loop_chains(cut, np.eye(3))) == [30, 61]
 
 
 def test_regression_across_sections_averages_the_noise():
@@ -399,15 +386,15 @@ def test_error_estimate_is_steins_unbiased_risk():
     kernel = np.ones(5) / 5
     fit = np.convolve(np.pad(x, 2, mode="wrap"), kernel, mode="valid")
     actual = float(np.sqrt(np.mean((fit - truth) ** 2)))
-    estimate = sizing.error_estimate(np.abs(fit - x), sigma, influence_mean=1 / 5)
+    estimate = section_errors.error_estimate(np.abs(fit - x), sigma, influence_mean=1 / 5)
     assert estimate == pytest.approx(actual, rel=0.05)
-    assert sizing.error_estimate(np.zeros(10), sigma, 1.0) == pytest.approx(sigma)  # a copy
+    assert section_errors.error_estimate(np.zeros(10), sigma, 1.0) == pytest.approx(sigma)  # a copy
 
 
 def test_rings_resampled_together_equal_one_by_one():
     """resample_rings_at_angles (one spline for rings of one point count) gives the
     rings resample_at_angles gives one at a time, to rounding."""
-    from surface.sizing import resample_at_angles, resample_rings_at_angles
+    from surface.ring_resample import resample_at_angles, resample_rings_at_angles
 
     rng = np.random.default_rng(0)
     frame = np.eye(3)
@@ -434,7 +421,7 @@ def test_periodic_cubic_is_scipys_periodic_spline(m):
     do not change it."""
     from scipy.interpolate import CubicSpline
 
-    from surface.sizing import periodic_cubic
+    from surface.ring_resample import periodic_cubic
 
     rng = np.random.default_rng(m)
     rings = [rng.normal(size=(m, 3)), rng.normal(size=(m + 2, 3)), rng.normal(size=(m, 3))]
@@ -552,7 +539,7 @@ def test_risk_estimate_for_errors_correlated_across_sections():
     estimate = sizing.risk_estimate(np.abs(fit - x), variogram, unshared)
     assert estimate == pytest.approx(actual, rel=0.05)
     lag1 = np.sqrt(variogram(1))
-    assert sizing.error_estimate(np.abs(fit - x), lag1, 1 / 7) < 0.75 * actual
+    assert section_errors.error_estimate(np.abs(fit - x), lag1, 1 / 7) < 0.75 * actual
 
 
 def test_stitched_surface_error_sees_the_faces_not_the_vertices():
@@ -644,7 +631,8 @@ def test_candidates_keeping_every_ring_do_not_pass_on_their_own_goal():
         z = np.clip(p[:, 2], 0.0, 2.0)
         return np.abs(np.linalg.norm(p - np.column_stack([0 * z, 0 * z, z]), axis=1) - 1.0)
 
-    sized, dense = sizing.sized_from_points(_capsule_cloud(100_000, 0.002, seed=2))
+    made = sized_surface(_capsule_cloud(100_000, 0.002, seed=2))
+    sized, dense = made.sized, made.dense
     assert sized.step > 1
     assert all(t.get("tolerance", np.inf) < t["floor"] for t in sized.tried
                if "skipped" in t)

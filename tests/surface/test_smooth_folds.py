@@ -15,11 +15,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipeline.section_surface import sized_surface
 from pipeline.smoothing import smooth_mesh
 from surface import interpolation
 from surface.fitting import folded_faces, surface_folds
 from surface.metrics import compare_meshes, sample_mesh
-from surface.sizing import interpolating_control, sized_from_points
+from surface.sizing import interpolating_control
 from surface.validity import check_solid
 from testkit import can as _can
 
@@ -28,7 +29,7 @@ from testkit import can as _can
 def can_sized():
     v, t = _can.can_truth()
     cloud = sample_mesh(v, t, 8_000, seed=0)
-    sized, _ = sized_from_points(cloud, axis="auto")
+    sized = sized_surface(cloud, axis="auto").sized
     return (v, t), sized
 
 
