@@ -43,6 +43,7 @@ References
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -517,8 +518,6 @@ class StoredPair:
         return len(self.points)
 
     def load(self) -> PairCloud:
-        import os
-
         with np.load(self.path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
         os.remove(self.path)
@@ -529,8 +528,6 @@ class StoredPair:
 
 def _stored(cloud: PairCloud, folder: str) -> StoredPair:
     """``cloud`` written to ``folder`` (:class:`StoredPair`), its arrays bit for bit."""
-    import os
-
     path = os.path.join(folder, f"pair_{cloud.pair[0]}_{cloud.pair[1]}.npy.npz")
     extra = {} if cloud.offset is None else {"offset": cloud.offset}
     tmp = path + ".part.npz"

@@ -31,9 +31,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from matching.cameras import Camera
+from matching.masks import foreground_mask
 from matching.validate import check_shape
 
 __all__ = ["object_extent_px", "foreground_extent_px", "working_scale", "scale_camera",
@@ -95,10 +97,6 @@ def foreground_extent_px(image, share: float = 0.9, probe_px: int = 1000) -> flo
     """The longer side (px, at the image's size) of the box holding the central ``share``
     of the image's automatic foreground (:func:`matching.masks.foreground_mask`, no
     dilation), found on a copy at most ``probe_px`` long; None: no uniform background."""
-    import cv2
-
-    from matching.masks import foreground_mask
-
     image = np.asarray(image)
     h, w = image.shape[:2]
     ratio = min(1.0, probe_px / max(h, w))

@@ -9,9 +9,16 @@ pairs and checks mapped over a :mod:`pipeline.executor` executor.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import os
+import shutil
 import tempfile
+import threading
+import time
+import weakref
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +75,6 @@ def folder_masks(bases: list[Path], names: list[str], images, cameras,
 def identical_views(folder: Path, names: list[str]) -> list[list[str]]:
     """Groups of two or more views whose image files hold the same bytes (SHA-256), in
     the order of ``names``; the files are read in 1 MB blocks."""
-    import hashlib
-
     groups: dict[str, list[str]] = {}
     for name in names:
         digest = hashlib.sha256()
@@ -99,9 +104,6 @@ def _progress_map(inner):
     """``inner`` (a ``map(func, items)``) with one progress line (:mod:`pipeline.logs`) as
     each task ends: the view pairs and their consistency checks of a long acquisition show
     where it is."""
-    import threading
-    import time
-
     def run(func, items):
         items, lock, done, start = list(items), threading.Lock(), [0], time.monotonic()
         what = {"_pair_task": "view pair", "_consistency_task": "pair check"}.get(
@@ -136,9 +138,6 @@ class WorkingViews:
     lazy = True
 
     def __init__(self, images):
-        import tempfile
-        import weakref
-
         self.images, self.shapes = images, list(images.shapes)
         self.paths = getattr(images, "paths", None)
         self._dir = Path(tempfile.mkdtemp(prefix="photosurf-views-"))
@@ -151,9 +150,6 @@ class WorkingViews:
         return (_identity, (self.images,))
 
     def __getitem__(self, index: int) -> np.ndarray:
-        import os
-        import threading
-
         path = self._dir / f"{int(index)}.npy"
         try:
             return np.load(path)
@@ -174,8 +170,6 @@ class WorkingViews:
 
 
 def _remove_tree(path: Path) -> None:
-    import shutil
-
     shutil.rmtree(path, ignore_errors=True)
 
 
@@ -206,8 +200,6 @@ def _object_only(cloud, cameras):
     """The cloud without the points outside the cameras' region and on a support plane
     under the object (:func:`matching.roi.select_object`); ``stats["roi"]`` says what
     was kept and dropped."""
-    from dataclasses import replace
-
     from matching.roi import select_object
 
     if len(cloud) == 0:
@@ -227,8 +219,6 @@ def _metric_scale(cloud, loaded: dict, folder, spec: str, marker_side: float):
     (pixels of the image as the user sees it, at full size) or ArUco markers of side
     ``marker_side`` (:mod:`matching.scale`); ``stats["scale"]`` states the source and
     its uncertainty."""
-    from dataclasses import replace
-
     from matching.scale import detect_markers, parse_scale, scale_from_markers, scale_from_points
     from matching.sfm import transform_cameras
     from pipeline.inputs import read_image
