@@ -403,7 +403,9 @@ def _cell(row: dict, key: str, width: int, fmt: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the 320x240 ring")
-    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "multiview.json"))
+    parser.add_argument("--json", default=None,
+                        help="result file (default benchmarks/results/multiview.json; with "
+                             "--temple multiview_temple.json, with --kernel lsm_kernel.json)")
     parser.add_argument("--scene", default=None,
                         help="an already rendered scene folder (photosurf synth) to reuse")
     parser.add_argument("--spacing", type=int, default=3,
@@ -422,6 +424,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3,
                         help="with --kernel: replays, the fastest kept (default 3)")
     args = parser.parse_args(argv)
+    if args.json is None:
+        name = ("lsm_kernel" if args.kernel else "multiview_temple" if args.temple
+                else "multiview")
+        args.json = str(ROOT / "benchmarks" / "results" / f"{name}.json")
     if args.kernel:
         return kernel_main(args)
     if args.temple:
