@@ -203,6 +203,10 @@ def sections(ctx: StageContext) -> dict:
     axis, axis_source = _section_axis(p["axis"], ctx.stage_path("acquire", RING_FILE))
     if isinstance(p["axis"], str) and p["axis"] == "data" and axis_source.startswith("z "):
         axis, axis_source = _across_the_view(points, _cameras(ctx), axis, axis_source)
+    elif isinstance(p["axis"], str) and p["axis"] == "data" and axis == "auto":
+        # SfM frame, no ring: cameras on one side (a facade) get sections along their view
+        axis, axis_source = _across_the_view(points, _cameras(ctx), axis, axis_source,
+                                             one_side=True)
     check_cloud_shape(points, "acquire: the cloud", axis=axis)  # a line or plane: no surface
     extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
     if 0 < extent < MIN_EXTENT:  # the stages' lengths are in scene units: not rescaled here
@@ -260,25 +264,35 @@ def _section_axis(axis, ring_file: Path):
 AXIS_VIEW_DEGREES = 45.0
 
 
-def _across_the_view(points, cameras, axis, source):
+def _across_the_view(points, cameras, axis, source, one_side: bool = False):
     """The cloud's principal direction across the cameras' mean viewing direction ``d``
     (the largest eigenvector of ``(I - d dᵀ) Σ (I - d dᵀ)``), when z lies within
-    :data:`AXIS_VIEW_DEGREES` of ``d``; else ``axis, source`` unchanged."""
+    :data:`AXIS_VIEW_DEGREES` of ``d``, or with ``one_side`` when every camera centre lies
+    within 90° of their mean direction from the cloud's median (they see one side: each
+    section then holds the view, a depth profile of what they see); else ``axis,
+    source`` unchanged."""
     import numpy as np
 
     if not cameras:
         return axis, source
     view = np.mean([camera.R[2] for camera in cameras], axis=0)   # optical axes in world
     view /= np.linalg.norm(view)
-    if abs(view[2]) < np.cos(np.radians(AXIS_VIEW_DEGREES)):
+    if one_side:
+        sides = np.array([c.center for c in cameras]) - np.median(points, axis=0)
+        sides /= np.linalg.norm(sides, axis=1)[:, None]
+        mean = sides.sum(axis=0)
+        if not (np.linalg.norm(mean) > 0 and np.min(sides @ mean) > 0):
+            return axis, source
+    elif abs(view[2]) < np.cos(np.radians(AXIS_VIEW_DEGREES)):
         return axis, source
     across = np.eye(3) - np.outer(view, view)
     centred = np.asarray(points, np.float64) - np.median(points, axis=0)
     scatter = across @ (centred.T @ centred) @ across
     principal = np.linalg.eigh(scatter)[1][:, -1]
     return ([round(float(a), 9) for a in principal],
-            f"principal axis across the cameras' view (z is within {AXIS_VIEW_DEGREES:g} "
-            "degrees of their viewing direction)")
+            "principal axis across the cameras' view (" + (
+                "they see the cloud from one side)" if one_side else
+                f"z is within {AXIS_VIEW_DEGREES:g} degrees of their viewing direction)"))
 
 
 def _cameras(ctx: StageContext) -> list:
@@ -395,15 +409,19 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
     _, _, spacing = artifacts.read_sections(ctx.stage_path("sections"))
     if not spacing > 0 and len(sliced) > 1:
         spacing = float(np.median(np.abs(np.diff([s.height for s in sliced]))))
-    sliced, piece = osf.main_piece(sliced, spacing) if spacing > 0 else (sliced, None)
-    kept, loops, messages = osf.organise_arcs(sliced, **options)
+    cameras = _cameras(ctx)
+    view = np.mean([camera.R[2] for camera in cameras], axis=0) if cameras else None
+    # seen from cameras: the height field over their view (every piece seen); else one sheet
+    sliced, piece = (osf.main_piece(sliced, spacing) if spacing > 0 and view is None
+                     else (sliced, None))
+    kept, loops, messages = osf.organise_arcs(sliced, drop_splits=view is None, **options)
     messages += [piece] if piece else []
     share = rc.bridged_share(loops)
     if len(kept) < 2 or not (forced or osf.one_sided(loops)):
         return None
     try:
         curves, rings, params, step, notes, run = osf.open_arcs(
-            loops, spacing, p["n"] or None, smoothing=smoothing)
+            loops, spacing, p["n"] or None, smoothing=smoothing, view=view)
     except ValueError as exc:
         raise InputError(f"curves: one-sided data, but no open surface: {exc}") from exc
     if len(run) < 2:

@@ -68,7 +68,7 @@ from surface.validate import TOL, check_finite, check_shape
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
            "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps",
-           "open_arcs", "chain_arcs",
+           "open_arcs", "chain_arcs", "height_field_arc",
            "smooth_border", "open_share", "LINE_BAND", "QUARTER_STEP", "BORDER_SLOPE",
            "BORDER_PASSES", "BORDER_REACH"]
 
@@ -411,6 +411,45 @@ def chain_arcs(arcs: Sequence[np.ndarray]) -> tuple[np.ndarray, int]:
     return chain, used
 
 
+def _runs_between_gaps(arc: np.ndarray, link: float) -> list[np.ndarray]:
+    """An ordered arc cut at its steps longer than ``link`` (``Loop.bridge``: missing
+    data), into the runs of points between them."""
+    step = np.linalg.norm(np.diff(arc, axis=0), axis=1)
+    return np.split(arc, np.flatnonzero(step > link) + 1)
+
+
+def height_field_arc(arcs: Sequence[np.ndarray], across: np.ndarray, reach: float
+                     ) -> tuple[np.ndarray, int]:
+    """One section's arcs as one height field over the direction ``across`` (in the
+    section plane, across the cameras' view): what cameras on one side see of a section
+    is at most one depth for each position across their view.
+
+    The pieces are taken widest first (their extent along ``across``) where they overlap
+    no piece already taken by more than ``reach`` (a tree before a wall, a recess behind
+    it: the wider layer is kept), each turned to run along ``+across``, and joined in
+    order along it; the gaps between them (windows, plain stone where the matcher found
+    nothing) are bridged by the fit's chords (:func:`bridge_open_gaps`).
+
+    Returns
+    -------
+    arc : (M, 3) float64
+    used : int
+        Pieces in it.
+    """
+    pieces = [np.asarray(a, np.float64) for a in arcs if len(a) >= 2]
+    coord = [piece @ across for piece in pieces]
+    lo = np.array([c.min() for c in coord])
+    hi = np.array([c.max() for c in coord])
+    taken: list[int] = []
+    for i in np.argsort(lo - hi, kind="stable").tolist():      # widest first
+        if all(min(hi[i], hi[j]) - max(lo[i], lo[j]) <= reach for j in taken):
+            taken.append(i)
+    taken.sort(key=lambda i: lo[i] + hi[i])
+    arc = np.concatenate([pieces[i][::-1] if coord[i][-1] < coord[i][0] else pieces[i]
+                          for i in taken])
+    return arc, len(taken)
+
+
 def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:
     """An open arc with straight chords across its wide gaps, as the closed rings'
     (``surface.catmull_rom.bridge_gaps``, without the wrap: an open arc's ends are where
@@ -571,6 +610,35 @@ def align_arcs(curves: list[OpenCurve]
         nxt = placed[k + 1]
         placed[k] = _Placed(*dense[k], nxt.offset - nxt.scale * a / c, nxt.scale / c)
     return curves, placed, notes, run
+
+
+def place_across(curves: list[OpenCurve], across: np.ndarray
+                 ) -> tuple[list[OpenCurve], list[_Placed], list[str], range]:
+    """:func:`align_arcs` for height-field arcs (:func:`height_field_arc`): ``u`` is the
+    position along ``across`` itself, the same for every section, so nothing is carried
+    from arc to arc (on the Sceaux facade the carried scale drifted tenfold over 244
+    sections: arcs of depth steps and noise are longer than their neighbours by a few
+    per cent each).  Along each arc ``u`` is made non-decreasing (its running maximum: a
+    depth step parallel to the view is crossed at one ``u``).  The run is the longest
+    one of arcs whose ranges of ``u`` overlap their neighbour's."""
+    placed = []
+    for curve in curves:
+        t, pts, _ = curve.dense()
+        placed.append(_Placed(t, pts, np.maximum.accumulate(pts @ across), 0.0, 1.0))
+    runs, lo = [], 0
+    for k in range(1, len(curves) + 1):
+        if k == len(curves) or not (
+                min(placed[k].u[-1], placed[k - 1].u[-1]) > max(placed[k].u[0],
+                                                                  placed[k - 1].u[0])):
+            runs.append(range(lo, k))
+            lo = k
+    run = max(runs, key=lambda r: sum(float(placed[k].u[-1] - placed[k].u[0]) for k in r))
+    notes = []
+    if len(run) < len(curves):
+        notes.append(f"{len(curves) - len(run)} of {len(curves)} arcs left out: they do not "
+                     f"overlap the run of arcs {run.start}..{run.stop - 1} (the surface's) "
+                     "across the view")
+    return curves, [p if k in run else None for k, p in enumerate(placed)], notes, run
 
 
 def smooth_border(ends: np.ndarray, step: float) -> np.ndarray:
@@ -938,7 +1006,8 @@ def main_piece(sections, spacing: float) -> tuple[list, str | None]:
                  f"{PIECE_REACH:g} section spacings) left out: one sheet is made")
 
 
-def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
+def organise_arcs(sections, drop_splits: bool = True, **organise_options
+                  ) -> tuple[list, list, list[str]]:
     """The loops of every non-empty section, open arcs kept (``surface.topology.organise``).
 
     ``surface.reconstruct.organise_sections`` without its refusal of open arcs and
@@ -969,13 +1038,16 @@ def organise_arcs(sections, **organise_options) -> tuple[list, list, list[str]]:
                                                               SectionSkippedWarning)]
     # a section broken into more loops than both its neighbours (a gap in the data there)
     # is skipped as the closed path skips it: its largest piece would notch the surface
-    kept, loops, notes = _drop_one_section_splits(kept, loops)
+    # (not for a height field, which takes every piece: ``drop_splits`` False)
+    kept, loops, notes = _drop_one_section_splits(kept, loops) if drop_splits else \
+        (kept, loops, [])
     return kept, loops, messages + notes
 
 
 @one_blas_thread
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
-              smoothing: float | str = "auto", border: bool = True):
+              smoothing: float | str = "auto", border: bool = True,
+              view: np.ndarray | None = None):
     """Sections' loops → open arcs → open curves → arcs resampled on the common grid.
 
     Parameters
@@ -994,6 +1066,13 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         The rings end on the smooth border curves (:func:`smooth_border`; stitch them
         with ``reach=BORDER_REACH``); False: where each arc's data end (the former rule,
         a staircase border; for comparison).
+    view : (3,) float64, optional
+        The mean of the cameras' unit viewing directions: each section's loops become one
+        height field across it (:func:`height_field_arc`, pieces overlapping by at most
+        :data:`PIECE_REACH` section spacings) on the parameter ``u`` across it
+        (:func:`place_across`); without it, when it is shorter than 1/2 (the cameras do
+        not share a view) or when the sections face it within 45° (depth slabs), the
+        pieces that continue one another (:func:`chain_arcs`) on :func:`align_arcs`.
 
     Returns
     -------
@@ -1009,18 +1088,38 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     """
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
-    notes, curves, data = [], [], 0
+    notes, curves, data, partial = [], [], 0, 0
+    across = None
+    if view is not None and np.linalg.norm(view) >= 0.5 and loops and loops[0]:
+        # (a mean of the cameras' unit view directions shorter than 1/2: they do not
+        # share one view)
+        axis = np.asarray(loops[0][0].frame, np.float64)[2]
+        across = np.cross(axis, np.asarray(view, np.float64) / np.linalg.norm(view))
+        # sections within 45° of facing the view cut it into depth slabs: no height field
+        across = across / np.linalg.norm(across) if np.linalg.norm(across) > 0.5**0.5 \
+            else None
     for section_loops in loops:
         best = max(section_loops, key=len)
-        arc, used = chain_arcs([loop_arc(lp) for lp in section_loops])
+        pieces = [loop_arc(lp) for lp in section_loops]
+        if across is not None:  # a loop's runs between its gaps may lie at other depths
+            pieces = [run for piece, lp in zip(pieces, section_loops, strict=True)
+                      for run in _runs_between_gaps(piece, getattr(lp, "bridge", math.inf))]
+        arc, used = (chain_arcs(pieces) if across is None else
+                     height_field_arc(pieces, across, PIECE_REACH * spacing))
         data += len(arc)
         if used < len(section_loops):
-            notes.append(f"section at height {best.height:.6g}: {len(section_loops)} loops, "
-                         f"{used} continuing one another kept as one arc "
-                         f"({len(arc)} points)")
+            partial += 1
+            if partial <= 3:
+                notes.append(f"section at height {best.height:.6g}: {len(section_loops)} "
+                             f"loops, {used} piece(s) kept as one arc ({len(arc)} points)"
+                             + (" (the pieces that continue one another)" if across is None
+                                else " (one depth across the view)"))
         arc = bridge_open_gaps(arc, getattr(best, "bridge", math.inf))
         curves.append(fit_open(arc, smoothing, frame=best.frame))
-    curves, placed, align_notes, run = align_arcs(curves)
+    if partial > 3:
+        notes.append(f"... and {partial - 3} more sections with pieces left out")
+    curves, placed, align_notes, run = (align_arcs(curves) if across is None else
+                                        place_across(curves, across))
     notes += align_notes
     if len(run) < MIN_RUN_SHARE * len(curves) or len(run) < 2:
         raise ValueError(f"the arcs do not line up as one surface: the longest run of arcs "
