@@ -864,6 +864,56 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
                   base: int) -> tuple[list, np.ndarray, list]:
     """Split one loop into one sub-loop per child loop along straight bridges.
 
+    :func:`_bridge_split_in` peeling the children in its own order (the child nearest
+    to the fewest points first); where that split fails or a sub-loop of it crosses
+    itself and the loop does not (a straight bridge of a merge of many loops, a head
+    with its ears and horns, cuts through the loop's own bends), the other orders are
+    tried in lexicographic order, and the first whose sub-loops are all simple is taken
+    (at most :data:`BRIDGE_ORDERS`); when none is, the split is its own order's (or its
+    error).  Parameters, returns and raises as :func:`_bridge_split_in`'s.
+    """
+    import itertools
+
+    ring_flat = np.asarray(ring_flat)
+    try:
+        first, failure = _bridge_split_in(ring_idx, ring_flat, children, base, None), None
+    except ValueError as exc:
+        first, failure = None, exc
+    if self_intersects(ring_flat):
+        if failure is not None:
+            raise failure
+        return first
+
+    def simple(split) -> bool:
+        flat = np.vstack([ring_flat, split[1]])
+        local = np.full(base + len(split[1]), -1, np.int64)
+        local[np.asarray(ring_idx)] = np.arange(len(ring_idx))
+        local[base:] = len(ring_idx) + np.arange(len(split[1]))
+        return not any(self_intersects(flat[local[sub]]) for sub in split[0])
+    if first is not None and simple(first):
+        return first
+    k = len(children)
+    for order in itertools.islice(itertools.permutations(range(k), k - 1), BRIDGE_ORDERS):
+        try:
+            split = _bridge_split_in(ring_idx, ring_flat, children, base, order)
+        except ValueError:
+            continue
+        if simple(split):
+            return split
+    if failure is not None:
+        raise failure
+    return first
+
+
+#: Peeling orders :func:`_bridge_split` tries at most (5! = 120: a merge of six loops).
+BRIDGE_ORDERS = 120
+
+
+def _bridge_split_in(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
+                     base: int, order: tuple | None) -> tuple[list, np.ndarray, list]:
+    """Split one loop into one sub-loop per child loop along straight bridges, peeling
+    the children in ``order`` (None: the child nearest to the fewest points first).
+
     The loop's points are labelled by their nearest child loop (in the plane);
     the child taken first owns the cyclic arc that best matches its labels
     (:func:`_best_window`), and the loop is cut along the chord between the
@@ -915,13 +965,15 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
     subs, sub_flats, dips = [], [], []
     idx, flat = np.asarray(ring_idx), np.asarray(ring_flat)
     left = list(range(len(children)))
+    peel = order
     order = []
-    for _ in range(len(children) - 1):
+    for step in range(len(children) - 1):
         # Peel the child nearest to the fewest points first: a small branch (a handle)
         # owns one arc of the loop, while the loop's main body may own several.
         dist = np.stack([trees[m].query(flat)[0] for m in left])
         owner = np.argmin(dist, axis=0)
-        pick = int(np.argmin(np.bincount(owner, minlength=len(left))))
+        pick = (int(np.argmin(np.bincount(owner, minlength=len(left)))) if peel is None
+                else left.index(peel[step]))
         k = left.pop(pick)
         order.append(k)
         label = owner == pick

@@ -271,3 +271,40 @@ def test_no_flip_turns_a_cap_face_over_along_the_axis():
     assert flips == 0 and np.array_equal(kept, faces)
     _, flips, _ = delaunay_flips(v, faces, np.array([0, 0]), axis=AXIS)
     assert flips == 1
+
+
+def _head_outline(step: float = 0.07, cell: float = 0.01) -> np.ndarray:
+    """A cow's section at its head, counter-clockwise: a body (an ellipse 2.4 by 1.5), a
+    neck to the right and two ears on stalks (the boundary of their union on a raster
+    of ``cell``, resampled at ``step``)."""
+    import cv2
+    img = np.zeros((int(3.4 / cell), int(8.0 / cell)), np.uint8)
+
+    def px(x, y):
+        return int((x + 3.6) / cell), int((y + 1.7) / cell)
+    cv2.ellipse(img, px(-1.0, 0.0), (int(2.4 / cell), int(1.5 / cell)), 0, 0, 360, 255, -1)
+    cv2.rectangle(img, px(1.0, -0.75), px(3.3, 0.75), 255, -1)
+    for y in (-0.95, 0.95):
+        cv2.circle(img, px(3.6, y), int(0.3 / cell), 255, -1)
+        cv2.rectangle(img, px(3.0, min(y, 0.0)), px(3.5, max(y, 0.0)), 255, -1)
+    contours, _ = cv2.findContours(img, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    c = max(contours, key=len)[:, 0, :].astype(np.float64) * cell - [3.6, 1.7]
+    if np.sum(c[:, 0] * np.roll(c[:, 1], -1) - np.roll(c[:, 0], -1) * c[:, 1]) < 0:
+        c = c[::-1]
+    return _resampled(c, step)
+
+
+def test_a_merge_of_five_loops_is_bridged_in_an_order_whose_pieces_are_simple():
+    """Five loops (a body, two ears, two horns) merge into one (the head's outline). The
+    children peeled in the default order (the one nearest to the fewest points first)
+    give a bridge that crosses the loop and the merge was left open; another order
+    gives simple sub-loops, and the mesh is a valid solid."""
+    head = _head_outline()
+    for horn_x, horn_y in ((2.3, 0.3), (2.5, 0.55)):
+        loops = [_circle(1.4, 0.0, 200, (-1.0, 0.0)), _circle(0.18, 0.0, 40, (3.66, -0.93)),
+                 _circle(0.18, 0.0, 40, (3.67, 0.98)), _circle(0.08, 0.0, 30, (horn_x, -horn_y)),
+                 _circle(0.08, 0.0, 30, (horn_x, horn_y))]
+        rings = [loops] + [[np.column_stack([head, np.full(len(head), z)])] for z in (0.1, 0.2)]
+        result = stitch_rings(rings, AXIS)
+        report = check_solid(result.vertices, result.triangles)
+        assert result.closed and report.valid, (horn_x, horn_y, result.problems[:1])
