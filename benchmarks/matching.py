@@ -629,7 +629,7 @@ def real_figures(folder: Path, quick: bool, goals: dict,
 
 
 def chessboard(folder: Path, json_path: str, pairs=None, spacing: int | None = None,
-               compare_2d: bool = True, regrow_ambiguous: bool = False) -> int:
+               compare_2d: bool = True, regrow_ambiguous: bool = True) -> int:
     """``--part chessboard``: the table, the goals and the JSON."""
     from _chessboard import BLUNDER_K, chessboard_figures
 
@@ -639,8 +639,8 @@ def chessboard(folder: Path, json_path: str, pairs=None, spacing: int | None = N
     options = {} if spacing is None else {"spacing": int(spacing)}
     if not compare_2d:
         options["compare_2d"] = False
-    if regrow_ambiguous:
-        options["regrow_ambiguous"] = True
+    if not regrow_ambiguous:
+        options["regrow_ambiguous"] = False
     rows, calib = chessboard_figures(folder, pairs=pairs, match_options=options)
     calib["spacing"] = spacing
     calib["regrow_ambiguous"] = bool(regrow_ambiguous)
@@ -746,8 +746,8 @@ def main(argv=None) -> int:
     parser.add_argument("--spacing", type=int, default=None,
                         help="chessboard: candidate lattice spacing, px (default: "
                              "match_pair's, 3)")
-    parser.add_argument("--regrow-ambiguous", action="store_true",
-                        help="chessboard: match_pair(regrow_ambiguous=True)")
+    parser.add_argument("--no-regrow-ambiguous", action="store_true",
+                        help="chessboard: match_pair(regrow_ambiguous=False)")
     parser.add_argument("--no-2d", action="store_true",
                         help="chessboard: skip the same run without the epipolar pass")
     args = parser.parse_args(argv)
@@ -759,7 +759,7 @@ def main(argv=None) -> int:
         return chessboard(Path(args.real_data) / "chessboard_stereo", args.json,
                           None if args.pairs is None else args.pairs.split(","),
                           spacing=args.spacing, compare_2d=not args.no_2d,
-                          regrow_ambiguous=args.regrow_ambiguous)
+                          regrow_ambiguous=not args.no_regrow_ambiguous)
     if args.part == "tiles":
         return tiles_part(args.json)
     if args.part in ("real", "graffiti", "temple"):

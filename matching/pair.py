@@ -81,6 +81,9 @@ Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
 15    ``aperture``          calibrated pair: the window is ill-conditioned along
                             the epipolar line at every side tried
                             (:func:`_epipolar_refine`)
+16    ``off_surface``       calibrated pair: departs from the plane of its
+                            neighbours beyond the 99.9 % bound of theirs
+                            (:func:`_correct_polarity`)
 ====  ====================  ==================================================
 
 Epipolar pass (calibrated pairs, ``epipolar_pass``).  On a real chessboard rig 2-D LSM
@@ -144,11 +147,19 @@ AMBIGUOUS = 12
 BLANK = 13
 BACKWARD = 14
 APERTURE = 15
+#: ``aperture``: the shift's variance along the row may be at most this many times what
+#: the template's gradients along the row alone give (σ0² / Σ f_x²)
+MAX_INFLATION = 2.0
+OFF_SURFACE = 16
+#: median of χ² with one degree of freedom
+CHI2_1_MEDIAN = 0.45494
+#: two-sided 99.9 % bound of a normal variable
+OUTLIER_Z = 3.29
 #: Every pair status code -> name (LSM's codes 0-7 and 11, then 8-10 and 12-14).
 PAIR_STATUS_NAMES = {**STATUS_NAMES, NO_APPROXIMATION: "no_approximation",
                      TRIANGULATION: "triangulation", IMPRECISE: "imprecise",
                      AMBIGUOUS: "ambiguous", BLANK: "blank", BACKWARD: "backward",
-                     APERTURE: "aperture"}
+                     APERTURE: "aperture", OFF_SURFACE: "off_surface"}
 
 
 @dataclass(frozen=True)
@@ -297,7 +308,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
                densify: bool | str = False, robust: bool | str = False,
                unique: bool = True, epipolar_pass: bool = False,
-               regrow_ambiguous: bool = False, centre_points: bool = True,
+               regrow_ambiguous: bool = True, centre_points: bool = True,
                aperture_k: float | None = 1.0, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
@@ -443,8 +454,10 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     regrow_ambiguous : bool
         Epipolar pass: grow the ambiguous windows again from verified neighbours too, not
         only those that failed from their approximation (:func:`_grow_verified`).  Default
-        off: on the chessboard rig it adds points but also blunders
-        (docs/decisions/stereo-ambiguity.md).
+        on: with one-edge windows reported at their edge and the matches off their
+        neighbours' plane rejected, it adds points on the chessboard rig without adding
+        blunders (pairs 03/04/12: 1529/263/252 -> 1833/483/423 board points, blunders
+        1.0/1.1/2.0 -> 1.1/0.8/1.2 %; docs/decisions/stereo-edges.md).
     centre_points : bool
         Epipolar pass: report each accepted match at the left pixel nearest its window's
         information centre (where the warp's shift is best determined; ``x_left`` moves
@@ -651,7 +664,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 res, geo_var, epi_dirs, sides, epi_factor, frame = _epipolar_refine(
                     left, right, rig, rect, points, start, res, sides, options, aperture_k,
                     interpolation, second_order=second_order, spacing=spacing,
-                    classes=edge[idx], scale_cov=bool(sigma_factor))
+                    classes=edge[idx], scale_cov=bool(sigma_factor),
+                    at_best_point=centre_points)
                 status_ill = res.accepted & ~np.isfinite(geo_var)
                 res = replace(res, status=np.where(status_ill, APERTURE, res.status)
                               .astype(res.status.dtype))
@@ -690,7 +704,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                         left, right, rig, rect, points, start_, sub, sides_, options,
                         aperture_k, interpolation, second_order=second_order,
                         spacing=spacing, classes=edge[idx], scale_cov=bool(sigma_factor),
-                        fixed=frame)
+                        fixed=frame, at_best_point=centre_points)
 
                 local = status[idx].copy()
                 res, grown_mask = _grow_verified(local, points, res, frame, geo_var, epi_dirs,
@@ -701,27 +715,12 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 # pinned by their verified neighbours within the pull-in range: the
                 # rivals a period away are excluded
                 rival_var[grown_mask] = 0.0
-            if first_pass is not None and centre_points:
-                # each match reported where its window determines it (its shape's
-                # extrapolation elsewhere carries the cameras' blur differences)
-                width = left.shape[1]
-                keys = (np.rint(cand.points[:, 1]) * width
-                        + np.rint(cand.points[:, 0])).astype(np.int64)
-                plain = ~np.any(offset[idx] != 0.0, axis=1)  # eccentric windows stay
-                mv, q, right_q, cov_q, dir_q = _information_centres(
-                    frame, rect, rig, (status[idx] == Status.OK) & plain, points, keys,
-                    width, scale_cov=bool(sigma_factor))
-                if len(mv):
-                    position, cov_r = np.array(res.position), np.array(res.cov)
-                    position[mv], cov_r[mv] = right_q, cov_q
-                    res = replace(res, position=position, cov=cov_r)
-                    epi_dirs = np.array(epi_dirs)
-                    epi_dirs[mv] = dir_q
-                    x_left_out = (np.array(cand.points) if x_left_out is None
-                                  else x_left_out)
-                    offset = offset.copy()
-                    offset[idx[mv]] = points[mv] - q  # the window centre from the point
-                    x_left_out[idx[mv]] = q
+            if first_pass is not None:
+                local = status[idx].copy()
+                res, epi_dirs, offset, x_left_out, polarity_var = _report_epipolar(
+                    frame, rect, rig, res, epi_dirs, local, cand.points, idx, points, offset,
+                    x_left_out, left.shape[1], centre_points, bool(sigma_factor))
+                status[idx] = local
             out["patch"][idx] = sides
             if max_sigma_mad_k is not None:
                 status[idx[_imprecise(res, max_sigma_mad_k, patch,
@@ -746,7 +745,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
             out["cov"][idx] = res.cov * per_window[:, None, None]
             if geo_var is not None:
                 # what the rig's epipolar error leaves along the line (_epipolar_refine)
-                along = np.nan_to_num(geo_var)
+                along = np.nan_to_num(geo_var) + polarity_var
                 if rival_var is not None:
                     # what the rivals along the line leave (rectified px² -> right px²);
                     # a match whose uncertainty they dominate -- more than the texture and
@@ -755,6 +754,11 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 out["cov"][idx] += (along[:, None, None]
                                     * epi_dirs[:, :, None] * epi_dirs[:, None, :])
             out["sigma"][idx] = np.sqrt(np.trace(out["cov"][idx], axis1=1, axis2=2) / 2.0)
+            if geo_var is not None and max_sigma_mad_k is not None:
+                # the precision test again on the σ reported, with what the rig, the
+                # rivals and the edges leave along the line
+                status[idx[_above_limit(out["sigma"][idx], status[idx] == Status.OK,
+                                        max_sigma_mad_k, patch)]] = IMPRECISE
             out["sigma0"][idx] = res.sigma0
             out["correlation"][idx] = res.correlation
             out["iterations"][idx] = res.iterations
@@ -939,9 +943,10 @@ def _odd_at_least(value) -> np.ndarray:
 def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, sides,
                      options: dict,
                      aperture_k: float | None, interpolation: str,
-                     max_inflation: float | None = 2.0, grow_sides=(1.5, 2.0),
+                     max_inflation: float | None = MAX_INFLATION, grow_sides=(1.5, 2.0),
                      second_order: bool = True, spacing: int = DEFAULT_SPACING,
-                     classes=None, scale_cov: bool = True, fixed: dict | None = None):
+                     classes=None, scale_cov: bool = True, fixed: dict | None = None,
+                     at_best_point: bool = True):
     """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
 
     Every window LSM tried (the 2-D solution where it was accepted, else the approximation
@@ -959,7 +964,10 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
 
     * the shape unknowns take the shift's information: its variance exceeds
       ``max_inflation`` x σ0² / Σ f_x², what the template's x-gradients alone give (a
-      single edge off the window's centre trades the shift for the scale along the row);
+      single edge off the window's centre trades the shift for the scale along the row),
+      at the window's least-variance point where that is inside it and ``at_best_point``
+      (the match is reported there, :func:`_information_centres`; a window reported
+      elsewhere is tested again where it is, :func:`_shape_dominated`), else at its centre;
     * the rig's own row error δy, moved by the edge slope ``|N_xy / N_xx|`` of the window's
       structure tensor into the column, exceeds ``aperture_k`` x the match's σ along the
       line (δy's spread σ_g: 1.4826 MAD of the accepted 2-D matches' rectified row
@@ -1030,6 +1038,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     found = {"status": np.array(res.status[ok]), "position": np.full((m, 2), np.nan),
              "cov": np.full((m, 2, 2), np.nan), "sigma0": np.full(m, np.nan),
              "correlation": np.full(m, np.nan), "inflation": np.full(m, np.nan),
+             "unit": np.full(m, np.nan),
              "slope": np.full(m, np.nan), "affine": np.full((m, 6), np.nan),
              "radiometric": np.full((m, 2), np.nan),
              "affine_cov": np.full((m, 6, 6), np.nan)}
@@ -1055,9 +1064,15 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
             found["radiometric"][sel] = r.radiometric
             with np.errstate(divide="ignore", invalid="ignore"):
                 # what the shape unknowns take from the shift: its variance over the one
-                # the texture's gradients along the line alone give, σ0² / Σ f_x²
-                found["inflation"][sel] = (r.cov[:, 0, 0] * tensor[:, 0, 0] * side**2
-                                           / r.sigma0**2)
+                # the texture's gradients along the line alone give, σ0² / Σ f_x², at
+                # the window's centre and at its least-variance point (where the match
+                # is reported when that is inside the window: _information_centres)
+                unit = tensor[:, 0, 0] * side**2 / r.sigma0**2
+                found["unit"][sel] = unit
+                var_best = (_least_variance_point(r.affine_cov, side // 2)[1]
+                            if at_best_point else np.full(len(sel), np.nan))
+                found["inflation"][sel] = np.where(np.isfinite(var_best), var_best,
+                                                   r.cov[:, 0, 0]) * unit
         if step == 0 and fixed is not None:
             sigma_g = fixed["sigma_g"]
         elif step == 0:
@@ -1166,7 +1181,8 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                        ("sides", side_of), ("k2", k2_each), ("sigma0", found["sigma0"]),
                        ("correlation", found["correlation"]), ("stretch", stretch_ok),
                        ("affine_fin", found["affine_fin"]),
-                       ("affine_cov_fin", found["affine_cov_fin"]), ("quad", found["quad"])):
+                       ("affine_cov_fin", found["affine_cov_fin"]), ("quad", found["quad"]),
+                       ("unit", found["unit"])):
         value = np.asarray(value)
         full = (np.full(n, -1, np.int32) if key == "sides"
                 else np.full((n,) + value.shape[1:], np.nan))
@@ -1337,6 +1353,221 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
     return res, grown
 
 
+def _least_variance_point(affine_cov: np.ndarray, half) -> tuple[np.ndarray, np.ndarray]:
+    """The least-variance point of constrained warps along the row and its variance.
+
+    The warp x' = a0 + a1 x + a2 y gives the match of every template pixel (x, y) (from the
+    window's centre) with variance gᵀ C g, g = (1, x, y), C the covariance of a0 a1 a2
+    (the first three of ``affine_cov`` (N, >= 3, >= 3)); it is least at
+    p* = -C₁₁⁻¹ c₁₀ (Förstner's optimal point of a window).  Returns p* (N, 2) and its
+    variance (N,), NaN where p* is undefined or outside the window (|p*| > ``half``).
+    """
+    c3 = np.asarray(affine_cov)[:, :3, :3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = c3[:, 1, 1] * c3[:, 2, 2] - c3[:, 1, 2] ** 2
+        px = -(c3[:, 2, 2] * c3[:, 1, 0] - c3[:, 1, 2] * c3[:, 2, 0]) / det
+        py = -(c3[:, 1, 1] * c3[:, 2, 0] - c3[:, 1, 2] * c3[:, 1, 0]) / det
+    pstar = np.column_stack([px, py])
+    inside = (np.isfinite(pstar).all(axis=1)
+              & (np.abs(pstar) <= np.asarray(half, np.float64).reshape(-1, 1)).all(axis=1))
+    g = np.column_stack([np.ones(len(c3)), pstar])
+    var = np.where(inside, np.einsum("ni,nij,nj->n", np.nan_to_num(g), c3, np.nan_to_num(g)),
+                   np.nan)
+    pstar[~inside] = np.nan
+    return pstar, var
+
+
+def _report_epipolar(frame: dict, rect, rig, res: LSMResult, epi_dirs, status, cand_points,
+                     idx, points, offset, x_left_out, width: int, centre_points: bool,
+                     scale_cov: bool):
+    """Where and how the epipolar pass's accepted matches are reported.
+
+    Each at the left pixel nearest its window's information centre (``centre_points``:
+    :func:`_information_centres`; its shape's extrapolation elsewhere carries the cameras'
+    blur differences); one whose variance where it is reported the shape dominates is
+    ``aperture`` (:func:`_shape_dominated`); the pair's edge-polarity bias removed, the
+    one-signed windows' variance factor applied, and a match off its neighbours' plane
+    rejected (:func:`_correct_polarity`).  ``status`` (over ``idx``) is updated in place.
+    Returns the result, line directions, offsets, reported left points (None: the
+    candidates) and the variance the polarity estimate leaves along the line (px²).
+    """
+    if centre_points:
+        keys = (np.rint(cand_points[:, 1]) * width
+                + np.rint(cand_points[:, 0])).astype(np.int64)
+        plain = ~np.any(offset[idx] != 0.0, axis=1)  # eccentric windows stay
+        mv, q, right_q, cov_q, dir_q = _information_centres(
+            frame, rect, rig, (status == Status.OK) & plain, points, keys, width,
+            scale_cov=scale_cov)
+        if len(mv):
+            position, cov_r = np.array(res.position), np.array(res.cov)
+            position[mv], cov_r[mv] = right_q, cov_q
+            res = replace(res, position=position, cov=cov_r)
+            epi_dirs = np.array(epi_dirs)
+            epi_dirs[mv] = dir_q
+            x_left_out = np.array(cand_points) if x_left_out is None else x_left_out
+            offset = offset.copy()
+            offset[idx[mv]] = points[mv] - q  # the window centre from the point
+            x_left_out[idx[mv]] = q
+    # a window passed at its least-variance point but reported elsewhere
+    reported = cand_points if x_left_out is None else x_left_out
+    status[_shape_dominated(frame, rect, rig, status == Status.OK, reported[idx])] = APERTURE
+    # the cameras' edge rendering: a rising and a falling edge matched δ apart
+    polarity_var, edge_factor, off = _correct_polarity(frame, status == Status.OK)
+    status[off] = OFF_SURFACE
+    res = replace(res, position=res.position + frame["polarity_shift"][:, None] * epi_dirs,
+                  cov=res.cov * edge_factor[:, None, None])
+    return res, epi_dirs, offset, x_left_out, polarity_var
+
+
+def _edge_polarity(image: np.ndarray, points: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """(N,) the information-weighted polarity of each ``sides`` x ``sides`` window of
+    ``image`` centred on the integer ``points``: Σ sign(f_x) f_x² / Σ f_x² (1: every
+    gradient along the row rises, -1: every one falls, 0: balanced, e.g. a corner of a
+    chessboard).  The shift along the row is Σ f_x e / Σ f_x², so a shift ±δ of the edges
+    of each sign moves it by δ times this."""
+    import cv2
+
+    img = np.asarray(image, dtype=np.float64)
+    gx = np.zeros_like(img)
+    gx[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
+    xi = np.rint(points).astype(np.intp)
+    xi[:, 0] = np.clip(xi[:, 0], 0, img.shape[1] - 1)
+    xi[:, 1] = np.clip(xi[:, 1], 0, img.shape[0] - 1)
+    out = np.zeros(len(points))
+    for side in np.unique(sides):
+        sel = np.flatnonzero(sides == side)
+        num, den = (cv2.boxFilter(p, -1, (int(side), int(side)), borderType=cv2.BORDER_REFLECT)
+                    for p in (gx * np.abs(gx), gx * gx))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[sel] = num[xi[sel, 1], xi[sel, 0]] / den[xi[sel, 1], xi[sel, 0]]
+    return np.nan_to_num(out)
+
+
+def _polarity_bias(frame: dict, accepted: np.ndarray, neighbours: int = 40,
+                   rounds: int = 5) -> tuple[float, float, np.ndarray, np.ndarray,
+                                            np.ndarray]:
+    """The pair's edge-polarity bias along the row, δ (rectified px), its variance, and
+    each window's polarity (:func:`_edge_polarity`; 0 where not accepted).
+
+    The two cameras render an edge differently (blur, tone curve): LSM's linear
+    radiometry then places a rising edge δ one way and a falling one δ the other, the
+    same for the whole pair.  Estimated from the accepted matches at their
+    least-variance points: each one's disparity against the least-squares plane of its
+    ``neighbours`` nearest accepted windows that share none of its pixels (a surface is
+    locally planar over a few windows; rectified disparity is exactly affine in the
+    image over a plane), regressed on the polarity: d_i - plane_i = δ (s_i - plane of
+    the s_j) (the neighbours carry the bias too), MAD-trimmed at 3.29 robust spreads.
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(accepted)
+    s = np.zeros(n)
+    k = np.flatnonzero(accepted & np.isfinite(frame["affine_cov_fin"][:, 0, 0])
+                       & (frame["sides"] > 0))
+    ratio = np.full(n, np.nan)
+    near = np.full((n, neighbours), -1, np.intp)
+    if len(k) < neighbours + 1:
+        return 0.0, 0.0, s, ratio, near
+    half = frame["sides"][k] // 2
+    pstar, var = _least_variance_point(frame["affine_cov_fin"][k], half)
+    inside = np.isfinite(var)
+    pstar[~inside] = frame["frac"][k][~inside]
+    a, fo = frame["affine_fin"][k], frame["frac"][k]
+    xr = frame["position"][k, 0] + a[:, 1] * (pstar[:, 0] - fo[:, 0]) + a[:, 2] * (
+        pstar[:, 1] - fo[:, 1])
+    xl = frame["centre"][k] + pstar
+    disp = xl[:, 0] - xr
+    s_k = _edge_polarity(frame["fprep"].raw, frame["centre"][k], frame["sides"][k])
+    s[k] = s_k
+    tree = cKDTree(xl)
+    m = min(len(k), 4 * neighbours)
+    dist, nb = tree.query(xl, k=m)
+    far = dist >= frame["sides"][k][:, None].astype(np.float64)  # shares no pixel
+    order = np.argsort(~far, axis=1, kind="stable")[:, :neighbours]
+    nb = np.take_along_axis(nb, order, axis=1)
+    usable = np.take_along_axis(far, order, axis=1).all(axis=1)
+    design = np.concatenate([np.ones((len(k), neighbours, 1)), xl[nb] - xl[:, None, :]],
+                            axis=2)  # plane about the window's own point
+    pinv = np.linalg.pinv(design)  # (K, 3, neighbours)
+    own_d = np.einsum("kj,kj->k", pinv[:, 0, :], disp[nb])
+    own_s = np.einsum("kj,kj->k", pinv[:, 0, :], s_k[nb])
+    e, t = disp - own_d, s_k - own_s
+    keep = usable & np.isfinite(e) & np.isfinite(t)
+    delta, var_delta = 0.0, 0.0
+    for _ in range(rounds):
+        if keep.sum() < neighbours or np.sum(t[keep] ** 2) <= 0:
+            return 0.0, 0.0, s, ratio, near
+        delta = float(np.sum(e[keep] * t[keep]) / np.sum(t[keep] ** 2))
+        r = e - delta * t
+        spread = 1.4826 * float(np.median(np.abs(r[keep] - np.median(r[keep]))))
+        keep_new = usable & (np.abs(r) <= 3.29 * spread)
+        var_delta = spread**2 / float(np.sum(t[keep_new] ** 2))
+        if np.array_equal(keep_new, keep):
+            break
+        keep = keep_new
+    # each window's departure from its neighbours' plane over its own σ along the row
+    var_own = np.where(inside, var, frame["affine_cov_fin"][k][:, 0, 0]) * frame["k2"][k]
+    ratio[k] = np.where(usable, (e - delta * t) / np.sqrt(var_own), np.nan)
+    near = np.full((n, neighbours), -1, np.intp)
+    near[k] = k[nb]
+    return delta, var_delta, s, ratio, near
+
+
+def _correct_polarity(frame: dict, accepted: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                  np.ndarray]:
+    """The pair's edge-polarity bias (:func:`_polarity_bias`) removed from the matches
+    ``accepted``, and what one-signed edges leave.
+
+    Sets ``frame["polarity_shift"]`` (N,), the shift of each right position along the line
+    in the original right image (px).  Returns the variance the bias estimate leaves along
+    the line there (px²) and each match's variance factor for its edges' own errors: a
+    window whose gradients along the row mostly share one sign (|polarity| >= 1/2: at
+    least 3/4 of the information) holds one edge, whose rendering error it does not
+    average with other edges'; its departures from the neighbours' plane, over its σ,
+    against those of the windows holding both signs (both see the same surface) give
+    its extra factor (never below 1).
+    """
+    delta, var_delta, pol, ratio, near = _polarity_bias(frame, accepted)
+    step = np.sqrt(np.nan_to_num(frame["stretch"], nan=1.0))  # right px per rectified px
+    frame["polarity_shift"] = np.where(accepted, delta * pol * step, 0.0)
+    factor = np.ones(len(accepted))
+    one_sign = np.abs(pol) >= 0.5
+    known = np.isfinite(ratio)
+    outlier = np.zeros(len(accepted), bool)
+    if (known & one_sign).sum() >= 30 and (known & ~one_sign).sum() >= 30:
+        spread2 = [float(np.median(ratio[known & (one_sign == c)] ** 2)) / CHI2_1_MEDIAN
+                   for c in (False, True)]
+        factor[accepted & one_sign] = max(1.0, spread2[1] / spread2[0])
+        # beyond the 99.9 % bound of the departures of its neighbours (in units of their
+        # classes' spreads; a rougher surface, a wider bound): off the surface
+        z = np.nan_to_num(ratio / np.sqrt(np.where(one_sign, spread2[1], spread2[0])),
+                          nan=np.inf)
+        zn = np.where(near >= 0, np.abs(z[np.maximum(near, 0)]), np.inf)
+        local = 1.4826 * np.median(zn, axis=1)
+        outlier = accepted & known & (np.abs(z) > OUTLIER_Z * local)
+    return np.where(accepted, var_delta * pol**2 * step**2, 0.0), factor, outlier
+
+
+def _shape_dominated(frame: dict, rect, rig, which: np.ndarray, x_left: np.ndarray,
+                     max_inflation: float = MAX_INFLATION) -> np.ndarray:
+    """(N,) bool: the epipolar-pass matches ``which`` whose variance along the row at their
+    reported left point ``x_left`` exceeds ``max_inflation`` x σ0² / Σ f_x² (the shape
+    unknowns take the shift's information there: a one-edge window reported off its edge
+    is extrapolated through its scale; :func:`_epipolar_refine`'s ``aperture`` test, made
+    at the point reported instead of at the window's least-variance point)."""
+    from matching.rectify import left_to_rectified
+
+    k = np.flatnonzero(which & np.isfinite(frame["unit"]))
+    out = np.zeros(len(which), bool)
+    if len(k) == 0:
+        return out
+    fn = left_to_rectified(rect, rig.left, x_left[k]) - frame["centre"][k]
+    g = np.column_stack([np.ones(len(k)), fn])
+    var = np.einsum("ni,nij,nj->n", g, frame["affine_cov_fin"][k][:, :3, :3], g)
+    out[k] = ~(var * frame["unit"][k] <= max_inflation)
+    return out
+
+
 def _information_centres(frame: dict, rect, rig, accepted: np.ndarray, x_left: np.ndarray,
                          taken: np.ndarray, width: int, scale_cov: bool = True):
     """Report each accepted epipolar-pass match at its window's best-determined pixel.
@@ -1368,15 +1599,10 @@ def _information_centres(frame: dict, rect, rig, accepted: np.ndarray, x_left: n
     k = np.flatnonzero(accepted & np.isfinite(cov_all[:, 0, 0]) & (frame["sides"] > 0))
     if len(k) == 0:
         return empty
-    c3 = cov_all[k][:, :3, :3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        det = c3[:, 1, 1] * c3[:, 2, 2] - c3[:, 1, 2] ** 2
-        px = -(c3[:, 2, 2] * c3[:, 1, 0] - c3[:, 1, 2] * c3[:, 2, 0]) / det
-        py = -(c3[:, 1, 1] * c3[:, 2, 0] - c3[:, 1, 2] * c3[:, 1, 0]) / det
-    pstar = np.column_stack([px, py])
     centre = frame["centre"][k]
     half = (frame["sides"][k] // 2).astype(np.float64)
-    fine = np.isfinite(pstar).all(axis=1) & (np.abs(pstar) <= half[:, None]).all(axis=1)
+    pstar, _ = _least_variance_point(cov_all[k], half)
+    fine = np.isfinite(pstar).all(axis=1)
     k, pstar, centre, half = k[fine], pstar[fine], centre[fine], half[fine]
     if len(k) == 0:
         return empty

@@ -37,6 +37,7 @@ STATUS_COLOURS = {
     4: (250, 220, 150), 5: (120, 60, 160), 6: (200, 80, 200), 7: (100, 100, 100),
     8: (150, 150, 150), 9: (40, 40, 230), 10: (60, 200, 230), 11: (160, 160, 40),
     12: (30, 80, 240), 13: (230, 230, 230), 14: (40, 160, 250), 15: (190, 40, 250),
+    16: (0, 140, 255),
 }
 #: Status code -> what it means to a user (the report's table).
 STATUS_MEANINGS = {
@@ -59,6 +60,8 @@ STATUS_MEANINGS = {
     14: "the backward (right-to-left) match does not return",
     15: "aperture: the texture does not determine the shift along the epipolar line "
         "(an edge parallel to it)",
+    16: "off the surface: departs from the plane of its neighbours beyond the 99.9 % "
+        "bound of theirs",
 }
 NO_CANDIDATE = 255
 _PANEL = 230  # legend panel width, px

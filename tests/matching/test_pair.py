@@ -538,3 +538,41 @@ def test_epipolar_pass_reports_each_match_where_its_window_determines_it():
     # measured: 0.230 px at the window centres, 0.166 px where each window determines it
     assert rms[True] < 0.85 * rms[False], rms
     assert np.mean(np.abs(errors[True]) > 0.2) < 0.8 * np.mean(np.abs(errors[False]) > 0.2)
+
+
+def test_polarity_bias_is_found_from_the_matches_alone():
+    # vertical bars 12 px wide: a window on an edge holds one edge (polarity +-1), one
+    # between two edges holds both (0); the disparity is a plane, and the matcher places
+    # every rising edge 0.15 px farther and every falling one 0.15 px nearer
+    from types import SimpleNamespace
+
+    from matching.pair import _edge_polarity, _polarity_bias
+
+    rng = np.random.default_rng(3)
+    img = np.where((np.arange(400) // 12) % 2 == 0, 60.0, 190.0)[None, :].repeat(300, 0)
+    xs = np.arange(30, 370, 3.0)
+    ys = np.arange(30, 270, 6.0)
+    centre = np.array([(x, y) for y in ys for x in xs])
+    n = len(centre)
+    sides = np.full(n, 15, np.int32)
+    pol = _edge_polarity(img, centre, sides)
+    on_edge = (centre[:, 0] % 12 == 0)
+    assert np.all(np.abs(np.abs(pol[on_edge]) - 1.0) < 1e-9)
+    between = (centre[:, 0] % 12 == 6)
+    assert np.all(np.abs(pol[between]) < 1e-9)
+    delta, noise = 0.15, 0.02
+    disparity = 20.0 + 0.01 * centre[:, 0] + 0.02 * centre[:, 1] + delta * pol
+    cov = np.zeros((n, 6, 6))
+    cov[:, 0, 0] = noise**2
+    cov[:, 1, 1] = cov[:, 2, 2] = 1e-4
+    frame = {"affine_cov_fin": cov, "sides": sides, "frac": np.zeros((n, 2)),
+             "affine_fin": np.zeros((n, 6)), "centre": centre, "k2": np.ones(n),
+             "position": np.column_stack([centre[:, 0] - disparity
+                                          + rng.normal(0, noise, n), centre[:, 1]]),
+             "fprep": SimpleNamespace(raw=img)}
+    found, var, s, ratio, near = _polarity_bias(frame, np.ones(n, bool))
+    np.testing.assert_allclose(s, pol)
+    # the estimate's own σ is ~0.001 px here; the departures are the noise
+    assert abs(found - delta) < 5 * np.sqrt(var) + 0.005, (found, np.sqrt(var))
+    assert 0.8 < np.sqrt(np.median(ratio[np.isfinite(ratio)] ** 2) / 0.45494) < 1.25
+    assert (near >= 0).all()
