@@ -418,36 +418,46 @@ def _runs_between_gaps(arc: np.ndarray, link: float) -> list[np.ndarray]:
     return np.split(arc, np.flatnonzero(step > link) + 1)
 
 
-def height_field_arc(arcs: Sequence[np.ndarray], across: np.ndarray, reach: float
+def height_field_arc(arcs: Sequence[np.ndarray], across: np.ndarray, view: np.ndarray
                      ) -> tuple[np.ndarray, int]:
     """One section's arcs as one height field over the direction ``across`` (in the
-    section plane, across the cameras' view): what cameras on one side see of a section
-    is at most one depth for each position across their view.
+    section plane, across the cameras' view ``view``): what cameras on one side see of a
+    section is one depth at each position across their view, the nearest.
 
-    The pieces are taken widest first (their extent along ``across``) where they overlap
-    no piece already taken by more than ``reach`` (a tree before a wall, a recess behind
-    it: the wider layer is kept), each turned to run along ``+across``, and joined in
-    order along it; the gaps between them (windows, plain stone where the matcher found
-    nothing) are bridged by the fit's chords (:func:`bridge_open_gaps`).
+    The pieces are taken nearest first (their median depth along ``view``), each without
+    its points within the range across the view of the pieces already taken (a wall
+    behind a board, behind a tree: what they hide is dropped, what shows beside them is
+    kept); the runs left are turned to run along ``+across`` and joined in order along
+    it; the gaps between them (windows, plain stone where the matcher found nothing) are
+    bridged by the fit's chords (:func:`bridge_open_gaps`).
 
     Returns
     -------
     arc : (M, 3) float64
     used : int
-        Pieces in it.
+        Runs in it.
     """
     pieces = [np.asarray(a, np.float64) for a in arcs if len(a) >= 2]
-    coord = [piece @ across for piece in pieces]
-    lo = np.array([c.min() for c in coord])
-    hi = np.array([c.max() for c in coord])
-    taken: list[int] = []
-    for i in np.argsort(lo - hi, kind="stable").tolist():      # widest first
-        if all(min(hi[i], hi[j]) - max(lo[i], lo[j]) <= reach for j in taken):
-            taken.append(i)
-    taken.sort(key=lambda i: lo[i] + hi[i])
-    arc = np.concatenate([pieces[i][::-1] if coord[i][-1] < coord[i][0] else pieces[i]
-                          for i in taken])
-    return arc, len(taken)
+    view = np.asarray(view, np.float64) / np.linalg.norm(view)
+    taken: list[tuple[float, float]] = []
+    runs: list[np.ndarray] = []
+    for i in np.argsort([float(np.median(p @ view)) for p in pieces], kind="stable"):
+        piece = pieces[i]
+        coord = piece @ across
+        free = np.ones(len(piece), bool)
+        for lo, hi in taken:
+            free &= ~((coord >= lo) & (coord <= hi))
+        index = np.flatnonzero(free)
+        for part in np.split(index, np.flatnonzero(np.diff(index) > 1) + 1):
+            if len(part) < 2:
+                continue
+            c = coord[part]
+            runs.append(piece[part] if c[-1] >= c[0] else piece[part][::-1])
+            taken.append((float(c.min()), float(c.max())))
+    if not runs:
+        return pieces[0], 1
+    runs.sort(key=lambda r: float(np.mean(r @ across)))
+    return np.concatenate(runs), len(runs)
 
 
 def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:
@@ -1068,8 +1078,8 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         a staircase border; for comparison).
     view : (3,) float64, optional
         The mean of the cameras' unit viewing directions: each section's loops become one
-        height field across it (:func:`height_field_arc`, pieces overlapping by at most
-        :data:`PIECE_REACH` section spacings) on the parameter ``u`` across it
+        height field across it (:func:`height_field_arc`: the nearest piece at each
+        position across the view) on the parameter ``u`` across it
         (:func:`place_across`); without it, when it is shorter than 1/2 (the cameras do
         not share a view) or when the sections face it within 45° (depth slabs), the
         pieces that continue one another (:func:`chain_arcs`) on :func:`align_arcs`.
@@ -1105,7 +1115,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
             pieces = [run for piece, lp in zip(pieces, section_loops, strict=True)
                       for run in _runs_between_gaps(piece, getattr(lp, "bridge", math.inf))]
         arc, used = (chain_arcs(pieces) if across is None else
-                     height_field_arc(pieces, across, PIECE_REACH * spacing))
+                     height_field_arc(pieces, across, view))
         data += len(arc)
         if used < len(section_loops):
             partial += 1
