@@ -6,6 +6,7 @@ its evidence go in the stitch stage's record."""
 import json
 
 import numpy as np
+import pytest
 
 from pipeline.cli import main
 from pipeline.mesh_io import read_mesh
@@ -30,6 +31,7 @@ def _over_the_mouth(vertices, triangles, wall, sigma) -> int:
         r < _cup.VESSEL_RADIUS - wall - 5 * sigma - _spacing())))
 
 
+@pytest.mark.slow
 def test_run_leaves_the_mouth_of_a_wall_too_thin_to_part_open_with_one_line(tmp_path):
     """The pot (``testkit/cup.py``) with a wall half a point spacing thick, 20 000 points,
     noise 0.1 s, as a cloud input to ``photosurf run --to smooth``: the stitch stage
@@ -63,6 +65,7 @@ def test_run_leaves_the_mouth_of_a_wall_too_thin_to_part_open_with_one_line(tmp_
         assert _over_the_mouth(vertices, triangles, wall, sigma) == 0, mesh
 
 
+@pytest.mark.slow
 def test_run_keeps_the_inner_wall_and_floor_of_a_wall_two_spacings_thick(tmp_path):
     """The same pot with a wall 2 s thick through ``photosurf run --to stitch``: the top is
     a parted mouth (nested loops, its rim capped; the rim's mean width recorded, within a
@@ -94,6 +97,7 @@ def test_run_keeps_the_inner_wall_and_floor_of_a_wall_two_spacings_thick(tmp_pat
     assert d.mean() < 0.25 * spacing, d.mean() / spacing
 
 
+@pytest.mark.slow
 def test_sections_smooth_leaves_the_mouth_of_a_wall_too_thin_to_part_open(tmp_path, caplog):
     """``photosurf sections --smooth`` (the stages' own steps) on the pot with a wall half a
     spacing thick: no sizing (the stitched mesh is open at the mouth), the open mesh
