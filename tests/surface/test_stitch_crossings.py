@@ -308,3 +308,27 @@ def test_a_merge_of_five_loops_is_bridged_in_an_order_whose_pieces_are_simple():
         result = stitch_rings(rings, AXIS)
         report = check_solid(result.vertices, result.triangles)
         assert result.closed and report.valid, (horn_x, horn_y, result.problems[:1])
+
+
+def _rectangle(half_w: float, half_h: float, per_side: int, z: float) -> np.ndarray:
+    xs = np.linspace(-half_w, half_w, per_side, endpoint=False)
+    ys = np.linspace(-half_h, half_h, per_side, endpoint=False)
+    ring = np.vstack([np.column_stack([xs, np.full(per_side, -half_h)]),
+                      np.column_stack([np.full(per_side, half_w), ys]),
+                      np.column_stack([-xs, np.full(per_side, half_h)]),
+                      np.column_stack([np.full(per_side, -half_w), -ys])])
+    return np.column_stack([ring, np.full(len(ring), z)])
+
+
+def test_a_small_branch_inside_its_sub_loop_is_tiled_by_the_angle_about_it():
+    """A sparse rectangle (24 points) splits into a wide loop and a small dense one (60
+    points, radius 0.05-0.1) inside its bridged sub-loop.  By the shortest total span the
+    small loop was fanned to one far point and the sub-loop to a few points behind it:
+    the fans crossed (3-9 pairs) or the mesh came out open; by the angle about the small
+    loop's centroid the mesh is a valid solid."""
+    for (cx, cy), radius in (((1.2, 0.6), 0.05), ((1.0, 0.0), 0.1)):
+        branches = [[_circle(0.8, z, 60, (-1.0, 0.0)), _circle(radius, z, 60, (cx, cy))]
+                    for z in (0.1, 0.2)]
+        result = stitch_rings([[_rectangle(2.0, 1.0, 6, 0.0)]] + branches, AXIS)
+        report = check_solid(result.vertices, result.triangles)
+        assert result.closed and report.valid, ((cx, cy), report.problems())
