@@ -629,26 +629,19 @@ def place_across(curves: list[OpenCurve], across: np.ndarray
     from arc to arc (on the Sceaux facade the carried scale drifted tenfold over 244
     sections: arcs of depth steps and noise are longer than their neighbours by a few
     per cent each).  Along each arc ``u`` is made non-decreasing (its running maximum: a
-    depth step parallel to the view is crossed at one ``u``).  The run is the longest
-    one of arcs whose ranges of ``u`` overlap their neighbour's."""
+    depth step parallel to the view is crossed at one ``u``).  Every arc is kept (what
+    the cameras see: the object and the scene about it); neighbours whose ranges of
+    ``u`` do not overlap get no strip between them (:func:`stitch_arcs`)."""
     placed = []
     for curve in curves:
         t, pts, _ = curve.dense()
         placed.append(_Placed(t, pts, np.maximum.accumulate(pts @ across), 0.0, 1.0))
-    runs, lo = [], 0
-    for k in range(1, len(curves) + 1):
-        if k == len(curves) or not (
-                min(placed[k].u[-1], placed[k - 1].u[-1]) > max(placed[k].u[0],
-                                                                  placed[k - 1].u[0])):
-            runs.append(range(lo, k))
-            lo = k
-    run = max(runs, key=lambda r: sum(float(placed[k].u[-1] - placed[k].u[0]) for k in r))
-    notes = []
-    if len(run) < len(curves):
-        notes.append(f"{len(curves) - len(run)} of {len(curves)} arcs left out: they do not "
-                     f"overlap the run of arcs {run.start}..{run.stop - 1} (the surface's) "
-                     "across the view")
-    return curves, [p if k in run else None for k, p in enumerate(placed)], notes, run
+    apart = sum(1 for k in range(1, len(curves))
+                if min(placed[k].u[-1], placed[k - 1].u[-1]) <= max(placed[k].u[0],
+                                                                     placed[k - 1].u[0]))
+    notes = [f"{apart} of {len(curves) - 1} pairs of neighbouring arcs do not overlap "
+             "across the view: the surface has a border between them"] if apart else []
+    return curves, placed, notes, range(len(curves))
 
 
 def smooth_border(ends: np.ndarray, step: float) -> np.ndarray:
