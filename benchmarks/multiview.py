@@ -303,7 +303,7 @@ class _KernelRecorder:
         def recorded(*args):
             caller = inspect.stack()[2].function  # the lsm_match caller
             self.calls.append((caller, tuple(a.copy() if isinstance(a, np.ndarray) else a
-                                            for a in args[:23])))
+                                            for a in args[:24])))
             kernel(*args)
 
         recorded.targetoptions = kernel.targetoptions

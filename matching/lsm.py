@@ -207,7 +207,8 @@ class LSMResult:
         :func:`matching.lsm_kernels._step_score`): the largest score, over the lines
         splitting the window, of a shift of one side against the other, in units of the
         residual variance (NaN with ``jacobian="search"``, where no solution was reached,
-        and where the kernel rejected the window: not converged, degenerate affine).
+        where the kernel rejected the window -- not converged, degenerate affine -- and
+        where the correlation is below ``min_correlation``: windows the test never judges).
     support : (N,) float64 or None
         Robust LSM (``lsm_match``'s ``robust``): the share of the window's pixels in the
         final support; NaN where the equal-weight solution stands (not robust, or no
@@ -671,7 +672,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
                    0.25 * (fprep.noise**2 + gprep.noise**2), np.ascontiguousarray(offs[idx]),
                    np.ascontiguousarray(blur[idx]),
                    np.ascontiguousarray(robust_flags[idx]),
-                   float(np.hypot(fprep.noise, gprep.noise)), *sub)
+                   float(np.hypot(fprep.noise, gprep.noise)), float(min_correlation), *sub)
         for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
                               sub, strict=True):
             full[idx] = part

@@ -1058,8 +1058,8 @@ def _support_holds(wts, half, offset):
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrained, half,
                  kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-                 grad_noise_var, step_noise_var, offset, blur, robust, robust_floor, p_out,
-                 cov_out, wcov_out, acov_out, sig0_out, corr_out):
+                 grad_noise_var, step_noise_var, offset, blur, robust, robust_floor,
+                 min_corr, p_out, cov_out, wcov_out, acov_out, sig0_out, corr_out):
     """Gauss-Newton LSM for one patch; returns (status, iterations, converged).
 
     ``robust``: after convergence, the robust adjustment (:func:`_robust_support`,
@@ -1199,9 +1199,17 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
         p_out[i] = p[i]
     sig0sq = max(vtv, 0.0) / (sw - m)
     sig0_out[0] = np.sqrt(sig0sq)
-    if not exact_final and converged and status == 0:
-        # only a window the kernel accepts is judged by its step score (the populations
-        # and the test take the accepted ones): the rest skip its ~1/6 of the kernel
+    # correlation coefficient of template and resampled search patch
+    sf = stats[1] / sw
+    sg = stats[2] / sw
+    vf = stats[3] / sw - sf * sf
+    vg = stats[4] / sw - sg * sg
+    cfg = stats[5] / sw - sf * sg
+    corr = cfg / np.sqrt(vf * vg) if vf > 0.0 and vg > 0.0 else 0.0
+    if not exact_final and converged and status == 0 and corr >= min_corr:
+        # only a window that can pass is judged by its step score (the populations and
+        # the test take the accepted ones): one the kernel rejects, or whose correlation
+        # the driver's test rejects, skips it (~1/6 of a window's time)
         split = np.empty(2, np.int64)
         corr_out[2] = _step_score(fv, fx, fy, vres, wts, sw, half, 2 * (2 * half + 1),
                                   hmat, step_noise_var, split)
@@ -1316,12 +1324,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
             for i in range(m):
                 acc += gaff[a, i] * xa[b, i]
             acov_out[a, b] = sig0sq * acc
-    sf = stats[1] / sw
-    sg = stats[2] / sw
-    vf = stats[3] / sw - sf * sf
-    vg = stats[4] / sw - sg * sg
-    cfg = stats[5] / sw - sf * sg
-    corr_out[0] = cfg / np.sqrt(vf * vg) if vf > 0.0 and vg > 0.0 else 0.0
+    corr_out[0] = corr
     if (p[0] - approx[0]) ** 2 + (p[3] - approx[1]) ** 2 > max_shift * max_shift:
         return 3, it + 1, converged
     if not converged:
@@ -1332,7 +1335,8 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
 @numba.njit(parallel=True, nogil=True, cache=True, fastmath=_FM, error_model="numpy")
 def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constrained, half,
                kind, exact_final, max_iter, tol, max_shift, det_min, min_texture,
-               grad_noise_var, step_noise_var, offsets, blurs, robust, robust_floor, params,
+               grad_noise_var, step_noise_var, offsets, blurs, robust, robust_floor, min_corr,
+               params,
                cov, wcov, acov, sigma0, corr, status, iters, conv):
     n = centres.shape[0]
     for i in numba.prange(n):
@@ -1341,7 +1345,7 @@ def _lsm_batch(fimg, fraw, gimg, centres, approx, init, quad, directions, constr
                                  max_iter, tol,
                                  max_shift, det_min, min_texture, grad_noise_var,
                                  step_noise_var, offsets[i], blurs[i], robust[i],
-                                 robust_floor, params[i], cov[i],
+                                 robust_floor, min_corr, params[i], cov[i],
                                  wcov[i], acov[i], sigma0[i:i + 1], corr[i])
         status[i] = s
         iters[i] = it

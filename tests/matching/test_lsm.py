@@ -777,3 +777,25 @@ def test_step_test_keeps_noise_free_small_batches(clean_pair):
                           (g, truth_of(pts))):
         res = lsm_match(f, search, pts, truth + 0.3)
         assert res.accepted.all(), np.bincount(res.status)
+
+
+def test_step_score_only_where_the_correlation_can_pass():
+    """The kernel scores the motion step only of windows whose correlation passes
+    ``min_correlation`` (the others never meet the step test): with the limit at the
+    median correlation of the accepted windows, every window above it keeps its score
+    bit for bit, every converged window below it has none, and nothing else the kernel
+    computes changes."""
+    f, g = warped_pair(size=120, noise=2.0, seed=3)
+    pts = grid_points(120, 6)
+    start = start_near(truth_of(pts), 0.5)
+    loose = lsm_match(f, g, pts, start, step_limit=None)
+    limit = float(np.median(loose.correlation[loose.accepted]))
+    strict = lsm_match(f, g, pts, start, step_limit=None, min_correlation=limit)
+    for name in ("position", "cov", "sigma0", "correlation", "iterations", "affine_cov"):
+        assert np.array_equal(getattr(loose, name), getattr(strict, name), equal_nan=True)
+    scored = loose.accepted & (loose.correlation >= limit)
+    below = loose.accepted & (loose.correlation < limit)
+    assert scored.sum() > 20 and below.sum() > 20
+    assert np.array_equal(strict.step_score[scored], loose.step_score[scored])
+    assert np.all(np.isfinite(loose.step_score[below]))
+    assert np.all(np.isnan(strict.step_score[below]))
