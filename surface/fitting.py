@@ -60,10 +60,13 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import LinearOperator, cg, spsolve
 
-from surface.loop_weights import limit_weight
+from surface import bezier
+from surface.loop_weights import limit_weight, loop_beta
+from surface.metrics import edge_table
 from surface.validate import check_finite, check_shape
+from surface.validity import check_solid, self_intersections
 
 __all__ = ["convex_creases", "fitted_control_mesh", "flat_vertices", "folded_faces",
            "grow_vertices", "subdivision_matrix",
@@ -285,8 +288,6 @@ def folded_faces(target, control, triangles, intersections: bool = True,
 
     folded = np.einsum("ij,ij->i", normals(p), normals(x)) < 0.0
     if intersections:
-        from surface.validity import check_solid
-
         crossing = np.asarray(check_solid(x, t).intersecting_pairs, dtype=np.int64).reshape(-1, 2)
         if len(crossing):
             if target_pairs is None:
@@ -318,9 +319,6 @@ def surface_folds(target, control, triangles, faces=None, target_pairs=None,
     folded and the surface over them crossed itself on 5 faces' patches
     (``docs/decisions/smooth-folds.md``).
     """
-    from surface import bezier
-    from surface.validity import self_intersections
-
     p, t = _check_mesh(target, triangles)
     x, _ = _check_mesh(control, t)
     count = len(t)
@@ -380,9 +378,6 @@ def subdivision_matrix(triangles, count: int) -> tuple[sp.csr_matrix, np.ndarray
     edge point ``3/8 (a + b) + 1/8 (c + d)`` per undirected edge of
     :func:`surface.metrics.edge_table`) and the refined triangles ``(4F, 3)``.
     """
-    from surface.loop_weights import loop_beta
-    from surface.metrics import edge_table
-
     t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
     table = edge_table(t)
     if np.any(table.counts != 2):
@@ -428,8 +423,6 @@ def _solve_normal(matrix: sp.spmatrix, rhs: np.ndarray, start: np.ndarray) -> np
     diagonal as preconditioner (10x less CPU than a sparse LU on a general mesh of 6 000
     vertices: 0.04 against 0.6 s, answers within 4e-8 of each other), the sparse LU where
     they do not converge."""
-    from scipy.sparse.linalg import LinearOperator, cg
-
     matrix = matrix.tocsr()
     inverse = 1.0 / matrix.diagonal()
     jacobi = LinearOperator(matrix.shape, matvec=lambda r: inverse * r.ravel())
