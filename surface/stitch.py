@@ -78,6 +78,7 @@ References
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -899,8 +900,6 @@ def _bridge_split(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list,
     (at most :data:`BRIDGE_ORDERS`); when none is, the split is its own order's (or its
     error).  Parameters, returns and raises as :func:`_bridge_split_in`'s.
     """
-    import itertools
-
     ring_flat = np.asarray(ring_flat)
     try:
         first, failure = _bridge_split_in(ring_idx, ring_flat, children, base, None), None
