@@ -267,8 +267,9 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
     valid solid of:
 
     0. with ``points`` (the cloud): the control mesh fitted to the points
-       (``surface.fitting.fitted_control_mesh``), repaired where it crosses itself as
-       :func:`smooth_mesh` does (``spacing``: the points' spacing);
+       (``surface.fitting.fitted_control_mesh``); where it crosses itself, the control
+       vertices around the crossings back at the mesh's own (:data:`FIT_HOLD_ROUNDS`),
+       then repaired as :func:`smooth_mesh` does (``spacing``: the points' spacing);
     1. through its vertices with the interpolating correction in full
        (``surface.fitting.interpolating_control_mesh``, sharp and flat vertices kept);
     2. where that crosses itself, the correction held back where the surface folds
@@ -296,6 +297,19 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
             smoothed = smooth_mesh(control, triangles, level, tolerance, check=False,
                                    spacing=spacing)
             report, seconds = _checked(smoothed.vertices, smoothed.triangles)
+            held = np.zeros(len(vertices), dtype=bool)
+            for rings in range(1, FIT_HOLD_ROUNDS + 1):
+                if not len(report.intersecting_pairs):
+                    break
+                # where the fitted surface crosses itself (a thin gap, noise followed too
+                # closely), the control vertices there go back to the mesh's own (the
+                # approximating surface, which keeps to the iso-surface's side of a gap)
+                held |= _crossing_vertices(smoothed, report, control, triangles, rings)
+                control = np.where(held[:, None], vertices, control)
+                smoothed = smooth_mesh(control, triangles, level, tolerance, check=False,
+                                       spacing=spacing)
+                report, seconds = _checked(smoothed.vertices, smoothed.triangles)
+            fit["held_vertices"] = int(held.sum())
             repair = None
             if len(report.intersecting_pairs):
                 smoothed, report, seconds, repair = _untangled(
@@ -307,7 +321,8 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
                 smoothed.solid = {**solid_report("smooth", smoothed.vertices, smoothed.triangles,
                                                  report=report, seconds=seconds),
                                   **({"repair": repair} if repair else {}),
-                                  "general_control": "fitted", "fit_weight": fit["weight"]}
+                                  "general_control": "fitted", "fit_weight": fit["weight"],
+                                  "fit_held_vertices": fit["held_vertices"]}
                 return smoothed
             log.info("smooth: the fitted general surface self-intersects at %d pairs",
                      len(report.intersecting_pairs))
@@ -333,6 +348,24 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
     smoothed = smooth_mesh(vertices, triangles, level, tolerance)
     smoothed.solid = {**(smoothed.solid or {}), "general_control": "approximating"}
     return smoothed
+
+
+#: Rounds in which the fitted general surface's control vertices around its crossings go
+#: back to the mesh's own (one more ring of faces each round).
+FIT_HOLD_ROUNDS = 3
+
+
+def _crossing_vertices(smoothed: Smoothed, report, control, triangles, rings: int) -> np.ndarray:
+    """Control vertices ``(V,) bool`` of the faces under a surface's crossing facets, grown
+    by ``rings`` rings (:mod:`surface.repair`)."""
+    from surface.repair import crossing_faces, grow_faces
+
+    pairs = np.asarray(report.intersecting_pairs, dtype=np.int64).reshape(-1)
+    corners = smoothed.vertices[smoothed.triangles[pairs]].reshape(-1, 3)
+    region = grow_faces(crossing_faces(control, triangles, corners), triangles, rings)
+    out = np.zeros(len(control), dtype=bool)
+    out[np.asarray(triangles)[region].ravel()] = True
+    return out
 
 
 def _checked(v, t):

@@ -10,10 +10,11 @@ open3d's octree solver at cells of about a point spacing, normals by PCA of
 [2]_), where it balloons past the data (vertices beyond :func:`support_reach` of every point)
 pressed onto their convex hull, decimated by quadric
 error (Garland and Heckbert 1997 [3]_) to triangles of the sections' spacing ``h`` (about
-``area / (sqrt(3) / 4 h^2)`` of them), repaired to a closed 2-manifold; the interpolating
-control of :mod:`surface.fitting` puts the limit surface through its vertices (where that
-self-intersects, the mesh itself is the control mesh), and Loop's patches
-(:mod:`surface.bezier`) cover the whole object with one G1 surface.
+``area / (sqrt(3) / 4 h^2)`` of them), repaired to a closed 2-manifold; its control
+vertices are fitted to the cloud by least squares (:func:`surface.fitting.fitted_control_mesh`;
+where that self-intersects, the surface through its vertices, then the mesh itself:
+:func:`pipeline.smoothing.smooth_general`), and Loop's patches (:mod:`surface.bezier`)
+cover the whole object with one G1 surface.
 
 Which control mesh an object gets is decided on its fidelity to its own cloud
 (:func:`cloud_fidelity`), the measures a cloud without a truth allows:

@@ -82,3 +82,25 @@ def test_noisy_points_choose_a_heavier_weight_on_the_vertices(coarse_sphere):
     # the vertices lie on the truth, the points 0.05 off it: the held-out points prefer the
     # vertices' weight once the noise dominates
     assert noisy["weight"] > clean["weight"]
+
+
+def test_smooth_general_fits_the_torus_cloud_nearer_the_truth_than_through_its_vertices():
+    from pipeline.smoothing import smooth_general
+    from surface.general_mesh import poisson_control_mesh
+    from surface.sections import point_spacing
+    from testkit import shapes
+
+    cloud = shapes.sample("torus", 6_000, seed=3, sigma=0.0)
+    spacing = point_spacing(cloud)
+    v, t = poisson_control_mesh(cloud, 1.5 * spacing, spacing)
+    through = smooth_general(v, t, 1)
+    fitted = smooth_general(v, t, 1, points=cloud, spacing=spacing)
+    assert fitted.solid["general_control"] == "fitted" and fitted.solid["valid"]
+    assert fitted.solid["genus"] == shapes.genus("torus")
+    near = np.median(shapes.distance_to_truth("torus", fitted.vertices))
+    far = np.median(shapes.distance_to_truth("torus", through.vertices))
+    # the decimated vertices lie off the exact torus by the decimation's placement, and the
+    # surface through them keeps it; fitted to the exact points it comes nearer (on the
+    # corpus's 10^4-point torus, Chamfer 3.1e-4 against 6.0e-4; here the medians were
+    # 2.9e-4 against 4.7e-4): at least 1.4x
+    assert near < far / 1.4
