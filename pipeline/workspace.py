@@ -239,8 +239,18 @@ def function_code(func) -> str:
     calls, a constant it reads or an import it uses does.  The modules it imports are
     the stage's declared modules (:func:`code_files`), hashed apart.
     """
-    path = Path(func.__code__.co_filename)
-    return _definitions_hash(str(path), sha256_file(path), func.__name__)
+    code = getattr(func, "__code__", None)
+    path = Path(code.co_filename) if code is not None else None
+    if path is not None and path.is_file() and "<" not in func.__qualname__:
+        try:
+            return _definitions_hash(str(path), sha256_file(path), func.__name__)
+        except (SyntaxError, ValueError):
+            pass
+    # not a module-level function (a lambda, a nested function, a partial): its own code
+    inner = getattr(func, "func", func)  # a partial's function
+    code = getattr(inner, "__code__", None)
+    return sha256_json(repr(getattr(code, "co_code", b"")) + repr(getattr(code, "co_consts", ()))
+                       + getattr(inner, "__qualname__", type(inner).__name__))
 
 
 def _definitions_hash(path: str, content_sha: str, name: str) -> str:
