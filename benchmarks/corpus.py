@@ -19,8 +19,8 @@ time bound (``--timeout``; a row past it is printed as such).  Methods, in the r
   (``pipeline.section_surface.sized_mesh``, ``interpolating_control``, Loop's patches tessellated
   within the sizing's chord tolerance); a refusal is printed with its reason;
 * ``general``: ``surface.general_mesh.poisson_control_mesh`` (triangles of the sections'
-  control edge, or 1.5 point spacings without one) through the same interpolating control
-  and patches;
+  control edge, or 1.5 point spacings without one), Loop's patches over it fitted to the
+  cloud as the smooth stage builds them (``pipeline.smoothing.smooth_general``);
 * ``auto``: the smooth stage's choice between the two (``surface.general_mesh.prefer_general``
   on validity, then the genus the data support, then A and C; without the stage's gate
   ``needs_general``, whose noise estimate is the curves stage's: here both surfaces are
