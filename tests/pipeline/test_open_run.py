@@ -134,3 +134,20 @@ def test_open_arcs_found_by_the_closed_rule_take_the_open_path(tmp_path, cli_run
     manifest = json.loads((out / "manifest.json").read_text())
     info = manifest["stages"]["curves"]["info"]
     assert info["open"] is True and info["rings"] >= 10
+
+
+def test_a_relief_cloud_without_cameras_takes_the_open_path_by_its_lines(tmp_path, cli_run):
+    """One rule from the data, no cameras: a relief (a wall with bumps, σ = 0.01) cut by
+    the sections is a noisy line each, which the loop tracer closes by going along it and
+    back; gaps alone (~0.1 of the length) would not make it open, the lines do."""
+    rng = np.random.default_rng(5)
+    n = 20_000
+    x, z = rng.uniform(-2, 2, n), rng.uniform(0, 2, n)
+    y = 0.15 * np.sin(2 * x) * np.cos(3 * z) + rng.normal(0, 0.01, n)
+    cloud = tmp_path / "relief.xyz"
+    np.savetxt(cloud, np.stack([x, y, z], axis=1))
+    out = tmp_path / "w"
+    cli_run("run", cloud, "--out", out, "--to", "curves", "-q")
+    info = json.loads((out / "manifest.json").read_text())["stages"]["curves"]["info"]
+    assert info["open"] is True and info["rings"] >= 10
+    assert info["bridged_share"] < 0.25    # the gaps alone: closed
