@@ -1,90 +1,26 @@
-r"""Adaptive least-squares correlation (Gruen 1985), batched over all patches.
+r"""Adaptive least-squares correlation (Gruen 1985) [1]_, batched over all windows: the driver.
 
-For every pixel :math:`(x, y)` of a square template patch centred on a point of
-the template image :math:`f`, the observation equation is
+For every pixel :math:`(x, y)` of a square template window (pixels relative to its centre)
 
 .. math::
 
     f(x, y) - e(x, y) = r_0 + r_1\, g(a_0 + a_1 x + a_2 y,\; b_0 + b_1 x + b_2 y)
 
-with :math:`(x, y)` in pixels relative to the template centre, six affine
-unknowns :math:`a_0 \ldots b_2`, two radiometric unknowns (offset
-:math:`r_0`, gain :math:`r_1`) and the search image :math:`g` resampled at the
-warped position.  :math:`(a_0, b_0)` is therefore the position of the template
-centre in the search image.  The system is linearised and solved by
-Gauss-Newton until the shift update :math:`\lVert(\delta a_0, \delta b_0)\rVert`
-is below ``TOL.lsm_shift_stop_px`` or ``max_iter`` is reached.  The precision
-of the match is :math:`\sigma_0^2 (A^\mathsf{T}A)^{-1}` with
-:math:`\sigma_0^2 = v^\mathsf{T}v / (n - u)` from the final linearisation.
+with six affine unknowns (:math:`(a_0, b_0)`: the centre's match), offset and gain, and the
+search image :math:`g` resampled at the warped position.  Gauss-Newton with the
+template-gradient Jacobian (Baker & Matthews [2]_: its normal matrix is factored once per
+window) until the shift update is below ``TOL.lsm_shift_stop_px``; the precision is
+σ0² N⁻¹ of the final linearisation, N less the template's expected noise part.
 
-Jacobian.  The iterations use the *template-gradient* Jacobian (the idea behind
-inverse-compositional alignment, Baker & Matthews 2004): at the solution
-:math:`r_1 \nabla g(W(x)) = A^{-\mathsf{T}} \nabla f(x)` and
-:math:`g(W(x)) = (f - r_0)/r_1`, so the Jacobian is a fixed 8x8 mixing
-:math:`J = T(p)\,j` of template quantities :math:`j = [f_x, f_x x, f_x y, f_y,
-f_y x, f_y y, 1, f]` whose normal matrix :math:`H = \sum j j^\mathsf{T}` is
-computed and factored once per patch; an iteration only resamples :math:`g`
-(values, no gradients), accumulates :math:`\sum j\,v` and solves
-:math:`\delta = T^{-\mathsf{T}} H^{-1} \sum j v` in closed form.  The
-reported precision is :math:`\sigma_0^2 (J^\mathsf{T}J)^{-1}` of that final
-linearisation, :math:`J^\mathsf{T}J = T H T^\mathsf{T}` (``jacobian="template"``,
-default).  ``jacobian="search"`` adds Gruen's textbook final step, one exact
-forward-additive Gauss-Newton step with the resampled search-image gradients,
-and reports :math:`\sigma_0^2 (A^\mathsf{T}A)^{-1}` of that step.  Measured
-(Monte Carlo: 300 noise draws on 3 patches of a 15-grey-level texture; 120 in
-``tests/matching/test_lsm.py``): with
-noise in the search image the search-gradient solution errs 1.5-2.3x its
-reported σ and 20-30 % more than the template-gradient one, whose σ is right
-within 5 %: the noise of the resampled gradients correlates with the resampled
-residual (the bias of gradient-based registration, Robinson & Milanfar 2004),
-while a central-difference template gradient is independent of the residual
-at its own pixel.  All patches run in one numba ``prange`` kernel.
-
-Real images.  Where the search view is foreshortened its pixels cover more than one
-template pixel, and the template holds detail the search image lacks; ``footprint_var``
-smooths the template by the Gaussian of the two footprints' difference,
-:math:`c\,(A^{-1}A^{-\mathsf{T}} - I)_+` (shape-adapted smoothing, Lindeberg & Gårding
-1997 [5]_), inside the kernel.  The σ0 test (``sigma0_model="gradient"``) predicts each
-window's σ0 from its texture, :math:`\sigma_0^2 = \alpha + \beta\,\overline{|\nabla f|^2}`
-(a residual misregistration δ of the texture leaves :math:`v \approx \delta\cdot\nabla f`),
-fitted to the population (:func:`sigma0_gradient_model`).
-
-Depth edges.  A window across a depth edge holds two motions; a large jump leaves a
-residual the σ0 test rejects, a small one (a fraction of a pixel, or any jump where a
-blur difference or real images' model error already raises every σ0) moves the match to
-a compromise of the two motions, many σ from the centre pixel's own.  The motion-step
-test looks for that structure in the residual: for each line splitting the window (4
-orientations, every offset leaving two rows of pixels on either side) the score test of
-one extra unknown, a shift of one side, with the 8 template columns and a blur
-difference (the template's Laplacian) projected out (:func:`matching.lsm_kernels._step_score`;
-``LSMResult.step_score`` is the largest over the lines, ~χ²(2) each under one motion).
-Measured on rendered two-plane pairs (``tests/matching/test_lsm.py``): a 0.5 px step
-with a 0.7 px blur between the views, 93 -> 12 windows across the edge beyond 3σ; a
-0.2 px step without blur scores 14-25 (median by distance to the edge) against a null
-median of 8.5 and a limit of 30, and stays (its windows err up to half the step,
-median 3-7σ): the test's detection limit.  A straight edge between uniform regions
-(the aperture problem) is rejected as textureless; with weak texture (4 grey levels) it
-is accepted with σ along the edge ~10x σ across it, both right (errors 1.15 and 1.08
-of their σ RMS: the full covariance ``cov``; ``sigma`` is their RMS).
-
-Robust adjustment (``robust``).  Equal-weight least squares lets the pixels of a window
-that do not follow its warp (another surface across a depth edge) pull the match.  From
-the equal-weight solution, the line the motion-step test finds most likely to split two
-motions gives the start: least squares over the reported pixel's side of it (from the
-equal-weight compromise Tukey's weights would not move, every pixel misfitting alike).
-Then iteratively reweighted least squares with Tukey's biweight [6]_, c = 4.685 (95 %
-efficiency at Gaussian residuals) times the residuals' robust scale 1.4826 median|v|
-(never below the two images' noise), and a pixel needs 5 of its 3 x 3 neighbourhood
-weighted (another surface's uncorrelated texture fits by chance in scattered pixels).
-The final *support* is the weighted pixels less those 4-adjacent to an unweighted one
-(boundary pixels mix both surfaces), connected to the reported pixel; least squares over
-it gives the match, σ0² = vᵀWv / (Σw - u) and N = Jᵀ W J (the template-noise correction
-over the support), so that σ is the support's own.  A support without the reported
-pixel, or under half the window, or a failed iteration: the equal-weight solution and
-its tests stand.  Measured on rendered two-plane pairs (``tests/matching/test_robust_lsm.py``):
-windows across a 3.7 px edge whose centre lies >= 3 px from it, median error 0.296 ->
-0.012 px; accepted across the edge 0 -> 187 of 266, 1 beyond 3σ (3.09σ); windows clear
-of the edge unchanged (within 0.2σ).
+:func:`lsm_match` checks its input, solves every window in one ``prange`` kernel
+(:mod:`matching.lsm_kernels`) and then applies the tests that need the batch's population:
+σ0 against what each window's texture predicts (:func:`sigma0_gradient_model`), the
+correlation, and the motion-step test for depth edges (:func:`step_score_limit`).  Options:
+the epipolar constraint, eccentric windows, fixed second-order warp terms, the template's
+footprint smoothing [5]_, robust LSM with Tukey's biweight [6]_.  Images are prepared once by
+:mod:`matching.lsm_image` (noise estimate [3]_, B-spline prefilter).  The equations, each
+test, and the measurements behind the defaults (including why the template-gradient
+Jacobian's σ is right where the search-gradient one is biased [4]_): ``docs/method/lsm.md``.
 
 References
 ----------
@@ -203,7 +139,7 @@ class LSMResult:
         smoothed template with ``footprint_var``), grey levels²/px²: what the σ0 test's
         ``sigma0_model="gradient"`` predicts σ0 from.
     step_score : (N,) float64 or None
-        The motion-step test's statistic (module docstring,
+        The motion-step test's statistic (``docs/method/lsm.md``,
         :func:`matching.lsm_kernels._step_score`): the largest score, over the lines
         splitting the window, of a shift of one side against the other, in units of the
         residual variance (NaN with ``jacobian="search"``, where no solution was reached,
@@ -491,7 +427,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         stays the approximation of the window's centre.  Default: the centres.
 
     jacobian : {"template", "search"}
-        Jacobian of the final linearisation (module docstring): the template-gradient
+        Jacobian of the final linearisation (``docs/method/lsm.md``): the template-gradient
         one (default; unbiased under search-image noise, σ right within 5 %) or one
         exact forward-additive step with search-image gradients (Gruen's textbook form).
     noise_correction : bool
@@ -534,7 +470,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         same band.  The texture test and the noise correction take the smoothed
         template's noise.  Default None: no smoothing.
     step_limit : float or None
-        Motion-step test (module docstring, ``Status.TWO_MOTIONS``): reject an accepted
+        Motion-step test (``docs/method/lsm.md``, ``Status.TWO_MOTIONS``): reject an accepted
         window whose ``step_score`` exceeds ``step_limit`` x max(1, population median /
         ``STEP_SCORE_NULL_MEDIAN``) (:func:`step_score_limit`: the larger of this
         call's accepted windows' median and ``population_step_score``'s).  Default
@@ -552,7 +488,7 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         that has little of them (flutes, horizontal edges) wander and drag the window
         (``matching.pair`` uses it for rectified pairs).  Default False.
     robust : bool or (N,) array_like of bool
-        Robust LSM (module docstring, *Robust adjustment*) for every window or for those
+        Robust LSM (``docs/method/lsm.md``, *Robust adjustment*) for every window or for those
         flagged: from the converged equal-weight solution, iteratively reweighted least
         squares with Tukey's biweight (c = ``TUKEY_C`` = 4.685 robust σ of the window's
         residuals, never below the two images' noise) finds the pixels that follow one

@@ -6,8 +6,8 @@ side); :func:`_solve_point` is one window: the template and its normal matrix (w
 footprint smoothing, :func:`_template`), the template-gradient Gauss-Newton iterations, the
 robust adjustment (:func:`_robust_support`), the motion-step score (:func:`_step_score`) and
 the final linearisation with its covariances.  The equations, the tests and their
-references are in :mod:`matching.lsm`'s docstring; the arguments are that driver's, checked
-there (nothing here validates its input).
+references are in ``docs/method/lsm.md``; the arguments are :func:`matching.lsm.lsm_match`'s,
+checked by it (nothing here validates its input).
 
 Results are bitwise reproducible: fast-math without ``reassoc`` and ``contract`` (``_FM``),
 so a kernel compiled in the process and one loaded from numba's cache give the same bits.
@@ -283,7 +283,7 @@ def _expand(xred, pm, m, delta):
 
 @numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
 def _mixing(p, tmat):
-    """T(p): template-gradient Jacobian J = T j (module docstring); False if det(A) ~ 0."""
+    """T(p): template-gradient Jacobian J = T j (``docs/method/lsm.md``); False if det(A) ~ 0."""
     det = p[1] * p[5] - p[2] * p[4]
     if abs(det) < 1e-12 or abs(p[7]) < 1e-12:
         return False
@@ -1122,7 +1122,7 @@ def _solve_point(fimg, fraw, gimg, centre, approx, init, q, direction, constrain
             return 4, it, False
         _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c)
         if constrained == 0:
-            # delta = T^{-T} H^{-1} c, with T^{-T} in closed form (module docstring)
+            # delta = T^{-T} H^{-1} c, with T^{-T} in closed form (docs/method/lsm.md)
             if not h_spd:
                 return 7, it, False
             _cholesky_back(hlo, c, 8, xred)
