@@ -1531,17 +1531,19 @@ def _correct_polarity(frame: dict, accepted: np.ndarray) -> tuple[np.ndarray, np
     step = np.sqrt(np.nan_to_num(frame["stretch"], nan=1.0))  # right px per rectified px
     frame["polarity_shift"] = np.where(accepted, delta * pol * step, 0.0)
     factor = np.ones(len(accepted))
-    one_sign = np.abs(pol) >= 0.5
     known = np.isfinite(ratio)
     outlier = np.zeros(len(accepted), bool)
-    if (known & one_sign).sum() >= 30 and (known & ~one_sign).sum() >= 30:
-        spread2 = [float(np.median(ratio[known & (one_sign == c)] ** 2)) / CHI2_1_MEDIAN
-                   for c in (False, True)]
-        factor[accepted & one_sign] = max(1.0, spread2[1] / spread2[0])
+    if known.sum() >= 4 * 30:
+        # classes: the quartiles of |polarity| over the matches (the first, the most
+        # balanced windows, the reference)
+        edges = np.quantile(np.abs(pol[known]), [0.25, 0.5, 0.75])
+        cls = np.searchsorted(edges, np.abs(pol), side="right")
+        spread2 = np.array([np.median(ratio[known & (cls == c)] ** 2) for c in range(4)])
+        spread2 = spread2 / CHI2_1_MEDIAN
+        factor = np.where(accepted, np.maximum(1.0, spread2[cls] / spread2[0]), 1.0)
         # beyond the 99.9 % bound of the departures of its neighbours (in units of their
         # classes' spreads; a rougher surface, a wider bound): off the surface
-        z = np.nan_to_num(ratio / np.sqrt(np.where(one_sign, spread2[1], spread2[0])),
-                          nan=np.inf)
+        z = np.nan_to_num(ratio / np.sqrt(spread2[cls]), nan=np.inf)
         zn = np.where(near >= 0, np.abs(z[np.maximum(near, 0)]), np.inf)
         local = 1.4826 * np.median(zn, axis=1)
         outlier = accepted & known & (np.abs(z) > OUTLIER_Z * local)
