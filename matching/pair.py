@@ -1520,12 +1520,13 @@ def _correct_polarity(frame: dict, accepted: np.ndarray) -> tuple[np.ndarray, np
 
     Sets ``frame["polarity_shift"]`` (N,), the shift of each right position along the line
     in the original right image (px).  Returns the variance the bias estimate leaves along
-    the line there (px²) and each match's variance factor for its edges' own errors: a
-    window whose gradients along the row mostly share one sign (|polarity| >= 1/2: at
-    least 3/4 of the information) holds one edge, whose rendering error it does not
-    average with other edges'; its departures from the neighbours' plane, over its σ,
-    against those of the windows holding both signs (both see the same surface) give
-    its extra factor (never below 1).
+    the line there (px²), each match's variance factor for its edges' own errors, and the
+    matches off the surface.  A window whose gradients along the row mostly share one sign
+    holds one edge, whose rendering error it does not average with other edges': per
+    quartile of |polarity| over the matches, the departures from the neighbours' plane
+    over σ, against those of the most balanced quartile (all see the same surface), give
+    the factor (never below 1).  Off the surface: a departure, in its class's units,
+    beyond 3.29 robust spreads (1.4826 MAD) of its neighbours'.
     """
     delta, var_delta, pol, ratio, near = _polarity_bias(frame, accepted)
     step = np.sqrt(np.nan_to_num(frame["stretch"], nan=1.0))  # right px per rectified px
