@@ -394,7 +394,7 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
 
     lower = np.asarray(lower, np.float64)
     upper = np.asarray(upper, np.float64)
-    n_a, n_b = len(lower), len(upper)
+    n_a = len(lower)
     gap, nearest = cKDTree(upper).query(lower)
     i0 = int(np.argmin(gap))
     # The path is forced through its start pair.  The closest pair can sit at a pinch
