@@ -592,6 +592,13 @@ _FACE_DISC = 16.0
 #: allows the twofold density variation along a loop and a wider noise band), and
 #: :func:`_disc_walls` does not try it (its pairs would grow as M·disc area).
 _FACE_DISC_LOAD = 16.0
+#: Least length, in disc diameters, of the chord along which each face of a wall
+#: crosses a disc (:func:`_disc_walls`; a chord of length 2fr sampled evenly has x
+#: spread f/sqrt(3) radii). The far face of the thickest wall the disc tests (4
+#: spacings, 8 g = r/2 from the near face) crosses along sqrt(1 - 1/4) = 0.87 of a
+#: diameter; a loop of diameter D < r lying in the disc (a handle's section beside the
+#: wall) spans at most D/2r < 1/2. 0.7 lies between them.
+_FACE_SPAN = 0.7
 
 
 def _face_split(uv: np.ndarray, loop: Loop, gap: float
@@ -606,9 +613,11 @@ def _face_split(uv: np.ndarray, loop: Loop, gap: float
     are two groups ±a (:func:`_disc_walls`). A point's disc is a wall when both signs
     hold at least 15 % of it and the groups' means are :data:`_FACE_SEPARATION`
     pooled σ apart and at least a mean gap g (a noise-free single face scatters by
-    less than g about its line). When at least half the points are walls, those whose
-    disc holds no other point are parted by the sign of their own offset (the discs'
-    normals oriented alike along the points' spanning tree, :func:`_tree_signs`);
+    less than g about its line), and each crosses the disc (:data:`_FACE_SPAN`; a
+    handle's section lying inside the disc is no wall). When at least half the points
+    are walls, those whose disc holds no other point are parted by the sign of their
+    own offset (the discs'
+    normals oriented alike along a tree where they agree, :func:`_tree_signs`);
     the rest (a handle or spout joins the wall there) take the face whose curve
     through the parted points, bridged across them, is nearer
     (:func:`_face_curves_labels`).
@@ -655,7 +664,7 @@ def _disc_walls(pts: np.ndarray, ordered: int, gap: float) -> np.ndarray | None:
     syy = np.bincount(row, d[:, 1] * d[:, 1], m)
     angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)          # the principal direction
     normal = np.column_stack([-np.sin(angle), np.cos(angle)])
-    normal *= _tree_signs(pts, normal)[:, None]
+    normal *= _tree_signs(pts, normal, _FACE_DISC * gap)[:, None]
     # offsets from the parabola y = c0 + c1 x + c2 x² fitted to each disc in its
     # principal frame, x in units of the radius (the 1e-9 ridge: a disc of one point)
     x = np.einsum("ij,ij->i", d, normal[row][:, ::-1] * np.array([1.0, -1.0]))
@@ -677,8 +686,17 @@ def _disc_walls(pts: np.ndarray, ordered: int, gap: float) -> np.ndarray | None:
     resid = o - np.where(up, mean_up[row], mean_down[row])
     pooled = np.sqrt(np.bincount(row, resid * resid, m) / np.maximum(count - 2, 1))
     separation = mean_up - mean_down
+    # each face crosses the disc: the spread of its points along the disc's line (x in
+    # radii) is that of a chord nearly a diameter long, not of a loop smaller than the
+    # disc lying inside it (a handle's section beside the wall)
+    x_sq = x * x
+    spread = np.minimum(*(np.sqrt(np.maximum(
+        np.bincount(row, np.where(side, x_sq, 0.0), m) / np.maximum(n, 1)
+        - (np.bincount(row, np.where(side, x, 0.0), m) / np.maximum(n, 1)) ** 2, 0.0))
+        for side, n in ((up, n_up), (~up, n_down))))
     wall = ((share >= 0.15) & (share <= 0.85) & (separation >= gap)
-            & (separation >= _FACE_SEPARATION * pooled))
+            & (separation >= _FACE_SEPARATION * pooled)
+            & (spread >= _FACE_SPAN / np.sqrt(3.0)))
     # each disc's test scatters (~64 points); a disc is a wall when most of it is
     wall = 2 * np.bincount(row, wall[col], m) >= count
     if 2 * wall.sum() < m:
@@ -692,17 +710,33 @@ def _disc_walls(pts: np.ndarray, ordered: int, gap: float) -> np.ndarray | None:
     return labels
 
 
-def _tree_signs(pts: np.ndarray, normal: np.ndarray) -> np.ndarray:
+def _tree_signs(pts: np.ndarray, normal: np.ndarray, reach: float) -> np.ndarray:
     """Signs ``(M,)`` that orient the unsigned ``normal`` consistently: each agrees with
-    its parent's along the points' minimum spanning tree (rooted at point 0), the parity
-    of the flips to the root found by pointer jumping (log2 M vectorised rounds)."""
+    its parent's along a spanning tree (rooted at point 0), the parity of the flips to
+    the root found by pointer jumping (log2 M vectorised rounds).
+
+    The tree is Hoppe et al.'s [2]_: the minimum spanning tree of the Delaunay edges no
+    longer than ``reach`` weighted by 1 - |n_i·n_j| (and a thousandth of their length
+    over ``reach``, so a straight wall's ties go to the nearer point), so the
+    orientation is carried where the normals agree and not across a stretch where they
+    turn (a handle's root, whose discs hold the handle's sides: a tree of lengths
+    alone crossed it and swapped the faces' labels beyond it).
+
+    .. [2] H. Hoppe, T. DeRose, T. Duchamp, J. McDonald, W. Stuetzle, "Surface
+       reconstruction from unorganized points", SIGGRAPH 1992, section 3.3.
+    """
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order
+    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
     m = len(pts)
-    tree = _mst(pts, float(np.ptp(pts, axis=0).max()))
-    graph = coo_matrix((np.ones(len(tree.row)), (tree.row, tree.col)), shape=(m, m))
-    _, parent = breadth_first_order(graph, 0, directed=False)
+    edges = _graph_edges(pts)
+    length = np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)
+    edges, length = edges[length <= reach], length[length <= reach]
+    turn = 1.0 - np.abs(np.einsum("ij,ij->i", normal[edges[:, 0]], normal[edges[:, 1]]))
+    # csgraph drops explicit zeros: every weight is at least TOL.zero
+    weight = np.maximum(turn, 0.0) + 1e-3 * length / reach + TOL.zero
+    tree = minimum_spanning_tree(coo_matrix((weight, (edges[:, 0], edges[:, 1])), shape=(m, m)))
+    _, parent = breadth_first_order(tree, 0, directed=False)
     root = parent < 0            # point 0, and any point the tree does not reach
     parent = np.where(root, np.arange(m), parent)
     parity = (np.einsum("ij,ij->i", normal, normal[parent]) < 0).astype(np.int8)
@@ -733,7 +767,9 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
     shorter than the loop's order: a handle's neck is a thin wall too, and its sides
     took both labels), joined by a periodic cubic spline over their chord lengths,
     which bridges the stretches left smoothly (a handle's root bulges the outer face
-    there; the inner face runs on), sampled every g/2.
+    there; the inner face runs on), sampled every g/2. A face no tour of whose nodes is
+    shorter than their θ order about its least-squares circle centre is joined as its
+    radius over θ instead, which keeps its curvature across a long stretch.
     """
     from scipy.interpolate import CubicSpline
 
@@ -749,9 +785,11 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
         # a bulge's nodes come back along the loop's order; in θ order they are spikes
         rel = nodes - pts[mine].mean(axis=0)
         by_theta = nodes[np.argsort(np.arctan2(rel[:, 1], rel[:, 0]), kind="stable")]
-        if _tour_length(by_theta, np.arange(len(nodes))) < _tour_length(
-                nodes, np.arange(len(nodes))):
+        theta_tour = _tour_length(by_theta, np.arange(len(nodes)))
+        order_tour = _tour_length(nodes, np.arange(len(nodes)))
+        if theta_tour < order_tour:
             nodes = by_theta
+        star = theta_tour <= order_tour * (1 + 1e-9)   # no shorter tour than by θ
         kept = len(nodes)
         while len(nodes) > max(5, kept - kept // 4):
             before, after = np.roll(nodes, 1, axis=0), np.roll(nodes, -1, axis=0)
@@ -769,13 +807,35 @@ def _face_curves_labels(pts: np.ndarray, labels: np.ndarray, gap: float,
             nodes = np.delete(nodes, worst, axis=0)
         else:   # a quarter of the nodes peeled: no smooth face to follow
             return None
-        nodes = np.vstack([nodes, nodes[:1]])
-        chord = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
+        closed = np.vstack([nodes, nodes[:1]])
+        chord = np.linalg.norm(np.diff(closed, axis=0), axis=1)
         if np.any(chord <= 0):
             return None
+        samples = int(np.ceil(2 * chord.sum() / gap)) + 1
+        if star:
+            # a face star-shaped about its least-squares circle centre (not its mean,
+            # which moves away from a long stretch without points) is bridged as its
+            # radius over θ: across a stretch without nodes (a handle's root, 60-70°
+            # of a 2-spacing wall at 20 000 points) it keeps the face's curvature,
+            # where the spline over chord lengths cut inside by more than half the wall
+            face_pts = pts[mine]
+            fit = np.linalg.lstsq(np.column_stack([2 * face_pts, np.ones(len(mine))]),
+                                  (face_pts ** 2).sum(axis=1), rcond=None)[0][:2]
+            rel = nodes - fit
+            theta = np.arctan2(rel[:, 1], rel[:, 0])
+            order = np.argsort(theta, kind="stable")
+            theta, rel = theta[order], rel[order]
+            if np.all(np.diff(theta) > 0) and _tour_length(nodes[order], np.arange(len(nodes))) \
+                    <= _tour_length(nodes, np.arange(len(nodes))) * (1 + 1e-9):
+                theta = np.append(theta, theta[0] + 2 * np.pi)
+                radius = np.append(np.hypot(rel[:, 0], rel[:, 1]), np.hypot(*rel[0]))
+                at = np.linspace(theta[0], theta[-1], samples)
+                r = CubicSpline(theta, radius, bc_type="periodic")(at)
+                curves.append(fit + r[:, None] * np.column_stack([np.cos(at), np.sin(at)]))
+                continue
         t = np.concatenate([[0.0], np.cumsum(chord)])
-        spline = CubicSpline(t, nodes, bc_type="periodic")
-        curves.append(spline(np.linspace(0.0, t[-1], int(np.ceil(2 * t[-1] / gap)) + 1)))
+        spline = CubicSpline(t, closed, bc_type="periodic")
+        curves.append(spline(np.linspace(0.0, t[-1], samples)))
     query = pts if query is None else query
     dist = np.column_stack([cKDTree(c).query(query)[0] for c in curves])
     return np.argmin(dist, axis=1)
