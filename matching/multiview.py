@@ -528,9 +528,9 @@ class StoredPair:
 
 def _stored(cloud: PairCloud, folder: str) -> StoredPair:
     """``cloud`` written to ``folder`` (:class:`StoredPair`), its arrays bit for bit."""
-    path = os.path.join(folder, f"pair_{cloud.pair[0]}_{cloud.pair[1]}.npy.npz")
+    path = os.path.join(folder, f"pair_{cloud.pair[0]}_{cloud.pair[1]}.npz")
     extra = {} if cloud.offset is None else {"offset": cloud.offset}
-    tmp = path + ".part.npz"
+    tmp = path[:-len(".npz")] + ".part.npz"  # np.savez keeps a name ending in .npz
     np.savez(tmp, cov=cloud.cov, x_template=cloud.x_template, x_right=cloud.x_right,
              cov_2d=cloud.cov_2d, **extra)
     os.replace(tmp, path)
