@@ -411,9 +411,14 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
         spacing = float(np.median(np.abs(np.diff([s.height for s in sliced]))))
     cameras = _cameras(ctx)
     view = np.mean([camera.R[2] for camera in cameras], axis=0) if cameras else None
-    # seen from cameras: the height field over their view (every piece seen); else one sheet
-    sliced, piece = (osf.main_piece(sliced, spacing) if spacing > 0 and view is None
-                     else (sliced, None))
+    # one sheet: the largest piece when it holds most of the points (a pair's object in
+    # its scene); else, seen from cameras, every piece (a facade's stone between windows
+    # has no points: on Sceaux the largest piece held a third)
+    main, piece = osf.main_piece(sliced, spacing) if spacing > 0 else (sliced, None)
+    if view is None or sum(map(len, main)) >= 0.5 * sum(map(len, sliced)):
+        sliced = main
+    else:
+        piece = None
     kept, loops, messages = osf.organise_arcs(sliced, drop_splits=view is None, **options)
     messages += [piece] if piece else []
     share = rc.bridged_share(loops)
