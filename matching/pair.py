@@ -455,9 +455,9 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         Epipolar pass: grow the ambiguous windows again from verified neighbours too, not
         only those that failed from their approximation (:func:`_grow_verified`).  Default
         on: with one-edge windows reported at their edge and the matches off their
-        neighbours' plane rejected, it adds points on the chessboard rig without adding
-        blunders (pairs 03/04/12: 1529/263/252 -> 1833/483/423 board points, blunders
-        1.0/1.1/2.0 -> 1.1/0.8/1.2 %; docs/decisions/stereo-edges.md).
+        neighbours' plane rejected, it adds points on the chessboard rig and no blunders
+        (pairs 03/04/12, one-signed windows in one class: 1529/263/252 -> 1833/483/423
+        board points, blunders 1.0/1.1/2.0 -> 1.1/0.8/1.2 %; docs/decisions/stereo-edges.md).
     centre_points : bool
         Epipolar pass: report each accepted match at the left pixel nearest its window's
         information centre (where the warp's shift is best determined; ``x_left`` moves
