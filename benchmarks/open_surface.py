@@ -37,6 +37,15 @@ casting).
     .venv/bin/python benchmarks/open_surface.py [--workspace DIR] [--json PATH]
 
 ``--workspace``: reuse (or keep) the run's workspace; default a temporary folder.
+
+    .venv/bin/python benchmarks/open_surface.py --facade WORKSPACE [--photos DIR]
+        [--renders DIR] [--json PATH]
+
+``--facade``: a finished run of a one-sided folder without a truth (the Sceaux facade):
+its stitched (and smooth, when there) open surface against its own cloud -- the cloud's
+points' distance to the surface (median, 90th percentile; the share within 3 of their
+own σ), components and border loops -- and, with ``--photos``, renders from three of its
+cameras (first, middle, last) beside the photos (photo | surface, border red | blend).
 """
 
 from __future__ import annotations
@@ -224,12 +233,94 @@ def poisson_trimmed(points: np.ndarray, eyes: np.ndarray) -> tuple[np.ndarray, n
     return np.asarray(mesh.vertices), np.asarray(mesh.triangles, dtype=np.int64)
 
 
+def facade_figures(ws: Path, photos: Path | None = None, renders: Path | None = None
+                   ) -> dict:
+    """The ``--facade`` figures of a finished workspace (module notes)."""
+    import open3d as o3d
+
+    from matching.cameras import read_cameras_yml
+    from pipeline import artifacts
+    from pipeline.mesh_io import read_mesh
+    from surface.metrics import mesh_topology
+    from surface.open_surface import boundary_loops
+
+    cloud = artifacts.read_cloud(ws / "acquire")
+    points, sigma = cloud["points"], np.asarray(cloud["sigma"], np.float64)
+    rows = {}
+    for name, rel in (("stitched", "stitch/mesh.ply"), ("smooth", "smooth/surface.ply")):
+        if not (ws / rel).is_file():
+            continue
+        v, t = read_mesh(ws / rel)
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)),
+                            o3d.core.Tensor(t.astype(np.uint32)))
+        d = scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+        topo = mesh_topology(v, t)
+        rows[name] = {"vertices": len(v), "faces": len(t), "components": topo["components"],
+                      "border_loops": len(boundary_loops(t)),
+                      "distance_median": float(np.median(d)),
+                      "distance_p90": float(np.percentile(d, 90)),
+                      "within_3_sigma": float(np.mean(d <= 3 * sigma))}
+        if name == "stitched" and photos is not None and renders is not None:
+            _render_beside(v, t, read_cameras_yml(ws / "acquire" / "cameras.yml"), photos,
+                           renders / f"{ws.name}_{name}_three_views.png")
+    return {"cloud_points": len(points), "sigma_median": float(np.median(sigma)),
+            "rows": rows}
+
+
+def _render_beside(v, t, cameras, photos: Path, out: Path) -> None:
+    """Photo | surface (border red) | blend, from the first, middle and last camera."""
+    import cv2
+
+    from pipeline.mesh_io import vertex_normals
+    from pipeline.raycast import RayCaster
+    from pipeline.render import render_view, write_png
+    from surface.open_surface import boundary_loops
+
+    scene, normals, tiles = RayCaster(v, t), vertex_normals(v, t), []
+    for cam in (cameras[0], cameras[len(cameras) // 2], cameras[-1]):
+        width = 640
+        s = width / cam.width
+        K = cam.K.copy()
+        K[:2] *= s
+        K[:2, 2] += 0.5 * s - 0.5
+        height = int(round(cam.height * s))
+        img = np.ascontiguousarray(render_view(scene, v, t, normals, K, cam.R, cam.t,
+                                               width, height))
+        for loop in boundary_loops(t):
+            p = v[loop] @ cam.R.T + cam.t
+            uv = p[:, :2] / p[:, 2:] @ K[:2, :2].T + K[:2, 2]
+            cv2.polylines(img, [np.round(uv * 4).astype(np.int32)], True, (255, 0, 0), 1,
+                          cv2.LINE_AA, shift=2)
+        photo = cv2.imread(str(photos / cam.name), cv2.IMREAD_COLOR)
+        photo = cv2.cvtColor(cv2.resize(photo, (width, height), interpolation=cv2.INTER_AREA),
+                             cv2.COLOR_BGR2RGB)
+        tiles.append(np.hstack([photo, img, (0.5 * photo + 0.5 * img).astype(np.uint8)]))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_png(out, np.vstack(tiles))
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workspace", type=Path, default=None)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--facade", type=Path, default=None)
+    parser.add_argument("--photos", type=Path, default=None)
+    parser.add_argument("--renders", type=Path, default=None)
     args = parser.parse_args(argv)
     print(f"load {uptime()}")
+    if args.facade is not None:
+        result = facade_figures(args.facade, args.photos, args.renders)
+        print(f"{args.facade}: {result['cloud_points']} cloud points, their sigma median "
+              f"{result['sigma_median']:.5f}")
+        keys = ("vertices", "faces", "components", "border_loops", "distance_median",
+                "distance_p90", "within_3_sigma")
+        print(" | ".join(f"{k:>15}" for k in ("row",) + keys))
+        for name, row in result["rows"].items():
+            print(" | ".join([f"{name:>15}"] + [f"{row[k]:15.5g}" for k in keys]))
+        if args.json:
+            write_result(args.json, result)
+        return 0
 
     from matching.cameras import read_cameras_yml
     from pipeline import artifacts
