@@ -63,6 +63,7 @@ from scipy.sparse import csgraph
 
 from surface._blas import one_blas_thread
 from surface.catmull_rom import _FAIRNESS, M_CR, _basis
+from surface.polygon import polygon_area
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
@@ -487,8 +488,6 @@ LINE_BAND = 4.0
 def _is_line(loop) -> bool:
     """Whether a closed-looking loop is a thin line traced there and back: its path more
     than :data:`DOUBLED_PATH` times its spine, and thinner than :data:`LINE_BAND` σ."""
-    from surface.polygon import polygon_area
-
     pts = np.asarray(loop.points, np.float64)
     if len(pts) < 4:
         return False
