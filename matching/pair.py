@@ -108,9 +108,11 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from matching import uniqueness
 from matching.grow import grow_matches
@@ -858,7 +860,6 @@ def _verify_unique_rectified(frame: dict, points, res: LSMResult, search_range,
     pins a window.  Returns the (N,) verdicts and (N,) variance the rivals leave along
     the row (rectified px², ``Verification.rival_var``).
     """
-    from types import SimpleNamespace
 
     n = len(points)
     ok = frame["index"]
@@ -1264,7 +1265,6 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
     Updates ``status``, ``geo``, ``dirs``, ``sides`` and ``frame`` in place; returns the
     updated result and the (N,) mask of the matches grown.
     """
-    from scipy.spatial import cKDTree
 
     n = len(points)
     reach = float(patch) / 2.0 if reach is None else float(reach)
@@ -1458,7 +1458,6 @@ def _polarity_bias(frame: dict, accepted: np.ndarray, neighbours: int = 40,
     image over a plane), regressed on the polarity: d_i - plane_i = δ (s_i - plane of
     the s_j) (the neighbours carry the bias too), MAD-trimmed at 3.29 robust spreads.
     """
-    from scipy.spatial import cKDTree
 
     n = len(accepted)
     s = np.zeros(n)
@@ -1927,7 +1926,6 @@ def _fill_directions(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
     if not good.any():
         direction[:] = (1.0, 0.0)
         return direction
-    from scipy.spatial import cKDTree
 
     _, nearest = cKDTree(points[good]).query(points[~good])
     direction[~good] = direction[good][nearest]

@@ -48,6 +48,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import ConvexHull, cKDTree
 
 from surface.validate import check_shape
 
@@ -168,7 +171,6 @@ def supported_genus(vertices: np.ndarray, triangles: np.ndarray, points: np.ndar
     a tube (a tunnel the iso-surface drew between two close parts of the object, through
     no data) lowers it by one.  ``None`` when nothing of the surface is near the data.
     """
-    from scipy.spatial import cKDTree
 
     from surface.validity import check_solid
 
@@ -210,8 +212,6 @@ def evidence_genus(section_vertices: np.ndarray, section_triangles: np.ndarray,
 def _split_pinched(triangles: np.ndarray) -> np.ndarray:
     """Corner labels ``(F, 3)``: corners of one vertex joined across the edges of the faces
     they share, so that a vertex where two fans meet only at a point becomes two."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
     from surface.metrics import edge_table
 
@@ -346,7 +346,6 @@ def poisson_control_mesh(points: np.ndarray, spacing: float, point_spacing: floa
     triangles, then solved one octree level coarser (at most three tries each).
     """
     import open3d as o3d
-    from scipy.spatial import cKDTree
 
     p = check_shape(points, "(N, 3)", "points", dtype=np.float64)
     if len(p) < 4 * NORMAL_NEIGHBOURS:
@@ -402,7 +401,6 @@ def _border_edges(triangles: np.ndarray) -> int:
 
 def _hull_planes(points: np.ndarray) -> np.ndarray:
     """The cloud's convex hull as outward planes ``(K, 4)``: ``n . x + d <= 0`` inside."""
-    from scipy.spatial import ConvexHull
 
     return ConvexHull(points).equations
 
