@@ -239,7 +239,13 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"photosurf {args.command}: error: input nested too deeply", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as exc:
+    except (KeyboardInterrupt, SystemError) as exc:
+        # a signal's exception raised while a compiled kernel ran comes back wrapped:
+        # "CPUDispatcher(...) returned a result with an exception set", its cause the signal's
+        if not isinstance(exc, KeyboardInterrupt):
+            if not isinstance(exc.__cause__, KeyboardInterrupt):
+                raise
+            exc = exc.__cause__
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"photosurf {args.command}: interrupted ({signal.Signals(signum).name})",
               file=sys.stderr)

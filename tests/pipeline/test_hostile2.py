@@ -10,6 +10,7 @@ but odd, that the command succeeds and says what it did.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import limits
+from pipeline import cli, cmd_sections, limits
 from tests.pipeline.test_fuzz_inputs import (
     assert_nothing_written,
     call_main,
@@ -702,3 +703,29 @@ def test_interrupt_does_not_wait_for_a_single_pair(tmp_path, command):
     assert [ln for ln in err.splitlines() if ln.strip()] == [
         f"photosurf {command}: interrupted (SIGINT)"], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["l.png", "r.png", "rig.yml"]
+
+
+def test_a_signal_inside_a_compiled_kernel_is_one_line(tmp_path, capfd, monkeypatch):
+    """SIGTERM handled while a numba kernel runs reaches the command wrapped in a
+    SystemError ("... returned a result with an exception set", the signal's exception its
+    cause): still one line naming the signal and the exit status 128 + 15, no traceback;
+    a SystemError of another cause is not taken for an interruption."""
+    def wrapped(args):
+        try:
+            raise cli.Terminated(signal.SIGTERM)
+        except KeyboardInterrupt as exc:
+            raise SystemError("CPUDispatcher(kernel) returned a result with an exception "
+                              "set") from exc
+
+    monkeypatch.setattr(cmd_sections, "run", wrapped)
+    status = cli.main(["sections", str(tmp_path / "c.ply"), "--out", str(tmp_path / "o.ply")])
+    err = capfd.readouterr().err
+    assert status == 128 + signal.SIGTERM
+    assert err.strip().splitlines() == ["photosurf sections: interrupted (SIGTERM)"], err
+
+    def other(args):
+        raise SystemError("a real bug")
+
+    monkeypatch.setattr(cmd_sections, "run", other)
+    with pytest.raises(SystemError, match="a real bug"):
+        cli.main(["sections", str(tmp_path / "c.ply"), "--out", str(tmp_path / "o.ply")])
