@@ -281,8 +281,12 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
     The first step skips the fold search (its cost: ``docs/decisions/complex-shapes.md``).
     ``solid["general_control"]`` says which step carries the surface.
     """
-    from surface.fitting import (fitted_control_mesh, flat_vertices, interpolating_control_mesh,
-                                 sharp_vertices)
+    from surface.fitting import (
+        fitted_control_mesh,
+        flat_vertices,
+        interpolating_control_mesh,
+        sharp_vertices,
+    )
     from surface.interpolation import JUDGE_FOLD_LEVEL, interpolating_control
 
     try:

@@ -444,8 +444,9 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
 
     The surface is represented by its limit mesh ``levels`` subdivision steps down,
     ``M X`` with ``M = limit_matrix(refined) @ S`` (:func:`subdivision_matrix`; its
-    chords' sagitta: :data:`FIT_LEVELS`), linear in the control vertices ``X``.  Each round finds every point's nearest spot on it (a face and its
-    barycentric weights ``B``) and solves
+    chords' sagitta: :data:`FIT_LEVELS`), linear in the control vertices ``X``.  Each
+    round finds every point's nearest spot on it (a face and its barycentric weights
+    ``B``) and solves
 
     .. math:: \min_X \|B M X - p\|^2 + w \frac{N}{V} \|M_0 X - P\|^2
 
