@@ -5,96 +5,32 @@ The pair-level pipeline, reused by the multi-view stage:
 1. **select** the best-textured pixel of every ``spacing`` x ``spacing`` cell of the
    left image (:func:`matching.seeds.select_points`);
 2. **approximate** its right-image position: rectification + SGBM for a calibrated
-   pair, SGBM on the images for an already rectified pair
-   (:mod:`matching.seeds`);
+   pair, SGBM on the images for an already rectified pair (:mod:`matching.seeds`);
 3. **refine** by least-squares matching in the *original* images
-   (:func:`matching.lsm.lsm_match`, Gruen 1985), optionally constrained to the
-   local epipolar direction (always for a rectified pair: horizontal, with every
-   window row held on its row -- ``rigid_across``: b1 = 0, b2 = 1 are geometry, not
-   unknowns; estimated, they wander on texture with little y-gradient and drag the
-   window off: temple pairs +1.7 to +7.1 points accepted, ``outside_image`` and most
-   ``degenerate_affine`` gone);
+   (:func:`matching.lsm.lsm_match`, Gruen 1985), optionally constrained to the local
+   epipolar direction (always for a rectified pair: every window row held on its row,
+   ``rigid_across``: b1 = 0, b2 = 1 are geometry, not unknowns);
 4. **triangulate** (:func:`matching.triangulate.triangulate_pair`) with the LSM
    covariance, giving each 3D point its σ.
 
 Precision control (second pass).  LSM's shift σ is noise-limited,
 :math:`\sigma \approx \sigma_0 / \sqrt{2 w}` with Förstner's weight
 :math:`w = \det N / \operatorname{tr} N` of the template's structure tensor N
-(Förstner & Gülch 1987), so with a fixed patch it follows the local contrast: on the
-rendered vase (15x15, 2 grey levels of noise) the reported σ spans 0.014-0.09 px and
-the RMS over the accepted points (0.035 px) is dominated by the weakly textured
-half.  Two data-relative rules act on the first pass's *validated* σ:
+(Förstner & Gülch 1987).  Two rules act on the first pass's validated σ: the
+**adaptive patch** (Gruen's "adaptive": a point whose σ is worse than the median σ τ
+of the accepted matches is re-matched with the smallest odd side up to ``max_patch``
+whose predicted σ reaches τ, :func:`adaptive_sides`; a first-pass match the second
+pass loses keeps its first-pass result) and the **precision test** (σ beyond the
+median by more than ``max_sigma_mad_k`` robust spreads: ``imprecise``).
 
-* **adaptive patch** (Gruen's "adaptive"): a point whose σ is worse than the median σ
-  τ of the image's accepted matches is re-matched with the smallest odd side up to
-  ``max_patch`` (default: at most twice the pixels, 21 for 15) whose σ, scaled by
-  the structure-tensor prediction :func:`matching.seeds.shift_precision`, reaches τ
-  (:func:`adaptive_sides`); a grown window that fails (its search window leaves the
-  image, or it reaches over an edge the base window stays clear of) falls back to the
-  base side, and a first-pass match the second pass loses (second-order terms taken
-  from neighbours across a depth edge) keeps its first-pass result: the second pass
-  refines, it does not reject (temple pairs, ``benchmarks/matching.py --part temple``:
-  +4.4 to +7.4 points of the object's candidates accepted);
-* **precision test**: an accepted match whose σ exceeds the median σ by more than
-  ``max_sigma_mad_k`` (4, as the σ0 test) robust spreads (1.4826 MAD, at least the
-  spread σ0's own estimation error gives, median/sqrt(2(n - 8))) is rejected as
-  ``imprecise`` (a precision-based acceptance: the population's own σ is the
-  yardstick; a uniformly textured plane loses 0.7 % of its points to it).
-
-Measured on the vase (``benchmarks/matching.py``, 12 785 candidates with truth):
-
-=====================================  =========  ========  ========
-pair pipeline                          RMS px     σ ratio   accepted
-=====================================  =========  ========  ========
-fixed 15x15 (2026-11-22 code)          0.0371     1.15      12 305
-fixed 15x15, second-order terms from   0.0350     1.09      12 309
-all neighbours in the radius
-+ adaptive patch 15..21                0.0290     1.17      12 217
-+ precision test (default)             0.0274     1.14      11 980
-=====================================  =========  ========  ========
-
-The alternatives measured and not taken: *selecting* points by Förstner's operator
-in :func:`matching.seeds.select_points` buys precision only by dropping points
-(roundness q >= 0.75 keeps 81 % for 0.0364 px; a w or predicted-σ threshold needs to
-drop 20 % of the points to reach 0.030 px), and growing to 31 px makes the largest
-patches' σ under-report (actual/reported 1.8 at 31 px against 1.24 at 21 px: the
-affine + fixed second-order model no longer holds over 31 px of a curved surface).
-
-Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`): the LSM codes
-0-7 of :class:`matching.lsm.Status`, then
-
-====  ====================  ==================================================
-8     ``no_approximation``  SGBM gave no disparity at the point or somewhere under
-                            its patch (background, occlusion, silhouette)
-9     ``triangulation``     rejected by triangulation (behind a camera, large
-                            reprojection error, ill-conditioned)
-10    ``imprecise``         σ of the match beyond the median σ of the accepted
-                            matches + 4 robust spreads (``max_sigma_mad_k``)
-12    ``ambiguous``         a rival along the epipolar search range matches as
-                            well within the noise (:mod:`matching.uniqueness`),
-                            and its unique neighbours do not pin it (epipolar
-                            pass: the matcher does not refute the rival, or the
-                            rivals' mixture variance exceeds the match's own)
-13    ``blank``             no signal in the window (std <= 2 noise σ)
-14    ``backward``          the right-to-left LSM from the solution does not
-                            return within the loop's 99.9 % bound
-15    ``aperture``          calibrated pair: the window is ill-conditioned along
-                            the epipolar line at every side tried
-                            (:func:`_epipolar_refine`)
-16    ``off_surface``       calibrated pair: departs from the plane of its
-                            neighbours beyond the 99.9 % bound of theirs
-                            (:func:`_correct_polarity`)
-====  ====================  ==================================================
-
-Epipolar pass (calibrated pairs, ``epipolar_pass``).  On a real chessboard rig 2-D LSM
-started *at the truth* still ended 0.78 px (median, along the line) off it: a window
-whose texture is one straight edge slides along the edge, and the chessboard's
-near-horizontal edges turn that slide into disparity.  Re-matched in the rectified
-images with the y-shift fixed by the rig (Gruen & Baltsavias 1988) the same windows
-end 0.38 px off, and the remaining error is concentrated where the window is
-ill-conditioned along the line (docs/decisions/stereo-epipolar.md), which is rejected.
-Each accepted match is then reported where its window determines it, at the pixel
-nearest the warp's least-variance point (docs/decisions/stereo-information-centre.md).
+Epipolar pass (calibrated pairs, ``epipolar_pass``): windows re-matched in the
+rectified images with the y-shift fixed by the rig (Gruen & Baltsavias 1988),
+rejected where ill-conditioned along the line (``aperture``, tested at the window's
+least-variance point), reported at the pixel nearest that point, the pair's
+edge-polarity bias removed.  Every candidate keeps a status code
+(:data:`PAIR_STATUS_NAMES`; their meanings: ``docs/method/acquire.md``).  What was
+measured for each rule: ``docs/decisions/stereo-matching.md``, ``stereo-epipolar.md``,
+``stereo-information-centre.md``, ``stereo-edges.md``.
 
 References
 ----------
