@@ -15,19 +15,12 @@ first (on a tie the coarser ring first, which reproduces the three triangles
 above for N↔2N and a regular diagonal for N↔N).  Each ring of :math:`n_a` and
 :math:`n_b` points gives exactly :math:`n_a + n_b` triangles.
 
-The strip is then improved by Lawson's flips [1]_: an interior edge
-:math:`ab` with opposite vertices :math:`c, d` is replaced by :math:`cd`
-while :math:`\angle acb + \angle adb > \pi` (the local Delaunay criterion),
-never across a section contour (the contours are constraints), never when
-:math:`cd` already exists (non-manifold) and never when a new face normal
-turns by more than ``max_normal_change`` from the old pair's (fold-over).
-Flips go in sweeps, each a maximal set of such edges no two of which share a
-face; they run in one numba kernel (:func:`_lawson`, written here: the flips on a
-surface of sections, with these constraints, are no library's) keeping each
-half-edge's partner and an edge table across flips.
-End caps are an ear-clipping triangulation (mapbox ``earcut``) of the end
-contours in the section plane followed by the same flips inside the cap,
-giving the constrained Delaunay triangulation of the contour.
+The strip is then improved by Lawson's flips [1]_ (the local Delaunay criterion
+:math:`\angle acb + \angle adb > \pi`), never across a section contour, never to an
+existing edge, never turning a face normal by more than ``max_normal_change``; in
+sweeps, one numba kernel (:func:`_lawson`).  End caps are an ear-clipping
+triangulation (mapbox ``earcut``) of the end contours followed by the same flips: the
+constrained Delaunay triangulation of the contour.
 
 All faces are counter-clockwise seen from outside: the side normal
 :math:`(a_{i+1} - a_i) \times (b_j - a_i)` points away from the axis when the
@@ -35,33 +28,17 @@ rings run counter-clockwise about the axis and ``b`` lies above ``a``; the
 bottom cap faces :math:`-\mathbf{axis}`, the top cap :math:`+\mathbf{axis}`.
 
 Support rings (``stitch_rings(..., support_sigma=σ̂)``, the default of
-:func:`surface.reconstruct.surface_from_points` and of the pipeline): the mesh is the control mesh
-of a G1 spline surface (``surface.bezier``, Loop 1994), which passes a corner
-of the control polygon with turn α and legs h at
-:math:`|P_{-1} + P_1 - 2P_0|/6 = h\sin(\alpha/2)/3` from it — at a 90° cap
-rim with the section spacing as h that is 0.011 on the vase, 5σ.  Where the
-section profile (the legs from each ring point to the nearest point of the
-neighbouring rings, or into the cap) turns by more than ``SHARP_TURN`` and that
-rounding exceeds the points' noise σ̂, a support (holding) ring is added on
-each leg at :math:`d = 3\hat\sigma/\sin(\alpha/2)`, so the rounding falls to
-σ̂ (:func:`support_distance`); inside the cap's support ring comes a guard ring
-(:data:`CAP_GUARD_RINGS`; without a support two rings one wall leg apart), then a
-quality triangulation of the plane: Loop's patch reads two rings of edges about its
-triangle, so the patches inside the guard ring read only cap-plane vertices and are
-exactly flat (an ear-clipped cap has no inner vertex: all its patches read the wall
-and bend, 0.00033 mean off the plane on the 10^5-point vase's sized surface, 0.00004
-with the rings).  The supports
-lie on the stitched polyhedron (on its legs and in its cap plane), so the
-stitched mesh keeps its shape; only the smooth surface changes: vase Chamfer
-0.00056 → 0.00039 at smoothing 8, caps flat, G1 unchanged.  Why not an exact
-crease rule (Hoppe et al. 1994 [3]_): Loop's patches over a border are exact
-B-spline curves only where border vertices have valence 3, and the vase's rim
-vertices have 1-9 (tests/surface/test_bezier_crease.py), so a crease needs a
-new constrained border rule; support rings are the standard subdivision
-modelling practice for a sharp-looking edge on a smooth surface (the
-semi-sharp alternative of DeRose et al. 1998 [4]_) and need no new patch rule.
-Interpolating the rings instead (``surface.fitting``) removes Loop's shrinkage
-but overshoots at the rims (vase Chamfer 0.0008 with supports).
+:func:`surface.reconstruct.surface_from_points` and of the pipeline): Loop's G1 surface
+passes a corner of the control polygon with turn α and legs h at
+:math:`|P_{-1} + P_1 - 2P_0|/6 = h\sin(\alpha/2)/3` from it.  Where the section profile
+turns by more than ``SHARP_TURN`` and that rounding exceeds the points' noise σ̂, a
+support ring is added on each leg at :math:`d = 3\hat\sigma/\sin(\alpha/2)`
+(:func:`support_distance`), so the rounding falls to σ̂; inside a cap's support ring
+come a guard ring (:data:`CAP_GUARD_RINGS`) and a quality triangulation of the plane,
+so the patches there read only cap-plane vertices and are exactly flat.  The supports
+lie on the stitched polyhedron: only the smooth surface changes.  Why supports and not
+an exact crease rule (Hoppe et al. 1994 [3]_; DeRose et al. 1998 [4]_), with the
+figures: ``docs/method/stitching.md``, "Support rings".
 
 References
 ----------
