@@ -38,6 +38,7 @@ from surface.stitch import (
     _nearest_loop,
     _scaled,
     end_window,
+    loops_cross,
     self_intersects,
     stitch_rings,
     uncovered_share,
@@ -750,13 +751,21 @@ def untangle(kept: list, loops: list, rings: list | None = None):
             k for k, item in enumerate(rings) if k not in crossing and
             any(keyhole(r @ frame[:2].T) for r in
                 ([item] if isinstance(item, np.ndarray) else item))})
+        # two loops of one section that cross each other: no strip can wall both
+        tangled = [k for k, item in enumerate(rings) if k not in crossing and
+                   not isinstance(item, np.ndarray) and len(item) > 1 and
+                   loops_cross([r @ frame[:2].T for r in item])]
+        crossing = sorted(set(crossing) | set(tangled))
         if len(kept) - len(crossing) >= 2:
             for k in crossing[::-1]:
                 notes.append(f"section {kept[k].section_id} at height {kept[k].height:.6g} "
-                             "skipped: its ring crosses itself or is two nested contours "
-                             "joined through a neck (points of a face across the section "
-                             "plane, a sliver of noise, or a gap narrower than the sections "
-                             "resolve, taken for one contour)")
+                             + ("skipped: two of its loops cross each other (points of two "
+                                "parts closer than the sections resolve, each taken into the "
+                                "other's contour)" if k in tangled else
+                                "skipped: its ring crosses itself or is two nested contours "
+                                "joined through a neck (points of a face across the section "
+                                "plane, a sliver of noise, or a gap narrower than the sections "
+                                "resolve, taken for one contour)"))
                 del kept[k], loops[k], rings[k]
     if any(len(found) > 1 for found in loops):
         frame = kept[0].frame

@@ -62,6 +62,7 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from scipy.spatial import cKDTree
 
 from surface._blas import one_blas_thread
 from surface.loop_graph import LoopGraph, loop_graph, nesting
@@ -367,8 +368,6 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
        reconstruction from planar contours", Communications of the ACM 20
        (1977), 693-702.
     """
-    from scipy.spatial import cKDTree
-
     lower = np.asarray(lower, np.float64)
     upper = np.asarray(upper, np.float64)
     n_a = len(lower)
@@ -958,8 +957,6 @@ def _bridge_split_in(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list
     ValueError
         A child owns fewer than two points of the loop.
     """
-    from scipy.spatial import cKDTree
-
     spacing = float(np.median(np.linalg.norm(np.roll(ring_flat, -1, axis=0) - ring_flat,
                                              axis=1)))
     trees = [cKDTree(c) for c in children]
@@ -1041,8 +1038,6 @@ def _bridge_heights(flat: np.ndarray, default: np.ndarray, height: float, other:
     out = np.clip(np.asarray(default, np.float64), lo, hi)
     if cap_points is None or len(cap_points) < BRIDGE_NEIGHBOURS or len(flat) == 0:
         return out
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(cap_points, np.float64)
     h = pts @ frame[2]
     between = (h > lo) & (h < hi)
@@ -1128,8 +1123,6 @@ def _read_at(ring: np.ndarray, other: np.ndarray) -> np.ndarray:
     need not start at the same angle: their starts differ by up to a spacing).
     The closest vertex (k-d tree), then the closest point on its two edges.
     """
-    from scipy.spatial import cKDTree
-
     m = len(other)
     nearest = cKDTree(other).query(ring)[1]
     best = other[nearest]
@@ -1472,8 +1465,6 @@ def _local_quadratic(flat: np.ndarray, h: np.ndarray, query: np.ndarray,
     of their time building ``(Q, k, 6)`` designs).  With ``variance`` also each height's
     variance over σ² ``(Q,)``.
     """
-    from scipy.spatial import cKDTree
-
     flat = np.ascontiguousarray(flat, dtype=np.float64)
     h = np.ascontiguousarray(h, dtype=np.float64)
     query = np.ascontiguousarray(query, dtype=np.float64).reshape(-1, 2)
@@ -1506,8 +1497,6 @@ def uncovered_share(ring2d: np.ndarray, holes2d: list, flat: np.ndarray) -> floa
     Measured on a grid of cell 2ν (ν the points' median nearest-neighbour distance);
     1.0 with fewer than 3 points, 0.0 when the region holds no grid point.
     """
-    from scipy.spatial import cKDTree
-
     inside = flat[_inside(flat, ring2d)] if len(flat) else flat
     for hole in holes2d:
         inside = inside[~_inside(inside, hole)]
@@ -1682,8 +1671,6 @@ def self_intersects(uv: np.ndarray) -> bool:
     each non-adjacent pair is tested exactly by the signs of its four
     orientations (edges that only touch or overlap along a line do not count).
     """
-    from scipy.spatial import cKDTree
-
     a = np.asarray(uv, dtype=np.float64)
     n = len(a)
     if n < 4:
@@ -1694,6 +1681,35 @@ def self_intersects(uv: np.ndarray) -> bool:
     i, j = pairs[:, 0], pairs[:, 1]
     apart = (np.abs(i - j) != 1) & (np.abs(i - j) != n - 1)  # not sharing a vertex
     i, j = i[apart], j[apart]
+
+    def orientation(p, q, r):
+        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
+                       - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+
+    crosses = ((orientation(a[i], b[i], a[j]) * orientation(a[i], b[i], b[j]) < 0)
+               & (orientation(a[j], b[j], a[i]) * orientation(a[j], b[j], b[i]) < 0))
+    return bool(crosses.any())
+
+
+def loops_cross(uvs: list) -> bool:
+    """Whether two of the closed polygons ``uvs`` (each ``(n, 2)``: one section's loops)
+    cross each other.
+
+    As :func:`self_intersects`, over the edges of every loop at once: candidate pairs of
+    edges from a k-d tree of their midpoints within the longest edge, only pairs from
+    different loops, each tested exactly by the signs of its four orientations (loops
+    that only touch do not count)."""
+    loops = [np.asarray(uv, dtype=np.float64) for uv in uvs if len(uv) >= 3]
+    if len(loops) < 2:
+        return False
+    a = np.concatenate(loops)
+    b = np.concatenate([np.roll(uv, -1, axis=0) for uv in loops])
+    owner = np.repeat(np.arange(len(loops)), [len(uv) for uv in loops])
+    longest = float(np.linalg.norm(b - a, axis=1).max())
+    pairs = cKDTree(0.5 * (a + b)).query_pairs(longest, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    other = owner[i] != owner[j]
+    i, j = i[other], j[other]
 
     def orientation(p, q, r):
         return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])

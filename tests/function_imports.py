@@ -39,7 +39,7 @@ LEFT: dict[str, int] = {
     "pipeline.smoothing": 2, "pipeline.stages": 12, "surface._blas": 2,
     "surface.general_mesh": 9, "surface.measure": 7, "surface.metrics": 1,
     "surface.open_surface": 13, "surface.outliers": 1, "surface.reconstruct": 19,
-    "surface.stitch": 9, "surface.topology": 4
+    "surface.stitch": 2, "surface.topology": 4
 }
 
 

@@ -332,3 +332,35 @@ def test_a_small_branch_inside_its_sub_loop_is_tiled_by_the_angle_about_it():
         result = stitch_rings([[_rectangle(2.0, 1.0, 6, 0.0)]] + branches, AXIS)
         report = check_solid(result.vertices, result.triangles)
         assert result.closed and report.valid, ((cx, cy), report.problems())
+
+
+def test_a_section_whose_two_loops_cross_each_other_is_skipped():
+    """Two legs (circles of radius 0.4 at x = ±0.5) over seven sections; in the middle one
+    the legs' contours are drawn at x = ±0.3 and cross each other (two parts closer than
+    the sections resolve, each taken into the other's contour).  Stitched as they are, the
+    strips to that section cross; ``untangle`` skips it with a note naming the crossing
+    loops, and the rest stitches to a valid solid of two components."""
+    from types import SimpleNamespace
+
+    from surface.reconstruct import untangle
+    from surface.stitch import axis_frame, loops_cross
+
+    t = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+
+    def leg(x, z):
+        return np.column_stack([x + 0.4 * np.cos(t), 0.4 * np.sin(t), np.full(len(t), z)])
+
+    rings = [[leg(-0.5, 0.1 * k), leg(0.5, 0.1 * k)] for k in range(7)]
+    rings[3] = [leg(-0.3, 0.3), leg(0.3, 0.3)]
+    assert loops_cross([r[:, :2] for r in rings[3]])
+    assert not loops_cross([r[:, :2] for r in rings[2]])
+    crossed = stitch_rings(rings, AXIS)
+    assert not check_solid(crossed.vertices, crossed.triangles).valid
+    kept = [SimpleNamespace(section_id=k, height=0.1 * k, frame=axis_frame(AXIS))
+            for k in range(len(rings))]
+    kept, loops, rings, notes = untangle(kept, [[None, None]] * len(rings), rings)
+    assert [k.section_id for k in kept] == [0, 1, 2, 4, 5, 6]
+    assert len(notes) == 1 and "section 3 " in notes[0] and "cross each other" in notes[0]
+    result = stitch_rings(rings, AXIS)
+    report = check_solid(result.vertices, result.triangles)
+    assert result.closed and report.valid and report.components == 2, report.problems()
