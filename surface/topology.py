@@ -13,63 +13,19 @@ the method's (2,1)).  Where the θ order and the nearest-neighbour order
 disagree the loop is not star-shaped about C and the nearest-neighbour chain
 wins.
 
-How each part is made robust and vectorised:
+Each part robust and vectorised (the derivations: ``docs/method/sections.md``,
+"Loops, outliers, order"):
 
-* **Loops (clusters).**  The Euclidean minimum spanning tree of the section
-  (a subgraph of its Delaunay triangulation, so ``O(M log M)``) is cut at
-  edges longer than the link distance ``ℓ = 2·(ln M + 6)·g``, where
-  ``g = median(MST edge)/ln 2`` is the mean gap between neighbours along a
-  curve.  (The tree, its components and the tour's tree walk are small numba
-  kernels, :func:`_kruskal`, :func:`_components`, :func:`_tree_walk`, that give
-  ``scipy.sparse.csgraph``'s answers exactly — a test compares them, ties
-  included —: scipy's calls spent most of their time setting up sparse matrices
-  for the ~300 small graphs of a real section stack.)  For ``M`` points spread
-  at random along a curve the gaps are exponential with mean g, the largest is
-  about ``g·(ln M + 0.58)`` and exceeds ``(ln M + 6)·g`` with probability
-  ≈ e⁻⁶ ≈ 0.25 %; the factor 2
-  allows the density to vary twofold along a loop (e.g. an ellipse sampled
-  uniformly in angle).  Separate loops closer than ℓ are merged.
-  Components with fewer than ``min_points`` points are outliers.
-* **Outliers.**  For every point a quadratic ``y = a + b x + c x²`` is fitted,
-  in the principal frame of its ``k`` nearest neighbours (itself excluded),
-  by batched least squares; its residual ``r`` is its distance from the
-  local curve.  With the robust scale ``σ̂ = 1.4826·median|r|`` (the MAD about
-  the fit, = σ for Gaussian noise) a point is an outlier when
-  ``|r| > max(threshold·σ̂, g/2)``; the floor ``g/2`` keeps noise-free data
-  intact (an offset below half the point gap cannot be told from sampling).
-  The first pass fits every point's neighbours as they are; the second
-  refits from the points the first kept and decides again for every point,
-  so good points whose neighbourhood held an outlier are readmitted.
-* **Order.**  The loop is reduced to centres (means) of the points in the
-  cells of a grid of size ``h = max(3 g, 6 σ̂, D/128)`` (D the loop's
-  diameter): about one centre per three gaps, wider than the noise band,
-  so the centres form a thin chain without side branches.  They are joined
-  by a closed tour: the θ order (or, when it jumps more than ``3h``, the
-  shorter of it and a depth-first walk of their minimum spanning tree),
-  improved by best-improvement 2-opt until no move shortens it (candidate
-  moves from a k-d tree, every candidate's gain in one array operation).
-  The loop is star-shaped when θ increases along the counter-clockwise tour
-  (the θ order and the nearest-neighbour order agree), up to fall-backs
-  below the angle ``2h/R`` of two cells (grid jitter, not a fold); then its
-  points are ordered by θ, as in the method.  Otherwise each point is
-  projected onto the tour polyline and ordered by the arc length of its
-  foot point: the nearest-neighbour chain.  ``closed`` is False when the
-  tour has to jump a gap longer than ℓ.
-
-  Why not a greedy nearest-neighbour chain over the points themselves: in a
-  noisy band (σ comparable with the gap) it zigzags across the band, strands
-  points and closes with long jumps, and it is a Python loop per point; an
-  MST walk alone backtracks along every short side branch of the band.  The
-  centre tour has neither problem, and projecting M points onto it is one
-  vectorised k-d tree query.
-* **Degenerate sections.**  Points on one straight line enclose no area, so
-  they are no closed curve: a section (or a cluster) whose width across its
-  principal direction, ``ptp(n·(x − C))`` with ``n`` the eigenvector of the
-  smallest eigenvalue of the 2×2 covariance, is at most ``TOL.planar_rel``
-  times its diameter is skipped.  This is what a flat cloud cut along an
-  axis lying in its plane gives (an oblique axis projects the slab's points
-  along the axis, off the line: a band as wide as the slab, left to the
-  loop statistics).
+* **Loops**: the section's Euclidean minimum spanning tree cut at edges longer than
+  the link distance ``ℓ = 2·(ln M + 6)·g``, ``g = median(MST edge)/ln 2`` the mean gap
+  along a curve; components under ``min_points`` points are outliers.
+* **Outliers**: a quadratic fitted to each point's ``k`` nearest neighbours (batched);
+  an outlier when ``|r| > max(threshold·σ̂, g/2)``, σ̂ the MAD scale; two passes.
+* **Order**: grid-cell centres (``h = max(3 g, 6 σ̂, D/128)``) joined by a closed tour
+  improved by 2-opt; θ order where the loop is star-shaped about C, else the arc
+  length of each point's foot on the tour (the nearest-neighbour chain).
+* **Degenerate sections**: a section thinner than ``TOL.planar_rel`` times its
+  diameter across its principal direction encloses no area and is skipped.
 """
 
 from __future__ import annotations
