@@ -1,4 +1,4 @@
-"""Write the API page of every public module of matching/, surface/ and pipeline/ that lacks one.
+"""Write the API page of every public module of checks/, matching/, surface/ and pipeline/ that lacks one.
 
 A public module is a ``.py`` file of one of those packages whose name does not start with an
 underscore; its page is ``docs/api/<package>/<module>.md`` holding the mkdocstrings directive
@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("matching", "surface", "pipeline")
+PACKAGES = ("checks", "matching", "surface", "pipeline")
 API = ROOT / "docs" / "api"
 
 

@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("matching", "surface", "pipeline")
+PACKAGES = ("checks", "matching", "surface", "pipeline")
 #: Heavy libraries a command may never need: imported where they are used.
 HEAVY = {"open3d", "pycolmap", "dask", "distributed", "tqdm"}
 #: Optional dependencies: their absence is a one-line error only where they are used.

@@ -16,7 +16,7 @@ import pytest
 from tests.conftest import ROOT
 
 DOCS = ROOT / "docs"
-PACKAGES = ("matching", "surface", "pipeline")
+PACKAGES = ("checks", "matching", "surface", "pipeline")
 
 
 def _untracked() -> set[str]:

@@ -1,0 +1,1 @@
+"""Checks shared by every package (:mod:`checks.arrays`), below ``matching`` and ``surface``."""
