@@ -70,13 +70,19 @@ def _quiet_run(argv: list[str]):
 
 
 def surface_mesh(ws: Path):
-    """The run's smooth surface, else its stitched mesh: (vertices, triangles, name)."""
+    """The run's smooth surface, else its stitched mesh: (vertices, triangles, name); only
+    a stage the manifest records as done by the last run (a refusal upstream leaves an
+    earlier run's files behind, its stages recorded blocked)."""
     from pipeline import artifacts
     from pipeline.mesh_io import read_mesh
 
-    for path, name in ((ws / "smooth" / artifacts.SURFACE, "smooth"),
-                       (ws / "stitch" / artifacts.MESH, "stitched")):
-        if path.is_file():
+    try:
+        records = json.loads((ws / "manifest.json").read_text())["stages"]
+    except (OSError, ValueError, KeyError):
+        return None
+    for path, stage, name in ((ws / "smooth" / artifacts.SURFACE, "smooth", "smooth"),
+                              (ws / "stitch" / artifacts.MESH, "stitch", "stitched")):
+        if records.get(stage, {}).get("status") == "done" and path.is_file():
             return (*read_mesh(path), name)
     return None
 
