@@ -137,10 +137,10 @@ class WorkingViews:
 
     lazy = True
 
-    def __init__(self, images):
+    def __init__(self, images, work_dir: str | Path | None = None):
         self.images, self.shapes = images, list(images.shapes)
         self.paths = getattr(images, "paths", None)
-        self._dir = Path(tempfile.mkdtemp(prefix="photosurf-views-"))
+        self._dir = Path(tempfile.mkdtemp(prefix="photosurf-views-", dir=work_dir))
         self._cleanup = weakref.finalize(self, _remove_tree, self._dir)
 
     def __len__(self) -> int:
@@ -256,7 +256,8 @@ def _metric_scale(cloud, loaded: dict, folder, spec: str, marker_side: float):
 
 def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None,
                    check_views: int = 2, camera_model: str = "SIMPLE_RADIAL",
-                   masks: str = "folder", roi=(), **options):
+                   masks: str = "folder", roi=(), work_dir: str | Path | None = None,
+                   **options):
     """Image folder -> :class:`matching.multiview.MultiViewCloud` (plus what was loaded).
 
     Parameters
@@ -277,6 +278,12 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
         is their visual hull, points off them are dropped.
     roi : sequence of 6 float, optional
         Region of interest ``[x0, y0, z0, x1, y1, z1]`` in world units (empty: none).
+    work_dir : path, optional
+        Where the scratch files go (SfM's database and staged images, the reduced views,
+        the pairs' clouds waiting for their checks), in one folder removed on return;
+        ``photosurf run`` gives the stage's temporary output, so a killed run's scratch
+        goes with it when the run is started again.  Default: the system's temporary
+        folder.
     **options
         ``[acquire]`` options of pipeline/defaults.toml; the matching ones
         (:data:`MATCH_KEYS`) are passed on (``max_reprojection_px`` has no multi-view
@@ -299,58 +306,15 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
 
     if masks not in MASK_MODES:
         raise InputError(f"masks {masks!r}: choose one of {', '.join(MASK_MODES)}")
-    box = None
-    if roi is not None and len(roi):
-        box = np.asarray(roi, dtype=np.float64).reshape(-1)
-        if box.shape != (6,) or not np.all(np.isfinite(box)) or not np.all(box[3:] > box[:3]):
-            raise InputError(f"roi {list(roi)!r}: give [x0, y0, z0, x1, y1, z1] with "
-                             "x1 > x0, y1 > y0, z1 > z0")
-        box = box.reshape(2, 3)
-    loaded = load_folder(folder, cameras, camera_model=camera_model,
-                         spacing=float(options.get("spacing", 3)),
-                         points_across=int(options.get("points_across", 0)))
-    # the matching modules after the folder and its cameras are read: a bad camera file
-    # is refused before their imports (scipy.stats, numba: 1.2 CPU-s)
-    from matching.multiview import reconstruct_multiview
-    from matching.ring import fit_ring
-    from matching.scheduler import default_workers, thread_map
-    from pipeline.executor import LocalExecutor
-
-    # each view decoded and reduced once (WorkingViews) when it is read reduced
-    images = (WorkingViews(loaded["images"]) if loaded.get("working_scale", 1.0) < 1.0
-              else loaded["images"])
-    where = Path(loaded["images"].paths[0]).parent if getattr(
-        loaded["images"], "paths", None) else Path(folder)
-    _warn_identical_views(where, loaded["names"], loaded["cameras"])
-    object_masks, mask_source = folder_masks([Path(folder), where], loaded["names"],
-                                             images,
-                                             loaded["cameras"], masks,
-                                             loaded.get("full_sizes"))
-    match = {k: v for k, v in options.items() if k in MATCH_KEYS}
-    local = executor is None or isinstance(executor, LocalExecutor)
-    map_func = _progress_map(thread_map(default_workers())) if local else executor.map
-    # in this process, each pair's cloud waits on disk for its check (memory: its points)
-    store = tempfile.TemporaryDirectory(prefix="photosurf-pairs-") if local else None
-    try:
-        cloud = reconstruct_multiview(images, loaded["cameras"], map_func=map_func,
-                                      check_views=check_views, masks=object_masks, roi=box,
-                                      pair_store=None if store is None else store.name,
-                                      **match)
-    except ValueError as exc:
-        raise InputError(f"{folder}: {exc}") from None
-    finally:
-        if isinstance(images, WorkingViews):
-            images.close()
-        if store is not None:
-            store.cleanup()
-    cloud.stats.update(camera_source=loaded["camera_source"],
-                       unregistered=loaded["unregistered"], ignored=loaded["ignored"],
-                       skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"],
-                       cameras=loaded["cameras"],
-                       view_names=loaded["names"], masks=mask_source,
-                       working_scale=loaded.get("working_scale", 1.0),
-                       peak_memory_gb=_peak_memory_gb(),
-                       ring=fit_ring(loaded["cameras"]).as_dict())
+    box = _roi_box(roi)
+    if work_dir is not None:
+        Path(work_dir).mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="scratch-", dir=work_dir) as scratch:
+        loaded = load_folder(folder, cameras, camera_model=camera_model,
+                             sfm_work_dir=Path(scratch) / "sfm",
+                             spacing=float(options.get("spacing", 3)),
+                             points_across=int(options.get("points_across", 0)))
+        cloud = _matched(folder, loaded, executor, check_views, masks, box, options, scratch)
     if box is None and options.get("object_only", False):
         cloud = _object_only(cloud, loaded["cameras"])
     if options.get("scale") or options.get("markers"):
@@ -361,4 +325,64 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     if len(cloud) == 0:
         raise InputError(f"{folder}: no point survived matching and the consistency checks "
                          f"({json.dumps(cloud.reason_counts)})")
+    return cloud
+
+
+def _roi_box(roi) -> np.ndarray | None:
+    """``[x0, y0, z0, x1, y1, z1]`` as a (2, 3) box, checked; None when empty."""
+    if roi is None or not len(roi):
+        return None
+    box = np.asarray(roi, dtype=np.float64).reshape(-1)
+    if box.shape != (6,) or not np.all(np.isfinite(box)) or not np.all(box[3:] > box[:3]):
+        raise InputError(f"roi {list(roi)!r}: give [x0, y0, z0, x1, y1, z1] with "
+                         "x1 > x0, y1 > y0, z1 > z0")
+    return box.reshape(2, 3)
+
+
+def _matched(folder, loaded: dict, executor, check_views: int, masks: str, box,
+             options: dict, scratch: str):
+    """The loaded folder's multi-view cloud (:func:`acquire_folder`'s matching step), its
+    stats with what was loaded; the reduced views and the pairs' stored clouds in
+    ``scratch``."""
+    # the matching modules after the folder and its cameras are read: a bad camera file
+    # is refused before their imports (scipy.stats, numba: 1.2 CPU-s)
+    from matching.multiview import reconstruct_multiview
+    from matching.ring import fit_ring
+    from matching.scheduler import default_workers, thread_map
+    from pipeline.executor import LocalExecutor
+
+    # each view decoded and reduced once (WorkingViews) when it is read reduced
+    images = (WorkingViews(loaded["images"], scratch)
+              if loaded.get("working_scale", 1.0) < 1.0 else loaded["images"])
+    where = Path(loaded["images"].paths[0]).parent if getattr(
+        loaded["images"], "paths", None) else Path(folder)
+    _warn_identical_views(where, loaded["names"], loaded["cameras"])
+    object_masks, mask_source = folder_masks([Path(folder), where], loaded["names"], images,
+                                             loaded["cameras"], masks,
+                                             loaded.get("full_sizes"))
+    match = {k: v for k, v in options.items() if k in MATCH_KEYS}
+    local = executor is None or isinstance(executor, LocalExecutor)
+    map_func = _progress_map(thread_map(default_workers())) if local else executor.map
+    # in this process, each pair's cloud waits on disk for its check (memory: its points)
+    store = Path(scratch) / "pairs" if local else None
+    if store is not None:
+        store.mkdir()
+    try:
+        cloud = reconstruct_multiview(images, loaded["cameras"], map_func=map_func,
+                                      check_views=check_views, masks=object_masks, roi=box,
+                                      pair_store=None if store is None else str(store),
+                                      **match)
+    except ValueError as exc:
+        raise InputError(f"{folder}: {exc}") from None
+    finally:
+        if isinstance(images, WorkingViews):
+            images.close()
+    cloud.stats.update(camera_source=loaded["camera_source"],
+                       unregistered=loaded["unregistered"], ignored=loaded["ignored"],
+                       skipped_views=loaded.get("skipped_views", []), sfm=loaded["sfm"],
+                       cameras=loaded["cameras"],
+                       view_names=loaded["names"], masks=mask_source,
+                       working_scale=loaded.get("working_scale", 1.0),
+                       peak_memory_gb=_peak_memory_gb(),
+                       ring=fit_ring(loaded["cameras"]).as_dict())
     return cloud

@@ -114,7 +114,9 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
     from pipeline.acquisition import acquire_folder
 
     cameras = str(ctx.rig) if ctx.rig is not None and ctx.kind == "folder" else None
-    cloud = acquire_folder(folder, cameras, executor=ctx.executor, **ctx.params["acquire"])
+    # scratch files in the stage's temporary output: gone with it, also after a kill
+    cloud = acquire_folder(folder, cameras, executor=ctx.executor, work_dir=ctx.out,
+                           **ctx.params["acquire"])
     stats = cloud.stats
     if stats.get("unregistered"):
         log.warning("acquire: %d image(s) not registered by SfM: %s",
@@ -425,8 +427,11 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
     if len(kept) < 2 or not (forced or osf.one_sided(loops)):
         return None
     try:
+        # the matcher's window on the surface: points closer than it share their errors
+        window = ((np.array([c.center for c in cameras]), np.array([c.K[0, 0] for c in cameras]),
+                   float(ctx.config["acquire"]["patch"])) if cameras else None)
         curves, rings, params, step, notes, run = osf.open_arcs(
-            loops, spacing, p["n"] or None, smoothing=smoothing, view=view)
+            loops, spacing, p["n"] or None, smoothing=smoothing, view=view, window=window)
     except ValueError as exc:
         raise InputError(f"curves: one-sided data, but no open surface: {exc}") from exc
     if len(run) < 2:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from pipeline.acquisition import WorkingViews
 from pipeline.inputs import FolderImages
@@ -39,3 +41,31 @@ def test_views_decoded_once_the_same_pixels_and_removed(tmp_path):
     assert len(list(where.glob("*.npy"))) == 3
     views.close()
     assert not where.exists()
+
+
+def test_scratch_lives_in_the_work_folder_and_goes_with_it(tmp_path, monkeypatch):
+    """acquire_folder's scratch (SfM's work folder, the reduced views, the pairs' stored
+    clouds) is one folder inside ``work_dir`` (photosurf run: the stage's temporary
+    output, removed with it after a kill), gone when the call ends, even by an error."""
+    import pipeline.acquisition as acquisition
+    import pipeline.inputs as inputs
+
+    seen = {}
+
+    def fake_load(folder, cameras, sfm_work_dir=None, **kwargs):
+        seen["sfm"] = Path(sfm_work_dir)
+        return {"images": None}
+
+    def fake_matched(folder, loaded, executor, check_views, masks, box, options, scratch):
+        seen["scratch"] = Path(scratch)
+        (Path(scratch) / "pairs").mkdir()
+        (Path(scratch) / "pairs" / "pair_0_1.npz").write_bytes(b"x")
+        raise KeyboardInterrupt  # a signal's exception mid-run
+
+    monkeypatch.setattr(inputs, "load_folder", fake_load)
+    monkeypatch.setattr(acquisition, "_matched", fake_matched)
+    work = tmp_path / ".acquire.1234"
+    with pytest.raises(KeyboardInterrupt):
+        acquisition.acquire_folder(tmp_path, work_dir=work)
+    assert seen["scratch"].parent == work and seen["sfm"].parent == seen["scratch"]
+    assert work.is_dir() and not any(work.iterdir())
