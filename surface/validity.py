@@ -43,7 +43,10 @@ containment).  Shared vertices are handled exactly:
 - a face repeated with the same three vertices counts as intersecting its twin.
 
 "Zero" is ``TOL.planar_rel`` times the pair's longest edge, computed about one of the
-pair's vertices so that a rigid motion of the mesh changes no answer.  Degenerate
+pair's vertices so that a rigid motion of the mesh changes no answer; on the planes'
+line a corner is snapped only within the zero of the line (``zero × sin(angle)`` of
+the plane), as nearly parallel faces have corners within the zero of each other's
+plane yet far from the line.  Degenerate
 faces (a repeated vertex or area ``<= TOL.zero × scale²``) have no plane; they are
 counted and left out of the intersection test.
 
@@ -659,23 +662,34 @@ def _folded(A, B, mask):
     return coplanar & (_dot(pc, pd) > 0)
 
 
-def _apart(A, B, n1, n2, eps):
-    """One triangle wholly on one side of the other's plane (distances within ``eps``
-    of it snapped to 0).  Returns ``(apart (P,), dA (P, 3), dB (P, 3))``."""
+def _apart(A, B, n1, n2, eps, mask):
+    """One triangle wholly on one side of the other's plane, distances within ``eps``
+    of it snapped to 0 (a shared corner's is 0).  Returns ``(apart (P,), coplanar (P,),
+    dA (P, 3), dB (P, 3))``, ``coplanar``: every corner of one face within ``eps`` of
+    the other's plane.  The distances returned are snapped to 0 only within ``eps``
+    of the planes' line, ``|d| <= eps sin(angle)``, for the interval test: a corner
+    within ``eps`` of a nearly parallel plane may lie far from the line, and placing it
+    there puts a false end on the face's interval (faces of a flat region sharing a
+    vertex, planes 1e-9 rad apart, reported crossing where their sectors are apart)."""
     dA = _dot(A - B[:, None, 0], n2[:, None])                      # (P, 3) A to plane B
     dB = _dot(B - A[:, None, 0], n1[:, None])
-    dA[np.abs(dA) <= eps[:, None]] = 0.0
-    dB[np.abs(dB) <= eps[:, None]] = 0.0
-    apart = (np.all(dA > 0, axis=1) | np.all(dA < 0, axis=1)
-             | np.all(dB > 0, axis=1) | np.all(dB < 0, axis=1))
-    return apart, dA, dB
+    dA[mask.any(axis=2)] = 0.0
+    dB[mask.any(axis=1)] = 0.0
+    near_a, near_b = np.abs(dA) <= eps[:, None], np.abs(dB) <= eps[:, None]
+    sA, sB = np.where(near_a, 0.0, dA), np.where(near_b, 0.0, dB)
+    apart = (np.all(sA > 0, axis=1) | np.all(sA < 0, axis=1)
+             | np.all(sB > 0, axis=1) | np.all(sB < 0, axis=1))
+    coplanar = np.all(near_a, axis=1) | np.all(near_b, axis=1)
+    on_line = (eps * np.linalg.norm(np.cross(n1, n2), axis=1))[:, None]
+    dA[np.abs(dA) <= on_line] = 0.0
+    dB[np.abs(dB) <= on_line] = 0.0
+    return apart, coplanar, dA, dB
 
 
 def _general(A, B, n1, n2, scale, mask, one_shared):
     """Pairs sharing at most one vertex: Möller's interval test, 2-D when coplanar."""
     eps = TOL.planar_rel * scale                                   # (P,)
-    apart, dA, dB = _apart(A, B, n1, n2, eps)
-    coplanar = np.all(dA == 0, axis=1) | np.all(dB == 0, axis=1)
+    apart, coplanar, dA, dB = _apart(A, B, n1, n2, eps, mask)
     origin = A[:, 0].copy()                   # the line's parameter about the pair itself
     A = A - origin[:, None]
     B = B - origin[:, None]
