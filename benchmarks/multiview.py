@@ -301,7 +301,9 @@ class _KernelRecorder:
         kernel = self._kernel
 
         def recorded(*args):
-            caller = inspect.stack()[2].function  # the lsm_match caller
+            # the lsm_match caller: the first frame outside matching/lsm.py
+            caller = next(f.function for f in inspect.stack()[1:]
+                          if not f.filename.endswith("lsm.py"))
             self.calls.append((caller, tuple(a.copy() if isinstance(a, np.ndarray) else a
                                             for a in args[:24])))
             kernel(*args)

@@ -12,8 +12,9 @@ template-gradient Jacobian (Baker & Matthews [2]_: its normal matrix is factored
 window) until the shift update is below ``TOL.lsm_shift_stop_px``; the precision is
 σ0² N⁻¹ of the final linearisation, N less the template's expected noise part.
 
-:func:`lsm_match` checks its input, solves every window in one ``prange`` kernel
-(:mod:`matching.lsm_kernels`) and then applies the tests that need the batch's population:
+:func:`lsm_match` (settings: :class:`LSMOptions`, or keywords of the same names) checks its
+input, solves every window in one ``prange`` kernel (:mod:`matching.lsm_kernels`) and then
+applies the tests that need the batch's population:
 σ0 against what each window's texture predicts (:func:`sigma0_gradient_model`), the
 correlation, and the motion-step test for depth edges (:func:`step_score_limit`).  Options:
 the epipolar constraint, eccentric windows, fixed second-order warp terms, the template's
@@ -43,7 +44,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 
 import numpy as np
@@ -64,9 +65,9 @@ from matching.validate import TOL, check_shape
 __all__ = [
     "DEFAULT_FOOTPRINT_VAR", "DEFAULT_INTERPOLATION", "INTERPOLATIONS", "NOISE_BLOCK_PX",
     "NOISE_BLOCK_QUANTILE", "STATUS_NAMES", "STEP_SCORE_LIMIT", "STEP_SCORE_NULL_MEDIAN",
-    "TUKEY_C", "LSMResult", "PreparedImage", "Status", "estimate_noise", "footprint_blur",
-    "lsm_match", "prepare_image", "robust_upper_limit", "sigma0_gradient_model",
-    "step_score_limit",
+    "TUKEY_C", "LSMOptions", "LSMResult", "PreparedImage", "Status", "estimate_noise",
+    "footprint_blur", "lsm_match", "prepare_image", "robust_upper_limit",
+    "sigma0_gradient_model", "step_score_limit",
 ]
 
 
@@ -341,41 +342,20 @@ def robust_upper_limit(values: np.ndarray, k: float, dof: int) -> float:
     return med + k * spread
 
 
-def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
-              interpolation: str = DEFAULT_INTERPOLATION, direction=None,
-              max_iter: int = 20, shift_stop_px: float | None = None,
-              max_shift_px: float | None = None, noise_sigma: float | None = None,
-              sigma0_factor: float = 2.5, sigma0_mad_k: float = 4.0,
-              min_correlation: float = 0.7,
-              min_texture_snr: float = 2.0, initial=None, quadratic=None,
-              jacobian: str = "template", noise_correction: bool = True,
-              offset=None, sigma0_population=None, population_grad_power=None,
-              footprint_var: float | None = None,
-              sigma0_model: str = "gradient", step_limit: float | None = STEP_SCORE_LIMIT,
-              population_step_score=None, rigid_across: bool = False,
-              robust=False) -> LSMResult:
-    """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
+@dataclass(frozen=True)
+class LSMOptions:
+    """The settings of :func:`lsm_match`, the same for every window of a call.
 
-    Parameters
+    :func:`lsm_match` takes them as ``options`` or as keywords of the same names (the
+    keywords override ``options``' values); each is checked here.
+
+    Attributes
     ----------
-    template_image, search_image : (H, W) array_like or PreparedImage
-        Grey images (any real dtype; float32 and float64 give the same answer to
-        float32 precision).  The two may differ in size.  Pass :class:`PreparedImage`
-        (same ``interpolation``) to match several point sets without refiltering.
-    points : (N, 2) array_like
-        Template centres (x, y) in the template image, px (integer values avoid
-        resampling the template).
-    approx : (N, 2) array_like
-        Approximate positions of the centres in the search image, px; must lie within
-        the pull-in range (about a quarter of the patch for band-limited texture).
     patch : int
         Odd patch side, px (default 15).
     interpolation : {"bilinear", "bicubic", "spline"}
         Resampler of the search image: bilinear, Keys cubic convolution (a = -0.5) or
         cubic B-spline interpolation (default; lowest zero-noise bias).
-    direction : (N, 2) or (2,) array_like, optional
-        Epipolar constraint: the shift (a0, b0) only moves along this direction from
-        ``approx`` (``(1, 0)`` for a rectified pair).  The covariance is then rank 1.
     max_iter : int
         Maximum Gauss-Newton iterations (default 20).
     shift_stop_px : float, optional
@@ -400,32 +380,11 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
     min_correlation : float
         Reject when the correlation coefficient is below this (default 0.7: the
         signal explains under half the patch variance).
-    initial : (N, 8) array_like, optional
-        Starting ``a0 a1 a2 b0 b1 b2 r0 r1`` (default: ``approx``, identity, 0, 1); the
-        pull-in test still measures from ``approx``.
-    quadratic : (N, 6) array_like, optional
-        Fixed (not estimated) second-order warp terms ``(qu_xx, qu_xy, qu_yy, qv_xx,
-        qv_xy, qv_yy)`` added to the affine map: ``u += qu_xx x² + qu_xy x y + qu_yy y²``
-        and likewise ``v``, px/px².  An affine fit of a curved mapping is biased by about
-        ``<x²>(qu_xx + qu_yy)`` (18.7 px² x curvature for a 15 px patch);
-        :func:`matching.second_order.second_order_terms` estimates these terms from the
-        neighbours' affine parameters.
     min_texture_snr : float
         Reject as textureless when the smaller eigenvalue of the template's mean
         structure tensor is below ``min_texture_snr`` x σ_n²/2 (σ_n²/2 = what noise of
         σ_n alone gives a central-difference gradient), σ_n = Immerkaer's estimate for
         the template image (and never below ``TOL.zero``).
-
-    offset : (N, 2) array_like, optional
-        Eccentric windows: report the match of the template pixel ``points + offset``
-        (px, inside the patch: ``|offset| <= patch // 2`` per axis) instead of the
-        centre's -- its position through the estimated warp, (a0 + a1 ox + a2 oy,
-        b0 + b1 ox + b2 oy) plus the fixed second-order terms, and its covariance
-        σ0² gᵀ N⁻¹ g with g the gradient of that position in the unknowns (the affine
-        unknowns' uncertainty grows it with |o|).  A point near a depth or texture edge
-        is matched with a window moved off the edge (shiftable windows); ``approx``
-        stays the approximation of the window's centre.  Default: the centres.
-
     jacobian : {"template", "search"}
         Jacobian of the final linearisation (``docs/method/lsm.md``): the template-gradient
         one (default; unbiased under search-image noise, σ right within 5 %) or one
@@ -437,17 +396,6 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         normal matrix of the noise-free template.  Without it σ0² N⁻¹ is too small on
         weak texture: measured actual/reported 1.11 at SNR 5 and 1.3 at SNR 2.7 (SNR =
         λ_min / (σ_n²/2)), against 0.98 and 0.97 with it.  Exact for integer centres.
-
-    sigma0_population : (M,) array_like, optional
-        σ0 of accepted matches of the same images and patch made elsewhere (e.g. the
-        seeds of a region-growing front, :mod:`matching.grow`): the σ0 test then takes
-        its reference (median) and robust limit from them and from this call's
-        converged points together, so that a small batch is judged like a large one.
-
-    population_grad_power : (M,) array_like, optional
-        The mean template gradient power (``LSMResult.grad_power``) of each value of
-        ``sigma0_population``, for ``sigma0_model="gradient"`` (without it that model
-        falls back to the constant one when a population is given).
     sigma0_model : {"gradient", "constant"}
         Reference of the σ0 tests (``sigma0_factor``, ``sigma0_mad_k``): "gradient"
         (default, with 30 or more values) predicts each window's σ0 from its texture,
@@ -476,8 +424,6 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         call's accepted windows' median and ``population_step_score``'s).  Default
         ``STEP_SCORE_LIMIT`` (30: above every one of 4900 correct windows); None: off.
         Only with ``jacobian="template"``.
-    population_step_score : (M,) array_like, optional
-        ``step_score`` of accepted matches made elsewhere (as ``sigma0_population``).
     rigid_across : bool
         With ``direction``: every pixel of the window, not only its centre, stays on its
         epipolar line -- with n ⟂ d the warp satisfies nᵀA = nᵀ, A = I + d wᵀ, so the
@@ -487,44 +433,61 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         freed b1, b2 are determined only by the texture's y-gradients, and on texture
         that has little of them (flutes, horizontal edges) wander and drag the window
         (``matching.pair`` uses it for rectified pairs).  Default False.
-    robust : bool or (N,) array_like of bool
-        Robust LSM (``docs/method/lsm.md``, *Robust adjustment*) for every window or for those
-        flagged: from the converged equal-weight solution, iteratively reweighted least
-        squares with Tukey's biweight (c = ``TUKEY_C`` = 4.685 robust σ of the window's
-        residuals, never below the two images' noise) finds the pixels that follow one
-        warp, and least squares over them gives the match, σ0 and the covariance
-        (σ0² = vᵀWv / (Σw - u), N = Jᵀ W J, the noise correction over the support).  A
-        window whose support leaves out its centre (or ``offset`` pixel) or holds under
-        half its pixels is rejected as ``two_motions``.  Only with ``jacobian="template"``.
-        Default False.
-
-    Notes
-    -----
-    The covariance is σ0² N⁻¹ of the final linearisation restricted to the shift,
-    σ0² = vᵀv/(n - u), n = patch², u = 8 (7 with the epipolar constraint).
     """
-    if interpolation not in _KIND:
-        raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
-    if not (isinstance(patch, int | np.integer) and patch >= 5 and patch % 2 == 1):
-        raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
-    if sigma0_model not in ("gradient", "constant"):
-        raise ValueError(f"sigma0_model must be 'gradient' or 'constant', got {sigma0_model!r}")
-    if jacobian not in ("template", "search"):
-        raise ValueError(f"jacobian must be 'template' or 'search', got {jacobian!r}")
-    if max_iter < 1:
-        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-    if rigid_across and direction is None:
-        raise ValueError("rigid_across needs a direction (the epipolar constraint)")
-    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
-    robust_flags = np.broadcast_to(np.asarray(robust), (len(points),))
-    if robust_flags.dtype != np.bool_:
-        raise ValueError(f"robust must be a bool or (N,) bools, got dtype {robust_flags.dtype}")
-    if robust_flags.any() and jacobian != "template":
-        raise ValueError("robust needs jacobian='template'")
-    approx = check_shape(approx, "(N, 2)", "approx", dtype=np.float64)
-    if len(points) != len(approx):
-        raise ValueError(f"points and approx must have the same length, got {len(points)} "
-                         f"and {len(approx)}")
+
+    patch: int = 15
+    interpolation: str = DEFAULT_INTERPOLATION
+    max_iter: int = 20
+    shift_stop_px: float | None = None
+    max_shift_px: float | None = None
+    noise_sigma: float | None = None
+    sigma0_factor: float = 2.5
+    sigma0_mad_k: float = 4.0
+    min_correlation: float = 0.7
+    min_texture_snr: float = 2.0
+    jacobian: str = "template"
+    noise_correction: bool = True
+    sigma0_model: str = "gradient"
+    footprint_var: float | None = None
+    step_limit: float | None = STEP_SCORE_LIMIT
+    rigid_across: bool = False
+
+    def __post_init__(self):
+        if self.interpolation not in _KIND:
+            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got "
+                             f"{self.interpolation!r}")
+        patch = self.patch
+        if not (isinstance(patch, int | np.integer) and patch >= 5 and patch % 2 == 1):
+            raise ValueError(f"patch must be an odd integer >= 5, got {patch!r}")
+        if self.sigma0_model not in ("gradient", "constant"):
+            raise ValueError(f"sigma0_model must be 'gradient' or 'constant', got "
+                             f"{self.sigma0_model!r}")
+        if self.jacobian not in ("template", "search"):
+            raise ValueError(f"jacobian must be 'template' or 'search', got {self.jacobian!r}")
+        if self.max_iter < 1:
+            raise ValueError(f"max_iter must be >= 1, got {self.max_iter}")
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """The windows of one :func:`lsm_match` call, checked: centres, approximations,
+    epipolar directions (zeros: none), initial parameters, fixed second-order terms,
+    eccentric offsets (zeros: none), robust flags and the kernel's mode (0 free, 1
+    epipolar, 2 rigid across the line)."""
+
+    points: np.ndarray
+    approx: np.ndarray
+    dirs: np.ndarray
+    init: np.ndarray
+    quad: np.ndarray
+    offs: np.ndarray
+    robust: np.ndarray
+    mode: int
+
+
+def _prepared(template_image, search_image, interpolation: str):
+    """Both images as :class:`PreparedImage` for ``interpolation`` (prepared here unless
+    they already are)."""
     images = []
     for name, img in (("template_image", template_image), ("search_image", search_image)):
         if not isinstance(img, PreparedImage):
@@ -535,7 +498,29 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
             raise ValueError(f"{name} was prepared for {img.interpolation!r}, "
                              f"not {interpolation!r}")
         images.append(img)
-    fprep, gprep = images
+    return images
+
+
+def _checked_points(points, approx, robust, opts: LSMOptions):
+    """``points``, ``approx`` (N, 2) and the (N,) robust flags, checked."""
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    robust_flags = np.broadcast_to(np.asarray(robust), (len(points),))
+    if robust_flags.dtype != np.bool_:
+        raise ValueError(f"robust must be a bool or (N,) bools, got dtype {robust_flags.dtype}")
+    if robust_flags.any() and opts.jacobian != "template":
+        raise ValueError("robust needs jacobian='template'")
+    approx = check_shape(approx, "(N, 2)", "approx", dtype=np.float64)
+    if len(points) != len(approx):
+        raise ValueError(f"points and approx must have the same length, got {len(points)} "
+                         f"and {len(approx)}")
+    return points, approx, robust_flags
+
+
+def _windows(points, approx, robust_flags, direction, initial, quadratic, offset,
+             opts: LSMOptions) -> _Windows:
+    """The per-window inputs of the kernel: unit directions, the start (projected onto
+    ``rigid_across``'s form), the second-order terms and offsets, checked."""
+    n = len(points)
     constrained = direction is not None
     if constrained:
         dirs = np.broadcast_to(np.asarray(direction, dtype=np.float64), points.shape).copy()
@@ -545,7 +530,6 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         dirs /= norm[:, None]
     else:
         dirs = np.zeros_like(points)
-    n = len(points)
     if initial is None:
         init = np.zeros((n, 8))
         init[:, [0, 3]] = approx
@@ -563,57 +547,104 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         offs = check_shape(offset, "(N, 2)", "offset", dtype=np.float64)
         if len(offs) != n:
             raise ValueError(f"offset must have {n} rows, got {len(offs)}")
-        if not (np.isfinite(offs).all() and np.abs(offs).max(initial=0.0) <= patch // 2):
+        if not (np.isfinite(offs).all() and np.abs(offs).max(initial=0.0) <= opts.patch // 2):
             raise ValueError(f"offset must be finite and inside the patch (|offset| <= "
-                             f"{patch // 2} px per axis), got up to "
+                             f"{opts.patch // 2} px per axis), got up to "
                              f"{np.abs(offs).max(initial=0.0):g}")
-    mode = (2 if rigid_across else 1) if constrained else 0
+    mode = (2 if opts.rigid_across else 1) if constrained else 0
     if mode == 2:
         # A = I + d dᵀ (A - I): the initial shape along d kept, across it the identity
         init = init.copy()
         amat = init[:, [1, 2, 4, 5]].reshape(n, 2, 2) - np.eye(2)
         amat = np.eye(2) + dirs[:, :, None] * np.einsum("ni,nij->nj", dirs, amat)[:, None, :]
         init[:, [1, 2, 4, 5]] = amat.reshape(n, 4)
-    blur = footprint_blur(init, footprint_var)
-    tol = TOL.lsm_shift_stop_px if shift_stop_px is None else float(shift_stop_px)
-    max_shift = 0.25 * patch if max_shift_px is None else float(max_shift_px)
-    fimg, gimg = fprep.values, gprep.values
+    return _Windows(points, approx, dirs, init, quad, offs, robust_flags, mode)
+
+
+def _solve(fprep: PreparedImage, gprep: PreparedImage, w: _Windows, opts: LSMOptions):
+    """Every window with finite inputs through the kernel (:func:`_lsm_batch`); the
+    others ``NO_CONVERGENCE``.  Returns the kernel's per-window arrays: ``params`` (N, 8),
+    ``cov``, ``wcov`` (N, 2, 2), ``acov`` (N, 6, 6), ``sigma0`` (N,), ``corr`` (N, 4:
+    correlation, mean |∇f|², step score, robust support), ``status``, ``iters``,
+    ``conv``."""
+    n = len(w.points)
+    blur = footprint_blur(w.init, opts.footprint_var)
+    tol = TOL.lsm_shift_stop_px if opts.shift_stop_px is None else float(opts.shift_stop_px)
+    max_shift = 0.25 * opts.patch if opts.max_shift_px is None else float(opts.max_shift_px)
     noise_f = fprep.noise
-    min_texture = max(min_texture_snr * 0.5 * noise_f**2, TOL.zero)
-    template_noise = noise_f if noise_sigma is None else float(noise_sigma)
-    grad_noise_var = 0.5 * template_noise**2 if noise_correction else 0.0
-    params = np.full((n, 8), np.nan)
-    cov = np.full((n, 2, 2), np.nan)
-    wcov = np.full((n, 2, 2), np.nan)
-    acov = np.full((n, 6, 6), np.nan)
-    sigma0 = np.full(n, np.nan)
-    # correlation, the template's mean |∇f|², step score, robust support share
-    corr = np.full((n, 4), np.nan)
-    status = np.zeros(n, np.uint8)
-    iters = np.zeros(n, np.int32)
-    conv = np.zeros(n, np.bool_)
-    finite = (np.isfinite(points).all(1) & np.isfinite(approx).all(1)
-              & np.isfinite(init).all(1) & np.isfinite(quad).all(1))
-    status[~finite] = Status.NO_CONVERGENCE
+    min_texture = max(opts.min_texture_snr * 0.5 * noise_f**2, TOL.zero)
+    template_noise = noise_f if opts.noise_sigma is None else float(opts.noise_sigma)
+    grad_noise_var = 0.5 * template_noise**2 if opts.noise_correction else 0.0
+    out = {"params": np.full((n, 8), np.nan), "cov": np.full((n, 2, 2), np.nan),
+           "wcov": np.full((n, 2, 2), np.nan), "acov": np.full((n, 6, 6), np.nan),
+           "sigma0": np.full(n, np.nan), "corr": np.full((n, 4), np.nan),
+           "status": np.zeros(n, np.uint8), "iters": np.zeros(n, np.int32),
+           "conv": np.zeros(n, np.bool_)}
+    finite = (np.isfinite(w.points).all(1) & np.isfinite(w.approx).all(1)
+              & np.isfinite(w.init).all(1) & np.isfinite(w.quad).all(1))
+    out["status"][~finite] = Status.NO_CONVERGENCE
     idx = np.flatnonzero(finite)
     if len(idx):
-        sub = [params[idx], cov[idx], wcov[idx], acov[idx], sigma0[idx], corr[idx],
-               status[idx], iters[idx], conv[idx]]
-        _lsm_batch(fimg, fprep.raw, gimg, np.ascontiguousarray(points[idx]),
-                   np.ascontiguousarray(approx[idx]), np.ascontiguousarray(init[idx]),
-                   np.ascontiguousarray(quad[idx]), np.ascontiguousarray(dirs[idx]),
-                   mode, patch // 2, _KIND[interpolation], jacobian == "search",
-                   int(max_iter), tol,
+        sub = [a[idx] for a in out.values()]
+        _lsm_batch(fprep.values, fprep.raw, gprep.values, np.ascontiguousarray(w.points[idx]),
+                   np.ascontiguousarray(w.approx[idx]), np.ascontiguousarray(w.init[idx]),
+                   np.ascontiguousarray(w.quad[idx]), np.ascontiguousarray(w.dirs[idx]),
+                   w.mode, opts.patch // 2, _KIND[opts.interpolation],
+                   opts.jacobian == "search", int(opts.max_iter), tol,
                    max_shift, TOL.affine_det_min, min_texture, grad_noise_var,
-                   0.25 * (fprep.noise**2 + gprep.noise**2), np.ascontiguousarray(offs[idx]),
+                   0.25 * (fprep.noise**2 + gprep.noise**2), np.ascontiguousarray(w.offs[idx]),
                    np.ascontiguousarray(blur[idx]),
-                   np.ascontiguousarray(robust_flags[idx]),
-                   float(np.hypot(fprep.noise, gprep.noise)), float(min_correlation), *sub)
-        for full, part in zip((params, cov, wcov, acov, sigma0, corr, status, iters, conv),
-                              sub, strict=True):
+                   np.ascontiguousarray(w.robust[idx]),
+                   float(np.hypot(fprep.noise, gprep.noise)), float(opts.min_correlation), *sub)
+        for full, part in zip(out.values(), sub, strict=True):
             full[idx] = part
-    corr, grad_power, step, support = (corr[:, 0].copy(), corr[:, 1].copy(),
-                                       corr[:, 2].copy(), corr[:, 3].copy())
+    return out
+
+
+def _sigma0_test(status, sigma0, grad_power, gain_column, population, pop_power,
+                 fprep: PreparedImage, gprep: PreparedImage, mode: int,
+                 opts: LSMOptions) -> float:
+    """``SIGMA0_TOO_LARGE`` in ``status`` (in place): σ0 against the texture's prediction
+    (:func:`sigma0_gradient_model`) or against the population's median; returns the
+    reference σ0 (``LSMResult.noise_sigma0``)."""
+    good = status == Status.OK
+    dof = (opts.patch * opts.patch) - _MODE_UNKNOWNS[mode]
+    # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
+    gain = float(np.median(gain_column[good])) if good.any() else 1.0
+    noise_sigma = opts.noise_sigma
+    model = None
+    if opts.sigma0_model == "gradient" and len(population) >= 30 and np.isfinite(pop_power).all():
+        fixed = None if noise_sigma is None else float(noise_sigma) ** 2 * (1.0 + gain**2)
+        model = sigma0_gradient_model(population, pop_power, fixed_intercept=fixed)
+    if model is not None:
+        # σ0 against what the window's texture predicts: σ0² = α + β |∇f|² (module
+        # docstring of sigma0_gradient_model); the same tests on the ratio
+        alpha, beta = model
+        ratio = sigma0 / np.sqrt(alpha + beta * np.maximum(grad_power, 0.0))
+        pop_ratio = population / np.sqrt(alpha + beta * pop_power)
+        ref = float(np.sqrt(alpha + beta * np.median(pop_power)))
+        limit = min(opts.sigma0_factor * float(np.median(pop_ratio)),
+                    robust_upper_limit(pop_ratio, opts.sigma0_mad_k, dof))
+        ok = status == Status.OK
+        status[ok & ~(ratio <= limit)] = Status.SIGMA0_TOO_LARGE
+    else:
+        if noise_sigma is not None:
+            ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
+        elif len(population) >= 30:
+            ref = float(np.median(population))
+        else:
+            ref = float(np.hypot(fprep.noise, gprep.noise))
+        limit = opts.sigma0_factor * ref
+        if len(population) >= 30:
+            limit = min(limit, robust_upper_limit(population, opts.sigma0_mad_k, dof))
+        ok = status == Status.OK
+        status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
+    return ref
+
+
+def _population(status, sigma0, grad_power, sigma0_population, population_grad_power):
+    """The σ0 test's population: this call's accepted windows and ``sigma0_population``
+    (with their gradient powers, NaN where not given)."""
     good = status == Status.OK
     population = sigma0[good]
     pop_power = grad_power[good]
@@ -627,55 +658,125 @@ def lsm_match(template_image, search_image, points, approx, *, patch: int = 15,
         keep = np.isfinite(extra)
         population = np.concatenate([population, extra[keep]])
         pop_power = np.concatenate([pop_power, extra_power[keep]])
-    pop_step = (np.zeros(0) if population_step_score is None else
-                np.asarray(population_step_score, dtype=np.float64).ravel())
-    dof = (patch * patch) - _MODE_UNKNOWNS[mode]
-    # both images carry noise: v = f - r0 - r1 g  ->  σ0² = σ² (1 + r1²)
-    gain = float(np.median(params[good, 7])) if good.any() else 1.0
-    model = None
-    if sigma0_model == "gradient" and len(population) >= 30 and np.isfinite(pop_power).all():
-        fixed = None if noise_sigma is None else float(noise_sigma) ** 2 * (1.0 + gain**2)
-        model = sigma0_gradient_model(population, pop_power, fixed_intercept=fixed)
-    if model is not None:
-        # σ0 against what the window's texture predicts: σ0² = α + β |∇f|² (module
-        # docstring of sigma0_gradient_model); the same tests on the ratio
-        alpha, beta = model
-        ratio = sigma0 / np.sqrt(alpha + beta * np.maximum(grad_power, 0.0))
-        pop_ratio = population / np.sqrt(alpha + beta * pop_power)
-        ref = float(np.sqrt(alpha + beta * np.median(pop_power)))
-        limit = min(sigma0_factor * float(np.median(pop_ratio)),
-                    robust_upper_limit(pop_ratio, sigma0_mad_k, dof))
-        ok = status == Status.OK
-        status[ok & ~(ratio <= limit)] = Status.SIGMA0_TOO_LARGE
-    else:
-        if noise_sigma is not None:
-            ref = float(noise_sigma) * np.sqrt(1.0 + gain**2)
-        elif len(population) >= 30:
-            ref = float(np.median(population))
-        else:
-            ref = float(np.hypot(fprep.noise, gprep.noise))
-        limit = sigma0_factor * ref
-        if len(population) >= 30:
-            limit = min(limit, robust_upper_limit(population, sigma0_mad_k, dof))
-        ok = status == Status.OK
-        status[ok & (sigma0 > limit)] = Status.SIGMA0_TOO_LARGE
-    ok = status == Status.OK
-    status[ok & ~(corr >= min_correlation)] = Status.LOW_CORRELATION
-    if step_limit is not None and jacobian == "template":
-        ok = status == Status.OK
-        limit = step_score_limit(step[ok], step_limit, pop_step)
-        status[ok & (step > limit)] = Status.TWO_MOTIONS  # NaN (no residual left): kept
+    return population, pop_power
+
+
+def _reported_position(params, quad, offs, eccentric: bool):
+    """(N, 2) the centre's match, or with ``eccentric`` windows the offset pixel's
+    through the warp (its affine and fixed second-order terms)."""
     position = params[:, [0, 3]]
-    if offset is not None:
+    if eccentric:
         ox, oy = offs[:, 0], offs[:, 1]
         position = position + np.column_stack([
             params[:, 1] * ox + params[:, 2] * oy
             + quad[:, 0] * ox * ox + quad[:, 1] * ox * oy + quad[:, 2] * oy * oy,
             params[:, 4] * ox + params[:, 5] * oy
             + quad[:, 3] * ox * ox + quad[:, 4] * ox * oy + quad[:, 5] * oy * oy])
-    return LSMResult(position=position, affine=params[:, :6],
-                     radiometric=params[:, 6:], converged=conv, iterations=iters,
-                     sigma0=sigma0, cov=cov, correlation=corr, status=status,
-                     noise_sigma0=float(ref), window_cov=wcov if offset is not None else None,
-                     affine_cov=acov, grad_power=grad_power, step_score=step,
+    return position
+
+
+def lsm_match(template_image, search_image, points, approx, *,
+              options: LSMOptions | None = None, direction=None, initial=None,
+              quadratic=None, offset=None, robust=False, sigma0_population=None,
+              population_grad_power=None, population_step_score=None,
+              **settings) -> LSMResult:
+    """Match square patches of ``template_image`` into ``search_image`` by LSM [1]_.
+
+    Parameters
+    ----------
+    template_image, search_image : (H, W) array_like or PreparedImage
+        Grey images (any real dtype; float32 and float64 give the same answer to
+        float32 precision).  The two may differ in size.  Pass :class:`PreparedImage`
+        (same ``interpolation``) to match several point sets without refiltering.
+    points : (N, 2) array_like
+        Template centres (x, y) in the template image, px (integer values avoid
+        resampling the template).
+    approx : (N, 2) array_like
+        Approximate positions of the centres in the search image, px; must lie within
+        the pull-in range (about a quarter of the patch for band-limited texture).
+    options : LSMOptions, optional
+        The settings shared by every window (:class:`LSMOptions`: patch side, resampler,
+        stop and pull-in thresholds, the σ0, correlation and motion-step tests, footprint
+        smoothing, the Jacobian); default ``LSMOptions()``.
+    direction : (N, 2) or (2,) array_like, optional
+        Epipolar constraint: the shift (a0, b0) only moves along this direction from
+        ``approx`` (``(1, 0)`` for a rectified pair).  The covariance is then rank 1.
+    initial : (N, 8) array_like, optional
+        Starting ``a0 a1 a2 b0 b1 b2 r0 r1`` (default: ``approx``, identity, 0, 1); the
+        pull-in test still measures from ``approx``.
+    quadratic : (N, 6) array_like, optional
+        Fixed (not estimated) second-order warp terms ``(qu_xx, qu_xy, qu_yy, qv_xx,
+        qv_xy, qv_yy)`` added to the affine map: ``u += qu_xx x² + qu_xy x y + qu_yy y²``
+        and likewise ``v``, px/px².  An affine fit of a curved mapping is biased by about
+        ``<x²>(qu_xx + qu_yy)`` (18.7 px² x curvature for a 15 px patch);
+        :func:`matching.second_order.second_order_terms` estimates these terms from the
+        neighbours' affine parameters.
+    offset : (N, 2) array_like, optional
+        Eccentric windows: report the match of the template pixel ``points + offset``
+        (px, inside the patch: ``|offset| <= patch // 2`` per axis) instead of the
+        centre's -- its position through the estimated warp, (a0 + a1 ox + a2 oy,
+        b0 + b1 ox + b2 oy) plus the fixed second-order terms, and its covariance
+        σ0² gᵀ N⁻¹ g with g the gradient of that position in the unknowns (the affine
+        unknowns' uncertainty grows it with |o|).  A point near a depth or texture edge
+        is matched with a window moved off the edge (shiftable windows); ``approx``
+        stays the approximation of the window's centre.  Default: the centres.
+    robust : bool or (N,) array_like of bool
+        Robust LSM (``docs/method/lsm.md``, *Robust adjustment*) for every window or for those
+        flagged: from the converged equal-weight solution, iteratively reweighted least
+        squares with Tukey's biweight (c = ``TUKEY_C`` = 4.685 robust σ of the window's
+        residuals, never below the two images' noise) finds the pixels that follow one
+        warp, and least squares over them gives the match, σ0 and the covariance
+        (σ0² = vᵀWv / (Σw - u), N = Jᵀ W J, the noise correction over the support).  A
+        window whose support leaves out its centre (or ``offset`` pixel) or holds under
+        half its pixels is rejected as ``two_motions``.  Only with ``jacobian="template"``.
+        Default False.
+    sigma0_population : (M,) array_like, optional
+        σ0 of accepted matches of the same images and patch made elsewhere (e.g. the
+        seeds of a region-growing front, :mod:`matching.grow`): the σ0 test then takes
+        its reference (median) and robust limit from them and from this call's
+        converged points together, so that a small batch is judged like a large one.
+    population_grad_power : (M,) array_like, optional
+        The mean template gradient power (``LSMResult.grad_power``) of each value of
+        ``sigma0_population``, for ``sigma0_model="gradient"`` (without it that model
+        falls back to the constant one when a population is given).
+    population_step_score : (M,) array_like, optional
+        ``step_score`` of accepted matches made elsewhere (as ``sigma0_population``).
+    **settings
+        Any field of :class:`LSMOptions` by name, overriding ``options``' value
+        (``lsm_match(f, g, p, a, patch=21)``).
+
+    Notes
+    -----
+    The covariance is σ0² N⁻¹ of the final linearisation restricted to the shift,
+    σ0² = vᵀv/(n - u), n = patch², u = 8 (7 with the epipolar constraint).
+    """
+    opts = LSMOptions(**settings) if options is None else replace(options, **settings)
+    if opts.rigid_across and direction is None:
+        raise ValueError("rigid_across needs a direction (the epipolar constraint)")
+    points, approx, robust_flags = _checked_points(points, approx, robust, opts)
+    fprep, gprep = _prepared(template_image, search_image, opts.interpolation)
+    w = _windows(points, approx, robust_flags, direction, initial, quadratic, offset, opts)
+    k = _solve(fprep, gprep, w, opts)
+    params, sigma0, status = k["params"], k["sigma0"], k["status"]
+    corr = k["corr"]
+    corr, grad_power, step, support = (corr[:, 0].copy(), corr[:, 1].copy(),
+                                       corr[:, 2].copy(), corr[:, 3].copy())
+    population, pop_power = _population(status, sigma0, grad_power, sigma0_population,
+                                        population_grad_power)
+    pop_step = (np.zeros(0) if population_step_score is None else
+                np.asarray(population_step_score, dtype=np.float64).ravel())
+    ref = _sigma0_test(status, sigma0, grad_power, params[:, 7], population, pop_power,
+                       fprep, gprep, w.mode, opts)
+    ok = status == Status.OK
+    status[ok & ~(corr >= opts.min_correlation)] = Status.LOW_CORRELATION
+    if opts.step_limit is not None and opts.jacobian == "template":
+        ok = status == Status.OK
+        limit = step_score_limit(step[ok], opts.step_limit, pop_step)
+        status[ok & (step > limit)] = Status.TWO_MOTIONS  # NaN (no residual left): kept
+    return LSMResult(position=_reported_position(params, w.quad, w.offs, offset is not None),
+                     affine=params[:, :6], radiometric=params[:, 6:], converged=k["conv"],
+                     iterations=k["iters"], sigma0=sigma0, cov=k["cov"], correlation=corr,
+                     status=status, noise_sigma0=float(ref),
+                     window_cov=k["wcov"] if offset is not None else None,
+                     affine_cov=k["acov"], grad_power=grad_power, step_score=step,
                      support=support)
