@@ -1,20 +1,24 @@
-r"""The working resolution of least-squares matching: from the object's size in the images.
+r"""The working resolution of least-squares matching: from what is asked of the data.
 
-The sections need points a spacing :math:`d` apart on the object (about
-:math:`n_\text{across}` across it, ``points_across``: sections ~2 d apart, rings as
-fine); LSM measures one point per ``spacing`` = :math:`k` px cell of the image it
-matches (3 px, a fifth of its 15 px window).  The spacing :math:`d` projected into a
-view at the object's depth is :math:`p = f d / z` px at full size, so the view is
-matched at the scale where :math:`p` becomes :math:`k` px.  With :math:`E` the object's
-extent in the images (the median over the views of the box holding its central 90 %,
-:func:`object_extent_px`; :math:`E = n_\text{across}\, p`):
+LSM measures one point per ``spacing`` = :math:`k` px cell of the image it matches
+(3 px, a fifth of its 15 px window), each to :math:`\sigma_\text{LSM}` ~0.1 px
+(:data:`SIGMA_LSM_PX`).  With :math:`E` the object's extent in the images (the median
+over the views of the box holding its central 90 %, :func:`object_extent_px`), a view
+read at scale :math:`s` gives :math:`s E / k` points across the object, each with a
+σ of :math:`\sigma_\text{LSM} / (s E)` of its extent.  So each request is a scale
+(:func:`requested_scale`; the finest wins, never above full size, none: full size):
 
-.. math::  s = \min\Big(1, \frac{k}{p}\Big) = \min\Big(1, \frac{k\, n_\text{across}}{E}\Big).
+- a point's precision :math:`e` (share of the object's extent, ``acquire.precision``):
+  :math:`s = \sigma_\text{LSM} / (e E)`;
+- :math:`N` sections (``sections.count``): points half a section apart (the sections'
+  own rule), :math:`2N` across: :math:`s = 2 N k / E`;
+- a section spacing :math:`\Delta` (``sections.spacing``, scene units): :math:`\Delta/2`
+  at the object's depth :math:`z` (:func:`object_depths`) is :math:`p = f \Delta / (2 z)`
+  px at full size: :math:`s = k / p` (median over the views).
 
 The sensor's pixel count does not enter: a 12 MP photo of an object 1 900 px across is
-matched as one of 600 px.  Precision at that scale: LSM's σ of ~0.1 px is
-:math:`\sigma / (k\, n_\text{across})` of the object's size per point, the demo ring's
-own (its vase spans 513-563 px, 171-188 points across, and its surface meets 1e-4).
+matched as one of 600 px.  The default precision 1.65e-4 is the demo ring's own (its
+vase spans 513-563 px, under :math:`0.1 / 1.65\times10^{-4}` = 606 px: full size).
 Views are then read downsampled (``cv2.INTER_AREA``) to
 :math:`W' = \operatorname{round}(s W)`, :math:`H' = \operatorname{round}(s H)`, and
 their cameras scaled with them (pixel centres at integer coordinates):
@@ -38,8 +42,13 @@ from matching.cameras import Camera
 from matching.masks import foreground_mask
 from matching.validate import check_shape
 
-__all__ = ["object_extent_px", "foreground_extent_px", "working_scale", "scale_camera",
-           "scaled_size"]
+__all__ = ["object_extent_px", "foreground_extent_px", "working_scale", "requested_scale",
+           "object_depths", "scale_camera", "scaled_size", "SIGMA_LSM_PX"]
+
+#: LSM's standard deviation of a matched point's image position on textured images, px
+#: (the temple's 0.10-0.37 px at 15 px windows, the rendered vase's 0.03-0.09 px:
+#: docs/decisions/stereo-matching.md): what turns a precision asked into pixels.
+SIGMA_LSM_PX = 0.1
 
 
 def object_extent_px(cameras: Sequence[Camera], points=None, share: float = 0.9,
@@ -123,6 +132,72 @@ def working_scale(extent_px: float, spacing: float, points_across: int) -> float
     if points_across == 0 or extent_px <= 0:
         return 1.0
     return float(min(1.0, spacing * points_across / extent_px))
+
+
+def requested_scale(cameras: Sequence[Camera], extent_px: float, spacing: float,
+                    precision: float = 0.0, section_count: int = 0,
+                    section_spacing: float = 0.0, points=None) -> tuple[float, str]:
+    """The working scale the request needs, and what set it.
+
+    Each request asks a density; the finest one (the largest scale) wins, never above full
+    size (1.0); none (every argument 0) is full size.
+
+    - ``precision`` (a point's σ as a share of the object's extent ``extent_px``): LSM
+      measures a point to :data:`SIGMA_LSM_PX` of the image it matches, so the object
+      must span ``SIGMA_LSM_PX / precision`` px: ``s = SIGMA_LSM_PX / (precision E)``.
+    - ``section_count`` ``N`` sections over the object: points half a section apart
+      (the sections' own rule, spacing = 2 point spacings), ``2 N`` across it at one
+      per ``spacing`` px cell: ``s = 2 N spacing / E``.
+    - ``section_spacing`` ``Δ`` in scene units: ``Δ / 2`` projected into each view at
+      the object's depth (:func:`object_depths`) is ``p = f Δ / (2 z)`` px at full
+      size; ``s = spacing / p`` (the median over the views).
+    """
+    if spacing <= 0 or precision < 0 or section_count < 0 or section_spacing < 0:
+        raise ValueError(f"spacing must be > 0 and precision, section count and spacing >= 0, "
+                         f"got {spacing}, {precision}, {section_count}, {section_spacing}")
+    needs = []
+    if precision > 0 and extent_px > 0:
+        needs.append((SIGMA_LSM_PX / (precision * extent_px), f"precision {precision:g}"))
+    if section_count > 0 and extent_px > 0:
+        needs.append((2.0 * section_count * spacing / extent_px,
+                      f"{section_count} sections: {2 * section_count} points across"))
+    if section_spacing > 0:
+        depths = object_depths(cameras, points)
+        if depths is not None:
+            focal = np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in cameras])
+            p = float(np.median(focal * 0.5 * section_spacing / depths))
+            needs.append((spacing / p, f"section spacing {section_spacing:g}: "
+                                       f"{p:.3g} px a point at full size"))
+    if not needs:
+        return 1.0, "full resolution (no precision or section spacing asked)"
+    scale, why = max(needs)
+    return float(min(1.0, scale)), why
+
+
+def object_depths(cameras: Sequence[Camera], points=None) -> np.ndarray | None:
+    """Each view's depth to the object: the median depth of the ``points`` in front of it
+    (at least 20), else of the point nearest all the optical axes (least squares: where
+    a ring or a path of views looks); None when the axes are parallel and no view sees
+    enough points."""
+    pts = None if points is None else check_shape(points, "(N, 3)", "points", dtype=np.float64)
+    centres = np.array([c.center for c in cameras], dtype=np.float64)
+    axes = np.array([c.R[2] for c in cameras], dtype=np.float64)
+    # sum over views of (I - a a^T)(x - c) = 0
+    proj = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    normal = proj.sum(axis=0)
+    meet = None
+    if np.linalg.cond(normal) < 1e8:
+        meet = np.linalg.solve(normal, np.einsum("nij,nj->i", proj, centres))
+    depths = []
+    for cam in cameras:
+        z = None if pts is None or not len(pts) else cam.depth(pts)
+        if z is not None and (z > 0).sum() >= 20:
+            depths.append(float(np.median(z[z > 0])))
+        elif meet is not None and float(cam.depth(meet[None])[0]) > 0:
+            depths.append(float(cam.depth(meet[None])[0]))
+        else:
+            return None
+    return np.array(depths)
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:

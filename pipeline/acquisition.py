@@ -287,7 +287,8 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
     **options
         ``[acquire]`` options of pipeline/defaults.toml; the matching ones
         (:data:`MATCH_KEYS`) are passed on (``max_reprojection_px`` has no multi-view
-        meaning and is ignored); ``points_across`` sets the working scale
+        meaning and is ignored); ``points_across``, or ``precision`` and the sections
+        asked (``section_count``, ``section_spacing``), set the working scale
         (:func:`pipeline.inputs.load_folder`), ``object_only`` drops what is not the
         object (:func:`matching.roi.select_object`, not with ``roi``), ``scale`` /
         ``markers`` give an SfM frame real units (:mod:`matching.scale`).
@@ -313,7 +314,10 @@ def acquire_folder(folder: str | Path, cameras: str | None = None, executor=None
         loaded = load_folder(folder, cameras, camera_model=camera_model,
                              sfm_work_dir=Path(scratch) / "sfm",
                              spacing=float(options.get("spacing", 3)),
-                             points_across=int(options.get("points_across", 0)))
+                             points_across=int(options.get("points_across", 0)),
+                             precision=float(options.get("precision", 0.0)),
+                             section_count=int(options.get("section_count", 0)),
+                             section_spacing=float(options.get("section_spacing", 0.0)))
         cloud = _matched(folder, loaded, executor, check_views, masks, box, options, scratch)
     if box is None and options.get("object_only", False):
         cloud = _object_only(cloud, loaded["cameras"])
@@ -383,6 +387,7 @@ def _matched(folder, loaded: dict, executor, check_views: int, masks: str, box,
                        cameras=loaded["cameras"],
                        view_names=loaded["names"], masks=mask_source,
                        working_scale=loaded.get("working_scale", 1.0),
+                       working_scale_reason=loaded.get("working_scale_reason", ""),
                        peak_memory_gb=_peak_memory_gb(),
                        ring=fit_ring(loaded["cameras"]).as_dict())
     return cloud

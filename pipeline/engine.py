@@ -205,7 +205,15 @@ def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str],
 
 
 def _stage_params(stage: Stage, config: Mapping) -> dict:
-    return {section: config.get(section, {}) for section in stage.params}
+    """The stage's configuration: whole sections, and single keys ``SECTION.KEY``."""
+    params: dict = {}
+    for name in stage.params:
+        section, _, key = name.partition(".")
+        if key:
+            params.setdefault(section, {})[key] = config.get(section, {}).get(key)
+        else:
+            params[section] = config.get(section, {})
+    return params
 
 
 def run_pipeline(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike, config: dict,

@@ -315,7 +315,8 @@ def _cameras_from_file(source: Path, where: Path, names: list, shapes: list, siz
 def load_folder(folder: str | Path, cameras: str | None = None,
                 sfm_work_dir: str | Path | None = None,
                 camera_model: str = "SIMPLE_RADIAL", spacing: float = 3.0,
-                points_across: int = 0) -> dict:
+                points_across: int = 0, precision: float = 0.0, section_count: int = 0,
+                section_spacing: float = 0.0) -> dict:
     """Images and cameras of an image folder, checked.
 
     Cameras come from ``cameras`` (any format :func:`matching.cameras.read_cameras`
@@ -323,11 +324,15 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     pycolmap SfM (:func:`matching.sfm.run_sfm`, in its arbitrary similarity frame);
     they are matched to the images by file name.
 
-    ``points_across`` > 0 reads the views at the working scale of
-    :func:`matching.resolution.working_scale` (the object's extent in the images from
-    SfM's sparse points, else the image size; ``spacing`` the LSM cell in pixels): the
-    images are resized as they are read and the cameras scaled with them; the dict's
-    ``working_scale`` and ``full_sizes`` (each view's stored ``(W, H)``) say so.
+    The views are read at a working scale (the object's extent in the images from
+    SfM's sparse points, else its foreground, else the image size; ``spacing`` the LSM
+    cell in pixels): ``points_across`` > 0 that many points across the object
+    (:func:`matching.resolution.working_scale`); else the finest that ``precision``
+    (a point's σ as a share of the object's extent), ``section_count`` and
+    ``section_spacing`` (scene units) ask (:func:`matching.resolution.requested_scale`;
+    none of them: full size).  The images are resized as they are read and the cameras
+    scaled with them; the dict's ``working_scale``, ``working_scale_reason`` and
+    ``full_sizes`` (each view's stored ``(W, H)``) say so.
 
     Returns
     -------
@@ -384,11 +389,13 @@ def load_folder(folder: str | Path, cameras: str | None = None,
     for skip in skipped:
         log.warning("view %s left out: %s", skip["view"], skip["reason"])
     full_sizes = [(shape[1], shape[0]) for shape in shapes]
-    scale, shapes, cams = _working_resolution(cams, shapes, out.get("sparse_points"),
-                                              spacing, points_across,
-                                              FolderImages(where, names, shapes))
+    asked = {"points_across": points_across, "precision": precision,
+             "section_count": section_count, "section_spacing": section_spacing}
+    scale, why, shapes, cams = _working_resolution(cams, shapes, out.get("sparse_points"),
+                                                   spacing, asked,
+                                                   FolderImages(where, names, shapes))
     out.update(images=FolderImages(where, names, shapes, scale), cameras=cams, names=names,
-               working_scale=scale, full_sizes=full_sizes)
+               working_scale=scale, working_scale_reason=why, full_sizes=full_sizes)
     return out
 
 
@@ -404,25 +411,37 @@ def _model_points(source: Path):
     return np.array([p.xyz for p in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
 
 
-def _working_resolution(cams: list, shapes: list, points, spacing: float,
-                        points_across: int, images=None) -> tuple[float, list, list]:
-    """The working scale (:mod:`matching.resolution`), the shapes and cameras at it (the
-    object's extent from ``points``, else from the foreground of ``images``)."""
-    from matching.resolution import object_extent_px, scale_camera, scaled_size, working_scale
+def _working_resolution(cams: list, shapes: list, points, spacing: float, asked: dict,
+                        images=None) -> tuple[float, str, list, list]:
+    """The working scale (:mod:`matching.resolution`) and what set it, the shapes and
+    cameras at it (the object's extent from ``points``, else from the foreground of
+    ``images``); ``asked``: :func:`load_folder`'s ``points_across``, ``precision``,
+    ``section_count``, ``section_spacing``."""
+    from matching.resolution import (
+        object_extent_px,
+        requested_scale,
+        scale_camera,
+        scaled_size,
+        working_scale,
+    )
 
     full = [(shape[1], shape[0]) for shape in shapes]
-    if not points_across:
-        return 1.0, shapes, cams
+    if not any(asked.values()):
+        return 1.0, "full resolution", shapes, cams
     extent = object_extent_px(cams, points, images=images)
-    scale = working_scale(extent, spacing, points_across)
+    if asked["points_across"]:
+        scale = working_scale(extent, spacing, asked["points_across"])
+        why = f"{asked['points_across']} points across"
+    else:
+        scale, why = requested_scale(cams, extent, spacing, asked["precision"],
+                                     asked["section_count"], asked["section_spacing"], points)
     if scale >= 1.0:
-        return 1.0, shapes, cams
+        return 1.0, why, shapes, cams
     sizes = [scaled_size(size, scale) for size in full]
     shapes = [(h, w, *shape[2:]) for (w, h), shape in zip(sizes, shapes, strict=True)]
     log.info("acquire: views read at %.3g of their size (%dx%d -> %dx%d px): the object spans "
-             "%.0f px, %d points across at spacing %g", scale, *full[0], *sizes[0], extent,
-             points_across, spacing)
-    return scale, shapes, [scale_camera(cam, scale) for cam in cams]
+             "%.0f px; %s, at spacing %g px", scale, *full[0], *sizes[0], extent, why, spacing)
+    return scale, why, shapes, [scale_camera(cam, scale) for cam in cams]
 
 
 # --------------------------------------------------------------------------- kinds

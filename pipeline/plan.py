@@ -32,7 +32,10 @@ class Stage:
     name : str
     func : callable ``(StageContext) -> dict | None``
     params : tuple of str
-        Configuration sections whose values decide the stage's output.
+        Configuration sections whose values decide the stage's output; ``SECTION.KEY``:
+        that one key of another stage's section (the stage sees it in
+        ``ctx.params[SECTION]``, and a change to the section's other keys leaves the
+        stage up to date).
     needs : tuple of str
         Upstream stages whose outputs it reads (their hashes are its inputs).
     modules : tuple of str
@@ -87,7 +90,9 @@ _ADAPTERS = ("pipeline.artifacts", "pipeline.errors", "pipeline.inputs", "pipeli
 STAGES: list[Stage] = [
     Stage("scene", fn.scene, params=("scene",), external=True,
           modules=_ADAPTERS + ("pipeline.scenes",)),
-    Stage("acquire", fn.acquire, params=("acquire",), external=True,
+    # the sections asked set an image folder's working resolution (matching.resolution)
+    Stage("acquire", fn.acquire, params=("acquire", "sections.count", "sections.spacing"),
+          external=True,
           optional_needs=("scene",), modules=_ADAPTERS,
           kind_modules=(("cloud", ("pipeline.cloud_io",)),
                         ("stereo", ("matching.pair", "matching.cameras", "matching.scheduler")),

@@ -115,7 +115,10 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
 
     cameras = str(ctx.rig) if ctx.rig is not None and ctx.kind == "folder" else None
     # scratch files in the stage's temporary output: gone with it, also after a kill
+    asked = ctx.params.get("sections", {})  # the sections asked: the working resolution
     cloud = acquire_folder(folder, cameras, executor=ctx.executor, work_dir=ctx.out,
+                           section_count=int(asked.get("count") or 0),
+                           section_spacing=float(asked.get("spacing") or 0.0),
                            **ctx.params["acquire"])
     stats = cloud.stats
     if stats.get("unregistered"):
@@ -135,6 +138,8 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
             "ring": bool(stats.get("ring", {}).get("is_ring", False)),
             **_densify_info(stats.get("densify")),
             "working_scale": round(float(stats.get("working_scale", 1.0)), 4),
+            **({"working_scale_from": stats["working_scale_reason"]}
+               if stats.get("working_scale_reason") else {}),
             "peak_memory_gb": round(float(stats.get("peak_memory_gb", 0.0)), 2),
             **{k: (round(v, 6) if isinstance(v, float) else v)
                for k, v in stats.get("scale", {}).items()},
@@ -154,7 +159,7 @@ def _stereo_cloud(left: Path, right: Path, rig_path: Path, params: Mapping) -> t
 
     rig = read_rig_for(rig_path)  # and pipeline.guards.check_rig: format, values, baseline
     options = dict(params)
-    for key in ("eccentric", "densify", "masks", "roi", "points_across",
+    for key in ("eccentric", "densify", "masks", "roi", "points_across", "precision",
                 "object_only", "scale", "markers"):  # image folders only (defaults.toml)
         options.pop(key, None)
     max_reproj = options.pop("max_reprojection_px") or None

@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from matching.cameras import Camera
-from matching.resolution import object_extent_px, scale_camera, scaled_size, working_scale
+from matching.resolution import (
+    SIGMA_LSM_PX,
+    object_depths,
+    object_extent_px,
+    requested_scale,
+    scale_camera,
+    scaled_size,
+    working_scale,
+)
 
 
 def _camera(width=4000, height=3000, f=3200.0, name="v"):
@@ -65,3 +73,46 @@ def test_object_extent_from_the_foreground_without_points():
     # the object's own points win over the images
     square = np.c_[rng.uniform(-0.5, 0.5, (400, 2)), np.zeros(400)]
     assert 540 < object_extent_px([cam], square, images=[image]) < 700
+
+
+def _ring(n=8, radius=5.0, f=3200.0):
+    """``n`` views of 4000 x 3000 on a circle of ``radius`` round the origin, looking at it."""
+    cams = []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        centre = radius * np.array([np.cos(a), np.sin(a), 0.0])
+        z = -centre / radius
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        K = np.array([[f, 0, 1999.5], [0, f, 1499.5], [0, 0, 1.0]])
+        cams.append(Camera(K=K, dist=np.zeros(4), R=R, t=-R @ centre, width=4000,
+                           height=3000, name=f"v{k}"))
+    return cams
+
+
+def test_the_scale_the_request_needs():
+    cams = _ring()
+    # precision: the object must span SIGMA_LSM_PX / precision px -> 0.1 / (2e-4 * 2000)
+    s, why = requested_scale(cams, 2000.0, 3, precision=2e-4)
+    assert s == pytest.approx(SIGMA_LSM_PX / (2e-4 * 2000.0)) and "precision" in why
+    # 100 sections: 200 points across 2000 px at 3 px -> 0.3
+    assert requested_scale(cams, 2000.0, 3, section_count=100)[0] == pytest.approx(0.3)
+    # sections 0.02 apart: points 0.01 apart, f 0.01 / 5 = 6.4 px at full size -> 3 / 6.4;
+    # no points: the depth is the axes' meeting point's (the ring's centre, 5 away)
+    np.testing.assert_allclose(object_depths(cams), 5.0, rtol=1e-9)
+    s, why = requested_scale(cams, 2000.0, 3, section_spacing=0.02)
+    assert s == pytest.approx(3 / 6.4) and "section spacing" in why
+    # points at depth 4 in every view (a sphere of radius 1 about the centre, near side)
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(4000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    depths = object_depths(cams, pts)
+    assert np.all((depths > 4.5) & (depths < 5.5))  # the sphere's median depth about 5
+    # the finest need wins; never above full size; nothing asked: full size
+    both = requested_scale(cams, 2000.0, 3, precision=2e-4, section_count=100)[0]
+    assert both == pytest.approx(0.3)
+    assert requested_scale(cams, 2000.0, 3, section_count=1000)[0] == 1.0
+    assert requested_scale(cams, 2000.0, 3) == (1.0, requested_scale(cams, 100.0, 3)[1])
+    with pytest.raises(ValueError, match="precision"):
+        requested_scale(cams, 2000.0, 3, precision=-1.0)

@@ -78,6 +78,13 @@ def test_views_read_at_the_working_scale_with_their_cameras_and_masks(tmp_path):
     assert loaded["cameras"][0].size == (120, 90)
     full = load_folder(tmp_path, spacing=3, points_across=0)
     assert full["working_scale"] == 1.0 and full["images"][1].shape == (300, 400)
+    # a precision asked: the object must span 0.1 / 1e-3 = 100 px of its 400 -> 0.25;
+    # 20 sections asked too: 40 points across at 3 px -> 0.3, the finer need
+    asked = load_folder(tmp_path, spacing=3, precision=1e-3)
+    assert asked["working_scale"] == pytest.approx(0.25)
+    asked = load_folder(tmp_path, spacing=3, precision=1e-3, section_count=20)
+    assert asked["working_scale"] == pytest.approx(0.3)
+    assert "20 sections" in asked["working_scale_reason"]
     from pipeline.acquisition import folder_masks
 
     masks, source = folder_masks([tmp_path], loaded["names"], loaded["images"],

@@ -98,3 +98,21 @@ def test_stage_order_and_plans():
     for stage in plan.STAGES:  # every declared module exists: nothing "not there yet"
         for module in stage.modules + tuple(m for _, ms in stage.kind_modules for m in ms):
             assert _module_file(module) is not None, module
+
+
+def test_acquire_sees_the_sections_asked_and_no_other_sections_key():
+    """The working resolution depends on sections.count / spacing: they are acquire's
+    parameters (a change reruns it); the sections' other keys are not."""
+    from pipeline.config import defaults
+    from pipeline.engine import _stage_params
+    from pipeline.plan import STAGES
+
+    acquire = next(s for s in STAGES if s.name == "acquire")
+    config = defaults()
+    params = _stage_params(acquire, config)
+    assert params["sections"] == {"count": 0, "spacing": 0.0}
+    assert params["acquire"] == config["acquire"]
+    config["sections"]["axis"] = "z"
+    assert _stage_params(acquire, config) == params
+    config["sections"]["count"] = 40
+    assert _stage_params(acquire, config)["sections"]["count"] == 40
