@@ -570,8 +570,10 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                 if ladder is not None:
                     second, sides = _rematch_ici(fprep, gprep, points, start, res, quad,
                                                  ladder, options, shifted, edge[idx])
-                else:
-                    second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
+                else:  # the accepted windows: a rejected one was tried from its start
+                    # and by growth from up to two neighbours (acquire-profile decision)
+                    second = _rematch(fprep, gprep, points, start, res, quad, sides, options,
+                                      only=res.accepted, into=res)
                 # a grown window that fails (its search window leaves the image, or it
                 # reaches over a depth or shading edge the base window stays clear of):
                 # back to the base patch -- growing is for precision, not to lose points
