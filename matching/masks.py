@@ -6,52 +6,23 @@ too), one grey or colour image of the image's size, **0 = ignore** (background),
 anything else = object.
 
 **Automatic foreground** for a uniform background, dark or light
-(:func:`foreground_mask`).  The background's grey-level distribution is taken from the
-image border (a frame 3 % of the shorter side wide, after a Gaussian blur of σ = 1.5 px
-that averages the sensor noise and the cloth's or wall's fine texture): its median
-:math:`m` and :math:`t`, the median over the four sides of the 99.9th percentile of
-:math:`|g - m|` along the side (an object touching one side does not raise it).  A
-pixel is object where :math:`|g - m| > t`: at most ~0.1 % of the background passes
-(fewer once the small components are removed).  The background must be uniform: at
-least three of the four sides have their median within :math:`t` of :math:`m`, and
-:math:`t` is below half the image's own grey range (1st-99th percentile);
-otherwise there is no automatic mask (``None``: a textured background, or an object
-filling the frame).  Components smaller than 1 % of the largest are dropped, holes are
-kept (a gap between columns is background), and the mask is dilated by ``margin_px``
-(silhouette blur, the blur above).  The threshold follows the data; where the
-background is lit unevenly (the temple ring's cloth has lit folds) the mask also takes
-the lit parts: it errs on the object's side, which is what a visual hull needs (a
-superset of each silhouette); on the temple ring it holds >= 99.8 % of the pixels
-above the data set's suggested 0.19 x 255 in every view and exceeds them (dilated by
-3 px) by 1-14 % of the image.
+(:func:`foreground_mask`): the background's grey levels from the image border (a frame
+3 % of the shorter side, blurred by σ = 1.5 px), its median :math:`m` and :math:`t`, the
+median over the four sides of the 99.9th percentile of :math:`|g - m|`; a pixel is
+object where :math:`|g - m| > t`.  No mask (``None``) unless the background is uniform
+(three sides' medians within :math:`t` of :math:`m`, :math:`t` below half the image's
+grey range).  Small components dropped, holes kept, dilated by ``margin_px``.
 
 **Visual hull** (Laurentini 1994 [1]_): a point is kept when, in every view where it
-projects inside the image, it falls on the view's object mask
-(:func:`inside_masks`).
+projects inside the image, it falls on the view's object mask (:func:`inside_masks`).
 
-**Silhouette consistency** (:func:`near_foreground`): the same test against the
-automatic foreground *without* its dilation, with a tolerance from the point's own
-precision instead of a fixed margin.  A point on an opaque object projects inside the
-object's silhouette in every view, seen or hidden.  The foreground's contour is the
-threshold :math:`t` crossed on the blurred image: for an edge whose contrast exceeds
-:math:`2t` it lies on or outside the object's edge (the blurred step crosses a level
-below its half-height outside the edge), so it is a superset of the silhouette there
-and the test needs no margin of its own.  The point's position in view :math:`k` is
-known to :math:`\sigma_k = \sigma f_k / z_k` px (σ its worst-direction standard
-deviation, :math:`z_k` its depth); it is rejected when its signed distance from the
-foreground's boundary (sub-pixel: bilinear in the pixel centres' signed distances, the
-boundary halfway between an object and a background pixel) exceeds
-:math:`\sqrt2/2 + q\,\sigma_k`: the raster's bound (the edge a binary mask samples
-passes within half a pixel's diagonal of that boundary) plus :math:`q` times the
-point's σ, :math:`q` the two-sided normal quantile of the test's probability (3.29 at
-0.999).  Where an edge's contrast is below :math:`2t` (an object
-part in shadow against a lit background) the contour runs inside the object and
-correct points there are lost.  How many is not known on the temple ring (no surface
-truth): there the test removes 761 of the ~69 800 matched and outline points; of the
-pair points outside a 3 px threshold silhouette for reasons other than its shadowed
-holes, 87 % lay off the undilated foreground in some view, of the points inside every
-silhouette 3 % (benchmarks/README.md, *what the points outside a 3 px silhouette
-are*).
+**Silhouette consistency** (:func:`near_foreground`): a point is rejected when its
+signed distance from a view's undilated foreground exceeds :math:`\sqrt2/2 + q\,\sigma_k`
+px (the raster's bound plus :math:`q` times its own σ in the view, :math:`\sigma_k =
+\sigma f_k / z_k`; :math:`q` = 3.29 at 0.999).
+
+Why each rule is as it is (the thresholds' derivations, the temple ring's figures):
+``docs/method/acquire.md``, *Object masks*.
 
 References
 ----------
