@@ -190,6 +190,7 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
             "patches": len(smooth.surface.control_points), "seconds": seconds, "cpu": cpu,
             "approximating": control == "approximating", "general_control": control,
+            "fit": {k: (smooth.solid or {}).get(k) for k in ("fit_weight", "fit_bend")},
             "repair": _repair(smooth)}
 
 

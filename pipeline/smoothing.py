@@ -326,6 +326,7 @@ def smooth_general(vertices: np.ndarray, triangles: np.ndarray, level: int | str
                                                  report=report, seconds=seconds),
                                   **({"repair": repair} if repair else {}),
                                   "general_control": "fitted", "fit_weight": fit["weight"],
+                                  "fit_bend": fit["bend"],
                                   "fit_held_vertices": fit["held_vertices"]}
                 return smoothed
             log.info("smooth: the fitted general surface self-intersects at %d pairs",

@@ -1,51 +1,33 @@
-r"""Interpolating control meshes for Loop's limit surface.
+r"""Control meshes for Loop's limit surface: interpolating a mesh, or fitted to a cloud.
 
-Loop subdivision (and the sextic Bézier surface of :mod:`surface.bezier`,
-which reproduces its limit) *approximates* its control mesh: a control vertex
-``v`` of valence ``n`` with neighbours ``w_1 .. w_n`` lands on the limit surface
-at
+Loop subdivision (and the sextic Bézier surface of :mod:`surface.bezier`, which
+reproduces its limit) *approximates* its control mesh: a control vertex ``v`` of valence
+``n`` with neighbours ``w_1 .. w_n`` lands on the limit surface at
 
 .. math::
 
     L(v) = (1 - n \beta_\infty)\, v + \beta_\infty \sum_{i=1}^{n} w_i, \qquad
-    \beta_\infty = \frac{1}{n + 3 / (8 \beta(n))}, \qquad
-    \beta(n) = \frac{1}{n}\Bigl(\frac58 - \bigl(\frac38 + \frac14
-    \cos\frac{2\pi}{n}\bigr)^2\Bigr),
+    \beta_\infty = \frac{1}{n + 3 / (8 \beta(n))}
 
-C. Loop, "Smooth subdivision surfaces based on triangles", M.S. thesis,
-University of Utah, 1987 [1]_ (limit mask: the dominant left eigenvector of
-the local subdivision matrix; see also Hoppe et al., "Piecewise smooth surface
-reconstruction", SIGGRAPH 1994 [2]_, who use the same mask to fit data).
-On a curved surface ``L(v) - v`` is a Laplacian: it moves the surface toward
-the inside by about ``h^2 (k_1 + k_2) / 8`` for edge length ``h`` (regular
-valence 6: ``L(v) = v + (mean(w) - v) / 2``), and rounds off creases.  A mesh
-whose vertices lie *on* the data (the stitched mesh of :mod:`surface.stitch`)
-therefore gives a smooth surface that pulls away from the data.
+(Loop 1987 [1]_; Hoppe et al. 1994 [2]_ use the same mask to fit data).  On a curved
+surface ``L(v) - v`` is a Laplacian: it moves the surface inward by about
+``h^2 (k_1 + k_2) / 8`` for edge length ``h`` and rounds off creases.
 
-:func:`interpolating_control_mesh` removes that bias: it solves the sparse
-linear system ``L(X) = P`` for control vertices ``X`` whose limit positions
-are the given vertices ``P`` (same connectivity), so the smooth surface built
-over ``X`` passes exactly through every vertex of ``P``.  The matrix is
-``M = diag(1 - n \beta_\infty) + \operatorname{diag}(\beta_\infty) A`` with ``A``
-the vertex adjacency; it is the row-scaled identity-plus-Laplacian of the
-limit mask, non-singular on meshes of ordinary valences (on a regular grid its
-eigenvalues lie in [1/4, 1], so noise in ``P`` is amplified at most 4x in
-``X`` -- the surface itself only interpolates ``P``).  One ``spsolve`` with the
-three coordinates as right-hand sides: ``O(V)`` memory, sparse LU time.
+- :func:`interpolating_control_mesh` solves the sparse system ``L(X) = P`` (one
+  ``spsolve``; the matrix :func:`limit_matrix`) so that the surface over ``X`` passes
+  through every vertex of ``P``; ``keep`` holds some vertices as they are
+  (:func:`sharp_vertices`, :func:`convex_creases`, :func:`flat_vertices`: where an
+  interpolating G1 surface overshoots a crease).
+- :func:`folded_faces` and :func:`surface_folds` find where the correction ``X - P``
+  folds the control mesh or the surface over it (tests of sign, no tolerance;
+  ``docs/decisions/smooth-folds.md``).
+- :func:`fitted_control_mesh` fits the surface to a cloud instead: least squares on the
+  limit mesh two subdivision steps down (:func:`subdivision_matrix`) with a bending
+  penalty whose weight is chosen on cubes of the cloud held out
+  (:func:`held_out_blocks`; ``docs/decisions/complex-shapes.md``).
 
-At a crease a G1 surface cannot follow, interpolating every vertex overshoots, so
-the pipeline (``smooth.interpolate = true``, the default) interpolates through
-:func:`surface.sizing.interpolating_control`, which keeps the vertices on sharp edges
-as they are (:func:`sharp_vertices`) and interpolates the convex creases
-(:func:`convex_creases`).  The measurements behind that: ``docs/decisions/sizing.md``.
-Where the correction ``X - P`` folds the control mesh (a face turned over against the
-target mesh's, or faces crossing that the target mesh does not cross: :func:`folded_faces`)
-the surface over it may fold too; where it does (:func:`surface_folds`)
-:func:`surface.sizing.interpolating_control` moves those faces' vertices part of the way,
-then keeps them (``docs/decisions/smooth-folds.md``).
-
-Closed meshes only: the ghost-layer border rule of :mod:`surface.bezier` has
-no one-ring limit mask, so a mesh with borders is a ``ValueError``.
+Closed meshes only: the ghost-layer border rule of :mod:`surface.bezier` has no one-ring
+limit mask, so a mesh with borders is a ``ValueError``.
 
 References
 ----------
@@ -69,7 +51,7 @@ from surface.validate import check_finite, check_shape
 from surface.validity import check_solid, self_intersections
 
 __all__ = ["convex_creases", "fitted_control_mesh", "flat_vertices", "folded_faces",
-           "grow_vertices", "subdivision_matrix",
+           "grow_vertices", "held_out_blocks", "subdivision_matrix",
            "interpolating_control_mesh", "surface_folds",
            "limit_matrix", "limit_positions", "sharp_vertices"]
 
@@ -234,6 +216,10 @@ def interpolating_control_mesh(vertices, triangles, keep=None, at=None) -> np.nd
     at : (V, 3) array_like, optional
         Where the ``keep`` vertices are held (default: ``vertices``, as they are).
 
+    The matrix ``M = diag(1 - n beta_inf) + diag(beta_inf) A`` (``A`` the adjacency) is the
+    row-scaled identity-plus-Laplacian of the limit mask; on a regular grid its
+    eigenvalues lie in [1/4, 1], so noise in ``P`` is amplified at most 4x in ``X``.
+
     Returns
     -------
     (V, 3) float64
@@ -355,12 +341,25 @@ def surface_folds(target, control, triangles, faces=None, target_pairs=None,
     return folded
 
 
-#: The general mesh's vertices, each counted as this many cloud points in
-#: :func:`fitted_control_mesh` (per point of the cloud per control vertex): the weights
-#: tried, the one whose fit lies nearest the held-out points kept.
-FIT_WEIGHTS = (0.1, 1.0, 10.0)
+#: The general mesh's vertices as a prior in :func:`fitted_control_mesh`, each counted as
+#: this many cloud points (per point of the cloud per control vertex).  None: the mesh is
+#: an iso-surface of the whole cloud, held-out points included, so a fit held to it looks
+#: near them whatever it does (on the noisy 10^4-point torus weight 10's held-out error
+#: was 0.73 of the points' own noise variance about the truth: a leak, not a fit).
+FIT_WEIGHTS = (0.0,)
+#: The control mesh's bending (its uniform umbrella ``U X``, squared), each vertex
+#: counted as this many points per point a vertex has: the bends tried, smallest first,
+#: until the held-out error rises (noise-free data stop at the first or second, the
+#: noisy corpus rows at 0.1 of the diagonal's 5e-4 reach 1-3).
+FIT_BENDS = (0.03, 0.1, 0.3, 1.0, 3.0)
 #: Share of the cloud held out to choose the weight.
 FIT_HOLD_OUT = 0.1
+#: Side of the cubes the cloud is held out in, in the control mesh's median edges: the
+#: held-out points are whole cubes, not single points, so that a neighbour whose error
+#: is correlated with a held-out point's (the stereo matcher's window spans several
+#: points) is held out with it and cannot make a rough surface look near.  Three edges
+#: span a control vertex's support (its two-ring), what one vertex's move can follow.
+FIT_BLOCK_EDGES = 3.0
 #: Subdivision steps of the limit mesh the points' feet are found on: its chords lie
 #: inside the surface by their sagitta, ``(h / 2^L)^2 / (8 r)`` for control edges ``h`` on
 #: a radius ``r``, which the fit would otherwise push outward.  Two steps make that 1/16 of
@@ -435,10 +434,33 @@ def _solve_normal(matrix: sp.spmatrix, rhs: np.ndarray, start: np.ndarray) -> np
     return out
 
 
+def held_out_blocks(points: np.ndarray, side: float, share: float = FIT_HOLD_OUT,
+                    seed: int = 0) -> np.ndarray:
+    """Points held out in whole cubes of ``side`` (scene units), ``(N,) bool``: the cubes
+    of a grid are drawn at random, each with chance ``share``, until at least one cube
+    is drawn and one is not (fewer than two cubes: single points at random)."""
+    p = np.asarray(points, dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    if not side > 0:
+        return rng.random(len(p)) < share
+    _, cube = np.unique(np.floor((p - p.min(axis=0)) / side).astype(np.int64), axis=0,
+                        return_inverse=True)
+    cube = cube.ravel()
+    count = int(cube.max()) + 1 if len(cube) else 0
+    if count < 2:
+        return rng.random(len(p)) < share
+    drawn = rng.random(count) < share
+    if not drawn.any() or drawn.all():
+        drawn[:] = False
+        drawn[rng.integers(count)] = True
+    return drawn[cube]
+
+
 def fitted_control_mesh(vertices, triangles, points, start=None,
                         weights=FIT_WEIGHTS, hold_out: float = FIT_HOLD_OUT,
                         rounds: int = FIT_ROUNDS, levels: int = FIT_LEVELS,
-                        seed: int = 0) -> tuple[np.ndarray, dict]:
+                        seed: int = 0, block: float | None = None,
+                        bends=FIT_BENDS) -> tuple[np.ndarray, dict]:
     r"""Control vertices whose Loop surface is fitted to a cloud, ``(V, 3)``, and the fit's
     figures.
 
@@ -448,15 +470,19 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
     round finds every point's nearest spot on it (a face and its barycentric weights
     ``B``) and solves
 
-    .. math:: \min_X \|B M X - p\|^2 + w \frac{N}{V} \|M_0 X - P\|^2
+    .. math:: \min_X \|B M X - p\|^2 + \frac{N}{V} \bigl(w \|M_0 X - P\|^2
+              + b \|U X\|^2\bigr)
 
-    (Hoppe et al. 1994's fit with the parameters held by the foot points), the second term
-    holding the limit positions ``M_0 X`` at the mesh's own vertices ``P`` (a general
-    mesh's vertices lie on its iso-surface: they carry the surface where no point is, and
-    damp the noise).  The weight ``w`` (each vertex counted as ``w`` points per point a
-    vertex has) is chosen among ``weights`` by the fit's mean squared distance to
-    ``hold_out`` of the points, left out of the fit: noise-free data choose the smallest
-    (the data), noisy data a larger one (the smoothing the iso-surface did).
+    (Hoppe et al. 1994's fit with the parameters held by the foot points): ``U`` is the
+    control mesh's uniform umbrella operator (``x_i`` minus its neighbours' mean), whose
+    square penalises bending: it carries the surface where no point is (the flattest
+    fill) and averages the noise; ``w`` holds the limit positions ``M_0 X`` at the mesh's
+    own vertices ``P`` (:data:`FIT_WEIGHTS`: none by default).  ``(w, b)`` is chosen
+    among ``weights`` x ``bends`` (bends smallest first, stopping when the error rises) by
+    the fit's mean squared distance to ``hold_out`` of the points, left out of the fit in
+    whole cubes (:func:`held_out_blocks`, side ``block``, default :data:`FIT_BLOCK_EDGES`
+    median edges; 0: single points at random): noise-free data choose the smallest bend,
+    noisy data a larger one.
 
     Parameters
     ----------
@@ -472,7 +498,8 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
     -------
     X : (V, 3) float64
     info : dict
-        ``weight`` chosen and ``held_out`` mean squared distance for each weight tried.
+        ``weight`` and ``bend`` chosen, ``choices`` tried and each one's ``held_out`` mean
+        squared distance.
     """
     v, t = _check_mesh(vertices, triangles)
     p = check_finite(check_shape(points, "(N, 3)", "points", dtype=np.float64), "points")
@@ -483,30 +510,47 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
     fine = (limit_matrix(refined, step.shape[0]) @ step).tocsr()
     coarse = limit_matrix(t, len(v))
     held = coarse.T @ coarse
+    adjacency = _adjacency(t, len(v))
+    umbrella = (sp.identity(len(v)) - sp.diags(1.0 / np.asarray(adjacency.sum(axis=1)).ravel())
+                @ adjacency).tocsr()
+    bend_matrix = (umbrella.T @ umbrella).tocsr()
     x0 = interpolating_control_mesh(v, t) if start is None else np.asarray(start, np.float64)
 
-    def fit(data: np.ndarray, weight: float) -> np.ndarray:
+    def fit(data: np.ndarray, choice: tuple[float, float]) -> np.ndarray:
         x = x0
-        w = weight * len(data) / len(v)
+        w, b = (c * len(data) / len(v) for c in choice)
         for _ in range(rounds):
             face, bary, _ = _feet(fine @ x, refined, data)
             feet = sp.coo_matrix((bary.ravel(), (np.repeat(np.arange(len(data)), 3),
                                                  refined[face].ravel())),
                                  shape=(len(data), fine.shape[0])).tocsr() @ fine
-            x = _solve_normal(feet.T @ feet + w * held, feet.T @ data + w * (coarse.T @ v), x)
+            x = _solve_normal(feet.T @ feet + w * held + b * bend_matrix,
+                              feet.T @ data + w * (coarse.T @ v), x)
         return x
 
-    out = np.random.default_rng(seed).random(len(p)) < hold_out
-    errors = []
-    if len(weights) > 1 and out.any() and (~out).any():
-        for weight in weights:
-            x = fit(p[~out], weight)
+    if block is None:
+        edges = v[t] - v[np.roll(t, 1, axis=1)]
+        block = FIT_BLOCK_EDGES * float(np.median(np.linalg.norm(edges, axis=2)))
+    out = held_out_blocks(p, block, hold_out, seed)
+    choices = [(float(w), float(b)) for w in weights for b in sorted(bends)]
+    if not all(w > 0 or b > 0 for w, b in choices):
+        raise ValueError("weights, bends: each (weight, bend) needs one of them > 0")
+    errors, tried = [], []
+    if len(choices) > 1 and out.any() and (~out).any():
+        for choice in choices:
+            if len(tried) > 1 and tried[-1][0] == tried[-2][0] == choice[0] \
+                    and errors[-1] > errors[-2]:
+                continue    # this weight's held-out error rose with the bend: past its best
+            x = fit(p[~out], choice)
             errors.append(float(np.mean(np.sum((_feet(fine @ x, refined, p[out])[2]
                                                  - p[out]) ** 2, axis=1))))
-        weight = weights[int(np.argmin(errors))]
+            tried.append(choice)
+        choice = tried[int(np.argmin(errors))]
     else:
-        weight = weights[0]
-    x = fit(p, weight)
+        choice = choices[0]
+    x = fit(p, choice)
     if not np.all(np.isfinite(x)):
         raise ValueError("points: the least-squares fit of the control mesh is singular")
-    return x, {"weight": weight, "weights": list(weights), "held_out": errors}
+    return x, {"weight": choice[0], "bend": choice[1], "weights": list(weights),
+               "bends": list(bends), "choices": tried, "held_out": errors,
+               "block": float(block)}
