@@ -22,6 +22,8 @@ section planes stop half a spacing inside the data), stitch.
 
 from __future__ import annotations
 
+import inspect
+import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -43,6 +45,7 @@ from surface.stitch import (
     stitch_rings,
     uncovered_share,
 )
+from surface.topology import SectionSkippedWarning, organise
 from surface.validate import TOL
 
 __all__ = ["OneSidedError", "surface_from_points", "slide_to_planes", "extend_to_caps",
@@ -346,6 +349,11 @@ class SlicedCloud:
     spacing: float
     notes: tuple[str, ...] = ()
     cap_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: What :func:`organise_sections` found on these sections already (the axis trial of
+    #: ``axis="auto"`` organised them): ``id(section) -> (options, section, loops,
+    #: warnings)``; passed back as ``organise_sections(..., organised=)`` so that they are
+    #: not organised twice.
+    organised: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 @one_blas_thread
@@ -366,8 +374,13 @@ def slice_cloud(points: np.ndarray, axis="z", sections: int | None = None,
         raise ValueError(f"projection must be 'surface' or 'axis', got {projection!r}")
     notes: tuple[str, ...] = ()
     if isinstance(axis, str) and axis.strip().lower() == "auto":
-        axis, why = choose_axis(points, sections=sections, spacing=spacing)
+        trials: dict = {}
+        axis, why = choose_axis(points, sections=sections, spacing=spacing, trials=trials)
         notes = (why,)
+        if thickness is None and projection == "surface" and trials.get("whole"):
+            # the axis trial sliced (and organised) this very cloud along this axis with
+            # these options: its sections, not a second slicing
+            return replace(trials[id(axis)], notes=notes)
     slices = slice_sections(points, axis=axis, count=sections, spacing=spacing,
                             thickness=thickness)
     pts = np.asarray(points, dtype=np.float64)
@@ -410,7 +423,8 @@ CAP_SHARE_SLACK = 0.10
 
 
 def choose_axis(points: np.ndarray, sections: int | None = None,
-                spacing: float | None = None) -> tuple[np.ndarray, str]:
+                spacing: float | None = None, trials: dict | None = None
+                ) -> tuple[np.ndarray, str]:
     r"""``axis="auto"``: the candidate axis that resolves the shape's topology best.
 
     The section method rebuilds surfaces that run along the axis (walls) from
@@ -434,7 +448,7 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
     χ is compared only among the axes whose cap share is within
     :data:`CAP_SHARE_SLACK` of the smallest: an axis cutting most walls
     obliquely gives ragged loops whose spurious splits lower χ (a sparse
-    cylinder cut across).
+    cylinder cut across).  The other axes are not sliced (their χ decides nothing).
 
     A mug: along its height χ = 0 with its floor and rims as caps (~20 % of
     its area); across, the handle is resolved too but a third of the walls
@@ -445,13 +459,18 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
     points : (P, 3) float64
     sections, spacing
         As for :func:`slice_cloud`.
+    trials : dict, optional
+        Filled with each candidate's :class:`SlicedCloud` (keyed by ``id`` of the
+        candidate axis returned) and ``"whole"``: whether the trials sliced every point
+        (then :func:`slice_cloud` returns the chosen one's, organised, as its own).
 
     Returns
     -------
     axis : (3,) float64
         Unit axis, signed as ``sections.principal_axis`` signs it.
     reason : str
-        One line: the axis chosen and every candidate's χ and cap share.
+        One line: the axis chosen and every candidate's χ (or "not sliced") and cap
+        share.
     """
     from surface.loop_graph import loop_graph
     from surface.sections import _orient
@@ -471,29 +490,40 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
         if all(abs(float(vecs[:, k] @ c)) < np.cos(np.radians(AXIS_SAME_DEGREES))
                for c in candidates):
             candidates.append(_orient(vecs[:, k]))
-    chis, shares = [], []
-    for axis in candidates:
-        shares.append(float(np.mean(1.0 - (normals @ axis) ** 2 < MIN_WALL_SINE**2)))
+    shares = [float(np.mean(1.0 - (normals @ axis) ** 2 < MIN_WALL_SINE**2))
+              for axis in candidates]
+    # χ decides only among axes with about as few cap points as the fewest: an axis
+    # cutting most walls obliquely makes ragged loops whose spurious splits lower χ.
+    # The others are not sliced at all (their χ would decide nothing).
+    close = [k for k in range(len(candidates)) if shares[k] <= min(shares) + CAP_SHARE_SLACK]
+    chis = []
+    for k, axis in enumerate(candidates):
+        if k not in close:
+            chis.append(None)
+            continue
         try:
             sliced = slice_cloud(trial, axis=axis, sections=sections, spacing=spacing)
-            _, loops, _ = organise_sections(sliced.sections, min_points=4)
+            if trials is not None:
+                trials[id(axis)] = sliced
+            _, loops, _ = organise_sections(sliced.sections, organised=sliced.organised,
+                                            min_points=4)
             graph = loop_graph([[lp.points @ lp.frame[:2].T for lp in found] for found in loops],
                                spacing=sliced.spacing)
             chis.append(graph.euler())
         except ValueError:
             chis.append(float("inf"))
-    # χ decides only among axes with about as few cap points as the fewest: an axis
-    # cutting most walls obliquely makes ragged loops whose spurious splits lower χ.
-    close = [k for k in range(len(candidates)) if shares[k] <= min(shares) + CAP_SHARE_SLACK]
     finite = [chis[k] for k in close if np.isfinite(chis[k])]
     best_chi = min(finite) if finite else float("inf")
     pool = [k for k in close if chis[k] == best_chi] or close
     best = min(pool, key=lambda k: (shares[k], k))
-    listed = "; ".join(f"{np.round(a, 3).tolist()}: chi {c:g}, caps {100 * f:.0f} %"
+    listed = "; ".join(f"{np.round(a, 3).tolist()}: "
+                       f"{'not sliced' if c is None else f'chi {c:g}'}, caps {100 * f:.0f} %"
                        for a, c, f in zip(candidates, chis, shares, strict=True))
     reason = (f"axis auto: {np.round(candidates[best], 4).tolist()}, of the candidate axes "
               f"resolving the most topology (smallest Euler characteristic chi of the "
               f"sections' loop graph) the one with the fewest points on caps ({listed})")
+    if trials is not None:
+        trials["whole"] = trial is pts and id(candidates[best]) in trials
     return candidates[best], reason
 
 
@@ -530,7 +560,8 @@ def _dense_extent(heights: np.ndarray, delta: float) -> np.ndarray:
     return (heights >= edges[first]) & (heights <= edges[last + 1])
 
 
-def organise_sections(sections: Iterable, **organise_options) -> tuple[list, list, list[str]]:
+def organise_sections(sections: Iterable, organised: dict | None = None,
+                      **organise_options) -> tuple[list, list, list[str]]:
     """Step 2 of :func:`surface_from_points`: the loops of every section.
 
     Parameters
@@ -538,6 +569,9 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
     sections : iterable of Section
         In height order (empty ones are skipped); iterated once (a progress
         bar may wrap it).
+    organised : dict, optional
+        ``SlicedCloud.organised`` of these sections: a section organised before with the
+        same options takes its loops and warnings from it (and a new one is added).
     **organise_options
         Passed to :func:`surface.topology.organise` (``outlier_threshold``,
         ``min_points`` ...; :func:`surface_from_points` gives
@@ -562,19 +596,22 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
     ValueError
         Fewer than two sections with a loop.
     """
-    import warnings
-
-    from surface.topology import SectionSkippedWarning, organise
-
-    messages, kept, loops, total = [], [], [], 0
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", SectionSkippedWarning)
-        for section in sections:
-            total += 1
-            found = organise(section, **organise_options) if len(section) else []
-            if found:
-                kept.append(section)
-                loops.append(found)
+    messages, kept, loops, total, caught = [], [], [], 0, []
+    options = _organise_key(organise_options)
+    for section in sections:
+        total += 1
+        if not len(section):
+            continue
+        done = None if organised is None else organised.get(id(section))
+        if done is None or done[0] != options or done[1] is not section:
+            done = (options, section, *_organise_one(section, organise_options))
+            if organised is not None:
+                organised[id(section)] = done
+        found, said = list(done[2]), done[3]
+        caught += said
+        if found:
+            kept.append(section)
+            loops.append(found)
     for w in caught:  # skipped sections become messages; anything else is passed on
         if issubclass(w.category, SectionSkippedWarning):
             messages.append(str(w.message))
@@ -592,6 +629,21 @@ def organise_sections(sections: Iterable, **organise_options) -> tuple[list, lis
                          "stitching needs at least 2 (too few points or sections?)")
     _refuse_open_arcs(loops)
     return kept, loops, messages
+
+
+def _organise_key(options: dict) -> tuple:
+    """``surface.topology.organise``'s keyword options with its defaults filled in."""
+    defaults = {name: p.default for name, p in inspect.signature(organise).parameters.items()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    return tuple(sorted({**defaults, **options}.items()))
+
+
+def _organise_one(section, options: dict) -> tuple[list, list]:
+    """``surface.topology.organise`` of one section: its loops and the warnings it gave."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SectionSkippedWarning)
+        found = organise(section, **options)
+    return found, list(caught)
 
 
 #: Share of the loops' length lying across gaps (wider than ``Loop.bridge``) above

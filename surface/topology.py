@@ -472,7 +472,7 @@ def _face_members(section, uv, labels, whole, gap, link, threshold, k, min_point
     members = []
     for c in range(int(whole.max()) + 1 if len(whole) else 0):
         mine = np.flatnonzero(whole == c)
-        walls = None
+        walls = built = None
         if len(mine) >= 2 * min_points:
             built = _organise_loop(section, uv, mine, gap, link, threshold, k, min_points)
             walls = None if built is None else _face_split(uv, built, gap)
@@ -482,10 +482,16 @@ def _face_members(section, uv, labels, whole, gap, link, threshold, k, min_point
             if all(lp is not None and lp.closed for lp in parted):
                 members += [(face, lp) for face, lp in zip(faces, parted, strict=True)]
                 mine = np.setdiff1d(mine, np.concatenate(faces))
+                built = None
         if len(mine) == 0:
             continue
         sub = labels[mine]
-        members += [(mine[sub == value], None) for value in np.unique(sub)]
+        values = np.unique(sub)
+        if built is not None and len(values) == 1:
+            # one loop, the cluster itself: the loop already built (not built twice)
+            members.append((mine, built))
+            continue
+        members += [(mine[sub == value], None) for value in values]
     return sorted(members, key=lambda pair: len(pair[0]), reverse=True)
 
 
