@@ -1212,8 +1212,9 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
     Returns
     -------
     sections : list of list of (n, 3)
-        With the wall supports inserted (heights stay monotone: ``d`` is at
-        most half a leg).
+        With the wall supports inserted (heights stay monotone: each point moves
+        at most half its own leg, a third where the strip's other ring is supported
+        too: :func:`_support_ring`).
     cap_inset : dict
         ``(0 | -1, loop) -> d`` for the bottom / top caps.
     notes : list of str
@@ -1248,25 +1249,44 @@ def _support(sections: list, frame: np.ndarray, sigma: float,
             d = support_distance(legs_a, legs_b, sigma, spacing)
             if d <= 0:
                 continue
-            unit_b = legs_b / np.maximum(np.linalg.norm(legs_b, axis=1), TOL.zero)[:, None]
-            wall = ring + d * unit_b
+            wall = (ring, legs_b, d)
             if end is None:
-                unit_a = legs_a / np.maximum(np.linalg.norm(legs_a, axis=1), TOL.zero)[:, None]
-                before.setdefault(s, []).append(ring + d * unit_a)
+                before.setdefault(s, []).append((ring, legs_a, d))
                 after.setdefault(s, []).append(wall)
             else:
                 (after if end == 0 else before).setdefault(s, []).append(wall)
                 cap_inset[(end, lp)] = d
             notes.append(f"section {s} loop {lp}: support rings at {d:.3g} (profile turn "
                          "sharper than a G1 surface over the ring spacing can follow)")
+    whole = {s for s in range(count) if len(before.get(s, ())) == len(sections[s])}
+    whole_after = {s for s in range(count) if len(after.get(s, ())) == len(sections[s])}
     out = []
     for s in range(count):
-        if s in before and len(before[s]) == len(sections[s]):
-            out.append(before[s])
+        if s in whole:
+            out.append([_support_ring(*r, facing=s - 1 in whole_after) for r in before[s]])
         out.append(sections[s])
-        if s in after and len(after[s]) == len(sections[s]):
-            out.append(after[s])
+        if s in whole_after:
+            out.append([_support_ring(*r, facing=s + 1 in whole) for r in after[s]])
     return out, cap_inset, notes
+
+
+#: Share of its own leg a support point may move along: a half where the strip's other
+#: ring has no support, a third where both rings of a strip get one towards the other.
+#: ``d`` (:func:`support_distance`) is bounded by half the *median* leg; a point whose own
+#: leg is shorter (where the neighbour ring lacks a spike or a ledge of this one, its
+#: nearest point is sideways and the leg short) would pass the strip's middle, and two
+#: facing supports would pass each other: their strip turned upside down and crossed both
+#: neighbouring strips (the temple ring's top: 697 crossing pairs).
+SUPPORT_SHARE, FACING_SUPPORT_SHARE = 0.5, 1.0 / 3.0
+
+
+def _support_ring(ring: np.ndarray, legs: np.ndarray, d: float, facing: bool) -> np.ndarray:
+    """``ring`` moved ``d`` along each point's leg, at most :data:`SUPPORT_SHARE` (or,
+    ``facing`` another support across the strip, :data:`FACING_SUPPORT_SHARE`) of it."""
+    length = np.linalg.norm(legs, axis=1)
+    share = FACING_SUPPORT_SHARE if facing else SUPPORT_SHARE
+    unit = legs / np.maximum(length, TOL.zero)[:, None]
+    return ring + np.minimum(d, share * length)[:, None] * unit
 
 
 #: Rings added inside a flat cap beyond its support ring, each a further support distance

@@ -137,6 +137,32 @@ def test_a_kink_between_sections_gets_supports_on_both_sides():
     assert kink_distance(v0).min() >= 0.1 * s / 3 / 2
 
 
+def test_facing_supports_across_a_ledge_stay_in_order():
+    """A ledge (r 1 -> 0.4 between z 0.2 and 0.25) with a one-point spike of the upper ring
+    reaching back to r 0.99: both rings of the strip get supports towards each other, and
+    at the spike each point's own leg (~0.05) is shorter than twice ``d`` (~0.044, from the
+    median leg).  Moved the whole ``d``, the two supports passed each other in height
+    (0.243 over 0.207) and the stitched mesh crossed itself at 8 pairs; each point now
+    moves at most a third of its own leg when both rings of its strip are supported."""
+    from surface.stitch import _support, axis_frame
+    from surface.validity import check_solid
+
+    n = 120
+    upper = np.full(n, 0.4)
+    upper[0], upper[[1, -1]] = 0.99, 0.7
+    t = 2 * np.pi * np.arange(n) / n
+    ledge = np.stack([upper * np.cos(t), upper * np.sin(t), np.full(n, 0.25)], axis=1)
+    sections = [ring(0.0, n), ring(0.2, n), ledge, ring(0.5, n, 0.4)]
+    out, _, notes = _support([[s] for s in sections], axis_frame(Z_AXIS), 0.01, True)
+    assert len(notes) == 4 and len(out) == 10             # both ends one, both inner two
+    z = [rings[0][:, 2] for rings in out]
+    for k in range(len(z) - 1):
+        assert z[k].max() < z[k + 1].min(), k             # heights in order ring by ring
+    result = stitch_rings(sections, Z_AXIS, support_sigma=0.01)
+    report = check_solid(result.vertices, result.triangles)
+    assert report.valid and report.genus == 0
+
+
 def test_smooth_profiles_get_no_supports():
     """A vase-like profile sampled finely turns by a few degrees per ring: nothing added
     (open ends: no rims)."""
