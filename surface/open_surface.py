@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
 
 from surface._blas import one_blas_thread
 from surface.catmull_rom import _FAIRNESS, M_CR, _basis
@@ -70,8 +71,8 @@ __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "ali
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
            "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps",
            "open_arcs", "chain_arcs", "height_field_arc",
-           "smooth_border", "open_share", "LINE_BAND", "QUARTER_STEP", "BORDER_SLOPE",
-           "BORDER_PASSES", "BORDER_REACH"]
+           "smooth_border", "open_share", "window_footprint", "smooth_across", "LINE_BAND",
+           "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
 
 #: Share of a grid step an arc end may lie past its last grid point and still get an
 #: end point there (the most the resampled arc reaches beyond its data is this share of
@@ -170,13 +171,8 @@ def _extension(m: int) -> np.ndarray:
     return ext
 
 
-def _open_parameters(points: np.ndarray, window: int, segments: int) -> np.ndarray:
-    """Parameters ``(M,)`` in ``[0, segments]`` proportional to arc length along the arc.
-
-    As ``catmull_rom._arc_parameters`` without the wrap: the arc length of a moving
-    average of ``window`` points (shrinking at the ends), each point placed at its own
-    foot on it; the ends map to 0 and ``segments``.
-    """
+def _moving_average(points: np.ndarray, window: int) -> np.ndarray:
+    """``(M, 3)`` means of ``window`` consecutive points about each (shrinking at the ends)."""
     m = len(points)
     window = int(min(max(window, 1), max(1, m // 2)))
     csum = np.concatenate([np.zeros((1, 3)), np.cumsum(points, axis=0)])
@@ -184,7 +180,17 @@ def _open_parameters(points: np.ndarray, window: int, segments: int) -> np.ndarr
     lo = np.clip(idx - window // 2, 0, m)
     hi = np.clip(idx - window // 2 + window, 0, m)
     lo = np.maximum(0, np.minimum(lo, hi - 1))
-    smooth = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    return (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+
+
+def _open_parameters(points: np.ndarray, window: int, segments: int) -> np.ndarray:
+    """Parameters ``(M,)`` in ``[0, segments]`` proportional to arc length along the arc.
+
+    As ``catmull_rom._arc_parameters`` without the wrap: the arc length of a moving
+    average of ``window`` points (shrinking at the ends), each point placed at its own
+    foot on it; the ends map to 0 and ``segments``.
+    """
+    smooth = _moving_average(points, window)
     step = np.linalg.norm(np.diff(smooth, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(step)])
     total = float(cum[-1])
@@ -198,12 +204,16 @@ def _open_parameters(points: np.ndarray, window: int, segments: int) -> np.ndarr
     return np.clip(segments * arc / total, 0.0, segments)
 
 
-def _least_squares(points: np.ndarray, m: int, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
+def _least_squares(points: np.ndarray, m: int, smoothing: float, correlation: float = 0.0
+                   ) -> tuple[np.ndarray, np.ndarray, float]:
     """Interpolated points ``(m, 3)`` of the open curve minimising
     ``Σ|Q(t_j) − x_j|² + λ Σ|Δ³P_i|²`` and the data parameters ``t`` ``(M,)``.
 
     λ is ``catmull_rom``'s fairness weight (1 % of the mean diagonal of ``AᵀA``);
-    the system is ``m × m`` and dense (m is a few hundred at most).
+    the system is ``m × m`` and dense (m is a few hundred at most).  The third value is
+    ``tr(H R)``, H the fit's hat matrix and ``R_ij = max(0, 1 − |s_i − s_j|/ℓ)`` the
+    correlation of errors shared over ``ℓ = correlation`` of arc length (a box window's
+    overlap); ``tr(H)`` when ``correlation`` is 0.
     """
     window = max(int(round(smoothing)), int(np.ceil(np.sqrt(len(points)))))
     t = _open_parameters(points, window, m - 1)
@@ -217,7 +227,18 @@ def _least_squares(points: np.ndarray, m: int, smoothing: float) -> tuple[np.nda
     third = np.diff(np.eye(m + 2), n=3, axis=0) @ ext              # (m - 1, m)
     system = normal + _FAIRNESS * float(np.diagonal(normal).mean()) * (third.T @ third)
     ctrl = np.linalg.solve(system, design.T @ points)
-    return ctrl, t
+    if correlation <= 0:
+        return ctrl, t, float(m)
+    inverse = np.linalg.inv(system)
+    df = float(np.einsum("ij,jk,ik->", design, inverse, design))          # tr(H)
+    # + 2 Σ_{i<j} R_ij H_ij over the pairs closer than ℓ
+    pos = t / max(m - 1, 1) * _length(_moving_average(points, window))
+    pairs = cKDTree(pos[:, None]).query_pairs(correlation, output_type="ndarray")
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        h_ij = np.einsum("pk,kl,pl->p", design[i], inverse, design[j])
+        df += 2.0 * float(np.sum((1.0 - np.abs(pos[i] - pos[j]) / correlation) * h_ij))
+    return ctrl, t, df
 
 
 def _normal_rss(points: np.ndarray, curve: OpenCurve, t: np.ndarray, frame: np.ndarray) -> float:
@@ -230,7 +251,8 @@ def _normal_rss(points: np.ndarray, curve: OpenCurve, t: np.ndarray, frame: np.n
 
 
 def fit_open(points: np.ndarray, smoothing: float | str = "auto",
-             frame: np.ndarray | None = None) -> OpenCurve:
+             frame: np.ndarray | None = None, correlation: float = 0.0,
+             least: float = 4.0) -> OpenCurve:
     """Fit an open Catmull-Rom curve to the ordered points of an arc.
 
     Parameters
@@ -247,6 +269,16 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
     frame : (3, 3) float64, optional
         Section frame (rows e1, e2, normal) for the GCV residuals; default the
         points' best-fit plane.
+    correlation : float
+        Length ℓ (scene units) over which the points' errors are shared: the matcher's
+        window on the surface (:func:`window_footprint`).  GCV then scores
+        ``(RSS/M) / (1 − tr(H R)/M)²``, the fit's degrees of freedom counted over the
+        shared errors (``R_ij = max(0, 1 − |s_i − s_j|/ℓ)`` along the arc: about one
+        independent point per ℓ, so ``tr(H R) ≈ m·M/(L/ℓ)``), over s = 4, 4√2, 8, …
+        down to 3 control points (the fewest when every level has as many degrees of
+        freedom as data).  0: the points are independent (the plain GCV above).
+    least : float
+        The ladder's first level (data points per control point; 4 above).
 
     Returns
     -------
@@ -264,17 +296,38 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
     if frame is None:
         centred = pts - pts.mean(axis=0)
         frame = np.linalg.svd(centred, full_matrices=False)[2]
+    # with shared errors a finer ladder (√2): the penalty grows fast as m nears M_eff
+    fewest, ratio = (8, 2.0) if correlation <= 0 else (3, 2.0**0.5)
     candidates = [float(smoothing)] if smoothing != "auto" else \
-        [4.0 * 2**k for k in range(32) if m_data / (4.0 * 2**k) >= 8] or [4.0]
+        [least * ratio**k for k in range(64) if m_data / (least * ratio**k) >= fewest] \
+        or [least]
     best = None
     for s in candidates:
         m = max(3, min(m_data, int(round(m_data / s))))
-        ctrl, t = _least_squares(pts, m, s)
+        ctrl, t, df = _least_squares(pts, m, s, correlation)
         curve = OpenCurve(np.ascontiguousarray(_extension(m) @ ctrl), s)
-        score = m_data * _normal_rss(pts, curve, t, frame) / max(m_data - m, 1) ** 2
-        if best is None or score < best[0]:
-            best = (score, curve)
+        rss = _normal_rss(pts, curve, t, frame)
+        if correlation <= 0:
+            score = m_data * rss / max(m_data - m, 1) ** 2
+        else:  # as many degrees of freedom as data over the shared errors: fits them
+            score = rss / m_data / (1.0 - df / m_data) ** 2 if df < m_data else math.inf
+        if best is None or score < best[0] or (score == best[0] == math.inf):
+            best = (score, curve)  # (all infinite: the last, the fewest control points)
     return best[1]
+
+
+def window_footprint(points: np.ndarray, centres: np.ndarray, focals: np.ndarray,
+                     patch: float) -> float:
+    """Length (scene units) the matcher's ``patch``-pixel window covers at ``points``:
+    ``patch × d / f`` (median over the points), ``d`` each point's distance to its nearest
+    camera centre ``centres`` ``(K, 3)``, ``f`` that camera's focal length ``focals``
+    ``(K,)`` px.  Two points whose windows overlap share image pixels, so their errors
+    are shared; for a box window the correlation falls as 1 − h/W and integrates to W:
+    one independent point per W along a line (:func:`fit_open`'s ``correlation``).  On a
+    surface seen obliquely the footprint is longer (a lower bound)."""
+    centres = np.asarray(centres, np.float64).reshape(-1, 3)
+    dist, which = cKDTree(centres).query(np.asarray(points, np.float64))
+    return float(patch * np.median(dist / np.asarray(focals, np.float64)[which]))
 
 
 # --------------------------------------------------------------------------- arcs
@@ -291,8 +344,6 @@ def _spine_order(points: np.ndarray) -> tuple[np.ndarray, float]:
     """The points' order along their spine and its length: the geodesic distance, in the
     minimum spanning tree of their neighbour graph (k nearest plus the loop's own steps,
     which keep it connected), from one end of the tree's longest path."""
-    from scipy.spatial import cKDTree
-
     m = len(points)
     k = min(_SPINE_NEIGHBOURS, m - 1)
     dist, near = cKDTree(points).query(points, k=k + 1)
@@ -544,8 +595,6 @@ class _Placed:
 
 def _match(placed: _Placed, t, pts, length) -> tuple[float, float, int] | None:
     """Affine ``u = a + c·s`` of an arc from nearest points on a placed neighbour."""
-    from scipy.spatial import cKDTree
-
     _, nearest = cKDTree(placed.points).query(pts)
     inside = (nearest > 1) & (nearest < len(placed.points) - 2)   # not past its ends
     if np.count_nonzero(inside) < 8:
@@ -723,6 +772,85 @@ def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float,
         rings.append(curve(t))
         params.append(u)
     return rings, params
+
+
+#: First level of a column's GCV ladder (points per control point): a column's points are
+#: one section spacing apart, an arc's about half of one (``surface.sections``), so the
+#: arcs' 4 would be 4 sections here, twice theirs; √2 is the ladder's first step above
+#: interpolation (the stereo vase at half size: rings 0.00085 from the truth with 4, 0.00053
+#: with √2, 0.00058 without smoothing across).
+_COLUMN_LEAST = 2.0**0.5
+
+
+def _foot_on_polyline(line: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Each point's nearest point ``(P, 3)`` on the polyline ``line`` ``(K, 3)``: its foot
+    on the segments either side of its nearest vertex (not the vertex: a dense sample
+    lies up to half its spacing along the curve from the foot)."""
+    _, near = cKDTree(line).query(points)
+    best, dist = line[near], np.linalg.norm(points - line[near], axis=1)
+    for a in (np.maximum(near - 1, 0), near):
+        b = np.minimum(a + 1, len(line) - 1)
+        seg = line[b] - line[a]
+        t = np.einsum("pi,pi->p", points - line[a], seg) / np.maximum(
+            np.einsum("pi,pi->p", seg, seg), TOL.zero)
+        foot = line[a] + np.clip(t, 0.0, 1.0)[:, None] * seg
+        d = np.linalg.norm(points - foot, axis=1)
+        best = np.where((d < dist)[:, None], foot, best)
+        dist = np.minimum(d, dist)
+    return best
+
+
+def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float,
+                  origin: float, axis: np.ndarray, correlation: float) -> list[np.ndarray]:
+    """The rings smoothed across the sections: each column of grid points at one ``u``
+    (every ``step``: on every ring) through consecutive sections, 4 or more of them, is
+    fitted by :func:`fit_open` with the errors shared over ``correlation`` (the matcher's
+    window), and each point moved to its nearest point on that curve, within its own
+    section plane (normal to ``axis``); the even rings' half-step points and the border
+    points move as their ring's nearest column points (the mean of the two about them).
+    ``origin``: the grid's origin in ``u`` (:func:`resample_arcs`'s, the least ``u``).
+
+    Each arc is fitted alone (:func:`open_arcs`): errors shared over a window make whole
+    arcs lie off their neighbours, a ripple from section to section that no fit along
+    them removes (the chessboard pairs' rings, where LSM sees texture only at the
+    squares' edges, and each section crosses other edges).
+    """
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    counts = np.array([len(r) for r in rings])
+    ring = np.repeat(np.arange(len(rings)), counts)
+    points = np.concatenate(rings)
+    half = np.concatenate(params) - origin
+    half = half / (step / 2)
+    grid = np.rint(half).astype(np.int64)
+    on_grid = np.abs(half - grid) < 1e-6
+    column = on_grid & (grid % 2 == 0)
+    move = np.zeros_like(points)
+    # columns: (u, ring) sorted; a run of consecutive rings at one u
+    idx = np.flatnonzero(column)
+    idx = idx[np.lexsort((ring[idx], grid[idx]))]
+    breaks = np.flatnonzero((np.diff(grid[idx]) != 0) | (np.diff(ring[idx]) != 1)) + 1
+    for run in np.split(idx, breaks):
+        if len(run) < 4:
+            continue
+        curve = fit_open(points[run], "auto", correlation=correlation, least=_COLUMN_LEAST)
+        move[run] = _foot_on_polyline(curve.dense()[1], points[run]) - points[run]
+    # the other points: the mean move of their ring's column points about them
+    key = ring.astype(np.int64) * (int(grid.max()) + 4) + grid
+    col_keys, col_idx = key[column], np.flatnonzero(column)
+    order = np.argsort(col_keys)
+    col_keys, col_idx = col_keys[order], col_idx[order]
+    rest = np.flatnonzero(~column)
+    below = np.floor(half[rest] / 2).astype(np.int64) * 2
+    total, weight = np.zeros((len(rest), 3)), np.zeros(len(rest))
+    for side in (below, below + 2):
+        want = ring[rest].astype(np.int64) * (int(grid.max()) + 4) + side
+        at = np.clip(np.searchsorted(col_keys, want), 0, max(len(col_keys) - 1, 0))
+        found = (col_keys[at] == want) if len(col_keys) else np.zeros(len(rest), bool)
+        total[found] += move[col_idx[at[found]]]
+        weight[found] += 1.0
+    move[rest] = total / np.maximum(weight, 1.0)[:, None]
+    move -= np.outer(move @ axis, axis)            # stay in the section's plane
+    return np.split(points + move, np.cumsum(counts)[:-1])
 
 
 def zip_arcs(u_lower: np.ndarray, u_upper: np.ndarray) -> np.ndarray:
@@ -980,8 +1108,6 @@ def main_piece(sections, spacing: float) -> tuple[list, str | None]:
     """
     from dataclasses import replace
 
-    from scipy.spatial import cKDTree
-
     sizes = [len(s) for s in sections]
     if sum(sizes) == 0:
         return list(sections), None
@@ -1049,7 +1175,8 @@ def organise_arcs(sections, drop_splits: bool = True, **organise_options
 @one_blas_thread
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
               smoothing: float | str = "auto", border: bool = True,
-              view: np.ndarray | None = None):
+              view: np.ndarray | None = None,
+              window: tuple[np.ndarray, np.ndarray, float] | None = None):
     """Sections' loops → open arcs → open curves → arcs resampled on the common grid.
 
     Parameters
@@ -1075,6 +1202,11 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         (:func:`place_across`); without it, when it is shorter than 1/2 (the cameras do
         not share a view) or when the sections face it within 45° (depth slabs), the
         pieces that continue one another (:func:`chain_arcs`) on :func:`align_arcs`.
+    window : (centres (K, 3), focals (K,), patch), optional
+        The cameras' centres and focal lengths (px) and the matcher's window (px): each
+        arc's GCV counts one independent point per the window's footprint on it
+        (:func:`window_footprint`, :func:`fit_open`'s ``correlation``); without it every
+        point is independent.
 
     Returns
     -------
@@ -1117,7 +1249,8 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                              + (" (the pieces that continue one another)" if across is None
                                 else " (one depth across the view)"))
         arc = bridge_open_gaps(arc, getattr(best, "bridge", math.inf))
-        curves.append(fit_open(arc, smoothing, frame=best.frame))
+        correlation = window_footprint(arc, *window) if window is not None else 0.0
+        curves.append(fit_open(arc, smoothing, frame=best.frame, correlation=correlation))
     if partial > 3:
         notes.append(f"... and {partial - 3} more sections with pieces left out")
     curves, placed, align_notes, run = (align_arcs(curves) if across is None else
@@ -1142,6 +1275,12 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         raise ValueError(f"the arcs do not line up as one surface: resampling them would "
                          f"take {sum(counts):.3g} ring points for {data} data points")
     rings, params = resample_arcs(curves, placed, step, smooth=border)
+    if window is not None:  # errors shared over the window: whole arcs off, across too
+        axis = np.asarray(loops[0][0].frame, np.float64)[2]
+        sample = np.concatenate(rings)[:: max(1, sum(map(len, rings)) // 4096)]
+        origin = min(float(p.u.min()) for p in placed)
+        rings = smooth_across(rings, params, step, origin, axis,
+                              window_footprint(sample, *window))
     return curves, rings, params, float(step), notes, run
 
 
