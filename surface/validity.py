@@ -1,16 +1,12 @@
 r"""Is a triangle mesh a valid solid?  Manifold, oriented, closed, genus, self-intersections.
 
-:func:`check_solid` measures, for vertices ``(V, 3) float64`` and triangles ``(F, 3)
-int64``:
+:func:`check_solid` measures, for vertices ``(V, 3) float64`` and triangles ``(F, 3) int64``:
 
 - *edge-manifold*: no edge has more than two faces;
 - *vertex-manifold*: the faces around each vertex form one fan (a disk, or a half-disk
-  at a border): the corners of a vertex are joined across the edges through it, and a
-  vertex with more than one group of corners is pinched (a bow-tie);
+  at a border); a vertex with more than one fan of corners is pinched (a bow-tie);
 - *oriented*: each interior edge is traversed once in each direction; the faces to
-  flip are the smaller class of the two-colouring of the orientation double cover (a
-  face node per sheet, consistent neighbours joined on the same sheet, inconsistent
-  ones across; a component whose two sheets meet is non-orientable);
+  flip are the smaller class of the two-colouring of the orientation double cover;
 - *closed*: no border edge; the border edges' loops are counted;
 - *components* (faces joined through an edge) and, where every component is a
   manifold orientable surface, the genus :math:`g = \sum_c (2 - \chi_c - b_c)/2` with
@@ -18,37 +14,25 @@ int64``:
 - *self-intersections*: every pair of triangles that meet other than in the vertices
   and edges they share.
 
-Self-intersections.  Broad phase: bounding spheres (box centre, half the box diagonal)
-in levels by radius (level :math:`k` holds radii :math:`\le r_0 2^k`, :math:`r_0` the
-median), ``scipy.spatial.cKDTree``: the faces of level :math:`k`, in slabs along the
-longest side (bounded memory), are paired within :math:`2 r_0 2^k` in their level and
-within :math:`r_0 2^k + r_0 2^j` with every smaller level :math:`j`.  A numba
-prefilter keeps the pairs whose spheres and boxes overlap, where neither face lies
-beyond the other's plane (a shared vertex ignored) and, for coplanar faces, no edge
-line separates them (faces sharing an edge: only folded ones), each by twice the
-narrow phase's zero.  Narrow phase, batched over the candidate pairs: Möller's
-interval test [1]_: unless one triangle lies wholly on one side of the other's plane,
-both triangles cut the line :math:`L` of the two planes in an interval, and they meet
-iff the intervals overlap; coplanar pairs are tested in 2-D (edge crossings and
+Self-intersections.  Broad phase: bounding spheres in levels by radius, one
+``scipy.spatial.cKDTree`` per level, and a numba prefilter (spheres, boxes, plane sides)
+that keeps only pairs within twice the narrow phase's zero (the cost and the levels:
+``docs/decisions/validity-check.md``).  Narrow phase, batched: Möller's interval test [1]_
+on the line of the two planes; coplanar pairs in 2-D (edge crossings and
 containment).  Shared vertices are handled exactly:
 
 - two triangles sharing an edge meet elsewhere only when they are coplanar and folded
   onto each other (the two opposite vertices on the same side of the edge);
-- two sharing one vertex :math:`v` meet elsewhere iff their intervals on :math:`L`
-  (both starting at :math:`v`) overlap over a positive length; coplanar, iff the edge
-  opposite :math:`v` of one meets the other triangle;
+- two sharing one vertex :math:`v` meet elsewhere iff their intervals on the planes'
+  line (both starting at :math:`v`) overlap over a positive length; coplanar, iff the
+  edge opposite :math:`v` of one meets the other triangle;
 - two sharing no vertex meet iff they have a point in common: *touching counts* (a
-  vertex lying on another face, two faces meeting at a point) — a solid's surface
-  does not touch itself, and such a contact is a pinch a CAD kernel refuses;
+  pinch a CAD kernel refuses);
 - a face repeated with the same three vertices counts as intersecting its twin.
 
-"Zero" is ``TOL.planar_rel`` times the pair's longest edge, computed about one of the
-pair's vertices so that a rigid motion of the mesh changes no answer; on the planes'
-line a corner is snapped only within the zero of the line (``zero × sin(angle)`` of
-the plane), as nearly parallel faces have corners within the zero of each other's
-plane yet far from the line.  Degenerate
-faces (a repeated vertex or area ``<= TOL.zero × scale²``) have no plane; they are
-counted and left out of the intersection test.
+"Zero" is ``TOL.planar_rel`` times the pair's longest edge, about one of the pair's
+vertices; on the planes' line, ``zero × sin(angle)``.  Degenerate faces (a repeated
+vertex or area ``<= TOL.zero × scale²``) are counted and left out of the test.
 
 References
 ----------
