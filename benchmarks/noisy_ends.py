@@ -27,7 +27,7 @@ sys.path.append(str(ROOT / "benchmarks"))
 
 from _common import uptime, write_result  # noqa: E402
 
-from surface import metrics  # noqa: E402
+from surface import metrics, section_slicing  # noqa: E402
 from surface import reconstruct as rc  # noqa: E402
 from testkit.vase import noisy_cloud, vase_truth  # noqa: E402
 
@@ -41,16 +41,16 @@ def _parts(points: np.ndarray, distances: np.ndarray) -> tuple[float, float]:
 
 
 def measure(points: np.ndarray, truth, neighbours: str) -> dict:
-    real = rc.normal_neighbours
+    real = section_slicing.normal_neighbours
     if neighbours == "12":
-        rc.normal_neighbours = lambda cloud: 12
+        section_slicing.normal_neighbours = lambda cloud: 12
     try:
-        k = rc.normal_neighbours(points)
+        k = section_slicing.normal_neighbours(points)
         start = time.perf_counter()
         mesh = rc.surface_from_points(points, axis="z")
         seconds = time.perf_counter() - start
     finally:
-        rc.normal_neighbours = real
+        section_slicing.normal_neighbours = real
     on_mesh = metrics.sample_mesh(mesh.vertices, mesh.triangles, SAMPLES, seed=1)
     on_truth = metrics.sample_mesh(*truth, SAMPLES, seed=2)
     to_truth = metrics.point_mesh_distance(on_mesh, *truth)

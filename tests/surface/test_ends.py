@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from surface import end_caps
 from surface import metrics as M
 from surface import reconstruct as rc
 from testkit.can import HEIGHT, can_truth
@@ -86,6 +87,6 @@ def test_sections_within_the_caps_noise_are_dropped_and_a_rim_is_not(sign):
         section_heights = [sign * (-0.03 + 0.01 * k) for k in range(3)] + [sign * past]
         rings = [np.column_stack([np.cos(theta), np.sin(theta), np.full(64, h)])
                  for h in section_heights]
-        out = rc._drop_sections_past_cap(rings, section_heights, -1, sign, heights, flat,
-                                         frame, 0.02, None)
+        out = end_caps._drop_sections_past_cap(rings, section_heights, -1, sign, heights,
+                                               flat, frame, 0.02, None)
         assert (out is not None) == dropped, past

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from surface.reconstruct import _extrapolate_ring
+from surface.end_caps import _extrapolate_ring
 
 AXIS = np.array([0.0, 0.0, 1.0])
 
@@ -91,7 +91,7 @@ def test_cap_height_from_both_sides_of_an_end_plane_inside_the_caps_noise(seed):
     the cap points past the plane alone, a truncated sample, put the cap 0.4σ out
     (their median, the former rule: -0.00078 / -0.00080 / -0.00078 for seeds 0-2); the
     points on both sides, re-centred, give it within 6e-5 (bound 4σ/√N = 1.3e-4)."""
-    from surface.reconstruct import _cap_height, _drop_sections_past_cap
+    from surface.end_caps import _cap_height, _drop_sections_past_cap
 
     rng = np.random.default_rng(seed)
     sigma, n = 0.002, 4000
@@ -119,7 +119,7 @@ def test_cap_height_from_both_sides_of_an_end_plane_inside_the_caps_noise(seed):
 
 def test_cap_height_leaves_a_dome_to_the_points_past_the_plane():
     """A dome's top has no points inwards of the end plane: no flat-cap estimate."""
-    from surface.reconstruct import _cap_height
+    from surface.end_caps import _cap_height
 
     rng = np.random.default_rng(0)
     r = np.sqrt(rng.uniform(0, 0.8 ** 2, 3000))
@@ -134,7 +134,7 @@ def test_cap_height_leaves_a_dome_to_the_points_past_the_plane():
 def test_normal_neighbours_follow_the_noise_against_the_point_spacing():
     """12 neighbours where the noise is well below the point spacing; more where it is not
     (ρ/√k, the normals' estimated tilt, above 0.1 rad at 12)."""
-    from surface.reconstruct import normal_neighbours
+    from surface.section_slicing import normal_neighbours
     from testkit.vase import noisy_cloud, vase_truth
 
     truth = vase_truth(n_theta=256, n_z=192)
@@ -150,7 +150,7 @@ def test_noise_as_large_as_the_point_spacing_still_gives_the_caps(monkeypatch):
     the ends lie 0.014 off the truth on average (Chamfer 0.011, seed 0; the end rules
     that place a cap from the data keep it from the 0.021-0.029 it once was); with the
     neighbours from the noise (48) 0.0024 (Chamfer 0.0058)."""
-    from surface import metrics
+    from surface import metrics, section_slicing
     from surface import reconstruct as rc
     from testkit.vase import noisy_cloud, vase_truth
 
@@ -159,7 +159,7 @@ def test_noise_as_large_as_the_point_spacing_still_gives_the_caps(monkeypatch):
     scores, ends = {}, {}
     for name in ("auto", "twelve"):
         if name == "twelve":
-            monkeypatch.setattr(rc, "normal_neighbours", lambda cloud: 12)
+            monkeypatch.setattr(section_slicing, "normal_neighbours", lambda cloud: 12)
         mesh = rc.surface_from_points(points, axis="z")
         assert mesh.closed
         scores[name] = metrics.compare_meshes(mesh.vertices, mesh.triangles, *truth,
@@ -212,10 +212,11 @@ def test_slides_near_the_wall_limit_are_not_biased_by_the_wall_test(monkeypatch)
     wall test passes the points whose normals came out steeper, and their own tangents
     slide them short of the sphere -- at the end sections, which slide from one side
     only, all outward (measured on this cloud: +0.00039 / +0.00036 mean offset of the
-    slid points).  Slid along their neighbours' chord slopes (reconstruct.pooled_slopes)
+    slid points).  Slid along their neighbours' chord slopes (section_slicing.pooled_slopes)
     they are within noise of the sphere (+0.000016 / +0.000008; the mean of ~300
     offsets of σ = 0.002 has an SE of 0.00012)."""
     from surface import reconstruct as rc
+    from surface import section_slicing
 
     cloud = _capsule_cloud(100_000, 0.002, seed=2)
 
@@ -230,8 +231,8 @@ def test_slides_near_the_wall_limit_are_not_biased_by_the_wall_test(monkeypatch)
         return np.array(out)
 
     assert np.all(np.abs(end_offsets()) < 0.00012)
-    monkeypatch.setattr(rc, "pooled_slopes", lambda points, slopes, delta, wall, pool:
-                        slopes[wall])                       # each point's own tangent
+    monkeypatch.setattr(section_slicing, "pooled_slopes",
+                        lambda points, slopes, delta, wall, pool: slopes[wall])  # own tangent
     assert np.all(end_offsets() > 0.0003)
 
 
