@@ -464,44 +464,99 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, noise_fac)
             hmat[i, j] = hmat[j, i]
 
 
+@numba.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _bspline_value(img, u, v):
+    """The cubic B-spline interpolant of ``img`` at (u, v): :func:`_sample`'s value for
+    ``kind`` 2, the same operations in the same order, its weights held in registers."""
+    x0 = int(np.floor(u))
+    y0 = int(np.floor(v))
+    t = u - x0
+    s = 1.0 - t
+    t2 = t * t
+    t3 = t2 * t
+    wx0 = s * s * s / 6.0
+    wx1 = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+    wx2 = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+    wx3 = t3 / 6.0
+    t = v - y0
+    s = 1.0 - t
+    t2 = t * t
+    t3 = t2 * t
+    wy0 = s * s * s / 6.0
+    wy1 = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+    wy2 = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+    wy3 = t3 / 6.0
+    c = x0 - 1
+    r = y0 - 1
+    val = 0.0
+    val += wy0 * (((0.0 + wx0 * img[r, c]) + wx1 * img[r, c + 1]) + wx2 * img[r, c + 2]
+                  + wx3 * img[r, c + 3])
+    r += 1
+    val += wy1 * (((0.0 + wx0 * img[r, c]) + wx1 * img[r, c + 1]) + wx2 * img[r, c + 2]
+                  + wx3 * img[r, c + 3])
+    r += 1
+    val += wy2 * (((0.0 + wx0 * img[r, c]) + wx1 * img[r, c + 1]) + wx2 * img[r, c + 2]
+                  + wx3 * img[r, c + 3])
+    r += 1
+    val += wy3 * (((0.0 + wx0 * img[r, c]) + wx1 * img[r, c + 1]) + wx2 * img[r, c + 2]
+                  + wx3 * img[r, c + 3])
+    return val
+
+
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c):
-    """c = sum j v over the patch with v = f - r0 - r1 g(W(x)) (values only)."""
+    """c = sum j v over the patch with v = f - r0 - r1 g(W(x)) (values only).
+
+    The sums are held in registers and written once (``c`` may alias the inputs as far
+    as the compiler knows, which kept every partial sum in memory): the same
+    operations in the same order."""
     wx = np.empty(4)
     dwx = np.empty(4)
     wy = np.empty(4)
     dwy = np.empty(4)
     out = np.empty(3)
-    for i in range(8):
-        c[i] = 0.0
+    c0 = c1 = c2 = c3 = c4 = c5 = c6 = c7 = 0.0
     n = 0
     # without second-order terms (most windows) the warp is affine: the same values
     # (the zero terms added nothing) for fewer operations in every iteration
     flat = (q[0] == 0.0 and q[1] == 0.0 and q[2] == 0.0 and q[3] == 0.0 and q[4] == 0.0
             and q[5] == 0.0)
+    p0, p1, p2, p3, p4, p5, p6, p7 = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
+    q0, q1, q2, q3, q4, q5 = q[0], q[1], q[2], q[3], q[4], q[5]
     for iy in range(-half, half + 1):
         for ix in range(-half, half + 1):
             if flat:
-                u = p[0] + p[1] * ix + p[2] * iy
-                v = p[3] + p[4] * ix + p[5] * iy
+                u = p0 + p1 * ix + p2 * iy
+                v = p3 + p4 * ix + p5 * iy
             else:
-                u = (p[0] + p[1] * ix + p[2] * iy + q[0] * ix * ix + q[1] * ix * iy
-                     + q[2] * iy * iy)
-                v = (p[3] + p[4] * ix + p[5] * iy + q[3] * ix * ix + q[4] * ix * iy
-                     + q[5] * iy * iy)
-            _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
-            res = fv[n] - p[6] - p[7] * out[0]
+                u = p0 + p1 * ix + p2 * iy + q0 * ix * ix + q1 * ix * iy + q2 * iy * iy
+                v = p3 + p4 * ix + p5 * iy + q3 * ix * ix + q4 * ix * iy + q5 * iy * iy
+            if kind == 2:
+                gval = _bspline_value(gimg, u, v)
+            else:
+                _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
+                gval = out[0]
+            fn = fv[n]
+            res = fn - p6 - p7 * gval
             rx = fx[n] * res
             ry = fy[n] * res
-            c[0] += rx
-            c[1] += rx * ix
-            c[2] += rx * iy
-            c[3] += ry
-            c[4] += ry * ix
-            c[5] += ry * iy
-            c[6] += res
-            c[7] += fv[n] * res
+            c0 += rx
+            c1 += rx * ix
+            c2 += rx * iy
+            c3 += ry
+            c4 += ry * ix
+            c5 += ry * iy
+            c6 += res
+            c7 += fn * res
             n += 1
+    c[0] = c0
+    c[1] = c1
+    c[2] = c2
+    c[3] = c3
+    c[4] = c4
+    c[5] = c5
+    c[6] = c6
+    c[7] = c7
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
