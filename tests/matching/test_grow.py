@@ -96,3 +96,52 @@ def test_match_pair_grows_where_sgbm_gives_no_approximation(scene, monkeypatch):
     rms_both = np.sqrt(np.mean(err[both] ** 2))
     assert rms_gained < 1.25 * rms_both, (rms_gained, rms_both)
     assert (grown.status[grown.accepted] == Status.OK).all()
+
+
+def _stub_result(n, position, affine, status):
+    """An LSMResult over n windows with the given position, affine and status."""
+    from matching.lsm import LSMResult
+
+    return LSMResult(position=position, affine=affine, radiometric=np.tile([0.0, 1.0], (n, 1)),
+                     converged=status == Status.OK, iterations=np.ones(n, np.int32),
+                     sigma0=np.ones(n), cov=np.tile(np.eye(2) * 1e-4, (n, 1, 1)),
+                     correlation=np.ones(n), status=status.astype(np.uint8), noise_sigma0=1.0)
+
+
+@pytest.mark.parametrize("d_shift, retried", [(0.0, False), (10.0, True)])
+def test_growth_retries_only_from_a_start_beyond_the_pull_in_range(monkeypatch, d_shift,
+                                                                   retried):
+    """A seed A at x = 0 and candidates C (x = 6, rejected by every LSM) and D (x = 8,
+    accepted at its prediction + ``d_shift``).  C's second start, the median of A's and D's
+    predictions, is its first start when D agrees with A (no retry: it would start in
+    the basin it failed in) and 5 px off it -- beyond the 15 px patch's pull-in range of
+    3.75 px -- when D sits on another surface (retried)."""
+    import matching.grow as grow_module
+
+    calls = []
+
+    def stub(template, search, pts, pos, initial=None, **options):
+        calls.append((pts.copy(), pos.copy()))
+        m = len(pts)
+        accept = pts[:, 0] == 8.0
+        shift = np.where(accept, d_shift, 0.0)
+        position = pos + np.column_stack([shift, np.zeros(m)])
+        affine = np.column_stack([position[:, 0], np.ones(m), np.zeros(m),
+                                  position[:, 1], np.zeros(m), np.ones(m)])
+        return _stub_result(m, position, affine,
+                            np.where(accept, Status.OK, Status.PULL_IN))
+
+    monkeypatch.setattr(grow_module, "lsm_match", stub)
+    pts = np.array([[0.0, 0.0], [6.0, 0.0], [8.0, 0.0]])
+    seed = np.array([[20.0, 0.0], [np.nan, np.nan], [np.nan, np.nan]])
+    affine = np.full((3, 6), np.nan)
+    affine[0] = [20.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    status = np.array([Status.OK, Status.NO_CONVERGENCE, Status.NO_CONVERGENCE])
+    first = _stub_result(3, seed, affine, status)
+    image = np.zeros((8, 8))
+    growth = grow_matches(image, image, pts, first, seed, patch=15)
+    assert growth.tries[2] == 1 and growth.result.status[2] == Status.OK
+    assert growth.tries[1] == (2 if retried else 1), [c[1].tolist() for c in calls]
+    if retried:  # the second start: 5 px from the first (the median of 26 and 36)
+        starts = [pos[pts[:, 0] == 6.0][0] for pts, pos in calls if (pts[:, 0] == 6.0).any()]
+        assert np.hypot(*(starts[1] - starts[0])) == pytest.approx(5.0)
