@@ -329,7 +329,8 @@ def _signed_volume(control_points: np.ndarray, triangles: np.ndarray) -> float:
 def write_cad(path: str | os.PathLike, control_points: np.ndarray,
               triangles: np.ndarray, source_face: np.ndarray | None = None,
               tolerance: float | None = None, report: dict | None = None,
-              spans: int = 2, angle_tolerance: float | None = None) -> Path:
+              spans: int = 2, angle_tolerance: float | None = None,
+              quads: bool = False) -> Path:
     """Write the surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
 
     By default every patch is one face, exact.  Given ``source_face`` and a
@@ -363,8 +364,13 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         its sides (the kink between two faces is at most twice it); default the slope
         ``tolerance`` allows over a control edge, ``tolerance / median control edge``
         (the demo: 0.064 degrees); ``numpy.inf`` to accept kinks.
+    quads : bool
+        With two spans, pair neighbouring control triangles into quadrilateral faces
+        (``surface.bezier_quad``: half the Bézier spans), keeping control-triangle faces
+        where a quadrilateral misses the tolerances or is left unpaired.
     report : dict, optional
-        Filled with ``faces``, ``merged`` (bool), and for a merge attempt
+        Filled with ``faces``, ``merged`` (bool), with ``quads`` the ``quads`` and
+        ``triangles`` written, and for a merge attempt
         ``deviation`` (largest distance along the normal), ``slide`` (largest
         parameter-induced offset along the surface) and ``angle_deg`` (largest angle
         between a merged face's normal and the patches' along its sides).
@@ -402,7 +408,8 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
     report.update(faces=len(cp), merged=False)
     merged = None
     if suffix in (".step", ".stp") and source_face is not None and tolerance is not None:
-        merged = _merged(cp, tris, source_face, tolerance, report, spans, angle_tolerance)
+        merged = _merged(cp, tris, source_face, tolerance, report, spans, angle_tolerance,
+                         quads)
     _quiet()
     with atomic_file(path) as tmp:
         if suffix in (".step", ".stp"):
@@ -423,10 +430,13 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
 
 
 def _merged(cp: np.ndarray, tris: np.ndarray, source_face, tolerance: float,
-            report: dict, spans: int = 1, angle_tolerance: float | None = None
-            ) -> dict | None:
-    """The control-triangle faces when all lie within ``tolerance`` of the patches and
-    their normals along the sides within ``angle_tolerance`` (radians) of the patches'."""
+            report: dict, spans: int = 1, angle_tolerance: float | None = None,
+            quads: bool = False) -> dict | None:
+    """The merged faces when all lie within ``tolerance`` of the patches and their
+    normals along the sides within ``angle_tolerance`` (radians) of the patches'.
+    Two spans: ``corners (F, 4)``, ``mids (F, 4)``, ``poles (F, 13, 13, 3)`` for
+    :func:`_write_merged_step_text`, quadrilaterals (``quads``) where they pass the
+    gate, control triangles elsewhere; one span: ``bezier_merge.merged_faces``' dict."""
     from surface.bezier_merge import merged_faces
 
     source = np.asarray(source_face, dtype=np.int64)
@@ -435,29 +445,80 @@ def _merged(cp: np.ndarray, tris: np.ndarray, source_face, tolerance: float,
                          f"got shape {source.shape}")
     if _signed_volume(cp, tris) < 0:  # faces must point outward
         cp, tris = _reversed_nets(cp, tris)
+    if quads and spans == 2:
+        return _merged_quads(cp, tris, source, tolerance, report, angle_tolerance)
     merged = merged_faces(cp, tris, source, spans=spans)
     if merged is None:
         report["reason"] = "the patches are not four per control triangle"
         return None
-    deviation = float(merged["deviation"].max())
-    angle = float(merged["angle"].max())
-    if angle_tolerance is None:  # the slope the distance tolerance allows over an edge
-        # corner 0 of the corner patches at A and B: A and m_AB, half the control edge
-        first = cp[merged["patches"][:, :2], 0]
-        edge = 2.0 * float(np.median(np.linalg.norm(first[:, 1] - first[:, 0], axis=1)))
-        angle_tolerance = tolerance / max(edge, 1e-300)
-    report.update(deviation=deviation, slide=float(merged["slide"].max()),
+    if angle_tolerance is None:
+        angle_tolerance = _slope_tolerance(cp, merged["patches"], tolerance)
+    if not _passes(merged, tolerance, angle_tolerance, report):
+        return None
+    return merged if spans == 1 else _four_cornered(merged)
+
+
+def _slope_tolerance(cp: np.ndarray, patches: np.ndarray, tolerance: float) -> float:
+    """The slope the distance tolerance allows over a control edge (radians):
+    ``tolerance / median control edge``."""
+    # corner 0 of the corner patches at A and B: A and m_AB, half the control edge
+    first = cp[patches[:, :2], 0]
+    edge = 2.0 * float(np.median(np.linalg.norm(first[:, 1] - first[:, 0], axis=1)))
+    return tolerance / max(edge, 1e-300)
+
+
+def _passes(faces: dict, tolerance: float, angle_tolerance: float, report: dict) -> bool:
+    """Whether every face of ``faces`` (``deviation``, ``slide``, ``angle``) is within
+    the tolerances; the figures (and why not) into ``report``."""
+    deviation, angle = float(faces["deviation"].max()), float(faces["angle"].max())
+    report.update(deviation=deviation, slide=float(faces["slide"].max()),
                   angle_deg=float(np.degrees(angle)), tolerance=tolerance,
                   angle_tolerance_deg=float(np.degrees(angle_tolerance)),
-                  folded=int(np.count_nonzero(merged["angle"] > np.pi / 2)))
+                  folded=int(np.count_nonzero(faces["angle"] > np.pi / 2)))
     if deviation > tolerance:
         report["reason"] = f"a merged face lies {deviation:.3g} from the patches"
-        return None
+        return False
     if angle > angle_tolerance:
         report["reason"] = (f"a merged face's normal turns {np.degrees(angle):.3g} degrees "
                             "from the patches' along its sides (not G1)")
+        return False
+    return True
+
+
+def _four_cornered(merged: dict) -> dict:
+    """Two-span control-triangle faces in :func:`_write_merged_step_text`'s layout."""
+    corners, mids = merged["corners"], merged["mids"]
+    return {**merged, "corners": np.column_stack([corners, corners[:, 0]]),
+            "mids": np.column_stack([mids, np.full(len(mids), -1)])}
+
+
+def _merged_quads(cp: np.ndarray, tris: np.ndarray, source: np.ndarray, tolerance: float,
+                  report: dict, angle_tolerance: float | None) -> dict | None:
+    """Quadrilateral faces (``surface.bezier_quad``) where within the tolerances and not
+    folded, two-span control-triangle faces for the control triangles left."""
+    from surface.bezier_merge import merged_faces
+    from surface.bezier_quad import quad_faces
+
+    quad = quad_faces(cp, tris, source)
+    if quad is None:
+        report["reason"] = "the patches are not four per control triangle"
         return None
-    return merged
+    patches = quad["triangles"]["patches"]
+    if angle_tolerance is None:
+        angle_tolerance = _slope_tolerance(cp, patches, tolerance)
+    keep = (quad["deviation"] <= tolerance) & (quad["angle"] <= angle_tolerance) \
+        & (quad["inner_angle"] < np.pi / 2)
+    single = np.sort(np.concatenate([quad["single"], quad["pairs"][~keep].ravel()]))
+    parts = [{k: quad[k][keep] for k in ("corners", "mids", "poles", "deviation", "slide",
+                                         "angle")}]
+    if len(single):
+        chosen = patches[single].ravel()
+        dense = np.unique(source[chosen], return_inverse=True)[1]  # ids 0..S-1
+        tri = merged_faces(cp[chosen], tris[chosen], dense, spans=2)
+        parts.append(_four_cornered(tri))
+    merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    report.update(quads=int(keep.sum()), triangles=int(len(single)))
+    return merged if _passes(merged, tolerance, angle_tolerance, report) else None
 
 
 def _quiet() -> None:
@@ -572,7 +633,7 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
      first_surface_curve, first_edge, first_oriented, first_loop, first_face,
      first_tail) = _entity_blocks(n_points, n_vertices, n_edges, n_faces,
-                                  6 if pcurves else None, 3)
+                                  6 if pcurves else None, 3 * n_faces)
     out: list[str] = []
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
@@ -625,12 +686,12 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
 
 
 def _entity_blocks(n_points: int, n_vertices: int, n_edges: int, n_faces: int,
-                   n_lines: int | None, per_face: int) -> tuple[int, ...]:
+                   n_lines: int | None, n_oriented: int) -> tuple[int, ...]:
     """The first entity id of each block of a STEP text file: ``#1``-``#16`` the product
     structure, brep and shell, then points, vertices, edge curves, face surfaces, the
     2-D context with ``n_lines`` pcurve representations (five entities each; ``None``:
-    no pcurves), two pcurves and one surface curve per edge, edges, ``per_face`` oriented
-    edges a face, loops, bounds, faces, the tail.  Returns the firsts of points,
+    no pcurves), two pcurves and one surface curve per edge, edges, ``n_oriented``
+    oriented edges, loops, bounds, faces, the tail.  Returns the firsts of points,
     vertices, curves, surfaces, 2-D context, pcurves, surface curves, edges, oriented
     edges, loops, faces and the tail (bounds follow the loops)."""
     first_point = 17
@@ -642,7 +703,7 @@ def _entity_blocks(n_points: int, n_vertices: int, n_edges: int, n_faces: int,
     first_surface_curve = first_pcurve + (0 if n_lines is None else 2 * n_edges)
     first_edge = first_surface_curve + (0 if n_lines is None else n_edges)
     first_oriented = first_edge + n_edges
-    first_loop = first_oriented + per_face * n_faces
+    first_loop = first_oriented + n_oriented
     first_face = first_loop + 2 * n_faces
     return (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
             first_surface_curve, first_edge, first_oriented, first_loop, first_face,
@@ -687,23 +748,28 @@ def _write_lines_2d(write, first_2d: int, lines) -> None:
 def _write_faces_and_tail(out: list, path: Path, first_edge: int, edges: np.ndarray,
                           senses: np.ndarray, first_oriented: int, first_loop: int,
                           first_surface: int, first_tail: int, uncertainty: float) -> None:
-    """Per face (a row of ``edges``, edge indices in wire order, and ``senses``, whether
-    each runs the wire's way) its ``ORIENTED_EDGE`` entities from ``first_oriented``, its
-    ``EDGE_LOOP``, bound and ``ADVANCED_FACE`` (loops, bounds and faces in three blocks
-    from ``first_loop``), then the tail; ``out`` written to ``path``."""
+    """Per face (a row of ``edges``, edge indices in wire order, -1 for none, and
+    ``senses``, whether each runs the wire's way) its ``ORIENTED_EDGE`` entities from
+    ``first_oriented``, its ``EDGE_LOOP``, bound and ``ADVANCED_FACE`` (loops, bounds and
+    faces in three blocks from ``first_loop``), then the tail; ``out`` written to
+    ``path``."""
     write = out.append
-    n_faces, per_face = edges.shape
+    n_faces = len(edges)
+    valid = edges >= 0
+    count = valid.sum(axis=1)
+    begin = (np.cumsum(count) - count).tolist()
     write("\n".join(f"#{first_oriented + j}=ORIENTED_EDGE('',*,*,#{first_edge + e},"
                     f"{'.T.' if a else '.F.'});" for j, (e, a) in
-                    enumerate(zip(edges.ravel().tolist(), senses.ravel().tolist(), strict=True))))
+                    enumerate(zip(edges[valid].tolist(), senses[valid].tolist(), strict=True))))
     write("\n")
     first_bound, first_face = first_loop + n_faces, first_loop + 2 * n_faces
     write("\n".join(f"#{first_loop + f}=EDGE_LOOP('',("
-                    + ",".join(f"#{first_oriented + per_face * f + k}" for k in range(per_face))
+                    + ",".join(f"#{first_oriented + b + k}" for k in range(c))
                     + "));\n"
                     f"#{first_bound + f}=FACE_BOUND('',#{first_loop + f},.T.);\n"
                     f"#{first_face + f}=ADVANCED_FACE('',(#{first_bound + f}),"
-                    f"#{first_surface + f},.T.);" for f in range(n_faces)))
+                    f"#{first_surface + f},.T.);"
+                    for f, (b, c) in enumerate(zip(begin, count.tolist(), strict=True))))
     write("\n")
     _write_step_tail(write, first_tail, uncertainty)
     with open(path, "w", encoding="ascii") as handle:
@@ -749,145 +815,6 @@ def _write_step_tail(write, context: int, uncertainty: float) -> None:
           f"#{length},'distance_accuracy_value','confusion accuracy');\n"
           f"#{context + 5}=PRODUCT_RELATED_PRODUCT_CATEGORY('part',$,(#7));\n"
           "ENDSEC;\nEND-ISO-10303-21;\n")
-
-
-# ------------------------------------------------- STEP text: one face per control triangle
-#: The pcurve of each half side of a control-triangle face (``surface.bezier_merge``,
-#: parameters over ``[0, 2]^2``): side 0 ``v = 0``, 1 ``u = 2``, 2 ``v = 2``; half 0 or 1
-#: (increasing u or v); origin and unit direction of the edge curve's parameter 0 -> 1
-#: when it runs with (``same``) or against the side's increasing parameter.
-def _half_line(side: int, half: int, same: bool) -> tuple[tuple, tuple]:
-    start, step = float(half), (1.0 if same else -1.0)
-    if not same:
-        start += 1.0
-    if side == 0:
-        return (start, 0.0), (step, 0.0)
-    if side == 1:
-        return (2.0, start), (0.0, step)
-    return (start, 2.0), (step, 0.0)
-
-
-def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None = None
-                            ) -> bool:
-    """The closed solid with one face per control triangle (``surface.bezier_merge.
-    merged_faces``) as ISO 10303-21 text; False (nothing written) for an open shell.
-
-    Every face is a degree (6, 6) ``B_SPLINE_SURFACE_WITH_KNOTS`` of 13 x 13 poles (knots
-    0, 1, 2 with multiplicities 7, 6, 7), collapsed at its corner A along ``u = 0``, and
-    bounded by six edges: the two halves of each control edge, sextic Bézier curves
-    whose poles are the face's boundary poles (shared by id with the neighbour, so the
-    solid is watertight exactly).  Each edge carries its pcurve on both faces: a unit
-    segment of a side of the face's ``[0, 2]^2`` (twelve shared
-    ``DEFINITIONAL_REPRESENTATION`` s), traversed at the edge curve's own parameter.
-    """
-    corners, mids, poles = merged["corners"], merged["mids"], merged["poles"]
-    topo = shell_topology(corners)
-    if not topo["closed"]:
-        return False
-    n_faces, n_super = len(corners), len(topo["start"])
-    edge, same = topo["edge"], topo["same"]  # (F, 3) sides 0 A->B, 1 B->C, 2 A->C
-    n_vertices = int(max(corners.max(), mids.max())) + 1
-    # the midpoint vertex of each control edge
-    mid_of = np.empty(n_super, dtype=np.int64)
-    mid_of[edge.ravel()] = mids[:, [0, 1, 2]].ravel()  # side 0 mAB, 1 mBC, 2 mCA
-    n_edges = 2 * n_super  # halves: 2e start -> mid, 2e + 1 mid -> end
-    ids = _face_pole_ids(corners, mids, edge, same, n_vertices, n_edges)
-    n_points = n_vertices + 5 * n_edges + 121 * n_faces
-    inner = np.arange(5)
-    xyz = np.empty((n_points, 3))
-    xyz[ids.ravel()] = poles.reshape(-1, 3)
-    size = float(np.ptp(xyz, axis=0).max()) or 1.0
-    # each half edge's poles: start, 5 inner, end, in its own direction
-    start = np.empty(n_edges, dtype=np.int64)
-    end = np.empty(n_edges, dtype=np.int64)
-    start[0::2], end[0::2] = topo["start"], mid_of
-    start[1::2], end[1::2] = mid_of, topo["end"]
-    curve_points = np.column_stack([start, n_vertices + 5 * np.arange(n_edges)[:, None]
-                                    + inner, end])
-    (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
-     first_surface_curve, first_edge, first_oriented, first_loop, first_face,
-     first_tail) = _entity_blocks(n_points, n_vertices, n_edges, n_faces, 12, 6)
-    out: list[str] = []
-    write = out.append
-    _write_step_head(write, first_tail, first_face, n_faces)
-    _write_points_and_curves(write, xyz, first_point, n_vertices, first_curve, curve_points)
-    grid = (first_point + ids).tolist()
-    write("\n".join(f"#{first_surface + f}=B_SPLINE_SURFACE_WITH_KNOTS('',6,6,("
-                    + ",".join("(" + ",".join(f"#{q}" for q in r) + ")" for r in rows)
-                    + "),.UNSPECIFIED.,.F.,.F.,.F.,(7,6,7),(7,6,7),(0.,1.,2.),(0.,1.,2.),"
-                    ".UNSPECIFIED.);" for f, rows in enumerate(grid)))
-    write("\n")
-    # k = 4 side + 2 half + same
-    _write_lines_2d(write, first_2d, [_half_line(k // 4, (k // 2) % 2, bool(k % 2))
-                                      for k in range(12)])
-    # every (face, side, half): its half edge and pcurve representation
-    face = np.repeat(np.arange(n_faces), 6)
-    side = np.tile(np.repeat(np.arange(3), 2), n_faces)
-    half = np.tile(np.array([0, 1] * 3), n_faces)
-    s = same[face, side]
-    half_edge = 2 * edge[face, side] + np.where(s, half, 1 - half)
-    representation = first_2d + 1 + 5 * (4 * side + 2 * half + s.astype(np.int64))
-    order = np.argsort(half_edge, kind="stable").reshape(n_edges, 2)
-    if not np.array_equal(half_edge[order[:, 0]], np.arange(n_edges)):
-        return False
-    write("\n".join(f"#{first_pcurve + j}=PCURVE('',#{first_surface + f},#{r});" for j, (f, r) in
-                    enumerate(zip(face[order].ravel().tolist(),
-                                  representation[order].ravel().tolist(), strict=True))))
-    write("\n")
-    write("\n".join(f"#{first_surface_curve + e}=SURFACE_CURVE('',#{first_curve + e},"
-                    f"(#{first_pcurve + 2 * e},#{first_pcurve + 2 * e + 1}),.PCURVE_S1.);"
-                    for e in range(n_edges)))
-    write("\n")
-    write("\n".join(f"#{first_edge + e}=EDGE_CURVE('',#{first_vertex + a},#{first_vertex + b},"
-                    f"#{first_surface_curve + e},.T.);" for e, (a, b) in
-                    enumerate(zip(start.tolist(), end.tolist(), strict=True))))
-    write("\n")
-    halves, senses = _outer_wire(edge, same)
-    _write_faces_and_tail(out, path, first_edge, halves, senses, first_oriented, first_loop,
-                          first_surface, first_tail, uncertainty if uncertainty is not None
-                          else step_uncertainty(size))
-    return True
-
-
-def _face_pole_ids(corners: np.ndarray, mids: np.ndarray, edge: np.ndarray,
-                   same: np.ndarray, n_vertices: int, n_edges: int) -> np.ndarray:
-    """Point ids ``(F, 13, 13)`` of each merged face's poles: the collapsed side at its
-    corner A, the corners B and C, its three sides' poles shared with the neighbour (the
-    five inner poles of each half edge after the ``n_vertices`` vertices, the side's
-    midpoint vertex between them), and its own 121 inner poles after all the edges'."""
-    n_faces = len(corners)
-    first_face_pole = n_vertices + 5 * n_edges
-    ids = np.empty((n_faces, 13, 13), dtype=np.int64)
-    inner = np.arange(5)
-
-    def along(side: int) -> np.ndarray:  # (F, 11): a side's poles 1..11, increasing u or v
-        e, s = edge[:, side][:, None], same[:, side][:, None]
-        first = np.where(s, 2 * e, 2 * e + 1)  # the half met first walking up the side
-        second = np.where(s, 2 * e + 1, 2 * e)
-        pos = np.where(s, inner[None, :], 4 - inner[None, :])
-        return np.concatenate([n_vertices + 5 * first + pos, mids[:, [0, 1, 2][side]][:, None],
-                               n_vertices + 5 * second + pos], axis=1)
-
-    ids[:, 0, :] = corners[:, 0][:, None]  # the collapsed side at A
-    ids[:, 12, 0], ids[:, 12, 12] = corners[:, 1], corners[:, 2]
-    ids[:, 1:12, 0], ids[:, 12, 1:12], ids[:, 1:12, 12] = along(0), along(1), along(2)
-    ids[:, 1:12, 1:12] = (first_face_pole + 121 * np.arange(n_faces))[:, None, None] \
-        + np.arange(121).reshape(11, 11)
-    return ids
-
-
-def _outer_wire(edge: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each merged face's outer wire, counter-clockwise (side 0 and side 1 walked up, side
-    2 walked down): its six half edges ``(F, 6)`` and whether each curve runs the way the
-    wire walks ``(F, 6) bool``."""
-    walk = []
-    for sd, backwards in ((0, False), (1, False), (2, True)):
-        e, s = edge[:, sd], same[:, sd]
-        agree = s != backwards  # the curve runs the way the wire walks
-        first = np.where(s != backwards, 2 * e, 2 * e + 1)
-        walk += [(first, agree), (np.where(s != backwards, 2 * e + 1, 2 * e), agree)]
-    return (np.stack([w for w, _ in walk], axis=1),
-            np.stack([a for _, a in walk], axis=1))
 
 
 def step_uncertainty(size: float) -> float:
@@ -942,3 +869,135 @@ def read_cad_solid(path: str | os.PathLike):
     if reader.ReadFile(str(path)) != IFSelect_RetDone or reader.TransferRoots() == 0:
         raise InputError(f"{path}: OpenCascade could not read it")
     return reader.OneShape()
+
+
+# ----------------------------------------- STEP text: merged faces, 13 x 13 B-splines
+#: A merged face's sides over its ``[0, 2]^2`` (``corners (F, 4)`` at ``(u, v)`` = (0, 0),
+#: (2, 0), (2, 2), (0, 2)): side 0 ``v = 0`` runs corner 0 -> 1, 1 ``u = 2`` 1 -> 2,
+#: 2 ``v = 2`` 3 -> 2, 3 ``u = 0`` 0 -> 3 (collapsed where corner 3 is corner 0: a
+#: control-triangle face); the wire walks sides 2 and 3 backwards.
+_FACE_SIDES = ((0, 1), (1, 2), (3, 2), (0, 3))
+
+
+def _merged_topology(corners: np.ndarray, mids: np.ndarray) -> dict | None:
+    """The control edges of merged faces: per (face, side) ``edge`` (-1 collapsed),
+    ``valid`` and ``same`` (the side's parameter runs from the edge's lower vertex id to
+    its higher); per edge ``low``, ``high`` and its midpoint vertex ``mid``.  None unless
+    every edge bounds two faces, walked once each way by their wires (a closed oriented
+    shell)."""
+    start = corners[:, [a for a, _ in _FACE_SIDES]]
+    end = corners[:, [b for _, b in _FACE_SIDES]]
+    valid = start != end
+    n = int(corners.max()) + 1
+    key = np.minimum(start, end) * n + np.maximum(start, end)
+    unique, inverse, counts = np.unique(key[valid], return_inverse=True, return_counts=True)
+    if len(unique) == 0 or (counts != 2).any():
+        return None
+    edge = np.full(start.shape, -1, dtype=np.int64)
+    edge[valid] = inverse
+    same = start < end
+    upward = (same != np.array([False, False, True, True]))[valid]  # the wire: low -> high
+    if not np.array_equal(np.bincount(inverse, weights=upward, minlength=len(unique)),
+                          np.ones(len(unique))):
+        return None
+    mid = np.empty(len(unique), dtype=np.int64)
+    mid[inverse] = mids[valid]
+    return {"edge": edge, "same": same, "valid": valid, "low": unique // n,
+            "high": unique % n, "mid": mid}
+
+
+def _side_line(side: int, same: bool) -> tuple[tuple, tuple]:
+    """A whole side's pcurve: origin and unit direction of the edge's parameter
+    ``0 -> 2``, with (``same``) or against the side's increasing parameter."""
+    lines = (((0.0, 0.0), (1.0, 0.0)), ((2.0, 0.0), (0.0, 1.0)),
+             ((0.0, 2.0), (1.0, 0.0)), ((0.0, 0.0), (0.0, 1.0)))
+    (x, y), (dx, dy) = lines[side]
+    if same:
+        return (x, y), (dx, dy)
+    return (x + 2.0 * dx, y + 2.0 * dy), (-dx, -dy)
+
+
+def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None = None
+                            ) -> bool:
+    """The closed solid of merged faces (``surface.bezier_quad``'s quadrilaterals and
+    ``surface.bezier_merge``'s control triangles) as ISO 10303-21 text; False (nothing
+    written) for an open shell.
+
+    ``merged``: ``corners (F, 4)`` (a triangle's corner 3 is its corner 0), ``mids (F,
+    4)`` each side's midpoint vertex, ``poles (F, 13, 13, 3)``.  Every face is a degree
+    (6, 6) ``B_SPLINE_SURFACE_WITH_KNOTS`` of 13 x 13 poles (knots 0, 1, 2 with
+    multiplicities 7, 6, 7) bounded by its control edges, each one edge: a two-span
+    sextic B-spline over ``[0, 2]`` (the side's own parameter) whose 13 poles are the
+    face's boundary poles, shared by id with the neighbour (watertight exactly; the
+    midpoint is a pole, not a vertex: half the edges and vertices of two half edges, and
+    half OpenCascade's transfer time, ``docs/decisions/export.md``).  Each edge carries
+    its pcurve on both faces: a side of the face's ``[0, 2]^2`` (eight shared
+    ``DEFINITIONAL_REPRESENTATION`` s)."""
+    corners, poles = merged["corners"], merged["poles"]
+    topo = _merged_topology(corners, merged["mids"])
+    if topo is None:
+        return False
+    vertex, compact = np.unique(corners, return_inverse=True)
+    compact = compact.reshape(corners.shape)
+    n_faces, n_edges, n_vertices = len(corners), len(topo["low"]), len(vertex)
+    low, high = (np.searchsorted(vertex, topo[k]) for k in ("low", "high"))
+    edge, same, valid = topo["edge"], topo["same"], topo["valid"]
+    ids = np.empty((n_faces, 13, 13), dtype=np.int64)
+    step11 = np.arange(11)
+
+    def along(side: int) -> np.ndarray:
+        e, s = np.maximum(edge[:, side], 0)[:, None], same[:, side][:, None]
+        return n_vertices + 11 * e + np.where(s, step11[None, :], 10 - step11[None, :])
+
+    ids[:, 0, 0], ids[:, 12, 0], ids[:, 12, 12], ids[:, 0, 12] = compact.T
+    ids[:, 1:12, 0], ids[:, 12, 1:12], ids[:, 1:12, 12] = along(0), along(1), along(2)
+    ids[:, 0, 1:12] = np.where(valid[:, 3:], along(3), compact[:, :1])
+    ids[:, 1:12, 1:12] = (n_vertices + 11 * n_edges + 121 * np.arange(n_faces))[:, None, None] \
+        + np.arange(121).reshape(11, 11)
+    xyz = np.empty((n_vertices + 11 * n_edges + 121 * n_faces, 3))
+    xyz[ids.ravel()] = poles.reshape(-1, 3)
+    size = float(np.ptp(xyz, axis=0).max()) or 1.0
+    wire_edge = np.where(valid, edge, -1)
+    senses = same != np.array([False, False, True, True])
+    (first_point, first_vertex, first_curve, first_surface, first_2d, first_pcurve,
+     first_surface_curve, first_edge, first_oriented, first_loop, first_face,
+     first_tail) = _entity_blocks(len(xyz), n_vertices, n_edges, n_faces, 8, int(valid.sum()))
+    out: list[str] = []
+    write = out.append
+    _write_step_head(write, first_tail, first_face, n_faces)
+    _write_points_and_curves(write, xyz, first_point, n_vertices, first_curve,
+                             np.empty((0, 7), dtype=np.int64))
+    rows = first_point + np.column_stack([low, n_vertices + 11 * np.arange(n_edges)[:, None]
+                                          + step11, high])
+    write("\n".join(f"#{first_curve + e}=B_SPLINE_CURVE_WITH_KNOTS('',6,("
+                    + ",".join(f"#{q}" for q in row) + "),.UNSPECIFIED.,.F.,.F.,(7,6,7),"
+                    "(0.,1.,2.),.UNSPECIFIED.);" for e, row in enumerate(rows.tolist())))
+    write("\n")
+    write("\n".join(f"#{first_surface + f}=B_SPLINE_SURFACE_WITH_KNOTS('',6,6,("
+                    + ",".join("(" + ",".join(f"#{q}" for q in r) + ")" for r in grid)
+                    + "),.UNSPECIFIED.,.F.,.F.,.F.,(7,6,7),(7,6,7),(0.,1.,2.),(0.,1.,2.),"
+                    ".UNSPECIFIED.);" for f, grid in enumerate((first_point + ids).tolist())))
+    write("\n")
+    _write_lines_2d(write, first_2d, [_side_line(k // 2, bool(k % 2)) for k in range(8)])
+    face, side = (a.ravel() for a in np.meshgrid(np.arange(n_faces), np.arange(4),
+                                                  indexing="ij"))
+    keep = valid[face, side]
+    face, side = face[keep], side[keep]
+    order = np.argsort(edge[face, side], kind="stable")
+    representation = first_2d + 1 + 5 * (2 * side + same[face, side].astype(np.int64))
+    write("\n".join(f"#{first_pcurve + j}=PCURVE('',#{first_surface + f},#{r});" for j, (f, r) in
+                    enumerate(zip(face[order].tolist(), representation[order].tolist(),
+                                  strict=True))))
+    write("\n")
+    write("\n".join(f"#{first_surface_curve + e}=SURFACE_CURVE('',#{first_curve + e},"
+                    f"(#{first_pcurve + 2 * e},#{first_pcurve + 2 * e + 1}),.PCURVE_S1.);"
+                    for e in range(n_edges)))
+    write("\n")
+    write("\n".join(f"#{first_edge + e}=EDGE_CURVE('',#{first_vertex + a},#{first_vertex + b},"
+                    f"#{first_surface_curve + e},.T.);" for e, (a, b) in
+                    enumerate(zip(low.tolist(), high.tolist(), strict=True))))
+    write("\n")
+    _write_faces_and_tail(out, path, first_edge, wire_edge, senses, first_oriented, first_loop,
+                          first_surface, first_tail, uncertainty if uncertainty is not None
+                          else step_uncertainty(size))
+    return True

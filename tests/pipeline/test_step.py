@@ -343,3 +343,37 @@ def test_step_keeps_the_patches_where_a_merged_face_misses_the_tolerance(tmp_pat
     path = step.write_cad(tmp_path / "kinked.step", cp, tris, source_face=source,
                           tolerance=1e-3, report=report, spans=1, angle_tolerance=np.inf)
     assert report["merged"] and len(list(_faces(step.read_cad_solid(path)))) == len(cp) // 4
+
+
+def test_step_with_quadrilateral_faces_is_the_same_solid(tmp_path, ellipsoid):
+    """quads=True: paired control triangles as one face each (surface.bezier_quad), the
+    rest as control-triangle faces, each control edge one edge: a valid closed solid of
+    fewer faces, the same volume and area as the control-triangle file, G1 kept within
+    the gate."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
+    from OCP.TopAbs import TopAbs_SOLID
+
+    from surface.measure import surface_integrals
+
+    cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
+    report: dict = {}
+    path = step.write_cad(tmp_path / "quads.step", cp, tris, source_face=source,
+                          tolerance=1e-3, report=report, quads=True)
+    assert report["merged"] and report["quads"] > 0
+    assert report["faces"] == report["quads"] + report["triangles"] < len(cp) // 4
+    assert 2 * report["quads"] + report["triangles"] == len(cp) // 4
+    assert report["angle_deg"] <= report["angle_tolerance_deg"]
+    shape = step.read_cad_solid(path)
+    assert shape.ShapeType() == TopAbs_SOLID
+    assert BRepCheck_Analyzer(shape).IsValid()
+    shells = ShapeAnalysis_Shell()
+    shells.LoadShells(shape)
+    assert not shells.CheckOrientedShells(shape, True)
+    assert not shells.HasFreeEdges()
+    assert len(list(_faces(shape))) == report["faces"]
+    exact = surface_integrals(cp)
+    volume, area = _props(shape)
+    bound = report["deviation"] * exact["area"] + 1e-5 * exact["area"]
+    assert abs(volume - exact["volume"]) <= bound
+    assert area == pytest.approx(exact["area"], rel=1e-4)
