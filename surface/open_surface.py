@@ -23,48 +23,45 @@ squares, the arc length of its points' nearest points on that arc (pairs whose n
 point is an end of it are left out: there the arcs do not overlap); the surface is the
 run of linked arcs with the most length, ``u`` the arc length of its longest arc carried
 along the links.  On a surface of revolution seen from one side ``u`` is proportional to
-the angle θ.  Odd sections are resampled every ``h`` in
-``u``, even ones every ``h/2`` on the same grid (N and 2N per unit of ``u``; ``h`` is
-the section spacing on the widest arc, as the closed rings' ``N = P_max/Δ``), at the
-grid points within the arc's range, plus the arc's end itself where it lies more than
-a quarter step past its last grid point: a ring never reaches past its data, and stops
-short of them by less than a quarter of its spacing.
+the angle θ.  Odd sections are resampled every ``h`` in ``u``, even ones every ``h/2``
+on the same grid (``h``: the section spacing on the widest arc, as the closed rings'
+``N = P_max/Δ``), within the arc's range plus its end: never past its data.
 
-Strips (:func:`zip_arcs`): between two adjacent arcs, over the range of ``u`` both
-cover (widened by a quarter step, so a strip's corner passes the other arc's end by at
-most that), the direction criterion as a merge by ``u`` (each step advances the arc whose
-next point comes first, the coarser on a tie: for N↔2N on the common grid exactly
-the paper's ``(o_k, e_2k, e_2k+1), (o_k, e_2k+1, o_k+1), (o_k+1, e_2k+1, e_2k+2)``),
-then Lawson flips (``surface.stitch.delaunay_flips``, never across a section contour).
-The result is an oriented, manifold mesh with borders where the data end (a vertex
-where two strips meet at a point only is split); faces are counter-clockwise seen from
-outside each loop's centroid (the loops' counter-clockwise order), or facing
-``viewpoint`` when given (the cameras': they saw the surface's outside).  A section
-with several loops gives one arc of the pieces that continue one another
-(:func:`chain_arcs`).
+Errors shared over the matcher's window: GCV counts the fit's degrees of freedom over
+them, and the rings are smoothed across the sections too (:func:`smooth_across`).  The
+one-sided rule, a section's pieces to one arc, and the strips and mesh are
+``surface.open_rule``, ``surface.open_pieces`` and ``surface.open_strips`` (imported here).
 
 References
 ----------
 .. [1] E. Catmull and R. Rom, "A class of local interpolating splines", Computer
    Aided Geometric Design, Academic Press (1974), 317–326.
-.. [2] C. L. Lawson, "Software for C1 surface interpolation", in Mathematical
-   Software III, Academic Press (1977), 161–194.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from surface._blas import one_blas_thread
 from surface.catmull_rom import _FAIRNESS, M_CR, _basis
-from surface.polygon import polygon_area
+from surface.open_pieces import (
+    CONTINUATION_ANGLE,
+    PIECE_REACH,
+    _length,
+    _runs_between_gaps,
+    bridge_open_gaps,
+    chain_arcs,
+    height_field_arc,
+    main_piece,
+    organise_arcs,
+)
+from surface.open_rule import DOUBLED_PATH, LINE_BAND, loop_arc, one_sided, open_share
+from surface.open_strips import QUARTER_STEP, OpenSurface, boundary_loops, stitch_arcs, zip_arcs
 from surface.validate import TOL, check_finite, check_shape
 
 __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "align_arcs",
@@ -72,12 +69,9 @@ __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "ali
            "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps",
            "open_arcs", "chain_arcs", "height_field_arc",
            "smooth_border", "open_share", "window_footprint", "smooth_across", "LINE_BAND",
-           "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH"]
+           "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH", "DOUBLED_PATH",
+           "CONTINUATION_ANGLE", "PIECE_REACH"]
 
-#: Share of a grid step an arc end may lie past its last grid point and still get an
-#: end point there (the most the resampled arc reaches beyond its data is this share of
-#: the ring spacing).
-QUARTER_STEP = 0.25
 #: How far along ``u`` (in grid steps) a strip's fan may join two neighbouring arcs'
 #: ends: one step a section spacing is a border crossing the sections at 45° on the
 #: widest arc, and the fan's triangles then span at most one ring step along ``u``, no
@@ -328,254 +322,6 @@ def window_footprint(points: np.ndarray, centres: np.ndarray, focals: np.ndarray
     centres = np.asarray(centres, np.float64).reshape(-1, 3)
     dist, which = cKDTree(centres).query(np.asarray(points, np.float64))
     return float(patch * np.median(dist / np.asarray(focals, np.float64)[which]))
-
-
-# --------------------------------------------------------------------------- arcs
-#: A loop whose path is longer than this many times its points' spine went along them
-#: and back: a thin, noisy line (a flat board seen edge-on in a section, a facade's wall)
-#: is traced as a closed loop round it.  Once along an arc the path is about the spine's
-#: length (noise adds a little); there and back, twice it: halfway between.
-DOUBLED_PATH = 1.5
-#: Neighbours per point in the graph whose minimum spanning tree gives the spine.
-_SPINE_NEIGHBOURS = 12
-
-
-def _spine_order(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """The points' order along their spine and its length: the geodesic distance, in the
-    minimum spanning tree of their neighbour graph (k nearest plus the loop's own steps,
-    which keep it connected), from one end of the tree's longest path."""
-    m = len(points)
-    k = min(_SPINE_NEIGHBOURS, m - 1)
-    dist, near = cKDTree(points).query(points, k=k + 1)
-    rows = np.concatenate([np.repeat(np.arange(m), k), np.arange(m)])
-    cols = np.concatenate([near[:, 1:].ravel(), np.roll(np.arange(m), -1)])
-    weight = np.concatenate([dist[:, 1:].ravel(),
-                             np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)])
-    weight = np.maximum(weight, TOL.zero)   # coincident points: an edge, not a missing one
-    graph = sparse.coo_matrix((weight, (rows, cols)), shape=(m, m)).tocsr()
-    tree = csgraph.minimum_spanning_tree(graph)
-    end = int(np.argmax(csgraph.dijkstra(tree, directed=False, indices=0)))
-    along = csgraph.dijkstra(tree, directed=False, indices=end)
-    return np.argsort(along, kind="stable"), float(along.max())
-
-
-def loop_arc(loop) -> np.ndarray:
-    """The ordered points ``(M, 3)`` of a ``surface.topology.Loop`` as an open arc.
-
-    The loop's cyclic order is cut at its longest step (the unseen side) and the arc
-    runs from the point after it to the point before it, keeping the loop's
-    counter-clockwise direction.  A loop that went along its points and back (its path
-    more than :data:`DOUBLED_PATH` times its spine: a thin noisy line) is instead
-    ordered along its spine (:func:`_spine_order`), in the direction of its cut order.
-    """
-    pts = np.asarray(loop.points, dtype=np.float64)
-    step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
-    arc = np.roll(pts, -(int(np.argmax(step)) + 1), axis=0)
-    if len(arc) < 4:
-        return arc
-    path = float(np.sort(step)[:-1].sum())     # the loop without its cut step
-    order, spine = _spine_order(arc)
-    if path <= DOUBLED_PATH * spine:
-        return arc
-    if order[0] > order[-1]:                    # keep the cut order's direction
-        order = order[::-1]
-    return arc[order]
-
-
-#: Largest angle between an arc's end tangent and the gap to the next piece for the
-#: piece to continue the arc (a window, an unmatched patch): the stitch's sharp-turn
-#: angle (``surface.stitch.SHARP_TURN``, 30°); a piece off to the side is another surface.
-CONTINUATION_ANGLE = np.pi / 6
-#: Points at each end of a piece its end tangent is taken over (a chord: noise averaged).
-_TANGENT_POINTS = 8
-
-
-def _end(arc: np.ndarray, last: bool, reach: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """An arc's end point and unit tangent pointing out of it: the chord from the end to
-    the point ``reach`` along the arc from it (at least :data:`_TANGENT_POINTS` points
-    in, at most the whole arc) -- directions compared at the scale of the gap they
-    bridge, so a short noisy piece is judged by its whole chord, not by its last few
-    points' noise."""
-    ordered = arc[::-1] if last else arc
-    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ordered, axis=0),
-                                                            axis=1))])
-    k = max(min(_TANGENT_POINTS, len(arc) - 1), int(np.searchsorted(along, reach)))
-    k = min(k, len(arc) - 1)
-    a, b = ordered[k], ordered[0]
-    direction = b - a
-    return b, direction / max(float(np.linalg.norm(direction)), TOL.zero)
-
-
-def _length(arc: np.ndarray) -> float:
-    return float(np.linalg.norm(np.diff(arc, axis=0), axis=1).sum())
-
-
-def chain_arcs(arcs: Sequence[np.ndarray]) -> tuple[np.ndarray, int]:
-    """One section's arcs chained into one where they continue one another.
-
-    Starting from the longest, a piece joins an end of the chain when the gap to it runs
-    along the chain's end tangent and along the piece's own end tangent (both within
-    :data:`CONTINUATION_ANGLE`) and is no longer than the longer of the two: a facade's
-    wall between windows, an arc broken where the matcher found nothing.  Pieces off to
-    the side (another layer, another object) are left out.
-
-    Parameters
-    ----------
-    arcs : sequence of (M_i, 3) float64
-        Ordered points of each piece (:func:`loop_arc`).
-
-    Returns
-    -------
-    arc : (M, 3) float64
-        The chain, in the longest piece's direction.
-    used : int
-        Pieces in it.
-    """
-    pieces = sorted((np.asarray(a, np.float64) for a in arcs), key=_length, reverse=True)
-    chain, rest = pieces[0], [p for p in pieces[1:] if len(p) >= 2]
-    cos_max = np.cos(CONTINUATION_ANGLE)
-    used, joined = 1, True
-    while rest and joined:
-        joined = False
-        for i, piece in enumerate(rest):
-            for at_end in (True, False):
-                tip = chain[-1] if at_end else chain[0]
-                for flip in (False, True):
-                    cand = piece[::-1] if flip else piece
-                    # the piece's end facing the chain: its first point when appended
-                    near = cand[0] if at_end else cand[-1]
-                    gap = near - tip
-                    dist = float(np.linalg.norm(gap))
-                    if dist <= TOL.zero or dist > max(_length(chain), _length(cand)):
-                        continue
-                    out = _end(chain, at_end, dist)[1]
-                    into = _end(cand, not at_end, dist)[1]
-                    along = gap / dist
-                    if along @ out >= cos_max and -along @ into >= cos_max:
-                        chain = np.concatenate([chain, cand] if at_end else [cand, chain])
-                        del rest[i]
-                        used, joined = used + 1, True
-                        break
-                if joined:
-                    break
-            if joined:
-                break
-    return chain, used
-
-
-def _runs_between_gaps(arc: np.ndarray, link: float) -> list[np.ndarray]:
-    """An ordered arc cut at its steps longer than ``link`` (``Loop.bridge``: missing
-    data), into the runs of points between them."""
-    step = np.linalg.norm(np.diff(arc, axis=0), axis=1)
-    return np.split(arc, np.flatnonzero(step > link) + 1)
-
-
-def height_field_arc(arcs: Sequence[np.ndarray], across: np.ndarray, view: np.ndarray
-                     ) -> tuple[np.ndarray, int]:
-    """One section's arcs as one height field over the direction ``across`` (in the
-    section plane, across the cameras' view ``view``): what cameras on one side see of a
-    section is one depth at each position across their view, the nearest.
-
-    The pieces are taken nearest first (their median depth along ``view``), each without
-    its points within the range across the view of the pieces already taken (a wall
-    behind a board, behind a tree: what they hide is dropped, what shows beside them is
-    kept); the runs left are turned to run along ``+across`` and joined in order along
-    it; the gaps between them (windows, plain stone where the matcher found nothing) are
-    bridged by the fit's chords (:func:`bridge_open_gaps`).
-
-    Returns
-    -------
-    arc : (M, 3) float64
-    used : int
-        Runs in it.
-    """
-    pieces = [np.asarray(a, np.float64) for a in arcs if len(a) >= 2]
-    view = np.asarray(view, np.float64) / np.linalg.norm(view)
-    taken: list[tuple[float, float]] = []
-    runs: list[np.ndarray] = []
-    for i in np.argsort([float(np.median(p @ view)) for p in pieces], kind="stable"):
-        piece = pieces[i]
-        coord = piece @ across
-        free = np.ones(len(piece), bool)
-        for lo, hi in taken:
-            free &= ~((coord >= lo) & (coord <= hi))
-        index = np.flatnonzero(free)
-        for part in np.split(index, np.flatnonzero(np.diff(index) > 1) + 1):
-            if len(part) < 2:
-                continue
-            c = coord[part]
-            runs.append(piece[part] if c[-1] >= c[0] else piece[part][::-1])
-            taken.append((float(c.min()), float(c.max())))
-    if not runs:
-        return pieces[0], 1
-    runs.sort(key=lambda r: float(np.mean(r @ across)))
-    return np.concatenate(runs), len(runs)
-
-
-def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:
-    """An open arc with straight chords across its wide gaps, as the closed rings'
-    (``surface.catmull_rom.bridge_gaps``, without the wrap: an open arc's ends are where
-    the data end): a step longer than ``link`` (the loop's expected largest step,
-    ``topology.Loop.bridge``) and than ``catmull_rom.BRIDGE_SHARE`` of the arc's length
-    gets points along its chord every median step before the fit.
-
-    Over a wide gap the fit's fairness continues the arc's bend from both sides: on the
-    chessboard pair 03 a board section's curve bulged 1.6 squares off the board across a
-    3.5-square gap (white squares and the matcher's holes), where the data lie within
-    0.27 of it."""
-    from surface.catmull_rom import bridge_gaps
-
-    return bridge_gaps(arc, link, closed=False)
-
-
-#: Thickness (enclosed area over spine length) below which a loop traced along its
-#: points and back is a line, in units of the loop's own noise ``Loop.noise``: a noisy
-#: line's points scatter over a band of ±2σ across it, so a loop round them encloses at
-#: most about 4σ of thickness; a thin closed object seen all round (two sides) is thicker
-#: than its noise band, or its two sides could not be told apart.
-LINE_BAND = 4.0
-
-
-def _is_line(loop) -> bool:
-    """Whether a closed-looking loop is a thin line traced there and back: its path more
-    than :data:`DOUBLED_PATH` times its spine, and thinner than :data:`LINE_BAND` σ."""
-    pts = np.asarray(loop.points, np.float64)
-    if len(pts) < 4:
-        return False
-    step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
-    spine = _spine_order(pts)[1]
-    if not float(step.sum() - step.max()) > DOUBLED_PATH * spine:
-        return False
-    area = polygon_area((pts - pts.mean(axis=0)) @ np.asarray(loop.frame)[:2].T)
-    return area / max(spine, TOL.zero) < LINE_BAND * float(getattr(loop, "noise", 0.0))
-
-
-def open_share(loops: Sequence) -> float:
-    """Share of the loops' length that does not go round anything: across their gaps
-    (``surface.reconstruct.bridged_share``'s steps longer than ``Loop.bridge``) or along
-    a loop that is a line traced there and back (:func:`_is_line`; a flat board, a wall
-    or a relief cut by a section is a noisy line, which the loop tracer closes by going
-    along it and back).  0 for sections that go round the object."""
-    across = total = 0.0
-    for section_loops in loops:
-        for loop in section_loops:
-            pts = np.asarray(loop.points, np.float64)
-            step = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
-            length = float(step.sum())
-            gaps = float(step[step > loop.bridge].sum())
-            total += length
-            across += length if _is_line(loop) else gaps
-    return across / total if total > 0 else 0.0
-
-
-def one_sided(loops: Sequence) -> bool:
-    """True when the loops are open over much of their length: :func:`open_share`
-    exceeds ``surface.reconstruct.MAX_BRIDGED_SHARE`` (the share of gaps at which the
-    closed rings are refused).  One rule from the sections alone, whatever the cameras:
-    a stereo pair, a ring of views over a relief, a one-sided folder (a facade)."""
-    from surface.reconstruct import MAX_BRIDGED_SHARE
-
-    return open_share(list(loops)) > MAX_BRIDGED_SHARE
 
 
 @dataclass(frozen=True)
@@ -851,325 +597,6 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
     move[rest] = total / np.maximum(weight, 1.0)[:, None]
     move -= np.outer(move @ axis, axis)            # stay in the section's plane
     return np.split(points + move, np.cumsum(counts)[:-1])
-
-
-def zip_arcs(u_lower: np.ndarray, u_upper: np.ndarray) -> np.ndarray:
-    """Triangulate the strip between two open arcs by merging their parameters.
-
-    Parameters
-    ----------
-    u_lower : (n_a,) float64
-        Increasing common parameter of the lower arc's points (n_a ≥ 1).
-    u_upper : (n_b,) float64
-        The same for the upper arc.
-
-    Returns
-    -------
-    (n_a + n_b − 2, 3) int64
-        Faces over local indices (lower ``0 .. n_a − 1``, upper from ``n_a``), in
-        the orientation of ``surface.stitch.zip_rings``: the next triangle advances
-        the arc whose next point comes first, the coarser on a tie.
-    """
-    n_a, n_b = len(u_lower), len(u_upper)
-    tie = TOL.angle * max(1.0, float(np.abs(np.concatenate([u_lower, u_upper])).max()))
-    bias_a = tie if n_a <= n_b else 0.0
-    bias_b = 0.0 if n_a <= n_b else tie
-    keys = np.concatenate([u_lower[1:] - bias_a, u_upper[1:] - bias_b])
-    is_a = np.concatenate([np.ones(n_a - 1, bool), np.zeros(n_b - 1, bool)])
-    is_a = is_a[np.argsort(keys, kind="stable")]
-    i_a = np.cumsum(is_a) - is_a
-    i_b = np.cumsum(~is_a) - ~is_a
-    b0, b1 = n_a + i_b, n_a + i_b + 1
-    return np.where(is_a[:, None], np.stack([i_a, i_a + 1, b0], axis=1),
-                    np.stack([i_a, b1, b0], axis=1)).astype(np.int64)
-
-
-def _overlap(u_a: np.ndarray, u_b: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of each arc's points within the range of ``u`` both arcs cover."""
-    lo, hi = max(u_a[0], u_b[0]) - tol, min(u_a[-1], u_b[-1]) + tol
-    return (np.flatnonzero((u_a >= lo) & (u_a <= hi)),
-            np.flatnonzero((u_b >= lo) & (u_b <= hi)))
-
-
-# --------------------------------------------------------------------------- mesh
-@dataclass
-class OpenSurface:
-    """A stitched open mesh (:func:`stitch_arcs`).
-
-    Attributes
-    ----------
-    vertices : (V, 3) float64
-    triangles : (F, 3) int64
-        Oriented faces (module notes); vertices used by no face are dropped.
-    boundary : list of (B_i,) int64
-        Each border loop's vertex ids, in order.
-    boundary_length : float
-        Total length of the border loops, scene units.
-    flips : int
-    delaunay_fraction : float
-        Share of flippable interior edges meeting the local Delaunay criterion.
-    notes : list of str
-    """
-
-    vertices: np.ndarray
-    triangles: np.ndarray
-    boundary: list
-    boundary_length: float
-    flips: int
-    delaunay_fraction: float
-    notes: list = field(default_factory=list)
-
-    def info(self) -> dict:
-        """The manifest's figures."""
-        return {"open": True, "boundary_loops": len(self.boundary),
-                "boundary_length": float(self.boundary_length), "flips": int(self.flips),
-                "delaunay_fraction": float(self.delaunay_fraction)}
-
-
-@one_blas_thread
-def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step: float,
-                flip: bool = True, viewpoint: np.ndarray | None = None,
-                reach: float = QUARTER_STEP) -> OpenSurface:
-    """Stitch consecutive resampled arcs into an open mesh.
-
-    Parameters
-    ----------
-    rings : sequence of (n_k, 3) float64
-        Resampled arcs in section order, running counter-clockwise about the axis
-        (as :func:`resample_arcs` gives them).
-    params : sequence of (n_k,) float64
-        Their common parameter ``u``.
-    step : float
-        The odd sections' grid step in ``u``.
-    reach : float
-        Points within ``reach`` steps beyond the overlap of two arcs still join their
-        strip (a fan from the shorter arc's end): :data:`BORDER_REACH` for rings
-        resampled between :func:`smooth_border` curves (the border then runs from arc
-        end to arc end), a quarter step for rings that end where their own data end.
-    flip : bool
-        Lawson flips after stitching.
-    viewpoint : (3,) or (K, 3) float64, optional
-        Points the surface was seen from; the faces are turned to face them (by the
-        area-weighted majority).  Default: keep the arcs' counter-clockwise order
-        (normals away from their centres of curvature on a convex object).
-
-    Returns
-    -------
-    OpenSurface
-    """
-    from surface.metrics import delaunay_fraction
-    from surface.stitch import delaunay_flips
-
-    offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])]).astype(np.int64)
-    vertices = np.concatenate([np.asarray(r, np.float64) for r in rings])
-    faces, region, fixed, notes = [], [], [], []
-    tol = reach * step
-    for k in range(len(rings) - 1):
-        ia, ib = _overlap(params[k], params[k + 1], tol)
-        if len(ia) < 1 or len(ib) < 1 or len(ia) + len(ib) < 3:
-            notes.append(f"arcs {k} and {k + 1} do not overlap: no strip between them")
-            continue
-        local = zip_arcs(params[k][ia], params[k + 1][ib])
-        glob = np.concatenate([offsets[k] + ia, offsets[k + 1] + ib])
-        faces.append(glob[local])
-        region.append(np.full(len(local), k))
-        for ids, off in ((ia, offsets[k]), (ib, offsets[k + 1])):
-            fixed.append(np.stack([off + ids[:-1], off + ids[1:]], axis=1))
-    if not faces:
-        raise ValueError("no two neighbouring arcs overlap: no open surface")
-    tri = np.concatenate(faces)
-    reg = np.concatenate(region)
-    fixed_edges = np.concatenate(fixed)
-    tri, reg = _drop_degenerate(vertices, tri, reg)
-    flips = 0
-    if flip:
-        tri, flips, _ = delaunay_flips(vertices, tri, region=reg, fixed_edges=fixed_edges)
-    if viewpoint is not None and _faces_away(vertices, tri, viewpoint):
-        tri = tri[:, ::-1].copy()
-    vertices, tri, pinches = _split_pinches(vertices, tri)
-    if pinches:
-        notes.append(f"{pinches} vertex(es) where two strips met at a point only were "
-                     "split (the border touches itself there)")
-    used = np.unique(tri)
-    remap = np.full(len(vertices), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    vertices, tri = vertices[used], remap[tri]
-    fraction = delaunay_fraction(vertices, tri)
-    loops = boundary_loops(tri)
-    length = float(sum(np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum()
-                       for lp in loops))
-    return OpenSurface(vertices, tri, loops, length, int(flips), fraction, notes)
-
-
-def _split_pinches(vertices: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Give every extra fan of a pinched vertex its own copy of the vertex.
-
-    Where the strips below and above an arc cover ranges of it that share one point only
-    (arcs drifting sideways), that point's faces form two fans joined at it alone: a
-    non-manifold vertex, which the Bézier construction refuses.  Such a vertex has more
-    than two border edges; its fans are the faces connected through edges at it.
-    """
-    directed = np.stack([tri, np.roll(tri, -1, axis=1)], axis=2).reshape(-1, 2)
-    n = len(vertices)
-    keys = directed[:, 0] * n + directed[:, 1]
-    border = directed[~np.isin(directed[:, 1] * n + directed[:, 0], keys)]
-    degree = np.bincount(border.ravel(), minlength=n)
-    candidates = np.flatnonzero(degree > 2)
-    if len(candidates) == 0:
-        return vertices, tri, 0
-    tri = tri.copy()
-    extra = []
-    for v in candidates.tolist():  # a few vertices at most, not one per point
-        faces = np.flatnonzero((tri == v).any(axis=1))
-        # fans: faces joined through an edge (v, w), i.e. sharing a vertex w other than v
-        others = tri[faces][tri[faces] != v].reshape(-1, 2)
-        ws, w_index = np.unique(others, return_inverse=True)
-        f, m = len(faces), len(ws)
-        graph = sparse.coo_matrix((np.ones(2 * f), (np.repeat(np.arange(f), 2),
-                                                     f + w_index.ravel())), shape=(f + m, f + m))
-        label = csgraph.connected_components(graph, directed=False)[1][:f]
-        for group in np.unique(label)[1:]:
-            extra.append(vertices[v])
-            fan = tri[faces[label == group]]
-            fan[fan == v] = n + len(extra) - 1
-            tri[faces[label == group]] = fan
-    return np.concatenate([vertices, np.array(extra)]), tri, len(extra)
-
-
-def _drop_degenerate(vertices, tri, reg):
-    """Faces of zero area (two arcs' end points at one place) are left out."""
-    from surface.metrics import triangle_areas
-
-    scale = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 1.0
-    keep = triangle_areas(vertices, tri) > TOL.zero * max(scale, 1.0) ** 2
-    return tri[keep], reg[keep]
-
-
-def _faces_away(vertices: np.ndarray, tri: np.ndarray, viewpoint) -> bool:
-    """Whether most of the area faces away from the viewpoint(s)."""
-    from surface.metrics import face_normals
-
-    eyes = np.atleast_2d(np.asarray(viewpoint, np.float64))
-    normals = face_normals(vertices, tri, unit=False)          # length 2·area
-    centres = vertices[tri].mean(axis=1)
-    towards = eyes.mean(axis=0) - centres
-    return float(np.einsum("fi,fi->f", normals, towards).sum()) < 0
-
-
-def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
-    """The border loops of an oriented edge-manifold mesh, each as its vertex ids in order.
-
-    A border edge is a directed face edge whose reverse is no face's; each border
-    vertex of a vertex-manifold mesh starts exactly one, so following them closes
-    the loops.
-    """
-    tri = np.asarray(triangles, np.int64)
-    directed = np.stack([tri, np.roll(tri, -1, axis=1)], axis=2).reshape(-1, 2)
-    n = int(tri.max()) + 1 if tri.size else 1
-    keys = directed[:, 0] * n + directed[:, 1]
-    reverse = directed[:, 1] * n + directed[:, 0]
-    border = directed[~np.isin(reverse, keys)]
-    nxt = dict(zip(border[:, 0].tolist(), border[:, 1].tolist(), strict=False))
-    loops, seen = [], set()
-    for start in border[:, 0].tolist():
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v not in seen and v in nxt:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v]
-        loops.append(np.array(loop, np.int64))
-    return loops
-
-
-#: Reach, in section spacings, within which points of the sections are one piece
-#: (:func:`main_piece`): a strip joins sections one spacing apart, and along a section
-#: the arcs are chained across gaps, so a point within one spacing over and one along
-#: belongs to the same sheet; two spacings.
-PIECE_REACH = 2.0
-
-
-def main_piece(sections, spacing: float) -> tuple[list, str | None]:
-    """The sections' points in the largest connected piece of all of them (points within
-    :data:`PIECE_REACH` section spacings linked), the others left out.
-
-    An open surface is one sheet (:func:`align_arcs` keeps one run of arcs); a stereo
-    pair's cloud holds the scene -- on the chessboard rig the board and, apart from it,
-    a keyboard, a monitor, the wall -- whose pieces break every section into arcs of
-    several objects.  The largest piece is the object the pair was aimed at.
-
-    Returns
-    -------
-    sections : list of Section
-        The same sections with the points of the largest piece (some may be empty).
-    note : str or None
-        What was left out.
-    """
-    from dataclasses import replace
-
-    sizes = [len(s) for s in sections]
-    if sum(sizes) == 0:
-        return list(sections), None
-    points = np.concatenate([np.asarray(s.points, np.float64).reshape(-1, 3)
-                             for s in sections])
-    tree = cKDTree(points)
-    pairs = tree.query_pairs(PIECE_REACH * spacing, output_type="ndarray")
-    graph = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
-                              shape=(len(points), len(points)))
-    count, label = csgraph.connected_components(graph, directed=False)
-    if count == 1:
-        return list(sections), None
-    size = np.bincount(label)
-    keep = label == int(np.argmax(size))
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
-    out = []
-    for k, section in enumerate(sections):
-        mine = keep[offsets[k]:offsets[k + 1]]
-        index = np.asarray(section.source_index)
-        out.append(replace(section, points=np.asarray(section.points)[mine],
-                           source_index=index[mine] if len(index) == len(mine) else index))
-    return out, (f"{int((~keep).sum())} of {len(points)} section points in {count - 1} "
-                 f"piece(s) apart from the largest ({int(keep.sum())} points, within "
-                 f"{PIECE_REACH:g} section spacings) left out: one sheet is made")
-
-
-def organise_arcs(sections, drop_splits: bool = True, **organise_options
-                  ) -> tuple[list, list, list[str]]:
-    """The loops of every non-empty section, open arcs kept (``surface.topology.organise``).
-
-    ``surface.reconstruct.organise_sections`` without its refusal of open arcs and
-    without the loop-graph repairs (an open surface follows one arc per section); inner
-    sections with more loops than both neighbours (which agree) are dropped, as there.
-
-    Returns
-    -------
-    kept : list of Section
-    loops : list of list of Loop
-    messages : list of str
-        Skipped sections.
-    """
-    import warnings
-
-    from surface.reconstruct import _drop_one_section_splits
-    from surface.topology import SectionSkippedWarning, organise
-
-    kept, loops, messages = [], [], []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", SectionSkippedWarning)
-        for section in sections:
-            found = organise(section, **organise_options) if len(section) else []
-            if found:
-                kept.append(section)
-                loops.append(found)
-    messages += [str(w.message) for w in caught if issubclass(w.category,
-                                                              SectionSkippedWarning)]
-    # a section broken into more loops than both its neighbours (a gap in the data there)
-    # is skipped as the closed path skips it: its largest piece would notch the surface
-    # (not for a height field, which takes every piece: ``drop_splits`` False)
-    kept, loops, notes = _drop_one_section_splits(kept, loops) if drop_splits else \
-        (kept, loops, [])
-    return kept, loops, messages + notes
 
 
 @one_blas_thread

@@ -38,7 +38,7 @@ LEFT: dict[str, int] = {
     "pipeline.cmd_run": 1, "pipeline.match_maps": 4, "pipeline.mesh_io": 1, "pipeline.report": 1,
     "pipeline.smoothing": 2, "pipeline.stages": 12, "surface._blas": 2,
     "surface.general_mesh": 9, "surface.measure": 7, "surface.metrics": 1,
-    "surface.open_surface": 13, "surface.outliers": 1,
+    "surface.outliers": 1,
     "surface.stitch": 2, "surface.topology": 4
 }
 
