@@ -850,13 +850,15 @@ def phone_sfm_main(args) -> int:
     truth = None
     if args.truth:
         truth = [replace(c, name=Path(c.name).stem) for c in read_cameras(args.truth)]
-    for size in (int(v) for v in args.sift.split(",")):
+    for size, features in ((int(v), int(f)) for v in args.sift.split(",")
+                           for f in args.features.split(",")):
         for matcher in args.matchers.split(","):
-            sfm.SIFT_MAX_IMAGE_SIZE = size
+            sfm.SIFT_MAX_IMAGE_SIZE, sfm.SIFT_MAX_FEATURES = size, features
             cpu0, wall0 = time.process_time(), time.perf_counter()
             with tempfile.TemporaryDirectory(prefix="phone-sfm-") as work:
                 res = sfm.run_sfm(folder, work_dir=work, matcher=matcher)
-            row = {"method": f"sift{size}-{matcher}", "sift_px": size, "matcher": matcher,
+            row = {"method": f"sift{size}-{features}-{matcher}", "sift_px": size,
+                   "sift_features": features, "matcher": matcher,
                    "views": len(res.registered) + len(res.unregistered),
                    "registered": len(res.registered),
                    "reprojection_px": res.mean_reprojection_error_px,
@@ -897,6 +899,8 @@ def main(argv: list[str] | None = None) -> int:
                              "against the truth/mesh.ply beside it)")
     parser.add_argument("--sift", default="1600",
                         help="--phone-sfm: SIFT longer sides, comma-separated")
+    parser.add_argument("--features", default="8192",
+                        help="--phone-sfm: SIFT features an image at most, comma-separated")
     parser.add_argument("--matchers", default="exhaustive",
                         help="--phone-sfm: run_sfm matchers, comma-separated")
     parser.add_argument("--cameras", metavar="MODEL",

@@ -33,7 +33,7 @@ OPTIONAL = {"OCP", "ezdxf"}
 LEFT: dict[str, int] = {
     "matching.contours": 3, "matching.ici": 1, "matching.masks": 2, "matching.pair": 12,
     "matching.precision": 1, "matching.rectify": 1, "matching.roi": 2, "matching.scale": 3,
-    "matching.scheduler": 2, "matching.second_order": 1, "matching.sfm": 3,
+    "matching.scheduler": 2, "matching.second_order": 1, "matching.sfm": 1,
     "matching.sfm_refine": 4, "matching.uniqueness": 2, "pipeline.acquisition": 1,
     "pipeline.cmd_run": 1, "pipeline.match_maps": 4, "pipeline.mesh_io": 1, "pipeline.report": 1,
     "pipeline.smoothing": 2, "pipeline.stages": 12, "surface._blas": 2,

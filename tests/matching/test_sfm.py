@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import sqlite3
 
 import cv2
 import numpy as np
@@ -263,3 +264,19 @@ def test_selected_pairs_register_the_ring(scene_folder, sfm_result, tmp_path):
     for cam in aligned.cameras:
         angle = np.linalg.norm(cv2.Rodrigues(cam.R @ by_name[cam.name].R.T)[0])
         assert np.rad2deg(angle) < 0.5, cam.name
+
+
+def test_ordered_pairs_register_the_arc(scene_folder, sfm_result, tmp_path):
+    """matcher="ordered": each image with the next in name order while the pairs verify
+    (cyclically).  On the 8 views of a 150 degree arc and the stray image: fewer pairs
+    than all 36 (views far apart on the arc and the stray stop verifying), the same views
+    registered, the poses within the exhaustive run's bounds."""
+    result = run_sfm(scene_folder[0], work_dir=tmp_path / "work", num_threads=2,
+                     matcher="ordered")
+    assert result.registered == sfm_result.registered
+    assert result.unregistered == ["zz_stray.png"] and result.matcher == "ordered"
+    aligned, rms = align_to_reference(result, scene_folder[1])
+    assert rms < 0.01 * 4.5
+    with sqlite3.connect(tmp_path / "work" / "database.db") as db:
+        matched = db.execute("SELECT COUNT(*) FROM two_view_geometries").fetchone()[0]
+    assert 8 <= matched < 9 * 8 // 2
