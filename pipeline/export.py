@@ -16,41 +16,27 @@ suffix    writer                                     keeps
           chunk), uint32 indices
 ========  =========================================  ==========================
 
-open3d 0.20 writes a ``.glb`` that its own reader rejects (the buffer is
-stored as a data URI and no BIN chunk is written), so the GLB container is
-assembled here from the arrays and verified to read back through open3d;
-open3d's OBJ writer keeps only six significant digits (≈ 5e-7 of the unit),
-too few for a surface that CAD tools rebuild, so OBJ is also written here.
+GLB and OBJ are written here: open3d 0.20's ``.glb`` fails its own reader (no BIN
+chunk) and its OBJ keeps six significant digits (``docs/decisions/export.md``).
 
-The control net of the sextic triangular Bézier surface (Loop [2]_) is
-written beside the mesh as a documented ``.npz`` (:func:`write_control_net`):
-format version 2 stores every distinct control point once (``points (Q, 3)``)
-and the patches as rows of 28 indices into it (``patches (P, 28)``), which the
-reader turns back into exactly the same nets, bit for bit (neighbouring patches
-share the 7 control points of their common edge, a corner's point is shared by
-all patches around it: about 18 distinct points per patch instead of 28);
-version 1 (one ``(P, 28, 3)`` array) is still read.  Patch ``p`` is
+The control net of the sextic triangular Bézier surface (Loop [2]_) is written beside
+the mesh as a ``.npz`` (:func:`write_control_net`): version 2 stores each distinct control
+point once (``points (Q, 3)``, ~18 a patch) and the patches as rows of 28 indices
+(``patches (P, 28)``), read back bit for bit; version 1 (``(P, 28, 3)``) is still read.
+Patch ``p`` is
+:math:`S_p(r, s, t) = \\sum_{i+j+k=6} \\frac{6!}{i!\\,j!\\,k!} r^i s^j t^k P_{p,ijk}`,
+``r + s + t = 1``, row ``m`` of ``control_points[p]`` being :math:`P_{p,ijk}` with
+``(i, j, k) = index[m]`` (corner ``(6, 0, 0)`` the patch's first);
+:meth:`ControlNet.evaluate` evaluates it without ``surface.bezier``, which is how the
+tests prove the file is sufficient.
 
-.. math::
-
-    S_p(r, s, t) = \\sum_{i+j+k=6} \\frac{6!}{i!\\,j!\\,k!}\\, r^i s^j t^k\\,
-                   P_{p,ijk}, \\qquad r + s + t = 1,\\; r, s, t \\ge 0,
-
-where row ``m`` of ``control_points[p]`` is :math:`P_{p,ijk}` with
-``(i, j, k) = index[m]``; corner ``(6, 0, 0)`` is the patch's first corner.
-:meth:`ControlNet.evaluate` evaluates it independently of
-``surface.bezier``, which is how the tests prove the file is sufficient.
-
-Every write is atomic (:func:`pipeline.atomic.atomic_file`): a failed export
-leaves no file behind, and :func:`export_surface` publishes the mesh and its
-control net together or not at all.
+Every write is atomic (:func:`pipeline.atomic.atomic_file`); :func:`export_surface`
+publishes the mesh and its control net together or not at all.
 
 References
 ----------
-.. [1] Khronos Group, "glTF 2.0 Specification", section 4.4 "GLB File
-       Format Specification" (2021).
-.. [2] C. Loop, "Smooth spline surfaces over irregular meshes", Proc.
-       SIGGRAPH '94, pp. 303-310 (1994).
+.. [1] Khronos Group, "glTF 2.0 Specification", section 4.4 "GLB File Format" (2021).
+.. [2] C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH '94, 303-310.
 """
 
 from __future__ import annotations
@@ -605,7 +591,8 @@ def write_control_net(path: str | os.PathLike, control_points: np.ndarray, index
     ``domain_triangles``  (P, 3) int64     patch p's corners over row p (shared edges)
     ====================  ===============  ==========================================
 
-    Patch ``p`` is :math:`S_p(r,s,t)=\\sum 6!/(i!j!k!)\\,r^i s^j t^k P_{p,ijk}`
+    Patch ``p`` is
+:math:`S_p(r,s,t)=\\sum 6!/(i!j!k!)\\,r^i s^j t^k P_{p,ijk}`
     (module docstring).  Version 2 stores each control point that neighbouring
     patches share (their common boundary rows, bit-identical) once
     (:func:`shared_points`): ``points[patches]`` is the surface bit for bit, in
