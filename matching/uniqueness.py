@@ -1,53 +1,29 @@
 r"""Is a stereo match unique along its epipolar line?  The cost profile over the search range.
 
-For a window :math:`W` (side :math:`s`, :math:`n = s^2` pixels) centred at a left pixel of a
-*rectified* pair, the zero-mean normalised cross-correlation with the right window at
-disparity :math:`d`,
+For a window :math:`W` (side :math:`s`, :math:`n = s^2` pixels) at a left pixel of a
+*rectified* pair, the zero-mean normalised cross-correlation :math:`c(d)` with the right
+window at disparity :math:`d` is evaluated at every integer :math:`d` of the search range
+(box filters over the whole image, one per disparity).  Noise of σ grey levels moves
+:math:`c(d)` by about :math:`\sigma / (s_f \sqrt n)` (:math:`s_f`: the template's standard
+deviation), so values closer than :math:`m = k \sqrt{2/n}\,\sigma / s_f`, :math:`k = 3`,
+cannot be told apart.  The near-best set :math:`A = \{d : c(d) \ge c_{\max} - m\}` is
 
-.. math::
-
-    c(d) = \frac{\sum_W (f - \bar f)(g_d - \bar g_d)}
-                {\sqrt{\sum_W (f - \bar f)^2 \sum_W (g_d - \bar g_d)^2}},
-    \qquad g_d(x, y) = g(x - d, y),
-
-is evaluated at every integer :math:`d` of the pair's search range (box filters over
-the whole image, one per disparity: the cost does not grow with the number of
-candidates).  Noise of σ grey levels in both images moves an estimate :math:`c(d)` by
-about :math:`\sigma / (s_f \sqrt n)` (:math:`s_f`: the template's standard deviation),
-so two values whose difference is below
-
-.. math:: m = k \, \sqrt{2/n} \; \sigma / s_f, \qquad k = 3 ,
-
-cannot be told apart.  The *near-best set* :math:`A = \{d : c(d) \ge c_{\max} - m\}` then
-says what the window determines:
-
-* :math:`A` is one run of consecutive disparities: one peak -- **unique**;
-* :math:`A` has two or more runs: a second, separated optimum as good as the first
-  within the noise (a repeated pattern: a chessboard, tiles, window rows) --
-  **ambiguous** (the peak-ratio / "PKR" idea of Hirschmüller & Scharstein [1]_ and Hu &
-  Mordohai [2]_, with the ratio's threshold replaced by the noise margin);
-* its one run is wider than ``max_width`` px: the window has no structure along the line
-  (an edge parallel to it, the aperture problem) -- ambiguous too;
+* one run of consecutive disparities: one peak -- **unique**;
+* two or more runs: a second optimum as good as the first within the noise (a repeated
+  pattern) -- **ambiguous** (the peak-ratio idea of [1]_, [2]_ with the ratio's threshold
+  replaced by the noise margin); one run wider than ``max_width`` px (an edge along the
+  line) -- ambiguous too;
 * :math:`s_f \le` ``min_snr`` σ: no signal (a white square) -- **blank**.
 
-The plain profile alone cannot judge a *match*: a window's ZNCC at the true disparity
-drops with the perspective distortion between the views, while a repeat elsewhere may be
-less distorted (chessboard pair 02: 0.95 at the truth against 0.99 one period off).  So
 :func:`verify_matches` judges a least-squares match by the matcher itself: every separated
-local maximum of its profile that the matcher could accept (ZNCC >= its
-``min_correlation``) is matched again from there, and the match is **ambiguous** when such
-a rival is accepted outside the solution's lobe with a correlation within the margin m
-of the solution's (m from the match's residual σ0 when that exceeds the image noise: the
-noise the match actually sees).  A solution whose own plain ZNCC is below the matcher's
-floor while a peak elsewhere is higher by more than m is ambiguous too (an affine warp
-bent to fit a lesser repeat).  :func:`anchored` then resolves an ambiguous match by
-geometry that does not depend on its window: it is kept when every unique neighbour in
-reach -- at least two -- predicts its position (their affine warps) within 3σ, and the
-resolved join the anchors (region growing from where the period is pinned).
-
-``strict`` (the calibrated pair's epipolar pass): a rival peak within the margin m of the
-solution's plain ZNCC is ambiguous unless the matcher refutes it, and a survivor's σ carries
-the rivals' mixture variance ``rival_var`` (:class:`Verification`).
+local maximum the matcher could accept is matched again from there, and the match is
+ambiguous when such a rival is accepted outside the solution's lobe within the margin of
+its correlation.  :func:`anchored` resolves an ambiguous match by its unique neighbours'
+predictions (at least two, within 3σ).  ``strict`` (a calibrated pair's epipolar pass):
+a rival within the margin is ambiguous unless the matcher refutes it, and a survivor's σ
+carries the rivals' mixture variance (:class:`Verification`).  The profile's formula,
+why the plain profile cannot judge a match alone, and the measurements:
+``docs/decisions/stereo-uniqueness.md``.
 
 Shapes: candidates (N, 2) float64 px in the rectified left image; profiles (N, D).
 

@@ -15,11 +15,11 @@ from matching.lsm import Status
 from matching.pair import (
     NO_APPROXIMATION,
     PAIR_STATUS_NAMES,
-    _fill_deficit,
     density_deficit,
     match_pair,
     reconstruct_pair,
 )
+from matching.pair_densify import _fill_deficit
 from tests.matching.test_lsm import sample, texture_coefficients
 
 W, H, Z = 320, 240, 3.0
@@ -548,7 +548,7 @@ def test_polarity_bias_is_found_from_the_matches_alone():
     # every rising edge 0.15 px farther and every falling one 0.15 px nearer
     from types import SimpleNamespace
 
-    from matching.pair import _edge_polarity, _polarity_bias
+    from matching.pair_centres import _edge_polarity, _polarity_bias
 
     rng = np.random.default_rng(3)
     img = np.where((np.arange(400) // 12) % 2 == 0, 60.0, 190.0)[None, :].repeat(300, 0)

@@ -2,7 +2,7 @@
 exact, so the same photographs give the same cloud on every run.
 
 OpenCV's precise distance transform (float32) returned last-bit differences on the same
-input from one call to the next at a few cells; ``pair._fill_deficit`` ranks candidates by
+input from one call to the next at a few cells; ``pair_densify._fill_deficit`` ranks candidates by
 those distances, so ties swapped and the multi-view cloud differed between runs (one pair
 of the small ring: 136 of 2 401 points, up to 0.73 scene units).  Both users now take
 scipy's exact float64 transform.
@@ -14,7 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 from matching.masks import signed_distance
-from matching.pair import _fill_deficit
+from matching.pair_densify import _fill_deficit
 
 
 def _exact(mask: np.ndarray) -> np.ndarray:
