@@ -329,7 +329,7 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
     """What a CAD program does with the STEP file: the variants of ``write_cad``'s text
     (pcurves or not; distance uncertainty ``1e-9 size`` as before, or
     ``step_uncertainty``; given ``source_face`` and ``tolerance``, also one face per
-    control triangle, ``spans`` 2 and 1), each written, read by OpenCascade
+    control triangle, ``spans`` 2 and 1, and quadrilaterals), each written, read by OpenCascade
     (``ReadFile``, ``TransferRoots``, ``BRepCheck_Analyzer``; CPU seconds), volume and
     area against the level-3 tessellation, and opened by FreeCAD when ``freecadcmd`` is
     installed.  ``variants`` ``"faces"``: only the per-patch file as written now and
@@ -361,7 +361,7 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
     if variants == "faces":
         plans = [(True, True, None)]
     if source_face is not None and tolerance is not None:
-        plans += [(True, True, 2), (True, True, 1)]
+        plans += [(True, True, "quad"), (True, True, 2), (True, True, 1)]
     for pcurves, floor, spans in plans:
         row = {"variant": f"{'pcurves' if pcurves else 'no pcurves'}, uncertainty "
                           f"{'max(1e-9 size, 1e-7)' if floor else '1e-9 size'}",
@@ -372,12 +372,14 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
             _clocked(row, "write", lambda p=path, c=pcurves, r=row: step._write_step_text(
                 control_points, triangles, p, c, r["uncertainty"]))
         else:
-            row["variant"] = f"a face per control triangle, {spans} span(s)"
+            row["variant"] = ("quadrilaterals (two control triangles), two spans"
+                              if spans == "quad" else
+                              f"a face per control triangle, {spans} span(s)")
             report: dict = {}
             _clocked(row, "write", lambda p=path, r=report, n=spans: step.write_cad(
                 p, control_points, triangles, source_face=source_face,
-                tolerance=tolerance, report=r, spans=n,
-                angle_tolerance=None if n == 2 else np.inf))  # one span: kinks measured
+                tolerance=tolerance, report=r, spans=1 if n == 1 else 2, quads=n == "quad",
+                angle_tolerance=None if n != 1 else np.inf))  # one span: kinks measured
             row.update({f"merge_{k}": v for k, v in report.items()})
         row["bytes"] = path.stat().st_size
         row["read"] = read_limit_mb is None or row["bytes"] <= read_limit_mb * 1e6

@@ -24,8 +24,9 @@ STEP (AP214): the file's text is written directly (:func:`_write_step_text`): on
 with its ``PCURVE`` on both faces, ``EDGE_CURVE``, ``ADVANCED_FACE`` bounded by its three
 real edges (the collapsed side has none, as in OpenCascade's own output),
 ``CLOSED_SHELL``, ``MANIFOLD_SOLID_BREP``, at the distance uncertainty
-:func:`step_uncertainty`; given a tolerance, one face per control triangle where the
-patches merge (:func:`_write_merged_step_text`).  An open shell goes through the shape
+:func:`step_uncertainty`; given a tolerance, one face per pair of control triangles
+(a quadrilateral) or per control triangle where the patches merge, each control edge one
+edge (:func:`_write_merged_step_text`).  An open shell goes through the shape
 transfer (:func:`solid_from_nets`, ``STEPControl_Writer``).  IGES: the ``TopoDS`` solid
 through ``IGESControl_Writer`` (5.3, BRep mode).  Why each choice (sewing's time, what a
 reader spends its time on): ``docs/decisions/export.md``.
@@ -330,7 +331,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
               triangles: np.ndarray, source_face: np.ndarray | None = None,
               tolerance: float | None = None, report: dict | None = None,
               spans: int = 2, angle_tolerance: float | None = None,
-              quads: bool = False) -> Path:
+              quads: bool = True) -> Path:
     """Write the surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
 
     By default every patch is one face, exact.  Given ``source_face`` and a
@@ -366,8 +367,10 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         (the demo: 0.064 degrees); ``numpy.inf`` to accept kinks.
     quads : bool
         With two spans, pair neighbouring control triangles into quadrilateral faces
-        (``surface.bezier_quad``: half the Bézier spans), keeping control-triangle faces
-        where a quadrilateral misses the tolerances or is left unpaired.
+        (``surface.bezier_quad``: half the Bézier spans a face pair), keeping
+        control-triangle faces where a quadrilateral misses the tolerances or is left
+        unpaired (the demo: FreeCAD opens it in 22.0 CPU-s against 23.9 for
+        control-triangle faces only; ``docs/decisions/export.md``).
     report : dict, optional
         Filled with ``faces``, ``merged`` (bool), with ``quads`` the ``quads`` and
         ``triangles`` written, and for a merge attempt
@@ -412,21 +415,24 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
                          quads)
     _quiet()
     with atomic_file(path) as tmp:
-        if suffix in (".step", ".stp"):
-            # the text directly; an open shell through the shape transfer
-            ok = merged is not None and (
-                _write_merged_step_text(merged, tmp) if merged["poles"].shape[1] == 13
-                else _write_step_text(None, merged["corners"], tmp, nets=merged["poles"]))
-            if ok:
-                report.update(faces=len(merged["poles"]), merged=True)
-            ok = ok or _write_step_text(cp, tris, tmp)
-            ok = ok or _write_step(solid_from_nets(cp, tris), tmp)
-        else:
-            ok = _write_iges(solid_from_nets(cp, tris), tmp)
-        if not ok:
+        if not _write_cad_file(tmp, suffix, cp, tris, merged, report):
             raise_if_full(tmp, path)  # a full disk says so (OpenCascade gives no errno)
             raise InputError(f"{path}: OpenCascade could not write the {suffix[1:].upper()} file")
     return path
+
+
+def _write_cad_file(tmp: Path, suffix: str, cp: np.ndarray, tris: np.ndarray,
+                    merged: dict | None, report: dict) -> bool:
+    """:func:`write_cad`'s file at ``tmp``: STEP text directly (the merged faces when
+    given), an open shell through the shape transfer; IGES through OpenCascade."""
+    if suffix not in (".step", ".stp"):
+        return _write_iges(solid_from_nets(cp, tris), tmp)
+    ok = merged is not None and (
+        _write_merged_step_text(merged, tmp) if merged["poles"].shape[1] == 13
+        else _write_step_text(None, merged["corners"], tmp, nets=merged["poles"]))
+    if ok:
+        report.update(faces=len(merged["poles"]), merged=True)
+    return ok or _write_step_text(cp, tris, tmp) or _write_step(solid_from_nets(cp, tris), tmp)
 
 
 def _merged(cp: np.ndarray, tris: np.ndarray, source_face, tolerance: float,

@@ -15,9 +15,14 @@ collapsed corner.  The domain map is affine on each half of the square,
 so each side is linear in its control triangle's barycentric coordinates and its 13 poles
 are the side's two patch edges' 7 + 7 control points, exactly: the edges are the patch
 edges, shared with the neighbour bit for bit.  The 121 inner poles are the least-squares
-fit to the eight patches at :data:`FIT_SAMPLES` squared parameters and to the patches'
-derivative across each side (weight ``bezier_merge.DERIVATIVE_WEIGHT``), so the tangent
-plane along every side is the patches' to the fit's accuracy: neighbouring faces meet G1.
+fit to the eight patches at :data:`FIT_SAMPLES` squared parameters, plus rows holding the
+face's derivative across each side perpendicular to the patches' normal there (weight
+:data:`NORMAL_WEIGHT`, 31 points a side), so the tangent plane along every side is the
+patches' to the fit's accuracy and neighbouring faces meet G1.  Only the derivative's
+normal component is held: its whole vector (as ``bezier_merge`` holds it) cannot be met
+at the corners B and C, where the side from one triangle and the side from the other
+ask for different twists (the demo: the median angle to the patches' normal along the
+sides 0.14 degrees against 0.007).
 
 Pairing: a matching on the dual graph of the control triangles (each pair shares an
 edge), greedy in rounds: a triangle with one unpaired neighbour left is paired with it
@@ -62,7 +67,9 @@ _CHECK_SAMPLES = 33
 #: degrees the face's two side tangents there are parallel and its normal undefined.
 MAX_ANGLE = np.radians(150.0)
 #: Weight of the rows "the face's derivative across a side is perpendicular to the
-#: patches' normal there" against the point rows.
+#: patches' normal there" against the point rows (the demo's 3 081 quads, largest angle
+#: to the patches' normal along the sides, median / 99th percentile: 10, 0.019 / 0.13
+#: degrees; 30, 0.007 / 0.08; 100, 0.009 / 0.11 with 2 folded).
 NORMAL_WEIGHT = 30.0
 _SIDE_SAMPLES = 33
 
