@@ -364,3 +364,27 @@ def test_a_section_whose_two_loops_cross_each_other_is_skipped():
     result = stitch_rings(rings, AXIS)
     report = check_solid(result.vertices, result.triangles)
     assert result.closed and report.valid and report.components == 2, report.problems()
+
+
+def test_a_strip_to_a_ring_with_a_narrow_spike_covers_the_plan_once():
+    """Two rings of the temple ring's stitched top (209 and 418 points, the upper one
+    with a narrow spike the lower lacks, the upper wholly inside the lower in the plan;
+    centred, ``data/temple_spike_strip.npz``).  The shortest-span tiling fanned one
+    lower point over both sides of the spike: 179 crossing pairs.  With the axis, a face
+    whose third vertex lies on the wrong side of its ring edge costs more than any
+    tiling without one: none."""
+    from pathlib import Path
+
+    from surface.stitch import tile_min_span
+    from surface.validity import self_intersections
+
+    data = np.load(Path(__file__).parent / "data" / "temple_spike_strip.npz")
+    lower, upper, axis = data["lower"], data["upper"], data["axis"]
+    v = np.vstack([lower, upper])
+    assert len(self_intersections(v, tile_min_span(lower, upper))) > 100
+    tri = tile_min_span(lower, upper, axis)
+    assert len(tri) == len(v)
+    edges = np.sort(np.vstack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2 and np.sum(counts == 1) == len(v)   # a closed strip
+    assert len(self_intersections(v, tri)) == 0
