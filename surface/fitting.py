@@ -365,6 +365,9 @@ FIT_BLOCK_EDGES = 3.0
 #: a radius ``r``, which the fit would otherwise push outward.  Two steps make that 1/16 of
 #: the control mesh's own: on a torus of tube radius 0.35 with edges of 0.05, 6e-5.
 FIT_LEVELS = 2
+#: Foot-point rounds of each fit tried on the held-out cubes (the chosen one is then fitted
+#: to the whole cloud in :data:`FIT_ROUNDS`).
+FIT_SELECT_ROUNDS = 2
 #: Foot-point rounds of the fit (each: nearest surface spot of every point, then one
 #: sparse least-squares solve).
 FIT_ROUNDS = 2
@@ -460,7 +463,8 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
                         weights=FIT_WEIGHTS, hold_out: float = FIT_HOLD_OUT,
                         rounds: int = FIT_ROUNDS, levels: int = FIT_LEVELS,
                         seed: int = 0, block: float | None = None,
-                        bends=FIT_BENDS) -> tuple[np.ndarray, dict]:
+                        bends=FIT_BENDS,
+                        select_rounds: int = FIT_SELECT_ROUNDS) -> tuple[np.ndarray, dict]:
     r"""Control vertices whose Loop surface is fitted to a cloud, ``(V, 3)``, and the fit's
     figures.
 
@@ -516,7 +520,7 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
     bend_matrix = (umbrella.T @ umbrella).tocsr()
     x0 = interpolating_control_mesh(v, t) if start is None else np.asarray(start, np.float64)
 
-    def fit(data: np.ndarray, choice: tuple[float, float]) -> np.ndarray:
+    def fit(data: np.ndarray, choice: tuple[float, float], rounds: int = rounds) -> np.ndarray:
         x = x0
         w, b = (c * len(data) / len(v) for c in choice)
         for _ in range(rounds):
@@ -541,7 +545,7 @@ def fitted_control_mesh(vertices, triangles, points, start=None,
             if len(tried) > 1 and tried[-1][0] == tried[-2][0] == choice[0] \
                     and errors[-1] > errors[-2]:
                 continue    # this weight's held-out error rose with the bend: past its best
-            x = fit(p[~out], choice)
+            x = fit(p[~out], choice, select_rounds)
             errors.append(float(np.mean(np.sum((_feet(fine @ x, refined, p[out])[2]
                                                  - p[out]) ** 2, axis=1))))
             tried.append(choice)
