@@ -114,7 +114,8 @@ def sized_surface(points: np.ndarray, axis="z", sections: int | None = None,
         raise ValueError(f"only {len(kept)} non-empty sections; need at least 2")
     curves = params["curves"]
     smoothing = curves["smoothing"] or "auto"
-    kept, loops, messages = rc.organise_sections(kept, **stages.loop_options(curves, smoothing))
+    kept, loops, messages = rc.organise_sections(kept, organised=sliced.organised,
+                                                 **stages.loop_options(curves, smoothing))
     kept, loops, rings, fits, untangled = stages.fitted_rings(kept, loops, curves, smoothing)
     messages += untangled
     noise = float(rc.section_noise(loops))

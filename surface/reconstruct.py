@@ -44,7 +44,7 @@ from surface.end_kinds import (
 from surface.section_loops import (
     MAX_BRIDGED_SHARE,
     OneSidedError,
-    _drop_one_section_splits,  # noqa: F401  (surface.open_surface imports it from here)
+    _drop_one_section_splits,  # noqa: F401  (the open pieces import it from here)
     bridged_share,
     keyhole,
     largest_perimeter,
@@ -169,7 +169,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
                          "1e50, where products of coordinates overflow float64)")
     sliced = slice_cloud(points, axis=axis, sections=sections, spacing=spacing,
                          thickness=thickness, projection=projection)
-    kept, loops, messages = organise_sections(sliced.sections,
+    kept, loops, messages = organise_sections(sliced.sections, organised=sliced.organised,
                                               min_points=min_loop_points(smoothing))
     messages = list(sliced.notes) + messages
     rings = section_rings(kept, loops, n, smoothing=smoothing)
