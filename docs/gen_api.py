@@ -28,12 +28,18 @@ def public_modules() -> list[str]:
         for path in sorted((ROOT / package).glob("*.py")):
             if not path.name.startswith("_"):
                 names.append(f"{package}.{path.stem}")
-    return names
+        for init in sorted((ROOT / package).glob("*/__init__.py")):   # a subpackage
+            if not init.parent.name.startswith("_"):
+                names.append(f"{package}.{init.parent.name}")
+                names += [f"{package}.{init.parent.name}.{path.stem}"
+                          for path in sorted(init.parent.glob("*.py"))
+                          if not path.name.startswith("_")]
+    return sorted(names)
 
 
 def page_of(module: str) -> Path:
-    package, name = module.split(".")
-    return API / package / f"{name}.md"
+    *package, name = module.split(".")
+    return API.joinpath(*package, f"{name}.md")
 
 
 def expected_text(module: str) -> str:

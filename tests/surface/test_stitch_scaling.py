@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import surface.polygon as polygon_module
-import surface.stitch as stitch
+import surface.stitch.caps as stitch_caps
 from surface.stitch import _dome, _inside, _local_quadratic
 
 FRAME = np.eye(3)  # plane axes x, y; the axis z
@@ -66,10 +66,10 @@ def test_local_quadratic_batches_give_one_batch_answer(monkeypatch):
         - 0.25 * flat[:, 0] * flat[:, 1] + 0.4 * flat[:, 1] ** 2
     noisy = h + rng.normal(0.0, 0.01, len(h))
     query = rng.uniform(-0.9, 0.9, (500, 2))
-    monkeypatch.setattr(stitch, "QUADRATIC_BATCH", 10 ** 6)
+    monkeypatch.setattr(stitch_caps, "QUADRATIC_BATCH", 10 ** 6)
     whole = _local_quadratic(flat, noisy, query, 48)
     exact = _local_quadratic(flat, h, query, 48)
-    monkeypatch.setattr(stitch, "QUADRATIC_BATCH", 7)
+    monkeypatch.setattr(stitch_caps, "QUADRATIC_BATCH", 7)
     np.testing.assert_allclose(_local_quadratic(flat, noisy, query, 48), whole,
                                rtol=0, atol=1e-12)
     truth = 0.3 + 0.2 * query[:, 0] - 0.1 * query[:, 1] + 0.5 * query[:, 0] ** 2 \
@@ -94,7 +94,7 @@ def test_dome_test_on_sampled_points(count):
     # height 0.05 (plane residual spread ~0.015 against noise 0.002, ratio ~7).
     theta = 2 * np.pi * np.arange(400) / 400
     ring = 1.02 * np.c_[np.cos(theta), np.sin(theta)]
-    assert count < stitch.DOME_TEST_POINTS or count > 2 * stitch.DOME_TEST_POINTS
+    assert count < stitch_caps.DOME_TEST_POINTS or count > 2 * stitch_caps.DOME_TEST_POINTS
     assert _dome(ring, 0.9, 1.2, _disk_cap(count, 0.0, 3), FRAME) is None
     height = _dome(ring, 0.9, 1.2, _disk_cap(count, 0.05, 4), FRAME)
     assert height is not None
@@ -110,7 +110,7 @@ def test_pca_normals_denser_than_the_noise_use_a_subset(monkeypatch):
     # subset of 1/16 (spacing ~0.0035) they see the plane again, and so do the default
     # neighbours chosen from the noise.  At or below NORMAL_POINTS the normals are the
     # whole cloud's.
-    from surface import reconstruct
+    from surface import section_slicing as slicing
 
     rng = np.random.default_rng(5)
     cloud = np.c_[rng.uniform(0, 0.3, (120_000, 2)), rng.normal(0.0, 0.002, 120_000)]
@@ -119,14 +119,14 @@ def test_pca_normals_denser_than_the_noise_use_a_subset(monkeypatch):
     def median_tilt(normals):
         return float(np.degrees(np.median(np.arccos(np.abs(normals[:, 2])))))
 
-    whole = reconstruct._pca_normals(cloud, query, k=12)
+    whole = slicing._pca_normals(cloud, query, k=12)
     # the default neighbours follow the noise (reconstruct.normal_neighbours) and see the
     # plane on the whole cloud too
-    assert reconstruct.normal_neighbours(cloud) > 12
-    assert median_tilt(reconstruct._pca_normals(cloud, query)) < 0.6 * median_tilt(whole)
-    monkeypatch.setattr(reconstruct, "NORMAL_POINTS", 7_500)
-    subset = reconstruct._pca_normals(cloud, query, k=12)
+    assert slicing.normal_neighbours(cloud) > 12
+    assert median_tilt(slicing._pca_normals(cloud, query)) < 0.6 * median_tilt(whole)
+    monkeypatch.setattr(slicing, "NORMAL_POINTS", 7_500)
+    subset = slicing._pca_normals(cloud, query, k=12)
     assert median_tilt(whole) > 25.0
     assert median_tilt(subset) < 0.6 * median_tilt(whole)
-    monkeypatch.setattr(reconstruct, "NORMAL_POINTS", 120_000)
-    np.testing.assert_array_equal(reconstruct._pca_normals(cloud, query, k=12), whole)
+    monkeypatch.setattr(slicing, "NORMAL_POINTS", 120_000)
+    np.testing.assert_array_equal(slicing._pca_normals(cloud, query, k=12), whole)
