@@ -204,10 +204,12 @@ def _input_hashes(stage: Stage, ws: Workspace, external: Mapping[str, str],
     return hashes
 
 
-def _stage_params(stage: Stage, config: Mapping) -> dict:
-    """The stage's configuration: whole sections, and single keys ``SECTION.KEY``."""
+def _stage_params(stage: Stage, config: Mapping, kind: str = "",
+                  root: str | os.PathLike = ".") -> dict:
+    """The stage's configuration on input ``kind``: whole sections, and single keys
+    ``SECTION.KEY``."""
     params: dict = {}
-    for name in stage.params:
+    for name in stage.param_names(kind, root):
         section, _, key = name.partition(".")
         if key:
             params.setdefault(section, {})[key] = config.get(section, {}).get(key)
@@ -359,7 +361,7 @@ def _run_one(run: _Run, index: int, stage: Stage) -> StageResult:
         reason = f"needs {', '.join(blocked)}"
         ws.set_record(stage.name, {"status": "blocked", "reason": reason})
         return StageResult(stage.name, "blocked", reason=reason)
-    params = _stage_params(stage, run.config)
+    params = _stage_params(stage, run.config, run.kind, ws.root)
     params_sha = sha256_json(params)
     inputs = _input_hashes(stage, ws, run.external, run.kind)
     if not run.force and ws.up_to_date(stage.name, inputs, params_sha):

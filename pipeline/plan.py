@@ -47,6 +47,8 @@ class Stage:
     kind_modules : tuple of (str, tuple of str)
         More modules for some input kinds (``(kind, modules)`` pairs; a rendered scene
         counts as the kind :func:`pipeline.inputs.scene_source` says).
+    kind_params : tuple of (str, tuple of str)
+        More ``params`` for some input kinds, the same way.
     external : bool
         Whether it reads the run's external inputs (their hashes are its inputs).
     target : str
@@ -65,6 +67,7 @@ class Stage:
     target: str = ""
     optional_needs: tuple[str, ...] = ()
     kind_modules: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    kind_params: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
     def code_modules(self, kind: str, root: str | Path) -> tuple[str, ...]:
         """The modules whose code the stage runs on input ``kind`` in the workspace ``root``."""
@@ -72,6 +75,14 @@ class Stage:
         if kind == "scene" and "scene" not in by_kind:
             kind = scene_source(Path(root) / "scene")
         return self.modules + tuple(by_kind.get(kind, ()))
+
+    def param_names(self, kind: str, root: str | Path) -> tuple[str, ...]:
+        """``params`` and those :attr:`kind_params` adds for input ``kind`` (a rendered
+        scene counts as the kind :func:`pipeline.inputs.scene_source` says)."""
+        by_kind = dict(self.kind_params)
+        if kind == "scene" and "scene" not in by_kind and by_kind:
+            kind = scene_source(Path(root) / "scene")
+        return self.params + tuple(by_kind.get(kind, ()))
 
     @property
     def output(self) -> str:
@@ -91,8 +102,8 @@ STAGES: list[Stage] = [
     Stage("scene", fn.scene, params=("scene",), external=True,
           modules=_ADAPTERS + ("pipeline.scenes",)),
     # the sections asked set an image folder's working resolution (matching.resolution)
-    Stage("acquire", fn.acquire, params=("acquire", "sections.count", "sections.spacing"),
-          external=True,
+    Stage("acquire", fn.acquire, params=("acquire",), external=True,
+          kind_params=(("folder", ("sections.count", "sections.spacing")),),
           optional_needs=("scene",), modules=_ADAPTERS,
           kind_modules=(("cloud", ("pipeline.cloud_io",)),
                         ("stereo", ("matching.pair", "matching.cameras", "matching.scheduler")),

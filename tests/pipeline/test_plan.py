@@ -109,10 +109,13 @@ def test_acquire_sees_the_sections_asked_and_no_other_sections_key():
 
     acquire = next(s for s in STAGES if s.name == "acquire")
     config = defaults()
-    params = _stage_params(acquire, config)
+    params = _stage_params(acquire, config, "folder")
     assert params["sections"] == {"count": 0, "spacing": 0.0}
     assert params["acquire"] == config["acquire"]
     config["sections"]["axis"] = "z"
-    assert _stage_params(acquire, config) == params
+    assert _stage_params(acquire, config, "folder") == params
     config["sections"]["count"] = 40
-    assert _stage_params(acquire, config)["sections"]["count"] == 40
+    assert _stage_params(acquire, config, "folder")["sections"]["count"] == 40
+    # a stereo pair or a cloud: no working resolution, the sections are not its business
+    assert set(_stage_params(acquire, config, "stereo")) == {"acquire"}
+    assert set(_stage_params(acquire, config, "cloud")) == {"acquire"}
