@@ -68,7 +68,8 @@ __all__ = ["OpenCurve", "OpenSurface", "loop_arc", "fit_open", "one_sided", "ali
            "resample_arcs", "zip_arcs", "stitch_arcs", "boundary_loops",
            "open_surface_from_loops", "organise_arcs", "main_piece", "bridge_open_gaps",
            "open_arcs", "chain_arcs", "height_field_arc",
-           "smooth_border", "open_share", "window_footprint", "smooth_across", "LINE_BAND",
+           "smooth_border", "open_share", "window_footprint", "smooth_across", "SHARED_BAND",
+           "LINE_BAND",
            "QUARTER_STEP", "BORDER_SLOPE", "BORDER_PASSES", "BORDER_REACH", "DOUBLED_PATH",
            "CONTINUATION_ANGLE", "PIECE_REACH"]
 
@@ -246,7 +247,7 @@ def _normal_rss(points: np.ndarray, curve: OpenCurve, t: np.ndarray, frame: np.n
 
 def fit_open(points: np.ndarray, smoothing: float | str = "auto",
              frame: np.ndarray | None = None, correlation: float = 0.0,
-             least: float = 4.0) -> OpenCurve:
+             least: float = 4.0, noise: float = 0.0) -> OpenCurve:
     """Fit an open Catmull-Rom curve to the ordered points of an arc.
 
     Parameters
@@ -273,6 +274,10 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
         freedom as data).  0: the points are independent (the plain GCV above).
     least : float
         The ladder's first level (data points per control point; 4 above).
+    noise : float
+        The points' σ (RMS) when known: with ``correlation``, a level whose residuals'
+        RMS exceeds :data:`SHARED_BAND` σ is not taken (that shape is relief, not errors
+        shared over a window), and when no level is within it the plain GCV is used.
 
     Returns
     -------
@@ -301,12 +306,16 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
         ctrl, t, df = _least_squares(pts, m, s, correlation)
         curve = OpenCurve(np.ascontiguousarray(_extension(m) @ ctrl), s)
         rss = _normal_rss(pts, curve, t, frame)
+        if correlation > 0 and noise > 0 and rss > m_data * (SHARED_BAND * noise) ** 2:
+            continue
         if correlation <= 0:
             score = m_data * rss / max(m_data - m, 1) ** 2
         else:  # as many degrees of freedom as data over the shared errors: fits them
             score = rss / m_data / (1.0 - df / m_data) ** 2 if df < m_data else math.inf
         if best is None or score < best[0] or (score == best[0] == math.inf):
             best = (score, curve)  # (all infinite: the last, the fewest control points)
+    if best is None:  # every level beyond the points' noise: the shape is the data's
+        return fit_open(pts, smoothing, frame, least=least)
     return best[1]
 
 
@@ -520,6 +529,13 @@ def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float,
     return rings, params
 
 
+#: Most a fit under the shared-error model may lie from its points (RMS of the normal
+#: residuals, in units of the points' own σ): the chessboard pairs' smoother rings lie
+#: within it (pairs 03, 06, 13: the same rings with a bound of 3 or 2); on the Sceaux
+#: facade, whose windows and depth steps a curve smooth over the window misses, it keeps
+#: some relief (cloud within 3 σ of the stitched surface 0.63 with 3, 0.67 with 2, 0.69
+#: with 1.5; 0.81 with the plain GCV): not enough (docs/decisions/open-surfaces.md).
+SHARED_BAND = 2.0
 #: First level of a column's GCV ladder (points per control point): a column's points are
 #: one section spacing apart, an arc's about half of one (``surface.sections``), so the
 #: arcs' 4 would be 4 sections here, twice theirs; √2 is the ladder's first step above
@@ -547,14 +563,16 @@ def _foot_on_polyline(line: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float,
-                  origin: float, axis: np.ndarray, correlation: float) -> list[np.ndarray]:
+                  origin: float, axis: np.ndarray, correlation: float,
+                  noise: np.ndarray | None = None) -> list[np.ndarray]:
     """The rings smoothed across the sections: each column of grid points at one ``u``
     (every ``step``: on every ring) through consecutive sections, 4 or more of them, is
     fitted by :func:`fit_open` with the errors shared over ``correlation`` (the matcher's
     window), and each point moved to its nearest point on that curve, within its own
     section plane (normal to ``axis``); the even rings' half-step points and the border
     points move as their ring's nearest column points (the mean of the two about them).
-    ``origin``: the grid's origin in ``u`` (:func:`resample_arcs`'s, the least ``u``).
+    ``origin``: the grid's origin in ``u`` (:func:`resample_arcs`'s, the least ``u``);
+    ``noise``: each ring point's σ ``(sum n_k,)`` when known (:func:`fit_open`'s bound).
 
     Each arc is fitted alone (:func:`open_arcs`): errors shared over a window make whole
     arcs lie off their neighbours, a ripple from section to section that no fit along
@@ -578,7 +596,9 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
     for run in np.split(idx, breaks):
         if len(run) < 4:
             continue
-        curve = fit_open(points[run], "auto", correlation=correlation, least=_COLUMN_LEAST)
+        sigma = 0.0 if noise is None else float(np.sqrt(np.mean(noise[run] ** 2)))
+        curve = fit_open(points[run], "auto", correlation=correlation, least=_COLUMN_LEAST,
+                         noise=sigma)
         move[run] = _foot_on_polyline(curve.dense()[1], points[run]) - points[run]
     # the other points: the mean move of their ring's column points about them
     key = ring.astype(np.int64) * (int(grid.max()) + 4) + grid
@@ -603,7 +623,8 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
               smoothing: float | str = "auto", border: bool = True,
               view: np.ndarray | None = None,
-              window: tuple[np.ndarray, np.ndarray, float] | None = None):
+              window: tuple[np.ndarray, np.ndarray, float] | None = None,
+              sigma: tuple[np.ndarray, np.ndarray] | None = None):
     """Sections' loops → open arcs → open curves → arcs resampled on the common grid.
 
     Parameters
@@ -634,6 +655,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         arc's GCV counts one independent point per the window's footprint on it
         (:func:`window_footprint`, :func:`fit_open`'s ``correlation``); without it every
         point is independent.
+    sigma : (points (N, 3), σ (N,)), optional
+        The sections' points and their σ: each arc's and column's points take their
+        nearest one's, and the fits under the window's model stay within
+        :data:`SHARED_BAND` of them (:func:`fit_open`'s ``noise``).
 
     Returns
     -------
@@ -659,6 +684,12 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         # sections within 45° of facing the view cut it into depth slabs: no height field
         across = across / np.linalg.norm(across) if np.linalg.norm(across) > 0.5**0.5 \
             else None
+    noise_of = None
+    if sigma is not None and window is not None:
+        finite = np.isfinite(sigma[1])
+        if finite.any():
+            tree, known = cKDTree(np.asarray(sigma[0])[finite]), np.asarray(sigma[1])[finite]
+            noise_of = lambda pts: known[tree.query(pts)[1]]  # noqa: E731
     for section_loops in loops:
         best = max(section_loops, key=len)
         pieces = [loop_arc(lp) for lp in section_loops]
@@ -677,7 +708,9 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                                 else " (one depth across the view)"))
         arc = bridge_open_gaps(arc, getattr(best, "bridge", math.inf))
         correlation = window_footprint(arc, *window) if window is not None else 0.0
-        curves.append(fit_open(arc, smoothing, frame=best.frame, correlation=correlation))
+        noise = 0.0 if noise_of is None else float(np.sqrt(np.mean(noise_of(arc) ** 2)))
+        curves.append(fit_open(arc, smoothing, frame=best.frame, correlation=correlation,
+                               noise=noise))
     if partial > 3:
         notes.append(f"... and {partial - 3} more sections with pieces left out")
     curves, placed, align_notes, run = (align_arcs(curves) if across is None else
@@ -706,8 +739,9 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         axis = np.asarray(loops[0][0].frame, np.float64)[2]
         sample = np.concatenate(rings)[:: max(1, sum(map(len, rings)) // 4096)]
         origin = min(float(p.u.min()) for p in placed)
+        noise = None if noise_of is None else noise_of(np.concatenate(rings))
         rings = smooth_across(rings, params, step, origin, axis,
-                              window_footprint(sample, *window))
+                              window_footprint(sample, *window), noise)
     return curves, rings, params, float(step), notes, run
 
 
