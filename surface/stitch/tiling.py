@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 from surface.polygon import inside_polygon as _inside
 from surface.stitch.checks import loops_cross
 from surface.validate import TOL, check_finite, check_shape
+from surface.validity import self_intersections
 
 __all__ = ['zip_rings', 'axis_frame']
 
@@ -288,19 +289,35 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray,
     # and three quarters round the lower ring, and the shortest of the four is kept (the
     # closest pair's unless another is shorter beyond rounding).
     plan_a, plan_b = np.zeros((n_a, 2)), np.zeros((len(upper), 2))
-    side_a, side_b, penalty = np.zeros(n_a), np.zeros(len(upper)), 0.0
-    if axis is not None:
-        frame = axis_frame(np.asarray(axis, np.float64))
-        plan_a, plan_b = lower @ frame[:2].T, upper @ frame[:2].T
-    # only between rings that do not cross in the plan: one lies wholly inside the
-    # other, the side is the same along each ring (where they cross, the sides change
-    # along the rings, and the nearest point's side misjudged a hook's: 58 new pairs)
-    if axis is not None and not loops_cross([plan_a, plan_b]):
-        side_a, side_b = _edge_sides(plan_a, plan_b), _edge_sides(plan_b, plan_a)
-        both = np.vstack([lower, upper])
-        # more than any tiling's whole span: fewer wrong-sided faces always win
-        penalty = float((len(both) + 1) * np.linalg.norm(np.ptp(both, axis=0)))
-    plan = (plan_a, plan_b, side_a, side_b, penalty)
+    none = (plan_a, plan_b, np.zeros(n_a), np.zeros(len(upper)), 0.0)
+    if axis is None:
+        return _shortest_tiling(lower, upper, i0, nearest, none)
+    frame = axis_frame(np.asarray(axis, np.float64))
+    plan_a, plan_b = lower @ frame[:2].T, upper @ frame[:2].T
+    both = np.vstack([lower, upper])
+    # more than any tiling's whole span: fewer wrong-sided faces always win
+    penalty = float((len(both) + 1) * np.linalg.norm(np.ptp(both, axis=0)))
+    sided = (plan_a, plan_b, _edge_sides(plan_a, plan_b), _edge_sides(plan_b, plan_a), penalty)
+    if not loops_cross([plan_a, plan_b]):
+        return _shortest_tiling(lower, upper, i0, nearest, sided)
+    # Rings crossing in the plan: the side changes along them, and judged by the nearest
+    # point it misplaced a hook's faces (58 new pairs).  The sided tiling is taken only
+    # where the plain one crosses itself and the sided one less (a hairpin of one ring
+    # at a sharp edge, fanned over both its sides: fandisk's section 17).
+    plain = _shortest_tiling(lower, upper, i0, nearest, none)
+    crossings = len(self_intersections(both, plain))
+    if crossings:
+        other = _shortest_tiling(lower, upper, i0, nearest, sided)
+        if len(self_intersections(both, other)) < crossings:
+            return other
+    return plain
+
+
+def _shortest_tiling(lower: np.ndarray, upper: np.ndarray, i0: int, nearest: np.ndarray,
+                     plan: tuple) -> np.ndarray:
+    """:func:`tile_min_span`'s shortest of its start pairs' tilings (``plan``: the rings in
+    the plan, their edges' sides and the wrong side's penalty, 0 for none)."""
+    n_a = len(lower)
     best = None
     for k in range(MIN_SPAN_STARTS):
         i_s = (i0 + (k * n_a) // MIN_SPAN_STARTS) % n_a

@@ -388,3 +388,25 @@ def test_a_strip_to_a_ring_with_a_narrow_spike_covers_the_plan_once():
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert counts.max() == 2 and np.sum(counts == 1) == len(v)   # a closed strip
     assert len(self_intersections(v, tri)) == 0
+
+
+def test_a_hairpin_between_crossing_rings_takes_the_sided_tiling_where_it_crosses_less():
+    """Sections 16 and 17 of the stitched fandisk (40 000 points, noise 0; centred,
+    ``data/fandisk_hairpin_strip.npz``): section 17's ring runs out and back along nearly
+    one line at the sharp edge, and the two rings cross in the plan, where the side rule
+    is off.  The shortest-span tiling crossed itself at 5 pairs; the sided one does not,
+    so it is taken."""
+    from pathlib import Path
+
+    from surface.stitch import tile_min_span
+    from surface.validity import self_intersections
+
+    data = np.load(Path(__file__).parent / "data" / "fandisk_hairpin_strip.npz")
+    lower, upper, axis = data["lower"], data["upper"], data["axis"]
+    v = np.vstack([lower, upper])
+    assert len(self_intersections(v, tile_min_span(lower, upper))) > 0
+    tri = tile_min_span(lower, upper, axis)
+    edges = np.sort(np.vstack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2 and np.sum(counts == 1) == len(v)   # a closed strip
+    assert len(self_intersections(v, tri)) == 0
