@@ -435,7 +435,12 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
         # the matcher's window on the surface: points closer than it share their errors
         window = ((np.array([c.center for c in cameras]), np.array([c.K[0, 0] for c in cameras]),
                    float(ctx.config["acquire"]["patch"])) if cameras else None)
-        sigma = _section_sigma(ctx, sliced) if cameras else None
+        # the sections' points and their cloud points' sigma (the fits' bound)
+        cloud_sigma = artifacts.read_cloud(ctx.stage_path("acquire")).get("sigma")
+        sigma = ((np.concatenate([s.points for s in sliced]),
+                  np.asarray(cloud_sigma, np.float64)[
+                      np.concatenate([s.source_index for s in sliced])])
+                 if cameras and cloud_sigma is not None and sliced else None)
         curves, rings, params, step, notes, run = osf.open_arcs(
             loops, spacing, p["n"] or None, smoothing=smoothing, view=view, window=window,
             sigma=sigma)
@@ -455,17 +460,6 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
     return {"open": True, "rings": n_rings, "points": n_points, "bridged_share": share,
             "sections_without_loop": len(sliced) - len(kept), "warnings": messages,
             "smoothing_median": float(np.median([c.smoothing for c in curves]))}
-
-
-def _section_sigma(ctx: StageContext, sections: list):
-    """The sections' points ``(N, 3)`` and their cloud points' σ ``(N,)``, or None (no σ)."""
-    import numpy as np
-
-    sigma = artifacts.read_cloud(ctx.stage_path("acquire")).get("sigma")
-    if sigma is None or not sections:
-        return None
-    return (np.concatenate([s.points for s in sections]),
-            np.asarray(sigma, np.float64)[np.concatenate([s.source_index for s in sections])])
 
 
 def _camera_centres(ctx: StageContext):
