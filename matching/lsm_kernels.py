@@ -426,9 +426,9 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, noise_fac)
     dwy = np.empty(4)
     out = np.empty(3)
     jv = np.empty(8)
-    for i in range(8):
-        for j in range(8):
-            hmat[i, j] = 0.0
+    # H summed in a local array (``hmat`` may alias the images as far as the compiler
+    # knows, which kept every partial sum in memory), the same operations in order
+    h = np.zeros((8, 8))
     smoothed = blur[0] + blur[2] > 0.0
     noise_fac[0] = 1.0
     noise_fac[1] = 0.5
@@ -457,8 +457,11 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, noise_fac)
             _affine_row(jv, out[1], out[2], ix, iy, out[0])
             for i in range(8):
                 for j in range(i + 1):
-                    hmat[i, j] += jv[i] * jv[j]
+                    h[i, j] += jv[i] * jv[j]
             n += 1
+    for i in range(8):
+        for j in range(i + 1):
+            hmat[i, j] = h[i, j]
     for i in range(8):
         for j in range(i + 1, 8):
             hmat[i, j] = hmat[j, i]
