@@ -331,7 +331,7 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
               triangles: np.ndarray, source_face: np.ndarray | None = None,
               tolerance: float | None = None, report: dict | None = None,
               spans: int = 2, angle_tolerance: float | None = None,
-              quads: bool = True) -> Path:
+              quads: bool = False) -> Path:
     """Write the surface as a closed solid to STEP (``.step``/``.stp``) or IGES.
 
     By default every patch is one face, exact.  Given ``source_face`` and a
@@ -369,8 +369,10 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         With two spans, pair neighbouring control triangles into quadrilateral faces
         (``surface.bezier_quad``: half the Bézier spans a face pair), keeping
         control-triangle faces where a quadrilateral misses the tolerances or is left
-        unpaired (the demo: FreeCAD opens it in 22.0 CPU-s against 23.9 for
-        control-triangle faces only; ``docs/decisions/export.md``).
+        unpaired: OpenCascade transfers the demo's in 5.6 CPU-s against 8.1, but
+        FreeCAD opens it no faster (22.7 against 20.6 CPU-s; 22.0 against 23.9 in
+        another run) and its kinks are larger (0.076 against 0.0005 degrees), so not
+        the default (``docs/decisions/export.md``).
     report : dict, optional
         Filled with ``faces``, ``merged`` (bool), with ``quads`` the ``quads`` and
         ``triangles`` written, and for a merge attempt
