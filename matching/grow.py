@@ -157,11 +157,8 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
     max_rounds : int
         Cap on the batched rounds.
     max_tries : int
-        Growth attempts per candidate, each from a different nearest accepted neighbour
-        and a retry only where that neighbour's prediction lies beyond the pull-in range
-        (``lsm_match``'s ``max_shift_px``, default a quarter of the patch) of the last
-        start: from within it the window would start in the basin it failed in
-        (``docs/decisions/acquire-profile.md``).
+        Growth attempts per candidate (each from a different nearest accepted
+        neighbour).
     candidates : (N,) bool, optional
         Points that may be grown (default: every point not accepted in ``result``).
     direction : (N, 2) or (2,) array_like, optional
@@ -186,9 +183,6 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
         raise ValueError(f"max_rounds must be >= 0 and max_tries >= 1, got {max_rounds}, "
                          f"{max_tries}")
     radius = float(patch if radius_px is None else radius_px)
-    # lsm_match's pull-in range (its max_shift_px, default a quarter of the patch)
-    pull_in = lsm_options.get("max_shift_px")
-    pull_in = 0.25 * patch if pull_in is None else float(pull_in)
     if not (np.isfinite(radius) and radius > 0):
         raise ValueError(f"radius_px must be positive, got {radius_px!r}")
     approx_out = (np.full((n, 2), np.nan) if approx is None else
@@ -223,15 +217,11 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
         pos, init, nearest = _predict(points, todo, acc, current, dist, nb)
         fresh = (nearest >= 0) & (nearest != last[todo]) & np.isfinite(pos).all(1)
         todo, pos, init, nearest = todo[fresh], pos[fresh], init[fresh], nearest[fresh]
+        if not len(todo):
+            break
         if same_row:
             pos[:, 1] = points[todo, 1]
             init[:, 3] = pos[:, 1]
-        # a retry only from a start beyond the pull-in range of the last one: from
-        # within it the window was already tried in the same basin
-        moved = ~(np.hypot(*(pos - approx_out[todo]).T) <= pull_in) | (tries[todo] == 0)
-        todo, pos, init, nearest = todo[moved], pos[moved], init[moved], nearest[moved]
-        if not len(todo):
-            break
         options = dict(lsm_options, patch=patch,
                        sigma0_population=arrays["sigma0"][acc])
         if "grad_power" in arrays:
