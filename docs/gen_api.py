@@ -1,4 +1,4 @@
-"""Write the API page of every public module of checks/, matching/, surface/ and pipeline/ that lacks one.
+"""Write the API page of each public module of checks, matching, surface and pipeline lacking one.
 
 A public module is a ``.py`` file of one of those packages whose name does not start with an
 underscore; its page is ``docs/api/<package>/<module>.md`` holding the mkdocstrings directive
