@@ -665,10 +665,9 @@ def _second_pass(cfg, st, left) -> None:
     if cfg.ladder is not None:
         second, sides = _rematch_ici(fprep, gprep, points, start, res, quad,
                                      cfg.ladder, options, st.shifted, st.edge[idx])
-    else:  # the accepted windows: a rejected one was tried from its start
-        # and by growth from up to two neighbours (acquire-profile decision)
-        second = _rematch(fprep, gprep, points, start, res, quad, sides, options,
-                          only=res.accepted, into=res)
+    else:  # every window: re-matching only the accepted ones left the grown points
+        # without their second-order terms (acquire-profile decision)
+        second = _rematch(fprep, gprep, points, start, res, quad, sides, options)
     # a grown window that fails (its search window leaves the image, or it
     # reaches over a depth or shading edge the base window stays clear of):
     # back to the base patch -- growing is for precision, not to lose points
