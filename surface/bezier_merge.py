@@ -143,7 +143,13 @@ def _pieces(u: np.ndarray, v: np.ndarray):
     """Which patch slot (0-2 the corners at A, B, C; 3 the middle) holds each
     parameter sample, and its barycentric coordinates in that patch's own corner order."""
     lam = np.stack([1.0 - u / 2.0, u / 2.0 * (1.0 - v / 2.0), u / 2.0 * (v / 2.0)], axis=1)
-    slot = np.full(len(u), 3)
+    return _lambda_pieces(lam)
+
+
+def _lambda_pieces(lam: np.ndarray):
+    """:func:`_pieces` from barycentric coordinates ``(N, 3)`` in a control triangle's
+    stored corner order: each sample's patch slot and its coordinates in that patch."""
+    slot = np.full(len(lam), 3)
     for s in (2, 1, 0):  # a sample on a dividing line goes to a corner patch (either is exact)
         slot[lam[:, s] >= 0.5] = s
     mu = np.empty_like(lam)

@@ -51,6 +51,7 @@ from surface.bezier_merge import (
     _chains,
     _exact,
     _exact_with_normals,
+    _lambda_pieces,
     _tensor,
     _times,
     control_triangles,
@@ -134,22 +135,6 @@ def pair_triangles(corners: np.ndarray, xyz: np.ndarray, angles: np.ndarray,
         alive &= (partner[f] < 0) & (partner[g] < 0)
     one = np.flatnonzero(partner > np.arange(n_faces))
     return np.column_stack([one, partner[one]]).astype(np.int64)
-
-
-def _lambda_pieces(lam: np.ndarray):
-    """``bezier_merge._pieces`` from barycentric coordinates in a control triangle's
-    stored corner order: each sample's patch slot and its coordinates in that patch."""
-    slot = np.full(len(lam), 3)
-    for s in (2, 1, 0):
-        slot[lam[:, s] >= 0.5] = s
-    mu = np.empty_like(lam)
-    for s in range(3):
-        sel = slot == s
-        mu[sel] = 2.0 * lam[sel]
-        mu[sel, s] -= 1.0
-    sel = slot == 3
-    mu[sel] = 1.0 - 2.0 * lam[sel]
-    return slot, np.clip(mu, 0.0, 1.0)
 
 
 def _quad_pieces(u: np.ndarray, v: np.ndarray, r1: int, r2: int) -> list:
