@@ -64,6 +64,10 @@ FLAT_ANGLE = np.radians(1.0)
 #: Faces of one level whose neighbours are looked up together (bounds the candidate list:
 #: ~30 candidates a face on a uniform mesh).
 QUERY_CHUNK = 65_536
+#: The finest level of the broad phase's bounding spheres below the median face's radius
+#: (2^-6: a face 64 times smaller; smaller ones share it, each meeting at most a few
+#: thousand spheres of its level however fine the tessellation).
+FINEST_LEVEL = -6
 
 
 @dataclass(frozen=True)
@@ -417,9 +421,12 @@ def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
     normal /= np.linalg.norm(normal, axis=1)[:, None]               # non-degenerate faces
     scale = np.sqrt(np.max(np.sum((corners - np.roll(corners, 1, axis=1)) ** 2, axis=2),
                            axis=1))                                  # longest edge
-    # base radius: the median face's, so most faces sit in level 0
+    # base radius: the median face's, so most faces sit in level 0; faces far smaller
+    # (a finely tessellated region) get levels below it, down to FINEST_LEVEL: in one
+    # level a face 2^-j of the base meets ~4^j times the faces it could touch
     r0 = max(float(np.median(radius)), 1e-9 * diagonal, np.finfo(float).tiny)
-    level = np.maximum(np.ceil(np.log2(np.maximum(radius, r0) / r0)), 0).astype(np.int64)
+    floor = r0 * 2.0 ** FINEST_LEVEL
+    level = np.ceil(np.log2(np.maximum(radius, floor) / r0)).astype(np.int64)
     level += radius > r0 * 2.0 ** level              # log2's rounding: radius <= R_level
     levels = np.unique(level)
     # each level's faces in slabs along the longest side, so a chunk is compact in space
@@ -433,7 +440,7 @@ def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
         position = centre[ordered, longest]
         # a face of level k reaches ~4^k times the faces a base one does (area within
         # its radius): chunks shrink alike to keep each candidate list ~QUERY_CHUNK x 30
-        step = max(1, QUERY_CHUNK >> (2 * int(k)))
+        step = max(1, QUERY_CHUNK >> (2 * max(int(k), 0)))
         for start in range(0, len(ordered), step):
             end = min(start + step, len(ordered))
             # the chunk and the slab just past it: a pair of this level is found in the

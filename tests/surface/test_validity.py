@@ -353,3 +353,34 @@ def test_bad_input_is_refused(vertices, triangles, message):
 def test_empty_mesh_is_not_a_solid():
     report = check_solid(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
     assert not report.valid and report.problems() == ["has no faces"]
+
+
+def _grid(n: int, step: float, origin) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid of squares of side ``step`` in the plane z = origin[2], two faces each."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    v = np.column_stack([i.ravel() * step, j.ravel() * step, np.zeros(i.size)]) + origin
+    k = (i[:-1, :-1] * (n + 1) + j[:-1, :-1]).ravel()
+    f = np.concatenate([np.column_stack([k, k + n + 1, k + 1]),
+                        np.column_stack([k + 1, k + n + 1, k + n + 2])])
+    return v, f
+
+
+def test_a_finely_tessellated_region_keeps_the_broad_phase_small(monkeypatch):
+    """Faces 32 times smaller than the median face share no sphere level with it: each
+    meets tens of candidates, not the thousands of fine faces within a base radius (a
+    1.1-million-face surface with such a region once took the broad phase past 6 GB)."""
+    coarse_v, coarse_f = _grid(80, 1.0, (0.0, 0.0, 0.0))               # 12 800 faces
+    fine_v, fine_f = _grid(50, 1.0 / 32.0, (10.0, 10.0, 3.0))          # 5 000 faces
+    v = np.vstack([coarse_v, fine_v])
+    f = np.vstack([coarse_f, fine_f + len(coarse_v)])
+    seen = []
+    narrow = validity._narrow
+
+    def counting(pairs, *args):
+        seen.append(len(pairs))
+        return narrow(pairs, *args)
+
+    monkeypatch.setattr(validity, "_narrow", counting)
+    assert len(self_intersections(v, f)) == 0
+    # a face of a uniform grid meets ~12-30 spheres of its level within two radii
+    assert sum(seen) < 40 * len(f)
