@@ -95,10 +95,14 @@ def section(path: Path) -> list[str]:
     if not isinstance(data, dict):
         return out + [f"`{path.name}` holds no object of figures.", ""]
     meta = data.get("_meta") or {}
-    if meta:
-        out += [f"- command: `{meta.get('command')}`",
-                f"- commit: `{meta.get('commit')}`, {meta.get('utc')} UTC, load {meta.get('load')}",
-                ""]
+    # one run's record, or a list of them where runs of several row sets were merged
+    runs = [m for m in (meta if isinstance(meta, list) else [meta]) if isinstance(m, dict)]
+    if runs:
+        for run in runs:
+            out += [f"- command: `{run.get('command')}`",
+                    f"- commit: `{run.get('commit')}`, {run.get('utc')} UTC, "
+                    f"load {run.get('load')}"]
+        out += [""]
     else:
         written = datetime.datetime.fromtimestamp(path.stat().st_mtime, datetime.UTC)
         out += [f"- command: `python benchmarks/{name}.py` with arguments not recorded; commit "

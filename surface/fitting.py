@@ -216,6 +216,8 @@ def interpolating_control_mesh(vertices, triangles, keep=None, at=None) -> np.nd
     at : (V, 3) array_like, optional
         Where the ``keep`` vertices are held (default: ``vertices``, as they are).
 
+    Notes
+    -----
     The matrix ``M = diag(1 - n beta_inf) + diag(beta_inf) A`` (``A`` the adjacency) is the
     row-scaled identity-plus-Laplacian of the limit mask; on a regular grid its
     eigenvalues lie in [1/4, 1], so noise in ``P`` is amplified at most 4x in ``X``.
