@@ -1,40 +1,30 @@
 r"""Reconstruction quality and mesh-health measures.
 
-Distances (Tanks and Temples conventions, Knapitsch et al. [1]_).  With
-:math:`R` the reconstruction and :math:`T` the truth, both sampled uniformly by
-area,
+Distances (Tanks and Temples conventions, Knapitsch et al. [1]_).  With :math:`R` the
+reconstruction and :math:`T` the truth, both sampled uniformly by area,
 
 .. math::
 
-    d_{R\to T}(r) = \min_{t \in T} \lVert r - t \rVert,\qquad
-    \text{accuracy} = \operatorname{mean}_r d_{R\to T},\qquad
-    \text{completeness} = \operatorname{mean}_t d_{T\to R},
+    d_{R\to T}(r) = \min_{t \in T} \lVert r - t \rVert,\quad
+    \text{Chamfer} = \tfrac12(\operatorname{mean}_r d_{R\to T} + \operatorname{mean}_t d_{T\to R}),
 
-    \text{Chamfer} = \tfrac12(\text{accuracy} + \text{completeness}),\qquad
-    P(\tau) = \Pr[d_{R\to T} < \tau],\quad R(\tau) = \Pr[d_{T\to R} < \tau],\quad
-    F(\tau) = \frac{2PR}{P + R},
-
+    P(\tau) = \Pr[d_{R\to T} < \tau],\ R(\tau) = \Pr[d_{T\to R} < \tau],\
+    F(\tau) = \frac{2PR}{P + R},\
     \text{Hausdorff} = \max(\max_r d_{R\to T}, \max_t d_{T\to R}).
 
-The Chamfer distance here is the mean of the two *mean unsquared* distances
-(the convention of DTU/Tanks-and-Temples style evaluations, in scene units),
-not the sum of squared distances used as a training loss.  When the other side
-is a mesh the distance is the exact point-to-triangle distance (open3d's
-``RaycastingScene.compute_distance``), so it carries no sampling bias of its
-own; against a point cloud it is the nearest-neighbour distance (scipy
-``cKDTree``).
+Chamfer is the mean of the two *mean unsquared* distances (accuracy and completeness, in
+scene units), not a sum of squares.  Against a mesh the distance is the exact
+point-to-triangle one (open3d's ``RaycastingScene.compute_distance``: no sampling bias of
+its own); against a point cloud, the nearest neighbour (scipy ``cKDTree``).
 
-Mesh health.  From the edge table (every undirected edge with the faces that
-use it): *edge-manifold* when no edge has more than two faces, *closed* when
-every edge has exactly two, *oriented* when each interior edge is traversed
-once in each direction, components are the face-connected pieces (faces
-joined through a shared edge), Euler characteristic :math:`\chi = V - E + F`.
-The *Delaunay fraction* is the share of interior edges whose two opposite
-angles sum to at most :math:`\pi` (the local Delaunay criterion of Lawson
-[2]_); the *G1 measure* is the largest angle between the normals on the two
-sides of an interior edge.  The signed volume is
-:math:`\tfrac16\sum_f \det[v_0, v_1, v_2]`, positive for a closed mesh whose
-triangles are counter-clockwise seen from outside.
+Mesh health.  From the edge table (every undirected edge with its faces): *edge-manifold*
+when no edge has more than two faces, *closed* when every edge has exactly two, *oriented*
+when each interior edge is traversed once each way; components are the face-connected
+pieces; :math:`\chi = V - E + F`.  The *Delaunay fraction* is the share of interior edges
+whose opposite angles sum to at most :math:`\pi` (Lawson [2]_); the *G1 measure* the
+largest angle between the normals on the two sides of an interior edge.  The signed volume
+:math:`\tfrac16\sum_f \det[v_0, v_1, v_2]` is positive for a closed mesh whose triangles
+are counter-clockwise seen from outside.
 
 References
 ----------
