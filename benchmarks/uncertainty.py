@@ -8,7 +8,8 @@ points and their σ (``W/acquire/cloud.npz``), and the scene's truth mesh
 to the truth mesh (open3d ray casting); the figures are the shares of points whose
 deviation is within 1σ and 2σ (a Gaussian error: 68.3 % and 95.4 %), over all points,
 over those the data cover and over those in a bridged gap or cap; and the σ's median
-and 95th percentile beside the deviations'.
+and 95th percentile beside the deviations'.  The row ``input_points`` is the input's own: each
+point's distance to the truth mesh against its σ from the matcher.
 
 Run: ``.venv/bin/python benchmarks/uncertainty.py W1 [W2 ...] [--json PATH]``
 (default JSON ``benchmarks/results/uncertainty.json``).
@@ -65,14 +66,17 @@ def workspace_row(workspace: Path, level: int = 1) -> dict:
     with np.load(workspace / "acquire" / "cloud.npz") as cloud:
         points, sigma = cloud["points"], cloud["sigma"]
     result = normal_sigma(vertices, normals, points, sigma)
-    deviation = _truth_distance(vertices, workspace / "scene" / "truth" / "mesh.ply")
+    truth = workspace / "scene" / "truth" / "mesh.ply"
+    deviation = _truth_distance(vertices, truth)
+    point_error = _truth_distance(points, truth)
     covered = result.gap == 0
     return {"workspace": str(workspace), "surface": surface, "vertices": int(len(vertices)),
             "points": int(len(points)), "curvature": result.curvature,
             "all": _shares(deviation, result.sigma),
             "covered": _shares(deviation[covered], result.sigma[covered]),
             "bridged": _shares(deviation[~covered], result.sigma[~covered]),
-            "propagated_only": _shares(deviation, result.propagated)}
+            "propagated_only": _shares(deviation, result.propagated),
+            "input_points": _shares(point_error, sigma)}
 
 
 def main(argv=None) -> int:
@@ -87,7 +91,7 @@ def main(argv=None) -> int:
     for r in rows:
         print(f"{r['workspace']}: {r['surface']}, {r['vertices']} vertices, {r['points']} "
               f"points, curvature {r['curvature']:.3g}")
-        for part in ("all", "covered", "bridged", "propagated_only"):
+        for part in ("all", "covered", "bridged", "propagated_only", "input_points"):
             s = r[part]
             if not s["n"]:
                 print(f"{Path(r['workspace']).name:<24}{part:<17}{0:>8}")

@@ -1,15 +1,16 @@
 r"""Where the surface is uncertain: each surface point's 1σ along its normal.
 
 The surface is fitted to points that each carry a σ (``acquire``'s per-point σ).
-At a surface point ``x`` with unit normal ``n`` the fit is, locally, a weighted
-mean of the ``K`` nearest points' offsets along ``n`` (the ring fits average the
-points of a section near a ring sample; the patches blend neighbouring ring
-samples): with Gaussian weights ``w_i = exp(-(d_i^2 - d_1^2) / h^2)`` (``h`` the
-median distance to the K-th point over the surface)
+At a surface point ``x`` the fit is, locally, a weighted mean of the ``K`` nearest
+points' offsets from the surface (the ring fits average the points of a section near
+a ring sample; the patches blend neighbouring ring samples): with Gaussian weights
+``w_i = exp(-(d_i^2 - d_1^2) / h^2)`` (``h`` the median distance to the K-th point)
 
-    m(x) = sum w_i r_i / sum w_i,         r_i = (p_i - x) . n,
+    m(x) = sum w_i r_i / sum w_i,    r_i = (p_i - y_i) . n(y_i),
     s_prop^2(x) = sum w_i^2 max(sigma_i^2, v) / (sum w_i)^2,
 
+``y_i`` the surface point nearest ``p_i`` (not ``x``'s tangent plane, which over
+the reach ``h`` holds the surface's own bend ``kappa h^2 / 2``),
 ``v`` the points' weighted scatter about ``m`` (a point's σ as stated, or as the
 points show it where they scatter more).  ``m`` is the surface's offset from the
 points' local mean: a bias ``b`` of the surface plus the mean's own error, of
@@ -18,8 +19,8 @@ variance ``s_prop^2``, so ``<m^2> = b^2 + s_prop^2`` (``<.>`` the mean over the
 
     sigma_data^2 = b^2 + s_prop^2 = max(<m^2>, s_prop^2)
 
-(``<m^2> + s_prop^2`` counts the points' noise twice: 85 % within 1σ on a rendered
-vase ring, ``benchmarks/uncertainty.py``).
+(``<m^2> + s_prop^2`` counts the points' noise twice where the surface follows
+the points' local mean).
 
 Where the surface bridges a gap or closes a cap there are no points within the
 fit's support: ``g = max(0, d_0 - h)``, ``d_0`` the distance to the nearest point
@@ -102,13 +103,17 @@ def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
     # Gaussian weights relative to the nearest point's (no underflow far from the data)
     w = np.exp(-(d ** 2 - d[:, :1] ** 2) / h ** 2)
     wsum = w.sum(axis=1)
-    r = np.einsum("vkd,vd->vk", p[idx] - x[:, None, :], n)
+    surface_tree = cKDTree(x)
+    # each point's offset from the surface (its nearest surface point's tangent plane),
+    # not from x's tangent plane: over the fit's reach the latter holds the surface's
+    # own sagitta, kappa h^2 / 2 at the reach's edge, which is no error of the fit
+    _, foot = surface_tree.query(p)
+    r = np.einsum("nd,nd->n", p - x[foot], n[foot])[idx]
     m = (w * r).sum(axis=1) / wsum
     scatter = (w * (r - m[:, None]) ** 2).sum(axis=1) / wsum
     # each point's sigma, or the points' scatter about their local mean where larger or
     # where the sigma is unknown (NaN)
     prop2 = (w ** 2 * np.fmax(s[idx] ** 2, scatter[:, None])).sum(axis=1) / wsum ** 2
-    surface_tree = cKDTree(x)
     _, near = surface_tree.query(x, k=min(K_SURFACE, len(x)))
     near = near.reshape(len(x), -1)
     offset2 = (m ** 2)[near].mean(axis=1)
