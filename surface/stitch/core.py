@@ -27,9 +27,9 @@ from surface.stitch.checks import self_intersects
 from surface.stitch.flips import MAX_NORMAL_CHANGE, _flippable_edges, delaunay_flips
 from surface.stitch.support import _nearest_loop, _read_at, _support
 from surface.stitch.tiling import (
+    _common_angles,
     _nested_angles,
     _ring_order_and_parameter,
-    _star_shaped,
     axis_frame,
     tile_min_span,
     zip_rings,
@@ -322,10 +322,10 @@ def stitch_rings(rings, axis, close_ends: bool = True, flip: bool = True,
             notes.append(f"sections {s} and {s + 1}: {event.kind} of loop(s) "
                          f"{list(event.lower)} into {list(event.upper)}, tiled with "
                          f"{len(bridge)} bridge edge(s)")
-        for low_idx, low_param, up_idx, up_param in pieces:
-            if (event.kind == "one-to-one" and _star_shaped(planar_of(low_idx))
-                    and _star_shaped(planar_of(up_idx))):
-                local = zip_rings(low_param, up_param)
+        for low_idx, low_param, up_idx, _up_param in pieces:
+            if event.kind == "one-to-one" and (
+                    about := _common_angles(planar_of(low_idx), planar_of(up_idx))):
+                local = zip_rings(*about)   # one angle for the strip (one centre)
             elif event.kind != "one-to-one" and (
                     about := _nested_angles(planar_of(low_idx), planar_of(up_idx))):
                 local = zip_rings(*about)   # a branch inside its sub-loop, seen from it

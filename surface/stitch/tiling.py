@@ -138,7 +138,26 @@ def _nested_angles(lower: np.ndarray, upper: np.ndarray) -> tuple | None:
     inner, outer = (lower, upper) if area(lower) < area(upper) else (upper, lower)
     if not _inside(inner, outer).all():
         return None
-    centre = inner.mean(axis=0)
+    return _angles_about(lower, upper, inner.mean(axis=0))
+
+
+def _common_angles(lower: np.ndarray, upper: np.ndarray) -> tuple | None:
+    """Both counter-clockwise rings' angles (in turns) about one point, halfway between
+    their centroids, when both are star-shaped about it; else None.
+
+    The direction criterion's angle is one for the whole strip.  Each ring's angle about
+    its own centroid is not: the centroid (a mean of the points) follows the ring's
+    sampling, and two rings of one wall sampled unlike (a support ring carrying the
+    bottom ring's points beside one carrying the next ring's) were zipped a few degrees
+    apart, their faces sheared along the wall and crossing (the temple ring's bottom
+    strips: 5 pairs, rings 0.009 apart in centroid, 0.0006 in height).
+    """
+    return _angles_about(lower, upper, 0.5 * (lower.mean(axis=0) + upper.mean(axis=0)))
+
+
+def _angles_about(lower: np.ndarray, upper: np.ndarray, centre: np.ndarray) -> tuple | None:
+    """Both rings' increasing polar angles (in turns) about ``centre``, or None where a
+    ring is not star-shaped about it."""
     params = []
     for ring in (lower, upper):
         theta = np.arctan2(ring[:, 1] - centre[1], ring[:, 0] - centre[0])

@@ -410,3 +410,18 @@ def test_a_hairpin_between_crossing_rings_takes_the_sided_tiling_where_it_crosse
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert counts.max() == 2 and np.sum(counts == 1) == len(v)   # a closed strip
     assert len(self_intersections(v, tri)) == 0
+
+
+def test_a_strip_is_zipped_by_one_angle_about_one_centre():
+    """The temple ring's first four rings (centred, ``data/temple_bottom_rings.npz``),
+    stitched with support rings.  The two support rings between its bottom rings carry
+    those rings' unlike samplings, their point means 0.009 apart in the plan (0.0006 in
+    height): zipped by each ring's angle about its own mean, the strip sheared along the
+    wall and crossed itself and the next strip (5 pairs).  About one centre: none."""
+    from pathlib import Path
+
+    data = np.load(Path(__file__).parent / "data" / "temple_bottom_rings.npz")
+    rings = [data[f"ring{i}"] for i in range(4)]
+    result = stitch_rings(rings, data["axis"], support_sigma=float(data["sigma"]))
+    report = check_solid(result.vertices, result.triangles)
+    assert result.closed and report.valid and report.genus == 0, report.problems()
