@@ -24,6 +24,8 @@ Run: ``.venv/bin/python benchmarks/validity.py [--quick] [--scans] [--json PATH]
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -101,13 +103,17 @@ def _weld(v, t):
 
 
 def _solid_figures(v, t) -> dict:
+    cpu = time.process_time()
     report, seconds = _timed(lambda: check_solid(v, t))
+    cpu = time.process_time() - cpu
     return {"valid": report.valid, "faces": report.faces, "components": report.components,
             "genus": report.genus, "pairs": int(len(report.intersecting_pairs)),
             "nonmanifold_edges": int(len(report.nonmanifold_edges)),
             "nonmanifold_vertices": int(len(report.nonmanifold_vertices)),
             "flipped": int(len(report.flipped_faces)), "border_loops": report.boundary_loops,
             "degenerate": int(len(report.degenerate_faces)), "check_s": seconds,
+            "check_cpu_s": cpu,   # this process's peak so far (the check's, mostly)
+            "check_peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
             "problems": report.problems()}
 
 
@@ -116,11 +122,21 @@ def _run_sections(cloud: Path, out: Path, smooth: bool) -> dict:
 
     command = [str(Path(sys.executable).parent / "photosurf"), "sections", str(cloud),
                "--out", str(out), "--axis", "auto"] + (["--smooth"] if smooth else [])
-    done, seconds = _timed(lambda: subprocess.run(command, capture_output=True, text=True,
-                                                  timeout=900))
-    lines = (done.stdout + done.stderr).strip().splitlines()
-    row = {"exit": done.returncode, "seconds": seconds, "said": lines[-1] if lines else ""}
-    if done.returncode == 0 and out.exists():
+    start = time.perf_counter()
+    with tempfile.TemporaryFile("w+") as log:
+        child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        try:     # its own CPU seconds and peak memory (the machine is shared)
+            _, status, usage = os.wait4(child.pid, 0)
+        except BaseException:
+            child.kill()
+            raise
+        child.returncode = os.waitstatus_to_exitcode(status)
+        log.seek(0)
+        lines = log.read().strip().splitlines()
+    row = {"exit": child.returncode, "seconds": time.perf_counter() - start,
+           "cpu_s": usage.ru_utime + usage.ru_stime, "peak_gb": usage.ru_maxrss / 2**20,
+           "said": lines[-1] if lines else ""}
+    if child.returncode == 0 and out.exists():
         row.update(_solid_figures(*read_mesh(out)))
     return row
 
@@ -175,7 +191,9 @@ def _print_scan(row: dict) -> None:
     print(f"{row['scan']:<20} truth: {_cell(row.get('truth'))}")
     for key in ("stitched", "smooth"):
         figures = row[key]
-        print(f"{'':<20} {key}: {_cell(figures)}  ({figures['seconds']:.0f} s) "
+        print(f"{'':<20} {key}: {_cell(figures)}  ({figures['seconds']:.0f} s, "
+              f"{figures['cpu_s']:.0f} CPU-s, {figures['peak_gb']:.2f} GB; check "
+              f"{figures.get('check_cpu_s', 0):.1f} CPU-s) "
               f"{'; '.join(figures.get('problems', [])) or figures['said']}")
 
 
