@@ -61,6 +61,8 @@ STITCH_NOTES = "stitch.json"
 SURFACE = "surface.ply"
 CONTROL_NET = "control_net.npz"
 CAMERAS = "cameras.yml"
+#: The acquire stage's record of the cameras' ring (for sections.axis = "data").
+RING_FILE = "ring.json"
 
 
 def _members(path: str | os.PathLike) -> dict[str, np.ndarray]:

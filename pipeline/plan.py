@@ -93,9 +93,9 @@ class Stage:
         return bool(Path(self.output).suffix)
 
 
-#: What every stage function runs besides its own imports: ``pipeline.stages`` (of which
-#: only the stage's function and the definitions it uses are hashed) imports these at
-#: module level.
+#: What every stage function runs besides its own imports: the stage modules
+#: (``pipeline.stage_*``, of which only the stage's function and the definitions it uses
+#: are hashed) import these at module level.
 _ADAPTERS = ("pipeline.artifacts", "pipeline.errors", "pipeline.inputs", "pipeline.progress")
 
 STAGES: list[Stage] = [
@@ -108,28 +108,28 @@ STAGES: list[Stage] = [
           kind_modules=(("cloud", ("pipeline.cloud_io",)),
                         ("stereo", ("matching.pair", "matching.cameras", "matching.scheduler")),
                         ("folder", ("pipeline.acquisition",)))),
-    # scene: its cameras (sections.axis = "data" across their view, pipeline.stages._cameras)
+    # scene: its cameras (sections.axis = "data" across their view, pipeline.stage_cameras)
     Stage("sections", fn.sections, params=("sections",), needs=("acquire",),
           optional_needs=("scene",),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.sections",
-                               "matching.cameras")),
+                               "matching.cameras", "pipeline.stage_cameras")),
     Stage("curves", fn.curves, params=("curves",), needs=("sections",),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.sizing",
-                               "surface.open_surface")),
-    # scene / acquire: the cameras an open surface faces (pipeline.stages._camera_centres)
-    # sections.open: an end the data do not cover left as a border (pipeline.stages._stitcher)
+                               "surface.open_surface", "pipeline.stage_cameras")),
+    # scene / acquire: the cameras an open surface faces (pipeline.stage_cameras)
+    # sections.open: an end the data do not cover left as a border (pipeline.stage_stitch)
     Stage("stitch", fn.stitch, params=("stitch", "sections"), needs=("curves", "sections"),
           optional_needs=("scene", "acquire"),
           modules=_ADAPTERS + ("surface.reconstruct", "surface.stitch",
                                "surface.open_surface", "pipeline.smoothing",
-                               "matching.cameras")),
+                               "matching.cameras", "pipeline.stage_cameras")),
     Stage("smooth", fn.smooth, params=("smooth", "stitch"), needs=("stitch",),
           optional_needs=("acquire", "sections", "curves"),
           modules=_ADAPTERS + ("pipeline.mesh_io", "pipeline.smoothing", "surface.metrics",
                                "surface.sizing", "surface.fitting", "surface.reconstruct",
                                "surface.stitch", "surface.open_surface",
                                "surface.general_mesh", "surface.sections",
-                               "surface.validity")),
+                               "surface.validity", "pipeline.stage_stitch")),
     Stage("export", fn.export, params=("export",), needs=("stitch",), optional_needs=("smooth",),
           modules=_ADAPTERS + ("pipeline.export", "pipeline.mesh_io", "pipeline.step",
                                 "surface.uncertainty")),

@@ -126,8 +126,8 @@ def sized_surface(points: np.ndarray, axis="z", sections: int | None = None,
         cap_sigma = cap_sigma if np.isfinite(cap_sigma).any() else None
     # each end classified with the cloud, as the stitch stage does (a mouth on a wall too
     # thin to part is left open: the smooth stage then takes its open path, not the sizing)
-    build = stages._stitcher(params["stitch"], planes, noise, sliced.cap_cloud, sliced.spacing,
-                             cap_sigma, points=points)
+    build = stages.stitcher(params["stitch"], planes, noise, sliced.cap_cloud, sliced.spacing,
+                            cap_sigma, points=points)
     dense, notes = build(rings, planes)
     messages += [m for m in notes if "too thin" in m] + list(dense.messages)
     if not dense.closed:
