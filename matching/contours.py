@@ -1,25 +1,22 @@
 r"""Outline points: where an object's rim is, measured as an edge in each view.
 
-Area matching cannot reach an object's outline.  A window on the last rows inside a rim
-holds the rim's blurred edge, which does not move with the surface, and a window moved
-inward (eccentric) puts its point at a pixel centre: on the 24-view rendered ring the
-matched cloud ends on the last pixel row inside each rim, half a pixel (0.002 of the
-vase's 3 units) and more short of it, and the surface's ends come out that far short.
-The outline itself is where the image says the object ends, to a fraction of a pixel;
-what it lacks is depth, which the matched surface next to it has.  This module measures
-the one with the other (not in any library we use; written here):
+Area matching cannot reach an object's outline: a window on a rim holds its blurred edge,
+which does not move with the surface, so the matched cloud (and the surface's ends) stop
+on the last pixel row inside each rim (the 24-view rendered ring: half a pixel, 0.002 of
+the vase's 3 units, short).  The outline is where the image says the object ends, to a
+fraction of a pixel; what it lacks is depth, which the matched surface beside it has.
+This module measures the one with the other (not in any library we use; written here):
 
 1. **Edge to sub-pixel.**  The boundary pixels of a view's object mask (a mask file or
    :func:`matching.masks.foreground_mask`) are followed along the mask's normal: grey
    profiles over :data:`PROFILE_PX` (bilinear, cv2.remap); the background level ``b`` is
    the median of the outer samples, the object's ``o`` of the inner ones; the edge is the
-   first crossing of the half level ``(b + o) / 2`` from outside (the position of a
-   blurred step edge for any symmetric blur), interpolated between samples.  The
-   object's level is then re-read just inside that crossing (:data:`NEAR_PX`: a
-   textured object's level 6-10 px inside is not the one its edge steps to) and the
-   crossing found again.  Kept when the contrast ``|o - b|`` is above
-   :data:`MIN_CONTRAST_SNR` times the image noise (the flat-block estimate of
-   :func:`matching.lsm.estimate_noise`) and the background beside it is flat within
+   first crossing of the half level ``(b + o) / 2`` from outside (a blurred step edge's
+   position for any symmetric blur), interpolated between samples.  The object's level is
+   then re-read just inside it (:data:`NEAR_PX`: a textured object's level 6-10 px inside
+   is not the one its edge steps to) and the crossing found again.  Kept when the contrast
+   ``|o - b|`` is above :data:`MIN_CONTRAST_SNR` times the image noise (the flat-block
+   estimate of :func:`matching.lsm.estimate_noise`) and the background beside it is flat within
    :data:`MAX_BACKGROUND_SNR` noise (grey-level std over 7 x 7 px around the outer
    samples): a uniform background there, not texture.  Its precision: the noise over
    the profile's slope at the crossing, with the estimator's own :data:`EDGE_MODEL_PX`
@@ -34,13 +31,12 @@ the one with the other (not in any library we use; written here):
    the cut's depth is ill-conditioned, and matching reached it anyway): no point.  Where
    the ray is well inside the surface's tangent cone the outline is a crease (a vase's
    rim, a cut column's end), the surface ends there, and the point extends it by the
-   fraction of a pixel the matching could not reach.  A point more than
-   ``2 RADIUS_PX`` footprints from its neighbours' centroid is not kept (no
-   extrapolation).
+   fraction of a pixel the matching could not reach.  A point more than ``2 RADIUS_PX``
+   footprints from its neighbours' centroid is not kept (no extrapolation).
 
 The points carry ``sigma``: the edge's precision times the pixel footprint, with the
-neighbours' own median σ.  :func:`matching.multiview.reconstruct_multiview` adds them
-to its cloud (``outline=True``: in views with a mask or a uniform background).
+neighbours' own median σ.  :func:`matching.multiview.reconstruct_multiview` adds them to
+its cloud (``outline=True``: in views with a mask or a uniform background).
 """
 
 from __future__ import annotations

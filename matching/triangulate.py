@@ -1,8 +1,7 @@
 r"""Two- and multi-view triangulation with 3D covariance propagation.
 
-For a point :math:`X` seen at pixels :math:`x_v` in views :math:`v`, the
-maximum-likelihood estimate under Gaussian image noise with covariances
-:math:`\Sigma_v` minimises
+For a point :math:`X` seen at pixels :math:`x_v` in views :math:`v`, the maximum-likelihood
+estimate under Gaussian image noise with covariances :math:`\Sigma_v` minimises
 
 .. math::
 
@@ -12,10 +11,9 @@ with :math:`\pi_v` the full projection of view :math:`v`, lens distortion
 included.  The start is the linear (DLT) solution of Hartley & Zisserman [1]_
 §12.2 on undistorted, normalised image coordinates, :math:`A \tilde X = 0`
 with two rows :math:`x\,p^{3T} - p^{1T}`, :math:`y\,p^{3T} - p^{2T}` per view,
-solved in its inhomogeneous form (:math:`\tilde X = (X, 1)`, linear least
-squares) after centring and scaling the world frame (Hartley's conditioning).
-Gauss-Newton then refines all points at once: with the
-Jacobians :math:`J_v = \partial \pi_v / \partial X` (2×3 per point and view),
+solved in its inhomogeneous form (:math:`\tilde X = (X, 1)`, linear least squares)
+after centring and scaling the world frame (Hartley's conditioning).  Gauss-Newton then
+refines all points at once: with :math:`J_v = \partial \pi_v / \partial X` (2×3),
 
 .. math::
 
@@ -23,28 +21,17 @@ Jacobians :math:`J_v = \partial \pi_v / \partial X` (2×3 per point and view),
     g = \sum_v J_v^T \Sigma_v^{-1} r_v, \qquad
     X \leftarrow X + H^{-1} g,
 
-a 3×3 system per point, solved as one batched array operation.  At the
-solution, first-order propagation gives the covariance of the point,
-:math:`\Sigma_X = H^{-1} = (J^T W J)^{-1}` ([1]_ §5.2.1, Result 5.10), and
-:math:`E(X)` follows a :math:`\chi^2` law with :math:`2V - 3` degrees of
-freedom, which is the test for a large reprojection error.
+a 3×3 system per point, solved as one batched array operation.  At the solution,
+first-order propagation gives :math:`\Sigma_X = H^{-1} = (J^T W J)^{-1}` ([1]_ §5.2.1,
+Result 5.10), and :math:`E(X)` follows a :math:`\chi^2` law with :math:`2V - 3` degrees of
+freedom, the test for a large reprojection error.
 
-Rejection reasons (``Triangulation.reason``, names in :data:`REASON_NAMES`):
-
-====  ======================  ==================================================
-code  name                    meaning
-====  ======================  ==================================================
-0     ``ok``                  accepted
-1     ``too_few_views``       seen in fewer than two views
-2     ``ill_conditioned``     rays (nearly) parallel, point at infinity, or
-                              non-finite result: cond(H) > ``TOL.triangulation_cond_max``
-3     ``behind_camera``       depth <= 0 in a view that sees the point
-4     ``large_reprojection``  :math:`E(X)` above the :math:`\chi^2_{2V-3}`
-                              quantile ``reject_p``, or RMS error above
-                              ``max_reprojection_px``
-====  ======================  ==================================================
-
-The first reason in this order wins.
+Rejection reasons (``Triangulation.reason``, names in :data:`REASON_NAMES`; the first
+in this order wins): 0 ``ok``; 1 ``too_few_views``, seen in fewer than two views;
+2 ``ill_conditioned``, rays (nearly) parallel, a point at infinity or a non-finite result
+(cond(H) > ``TOL.triangulation_cond_max``); 3 ``behind_camera``, depth <= 0 in a view that
+sees the point; 4 ``large_reprojection``, :math:`E(X)` above the :math:`\chi^2_{2V-3}`
+quantile ``reject_p``, or an RMS error above ``max_reprojection_px``.
 
 References
 ----------

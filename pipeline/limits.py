@@ -18,34 +18,15 @@ meant to say *why* a request is refused.
 Each limit is chosen so that a request at the limit still fits a 24 GB
 machine; the defaults and the shipped fixtures are far below every one
 (``tests/pipeline/test_hostile.py`` checks that the demo recipe and the
-defaults pass).
-
-=====================  ===========  ============================================
-key                    limit        what is counted
-=====================  ===========  ============================================
-image.pixels           1e8          width x height of one input image (header)
-synth.views            1000         cameras.n + cameras.second_ring.n
-synth.pixels           1e8          width x height x supersample^2 of one view
-synth.rays             1e10         views x synth.pixels
-synth.triangles        2e7          shape.triangles (revolution mesh)
-texture.components     4096         texture.components (sinusoids per point)
-render.supersample     16           render.supersample
-render.pixels          1e8          photosurf render: width x height x 4 (2x2 AA)
-sections.count         1e5          --sections / sections.count
-ring.points            1e5          --n / curves.n (odd sections; 2n on even)
-mesh.triangles         5e7          stitched mesh: about 3 x sections x n
-smooth.triangles       5e7          tessellation: 4 F x 4^level
-smooth.valence         1000         largest vertex valence n of a control mesh (its ring
-                                    operator costs ~n^2: 19 kB x n^2, 0.5 ms x n^2)
-iterations             1000         --max-iter / acquire.max_iter
-workers                64           local-cluster:N / executor.workers
-file.elements          1e8          vertices, faces or rows a mesh/cloud file claims:
-                                    PLY/OFF/STL header, glTF accessors, OBJ/ASCII-STL
-                                    /XYZ lines counted, NPZ array header
-calibrate.corners      1e4          --pattern COLSxROWS inner corners
-cad.patches            5e5          patches written as CAD faces (STEP, IGES: export.formats
-                                    step / iges, pipeline.step.write_cad)
-=====================  ===========  ============================================
+defaults pass).  The limits, their values and per-unit costs are :data:`LIMITS`
+(built from the table ``_TABLE`` below, each row with where its cost comes from);
+what each key counts, for a user, is the table of ``docs/cli.md`` (*Hostile and
+extreme input*): ``image.pixels``, ``synth.views`` / ``pixels`` / ``rays`` /
+``triangles``, ``texture.components``, ``render.supersample`` / ``pixels``,
+``sections.count``, ``ring.points``, ``mesh.triangles``, ``smooth.triangles``,
+``smooth.valence`` (a control vertex's valence n, cost ~n²), ``iterations``, ``workers``,
+``file.elements`` (what a mesh or cloud file claims, before it is read),
+``calibrate.corners`` and ``cad.patches``.
 """
 
 from __future__ import annotations
@@ -127,7 +108,7 @@ _TABLE = (
     Limit("cad.patches", 5e5, 2.4e4, 2.7e-4, "patch"),
 )
 
-#: Every limit by key (the table of the module docstring).
+#: Every limit by key.
 LIMITS = {limit.key: limit for limit in _TABLE}
 
 

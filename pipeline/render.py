@@ -1,8 +1,7 @@
 """Headless CPU rendering of a triangle mesh: a shaded contact sheet of views.
 
-Each pixel's ray is cast with open3d's ``RaycastingScene`` (Embree on the
-CPU, no display or GPU needed), and shaded in numpy with the Blinn-Phong
-model [1]_ [2]_
+Each pixel's ray is cast with open3d's ``RaycastingScene`` (Embree on the CPU, no
+display or GPU needed), and shaded in numpy with the Blinn-Phong model [1]_ [2]_
 
 .. math::
 
@@ -10,29 +9,23 @@ model [1]_ [2]_
         + k_s \\sum_l k_l \\max(0, \\mathbf n\\cdot\\mathbf h_l)^{\\alpha},
     \\qquad \\mathbf h_l = \\frac{\\mathbf l + \\mathbf v}{\\lVert\\mathbf l + \\mathbf v\\rVert},
 
-in linear light, then encoded with the sRGB transfer curve.  The normal
-:math:`\\mathbf n` is the barycentric interpolation of the vertex normals at
-the hit point (Phong normal interpolation), so a finely tessellated smooth
-surface looks smooth: open3d's ``primitive_normals`` are per face and would
-show every facet.  Lights are fixed to the camera (a key light above-left, a
-fill light right), so every view of the sheet is lit alike; surfaces are lit
-from both sides.  Anti-aliasing, which the raycaster alone does not provide, is
-adaptive [4]_: one ray per pixel centre, then ``supersample²`` rays averaged in
-linear light (a box filter over the sub-pixels) wherever a pixel's colour or hit
-status differs from a neighbour's (:func:`render_view`).
+in linear light, then encoded with the sRGB transfer curve.  The normal :math:`\\mathbf n`
+is the barycentric interpolation of the vertex normals at the hit point (Phong
+interpolation: a finely tessellated smooth surface looks smooth, not faceted).  Lights are
+fixed to the camera (a key light above-left, a fill light right), so every view is lit
+alike; surfaces are lit from both sides.  Anti-aliasing is adaptive [4]_: one ray per
+pixel centre, then ``supersample²`` rays averaged in linear light wherever a pixel's
+colour or hit status differs from a neighbour's (:func:`render_view`).
 
-Cameras follow the OpenCV convention (``x_c = R X + t``, pixel centres at
-integer coordinates, y down); the world's +z axis is up in every view.  The
-camera looks at the centre of the bounding box from azimuth φ and elevation
-θ; its distance makes the bounding sphere (radius r) fill ``fill`` of the
-smaller tile side at the fixed field of view.
+Cameras follow the OpenCV convention (``x_c = R X + t``, pixel centres at integer
+coordinates, y down); the world's +z axis is up in every view.  The camera looks at the
+bounding box's centre from azimuth φ and elevation θ, at the distance where the bounding
+sphere fills ``fill`` of the smaller tile side.
 
-With a truth mesh, the surface is coloured by each vertex's distance to the
-truth (signed, negative inside, with a diverging blue-white-red map when the
-truth is closed; unsigned with the sequential viridis map otherwise),
-interpolated across triangles; a scale bar states the range.  Error colours
-are shaded without the specular term, so a pixel's chromaticity is exactly the
-colour map's.
+With a truth mesh, the surface is coloured by each vertex's distance to the truth
+(signed, negative inside, with a diverging blue-white-red map [3]_ when the truth is
+closed; unsigned with viridis otherwise), interpolated across triangles, with a scale bar;
+error colours are shaded without the specular term (a pixel's chromaticity is the map's).
 
 References
 ----------

@@ -9,11 +9,10 @@ the correspondence problem; Barequet and Sharir's overlap criterion [2]_): with
 sections closer than the features they resolve, a tube's consecutive loops
 overlap by most of their area and distinct tubes not at all.
 
-The overlap is measured on a raster: every loop is scan-converted once onto one
-grid over the whole sectioned object (cells of :data:`GRID_CELLS` across its
-extent; the even-odd rule by a cumulative sum of edge crossings per row, counted by a
-numba kernel), and
-the overlap of two loops is the count of cells in both, times the cell area.
+The overlap is measured on a raster: every loop is scan-converted once onto one grid over
+the whole sectioned object (cells of :data:`GRID_CELLS` across its extent; the even-odd
+rule by a cumulative sum of edge crossings per row, a numba kernel), and the overlap of
+two loops is the count of cells in both, times the cell area.
 Loops are related when they have the same depth and overlap by more than
 :data:`MIN_OVERLAP` of the smaller one's area (a raster of ~10⁵ cells resolves a
 loop of a tenth of the extent to ~1 % of its area).
@@ -26,10 +25,9 @@ side, in a section of several loops, is *spurious* and is dropped: a body (or a
 hole) seen in one section only is thinner than the section spacing along the
 axis, and its two caps would lie in one plane, a flat body of no volume whose
 ring edges the stitch shares between both caps and the neighbours' walls.  Most
-are noise (a blob thinner than the sampling in every direction, equivalent
-diameter :math:`2\sqrt{A/\pi}` below two spacings); on the real temple ring
-(``../shared/data/real/temple_sparse_ring``) they were also slivers of a plinth's
-top face inside its contour, and one-section islands at the capitals (1 224
+are noise (a blob thinner than the sampling in every direction, equivalent diameter
+:math:`2\sqrt{A/\pi}` below two spacings); on the real temple ring they were also slivers
+of a plinth's top face inside its contour, and one-section islands at the capitals (1 224
 non-manifold edges in its stitched mesh, all on such double caps).
 
 References
