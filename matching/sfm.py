@@ -447,7 +447,6 @@ def run_sfm(image_dir: str | os.PathLike, work_dir: str | os.PathLike | None = N
         Fewer than 2 images, unreadable image, unknown matcher/model, mixed
         sizes with ``single_camera=True``, or no image registered.
     """
-
     image_dir = Path(image_dir)
     names, others, matcher = _checked_request(image_dir, image_names, matcher, refine,
                                               camera_model)
