@@ -224,14 +224,17 @@ def _least_squares(points: np.ndarray, m: int, smoothing: float, correlation: fl
     ctrl = np.linalg.solve(system, design.T @ points)
     if correlation <= 0:
         return ctrl, t, float(m)
-    inverse = np.linalg.inv(system)
-    df = float(np.einsum("ij,jk,ik->", design, inverse, design))          # tr(H)
-    # + 2 Σ_{i<j} R_ij H_ij over the pairs closer than ℓ
+    gain = design @ np.linalg.inv(system)                  # H = gain · designᵀ
+    df = float(np.einsum("ij,ij->", gain, design))                        # tr(H)
+    # + 2 Σ_{i<j} R_ij H_ij over the pairs closer than ℓ; design row j is zero outside
+    # the min(4, m) columns from its segment − 1 (clipped; the reflected ends folded in)
     pos = t / max(m - 1, 1) * _length(_moving_average(points, window))
     pairs = cKDTree(pos[:, None]).query_pairs(correlation, output_type="ndarray")
     if len(pairs):
         i, j = pairs[:, 0], pairs[:, 1]
-        h_ij = np.einsum("pk,kl,pl->p", design[i], inverse, design[j])
+        width = min(4, m)
+        cols = np.clip(seg[j] - 1, 0, m - width)[:, None] + np.arange(width)
+        h_ij = np.einsum("pc,pc->p", gain[i[:, None], cols], design[j[:, None], cols])
         df += 2.0 * float(np.sum((1.0 - np.abs(pos[i] - pos[j]) / correlation) * h_ij))
     return ctrl, t, df
 
