@@ -7,6 +7,7 @@ import pytest
 
 from surface import bezier
 from surface import bezier_merge as bm
+from testkit.nets import ellipsoid_net
 
 
 def _torus():
@@ -22,11 +23,7 @@ def _torus():
 @pytest.fixture(scope="module")
 def ellipsoid():
     """Valence 4, 5 and 6 vertices: the patches around the irregular ones are G1 only."""
-    import open3d as o3d
-
-    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, 4)
-    return bezier.control_net(np.asarray(mesh.vertices) * [1.0, 0.7, 0.5],
-                              np.asarray(mesh.triangles))
+    return ellipsoid_net()
 
 
 def test_control_triangles_are_found_in_either_orientation(ellipsoid):

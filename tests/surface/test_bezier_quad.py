@@ -8,16 +8,13 @@ import pytest
 from surface import bezier
 from surface import bezier_merge as bm
 from surface import bezier_quad as bq
+from testkit.nets import ellipsoid_net
 
 
 @pytest.fixture(scope="module")
 def ellipsoid():
     """Valence 4, 5 and 6 vertices: the patches around the irregular ones are G1 only."""
-    import open3d as o3d
-
-    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, 4)
-    return bezier.control_net(np.asarray(mesh.vertices) * [1.0, 0.7, 0.5],
-                              np.asarray(mesh.triangles))
+    return ellipsoid_net()
 
 
 def test_pairs_share_an_edge_and_no_triangle_twice(ellipsoid):
