@@ -267,7 +267,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                densify: bool | str = False, robust: bool | str = False,
                unique: bool = True, epipolar_pass: bool = False,
                regrow_ambiguous: bool = True, centre_points: bool = True,
-               aperture_k: float | None = 1.0, **lsm_options) -> PairMatches:
+               aperture_k: float | None = 1.0, equalise_blur: bool = True,
+               **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     Parameters
@@ -429,6 +430,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         The ``aperture`` test's bound on the rig's row error carried through the window's
         edge slope, in units of the match's own σ along the line (default 1: it may not
         exceed it); None: that part of the test off.
+    equalise_blur : bool
+        Epipolar pass: match in rectified images whose blur along the rows is made equal
+        where it differs (the sharper image smoothed by a Gaussian whose variance varies
+        across it, measured from the matched windows' edge profiles,
+        :func:`matching.pair_epipolar._blur_balance`), in place of the footprint
+        smoothing (``footprint_var``, which then applies to the 2-D passes only).
+        Default on (the chessboard rig: docs/decisions/stereo-blur.md).
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -450,7 +458,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         sigma_factor=sigma_factor, search_range=search_range, footprint_var=footprint_var,
         densify=densify, robust=robust, unique=unique, epipolar_pass=epipolar_pass,
         regrow_ambiguous=regrow_ambiguous, centre_points=centre_points,
-        aperture_k=aperture_k, rig=rig)
+        aperture_k=aperture_k, rig=rig, equalise_blur=equalise_blur)
     cfg.ladder, cfg.population = _check_options(cfg, lsm_options)
     preps, left, right = _read_images(left_img, right_img, rig, rectified, interpolation)
     cfg.epipolar = rectified if epipolar is None else bool(epipolar)
@@ -706,7 +714,7 @@ def _verify(cfg, st, left, right) -> None:
             left, right, cfg.rig, st.rect, st.points, st.start, st.res, st.sides,
             st.options, cfg.aperture_k, cfg.interpolation, second_order=cfg.second_order,
             spacing=cfg.spacing, classes=st.edge[idx], scale_cov=bool(cfg.sigma_factor),
-            at_best_point=cfg.centre_points)
+            at_best_point=cfg.centre_points, equalise_blur=cfg.equalise_blur)
         status_ill = res.accepted & ~np.isfinite(st.geo_var)
         st.res = replace(res, status=np.where(status_ill, APERTURE, res.status)
                          .astype(res.status.dtype))
@@ -755,7 +763,8 @@ def _grow_and_report(cfg, st, left, right) -> None:
                 left, right, cfg.rig, st.rect, st.points, start_, sub, sides_, st.options,
                 cfg.aperture_k, cfg.interpolation, second_order=cfg.second_order,
                 spacing=cfg.spacing, classes=st.edge[idx], scale_cov=bool(cfg.sigma_factor),
-                fixed=st.frame, at_best_point=cfg.centre_points)
+                fixed=st.frame, at_best_point=cfg.centre_points,
+                equalise_blur=cfg.equalise_blur)
 
         local = status[idx].copy()
         st.res, grown_mask = _grow_verified(local, st.points, st.res, st.frame, st.geo_var,

@@ -6,7 +6,9 @@ solved, then once more with fixed second-order terms along the row from the neig
 A window ill-conditioned along the line is tried at larger sides, then rejected
 (``aperture``: the shape takes the shift's information at the window's least-variance
 point, :func:`_least_variance_point`, or the rig's row error through the edge slope
-exceeds the match's σ).  :func:`_epipolar_refine` returns the matches in the original
+exceeds the match's σ).  Where the two cameras blur differently, the sharper rectified
+image is first smoothed to the other's blur, measured from the matched windows' edge
+profiles (:func:`_blur_balance`).  :func:`_epipolar_refine` returns the matches in the original
 images and the rectified frame's (a dict) for the uniqueness test, the backward loop and
 the report (:mod:`matching.pair_verify`, :mod:`matching.pair_centres`).
 Measured: ``docs/decisions/stereo-epipolar.md``.
@@ -19,8 +21,10 @@ from types import SimpleNamespace
 
 import cv2
 import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
-from matching.lsm import LSMResult, Status, lsm_match, prepare_image
+from matching.lsm import LSMResult, PreparedImage, Status, lsm_match, prepare_image
 from matching.pair_status import MAX_INFLATION
 from matching.precision import class_variance_factors
 from matching.rectify import (
@@ -103,7 +107,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
                      max_inflation: float | None = MAX_INFLATION, grow_sides=(1.5, 2.0),
                      second_order: bool = True, spacing: int = DEFAULT_SPACING,
                      classes=None, scale_cov: bool = True, fixed: dict | None = None,
-                     at_best_point: bool = True):
+                     at_best_point: bool = True, equalise_blur: bool = False):
     """LSM constrained to the epipolar line of a calibrated pair (Gruen & Baltsavias 1988).
 
     Every window LSM tried (the 2-D solution where it was accepted, else the approximation
@@ -139,12 +143,33 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     windows) and the rectified frame's matches (a dict of (N, ...) arrays, NaN where the
     pass did not run, with the prepared rectified images; ``fixed``: σ_g and the
     variance factors taken from an earlier call's frame instead of estimated).
+
+    ``equalise_blur``: the rectified images' blur along the rows made equal where it
+    differs (:func:`_blur_balance`, :func:`_smoothed`) and the footprint smoothing off;
+    the frame's ``blur`` holds the median variance each image was smoothed by (None:
+    not measured, the footprint rule kept).
     """
 
     n = len(points)
     w = _rectified_windows(left, right, rig, rect, points, start, res, fixed, interpolation)
     opts = {k: v for k, v in options.items()
             if k not in ("offset", "robust", "quadratic", "direction", "rigid_across")}
+    blur = None
+    if equalise_blur:
+        # the rectified images' blur along the rows made equal where it differs, measured
+        # from the matched windows, in place of the footprint rule's geometric guess; a
+        # later call (``fixed``) matches in the images the first call made
+        if fixed is None:
+            fields = _blur_balance(w, sides)
+            if fields is not None:
+                w.fprep = _smoothed(w.fprep, fields[0], interpolation)
+                w.gprep = _smoothed(w.gprep, fields[1], interpolation)
+                w.left_r = w.fprep.raw
+                blur = fields[2]
+        else:
+            blur = fixed.get("blur")
+        if blur is not None:
+            opts["footprint_var"] = None
     found, side_of, todo, sigma_g, k2_each, k2_classes = _constrained_matches(
         w, n, res, sides, opts, aperture_k, max_inflation, grow_sides, classes, fixed,
         at_best_point)
@@ -163,7 +188,7 @@ def _epipolar_refine(left, right, rig, rect, points, start, res: LSMResult, side
     factors = (k2, float(k2_classes[1]) if len(k2_classes) > 1 else k2)
     # the rectified frame's matches, for the uniqueness test and the backward loop there
     frame = {"fprep": w.fprep, "gprep": w.gprep, "opts": opts, "sigma_g": sigma_g,
-             "factors": factors, "index": np.arange(n)}
+             "factors": factors, "index": np.arange(n), "blur": blur}
     for key, value in (("centre", w.centre_r), ("frac", w.frac), ("xl", w.xl_r),
                        ("position", found["position"]), ("affine", found["affine"]),
                        ("radiometric", found["radiometric"]), ("cov", found["cov"]),
@@ -392,3 +417,169 @@ def _in_original_images(w: SimpleNamespace, rig, rect, res: LSMResult, found: di
                   affine=affine, window_cov=None)
     return out, geo, dirs, new_sides, stretch_ok
 
+
+
+
+
+#: Gaussian variances (rectified px²) :func:`_blur_balance` tries on either image; the
+#: variance it finds is interpolated between them (beyond the last: the last)
+BLUR_STEPS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.65, 0.8)
+
+
+def _ladder(raw: np.ndarray) -> list[np.ndarray]:
+    """``raw`` smoothed by a Gaussian of each variance of :data:`BLUR_STEPS`."""
+    return [raw if var == 0 else cv2.GaussianBlur(raw, (0, 0), float(np.sqrt(var)),
+                                                  borderType=cv2.BORDER_REFLECT)
+            for var in BLUR_STEPS]
+
+
+def _smoothed(prep: PreparedImage, field: np.ndarray, interpolation: str) -> PreparedImage:
+    """``prep``'s image smoothed at each pixel by a Gaussian of the variance ``field``
+    (H, W) px² (linear between the images of :data:`BLUR_STEPS`); its noise the
+    original's times the root sum of squared weights of the median variance's kernel
+    (white noise: the separable k⊗k gives √Σ(k_i k_j)² = Σ k_i²)."""
+    if not np.any(field > 0):
+        return prep
+    steps = np.asarray(BLUR_STEPS)
+    v = np.clip(field, 0.0, steps[-1])
+    out = np.zeros_like(prep.raw)
+    for k, img in enumerate(_ladder(prep.raw)):
+        lo = steps[k - 1] if k else steps[0] - 1.0
+        hi = steps[k + 1] if k + 1 < len(steps) else steps[-1] + 1.0
+        weight = np.where(v <= steps[k], (v - lo) / (steps[k] - lo), (hi - v) / (hi - steps[k]))
+        weight = np.clip(weight, 0.0, 1.0)
+        if weight.any():
+            out += weight * img
+    var = float(np.median(v[v > 0]))
+    sigma = float(np.sqrt(var))
+    kern = cv2.getGaussianKernel(2 * int(np.ceil(4 * sigma)) + 1, sigma)[:, 0]
+    return replace(prepare_image(out, interpolation), noise=prep.noise * float(np.sum(kern**2)))
+
+
+def _robust_planes(design: np.ndarray, values: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """(N, 3) least-squares planes of ``values`` (N, K) over ``design`` (N, K, 3), each
+    refitted ``rounds`` times without the values beyond 3 x 1.4826 MAD of its residuals
+    (a 2-D pass's slips); NaN where singular."""
+    weight = np.ones(values.shape)
+    plane = np.full((len(values), 3), np.nan)
+    for _ in range(rounds):
+        normal = np.einsum("nk,nki,nkj->nij", weight, design, design)
+        rhs = np.einsum("nk,nki,nk->ni", weight, design, values)
+        ok = np.abs(np.linalg.det(normal)) > 1e-9
+        plane[:] = np.nan
+        plane[ok] = np.linalg.solve(normal[ok], rhs[ok][..., None])[..., 0]
+        resid = np.abs(values - np.einsum("nki,ni->nk", design, np.nan_to_num(plane)))
+        mad = np.median(resid, axis=1, keepdims=True)
+        weight = (resid <= 3.0 * 1.4826 * np.maximum(mad, 1e-3)).astype(np.float64)
+    return plane
+
+
+def _sharpness(windows: np.ndarray) -> np.ndarray:
+    """Each (N, s+2, s+2) window's x-gradient energy over its grey-level variance (inner
+    s x s pixels, central differences).  For the same structure at the same contrast it
+    is inversely proportional to the blur of its edges along the row: a Gaussian edge of
+    contrast C and σ b has ∫ g_x² = C² / (2 √π b) per unit length, whatever the gain."""
+    gx = 0.5 * (windows[:, 1:-1, 2:] - windows[:, 1:-1, :-2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (gx**2).sum(axis=(1, 2)) / windows[:, 1:-1, 1:-1].var(axis=(1, 2))
+
+
+def _blur_balance(w: SimpleNamespace, sides, max_windows: int = 3000, neighbours: int = 200,
+                  region: int = 100):
+    """Per-pixel Gaussian variances (rectified px²) for the left and the right rectified
+    images that give them the same blur along the rows, measured from the matched
+    windows; None where too few windows tell.
+
+    The accepted 2-D matches (at most ``max_windows``, evenly spread) are read in both
+    images: the template on its pixels, the search window resampled (cubic B-spline) at
+    the template's scale -- its scale and shear along the row from a robust plane
+    through the ``neighbours`` nearest matches' disparities, not from the window's own
+    LSM shape, which absorbs part of a blur difference (a stretched window looks
+    blurrier).  The ratio of the two windows' :func:`_sharpness` is the ratio of the
+    images' edge blur there (gain and contrast cancel).  Over the windows with the
+    stronger half of the gradient energy, its median over the ``region`` nearest windows
+    is taken with either image smoothed by each variance of :data:`BLUR_STEPS`, and the
+    variance (interpolated) that brings it to 1 is that window's: defocus differs with
+    depth, so the blur difference varies across the image.  The windows' variances are
+    spread over each image (nearest window, smoothed over 2 x 16 px cells).  Two cameras
+    that blur an edge differently leave a residual the linear radiometry of LSM cannot
+    absorb, with a shift that follows the edge's sign (docs/decisions/stereo-blur.md).
+    Returns (left field, right field, median variance of each image over the windows).
+    """
+    sel = np.flatnonzero(w.from_2d)
+    if len(sel) > max_windows:
+        sel = sel[np.linspace(0, len(sel) - 1, max_windows).astype(np.intp)]
+    if len(sel) < 30:
+        return None
+    side = int(np.median(np.asarray(sides)[w.ok][sel]))
+    half = side // 2 + 1
+    oy, ox = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)
+    acc = np.flatnonzero(w.from_2d)
+    disp = w.centre_r[acc, 0] - w.init[acc, 0]
+    k = min(neighbours, len(acc))
+    _, nb = cKDTree(w.centre_r[acc]).query(w.centre_r[sel], k=k)
+    design = np.concatenate([np.ones((len(sel), k, 1)), w.centre_r[acc][nb]
+                             - w.centre_r[sel][:, None, :]], axis=2)
+    plane = _robust_planes(design, disp[nb])
+    a1, a2 = 1.0 - plane[:, 1], -plane[:, 2]
+    xf = (w.centre_r[sel, 0, None, None] + ox).astype(np.intp)
+    yf = (w.centre_r[sel, 1, None, None] + oy).astype(np.intp)
+    xg = w.init[sel, 0, None, None] + a1[:, None, None] * ox + a2[:, None, None] * oy
+    yg = w.init[sel, 3, None, None] + oy
+    hf, wf = w.fprep.raw.shape
+    hg, wg = w.gprep.raw.shape
+    inside = (np.isfinite(a1) & (a1 > 0.5) & (a1 < 2.0) & (xf.min((1, 2)) >= 0)
+              & (yf.min((1, 2)) >= 0) & (xf.max((1, 2)) < wf) & (yf.max((1, 2)) < hf)
+              & (xg.min((1, 2)) >= 1) & (yg.min((1, 2)) >= 0) & (xg.max((1, 2)) < wg - 2)
+              & (yg.max((1, 2)) < hg - 1))
+    xf, yf, xg, yg = xf[inside], yf[inside], xg[inside], yg[inside]
+    if len(xf) < 30:
+        return None
+
+    def sampled(img, which):
+        if which == "f":
+            return _sharpness(img[yf, xf])
+        coef = ndimage.spline_filter(img, order=3, mode="mirror", output=np.float64)
+        return _sharpness(ndimage.map_coordinates(coef, [yg, xg], order=3, prefilter=False,
+                                                  mode="mirror"))
+
+    sf = np.array([sampled(img, "f") for img in _ladder(w.fprep.raw)])  # (steps, N)
+    sg = np.array([sampled(img, "g") for img in _ladder(w.gprep.raw)])
+    f0 = w.fprep.raw[yf, xf][:, 1:-1, 1:-1]
+    energy = sf[0] * f0.var(axis=(1, 2))
+    strong = (np.isfinite(sf).all(0) & np.isfinite(sg).all(0) & (sf > 0).all(0)
+              & (sg > 0).all(0) & (energy >= np.nanmedian(energy)))
+    if strong.sum() < 30:
+        return None
+    steps = np.asarray(BLUR_STEPS)
+    # the candidates in the order of the blur ratio (search / template) they give: the
+    # template smoothed most ... neither ... the search smoothed most; signed variance
+    # (negative: the template smoothed)
+    log_ratio = np.concatenate([np.log(sf[:0:-1] / sg[0]), np.log(sf[:1] / sg[:1]),
+                                np.log(sf[0] / sg[1:])])[:, strong]
+    signed = np.concatenate([-steps[:0:-1], [0.0], steps[1:]])
+    centres = w.centre_r[sel][inside][strong]
+    right = np.column_stack([xg[strong, half, half], yg[strong, half, half]])
+    kk = min(region, len(centres))
+    _, nb = cKDTree(centres).query(centres, k=kk)
+    local = np.median(log_ratio[:, nb], axis=2)  # (candidates, windows)
+    # the first candidate at which the local median ratio reaches 1, interpolated
+    above = local >= 0
+    first = np.where(above.any(0), above.argmax(0), len(signed) - 1)
+    prev = np.maximum(first - 1, 0)
+    cols = np.arange(local.shape[1])
+    lo, hi = local[prev, cols], local[first, cols]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where((first > 0) & (hi > lo), -lo / (hi - lo), 0.0)
+    need = signed[prev] + t * (signed[first] - signed[prev])
+    need = np.where(above.all(0), signed[0], need)
+    fields = []
+    for pos, amount, shape in ((centres, np.maximum(-need, 0.0), (hf, wf)),
+                               (right, np.maximum(need, 0.0), (hg, wg))):
+        cell = 16
+        gy, gx = np.mgrid[0:shape[0]:cell, 0:shape[1]:cell]
+        _, near = cKDTree(pos).query(np.column_stack([gx.ravel(), gy.ravel()]), k=1)
+        coarse = cv2.GaussianBlur(amount[near].reshape(gx.shape), (0, 0), 2.0)
+        fields.append(cv2.resize(coarse, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR))
+    return fields[0], fields[1], (float(np.median(np.maximum(-need, 0))),
+                                  float(np.median(np.maximum(need, 0))))
