@@ -1,17 +1,13 @@
 r"""The variance factor of LSM matches from independent neighbouring windows.
 
-LSM's covariance :math:`\sigma_0^2 N^{-1}` (Gruen 1985) holds for white noise and a
-model that fits.  Real photographs add correlated noise (demosaicing, compression:
-fewer independent observations than pixels), blur and shading differences between
-the views and the affine model's own error, none of which :math:`\sigma_0` sees.  The
-data measure them by redundancy: two windows whose centres :math:`p_i, p_j` are at
-least a patch side apart share no pixel, and each one's estimated affine warp
-:math:`W_i(p) = x_i + A_i (p - p_i)` predicts where their midpoint
-:math:`m = (p_i + p_j)/2` goes.  For any mapping that is quadratic between the two
-centres the two predictions agree exactly (the trapezoidal rule: the difference of
-the two is :math:`x_i - x_j - \tfrac12 (A_i + A_j)(p_i - p_j)`), so a slanted or
-curved surface -- a temple's facade, a wall seen 40 degrees apart -- gives no
-disagreement, only the matching errors do:
+LSM's covariance :math:`\sigma_0^2 N^{-1}` (Gruen 1985) holds for white noise and a model
+that fits.  Real photographs add correlated noise (demosaicing, compression), blur and
+shading differences between the views and the affine model's own error, none of which
+:math:`\sigma_0` sees.  The data measure them by redundancy: two windows whose centres
+:math:`p_i, p_j` are at least a patch side apart share no pixel, and each one's affine warp
+:math:`W_i(p) = x_i + A_i (p - p_i)` predicts where their midpoint :math:`m` goes.  For any
+mapping quadratic between the two centres the predictions agree exactly (the trapezoidal
+rule), so a slanted or curved surface gives no disagreement, only the matching errors do:
 
 .. math::
 
@@ -19,35 +15,26 @@ disagreement, only the matching errors do:
     E\,[d_{ij} d_{ij}^\mathsf{T}] = k^2 \left(G_i \Sigma_i G_i^\mathsf{T}
     + G_j \Sigma_j G_j^\mathsf{T}\right),
 
-:math:`\Sigma_i` the reported 6x6 covariance of :math:`(a_0, a_1, a_2, b_0, b_1, b_2)`
-(:attr:`matching.lsm.LSMResult.affine_cov`) and :math:`G_i` the gradient of
-:math:`W_i(m)` in them.  The variance factor :math:`k^2` -- the factor by which the
-reported variances must grow, a variance-component estimate from redundant
-observations (Förstner 1979) -- is the median of the Mahalanobis distances
-:math:`d^\mathsf{T} E^{-1} d` over its value for Gaussian errors (2 ln 2, the median of
-χ²₂): robust to the pairs across a depth edge or an occlusion, which disagree by
-far more, while they are fewer than half.  Pairs are taken between one and 1.5 patch
-sides apart (the nearest independent windows: the least model error between them).
+:math:`\Sigma_i` the reported 6x6 covariance of the warp
+(:attr:`matching.lsm.LSMResult.affine_cov`), :math:`G_i` the gradient of :math:`W_i(m)` in
+it.  The variance factor :math:`k^2` (a variance-component estimate, Förstner 1979) is the
+median of :math:`d^\mathsf{T} E^{-1} d` over its value for Gaussian errors (2 ln 2, the
+median of χ²₂): robust to pairs across a depth edge or an occlusion while they are fewer
+than half.  Pairs are taken between one and 1.5 patch sides apart.
 
-What it cannot see is an error that both windows share: one smooth over the two
-windows (a lens distortion, a relief of the scene: these are geometry, not matching
-error), a bias the same texture gives both, or a relief finer than a window, which
-every window smooths alike (the affine patch's model error against the centre pixel:
-``benchmarks/matching.py``'s rippled vase errs 2.2x the σ with the factor, 6.8x
-without; forward-backward loops see even less of it, 0.54x σ).
-
-Unlike forward-backward matching (:mod:`matching.consistency`), whose two matches read
-the same pixels and so share their noise, the windows compared here share none.
-``match_pair`` applies one factor per window class (:func:`class_variance_factors`).
+It cannot see an error both windows share: one smooth over the two (lens distortion,
+relief: geometry, not matching error), a bias the same texture gives both, or a relief
+finer than a window, which every window smooths alike (``benchmarks/matching.py``'s
+rippled vase errs 2.2x the σ with the factor, 6.8x without; forward-backward loops see
+even less, 0.54x σ).  Unlike forward-backward matching (:mod:`matching.consistency`), whose
+two matches read the same pixels and share their noise, the windows compared here share
+none.  ``match_pair`` applies one factor per window class (:func:`class_variance_factors`).
 Figures: ``docs/decisions/stereo-matching.md``.
 
-References
-----------
-.. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image matching
-   technique", South African Journal of Photogrammetry, Remote Sensing and
-   Cartography 14(3), 175-187 (1985).
-.. [2] W. Förstner, "Ein Verfahren zur Schätzung von Varianz- und Kovarianzkomponenten",
-   Allgemeine Vermessungs-Nachrichten 86, 446-453 (1979).
+References: A. W. Gruen, "Adaptive least squares correlation: a powerful image matching
+technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14(3), 175-187 (1985);
+W. Förstner, "Ein Verfahren zur Schätzung von Varianz- und Kovarianzkomponenten",
+Allgemeine Vermessungs-Nachrichten 86, 446-453 (1979).
 """
 
 from __future__ import annotations

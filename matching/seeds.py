@@ -1,53 +1,41 @@
 r"""Point selection and approximate correspondences for least-squares matching.
 
-Texture.  A template is worth matching when its smallest structure-tensor
-eigenvalue is well above what image noise alone produces (Shi & Tomasi 1994):
+Texture.  A template is worth matching when its smallest structure-tensor eigenvalue is
+well above what image noise alone produces (Shi & Tomasi 1994):
 
 .. math::
 
     S = \frac{1}{n}\sum_{patch} \nabla f \nabla f^\mathsf{T}, \qquad
     \lambda_{min}(S) \ge k \, \sigma_n^2 / 2 ,
 
-with central-difference gradients (the noise of one has variance
-:math:`\sigma_n^2/2`), :math:`\sigma_n` Immerkaer's noise estimate and
-:math:`k` = ``min_texture_snr`` -- the same test and units as
-:func:`matching.lsm.lsm_match`, so a selected point is never rejected there as
+with central-difference gradients (the noise of one has variance :math:`\sigma_n^2/2`),
+:math:`\sigma_n` Immerkaer's noise estimate and :math:`k` = ``min_texture_snr`` -- the test
+and units of :func:`matching.lsm.lsm_match`, so a selected point is never rejected there as
 textureless.  The best point of every ``spacing`` x ``spacing`` cell is kept.
 
-Precision.  :func:`shift_precision` predicts the σ of a match per unit σ0 from the
-same tensor summed over a patch, less its noise part (Förstner's error ellipse,
-:math:`1/\sqrt{2w}`, :math:`w = \det N / \operatorname{tr} N`, Förstner & Gülch
-1987), for any set of patch sides at once (integral images); :func:`forstner` gives the
-interest operator's w and roundness q.  The selection itself stays the texture test:
-selecting by w or q only buys precision by dropping points (on the vase, q >= 0.75
-keeps 81 % of the points for 0.0371 -> 0.0364 px RMS); :mod:`matching.pair` uses the
-prediction instead to grow the patch where the precision is poor.
+Precision.  :func:`shift_precision` predicts the σ of a match per unit σ0 from the same
+tensor summed over a patch, less its noise part (Förstner's error ellipse, 1/√(2w),
+w = det N / tr N, Förstner & Gülch 1987), for any set of patch sides at once (integral
+images); :func:`forstner` gives w and the roundness q.  Selecting by w or q only buys
+precision by dropping points (on the vase, q >= 0.75 keeps 81 % of the points for 0.0371 ->
+0.0364 px RMS); :mod:`matching.pair` uses the prediction to grow the patch instead.
 
-Approximations.  A calibrated pair is rectified (:mod:`matching.rectify`: the
-baseline is the rectified x axis, Fusiello, Trucco and Verri 2000) and
-``cv2.StereoSGBM`` (Hirschmüller 2008) computes a coarse disparity
-map on the rectified images.  Its disparity range comes from the data: SIFT
-matches between the rectified images (ratio test, rows agreeing within 2 px)
-give the 1st-99th percentile disparity plus a margin.  A selected left pixel is
-mapped into the rectified left image exactly (``cv2.undistortPoints`` with R1,
-P1), shifted by the SGBM disparity, and mapped back into the *original* right
-image exactly (rectified ray -> R2ᵀ -> ``cv2.projectPoints`` with the right
-camera's distortion).  LSM then refines in the original images, so the
-template is never resampled (its noise stays white, which is what σ0²(AᵀA)⁻¹
-assumes); the local epipolar direction is given for the optional constraint.
+Approximations.  A calibrated pair is rectified (:mod:`matching.rectify`, Fusiello, Trucco
+and Verri 2000) and ``cv2.StereoSGBM`` (Hirschmüller 2008) computes a coarse disparity map,
+its range from SIFT matches between the rectified images (ratio test, rows within 2 px:
+1st-99th percentile plus a margin).  A selected left pixel is mapped into the rectified
+left image exactly, shifted by the SGBM disparity, and mapped back into the *original*
+right image exactly (rectified ray -> R2ᵀ -> ``cv2.projectPoints`` with the right camera's
+distortion).  LSM then refines in the original images: the template is never resampled
+(its noise stays white, as σ0²(AᵀA)⁻¹ assumes); the local epipolar direction is given.
 
-References
-----------
-.. [1] J. Shi, C. Tomasi, "Good features to track", CVPR (1994).
-.. [2] H. Hirschmüller, "Stereo processing by semiglobal matching and mutual
-   information", IEEE TPAMI 30(2), 328-341 (2008).
-.. [3] J.-Y. Bouguet, Camera Calibration Toolbox for Matlab (stereo rectification).
-.. [4] W. Förstner, E. Gülch, "A fast operator for detection and precise location of
-   distinct points, corners and centres of circular features", ISPRS Intercommission
-   Conference on Fast Processing of Photogrammetric Data, Interlaken, 281-305 (1987).
-.. [5] A. F. Bobick, S. S. Intille, "Large occlusion stereo", IJCV 33(3), 181-200 (1999).
-.. [6] A. Fusiello, V. Roberto, E. Trucco, "Efficient stereo with multiple windowing",
-   CVPR, 858-863 (1997).
+References: J. Shi, C. Tomasi, "Good features to track", CVPR (1994); H. Hirschmüller,
+"Stereo processing by semiglobal matching and mutual information", IEEE TPAMI 30(2)
+(2008); J.-Y. Bouguet, Camera Calibration Toolbox for Matlab; W. Förstner, E. Gülch, "A
+fast operator for detection and precise location of distinct points, corners and centres
+of circular features", ISPRS Interlaken, 281-305 (1987); A. F. Bobick, S. S. Intille,
+"Large occlusion stereo", IJCV 33(3) (1999); A. Fusiello, V. Roberto, E. Trucco,
+"Efficient stereo with multiple windowing", CVPR (1997).
 """
 
 from __future__ import annotations
