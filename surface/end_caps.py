@@ -19,6 +19,8 @@ from surface.stitch import (
     _dome,
     _nearest_loop,
     end_window,
+    loops_cross,
+    self_intersects,
 )
 from surface.validate import TOL
 
@@ -175,7 +177,7 @@ def _end_rings(rings, end, end_loops, frame, points, candidates, beyond, heights
     axis = frame[2]
     _, end_step, end_error, _ = wall
     beyond_flat = points[beyond] @ frame[:2].T
-    new_rings, counts, dome, errors = [], [], False, []
+    new_rings, counts, dome, errors, steps = [], [], False, [], []
     for ring in end_loops:
         flat = ring @ frame[:2].T
         flat = flat.mean(axis=0) + CAP_INSET * (flat - flat.mean(axis=0))
@@ -221,7 +223,28 @@ def _end_rings(rings, end, end_loops, frame, points, candidates, beyond, heights
             last = _nearest_loop(last, loops, frame)
             chain.append(last)
         new_rings.append(_extrapolate_ring(ring, chain, step, axis))
-    return new_rings, counts, dome, errors
+        steps.append(step)
+    return _simple_ends(new_rings, end_loops, steps, frame), counts, dome, errors
+
+
+def _simple_ends(new_rings: list, end_loops: list, steps: list, frame: np.ndarray) -> list:
+    """The extrapolated end loops, each moved straight along the axis instead
+    (``end loop + step axis``, the end contour itself and so simple) where it crosses
+    itself; all of them where two cross each other.
+
+    The per-point lines of :func:`_extrapolate_ring` assume the rings before the end
+    run on one smooth wall.  Where one of them holds a part the end does not (a
+    handle's top joining the mug's wall one section below its rim: that point's line
+    ran through radii 1.0, 1.0, 1.4 and was read 0.66 at the rim, across the inner
+    wall's loop) or the wall turns into a pole within them (the amphora's handle tube
+    seen end-on: a loop that folds over itself), the line is no wall and the end's
+    contour would not be simple -- no cap can close it."""
+    flat = [r @ frame[:2].T for r in new_rings]
+    straight = [loop + step * frame[2] for loop, step in zip(end_loops, steps, strict=False)]
+    kept = [straight[k] if self_intersects(uv) else new_rings[k] for k, uv in enumerate(flat)]
+    if len(kept) > 1 and loops_cross([r @ frame[:2].T for r in kept]):
+        return straight
+    return kept
 
 
 def _end_note(name, new_rings, end_loops, counts, errors, wall, axis, ends) -> str:
@@ -473,6 +496,18 @@ def _extrapolate_ring(ring: np.ndarray, befores: list, step: float,
     var = ((dh - mean_h) ** 2).sum(axis=0)
     cov = np.einsum("kn,knc->nc", dh - mean_h, pos - mean_p)
     slope = cov / np.maximum(var, TOL.zero)[:, None]  # d(position)/d(height)
+    if len(track) > 2:
+        # a track off its line by more than the ring's tracks are (3 robust σ about their
+        # median) runs through a part the end does not hold: from its own end point, with
+        # the slope of the nearest tracks along the ring that are lines
+        off = _off_line(pos - mean_p - (dh - mean_h)[:, :, None] * slope, axis)
+        if off.any():
+            n, good = len(ring), np.flatnonzero(~off)
+            at = np.r_[good - n, good, good + n]
+            slope[off] = np.column_stack([np.interp(np.flatnonzero(off), at,
+                                                    np.tile(slope[good, c], 3))
+                                          for c in range(3)])
+            mean_p[off], mean_h[off] = pos[0][off], 0.0
     target = step  # the new ring's height above ring's own (per point)
     new = mean_p + (target - mean_h)[:, None] * slope
     # exactly at the ring's height + step along the axis
@@ -482,6 +517,19 @@ def _extrapolate_ring(ring: np.ndarray, befores: list, step: float,
     if not np.all((stretch > 0.5) & (stretch < 2.0)):
         new = ring + step * axis
     return new
+
+
+def _off_line(residuals: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(n,) bool: the tracks of :func:`_extrapolate_ring` whose lateral residuals from
+    their lines ``(k, n, 3)`` (RMS over the k rings) lie more than 3 robust σ (1.4826
+    MAD) above the ring's median track.  On a smooth wall every track bends alike (the
+    same curvature, the same noise) and at most a few per thousand pass 3 σ; a part one
+    ring holds and the end does not (a handle's top joining the wall) bends a few
+    tracks by its own width.  Never more than half of them: the median is a line."""
+    lateral = residuals - (residuals @ axis)[..., None] * axis
+    rms = np.sqrt(np.mean(np.sum(lateral**2, axis=2), axis=0))
+    centre = float(np.median(rms))
+    return rms > centre + 3.0 * 1.4826 * float(np.median(np.abs(rms - centre)))
 
 
 def _same_angle(ring: np.ndarray, before: np.ndarray, axis: np.ndarray) -> np.ndarray:

@@ -90,3 +90,45 @@ def test_sections_within_the_caps_noise_are_dropped_and_a_rim_is_not(sign):
         out = end_caps._drop_sections_past_cap(rings, section_heights, -1, sign, heights,
                                                flat, frame, 0.02, None)
         assert (out is not None) == dropped, past
+
+
+@pytest.mark.parametrize("bump_at", [0.2, 0.3])
+def test_an_end_extrapolated_through_a_handle_stays_a_simple_annulus(bump_at):
+    """A mug's top (outer wall r = 1, inner r = 0.75, rim at z = 0.45; sections every 0.1
+    up to 0.4) whose section one or two below the last one holds the handle's top joined
+    to the outer wall (r 1.4 over |θ| < 0.3): the per-point line through radii 1.4, 1.0,
+    1.0 was read at r 0.66 at the rim, across the inner loop, and the annulus could not be
+    capped (the 10 000-point mug of ``testkit.shapes``); here (a step of half a spacing)
+    at 0.83, a dent (0.13 out with the bump one section below).  The end loops are now
+    simple and apart, the outer one within 0.03 of r = 1 (0.023 at the bump's edge,
+    read partly up its flank; 0.0002 elsewhere)."""
+    from surface.sections import Section
+    from surface.stitch import loops_cross, self_intersects
+
+    rng = np.random.default_rng(0)
+    theta = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+    heights = [0.1, 0.2, 0.3, 0.4]
+
+    def loop(radius, z):
+        return np.column_stack([radius * np.cos(theta), radius * np.sin(theta),
+                                np.full(len(theta), z)])
+
+    bump = np.where(np.abs(np.angle(np.exp(1j * theta))) < 0.3, 1.4, 1.0)
+    rings = [[loop(bump if z == bump_at else 1.0, z), loop(0.75, z)] for z in heights]
+    frame = np.eye(3)
+    kept = [Section(height=z, points=np.zeros((0, 3)), origin=np.zeros(3), frame=frame,
+                    section_id=k) for k, z in enumerate(heights)]
+    # the rim's annulus at z = 0.45 and both walls between the last plane and the rim
+    count = 3000
+    t, u = rng.uniform(0, 2 * np.pi, count), rng.uniform(0, 1, count)
+    r_top = np.sqrt(0.75**2 + u * (1 - 0.75**2))
+    wall_r = np.where(rng.uniform(size=count) < 0.5, 1.0, 0.75)
+    z_wall = rng.uniform(0.4, 0.45, count)
+    points = np.vstack([np.column_stack([r_top * np.cos(t), r_top * np.sin(t),
+                                         np.full(count, 0.45)]),
+                        np.column_stack([wall_r * np.cos(t), wall_r * np.sin(t), z_wall])])
+    out, _ = end_caps.extend_to_caps(rings, kept, points, np.arange(0), 0.1)
+    top = [lp[:, :2] for lp in out[-1]]
+    assert len(top) == 2 and np.allclose(out[-1][0][:, 2], 0.45, atol=1e-9)
+    assert not any(self_intersects(uv) for uv in top) and not loops_cross(top)
+    assert np.abs(np.hypot(*top[0].T) - 1.0).max() < 0.03
