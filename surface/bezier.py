@@ -26,20 +26,16 @@ a patch (a fixed linear map per valence, split by a DFT into n small problems), 
 Loop's explicit formulas: close to, not equal to, the limit surface there (at most 0.6 % of
 the control edge on a subdivided cube).  Borders are closed by two layers of reflected
 ghost triangles (``g = a + b - c``); only the input faces' patches are returned, G1 across
-every interior edge.  Bad meshes (non-manifold, misoriented, NaN, zero area) raise
-``ValueError``.  The construction in full: ``docs/method/bezier.md``.
+every interior edge.  Bad meshes raise ``ValueError``; in full: ``docs/method/bezier.md``.
 
-Here: the construction, the patches' shared control points, their tensor-product form
-and closest points.  The patch algebra is :mod:`surface.bezier_patch`, tessellation
-:mod:`surface.bezier_tessellation`, the G1 report :mod:`surface.bezier_continuity`; their
-public names are offered here too.
+Here: the construction, shared control points, tensor-product form, closest points; the
+patch algebra (:mod:`surface.bezier_patch`), tessellation (:mod:`surface.bezier_tessellation`)
+and G1 report (:mod:`surface.bezier_continuity`) are offered here by name too.
 
 References
 ----------
-.. [1] C. Loop, "Smooth spline surfaces over irregular meshes",
-   Proc. SIGGRAPH 94, pp. 303-310 (1994).
-.. [2] C. Loop, "Smooth subdivision surfaces based on triangles", MSc thesis,
-   University of Utah (1987).
+.. [1] C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH 94, 303-310.
+.. [2] C. Loop, "Smooth subdivision surfaces based on triangles", MSc thesis, Utah (1987).
 .. [3] G. Farin, "Triangular Bernstein-Bézier patches", CAGD 3 (1986) 83-127.
 """
 

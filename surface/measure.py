@@ -12,14 +12,12 @@ Area and volume of a Bézier surface ``S(s, t)`` (patch corners ``tri[0..2]`` at
 (divergence theorem with ``div x = 3``).  For a sextic ``S`` the volume integrand is a
 polynomial of degree ``6 + 5 + 5 = 16`` in ``(s, t)``: a triangle rule exact to degree
 16 makes ``V`` exact up to rounding.  The rule (:func:`triangle_rule`) is Stroud's conical
-product [1]_ -- ``n`` Gauss-Jacobi points (weight ``1 - s``) times ``n`` Gauss-Legendre
-points through the collapsed square ``s = u, t = (1 - u) v`` -- exact to degree
-``2n - 1``, made symmetric by averaging over the six permutations of ``(r, s, t)``
-(``6 n^2`` points; the result does not depend on which corner a patch lists first).
-The area integrand is not a polynomial; it is integrated with the same degree-17 rule and
-its quadrature error estimated by the difference to the degree-13 rule.
-
-A triangle mesh: ``V = (1/6) sum v0 . (v1 x v2)`` (signed tetrahedra), ``A = sum |e1 x e2|/2``.
+product [1]_ (``n`` Gauss-Jacobi points, weight ``1 - s``, times ``n`` Gauss-Legendre points
+through the collapsed square ``s = u, t = (1 - u) v``), exact to degree ``2n - 1``, averaged
+over the six permutations of ``(r, s, t)`` (``6 n^2`` points; no corner comes first).
+The area integrand is not a polynomial: the same degree-17 rule, its error estimated by
+the difference to the degree-13 rule.  A triangle mesh: ``V = (1/6) sum v0 . (v1 x v2)``
+(signed tetrahedra), ``A = sum |e1 x e2| / 2``.
 
 Capacity of a vessel (:func:`capacity`): the cavity ``C`` is bounded by the inner wall and
 bottom below the plane ``z = h`` (``z`` along the unit axis ``a`` from ``origin``) and by
@@ -28,20 +26,17 @@ the plane's disc.  With the field ``F = (z - h) a`` (``div F = 1``, ``F = 0`` on
 .. math::  V_C = \oint_{\partial C} F \cdot n_C \, dA
                = \int_{\text{inner wall}, z < h} (h - z)\, (a \cdot n) \, dA,
 
-``n`` the solid's outward normal (``n_C = -n`` on the wall): the cap disc carries no flux,
-so neither its shape nor its area is needed.  Which surface faces the cavity is decided by
-two rays from just outside the surface (a tessellation vertex moved by ``eps`` along its
-normal): the cavity is closed below (the ray along ``-a`` hits the surface) and around (the
-ray radially away from the axis hits the surface).  The integral is evaluated on the
-tessellation, triangles clipped at the plane exactly (flat triangles: ``int (h - z) dA =
-area (h - z_centroid)``); its error is at most the tessellation's chord bound times the wet
+``n`` the solid's outward normal (``n_C = -n`` on the wall): the cap disc carries no flux.
+A surface point faces the cavity when two rays from just outside it (``eps`` along the
+normal) hit the surface: along ``-a`` (closed below) and radially away from the axis
+(closed around).  The integral runs over the tessellation, triangles clipped at the plane
+exactly (``int (h - z) dA = area (h - z_centroid)``), within the chord bound times the wet
 area.  The rim height is the lowest point of the longest loop of edges between cavity and
 other triangles (the lip's edge): the level at which the vessel overflows.
 
 References
 ----------
-.. [1] A. H. Stroud, "Approximate calculation of multiple integrals", Prentice-Hall
-   (1971), section 2.7 (conical product rules).
+.. [1] A. H. Stroud, "Approximate calculation of multiple integrals" (1971), section 2.7.
 """
 
 from __future__ import annotations
