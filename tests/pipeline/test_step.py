@@ -11,16 +11,13 @@ pytest.importorskip("OCP")
 from pipeline import step  # noqa: E402
 from surface import bezier  # noqa: E402
 from surface.metrics import point_mesh_distance  # noqa: E402
+from testkit.nets import ellipsoid_net  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def ellipsoid():
     """Loop's surface over a coarse ellipsoid (valence 4, 5, 6 vertices): 320 patches."""
-    import open3d as o3d
-
-    mesh = o3d.geometry.TriangleMesh.create_sphere(1.0, 4)
-    vertices = np.asarray(mesh.vertices) * [1.0, 0.7, 0.5]
-    return bezier.control_net(vertices, np.asarray(mesh.triangles))
+    return ellipsoid_net()
 
 
 def _props(shape):
@@ -42,6 +39,31 @@ def _faces(shape):
     while explorer.More():
         yield TopoDS.Face(explorer.Current())
         explorer.Next()
+
+
+def _same_closed_solid(path, cp, deviation: float):
+    """The CAD file's shape and volume, checked: one valid solid whose shells are oriented
+    (every edge in two faces, once) without free edges, its volume and area those of the
+    patches ``cp`` within the faces' offset ``deviation`` times the area (OpenCascade's
+    integration of a B-spline solid is itself approximate: ~1e-6 here)."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
+    from OCP.TopAbs import TopAbs_SOLID
+
+    from surface.measure import surface_integrals
+
+    shape = step.read_cad_solid(path)
+    assert shape.ShapeType() == TopAbs_SOLID
+    assert BRepCheck_Analyzer(shape).IsValid()
+    shells = ShapeAnalysis_Shell()
+    shells.LoadShells(shape)
+    assert not shells.CheckOrientedShells(shape, True)
+    assert not shells.HasFreeEdges()
+    exact = surface_integrals(cp)
+    volume, area = _props(shape)
+    assert abs(volume - exact["volume"]) <= deviation * exact["area"] + 1e-5 * exact["area"]
+    assert area == pytest.approx(exact["area"], rel=1e-4)
+    return shape, volume
 
 
 @pytest.mark.parametrize("suffix", [".step", ".iges"])
@@ -286,32 +308,14 @@ def test_step_with_a_face_per_control_triangle_is_the_same_solid(tmp_path, ellip
     """Given a CAD tolerance, a fourth of the faces (surface.bezier_merge, two spans):
     a valid closed solid sharing every edge, its volume and area those of the patches to
     within the faces' measured offset times the area."""
-    from OCP.BRepCheck import BRepCheck_Analyzer
-    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
-    from OCP.TopAbs import TopAbs_SOLID
-
-    from surface.measure import surface_integrals
-
     cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
     report: dict = {}
     path = step.write_cad(tmp_path / "merged.step", cp, tris, source_face=source,
                           tolerance=1e-3, report=report)
     assert report["merged"] and report["faces"] == len(cp) // 4
     assert report["deviation"] <= 1e-3
-    shape = step.read_cad_solid(path)
-    assert shape.ShapeType() == TopAbs_SOLID
-    assert BRepCheck_Analyzer(shape).IsValid()
-    shells = ShapeAnalysis_Shell()
-    shells.LoadShells(shape)
-    assert not shells.CheckOrientedShells(shape, True)
-    assert not shells.HasFreeEdges()
+    shape, volume = _same_closed_solid(path, cp, report["deviation"])
     assert len(list(_faces(shape))) == len(cp) // 4
-    exact = surface_integrals(cp)
-    volume, area = _props(shape)
-    # OpenCascade's integration of a B-spline solid is itself approximate (~1e-6 here)
-    bound = report["deviation"] * exact["area"] + 1e-5 * exact["area"]
-    assert abs(volume - exact["volume"]) <= bound
-    assert area == pytest.approx(exact["area"], rel=1e-4)
     # the turned-over domain gives the same outward solid
     flipped = step.write_cad(tmp_path / "flipped.step", cp[:, _swap_jk()], tris[:, [0, 2, 1]],
                              source_face=source, tolerance=1e-3)
@@ -350,12 +354,6 @@ def test_step_with_quadrilateral_faces_is_the_same_solid(tmp_path, ellipsoid):
     rest as control-triangle faces, each control edge one edge: a valid closed solid of
     fewer faces, the same volume and area as the control-triangle file, G1 kept within
     the gate."""
-    from OCP.BRepCheck import BRepCheck_Analyzer
-    from OCP.ShapeAnalysis import ShapeAnalysis_Shell
-    from OCP.TopAbs import TopAbs_SOLID
-
-    from surface.measure import surface_integrals
-
     cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
     report: dict = {}
     path = step.write_cad(tmp_path / "quads.step", cp, tris, source_face=source,
@@ -364,16 +362,5 @@ def test_step_with_quadrilateral_faces_is_the_same_solid(tmp_path, ellipsoid):
     assert report["faces"] == report["quads"] + report["triangles"] < len(cp) // 4
     assert 2 * report["quads"] + report["triangles"] == len(cp) // 4
     assert report["angle_deg"] <= report["angle_tolerance_deg"]
-    shape = step.read_cad_solid(path)
-    assert shape.ShapeType() == TopAbs_SOLID
-    assert BRepCheck_Analyzer(shape).IsValid()
-    shells = ShapeAnalysis_Shell()
-    shells.LoadShells(shape)
-    assert not shells.CheckOrientedShells(shape, True)
-    assert not shells.HasFreeEdges()
+    shape, _ = _same_closed_solid(path, cp, report["deviation"])
     assert len(list(_faces(shape))) == report["faces"]
-    exact = surface_integrals(cp)
-    volume, area = _props(shape)
-    bound = report["deviation"] * exact["area"] + 1e-5 * exact["area"]
-    assert abs(volume - exact["volume"]) <= bound
-    assert area == pytest.approx(exact["area"], rel=1e-4)
