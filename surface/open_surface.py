@@ -622,6 +622,51 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
     return np.split(points + move, np.cumsum(counts)[:-1])
 
 
+def _across_view(loops: Sequence, view: np.ndarray | None) -> np.ndarray | None:
+    """The unit direction across the cameras' mean view ``view`` in the sections' planes,
+    or None: no view, a mean of the cameras' unit view directions shorter than 1/2 (they
+    do not share one view), or sections within 45° of facing it (they cut it into depth
+    slabs: no height field)."""
+    if view is None or np.linalg.norm(view) < 0.5 or not loops or not loops[0]:
+        return None
+    axis = np.asarray(loops[0][0].frame, np.float64)[2]
+    across = np.cross(axis, np.asarray(view, np.float64) / np.linalg.norm(view))
+    return across / np.linalg.norm(across) if np.linalg.norm(across) > 0.5**0.5 else None
+
+
+def _noise_lookup(sigma, window):
+    """Points ``(P, 3)`` → the σ ``(P,)`` of their nearest section point (``sigma``:
+    (points, σ)), or None without σ or without the window's model."""
+    if sigma is None or window is None:
+        return None
+    finite = np.isfinite(sigma[1])
+    if not finite.any():
+        return None
+    tree, known = cKDTree(np.asarray(sigma[0])[finite]), np.asarray(sigma[1])[finite]
+    return lambda pts: known[tree.query(pts)[1]]
+
+
+def _section_arc(section_loops, across, view) -> tuple[np.ndarray, int]:
+    """A section's loops as one ordered arc and the pieces in it: the pieces that continue
+    one another (:func:`chain_arcs`), or across the view one height field of their runs
+    between gaps (:func:`height_field_arc`: a loop's runs may lie at other depths)."""
+    pieces = [loop_arc(lp) for lp in section_loops]
+    if across is None:
+        return chain_arcs(pieces)
+    pieces = [run for piece, lp in zip(pieces, section_loops, strict=True)
+              for run in _runs_between_gaps(piece, getattr(lp, "bridge", math.inf))]
+    return height_field_arc(pieces, across, view)
+
+
+def _grid_step(placed: list, spacing: float, n: int | None) -> float:
+    """The odd arcs' grid step in ``u``: the widest arc (smallest scale: most length per
+    unit of u) gets ring points one section ``spacing`` apart, or ``n`` points."""
+    if n is None:
+        return spacing * min(p.scale for p in placed)
+    widest = max(placed, key=lambda p: float(p.u[-1] - p.u[0]))
+    return float(widest.u[-1] - widest.u[0]) / max(int(n) - 1, 1)
+
+
 @one_blas_thread
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
               smoothing: float | str = "auto", border: bool = True,
@@ -678,29 +723,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
     notes, curves, data, partial = [], [], 0, 0
-    across = None
-    if view is not None and np.linalg.norm(view) >= 0.5 and loops and loops[0]:
-        # (a mean of the cameras' unit view directions shorter than 1/2: they do not
-        # share one view)
-        axis = np.asarray(loops[0][0].frame, np.float64)[2]
-        across = np.cross(axis, np.asarray(view, np.float64) / np.linalg.norm(view))
-        # sections within 45° of facing the view cut it into depth slabs: no height field
-        across = across / np.linalg.norm(across) if np.linalg.norm(across) > 0.5**0.5 \
-            else None
-    noise_of = None
-    if sigma is not None and window is not None:
-        finite = np.isfinite(sigma[1])
-        if finite.any():
-            tree, known = cKDTree(np.asarray(sigma[0])[finite]), np.asarray(sigma[1])[finite]
-            noise_of = lambda pts: known[tree.query(pts)[1]]  # noqa: E731
+    across, noise_of = _across_view(loops, view), _noise_lookup(sigma, window)
     for section_loops in loops:
         best = max(section_loops, key=len)
-        pieces = [loop_arc(lp) for lp in section_loops]
-        if across is not None:  # a loop's runs between its gaps may lie at other depths
-            pieces = [run for piece, lp in zip(pieces, section_loops, strict=True)
-                      for run in _runs_between_gaps(piece, getattr(lp, "bridge", math.inf))]
-        arc, used = (chain_arcs(pieces) if across is None else
-                     height_field_arc(pieces, across, view))
+        arc, used = _section_arc(section_loops, across, view)
         data += len(arc)
         if used < len(section_loops):
             partial += 1
@@ -725,13 +751,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                          f"{len(curves)} sections")
     curves, placed = [curves[k] for k in run], [placed[k] for k in run]
     loops = [loops[k] for k in run]
-    if n is None:
-        # the widest arc (smallest scale: most length per unit of u) gets ring points
-        # one section spacing apart
-        step = spacing * min(p.scale for p in placed)
-    else:
-        widest = max(placed, key=lambda p: float(p.u[-1] - p.u[0]))
-        step = float(widest.u[-1] - widest.u[0]) / max(int(n) - 1, 1)
+    step = _grid_step(placed, spacing, n)
     counts = [float(p.u[-1] - p.u[0]) / (step if k % 2 == 0 else step / 2) + 2
               for k, p in enumerate(placed)]
     if sum(counts) > MAX_RING_POINTS_PER_POINT * data:
