@@ -1,54 +1,34 @@
 r"""Delaunay-stitched triangle mesh from closed section rings.
 
-Between two adjacent sections, odd points :math:`o_k` at
-:math:`\theta = 2\pi k/N` and even points :math:`e_j` at
-:math:`\theta = \pi j/N`, the *direction criterion* of the paper builds
+Between two adjacent sections, odd points :math:`o_k` at :math:`\theta = 2\pi k/N` and
+even points :math:`e_j` at :math:`\theta = \pi j/N`, the *direction criterion* [2]_ builds
 
 .. math::
 
     (o_k, e_{2k}, e_{2k+1}),\quad (o_k, e_{2k+1}, o_{k+1}),\quad
     (o_{k+1}, e_{2k+1}, e_{2k+2}),\qquad k = 0, \dots, N-1.
 
-Generalised to any two ring sizes it is a merge by angle: walking both rings
-counter-clockwise, the next triangle advances the ring whose next point comes
-first (on a tie the coarser ring first, which reproduces the three triangles
-above for N↔2N and a regular diagonal for N↔N).  Each ring of :math:`n_a` and
-:math:`n_b` points gives exactly :math:`n_a + n_b` triangles.
+For any two ring sizes it is a merge by angle about one centre (:mod:`.tiling`): each
+ring of :math:`n_a` and :math:`n_b` points gives :math:`n_a + n_b` triangles; a ring not
+star-shaped about it is tiled by the shortest total span (Fuchs et al. 1977).  Lawson's
+flips [1]_ (:math:`\angle acb + \angle adb > \pi`) then improve each strip and each cap
+(:mod:`.flips`, a numba kernel), never across a section contour.  Splits and merges are
+bridged (:mod:`.bridges`), ends and appearing loops capped (:mod:`.caps`).  All faces are
+counter-clockwise seen from outside.
 
-The strip is then improved by Lawson's flips [1]_ (the local Delaunay criterion
-:math:`\angle acb + \angle adb > \pi`), never across a section contour, never to an
-existing edge, never turning a face normal by more than ``max_normal_change``; in
-sweeps, one numba kernel (:func:`_lawson`).  End caps are an ear-clipping
-triangulation (mapbox ``earcut``) of the end contours followed by the same flips: the
-constrained Delaunay triangulation of the contour.
-
-All faces are counter-clockwise seen from outside: the side normal
-:math:`(a_{i+1} - a_i) \times (b_j - a_i)` points away from the axis when the
-rings run counter-clockwise about the axis and ``b`` lies above ``a``; the
-bottom cap faces :math:`-\mathbf{axis}`, the top cap :math:`+\mathbf{axis}`.
-
-Support rings (``stitch_rings(..., support_sigma=σ̂)``, the default of
-:func:`surface.reconstruct.surface_from_points` and of the pipeline): Loop's G1 surface
-passes a corner of the control polygon with turn α and legs h at
-:math:`|P_{-1} + P_1 - 2P_0|/6 = h\sin(\alpha/2)/3` from it.  Where the section profile
-turns by more than ``SHARP_TURN`` and that rounding exceeds the points' noise σ̂, a
-support ring is added on each leg at :math:`d = 3\hat\sigma/\sin(\alpha/2)`
-(:func:`support_distance`), so the rounding falls to σ̂; inside a cap's support ring
-come a guard ring (:data:`CAP_GUARD_RINGS`) and a quality triangulation of the plane,
-so the patches there read only cap-plane vertices and are exactly flat.  The supports
-lie on the stitched polyhedron: only the smooth surface changes.  Why supports and not
-an exact crease rule (Hoppe et al. 1994 [3]_; DeRose et al. 1998 [4]_), with the
-figures: ``docs/method/stitching.md``, "Support rings".
+Support rings (:mod:`.support`): Loop's G1 surface passes a corner of turn α and legs h at
+:math:`h\sin(\alpha/2)/3` from it; where the profile turns sharply and that exceeds the
+noise σ̂, a ring is added on each leg at :math:`d = 3\hat\sigma/\sin(\alpha/2)`, so the
+rounding falls to σ̂ (an exact crease rule [3]_ [4]_ was not taken).  The rules, their
+figures and what each fixed: ``docs/method/stitching.md``.
 
 References
 ----------
 .. [1] C. L. Lawson, "Software for C1 surface interpolation", in Mathematical
    Software III, Academic Press (1977), 161-194.
-.. [2] The paper's section-to-section direction criterion (DESIGN.md,
-   "Stitching").
-.. [3] H. Hoppe, T. DeRose, T. Duchamp, M. Halstead, H. Jin, J. McDonald,
-   J. Schweitzer, W. Stuetzle, "Piecewise smooth surface reconstruction",
-   SIGGRAPH 1994, 295-302.
+.. [2] The paper's section-to-section direction criterion (DESIGN.md, "Stitching").
+.. [3] H. Hoppe et al., "Piecewise smooth surface reconstruction", SIGGRAPH 1994,
+   295-302.
 .. [4] T. DeRose, M. Kass, T. Truong, "Subdivision surfaces in character
    animation", SIGGRAPH 1998, 85-94.
 """

@@ -176,22 +176,29 @@ def _bridge_split_in(ring_idx: np.ndarray, ring_flat: np.ndarray, children: list
         flat = np.vstack([flat[rest], pts[::-1]])
     subs.append(idx)
     sub_flats.append(flat)
-    for sub_flat in sub_flats:   # each sub-loop must stay counter-clockwise and simple
-        # about its centroid (no cancellation against the plane's origin), and by a margin:
-        # a child owning three collinear points of the loop (a straight side of a real
-        # loop) closes a sub-loop of no area, whose sign is rounding noise -- on the real
-        # temple ring rings differing by 3e-14 split one way on one machine, refused on
-        # another; such a sliver carries no strip to its child either way
+    _check_sub_loops(sub_flats)
+    order.append(left[0])
+    by_child = [subs[order.index(k)] for k in range(len(children))]
+    added = np.vstack(new_flat) if new_flat else np.zeros((0, 2))
+    return by_child, added, bridges, np.concatenate(dips) if dips else np.zeros(0)
+
+
+def _check_sub_loops(sub_flats: list) -> None:
+    """``ValueError`` unless each sub-loop runs counter-clockwise and encloses area.
+
+    The area about its centroid (no cancellation against the plane's origin), and by a
+    margin: a child owning three collinear points of the loop (a straight side of a real
+    loop) closes a sub-loop of no area, whose sign is rounding noise -- on the real
+    temple ring rings differing by 3e-14 split one way on one machine, refused on
+    another; such a sliver carries no strip to its child either way.
+    """
+    for sub_flat in sub_flats:
         x, y = (sub_flat - sub_flat.mean(axis=0)).T
         twice = float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
         length = float(np.linalg.norm(np.roll(sub_flat, -1, axis=0) - sub_flat, axis=1).sum())
         if twice <= SLIVER * length * length:
             raise ValueError("a bridge crosses its loop (a sub-loop runs clockwise or "
                              "encloses no area)")
-    order.append(left[0])
-    by_child = [subs[order.index(k)] for k in range(len(children))]
-    added = np.vstack(new_flat) if new_flat else np.zeros((0, 2))
-    return by_child, added, bridges, np.concatenate(dips) if dips else np.zeros(0)
 
 
 #: Cap points a bridge point's height is fitted to (a plane through them: 3 unknowns,
