@@ -199,8 +199,8 @@ def _open_parameters(points: np.ndarray, window: int, segments: int) -> np.ndarr
     return np.clip(segments * arc / total, 0.0, segments)
 
 
-def _least_squares(points: np.ndarray, m: int, smoothing: float, correlation: float = 0.0
-                   ) -> tuple[np.ndarray, np.ndarray, float]:
+def _least_squares(points: np.ndarray, m: int, smoothing: float, correlation: float = 0.0,
+                   source: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """Interpolated points ``(m, 3)`` of the open curve minimising
     ``Σ|Q(t_j) − x_j|² + λ Σ|Δ³P_i|²`` and the data parameters ``t`` ``(M,)``.
 
@@ -230,6 +230,8 @@ def _least_squares(points: np.ndarray, m: int, smoothing: float, correlation: fl
     # the min(4, m) columns from its segment − 1 (clipped; the reflected ends folded in)
     pos = t / max(m - 1, 1) * _length(_moving_average(points, window))
     pairs = cKDTree(pos[:, None]).query_pairs(correlation, output_type="ndarray")
+    if source is not None:  # errors shared only within one source (one pair's windows)
+        pairs = pairs[(source[pairs[:, 0]] == source[pairs[:, 1]]) & (source[pairs[:, 0]] >= 0)]
     if len(pairs):
         i, j = pairs[:, 0], pairs[:, 1]
         width = min(4, m)
@@ -250,7 +252,8 @@ def _normal_rss(points: np.ndarray, curve: OpenCurve, t: np.ndarray, frame: np.n
 
 def fit_open(points: np.ndarray, smoothing: float | str = "auto",
              frame: np.ndarray | None = None, correlation: float = 0.0,
-             least: float = 4.0, noise: float = 0.0) -> OpenCurve:
+             least: float = 4.0, noise: float = 0.0,
+             source: np.ndarray | None = None) -> OpenCurve:
     """Fit an open Catmull-Rom curve to the ordered points of an arc.
 
     Parameters
@@ -281,6 +284,12 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
         The points' σ (RMS) when known: with ``correlation``, a level whose residuals'
         RMS exceeds :data:`SHARED_BAND` σ is not taken (that shape is relief, not errors
         shared over a window), and when no level is within it the plain GCV is used.
+    source : (M,) int, optional
+        With ``correlation``: each point's error source, the view pair that matched it
+        (−1: fused from several).  Errors are shared only between points of one source
+        (``R_ij = 0`` across sources and for −1): a shape two pairs show is not one pair's
+        shared error, and it is fitted.  Without it every point is of one source (a
+        stereo pair: relief at the window's scale and its shared error are not told apart).
 
     Returns
     -------
@@ -306,7 +315,7 @@ def fit_open(points: np.ndarray, smoothing: float | str = "auto",
     best = None
     for s in candidates:
         m = max(3, min(m_data, int(round(m_data / s))))
-        ctrl, t, df = _least_squares(pts, m, s, correlation)
+        ctrl, t, df = _least_squares(pts, m, s, correlation, source)
         curve = OpenCurve(np.ascontiguousarray(_extension(m) @ ctrl), s)
         rss = _normal_rss(pts, curve, t, frame)
         if correlation > 0 and noise > 0 and rss > m_data * (SHARED_BAND * noise) ** 2:
@@ -567,7 +576,8 @@ def _foot_on_polyline(line: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float,
                   origin: float, axis: np.ndarray, correlation: float,
-                  noise: np.ndarray | None = None) -> list[np.ndarray]:
+                  noise: np.ndarray | None = None,
+                  source: np.ndarray | None = None) -> list[np.ndarray]:
     """The rings smoothed across the sections: each column of grid points at one ``u``
     (every ``step``: on every ring) through consecutive sections, 4 or more of them, is
     fitted by :func:`fit_open` with the errors shared over ``correlation`` (the matcher's
@@ -575,7 +585,8 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
     section plane (normal to ``axis``); the even rings' half-step points and the border
     points move as their ring's nearest column points (the mean of the two about them).
     ``origin``: the grid's origin in ``u`` (:func:`resample_arcs`'s, the least ``u``);
-    ``noise``: each ring point's σ ``(sum n_k,)`` when known (:func:`fit_open`'s bound).
+    ``noise``, ``source``: each ring point's σ and error source ``(sum n_k,)`` when known
+    (:func:`fit_open`'s).
 
     Each arc is fitted alone (:func:`open_arcs`): errors shared over a window make whole
     arcs lie off their neighbours, a ripple from section to section that no fit along
@@ -601,7 +612,7 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
             continue
         sigma = 0.0 if noise is None else float(np.sqrt(np.mean(noise[run] ** 2)))
         curve = fit_open(points[run], "auto", correlation=correlation, least=_COLUMN_LEAST,
-                         noise=sigma)
+                         noise=sigma, source=None if source is None else source[run])
         move[run] = _foot_on_polyline(curve.dense()[1], points[run]) - points[run]
     # the other points: the mean move of their ring's column points about them
     key = ring.astype(np.int64) * (int(grid.max()) + 4) + grid
@@ -635,15 +646,21 @@ def _across_view(loops: Sequence, view: np.ndarray | None) -> np.ndarray | None:
 
 
 def _noise_lookup(sigma, window):
-    """Points ``(P, 3)`` → the σ ``(P,)`` of their nearest section point (``sigma``:
-    (points, σ)), or None without σ or without the window's model."""
+    """Points ``(P, 3)`` → the σ ``(P,)`` and the source ``(P,)`` (None without) of their
+    nearest section point (``sigma``: (points, σ[, source])), or None without σ or
+    without the window's model."""
     if sigma is None or window is None:
         return None
     finite = np.isfinite(sigma[1])
     if not finite.any():
         return None
     tree, known = cKDTree(np.asarray(sigma[0])[finite]), np.asarray(sigma[1])[finite]
-    return lambda pts: known[tree.query(pts)[1]]
+    src = np.asarray(sigma[2])[finite] if len(sigma) > 2 and sigma[2] is not None else None
+
+    def lookup(pts):
+        near = tree.query(pts)[1]
+        return known[near], None if src is None else src[near]
+    return lookup
 
 
 def _section_arc(section_loops, across, view) -> tuple[np.ndarray, int]:
@@ -703,10 +720,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         arc's GCV counts one independent point per the window's footprint on it
         (:func:`window_footprint`, :func:`fit_open`'s ``correlation``); without it every
         point is independent.
-    sigma : (points (N, 3), σ (N,)), optional
-        The sections' points and their σ: each arc's and column's points take their
-        nearest one's, and the fits under the window's model stay within
-        :data:`SHARED_BAND` of them (:func:`fit_open`'s ``noise``).
+    sigma : (points (N, 3), σ (N,)[, source (N,)]), optional
+        The sections' points, their σ and error sources: each arc's and column's points
+        take their nearest one's; the fits under the window's model stay within
+        :data:`SHARED_BAND` of them (:func:`fit_open`'s ``noise`` and ``source``).
 
     Returns
     -------
@@ -737,9 +754,10 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                                 else " (one depth across the view)"))
         arc = bridge_open_gaps(arc, getattr(best, "bridge", math.inf))
         correlation = window_footprint(arc, *window) if window is not None else 0.0
-        noise = 0.0 if noise_of is None else float(np.sqrt(np.mean(noise_of(arc) ** 2)))
+        near, src = (None, None) if noise_of is None else noise_of(arc)
+        noise = 0.0 if noise_of is None else float(np.sqrt(np.mean(near ** 2)))
         curves.append(fit_open(arc, smoothing, frame=best.frame, correlation=correlation,
-                               noise=noise))
+                               noise=noise, source=src))
     if partial > 3:
         notes.append(f"... and {partial - 3} more sections with pieces left out")
     curves, placed, align_notes, run = (align_arcs(curves) if across is None else
@@ -762,9 +780,9 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
         axis = np.asarray(loops[0][0].frame, np.float64)[2]
         sample = np.concatenate(rings)[:: max(1, sum(map(len, rings)) // 4096)]
         origin = min(float(p.u.min()) for p in placed)
-        noise = None if noise_of is None else noise_of(np.concatenate(rings))
+        noise, src = (None, None) if noise_of is None else noise_of(np.concatenate(rings))
         rings = smooth_across(rings, params, step, origin, axis,
-                              window_footprint(sample, *window), noise)
+                              window_footprint(sample, *window), noise, src)
     return curves, rings, params, float(step), notes, run
 
 
