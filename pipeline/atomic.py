@@ -270,6 +270,18 @@ def _merge_into(path: Path, tmp: Path, previous: list[str], kind: str) -> None:
 
 
 @contextlib.contextmanager
+def _filled(tmp: Path, path: Path) -> Iterator[Path]:
+    """The temporary folder ``tmp`` made (0700) and registered for removal on a signal,
+    filled under ``path``'s name (:func:`naming`), its tree fsynced when the block ends
+    without an error; the caller publishes it and removes it in every case."""
+    os.mkdir(tmp, 0o700)
+    _TEMP_DIRS[tmp] = path
+    with naming(path):
+        yield tmp
+        _fsync_tree(tmp)
+
+
+@contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike, replace: bool = True,
                kind: str | None = None) -> Iterator[Path]:
     """Yield a temporary folder; on success its content becomes ``path``.
@@ -293,11 +305,8 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
         if previous is not None:  # an existing folder: fill it file by file
             tmp = _temp_name(path, _TMP_PREFIX)
             try:
-                os.mkdir(tmp, 0o700)
-                _TEMP_DIRS[tmp] = path
-                with naming(path):
+                with _filled(tmp, path):
                     yield tmp
-                    _fsync_tree(tmp)
                 _publish(tmp)
                 _merge_into(path, tmp, output_dir_state(path, kind) or [], kind)
                 _fsync(path)
@@ -310,11 +319,8 @@ def atomic_dir(path: str | os.PathLike, replace: bool = True,
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = _temp_name(path.parent, f".{path.name}.")
     try:
-        os.mkdir(tmp, 0o700)
-        _TEMP_DIRS[tmp] = path
-        with naming(path):
+        with _filled(tmp, path):
             yield tmp
-            _fsync_tree(tmp)
         if kind is not None:
             _write_marker(tmp, kind, _own_files(tmp))
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; give the usual folder mode
