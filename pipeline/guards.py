@@ -48,7 +48,7 @@ from pipeline.errors import InputError, escape  # noqa: F401  (escape: re-export
 #: Measured on a 600-point cylinder: scaled by 1e49 ``photosurf sections`` gives the
 #: very mesh of scale 1 (776 triangles); by 1e99 ``numpy.linalg.norm`` overflows
 #: and the mesh changes (732); by 1e300 Shewchuk's Triangle (called by
-#: ``surface.topology._triangle_edges`` for each section's MST graph) crashed the
+#: ``surface.section_trees._triangle_edges`` for each section's MST graph) crashed the
 #: process with a segmentation fault (exit -11, nothing on stderr).
 MAX_COORDINATE = 1e50
 

@@ -59,9 +59,9 @@ def warm_up() -> float:
 
     check_solid(stitched.vertices, stitched.triangles)
     # a kernel on a path the vase does not take: the tree walk of a loop whose θ folds
-    from surface import topology
+    from surface import section_trees
 
-    topology._tree_walk(3, np.array([0, 1]), np.array([1, 2]), 0)
+    section_trees._tree_walk(3, np.array([0, 1]), np.array([1, 2]), 0)
     return time.perf_counter() - start
 
 

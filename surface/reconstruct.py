@@ -162,7 +162,7 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         fewer than two sections with a loop.
     """
     # |x| > 1e50 overflows the geometry's 4th-6th powers; at ~1e300 Shewchuk's Triangle
-    # (topology._triangle_edges) crashed the process (pipeline.guards.MAX_COORDINATE)
+    # (section_trees._triangle_edges) crashed the process (pipeline.guards.MAX_COORDINATE)
     extreme = np.abs(np.asarray(points, dtype=np.float64))
     if extreme.size and not extreme.max() <= 1e50:
         raise ValueError(f"points: |coordinates| up to {extreme.max():.3g} (NaN/inf or beyond "

@@ -39,7 +39,7 @@ LEFT: dict[str, int] = {
     "pipeline.smoothing": 2, "surface._blas": 2,
     "surface.general_mesh": 9, "surface.measure": 7, "surface.metrics": 1,
     "surface.outliers": 1,
-    "surface.stitch.caps": 2, "surface.topology": 4
+    "surface.stitch.caps": 2
 }
 
 

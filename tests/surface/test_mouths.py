@@ -1,5 +1,5 @@
 """Open mouths and thin walls: both faces of a wall parted in a section
-(``surface.topology._wall_splits``), and a bowl's surface running outer wall -> rim ->
+(``surface.wall_faces._wall_splits``), and a bowl's surface running outer wall -> rim ->
 inner wall -> inner floor, open to the inside."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Walls two point spacings thick: both faces of a wall parted in a section by their
-offsets from the band's midline (``surface.topology._face_split``), and a thin-walled
+offsets from the band's midline (``surface.wall_faces._face_split``), and a thin-walled
 pot's surface running outer wall -> rim -> inner wall -> inner floor."""
 
 from __future__ import annotations

@@ -321,17 +321,17 @@ def test_two_opt_work_is_bounded_on_a_filled_disk(monkeypatch):
     """A filled disk (a cap taken for a section) makes every pair a 2-opt candidate at
     every move; with the work bound the tour comes back a permutation, shortened, but
     stopped early: longer than the unbounded optimisation's (counted work, not time)."""
-    from surface import topology
+    from surface import loop_order
 
     rng = np.random.default_rng(0)
     points = rng.uniform(-1, 1, (300, 2))
     tour = rng.permutation(len(points))
-    full = topology._two_opt(points, tour)
-    monkeypatch.setattr(topology, "TWO_OPT_WORK", 200_000)      # ~5 moves of ~45 000 pairs
-    bounded = topology._two_opt(points, tour)
+    full = loop_order._two_opt(points, tour)
+    monkeypatch.setattr(loop_order, "TWO_OPT_WORK", 200_000)    # ~5 moves of ~45 000 pairs
+    bounded = loop_order._two_opt(points, tour)
     for out in (full, bounded):
         assert sorted(out.tolist()) == list(range(len(points)))
-    start, cut, best = (topology._tour_length(points, x) for x in (tour, bounded, full))
+    start, cut, best = (loop_order._tour_length(points, x) for x in (tour, bounded, full))
     assert best < cut < start
     assert cut > 1.5 * best
 
@@ -341,14 +341,14 @@ def test_two_opt_leaves_no_improving_move():
     move left that shortens it: for every pair of edges (a, b), (c, d),
     |ac| + |bd| >= |ab| + |cd| up to the tolerance (checked over all pairs, not only
     the k-d tree's candidates)."""
-    from surface import topology
+    from surface import loop_order
 
     rng = np.random.default_rng(5)
     theta = rng.uniform(0.0, 2.0 * np.pi, 120)
     radius = 1.0 + 0.3 * np.sin(5.0 * theta)
     points = np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
     points += rng.normal(0.0, 0.02, points.shape)
-    tour = topology._two_opt(points, rng.permutation(len(points)))
+    tour = loop_order._two_opt(points, rng.permutation(len(points)))
     n = len(tour)
     assert sorted(tour.tolist()) == list(range(n))
     ring = points[tour]
@@ -363,7 +363,7 @@ def test_two_opt_leaves_no_improving_move():
 
 
 def _local_residuals_as_arrays(uv, reference, k):
-    """The array form :func:`surface.topology._local_residuals` had before its kernel:
+    """The array form :func:`surface.loop_outliers._local_residuals` had before its kernel:
     the quadratics' normal equations batched, solved by LAPACK."""
     from scipy.spatial import cKDTree
 
@@ -402,7 +402,7 @@ def test_local_residuals_kernel_is_the_array_form(seed):
     """The outlier test's local quadratics (a numba kernel) give the residuals of the
     batched array form they replaced, to rounding: noisy curves, outliers, duplicated
     points, straight runs, a reference subset."""
-    from surface.topology import _local_residuals
+    from surface.loop_outliers import _local_residuals
 
     rng = np.random.default_rng(seed)
     m = 300

@@ -1,8 +1,8 @@
-"""topology._centre_mst: the Delaunay-edge MST equals the complete graph's, ties included.
+"""section_trees._centre_mst: the Delaunay-edge MST equals the complete graph's, ties included.
 
 Kruskal in scipy breaks weight ties by the edges' row-major position; the
 Delaunay subgraph keeps the complete graph's orientation (row < column) and
-order, so tree, stored order and depth-first walk (``topology._tree_walk``, against
+order, so tree, stored order and depth-first walk (``section_trees._tree_walk``, against
 scipy's ``depth_first_order`` of the dense graph's tree) must come out identical.
 """
 
@@ -13,7 +13,7 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import depth_first_order, minimum_spanning_tree
 
-from surface import topology
+from surface import section_trees
 from surface.validate import TOL
 
 
@@ -30,12 +30,12 @@ def _dense_tree(points):
 
 
 def _assert_same_tree(points):
-    got, want = topology._centre_mst(points), _dense_tree(points)
+    got, want = section_trees._centre_mst(points), _dense_tree(points)
     coo = want.tocoo()
     assert np.array_equal(got.row, coo.row) and np.array_equal(got.col, coo.col)
     assert np.array_equal(got.data, coo.data)
     for start in (0, len(points) // 2):
-        assert np.array_equal(topology._tree_walk(len(points), got.row, got.col, start),
+        assert np.array_equal(section_trees._tree_walk(len(points), got.row, got.col, start),
                               depth_first_order(want, start, directed=False)[0])
 
 
@@ -65,8 +65,8 @@ def test_collinear_and_coincident_centres_take_the_complete_graph():
 
 def _qhull_mst(uv, monkeypatch):
     with monkeypatch.context() as patch:
-        patch.setattr(topology, "_triangle_edges", lambda uv: None)  # the qhull graph
-        return topology._mst(uv, float(np.ptp(uv, axis=0).max()))
+        patch.setattr(section_trees, "_triangle_edges", lambda uv: None)  # the qhull graph
+        return section_trees._mst(uv, float(np.ptp(uv, axis=0).max()))
 
 
 @pytest.mark.parametrize("case", ["noisy ring", "grid ties", "duplicates", "collinear"])
@@ -84,8 +84,8 @@ def test_section_mst_from_triangle_equals_qhull(case, monkeypatch):
     else:
         uv = np.stack([np.linspace(0, 1, 30), np.linspace(0, 2, 30)], 1)
     if case in ("duplicates", "collinear"):
-        assert topology._triangle_edges(uv) is None
-    got = topology._mst(uv, float(np.ptp(uv, axis=0).max()))
+        assert section_trees._triangle_edges(uv) is None
+    got = section_trees._mst(uv, float(np.ptp(uv, axis=0).max()))
     want = _qhull_mst(uv, monkeypatch)
     assert np.array_equal(got.row, want.row) and np.array_equal(got.col, want.col)
     assert np.array_equal(got.data, want.data)

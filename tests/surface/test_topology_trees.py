@@ -1,4 +1,4 @@
-"""topology's spanning trees, components and tree walks are scipy.sparse.csgraph's.
+"""section_trees' spanning trees, components and tree walks are scipy.sparse.csgraph's.
 
 ``surface.topology`` orders each section's points along a minimum spanning tree and
 splits its loops by connected components; numba kernels replaced scipy's sparse-graph
@@ -16,7 +16,7 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, depth_first_order, minimum_spanning_tree
 
-from surface import topology
+from surface import section_trees
 
 
 def _random_graph(rng, n, m, ties):
@@ -37,7 +37,7 @@ def test_spanning_tree_is_scipys(seed, ties):
     n = int(rng.integers(5, 80))
     row, col, weight = _random_graph(rng, n, 4 * n, ties)
     want = minimum_spanning_tree(coo_matrix((weight, (row, col)), shape=(n, n)).tocsr()).tocoo()
-    got = topology._spanning_tree(n, row, col, weight)
+    got = section_trees._spanning_tree(n, row, col, weight)
     assert np.array_equal(got.row, want.row) and np.array_equal(got.col, want.col)
     assert np.array_equal(got.data, want.data)
 
@@ -49,7 +49,7 @@ def test_components_are_scipys(seed):
     row, col, _ = _random_graph(rng, n, n // 2, False)   # sparse: many components
     want_count, want = connected_components(coo_matrix((np.ones(len(row)), (row, col)),
                                                        shape=(n, n)), directed=False)
-    got = topology._components(n, row.astype(np.int64), col.astype(np.int64))
+    got = section_trees._components(n, row.astype(np.int64), col.astype(np.int64))
     assert np.array_equal(got, want) and got.max() + 1 == want_count > 3
 
 
@@ -58,9 +58,9 @@ def test_tree_walk_is_scipys_depth_first_order(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(5, 90))
     row, col, weight = _random_graph(rng, n, 5 * n, seed % 2 == 1)
-    tree = topology._spanning_tree(n, row, col, weight)
+    tree = section_trees._spanning_tree(n, row, col, weight)
     matrix = coo_matrix((tree.data, (tree.row, tree.col)), shape=(n, n)).tocsr()
     for start in rng.integers(0, n, 4):
         want, _ = depth_first_order(matrix, i_start=int(start), directed=False)
-        got = topology._tree_walk(n, tree.row, tree.col, int(start))
+        got = section_trees._tree_walk(n, tree.row, tree.col, int(start))
         assert np.array_equal(got, want)
