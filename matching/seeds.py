@@ -243,6 +243,40 @@ def window_offsets(candidates: Candidates, image, patch: int = 15,
     half = patch // 2
     pts = np.asarray(candidates.points, dtype=np.intp).reshape(-1, 2)
     n = len(pts)
+    bad, valid = _excluded_pixels((h, w), mask, valid)
+    off_surface = _off_surface(img, candidates, pts, spacing)
+    bad[off_surface] = 1.0
+    count = cv2.boxFilter(bad, -1, (patch, patch), normalize=False,
+                          borderType=cv2.BORDER_CONSTANT)
+    clear = count < 0.5
+    # LSM's inside test for the template window: cx - half >= 1, cx + half < w - 2
+    inside = np.zeros((h, w), bool)
+    inside[half + 1:max(h - half - 2, half + 1), half + 1:max(w - half - 2, half + 1)] = True
+    clear &= inside
+    offset = np.zeros((n, 2))
+    edge = np.zeros(n, bool)
+    if n == 0:
+        return offset, edge
+    blocked = ~clear[pts[:, 1], pts[:, 0]]
+    textured = np.asarray(candidates.textured, bool)
+    off_object = off_surface[pts[:, 1], pts[:, 0]]
+    if valid is not None:
+        off_object |= ~valid[pts[:, 1], pts[:, 0]]
+    if not move:
+        return offset, blocked & textured
+    todo = np.flatnonzero(blocked & textured & ~off_object)
+    if len(todo):
+        found, offs = _nearest_clear_offsets(pts[todo], clear, half)
+        offset[todo[found]] = offs[found]
+        edge[todo[~found]] = True
+    edge |= blocked & textured & off_object
+    return offset, edge
+
+
+def _excluded_pixels(shape, mask, valid):
+    """:func:`window_offsets`' pixels a window must not cover (float32 1.0): outside
+    ``mask`` or without an approximation (``valid``); returns them and ``valid`` checked."""
+    h, w = shape
     bad = np.zeros((h, w), np.float32)
     if mask is not None:
         mask = check_shape(mask, "(H, W)", "mask", dtype=bool)
@@ -254,6 +288,15 @@ def window_offsets(candidates: Candidates, image, patch: int = 15,
         if valid.shape != (h, w):
             raise ValueError(f"valid must have the image's shape {(h, w)}, got {valid.shape}")
         bad[~valid] = 1.0
+    return bad, valid
+
+
+def _off_surface(img: np.ndarray, candidates: Candidates, pts: np.ndarray,
+                 spacing: int) -> np.ndarray:
+    """:func:`window_offsets`' pixels off the textured surface, (H, W) bool: the failed
+    candidates' cells and the connected pixels failing the texture test over an
+    ``EDGE_SCALE_PX`` window, grown by that test's reach."""
+    h, w = img.shape
     off_surface = np.zeros((h, w), bool)
     # The region a window must not reach is judged against the *upper* noise bound, the
     # whole-image Immerkaer estimate (texture counted as noise), not the flat-block σ the
@@ -282,41 +325,25 @@ def window_offsets(candidates: Candidates, image, patch: int = 15,
         # gap at a rim where a candidate could sit off the surface unflagged)
         reach = 2 * (EDGE_SCALE_PX // 2 + 1) + 1
         off_surface = cv2.dilate(region.astype(np.uint8), np.ones((reach, reach), np.uint8)) > 0
-        bad[off_surface] = 1.0
-    count = cv2.boxFilter(bad, -1, (patch, patch), normalize=False,
-                          borderType=cv2.BORDER_CONSTANT)
-    clear = count < 0.5
-    # LSM's inside test for the template window: cx - half >= 1, cx + half < w - 2
-    inside = np.zeros((h, w), bool)
-    inside[half + 1:max(h - half - 2, half + 1), half + 1:max(w - half - 2, half + 1)] = True
-    clear &= inside
-    offset = np.zeros((n, 2))
-    edge = np.zeros(n, bool)
-    if n == 0:
-        return offset, edge
-    blocked = ~clear[pts[:, 1], pts[:, 0]]
-    textured = np.asarray(candidates.textured, bool)
-    off_object = off_surface[pts[:, 1], pts[:, 0]]
-    if valid is not None:
-        off_object |= ~valid[pts[:, 1], pts[:, 0]]
-    if not move:
-        return offset, blocked & textured
-    todo = np.flatnonzero(blocked & textured & ~off_object)
-    if len(todo):
-        oy, ox = np.mgrid[-half:half + 1, -half:half + 1]
-        order = np.lexsort((np.arctan2(oy.ravel(), ox.ravel()), ox.ravel()**2 + oy.ravel()**2))
-        offs = np.column_stack([ox.ravel(), oy.ravel()])[order]  # (S, 2), nearest first
-        xs = pts[todo, 0][:, None] + offs[None, :, 0]
-        ys = pts[todo, 1][:, None] + offs[None, :, 1]
-        valid = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
-        ok = np.zeros(xs.shape, bool)
-        ok[valid] = clear[ys[valid], xs[valid]]
-        found = ok.any(axis=1)
-        first = ok.argmax(axis=1)
-        offset[todo[found]] = offs[first[found]]
-        edge[todo[~found]] = True
-    edge |= blocked & textured & off_object
-    return offset, edge
+    return off_surface
+
+
+def _nearest_clear_offsets(pts: np.ndarray, clear: np.ndarray, half: int):
+    """For each point (M, 2) the smallest integer offset (Euclidean length, then angle;
+    at most ``half`` per axis) whose window centre is ``clear``: (found (M,), the
+    offsets (M, 2), meaningful where found)."""
+    h, w = clear.shape
+    oy, ox = np.mgrid[-half:half + 1, -half:half + 1]
+    order = np.lexsort((np.arctan2(oy.ravel(), ox.ravel()), ox.ravel()**2 + oy.ravel()**2))
+    offs = np.column_stack([ox.ravel(), oy.ravel()])[order]  # (S, 2), nearest first
+    xs = pts[:, 0][:, None] + offs[None, :, 0]
+    ys = pts[:, 1][:, None] + offs[None, :, 1]
+    valid = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+    ok = np.zeros(xs.shape, bool)
+    ok[valid] = clear[ys[valid], xs[valid]]
+    found = ok.any(axis=1)
+    first = ok.argmax(axis=1)
+    return found, offs[first]
 
 
 def structure_tensors(image, points, sides) -> np.ndarray:
