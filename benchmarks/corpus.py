@@ -22,7 +22,7 @@ time bound (``--timeout``; a row past it is printed as such).  Methods, in the r
   control edge, or 1.5 point spacings without one), Loop's patches over it fitted to the
   cloud as the smooth stage builds them (``pipeline.smoothing.smooth_general``);
 * ``auto``: the smooth stage's choice between the two (``surface.general_mesh.prefer_general``
-  on validity, then the genus the data support, then A and C; without the stage's gate
+  on validity, then the genus the data support, then A and Cp; without the stage's gate
   ``needs_general``, whose noise estimate is the curves stage's: here both surfaces are
   always built and compared);
 * ``poisson-8``: open3d's screened Poisson, depth 8, PCA normals of 30 neighbours oriented by
@@ -32,7 +32,9 @@ Per method: valid solid (``surface.validity.check_solid``: closed, manifold, ori
 self-intersection), components, genus (the truth's beside it), Chamfer and F-score at
 ``tau = 0.002 × diagonal`` against the truth (20 000 samples a side), A (90th percentile of
 surface samples -> nearest cloud point) and C (median cloud point -> surface) against the
-row's cloud, Bézier patches, CPU seconds (ours: sections -> smooth, libraries imported before;
+row's cloud, Cp (the mean distance from the cloud projected onto its neighbour planes,
+``surface.general_mesh.plane_reference``; ``plane_k`` its neighbours, 1 for the cloud
+itself), Bézier patches, CPU seconds (ours: sections -> smooth, libraries imported before;
 Poisson: its normals and solve).
 
     .venv/bin/python benchmarks/corpus.py [--quick] [--cases NAME ...] [--sizes N ...]
@@ -213,7 +215,8 @@ def run_poisson(points: np.ndarray, depth: int = 8) -> dict:
 
 
 # ----------------------------------------------------------------------------- scores
-def _scores(result: dict, points: np.ndarray, truth: dict, case: str) -> dict:
+def _scores(result: dict, points: np.ndarray, truth: dict, case: str,
+            reference: np.ndarray | None = None) -> dict:
     from surface import metrics
     from surface.general_mesh import cloud_fidelity
     from surface.validity import check_solid
@@ -223,8 +226,8 @@ def _scores(result: dict, points: np.ndarray, truth: dict, case: str) -> dict:
     out = {"valid": bool(report.valid), "components": int(report.components),
            "genus": report.genus, "pairs": int(len(report.intersecting_pairs)),
            "border_edges": int(report.boundary_edges), "triangles": int(len(t))}
-    fidelity = cloud_fidelity(v, t, points)
-    out.update(A=fidelity.a90, C=fidelity.c50)
+    fidelity = cloud_fidelity(v, t, points, reference=reference)
+    out.update(A=fidelity.a90, C=fidelity.c50, Cp=fidelity.cp)
     tau = TAU_SHARE * truth["diagonal"]
     if truth["kind"] == "implicit":
         s = _shapes_module().score(case, v, t, count=SCORE_SAMPLES, tau=tau)
@@ -252,34 +255,50 @@ def one_row(case: str, size: int, noise: float, workspace: Path) -> dict:
     import surface.general_mesh  # noqa: F401
     import surface.reconstruct  # noqa: F401
     import surface.sizing  # noqa: F401
-    from surface.general_mesh import cloud_fidelity, evidence_genus, prefer_general, support_reach
-    from surface.sections import point_spacing
 
     points, truth = load_case(case, size, noise, workspace)
-    row = {"case": case, "points": int(len(points)), "noise": noise,
-           "truth_genus": truth["genus"], "methods": {}}
-    results = {}
+    methods, results = {}, {}
     try:
         results["sections"] = run_sections(points)
     except ValueError as exc:
-        row["methods"]["sections"] = {"refused": str(exc).splitlines()[0][:200]}
+        methods["sections"] = {"refused": str(exc).splitlines()[0][:200]}
     sec = results.get("sections", {})
     try:
         results["general"] = run_general(points, sec.get("control_edge"), sec.get("tolerance"))
     except ValueError as exc:
-        row["methods"]["general"] = {"refused": str(exc).splitlines()[0][:200]}
+        methods["general"] = {"refused": str(exc).splitlines()[0][:200]}
     results["poisson-8"] = run_poisson(points)
+    return scored_row(case, noise, points, truth, results, methods)
+
+
+def scored_row(case: str, noise: float, points: np.ndarray, truth: dict, results: dict,
+               refused: dict) -> dict:
+    """The row of ``results`` (method -> ``run_*``'s dict, surfaces included) and
+    ``refused`` (method -> ``{"refused": reason}``): scores, and auto's choice."""
+    from surface.general_mesh import (
+        cloud_fidelity,
+        evidence_genus,
+        plane_reference,
+        prefer_general,
+        support_reach,
+    )
+    from surface.sections import point_spacing
+
+    row = {"case": case, "points": int(len(points)), "noise": noise,
+           "truth_genus": truth["genus"], "methods": dict(refused)}
+    start = _clock()
+    reference, row["plane_k"] = plane_reference(points)
+    reference_s = _since(start)
     for name, result in results.items():
-        row["methods"][name] = {**_scores(result, points, truth, case),
+        row["methods"][name] = {**_scores(result, points, truth, case, reference),
                                 **{k: v for k, v in result.items()
                                    if k not in ("vertices", "triangles")}}
-    # the smooth stage's choice: its clock holds both surfaces and their fidelity
+    # the smooth stage's choice: its clock holds both surfaces, the projected cloud and
+    # their fidelity to it
     if "sections" in results and "general" in results:
         start = _clock()
-        fs = cloud_fidelity(results["sections"]["vertices"], results["sections"]["triangles"],
-                            points)
-        fg = cloud_fidelity(results["general"]["vertices"], results["general"]["triangles"],
-                            points)
+        fs, fg = (cloud_fidelity(results[m]["vertices"], results[m]["triangles"], points,
+                                 reference=reference) for m in ("sections", "general"))
         valid = [row["methods"][m]["valid"] for m in ("sections", "general")]
         genera = [row["methods"][m]["genus"] for m in ("sections", "general")]
         evidence = None
@@ -289,7 +308,7 @@ def one_row(case: str, size: int, noise: float, workspace: Path) -> dict:
             evidence = evidence_genus(results["sections"]["vertices"],
                                       results["sections"]["triangles"], points,
                                       support_reach(point_spacing(points)))
-        choose_s = _since(start)
+        choose_s = tuple(x + y for x, y in zip(_since(start), reference_s, strict=True))
         row["evidence_genus"] = evidence
         chosen = "general" if prefer_general(fs, fg, section_valid=valid[0],
                                              general_valid=valid[1], section_genus=genera[0],
@@ -319,11 +338,12 @@ def _cell(m: dict | None) -> str:
     fscore = f"{m['fscore']:.3f}" if "fscore" in m else "-"
     return (f"{'V' if m['valid'] else 'x'} c{m['components']:<2d} g{m['genus']!s:<4s} "
             f"{chamfer:>9s} {fscore:>6s} {m['A']:9.2e} {m['C']:9.2e} "
+            f"{m.get('Cp', float('nan')):9.2e} "
             f"{m.get('patches', '-')!s:>7s} {m['cpu']:7.1f}")
 
 
 HEADER = (f"{'case':<19s}{'points':>7s} {'noise':>7s} {'gT':>3s} {'method':<10s} "
-          f"{'valid/comp/genus':<15s}{'Chamfer':>9s} {'F':>6s} {'A':>9s} {'C':>9s} "
+          f"{'valid/comp/genus':<15s}{'Chamfer':>9s} {'F':>6s} {'A':>9s} {'C':>9s} {'Cp':>9s} "
           f"{'patches':>7s} {'CPU s':>7s}")
 
 
@@ -334,7 +354,8 @@ def print_row(row: dict) -> None:
         return
     for name in METHODS:
         m = row["methods"].get(name)
-        extra = f"  <- {m['chosen']}" if m and "chosen" in m else ""
+        extra = (f"  <- {m['chosen']} (planes of {row.get('plane_k')})"
+                 if m and "chosen" in m else "")
         if extra and row.get("evidence_genus") is not None:
             extra += f" (the data's genus {row['evidence_genus']})"
         print(f"{row['case']:<19s}{row['points']:>7d} {row['noise']:7.4f} "

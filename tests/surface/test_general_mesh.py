@@ -116,6 +116,33 @@ def test_prefer_general_then_the_genus_the_data_support():
     assert prefer_general(farther, near, section_genus=1, general_genus=13)  # no evidence
 
 
+def test_plane_reference_projects_a_noisy_cloud_and_keeps_a_noise_free_one():
+    from surface.general_mesh import plane_reference
+
+    rng = np.random.default_rng(5)
+    unit = rng.normal(size=(4_000, 3))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    # noise-free: every plane only adds its sagitta, so the cloud itself is the reference
+    reference, k = plane_reference(unit)
+    assert k == 1 and reference is unit
+    # sigma = 0.01 on a unit sphere at spacing ~0.056: the planes average the noise over
+    # k points (variance sigma^2 / k) at a sagitta far below sigma, so the projected
+    # points lie nearer the sphere than the raw ones by well over 2x in RMS
+    noisy = unit * (1 + 0.01 * rng.normal(size=(len(unit), 1)))
+    reference, k = plane_reference(noisy)
+    raw = np.sqrt(np.mean((np.linalg.norm(noisy, axis=1) - 1) ** 2))
+    projected = np.sqrt(np.mean((np.linalg.norm(reference, axis=1) - 1) ** 2))
+    assert k > 1 and projected < raw / 2
+
+
+def test_prefer_general_weighs_c_against_the_projected_cloud_when_both_have_it():
+    # raw C favours the sections (they follow the noise), the projected C the general one
+    section, general = Fidelity(1.0, 1.0, 1.3), Fidelity(1.0, 1.05, 1.0)
+    assert prefer_general(section, general)
+    assert not prefer_general(Fidelity(1.0, 1.0), Fidelity(1.0, 1.05))
+    assert not prefer_general(section, Fidelity(1.0, 1.05))       # one without: raw C
+
+
 def test_needs_general_when_the_sections_leave_the_data_beyond_their_noise():
     from surface.general_mesh import needs_general
 
