@@ -48,6 +48,7 @@ from surface.validate import TOL, check_finite, check_shape
 
 __all__ = [
     "silhouette_scores",
+    "seen_by_cameras",
     "EdgeTable",
     "MeshDistance",
     "edge_table",
@@ -636,3 +637,52 @@ def silhouette_scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silh
         out["inside"].append(float((mask & grown).sum() / max(mask.sum(), 1)))
         out["covered"].append(float((mask & core).sum() / max(core.sum(), 1)))
     return out
+
+
+def seen_by_cameras(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray,
+                    cameras) -> np.ndarray:
+    """Which points on a surface some camera sees: in front of it, inside its image, and
+    the first hit of the ray from its centre (open3d ``RaycastingScene``) -- so the fill a
+    closed surface needs under an unseen base is told from what the photographs show.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    triangles : (F, 3) int64
+    points : (S, 3) float64
+        Points on the surface (e.g. :func:`sample_mesh`).
+    cameras : sequence of ``matching.cameras.Camera`` (``center``, ``project``, ``depth``,
+        ``width``, ``height``)
+
+    Returns
+    -------
+    (S,) bool
+
+    Notes
+    -----
+    A point counts as the first hit when the hit lies no nearer the camera than the point
+    less ``1e-4`` of the surface's extent: float32 hits are exact to ~1e-7 of the distance,
+    so the slack covers rays at grazing angles, and stays far below a point spacing.
+    """
+    import open3d as o3d
+
+    v = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
+    t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
+    p = check_shape(points, "(S, 3)", "points", dtype=np.float64)
+    centre = v.mean(axis=0)  # float32 keeps the hits exact near the object
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor((v - centre).astype(np.float32)),
+                        o3d.core.Tensor(t.astype(np.uint32)))
+    slack = 1e-4 * float(np.ptp(v, axis=0).max())
+    seen = np.zeros(len(p), bool)
+    for cam in cameras:
+        origin = np.asarray(cam.center, np.float64)
+        towards = p - origin
+        length = np.linalg.norm(towards, axis=1)
+        pixel = cam.project(p)
+        inside = ((cam.depth(p) > 0) & (pixel[:, 0] >= 0) & (pixel[:, 0] < cam.width)
+                  & (pixel[:, 1] >= 0) & (pixel[:, 1] < cam.height))
+        rays = np.hstack([np.broadcast_to(origin - centre, p.shape), towards / length[:, None]])
+        hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+        seen |= inside & (hit >= length - slack)
+    return seen
