@@ -7,7 +7,7 @@ from scipy import ndimage
 
 from matching.consistency import forward_backward
 from matching.lsm import lsm_match
-from tests.matching.test_lsm import grid_points, start_near, truth_of, warped_pair
+from testkit.warps import grid_points, start_near, truth_of, warped_pair
 
 
 def _factor(f, g):

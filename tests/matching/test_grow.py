@@ -8,7 +8,7 @@ import pytest
 from matching.grow import grow_matches
 from matching.lsm import Status, lsm_match, prepare_image
 from matching.pair import NO_APPROXIMATION, match_pair
-from tests.matching.test_lsm import grid_points, start_near, truth_of, warped_pair
+from testkit.warps import grid_points, start_near, truth_of, warped_pair
 from tests.matching.test_pair import render, scene, truth_right  # noqa: F401
 
 

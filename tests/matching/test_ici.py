@@ -16,7 +16,7 @@ from matching.ici import (
     select_results,
 )
 from matching.lsm import lsm_match
-from tests.matching.test_lsm import grid_points, start_near, truth_of, warped_pair
+from testkit.warps import grid_points, start_near, truth_of, warped_pair
 
 SIGMAS = 0.2 / 1.5 ** np.arange(4)   # a ladder of four sides, σ falling 1.5x a side
 

@@ -24,9 +24,8 @@ from matching.lsm import (
     lsm_match,
     prepare_image,
 )
-from testkit.warps import (  # noqa: F401  (other test modules import them from here)
+from testkit.warps import (
     A_TRUE,
-    B_TRUE,
     GAIN,
     OFFSET,
     OVERSAMPLE,

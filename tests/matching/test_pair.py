@@ -20,7 +20,7 @@ from matching.pair import (
     reconstruct_pair,
 )
 from matching.pair_densify import _fill_deficit
-from tests.matching.test_lsm import sample, texture_coefficients
+from testkit.warps import sample, texture_coefficients
 
 W, H, Z = 320, 240, 3.0
 

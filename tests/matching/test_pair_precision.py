@@ -13,7 +13,7 @@ import pytest
 
 from matching.lsm import Status
 from matching.pair import IMPRECISE, adaptive_sides, default_max_patch, match_pair
-from tests.matching.test_lsm import sample, texture_coefficients
+from testkit.warps import sample, texture_coefficients
 from tests.matching.test_pair import H, W, make_rig, plane_point, truth_right
 
 

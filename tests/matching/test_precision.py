@@ -16,7 +16,7 @@ from matching.cameras import read_rig
 from matching.lsm import lsm_match
 from matching.pair import match_pair
 from matching.precision import midpoint_variance_factor, variance_factor
-from tests.matching.test_lsm import (
+from testkit.warps import (
     grid_points,
     sample,
     start_near,

@@ -10,7 +10,7 @@ import pytest
 
 from matching.lsm import lsm_match
 from matching.second_order import second_order_terms
-from tests.matching.test_lsm import grid_points, sample, start_near, texture_coefficients
+from testkit.warps import grid_points, sample, start_near, texture_coefficients
 
 
 def test_second_order_terms_remove_the_curvature_bias():

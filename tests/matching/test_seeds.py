@@ -20,7 +20,7 @@ from matching.seeds import (
     texture_map,
     window_offsets,
 )
-from tests.matching.test_lsm import sample, texture_coefficients
+from testkit.warps import sample, texture_coefficients
 
 
 def test_texture_map_of_sinusoids_is_analytic():
@@ -235,7 +235,7 @@ def test_shift_precision_predicts_the_lsm_sigma_ratio_between_sides():
     """Ratios between sides carry over to LSM's reported σ (the adaptive patch rule)."""
     from matching.lsm import lsm_match
     from matching.seeds import shift_precision
-    from tests.matching.test_lsm import grid_points, start_near, truth_of, warped_pair
+    from testkit.warps import grid_points, start_near, truth_of, warped_pair
 
     f, g = warped_pair(size=160, noise=2.0, seed=5)
     pts = grid_points(160, 7, margin=24)

@@ -16,7 +16,7 @@ import pytest
 from pipeline.cli import main
 from pipeline.cloud_io import read_cloud
 from pipeline.scenes import DEFAULT_RECIPE, load_recipe, render_scene
-from tests.matching.test_lsm import sample, texture_coefficients
+from testkit.warps import sample, texture_coefficients
 
 
 @pytest.fixture(scope="module")
