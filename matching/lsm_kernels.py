@@ -393,14 +393,20 @@ def _blurred_template(fimg, fraw, cx, cy, half, kind, blur, fv, fx, fy, noise_fa
                 v = min(max(cy + a - off, 1.0), fh - 2.001)
                 _sample(fimg, u, v, kind, wx, dwx, wy, dwy, False, out)
                 raw[a, b] = out[0]
+    # each output's sum in the kernel's order (ka, kb), the outputs of a row side by side
+    # (independent sums, so the loop over b runs in SIMD lanes): the same operations
     sm = np.empty((side, side))
+    acc = np.empty(side)
     for a in range(side):
         for b in range(side):
-            acc = 0.0
-            for ka in range(kw):
-                for kb in range(kw):
-                    acc += kern[ka, kb] * raw[a + ka, b + kb]
-            sm[a, b] = acc
+            acc[b] = 0.0
+        for ka in range(kw):
+            for kb in range(kw):
+                k = kern[ka, kb]
+                for b in range(side):
+                    acc[b] += k * raw[a + ka, b + kb]
+        for b in range(side):
+            sm[a, b] = acc[b]
     n = 0
     for a in range(1, side - 1):
         for b in range(1, side - 1):
@@ -507,40 +513,105 @@ def _bspline_value(img, u, v):
 
 
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
+def _warped_values(gimg, p, q, half, kind, gv):
+    """gv = g(W(x)) over the patch, row-major (values only): :func:`_sample`'s value at
+    every warped pixel, the same operations in the same order.
+
+    For the cubic B-spline (``kind`` 2) in two loops: every pixel's tap weights and first
+    tap first (no value depends on another pixel's, so that loop runs in SIMD lanes),
+    then the 16 taps of each.  Without second-order terms (most windows) the warp is
+    affine: the same positions (the zero terms added nothing) for fewer operations.
+    """
+    side = 2 * half + 1
+    npix = side * side
+    flat = (q[0] == 0.0 and q[1] == 0.0 and q[2] == 0.0 and q[3] == 0.0 and q[4] == 0.0
+            and q[5] == 0.0)
+    p0, p1, p2, p3, p4, p5 = p[0], p[1], p[2], p[3], p[4], p[5]
+    q0, q1, q2, q3, q4, q5 = q[0], q[1], q[2], q[3], q[4], q[5]
+    if kind != 2:
+        wx = np.empty(4)
+        dwx = np.empty(4)
+        wy = np.empty(4)
+        dwy = np.empty(4)
+        out = np.empty(3)
+        for n in range(npix):
+            iy = n // side - half
+            ix = n - (n // side) * side - half
+            u = p0 + p1 * ix + p2 * iy + q0 * ix * ix + q1 * ix * iy + q2 * iy * iy
+            v = p3 + p4 * ix + p5 * iy + q3 * ix * ix + q4 * ix * iy + q5 * iy * iy
+            _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
+            gv[n] = out[0]
+        return
+    width = gimg.shape[1]
+    g = gimg.reshape(gimg.size)
+    wts = np.empty((8, npix))
+    first = np.empty(npix)
+    for n in range(npix):
+        iy = n // side - half
+        ix = n - (n // side) * side - half
+        if flat:
+            u = p0 + p1 * ix + p2 * iy
+            v = p3 + p4 * ix + p5 * iy
+        else:
+            u = p0 + p1 * ix + p2 * iy + q0 * ix * ix + q1 * ix * iy + q2 * iy * iy
+            v = p3 + p4 * ix + p5 * iy + q3 * ix * ix + q4 * ix * iy + q5 * iy * iy
+        x0 = np.floor(u)
+        y0 = np.floor(v)
+        t = u - x0
+        s = 1.0 - t
+        t2 = t * t
+        t3 = t2 * t
+        wts[0, n] = s * s * s / 6.0
+        wts[1, n] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+        wts[2, n] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+        wts[3, n] = t3 / 6.0
+        t = v - y0
+        s = 1.0 - t
+        t2 = t * t
+        t3 = t2 * t
+        wts[4, n] = s * s * s / 6.0
+        wts[5, n] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+        wts[6, n] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+        wts[7, n] = t3 / 6.0
+        first[n] = (y0 - 1.0) * width + (x0 - 1.0)  # the first tap, exact (< 2^53)
+    for n in range(npix):
+        k = int(first[n])
+        wx0 = wts[0, n]
+        wx1 = wts[1, n]
+        wx2 = wts[2, n]
+        wx3 = wts[3, n]
+        val = 0.0
+        val += wts[4, n] * (((0.0 + wx0 * g[k]) + wx1 * g[k + 1]) + wx2 * g[k + 2]
+                            + wx3 * g[k + 3])
+        k += width
+        val += wts[5, n] * (((0.0 + wx0 * g[k]) + wx1 * g[k + 1]) + wx2 * g[k + 2]
+                            + wx3 * g[k + 3])
+        k += width
+        val += wts[6, n] * (((0.0 + wx0 * g[k]) + wx1 * g[k + 1]) + wx2 * g[k + 2]
+                            + wx3 * g[k + 3])
+        k += width
+        val += wts[7, n] * (((0.0 + wx0 * g[k]) + wx1 * g[k + 1]) + wx2 * g[k + 2]
+                            + wx3 * g[k + 3])
+        gv[n] = val
+
+
+@numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c):
     """c = sum j v over the patch with v = f - r0 - r1 g(W(x)) (values only).
 
-    The sums are held in registers and written once (``c`` may alias the inputs as far
-    as the compiler knows, which kept every partial sum in memory): the same
-    operations in the same order."""
-    wx = np.empty(4)
-    dwx = np.empty(4)
-    wy = np.empty(4)
-    dwy = np.empty(4)
-    out = np.empty(3)
+    The warped values first (:func:`_warped_values`), then the sums, held in registers
+    and written once (``c`` may alias the inputs as far as the compiler knows, which
+    kept every partial sum in memory): the same operations in the same order."""
+    side = 2 * half + 1
+    gv = np.empty(side * side)
+    _warped_values(gimg, p, q, half, kind, gv)
+    p6, p7 = p[6], p[7]
     c0 = c1 = c2 = c3 = c4 = c5 = c6 = c7 = 0.0
     n = 0
-    # without second-order terms (most windows) the warp is affine: the same values
-    # (the zero terms added nothing) for fewer operations in every iteration
-    flat = (q[0] == 0.0 and q[1] == 0.0 and q[2] == 0.0 and q[3] == 0.0 and q[4] == 0.0
-            and q[5] == 0.0)
-    p0, p1, p2, p3, p4, p5, p6, p7 = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
-    q0, q1, q2, q3, q4, q5 = q[0], q[1], q[2], q[3], q[4], q[5]
     for iy in range(-half, half + 1):
         for ix in range(-half, half + 1):
-            if flat:
-                u = p0 + p1 * ix + p2 * iy
-                v = p3 + p4 * ix + p5 * iy
-            else:
-                u = p0 + p1 * ix + p2 * iy + q0 * ix * ix + q1 * ix * iy + q2 * iy * iy
-                v = p3 + p4 * ix + p5 * iy + q3 * ix * ix + q4 * ix * iy + q5 * iy * iy
-            if kind == 2:
-                gval = _bspline_value(gimg, u, v)
-            else:
-                _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
-                gval = out[0]
             fn = fv[n]
-            res = fn - p6 - p7 * gval
+            res = fn - p6 - p7 * gv[n]
             rx = fx[n] * res
             ry = fy[n] * res
             c0 += rx
@@ -565,29 +636,21 @@ def _ic_rhs(gimg, p, q, half, kind, fv, fx, fy, c):
 @numba.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _residual_stats(gimg, p, q, half, kind, fv, stats, vres):
     """stats = [vtv, sf, sg, sff, sgg, sfg] at p (values only); the residuals into vres."""
-    wx = np.empty(4)
-    dwx = np.empty(4)
-    wy = np.empty(4)
-    dwy = np.empty(4)
-    out = np.empty(3)
+    npix = (2 * half + 1) ** 2
+    gv = np.empty(npix)
+    _warped_values(gimg, p, q, half, kind, gv)
     for i in range(6):
         stats[i] = 0.0
-    n = 0
-    for iy in range(-half, half + 1):
-        for ix in range(-half, half + 1):
-            u = p[0] + p[1] * ix + p[2] * iy + q[0] * ix * ix + q[1] * ix * iy + q[2] * iy * iy
-            v = p[3] + p[4] * ix + p[5] * iy + q[3] * ix * ix + q[4] * ix * iy + q[5] * iy * iy
-            _sample(gimg, u, v, kind, wx, dwx, wy, dwy, False, out)
-            gval = out[0]
-            res = fv[n] - p[6] - p[7] * gval
-            vres[n] = res
-            stats[0] += res * res
-            stats[1] += fv[n]
-            stats[2] += gval
-            stats[3] += fv[n] * fv[n]
-            stats[4] += gval * gval
-            stats[5] += fv[n] * gval
-            n += 1
+    for n in range(npix):
+        gval = gv[n]
+        res = fv[n] - p[6] - p[7] * gval
+        vres[n] = res
+        stats[0] += res * res
+        stats[1] += fv[n]
+        stats[2] += gval
+        stats[3] += fv[n] * fv[n]
+        stats[4] += gval * gval
+        stats[5] += fv[n] * gval
 
 
 #: Tukey biweight's tuning constant: 95 % asymptotic efficiency at Gaussian residuals
