@@ -20,7 +20,7 @@ through OpenCascade's shape transfer).  Why each choice (what a reader spends it
 on, the uncertainty, the pcurves): ``docs/decisions/export.md``.
 
 Geometry is exact up to float64 rounding of the degree elevation (~1e-16 of the size)
-and the writer's 12 significant digits.
+and the points' rounding to a twentieth of the file's distance uncertainty.
 """
 
 from __future__ import annotations
@@ -83,8 +83,8 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     for an open shell, which the shape transfer writes.
 
     Entities, in blocks of consecutive ids: the product structure and units of
-    OpenCascade's AP214 output for one solid, the points (12 significant digits, as
-    OpenCascade writes them), one ``VERTEX_POINT`` per domain vertex, one sextic
+    OpenCascade's AP214 output for one solid, the points (fixed point,
+    :func:`_decimals`), one ``VERTEX_POINT`` per domain vertex, one sextic
     ``B_SPLINE_CURVE_WITH_KNOTS`` per domain edge, one degree (6, 6)
     ``B_SPLINE_SURFACE_WITH_KNOTS`` per patch (Bézier knots), with ``pcurves`` each
     edge's ``SURFACE_CURVE`` (its 3D curve and a ``PCURVE`` on each of its two faces:
@@ -120,8 +120,9 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
     start, end = topo["start"], topo["end"]
+    uncertainty = uncertainty if uncertainty is not None else step_uncertainty(size)
     _write_points_and_curves(write, xyz, first_point, n_vertices, first_curve, np.column_stack(
-        [start, n_vertices + 5 * np.arange(n_edges)[:, None] + np.arange(5), end]))
+        [start, n_vertices + 5 * np.arange(n_edges)[:, None] + np.arange(5), end]), uncertainty)
     grid = (first_point + ids).reshape(-1, 7, 7).tolist()
     write("\n".join(f"#{first_surface + f}=B_SPLINE_SURFACE_WITH_KNOTS('',6,6,("
                     + ",".join("(" + ",".join(f"#{q}" for q in r) + ")" for r in rows)
@@ -162,8 +163,7 @@ def _write_step_text(control_points: np.ndarray | None, triangles: np.ndarray, p
     senses = topo["same"][:, [side for side, _ in _WIRE[:3]]] \
         != np.array([backwards for _, backwards in _WIRE[:3]])
     _write_faces_and_tail(out, path, first_edge, sides, senses, first_oriented, first_loop,
-                          first_surface, first_tail, uncertainty if uncertainty is not None
-                          else step_uncertainty(size))
+                          first_surface, first_tail, uncertainty)
     return True
 
 
@@ -192,16 +192,26 @@ def _entity_blocks(n_points: int, n_vertices: int, n_edges: int, n_faces: int,
             first_face + n_faces)
 
 
+def _decimals(uncertainty: float) -> int:
+    """Decimal places of the points' coordinates: rounded by at most a twentieth of the
+    file's distance ``uncertainty`` (8 at OpenCascade's 1e-7)."""
+    return max(1, int(np.ceil(-np.log10(uncertainty / 10.0) - 1e-9)))
+
+
 def _write_points_and_curves(write, xyz: np.ndarray, first_point: int, n_vertices: int,
-                             first_curve: int, curve_points: np.ndarray) -> None:
-    """The ``CARTESIAN_POINT`` entities from ``first_point`` (12 significant digits; a REAL
-    needs its decimal point, "1.E-05", "0."), a ``VERTEX_POINT`` on each of the first
-    ``n_vertices`` (right after the points), and one sextic Bézier
+                             first_curve: int, curve_points: np.ndarray,
+                             uncertainty: float) -> None:
+    """The ``CARTESIAN_POINT`` entities from ``first_point`` (fixed point, to
+    :func:`_decimals` places: far below the ``uncertainty`` a reader merges points
+    within, and shared poles are shared by id; fixed point is shorter than 12
+    significant digits and always has its decimal point), a ``VERTEX_POINT`` on each of
+    the first ``n_vertices`` (right after the points), and one sextic Bézier
     ``B_SPLINE_CURVE_WITH_KNOTS`` per row of ``curve_points`` (7 point indices)."""
     first_vertex = first_point + len(xyz)
-    text = "\n".join(f"#{i}=CARTESIAN_POINT('',(%.12G,%.12G,%.12G));" % tuple(p) for i, p in
-                     zip(range(first_point, first_vertex), xyz.tolist(), strict=True))
-    write(_reals(text))
+    number = f"%.{_decimals(uncertainty)}f"
+    line = f"CARTESIAN_POINT('',({number},{number},{number}));"
+    write("\n".join(f"#{i}=" + line % tuple(p) for i, p in
+                     zip(range(first_point, first_vertex), xyz.tolist(), strict=True)))
     write("\n")
     write("\n".join(f"#{first_vertex + v}=VERTEX_POINT('',#{first_point + v});"
                     for v in range(n_vertices)))
@@ -415,8 +425,9 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
     out: list[str] = []
     write = out.append
     _write_step_head(write, first_tail, first_face, n_faces)
+    uncertainty = uncertainty if uncertainty is not None else step_uncertainty(size)
     _write_points_and_curves(write, xyz, first_point, n_vertices, first_curve,
-                             np.empty((0, 7), dtype=np.int64))
+                             np.empty((0, 7), dtype=np.int64), uncertainty)
     rows = first_point + np.column_stack([low, n_vertices + 11 * np.arange(n_edges)[:, None]
                                           + step11, high])
     write("\n".join(f"#{first_curve + e}=B_SPLINE_CURVE_WITH_KNOTS('',6,("
@@ -448,6 +459,5 @@ def _write_merged_step_text(merged: dict, path: Path, uncertainty: float | None 
                     enumerate(zip(low.tolist(), high.tolist(), strict=True))))
     write("\n")
     _write_faces_and_tail(out, path, first_edge, wire_edge, senses, first_oriented, first_loop,
-                          first_surface, first_tail, uncertainty if uncertainty is not None
-                          else step_uncertainty(size))
+                          first_surface, first_tail, uncertainty)
     return True

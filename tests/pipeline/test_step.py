@@ -364,3 +364,22 @@ def test_step_with_quadrilateral_faces_is_the_same_solid(tmp_path, ellipsoid):
     assert report["angle_deg"] <= report["angle_tolerance_deg"]
     shape, _ = _same_closed_solid(path, cp, report["deviation"])
     assert len(list(_faces(shape))) == report["faces"]
+
+
+def test_step_points_are_rounded_far_below_the_file_s_uncertainty(tmp_path, ellipsoid):
+    # fixed-point coordinates to _decimals places: each coordinate of every pole of every
+    # face within a twentieth of the file's distance uncertainty (8 places at 1e-7)
+    import re
+
+    from scipy.spatial import cKDTree
+
+    from pipeline import step_text
+
+    assert step_text._decimals(1e-7) == 8 and step_text._decimals(1e-6) == 7
+    cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
+    text = step.write_cad(tmp_path / "s.step", cp, tris).read_text()
+    points = np.array([[float(x) for x in body.split(",")] for body in re.findall(
+        r"CARTESIAN_POINT\('',\(([^()]*)\)\)", text) if body.count(",") == 2])
+    uncertainty = float(re.search(r"LENGTH_MEASURE\(([^)]*)\)", text).group(1))
+    distance, _ = cKDTree(points).query(step.degenerate_nets(cp).reshape(-1, 3), p=np.inf)
+    assert distance.max() <= uncertainty / 20
