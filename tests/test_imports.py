@@ -6,6 +6,7 @@ tests and benchmarks share helpers only through ``testkit``; no run-time import 
 inside a package (the exceptions are listed, with a comment, in ``pyproject.toml``).
 """
 
+import logging
 import os
 from pathlib import Path
 
@@ -17,8 +18,17 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_the_import_contract_is_kept(monkeypatch, capsys):
     cli = pytest.importorskip("importlinter.cli")
     monkeypatch.chdir(ROOT)
-    status = cli.lint_imports(config_filename=os.fspath(ROOT / "pyproject.toml"),
-                              no_cache=True, no_logo=True)
+    # import-linter configures logging with dictConfig, which disables every logger that
+    # exists already (photosurf's among them): put their state back for the tests after
+    loggers = [lg for lg in logging.root.manager.loggerDict.values()
+               if isinstance(lg, logging.Logger)]
+    disabled = [lg.disabled for lg in loggers]
+    try:
+        status = cli.lint_imports(config_filename=os.fspath(ROOT / "pyproject.toml"),
+                                  no_cache=True, no_logo=True)
+    finally:
+        for lg, was in zip(loggers, disabled):
+            lg.disabled = was
     report = capsys.readouterr().out
     assert status == cli.EXIT_STATUS_SUCCESS, report
     assert "0 broken" in report
