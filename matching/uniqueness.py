@@ -41,6 +41,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
+from scipy.special import ndtr
 
 from matching.validate import check_shape
 
@@ -429,63 +431,14 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     # a lesser repeat (chessboard pair 02: slips at ZNCC 0.4-0.6, the truth at 0.99);
     # above the floor the plain profile is not trusted over LSM -- foreshortening lowers
     # the true peak's plain ZNCC (temple pairs)
-    filled = np.where(np.isfinite(prof.cost), prof.cost, -np.inf)
-    rows_all = np.arange(len(ok))
-    at_solution = np.max(np.stack([filled[rows_all, np.clip(sol.astype(np.int64) + k, 0,
-                                                            filled.shape[1] - 1)]
-                                   for k in (-1, 0, 1)]), axis=0)
-    best_index = np.argmax(filled, axis=1)
-    not_best = ((filled[rows_all, best_index] > at_solution + m)
-                & (np.abs(best_index - sol) > 1) & (at_solution < min_correlation))
+    filled, at_solution, not_best = _best_elsewhere(prof, sol, m, min_correlation)
     peaks = separated_peaks(prof, solution, float(min_correlation), max_peaks)  # (M, K)
     rows, cols = np.nonzero(np.isfinite(peaks) & has[:, None])
     ambiguous = not_best.copy()
     if len(rows):
-        i = ok[rows]
-        d = peaks[rows, cols]
-        start = rect_to_right(np.column_stack([xl_rect[i, 0] - d, xl_rect[i, 1]]))
-        # started as the first pass starts (identity shape and radiometry): the
-        # solution's own warp may be the distortion that fitted a wrong repeat
-        init = np.zeros((len(i), 8))
-        if shape is not None:
-            init[:] = np.asarray(shape, np.float64)[i]
-        else:
-            init[:, [1, 5, 7]] = 1.0
-        init[:, [0, 3]] = start
-        # along the epipolar line only: a free 2-D shift slides along the straight edges
-        # of a repeated pattern (a chessboard's) and leaves the pull-in range
-        ahead = rect_to_right(np.column_stack([xl_rect[i, 0] - d + 1.0, xl_rect[i, 1]]))
-        direction = ahead - start
-        direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
-        again = match(i, start, init, result.sigma0[ok], direction)
-        # where each re-match landed, as a disparity in the rectified frame
-        landed = _rectified_disparity(again.position, xl_rect[i], rect_to_right, start, d)
-        outside_lobe = (landed < lo[rows] + d0 - 1.0) | (landed > hi[rows] + d0 + 1.0)
-        rival = ((again.status == 0) & outside_lobe
-                 & (again.correlation >= result.correlation[i] - m[rows]))
-        # a peak the plain profile prefers to the solution by more than the margin, where
-        # the matcher cannot confirm either way (its re-match fails): undecided, not
-        # unique (chessboard pair 04: the truth at ZNCC 0.99 beside a slip at 0.85, its
-        # re-match out of pull-in range on the tilted board)
-        peak_c = filled[rows, np.clip(d.astype(np.int64) - d0, 0, filled.shape[1] - 1)]
-        rival |= (again.status != 0) & (peak_c > at_solution[rows] + m[rows])
-        if strict:
-            # a second optimum as good within the noise that the matcher does not refute
-            refuted = (again.status == 0) & (~outside_lobe | (again.correlation
-                                                             < result.correlation[i] - m[rows]))
-            rival |= (peak_c >= at_solution[rows] - m[rows]) & ~refuted
-        np.logical_or.at(ambiguous, rows, rival)
-        np.add.at(tried, i, 1)
-        # the two-hypothesis mixture's variance: each rival peak's chance of being the
-        # better one under the noise (the difference of two correlation estimates has
-        # standard deviation m / 3), times its squared distance
-        from scipy.special import ndtr
-
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = 3.0 * (at_solution[rows] - peak_c) / m[rows]
-        chance = np.where(np.isfinite(z), ndtr(-z), 1.0)
-        sol_d = solution[rows]
-        np.add.at(rival_var, i, chance * (d - sol_d) ** 2)
+        _rematch_peaks(match, result, xl_rect, rect_to_right, shape, strict, ok, rows,
+                       peaks[rows, cols], (lo, hi, d0), m, filled, at_solution, solution,
+                       ambiguous, tried, rival_var)
     sub, curvature = _parabola(prof.cost, top)
     peak[ok] = top + d0 + sub
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -495,6 +448,78 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     v[~has] = OUTSIDE
     verdict[ok] = v
     return Verification(verdict, tried, margin, lobe, peak, peak_sigma, rival_var)
+
+
+def _best_elsewhere(prof: Profiles, sol, m, min_correlation):
+    """:func:`verify_matches`' plain profile around each solution: the profile with NaN as
+    -inf, its best within one step of the solution, and where its best peak is elsewhere
+    by more than the margin ``m`` while the solution's is below the matcher's floor."""
+    # the solution away from the profile's best peak, where the plain window would not
+    # even be accepted (ZNCC below the matcher's floor): the affine warp was bent to fit
+    # a lesser repeat (chessboard pair 02: slips at ZNCC 0.4-0.6, the truth at 0.99);
+    # above the floor the plain profile is not trusted over LSM -- foreshortening lowers
+    # the true peak's plain ZNCC (temple pairs)
+    filled = np.where(np.isfinite(prof.cost), prof.cost, -np.inf)
+    rows_all = np.arange(len(filled))
+    at_solution = np.max(np.stack([filled[rows_all, np.clip(sol.astype(np.int64) + k, 0,
+                                                            filled.shape[1] - 1)]
+                                   for k in (-1, 0, 1)]), axis=0)
+    best_index = np.argmax(filled, axis=1)
+    not_best = ((filled[rows_all, best_index] > at_solution + m)
+                & (np.abs(best_index - sol) > 1) & (at_solution < min_correlation))
+    return filled, at_solution, not_best
+
+
+def _rematch_peaks(match, result, xl_rect, rect_to_right, shape, strict, ok, rows, d,
+                   lobe_range, m, filled, at_solution, solution, ambiguous, tried,
+                   rival_var) -> None:
+    """:func:`verify_matches`' re-match of the separated peaks ``d`` (of the windows
+    ``ok[rows]``) along the epipolar line: marks ``ambiguous`` (per ok window) where a
+    rival stands, counts ``tried`` and adds each rival's share of the two-hypothesis
+    mixture's variance to ``rival_var`` (both per window), in place."""
+    lo, hi, d0 = lobe_range
+    i = ok[rows]
+    start = rect_to_right(np.column_stack([xl_rect[i, 0] - d, xl_rect[i, 1]]))
+    # started as the first pass starts (identity shape and radiometry): the
+    # solution's own warp may be the distortion that fitted a wrong repeat
+    init = np.zeros((len(i), 8))
+    if shape is not None:
+        init[:] = np.asarray(shape, np.float64)[i]
+    else:
+        init[:, [1, 5, 7]] = 1.0
+    init[:, [0, 3]] = start
+    # along the epipolar line only: a free 2-D shift slides along the straight edges
+    # of a repeated pattern (a chessboard's) and leaves the pull-in range
+    ahead = rect_to_right(np.column_stack([xl_rect[i, 0] - d + 1.0, xl_rect[i, 1]]))
+    direction = ahead - start
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+    again = match(i, start, init, result.sigma0[ok], direction)
+    # where each re-match landed, as a disparity in the rectified frame
+    landed = _rectified_disparity(again.position, xl_rect[i], rect_to_right, start, d)
+    outside_lobe = (landed < lo[rows] + d0 - 1.0) | (landed > hi[rows] + d0 + 1.0)
+    rival = ((again.status == 0) & outside_lobe
+             & (again.correlation >= result.correlation[i] - m[rows]))
+    # a peak the plain profile prefers to the solution by more than the margin, where
+    # the matcher cannot confirm either way (its re-match fails): undecided, not
+    # unique (chessboard pair 04: the truth at ZNCC 0.99 beside a slip at 0.85, its
+    # re-match out of pull-in range on the tilted board)
+    peak_c = filled[rows, np.clip(d.astype(np.int64) - d0, 0, filled.shape[1] - 1)]
+    rival |= (again.status != 0) & (peak_c > at_solution[rows] + m[rows])
+    if strict:
+        # a second optimum as good within the noise that the matcher does not refute
+        refuted = (again.status == 0) & (~outside_lobe | (again.correlation
+                                                         < result.correlation[i] - m[rows]))
+        rival |= (peak_c >= at_solution[rows] - m[rows]) & ~refuted
+    np.logical_or.at(ambiguous, rows, rival)
+    np.add.at(tried, i, 1)
+    # the two-hypothesis mixture's variance: each rival peak's chance of being the
+    # better one under the noise (the difference of two correlation estimates has
+    # standard deviation m / 3), times its squared distance
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = 3.0 * (at_solution[rows] - peak_c) / m[rows]
+    chance = np.where(np.isfinite(z), ndtr(-z), 1.0)
+    sol_d = solution[rows]
+    np.add.at(rival_var, i, chance * (d - sol_d) ** 2)
 
 
 def _parabola(cost, index):
@@ -565,8 +590,6 @@ def anchored(points, position, sigma, affine, anchors, candidates, radius: float
     (N,) bool
         The candidates resolved.
     """
-    from scipy.spatial import cKDTree
-
     anchor = np.asarray(anchors, bool).copy()
     todo = np.asarray(candidates, bool) & ~anchor
     resolved = np.zeros(len(points), bool)

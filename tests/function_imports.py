@@ -34,7 +34,7 @@ LEFT: dict[str, int] = {
     "matching.contours": 3, "matching.ici": 1, "matching.masks": 2,
     "matching.precision": 1, "matching.rectify": 1, "matching.roi": 2, "matching.scale": 3,
     "matching.scheduler": 2, "matching.second_order": 1, "matching.sfm": 1,
-    "matching.sfm_refine": 4, "matching.uniqueness": 2, "pipeline.acquisition": 1,
+    "matching.sfm_refine": 4, "pipeline.acquisition": 1,
     "pipeline.cmd_run": 1, "pipeline.match_maps": 4, "pipeline.mesh_io": 1, "pipeline.report": 1,
     "pipeline.smoothing": 2, "surface._blas": 2,
     "surface.general_mesh": 9, "surface.measure": 7, "surface.metrics": 1,
