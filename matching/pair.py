@@ -271,25 +271,21 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
+    The steps and the rules' measurements are in docs/method/acquire.md and the
+    ``docs/decisions/stereo-*.md`` pages each parameter names.
+
     Parameters
     ----------
     left_img, right_img : (H, W) or (H, W, 3) array_like, or matching.lsm.PreparedImage
-        The images (colour is converted to grey, OpenCV's BGR order); a
-        :class:`~matching.lsm.PreparedImage` for ``interpolation`` is not refiltered.
+        The images (colour to grey, OpenCV's BGR order); a prepared image is not refiltered.
     rig : matching.cameras.StereoRig, optional
-        Calibration; required unless ``rectified``.
-    rectified : bool
-        The images are already rectified (corresponding points share a row).
-    spacing : int
-        One candidate per ``spacing`` x ``spacing`` cell, px.
-    patch : int
-        LSM patch side, px (odd).
+        Calibration; required unless ``rectified`` (corresponding points share a row).
+    spacing, patch : int
+        One candidate per ``spacing`` x ``spacing`` cell, px; LSM patch side, px (odd).
     interpolation : {"bilinear", "bicubic", "spline"}
         LSM resampler.
     epipolar : bool, optional
-        Constrain the LSM shift to the epipolar direction (default: yes for a
-        rectified pair, no for a calibrated one, whose y-parallax then checks the
-        calibration in the triangulation's χ² test).
+        Constrain the LSM shift to the epipolar direction (default: rectified pairs only).
     min_texture_snr : float
         Texture threshold factor (:func:`matching.seeds.select_points`).
     mask : (H, W) bool, optional
@@ -297,146 +293,58 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
     sgbm_block : int
         SGBM block side, px.
     second_order : bool
-        Run LSM twice: the second pass adds the fixed second-order warp terms that
-        :func:`matching.second_order.second_order_terms` derives from the first pass's affine
-        parameters within ``max(20, 5 spacing)`` px (removes the curvature bias of an
-        affine patch fit: 0.023 px -> 0.001 px on the noise-free vase, 15 px patches).
+        A second pass with fixed second-order warp terms from the neighbours' affine
+        parameters (:func:`matching.second_order.second_order_terms`).
     adaptive_patch : bool, "ici", "population" or tuple of int
-        Second pass with a patch grown, where the first pass's σ is worse than the
-        image's median, to the smallest side whose predicted σ reaches that median
-        (:func:`adaptive_sides`; Gruen's "adaptive" patch).  Default on.  ``"ici"``: the
-        second pass at every side of ``patch``, ~1.5x and ~2x it
-        (:func:`matching.ici.ici_ladder`), each point keeping the largest side that agrees
-        with every smaller one within ±2σk (:mod:`matching.ici`); a tuple: those sides
-        (odd, increasing).  ``"population"``: Gruen's sides, then the sides of the ICI
-        ladder above them, each window class (``edge`` or not) grown to the largest side
-        whose departures from the smaller ones stay within the mean-square-error balance
-        in the class's core (:func:`matching.ici.population_sides`), a point only where
-        its grown window is accepted and clear of edges (:mod:`matching.ici`, *Population
-        rule*: graffiti and the rendered vase gain, the temple ring loses; not the
-        default).  Each side costs one second pass.
+        Second pass with a grown patch where the σ is worse than the median
+        (:func:`adaptive_sides`, default); "ici" / "population": :mod:`matching.ici`'s rules;
+        a tuple: those sides (odd, increasing).
     max_patch : int, optional
-        Largest grown side, px (odd; default: the largest odd side with at most twice
-        the pixels of ``patch``, 21 for 15).
+        Largest grown side, px (default: at most twice the pixels of ``patch``).
     max_sigma_mad_k : float or None
-        Reject (``imprecise``) accepted matches whose σ exceeds the median σ of the
-        accepted matches by more than k robust spreads (1.4826 MAD, at least
-        median/sqrt(2(patch² - 8))); default 4, as the σ0 test; None: no precision test.
+        Reject (``imprecise``) matches whose σ exceeds the median by more than k robust
+        spreads (default 4); None: no precision test.
     eccentric : bool
-        Candidates whose window holds a textureless cell (a silhouette, a rim, an
-        untextured region) are matched with the window moved off it and the point
-        transferred through the warp (:func:`matching.seeds.window_offsets`,
-        ``lsm_match``'s ``offset``); their σ includes the transfer's share of the
-        affine unknowns but not the warp model's own error over the transfer, so they
-        err more than σ says (measured on the 1024x768 ring, pair (0, 1): 7 % of the
-        points, RMS 0.090 px against 0.031 px for centred windows, error/σ 1.74 against
-        1.39; 320x240: 20 %, 0.21 px, 3.2).  Default off here: a single pair has no
-        further view to confirm them; :func:`matching.multiview.reconstruct_view_pair`
-        turns it on (its points reach a rim to within about a pixel instead of half
-        a window).
+        Windows moved off textureless cells, the point transferred through the warp
+        (:func:`matching.seeds.window_offsets`); default off (no further view confirms them).
     densify : {False, True, "auto"}
-        Rectified pairs: a second candidate lattice, shifted by half a cell, matched
-        where the four first-lattice matches around each of its candidates were
-        accepted with centred windows, started from their affine warps
-        (:func:`matching.pair_densify._densify`).
-        True: at every such candidate; ``"auto"``: only as many as the first lattice
-        falls short of the requested density (one point per ``spacing`` x ``spacing``
-        cell) on the matched surface, nearest its holes first (:func:`density_deficit`:
-        nothing where every candidate of the matched surface gave a point); default
-        False here (:func:`matching.multiview.reconstruct_view_pair` defaults to
-        ``"auto"``).
+        Rectified pairs: a second candidate lattice shifted by half a cell
+        (:func:`matching.pair_densify._densify`); "auto": only where the density falls short.
     grow : bool
-        Region growing (:func:`matching.grow.grow_matches`, Otto & Chau 1989): candidates
-        without an SGBM approximation, or whose SGBM start failed, are matched from the
-        affine warps of their accepted neighbours (default on); off: they stay
-        ``no_approximation`` / their first status.
+        Region growing from accepted neighbours (:func:`matching.grow.grow_matches`).
     sigma_factor : bool
-        Scale the covariances by the variance factor k² that independent neighbouring
-        windows give (:func:`matching.precision.midpoint_variance_factor`: two windows
-        a patch apart predict their midpoint through their own affine warps, which
-        agree for any locally quadratic surface): what real images add to σ0²N⁻¹
-        (correlated noise, blur and shading differences, model error), one factor for
-        the windows clear of an edge and one for the ``edge`` windows
-        (:func:`matching.precision.class_variance_factors`: two populations; pooled, the
-        temple pairs' clear windows erred 0.30 of their σ k by the cross-pair check of
-        ``benchmarks/matching.py --part temple``).  Never below 1
-        (σ0²N⁻¹ is the white-noise bound); needs >= 30 window pairs (a class with
-        fewer: the pooled factor; fewer overall: k² = 1).
-        Default on (measured, ``benchmarks/matching.py``: rendered vase pair 1024x768
-        k² 1.27, actual / reported σ 1.27 -> 1.01; 320x240 with 1 px correlated noise
-        9.5, 3.0 -> 0.98; graffiti 7.1; temple pairs 10.5-76).  It cannot see what every
-        window shares -- a relief finer than the window, which each window smooths
-        alike (rendered ripple: actual / reported still 2.2 with k² 9.9).
+        Covariances scaled by the variance factor of independent neighbouring windows, per
+        window class (:func:`matching.precision.class_variance_factors`; never below 1).
     search_range : (int, int), optional
-        SGBM's (min_disparity, num_disparities) of a rectified pair, from the geometry
-        (:func:`matching.search_range.pair_disparity_range`); default: from SIFT
-        matches.
+        SGBM's (min_disparity, num_disparities) of a rectified pair (default: SIFT matches).
     footprint_var : float or None
-        Shape-adapted smoothing of the template where the right view is foreshortened
-        (``lsm_match``'s ``footprint_var``; the affine start of the growth and of the
-        second pass sets it, the first pass starts from the identity); default
-        ``matching.lsm.DEFAULT_FOOTPRINT_VAR`` (graffiti wall: the figures with and
-        without it are ``benchmarks/matching.py``'s, in benchmarks/README.md); None: off.
+        ``lsm_match``'s template smoothing where the right view is foreshortened (default
+        ``matching.lsm.DEFAULT_FOOTPRINT_VAR``); None: off.
     robust : {False, True, "edge"}
-        Robust LSM (``lsm_match``'s ``robust``: Tukey IRLS from the equal-weight solution,
-        least squares over the pixels that follow one warp) for every window (True), for
-        the ``edge`` windows only ("edge"), or none (False, default: on a rendered ring the
-        edge windows it adds err 0.21-0.25 px RMS, 3-13 % beyond 3σ, while those both
-        accept improve, e.g. 0.099 -> 0.086 px; README, *Robust LSM*).  The region growing
-        stays equal-weight; the second pass re-matches every window with it.  With
-        ``eccentric`` the windows moved off their edge are not ``edge`` windows here.
+        Robust LSM (Tukey IRLS) for every window, the ``edge`` windows only, or none (default).
     unique : bool
-        Uniqueness along the epipolar line (default on): every accepted match is checked
-        for a rival over the pair's disparity search range (:func:`matching.uniqueness.
-        verify_matches`), an ambiguous one kept only where its unique neighbours pin it
-        (:func:`matching.uniqueness.anchored`), and every survivor's backward
-        (right-to-left) LSM loop must close (:func:`matching.pair_verify._loop_closes`).  Measured
-        (``benchmarks/matching.py --part chessboard``, docs/decisions/stereo-uniqueness.md):
-        a real chessboard pair's points one period or more off the board 8.7 % -> 0.5 %;
-        a temple pair's accepted share 77.1 % -> 66.4 %.  With the epipolar pass the test
-        runs in the rectified frame with the constrained matcher and is strict (a rival
-        within the noise margin that the matcher does not refute rejects the match;
-        :func:`matching.pair_verify._verify_unique_rectified`), the survivors' σ along the
-        line includes the rivals' mixture variance, the backward loop is constrained too
-        (:func:`matching.pair_verify._loop_closes_rectified`), and the growth runs from
-        verified matches only (:func:`matching.pair_verify._grow_verified`).
+        Uniqueness along the epipolar line (:func:`matching.uniqueness.verify_matches`,
+        :func:`matching.uniqueness.anchored`) and a closed backward loop
+        (:mod:`matching.pair_verify`); docs/decisions/stereo-uniqueness.md.
     epipolar_pass : bool
-        Calibrated pairs (default off here; ``photosurf stereo`` and ``photosurf match
-        --rig`` turn it on): every window LSM tried is matched again in the
-        rectified images with the y-shift fixed by the rig -- shift and shape along the row
-        only (:func:`matching.pair_epipolar._epipolar_refine`) -- and rejected as
-        ``aperture`` where it is ill-conditioned along the line; the covariance is then
-        rank 1 along the line.
-        Measured on the real chessboard rig (``benchmarks/matching.py --part chessboard``,
-        docs/decisions/stereo-epipolar.md): blunders 20-70 % -> 0-9 % per pair, at the cost
-        of points; on the rendered vase the error along the line 0.0376 -> 0.0404 px and σ
-        less honest on a specular highlight (actual / reported 1.66 against <= 1.45), so not
-        the library default (nor multiview's).
+        Calibrated pairs: every window matched again in the rectified images with the rig's
+        y-shift (:func:`matching.pair_epipolar._epipolar_refine`), ``aperture`` where
+        ill-conditioned along the line; default off here, on in ``photosurf stereo`` and
+        ``photosurf match --rig`` (docs/decisions/stereo-epipolar.md).
     regrow_ambiguous : bool
-        Epipolar pass: grow the ambiguous windows again from verified neighbours too, not
-        only those that failed from their approximation
-        (:func:`matching.pair_verify._grow_verified`).  Default on: with one-edge windows
-        reported at their edge and the matches off their neighbours' plane rejected, it
-        adds points on the chessboard rig and no blunders
-        (pairs 03/04/12, one-signed windows in one class: 1529/263/252 -> 1833/483/423
-        board points, blunders 1.0/1.1/2.0 -> 1.1/0.8/1.2 %; docs/decisions/stereo-edges.md).
+        Epipolar pass: grow the ambiguous windows again from verified neighbours too
+        (:func:`matching.pair_verify._grow_verified`; docs/decisions/stereo-edges.md).
     centre_points : bool
-        Epipolar pass: report each accepted match at the left pixel nearest its window's
-        information centre (where the warp's shift is best determined; ``x_left`` moves
-        off the candidate lattice by up to half a window, ``offset`` keeps the window
-        centre) instead of at the candidate
-        (:func:`matching.pair_centres._information_centres`).  Default on.
+        Epipolar pass: report each match at the pixel nearest its window's information
+        centre (:func:`matching.pair_centres._information_centres`).
     aperture_k : float or None
-        The ``aperture`` test's bound on the rig's row error carried through the window's
-        edge slope, in units of the match's own σ along the line (default 1: it may not
-        exceed it); None: that part of the test off.
+        The ``aperture`` test's bound on the rig's row error through the edge slope, in
+        units of the match's σ along the line (default 1); None: that part off.
     equalise_blur : bool
-        Epipolar pass: match in rectified images whose blur along the rows is made equal
-        where it differs (the sharper image smoothed by a Gaussian whose variance varies
-        across it, measured from the matched windows' edge profiles,
-        :func:`matching.pair_epipolar._blur_balance`), in place of the footprint
-        smoothing (``footprint_var``, which then applies to the 2-D passes only).
-        Default on (the chessboard rig: docs/decisions/stereo-blur.md).
+        Epipolar pass: the rectified images' blur along the rows made equal where it
+        differs, measured from the matched windows
+        (:func:`matching.pair_epipolar._blur_balance`), in place of ``footprint_var``
+        (docs/decisions/stereo-blur.md).  Default on.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
