@@ -26,8 +26,8 @@ from surface.reconstruct import _drop_one_section_splits
 from surface.topology import SectionSkippedWarning, organise
 from surface.validate import TOL
 
-__all__ = ["CONTINUATION_ANGLE", "PIECE_REACH", "chain_arcs", "height_field_arc",
-           "bridge_open_gaps", "main_piece", "organise_arcs"]
+__all__ = ["CONTINUATION_ANGLE", "PIECE_REACH", "STEP_SIGMAS", "chain_arcs", "height_field_arc",
+           "depth_steps", "bridge_open_gaps", "main_piece", "organise_arcs"]
 
 
 #: Largest angle between an arc's end tangent and the gap to the next piece for the
@@ -160,6 +160,39 @@ def height_field_arc(arcs: Sequence[np.ndarray], across: np.ndarray, view: np.nd
         return pieces[0], 1
     runs.sort(key=lambda r: float(np.mean(r @ across)))
     return np.concatenate(runs), len(runs)
+
+
+#: A depth step is a jump between neighbours along a section of more than this many σ of
+#: their difference (σ√2, σ the points' own): 6 of them is not noise (two-sided p ≈ 2·10⁻⁹
+#: a pair; a section has a few hundred pairs).
+STEP_SIGMAS = 6.0
+
+
+def depth_steps(arc: np.ndarray, across: np.ndarray, centres: np.ndarray, noise: np.ndarray
+                ) -> np.ndarray:
+    """Where an ordered height-field arc steps in depth: indices ``i`` (``(S,)`` int64)
+    with points ``i`` and ``i + 1`` an occlusion edge apart.
+
+    The rays from the cameras' ``centres`` ``(K, 3)`` to the arc's median point are
+    within β of their mean direction ``v`` (``|mean of the unit rays|`` = cos β, the
+    spread of the cameras seen from the object).  A face between two neighbours steeper
+    than ``cot β`` (depth along ``v`` over the distance along ``across``) lies within β
+    of the rays: the cameras on its far side see its back, so not all of them see it (an
+    occlusion edge, or a face no pair matched); the jump must also exceed
+    :data:`STEP_SIGMAS` σ√2 (``noise``: each point's σ, ``(M,)``).  One camera, or cameras
+    that see the arc along one ray, see no step."""
+    arc = np.asarray(arc, np.float64)
+    rays = np.median(arc, axis=0) - np.asarray(centres, np.float64).reshape(-1, 3)
+    view = np.mean(rays / np.linalg.norm(rays, axis=1)[:, None], axis=0)
+    cos_beta = float(np.linalg.norm(view))
+    if len(arc) < 2 or cos_beta >= 1.0 - TOL.angle:
+        return np.zeros(0, np.int64)
+    slope = cos_beta / np.sqrt(1.0 - cos_beta**2)                  # cot β
+    step = np.diff(arc, axis=0)
+    depth = np.abs(step @ (view / cos_beta))
+    side = np.abs(step @ np.asarray(across, np.float64))
+    sigma = np.maximum(noise[:-1], noise[1:])
+    return np.flatnonzero((depth > STEP_SIGMAS * np.sqrt(2.0) * sigma) & (depth > slope * side))
 
 
 def bridge_open_gaps(arc: np.ndarray, link: float) -> np.ndarray:

@@ -122,11 +122,14 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
 
     Parameters
     ----------
-    rings : sequence of (n_k, 3) float64
+    rings : sequence of (n_k, 3) float64, or of lists of them
         Resampled arcs in section order, running counter-clockwise about the axis
-        (as :func:`resample_arcs` gives them).
+        (as :func:`resample_arcs` gives them); a list: the section's parts, cut at
+        depth steps (``surface.open_surface.open_arcs``).
     params : sequence of (n_k,) float64
-        Their common parameter ``u``.
+        Their common parameter ``u``: one array per arc, or per section (its parts'
+        joined).  A part is stitched to the next section's parts it shares the most of
+        ``u`` with and to those that share the most with it: not across a step.
     step : float
         The odd sections' grid step in ``u``.
     reach : float
@@ -146,21 +149,26 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
     OpenSurface
     """
 
+    rings, params, sec = _parts(rings, params)
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])]).astype(np.int64)
     vertices = np.concatenate([np.asarray(r, np.float64) for r in rings])
     faces, region, fixed, notes = [], [], [], []
     tol = reach * step
-    for k in range(len(rings) - 1):
-        ia, ib = _overlap(params[k], params[k + 1], tol)
-        if len(ia) < 1 or len(ib) < 1 or len(ia) + len(ib) < 3:
+    for k in range(int(sec[-1])):
+        strips = 0
+        for a, b in _partners(params, sec, k):
+            ia, ib = _overlap(params[a], params[b], tol)
+            if len(ia) < 1 or len(ib) < 1 or len(ia) + len(ib) < 3:
+                continue
+            local = zip_arcs(params[a][ia], params[b][ib])
+            glob = np.concatenate([offsets[a] + ia, offsets[b] + ib])
+            faces.append(glob[local])
+            region.append(np.full(len(local), k))
+            for ids, off in ((ia, offsets[a]), (ib, offsets[b])):
+                fixed.append(np.stack([off + ids[:-1], off + ids[1:]], axis=1))
+            strips += 1
+        if not strips:
             notes.append(f"arcs {k} and {k + 1} do not overlap: no strip between them")
-            continue
-        local = zip_arcs(params[k][ia], params[k + 1][ib])
-        glob = np.concatenate([offsets[k] + ia, offsets[k + 1] + ib])
-        faces.append(glob[local])
-        region.append(np.full(len(local), k))
-        for ids, off in ((ia, offsets[k]), (ib, offsets[k + 1])):
-            fixed.append(np.stack([off + ids[:-1], off + ids[1:]], axis=1))
     if not faces:
         raise ValueError("no two neighbouring arcs overlap: no open surface")
     tri = np.concatenate(faces)
@@ -185,6 +193,36 @@ def stitch_arcs(rings: Sequence[np.ndarray], params: Sequence[np.ndarray], step:
     length = float(sum(np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum()
                        for lp in loops))
     return OpenSurface(vertices, tri, loops, length, int(flips), fraction, notes)
+
+
+def _parts(rings, params) -> tuple[list, list, np.ndarray]:
+    """Every arc (a section's parts one by one), its ``u`` and its section ``(R,)``."""
+    flat, sec = [], []
+    for k, item in enumerate(rings):
+        group = [item] if getattr(item, "ndim", 0) == 2 else list(item)
+        flat += [np.asarray(r, np.float64) for r in group]
+        sec += [k] * len(group)
+    u = [np.asarray(p, np.float64) for p in params]
+    if len(u) != len(flat):  # per section: its parts' parameters joined
+        u = [piece for p, item in zip(u, rings, strict=True) for piece in
+             ([p] if getattr(item, "ndim", 0) == 2 else
+              np.split(p, np.cumsum([len(r) for r in item])[:-1]))]
+    return flat, u, np.asarray(sec)
+
+
+def _partners(params: list, sec: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """The arcs of sections ``k`` and ``k + 1`` to stitch: every pair when each section
+    is one arc; else each part with the next section's part it shares the most of ``u``
+    with, and each of those with the previous section's part it shares the most with (a
+    part across a depth step shares a sliver: no strip)."""
+    lower, upper = np.flatnonzero(sec == k), np.flatnonzero(sec == k + 1)
+    if len(lower) == 1 and len(upper) == 1:
+        return [(int(lower[0]), int(upper[0]))]
+    share = np.array([[min(params[a][-1], params[b][-1]) - max(params[a][0], params[b][0])
+                       for b in upper] for a in lower])
+    pairs = {(int(lower[i]), int(upper[share[i].argmax()])) for i in range(len(lower))}
+    pairs |= {(int(lower[share[:, j].argmax()]), int(upper[j])) for j in range(len(upper))}
+    return sorted(pairs)
 
 
 def _split_pinches(vertices: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:

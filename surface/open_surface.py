@@ -56,6 +56,7 @@ from surface.open_pieces import (
     _runs_between_gaps,
     bridge_open_gaps,
     chain_arcs,
+    depth_steps,
     height_field_arc,
     main_piece,
     organise_arcs,
@@ -498,7 +499,8 @@ def smooth_border(ends: np.ndarray, step: float) -> np.ndarray:
 
 
 def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float,
-                  smooth: bool = True) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                  smooth: bool = True, section: np.ndarray | None = None
+                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Resample every arc on the common grid of ``u``: section ``k`` every ``step``
     (``k`` even: the paper's odd sections, N points) or ``step/2`` (2N).
 
@@ -508,18 +510,25 @@ def resample_arcs(curves: list[OpenCurve], placed: list[_Placed], step: float,
     step inside them, and a point on each border curve itself.  Without, between the
     arc's own ends: the grid points inside its range, and an end lying past its last grid
     point by more than :data:`QUARTER_STEP` of the step gets an extra point at the end.
+    ``section``: each arc's section ``(K,)`` (default one arc a section): a section's
+    parts (cut at depth steps) share its grid; only its outer ends are on the border
+    curves, the ends at the steps are the parts' own.
     """
     origin = min(float(p.u.min()) for p in placed)
     lo = np.array([float(p.u[0]) for p in placed])
     hi = np.array([float(p.u[-1]) for p in placed])
+    sec = np.arange(len(placed)) if section is None else np.asarray(section)
+    first = np.concatenate([[True], np.diff(sec) != 0])
+    last = np.concatenate([np.diff(sec) != 0, [True]])
     if smooth:
-        b_lo, b_hi = -smooth_border(-lo, step), smooth_border(hi, step)
+        b_lo, b_hi = lo.copy(), hi.copy()
+        b_lo[first], b_hi[last] = -smooth_border(-lo[first], step), smooth_border(hi[last], step)
         # an arc the border curves would cut to less than a step keeps its own ends
         short = b_hi - b_lo < step
         b_lo, b_hi = np.where(short, lo, b_lo), np.where(short, hi, b_hi)
     rings, params = [], []
     for k, (curve, where) in enumerate(zip(curves, placed, strict=True)):
-        h = step if k % 2 == 0 else step / 2
+        h = step if sec[k] % 2 == 0 else step / 2
         if smooth:
             u_lo, u_hi = float(b_lo[k]), float(b_hi[k])
             first = math.ceil((u_lo - origin) / h + QUARTER_STEP)
@@ -576,8 +585,8 @@ def _foot_on_polyline(line: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float,
                   origin: float, axis: np.ndarray, correlation: float,
-                  noise: np.ndarray | None = None,
-                  source: np.ndarray | None = None) -> list[np.ndarray]:
+                  noise: np.ndarray | None = None, source: np.ndarray | None = None,
+                  section: np.ndarray | None = None) -> list[np.ndarray]:
     """The rings smoothed across the sections: each column of grid points at one ``u``
     (every ``step``: on every ring) through consecutive sections, 4 or more of them, is
     fitted by :func:`fit_open` with the errors shared over ``correlation`` (the matcher's
@@ -586,7 +595,8 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
     points move as their ring's nearest column points (the mean of the two about them).
     ``origin``: the grid's origin in ``u`` (:func:`resample_arcs`'s, the least ``u``);
     ``noise``, ``source``: each ring point's σ and error source ``(sum n_k,)`` when known
-    (:func:`fit_open`'s).
+    (:func:`fit_open`'s); ``section``: each ring's section (default one ring a section;
+    a section's parts cut at depth steps lie apart in ``u``).
 
     Each arc is fitted alone (:func:`open_arcs`): errors shared over a window make whole
     arcs lie off their neighbours, a ripple from section to section that no fit along
@@ -595,7 +605,7 @@ def smooth_across(rings: list[np.ndarray], params: list[np.ndarray], step: float
     """
     axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
     counts = np.array([len(r) for r in rings])
-    ring = np.repeat(np.arange(len(rings)), counts)
+    ring = np.repeat(np.arange(len(rings)) if section is None else np.asarray(section), counts)
     points = np.concatenate(rings)
     half = np.concatenate(params) - origin
     half = half / (step / 2)
@@ -675,6 +685,32 @@ def _section_arc(section_loops, across, view) -> tuple[np.ndarray, int]:
     return height_field_arc(pieces, across, view)
 
 
+def _fit_parts(arc, best, smoothing, across, window, noise_of) -> list[OpenCurve]:
+    """A section's arc cut at its depth steps (:func:`depth_steps`: across the view, with
+    the cameras and σ known) into parts of 4 or more points (fewer: dropped; none: the
+    arc whole), each with its wide gaps bridged (:func:`bridge_open_gaps`) and fitted
+    (:func:`fit_open`, under the window's model when known)."""
+    parts = [arc]
+    if across is not None and window is not None and noise_of is not None:
+        cut = depth_steps(arc, across, window[0], noise_of(arc)[0])
+        parts = [p for p in np.split(arc, cut + 1) if len(p) >= 4] or [arc]
+    curves = []
+    for part in parts:
+        part = bridge_open_gaps(part, getattr(best, "bridge", math.inf))
+        correlation = window_footprint(part, *window) if window is not None else 0.0
+        near, src = (None, None) if noise_of is None else noise_of(part)
+        noise = 0.0 if noise_of is None else float(np.sqrt(np.mean(near ** 2)))
+        curves.append(fit_open(part, smoothing, frame=best.frame, correlation=correlation,
+                               noise=noise, source=src))
+    return curves
+
+
+def _by_section(items: list, sec: np.ndarray) -> list:
+    """Items per section: the item itself where a section has one, else their list."""
+    groups = np.split(np.arange(len(items)), np.flatnonzero(np.diff(sec)) + 1)
+    return [items[g[0]] if len(g) == 1 else [items[i] for i in g] for g in groups]
+
+
 def _grid_step(placed: list, spacing: float, n: int | None) -> float:
     """The odd arcs' grid step in ``u``: the widest arc (smallest scale: most length per
     unit of u) gets ring points one section ``spacing`` apart, or ``n`` points."""
@@ -689,7 +725,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
               smoothing: float | str = "auto", border: bool = True,
               view: np.ndarray | None = None,
               window: tuple[np.ndarray, np.ndarray, float] | None = None,
-              sigma: tuple[np.ndarray, np.ndarray] | None = None):
+              sigma: tuple[np.ndarray, np.ndarray] | None = None, steps: bool = False):
     """Sections' loops → open arcs → open curves → arcs resampled on the common grid.
 
     Parameters
@@ -705,9 +741,8 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     smoothing : float or "auto"
         :func:`fit_open`.
     border : bool
-        The rings end on the smooth border curves (:func:`smooth_border`; stitch them
-        with ``reach=BORDER_REACH``); False: where each arc's data end (the former rule,
-        a staircase border; for comparison).
+        The rings end on the smooth border curves (:func:`smooth_border`; stitch with
+        ``reach=BORDER_REACH``); False: where each arc's data end (a staircase).
     view : (3,) float64, optional
         The mean of the cameras' unit viewing directions: each section's loops become one
         height field across it (:func:`height_field_arc`: the nearest piece at each
@@ -718,30 +753,32 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
     window : (centres (K, 3), focals (K,), patch), optional
         The cameras' centres and focal lengths (px) and the matcher's window (px): each
         arc's GCV counts one independent point per the window's footprint on it
-        (:func:`window_footprint`, :func:`fit_open`'s ``correlation``); without it every
-        point is independent.
+        (:func:`window_footprint`, :func:`fit_open`'s ``correlation``).
     sigma : (points (N, 3), σ (N,)[, source (N,)]), optional
         The sections' points, their σ and error sources: each arc's and column's points
         take their nearest one's; the fits under the window's model stay within
         :data:`SHARED_BAND` of them (:func:`fit_open`'s ``noise`` and ``source``).
+    steps : bool
+        With ``view``, ``window`` and ``sigma``: cut each arc at its depth steps into parts
+        (:func:`depth_steps`; a section's rings are then a list of parts).
 
     Returns
     -------
     curves : list of OpenCurve
     rings, params : list of (n_k, 3) and (n_k,) float64
-        The resampled arcs and their common parameter ``u``.
+        The resampled arcs (with ``steps``, or a list of parts) and their ``u``.
     step : float
         The odd arcs' grid step in ``u``.
     notes : list of str
     run : range
-        The sections (indices into ``loops``) the arcs come from: the run of arcs that
-        overlap section to section (:func:`align_arcs`).
+        The sections (indices into ``loops``) the arcs come from (:func:`align_arcs`).
     """
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
     notes, curves, data, partial = [], [], 0, 0
     across, noise_of = _across_view(loops, view), _noise_lookup(sigma, window)
-    for section_loops in loops:
+    section: list[int] = []
+    for k, section_loops in enumerate(loops):
         best = max(section_loops, key=len)
         arc, used = _section_arc(section_loops, across, view)
         data += len(arc)
@@ -752,12 +789,8 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                              f"loops, {used} piece(s) kept as one arc ({len(arc)} points)"
                              + (" (the pieces that continue one another)" if across is None
                                 else " (one depth across the view)"))
-        arc = bridge_open_gaps(arc, getattr(best, "bridge", math.inf))
-        correlation = window_footprint(arc, *window) if window is not None else 0.0
-        near, src = (None, None) if noise_of is None else noise_of(arc)
-        noise = 0.0 if noise_of is None else float(np.sqrt(np.mean(near ** 2)))
-        curves.append(fit_open(arc, smoothing, frame=best.frame, correlation=correlation,
-                               noise=noise, source=src))
+        fitted = _fit_parts(arc, best, smoothing, across if steps else None, window, noise_of)
+        curves, section = curves + fitted, section + [k] * len(fitted)
     if partial > 3:
         notes.append(f"... and {partial - 3} more sections with pieces left out")
     curves, placed, align_notes, run = (align_arcs(curves) if across is None else
@@ -768,21 +801,27 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                          f"that overlap section to section holds {len(run)} of "
                          f"{len(curves)} sections")
     curves, placed = [curves[k] for k in run], [placed[k] for k in run]
+    # each arc's section in the run (place_across, the only one with parts, keeps all)
+    sec = np.asarray(section)[list(run)] - section[run[0]]
+    run = run if len(section) == len(loops) else range(len(loops))
     loops = [loops[k] for k in run]
     step = _grid_step(placed, spacing, n)
     counts = [float(p.u[-1] - p.u[0]) / (step if k % 2 == 0 else step / 2) + 2
-              for k, p in enumerate(placed)]
+              for k, p in zip(sec, placed, strict=True)]
     if sum(counts) > MAX_RING_POINTS_PER_POINT * data:
         raise ValueError(f"the arcs do not line up as one surface: resampling them would "
                          f"take {sum(counts):.3g} ring points for {data} data points")
-    rings, params = resample_arcs(curves, placed, step, smooth=border)
+    rings, params = resample_arcs(curves, placed, step, smooth=border, section=sec)
     if window is not None:  # errors shared over the window: whole arcs off, across too
         axis = np.asarray(loops[0][0].frame, np.float64)[2]
         sample = np.concatenate(rings)[:: max(1, sum(map(len, rings)) // 4096)]
         origin = min(float(p.u.min()) for p in placed)
         noise, src = (None, None) if noise_of is None else noise_of(np.concatenate(rings))
         rings = smooth_across(rings, params, step, origin, axis,
-                              window_footprint(sample, *window), noise, src)
+                              window_footprint(sample, *window), noise, src, sec)
+    if len(sec) > len(loops):  # a section's parts as one list of rings, parameters joined
+        rings, params = _by_section(rings, sec), _by_section(params, sec)
+        params = [u if isinstance(u, np.ndarray) else np.concatenate(u) for u in params]
     return curves, rings, params, float(step), notes, run
 
 

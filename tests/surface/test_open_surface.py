@@ -354,6 +354,41 @@ def test_a_facade_with_windows_and_a_tree_is_one_height_field_across_the_view():
     assert np.median(np.abs(v[core, 1] + 0.5)) < sigma
 
 
+def test_a_depth_step_breaks_the_arcs_and_is_not_bridged():
+    """A wall (depth 0) and a tower 0.4 in front of it from x = 2 (σ = 0.005), seen from
+    cameras 10 in front spread ±3 across (β ≈ 17°: a face within it of the view is not
+    seen by all of them): the tower's side has no points.  Every section steps by 0.4
+    (80 σ, slope ≫ cot β) between neighbours: its arc is cut there into two parts, each
+    fitted and stitched to its own side, the step a border; bridged, the fit ramped across
+    it."""
+    from surface.reconstruct import slice_cloud
+
+    rng = np.random.default_rng(5)
+    n, sigma = 24_000, 0.005
+    x, z = rng.uniform(0, 4, n), rng.uniform(0, 2, n)
+    depth = np.where(x < 2.0, 0.0, -0.4)
+    cloud = np.stack([x, depth + rng.normal(0, sigma, n), z], 1)
+    sliced = slice_cloud(cloud, axis="z", sections=20)
+    _, loops, _ = osf.organise_arcs(sliced.sections, drop_splits=False)
+    centres = np.array([[-1.0, -10.0, 1.0], [2.0, -10.0, 1.0], [5.0, -10.0, 1.0]])
+    window = (centres, np.full(3, 1000.0), 15.0)
+    _, rings, params, step, _, run = osf.open_arcs(
+        loops, sliced.spacing, view=[0, 1.0, 0], window=window,
+        sigma=(cloud, np.full(n, sigma)), steps=True)
+    assert len(run) == 20
+    assert all(isinstance(r, list) and len(r) == 2 for r in rings)       # cut at the step
+    mesh = osf.stitch_arcs(rings, params, step, viewpoint=centres, reach=osf.BORDER_REACH)
+    v, t = mesh.vertices, mesh.triangles
+    # no vertex between the two depths, no face across the step (bridged: 27 of 1 220
+    # vertices on the ramp, 39 faces across it, one component)
+    assert np.all((np.abs(v[:, 1]) < 6 * sigma) | (np.abs(v[:, 1] + 0.4) < 6 * sigma))
+    level = v[:, 1] < -0.2
+    assert np.all(level[t] == level[t][:, :1])
+    assert mesh_topology(v, t)["components"] == 2
+    # each side reaches the step within a section spacing
+    assert v[~level, 0].max() > 2.0 - sliced.spacing and v[level, 0].min() < 2.0 + sliced.spacing
+
+
 def test_too_few_points_and_bad_smoothing_are_refused():
     with pytest.raises(ValueError, match="at least 4 points"):
         osf.fit_open(np.zeros((3, 3)))
