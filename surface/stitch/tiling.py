@@ -318,7 +318,17 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray,
     penalty = float((len(both) + 1) * np.linalg.norm(np.ptp(both, axis=0)))
     sided = (plan_a, plan_b, _edge_sides(plan_a, plan_b), _edge_sides(plan_b, plan_a), penalty)
     if not loops_cross([plan_a, plan_b]):
-        return _shortest_tiling(lower, upper, i0, nearest, sided)
+        # The side is judged by the other ring's nearest point, which can lie across a
+        # narrow gap (a column's sub-loop beside its neighbour): where the sided tiling
+        # crosses itself and the plain one less, the plain one (the temple ring's thinned
+        # control mesh, a split into four columns: 7 pairs -> 0).
+        tiling = _shortest_tiling(lower, upper, i0, nearest, sided)
+        crossings = len(self_intersections(both, tiling))
+        if crossings:
+            plain = _shortest_tiling(lower, upper, i0, nearest, none)
+            if len(self_intersections(both, plain)) < crossings:
+                return plain
+        return tiling
     # Rings crossing in the plan: the side changes along them, and judged by the nearest
     # point it misplaced a hook's faces (58 new pairs).  The sided tiling is taken only
     # where the plain one crosses itself and the sided one less (a hairpin of one ring

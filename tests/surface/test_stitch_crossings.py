@@ -425,3 +425,24 @@ def test_a_strip_is_zipped_by_one_angle_about_one_centre():
     result = stitch_rings(rings, data["axis"], support_sigma=float(data["sigma"]))
     report = check_solid(result.vertices, result.triangles)
     assert result.closed and report.valid and report.genus == 0, report.problems()
+
+
+def test_a_sided_strip_that_crosses_itself_gives_way_to_the_plain_one():
+    """A column's sub-loop (59 points, after a split into four columns) and its column's
+    loop (88 points) in the temple ring's thinned control mesh (centred,
+    ``data/temple_column_strip.npz``); the rings do not cross in the plan.  The sided
+    tiling judged a side by the other ring's nearest point, across a narrow gap, and
+    crossed itself (7 pairs); the plain shortest-span tiling does not, so it is taken."""
+    from pathlib import Path
+
+    from surface.stitch import tile_min_span
+    from surface.validity import self_intersections
+
+    data = np.load(Path(__file__).parent / "data" / "temple_column_strip.npz")
+    lower, upper, axis = data["lower"], data["upper"], data["axis"]
+    v = np.vstack([lower, upper])
+    tri = tile_min_span(lower, upper, axis)
+    edges = np.sort(np.vstack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2 and np.sum(counts == 1) == len(v)   # a closed strip
+    assert len(self_intersections(v, tri)) == 0
