@@ -73,7 +73,7 @@ def _members(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 # --------------------------------------------------------------------------- cloud
 def write_cloud(folder: str | os.PathLike, points, colours=None,
-                sigma=None) -> dict[str, np.ndarray]:
+                sigma=None, source=None) -> dict[str, np.ndarray]:
     """``folder/cloud.npz`` and ``folder/cloud.ply`` (for viewers: MeshLab, CloudCompare).
 
     Parameters
@@ -84,6 +84,9 @@ def write_cloud(folder: str | os.PathLike, points, colours=None,
         array (the on-disk name, kept: workspaces written before read the same).
     sigma : (N,) array_like, optional
         Per-point standard deviation, scene units; NaN when absent.
+    source : (N,) array_like, optional
+        The view pair each point came from (an image folder's; negative: fused from
+        several), stored as ``source`` when given.
 
     Returns
     -------
@@ -95,7 +98,8 @@ def write_cloud(folder: str | os.PathLike, points, colours=None,
     colours = (np.zeros((len(points), 3), np.uint8) if colours is None
                else np.asarray(colours).astype(np.uint8).reshape(-1, 3))
     sigma = np.full(len(points), np.nan) if sigma is None else np.asarray(sigma, np.float64)
-    save_npz(folder / CLOUD, points=points, colors=colours, sigma=sigma)
+    extra = {} if source is None else {"source": np.asarray(source, np.int64).reshape(-1)}
+    save_npz(folder / CLOUD, points=points, colors=colours, sigma=sigma, **extra)
     write_ply(folder / CLOUD_PLY, points, colours, sigma)
     return {"points": points, "colors": colours, "sigma": sigma}
 

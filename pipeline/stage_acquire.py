@@ -50,7 +50,7 @@ def acquire(ctx: StageContext) -> dict:
         return _save_cloud(ctx, *_stereo_cloud(left, right, rig, ctx.params["acquire"]))
     folder = ctx.stage_path("scene") if ctx.kind == "scene" else ctx.inputs[0]
     cloud, info = _multiview_cloud(folder, ctx)
-    out = _save_cloud(ctx, *_cloud_arrays(cloud))
+    out = _save_cloud(ctx, *_cloud_arrays(cloud), source=getattr(cloud, "pair", None))
     # what the sections stage's axis "data" needs: the cameras' ring, and whether the
     # frame is the user's (given cameras) or an arbitrary SfM one
     ring = {**cloud.stats.get("ring", {}), "frame": "sfm" if info["cameras"] == "pycolmap SfM"
@@ -61,10 +61,10 @@ def acquire(ctx: StageContext) -> dict:
     return {**out, **info}
 
 
-def _save_cloud(ctx: StageContext, points, colors=None, sigma=None) -> dict:
+def _save_cloud(ctx: StageContext, points, colors=None, sigma=None, source=None) -> dict:
     if len(np.asarray(points).reshape(-1, 3)) == 0:
         raise InputError(f"{ctx.inputs[0]}: acquisition produced no points")
-    written = artifacts.write_cloud(ctx.out, points, colors, sigma)
+    written = artifacts.write_cloud(ctx.out, points, colors, sigma, source)
     sigma = written["sigma"]
     finite = sigma[np.isfinite(sigma)]
     return {"points": len(written["points"]),

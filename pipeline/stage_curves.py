@@ -131,11 +131,14 @@ def _open_curves(ctx: StageContext, sliced: list, options: dict, smoothing,
         window = ((np.array([c.center for c in cameras]), np.array([c.K[0, 0] for c in cameras]),
                    float(ctx.config["acquire"]["patch"])) if cameras else None)
         # the sections' points and their cloud points' sigma (the fits' bound)
-        cloud_sigma = artifacts.read_cloud(ctx.stage_path("acquire")).get("sigma")
+        cloud = artifacts.read_cloud(ctx.stage_path("acquire"))
+        cloud_sigma = cloud.get("sigma")
         sigma = ((np.concatenate([s.points for s in sliced]),
                   np.asarray(cloud_sigma, np.float64)[
                       np.concatenate([s.source_index for s in sliced])])
                  if cameras and cloud_sigma is not None and sliced else None)
+        if sigma is not None and "source" in cloud:  # view pairs: errors shared within one
+            sigma += (cloud["source"][np.concatenate([s.source_index for s in sliced])],)
         curves, rings, params, step, notes, run = osf.open_arcs(
             loops, spacing, p["n"] or None, smoothing=smoothing, view=view, window=window,
             sigma=sigma)
