@@ -59,7 +59,10 @@ from matching.lsm_image import (
     estimate_noise,
     prepare_image,
 )
-from matching.lsm_kernels import _MAX_BLUR_RADIUS, _MODE_UNKNOWNS, TUKEY_C, _lsm_batch
+from matching.lsm_kernels import _lsm_batch
+from matching.lsm_normals import _MODE_UNKNOWNS
+from matching.lsm_robust import TUKEY_C
+from matching.lsm_template import _MAX_BLUR_RADIUS
 from matching.validate import TOL, check_shape
 
 __all__ = [
