@@ -3,7 +3,7 @@
 For each workspace of a rendered scene (``photosurf run RECIPE --out W``): the smooth
 surface (``W/smooth``'s control net, tessellated at level 1 with exact normals; the
 stitched mesh ``W/stitch/mesh.ply`` when there is no smooth surface yet), the
-points and their σ (``W/acquire/cloud.npz``), and the scene's truth mesh
+points, their σ and view pairs when recorded (``W/acquire/cloud.npz``), and the scene's truth mesh
 (``W/scene/truth/mesh.ply``).  The true deviation of each surface point is its distance
 to the truth mesh (open3d ray casting); the figures are the shares of points whose
 deviation is within 1σ and 2σ (a Gaussian error: 68.3 % and 95.4 %), over all points,
@@ -65,13 +65,15 @@ def workspace_row(workspace: Path, level: int = 1) -> dict:
         normals, surface = vertex_normals(vertices, triangles), "stitched mesh"
     with np.load(workspace / "acquire" / "cloud.npz") as cloud:
         points, sigma = cloud["points"], cloud["sigma"]
-    result = normal_sigma(vertices, normals, points, sigma)
+        source = cloud["source"] if "source" in cloud.files else None
+    result = normal_sigma(vertices, normals, points, sigma, source=source)
     truth = workspace / "scene" / "truth" / "mesh.ply"
     deviation = _truth_distance(vertices, truth)
     point_error = _truth_distance(points, truth)
     covered = result.gap == 0
     return {"workspace": str(workspace), "surface": surface, "vertices": int(len(vertices)),
             "points": int(len(points)), "curvature": result.curvature,
+            "view_pairs": source is not None,
             "all": _shares(deviation, result.sigma),
             "covered": _shares(deviation[covered], result.sigma[covered]),
             "bridged": _shares(deviation[~covered], result.sigma[~covered]),

@@ -12,8 +12,10 @@ a ring sample; the patches blend neighbouring ring samples): with Gaussian weigh
 ``y_i`` the surface point nearest ``p_i`` (not ``x``'s tangent plane, which over
 the reach ``h`` holds the surface's own bend ``kappa h^2 / 2``),
 ``v`` the points' weighted scatter about ``m`` (a point's σ as stated, or as the
-points show it where they scatter more).  ``m`` is the surface's offset from the
-points' local mean: a bias ``b`` of the surface plus the mean's own error, of
+points show it where they scatter more).  Given each point's view pair, the pairs'
+disagreement scales the σ and measures the correlation ``rho`` of one pair's neighbouring
+errors, whose cross terms ``rho w_i w_j s_i s_j`` join ``s_prop^2`` (:func:`_pair_statistics`).
+``m`` is the surface's offset from the points' local mean: a bias ``b`` plus the mean's error, of
 variance ``s_prop^2``, so ``<m^2> = b^2 + s_prop^2`` (``<.>`` the mean over the
 ``K_v`` nearest surface points).  The deviation from the truth is ``-b ± s_prop``:
 
@@ -53,6 +55,8 @@ __all__ = ["NormalSigma", "normal_sigma"]
 K_POINTS = 16
 #: Surface points the bias estimate is averaged over.
 K_SURFACE = 8
+#: Median of a chi-square variable of one degree of freedom.
+CHI2_MEDIAN = 0.454936
 
 
 @dataclass(frozen=True)
@@ -74,7 +78,29 @@ def _unit(normals: np.ndarray) -> np.ndarray:
     return normals / np.where(length > 0, length, 1.0)
 
 
-def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
+def _pair_statistics(points, sigma, offset, source) -> tuple[float, float]:
+    """``(k2, rho)`` from points seen by different view pairs (``source``, negative:
+    fused): over each point's 16 nearest, the median of ``(r_i - r_j)^2 / (s_i^2 + s_j^2)``
+    (a chi-square(1), median 0.455 when the σ are right) across pairs, whose errors are
+    independent, gives the σ's scale ``k2``; within one pair it is ``k2 (1 - rho)``, ``rho``
+    the correlation of one pair's neighbouring points (shared windows, a shared pose).
+    The surface's own error is common to near points and cancels.  ``(1, 0)`` without
+    enough of either."""
+    known = source >= 0
+    _, near = cKDTree(points).query(points, k=K_POINTS + 1)
+    i, j = np.repeat(np.arange(len(points)), K_POINTS), near[:, 1:].ravel()
+    both = known[i] & known[j]
+    q = (offset[i] - offset[j]) ** 2 / (sigma[i] ** 2 + sigma[j] ** 2)
+    same = both & (source[i] == source[j])
+    across = both & (source[i] != source[j])
+    if same.sum() < 100 or across.sum() < 100 or not np.isfinite(q[across]).any():
+        return 1.0, 0.0
+    k2 = float(np.nanmedian(q[across])) / CHI2_MEDIAN
+    rho = 1.0 - float(np.nanmedian(q[same])) / CHI2_MEDIAN / k2
+    return k2, min(max(rho, 0.0), 1.0)
+
+
+def normal_sigma(vertices, normals, points, sigma, source=None) -> NormalSigma:
     """1σ of the surface along its normal at each vertex.
 
     Parameters
@@ -86,6 +112,11 @@ def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
     sigma : (N,) array_like
         Their 1σ (isotropic), scene units; NaN where unknown (the points' scatter
         stands in).
+    source : (N,) array_like of int, optional
+        Each point's view pair (negative: fused from several).  Given, the points'
+        spread across pairs scales their σ and measures how one pair's neighbouring
+        errors correlate (:func:`_pair_statistics`); the propagation counts that
+        correlation.
 
     Returns
     -------
@@ -108,12 +139,27 @@ def normal_sigma(vertices, normals, points, sigma) -> NormalSigma:
     # not from x's tangent plane: over the fit's reach the latter holds the surface's
     # own sagitta, kappa h^2 / 2 at the reach's edge, which is no error of the fit
     _, foot = surface_tree.query(p)
-    r = np.einsum("nd,nd->n", p - x[foot], n[foot])[idx]
+    offsets = np.einsum("nd,nd->n", p - x[foot], n[foot])
+    r = offsets[idx]
     m = (w * r).sum(axis=1) / wsum
+    k2, rho = 1.0, 0.0
+    if source is not None:
+        src = np.asarray(source).reshape(-1)
+        if len(src) != len(p):
+            raise ValueError("need one source per point")
+        k2, rho = _pair_statistics(p, s, offsets, src)
+        s = s * np.sqrt(k2)
     scatter = (w * (r - m[:, None]) ** 2).sum(axis=1) / wsum
     # each point's sigma, or the points' scatter about their local mean where larger or
     # where the sigma is unknown (NaN)
-    prop2 = (w ** 2 * np.fmax(s[idx] ** 2, scatter[:, None])).sum(axis=1) / wsum ** 2
+    each = np.fmax(s[idx] ** 2, scatter[:, None])
+    prop2 = (w ** 2 * each).sum(axis=1) / wsum ** 2
+    if rho > 0:  # one pair's neighbouring errors correlate: their cross terms
+        a = w * np.sqrt(each)
+        group = src[idx]
+        same = (group[:, :, None] == group[:, None, :]) & (group[:, :, None] >= 0)
+        cross = np.einsum("vi,vij,vj->v", a, same, a) - (a ** 2).sum(axis=1)
+        prop2 = prop2 + rho * cross / wsum ** 2
     _, near = surface_tree.query(x, k=min(K_SURFACE, len(x)))
     near = near.reshape(len(x), -1)
     offset2 = (m ** 2)[near].mean(axis=1)

@@ -96,3 +96,28 @@ def test_the_surface_s_own_bend_over_the_fit_s_reach_is_no_error():
     x, n = _surface(20_000)
     out = normal_sigma(x, n, points, sigma)
     assert 0.001 / 8 <= np.median(out.sigma) <= 0.001 / 2
+
+
+
+def test_a_view_pair_s_shared_error_is_measured_across_pairs():
+    # two view pairs, each with its own smooth error field (amplitude 0.01, independent
+    # between the pairs) and white noise 0.001 = the stated sigma; the surface follows
+    # the points' mean, so its true error is the fields' mean, which no local scatter
+    # shows. Across the pairs the points disagree by the fields: with the sources, sigma
+    # covers the true error; without, it is the white noise's mean (~7x too small)
+    rng = np.random.default_rng(7)
+    u = rng.normal(size=(40_000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    source = np.arange(len(u)) % 2
+    field = lambda v, k: 0.01 * np.sin(3 * v[:, k] + k)  # noqa: E731
+    error = np.where(source == 0, field(u, 0), field(u, 1)) + 0.001 * rng.normal(size=len(u))
+    points, sigma = u * (1 + error[:, None]), np.full(len(u), 0.001)
+    x, n = _surface()
+    truth_error = (field(n, 0) + field(n, 1)) / 2
+    x = x * (1 + truth_error[:, None])
+    with_pairs = normal_sigma(x, n, points, sigma, source=source)
+    without = normal_sigma(x, n, points, sigma)
+    assert np.mean(np.abs(truth_error) <= 2 * with_pairs.sigma) > 0.85
+    assert np.mean(np.abs(truth_error) <= 2 * without.sigma) < 0.5
+    with pytest.raises(ValueError):
+        normal_sigma(x, n, points, sigma, source=source[:10])
