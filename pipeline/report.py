@@ -354,7 +354,9 @@ def _uncertainty_section(root: Path, screen: _Screen) -> str:
     with np.load(cloud) as data:
         if "sigma" not in data.files or len(data["points"]) < 16:
             return ""
-        result = normal_sigma(screen.vertices, screen.normals, data["points"], data["sigma"])
+        source = data["source"] if "source" in data.files else None
+        result = normal_sigma(screen.vertices, screen.normals, data["points"], data["sigma"],
+                              source=source)
     top = float(np.percentile(result.sigma, 95)) or 1.0
     width, height = screen.size[0] // 3, screen.size[1] // 2
     centre = 0.5 * (screen.vertices.min(axis=0) + screen.vertices.max(axis=0))

@@ -78,7 +78,8 @@ def _surface_sigma(ctx: StageContext, vertices, normals):
     cloud = artifacts.read_cloud(ctx.stage_path("acquire"))
     if "sigma" not in cloud or len(cloud["points"]) < 16:
         return None
-    return normal_sigma(vertices, normals, cloud["points"], cloud["sigma"]).sigma
+    return normal_sigma(vertices, normals, cloud["points"], cloud["sigma"],
+                        source=cloud.get("source")).sigma
 
 
 def report(ctx: StageContext) -> dict:
