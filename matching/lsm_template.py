@@ -8,7 +8,6 @@ import numba
 import numpy as np
 
 from matching.lsm_interp import _FM, _sample
-from matching.lsm_normals import _affine_row
 
 #: Largest radius of the template's footprint smoothing (``lsm_match``'s
 #: ``footprint_var``), px: a Gaussian of σ up to 4/3 px is sampled to 3σ.
@@ -151,7 +150,6 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, noise_fac)
     wy = np.empty(4)
     dwy = np.empty(4)
     out = np.empty(3)
-    jv = np.empty(8)
     # H summed in a local array (``hmat`` may alias the images as far as the compiler
     # knows, which kept every partial sum in memory), the same operations in order
     h = np.zeros((8, 8))
@@ -180,11 +178,96 @@ def _template(fimg, fraw, cx, cy, half, kind, fv, fx, fy, hmat, blur, noise_fac)
             fv[n] = out[0]
             fx[n] = out[1]
             fy[n] = out[2]
-            _affine_row(jv, out[1], out[2], ix, iy, out[0])
-            for i in range(8):
-                for j in range(i + 1):
-                    h[i, j] += jv[i] * jv[j]
             n += 1
+    # H = Σ j jᵀ (its lower triangle) in 36 scalar sums over the pixels in order: the
+    # operations of :func:`_affine_row`'s row and ``h[i, j] += j_i j_j``, in registers
+    h00 = h10 = h11 = h20 = h21 = h22 = h30 = h31 = h32 = h33 = h40 = h41 = 0.0
+    h42 = h43 = h44 = h50 = h51 = h52 = h53 = h54 = h55 = h60 = h61 = h62 = 0.0
+    h63 = h64 = h65 = h66 = h70 = h71 = h72 = h73 = h74 = h75 = h76 = h77 = 0.0
+    n = 0
+    for iy in range(-half, half + 1):
+        for ix in range(-half, half + 1):
+            j0 = fx[n]
+            j1 = j0 * ix
+            j2 = j0 * iy
+            j3 = fy[n]
+            j4 = j3 * ix
+            j5 = j3 * iy
+            j6 = 1.0
+            j7 = fv[n]
+            h00 += j0 * j0
+            h10 += j1 * j0
+            h11 += j1 * j1
+            h20 += j2 * j0
+            h21 += j2 * j1
+            h22 += j2 * j2
+            h30 += j3 * j0
+            h31 += j3 * j1
+            h32 += j3 * j2
+            h33 += j3 * j3
+            h40 += j4 * j0
+            h41 += j4 * j1
+            h42 += j4 * j2
+            h43 += j4 * j3
+            h44 += j4 * j4
+            h50 += j5 * j0
+            h51 += j5 * j1
+            h52 += j5 * j2
+            h53 += j5 * j3
+            h54 += j5 * j4
+            h55 += j5 * j5
+            h60 += j6 * j0
+            h61 += j6 * j1
+            h62 += j6 * j2
+            h63 += j6 * j3
+            h64 += j6 * j4
+            h65 += j6 * j5
+            h66 += j6 * j6
+            h70 += j7 * j0
+            h71 += j7 * j1
+            h72 += j7 * j2
+            h73 += j7 * j3
+            h74 += j7 * j4
+            h75 += j7 * j5
+            h76 += j7 * j6
+            h77 += j7 * j7
+            n += 1
+    h[0, 0] = h00
+    h[1, 0] = h10
+    h[1, 1] = h11
+    h[2, 0] = h20
+    h[2, 1] = h21
+    h[2, 2] = h22
+    h[3, 0] = h30
+    h[3, 1] = h31
+    h[3, 2] = h32
+    h[3, 3] = h33
+    h[4, 0] = h40
+    h[4, 1] = h41
+    h[4, 2] = h42
+    h[4, 3] = h43
+    h[4, 4] = h44
+    h[5, 0] = h50
+    h[5, 1] = h51
+    h[5, 2] = h52
+    h[5, 3] = h53
+    h[5, 4] = h54
+    h[5, 5] = h55
+    h[6, 0] = h60
+    h[6, 1] = h61
+    h[6, 2] = h62
+    h[6, 3] = h63
+    h[6, 4] = h64
+    h[6, 5] = h65
+    h[6, 6] = h66
+    h[7, 0] = h70
+    h[7, 1] = h71
+    h[7, 2] = h72
+    h[7, 3] = h73
+    h[7, 4] = h74
+    h[7, 5] = h75
+    h[7, 6] = h76
+    h[7, 7] = h77
     for i in range(8):
         for j in range(i + 1):
             hmat[i, j] = h[i, j]
