@@ -45,6 +45,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, cKDTree
 
+from surface.metrics import edge_table, signed_volume
 from surface.validate import check_shape
 
 #: Neighbours of the PCA normals and of their orientation graph (as benchmarks/surface.py's
@@ -276,9 +277,6 @@ def evidence_genus(section_vertices: np.ndarray, section_triangles: np.ndarray,
 def _split_pinched(triangles: np.ndarray) -> np.ndarray:
     """Corner labels ``(F, 3)``: corners of one vertex joined across the edges of the faces
     they share, so that a vertex where two fans meet only at a point becomes two."""
-
-    from surface.metrics import edge_table
-
     flat = edge_table(triangles).face_edge.ravel()    # slot 3f + k: side k -> k + 1 of f
     order = np.argsort(flat, kind="stable")
     same = flat[order[1:]] == flat[order[:-1]]
@@ -456,8 +454,6 @@ def poisson_control_mesh(points: np.ndarray, spacing: float, point_spacing: floa
             vertices, triangles = _repaired(*_clean(decimated))
             problem = _closed_problem(vertices, triangles)
             if not problem:
-                from surface.metrics import signed_volume
-
                 if signed_volume(vertices, triangles) < 0:  # normals oriented inward
                     triangles = triangles[:, ::-1].copy()
                 return vertices, triangles
@@ -467,8 +463,6 @@ def poisson_control_mesh(points: np.ndarray, spacing: float, point_spacing: floa
 
 def _border_edges(triangles: np.ndarray) -> int:
     """Edges of one face: where an iso-surface met its octree's cube."""
-    from surface.metrics import edge_table
-
     return int(np.count_nonzero(edge_table(triangles).counts == 1)) if len(triangles) else 0
 
 
