@@ -224,6 +224,18 @@ def sample_mesh(vertices: np.ndarray, triangles: np.ndarray, count: int | None =
     return ((1.0 - r1)[:, None] * a + (r1 * (1.0 - r2))[:, None] * b + (r1 * r2)[:, None] * c)
 
 
+def _centred_scene(v: np.ndarray, t: np.ndarray):
+    """The mesh's centre and its open3d ``RaycastingScene`` (BVH) built about it: shifted
+    to the centre so that float32 keeps small distances and hits near the object exact."""
+    import open3d as o3d
+
+    centre = v.mean(axis=0)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor((v - centre).astype(np.float32)),
+                        o3d.core.Tensor(t.astype(np.uint32)))
+    return centre, scene
+
+
 class MeshDistance:
     """Distances to one triangle mesh, its open3d ``RaycastingScene`` (BVH) built once.
 
@@ -240,17 +252,12 @@ class MeshDistance:
     """
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray):
-        import open3d as o3d
-
         v = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
         t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
         if len(t) == 0:
             raise ValueError("triangles is empty; no mesh to measure distances to")
-        # Shift to the mesh centre so that float32 keeps the small distances exact.
-        self.centre = v.mean(axis=0)
-        self.scene = self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor((v - self.centre).astype(np.float32)),
-                                  o3d.core.Tensor(t.astype(np.uint32)))
+        self.centre, self._scene = _centred_scene(v, t)
+        self.scene = self._scene
 
     def __call__(self, points: np.ndarray, signed: bool = False) -> np.ndarray:
         import open3d as o3d
@@ -617,10 +624,7 @@ def silhouette_scores(vertices: np.ndarray, triangles: np.ndarray, cameras, silh
 
     v = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
     t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
-    centre = v.mean(axis=0)  # float32 keeps the hits exact near the object
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((v - centre).astype(np.float32)),
-                        o3d.core.Tensor(t.astype(np.uint32)))
+    centre, scene = _centred_scene(v, t)
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
     out = {"iou": [], "inside": [], "covered": []}
     for cam, silhouette in zip(cameras, silhouettes, strict=True):
@@ -669,10 +673,7 @@ def seen_by_cameras(vertices: np.ndarray, triangles: np.ndarray, points: np.ndar
     v = check_shape(vertices, "(V, 3)", "vertices", dtype=np.float64)
     t = check_shape(triangles, "(F, 3)", "triangles", dtype=np.int64)
     p = check_shape(points, "(S, 3)", "points", dtype=np.float64)
-    centre = v.mean(axis=0)  # float32 keeps the hits exact near the object
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((v - centre).astype(np.float32)),
-                        o3d.core.Tensor(t.astype(np.uint32)))
+    centre, scene = _centred_scene(v, t)
     slack = 1e-4 * float(np.ptp(v, axis=0).max())
     seen = np.zeros(len(p), bool)
     for cam in cameras:

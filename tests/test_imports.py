@@ -27,7 +27,7 @@ def test_the_import_contract_is_kept(monkeypatch, capsys):
         status = cli.lint_imports(config_filename=os.fspath(ROOT / "pyproject.toml"),
                                   no_cache=True, no_logo=True)
     finally:
-        for lg, was in zip(loggers, disabled):
+        for lg, was in zip(loggers, disabled, strict=True):
             lg.disabled = was
     report = capsys.readouterr().out
     assert status == cli.EXIT_STATUS_SUCCESS, report
