@@ -23,20 +23,18 @@ when both reported covariances are right.  The *variance factor*
 
 over the loops (blunders beyond the 99 % point of the χ² distribution, 9.21 k² times
 their expectation, left out, iterated) would be the factor by which the reported
-variances must grow to explain the loops if the two matches were independent.  They
-are not: both use the same pixels, so the noise of those pixels moves both matches
-alike and cancels in the loop.  Measured on synthetic warps with white noise
-(``tests/matching/test_consistency.py``): k² = 0.045 where LSM's σ is right to 5 %.
-The loop therefore sees only what differs between the two directions (resampling of
-one image or the other, a blur difference, the affine model's asymmetry) and is a
-*lower bound* on the matching error, not an estimate of σ: a forward-backward
-"consistency" figure (and SGBM's left-right check alike) understates the error.
+variances must grow to explain the loops if the two matches were independent.  They are
+not: both use the same pixels, whose noise moves both matches alike and cancels in the
+loop.  On synthetic warps with white noise (``tests/matching/test_consistency.py``)
+k² = 0.045 where LSM's σ is right to 5 %.  The loop sees only what differs between the
+two directions (resampling of one image or the other, a blur difference, the affine
+model's asymmetry): a *lower bound* on the matching error, not an estimate of σ; a
+forward-backward "consistency" figure (and SGBM's left-right check alike) understates it.
 
 References
 ----------
 .. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image matching
-   technique", South African Journal of Photogrammetry, Remote Sensing and
-   Cartography 14(3), 175-187 (1985).
+   technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14(3), 175-187 (1985).
 .. [2] W. Förstner, "Ein Verfahren zur Schätzung von Varianz- und Kovarianzkomponenten",
    Allgemeine Vermessungs-Nachrichten 86, 446-453 (1979).
 """

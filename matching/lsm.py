@@ -25,21 +25,18 @@ Jacobian's σ is right where the search-gradient one is biased [4]_): ``docs/met
 
 References
 ----------
-.. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image
-   matching technique", South African Journal of Photogrammetry, Remote
-   Sensing and Cartography 14(3), 175-187 (1985).
-.. [2] S. Baker, I. Matthews, "Lucas-Kanade 20 years on: a unifying
-   framework", IJCV 56(3), 221-255 (2004).
-.. [3] J. Immerkaer, "Fast noise variance estimation", Computer Vision and
-   Image Understanding 64(2), 300-302 (1996).
+.. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image matching
+   technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14(3), 175-187 (1985).
+.. [2] S. Baker, I. Matthews, "Lucas-Kanade 20 years on: a unifying framework", IJCV 56(3),
+   221-255 (2004).
+.. [3] J. Immerkaer, "Fast noise variance estimation", CVIU 64(2), 300-302 (1996).
 .. [4] D. Robinson, P. Milanfar, "Fundamental performance limits in image
    registration", IEEE Trans. Image Processing 13(9), 1185-1199 (2004).
 .. [5] T. Lindeberg, J. Gårding, "Shape-adapted smoothing in estimation of 3-D shape
    cues from affine deformations of local 2-D brightness structure", Image and Vision
    Computing 15(6), 415-434 (1997).
 .. [6] P. W. Holland, R. E. Welsch, "Robust regression using iteratively reweighted
-   least-squares", Communications in Statistics - Theory and Methods 6(9), 813-827
-   (1977).
+   least-squares", Commun. Stat. Theory Methods 6(9), 813-827 (1977).
 """
 
 from __future__ import annotations

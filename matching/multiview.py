@@ -27,16 +27,14 @@ its options :class:`MultiViewOptions`); tasks run through :mod:`matching.schedul
 **Silhouettes** (:func:`matching.masks.near_foreground`): where a view's background is
 uniform, a point must project within :math:`\sqrt2/2 + q\,\sigma f/z` px of its foreground.
 
-Per-point reasons: :data:`REASON_NAMES` (0 ``multiview``, 1 ``pair_only``,
-2 ``no_further_match``, 3 ``inconsistent``, 4 ``triangulation``, 5 ``outlier``,
-6 ``outside``); 2-6 are rejected (2 only with ``require_confirmation``), 1 unless
-``keep_unchecked``.  ``views (N, V)`` bool: the views that saw each point; ``pair (N,)``: the
-pair it came from, -1 when fused.  Every rule in full: ``docs/method/acquire.md``.
+Per-point reasons: :data:`REASON_NAMES`; 2-6 are rejected (2 only with
+``require_confirmation``), 1 (``pair_only``) unless ``keep_unchecked``.  ``views (N, V)``
+bool: the views that saw each point; ``pair (N,)``: the pair it came from, -1 when fused.
+Every rule in full: ``docs/method/acquire.md``.
 
 References
 ----------
-.. [1] A. Gruen, E. Baltsavias, "Geometrically constrained multiphoto matching",
-   Photogrammetric Engineering and Remote Sensing 54(5), 633-641 (1988).
+.. [1] A. Gruen, E. Baltsavias, "Geometrically constrained multiphoto matching", PE&RS 54(5) (1988).
 .. [2] R. B. Rusu et al., "Towards 3D point cloud based object maps for household
    environments", Robotics and Autonomous Systems 56(11), 927-941 (2008).
 """

@@ -10,8 +10,7 @@ The pair-level pipeline, reused by the multi-view stage:
    (:func:`matching.lsm.lsm_match`, Gruen 1985), optionally constrained to the local
    epipolar direction (always for a rectified pair: every window row held on its row,
    ``rigid_across``: b1 = 0, b2 = 1 are geometry, not unknowns);
-4. **triangulate** (:func:`matching.triangulate.triangulate_pair`) with the LSM
-   covariance, giving each 3D point its σ.
+4. **triangulate** (:func:`matching.triangulate.triangulate_pair`): σ from LSM's covariance.
 
 Precision control (second pass).  LSM's shift σ is noise-limited,
 :math:`\sigma \approx \sigma_0 / \sqrt{2 w}` with Förstner's weight
@@ -23,25 +22,21 @@ whose predicted σ reaches τ, :func:`adaptive_sides`; a first-pass match the se
 pass loses keeps its first-pass result) and the **precision test** (σ beyond the
 median by more than ``max_sigma_mad_k`` robust spreads: ``imprecise``).
 
-Epipolar pass (calibrated pairs, ``epipolar_pass``): windows re-matched in the
-rectified images with the y-shift fixed by the rig (Gruen & Baltsavias 1988),
-rejected where ill-conditioned along the line (``aperture``, tested at the window's
-least-variance point), reported at the pixel nearest that point, the pair's
-edge-polarity bias removed.  Every candidate keeps a status code
-(:data:`PAIR_STATUS_NAMES`; their meanings: ``docs/method/acquire.md``).  What was
-measured for each rule: ``docs/decisions/stereo-matching.md``, ``stereo-epipolar.md``,
-``stereo-information-centre.md``, ``stereo-edges.md``.  :func:`match_pair` runs named passes;
-their parts live in :mod:`matching.pair_second_pass`, :mod:`matching.pair_epipolar`,
-:mod:`matching.pair_verify`, :mod:`matching.pair_centres` and :mod:`matching.pair_densify`
-(status codes: :mod:`matching.pair_status`).
+Epipolar pass (calibrated pairs, ``epipolar_pass``): windows re-matched in the rectified
+images with the y-shift fixed by the rig (Gruen & Baltsavias 1988), the two images' blur
+balanced by region (``equalise_blur``), rejected where ill-conditioned along the line
+(``aperture``, tested at the window's least-variance point), reported at the pixel nearest
+it, the edge-polarity bias removed.
+Every candidate keeps a status code (:data:`PAIR_STATUS_NAMES`, :mod:`matching.pair_status`).
+:func:`match_pair` runs named passes (:mod:`matching.pair_second_pass`, ``pair_epipolar``,
+``pair_verify``, ``pair_centres``, ``pair_densify``); each rule and what decided it:
+``docs/method/acquire.md``, ``docs/decisions/stereo-*.md``.
 
 References
 ----------
-.. [1] A. W. Gruen, "Adaptive least squares correlation: a powerful image
-   matching technique", S. Afr. J. Photogramm. Remote Sens. Cartogr. 14(3) (1985).
-.. [2] W. Förstner, E. Gülch, "A fast operator for detection and precise location of
-   distinct points, corners and centres of circular features", ISPRS Intercommission
-   Conference on Fast Processing of Photogrammetric Data, Interlaken, 281-305 (1987).
+.. [1] A. W. Gruen, "Adaptive least squares correlation", S. Afr. J. Photogramm. 14(3) (1985).
+.. [2] W. Förstner, E. Gülch, "A fast operator for detection and precise location of distinct
+   points, corners and centres of circular features", ISPRS Intercomm. Conf., 281-305 (1987).
 """
 
 

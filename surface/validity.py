@@ -8,8 +8,8 @@ r"""Is a triangle mesh a valid solid?  Manifold, oriented, closed, genus, self-i
 - *oriented*: each interior edge is traversed once in each direction; the faces to
   flip are the smaller class of the two-colouring of the orientation double cover;
 - *closed*: no border edge; the border edges' loops are counted;
-- *components* (faces joined through an edge) and, where every component is a
-  manifold orientable surface, the genus :math:`g = \sum_c (2 - \chi_c - b_c)/2` with
+- *components* (faces joined through an edge) and, where each is a manifold orientable
+  surface, the genus :math:`g = \sum_c (2 - \chi_c - b_c)/2`, with
   :math:`\chi_c = V_c - E_c + F_c` and :math:`b_c` border loops;
 - *self-intersections*: every pair of triangles that meet other than in the vertices
   and edges they share.
@@ -36,8 +36,7 @@ vertex or area ``<= TOL.zero × scale²``) are counted and left out of the test.
 
 References
 ----------
-.. [1] T. Möller, "A fast triangle-triangle intersection test", Journal of Graphics
-   Tools 2(2) (1997), 25-30.
+.. [1] T. Möller, "A fast triangle-triangle intersection test", J. Graphics Tools 2(2) (1997).
 """
 
 from __future__ import annotations
