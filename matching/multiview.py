@@ -29,8 +29,8 @@ uniform, a point must project within :math:`\sqrt2/2 + q\,\sigma f/z` px of its 
 
 Per-point reasons: :data:`REASON_NAMES`; 2-6 are rejected (2 only with
 ``require_confirmation``), 1 (``pair_only``) unless ``keep_unchecked``.  ``views (N, V)``
-bool: the views that saw each point; ``pair (N,)``: the pair it came from, -1 when fused.
-Every rule in full: ``docs/method/acquire.md``.
+bool: the views that saw each point; ``pair (N,)``: the pair it came from (-1 fused from
+several, -1 - v an outline point of view v).  Every rule: ``docs/method/acquire.md``.
 
 References
 ----------
@@ -164,7 +164,8 @@ class MultiViewCloud:
     views : (N, V) bool
         Which cameras saw (matched) each point.
     pair : (N,) int64
-        Index into ``pairs`` of the pair the point came from; -1 when fused from several.
+        Index into ``pairs`` of the pair the point came from; -1 when fused from several,
+        -1 - v for an outline point of view v (:func:`_with_outline`).
     pairs : list of (int, int)
     reason_counts : dict
         Pair points per :data:`REASON_NAMES` name (before merging; ``outlier`` after).

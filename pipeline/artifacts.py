@@ -85,8 +85,8 @@ def write_cloud(folder: str | os.PathLike, points, colours=None,
     sigma : (N,) array_like, optional
         Per-point standard deviation, scene units; NaN when absent.
     source : (N,) array_like, optional
-        The view pair each point came from (an image folder's; negative: fused from
-        several), stored as ``source`` when given.
+        The view pair each point came from (an image folder's; negative: from no one pair,
+        fused from several or a view's outline point), stored as ``source`` when given.
 
     Returns
     -------

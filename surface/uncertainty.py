@@ -113,7 +113,7 @@ def normal_sigma(vertices, normals, points, sigma, source=None) -> NormalSigma:
         Their 1σ (isotropic), scene units; NaN where unknown (the points' scatter
         stands in).
     source : (N,) array_like of int, optional
-        Each point's view pair (negative: fused from several).  Given, the points'
+        Each point's view pair (negative: from no one pair).  Given, the points'
         spread across pairs scales their σ and measures how one pair's neighbouring
         errors correlate (:func:`_pair_statistics`); the propagation counts that
         correlation.
