@@ -317,29 +317,21 @@ def tile_min_span(lower: np.ndarray, upper: np.ndarray,
     # more than any tiling's whole span: fewer wrong-sided faces always win
     penalty = float((len(both) + 1) * np.linalg.norm(np.ptp(both, axis=0)))
     sided = (plan_a, plan_b, _edge_sides(plan_a, plan_b), _edge_sides(plan_b, plan_a), penalty)
-    if not loops_cross([plan_a, plan_b]):
-        # The side is judged by the other ring's nearest point, which can lie across a
-        # narrow gap (a column's sub-loop beside its neighbour): where the sided tiling
-        # crosses itself and the plain one less, the plain one (the temple ring's thinned
-        # control mesh, a split into four columns: 7 pairs -> 0).
-        tiling = _shortest_tiling(lower, upper, i0, nearest, sided)
-        crossings = len(self_intersections(both, tiling))
-        if crossings:
-            plain = _shortest_tiling(lower, upper, i0, nearest, none)
-            if len(self_intersections(both, plain)) < crossings:
-                return plain
-        return tiling
-    # Rings crossing in the plan: the side changes along them, and judged by the nearest
-    # point it misplaced a hook's faces (58 new pairs).  The sided tiling is taken only
-    # where the plain one crosses itself and the sided one less (a hairpin of one ring
-    # at a sharp edge, fanned over both its sides: fandisk's section 17).
-    plain = _shortest_tiling(lower, upper, i0, nearest, none)
-    crossings = len(self_intersections(both, plain))
+    # Rings apart in the plan: the sided tiling first.  Its side is judged by the other
+    # ring's nearest point, which can lie across a narrow gap (a column's sub-loop beside
+    # its neighbour).  Rings crossing in the plan: the plain tiling first, since the side
+    # changes along them and the nearest point misplaces a hook's faces; the sided one
+    # serves a hairpin of one ring at a sharp edge, fanned over both its sides.  Either
+    # way the other is taken only where the first crosses itself and the other less
+    # (the cases and their figures: docs/method/stitching.md).
+    first, second = (none, sided) if loops_cross([plan_a, plan_b]) else (sided, none)
+    tiling = _shortest_tiling(lower, upper, i0, nearest, first)
+    crossings = len(self_intersections(both, tiling))
     if crossings:
-        other = _shortest_tiling(lower, upper, i0, nearest, sided)
+        other = _shortest_tiling(lower, upper, i0, nearest, second)
         if len(self_intersections(both, other)) < crossings:
             return other
-    return plain
+    return tiling
 
 
 def _shortest_tiling(lower: np.ndarray, upper: np.ndarray, i0: int, nearest: np.ndarray,
