@@ -79,6 +79,21 @@ def test_clamp_moves_outside_vertices_onto_the_hull_and_leaves_the_inside():
     np.testing.assert_allclose(out[2], [1.0, 0.5, 0.0], atol=1e-9)
 
 
+def test_a_component_of_two_faces_back_to_back_is_refused_before_loop_s_patches():
+    """Quadric decimation can pinch a thin part off into two faces back to back: closed and
+    edge-manifold, but its vertices have two faces each, no ring for Loop's patches."""
+    octahedron = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]],
+                          float)
+    faces = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4],
+                      [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    assert general_mesh._closed_problem(octahedron, faces) == ""
+    pillow = np.array([[3, 0, 0], [4, 0, 0], [3, 1, 0]], float)
+    vertices = np.vstack([octahedron, pillow])
+    triangles = np.vstack([faces, [[6, 7, 8], [6, 8, 7]]])
+    assert general_mesh._closed_problem(vertices, triangles) == (
+        "degenerate (3 vertices of fewer than 3 faces)")
+
+
 @pytest.mark.parametrize("section, general, expected", [
     (Fidelity(1.0, 1.0), Fidelity(1.0, 1.0), False),       # equal: the sections stay
     (Fidelity(1.0, 2.0), Fidelity(1.0, 1.0), True),        # the sections leave the data
