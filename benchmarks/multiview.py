@@ -402,7 +402,7 @@ def _cell(row: dict, key: str, width: int, fmt: str) -> str:
     return f"{value:>{width}{fmt}}" if isinstance(value, int | float) else " " * width
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the 320x240 ring")
     parser.add_argument("--json", default=None,
@@ -425,7 +425,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --kernel: indices of the ring's view pairs (default 0,5)")
     parser.add_argument("--repeats", type=int, default=3,
                         help="with --kernel: replays, the fastest kept (default 3)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     if args.json is None:
         name = ("lsm_kernel" if args.kernel else "multiview_temple" if args.temple
                 else "multiview")

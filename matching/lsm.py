@@ -675,6 +675,27 @@ def _reported_position(params, quad, offs, eccentric: bool):
     return position
 
 
+def _tested(status, sigma0, grad_power, corr, step, params, fprep, gprep, mode,
+            opts: LSMOptions, populations: tuple) -> float:
+    """The σ0, correlation and motion-step tests on the kernel's windows, ``status`` set
+    in place; ``populations`` is ``(sigma0_population, population_grad_power,
+    population_step_score)`` as :func:`lsm_match`'s.  Returns the σ0 test's reference."""
+    sigma0_population, population_grad_power, population_step_score = populations
+    population, pop_power = _population(status, sigma0, grad_power, sigma0_population,
+                                        population_grad_power)
+    pop_step = (np.zeros(0) if population_step_score is None else
+                np.asarray(population_step_score, dtype=np.float64).ravel())
+    ref = _sigma0_test(status, sigma0, grad_power, params[:, 7], population, pop_power,
+                       fprep, gprep, mode, opts)
+    ok = status == Status.OK
+    status[ok & ~(corr >= opts.min_correlation)] = Status.LOW_CORRELATION
+    if opts.step_limit is not None and opts.jacobian == "template":
+        ok = status == Status.OK
+        limit = step_score_limit(step[ok], opts.step_limit, pop_step)
+        status[ok & (step > limit)] = Status.TWO_MOTIONS  # NaN (no residual left): kept
+    return ref
+
+
 def lsm_match(template_image, search_image, points, approx, *,
               options: LSMOptions | None = None, direction=None, initial=None,
               quadratic=None, offset=None, robust=False, sigma0_population=None,
@@ -761,18 +782,8 @@ def lsm_match(template_image, search_image, points, approx, *,
     corr = k["corr"]
     corr, grad_power, step, support = (corr[:, 0].copy(), corr[:, 1].copy(),
                                        corr[:, 2].copy(), corr[:, 3].copy())
-    population, pop_power = _population(status, sigma0, grad_power, sigma0_population,
-                                        population_grad_power)
-    pop_step = (np.zeros(0) if population_step_score is None else
-                np.asarray(population_step_score, dtype=np.float64).ravel())
-    ref = _sigma0_test(status, sigma0, grad_power, params[:, 7], population, pop_power,
-                       fprep, gprep, w.mode, opts)
-    ok = status == Status.OK
-    status[ok & ~(corr >= opts.min_correlation)] = Status.LOW_CORRELATION
-    if opts.step_limit is not None and opts.jacobian == "template":
-        ok = status == Status.OK
-        limit = step_score_limit(step[ok], opts.step_limit, pop_step)
-        status[ok & (step > limit)] = Status.TWO_MOTIONS  # NaN (no residual left): kept
+    ref = _tested(status, sigma0, grad_power, corr, step, params, fprep, gprep, w.mode, opts,
+                  (sigma0_population, population_grad_power, population_step_score))
     return LSMResult(position=_reported_position(params, w.quad, w.offs, offset is not None),
                      affine=params[:, :6], radiometric=params[:, 6:], converged=k["conv"],
                      iterations=k["iters"], sigma0=sigma0, cov=k["cov"], correlation=corr,
