@@ -27,6 +27,11 @@ its cameras (``templeSR_par.txt``), counts the LSM kernel's windows and iteratio
 runs OpenCV's SGBM on the same rectified pairs in the same process (goals: acquire
 <= 10 s, <= 2x SGBM's time); ``--reference`` compares the cloud with an earlier one.
 
+``--acquire-only`` times only the acquisition of the ring (``--scene`` or the recipe's
+rendering) with its cameras: CPU and wall seconds, peak memory, how many of the 2 cores
+the work kept busy (each thread's CPU sampled), the LSM work and the distances to the
+true mesh (goals: acquire <= 25 s, >= 15 000 points/s); ``--temple`` reports the cores too.
+
 ``--kernel DIR`` (the temple folder) measures the LSM kernel alone on real windows: the
 kernel calls of two of the ring's view pairs (``--kernel-pairs``) are recorded, then
 replayed (``--repeats`` times, the fastest kept): windows per CPU-second, iterations,
@@ -37,6 +42,8 @@ correlation and step tests).
 from __future__ import annotations
 
 import argparse
+import itertools
+import os
 import sys
 import tempfile
 import threading
@@ -212,6 +219,61 @@ class _KernelCount:
         self._lsm._lsm_batch = self._kernel
 
 
+class _ThreadCpu:
+    """Each thread's CPU time in this process, sampled every ``period`` s while installed
+    (Linux ``/proc/self/task``): how many cores the work kept busy, and the wall time
+    ``cores`` idle cores would need for it -- per interval the larger of its busiest
+    thread's CPU and the process's CPU over ``cores``, summed (a thread waiting for the
+    GIL or a lock uses none, so a step that runs on one thread counts in full).  On a
+    shared machine the wall time says little; this says where a core idles."""
+
+    def __init__(self, period: float = 0.2, cores: int = 2):
+        self.period, self.cores, self.samples = period, cores, []
+        self._stop = threading.Event()
+        self._tick = 1.0 / os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 0.01
+
+    def _cpu(self) -> dict:
+        out = {}
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                fields = Path(f"/proc/self/task/{tid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:  # the thread ended
+                continue
+            out[tid] = (int(fields[11]) + int(fields[12])) * self._tick
+        return out
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            self.samples.append(self._cpu())
+
+    def __enter__(self):
+        if Path("/proc/self/task").is_dir():
+            self.samples.append(self._cpu())
+            self._thread = threading.Thread(target=self._run, daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        if self.samples:
+            self._thread.join()
+            self.samples.append(self._cpu())
+
+    def summary(self) -> dict:
+        """``cpu_seconds`` (threads' sum), ``idle_wall_seconds`` (``cores`` idle cores),
+        ``busy_cores`` (their ratio) and ``one_thread_seconds`` (the intervals where one
+        thread did at least 80 % of the work)."""
+        cpu = wall = one = 0.0
+        for a, b in itertools.pairwise(self.samples):
+            d = sorted((b[t] - a.get(t, 0.0) for t in b), reverse=True) or [0.0]
+            total, wall_i = sum(d), max(d[0], sum(d) / self.cores)
+            cpu, wall = cpu + total, wall + wall_i
+            one += wall_i if total > 0 and d[0] >= 0.8 * total else 0.0
+        return {"cpu_seconds": cpu, "idle_wall_seconds": wall, "cores": self.cores,
+                "busy_cores": cpu / wall if wall else float("nan"),
+                "one_thread_seconds": one, "period": self.period}
+
+
 def _chamfer(a: np.ndarray, b: np.ndarray) -> dict:
     """Mean nearest-neighbour distance each way between two clouds and their mean."""
     from scipy.spatial import cKDTree
@@ -233,7 +295,7 @@ def run_temple(folder: Path, reference: str | None, cloud_out: str | None) -> di
 
     cameras_file = folder / "templeSR_par.txt"
     load_before, cpu0, start = uptime(), time.process_time(), time.perf_counter()
-    with _KernelCount() as count:
+    with _KernelCount() as count, _ThreadCpu() as threads:
         cloud = acquire_folder(folder, str(cameras_file))
     seconds, cpu = time.perf_counter() - start, time.process_time() - cpu0
     st = cloud.stats
@@ -244,7 +306,7 @@ def run_temple(folder: Path, reference: str | None, cloud_out: str | None) -> di
            "merge_seconds": st["merge_seconds"], "lsm_calls": count.calls,
            "lsm_windows": count.windows, "lsm_iterations": count.iterations,
            "points_per_s": len(cloud) / seconds, "points_per_cpu_s": len(cloud) / cpu,
-           "median_sigma": float(np.median(cloud.sigma))}
+           "median_sigma": float(np.median(cloud.sigma)), "threads": threads.summary()}
     if cloud_out:
         np.savez(cloud_out, points=cloud.points, sigma=cloud.sigma)
     if reference:
@@ -262,6 +324,50 @@ def run_temple(folder: Path, reference: str | None, cloud_out: str | None) -> di
             "cpu_ratio_to_sgbm": cpu / sgbm["cpu_seconds"]}
 
 
+def run_acquire(folder: Path, truth, spacing: int) -> dict:
+    """``photosurf acquire``'s work on a rendered ring with its cameras (``make demo``'s
+    acquisition): CPU and wall seconds, the process's peak memory, the cores kept busy
+    (:class:`_ThreadCpu`), the LSM kernel's work and the distances to the true mesh."""
+    import resource
+
+    from pipeline.acquisition import acquire_folder
+
+    load_before, cpu0, start = uptime(), time.process_time(), time.perf_counter()
+    with _KernelCount() as count, _ThreadCpu() as threads:
+        cloud = acquire_folder(folder, spacing=spacing)
+    seconds, cpu = time.perf_counter() - start, time.process_time() - cpu0
+    d = metrics.point_mesh_distance(cloud.points, *truth)
+    return {"method": "photosurf", "points": len(cloud), "seconds": seconds,
+            "cpu_seconds": cpu, "load_before": load_before, "load_after": uptime(),
+            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "threads": threads.summary(), "workers": cloud.stats.get("workers"),
+            "lsm_calls": count.calls, "lsm_windows": count.windows,
+            "lsm_iterations": count.iterations, "rms": float(np.sqrt(np.mean(d**2))),
+            "median": float(np.median(d)),
+            "within_3_sigma": float(np.mean(d <= 3 * cloud.sigma)),
+            "points_per_s": len(cloud) / seconds, "points_per_cpu_s": len(cloud) / cpu}
+
+
+def acquire_main(args, folder: Path, recipe: Path) -> int:
+    truth = read_mesh(folder / "truth" / "mesh.ply")[:2]
+    row = run_acquire(folder, truth, args.spacing)
+    th = row["threads"]
+    print(f"acquire {row['points']} points: {row['seconds']:.1f} s wall, {row['cpu_seconds']:.1f}"
+          f" CPU-s (load {row['load_before']} -> {row['load_after']}); on {th['cores']} idle"
+          f" cores {th['idle_wall_seconds']:.1f} s ({th['busy_cores']:.2f} busy, one thread"
+          f" {th['one_thread_seconds']:.1f} s); peak {row['peak_rss_mib']:.0f} MiB; LSM"
+          f" {row['lsm_windows']} windows, {row['lsm_iterations']} iterations; RMS to the"
+          f" truth {row['rms']:.4g}, median {row['median']:.4g},"
+          f" {100 * row['within_3_sigma']:.2f} % within 3 sigma")
+    goals = {"acquire_le_25s": row["seconds"] <= 25.0,
+             "points_per_s_ge_15000": row["points_per_s"] >= 15000}
+    print_goals(goals)
+    write_result(args.json, {"benchmark": "multiview-acquire", "recipe": recipe.name,
+                             "scene": str(args.scene) if args.scene else None,
+                             "photosurf": row, "goals": goals})
+    return 0
+
+
 def temple_main(args) -> int:
     folder = Path(args.temple)
     result = run_temple(folder, args.reference, args.cloud_out)
@@ -274,6 +380,9 @@ def temple_main(args) -> int:
           f"{result['cpu_ratio_to_sgbm']:.2f} (CPU); LSM {ps['lsm_windows']} windows, "
           f"{ps['lsm_iterations']} iterations in {ps['lsm_calls']} calls; "
           f"{ps['points_per_s']:.0f} points/s ({ps['points_per_cpu_s']:.0f} per CPU-s)")
+    th = ps["threads"]
+    print(f"on {th['cores']} idle cores: {th['idle_wall_seconds']:.1f} s ({th['busy_cores']:.2f}"
+          f" cores busy; one thread alone {th['one_thread_seconds']:.1f} s)")
     if "against_reference" in ps:
         ref = ps["against_reference"]
         print(f"against {ref['reference']}: {ps['points']} vs {ref['reference_points']} "
@@ -407,7 +516,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true", help="the 320x240 ring")
     parser.add_argument("--json", default=None,
                         help="result file (default benchmarks/results/multiview.json; with "
-                             "--temple multiview_temple.json, with --kernel lsm_kernel.json)")
+                             "--temple multiview_temple.json, with --kernel lsm_kernel.json, "
+                             "with --acquire-only multiview_demo.json)")
     parser.add_argument("--scene", default=None,
                         help="an already rendered scene folder (photosurf synth) to reuse")
     parser.add_argument("--spacing", type=int, default=3,
@@ -419,6 +529,9 @@ def _parser() -> argparse.ArgumentParser:
                              "../shared/data/real/temple_sparse_ring) against SGBM")
     parser.add_argument("--reference", default=None, metavar="CLOUD.npz",
                         help="with --temple: a previous cloud (--cloud-out) to compare with")
+    parser.add_argument("--acquire-only", action="store_true",
+                        help="only photosurf's acquisition of the ring with its cameras: CPU, "
+                             "wall, peak memory, cores kept busy, truth distances")
     parser.add_argument("--kernel", default=None, metavar="DIR",
                         help="instead: the LSM kernel alone on the temple ring's windows")
     parser.add_argument("--kernel-pairs", default="0,5",
@@ -432,7 +545,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.json is None:
         name = ("lsm_kernel" if args.kernel else "multiview_temple" if args.temple
-                else "multiview")
+                else "multiview_demo" if args.acquire_only else "multiview")
+        name += "_quick" if args.quick and args.acquire_only else ""
         args.json = str(ROOT / "benchmarks" / "results" / f"{name}.json")
     if args.kernel:
         return kernel_main(args)
@@ -453,6 +567,8 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             render_scene(recipe, folder, progress=False)
             print(f"rendered {recipe.name} in {time.perf_counter() - start:.0f} s", flush=True)
+        if args.acquire_only:
+            return acquire_main(args, folder, recipe)
         cameras = read_cameras(folder / "cameras.yml")
         images = _images(folder, cameras)
         truth = read_mesh(folder / "truth" / "mesh.ply")[:2]
