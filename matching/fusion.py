@@ -19,6 +19,7 @@ References
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -26,6 +27,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from matching.cameras import Camera
+from matching.scheduler import default_workers
 from matching.validate import TOL, check_shape
 from matching.visibility import project
 
@@ -102,7 +104,7 @@ def merge_clouds(points: np.ndarray, sigma: np.ndarray, views: np.ndarray,
                 "colours": colours, "fused": 0, "outliers": 0, "radius": 0.0}
     tree = cKDTree(points)
     if radius is None:
-        d, nb = tree.query(points, k=min(8, n))
+        d, nb = tree.query(points, k=min(8, n), workers=default_workers())
         same = source[nb] == source[:, None]
         same[:, 0] = False
         nearest = np.where(same, d, np.inf).min(axis=1)
@@ -156,19 +158,24 @@ def _statistical_inliers(points: np.ndarray, k: int, n_std: float) -> np.ndarray
     tree = cKDTree(points)
     mean_d = np.empty(len(points))
     resid = np.empty(len(points))
-    nbs = []
+
     # in blocks of rows: the (block, k, 3) neighbourhoods, not (N, k, 3) at once (~1 KB a
-    # point), so the working memory does not grow with the cloud; rows are independent
-    for lo in range(0, len(points), _SOR_BLOCK):
+    # point), so the working memory does not grow with the cloud; rows are independent,
+    # so the blocks run on one thread per core (the k-d tree query and the batched
+    # eigh release the GIL), each block computed as it would be alone
+    def block(lo: int) -> np.ndarray:
         rows = slice(lo, lo + _SOR_BLOCK)
         d, nb = tree.query(points[rows], k=k + 1)
         mean_d[rows] = d[:, 1:].mean(axis=1)
-        nbs.append(nb[:, 1:].astype(np.int32))
         nbp = points[nb[:, 1:]]  # (B, k, 3)
         mean_nb = nbp.mean(axis=1)
         centred = nbp - mean_nb[:, None]
         _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
         resid[rows] = np.abs(np.einsum("ni,ni->n", points[rows] - mean_nb, vec[:, :, 0]))
+        return nb[:, 1:].astype(np.int32)
+
+    with ThreadPoolExecutor(default_workers()) as pool:
+        nbs = list(pool.map(block, range(0, len(points), _SOR_BLOCK)))
     keep = mean_d <= n_std * np.median(mean_d[np.concatenate(nbs)], axis=1)
     scale = 1.4826 * np.median(np.abs(resid - np.median(resid)))
     return keep & (resid <= np.median(resid) + 2.0 * n_std * max(scale, TOL.zero))
