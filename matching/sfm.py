@@ -126,7 +126,8 @@ class SfmResult:
     track_length : (N,) int64
         Number of images observing each point.
     colors : (N, 3) uint8
-        RGB colour of each point.
+        RGB colour of each point: zeros (the mapper does not read every image at full
+        size again for them; nothing here uses them).
     registered : list of str
         Names of the registered images.
     unregistered : list of str
@@ -667,6 +668,13 @@ def _mapped(database: Path, read_dir: Path, work: Path, count: int, threads: int
     options = pycolmap.IncrementalPipelineOptions()
     options.num_threads = threads
     options.random_seed = seed
+    # no colours for the sparse points (COLMAP decodes every image at full size once
+    # more for them: 30 12 MP JPEGs, single-threaded at the end of the mapping), and the
+    # bundle adjustments on every thread from 1 000 residuals (COLMAP: 50 000, so the
+    # local ones ran on one core); the same poses (rendered 12 MP ring: 30/30, every
+    # rotation and centre as before)
+    options.extract_colors = False
+    options.ba_min_num_residuals_for_cpu_multi_threading = 1000
     if fixed_intrinsics:
         options.ba_refine_focal_length = False
         options.ba_refine_principal_point = False
