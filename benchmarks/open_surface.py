@@ -54,6 +54,7 @@ import argparse
 import sys
 import tempfile
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,9 @@ TAU_REL = 0.002
 #: A wall point's truth normal is more than 30° from the axis (surface/reconstruct.py
 #: MIN_WALL_SINE = 0.5: the sections take such points; flatter ones are cap points).
 WALL_SINE = 0.5
+#: RANSAC planes taken as the facade's walls (front, wings, a tower's faces) by
+#: :func:`wall_flatness`.
+WALL_PLANES = 4
 
 
 def run(workspace: Path) -> dict:
@@ -242,7 +246,7 @@ def facade_figures(ws: Path, photos: Path | None = None, renders: Path | None = 
     from pipeline import artifacts
     from pipeline.mesh_io import read_mesh
     from surface.metrics import mesh_topology
-    from surface.open_surface import boundary_loops
+    from surface.open_surface import boundary_loops, window_footprint
 
     cloud = artifacts.read_cloud(ws / "acquire")
     points, sigma = cloud["points"], np.asarray(cloud["sigma"], np.float64)
@@ -264,8 +268,102 @@ def facade_figures(ws: Path, photos: Path | None = None, renders: Path | None = 
         if name == "stitched" and photos is not None and renders is not None:
             _render_beside(v, t, read_cameras_yml(ws / "acquire" / "cameras.yml"), photos,
                            renders / f"{ws.name}_{name}_three_views.png")
+    cameras = read_cameras_yml(ws / "acquire" / "cameras.yml")
+    with open(ws / "config.toml", "rb") as fh:
+        patch = float(tomllib.load(fh)["acquire"]["patch"])
+    footprint = window_footprint(points, np.array([c.center for c in cameras]),
+                                 np.array([c.K[0, 0] for c in cameras]), patch)
     return {"cloud_points": len(points), "sigma_median": float(np.median(sigma)),
-            "rows": rows}
+            "rows": rows, "wall": wall_flatness(points, sigma, cloud.get("source"), footprint)}
+
+
+def _robust_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances ``(P,)`` of ``points`` to their least-squares plane, trimmed three
+    times at 3 robust σ (1.4826 × MAD), and the points kept by the last trim."""
+    keep = np.ones(len(points), bool)
+    for _ in range(3):
+        centre = points[keep].mean(axis=0)
+        normal = np.linalg.svd(points[keep] - centre, full_matrices=False)[2][2]
+        r = (points - centre) @ normal
+        spread = 1.4826 * np.median(np.abs(r[keep] - np.median(r[keep])))
+        keep = np.abs(r) <= 3 * max(spread, 1e-300)
+    return r, keep
+
+
+def _robust(x: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if len(x) else float("nan")
+
+
+def wall_flatness(points: np.ndarray, sigma: np.ndarray, source: np.ndarray | None,
+                  footprint: float, seed: int = 0) -> dict:
+    """Is the wall between the windows flat within the cloud's σ (module notes)?
+
+    The walls: :data:`WALL_PLANES` RANSAC planes (open3d, inliers within 3 median σ, each
+    holding ≥ 5 % of the cloud), each with the points within 2 window footprints of it
+    (the recesses) not taken by an earlier plane; the wall cut into square cells of 2
+    footprints in the plane (larger than the window), each cell with ≥ 30 points fitted
+    by a trimmed plane (:func:`_robust_plane`: the windows' recesses and sills are the
+    trimmed ones).  Per cell: the RMS of residual/σ over the kept points, their robust
+    spread, the share within 3 σ; medians over the cells.  Whether σ is honest: points
+    closer than a quarter footprint in the plane differ by their errors (the wall's relief
+    the same for both): ``(r_i − r_j)/√(σ_i² + σ_j²)`` over pairs from two view pairs
+    (``cross``, independent errors) and from one (``same``: the shared error cancels);
+    1 if σ is the error.
+    """
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    o3d.utility.random.seed(seed)
+    unit = float(np.median(sigma))
+    rest, taken = np.arange(len(points)), np.zeros(len(points), bool)
+    cells, diffs, planes = [], {"cross": [], "same": []}, []
+    for _ in range(WALL_PLANES):
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[rest]))
+        model, inl = pcd.segment_plane(3 * unit, 3, 2000)
+        inl = rest[np.asarray(inl, np.int64)]
+        if len(inl) < 0.05 * len(points):
+            break
+        normal = np.asarray(model[:3]) / np.linalg.norm(model[:3])
+        depth = points @ normal + model[3] / np.linalg.norm(model[:3])
+        band = np.flatnonzero((np.abs(depth) <= 2 * footprint) & ~taken)
+        taken[band] = True
+        e1 = np.linalg.svd(points[inl] - points[inl].mean(axis=0), full_matrices=False)[2][0]
+        plane_uv = points @ np.stack([e1, np.cross(normal, e1)], axis=1)
+        cell = np.floor(plane_uv[band] / (2 * footprint)).astype(np.int64)
+        _, label = np.unique(cell, axis=0, return_inverse=True)
+        order = np.argsort(label.ravel(), kind="stable")
+        groups = np.split(band[order], np.flatnonzero(np.diff(label.ravel()[order])) + 1)
+        kept = [g for g in groups if len(g) >= 30]
+        for idx in kept:
+            r, keep = _robust_plane(points[idx])
+            z = r / sigma[idx]
+            cells.append((np.sqrt(np.mean(z[keep] ** 2)), _robust(z[keep]),
+                          np.mean(np.abs(z) <= 3), keep.mean()))
+            if source is None:
+                continue
+            near = cKDTree(plane_uv[idx]).query_pairs(footprint / 4, output_type="ndarray")
+            a, b = idx[near[:, 0]], idx[near[:, 1]]
+            ok = keep[near[:, 0]] & keep[near[:, 1]] & (source[a] >= 0) & (source[b] >= 0)
+            zz = (r[near[:, 0]] - r[near[:, 1]]) / np.hypot(sigma[a], sigma[b])
+            diffs["cross"].append(zz[ok & (source[a] != source[b])])
+            diffs["same"].append(zz[ok & (source[a] == source[b])])
+        planes.append({"inliers": int(len(inl)), "points": int(len(band)), "cells": len(kept)})
+        rest = np.setdiff1d(rest, inl)
+    c = np.array(cells).reshape(-1, 4)
+    out = {"planes": planes, "cells": len(c), "cell_size": 2 * footprint,
+           "footprint": footprint,
+           "residual_over_sigma_rms": float(np.median(c[:, 0])) if len(c) else None,
+           "residual_over_sigma_rms_quartiles": np.quantile(c[:, 0], [0.25, 0.75]).tolist()
+           if len(c) else None,
+           "residual_over_sigma_robust": float(np.median(c[:, 1])) if len(c) else None,
+           "within_3_sigma": float(np.median(c[:, 2])) if len(c) else None,
+           "kept_share": float(np.median(c[:, 3])) if len(c) else None}
+    for kind, parts in diffs.items():
+        z = np.concatenate(parts) if parts else np.zeros(0)
+        out[f"{kind}_pair_difference_over_sigma"] = {
+            "pairs": int(len(z)), "rms": float(np.sqrt(np.mean(z**2))) if len(z) else None,
+            "robust": _robust(z)}
+    return out
 
 
 def _render_beside(v, t, cameras, photos: Path, out: Path) -> None:
@@ -300,6 +398,48 @@ def _render_beside(v, t, cameras, photos: Path, out: Path) -> None:
     write_png(out, np.vstack(tiles))
 
 
+def truth_visibility(truth, cameras, axis: np.ndarray) -> dict:
+    """The truth's visibility map: :data:`TRUTH_SAMPLES` seeded area-weighted samples
+    (``points``), whether both views see each (``both``, :func:`seen_by`) and whether it
+    is wall (``wall``: its face normal more than 30° from the sections' ``axis``)."""
+    from surface.metrics import face_normals
+
+    tv, tt = truth
+    areas = np.linalg.norm(face_normals(tv, tt, unit=False), axis=1)
+    rng = np.random.default_rng(0)
+    face = rng.choice(len(tt), TRUTH_SAMPLES, p=areas / areas.sum())
+    r1, r2 = rng.random(TRUTH_SAMPLES), rng.random(TRUTH_SAMPLES)
+    flip = r1 + r2 > 1
+    r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
+    a, b, c = tv[tt[face, 0]], tv[tt[face, 1]], tv[tt[face, 2]]
+    pts = a + r1[:, None] * (b - a) + r2[:, None] * (c - a)
+    normal = face_normals(tv, tt)[face]
+    return {"points": pts, "both": seen_by(cameras, truth, pts),
+            "wall": np.abs(normal @ axis) < np.sqrt(1 - WALL_SINE**2)}
+
+
+def facade_main(args) -> int:
+    """``--facade``: the figures of a finished one-sided folder's workspace, printed."""
+    result = facade_figures(args.facade, args.photos, args.renders)
+    print(f"{args.facade}: {result['cloud_points']} cloud points, their sigma median "
+          f"{result['sigma_median']:.5f}")
+    keys = ("vertices", "faces", "components", "border_loops", "distance_median",
+            "distance_p90", "within_3_sigma")
+    print(" | ".join(f"{k:>15}" for k in ("row",) + keys))
+    for name, row in result["rows"].items():
+        print(" | ".join([f"{name:>15}"] + [f"{row[k]:15.5g}" for k in keys]))
+    wall = result["wall"]
+    print(f"walls: {wall['cells']} cells of {wall['cell_size']:.4f} (2 window footprints) on "
+          f"{len(wall['planes'])} planes; residual/sigma RMS {wall['residual_over_sigma_rms']:.2f}"
+          f" (robust {wall['residual_over_sigma_robust']:.2f}), within 3 sigma "
+          f"{wall['within_3_sigma']:.3f}; neighbours' difference/sigma (robust): two pairs "
+          f"{wall['cross_pair_difference_over_sigma']['robust']:.2f}, one pair "
+          f"{wall['same_pair_difference_over_sigma']['robust']:.2f}")
+    if args.json:
+        write_result(args.json, result)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workspace", type=Path, default=None)
@@ -310,22 +450,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     print(f"load {uptime()}")
     if args.facade is not None:
-        result = facade_figures(args.facade, args.photos, args.renders)
-        print(f"{args.facade}: {result['cloud_points']} cloud points, their sigma median "
-              f"{result['sigma_median']:.5f}")
-        keys = ("vertices", "faces", "components", "border_loops", "distance_median",
-                "distance_p90", "within_3_sigma")
-        print(" | ".join(f"{k:>15}" for k in ("row",) + keys))
-        for name, row in result["rows"].items():
-            print(" | ".join([f"{name:>15}"] + [f"{row[k]:15.5g}" for k in keys]))
-        if args.json:
-            write_result(args.json, result)
-        return 0
-
+        return facade_main(args)
     from matching.cameras import read_cameras_yml
     from pipeline import artifacts
     from pipeline.mesh_io import read_mesh
-    from surface.metrics import MeshDistance, face_normals
+    from surface.metrics import MeshDistance
 
     with tempfile.TemporaryDirectory() as tmp:
         ws = args.workspace or Path(tmp) / "vase"
@@ -336,21 +465,9 @@ def main(argv=None) -> int:
         cloud = artifacts.read_cloud(ws / "acquire")["points"]
         _, _, spacing = artifacts.read_sections(ws / "sections")
         to_truth = MeshDistance(*truth)
-        # the truth's visibility map: seeded area-weighted samples with their face normals
-        tv, tt = truth
-        areas = np.linalg.norm(face_normals(tv, tt, unit=False), axis=1)
-        rng = np.random.default_rng(0)
-        face = rng.choice(len(tt), TRUTH_SAMPLES, p=areas / areas.sum())
-        r1, r2 = rng.random(TRUTH_SAMPLES), rng.random(TRUTH_SAMPLES)
-        flip = r1 + r2 > 1
-        r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
-        a, b, c = tv[tt[face, 0]], tv[tt[face, 1]], tv[tt[face, 2]]
-        pts = a + r1[:, None] * (b - a) + r2[:, None] * (c - a)
-        axis = artifacts.read_curves(ws / "curves")[1][0].frame[2]
-        normal = face_normals(tv, tt)[face]
-        visibility = {"points": pts, "both": seen_by(cameras, truth, pts),
-                      "wall": np.abs(normal @ axis) < np.sqrt(1 - WALL_SINE**2)}
-        tau = TAU_REL * float(np.linalg.norm(np.ptp(tv, axis=0)))
+        visibility = truth_visibility(truth, cameras,
+                                      artifacts.read_curves(ws / "curves")[1][0].frame[2])
+        tau = TAU_REL * float(np.linalg.norm(np.ptp(truth[0], axis=0)))
         cloud_d = to_truth(cloud)
         cloud_rms = float(np.sqrt(np.mean(cloud_d**2)))
         from scipy.spatial import cKDTree
@@ -359,7 +476,7 @@ def main(argv=None) -> int:
         # the cloud's own cover of the part both views see, within its point spacing
         cloud_step = float(np.median(cloud_tree.query(cloud, k=2)[0][:, 1]))
         reach = max(tau, 2 * cloud_step)
-        near_cloud = cloud_tree.query(pts, distance_upper_bound=reach)[0] <= reach
+        near_cloud = cloud_tree.query(visibility["points"], distance_upper_bound=reach)[0] <= reach
         both = visibility["both"]
         cloud_row = {"cover": float(np.mean(near_cloud[both])),
                      "cover_wall": float(np.mean(near_cloud[both & visibility["wall"]])),
