@@ -26,8 +26,12 @@ without pcurves, at the old and the current distance uncertainty, read by
 OpenCascade (parse, transfer, BRepCheck) and opened by FreeCAD when ``freecadcmd``
 is installed (``--step-only`` runs only these).
 
+``--light [quads] [uncertainty]``: only the STEP file the export stage writes (and the named
+variants beside it), read once by OpenCascade and opened ``--repeats`` times by FreeCAD, the
+files in turn: minutes on the demo's net instead of the full run's half hour.
+
 Run: ``.venv/bin/python benchmarks/export.py [--quick] [--step-only] [--net W/smooth]
-[--json PATH]``
+[--light [VARIANT ...]] [--json PATH]``
 (default JSON: ``benchmarks/results/export.json``).
 """
 
@@ -44,6 +48,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from _common import write_result  # noqa: E402
 
 from pipeline.export import EXPORT_SUFFIXES, export_mesh  # noqa: E402
 from pipeline.render import camera_rays, look_at, render_mesh  # noqa: E402
@@ -282,7 +288,7 @@ def bench_step(control_points, triangles, folder: Path, read_back: bool = True) 
 
 
 _FREECAD_SCRIPT = """
-import resource, sys, time
+import os, resource, sys, time
 import FreeCAD, Import
 path = sys.argv[-1]
 start, cpu = time.perf_counter(), time.process_time()
@@ -290,14 +296,19 @@ doc = FreeCAD.newDocument("d")
 Import.insert(path, "d")
 wall, cpu = time.perf_counter() - start, time.process_time() - cpu
 shape = doc.Objects[0].Shape
+check = os.environ.get("PHOTOSURF_FC_CHECK", "1") == "1"
 print("FCRESULT %.3f %.3f %d %d %d %d %.0f" % (wall, cpu, len(shape.Faces), len(shape.Solids),
-      shape.isValid(), shape.isClosed(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+      shape.isValid() if check else -1, shape.isClosed() if check else -1,
+      resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024), flush=True)
+os._exit(0)  # freecadcmd would open the file argument again after the script
 """
 
 
-def _freecad_open(path: Path, folder: Path) -> dict:
+def _freecad_open(path: Path, folder: Path, check: bool = True) -> dict:
     """FreeCAD opening ``path`` (``freecadcmd``, its STEP importer into a document), when
-    installed: wall and CPU seconds of the import, faces, solids, validity, peak RSS."""
+    installed: wall and CPU seconds of the import, faces, solids, validity and closure
+    (``check``: FreeCAD's own, after the timed import), peak RSS."""
+    import os
     import shutil
     import subprocess
 
@@ -306,14 +317,17 @@ def _freecad_open(path: Path, folder: Path) -> dict:
     script = folder / "freecad_open.py"
     script.write_text(_FREECAD_SCRIPT)
     done = subprocess.run(["freecadcmd", str(script), str(path)], capture_output=True,
-                          text=True, timeout=3600)
+                          text=True, timeout=3600,
+                          env={**os.environ, "PHOTOSURF_FC_CHECK": "1" if check else "0"})
     for line in (done.stdout + done.stderr).splitlines():
         if "FCRESULT" in line:
             cells = line.split("FCRESULT", 1)[1].split()
-            return {"freecad_open_s": float(cells[0]), "freecad_open_cpu_s": float(cells[1]),
-                    "freecad_faces": int(cells[2]), "freecad_solids": int(cells[3]),
-                    "freecad_valid": bool(int(cells[4])), "freecad_closed": bool(int(cells[5])),
-                    "freecad_rss_mb": float(cells[6])}
+            row = {"freecad_open_s": float(cells[0]), "freecad_open_cpu_s": float(cells[1]),
+                   "freecad_faces": int(cells[2]), "freecad_solids": int(cells[3]),
+                   "freecad_rss_mb": float(cells[6])}
+            if check:
+                row.update(freecad_valid=bool(int(cells[4])), freecad_closed=bool(int(cells[5])))
+            return row
     return {"freecad_error": (done.stderr or done.stdout)[-300:]}
 
 
@@ -321,6 +335,113 @@ def _freecad_open(path: Path, folder: Path) -> dict:
 #: the demo's 116 MB two-span file (1.49 GB); over 35 for the temple's 201 MB one-span file
 #: (7 GB and rising when stopped).
 READ_BYTES_PER_BYTE = 35
+
+
+def _mesh_measures(control_points, triangles):
+    """The level-3 tessellation's volume and area, computed once when first asked."""
+    from surface import bezier
+
+    @functools.cache
+    def measures() -> tuple[float, float]:
+        v, t, _ = bezier.tessellate(control_points, 3, triangles)
+        a, b, c = (v[t[:, i]] for i in range(3))
+        return (abs(float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)),
+                float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()))
+    return measures
+
+
+def _occ_read(path: Path, mesh_measures) -> dict:
+    """``path`` read by OpenCascade (``ReadFile``, ``TransferRoots``,
+    ``BRepCheck_Analyzer``; CPU seconds), its faces, volume and area against the
+    level-3 tessellation (``mesh_measures()``)."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    row: dict = {}
+    reader = STEPControl_Reader()
+    _clocked(row, "occ_parse", lambda: reader.ReadFile(str(path)))
+    _clocked(row, "occ_transfer", reader.TransferRoots)
+    shape = reader.OneShape()
+    row["occ_solid"] = shape.ShapeType() == TopAbs_SOLID
+    row["occ_valid"] = bool(_clocked(row, "occ_check",
+                                     lambda: BRepCheck_Analyzer(shape).IsValid()))
+    row["occ_read_cpu_s"] = row["occ_parse_cpu_s"] + row["occ_transfer_cpu_s"]
+    faces, explorer = 0, TopExp_Explorer(shape, TopAbs_FACE)
+    while explorer.More():
+        faces += 1
+        explorer.Next()
+    row["faces"] = faces
+    volume, area = GProp_GProps(), GProp_GProps()
+    BRepGProp.VolumeProperties_s(shape, volume)
+    BRepGProp.SurfaceProperties_s(shape, area)
+    mesh_volume, mesh_area = mesh_measures()
+    row["volume_rel_error"] = abs(volume.Mass() - mesh_volume) / mesh_volume
+    row["area_rel_error"] = abs(area.Mass() - mesh_area) / mesh_area
+    return row
+
+
+#: ``--light`` variants: the file the export stage writes (control-triangle faces, two
+#: spans), the quadrilateral faces, and the default faces at a distance uncertainty of a
+#: tenth of the merge tolerance (6 decimals on the demo instead of 8).
+LIGHT_VARIANTS = ("default", "quads", "uncertainty")
+
+
+def _light_file(name: str, path: Path, control_points, triangles, source_face,
+                tolerance: float, report: dict) -> None:
+    from pipeline import step
+
+    if name == "uncertainty":
+        merged = step._merged(control_points, triangles, source_face, tolerance, report, 2)
+        if merged is not None:
+            step._write_merged_step_text(merged, path, tolerance / 10)
+            report.update(faces=len(merged["poles"]), merged=True)
+        else:  # as write_cad: the exact per-patch file
+            step._write_step_text(control_points, triangles, path, True, tolerance / 10)
+            report.update(faces=len(control_points), merged=False)
+        return
+    step.write_cad(path, control_points, triangles, source_face=source_face,
+                   tolerance=tolerance, report=report, quads=name == "quads")
+
+
+def bench_step_light(control_points, triangles, folder: Path, source_face, tolerance: float,
+                     variants=("default",), repeats: int = 2, freecad: bool = True
+                     ) -> list[dict]:
+    """The STEP file as the export stage writes it and the given ``variants`` (of
+    :data:`LIGHT_VARIANTS`): write CPU seconds, bytes, OpenCascade's read (once), and
+    FreeCAD's import ``repeats`` times, the files taken in turn each round (so that the
+    machine's load falls on all alike); the first import of each also checks validity."""
+    from pipeline import step
+
+    step._quiet()
+    mesh_measures = _mesh_measures(control_points, triangles)
+    rows, paths = [], []
+    for name in variants:
+        row: dict = {"variant": name, "patches": len(control_points)}
+        path, report = folder / f"light_{name}.step", {}
+        _clocked(row, "write", lambda n=name, p=path, r=report: _light_file(
+            n, p, control_points, triangles, source_face, tolerance, r))
+        row.update({"bytes": path.stat().st_size, "read": True,
+                    **{f"merge_{k}": v for k, v in report.items()}})
+        row.update(_occ_read(path, mesh_measures))
+        rows.append(row)
+        paths.append(path)
+    for repeat in range(repeats if freecad else 0):
+        for row, path in zip(rows, paths, strict=True):
+            opened = _freecad_open(path, folder, check=repeat == 0)
+            row.setdefault("freecad_runs", []).append(opened)
+            if repeat == 0:
+                row.update(opened)
+    for row in rows:
+        cpu = [r["freecad_open_cpu_s"] for r in row.get("freecad_runs", [])
+               if "freecad_open_cpu_s" in r]
+        if cpu:
+            row["freecad_open_cpu_s"] = float(np.median(cpu))
+            row["freecad_open_cpu_s_runs"] = cpu
+    return rows
 
 
 def bench_step_read(control_points, triangles, folder: Path, freecad: bool = True,
@@ -335,24 +456,10 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
     installed.  ``variants`` ``"faces"``: only the per-patch file as written now and
     the merged ones.  A file larger than ``read_limit_mb`` is written and measured but
     not read (``read: False``): reading holds up to :data:`READ_BYTES_PER_BYTE` times its size."""
-    from OCP.BRepCheck import BRepCheck_Analyzer
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GProp import GProp_GProps
-    from OCP.STEPControl import STEPControl_Reader
-    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
-    from OCP.TopExp import TopExp_Explorer
-
     from pipeline import step
-    from surface import bezier
 
     step._quiet()
-
-    @functools.cache
-    def mesh_measures() -> tuple[float, float]:  # only when a file is read back
-        v, t, _ = bezier.tessellate(control_points, 3, triangles)
-        a, b, c = (v[t[:, i]] for i in range(3))
-        return (abs(float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)),
-                float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()))
+    mesh_measures = _mesh_measures(control_points, triangles)
 
     size = float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
     rows = []
@@ -387,25 +494,7 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
             rows.append(row)
             path.unlink()
             continue
-        reader = STEPControl_Reader()
-        _clocked(row, "occ_parse", lambda r=reader, p=path: r.ReadFile(str(p)))
-        _clocked(row, "occ_transfer", reader.TransferRoots)
-        shape = reader.OneShape()
-        row["occ_solid"] = shape.ShapeType() == TopAbs_SOLID
-        row["occ_valid"] = bool(_clocked(row, "occ_check",
-                                         lambda s=shape: BRepCheck_Analyzer(s).IsValid()))
-        row["occ_read_cpu_s"] = row["occ_parse_cpu_s"] + row["occ_transfer_cpu_s"]
-        faces, explorer = 0, TopExp_Explorer(shape, TopAbs_FACE)
-        while explorer.More():
-            faces += 1
-            explorer.Next()
-        row["faces"] = faces
-        volume, area = GProp_GProps(), GProp_GProps()
-        BRepGProp.VolumeProperties_s(shape, volume)
-        BRepGProp.SurfaceProperties_s(shape, area)
-        mesh_volume, mesh_area = mesh_measures()
-        row["volume_rel_error"] = abs(volume.Mass() - mesh_volume) / mesh_volume
-        row["area_rel_error"] = abs(area.Mass() - mesh_area) / mesh_area
+        row.update(_occ_read(path, mesh_measures))
         if freecad:
             row.update(_freecad_open(path, folder))
         rows.append(row)
@@ -432,7 +521,7 @@ def _print_step_read(rows: list[dict]) -> None:
               f"{r['faces']:>7}{r['volume_rel_error']:>9.1e}{r['area_rel_error']:>9.1e}{fc}")
     for r in rows:
         if "merge_deviation" in r:
-            print(f"  {r['variant']}: merged {r['merge_merged']}, normal offset "
+            print(f"  {r['variant']}: merged {r.get('merge_merged')}, normal offset "
                   f"{r['merge_deviation']:.2e} (tolerance {r['merge_tolerance']:.2e}), slide "
                   f"{r['merge_slide']:.2e}, largest angle to the patches' normal along the "
                   f"sides {r['merge_angle_deg']:.3g} deg")
@@ -481,6 +570,14 @@ def main(argv=None) -> int:
                         help="write but do not read back STEP files larger than this "
                              f"(reading holds up to {READ_BYTES_PER_BYTE}x the file; default 150: "
                              "the demo's files are read, the temple's not)")
+    parser.add_argument("--light", nargs="*", default=None, metavar="VARIANT",
+                        choices=LIGHT_VARIANTS,
+                        help="only the STEP file the export stage writes and the named "
+                             f"variants ({', '.join(LIGHT_VARIANTS[1:])}) beside it, each "
+                             "read once by OpenCascade and opened --repeats times by FreeCAD "
+                             "in turn: minutes instead of the full run's half hour")
+    parser.add_argument("--repeats", type=int, default=2,
+                        help="--light: FreeCAD imports of each file (default 2)")
     parser.add_argument("--json", default=str(Path(__file__).parent / "results" / "export.json"))
     args = parser.parse_args(argv)
     import open3d as o3d
@@ -502,6 +599,20 @@ def main(argv=None) -> int:
     tolerance = args.cad_tolerance or _recorded_tolerance(args.net) or \
         1e-5 * float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
     cad_source += f"; merged faces within {tolerance:.3g}"
+    if args.light is not None:
+        variants = ["default"] + [v for v in args.light if v != "default"]
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = bench_step_light(control_points, domain, Path(tmp), source_face, tolerance,
+                                    variants, args.repeats, freecad=not args.no_freecad)
+        print(f"\nCAD: {cad_source}")
+        _print_step_read(rows)
+        for r in rows:
+            if "freecad_open_cpu_s_runs" in r:
+                print(f"  {r['variant']}: FreeCAD CPU-s "
+                      + ", ".join(f"{c:.2f}" for c in r["freecad_open_cpu_s_runs"]))
+        write_result(args.json, {"cad_light": {"source": cad_source, "rows": rows,
+                                               "repeats": args.repeats}})
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         cad_read = bench_step_read(control_points, domain, Path(tmp),
                                    freecad=not args.no_freecad, source_face=source_face,
