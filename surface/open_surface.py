@@ -745,6 +745,17 @@ def _grid_step(placed: list, spacing: float, n: int | None) -> float:
     return float(widest.u[-1] - widest.u[0]) / max(int(n) - 1, 1)
 
 
+def _across_window(rings, params, step, placed, loops, window, noise_of, sec):
+    """:func:`smooth_across` of the rings under the matcher's ``window`` (its footprint on
+    a sample of the rings), their σ and sources from ``noise_of``, the cameras' centres."""
+    axis = np.asarray(loops[0][0].frame, np.float64)[2]
+    sample = np.concatenate(rings)[:: max(1, sum(map(len, rings)) // 4096)]
+    origin = min(float(p.u.min()) for p in placed)
+    noise, src = (None, None) if noise_of is None else noise_of(np.concatenate(rings))
+    return smooth_across(rings, params, step, origin, axis, window_footprint(sample, *window),
+                         noise, src, sec, window[0])
+
+
 @one_blas_thread
 def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
               smoothing: float | str = "auto", border: bool = True,
@@ -838,12 +849,7 @@ def open_arcs(loops: Sequence, spacing: float, n: int | None = None,
                          f"take {sum(counts):.3g} ring points for {data} data points")
     rings, params = resample_arcs(curves, placed, step, smooth=border, section=sec)
     if window is not None:  # errors shared over the window: whole arcs off, across too
-        axis = np.asarray(loops[0][0].frame, np.float64)[2]
-        sample = np.concatenate(rings)[:: max(1, sum(map(len, rings)) // 4096)]
-        origin = min(float(p.u.min()) for p in placed)
-        noise, src = (None, None) if noise_of is None else noise_of(np.concatenate(rings))
-        rings = smooth_across(rings, params, step, origin, axis,
-                              window_footprint(sample, *window), noise, src, sec, window[0])
+        rings = _across_window(rings, params, step, placed, loops, window, noise_of, sec)
     if len(sec) > len(loops):  # a section's parts as one list of rings, parameters joined
         rings, params = _by_section(rings, sec), _by_section(params, sec)
         params = [u if isinstance(u, np.ndarray) else np.concatenate(u) for u in params]
