@@ -30,6 +30,7 @@ Run: ``.venv/bin/python benchmarks/profile.py [--quick] [--json PATH]``
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
@@ -207,6 +208,102 @@ def scan_rows(points: int, quick: bool) -> list[dict]:
     return rows
 
 
+#: The real scans (``SCANS``): mesh file and the axis they are sectioned and measured along
+#: (the up axis ``SOURCE.md`` states, else None: the truth mesh's principal axis).
+SCAN_AXES = {"ycb_mustard_bottle": "z", "ycb_power_drill": None, "ycb_banana": None,
+             "nefertiti": "z", "igea": None, "cow": "y", "fandisk": None, "teapot": "y"}
+
+
+def _scan_axis(name: str, vertices: np.ndarray) -> np.ndarray:
+    given = SCAN_AXES[name]
+    if given is not None:
+        return np.eye(3)["xyz".index(given)]
+    centred = vertices - vertices.mean(axis=0)
+    axis = np.linalg.eigh(centred.T @ centred)[1][:, -1]  # largest spread
+    return axis * np.sign(axis[np.argmax(np.abs(axis))])
+
+
+def _figures_or_error(surface: dict, axis: np.ndarray) -> dict:
+    """The profile's height and maximum diameters, volume and area, or the error."""
+    try:
+        fig = cmd_profile.profile_figures(surface, axis)
+    except Exception as exc:  # noqa: BLE001  (a non-vessel may have no profile: say so)
+        return {"error": f"{type(exc).__name__}: {exc}"[:200]}
+    return {"height": fig["height"], "volume": fig["volume"], "area": fig["area"],
+            "max_diameters": [p["max_diameter"] for p in fig["profiles"]],
+            "azimuths_deg": [p["azimuth_deg"] for p in fig["profiles"]]}
+
+
+def _reconstruct(points: np.ndarray, axis: np.ndarray, folder: Path) -> tuple[dict, dict]:
+    """``photosurf sections --smooth`` over ``points`` along ``axis``: the surface as
+    ``cmd_profile.read_surface`` reads it (None on failure) and the run's facts."""
+    cloud = folder / "cloud.npz"
+    np.savez(cloud, points=points)
+    out = folder / "smooth.ply"
+    t0, cpu0 = time.perf_counter(), os.times()
+    try:
+        run = subprocess.run([sys.executable, "-m", "pipeline.cli", "sections", str(cloud),
+                              "--out", str(out), "--smooth", "--axis",
+                              ",".join(f"{c:.9f}" for c in axis), "-q"],
+                             cwd=ROOT, capture_output=True, text=True, timeout=1200)
+    except subprocess.TimeoutExpired:
+        return None, {"error": "photosurf sections: over 1200 s"}
+    cpu1 = os.times()
+    facts = {"reconstruct_s": time.perf_counter() - t0,
+             "reconstruct_cpu_s": (cpu1.children_user - cpu0.children_user
+                                   + cpu1.children_system - cpu0.children_system)}
+    if run.returncode != 0:
+        return None, {**facts, "error": (run.stderr.strip().splitlines() or ["?"])[-1][:200]}
+    surface = cmd_profile.read_surface(out.with_suffix(".npz"))
+    return surface, {**facts, "patches": len(surface["control_points"])}
+
+
+def all_scan_rows(points: int, names: list[str], json_path: str | None = None) -> list[dict]:
+    """Each real scan: the truth mesh's profile height, maximum diameters, volume and area
+    along its axis, and the same of the smooth surface ``photosurf sections --smooth``
+    makes from ``points`` points sampled on it by area (seeded); igea has points only
+    (a subsample of them is the cloud, no truth figures); a mesh that is not closed (the
+    cow, the teapot's four pieces) has no truth volume.  ``json_path``: the rows so far,
+    written after each scan."""
+    from pipeline.mesh_io import read_mesh
+    from surface.metrics import mesh_topology
+
+    rows = []
+    for name in names:
+        path = next(iter(sorted((SCANS / name).glob("mesh.*"))), None)
+        if path is None:
+            continue
+        print(f"scan {name} ...", flush=True)
+        vertices, triangles = read_mesh(path)
+        row: dict = {"scan": name, "points": points}
+        if len(triangles) == 0:  # points only
+            cloud = vertices[np.random.default_rng(7).choice(len(vertices), points,
+                                                             replace=False)]
+            axis = _scan_axis(name, vertices)
+            row["truth"] = None
+        else:
+            cloud = _sample(vertices, triangles, points)
+            axis = _scan_axis(name, vertices)
+            # an OBJ repeats a vertex along texture seams: closed is judged on positions
+            _, weld = np.unique(vertices, axis=0, return_inverse=True)
+            closed = bool(mesh_topology(vertices, weld.reshape(-1)[triangles])["closed"])
+            truth = _figures_or_error(cmd_profile.mesh_surface(vertices, triangles), axis)
+            if not closed:
+                truth.pop("volume", None)
+            row["truth"] = {"closed": closed, **truth}
+        row["axis"] = axis.tolist()
+        with tempfile.TemporaryDirectory() as tmp:
+            surface, facts = _reconstruct(cloud, axis, Path(tmp))
+        row.update(facts)
+        if surface is not None:
+            row["smooth"] = _figures_or_error(surface, axis)
+        rows.append(row)
+        print_all_scans([row])
+        if json_path:  # each scan's row as soon as it is measured
+            write_result(json_path, {"scans": rows, "points": points})
+    return rows
+
+
 # ----------------------------------------------------------------------------- report
 def _rel(a, b):
     return None if a is None or b is None or b == 0 else a / b - 1
@@ -242,13 +339,38 @@ def print_scan(rows: list[dict]) -> None:
               f"{r['truth_volume']:>10.4e} {_rel(r['volume'], r['truth_volume']):>9.2e}")
 
 
+def print_all_scans(rows: list[dict]) -> None:
+    for r in rows:
+        t, s = r.get("truth") or {}, r.get("smooth") or {}
+        def cell(d, k, fmt):
+            v = d.get(k)
+            return format(v, fmt) if isinstance(v, float) else "-"
+        print(f"{r['scan']:<20} height {cell(s, 'height', '.4g')} / {cell(t, 'height', '.4g')}"
+              f"  max diameter {s.get('max_diameters', '-')} / {t.get('max_diameters', '-')}"
+              f"  volume {cell(s, 'volume', '.5g')} / {cell(t, 'volume', '.5g')} "
+              f"({_rel(s.get('volume'), t.get('volume')) or float('nan'):+.2e})"
+              f"  area {cell(s, 'area', '.5g')} / {cell(t, 'area', '.5g')} "
+              f"({_rel(s.get('area'), t.get('area')) or float('nan'):+.2e})"
+              f"  {r.get('reconstruct_cpu_s', float('nan')):.0f} CPU-s"
+              f"  {r.get('error', '') or s.get('error', '') or t.get('error', '')}", flush=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
                         help="no reconstruction of the scan from sampled points")
     parser.add_argument("--points", type=int, default=40_000)
+    parser.add_argument("--scans", nargs="*", default=None, metavar="NAME",
+                        help="only the real scans (all eight when no NAME): truth mesh "
+                             "against the smooth surface from --points points")
     parser.add_argument("--json", default="benchmarks/results/profile.json")
     args = parser.parse_args(argv)
+    if args.scans is not None:
+        names = args.scans or list(SCAN_AXES)
+        print(f"load (1, 5, 15 min): {uptime()}")
+        all_scan_rows(args.points, names, args.json)
+        print(f"load (1, 5, 15 min): {uptime()}")
+        return 0
     print(f"load (1, 5, 15 min): {uptime()}")
     vessels = [row for name in VESSELS for row in vessel_rows(name)]
     print("(d*: measure - truth, scene units; u: the measures' uncertainty; rel: relative "
