@@ -546,6 +546,23 @@ def _print_step(rows: list[dict], source: str) -> None:
               f"within {r['sample_distance_max']:.1e} of it (chord bound {r['chord_bound']:.1e})")
 
 
+def _run_light(args, control_points, domain, source_face, tolerance: float,
+               cad_source: str) -> None:
+    """``--light``: :func:`bench_step_light`, its table and JSON."""
+    variants = ["default"] + [v for v in args.light if v != "default"]
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = bench_step_light(control_points, domain, Path(tmp), source_face, tolerance,
+                                variants, args.repeats, freecad=not args.no_freecad)
+    print(f"\nCAD: {cad_source}")
+    _print_step_read(rows)
+    for r in rows:
+        if "freecad_open_cpu_s_runs" in r:
+            print(f"  {r['variant']}: FreeCAD CPU-s "
+                  + ", ".join(f"{c:.2f}" for c in r["freecad_open_cpu_s_runs"]))
+    write_result(args.json, {"cad_light": {"source": cad_source, "rows": rows,
+                                           "repeats": args.repeats}})
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small mesh, one repeat")
@@ -600,18 +617,7 @@ def main(argv=None) -> int:
         1e-5 * float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
     cad_source += f"; merged faces within {tolerance:.3g}"
     if args.light is not None:
-        variants = ["default"] + [v for v in args.light if v != "default"]
-        with tempfile.TemporaryDirectory() as tmp:
-            rows = bench_step_light(control_points, domain, Path(tmp), source_face, tolerance,
-                                    variants, args.repeats, freecad=not args.no_freecad)
-        print(f"\nCAD: {cad_source}")
-        _print_step_read(rows)
-        for r in rows:
-            if "freecad_open_cpu_s_runs" in r:
-                print(f"  {r['variant']}: FreeCAD CPU-s "
-                      + ", ".join(f"{c:.2f}" for c in r["freecad_open_cpu_s_runs"]))
-        write_result(args.json, {"cad_light": {"source": cad_source, "rows": rows,
-                                               "repeats": args.repeats}})
+        _run_light(args, control_points, domain, source_face, tolerance, cad_source)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         cad_read = bench_step_read(control_points, domain, Path(tmp),
