@@ -166,6 +166,7 @@ def run_sections(points: np.ndarray) -> dict:
     # photosurf sections --smooth writes it
     smooth = smooth_mesh(control, sized.triangles, "adaptive", sized.chord_tolerance() * unit,
                          spacing=sized.spacing * unit)
+    smooth.g1_angle   # noqa: B018  (the G1 figures the command reports: computed when asked)
     seconds, cpu = _since(start)
     edges = control[sized.triangles] - control[np.roll(sized.triangles, 1, axis=1)]
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
@@ -187,6 +188,7 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
     # as the smooth stage (pipeline.stages._general_smooth)
     smooth = smooth_general(vertices, triangles, "adaptive", tolerance, points=points,
                             spacing=spacing)
+    smooth.g1_angle   # noqa: B018  (the G1 figures the stage reports: computed when asked)
     seconds, cpu = _since(start)
     control = (smooth.solid or {}).get("general_control")
     return {"vertices": smooth.vertices, "triangles": smooth.triangles,
