@@ -17,8 +17,13 @@ subsampled), noise ``--noise`` × the diagonal, through ``photosurf sections CLO
 tessellation), each output checked; the truth mesh too (exact duplicate vertices
 welded: OBJ readers split them at texture seams).
 
-Run: ``.venv/bin/python benchmarks/validity.py [--quick] [--scans] [--json PATH]``
-(default JSON ``benchmarks/results/validity.json``; ``--quick`` stops at 10⁵).
+With ``--against TREE`` (a source tree, e.g. ``git archive COMMIT | tar -x -C TREE``): that
+tree's ``surface/validity.py`` (loaded from its own path, its numba cache kept there) is
+run beside this one's on the same meshes in the same process: its CPU seconds and whether
+it finds the same pairs.
+
+Run: ``.venv/bin/python benchmarks/validity.py [--quick] [--scans] [--against TREE] [--json
+PATH]`` (default JSON ``benchmarks/results/validity.json``; ``--quick`` stops at 10⁵).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import numpy as np  # noqa: E402
 import open3d as o3d  # noqa: E402
 from _common import uptime, write_result  # noqa: E402
 
-from surface.validity import check_solid  # noqa: E402
+from surface.validity import check_solid, self_intersections  # noqa: E402
 
 SIZES = [1_000, 10_000, 30_000, 100_000, 500_000]
 
@@ -68,7 +73,32 @@ def _cpu(fn):
     return time.process_time() - start
 
 
-def row(faces: int, o3d_predicted: float | None, o3d_limit: float) -> dict:
+def _other(tree: str | None):
+    """The ``surface/validity.py`` module of another source tree, or None."""
+    if tree is None:
+        return None
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("validity_against",
+                                                  Path(tree) / "surface" / "validity.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module          # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def _beside(other, v, t, pairs) -> dict:
+    """The other tree's self-intersection test on the same mesh: CPU-s, same pairs."""
+    if other is None:
+        return {}
+    skip = np.asarray(check_solid(v, t, intersections=False).degenerate_faces)
+    cpu = time.process_time()
+    found = other.self_intersections(v, t, skip=skip)
+    return {"against_pairs_cpu_s": time.process_time() - cpu,
+            "against_same_pairs": bool(np.array_equal(found, pairs))}
+
+
+def row(faces: int, o3d_predicted: float | None, o3d_limit: float, other=None) -> dict:
     v, t = two_spheres(faces)
     report, ours = _timed(lambda: check_solid(v, t))
     _, topo = _timed(lambda: check_solid(v, t, intersections=False))
@@ -83,7 +113,9 @@ def row(faces: int, o3d_predicted: float | None, o3d_limit: float) -> dict:
            "ours_genus": report.genus, "o3d_manifold_s": o3d_manifold,
            "manifold_agree": bool(edge_ok == report.edge_manifold
                                   and vertex_ok == report.vertex_manifold),
-           "o3d_pairs_s": None, "o3d_pairs": None, "pairs_agree": None}
+           "o3d_pairs_s": None, "o3d_pairs": None, "pairs_agree": None,
+           "ours_pairs_cpu_s": _cpu(lambda: self_intersections(v, t)),
+           **_beside(other, v, t, report.intersecting_pairs)}
     if o3d_predicted is None or o3d_predicted < o3d_limit:
         pairs, seconds = _timed(lambda: np.asarray(mesh.get_self_intersecting_triangles()))
         pairs = np.sort(pairs.reshape(-1, 2).astype(np.int64), axis=1)
@@ -102,11 +134,13 @@ def _weld(v, t):
     return unique, inverse.reshape(-1)[t]
 
 
-def _solid_figures(v, t) -> dict:
+def _solid_figures(v, t, other=None) -> dict:
     cpu = time.process_time()
     report, seconds = _timed(lambda: check_solid(v, t))
     cpu = time.process_time() - cpu
-    return {"valid": report.valid, "faces": report.faces, "components": report.components,
+    return {**_beside(other, v, t, report.intersecting_pairs),
+            "pairs_cpu_s": _cpu(lambda: self_intersections(v, t, report.degenerate_faces)),
+            "valid": report.valid, "faces": report.faces, "components": report.components,
             "genus": report.genus, "pairs": int(len(report.intersecting_pairs)),
             "nonmanifold_edges": int(len(report.nonmanifold_edges)),
             "nonmanifold_vertices": int(len(report.nonmanifold_vertices)),
@@ -117,7 +151,7 @@ def _solid_figures(v, t) -> dict:
             "problems": report.problems()}
 
 
-def _run_sections(cloud: Path, out: Path, smooth: bool) -> dict:
+def _run_sections(cloud: Path, out: Path, smooth: bool, other=None) -> dict:
     from pipeline.mesh_io import read_mesh
 
     command = [str(Path(sys.executable).parent / "photosurf"), "sections", str(cloud),
@@ -137,11 +171,11 @@ def _run_sections(cloud: Path, out: Path, smooth: bool) -> dict:
            "cpu_s": usage.ru_utime + usage.ru_stime, "peak_gb": usage.ru_maxrss / 2**20,
            "said": lines[-1] if lines else ""}
     if child.returncode == 0 and out.exists():
-        row.update(_solid_figures(*read_mesh(out)))
+        row.update(_solid_figures(*read_mesh(out), other))
     return row
 
 
-def scans(points: int, noise: float, only: list[str] | None = None) -> list[dict]:
+def scans(points: int, noise: float, only: list[str] | None = None, other=None) -> list[dict]:
     from pipeline.cloud_io import read_cloud, write_cloud
     from pipeline.mesh_io import read_mesh
     from surface.metrics import sample_mesh
@@ -160,7 +194,7 @@ def scans(points: int, noise: float, only: list[str] | None = None) -> list[dict
             v, t = np.zeros((0, 3)), np.zeros((0, 3), np.int64)
         if len(t):
             v, t = _weld(v, t)
-            row["truth"] = _solid_figures(v, t)
+            row["truth"] = _solid_figures(v, t, other)
             cloud = sample_mesh(v, t, points, seed=0)
         else:
             cloud = read_cloud(mesh_file).points
@@ -169,8 +203,8 @@ def scans(points: int, noise: float, only: list[str] | None = None) -> list[dict
         cloud = cloud + rng.normal(0.0, noise * diagonal, cloud.shape)
         with tempfile.TemporaryDirectory() as tmp:
             path = write_cloud(Path(tmp) / "cloud.ply", cloud)
-            row["stitched"] = _run_sections(path, Path(tmp) / "stitched.ply", False)
-            row["smooth"] = _run_sections(path, Path(tmp) / "smooth.ply", True)
+            row["stitched"] = _run_sections(path, Path(tmp) / "stitched.ply", False, other)
+            row["smooth"] = _run_sections(path, Path(tmp) / "smooth.ply", True, other)
         rows.append(row)
         _print_scan(row)
     return rows
@@ -193,7 +227,11 @@ def _print_scan(row: dict) -> None:
         figures = row[key]
         print(f"{'':<20} {key}: {_cell(figures)}  ({figures['seconds']:.0f} s, "
               f"{figures['cpu_s']:.0f} CPU-s, {figures['peak_gb']:.2f} GB; check "
-              f"{figures.get('check_cpu_s', 0):.1f} CPU-s) "
+              f"{figures.get('check_cpu_s', 0):.1f} CPU-s, pairs "
+              f"{figures.get('pairs_cpu_s', 0):.1f}"
+              + (f", against {figures['against_pairs_cpu_s']:.1f} same "
+                 f"{figures['against_same_pairs']}" if "against_pairs_cpu_s" in figures else "")
+              + ") "
               f"{'; '.join(figures.get('problems', [])) or figures['said']}")
 
 
@@ -209,41 +247,47 @@ def main(argv=None) -> int:
     parser.add_argument("--noise", type=float, default=0.0, help="σ / diagonal")
     parser.add_argument("--only", nargs="+", metavar="SCAN",
                         help="with --scans: these scans only, in this order")
+    parser.add_argument("--against", metavar="TREE",
+                        help="time TREE's surface/validity.py beside this one's")
     args = parser.parse_args(argv)
+    other = _other(args.against)
     if args.scans:
         if not SCANS.is_dir():
             print(f"no scans at {SCANS}")
             return 0
         print(f"load (1, 5, 15 min): {uptime()}\n(c components, g genus, x intersecting "
               "pairs, nme/nmv non-manifold edges/vertices, b border loops)")
-        rows = scans(args.points, args.noise, args.only)
+        rows = scans(args.points, args.noise, args.only, other)
         write_result(args.json, {"scans": rows, "points": args.points, "noise": args.noise,
-                                 "load": uptime()})
+                                 "load": uptime(), "against": args.against})
         return 0
     sizes = [s for s in SIZES if not args.quick or s <= 100_000]
     print(f"load (1, 5, 15 min): {uptime()}")
     rows, predicted = [], None
     for i, faces in enumerate(sizes):
-        r = row(faces, predicted, args.o3d_limit)
+        r = row(faces, predicted, args.o3d_limit, other)
         rows.append(r)
         following = sizes[i + 1] if i + 1 < len(sizes) else faces
         # open3d's pair loop is quadratic in the faces: its next time from this one
         predicted = (float("inf") if r["o3d_pairs_s"] is None
                      else r["o3d_pairs_s"] * (following / r["faces"]) ** 2)
     print(f"\n{'faces':>8} {'ours s':>8} {'cpu s':>6} {'topo s':>7} {'pairs':>6} "
-          f"{'o3d manif s':>11} "
+          f"{'pairs cpu':>9} {'against cpu':>11} {'same':>5} {'o3d manif s':>11} "
           f"{'agree':>5} {'o3d pairs s':>11} {'o3d pairs':>9} {'same':>5}")
     for r in rows:
         o3d_s = "-" if r["o3d_pairs_s"] is None else f"{r['o3d_pairs_s']:.2f}"
         o3d_p = "-" if r["o3d_pairs"] is None else str(r["o3d_pairs"])
         same = "-" if r["pairs_agree"] is None else str(r["pairs_agree"])
+        against = r.get("against_pairs_cpu_s")
+        against = "-" if against is None else f"{against:.2f}"
         print(f"{r['faces']:>8} {r['ours_s']:>8.2f} {r['ours_cpu_s']:>6.2f} "
               f"{r['ours_topology_s']:>7.2f} "
-              f"{r['ours_pairs']:>6} {r['o3d_manifold_s']:>11.2f} "
+              f"{r['ours_pairs']:>6} {r['ours_pairs_cpu_s']:>9.2f} {against:>11} "
+              f"{str(r.get('against_same_pairs', '-')):>5} {r['o3d_manifold_s']:>11.2f} "
               f"{str(r['manifold_agree']):>5} {o3d_s:>11} {o3d_p:>9} {same:>5}")
     print(f"load (1, 5, 15 min): {uptime()}")
-    write_result(args.json, {"rows": rows, "load": uptime(),
-                             "o3d_limit_s": args.o3d_limit})
+    write_result(args.json, {"rows": rows, "load": uptime(), "o3d_limit_s": args.o3d_limit,
+                             "against": args.against})
     return 0
 
 

@@ -14,9 +14,9 @@ r"""Is a triangle mesh a valid solid?  Manifold, oriented, closed, genus, self-i
 - *self-intersections*: every pair of triangles that meet other than in the vertices
   and edges they share.
 
-Self-intersections.  Broad phase: bounding spheres in levels by radius, one
-``scipy.spatial.cKDTree`` per level, and a numba prefilter (spheres, boxes, plane sides)
-that keeps only pairs within twice the narrow phase's zero (the cost and the levels:
+Self-intersections.  Broad phase, numba: a balanced tree of the faces' boxes in Morton
+order, each face looked up against the faces after it, and a prefilter (spheres, boxes,
+plane sides) that keeps only pairs within twice the narrow phase's zero (the cost:
 ``docs/decisions/validity-check.md``).  Narrow phase, batched: Möller's interval test [1]_
 on the line of the two planes; coplanar pairs in 2-D (edge crossings and
 containment).  Shared vertices are handled exactly:
@@ -47,7 +47,6 @@ import numba
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from surface.metrics import edge_table, face_components
 from surface.validate import TOL, check_finite, check_shape
@@ -60,13 +59,8 @@ PAIR_BATCH = 200_000
 #: Radians: intersecting faces whose planes are closer than this are reported as
 #: (nearly) coplanar overlaps — a diagnosis for the log line, not part of the test.
 FLAT_ANGLE = np.radians(1.0)
-#: Faces of one level whose neighbours are looked up together (bounds the candidate list:
-#: ~30 candidates a face on a uniform mesh).
-QUERY_CHUNK = 65_536
-#: The finest level of the broad phase's bounding spheres below the median face's radius
-#: (2^-6: a face 64 times smaller; smaller ones share it, each meeting at most a few
-#: thousand spheres of its level however fine the tessellation).
-FINEST_LEVEL = -6
+#: Faces in a leaf of the broad phase's box tree.
+LEAF_FACES = 4
 
 
 @dataclass(frozen=True)
@@ -412,59 +406,175 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
 
 def _candidate_batches(corners: np.ndarray, tri: np.ndarray, v: np.ndarray):
     """Yield the intersecting pairs (local face ids), batch by batch of candidates."""
-    lo, hi = corners.min(axis=1), corners.max(axis=1)              # (F, 3)
-    centre = 0.5 * (lo + hi)
-    radius = 0.5 * np.linalg.norm(hi - lo, axis=1)                 # bounding spheres
-    diagonal = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normal /= np.linalg.norm(normal, axis=1)[:, None]               # non-degenerate faces
-    scale = np.sqrt(np.max(np.sum((corners - np.roll(corners, 1, axis=1)) ** 2, axis=2),
-                           axis=1))                                  # longest edge
-    # base radius: the median face's, so most faces sit in level 0; faces far smaller
-    # (a finely tessellated region) get levels below it, down to FINEST_LEVEL: in one
-    # level a face 2^-j of the base meets ~4^j times the faces it could touch
-    r0 = max(float(np.median(radius)), 1e-9 * diagonal, np.finfo(float).tiny)
-    floor = r0 * 2.0 ** FINEST_LEVEL
-    level = np.ceil(np.log2(np.maximum(radius, floor) / r0)).astype(np.int64)
-    level += radius > r0 * 2.0 ** level              # log2's rounding: radius <= R_level
-    levels = np.unique(level)
-    # each level's faces in slabs along the longest side, so a chunk is compact in space
-    longest = int(np.argmax(np.ptp(centre, axis=0)))
-    members = {k: (lambda m: m[np.argsort(centre[m, longest], kind="stable")])(
-        np.flatnonzero(level == k)) for k in levels}
-    trees = {k: cKDTree(centre[members[k]]) for k in levels}
-    for i, k in enumerate(levels):
-        big = r0 * 2.0 ** k
-        ordered = members[k]
-        position = centre[ordered, longest]
-        # a face of level k reaches ~4^k times the faces a base one does (area within
-        # its radius): chunks shrink alike to keep each candidate list ~QUERY_CHUNK x 30
-        step = max(1, QUERY_CHUNK >> (2 * max(int(k), 0)))
-        for start in range(0, len(ordered), step):
-            end = min(start + step, len(ordered))
-            # the chunk and the slab just past it: a pair of this level is found in the
-            # chunk of its first face (in the slab order), once
-            reach = int(np.searchsorted(position, position[end - 1] + 2.0 * big, "right"))
-            group = ordered[start:reach]
-            local = cKDTree(centre[group]).query_pairs(2.0 * big, output_type="ndarray")
-            local = local[local.min(axis=1) < end - start].reshape(-1, 2)
-            a_b = [group[local]]
-            chunk = ordered[start:end]
-            if i:
-                tree = cKDTree(centre[chunk])
-            for j in levels[:i]:                     # against every smaller level
-                near = tree.sparse_distance_matrix(trees[j], big + r0 * 2.0 ** j,
-                                                   output_type="ndarray")
-                a_b.append(np.stack([chunk[near["i"]], members[j][near["j"]]], axis=1))
-            pairs = np.concatenate(a_b).reshape(-1, 2)
-            yield from _narrow(pairs, corners, tri, centre, radius, lo, hi, normal, scale)
+    # the faces in Morton order of their boxes' centres, so that a leaf's faces and
+    # their data lie together
+    order = np.argsort(_morton(corners), kind="stable")
+    corners, tri = corners[order], tri[order]
+    lo, hi, centre, radius, normal, scale = _face_geometry(corners)
+    node_lo, node_hi, node_range, node_child = _box_tree(lo, hi, LEAF_FACES)
+    pairs, _ = _tree_pairs(order, node_lo, node_hi, node_range, node_child, corners, tri,
+                           centre, radius, lo, hi, normal, scale, TOL.planar_rel)
+    for found in _narrow(pairs, corners, tri, normal, scale):
+        yield order[found]
 
 
-def _narrow(pairs, corners, tri, centre, radius, lo, hi, normal, scale):
-    """The prefilter, then the batched narrow phase; yields the intersecting pairs."""
-    near = _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale,
-                      TOL.planar_rel)
-    pairs = pairs[near]
+@numba.njit(cache=True)
+def _face_geometry(corners):
+    """Each face's box ``(lo, hi)``, its centre, the radius of the sphere about it (half
+    its diagonal), the unit normal and the longest edge (the same operations, in the
+    same order, as numpy's ``min``, ``cross``, ``linalg.norm`` over three values)."""
+    count = len(corners)
+    lo = np.empty((count, 3))
+    hi = np.empty((count, 3))
+    centre = np.empty((count, 3))
+    radius = np.empty(count)
+    normal = np.empty((count, 3))
+    scale = np.empty(count)
+    for f in range(count):
+        c = corners[f]
+        diagonal = 0.0
+        for k in range(3):
+            lo[f, k] = min(min(c[0, k], c[1, k]), c[2, k])
+            hi[f, k] = max(max(c[0, k], c[1, k]), c[2, k])
+            centre[f, k] = 0.5 * (lo[f, k] + hi[f, k])
+            diagonal += (hi[f, k] - lo[f, k]) * (hi[f, k] - lo[f, k])
+        radius[f] = 0.5 * np.sqrt(diagonal)
+        ux, uy, uz = c[1, 0] - c[0, 0], c[1, 1] - c[0, 1], c[1, 2] - c[0, 2]
+        wx, wy, wz = c[2, 0] - c[0, 0], c[2, 1] - c[0, 1], c[2, 2] - c[0, 2]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        normal[f, 0], normal[f, 1], normal[f, 2] = nx / length, ny / length, nz / length
+        longest = 0.0
+        for k in range(3):       # edge k: corner k minus corner k - 1
+            ex = c[k, 0] - c[k - 1, 0]
+            ey = c[k, 1] - c[k - 1, 1]
+            ez = c[k, 2] - c[k - 1, 2]
+            longest = max(longest, ex * ex + ey * ey + ez * ez)
+        scale[f] = np.sqrt(longest)
+    return lo, hi, centre, radius, normal, scale
+
+
+@numba.njit(cache=True)
+def _morton(corners):
+    """30-bit Morton codes of the faces' box centres (10 bits an axis over their
+    bounding box)."""
+    count = len(corners)
+    centre = np.empty((count, 3))
+    for f in range(count):
+        for k in range(3):
+            a, b, c = corners[f, 0, k], corners[f, 1, k], corners[f, 2, k]
+            centre[f, k] = 0.5 * (min(min(a, b), c) + max(max(a, b), c))
+    code = np.zeros(count, np.int64)
+    if count == 0:
+        return code
+    for k in range(3):
+        low, high = centre[:, k].min(), centre[:, k].max()
+        span = max(high - low, 1e-300)
+        for f in range(count):
+            q = min(int((centre[f, k] - low) / span * 1024.0), 1023)
+            for bit in range(10):
+                code[f] |= ((q >> bit) & 1) << (3 * bit + k)
+    return code
+
+
+@numba.njit(cache=True)
+def _box_tree(lo, hi, leaf):
+    """A balanced binary tree of the boxes ``(lo, hi)`` (faces in Morton order: each
+    node's faces are near one another).  Node ``n`` holds the faces
+    ``range[n, 0]:range[n, 1]`` in its box ``(node_lo[n], node_hi[n])``; ``child[n]``
+    its two children, ``-1`` at a leaf (at most ``leaf`` faces)."""
+    count = len(lo)
+    size = 2 * count + 1                  # at most 2 leaves - 1 nodes, a face a leaf
+    node_lo = np.empty((size, 3))
+    node_hi = np.empty((size, 3))
+    node_range = np.empty((size, 2), np.int64)
+    child = np.full((size, 2), -1, np.int64)
+    node_range[0, 0], node_range[0, 1] = 0, count
+    used = 1
+    for n in range(size):                 # parents before children: ids in creation order
+        if n >= used:
+            break
+        s, e = node_range[n, 0], node_range[n, 1]
+        if e - s > leaf:
+            m = (s + e) // 2
+            child[n, 0], child[n, 1] = used, used + 1
+            node_range[used, 0], node_range[used, 1] = s, m
+            node_range[used + 1, 0], node_range[used + 1, 1] = m, e
+            used += 2
+    for n in range(used - 1, -1, -1):     # boxes bottom-up
+        if child[n, 0] < 0:
+            for k in range(3):
+                node_lo[n, k], node_hi[n, k] = np.inf, -np.inf
+            for f in range(node_range[n, 0], node_range[n, 1]):
+                for k in range(3):
+                    node_lo[n, k] = min(node_lo[n, k], lo[f, k])
+                    node_hi[n, k] = max(node_hi[n, k], hi[f, k])
+        else:
+            a, b = child[n, 0], child[n, 1]
+            for k in range(3):
+                node_lo[n, k] = min(node_lo[a, k], node_lo[b, k])
+                node_hi[n, k] = max(node_hi[a, k], node_hi[b, k])
+    return node_lo[:used], node_hi[:used], node_range[:used], child[:used]
+
+
+@numba.njit(cache=True)
+def _tree_pairs(order, node_lo, node_hi, node_range, child, corners, tri, centre, radius,
+                lo, hi, normal, scale, planar_rel):
+    """Candidate pairs kept by :func:`_keep`, ``(P, 2)`` face positions in the tree, and
+    the number of face pairs whose boxes overlap (the broad phase's work).  Each face
+    is looked up in the tree against the faces after it, so a pair is met once; a node
+    is entered only if its box overlaps the face's (closed: boxes that touch are
+    entered).  ``order`` (the faces' ids) puts each pair in one order for the test,
+    whatever the tree."""
+    out = np.empty((max(16, len(lo)), 2), np.int64)
+    kept = 0
+    tested = 0
+    stack = np.empty(128, np.int64)
+    for a in range(len(lo)):
+        stack[0] = 0
+        top = 1
+        while top > 0:
+            top -= 1
+            n = stack[top]
+            if node_range[n, 1] <= a + 1:          # every face of the node at or before a
+                continue
+            if not _boxes_meet(node_lo[n], node_hi[n], lo[a], hi[a]):
+                continue
+            if child[n, 0] >= 0:
+                if top + 2 > len(stack):
+                    grown = np.empty(2 * len(stack), np.int64)
+                    grown[:top] = stack[:top]
+                    stack = grown
+                stack[top] = child[n, 0]
+                stack[top + 1] = child[n, 1]
+                top += 2
+                continue
+            for b in range(max(node_range[n, 0], a + 1), node_range[n, 1]):
+                if not _boxes_meet(lo[a], hi[a], lo[b], hi[b]):
+                    continue
+                tested += 1
+                first, second = (a, b) if order[a] < order[b] else (b, a)
+                if _keep(first, second, corners, tri, centre, radius, normal, scale,
+                         planar_rel):
+                    if kept == len(out):
+                        grown2 = np.empty((2 * len(out), 2), np.int64)
+                        grown2[:kept] = out[:kept]
+                        out = grown2
+                    out[kept, 0], out[kept, 1] = first, second
+                    kept += 1
+    return out[:kept], tested
+
+
+@numba.njit(cache=True)
+def _boxes_meet(lo_a, hi_a, lo_b, hi_b):
+    for k in range(3):
+        if max(lo_a[k], lo_b[k]) > min(hi_a[k], hi_b[k]):
+            return False
+    return True
+
+
+def _narrow(pairs, corners, tri, normal, scale):
+    """The batched narrow phase over the prefilter's pairs; yields the intersecting pairs."""
     for s in range(0, len(pairs), PAIR_BATCH):
         a, b = pairs[s:s + PAIR_BATCH, 0], pairs[s:s + PAIR_BATCH, 1]
         hit = _pairs_intersect(corners[a], corners[b], tri[a], tri[b], normal[a],
@@ -474,110 +584,110 @@ def _narrow(pairs, corners, tri, centre, radius, lo, hi, normal, scale):
 
 
 @numba.njit(cache=True)
-def _prefilter(pairs, corners, tri, centre, radius, lo, hi, normal, scale, planar_rel):
-    """Candidates that may intersect, (P,) bool: bounding spheres and boxes overlap, and
+def _keep(a, b, corners, tri, centre, radius, normal, scale, planar_rel):
+    """May faces ``a`` and ``b`` (their boxes overlap) intersect?  Bounding spheres
+    overlap, and
     neither face lies wholly on one side of the other's plane (pairs sharing an edge:
     the opposite vertex in the other's plane).  Conservative: a pair is dropped only
     beyond twice the narrow phase's zero, so last-bit differences drop no pair the
     narrow phase would keep.  Most candidates are neighbours on a smooth surface, all
     settled here."""
-    out = np.zeros(len(pairs), np.bool_)
-    for p in range(len(pairs)):
-        a, b = pairs[p, 0], pairs[p, 1]
-        gap2 = 0.0
-        for k in range(3):
-            gap2 += (centre[a, k] - centre[b, k]) ** 2
-        if gap2 > (radius[a] + radius[b]) ** 2:
-            continue
-        boxes = True
-        for k in range(3):
-            if max(lo[a, k], lo[b, k]) > min(hi[a, k], hi[b, k]):
-                boxes = False
-        if not boxes:
-            continue
-        shared = 0
-        for i in range(3):
-            for j in range(3):
-                if tri[a, i] == tri[b, j]:
-                    shared += 1
-        eps = 2.0 * planar_rel * max(scale[a], scale[b])
-        if shared >= 3:
-            out[p] = True
-        elif shared == 2:                 # folded only if coplanar, both on one side
-            out[p] = _maybe_folded(corners[a], corners[b], tri[a], tri[b], normal[a], eps,
-                                   max(scale[a], scale[b]))
-        else:                             # a shared vertex lies in both planes
-            if _one_side(corners[a], tri[a], tri[b], corners[b, 0], normal[b], eps) \
-                    or _one_side(corners[b], tri[b], tri[a], corners[a, 0], normal[a], eps):
-                continue
-            # coplanar (flat regions, caps): apart if an edge line separates them in 2-D
-            out[p] = not (_in_plane(corners[b], corners[a, 0], normal[a], eps)
-                          and _separated_2d(corners[a], corners[b], tri[a], tri[b],
-                                            normal[a], eps * max(scale[a], scale[b])))
-    return out
+    gap2 = 0.0
+    for k in range(3):
+        gap2 += (centre[a, k] - centre[b, k]) ** 2
+    if gap2 > (radius[a] + radius[b]) ** 2:
+        return False
+    shared = 0
+    for i in range(3):
+        for j in range(3):
+            if tri[a, i] == tri[b, j]:
+                shared += 1
+    eps = 2.0 * planar_rel * max(scale[a], scale[b])
+    if shared >= 3:
+        return True
+    if shared == 2:                       # folded only if coplanar, both on one side
+        return _maybe_folded(corners, tri, normal, a, b, eps, max(scale[a], scale[b]))
+    # a shared vertex lies in both planes
+    if _one_side(corners, tri, normal, a, b, eps) or _one_side(corners, tri, normal, b, a, eps):
+        return False
+    # coplanar (flat regions, caps): apart if an edge line separates them in 2-D
+    return not (_in_plane(corners, normal, b, a, eps)
+                and _separated_2d(corners, tri, normal, a, b, eps * max(scale[a], scale[b])))
 
 
 @numba.njit(cache=True)
-def _maybe_folded(A, B, ids_a, ids_b, normal_a, eps, scale):
-    """Faces sharing an edge: B's own vertex within ``10 eps`` of A's plane and not
-    clearly across the shared edge from A's own vertex."""
+def _maybe_folded(corners, tri, normal, a, b, eps, scale):
+    """Faces ``a``, ``b`` sharing an edge: b's own vertex within ``10 eps`` of a's plane
+    and not clearly across the shared edge from a's own vertex."""
     own_a = own_b = 0
     for i in range(3):
-        if ids_a[i] != ids_b[0] and ids_a[i] != ids_b[1] and ids_a[i] != ids_b[2]:
+        if tri[a, i] != tri[b, 0] and tri[a, i] != tri[b, 1] and tri[a, i] != tri[b, 2]:
             own_a = i
-        if ids_b[i] != ids_a[0] and ids_b[i] != ids_a[1] and ids_b[i] != ids_a[2]:
+        if tri[b, i] != tri[a, 0] and tri[b, i] != tri[a, 1] and tri[b, i] != tri[a, 2]:
             own_b = i
-    e0, e1 = (own_a + 1) % 3, (own_a + 2) % 3      # A's shared corners
+    e0, e1 = (own_a + 1) % 3, (own_a + 2) % 3      # a's shared corners
     d = 0.0
     for k in range(3):
-        d += (B[own_b, k] - A[e0, k]) * normal_a[k]
+        d += (corners[b, own_b, k] - corners[a, e0, k]) * normal[a, k]
     if abs(d) > 10.0 * eps:
         return False
-    axis = A[e1] - A[e0]
-    axis = axis / np.sqrt(np.sum(axis * axis))
-    pc = A[own_a] - A[e0]
-    pd = B[own_b] - A[e0]
-    pc = pc - np.sum(pc * axis) * axis
-    pd = pd - np.sum(pd * axis) * axis
-    return np.sum(pc * pd) > -1e-12 * scale * scale
+    ax = corners[a, e1, 0] - corners[a, e0, 0]
+    ay = corners[a, e1, 1] - corners[a, e0, 1]
+    az = corners[a, e1, 2] - corners[a, e0, 2]
+    length = np.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / length, ay / length, az / length
+    cx = corners[a, own_a, 0] - corners[a, e0, 0]
+    cy = corners[a, own_a, 1] - corners[a, e0, 1]
+    cz = corners[a, own_a, 2] - corners[a, e0, 2]
+    dx = corners[b, own_b, 0] - corners[a, e0, 0]
+    dy = corners[b, own_b, 1] - corners[a, e0, 1]
+    dz = corners[b, own_b, 2] - corners[a, e0, 2]
+    sc = cx * ax + cy * ay + cz * az
+    sd = dx * ax + dy * ay + dz * az
+    cx, cy, cz = cx - sc * ax, cy - sc * ay, cz - sc * az      # off the edge line
+    dx, dy, dz = dx - sd * ax, dy - sd * ay, dz - sd * az
+    return cx * dx + cy * dy + cz * dz > -1e-12 * scale * scale
 
 
 @numba.njit(cache=True)
-def _in_plane(face, origin, normal, eps):
+def _in_plane(corners, normal, f, g, eps):
+    """Every corner of face ``f`` within ``eps`` of face ``g``'s plane."""
     for i in range(3):
         d = 0.0
         for k in range(3):
-            d += (face[i, k] - origin[k]) * normal[k]
+            d += (corners[f, i, k] - corners[g, 0, k]) * normal[g, k]
         if abs(d) > eps:
             return False
     return True
 
 
 @numba.njit(cache=True)
-def _separated_2d(A, B, ids_a, ids_b, normal, area_eps):
-    """Coplanar faces (dropping the normal's largest axis) lie on opposite sides of the
-    line of one of their edges, each vertex not on that edge farther than ``area_eps``
-    (twice a triangle area: distance × edge length).  Two triangles in a plane are
-    disjoint iff an edge line separates them; a shared vertex sits on the separating
-    edge when there is one."""
+def _separated_2d(corners, tri, normal, a, b, area_eps):
+    """Coplanar faces ``a``, ``b`` (dropping a's normal's largest axis) lie on opposite
+    sides of the line of one of their edges, each vertex not on that edge farther than
+    ``area_eps`` (twice a triangle area: distance × edge length).  Two triangles in a
+    plane are disjoint iff an edge line separates them; a shared vertex sits on the
+    separating edge when there is one."""
     drop = 0
     for k in range(1, 3):
-        if abs(normal[k]) > abs(normal[drop]):
+        if abs(normal[a, k]) > abs(normal[a, drop]):
             drop = k
     u, w = (1, 2) if drop == 0 else ((0, 2) if drop == 1 else (0, 1))
     for side in range(2):
-        P, Q = (A, B) if side == 0 else (B, A)
-        ids_p, ids_q = (ids_a, ids_b) if side == 0 else (ids_b, ids_a)
+        p, q = (a, b) if side == 0 else (b, a)
         for e in range(3):
             i, j, r = e, (e + 1) % 3, (e + 2) % 3
-            ex, ey = P[j, u] - P[i, u], P[j, w] - P[i, w]
-            own = ex * (P[r, w] - P[i, w]) - ey * (P[r, u] - P[i, u])
+            ex = corners[p, j, u] - corners[p, i, u]
+            ey = corners[p, j, w] - corners[p, i, w]
+            own = ex * (corners[p, r, w] - corners[p, i, w]) \
+                - ey * (corners[p, r, u] - corners[p, i, u])
             sign = 1.0 if own > 0 else -1.0
             apart = True
             for m in range(3):
-                if ids_q[m] == ids_p[i] or ids_q[m] == ids_p[j]:
+                if tri[q, m] == tri[p, i] or tri[q, m] == tri[p, j]:
                     continue
-                o = ex * (Q[m, w] - P[i, w]) - ey * (Q[m, u] - P[i, u])
+                o = ex * (corners[q, m, w] - corners[p, i, w]) \
+                    - ey * (corners[q, m, u] - corners[p, i, u])
                 if o * sign >= -area_eps:
                     apart = False
                     break
@@ -587,17 +697,17 @@ def _separated_2d(A, B, ids_a, ids_b, normal, area_eps):
 
 
 @numba.njit(cache=True)
-def _one_side(face, ids, other_ids, origin, normal, eps):
-    """All corners of ``face`` not shared with the other face farther than ``eps`` on
-    one side of the other's plane (then the faces meet in the shared vertex at most)."""
+def _one_side(corners, tri, normal, f, g, eps):
+    """All corners of face ``f`` not shared with face ``g`` farther than ``eps`` on one
+    side of g's plane (then the faces meet in the shared vertex at most)."""
     above = below = count = 0
     for i in range(3):
-        if ids[i] == other_ids[0] or ids[i] == other_ids[1] or ids[i] == other_ids[2]:
+        if tri[f, i] == tri[g, 0] or tri[f, i] == tri[g, 1] or tri[f, i] == tri[g, 2]:
             continue
         count += 1
         d = 0.0
         for k in range(3):
-            d += (face[i, k] - origin[k]) * normal[k]
+            d += (corners[f, i, k] - corners[g, 0, k]) * normal[g, k]
         above += d > eps
         below += d < -eps
     return above == count or below == count

@@ -265,10 +265,11 @@ def test_faces_of_very_different_sizes_meet_the_brute_force():
     np.testing.assert_array_equal(report.intersecting_pairs, expected)
 
 
-@pytest.mark.parametrize("chunk", [7, 64, 100_000])
-def test_chunked_lookup_finds_every_pair_once(monkeypatch, chunk):
-    # slabs of a few faces: pairs across slab borders and across levels all found, once
-    monkeypatch.setattr(validity, "QUERY_CHUNK", chunk)
+@pytest.mark.parametrize("leaf", [1, 4, 64])
+def test_box_tree_finds_every_pair_once(monkeypatch, leaf):
+    # leaves of one face to leaves larger than a sphere's strip: pairs across leaves and
+    # across faces of very different sizes all found, once
+    monkeypatch.setattr(validity, "LEAF_FACES", leaf)
     cyl = o3d.geometry.TriangleMesh.create_cylinder(0.3, 3.0, 8, 2)
     v1, t1 = _arrays(cyl)
     v2, t2 = _two_spheres()
@@ -366,21 +367,25 @@ def _grid(n: int, step: float, origin) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_a_finely_tessellated_region_keeps_the_broad_phase_small(monkeypatch):
-    """Faces 32 times smaller than the median face share no sphere level with it: each
-    meets tens of candidates, not the thousands of fine faces within a base radius (a
-    1.1-million-face surface with such a region once took the broad phase past 6 GB)."""
+    """Faces 32 times smaller than the median face, just above a coarse grid (a thirtieth
+    of a fine face's side): each face is tested against the faces whose boxes meet its
+    own, its neighbours, not against the hundreds within a coarse face's reach (a
+    1.1-million-face surface with such a region once took a broad phase by bounding
+    spheres past 6 GB)."""
     coarse_v, coarse_f = _grid(80, 1.0, (0.0, 0.0, 0.0))               # 12 800 faces
-    fine_v, fine_f = _grid(50, 1.0 / 32.0, (10.0, 10.0, 3.0))          # 5 000 faces
+    fine_v, fine_f = _grid(50, 1.0 / 32.0, (10.0, 10.0, 1e-3))         # 5 000 faces
     v = np.vstack([coarse_v, fine_v])
     f = np.vstack([coarse_f, fine_f + len(coarse_v)])
-    seen = []
-    narrow = validity._narrow
+    tested = []
+    pairs_in_tree = validity._tree_pairs
 
-    def counting(pairs, *args):
-        seen.append(len(pairs))
-        return narrow(pairs, *args)
+    def counting(*args):
+        kept, count = pairs_in_tree(*args)
+        tested.append(count)
+        return kept, count
 
-    monkeypatch.setattr(validity, "_narrow", counting)
+    monkeypatch.setattr(validity, "_tree_pairs", counting)
     assert len(self_intersections(v, f)) == 0
-    # a face of a uniform grid meets ~12-30 spheres of its level within two radii
-    assert sum(seen) < 40 * len(f)
+    # a face of a uniform grid meets the boxes of its 12 neighbours and of the faces
+    # whose boxes touch its own, each pair counted once (8.3 a face here)
+    assert 0 < sum(tested) < 12 * len(f)
