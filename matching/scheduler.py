@@ -29,6 +29,14 @@ import numpy as np
 __all__ = ["ViewRef", "load_image", "thread_map", "default_workers", "Stopped",
            "check_stop"]
 
+# numba's OpenMP workers sleep between kernels instead of spinning (GNU OpenMP reads this
+# when numba first loads it, at the first parallel kernel; a value already set is kept).
+# The kernels run for milliseconds to seconds, so the wake-up costs nothing, while the
+# spinning costs CPU: 56 873 recorded temple windows on 2 numba threads took a mean 2.61
+# CPU-s spinning and 2.46 sleeping, against 2.25 on one thread, on a loaded machine
+# (docs/decisions/acquire-profile.md, "Both cores, measured per thread").
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 
 class Stopped(Exception):
     """A task ended early because its map (or a map it runs in) was interrupted."""
