@@ -108,44 +108,33 @@ def surface_from_points(points: np.ndarray, axis="z", sections: int | None = Non
         ``sections.slice_sections``'s with ``projection="axis"``, and half the
         section spacing (every point used once) with ``projection="surface"``.
     n : int, optional
-        N, ring points on the odd sections (2N on the even ones).  Default
-        ``ceil(P_max / Δ)`` with ``P_max`` the largest loop perimeter (convex
-        hull) and Δ the section spacing, so that triangles are about as wide
-        along the rings as they are tall across them.
+        N, ring points on the odd sections (2N on the even ones); default
+        ``ceil(P_max / Δ)`` (largest loop perimeter over the section spacing).
     smoothing : float or "auto"
-        Data points per Catmull-Rom control point (``catmull_rom.fit``).
-        Default ``"auto"``: chosen per loop by generalised cross-validation
-        (``catmull_rom.choose_smoothing``), i.e. from the loop's own residuals
-        (its noise) and number of points (its density) instead of a constant
-        tuned to one cloud; on the vase cloud (σ = 0.002) it picks 16-32
-        points per control point, lowering the stitched Chamfer from 0.00042
-        (fixed 8) to 0.00029 and the Bezier surface's from 0.00039 to 0.00032.
+        Data points per Catmull-Rom control point (``catmull_rom.fit``); ``"auto"``:
+        per loop by generalised cross-validation (``catmull_rom.choose_smoothing``), from
+        the loop's own residuals and density (the vase cloud, σ = 0.002: 16-32 points per
+        control point, stitched Chamfer 0.00042 with a fixed 8 → 0.00029).
     projection : {"surface", "axis"}
-        How a slab point reaches its plane: along the local surface (tangent
-        plane from a PCA normal of its 12 nearest neighbours; points on
-        surfaces within 30° of the plane are left out) or straight along the
-        axis (``sections.slice_sections`` as is).
+        How a slab point reaches its plane: along the local surface (PCA tangent plane;
+        surfaces within 30° of the plane left out) or along the axis.
     extend_ends : bool
-        Move the end caps from the first and last section planes to the
-        median height of the cloud's cap points beyond them (if at least
-        ``NORMAL_NEIGHBOURS`` such points lie inside the end contour); the end
-        ring is extrapolated linearly from the last two rings.
+        Move the end caps from the first and last section planes to the cap points beyond
+        them (:func:`extend_to_caps`).
     close_ends : bool
         Cap the first and last sections.
     flip : bool
         Lawson flips.
     support : bool
         Support rings where the profile turns sharply (``stitch_rings``'s
-        ``support_sigma`` = :func:`section_noise` of the loops), so that the
-        G1 surface built over the mesh keeps rims sharp to the noise level.
+        ``support_sigma`` = :func:`section_noise` of the loops): rims sharp to the noise.
     sigma : (N,) float64, optional
         The points' precision (scene units): the ends are placed with inverse-variance
         weights (:func:`extend_to_caps`); without it (or with any σ unknown) every point
         weighs the same.
     open_holes : bool
-        Leave an end the data do not cover (:func:`classify_ends`: a hole where the scanner
-        never looked, an open mouth) as a border instead of capping it flat: an open
-        surface of what was seen.
+        Leave an end the data do not cover (:func:`classify_ends`: unseen, an open mouth)
+        as a border instead of capping it flat.
     ends : dict, optional
         Filled with each end's placement and its standard error (:func:`extend_to_caps`)
         and its kind with the evidence (:func:`classify_ends`, ``EndKind.record``).
