@@ -85,6 +85,7 @@ from matching.pair_status import (
     TRIANGULATION,
 )
 from matching.pair_verify import (
+    _grow_from_volume,
     _grow_verified,
     _loop_closes,
     _loop_closes_rectified,
@@ -92,6 +93,7 @@ from matching.pair_verify import (
     _verify_unique_rectified,
 )
 from matching.precision import class_variance_factors
+from matching.rectify import left_to_rectified, rectified_to_original
 from matching.second_order import second_order_terms
 from matching.seeds import (
     DEFAULT_SPACING,
@@ -263,7 +265,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
                unique: bool = True, epipolar_pass: bool = False,
                regrow_ambiguous: bool = True, centre_points: bool = True,
                aperture_k: float | None = 1.0, equalise_blur: bool = True,
-               **lsm_options) -> PairMatches:
+               far_growth: int = 4, **lsm_options) -> PairMatches:
     """Match a stereo pair densely by LSM.
 
     The steps and the rules' measurements are in docs/method/acquire.md and the
@@ -340,6 +342,12 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         differs, measured from the matched windows
         (:func:`matching.pair_epipolar._blur_balance`), in place of ``footprint_var``
         (docs/decisions/stereo-blur.md).  Default on.
+    far_growth : int
+        Epipolar pass: rounds (at most) in which the windows still unmatched from their
+        approximation start again where their verified neighbours' disparity plane (or
+        the scene range) leaves one unique peak
+        (:func:`matching.pair_verify._grow_from_volume`; docs/decisions/stereo-blur.md);
+        0: off.
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
@@ -361,7 +369,8 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         sigma_factor=sigma_factor, search_range=search_range, footprint_var=footprint_var,
         densify=densify, robust=robust, unique=unique, epipolar_pass=epipolar_pass,
         regrow_ambiguous=regrow_ambiguous, centre_points=centre_points,
-        aperture_k=aperture_k, rig=rig, equalise_blur=equalise_blur)
+        aperture_k=aperture_k, rig=rig, equalise_blur=equalise_blur,
+        far_growth=far_growth)
     cfg.ladder, cfg.population = _check_options(cfg, lsm_options)
     preps, left, right = _read_images(left_img, right_img, rig, rectified, interpolation)
     cfg.epipolar = rectified if epipolar is None else bool(epipolar)
@@ -670,14 +679,44 @@ def _grow_and_report(cfg, st, left, right) -> None:
                 equalise_blur=cfg.equalise_blur)
 
         local = status[idx].copy()
+        reach = max(cfg.patch / 2.0, 1.5 * cfg.spacing)
         st.res, grown_mask = _grow_verified(local, st.points, st.res, st.frame, st.geo_var,
                                             st.epi_dirs, st.sides, refine, cfg.patch,
-                                            reach=max(cfg.patch / 2.0, 1.5 * cfg.spacing),
-                                            ambiguous=cfg.regrow_ambiguous)
-        status[idx] = local
+                                            reach=reach, ambiguous=cfg.regrow_ambiguous)
         # pinned by their verified neighbours within the pull-in range: the
         # rivals a period away are excluded
         st.rival_var[grown_mask] = 0.0
+        tried = np.zeros(len(idx), bool)
+        far_all = np.zeros(len(idx), bool)
+        before = local.copy()
+        for _ in range(cfg.far_growth):
+            # where SGBM is blind or a period off: the verified neighbours' disparity
+            # plane (or the scene range) with the uniqueness test deciding, then
+            # the verified growth again from what that found; rounds while it finds
+            st.res, far, far_var = _grow_from_volume(
+                local, st.points, st.res, st.frame, st.geo_var, st.epi_dirs, st.sides,
+                refine, cfg.patch, st.approx.range,
+                lambda p: left_to_rectified(st.rect, cfg.rig.left, p),
+                lambda q: rectified_to_original(st.rect, cfg.rig.right, q), tried)
+            st.rival_var[far] = far_var[far]
+            far_all |= far
+            if not far.any():
+                break
+            st.res, again = _grow_verified(local, st.points, st.res, st.frame,
+                                           st.geo_var, st.epi_dirs, st.sides, refine,
+                                           cfg.patch, reach=reach,
+                                           ambiguous=cfg.regrow_ambiguous)
+            st.rival_var[again] = 0.0
+        if far_all.any():
+            # a match geometry from afar resolved stands only where the verified growth
+            # joined it: two other matches within the growth's reach (a lone window is
+            # one piece of evidence, and its neighbours' plane was extrapolated)
+            ok_now = np.flatnonzero(local == Status.OK)
+            joined = cKDTree(st.points[ok_now]).query_ball_point(
+                st.points[far_all], r=reach, return_length=True) - 1
+            lone = np.flatnonzero(far_all)[joined < 2]
+            local[lone] = before[lone]
+        status[idx] = local
     local = status[idx].copy()
     st.res, st.epi_dirs, st.offset, st.x_left_out, st.polarity_var = _report_epipolar(
         st.frame, st.rect, cfg.rig, st.res, st.epi_dirs, local, st.cand.points, idx,

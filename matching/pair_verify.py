@@ -6,8 +6,10 @@ pass's, strict) test every accepted match for a rival along the epipolar search 
 require the backward (right-to-left) LSM from each survivor to return to its template
 within the loop's 99.9 % bound; :func:`_grow_verified` grows the rejected windows again
 from verified neighbours only, so that growth cannot carry a one-period slip across a
-repeated pattern.  Measured: ``docs/decisions/stereo-uniqueness.md``,
-``stereo-ambiguity.md``.
+repeated pattern; :func:`_grow_from_volume` starts the windows still unmatched where their
+verified neighbours' disparity plane (or the scene range) leaves one unique peak, where SGBM
+was blind or a period off.  Measured: ``docs/decisions/stereo-uniqueness.md``,
+``stereo-ambiguity.md``, ``stereo-far-growth.md``.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from matching import uniqueness
 from matching.lsm import LSMResult, Status, lsm_match
-from matching.pair_status import AMBIGUOUS, NO_APPROXIMATION
+from matching.pair_status import AMBIGUOUS, NO_APPROXIMATION, OUTLIER_Z
 from matching.rectify import (
     left_to_rectified,
     rectified_to_original,
@@ -86,7 +88,7 @@ def _verify_unique(left, right, rig, rect, rectified, fprep, gprep, points, res:
 
 
 def _verify_unique_rectified(frame: dict, points, res: LSMResult, search_range,
-                             patch: int) -> tuple[np.ndarray, np.ndarray]:
+                             patch: int, interval=None) -> tuple[np.ndarray, np.ndarray]:
     """Uniqueness of the epipolar pass's matches, judged in the rectified frame by the
     matcher that made them (:mod:`matching.uniqueness` ``strict``).
 
@@ -97,8 +99,9 @@ def _verify_unique_rectified(frame: dict, points, res: LSMResult, search_range,
     chessboard rig, pair 06: the 228 that :func:`matching.uniqueness.anchored` would pin
     put 13.6 % of themselves beyond the blunder band against 4.3 % of the rest): the
     region growing from verified matches (:func:`_grow_verified`) is where geometry
-    pins a window.  Returns the (N,) verdicts and (N,) variance the rivals leave along
-    the row (rectified px², ``Verification.rival_var``).
+    pins a window.  ``interval``: (N, 2) the disparities geometry admits per match
+    (``verify_matches``).  Returns the (N,) verdicts and (N,) variance the rivals leave
+    along the row (rectified px², ``Verification.rival_var``).
     """
 
     n = len(points)
@@ -136,7 +139,8 @@ def _verify_unique_rectified(frame: dict, points, res: LSMResult, search_range,
                                     frame["xl"], frame["position"], lambda q: q,
                                     search_range, fprep.noise, patch,
                                     float(frame["opts"].get("min_correlation", 0.7)),
-                                    shape=shape, strict=True)
+                                    shape=shape, strict=True,
+                                    interval=None if interval is None else interval[ok])
     verdict = np.full(n, uniqueness.OUTSIDE, np.uint8)
     verdict[ok] = ver.verdict
     rival_var = np.zeros(n)
@@ -287,9 +291,8 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
     reach = float(patch) / 2.0 if reach is None else float(reach)
     tried = np.zeros(n, bool)
     grown = np.zeros(n, bool)
-    position, cov = np.array(res.position), np.array(res.cov)
-    affine, radiometric = np.array(res.affine), np.array(res.radiometric)
-    sigma0, corr = np.array(res.sigma0), np.array(res.correlation)
+    arrays = _copies(res)
+    position, affine, cov = arrays["position"], arrays["affine"], arrays["cov"]
     for _ in range(max_rounds):
         verified = np.flatnonzero(status == Status.OK)
         regrow = _REGROW + ((AMBIGUOUS,) if ambiguous else ())
@@ -330,7 +333,7 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
         sub_aff = np.full((n, 6), np.nan)
         sub_aff[sel] = start_aff
         sub_rad = np.full((n, 2), np.nan)
-        sub_rad[sel] = radiometric[nearest]
+        sub_rad[sel] = arrays["radiometric"][nearest]
         sub = replace(res, status=sub_status, position=sub_pos, affine=sub_aff,
                       radiometric=sub_rad)
         out, geo_s, dirs_s, sides_s, _, frame_s = refine(sub_pos, sub, sides)
@@ -354,18 +357,184 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
             keep = keep[closes[keep]]
         if not len(keep):
             continue
-        position[keep], cov[keep] = out.position[keep], out.cov[keep]
-        affine[keep], radiometric[keep] = out.affine[keep], out.radiometric[keep]
-        sigma0[keep], corr[keep] = out.sigma0[keep], out.correlation[keep]
-        geo[keep], dirs[keep], sides[keep] = geo_s[keep], dirs_s[keep], sides_s[keep]
-        for key, value in frame.items():
-            if isinstance(value, np.ndarray) and value.shape[:1] == (n,) and key != "index":
-                value[keep] = frame_s[key][keep]
-        status[keep] = Status.OK
+        _adopt(keep, out, geo_s, dirs_s, sides_s, frame_s, arrays, frame, geo, dirs, sides,
+               status)
         grown[keep] = True
-    res = replace(res, position=position, cov=cov, affine=affine, radiometric=radiometric,
-                  sigma0=sigma0, correlation=corr,
+    res = replace(res, **arrays,
                   status=np.where(status == Status.OK, Status.OK, res.status).astype(
                       res.status.dtype))
     return res, grown
 
+
+
+def _copies(res: LSMResult) -> dict:
+    """Copies of the result's arrays a regrowth round updates (:func:`_adopt`)."""
+    return {key: np.array(getattr(res, key)) for key in
+            ("position", "cov", "affine", "radiometric", "sigma0", "correlation")}
+
+
+def _adopt(keep, out, geo_s, dirs_s, sides_s, frame_s, arrays: dict, frame: dict, geo,
+           dirs, sides, status) -> None:
+    """The matches ``keep`` of a regrowth round (``refine``'s output) taken into the running
+    arrays, the pass's ``geo``, ``dirs``, ``sides``, ``frame`` and ``status``, in place."""
+    for key, value in arrays.items():
+        value[keep] = getattr(out, key)[keep]
+    geo[keep], dirs[keep], sides[keep] = geo_s[keep], dirs_s[keep], sides_s[keep]
+    n = len(status)
+    for key, value in frame.items():
+        if isinstance(value, np.ndarray) and value.shape[:1] == (n,) and key != "index":
+            value[keep] = frame_s[key][keep]
+    status[keep] = Status.OK
+
+
+def _neighbour_planes(xl, disparity, sigma, verified, cand, k: int):
+    """The disparity each candidate's ``k`` nearest verified matches predict at it and
+    that prediction's σ, px: a plane d = c0 + c1 dx + c2 dy through their rectified
+    disparities (three rounds, trimmed at 3 x 1.4826 MAD, the spread s at least their
+    median σ), σ = s √(1 + (XᵀX)⁻¹₀₀) with the plane's own uncertainty.  NaN where they
+    do not fix one plane: a quarter of them trimmed, or their MAD spread above twice
+    their median σ."""
+    m = len(cand)
+    k = min(k, len(verified))
+    tree = cKDTree(xl[verified])
+    _, nb = tree.query(xl[cand], k=k)
+    nb = verified[nb.reshape(m, k)]
+    dx = (xl[nb] - xl[cand][:, None, :]) / 100.0  # scaled for conditioning
+    design = np.concatenate([np.ones((m, k, 1)), dx], axis=2)  # (M, K, 3)
+    d = disparity[nb]
+    floor = np.median(sigma[nb], axis=1)
+    w = np.ones((m, k))
+    pred = np.full(m, np.nan)
+    for _ in range(3):
+        xtx = np.einsum("mki,mk,mkj->mij", design, w, design)
+        good = (np.linalg.cond(xtx) < 1e8) & (w.sum(1) >= 6)
+        if not good.any():
+            return pred, pred.copy()
+        inv = np.full_like(xtx, np.nan)
+        inv[good] = np.linalg.inv(xtx[good])
+        coef = np.einsum("mij,mkj,mk,mk->mi", inv, design, w, d)
+        resid = d - np.einsum("mki,mi->mk", design, coef)
+        absr = np.where(w > 0, np.abs(resid), np.nan)
+        absr[~np.isfinite(absr).any(axis=1)] = np.inf  # no plane: no spread
+        med = np.nanmedian(absr, axis=1)
+        spread = np.maximum(1.4826 * med, floor)
+        w = (np.abs(resid) <= 3.0 * spread[:, None]).astype(np.float64)
+    # one surface: a plane that leaves a quarter of the neighbours out spans a depth
+    # edge, and one they depart from by more than twice their σ (the honest-σ bound of
+    # residual / σ) is not their surface -- the scene range decides there
+    good &= (w.sum(1) >= 0.75 * k) & (1.4826 * med <= 2.0 * floor)
+    pred = np.where(good, coef[:, 0], np.nan)
+    sigma_pred = np.where(good, spread * np.sqrt(1.0 + inv[:, 0, 0]), np.nan)
+    return pred, sigma_pred
+
+
+def _grow_from_volume(status, points, res: LSMResult, frame: dict, geo, dirs, sides, refine,
+                      patch: int, search_range, to_rectified, to_right, tried,
+                      neighbours: int = 12):
+    """Approximations that do not come from SGBM, for the windows still without a match
+    from their approximation (``_REGROW``): SGBM is blind in a strip as wide as its
+    disparity range and can be a period off on a repeated pattern.
+
+    Each such window's admissible disparities are those its ``neighbours`` nearest verified
+    matches predict within what they leave (:func:`_neighbour_planes`; the whole scene
+    range ``search_range`` where they fix no plane).  The window's ZNCC profile over them
+    must have one near-best run within the noise margin, inside them, above the matcher's
+    correlation floor (:mod:`matching.uniqueness`): the epipolar pass (``refine``) starts
+    there with the nearest verified match's shape and radiometry, and keeps the match
+    when the strict uniqueness test over the same disparities finds it unique, it lies
+    within them and its backward loop closes.  ``to_rectified``/``to_right``: left points
+    -> rectified frame, rectified right points -> right image.  Updates ``status``,
+    ``geo``, ``dirs``, ``sides`` and ``frame`` in place; returns the updated result, the
+    (N,) mask of the matches grown and their rivals' variance (rectified px²).
+    """
+    n = len(points)
+    grown = np.zeros(n, bool)
+    rival = np.zeros(n)
+    verified = np.flatnonzero(status == Status.OK)
+    cand = np.flatnonzero(np.isin(status, _REGROW) & ~tried)
+    if len(verified) < neighbours or not len(cand):
+        return res, grown, rival
+    xl = to_rectified(points)
+    disparity = frame["xl"][:, 0] - frame["position"][:, 0]
+    sigma = np.sqrt(np.nan_to_num(frame["cov"][:, 0, 0] * frame["k2"], nan=np.inf))
+    verified = verified[np.isfinite(disparity[verified])]
+    if len(verified) < neighbours:
+        return res, grown, rival
+    pred, sigma_pred = _neighbour_planes(xl, np.nan_to_num(disparity), sigma, verified,
+                                         cand, neighbours)
+    half = OUTLIER_Z * sigma_pred + 1.0
+    dmin, count = int(search_range[0]), int(search_range[1])
+    lo = np.where(np.isfinite(pred), np.maximum(pred - half, dmin), dmin)
+    hi = np.where(np.isfinite(pred), np.minimum(pred + half, dmin + count - 1),
+                  dmin + count - 1)
+    fprep, gprep = frame["fprep"], frame["gprep"]
+    prof = uniqueness.zncc_profiles(fprep.raw, gprep.raw, xl[cand], (dmin, count), patch,
+                                    fprep.noise)
+    dd = prof.disparities[None, :]
+    inside = (dd >= lo[:, None]) & (dd <= hi[:, None])
+    cost = np.where(inside, prof.cost, np.nan)
+    runs, best, run_lo, run_hi = uniqueness.near_best_runs(cost, prof.margin)
+    first = np.argmax(inside, axis=1)
+    last = inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1)
+    rows = np.arange(len(cand))
+    top = cost[rows, np.minimum(best, cost.shape[1] - 1)]
+    min_corr = float(frame["opts"].get("min_correlation", 0.7))
+    usable = ((runs == 1) & (run_lo > first) & (run_hi < last)
+              & (run_hi - run_lo + 1 <= patch // 2) & (np.nan_to_num(top) >= min_corr)
+              & (prof.template_std > uniqueness.MIN_SNR * fprep.noise))
+    if not usable.any():
+        return res, grown, rival
+    sel = cand[usable]
+    tried[sel] = True
+    d_start = prof.disparities[best[usable]].astype(np.float64)
+    start = to_right(np.column_stack([xl[sel, 0] - d_start, xl[sel, 1]]))
+    nearest = verified[cKDTree(xl[verified]).query(xl[sel])[1]]
+    start_aff = np.array(res.affine)[nearest].copy()
+    start_aff[:, 0], start_aff[:, 3] = start[:, 0], start[:, 1]
+    sub_status = np.full(n, Status.TEXTURELESS, np.uint8)
+    sub_status[sel] = Status.OK
+    sub_pos = np.full((n, 2), np.nan)
+    sub_pos[sel] = start
+    sub_aff = np.full((n, 6), np.nan)
+    sub_aff[sel] = start_aff
+    sub_rad = np.full((n, 2), np.nan)
+    sub_rad[sel] = np.array(res.radiometric)[nearest]
+    sub = replace(res, status=sub_status, position=sub_pos, affine=sub_aff,
+                  radiometric=sub_rad)
+    out, geo_s, dirs_s, sides_s, _, frame_s = refine(sub_pos, sub, sides)
+    new = np.zeros(n, bool)
+    new[sel] = (out.status[sel] == Status.OK) & np.isfinite(geo_s[sel])
+    bounds = np.full((n, 2), np.nan)
+    bounds[cand] = np.column_stack([lo, hi])
+    d_new = frame_s["xl"][:, 0] - frame_s["position"][:, 0]
+    # within the neighbours' prediction by the 99.9 % bound of both σ (the match's along
+    # the row with its variance factor), where they predict; else in the scene range
+    pred_all = np.full(n, np.nan)
+    pred_all[cand] = pred
+    sig_all = np.full(n, np.inf)
+    sig_all[cand] = sigma_pred
+    sig_new = np.sqrt(frame_s["cov"][:, 0, 0] * frame_s["k2"] + sig_all ** 2)
+    with np.errstate(invalid="ignore"):
+        new &= (d_new >= bounds[:, 0]) & (d_new <= bounds[:, 1])
+        new &= ~np.isfinite(pred_all) | (np.abs(d_new - pred_all) <= OUTLIER_Z * sig_new)
+    if not new.any():
+        return res, grown, rival
+    verdict, rival_var = _verify_unique_rectified(
+        frame_s, points, replace(out, status=np.where(new, Status.OK, Status.PULL_IN)
+                                 .astype(out.status.dtype)),
+        search_range, patch, interval=bounds)
+    new &= verdict == uniqueness.UNIQUE
+    frame_s["loop_k"] = frame.get("loop_k", 1.0)
+    new &= _loop_closes_rectified(frame_s, new)
+    keep = np.flatnonzero(new)
+    if not len(keep):
+        return res, grown, rival
+    arrays = _copies(res)
+    _adopt(keep, out, geo_s, dirs_s, sides_s, frame_s, arrays, frame, geo, dirs, sides,
+           status)
+    grown[keep] = True
+    rival[keep] = rival_var[keep]
+    res = replace(res, **arrays,
+                  status=np.where(status == Status.OK, Status.OK, res.status).astype(
+                      res.status.dtype))
+    return res, grown, rival

@@ -348,7 +348,7 @@ class Verification:
 def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
                    xr_rect, rect_to_right, search_range: tuple[int, int], noise: float,
                    patch: int, min_correlation: float = 0.7, max_peaks: int = 4,
-                   shape=None, strict: bool = False) -> Verification:
+                   shape=None, strict: bool = False, interval=None) -> Verification:
     """Check every accepted match for a second solution along its epipolar line.
 
     The plain ZNCC profile (:func:`zncc_profiles`) finds the candidates cheaply; it cannot
@@ -399,6 +399,10 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         outside it with a correlation lower by more than m); default False: only an
         accepted rival as good within m, or a failed re-match of a peak above the
         solution's by more than m, does.
+    interval : (N, 2) array_like, optional
+        The disparities (px) geometry admits per match, from what does not depend on its
+        window (its verified neighbours' disparity plane within its spread); the profile
+        outside is not searched (default: the whole ``search_range``).
 
     Returns
     -------
@@ -419,6 +423,10 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     window_noise = np.maximum(float(noise), np.nan_to_num(result.sigma0[ok], nan=0.0))
     prof = zncc_profiles(left_rect, right_rect, xl_rect[ok], search_range, patch,
                          window_noise)
+    if interval is not None:
+        bounds = np.asarray(interval, np.float64)[ok]
+        d = prof.disparities[None, :]
+        prof.cost[(d < bounds[:, :1]) | (d > bounds[:, 1:])] = np.nan
     has = np.isfinite(prof.cost).any(axis=1)
     d0 = int(prof.disparities[0])
     sol = np.clip(np.rint(np.nan_to_num(solution - d0)), 0, prof.cost.shape[1] - 1)

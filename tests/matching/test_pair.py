@@ -510,7 +510,10 @@ def test_epipolar_pass_reports_each_match_where_its_window_determines_it():
     # the right camera blurs 1.8 px, the left 0.7: at the board's edges the constrained
     # warp's shape takes up the difference, and a match reported away from where its
     # window's gradients are is extrapolated through that shape (the blur balance off:
-    # with it on, the difference is taken out before the shape can take it up)
+    # with it on, the difference is taken out before the shape can take it up); the
+    # growth from the neighbours' disparity plane off (it changes which windows are kept:
+    # measured with it 0.230 / 0.198 / 0.133 px, a ratio of 0.86 that is not this
+    # test's question)
     from matching.rectify import rectify, right_to_rectified
 
     rig = make_rig()
@@ -520,7 +523,7 @@ def test_epipolar_pass_reports_each_match_where_its_window_determines_it():
     errors = {}
     for centred, equalise in ((False, False), (True, False), ("balanced", True)):
         m = match_pair(left, right, rig, spacing=3, epipolar_pass=True,
-                       centre_points=bool(centred), equalise_blur=equalise)
+                       centre_points=bool(centred), equalise_blur=equalise, far_growth=0)
         ok = m.accepted
         assert ok.sum() > 1000
         # the points stay distinct integer pixels (a moved one never lands on a candidate)

@@ -142,6 +142,37 @@ def test_strict_rule_needs_the_matcher_to_refute_a_rival():
                 assert np.all(strict.rival_var[ok] < 1e-6)
 
 
+def test_interval_from_geometry_decides_between_the_repeats():
+    """On periodic texture the truth is ambiguous over the whole range (its repeats one
+    period away match as well), unique when geometry admits only the disparities within
+    a third of a period of it; the slip one period off, judged over the same admitted
+    disparities (they do not hold it), is never unique."""
+    rng = np.random.default_rng(6)
+    pts = _centres()
+    left, right = _pair(_periodic(rng), rng)
+
+    def match(index, approx, initial, population, direction):
+        return lsm_match(left, right, pts[index], approx, initial=initial,
+                         sigma0_population=population, direction=direction,
+                         rigid_across=True)
+
+    admitted = np.tile([SHIFT - PERIOD / 3.0, SHIFT + PERIOD / 3.0], (len(pts), 1))
+    for shift in (SHIFT, SHIFT + PERIOD):
+        res = lsm_match(left, right, pts, pts - [shift, 0.0], direction=(1.0, 0.0),
+                        rigid_across=True)
+        ok = res.accepted
+        assert ok.mean() > 0.9
+        whole, geometric = (uq.verify_matches(match, pts, res, left, right, pts,
+                                              res.position, lambda p: p, (-20, 60), NOISE,
+                                              WINDOW, strict=True, interval=bounds)
+                            for bounds in (None, admitted))
+        assert np.all(whole.verdict[ok] == uq.AMBIGUOUS)
+        if shift == SHIFT:
+            assert np.all(geometric.verdict[ok] == uq.UNIQUE)
+        else:
+            assert not np.any(geometric.verdict[ok] == uq.UNIQUE)
+
+
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / \
     "chessboard_stereo"
 
