@@ -20,6 +20,10 @@ base the scanner never saw), default and ``open_holes``: closed, border loops, t
 largest and 99th-percentile distance of the surface to the cloud (a dome over the hole
 would be far from every point), seconds.
 
+Corpus rows (``--corpus CASE:SIZE:NOISE ...``): ``benchmarks/corpus.py``'s clouds and scores
+of the section surface (``photosurf sections --smooth --axis auto``) beside Poisson-8, without
+the general surface: Chamfer and F-score against the truth, valid solid, genus, CPU-s.
+
 Run: ``.venv/bin/python benchmarks/vessels.py [--points 60000] [--json PATH] [--quick]``.
 """
 
@@ -37,6 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.append(str(ROOT / "benchmarks"))
 
+import corpus  # noqa: E402
 from _common import print_goals, write_result  # noqa: E402
 
 from surface import metrics  # noqa: E402
@@ -124,8 +129,43 @@ def hole_row(name: str, axis: str, cut: float, points: int, open_holes: bool) ->
             "notes": [m for m in mesh.messages if "hole" in m or "dome" in m]}
 
 
+def corpus_rows(specs: list[str], json_path: str) -> int:
+    """``--corpus CASE:SIZE:NOISE ...``: the corpus rows (``benchmarks/corpus.py``'s clouds
+    and scores) of the section surface beside Poisson-8 alone, one process, no general
+    surface: Chamfer, F-score, valid solid, genus, CPU-s of each."""
+    rows = []
+    print(f"{'case':>20} {'points':>6} {'noise':>6} {'ours C':>9} {'P8 C':>9} {'ratio':>5} "
+          f"{'valid':>5} {'genus':>5} {'truth':>5} {'ours s':>6} {'P8 s':>6}")
+    for spec in specs:
+        case, size, noise = spec.split(":")
+        points, truth = corpus.load_case(case, int(size), float(noise), ROOT)
+        results, refused = {}, {}
+        try:
+            results["sections"] = corpus.run_sections(points)
+        except ValueError as exc:
+            refused["sections"] = {"refused": str(exc).splitlines()[0][:200]}
+        results["poisson-8"] = corpus.run_poisson(points)
+        row = corpus.scored_row(case, float(noise), points, truth, results,
+                                {**refused, "general": {"refused": "not run"}})
+        for name in ("general", "auto"):   # the smooth stage's choice needs the general one
+            row["methods"].pop(name, None)
+        rows.append(row)
+        ours, p8 = row["methods"].get("sections", {}), row["methods"]["poisson-8"]
+        if "refused" in ours:
+            print(f"{case:>20} {size:>6} {noise:>6} refused: {ours['refused']}", flush=True)
+            continue
+        print(f"{case:>20} {size:>6} {noise:>6} {ours['chamfer']:>9.3e} {p8['chamfer']:>9.3e} "
+              f"{ours['chamfer'] / p8['chamfer']:>5.2f} {str(ours['valid']):>5} "
+              f"{ours['genus']!s:>5} {row['truth_genus']!s:>5} {ours['cpu']:>6.1f} "
+              f"{p8['cpu']:>6.1f}", flush=True)
+        write_result(json_path, {"benchmark": "vessels --corpus", "rows": rows})  # each row
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--corpus", nargs="+", metavar="CASE:SIZE:NOISE",
+                        help="corpus rows: the section surface beside Poisson-8 (corpus_rows)")
     parser.add_argument("--points", type=int, default=60_000)
     parser.add_argument("--cut", type=float, default=0.002)
     parser.add_argument("--quick", action="store_true", help="walls 2 and 4 only, no scans")
@@ -134,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-scans", action="store_true", help="the vessels only")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "vessels.json"))
     args = parser.parse_args(argv)
+    if args.corpus:
+        return corpus_rows(args.corpus, args.json)
     rows = []
     print(f"{'wall/s':>6} {'handle':>6} {'closed':>6} {'comp':>4} {'genus':>5} {'truth':>5} "
           f"{'mouth':>6} {'outer/s':>8} {'inner/s':>8} {'chamfer/s':>9} {'s':>6}")
