@@ -243,8 +243,8 @@ def _reconstruct(points: np.ndarray, axis: np.ndarray, folder: Path) -> tuple[di
     t0, cpu0 = time.perf_counter(), os.times()
     try:
         run = subprocess.run([sys.executable, "-m", "pipeline.cli", "sections", str(cloud),
-                              "--out", str(out), "--smooth", "--axis",
-                              ",".join(f"{c:.9f}" for c in axis), "-q"],
+                              "--out", str(out), "--smooth",
+                              "--axis=" + ",".join(f"{c:.9f}" for c in axis), "-q"],
                              cwd=ROOT, capture_output=True, text=True, timeout=1200)
     except subprocess.TimeoutExpired:
         return None, {"error": "photosurf sections: over 1200 s"}
@@ -265,6 +265,7 @@ def all_scan_rows(points: int, names: list[str], json_path: str | None = None) -
     (a subsample of them is the cloud, no truth figures); a mesh that is not closed (the
     cow, the teapot's four pieces) has no truth volume.  ``json_path``: the rows so far,
     written after each scan."""
+    from pipeline.errors import InputError
     from pipeline.mesh_io import read_mesh
     from surface.metrics import mesh_topology
 
@@ -274,7 +275,13 @@ def all_scan_rows(points: int, names: list[str], json_path: str | None = None) -
         if path is None:
             continue
         print(f"scan {name} ...", flush=True)
-        vertices, triangles = read_mesh(path)
+        try:
+            vertices, triangles = read_mesh(path)
+        except InputError:  # points only (igea)
+            import open3d as o3d
+
+            vertices = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=np.float64)
+            triangles = np.empty((0, 3), dtype=np.int64)
         row: dict = {"scan": name, "points": points}
         if len(triangles) == 0:  # points only
             cloud = vertices[np.random.default_rng(7).choice(len(vertices), points,
