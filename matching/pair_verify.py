@@ -326,16 +326,7 @@ def _grow_verified(status, points, res: LSMResult, frame: dict, geo, dirs, sides
         sel, nearest = cand[usable], j[usable, 0]
         start_aff = affine[nearest].copy()
         start_aff[:, 0], start_aff[:, 3] = mu[usable], mv[usable]
-        sub_status = np.full(n, Status.TEXTURELESS, np.uint8)
-        sub_status[sel] = Status.OK
-        sub_pos = np.full((n, 2), np.nan)
-        sub_pos[sel] = start_aff[:, [0, 3]]
-        sub_aff = np.full((n, 6), np.nan)
-        sub_aff[sel] = start_aff
-        sub_rad = np.full((n, 2), np.nan)
-        sub_rad[sel] = arrays["radiometric"][nearest]
-        sub = replace(res, status=sub_status, position=sub_pos, affine=sub_aff,
-                      radiometric=sub_rad)
+        sub_pos, sub = _started(res, sel, start_aff, arrays["radiometric"][nearest])
         out, geo_s, dirs_s, sides_s, _, frame_s = refine(sub_pos, sub, sides)
         ok_s = sel[(out.status[sel] == Status.OK) & np.isfinite(geo_s[sel])]
         if not len(ok_s):
@@ -428,6 +419,44 @@ def _neighbour_planes(xl, disparity, sigma, verified, cand, k: int):
     return pred, sigma_pred
 
 
+def _started(res: LSMResult, sel, start_aff, radiometric):
+    """The start positions (N, 2) and the result ``refine`` re-matches: the windows
+    ``sel`` accepted at ``start_aff``'s shift and shape with ``radiometric``, none else."""
+    n = len(res.status)
+    sub_status = np.full(n, Status.TEXTURELESS, np.uint8)
+    sub_status[sel] = Status.OK
+    sub_pos = np.full((n, 2), np.nan)
+    sub_pos[sel] = start_aff[:, [0, 3]]
+    sub_aff = np.full((n, 6), np.nan)
+    sub_aff[sel] = start_aff
+    sub_rad = np.full((n, 2), np.nan)
+    sub_rad[sel] = radiometric
+    return sub_pos, replace(res, status=sub_status, position=sub_pos, affine=sub_aff,
+                            radiometric=sub_rad)
+
+
+def _profile_starts(frame: dict, xl, lo, hi, patch: int, search_range):
+    """Which windows (rectified left points ``xl``) have one near-best run of their ZNCC
+    profile within the noise margin over the admitted disparities ``lo`` ... ``hi``,
+    inside them, no wider than half a patch, above the matcher's correlation floor and
+    with signal (:mod:`matching.uniqueness`); and the disparity of its best sample."""
+    fprep, gprep = frame["fprep"], frame["gprep"]
+    prof = uniqueness.zncc_profiles(fprep.raw, gprep.raw, xl, search_range, patch,
+                                    fprep.noise)
+    dd = prof.disparities[None, :]
+    inside = (dd >= lo[:, None]) & (dd <= hi[:, None])
+    cost = np.where(inside, prof.cost, np.nan)
+    runs, best, run_lo, run_hi = uniqueness.near_best_runs(cost, prof.margin)
+    first = np.argmax(inside, axis=1)
+    last = inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1)
+    top = cost[np.arange(len(xl)), np.minimum(best, cost.shape[1] - 1)]
+    min_corr = float(frame["opts"].get("min_correlation", 0.7))
+    usable = ((runs == 1) & (run_lo > first) & (run_hi < last)
+              & (run_hi - run_lo + 1 <= patch // 2) & (np.nan_to_num(top) >= min_corr)
+              & (prof.template_std > uniqueness.MIN_SNR * fprep.noise))
+    return usable, prof.disparities[best[usable]].astype(np.float64)
+
+
 def _grow_from_volume(status, points, res: LSMResult, frame: dict, geo, dirs, sides, refine,
                       patch: int, search_range, to_rectified, to_right, tried,
                       neighbours: int = 12):
@@ -467,40 +496,16 @@ def _grow_from_volume(status, points, res: LSMResult, frame: dict, geo, dirs, si
     lo = np.where(np.isfinite(pred), np.maximum(pred - half, dmin), dmin)
     hi = np.where(np.isfinite(pred), np.minimum(pred + half, dmin + count - 1),
                   dmin + count - 1)
-    fprep, gprep = frame["fprep"], frame["gprep"]
-    prof = uniqueness.zncc_profiles(fprep.raw, gprep.raw, xl[cand], (dmin, count), patch,
-                                    fprep.noise)
-    dd = prof.disparities[None, :]
-    inside = (dd >= lo[:, None]) & (dd <= hi[:, None])
-    cost = np.where(inside, prof.cost, np.nan)
-    runs, best, run_lo, run_hi = uniqueness.near_best_runs(cost, prof.margin)
-    first = np.argmax(inside, axis=1)
-    last = inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1)
-    rows = np.arange(len(cand))
-    top = cost[rows, np.minimum(best, cost.shape[1] - 1)]
-    min_corr = float(frame["opts"].get("min_correlation", 0.7))
-    usable = ((runs == 1) & (run_lo > first) & (run_hi < last)
-              & (run_hi - run_lo + 1 <= patch // 2) & (np.nan_to_num(top) >= min_corr)
-              & (prof.template_std > uniqueness.MIN_SNR * fprep.noise))
+    usable, d_start = _profile_starts(frame, xl[cand], lo, hi, patch, (dmin, count))
     if not usable.any():
         return res, grown, rival
     sel = cand[usable]
     tried[sel] = True
-    d_start = prof.disparities[best[usable]].astype(np.float64)
     start = to_right(np.column_stack([xl[sel, 0] - d_start, xl[sel, 1]]))
     nearest = verified[cKDTree(xl[verified]).query(xl[sel])[1]]
     start_aff = np.array(res.affine)[nearest].copy()
     start_aff[:, 0], start_aff[:, 3] = start[:, 0], start[:, 1]
-    sub_status = np.full(n, Status.TEXTURELESS, np.uint8)
-    sub_status[sel] = Status.OK
-    sub_pos = np.full((n, 2), np.nan)
-    sub_pos[sel] = start
-    sub_aff = np.full((n, 6), np.nan)
-    sub_aff[sel] = start_aff
-    sub_rad = np.full((n, 2), np.nan)
-    sub_rad[sel] = np.array(res.radiometric)[nearest]
-    sub = replace(res, status=sub_status, position=sub_pos, affine=sub_aff,
-                  radiometric=sub_rad)
+    sub_pos, sub = _started(res, sel, start_aff, np.array(res.radiometric)[nearest])
     out, geo_s, dirs_s, sides_s, _, frame_s = refine(sub_pos, sub, sides)
     new = np.zeros(n, bool)
     new[sel] = (out.status[sel] == Status.OK) & np.isfinite(geo_s[sel])
