@@ -352,9 +352,8 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     """Check every accepted match for a second solution along its epipolar line.
 
     The plain ZNCC profile (:func:`zncc_profiles`) finds the candidates cheaply; it cannot
-    decide alone, because a window's correlation at the true disparity drops with the
-    perspective distortion between the views while a repeat elsewhere may happen to be
-    less distorted (chessboard pair 02: 0.95 at the truth against 0.99 one period off).
+    decide alone: perspective lowers the truth's correlation, while a repeat elsewhere may
+    be less distorted (chessboard pair 02: 0.95 at the truth, 0.99 one period off).
     So each separated local maximum the matcher could accept (ZNCC >= its
     ``min_correlation``) is matched again by the matcher itself from there, with the
     solution's shape and radiometry: the match is ambiguous when such a re-match is
@@ -400,9 +399,8 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         accepted rival as good within m, or a failed re-match of a peak above the
         solution's by more than m, does.
     interval : (N, 2) array_like, optional
-        The disparities (px) geometry admits per match, from what does not depend on its
-        window (its verified neighbours' disparity plane within its spread); the profile
-        outside is not searched (default: the whole ``search_range``).
+        The disparities (px) geometry admits per match (not from its window: its verified
+        neighbours' plane); the profile outside is not searched (default: none).
 
     Returns
     -------
@@ -411,10 +409,8 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     n = len(points)
     verdict = np.full(n, OUTSIDE, np.uint8)
     tried = np.zeros(n, np.int64)
-    margin = np.full(n, np.nan)
+    margin, peak, peak_sigma = (np.full(n, np.nan) for _ in range(3))
     lobe = np.full((n, 2), np.nan)
-    peak = np.full(n, np.nan)
-    peak_sigma = np.full(n, np.nan)
     ok = np.flatnonzero(result.status == 0)
     rival_var = np.zeros(n)
     if not len(ok):
@@ -434,11 +430,7 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
     lobe[ok] = np.column_stack([lo + d0, hi + d0])
     m = correlation_margin(patch, window_noise, prof.template_std)
     margin[ok] = m
-    # the solution away from the profile's best peak, where the plain window would not
-    # even be accepted (ZNCC below the matcher's floor): the affine warp was bent to fit
-    # a lesser repeat (chessboard pair 02: slips at ZNCC 0.4-0.6, the truth at 0.99);
-    # above the floor the plain profile is not trusted over LSM -- foreshortening lowers
-    # the true peak's plain ZNCC (temple pairs)
+    # the solution away from the profile's best peak, below the matcher's floor
     filled, at_solution, not_best = _best_elsewhere(prof, sol, m, min_correlation)
     peaks = separated_peaks(prof, solution, float(min_correlation), max_peaks)  # (M, K)
     rows, cols = np.nonzero(np.isfinite(peaks) & has[:, None])
@@ -447,10 +439,7 @@ def verify_matches(match, points, result, left_rect, right_rect, xl_rect,
         _rematch_peaks(match, result, xl_rect, rect_to_right, shape, strict, ok, rows,
                        peaks[rows, cols], (lo, hi, d0), m, filled, at_solution, solution,
                        ambiguous, tried, rival_var)
-    sub, curvature = _parabola(prof.cost, top)
-    peak[ok] = top + d0 + sub
-    with np.errstate(divide="ignore", invalid="ignore"):
-        peak_sigma[ok] = np.where(curvature > 0, np.sqrt(2.0 * m / curvature), np.inf)
+    peak[ok], peak_sigma[ok] = _peak_at(prof.cost, top, d0, m)
     v = np.where(ambiguous, AMBIGUOUS, UNIQUE).astype(np.uint8)
     v[prof.template_std <= MIN_SNR * float(noise)] = BLANK
     v[~has] = OUTSIDE
@@ -528,6 +517,14 @@ def _rematch_peaks(match, result, xl_rect, rect_to_right, shape, strict, ok, row
     chance = np.where(np.isfinite(z), ndtr(-z), 1.0)
     sol_d = solution[rows]
     np.add.at(rival_var, i, chance * (d - sol_d) ** 2)
+
+
+def _peak_at(cost, top, d0: int, m):
+    """:func:`verify_matches`' sub-pixel peak at each solution's profile maximum ``top``
+    (index; ``d0`` the first disparity) and how far the margin ``m`` lets it move."""
+    sub, curvature = _parabola(cost, top)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return top + d0 + sub, np.where(curvature > 0, np.sqrt(2.0 * m / curvature), np.inf)
 
 
 def _parabola(cost, index):
