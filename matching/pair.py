@@ -338,16 +338,13 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         The ``aperture`` test's bound on the rig's row error through the edge slope, in
         units of the match's σ along the line (default 1); None: that part off.
     equalise_blur : bool
-        Epipolar pass: the rectified images' blur along the rows made equal where it
-        differs, measured from the matched windows
-        (:func:`matching.pair_epipolar._blur_balance`), in place of ``footprint_var``
-        (docs/decisions/stereo-blur.md).  Default on.
+        Epipolar pass: the rectified images' blur along the rows made equal, measured from
+        the matched windows, in place of ``footprint_var`` (default on;
+        :func:`matching.pair_epipolar._blur_balance`; docs/decisions/stereo-blur.md).
     far_growth : int
-        Epipolar pass: rounds (at most) in which the windows still unmatched from their
-        approximation start again where their verified neighbours' disparity plane (or
-        the scene range) leaves one unique peak
-        (:func:`matching.pair_verify._grow_from_volume`; docs/decisions/stereo-blur.md);
-        0: off.
+        Epipolar pass: rounds (at most; 0: off) starting the windows still unmatched where
+        their verified neighbours' disparity plane (or the scene range) leaves one unique
+        peak (:func:`matching.pair_verify._grow_from_volume`; stereo-far-growth.md).
     **lsm_options
         Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
 
