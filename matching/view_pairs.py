@@ -7,7 +7,10 @@ S\rVert)` and the angle between the optical axes decide: a pair is usable when
 ``min_ratio <= b/d <= max_ratio`` and the angle is at most ``max_angle_deg``; each view
 keeps its ``partners`` usable partners whose ratio is closest to ``target_ratio`` (1:4,
 the stereo recipe's base/distance).  Each unordered pair is returned once: any order
-rectifies (:mod:`matching.rectify` takes the baseline as the x axis).
+rectifies (:mod:`matching.rectify` takes the baseline as the x axis).  With ``cover``
+only enough of those pairs are kept that every view is in one (:func:`covering_pairs`):
+what a point needs to be kept (a pair and a further view to confirm it) without the
+redundant pairs whose fusion only lowers σ.
 
 The further views a pair's points are checked in (:func:`further_views`) are the
 nearest to its left view that can face the same surface, those inside the pair's own
@@ -23,7 +26,8 @@ import numpy as np
 from matching.cameras import Camera
 from matching.validate import TOL
 
-__all__ = ["scene_centre", "select_pairs", "further_views", "check_order"]
+__all__ = ["scene_centre", "select_pairs", "covering_pairs", "further_views",
+           "check_order"]
 
 
 def scene_centre(cameras: Sequence[Camera]) -> np.ndarray:
@@ -53,7 +57,8 @@ def scene_centre(cameras: Sequence[Camera]) -> np.ndarray:
 
 def select_pairs(cameras: Sequence[Camera], *, min_ratio: float = 0.1,
                  max_ratio: float = 0.6, target_ratio: float = 0.25,
-                 max_angle_deg: float = 40.0, partners: int = 2) -> list[tuple[int, int]]:
+                 max_angle_deg: float = 40.0, partners: int = 2,
+                 cover: bool = False) -> list[tuple[int, int]]:
     """View pairs by baseline-to-depth ratio and viewing angle (module docstring, step 1).
 
     Parameters
@@ -68,6 +73,8 @@ def select_pairs(cameras: Sequence[Camera], *, min_ratio: float = 0.1,
         Largest angle between the optical axes, degrees.
     partners : int
         Partners kept per view (2: both ring neighbours).
+    cover : bool
+        Of those pairs, only a cover of the views (:func:`covering_pairs`).
 
     Returns
     -------
@@ -95,11 +102,42 @@ def select_pairs(cameras: Sequence[Camera], *, min_ratio: float = 0.1,
         cand = np.flatnonzero(usable[i])
         best = cand[np.argsort(np.abs(ratio[i, cand] - target_ratio), kind="stable")]
         chosen.update((min(i, int(j)), max(i, int(j))) for j in best[:partners])
+    if cover:
+        chosen = covering_pairs(chosen, np.abs(ratio - target_ratio))
     pairs = []
     for a, b in chosen:  # each pair once, oriented by its lower-numbered view
         x_in_a = cameras[a].to_camera(centres[b][None])[0, 0]
         pairs.append((a, b) if x_in_a > 0 else (b, a))
     return sorted(pairs)
+
+
+def covering_pairs(pairs, badness: np.ndarray) -> set[tuple[int, int]]:
+    """Few of ``pairs`` (unordered ``(i, j)``, ``i < j``) with every view of them in one.
+
+    Views in index order: a view in no kept pair yet keeps its candidate pair of least
+    ``badness[i, j]`` (the ratio's distance from the target) whose other view is in none
+    either, else its least bad one.  On a ring in order this keeps every other
+    neighbour pair, (0, 1), (2, 3) ... (about half of them), and any three consecutive
+    views still hold a kept pair: a point seen by three neighbouring views -- what the
+    further-view check needs to keep it -- is matched by a kept pair and confirmed in
+    the third view.  What the dropped pairs gave is each point measured again by a
+    neighbouring pair (fused: σ lower by up to √2), and points their two views alone
+    see (which no further view can confirm).
+    """
+    partners: dict[int, list[int]] = {}
+    for i, j in pairs:
+        partners.setdefault(i, []).append(j)
+        partners.setdefault(j, []).append(i)
+    kept: set[tuple[int, int]] = set()
+    covered: set[int] = set()
+    for v in sorted(partners):
+        if v in covered:
+            continue
+        order = sorted(partners[v], key=lambda k: (k in covered, float(badness[v, k]), k))
+        k = order[0]
+        kept.add((min(v, k), max(v, k)))
+        covered.update((v, k))
+    return kept
 
 
 def further_views(cameras: Sequence[Camera], pair: tuple[int, int], count: int,

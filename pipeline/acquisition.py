@@ -371,11 +371,17 @@ def _matched(folder, loaded: dict, executor, check_views: int, masks: str, box,
     store = Path(scratch) / "pairs" if local else None
     if store is not None:
         store.mkdir()
+    # views of a ring read reduced: one pair's σ already meets what was asked (the scale
+    # is the coarsest that does, matching.resolution), so the pairs need only cover the
+    # views (matching.view_pairs.covering_pairs: any three neighbouring views of the ring
+    # still hold a kept pair), not measure each point again to fuse
+    ring = fit_ring(loaded["cameras"])
+    cover = bool(ring.is_ring) and loaded.get("working_scale", 1.0) < 1.0
     try:
         cloud = reconstruct_multiview(images, loaded["cameras"], map_func=map_func,
                                       check_views=check_views, masks=object_masks, roi=box,
                                       pair_store=None if store is None else str(store),
-                                      **match)
+                                      pair_options={"cover": cover}, **match)
     except ValueError as exc:
         raise InputError(f"{folder}: {exc}") from None
     finally:
@@ -388,6 +394,7 @@ def _matched(folder, loaded: dict, executor, check_views: int, masks: str, box,
                        view_names=loaded["names"], masks=mask_source,
                        working_scale=loaded.get("working_scale", 1.0),
                        working_scale_reason=loaded.get("working_scale_reason", ""),
+                       pairs_cover=cover,
                        peak_memory_gb=_peak_memory_gb(),
-                       ring=fit_ring(loaded["cameras"]).as_dict())
+                       ring=ring.as_dict())
     return cloud

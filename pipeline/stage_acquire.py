@@ -116,6 +116,7 @@ def _multiview_cloud(folder: Path, ctx: StageContext) -> tuple:
     skipped = stats.get("skipped", [])
     info = {"cameras": "pycolmap SfM" if source == "sfm" else Path(str(source)).name,
             "views": len(stats.get("view_names", [])), "pairs": len(cloud.pairs),
+            "pairs_cover": bool(stats.get("pairs_cover", False)),
             "pairs_skipped": len(skipped),
             **({"views_skipped": "; ".join(s["reason"] for s in stats["skipped_views"])}
                if stats.get("skipped_views") else {}),
