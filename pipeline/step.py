@@ -22,6 +22,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from pipeline.atomic import atomic_file, raise_if_full
 from pipeline.errors import InputError
@@ -94,10 +96,11 @@ def write_cad(path: str | os.PathLike, control_points: np.ndarray,
         With two spans, pair neighbouring control triangles into quadrilateral faces
         (``surface.bezier_quad``: half the Bézier spans a face pair), keeping
         control-triangle faces where a quadrilateral misses the tolerances or is left
-        unpaired: OpenCascade transfers the demo's in 5.6 CPU-s against 8.1, but
-        FreeCAD opens it no faster (22.7 against 20.6 CPU-s; 22.0 against 23.9 in
-        another run) and its kinks are larger (0.076 against 0.0005 degrees), so not
-        the default (``docs/decisions/export.md``).
+        unpaired; faces written each after a neighbour (:func:`_connected_order`).
+        FreeCAD opens the demo's in 12.9 and 15.3 CPU-s against the default file's 21.1
+        (in pairing order: 20.7), but its kinks are larger (0.076 against 0.0005
+        degrees, inside the angle gate) and it was not yet measured on every surface the
+        default touches, so not the default (``docs/decisions/export.md``).
     report : dict, optional
         Filled with ``faces``, ``merged`` (bool), with ``quads`` the ``quads`` and
         ``triangles`` written, and for a merge attempt
@@ -225,6 +228,30 @@ def _four_cornered(merged: dict) -> dict:
             "mids": np.column_stack([mids, np.full(len(mids), -1)])}
 
 
+def _connected_order(corners: np.ndarray) -> np.ndarray:
+    """The faces ``corners (F, 4)`` (corner 3 = corner 0: a collapsed side) in
+    breadth-first order over their shared sides, each after a neighbour.  OpenCascade's
+    shell orientation fix (``ShapeFix_Shell``, run by every STEP read) grows a shell
+    face by face, rescanning the faces left from the first: in an order where each face
+    touches one before it, it passes once (the quadrilateral file in pairing order spent
+    28 % of FreeCAD's import there, the control triangles' 0.5 %)."""
+    n = len(corners)
+    a, b = corners[:, [0, 1, 3, 0]], corners[:, [1, 2, 2, 3]]
+    valid = a != b
+    lo, hi = np.minimum(a, b)[valid], np.maximum(a, b)[valid]
+    face = np.broadcast_to(np.arange(n)[:, None], a.shape)[valid]
+    key = lo * (int(corners.max()) + 1) + hi
+    by = np.argsort(key, kind="stable")
+    k, f = key[by], face[by]
+    shared = k[1:] == k[:-1]
+    graph = coo_matrix((np.ones(int(shared.sum())), (f[:-1][shared], f[1:][shared])),
+                       shape=(n, n)).tocsr()
+    count, label = connected_components(graph, directed=False)
+    starts = np.unique(label, return_index=True)[1]
+    return np.concatenate([breadth_first_order(graph, int(s), directed=False,
+                                               return_predecessors=False) for s in starts])
+
+
 def _merged_quads(cp: np.ndarray, tris: np.ndarray, source: np.ndarray, tolerance: float,
                   report: dict, angle_tolerance: float | None) -> dict | None:
     """Quadrilateral faces (``surface.bezier_quad``) where within the tolerances and not
@@ -250,5 +277,7 @@ def _merged_quads(cp: np.ndarray, tris: np.ndarray, source: np.ndarray, toleranc
         tri = merged_faces(cp[chosen], tris[chosen], dense, spans=2)
         parts.append(_four_cornered(tri))
     merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    order = _connected_order(merged["corners"])
+    merged = {k: v[order] for k, v in merged.items()}
     report.update(quads=int(keep.sum()), triangles=int(len(single)))
     return merged if _passes(merged, tolerance, angle_tolerance, report) else None

@@ -383,3 +383,29 @@ def test_step_points_are_rounded_far_below_the_file_s_uncertainty(tmp_path, elli
     uncertainty = float(re.search(r"LENGTH_MEASURE\(([^)]*)\)", text).group(1))
     distance, _ = cKDTree(points).query(step.degenerate_nets(cp).reshape(-1, 3), p=np.inf)
     assert distance.max() <= uncertainty / 20
+
+
+def test_connected_order_puts_each_face_after_a_neighbour():
+    """Merged faces are written in breadth-first order over shared sides (OpenCascade's
+    shell orientation fix rescans from the first face otherwise): on a shuffled 12 x 12
+    grid of quadrilaterals plus a collapsed (triangle) face, every face but the first
+    shares a side with a face before it, and the order is a permutation."""
+    from pipeline.step import _connected_order
+
+    n = 12
+    ids = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    quads = np.stack([ids[:-1, :-1], ids[:-1, 1:], ids[1:, 1:], ids[1:, :-1]], axis=-1)
+    corners = quads.reshape(-1, 4)
+    tri = np.array([[ids[0, 0], ids[0, 1], ids[-1, -1], ids[0, 0]]])  # side 3 collapsed
+    corners = np.concatenate([corners, tri])
+    corners = corners[np.random.default_rng(3).permutation(len(corners))]
+    order = _connected_order(corners)
+    assert np.array_equal(np.sort(order), np.arange(len(corners)))
+
+    def sides(c):
+        pairs = [(c[0], c[1]), (c[1], c[2]), (c[3], c[2]), (c[0], c[3])]
+        return {tuple(sorted(p)) for p in pairs if p[0] != p[1]}
+    seen = sides(corners[order[0]])
+    for f in order[1:]:
+        assert sides(corners[f]) & seen
+        seen |= sides(corners[f])
