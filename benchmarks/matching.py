@@ -432,200 +432,217 @@ def real_figures(folder: Path, quick: bool, goals: dict,
                  sets: tuple[str, ...] = ("graffiti", "temple"),
                  graffiti_patch: int | None = None) -> dict:
     """Graffiti and temple figures (``_real_matching``), printed; goals added in place."""
-    import _real_matching as real
-
     out = {}
     if "graffiti" in sets and (folder / "graffiti" / "graf1.png").is_file():
-        gr = real.graffiti(folder / "graffiti", quick,
-                           real.GRAFFITI_PATCH if graffiti_patch is None else graffiti_patch)
-        out["graffiti"] = gr
-        print(f"\ngraffiti graf1 -> graf3, {gr['candidates']} candidates (spacing "
-              f"{gr['spacing']}, {gr['patch']}x{gr['patch']}; flat-block noise "
-              f"{gr['noise_flat_blocks']:.2f}); growth: {gr['grown']} grown in "
-              f"{gr['rounds']} rounds")
-        print(f"{'method':50s} {'accepted':>8s} {'>2px H':>7s} {'>2px sm':>7s} "
-              f"{'resid px':>8s} {'resid/σ':>7s} {'points/s':>9s}")
-        for r in gr["rows"]:
-            ratio = r.get("residual_over_sigma")
-            print(f"{r['method']:50s} {100 * r['accepted']:7.1f}% "
-                  f"{100 * r['beyond_2px_of_homography']:6.1f}% "
-                  f"{100 * r['beyond_2px_of_smooth']:6.1f}% {r['residual_rms_px']:8.3f} "
-                  f"{'' if ratio is None else f'{ratio:7.2f}':>7s} {r['points_per_s']:9.0f}")
-        syn = gr["synthetic"]
-        for r in syn["rows"]:
-            print(f"{r['method']:50s} {100 * r['accepted']:7.1f}% "
-                  f"{100 * r['beyond_2px_of_homography']:6.1f}% {'(exact)':>7s} "
-                  f"{r['residual_rms_px']:8.3f} {r['residual_over_sigma']:7.2f} "
-                  f"{r['points_per_s']:9.0f}")
-        print(f"  (synthetic graf3: graf1 through the homography, pixel-area integration, "
-              f"+ noise {syn['noise_added']:.2f}; truth exact; k² "
-              f"{syn['rows'][1]['variance_factor']:.1f}, residual / (σ k) "
-              f"{syn['rows'][1]['residual_over_sigma_with_factor']:.2f})")
-        print(f"  (real rows judged on the wall plane: {gr['candidates_off_wall']} "
-              f"candidates below the step / on the car left out)")
-        rob = next((r for r in gr["rows"] if r["method"].startswith("LSM + growing, robust")),
-                   None)
-        if rob is not None:
-            print(f"  (robust LSM: k² {rob['variance_factor']:.1f}, residual / (σ k) "
-                  f"{rob['residual_over_sigma_with_factor']:.2f})")
-        by = {r["method"]: r for r in gr["rows"]}
-        lsm = by["LSM + region growing (retries from neighbours)"]
-        ecc = by["cv2.findTransformECC gauss=1 (per patch, subset)"]
-        sub = by["LSM + growing on the ECC subset"]
-        print(f"forward-backward (a lower bound: both directions share the pixels' "
-              f"noise): loop RMS {lsm['fb_loop_rms_px']:.3f} px, k² "
-              f"{lsm['fb_variance_factor']:.2f}; residual / (σ k) "
-              f"{lsm['residual_over_sigma_with_fb_factor']:.2f}")
-        print(f"variance factor from independent neighbouring windows' midpoints "
-              f"(matching.precision, what match_pair applies): k² "
-              f"{lsm['variance_factor']:.1f}; residual / (σ k) "
-              f"{lsm['residual_over_sigma_with_factor']:.2f} (RMS over RMS), "
-              f"{lsm['median_residual_over_sigma_with_factor']:.2f} (median |e|/σk over "
-              f"its Gaussian value)")
-        for label, row in (("real", lsm), ("synthetic", syn["rows"][1])):
-            ps = row["parallax_split"]
-            print(f"{label}: residual along / across the epipolar lines (plane + parallax: "
-                  f"a relief moves points along them only): {ps['along_rms_px']:.3f} / "
-                  f"{ps['across_rms_px']:.3f} px, over σ k {ps['along_over_sigma_k']:.2f} / "
-                  f"{ps['across_over_sigma_k']:.2f}, correlation between windows 1-1.5 "
-                  f"sides apart {ps['along_neighbour_correlation']:.2f} / "
-                  f"{ps['across_neighbour_correlation']:.2f}")
-        _graffiti_goals(goals, lsm, "")
-        goals["graffiti_lsm_le_0.75x_ecc"] = (sub["residual_rms_px"]
-                                              <= 0.75 * ecc["residual_rms_px"])
-        ici = next((r for r in gr["rows"] if "window by ICI" in r["method"]), None)
-        if ici is not None:   # the same goals with each point's window chosen by ICI
-            print(f"ICI windows (matching.ici): sides {ici['sides']}; k² "
-                  f"{ici['variance_factor']:.1f}; residual / (σ k) "
-                  f"{ici['residual_over_sigma_with_factor']:.2f}; along / across the epipolar "
-                  f"lines {ici['parallax_split']['along_rms_px']:.3f} / "
-                  f"{ici['parallax_split']['across_rms_px']:.3f} px")
-            _graffiti_goals(goals, ici, " (ICI windows)")
-        pop = next((r for r in gr["rows"] if "population rule" in r["method"]), None)
-        if pop is not None:   # and with each point's window by the population rule
-            print(f"population rule (matching.ici.population_sides): sides {pop['sides']}; k² "
-                  f"{pop['variance_factor']:.1f}; residual / (σ k) "
-                  f"{pop['residual_over_sigma_with_factor']:.2f}")
-            _graffiti_goals(goals, pop, " (population rule)")
+        out["graffiti"] = _graffiti_figures(folder, quick, goals, graffiti_patch)
     if "temple" in sets and (folder / "temple_sparse_ring" / "templeSR_par.txt").is_file():
-        te = real.temple(folder / "temple_sparse_ring", quick)
-        out["temple"] = te
-        print("\ntemple neighbouring pairs (rectified, spacing 4, 15x15):")
-        print(f"{'pair':>7s} {'on obj':>7s} {'accepted':>8s} {'LSM fb':>7s} {'σ_x':>6s} "
-              f"{'fb/σ':>5s} {'k²':>5s} {'same':>5s} {'LSM fb':>7s} {'SGBM lr':>7s}")
-        for r in te["rows"]:
-            print(f"{str(tuple(r['pair'])):>7s} {r['candidates_on_object']:7d} "
-                  f"{100 * r['accepted_share_on_object']:7.1f}% {r['lsm_fb_loop_rms_px']:7.3f} "
-                  f"{r['lsm_reported_sigma_x_rms_px']:6.3f} {r['lsm_fb_over_sigma']:5.2f} "
-                  f"{r['variance_factor']:5.1f} {r['same_pixels']:5d} "
-                  f"{r['lsm_fb_loop_rms_same_px']:7.3f} {r['sgbm_lr_loop_rms_same_px']:7.3f}")
-        for r in te["rows"]:
-            print(f"{str(tuple(r['pair'])):>7s} accepted: interior windows "
-                  f"({100 * r['interior_share_of_object']:.0f} % of the object's) "
-                  f"{100 * r['accepted_share_interior']:.1f} %, outline "
-                  f"{100 * r['accepted_share_outline']:.1f} %; eccentric windows "
-                  f"(match_pair(eccentric=True), the ring pipeline's): object "
-                  f"{100 * r['accepted_share_on_object_eccentric']:.1f} %, interior "
-                  f"{100 * r['accepted_share_interior_eccentric']:.1f} %")
-        for r in te["rows"]:
-            total = sum(r["status_on_object"].values())
-            print(f"{str(tuple(r['pair'])):>7s} statuses of the object's candidates: " + ", ".join(
-                f"{k} {100 * v / total:.1f}" for k, v in sorted(
-                    r["status_on_object"].items(), key=lambda kv: -kv[1])))
-        for r in te["rows"]:
-            seen = r["status_seen_in_both"]
-            total = max(sum(seen.values()), 1)
-            print(f"{str(tuple(r['pair'])):>7s} seen by both views (16-view reference cloud, "
-                  f"benchmarks/_visibility.py; a rough proxy): "
-                  f"{100 * r['seen_in_both_share_of_object']:.1f} % of the object "
-                  f"(a reference surface at {100 * r['reference_surface_share_of_object']:.1f} "
-                  f"%), accepted {100 * r['accepted_share_seen_in_both']:.1f} % of those; "
-                  f"their losses: " + ", ".join(
-                      f"{k} {100 * v / total:.1f}" for k, v in sorted(
-                          seen.items(), key=lambda kv: -kv[1]) if k != "ok"))
-        cp = te["cross_pair"]
-        print(f"\ncross-pair check (every ring pair, {len(cp['pairs'])}; P's match transferred "
-              f"into a pair Q without a common view, ray angle <= {cp['max_angle_deg']:.0f} deg, "
-              f"|δ| < {cp['bound_px']:.0f} px, the cameras' trend removed; core σ of δ "
-              f"(mixture fit) and outlier share; δ/σ: LSM's δ over both pairs' reported σ):")
-        print(f"{'P':>8s} {'Q':>8s} {'angle':>5s} {'points':>6s} {'LSM δ':>6s} {'out':>4s} "
-              f"{'SGBM δ':>6s} {'out':>4s} {'ratio':>5s} {'δ/σ':>5s} {'trend':>5s}")
-        for c in cp["comparisons"]:
-            print(f"{str(tuple(c['P'])):>8s} {str(tuple(c['Q'])):>8s} "
-                  f"{c['angle_median_deg']:5.1f} {c['points']:6d} {c['lsm_px']:6.3f} "
-                  f"{100 * c['lsm_outliers']:3.0f}% {c['sgbm_px']:6.3f} "
-                  f"{100 * c['sgbm_outliers']:3.0f}% {c['sgbm_over_lsm']:5.2f} "
-                  f"{c['lsm_over_reported']:5.2f} {c['trend_rms_px']:5.2f}")
-        for name, v in cp["summary"].items():
-            print(f"medians, {name} ({v['comparisons']} comparisons, {v['points']} points): "
-                  f"LSM δ {v['lsm_px']:.3f} px, SGBM δ {v['sgbm_px']:.3f} px, SGBM/LSM "
-                  f"{v['sgbm_over_lsm']:.2f}, LSM δ/σ {v['lsm_over_reported']:.2f}, outliers "
-                  f"LSM {100 * v['lsm_outliers']:.0f} % SGBM {100 * v['sgbm_outliers']:.0f} %, "
-                  f"cameras' trend {v['trend_rms_px']:.2f} px")
-        for cls, summary in cp["summary_by_window_class"].items():
-            for name, v in summary.items():
-                print(f"{cls} windows only (P and Q), {name} ({v['comparisons']} comparisons, "
-                      f"{v['points']} points): LSM δ {v['lsm_px']:.3f} px, SGBM δ "
-                      f"{v['sgbm_px']:.3f} px, SGBM/LSM {v['sgbm_over_lsm']:.2f}, LSM δ/σ "
-                      f"{v['lsm_over_reported']:.2f}, outliers LSM "
-                      f"{100 * v['lsm_outliers']:.0f} % SGBM {100 * v['sgbm_outliers']:.0f} %")
-        print(f"{'pair':>8s} {'comp':>4s} {'LSM':>6s} {'SGBM':>6s} {'act/σ':>6s} {'σ k':>6s} "
-              f"{'k²':>5s} {'k²edge':>6s} {'med SGBM/LSM':>12s} {'med δ/σ':>7s}   (network; fit "
-              f"{cp['network']['fit_relative_rms']})")
-        for p in cp["network"]["pairs"]:
-            print(f"{str(tuple(p['pair'])):>8s} {p['comparisons']:4d} {p['lsm_px']:6.3f} "
-                  f"{p['sgbm_px']:6.3f} {p['lsm_over_reported']:6.2f} "
-                  f"{p['reported_sigma_rms_px']:6.3f} {p['variance_factor']:5.0f} "
-                  f"{p['variance_factor_edge']:6.0f} "
-                  f"{p['median_sgbm_over_lsm']:12.2f} {p['median_lsm_over_reported']:7.2f}")
-        # the peer in the same process: robust LSM on the edge windows (robust="edge")
-        ew = cp["robust_edge"]
-        print("\nequal-weight LSM (match_pair's default, robust=False) against robust LSM on "
-              "the edge windows (robust='edge'), same process:")
-        print(f"{'':34s} {'comps':>5s} {'points':>6s} {'LSM δ':>6s} {'SGBM δ':>6s} "
-              f"{'ratio':>5s} {'δ/σ':>5s} {'out LSM':>7s} {'SGBM':>5s}")
-        for label, key in (("all", "all"), ("rays < 35 deg", "below_35deg")):
-            for tag, summ in (("equal-weight", cp["summary"]), ("robust='edge'", ew["summary"])):
-                v = summ.get(key)
-                if v:
-                    print(f"{label + ', ' + tag:34s} {v['comparisons']:5d} {v['points']:6d} "
-                          f"{v['lsm_px']:6.3f} {v['sgbm_px']:6.3f} {v['sgbm_over_lsm']:5.2f} "
-                          f"{v['lsm_over_reported']:5.2f} {100 * v['lsm_outliers']:6.0f}% "
-                          f"{100 * v['sgbm_outliers']:4.0f}%")
-        for cls in ("clear", "edge"):
-            for tag, summ in (("equal-weight", cp["summary_by_window_class"]),
-                              ("robust='edge'", ew["summary_by_window_class"])):
-                v = summ[cls].get("below_35deg")
-                if v:
-                    print(f"{cls + ' < 35 deg, ' + tag:34s} {v['comparisons']:5d} "
-                          f"{v['points']:6d} {v['lsm_px']:6.3f} {v['sgbm_px']:6.3f} "
-                          f"{v['sgbm_over_lsm']:5.2f} {v['lsm_over_reported']:5.2f} "
-                          f"{100 * v['lsm_outliers']:6.0f}% {100 * v['sgbm_outliers']:4.0f}%")
-        for r in te["rows"]:
-            c, e = r["cross_pair"], r["cross_pair_robust_edge"]
-            print(f"{str(tuple(r['pair'])):>8s} accepted on the object "
-                  f"{100 * r['accepted_share_on_object']:.1f} % (robust='edge' "
-                  f"{100 * r['accepted_share_on_object_robust_edge']:.1f} %), edge windows "
-                  f"{100 * r['edge_share_of_accepted']:.0f} % of the accepted; median "
-                  f"SGBM/LSM {c['median_sgbm_over_lsm']:.2f} ({e['median_sgbm_over_lsm']:.2f}), "
-                  f"δ/σ {c['median_lsm_over_reported']:.2f} "
-                  f"({e['median_lsm_over_reported']:.2f})")
-        d = te["dense"]
-        print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
-              f"{d['image'][0]}x{d['image'][1]}: {d['px_per_s']:.0f} px/s "
-              f"({d['accepted']} of {d['candidates']} candidates accepted in "
-              f"{d['seconds']:.1f} s)")
-        rows = te["rows"]
-        goals["temple_accepted_on_object_ge_80pct"] = all(
-            r["accepted_share_on_object"] >= 0.8 for r in rows)
-        # σ and LSM against SGBM by the cross-pair check (the loops bound the error from
-        # below only): per benchmark pair the median over the comparisons it enters
-        cross = [r["cross_pair"] for r in rows]
-        goals["temple_cross_pair_sigma_within_1.5x"] = all(
-            1 / 1.5 <= c["median_lsm_over_reported"] <= 1.5 for c in cross)
-        goals["temple_cross_pair_lsm_2x_more_precise_than_sgbm"] = all(
-            c["median_sgbm_over_lsm"] >= 2 for c in cross)
+        out["temple"] = _temple_figures(folder, quick, goals)
     return out
+
+
+def _graffiti_figures(folder: Path, quick: bool, goals: dict, graffiti_patch: int | None) -> dict:
+    """Graffiti (``_real_matching.graffiti``): its tables printed, its goals added."""
+    import _real_matching as real
+
+    gr = real.graffiti(folder / "graffiti", quick,
+                       real.GRAFFITI_PATCH if graffiti_patch is None else graffiti_patch)
+    print(f"\ngraffiti graf1 -> graf3, {gr['candidates']} candidates (spacing "
+          f"{gr['spacing']}, {gr['patch']}x{gr['patch']}; flat-block noise "
+          f"{gr['noise_flat_blocks']:.2f}); growth: {gr['grown']} grown in "
+          f"{gr['rounds']} rounds")
+    print(f"{'method':50s} {'accepted':>8s} {'>2px H':>7s} {'>2px sm':>7s} "
+          f"{'resid px':>8s} {'resid/σ':>7s} {'points/s':>9s}")
+    for r in gr["rows"]:
+        ratio = r.get("residual_over_sigma")
+        print(f"{r['method']:50s} {100 * r['accepted']:7.1f}% "
+              f"{100 * r['beyond_2px_of_homography']:6.1f}% "
+              f"{100 * r['beyond_2px_of_smooth']:6.1f}% {r['residual_rms_px']:8.3f} "
+              f"{'' if ratio is None else f'{ratio:7.2f}':>7s} {r['points_per_s']:9.0f}")
+    syn = gr["synthetic"]
+    for r in syn["rows"]:
+        print(f"{r['method']:50s} {100 * r['accepted']:7.1f}% "
+              f"{100 * r['beyond_2px_of_homography']:6.1f}% {'(exact)':>7s} "
+              f"{r['residual_rms_px']:8.3f} {r['residual_over_sigma']:7.2f} "
+              f"{r['points_per_s']:9.0f}")
+    print(f"  (synthetic graf3: graf1 through the homography, pixel-area integration, "
+          f"+ noise {syn['noise_added']:.2f}; truth exact; k² "
+          f"{syn['rows'][1]['variance_factor']:.1f}, residual / (σ k) "
+          f"{syn['rows'][1]['residual_over_sigma_with_factor']:.2f})")
+    print(f"  (real rows judged on the wall plane: {gr['candidates_off_wall']} "
+          f"candidates below the step / on the car left out)")
+    rob = next((r for r in gr["rows"] if r["method"].startswith("LSM + growing, robust")),
+               None)
+    if rob is not None:
+        print(f"  (robust LSM: k² {rob['variance_factor']:.1f}, residual / (σ k) "
+              f"{rob['residual_over_sigma_with_factor']:.2f})")
+    by = {r["method"]: r for r in gr["rows"]}
+    lsm = by["LSM + region growing (retries from neighbours)"]
+    ecc = by["cv2.findTransformECC gauss=1 (per patch, subset)"]
+    sub = by["LSM + growing on the ECC subset"]
+    print(f"forward-backward (a lower bound: both directions share the pixels' "
+          f"noise): loop RMS {lsm['fb_loop_rms_px']:.3f} px, k² "
+          f"{lsm['fb_variance_factor']:.2f}; residual / (σ k) "
+          f"{lsm['residual_over_sigma_with_fb_factor']:.2f}")
+    print(f"variance factor from independent neighbouring windows' midpoints "
+          f"(matching.precision, what match_pair applies): k² "
+          f"{lsm['variance_factor']:.1f}; residual / (σ k) "
+          f"{lsm['residual_over_sigma_with_factor']:.2f} (RMS over RMS), "
+          f"{lsm['median_residual_over_sigma_with_factor']:.2f} (median |e|/σk over "
+          f"its Gaussian value)")
+    for label, row in (("real", lsm), ("synthetic", syn["rows"][1])):
+        ps = row["parallax_split"]
+        print(f"{label}: residual along / across the epipolar lines (plane + parallax: "
+              f"a relief moves points along them only): {ps['along_rms_px']:.3f} / "
+              f"{ps['across_rms_px']:.3f} px, over σ k {ps['along_over_sigma_k']:.2f} / "
+              f"{ps['across_over_sigma_k']:.2f}, correlation between windows 1-1.5 "
+              f"sides apart {ps['along_neighbour_correlation']:.2f} / "
+              f"{ps['across_neighbour_correlation']:.2f}")
+    _graffiti_goals(goals, lsm, "")
+    goals["graffiti_lsm_le_0.75x_ecc"] = (sub["residual_rms_px"]
+                                          <= 0.75 * ecc["residual_rms_px"])
+    ici = next((r for r in gr["rows"] if "window by ICI" in r["method"]), None)
+    if ici is not None:   # the same goals with each point's window chosen by ICI
+        print(f"ICI windows (matching.ici): sides {ici['sides']}; k² "
+              f"{ici['variance_factor']:.1f}; residual / (σ k) "
+              f"{ici['residual_over_sigma_with_factor']:.2f}; along / across the epipolar "
+              f"lines {ici['parallax_split']['along_rms_px']:.3f} / "
+              f"{ici['parallax_split']['across_rms_px']:.3f} px")
+        _graffiti_goals(goals, ici, " (ICI windows)")
+    pop = next((r for r in gr["rows"] if "population rule" in r["method"]), None)
+    if pop is not None:   # and with each point's window by the population rule
+        print(f"population rule (matching.ici.population_sides): sides {pop['sides']}; k² "
+              f"{pop['variance_factor']:.1f}; residual / (σ k) "
+              f"{pop['residual_over_sigma_with_factor']:.2f}")
+        _graffiti_goals(goals, pop, " (population rule)")
+    return gr
+
+
+def _temple_figures(folder: Path, quick: bool, goals: dict) -> dict:
+    """The temple's pairs (``_real_matching.temple``): its tables printed, its goals added."""
+    import _real_matching as real
+
+    te = real.temple(folder / "temple_sparse_ring", quick)
+    print("\ntemple neighbouring pairs (rectified, spacing 4, 15x15):")
+    print(f"{'pair':>7s} {'on obj':>7s} {'accepted':>8s} {'LSM fb':>7s} {'σ_x':>6s} "
+          f"{'fb/σ':>5s} {'k²':>5s} {'same':>5s} {'LSM fb':>7s} {'SGBM lr':>7s}")
+    for r in te["rows"]:
+        print(f"{str(tuple(r['pair'])):>7s} {r['candidates_on_object']:7d} "
+              f"{100 * r['accepted_share_on_object']:7.1f}% {r['lsm_fb_loop_rms_px']:7.3f} "
+              f"{r['lsm_reported_sigma_x_rms_px']:6.3f} {r['lsm_fb_over_sigma']:5.2f} "
+              f"{r['variance_factor']:5.1f} {r['same_pixels']:5d} "
+              f"{r['lsm_fb_loop_rms_same_px']:7.3f} {r['sgbm_lr_loop_rms_same_px']:7.3f}")
+    for r in te["rows"]:
+        print(f"{str(tuple(r['pair'])):>7s} accepted: interior windows "
+              f"({100 * r['interior_share_of_object']:.0f} % of the object's) "
+              f"{100 * r['accepted_share_interior']:.1f} %, outline "
+              f"{100 * r['accepted_share_outline']:.1f} %; eccentric windows "
+              f"(match_pair(eccentric=True), the ring pipeline's): object "
+              f"{100 * r['accepted_share_on_object_eccentric']:.1f} %, interior "
+              f"{100 * r['accepted_share_interior_eccentric']:.1f} %")
+    for r in te["rows"]:
+        total = sum(r["status_on_object"].values())
+        print(f"{str(tuple(r['pair'])):>7s} statuses of the object's candidates: " + ", ".join(
+            f"{k} {100 * v / total:.1f}" for k, v in sorted(
+                r["status_on_object"].items(), key=lambda kv: -kv[1])))
+    for r in te["rows"]:
+        seen = r["status_seen_in_both"]
+        total = max(sum(seen.values()), 1)
+        print(f"{str(tuple(r['pair'])):>7s} seen by both views (16-view reference cloud, "
+              f"benchmarks/_visibility.py; a rough proxy): "
+              f"{100 * r['seen_in_both_share_of_object']:.1f} % of the object "
+              f"(a reference surface at {100 * r['reference_surface_share_of_object']:.1f} "
+              f"%), accepted {100 * r['accepted_share_seen_in_both']:.1f} % of those; "
+              f"their losses: " + ", ".join(
+                  f"{k} {100 * v / total:.1f}" for k, v in sorted(
+                      seen.items(), key=lambda kv: -kv[1]) if k != "ok"))
+    _print_cross_pair(te)
+    for r in te["rows"]:
+        c, e = r["cross_pair"], r["cross_pair_robust_edge"]
+        print(f"{str(tuple(r['pair'])):>8s} accepted on the object "
+              f"{100 * r['accepted_share_on_object']:.1f} % (robust='edge' "
+              f"{100 * r['accepted_share_on_object_robust_edge']:.1f} %), edge windows "
+              f"{100 * r['edge_share_of_accepted']:.0f} % of the accepted; median "
+              f"SGBM/LSM {c['median_sgbm_over_lsm']:.2f} ({e['median_sgbm_over_lsm']:.2f}), "
+              f"δ/σ {c['median_lsm_over_reported']:.2f} "
+              f"({e['median_lsm_over_reported']:.2f})")
+    d = te["dense"]
+    print(f"dense mode (spacing 1) on the rectified pair {tuple(d['pair'])}, "
+          f"{d['image'][0]}x{d['image'][1]}: {d['px_per_s']:.0f} px/s "
+          f"({d['accepted']} of {d['candidates']} candidates accepted in "
+          f"{d['seconds']:.1f} s)")
+    rows = te["rows"]
+    goals["temple_accepted_on_object_ge_80pct"] = all(
+        r["accepted_share_on_object"] >= 0.8 for r in rows)
+    # σ and LSM against SGBM by the cross-pair check (the loops bound the error from
+    # below only): per benchmark pair the median over the comparisons it enters
+    cross = [r["cross_pair"] for r in rows]
+    goals["temple_cross_pair_sigma_within_1.5x"] = all(
+        1 / 1.5 <= c["median_lsm_over_reported"] <= 1.5 for c in cross)
+    goals["temple_cross_pair_lsm_2x_more_precise_than_sgbm"] = all(
+        c["median_sgbm_over_lsm"] >= 2 for c in cross)
+    return te
+
+
+def _print_cross_pair(te: dict) -> None:
+    """The temple's cross-pair check: per comparison, the summaries, the network, robust LSM."""
+    cp = te["cross_pair"]
+    print(f"\ncross-pair check (every ring pair, {len(cp['pairs'])}; P's match transferred "
+          f"into a pair Q without a common view, ray angle <= {cp['max_angle_deg']:.0f} deg, "
+          f"|δ| < {cp['bound_px']:.0f} px, the cameras' trend removed; core σ of δ "
+          f"(mixture fit) and outlier share; δ/σ: LSM's δ over both pairs' reported σ):")
+    print(f"{'P':>8s} {'Q':>8s} {'angle':>5s} {'points':>6s} {'LSM δ':>6s} {'out':>4s} "
+          f"{'SGBM δ':>6s} {'out':>4s} {'ratio':>5s} {'δ/σ':>5s} {'trend':>5s}")
+    for c in cp["comparisons"]:
+        print(f"{str(tuple(c['P'])):>8s} {str(tuple(c['Q'])):>8s} "
+              f"{c['angle_median_deg']:5.1f} {c['points']:6d} {c['lsm_px']:6.3f} "
+              f"{100 * c['lsm_outliers']:3.0f}% {c['sgbm_px']:6.3f} "
+              f"{100 * c['sgbm_outliers']:3.0f}% {c['sgbm_over_lsm']:5.2f} "
+              f"{c['lsm_over_reported']:5.2f} {c['trend_rms_px']:5.2f}")
+    for name, v in cp["summary"].items():
+        print(f"medians, {name} ({v['comparisons']} comparisons, {v['points']} points): "
+              f"LSM δ {v['lsm_px']:.3f} px, SGBM δ {v['sgbm_px']:.3f} px, SGBM/LSM "
+              f"{v['sgbm_over_lsm']:.2f}, LSM δ/σ {v['lsm_over_reported']:.2f}, outliers "
+              f"LSM {100 * v['lsm_outliers']:.0f} % SGBM {100 * v['sgbm_outliers']:.0f} %, "
+              f"cameras' trend {v['trend_rms_px']:.2f} px")
+    for cls, summary in cp["summary_by_window_class"].items():
+        for name, v in summary.items():
+            print(f"{cls} windows only (P and Q), {name} ({v['comparisons']} comparisons, "
+                  f"{v['points']} points): LSM δ {v['lsm_px']:.3f} px, SGBM δ "
+                  f"{v['sgbm_px']:.3f} px, SGBM/LSM {v['sgbm_over_lsm']:.2f}, LSM δ/σ "
+                  f"{v['lsm_over_reported']:.2f}, outliers LSM "
+                  f"{100 * v['lsm_outliers']:.0f} % SGBM {100 * v['sgbm_outliers']:.0f} %")
+    print(f"{'pair':>8s} {'comp':>4s} {'LSM':>6s} {'SGBM':>6s} {'act/σ':>6s} {'σ k':>6s} "
+          f"{'k²':>5s} {'k²edge':>6s} {'med SGBM/LSM':>12s} {'med δ/σ':>7s}   (network; fit "
+          f"{cp['network']['fit_relative_rms']})")
+    for p in cp["network"]["pairs"]:
+        print(f"{str(tuple(p['pair'])):>8s} {p['comparisons']:4d} {p['lsm_px']:6.3f} "
+              f"{p['sgbm_px']:6.3f} {p['lsm_over_reported']:6.2f} "
+              f"{p['reported_sigma_rms_px']:6.3f} {p['variance_factor']:5.0f} "
+              f"{p['variance_factor_edge']:6.0f} "
+              f"{p['median_sgbm_over_lsm']:12.2f} {p['median_lsm_over_reported']:7.2f}")
+    # the peer in the same process: robust LSM on the edge windows (robust="edge")
+    ew = cp["robust_edge"]
+    print("\nequal-weight LSM (match_pair's default, robust=False) against robust LSM on "
+          "the edge windows (robust='edge'), same process:")
+    print(f"{'':34s} {'comps':>5s} {'points':>6s} {'LSM δ':>6s} {'SGBM δ':>6s} "
+          f"{'ratio':>5s} {'δ/σ':>5s} {'out LSM':>7s} {'SGBM':>5s}")
+    for label, key in (("all", "all"), ("rays < 35 deg", "below_35deg")):
+        for tag, summ in (("equal-weight", cp["summary"]), ("robust='edge'", ew["summary"])):
+            v = summ.get(key)
+            if v:
+                print(f"{label + ', ' + tag:34s} {v['comparisons']:5d} {v['points']:6d} "
+                      f"{v['lsm_px']:6.3f} {v['sgbm_px']:6.3f} {v['sgbm_over_lsm']:5.2f} "
+                      f"{v['lsm_over_reported']:5.2f} {100 * v['lsm_outliers']:6.0f}% "
+                      f"{100 * v['sgbm_outliers']:4.0f}%")
+    for cls in ("clear", "edge"):
+        for tag, summ in (("equal-weight", cp["summary_by_window_class"]),
+                          ("robust='edge'", ew["summary_by_window_class"])):
+            v = summ[cls].get("below_35deg")
+            if v:
+                print(f"{cls + ' < 35 deg, ' + tag:34s} {v['comparisons']:5d} "
+                      f"{v['points']:6d} {v['lsm_px']:6.3f} {v['sgbm_px']:6.3f} "
+                      f"{v['sgbm_over_lsm']:5.2f} {v['lsm_over_reported']:5.2f} "
+                      f"{100 * v['lsm_outliers']:6.0f}% {100 * v['sgbm_outliers']:4.0f}%")
 
 
 def chessboard(folder: Path, json_path: str, pairs=None, spacing: int | None = None,
@@ -727,7 +744,7 @@ def tiles_part(json_path: str) -> int:
     return 0
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="512x384 render, fewer ECC calls")
     parser.add_argument("--json", help="output (default benchmarks/results/matching.json, "
@@ -750,50 +767,15 @@ def main(argv=None) -> int:
                         help="chessboard: match_pair(regrow_ambiguous=False)")
     parser.add_argument("--no-2d", action="store_true",
                         help="chessboard: skip the same run without the epipolar pass")
-    args = parser.parse_args(argv)
-    results = ROOT / "benchmarks" / "results"
-    if args.json is None:
-        args.json = str(results / ("matching.json" if args.part == "all"
-                                   else f"matching_{args.part}.json"))
-    if args.part == "chessboard":
-        return chessboard(Path(args.real_data) / "chessboard_stereo", args.json,
-                          None if args.pairs is None else args.pairs.split(","),
-                          spacing=args.spacing, compare_2d=not args.no_2d,
-                          regrow_ambiguous=not args.no_regrow_ambiguous)
-    if args.part == "tiles":
-        return tiles_part(args.json)
-    if args.part in ("real", "graffiti", "temple"):
-        goals: dict = {}
-        sets = ("graffiti", "temple") if args.part == "real" else (args.part,)
-        real = real_figures(Path(args.real_data), args.quick, goals, sets,
-                            graffiti_patch=args.graffiti_patch)
-        print_goals(goals)
-        write_result(args.json, {"quick": args.quick, "part": args.part, "real": real,
-                                 "goals": goals})
-        return 0
-    with tempfile.TemporaryDirectory() as tmp:
-        scene_dir = Path(args.scene) if args.scene else render(args.quick, Path(tmp) / "vase")
-        rows, d3, info = vase(scene_dir, args.quick)
-        ripple = rippled(Path(tmp) / "ripple")
-    synth = synthetic(args.quick)
+    return parser
+
+
+def _print_vase(rows: list, info: dict, d3: dict, ripple: dict, synth: list) -> None:
+    """The rendered vase's table, the coverage, σ, speed, 3-D, ripple and synthetic lines."""
     by = {r["method"]: r for r in rows}
     lsm = by["LSM one pass (15x15, spline)"]
     pair = by["LSM pair (2 passes + 2nd order)"]
-    sgbm = by["cv2.StereoSGBM (rectified)"]
     ecc1 = by["cv2.findTransformECC gauss=1 (per patch)"]
-    goals = {
-        "lsm_rms_le_0.03px": pair["rms_px"] <= 0.03,
-        "lsm_coverage_loss_le_25pct_vs_fixed_patch": (
-            pair["accepted_points"] >= 0.75 * by["LSM pair, fixed 15x15, no precision test"][
-                "accepted_points"]),
-        "sigma_within_25pct": abs(pair["actual_over_reported"] - 1) <= 0.25,
-        "lsm_ge_50k_points_per_s": lsm["points_per_s"] >= 50000,
-        "lsm_ge_50k_points_per_cpu_s_x2": lsm["points_per_cpu_s_x2"] >= 50000,
-        "lsm_5x_more_accurate_than_sgbm": sgbm["rms_px"] >= 5 * pair["rms_px"],
-        "lsm_8x_faster_than_ecc": lsm["points_per_s"] >= 8 * ecc1["points_per_s"],
-        "lsm_8x_faster_than_ecc_per_cpu_s": (lsm["points_per_cpu_s"]
-                                              >= 8 * ecc1["points_per_cpu_s"]),
-    }
     print(f"vase {info['image'][0]}x{info['image'][1]}, {info['evaluated_points']} points "
           f"with truth (of {info['candidates']} candidates); outlier = |error| > {OUTLIER_PX} px")
     print(f"{'method':44s} {'RMS px':>8s} {'epipolar':>8s} {'outliers':>9s} {'points/s':>10s} "
@@ -844,6 +826,54 @@ def main(argv=None) -> int:
         print(f"{r['noise']:5.1f} {r['interpolation']:>9s} {r['jacobian']:>9s} "
               f"{r['rms_px']:8.4f} {r['reported_px']:9.4f} {r['points_per_s']:9.0f} "
               f"{r['points_per_cpu_s']:9.0f}")
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    results = ROOT / "benchmarks" / "results"
+    if args.json is None:
+        args.json = str(results / ("matching.json" if args.part == "all"
+                                   else f"matching_{args.part}.json"))
+    if args.part == "chessboard":
+        return chessboard(Path(args.real_data) / "chessboard_stereo", args.json,
+                          None if args.pairs is None else args.pairs.split(","),
+                          spacing=args.spacing, compare_2d=not args.no_2d,
+                          regrow_ambiguous=not args.no_regrow_ambiguous)
+    if args.part == "tiles":
+        return tiles_part(args.json)
+    if args.part in ("real", "graffiti", "temple"):
+        goals: dict = {}
+        sets = ("graffiti", "temple") if args.part == "real" else (args.part,)
+        real = real_figures(Path(args.real_data), args.quick, goals, sets,
+                            graffiti_patch=args.graffiti_patch)
+        print_goals(goals)
+        write_result(args.json, {"quick": args.quick, "part": args.part, "real": real,
+                                 "goals": goals})
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        scene_dir = Path(args.scene) if args.scene else render(args.quick, Path(tmp) / "vase")
+        rows, d3, info = vase(scene_dir, args.quick)
+        ripple = rippled(Path(tmp) / "ripple")
+    synth = synthetic(args.quick)
+    by = {r["method"]: r for r in rows}
+    lsm = by["LSM one pass (15x15, spline)"]
+    pair = by["LSM pair (2 passes + 2nd order)"]
+    sgbm = by["cv2.StereoSGBM (rectified)"]
+    ecc1 = by["cv2.findTransformECC gauss=1 (per patch)"]
+    goals = {
+        "lsm_rms_le_0.03px": pair["rms_px"] <= 0.03,
+        "lsm_coverage_loss_le_25pct_vs_fixed_patch": (
+            pair["accepted_points"] >= 0.75 * by["LSM pair, fixed 15x15, no precision test"][
+                "accepted_points"]),
+        "sigma_within_25pct": abs(pair["actual_over_reported"] - 1) <= 0.25,
+        "lsm_ge_50k_points_per_s": lsm["points_per_s"] >= 50000,
+        "lsm_ge_50k_points_per_cpu_s_x2": lsm["points_per_cpu_s_x2"] >= 50000,
+        "lsm_5x_more_accurate_than_sgbm": sgbm["rms_px"] >= 5 * pair["rms_px"],
+        "lsm_8x_faster_than_ecc": lsm["points_per_s"] >= 8 * ecc1["points_per_s"],
+        "lsm_8x_faster_than_ecc_per_cpu_s": (lsm["points_per_cpu_s"]
+                                              >= 8 * ecc1["points_per_cpu_s"]),
+    }
+    _print_vase(rows, info, d3, ripple, synth)
     real = (real_figures(Path(args.real_data), args.quick, goals) if args.part == "all"
             else {})
     print_goals(goals)
