@@ -14,7 +14,7 @@ residuals below 2 px; LSM's ratio of that residual to its reported σ, without a
 the variance factor of independent neighbouring windows
 (``matching.precision.midpoint_variance_factor``, what ``match_pair`` applies; RMS over
 RMS, and the median |e|/σ over its Gaussian value), and beside it the forward-backward
-loops' factor (``matching.consistency``, a lower bound); and the residuals split along /
+loops' factor (``matching.forward_backward``, a lower bound); and the residuals split along /
 across the epipolar lines (``parallax_split``: plane + parallax, where a relief of the wall
 can only act along them). Peers: ``cv2.findTransformECC``
 (MOTION_AFFINE, gaussFiltSize 1) per patch, ``cv2.calcOpticalFlowPyrLK`` (the same window).
@@ -63,7 +63,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from matching.consistency import forward_backward
+from checks.robust import MAD_TO_SIGMA
+from matching.forward_backward import forward_backward
 from matching.grow import grow_matches
 from matching.ici import (
     ici_choice,
@@ -126,7 +127,7 @@ def smooth_mapping(src, dst, deg: int = 7, iterations: int = 6):
         coef = np.linalg.lstsq(design[keep], (dst - _apply(hom, src))[keep], rcond=None)[0]
         res = dst - _apply(hom, src) - design @ coef
         e = np.linalg.norm(res, axis=1)
-        keep = e < max(4 * 1.4826 * np.median(e[keep]), 0.05)
+        keep = e < max(4 * MAD_TO_SIGMA * np.median(e[keep]), 0.05)
     return lambda p: _apply(hom, p) + _poly(p, deg, centre, scale) @ coef
 
 

@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 from _common import print_goals, uptime, write_result  # noqa: E402
 
 import surface.topology  # noqa: E402, F401  (imported before timing, as open3d is)
-from pipeline.smoothing import default_level  # noqa: E402
+from pipeline.bezier_surface import default_level  # noqa: E402
 from surface import bezier, metrics  # noqa: E402
 from surface.reconstruct import surface_from_points  # noqa: E402
 from testkit import shapes as _shapes  # noqa: E402

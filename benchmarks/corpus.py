@@ -20,7 +20,7 @@ time bound (``--timeout``; a row past it is printed as such).  Methods, in the r
   within the sizing's chord tolerance); a refusal is printed with its reason;
 * ``general``: ``surface.general_mesh.poisson_control_mesh`` (triangles of the sections'
   control edge, or 1.5 point spacings without one), Loop's patches over it fitted to the
-  cloud as the smooth stage builds them (``pipeline.smoothing.smooth_general``);
+  cloud as the smooth stage builds them (``pipeline.bezier_surface.smooth_general``);
 * ``auto``: the smooth stage's choice between the two (``surface.general_mesh.prefer_general``
   on validity, then the genus the data support, then A and Cp; without the stage's gate
   ``needs_general``, whose noise estimate is the curves stage's: here both surfaces are
@@ -153,16 +153,16 @@ def _since(start) -> tuple[float, float]:
 
 
 def run_sections(points: np.ndarray) -> dict:
+    from pipeline.bezier_surface import smooth_mesh
     from pipeline.guards import unit_scale
     from pipeline.section_surface import sized_mesh
-    from pipeline.smoothing import smooth_mesh
     from surface.sizing import interpolating_control
 
     unit = unit_scale(points)
     start = _clock()
     sized, _ = sized_mesh(points / unit, axis="auto")
     control = interpolating_control(sized.vertices, sized.triangles, sized.creases) * unit
-    # checked and, where it crosses itself, repaired (pipeline.smoothing.smooth_mesh), as
+    # checked and, where it crosses itself, repaired (pipeline.bezier_surface.smooth_mesh), as
     # photosurf sections --smooth writes it
     smooth = smooth_mesh(control, sized.triangles, "adaptive", sized.chord_tolerance() * unit,
                          spacing=sized.spacing * unit)
@@ -176,7 +176,7 @@ def run_sections(points: np.ndarray) -> dict:
 
 
 def run_general(points: np.ndarray, edge: float | None, tolerance: float | None) -> dict:
-    from pipeline.smoothing import smooth_general
+    from pipeline.bezier_surface import smooth_general
     from surface.general_mesh import poisson_control_mesh
     from surface.sections import point_spacing
 
@@ -199,7 +199,7 @@ def run_general(points: np.ndarray, edge: float | None, tolerance: float | None)
 
 
 def _repair(smooth) -> dict | None:
-    """The smooth surface's repair figures (``pipeline.smoothing.smooth_mesh``), if any."""
+    """The smooth surface's repair figures (``pipeline.bezier_surface.smooth_mesh``), if any."""
     return (smooth.solid or {}).get("repair")
 
 

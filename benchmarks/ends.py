@@ -77,8 +77,8 @@ def smooth_surface(cloud: np.ndarray):
     control mesh (``pipeline.section_surface.sized_mesh``), its vertices interpolated
     (``interpolating_control``), Loop's patches tessellated adaptively within the sizing's
     chord tolerance, no finer than the point spacing, checked (and repaired) as a solid."""
+    from pipeline.bezier_surface import smooth_mesh
     from pipeline.section_surface import sized_mesh
-    from pipeline.smoothing import smooth_mesh
     from surface.sizing import interpolating_control
 
     sized, _ = sized_mesh(cloud, axis="z")

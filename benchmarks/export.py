@@ -11,7 +11,7 @@ triangles, unit radius, exact radial normals):
 * ``pipeline.render.render_mesh``: the default 3×2 contact sheet (1200×800,
   2× supersampling) and one 400×400 view, smooth shading; and the floor, the
   bare ``RaycastingScene.cast_rays`` for the same rays;
-* ``pipeline.step``: the exact Bézier surface as a closed CAD solid (Loop's
+* ``pipeline.cad_export``: the exact Bézier surface as a closed CAD solid (Loop's
   surface over an ellipsoid of ``--patches`` patches, or the control net of a
   workspace with ``--net W/smooth``): ``write_cad``'s CPU seconds and bytes,
   and the file read back by OpenCascade (valid closed solid, faces, volume and
@@ -183,7 +183,7 @@ def _step_read_back(path: Path, control_points, triangles) -> dict:
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    from pipeline.step import read_cad_solid
+    from pipeline.cad_export import read_cad_solid
     from surface import bezier
     from surface.metrics import point_mesh_distance
 
@@ -224,17 +224,17 @@ def _step_read_back(path: Path, control_points, triangles) -> dict:
 
 
 def _step_phases(control_points, triangles, path: Path, merge: bool) -> dict:
-    """The STEP path through OpenCascade's shape transfer (``pipeline.step.solid_from_nets``,
+    """The STEP path through OpenCascade's shape transfer (``pipeline.cad_export.solid_from_nets``,
     ``STEPControl_Writer``; ``write_cad``'s path for open shells) phase by phase, the merge
     of duplicate entities optional."""
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
     from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
 
-    from pipeline import step
+    from pipeline import cad_export
 
     row: dict = {}
-    solid = _clocked(row, "build", lambda: step.solid_from_nets(control_points, triangles))
+    solid = _clocked(row, "build", lambda: cad_export.solid_from_nets(control_points, triangles))
     writer = STEPControl_Writer()
     Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
     Interface_Static.SetIVal_s("write.surfacecurve.mode", 0)
@@ -249,17 +249,17 @@ def _step_phases(control_points, triangles, path: Path, merge: bool) -> dict:
 
 
 def bench_step(control_points, triangles, folder: Path, read_back: bool = True) -> list[dict]:
-    """``pipeline.step.write_cad`` to STEP (its entities made directly, poles shared) with
+    """``pipeline.cad_export.write_cad`` to STEP (its entities made directly, poles shared) with
     the file read back; the peers: the shape transfer, merged and unmerged, phase by phase
     (CPU and wall seconds), IGES, and the level-2 tessellation's PLY for scale."""
-    from pipeline import step
+    from pipeline import cad_export
     from surface import bezier
 
-    step._quiet()
-    step.write_cad(folder / "warm.step", *_ellipsoid_net(64))  # imports, caches
+    cad_export._quiet()
+    cad_export.write_cad(folder / "warm.step", *_ellipsoid_net(64))  # imports, caches
     rows = []
     row = {"writer": "STEP (write_cad)", "patches": len(control_points)}
-    path = _clocked(row, "total", lambda: step.write_cad(folder / "s.step", control_points,
+    path = _clocked(row, "total", lambda: cad_export.write_cad(folder / "s.step", control_points,
                                                          triangles))
     row["bytes"] = path.stat().st_size
     if read_back:
@@ -270,7 +270,7 @@ def bench_step(control_points, triangles, folder: Path, read_back: bool = True) 
         rows.append({"writer": label, "patches": len(control_points),
                      **_step_phases(control_points, triangles, path, merge)})
     row = {"writer": "IGES (write_cad)", "patches": len(control_points)}
-    path = _clocked(row, "total", lambda: step.write_cad(folder / "s.iges", control_points,
+    path = _clocked(row, "total", lambda: cad_export.write_cad(folder / "s.iges", control_points,
                                                          triangles))
     row["bytes"] = path.stat().st_size
     rows.append(row)
@@ -392,18 +392,18 @@ LIGHT_VARIANTS = ("default", "quads", "uncertainty")
 
 def _light_file(name: str, path: Path, control_points, triangles, source_face,
                 tolerance: float, report: dict) -> None:
-    from pipeline import step
+    from pipeline import cad_export
 
     if name == "uncertainty":
-        merged = step._merged(control_points, triangles, source_face, tolerance, report, 2)
+        merged = cad_export._merged(control_points, triangles, source_face, tolerance, report, 2)
         if merged is not None:
-            step._write_merged_step_text(merged, path, tolerance / 10)
+            cad_export._write_merged_step_text(merged, path, tolerance / 10)
             report.update(faces=len(merged["poles"]), merged=True)
         else:  # as write_cad: the exact per-patch file
-            step._write_step_text(control_points, triangles, path, True, tolerance / 10)
+            cad_export._write_step_text(control_points, triangles, path, True, tolerance / 10)
             report.update(faces=len(control_points), merged=False)
         return
-    step.write_cad(path, control_points, triangles, source_face=source_face,
+    cad_export.write_cad(path, control_points, triangles, source_face=source_face,
                    tolerance=tolerance, report=report, quads=name == "quads")
 
 
@@ -414,9 +414,9 @@ def bench_step_light(control_points, triangles, folder: Path, source_face, toler
     :data:`LIGHT_VARIANTS`): write CPU seconds, bytes, OpenCascade's read (once), and
     FreeCAD's import ``repeats`` times, the files taken in turn each round (so that the
     machine's load falls on all alike); the first import of each also checks validity."""
-    from pipeline import step
+    from pipeline import cad_export
 
-    step._quiet()
+    cad_export._quiet()
     mesh_measures = _mesh_measures(control_points, triangles)
     rows, paths = [], []
     for name in variants:
@@ -456,9 +456,9 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
     installed.  ``variants`` ``"faces"``: only the per-patch file as written now and
     the merged ones.  A file larger than ``read_limit_mb`` is written and measured but
     not read (``read: False``): reading holds up to :data:`READ_BYTES_PER_BYTE` times its size."""
-    from pipeline import step
+    from pipeline import cad_export
 
-    step._quiet()
+    cad_export._quiet()
     mesh_measures = _mesh_measures(control_points, triangles)
 
     size = float(np.ptp(control_points.reshape(-1, 3), axis=0).max())
@@ -472,18 +472,18 @@ def bench_step_read(control_points, triangles, folder: Path, freecad: bool = Tru
     for pcurves, floor, spans in plans:
         row = {"variant": f"{'pcurves' if pcurves else 'no pcurves'}, uncertainty "
                           f"{'max(1e-9 size, 1e-7)' if floor else '1e-9 size'}",
-               "pcurves": pcurves, "uncertainty": step.step_uncertainty(size) if floor
-               else step.REL_TOLERANCE * size, "patches": len(control_points)}
+               "pcurves": pcurves, "uncertainty": cad_export.step_uncertainty(size) if floor
+               else cad_export.REL_TOLERANCE * size, "patches": len(control_points)}
         path = folder / f"read_{int(pcurves)}{int(floor)}{spans or 0}.step"
         if spans is None:
-            _clocked(row, "write", lambda p=path, c=pcurves, r=row: step._write_step_text(
+            _clocked(row, "write", lambda p=path, c=pcurves, r=row: cad_export._write_step_text(
                 control_points, triangles, p, c, r["uncertainty"]))
         else:
             row["variant"] = ("quadrilaterals (two control triangles), two spans"
                               if spans == "quad" else
                               f"a face per control triangle, {spans} span(s)")
             report: dict = {}
-            _clocked(row, "write", lambda p=path, r=report, n=spans: step.write_cad(
+            _clocked(row, "write", lambda p=path, r=report, n=spans: cad_export.write_cad(
                 p, control_points, triangles, source_face=source_face,
                 tolerance=tolerance, report=r, spans=1 if n == 1 else 2, quads=n == "quad",
                 angle_tolerance=None if n != 1 else np.inf))  # one span: kinks measured

@@ -110,7 +110,7 @@ def rippled(folder: Path) -> dict:
     """The vase with a ripple finer than a window (512x384): LSM's error against the
     rendered truth, its σ with and without match_pair's variance factor, and the
     forward-backward loop against σ (what a window-based redundancy can see)."""
-    from matching.consistency import forward_backward
+    from matching.forward_backward import forward_backward
     from matching.lsm import LSMResult
     from pipeline.scenes import DEFAULT_RECIPE, load_recipe, render_scene
 

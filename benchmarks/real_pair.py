@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from checks.robust import mad_sigma
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -191,7 +193,7 @@ def pair_row(name: str, ws: Path, rig_path: Path, renders: Path) -> dict:
     row["cloud"] = {"points": int(on.sum()), "slips": int((~near).sum()),
                     "rms_to_board": float(np.sqrt(np.mean(d[near] ** 2))) if near.any()
                     else None,
-                    "robust_sigma": float(1.4826 * np.median(np.abs(d - np.median(d))))
+                    "robust_sigma": float(mad_sigma(d))
                     if len(d) else None}
     if on.sum() < 10:
         return row

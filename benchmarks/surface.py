@@ -55,8 +55,8 @@ from _common import print_goals, uptime, write_result  # noqa: E402
 # method's timing includes an import.
 import surface.catmull_rom  # noqa: E402, F401
 import surface.topology  # noqa: E402, F401
+from pipeline.bezier_surface import default_level  # noqa: E402
 from pipeline.config import defaults  # noqa: E402
-from pipeline.smoothing import default_level  # noqa: E402
 from surface import bezier, metrics  # noqa: E402
 from surface.fitting import interpolating_control_mesh  # noqa: E402
 from surface.reconstruct import surface_from_points  # noqa: E402
@@ -120,7 +120,7 @@ def run_stitched_bezier(points: np.ndarray, level: int | None = None,
 
 
 #: Largest surface written to STEP inside the benchmark (OpenCascade takes ~0.6 CPU-ms and
-#: writes ~4 KB per patch here, pipeline/step.py; benchmarks/export.py measures it).
+#: writes ~4 KB per patch here, pipeline/cad_export.py; benchmarks/export.py measures it).
 STEP_MAX_PATCHES = 3000
 
 
@@ -145,7 +145,7 @@ def file_sizes(vertices: np.ndarray, triangles: np.ndarray, surface=None,
                                             surface.domain_mesh)
             sizes["net_bytes"] = path.stat().st_size
             if len(surface.control_points) <= step_max_patches:
-                from pipeline.step import write_cad
+                from pipeline.cad_export import write_cad
 
                 start = time.perf_counter()
                 path = write_cad(folder / "s.step", surface.control_points,

@@ -1,1 +1,2 @@
-"""Checks shared by every package (:mod:`checks.arrays`), below ``matching`` and ``surface``."""
+"""Checks and robust statistics shared by every package (:mod:`checks.arrays`,
+:mod:`checks.robust`), below ``matching`` and ``surface``."""

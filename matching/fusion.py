@@ -26,6 +26,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from checks.robust import mad_sigma
 from matching.cameras import Camera
 from matching.scheduler import default_workers
 from matching.validate import TOL, check_shape
@@ -177,5 +178,5 @@ def _statistical_inliers(points: np.ndarray, k: int, n_std: float) -> np.ndarray
     with ThreadPoolExecutor(default_workers()) as pool:
         nbs = list(pool.map(block, range(0, len(points), _SOR_BLOCK)))
     keep = mean_d <= n_std * np.median(mean_d[np.concatenate(nbs)], axis=1)
-    scale = 1.4826 * np.median(np.abs(resid - np.median(resid)))
+    scale = mad_sigma(resid)
     return keep & (resid <= np.median(resid) + 2.0 * n_std * max(scale, TOL.zero))

@@ -46,6 +46,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from checks.robust import MAD_TO_SIGMA
 from matching.lsm_image import (
     _KIND,
     DEFAULT_INTERPOLATION,
@@ -338,7 +339,7 @@ def robust_upper_limit(values: np.ndarray, k: float, dof: int) -> float:
     """
     values = np.asarray(values, dtype=np.float64)
     med = float(np.median(values))
-    spread = max(1.4826 * float(np.median(np.abs(values - med))), med / np.sqrt(2.0 * dof))
+    spread = max(MAD_TO_SIGMA * float(np.median(np.abs(values - med))), med / np.sqrt(2.0 * dof))
     return med + k * spread
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from checks.robust import MAD_TO_SIGMA
 from matching.lsm_interp import _FM, _inside, _residual_stats
 from matching.lsm_normals import _affine_row, _cholesky_solve, _expand, _ic_constrained, _mixing
 from matching.lsm_step import _step_score
@@ -17,7 +18,7 @@ from matching.lsm_step import _step_score
 #: (Holland & Welsch 1977 [6]_); the residuals are measured in their robust scale.
 TUKEY_C = 4.685
 #: 1 / Φ⁻¹(3/4): the median absolute residual of a Gaussian over its σ.
-_MAD_TO_SIGMA = 1.4826
+_MAD_TO_SIGMA = MAD_TO_SIGMA
 #: Most IRLS passes of the robust adjustment (:func:`_robust_support`); the support is
 #: final when it no longer changes.
 _ROBUST_ITER = 10

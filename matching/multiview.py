@@ -13,7 +13,7 @@ its options :class:`MultiViewOptions`); tasks run through :mod:`matching.schedul
    (:func:`matching.seeds.window_offsets`), a second half-cell lattice where the first left
    holes (``densify``), triangulated (:func:`matching.triangulate.triangulate_pair`).
 3. **Multi-image consistency** (MPGC in spirit, Gruen & Baltsavias 1988 [1]_;
-   :mod:`matching.confirm`, :mod:`matching.visibility`): each point is LSM-matched into the
+   :mod:`matching.further_views`, :mod:`matching.visibility`): each point is LSM-matched into the
    ``check_views`` nearest further views where it is visible (in front, inside, facing
    within ``max_incidence_deg``, not occluded in a z-buffer of every pair's points), started
    from its reprojection and the local-plane mapping; consistent when the Mahalanobis
@@ -52,7 +52,8 @@ import numpy as np
 from scipy.stats import norm
 
 from matching.cameras import Camera, StereoRig
-from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
+from matching.contours import OutlinePoints, outline_points
+from matching.further_views import (  # noqa: F401 - the reason codes, re-exported
     INCONSISTENT,
     LSM_KEYS,
     MULTIVIEW,
@@ -67,7 +68,6 @@ from matching.confirm import (  # noqa: F401 - the reason codes, re-exported
     check_consistency,
     variance_factor,
 )
-from matching.contours import OutlinePoints, outline_points
 from matching.fusion import merge_clouds, point_colours
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, prepare_image
 from matching.masks import foreground_mask, grey, inside_masks, near_foreground, signed_distance
@@ -174,7 +174,7 @@ class MultiViewCloud:
         ``fused``, ``median_sigma_pair``, ``median_sigma_multiview`` ...);
         ``further_view_offsets``: one ``{"pair", "view", "offset_px"}`` per pair and
         further view whose matches were systematically off (an orientation error:
-        :func:`matching.confirm._systematic_offset`).
+        :func:`matching.further_views._systematic_offset`).
     """
 
     points: np.ndarray
@@ -248,12 +248,12 @@ def _pair_options(match_options: dict) -> dict:
     # spacing 3, is where it pays: 33 910 -> 49 768 points with True
     options.setdefault("densify", "auto")
     # the pair's own variance factor (match_pair's default) is left to the further-view
-    # check (matching.confirm), which estimates it from a third view's matches of the
+    # check (matching.further_views), which estimates it from a third view's matches of the
     # same points and scales the pair's covariances by it: applying both would count
     # what real images add twice
     options.setdefault("sigma_factor", False)
     # no pair-level uniqueness test here (match_pair's default is on): every point of a
-    # ring is re-matched in further views (matching.confirm), which rejects a one-period
+    # ring is re-matched in further views (matching.further_views), which rejects a one-period
     # slip by geometry that does not depend on the pair's texture; the pair test on top
     # cost the rendered test rings 15-30 % of their points (densify and portrait tests:
     # 3 862 of > 5 000) and ~4x the pair's matching time

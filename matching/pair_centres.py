@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from checks.robust import MAD_TO_SIGMA, mad_sigma
 from matching.lsm import LSMResult, Status
 from matching.pair_epipolar import _jacobians, _least_variance_point
 from matching.pair_status import APERTURE, CHI2_1_MEDIAN, MAX_INFLATION, OFF_SURFACE, OUTLIER_Z
@@ -146,7 +147,7 @@ def _polarity_bias(frame: dict, accepted: np.ndarray, neighbours: int = 40,
             return 0.0, 0.0, s, ratio, near
         delta = float(np.sum(e[keep] * t[keep]) / np.sum(t[keep] ** 2))
         r = e - delta * t
-        spread = 1.4826 * float(np.median(np.abs(r[keep] - np.median(r[keep]))))
+        spread = float(mad_sigma(r[keep]))
         keep_new = usable & (np.abs(r) <= 3.29 * spread)
         var_delta = spread**2 / float(np.sum(t[keep_new] ** 2))
         if np.array_equal(keep_new, keep):
@@ -194,7 +195,7 @@ def _correct_polarity(frame: dict, accepted: np.ndarray) -> tuple[np.ndarray, np
         # classes' spreads; a rougher surface, a wider bound): off the surface
         z = np.nan_to_num(ratio / np.sqrt(spread2[cls]), nan=np.inf)
         zn = np.where(near >= 0, np.abs(z[np.maximum(near, 0)]), np.inf)
-        local = 1.4826 * np.median(zn, axis=1)
+        local = MAD_TO_SIGMA * np.median(zn, axis=1)
         outlier = accepted & known & (np.abs(z) > OUTLIER_Z * local)
     return np.where(accepted, var_delta * pol**2 * step**2, 0.0), factor, outlier
 

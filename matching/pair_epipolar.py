@@ -24,6 +24,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from checks.robust import MAD_TO_SIGMA, mad_sigma
 from matching.lsm import LSMResult, PreparedImage, Status, lsm_match, prepare_image
 from matching.pair_status import MAX_INFLATION
 from matching.precision import class_variance_factors
@@ -290,7 +291,7 @@ def _constrained_matches(w: SimpleNamespace, n: int, res: LSMResult, sides, opts
                                                         base[w.from_2d]))
             round_ = eig[:, 0] >= 0.25 * eig[:, 1]
             ref = w.dy[round_] if round_.sum() >= 30 else w.dy
-            sigma_g = (1.4826 * float(np.median(np.abs(ref - np.median(ref))))
+            sigma_g = (float(mad_sigma(ref))
                        if len(ref) else 0.0)
         good = found["status"] == Status.OK
         if step == 0 and fixed is not None:
@@ -470,7 +471,7 @@ def _robust_planes(design: np.ndarray, values: np.ndarray, rounds: int = 3) -> n
         plane[ok] = np.linalg.solve(normal[ok], rhs[ok][..., None])[..., 0]
         resid = np.abs(values - np.einsum("nki,ni->nk", design, np.nan_to_num(plane)))
         mad = np.median(resid, axis=1, keepdims=True)
-        weight = (resid <= 3.0 * 1.4826 * np.maximum(mad, 1e-3)).astype(np.float64)
+        weight = (resid <= 3.0 * MAD_TO_SIGMA * np.maximum(mad, 1e-3)).astype(np.float64)
     return plane
 
 

@@ -26,7 +26,7 @@ It cannot see an error both windows share: one smooth over the two (lens distort
 relief: geometry, not matching error), a bias the same texture gives both, or a relief
 finer than a window, which every window smooths alike (``benchmarks/matching.py``'s
 rippled vase errs 2.2x the σ with the factor, 6.8x without; forward-backward loops see
-even less, 0.54x σ).  Unlike forward-backward matching (:mod:`matching.consistency`), whose
+even less, 0.54x σ).  Unlike forward-backward matching (:mod:`matching.forward_backward`), whose
 two matches read the same pixels and share their noise, the windows compared here share
 none.  ``match_pair`` applies one factor per window class (:func:`class_variance_factors`).
 Figures: ``docs/decisions/stereo-matching.md``.
@@ -45,6 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
+from checks.robust import mad_sigma
 from matching.validate import check_shape
 
 #: Pairs between one and this many (mean) patch sides apart.
@@ -433,7 +434,7 @@ def robust_sigma(values) -> float:
     values = values[np.isfinite(values)]
     if not len(values):
         return float("nan")
-    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+    return float(mad_sigma(values))
 
 
 @dataclass(frozen=True)

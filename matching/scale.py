@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from checks.robust import mad_sigma
 from matching.validate import check_shape
 
 __all__ = ["ScaleResult", "parse_scale", "scale_from_points", "detect_markers",
@@ -95,7 +96,7 @@ def _point_at_pixel(pixel: np.ndarray, camera, points: np.ndarray, k: int) -> tu
     distance = np.linalg.norm(uv - pixel, axis=1)
     near = front[np.argsort(distance)[: 4 * k]]
     z = depth[near]
-    mad = 1.4826 * np.median(np.abs(z - np.median(z))) + 1e-300
+    mad = mad_sigma(z) + 1e-300
     layer = near[np.abs(z - np.median(z)) <= 3 * mad][:k]  # the visible depth layer
     if len(layer) < 3:
         raise ValueError("too few cloud points around it")

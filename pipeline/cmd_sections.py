@@ -20,7 +20,7 @@ the stitched mesh is thinned to the control mesh the data need (the coarsest est
 farther from the truth than the stitched mesh), its vertices interpolated
 (:func:`surface.sizing.interpolating_control`), and the G1 sextic Bézier surface over it
 tessellated within its estimated error (``--level adaptive``, the default;
-:func:`pipeline.smoothing.smooth_to_files`): ``--out`` receives the tessellation and
+:func:`pipeline.bezier_surface.smooth_to_files`): ``--out`` receives the tessellation and
 ``OUT.npz`` the control net.  ``--no-size`` smooths the stitched mesh itself (4 patches a
 stitched triangle: on a 50 000-point cloud 213 208 patches).
 """
@@ -195,7 +195,7 @@ def _smoothed(args: argparse.Namespace, result, sized, vertices: np.ndarray,
                          f"({result.problem_line()}): --smooth needs a "
                          "closed mesh (drop --open-ends, or smooth the mesh with "
                          "'photosurf smooth')")
-    from pipeline.smoothing import smooth_to_files
+    from pipeline.bezier_surface import smooth_to_files
 
     if sized is None:
         smooth = smooth_to_files(vertices, triangles, out, level=level,
@@ -252,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
     if args.smooth:
         smooth = _smoothed(args, result, sized, vertices, triangles, out, level, unit)
     else:
-        from pipeline.smoothing import solid_report  # one warning line if not a valid solid
+        from pipeline.bezier_surface import solid_report  # one warning line if not a valid solid
 
         # a mouth left open on a wall too thin to part says so itself, in one line
         thin = [m for m in result.messages if "too thin" in m]

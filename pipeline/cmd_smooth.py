@@ -6,11 +6,11 @@ so ``P = 4 F`` patches), tessellated at ``--level L`` (each patch edge cut into
 normals to ``OUT`` (.ply .obj .stl .gltf .glb) and the control net beside it as
 ``OUT`` with suffix ``.npz`` (``pipeline.export`` documents that format).
 
-A thin command over :func:`pipeline.smoothing.smooth_to_files` (the smoothing of
+A thin command over :func:`pipeline.bezier_surface.smooth_to_files` (the smoothing of
 ``photosurf sections --smooth`` and of ``photosurf run``'s smooth stage too).
 
 Default level: the pipeline's ``smooth.level`` (``pipeline/defaults.toml``) when
-that is an integer, else ``pipeline.smoothing.COMMAND_LEVEL`` (1: ``photosurf run``'s
+that is an integer, else ``pipeline.bezier_surface.COMMAND_LEVEL`` (1: ``photosurf run``'s
 "adaptive" tessellation takes its chord tolerance from the sized surface's error
 estimate, which a mesh alone does not give).  It is chosen a priori: the
 refinement halves the control mesh's edge h₀ and level L cuts a patch edge into
@@ -34,8 +34,8 @@ HELP = "smooth a triangle mesh into Loop's G1 sextic Bezier surface (mesh + cont
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from pipeline.bezier_surface import default_level
     from pipeline.export import EXPORT_SUFFIXES
-    from pipeline.smoothing import default_level
 
     parser.add_argument("mesh", metavar="MESH", help="oriented 2-manifold triangle mesh, "
                         "closed for a watertight result (.ply .obj .stl .off .gltf .glb): "
@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.smoothing import EDGE_SAMPLES, default_level, smooth_to_files
+    from pipeline.bezier_surface import EDGE_SAMPLES, default_level, smooth_to_files
 
     mesh_path = Path(args.mesh)
     if Path(args.out).suffix.lower() == ".npz":

@@ -1,5 +1,5 @@
 """The export and report stages of ``photosurf run``: the surface in every
-``export.formats`` with its control net (:mod:`pipeline.export`, :mod:`pipeline.step`),
+``export.formats`` with its control net (:mod:`pipeline.export`, :mod:`pipeline.cad_export`),
 and ``OUTDIR/report.html`` (:func:`pipeline.report.build_report`).
 """
 
@@ -36,15 +36,15 @@ def export(ctx: StageContext) -> dict:
     for fmt in ctx.track(ctx.params["export"]["formats"], "formats"):
         fmt = str(fmt).lower().lstrip(".")
         path = ctx.out / f"surface.{fmt}"
-        if fmt in ("step", "iges"):  # the exact surface as a CAD solid (pipeline.step)
+        if fmt in ("step", "iges"):  # the exact surface as a CAD solid (pipeline.cad_export)
             if net is None or "domain_triangles" not in net:
                 log.warning("export: no smooth surface, so no %s file (CAD needs the exact "
                             "patches)", fmt.upper())
                 continue
-            from pipeline.step import write_cad
+            from pipeline.cad_export import write_cad
 
             # a face per control triangle where it stays within the smooth stage's chord
-            # tolerance and G1 (pipeline.step.write_cad), else a face per patch
+            # tolerance and G1 (pipeline.cad_export.write_cad), else a face per patch
             tolerance = ((ctx.workspace.record("smooth") or {}).get("info") or {}).get(
                 "chord_tolerance")
             cad = {}

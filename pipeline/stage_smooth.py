@@ -1,6 +1,6 @@
 """The smooth stage of ``photosurf run``: the stitched mesh sized to a control mesh
 (:mod:`surface.sizing`), its vertices interpolated, and Loop's G1 Bezier patches over it
-(:func:`pipeline.smoothing.smooth_mesh`); beside it, where the sections give cause, the
+(:func:`pipeline.bezier_surface.smooth_mesh`); beside it, where the sections give cause, the
 general control mesh that knows no axis (:mod:`surface.general_mesh`); over an open
 stitched mesh, the patches with the border rule.
 """
@@ -78,13 +78,13 @@ def sized_rings(params: Mapping, rings: list, planes: list, noise: float | None,
 
 
 def smooth(ctx: StageContext) -> dict:
-    """``pipeline.smoothing.smooth_mesh`` over the control mesh (the one smoothing path,
+    """``pipeline.bezier_surface.smooth_mesh`` over the control mesh (the one smoothing path,
     with its G1 report: ``g1_angle`` radians, ``gap`` scene units).  The control mesh is
     the stitched mesh thinned by ``surface.sizing`` (``smooth.size``), its vertices
     interpolated except at sharp rims (``smooth.interpolate``:
     ``surface.sizing.interpolating_control``)."""
+    from pipeline.bezier_surface import smooth_mesh
     from pipeline.mesh_io import read_mesh
-    from pipeline.smoothing import smooth_mesh
     from surface.sizing import interpolating_control
 
     vertices, triangles = read_mesh(ctx.stage_path("stitch", artifacts.MESH))
@@ -213,10 +213,10 @@ def _general_surface(ctx: StageContext, level, tolerance, section, reason: str =
 
 
 def _general_smooth(vertices, triangles, level, tolerance, points=None):
-    """Loop's patches over the general control mesh: ``pipeline.smoothing.smooth_general``
+    """Loop's patches over the general control mesh: ``pipeline.bezier_surface.smooth_general``
     (fitted to ``points`` where that is a valid solid, else through its vertices, else with
     the folds held back, else over the mesh itself)."""
-    from pipeline.smoothing import smooth_general
+    from pipeline.bezier_surface import smooth_general
     from surface.sections import point_spacing
 
     return smooth_general(vertices, triangles, level, tolerance, points=points,
@@ -234,7 +234,7 @@ def _smooth_open(ctx: StageContext, vertices, triangles, level) -> dict:
     (the sizing and the interpolating control points need a closed mesh), Loop's patches
     with the border rule of ``surface.bezier`` (ghost triangles past the border: the
     surface is G1 inside and ends at the border edges without interpolating them)."""
-    from pipeline.smoothing import smooth_mesh
+    from pipeline.bezier_surface import smooth_mesh
     from surface.open_surface import boundary_loops
 
     tolerance = _smooth_tolerance(ctx) if level in ("auto", "adaptive") else None

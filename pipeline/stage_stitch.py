@@ -41,7 +41,7 @@ def _stitch_open(ctx: StageContext, rings: list, params: list, step: float) -> d
     artifacts.write_stitched(ctx.out, result.vertices, result.triangles, notes)
     for message in result.notes:
         log.warning("stitch: %s", message)
-    from pipeline.smoothing import solid_report  # open by design: its border no defect
+    from pipeline.bezier_surface import solid_report  # open by design: its border no defect
 
     notes["solid"] = solid_report("stitch", result.vertices, result.triangles,
                                   expect_closed=False)
@@ -135,7 +135,7 @@ def stitch(ctx: StageContext) -> dict:
         log.warning("stitch: %s", message)
     for message in [m for m in notes_ends if m not in thin] + list(result.notes):
         log.info("stitch: %s", message)
-    from pipeline.smoothing import solid_report  # one warning line when not a valid solid
+    from pipeline.bezier_surface import solid_report  # one warning line when not a valid solid
 
     notes["solid"] = solid_report("stitch", result.vertices, result.triangles,
                                   expect_closed=bool(result.closed))

@@ -21,7 +21,7 @@ by sewing: every vertex and edge is made once and shared by the faces that meet 
 
 OpenCascade's own writers (the shape transfer to STEP for an open shell, IGES in BRep
 mode) and readers (:func:`read_cad_solid`) are here too; the STEP text photosurf writes
-itself is ``pipeline.step_text``'s, and ``pipeline.step.write_cad`` chooses between them.
+itself is ``pipeline.step_text``'s, and ``pipeline.cad_export.write_cad`` chooses between them.
 
 References: C. Loop, "Smooth spline surfaces over irregular meshes", SIGGRAPH 1994;
 G. Farin, "Curves and Surfaces for CAGD", 5th ed. (2002); M. G. Duffy, SIAM J. Numer.

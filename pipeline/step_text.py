@@ -15,7 +15,7 @@ uncertainty :func:`step_uncertainty`.  Two layouts:
   triangle or quadrilateral (``surface.bezier_merge``, ``surface.bezier_quad``), each
   control edge one two-span edge whose poles the two faces share.
 
-Both return False, writing nothing, for an open shell (``pipeline.step`` then goes
+Both return False, writing nothing, for an open shell (``pipeline.cad_export`` then goes
 through OpenCascade's shape transfer).  Why each choice (what a reader spends its time
 on, the uncertainty, the pcurves): ``docs/decisions/export.md``.
 

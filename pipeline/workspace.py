@@ -96,7 +96,7 @@ def _module_file(name: str) -> Path | None:
 
     Found by the packages' layout, not by ``importlib.util.find_spec``: that imports the
     parent package of a dotted name, and the import closure names attributes too
-    (``from matching.confirm import confirm`` names ``matching.confirm.confirm``), so
+    (``from matching.further_views import confirm`` names ``matching.further_views.confirm``), so
     every module on the way was executed with its own imports -- 2.0 of the 2.2 s a
     ``photosurf run`` spent hashing its code before its first stage (scipy.stats alone
     0.9 s, for stages that never use it).

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from checks.robust import MAD_TO_SIGMA
 from surface.polygon import inside_polygon
 from surface.section_slicing import NORMAL_NEIGHBOURS
 from surface.stitch import (
@@ -207,7 +208,7 @@ def _end_rings(rings, end, end_loops, frame, points, candidates, beyond, heights
             cap_weights = None if sigma is None else _precision_weights(sigma[inside])
             inside_h = points[inside] @ axis
             step = _weighted_quantile(inside_h, cap_weights, 0.5) - h_end
-            errors.append(_MEDIAN_ERROR * 1.4826 * float(np.median(np.abs(
+            errors.append(_MEDIAN_ERROR * MAD_TO_SIGMA * float(np.median(np.abs(
                 inside_h - h_end - step))) / np.sqrt(len(inside)))
         elif end_step is not None:
             step = end_step
@@ -297,7 +298,7 @@ def _cap_height(heights: np.ndarray, flat: np.ndarray, ring_flat: np.ndarray, h_
     weights = None if sigma is None else _precision_weights(sigma[near])
     centre = _weighted_quantile(values, weights, 0.5)
     for _ in range(3):
-        scale = 1.4826 * float(np.median(np.abs(values - centre)))
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(values - centre)))
         keep = np.abs(values - centre) <= max(3.0 * scale, 0.5 * delta)
         if keep.sum() < NORMAL_NEIGHBOURS:
             break
@@ -305,7 +306,7 @@ def _cap_height(heights: np.ndarray, flat: np.ndarray, ring_flat: np.ndarray, h_
                                     0.5)
     if spread:
         kept = values[np.abs(values - centre) <= max(3.0 * scale, 0.5 * delta)]
-        return float(centre), 1.4826 * float(np.median(np.abs(kept - centre))), len(kept)
+        return float(centre), MAD_TO_SIGMA * float(np.median(np.abs(kept - centre))), len(kept)
     return float(centre)
 
 
@@ -529,7 +530,7 @@ def _off_line(residuals: np.ndarray, axis: np.ndarray) -> np.ndarray:
     lateral = residuals - (residuals @ axis)[..., None] * axis
     rms = np.sqrt(np.mean(np.sum(lateral**2, axis=2), axis=0))
     centre = float(np.median(rms))
-    return rms > centre + 3.0 * 1.4826 * float(np.median(np.abs(rms - centre)))
+    return rms > centre + 3.0 * MAD_TO_SIGMA * float(np.median(np.abs(rms - centre)))
 
 
 def _same_angle(ring: np.ndarray, before: np.ndarray, axis: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from checks.robust import mad_sigma
 from surface.loop_graph import nesting
 from surface.polygon import inside_polygon, polygon_area
 from surface.sections import point_spacing
@@ -308,4 +309,4 @@ def _band_sigma(ring: np.ndarray, frame: np.ndarray, points: np.ndarray, h_end: 
                        normal[nearest[mine]])
     if len(offset) < 3:
         return 0.0
-    return float(1.4826 * np.median(np.abs(offset - np.median(offset))))
+    return float(mad_sigma(offset))

@@ -9,7 +9,7 @@ by the tangent-plane graph of Hoppe et al. 1992 [2]_), its balloons past the dat
 beyond :func:`support_reach` of every point) pressed onto their convex hull, decimated by
 quadric error (Garland and Heckbert 1997 [3]_) to triangles of the sections' spacing,
 repaired to a closed 2-manifold; its control vertices are fitted to the cloud
-(:func:`surface.fitting.fitted_control_mesh`; :func:`pipeline.smoothing.smooth_general`),
+(:func:`surface.fitting.fitted_control_mesh`; :func:`pipeline.bezier_surface.smooth_general`),
 and Loop's patches (:mod:`surface.bezier`) cover the whole object with one G1 surface.
 
 Which control mesh an object gets is decided on its fidelity to its own cloud

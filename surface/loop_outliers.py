@@ -12,10 +12,11 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from checks.robust import MAD_TO_SIGMA
 from surface.validate import TOL
 
 #: 1.4826 · MAD = σ for Gaussian residuals.
-_MAD_TO_SIGMA = 1.4826
+_MAD_TO_SIGMA = MAD_TO_SIGMA
 
 
 def _local_residuals(uv: np.ndarray, reference: np.ndarray, k: int) -> np.ndarray:

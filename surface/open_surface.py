@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from checks.robust import mad_sigma
 from surface._blas import one_blas_thread
 from surface.catmull_rom import _FAIRNESS, M_CR, _basis
 from surface.open_pieces import (
@@ -379,7 +380,7 @@ def _match(placed: _Placed, t, pts, length) -> tuple[float, float, int] | None:
     for _ in range(2):  # one pass of a 3-MAD cut against pairs across a fold
         c, a = np.polyfit(s[keep], u[keep], 1)
         resid = u - (a + c * s)
-        mad = 1.4826 * np.median(np.abs(resid[keep] - np.median(resid[keep])))
+        mad = mad_sigma(resid[keep])
         keep = np.abs(resid) <= 3 * mad + TOL.zero * (1 + abs(u).max())
         if np.count_nonzero(keep) < 8:
             return None

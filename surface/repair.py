@@ -21,7 +21,7 @@ correction.  The repair touches only that neighbourhood:
    never a dome away from it).  The connectivity is unchanged: components, genus,
    manifoldness and orientation are kept.
 
-The caller (``pipeline.smoothing.smooth_mesh``) rebuilds the surface over the repaired
+The caller (``pipeline.bezier_surface.smooth_mesh``) rebuilds the surface over the repaired
 control mesh, checks it again, grows the region by one ring and repeats a few rounds,
 keeping the surface with the fewest crossings, and reports what is left in one line.
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from checks.robust import MAD_TO_SIGMA
 from surface.ring_resample import resample_at_angles
 from surface.section_chains import (
     aligned_rings,
@@ -132,7 +133,7 @@ def section_scatter(rings: Sequence, axis=(0.0, 0.0, 1.0)) -> float:
             values.append(np.einsum("ij,ij->i", d4, radial))
     if not values:
         return float("nan")
-    return float(1.4826 * np.median(np.abs(np.concatenate(values))) / np.sqrt(_D4 @ _D4))
+    return float(MAD_TO_SIGMA * np.median(np.abs(np.concatenate(values))) / np.sqrt(_D4 @ _D4))
 
 
 #: 6th difference across seven sections (cancels the profile up to a quintic) and its

@@ -212,7 +212,7 @@ class SizedMesh:
     spacing : float
         The cloud's point spacing (``surface.sections.point_spacing``; 0 when not known):
         no facet of the tessellation need be finer
-        (``pipeline.smoothing.spacing_cuts``).
+        (``pipeline.bezier_surface.spacing_cuts``).
     """
 
     vertices: np.ndarray

@@ -36,7 +36,7 @@ LEFT: dict[str, int] = {
     "matching.scheduler": 2, "matching.second_order": 1, "matching.sfm": 1,
     "matching.sfm_refine": 4, "pipeline.acquisition": 1,
     "pipeline.cmd_run": 1, "pipeline.match_maps": 4, "pipeline.mesh_io": 1, "pipeline.report": 1,
-    "pipeline.smoothing": 2, "surface._blas": 2,
+    "pipeline.bezier_surface": 2, "surface._blas": 2,
     "surface.general_mesh": 7, "surface.measure": 7, "surface.metrics": 1,
     "surface.outliers": 1,
     "surface.stitch.caps": 2

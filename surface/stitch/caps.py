@@ -10,6 +10,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from checks.robust import mad_sigma
 from surface.polygon import INSIDE_PAIRS
 from surface.polygon import inside_polygon as _inside
 from surface.validate import TOL
@@ -421,7 +422,7 @@ def _dome(ring2d: np.ndarray, lo: float, hi: float, cap_points: np.ndarray | Non
     local = h[test] - _local_quadratic(flat, h, flat[test], DOME_NEIGHBOURS)
 
     def spread(r):
-        return 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        return float(mad_sigma(r))
     if spread(plane) <= DOME_RATIO * max(spread(local), TOL.zero):
         return None
     # The height field is fitted to every point over the contour: near the rim the

@@ -12,7 +12,7 @@ import open3d as o3d
 import pytest
 
 from matching.cameras import Camera, read_cameras
-from matching.confirm import _systematic_offset
+from matching.further_views import _systematic_offset
 from matching.multiview import (
     MULTIVIEW,
     REASON_NAMES,
@@ -264,7 +264,7 @@ def test_geometric_second_order_terms_match_the_matched_ones(ring):
 
 
 def test_systematic_offset_is_the_median_above_two_scatters():
-    """matching.confirm._systematic_offset: zero while the common shift is within two
+    """matching.further_views._systematic_offset: zero while the common shift is within two
     scatters of one offset (matching noise decides), the median beyond (to its standard
     error 1.25 σ / sqrt(M), bounded at 4x), zero with fewer than 30 matches."""
     rng = np.random.default_rng(0)
@@ -287,7 +287,7 @@ def test_a_further_views_orientation_error_is_estimated_not_rejected(ring):
     """A further view whose given camera is tilted by 0.25 deg (its image ~1.7 px off the
     others', 30x the matches' σ; the temple ring's given cameras: the views of one
     latitude sit ~1.2 px off those of the other): the common offset of its matches is
-    estimated and removed (matching.confirm._systematic_offset), so it confirms as many
+    estimated and removed (matching.further_views._systematic_offset), so it confirms as many
     points as with the exact camera, and the cloud stays as accurate.  Measured: 1 771
     points confirmed in view 0 against 1 769, RMS 0.00155 against 0.00151; without the
     estimate 4 points (every match 'inconsistent')."""

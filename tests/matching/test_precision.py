@@ -258,7 +258,7 @@ def test_graffiti_factor(real_data_dir):
     is then within 1.6x of σ (measured 1.45; 3.5 without the factor); their RMS 1.8x
     (4.4 without), the rest a component common to neighbouring windows (module
     docstring: relief or a shared bias, not separable with two images)."""
-    from matching.consistency import forward_backward
+    from matching.forward_backward import forward_backward
 
     fp, gp, pts, res, smooth = _graffiti(real_data_dir / "graffiti")
     ok = res.accepted

@@ -425,7 +425,7 @@ import resource, signal, sys
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of the signal
 from surface import bezier
 from tests.pipeline.test_fuzz_inputs import tetra_mesh
-from pipeline.step import write_cad
+from pipeline.cad_export import write_cad
 net = bezier.control_net(*tetra_mesh())
 limit = int(sys.argv[1])
 if limit:

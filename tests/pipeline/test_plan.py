@@ -85,10 +85,10 @@ def test_declared_modules_cover_what_the_stage_function_uses(stage, kind, tmp_pa
 
 
 def test_the_parser_sees_function_level_and_module_level_imports():
-    # the smooth stage imports pipeline.smoothing inside the function and uses the
+    # the smooth stage imports pipeline.bezier_surface inside the function and uses the
     # module-level artifacts: both count, wherever the import statement sits
     used = used_modules(stages.smooth)
-    assert {"pipeline.smoothing", "pipeline.artifacts", "pipeline.errors"} <= used
+    assert {"pipeline.bezier_surface", "pipeline.artifacts", "pipeline.errors"} <= used
 
 
 def test_stage_order_and_plans():

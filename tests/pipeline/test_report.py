@@ -119,7 +119,7 @@ def test_report_draws_the_smooth_surface_for_the_screen_and_states_sampling_erro
     """With a smooth surface the report draws it from its control net, tessellated for
     the views, and its metrics agree with a 10x larger sample within the errors stated."""
     from pipeline import artifacts
-    from pipeline.smoothing import smooth_mesh
+    from pipeline.bezier_surface import smooth_mesh
     from surface.metrics import compare_meshes
 
     root, coarse = _workspace(tmp_path)

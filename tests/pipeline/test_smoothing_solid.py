@@ -1,10 +1,10 @@
-"""pipeline.smoothing: the smooth surface's tessellation is checked as a solid, and a
+"""pipeline.bezier_surface: the smooth surface's tessellation is checked as a solid, and a
 defect is logged in one line."""
 
 import numpy as np
 import open3d as o3d
 
-from pipeline.smoothing import smooth_mesh, solid_report
+from pipeline.bezier_surface import smooth_mesh, solid_report
 
 
 def _icosphere(subdivisions=1, centre=(0.0, 0.0, 0.0)):
@@ -59,7 +59,7 @@ def test_spacing_caps_the_adaptive_cuts_before_tessellating():
     assert len(fine.triangles) > 4 * len(capped.triangles)
     # facets about the spacing: no side shorter than half of it, but where a patch side is
     # itself shorter
-    from pipeline.smoothing import spacing_cuts
+    from pipeline.bezier_surface import spacing_cuts
 
     cuts = spacing_cuts(capped.surface.control_points, spacing)
     side = np.linalg.norm(capped.vertices[capped.triangles]

@@ -253,7 +253,7 @@ def test_code_closure_imports_nothing():
 
     probe = ("import sys; from pipeline.workspace import code_files; "
              "files = code_files(['pipeline.stages', 'surface.sizing', 'matching.multiview']); "
-             "print(len(files), sorted(m for m in ('scipy.stats', 'matching.confirm', "
+             "print(len(files), sorted(m for m in ('scipy.stats', 'matching.further_views', "
              "'surface.sizing', 'open3d') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          check=True, cwd=Path(__file__).resolve().parents[2])

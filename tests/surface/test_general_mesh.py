@@ -36,7 +36,7 @@ def test_poisson_control_mesh_is_a_closed_manifold_of_the_torus_genus(torus_mesh
 
 
 def test_loop_surface_over_it_stays_within_the_noise_of_the_truth(torus_mesh):
-    from pipeline.smoothing import smooth_mesh
+    from pipeline.bezier_surface import smooth_mesh
     from surface.fitting import interpolating_control_mesh
 
     _, v, t = torus_mesh
@@ -200,7 +200,7 @@ def test_supported_genus_drops_a_handle_through_no_data_and_keeps_holes(torus_an
 
 
 def test_smooth_general_takes_the_plain_interpolation_when_it_is_a_valid_solid(torus_mesh):
-    from pipeline.smoothing import smooth_general
+    from pipeline.bezier_surface import smooth_general
 
     _, v, t = torus_mesh
     smooth = smooth_general(v, t, 1)

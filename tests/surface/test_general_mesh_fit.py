@@ -48,7 +48,7 @@ def coarse_sphere():
 
 
 def _radial_error(control, triangles):
-    from pipeline.smoothing import smooth_mesh
+    from pipeline.bezier_surface import smooth_mesh
 
     smooth = smooth_mesh(control, triangles, 3, check=False)
     return np.abs(np.linalg.norm(smooth.vertices, axis=1) - 1.0)
@@ -104,7 +104,7 @@ def test_held_out_blocks_are_whole_cubes():
 
 
 def test_smooth_general_fits_the_torus_cloud_nearer_the_truth_than_through_its_vertices():
-    from pipeline.smoothing import smooth_general
+    from pipeline.bezier_surface import smooth_general
     from surface.general_mesh import poisson_control_mesh
     from surface.sections import point_spacing
     from testkit import shapes

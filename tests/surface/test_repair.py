@@ -1,5 +1,5 @@
 """Local repair of a control mesh whose smooth surface crosses itself (surface.repair,
-pipeline.smoothing.smooth_mesh's ``repair``).
+pipeline.bezier_surface.smooth_mesh's ``repair``).
 
 A flat disk with an interior vertex folded over its neighbours: the membrane of its
 border (Tutte's barycentric embedding) unfolds it, inside the border, border untouched.
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.smoothing import smooth_mesh
+from pipeline.bezier_surface import smooth_mesh
 from surface.fitting import interpolating_control_mesh
 from surface.repair import crossing_faces, grow_faces, membrane
 from surface.validity import check_solid, self_intersections

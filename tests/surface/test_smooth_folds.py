@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipeline.bezier_surface import smooth_mesh
 from pipeline.section_surface import sized_surface
-from pipeline.smoothing import smooth_mesh
 from surface import interpolation
 from surface.fitting import folded_faces, surface_folds
 from surface.metrics import compare_meshes, sample_mesh

@@ -1,4 +1,4 @@
-"""STEP / IGES export (pipeline/step.py): read back with OpenCascade, compared with the
+"""STEP / IGES export (pipeline/cad.py): read back with OpenCascade, compared with the
 exact Bézier surface and its tessellation."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("OCP")
 
-from pipeline import step  # noqa: E402
+from pipeline import cad_export as cad  # noqa: E402
 from surface import bezier  # noqa: E402
 from surface.metrics import point_mesh_distance  # noqa: E402
 from testkit.nets import ellipsoid_net  # noqa: E402
@@ -52,7 +52,7 @@ def _same_closed_solid(path, cp, deviation: float):
 
     from surface.measure import surface_integrals
 
-    shape = step.read_cad_solid(path)
+    shape = cad.read_cad_solid(path)
     assert shape.ShapeType() == TopAbs_SOLID
     assert BRepCheck_Analyzer(shape).IsValid()
     shells = ShapeAnalysis_Shell()
@@ -74,8 +74,8 @@ def test_cad_file_reads_back_as_the_closed_solid_of_the_surface(tmp_path, ellips
     from OCP.TopAbs import TopAbs_SOLID
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
-    path = step.write_cad(tmp_path / f"surface{suffix}", cp, tris)
-    shape = step.read_cad_solid(path)
+    path = cad.write_cad(tmp_path / f"surface{suffix}", cp, tris)
+    shape = cad.read_cad_solid(path)
     faces = list(_faces(shape))
     assert len(faces) == len(cp)  # one degenerate (6, 6) face per patch
     if suffix == ".step":  # IGES keeps faces and shells but reads back as a compound
@@ -117,7 +117,7 @@ def test_degenerate_nets_are_the_triangular_patches(ellipsoid):
     from math import comb
 
     cp = ellipsoid.control_points[:17]
-    nets = step.degenerate_nets(cp)
+    nets = cad.degenerate_nets(cp)
     rng = np.random.default_rng(5)
     for u, v in np.vstack([rng.random((6, 2)), [[0.0, 0.3], [1.0, 1.0], [0.5, 0.0]]]):
         bu = np.array([comb(6, k) * u ** k * (1 - u) ** (6 - k) for k in range(7)])
@@ -144,7 +144,7 @@ def test_step_file_shares_the_poles_of_neighbouring_faces(tmp_path, ellipsoid):
     import re
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
-    path = step.write_cad(tmp_path / "s.step", cp, tris)
+    path = cad.write_cad(tmp_path / "s.step", cp, tris)
     points = len(re.findall(r"CARTESIAN_POINT\('',\([^,)]*,[^,)]*,[^,)]*\)\)", path.read_text()))
     n_vertices, n_edges = int(tris.max()) + 1, len(tris) * 3 // 2
     distinct = n_vertices + 5 * n_edges + 25 * len(tris)
@@ -159,8 +159,8 @@ def test_clockwise_domain_gives_the_same_outward_solid(tmp_path, ellipsoid):
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
     volumes = []
     for name, (nets, domain) in {"ccw": (cp, tris),
-                                 "cw": step._reversed_nets(cp, tris)}.items():
-        shape = step.read_cad_solid(step.write_cad(tmp_path / f"{name}.step", nets, domain))
+                                 "cw": cad._reversed_nets(cp, tris)}.items():
+        shape = cad.read_cad_solid(cad.write_cad(tmp_path / f"{name}.step", nets, domain))
         assert BRepCheck_Analyzer(shape).IsValid()
         volumes.append(_props(shape)[0])
     assert volumes[0] > 0
@@ -182,7 +182,7 @@ def test_step_edges_carry_their_pcurves_on_both_faces(tmp_path, ellipsoid):
     import re
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
-    path = step.write_cad(tmp_path / "s.step", cp, tris)
+    path = cad.write_cad(tmp_path / "s.step", cp, tris)
     text = path.read_text()
     entity = dict(re.findall(r"^#(\d+)=([A-Z_]+\(.*\));$", text, re.MULTILINE))
     refs = lambda body: [int(i) for i in re.findall(r"#(\d+)", body)]  # noqa: E731
@@ -193,7 +193,7 @@ def test_step_edges_carry_their_pcurves_on_both_faces(tmp_path, ellipsoid):
     assert sum(body.startswith("PCURVE(") for body in entity.values()) == 2 * n_edges
     size = float(np.ptp(cp.reshape(-1, 3), axis=0).max())
     uncertainty = re.search(r"LENGTH_MEASURE\(([^)]*)\)", text).group(1)
-    assert float(uncertainty) == pytest.approx(step.step_uncertainty(size), rel=1e-5)
+    assert float(uncertainty) == pytest.approx(cad.step_uncertainty(size), rel=1e-5)
     t = np.linspace(0.0, 1.0, 5)
     worst = 0.0
     for body in surface_curves:
@@ -217,7 +217,7 @@ def test_step_edges_carry_their_pcurves_on_both_faces(tmp_path, ellipsoid):
 
 def test_step_reals_have_their_decimal_point():
     # Part 21: a REAL is digits "." digits [E exponent]; %G drops the point
-    assert step._reals("(1E-05,0,-2,1.5E-05,0.25,-3E+16)") == "(1.E-05,0.,-2.,1.5E-05,0.25,-3.E+16)"
+    assert cad._reals("(1E-05,0,-2,1.5E-05,0.25,-3E+16)") == "(1.E-05,0.,-2.,1.5E-05,0.25,-3.E+16)"
 
 
 def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
@@ -229,8 +229,8 @@ def test_open_surface_is_written_as_an_open_shell(tmp_path, ellipsoid):
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
     keep = ellipsoid.domain_mesh[0][tris].mean(axis=1)[:, 2] > 0  # the upper half
     used, local = np.unique(tris[keep], return_inverse=True)
-    path = step.write_cad(tmp_path / "half.step", cp[keep], local.reshape(-1, 3))
-    shape = step.read_cad_solid(path)
+    path = cad.write_cad(tmp_path / "half.step", cp[keep], local.reshape(-1, 3))
+    shape = cad.read_cad_solid(path)
     assert shape.ShapeType() == TopAbs_SHELL
     assert sum(1 for _ in _faces(shape)) == int(keep.sum())
     assert BRepCheck_Analyzer(shape).IsValid()
@@ -245,9 +245,9 @@ def test_write_cad_refuses_unknown_suffix_and_mismatched_arrays(tmp_path, ellips
 
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
     with pytest.raises(InputError, match="cannot write CAD format '.dxf'"):
-        step.write_cad(tmp_path / "a.dxf", cp, tris)
+        cad.write_cad(tmp_path / "a.dxf", cp, tris)
     with pytest.raises(ValueError, match="one row per patch"):
-        step.write_cad(tmp_path / "a.step", cp, tris[:-1])
+        cad.write_cad(tmp_path / "a.step", cp, tris[:-1])
     assert list(tmp_path.iterdir()) == []
 
 
@@ -264,10 +264,10 @@ def test_write_cad_refuses_more_patches_than_the_limit(tmp_path, ellipsoid, monk
     monkeypatch.delenv(limits.ALLOW_ENV, raising=False)
     with pytest.raises(limits.LimitError, match=rf"a\.step: {len(cp)} patches: cad\.patches = "
                                                 rf"{len(cp)} is past the limit {len(cp) - 1}"):
-        step.write_cad(tmp_path / "a.step", cp, tris)
+        cad.write_cad(tmp_path / "a.step", cp, tris)
     assert list(tmp_path.iterdir()) == []
     monkeypatch.setenv(limits.ALLOW_ENV, "1")
-    assert step.write_cad(tmp_path / "a.step", cp, tris).stat().st_size > 0
+    assert cad.write_cad(tmp_path / "a.step", cp, tris).stat().st_size > 0
 
 
 def test_run_exports_a_step_solid_of_the_sized_surface(tmp_path):
@@ -296,7 +296,7 @@ def test_run_exports_a_step_solid_of_the_sized_surface(tmp_path):
     assert smooth["size_step"] >= 1 and smooth["patches"] == 4 * smooth["control_triangles"]
     assert manifest["stages"]["export"]["info"]["files"] == ["surface.ply", "surface.step",
                                                              "surface.npz"]
-    shape = step.read_cad_solid(out / "export" / "surface.step")
+    shape = cad.read_cad_solid(out / "export" / "surface.step")
     assert BRepCheck_Analyzer(shape).IsValid()
     # a face per control triangle (within the chord tolerance, G1) or else per patch
     faces = sum(1 for _ in _faces(shape))
@@ -310,16 +310,16 @@ def test_step_with_a_face_per_control_triangle_is_the_same_solid(tmp_path, ellip
     within the faces' measured offset times the area."""
     cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
     report: dict = {}
-    path = step.write_cad(tmp_path / "merged.step", cp, tris, source_face=source,
+    path = cad.write_cad(tmp_path / "merged.step", cp, tris, source_face=source,
                           tolerance=1e-3, report=report)
     assert report["merged"] and report["faces"] == len(cp) // 4
     assert report["deviation"] <= 1e-3
     shape, volume = _same_closed_solid(path, cp, report["deviation"])
     assert len(list(_faces(shape))) == len(cp) // 4
     # the turned-over domain gives the same outward solid
-    flipped = step.write_cad(tmp_path / "flipped.step", cp[:, _swap_jk()], tris[:, [0, 2, 1]],
+    flipped = cad.write_cad(tmp_path / "flipped.step", cp[:, _swap_jk()], tris[:, [0, 2, 1]],
                              source_face=source, tolerance=1e-3)
-    assert _props(step.read_cad_solid(flipped))[0] == pytest.approx(volume, rel=1e-9)
+    assert _props(cad.read_cad_solid(flipped))[0] == pytest.approx(volume, rel=1e-9)
 
 
 def _swap_jk() -> np.ndarray:
@@ -330,23 +330,23 @@ def _swap_jk() -> np.ndarray:
 def test_step_keeps_the_patches_where_a_merged_face_misses_the_tolerance(tmp_path, ellipsoid):
     cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
     report: dict = {}
-    path = step.write_cad(tmp_path / "exact.step", cp, tris, source_face=source,
+    path = cad.write_cad(tmp_path / "exact.step", cp, tris, source_face=source,
                           tolerance=1e-12, report=report)
     assert not report["merged"] and report["deviation"] > 1e-12 and "reason" in report
-    assert len(list(_faces(step.read_cad_solid(path)))) == len(cp)
+    assert len(list(_faces(cad.read_cad_solid(path)))) == len(cp)
     with pytest.raises(ValueError, match="tolerance"):
-        step.write_cad(tmp_path / "bad.step", cp, tris, source_face=source, tolerance=0.0)
+        cad.write_cad(tmp_path / "bad.step", cp, tris, source_face=source, tolerance=0.0)
     # one-span faces lie within 1e-3 here but kink across their sides: not G1, refused,
     # unless kinks are accepted
     report = {}
-    step.write_cad(tmp_path / "one.step", cp, tris, source_face=source, tolerance=1e-3,
+    cad.write_cad(tmp_path / "one.step", cp, tris, source_face=source, tolerance=1e-3,
                    report=report, spans=1)
     assert not report["merged"] and "not G1" in report["reason"]
     assert report["deviation"] <= 1e-3 and report["angle_deg"] > report["angle_tolerance_deg"]
     report = {}
-    path = step.write_cad(tmp_path / "kinked.step", cp, tris, source_face=source,
+    path = cad.write_cad(tmp_path / "kinked.step", cp, tris, source_face=source,
                           tolerance=1e-3, report=report, spans=1, angle_tolerance=np.inf)
-    assert report["merged"] and len(list(_faces(step.read_cad_solid(path)))) == len(cp) // 4
+    assert report["merged"] and len(list(_faces(cad.read_cad_solid(path)))) == len(cp) // 4
 
 
 def test_step_with_quadrilateral_faces_is_the_same_solid(tmp_path, ellipsoid):
@@ -356,7 +356,7 @@ def test_step_with_quadrilateral_faces_is_the_same_solid(tmp_path, ellipsoid):
     the gate."""
     cp, tris, source = ellipsoid.control_points, ellipsoid.domain_mesh[1], ellipsoid.source_face
     report: dict = {}
-    path = step.write_cad(tmp_path / "quads.step", cp, tris, source_face=source,
+    path = cad.write_cad(tmp_path / "quads.step", cp, tris, source_face=source,
                           tolerance=1e-3, report=report, quads=True)
     assert report["merged"] and report["quads"] > 0
     assert report["faces"] == report["quads"] + report["triangles"] < len(cp) // 4
@@ -377,11 +377,11 @@ def test_step_points_are_rounded_far_below_the_file_s_uncertainty(tmp_path, elli
 
     assert step_text._decimals(1e-7) == 8 and step_text._decimals(1e-6) == 7
     cp, tris = ellipsoid.control_points, ellipsoid.domain_mesh[1]
-    text = step.write_cad(tmp_path / "s.step", cp, tris).read_text()
+    text = cad.write_cad(tmp_path / "s.step", cp, tris).read_text()
     points = np.array([[float(x) for x in body.split(",")] for body in re.findall(
         r"CARTESIAN_POINT\('',\(([^()]*)\)\)", text) if body.count(",") == 2])
     uncertainty = float(re.search(r"LENGTH_MEASURE\(([^)]*)\)", text).group(1))
-    distance, _ = cKDTree(points).query(step.degenerate_nets(cp).reshape(-1, 3), p=np.inf)
+    distance, _ = cKDTree(points).query(cad.degenerate_nets(cp).reshape(-1, 3), p=np.inf)
     assert distance.max() <= uncertainty / 20
 
 
@@ -390,7 +390,7 @@ def test_connected_order_puts_each_face_after_a_neighbour():
     shell orientation fix rescans from the first face otherwise): on a shuffled 12 x 12
     grid of quadrilaterals plus a collapsed (triangle) face, every face but the first
     shares a side with a face before it, and the order is a permutation."""
-    from pipeline.step import _connected_order
+    from pipeline.cad_export import _connected_order
 
     n = 12
     ids = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)

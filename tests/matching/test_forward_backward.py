@@ -1,11 +1,11 @@
-"""Tests of matching.consistency (forward-backward loops and the variance factor)."""
+"""Tests of matching.forward_backward (forward-backward loops and the variance factor)."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
 
-from matching.consistency import forward_backward
+from matching.forward_backward import forward_backward
 from matching.lsm import lsm_match
 from testkit.warps import grid_points, start_near, truth_of, warped_pair
 

@@ -25,7 +25,7 @@ over the loops (blunders beyond the 99 % point of the χ² distribution, 9.21 k�
 their expectation, left out, iterated) would be the factor by which the reported
 variances must grow to explain the loops if the two matches were independent.  They are
 not: both use the same pixels, whose noise moves both matches alike and cancels in the
-loop.  On synthetic warps with white noise (``tests/matching/test_consistency.py``)
+loop.  On synthetic warps with white noise (``tests/matching/test_forward_backward.py``)
 k² = 0.045 where LSM's σ is right to 5 %.  The loop sees only what differs between the
 two directions (resampling of one image or the other, a blur difference, the affine
 model's asymmetry): a *lower bound* on the matching error, not an estimate of σ; a

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.stats import chi2
 
+from checks.robust import MAD_TO_SIGMA
 from matching.cameras import Camera
 from matching.lsm import DEFAULT_INTERPOLATION, PreparedImage, Status, lsm_match, prepare_image
 from matching.precision import variance_factor
@@ -189,7 +190,7 @@ def _systematic_offset(d: np.ndarray) -> np.ndarray:
     if len(d) < _OFFSET_MIN_COUNT:
         return np.zeros(2)
     median = np.median(d, axis=0)
-    scatter = 1.4826 * np.median(np.abs(d - median), axis=0)
+    scatter = MAD_TO_SIGMA * np.median(np.abs(d - median), axis=0)
     if float(median @ median) <= _OFFSET_SCATTERS**2 * float(scatter @ scatter):
         return np.zeros(2)
     return median
