@@ -257,31 +257,12 @@ def _centre_mst(centres: np.ndarray):
 _SECTORS = 16
 
 
-#: Fewest points of a ring narrower than ℓ: four sectors about its centroid (M points
-#: leave one empty with probability 4·(3/4)^M, 0.4 % at 24; a handle's tube cut across
-#: at 10⁴ points of a pot 2 high: 25-29 points).
-_RING_POINTS = 24
-
-
 def _is_closed_loop(uv: np.ndarray, link: float) -> bool:
-    """A side that surrounds its centroid, wider than ℓ or hollow.
-
-    Wider than ℓ: every one of :data:`_SECTORS` sectors about its centroid holds a point.
-    Narrower (a handle's tube cut across, closer to the body than ℓ): hollow, no point
-    within half the median distance of its centroid (a clump of points is not a ring), and
-    every one of ``M / 6`` sectors, at most :data:`_SECTORS`, holds a point (M points at
-    random angles leave one of them empty with probability about ``(M/6)·e^-6``: 0.4 % at
-    M = 24, 3 % at M = 96; with 16 sectors 30 points leave one empty in 9 of 10 cases),
-    with M at least :data:`_RING_POINTS`."""
-    if len(uv) < _SECTORS:
+    """A side wider than ℓ that surrounds its centroid: every one of 16 sectors holds a point."""
+    if len(uv) < _SECTORS or float(np.ptp(uv, axis=0).max()) <= link:
         return False
     rel = uv - uv.mean(axis=0)
-    sectors = _SECTORS
-    if float(np.ptp(uv, axis=0).max()) <= link:
-        radius = np.hypot(rel[:, 0], rel[:, 1])
-        if len(uv) < _RING_POINTS or not radius.min() > 0.5 * float(np.median(radius)):
-            return False
-        sectors = min(_SECTORS, len(uv) // 6)
-    sector = (np.mod(np.arctan2(rel[:, 1], rel[:, 0]), 2 * np.pi) * (sectors / (2 * np.pi))
-              ).astype(np.int64)
-    return bool(np.all(np.bincount(np.minimum(sector, sectors - 1), minlength=sectors) > 0))
+    sector = (
+        np.mod(np.arctan2(rel[:, 1], rel[:, 0]), 2 * np.pi) * (_SECTORS / (2 * np.pi))
+    ).astype(np.int64)
+    return bool(np.all(np.bincount(np.minimum(sector, _SECTORS - 1), minlength=_SECTORS) > 0))

@@ -180,9 +180,9 @@ def organise(
         _skip(section, f"all {len(pts)} points lie on one line (no closed curve: a flat cloud "
                        "cut across its plane)")
         return []
-    labels, gap, link, whole, closed = _clusters(uv, link_distance, scale)
-    loops_members = _face_members(section, uv, labels, (whole, closed), gap, link,
-                                  outlier_threshold, neighbours, min_points)
+    labels, gap, link, whole = _clusters(uv, link_distance, scale)
+    loops_members = _face_members(section, uv, labels, whole, gap, link, outlier_threshold,
+                                  neighbours, min_points)
     stray = np.concatenate([m for m, _ in loops_members if len(m) < min_points]
                            + [np.empty(0, int)])
     loops = []
@@ -229,10 +229,8 @@ def _skip(section: Section, why: str) -> None:
 
 
 def _clusters(uv: np.ndarray, link_distance, scale):
-    """Labels ``(M,)`` of the loops, the mean gap g, the link distance ℓ, the labels
-    of the tree cut at ℓ alone (before the bridge and wall tests part its clusters), and
-    those of the tree cut at ℓ and at the bridges between closed loops (before the wall
-    test)."""
+    """Labels ``(M,)`` of the loops, the mean gap g, the link distance ℓ, and the labels
+    of the tree cut at ℓ alone (before the bridge and wall tests part its clusters)."""
     tree = _mst(uv, scale)
     lengths = tree.data
     gap = float(np.median(lengths)) / math.log(2.0) if lengths.size else scale
@@ -246,24 +244,20 @@ def _clusters(uv: np.ndarray, link_distance, scale):
     whole = _components(n, tree.row[keep], tree.col[keep])
     if link_distance is None:
         keep &= ~_closed_splits(uv, tree, keep, gap, link)
-    labels = closed = _components(n, tree.row[keep], tree.col[keep])
+    labels = _components(n, tree.row[keep], tree.col[keep])
     if link_distance is None:
         labels = _wall_splits(uv, labels, gap, link)
-    return labels, gap, float(link), whole, closed
+    return labels, gap, float(link), whole
 
 
-def _face_members(section, uv, labels, clusters, gap, link, threshold, k, min_points):
+def _face_members(section, uv, labels, whole, gap, link, threshold, k, min_points):
     """Members of each loop, largest first, each with its loop when already built
-    (else None): a cluster of the tree cut at ℓ (``clusters``: ``whole``, then ``closed``
-    of :func:`_clusters`)
+    (else None): a cluster of the tree cut at ℓ (``whole``)
     whose points are both faces of a thin wall (:func:`_face_split` of it ordered as one
     loop) gives the two faces; any other gives the loops the bridge and wall tests
     (``labels``) part it into.  The offsets decide first: where the wall is thinner
     than the gaps along its faces the crust tracing can join half of one face to half
-    of the other (a pot's wall 2 spacings thick at 20 000 points: 2 of 26 sections);
-    a face holding points of two of the bridge test's closed loops (``closed``: a
-    handle's tube beside the wall, narrower than ℓ) is parted between them."""
-    whole, closed = clusters
+    of the other (a pot's wall 2 spacings thick at 20 000 points: 2 of 26 sections)."""
     members = []
     for c in range(int(whole.max()) + 1 if len(whole) else 0):
         mine = np.flatnonzero(whole == c)
@@ -271,8 +265,6 @@ def _face_members(section, uv, labels, clusters, gap, link, threshold, k, min_po
         if len(mine) >= 2 * min_points:
             built = _organise_loop(section, uv, mine, gap, link, threshold, k, min_points)
             walls = None if built is None else _face_split(uv, built, gap)
-            if walls:
-                walls = [_bridged_faces(faces, closed, min_points) for faces in walls]
         for faces in walls or []:
             parted = [_organise_loop(section, uv, face, gap, link, threshold, k, min_points)
                       for face in faces]
@@ -292,45 +284,24 @@ def _face_members(section, uv, labels, clusters, gap, link, threshold, k, min_po
     return sorted(members, key=lambda pair: len(pair[0]), reverse=True)
 
 
-def _bridged_faces(faces: list, closed: np.ndarray, min_points: int) -> list:
-    """``faces`` (member arrays) each parted where it holds points of two or more of the
-    bridge test's loops (``closed``: a handle's tube beside the wall's outer face): a loop
-    of at least ``min_points`` with nine tenths of its points in the face is its own loop
-    (a stretch of the wall's two faces cut off as a ring is in both); the rest stays with
-    the face's largest loop."""
-    total = np.bincount(closed)
-    out = []
-    for face in faces:
-        values, counts = np.unique(closed[face], return_counts=True)
-        main = values[np.argmax(counts)]
-        big = values[(counts >= min_points) & ((counts >= 0.9 * total[values])
-                                               | (values == main))]
-        if len(big) <= 1:
-            out.append(face)
-            continue
-        label = np.where(np.isin(closed[face], big), closed[face], main)
-        out += [face[label == value] for value in big]
-    return out
-
-
 def _closed_splits(uv, tree, keep, gap, link) -> np.ndarray:
     """MST edges ``(E,) bool`` that join two closed loops (e.g. nested rings).
 
     Gap statistics cannot part two loops a few gaps apart (a cup's inner and
     outer wall): the bridge is only slightly longer than the largest gaps
-    along one loop, or shorter (a handle's tube cut where it nears the wall:
-    2.8 point spacings from it against the loop's expected largest gap
-    ``g·(ln M + 0.58)`` of 3.4).  So the :data:`_SPLIT_TRIES` longest kept edges are
-    tried: an edge is cut when both sides are closed loops
-    (``section_trees._is_closed_loop``: each surrounds its own centroid, and is
-    wider than ℓ or hollow).  Cutting a loop's own gap instead leaves two open
-    arcs, and the shorter one cannot surround its centroid.  (Nested loops that
-    are not star-shaped stay merged.)
+    along one loop.  So the few longest kept edges beyond the expected largest
+    gap ``g·(ln M + 0.58)`` are tried: an edge is cut when both sides are
+    wider than ℓ and each surrounds its own centroid (points in all 16
+    angular sectors about it).  Cutting a loop's own gap instead leaves two
+    open arcs, and the shorter one cannot surround its centroid.  (Nested
+    loops that are not star-shaped, or closer than the largest gap along
+    them, stay merged.)
     """
     n = len(uv)
     lengths = tree.data
     bridges = np.zeros(len(lengths), bool)
-    candidates = np.flatnonzero(keep)
+    expected_max = gap * (math.log(n) + 0.58)
+    candidates = np.flatnonzero(keep & (lengths > expected_max))
     candidates = candidates[np.argsort(-lengths[candidates])][:_SPLIT_TRIES]
     for edge in candidates:
         trial = keep & ~bridges
