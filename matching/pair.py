@@ -110,7 +110,7 @@ from matching.validate import TOL
 #: the names other modules and the tests take from here (status codes, the second pass's
 #: public helpers, the density deficit)
 __all__ = ["AMBIGUOUS", "APERTURE", "BACKWARD", "BLANK", "IMPRECISE", "NO_APPROXIMATION",
-           "OFF_SURFACE", "PAIR_STATUS_NAMES", "TRIANGULATION", "PairMatches",
+           "OFF_SURFACE", "PAIR_STATUS_NAMES", "TRIANGULATION", "PairMatches", "PairOptions",
            "PairReconstruction", "adaptive_sides", "default_max_patch", "density_deficit",
            "match_pair", "reconstruct_pair"]
 
@@ -251,32 +251,14 @@ def _grey(image, name: str) -> np.ndarray:
 
 
 
-def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
-               spacing: int = DEFAULT_SPACING,
-               patch: int = 15, interpolation: str = DEFAULT_INTERPOLATION,
-               epipolar: bool | None = None, min_texture_snr: float = 2.0, mask=None,
-               sgbm_block: int = 5, second_order: bool = True,
-               adaptive_patch: bool | str | tuple = True,
-               max_patch: int | None = None, max_sigma_mad_k: float | None = 4.0,
-               eccentric: bool = False, grow: bool = True, sigma_factor: bool = True,
-               search_range: tuple[int, int] | None = None,
-               footprint_var: float | None = DEFAULT_FOOTPRINT_VAR,
-               densify: bool | str = False, robust: bool | str = False,
-               unique: bool = True, epipolar_pass: bool = False,
-               regrow_ambiguous: bool = True, centre_points: bool = True,
-               aperture_k: float | None = 1.0, equalise_blur: bool = True,
-               far_growth: int = 4, **lsm_options) -> PairMatches:
-    """Match a stereo pair densely by LSM.
+@dataclass(frozen=True)
+class PairOptions:
+    """How :func:`match_pair` matches a pair: each field may also be given to it as a keyword.
 
-    The steps and the rules' measurements are in docs/method/acquire.md and the
-    ``docs/decisions/stereo-*.md`` pages each parameter names.
-
-    Parameters
+    Attributes
     ----------
-    left_img, right_img : (H, W) or (H, W, 3) array_like, or matching.lsm.PreparedImage
-        The images (colour to grey, OpenCV's BGR order); a prepared image is not refiltered.
-    rig : matching.cameras.StereoRig, optional
-        Calibration; required unless ``rectified`` (corresponding points share a row).
+    rectified : bool
+        The images are rectified: corresponding points share a row (no rig needed).
     spacing, patch : int
         One candidate per ``spacing`` x ``spacing`` cell, px; LSM patch side, px (odd).
     interpolation : {"bilinear", "bicubic", "spline"}
@@ -285,8 +267,6 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         Constrain the LSM shift to the epipolar direction (default: rectified pairs only).
     min_texture_snr : float
         Texture threshold factor (:func:`matching.seeds.select_points`).
-    mask : (H, W) bool, optional
-        Only left pixels where true are candidates.
     sgbm_block : int
         SGBM block side, px.
     second_order : bool
@@ -345,9 +325,59 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         Epipolar pass: rounds (at most; 0: off) starting the windows still unmatched where
         their verified neighbours' disparity plane (or the scene range) leaves one unique
         peak (:func:`matching.pair_verify._grow_from_volume`; stereo-far-growth.md).
-    **lsm_options
-        Passed to :func:`matching.lsm.lsm_match` (``max_iter``, ``sigma0_factor``...).
+    """
 
+    rectified: bool = False
+    spacing: int = DEFAULT_SPACING
+    patch: int = 15
+    interpolation: str = DEFAULT_INTERPOLATION
+    epipolar: bool | None = None
+    min_texture_snr: float = 2.0
+    sgbm_block: int = 5
+    second_order: bool = True
+    adaptive_patch: bool | str | tuple = True
+    max_patch: int | None = None
+    max_sigma_mad_k: float | None = 4.0
+    eccentric: bool = False
+    grow: bool = True
+    sigma_factor: bool = True
+    search_range: tuple[int, int] | None = None
+    footprint_var: float | None = DEFAULT_FOOTPRINT_VAR
+    densify: bool | str = False
+    robust: bool | str = False
+    unique: bool = True
+    epipolar_pass: bool = False
+    regrow_ambiguous: bool = True
+    centre_points: bool = True
+    aperture_k: float | None = 1.0
+    equalise_blur: bool = True
+    far_growth: int = 4
+
+
+_PAIR_OPTION_KEYS = frozenset(f.name for f in fields(PairOptions))
+
+
+def match_pair(left_img, right_img, rig=None, *, mask=None, options: PairOptions | None = None,
+               **keywords) -> PairMatches:
+    """Match a stereo pair densely by LSM.
+
+    The steps and the rules' measurements are in docs/method/acquire.md and the
+    ``docs/decisions/stereo-*.md`` pages each option names.
+
+    Parameters
+    ----------
+    left_img, right_img : (H, W) or (H, W, 3) array_like, or matching.lsm.PreparedImage
+        The images (colour to grey, OpenCV's BGR order); a prepared image is not refiltered.
+    rig : matching.cameras.StereoRig, optional
+        Calibration; required unless ``rectified`` (corresponding points share a row).
+    mask : (H, W) bool, optional
+        Only left pixels where true are candidates.
+    options : PairOptions, optional
+        How the pair is matched (default: :class:`PairOptions`' defaults); any of its fields
+        may be given as a keyword instead (``spacing=2``), which overrides it.
+    **keywords
+        :class:`PairOptions` fields, and options passed to :func:`matching.lsm.lsm_match`
+        (``max_iter``, ``sigma0_factor``...).
     Returns
     -------
     PairMatches
@@ -358,20 +388,17 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         Images of different sizes or not matching the rig, no rig and not rectified,
         no overlap between the views.
     """
-    cfg = SimpleNamespace(
-        rectified=bool(rectified), spacing=spacing, patch=patch, interpolation=interpolation,
-        min_texture_snr=min_texture_snr, mask=mask, sgbm_block=sgbm_block,
-        second_order=second_order, adaptive_patch=adaptive_patch, max_patch=max_patch,
-        max_sigma_mad_k=max_sigma_mad_k, eccentric=eccentric, grow=grow,
-        sigma_factor=sigma_factor, search_range=search_range, footprint_var=footprint_var,
-        densify=densify, robust=robust, unique=unique, epipolar_pass=epipolar_pass,
-        regrow_ambiguous=regrow_ambiguous, centre_points=centre_points,
-        aperture_k=aperture_k, rig=rig, equalise_blur=equalise_blur,
-        far_growth=far_growth)
+    chosen = {k: v for k, v in keywords.items() if k in _PAIR_OPTION_KEYS}
+    lsm_options = {k: v for k, v in keywords.items() if k not in _PAIR_OPTION_KEYS}
+    opts = replace(options or PairOptions(), **chosen)
+    cfg = SimpleNamespace(**{f.name: getattr(opts, f.name) for f in fields(PairOptions)
+                             if f.name != "epipolar"}, mask=mask, rig=rig)
+    cfg.rectified = rectified = bool(opts.rectified)
+    spacing, patch, interpolation = opts.spacing, opts.patch, opts.interpolation
     cfg.ladder, cfg.population = _check_options(cfg, lsm_options)
     preps, left, right = _read_images(left_img, right_img, rig, rectified, interpolation)
-    cfg.epipolar = rectified if epipolar is None else bool(epipolar)
-    cand = select_points(left, spacing=spacing, patch=patch, min_texture_snr=min_texture_snr,
+    cfg.epipolar = rectified if opts.epipolar is None else bool(opts.epipolar)
+    cand = select_points(left, spacing=spacing, patch=patch, min_texture_snr=opts.min_texture_snr,
                          mask=mask, noise=None if preps[0] is None else preps[0].noise)
     n = len(cand.points)
     st = SimpleNamespace(cand=cand, offset=np.zeros((n, 2)), edge=np.zeros(n, bool),
@@ -383,7 +410,7 @@ def match_pair(left_img, right_img, rig=None, *, rectified: bool = False,
         _second_pass(cfg, st, left)
         _verify(cfg, st, left, right)
         _finish(cfg, st)
-        if (densify and rectified and spacing >= 2 and st.res.accepted.sum() >= 30):
+        if (opts.densify and rectified and spacing >= 2 and st.res.accepted.sum() >= 30):
             _densify_pass(cfg, st, left)
     return PairMatches(x_left=st.cand.points if st.x_left_out is None else st.x_left_out,
                        texture=st.cand.texture, status=st.status,
