@@ -175,22 +175,9 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
     -------
     Growth
     """
-    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    points, radius, approx_out, dirs, offs = _checked_inputs(
+        points, result, approx, patch, radius_px, max_rounds, max_tries, direction, offset)
     n = len(points)
-    if len(result.status) != n:
-        raise ValueError(f"result must have {n} points, got {len(result.status)}")
-    if max_rounds < 0 or max_tries < 1:
-        raise ValueError(f"max_rounds must be >= 0 and max_tries >= 1, got {max_rounds}, "
-                         f"{max_tries}")
-    radius = float(patch if radius_px is None else radius_px)
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius_px must be positive, got {radius_px!r}")
-    approx_out = (np.full((n, 2), np.nan) if approx is None else
-                  check_shape(approx, "(N, 2)", "approx", dtype=np.float64).copy())
-    dirs = None if direction is None else np.broadcast_to(
-        np.asarray(direction, dtype=np.float64), (n, 2))
-    offs = None if offset is None else check_shape(offset, "(N, 2)", "offset",
-                                                    dtype=np.float64)
     arrays = {f.name: np.array(getattr(result, f.name)) for f in fields(result)
               if f.name not in ("noise_sigma0",) and getattr(result, f.name) is not None}
     accepted = arrays["status"] == Status.OK
@@ -222,16 +209,7 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
         if same_row:
             pos[:, 1] = points[todo, 1]
             init[:, 3] = pos[:, 1]
-        options = dict(lsm_options, patch=patch,
-                       sigma0_population=arrays["sigma0"][acc])
-        if "grad_power" in arrays:
-            options["population_grad_power"] = arrays["grad_power"][acc]
-        if "step_score" in arrays:  # lsm.step_score_limit: the larger of the medians
-            options["population_step_score"] = arrays["step_score"][acc]
-        if dirs is not None:
-            options["direction"] = dirs[todo]
-        if offs is not None:
-            options["offset"] = offs[todo]
+        options = _round_options(lsm_options, patch, arrays, acc, todo, dirs, offs)
         res = lsm_match(template_image, search_image, points[todo], pos, initial=init,
                         **options)
         for name in arrays:
@@ -247,3 +225,42 @@ def grow_matches(template_image, search_image, points, result: LSMResult, approx
         current = replace(result, **arrays)
         rounds += 1
     return Growth(result=current, approx=approx_out, grown=grown, tries=tries, rounds=rounds)
+
+
+def _checked_inputs(points, result, approx, patch, radius_px, max_rounds, max_tries,
+                    direction, offset):
+    """:func:`grow_matches`' inputs checked: the points, the reach, the approximations
+    returned (NaN: none), the epipolar directions and window offsets per point."""
+    points = check_shape(points, "(N, 2)", "points", dtype=np.float64)
+    n = len(points)
+    if len(result.status) != n:
+        raise ValueError(f"result must have {n} points, got {len(result.status)}")
+    if max_rounds < 0 or max_tries < 1:
+        raise ValueError(f"max_rounds must be >= 0 and max_tries >= 1, got {max_rounds}, "
+                         f"{max_tries}")
+    radius = float(patch if radius_px is None else radius_px)
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius_px must be positive, got {radius_px!r}")
+    approx_out = (np.full((n, 2), np.nan) if approx is None else
+                  check_shape(approx, "(N, 2)", "approx", dtype=np.float64).copy())
+    dirs = None if direction is None else np.broadcast_to(
+        np.asarray(direction, dtype=np.float64), (n, 2))
+    offs = None if offset is None else check_shape(offset, "(N, 2)", "offset",
+                                                    dtype=np.float64)
+    return points, radius, approx_out, dirs, offs
+
+
+def _round_options(lsm_options, patch, arrays, acc, todo, dirs, offs) -> dict:
+    """``lsm_match``'s options for one growth round: the accepted matches' populations
+    (σ0, gradient power, motion-step score) and the grown points' directions and offsets."""
+    options = dict(lsm_options, patch=patch,
+                   sigma0_population=arrays["sigma0"][acc])
+    if "grad_power" in arrays:
+        options["population_grad_power"] = arrays["grad_power"][acc]
+    if "step_score" in arrays:  # lsm.step_score_limit: the larger of the medians
+        options["population_step_score"] = arrays["step_score"][acc]
+    if dirs is not None:
+        options["direction"] = dirs[todo]
+    if offs is not None:
+        options["offset"] = offs[todo]
+    return options

@@ -465,33 +465,15 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
     # The direction most perpendicular to the normals (least eigenvector of Σ n nᵀ)
     # is a surface of revolution's or an extrusion's axis even where a handle or a
     # spout tilts the points' principal axes; it is tried first, then those.
-    candidates = [_orient(np.linalg.eigh(normals.T @ normals)[1][:, 0])]
-    for k in (2, 1, 0):
-        if all(abs(float(vecs[:, k] @ c)) < np.cos(np.radians(AXIS_SAME_DEGREES))
-               for c in candidates):
-            candidates.append(_orient(vecs[:, k]))
+    candidates = _candidate_axes(normals, vecs)
     capped = [1.0 - (normals @ axis) ** 2 < MIN_WALL_SINE**2 for axis in candidates]
     shares = [float(np.mean(c)) for c in capped]
     # χ decides only among axes with about as few cap points as the fewest: an axis
     # cutting most walls obliquely makes ragged loops whose spurious splits lower χ.
     # The others are not sliced at all (their χ would decide nothing).
     close = [k for k in range(len(candidates)) if shares[k] <= min(shares) + CAP_SHARE_SLACK]
-    chis = []
-    for k, axis in enumerate(candidates):
-        if k not in close:
-            chis.append(None)
-            continue
-        try:
-            sliced = slice_cloud(trial, axis=axis, sections=sections, spacing=spacing)
-            if trials is not None:
-                trials[id(axis)] = sliced
-            _, loops, _ = organise_sections(sliced.sections, organised=sliced.organised,
-                                            min_points=4)
-            graph = loop_graph([[lp.points @ lp.frame[:2].T for lp in found] for found in loops],
-                               spacing=sliced.spacing)
-            chis.append(graph.euler())
-        except ValueError:
-            chis.append(float("inf"))
+    chis = [_trial_chi(trial, axis, sections, spacing, trials) if k in close else None
+            for k, axis in enumerate(candidates)]
     finite = [chis[k] for k in close if np.isfinite(chis[k])]
     best_chi = min(finite) if finite else float("inf")
     pool = [k for k in close if chis[k] == best_chi] or close
@@ -512,6 +494,34 @@ def choose_axis(points: np.ndarray, sections: int | None = None,
     if trials is not None:
         trials["whole"] = trial is pts and id(candidates[best]) in trials
     return candidates[best], reason
+
+
+def _candidate_axes(normals: np.ndarray, vecs: np.ndarray) -> list:
+    """The axes :func:`choose_axis` tries: the direction most perpendicular to the normals
+    (least eigenvector of Σ n nᵀ), then the principal axes ``vecs`` (columns, largest last)
+    not within :data:`AXIS_SAME_DEGREES` of one already listed."""
+    candidates = [_orient(np.linalg.eigh(normals.T @ normals)[1][:, 0])]
+    for k in (2, 1, 0):
+        if all(abs(float(vecs[:, k] @ c)) < np.cos(np.radians(AXIS_SAME_DEGREES))
+               for c in candidates):
+            candidates.append(_orient(vecs[:, k]))
+    return candidates
+
+
+def _trial_chi(trial: np.ndarray, axis: np.ndarray, sections, spacing, trials) -> float:
+    """The Euler characteristic of the loop graph of ``trial`` sliced along ``axis``
+    (inf when it cannot be sliced); the slicing kept in ``trials`` by ``id(axis)``."""
+    try:
+        sliced = slice_cloud(trial, axis=axis, sections=sections, spacing=spacing)
+        if trials is not None:
+            trials[id(axis)] = sliced
+        _, loops, _ = organise_sections(sliced.sections, organised=sliced.organised,
+                                        min_points=4)
+        graph = loop_graph([[lp.points @ lp.frame[:2].T for lp in found] for found in loops],
+                           spacing=sliced.spacing)
+        return graph.euler()
+    except ValueError:
+        return float("inf")
 
 
 #: A tail bin (half a section spacing wide) holding less than this share of the median
