@@ -23,6 +23,7 @@ from matching.multiview import (
     select_pairs,
 )
 from pipeline.mesh_io import read_mesh
+from testkit.rings import ring_cameras
 
 N_VIEWS = 24
 
@@ -52,18 +53,7 @@ def _distance(truth, points) -> np.ndarray:
 
 
 def _ring_cameras(n=N_VIEWS, radius=7.0, height=1.5):
-    K = np.array([[400.0, 0, 159.5], [0, 400.0, 119.5], [0, 0, 1]])
-    cams = []
-    for k in range(n):
-        a = 2 * np.pi * k / n
-        c = np.array([radius * np.cos(a), radius * np.sin(a), height + 1.0])
-        f = np.array([0.0, 0.0, height]) - c
-        f /= np.linalg.norm(f)
-        r = np.cross(f, [0, 0, 1.0])
-        r /= np.linalg.norm(r)
-        R = np.stack([r, np.cross(f, r), f])
-        cams.append(Camera(K, [], R, -R @ c, 320, 240, f"v{k:02d}.png"))
-    return cams
+    return ring_cameras(n, radius, height)
 
 
 # ------------------------------------------------------------------ view pairs (no images)

@@ -7,24 +7,13 @@ import pytest
 
 from matching.cameras import Camera
 from matching.view_pairs import select_pairs
+from testkit.rings import ring_cameras
 
 
 def _ring(n: int, jitter: float = 0.0, seed: int = 0) -> list[Camera]:
     """``n`` views on a ring round the origin's vertical axis, looking at (0, 0, 1.5);
     ``jitter``: each centre moved by up to that share of the ring's radius."""
-    rng = np.random.default_rng(seed)
-    K = np.array([[400.0, 0, 159.5], [0, 400.0, 119.5], [0, 0, 1]])
-    cams = []
-    for k in range(n):
-        a = 2 * np.pi * k / n
-        c = np.array([7.0 * np.cos(a), 7.0 * np.sin(a), 2.5]) + rng.uniform(-1, 1, 3) * 7 * jitter
-        f = np.array([0.0, 0.0, 1.5]) - c
-        f /= np.linalg.norm(f)
-        r = np.cross(f, [0, 0, 1.0])
-        r /= np.linalg.norm(r)
-        R = np.stack([r, np.cross(f, r), f])
-        cams.append(Camera(K, [], R, -R @ c, 320, 240, f"v{k:02d}.png"))
-    return cams
+    return ring_cameras(n, jitter=jitter, seed=seed)
 
 
 class _Views(list):
