@@ -76,8 +76,7 @@ class Smoothed:
 
     ``gap`` and ``g1_angle`` (:func:`surface.bezier.edge_continuity`) are computed when
     first asked for: the candidates a smooth path builds and drops (a fit that crosses
-    itself, the repair's rounds) never pay for them (on the noisy cow's general path
-    9 surfaces were built, 1 kept; the continuity was 9 % of its time).
+    itself, the repair's rounds) never pay for them.
     """
 
     surface: object
