@@ -64,6 +64,8 @@ sys.path.insert(0, str(ROOT))
 
 from _common import print_goals, uptime, write_result  # noqa: E402
 
+from checks.robust import mad_sigma  # noqa: E402
+
 RECIPE = ROOT / "fixtures" / "scenes" / "vase.toml"
 #: Truth samples for the visibility map and the coverage (area-weighted, seeded).
 TRUTH_SAMPLES = 200_000
@@ -285,13 +287,13 @@ def _robust_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         centre = points[keep].mean(axis=0)
         normal = np.linalg.svd(points[keep] - centre, full_matrices=False)[2][2]
         r = (points - centre) @ normal
-        spread = 1.4826 * np.median(np.abs(r[keep] - np.median(r[keep])))
+        spread = mad_sigma(r[keep])
         keep = np.abs(r) <= 3 * max(spread, 1e-300)
     return r, keep
 
 
 def _robust(x: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if len(x) else float("nan")
+    return float(mad_sigma(x)) if len(x) else float("nan")
 
 
 def wall_flatness(points: np.ndarray, sigma: np.ndarray, source: np.ndarray | None,

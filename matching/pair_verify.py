@@ -20,6 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from checks.robust import MAD_TO_SIGMA
 from matching import uniqueness
 from matching.lsm import LSMResult, Status, lsm_match
 from matching.pair_status import AMBIGUOUS, NO_APPROXIMATION, OUTLIER_Z
@@ -408,12 +409,12 @@ def _neighbour_planes(xl, disparity, sigma, verified, cand, k: int):
         absr = np.where(w > 0, np.abs(resid), np.nan)
         absr[~np.isfinite(absr).any(axis=1)] = np.inf  # no plane: no spread
         med = np.nanmedian(absr, axis=1)
-        spread = np.maximum(1.4826 * med, floor)
+        spread = np.maximum(MAD_TO_SIGMA * med, floor)
         w = (np.abs(resid) <= 3.0 * spread[:, None]).astype(np.float64)
     # one surface: a plane that leaves a quarter of the neighbours out spans a depth
     # edge, and one they depart from by more than twice their σ (the honest-σ bound of
     # residual / σ) is not their surface -- the scene range decides there
-    good &= (w.sum(1) >= 0.75 * k) & (1.4826 * med <= 2.0 * floor)
+    good &= (w.sum(1) >= 0.75 * k) & (MAD_TO_SIGMA * med <= 2.0 * floor)
     pred = np.where(good, coef[:, 0], np.nan)
     sigma_pred = np.where(good, spread * np.sqrt(1.0 + inv[:, 0, 0]), np.nan)
     return pred, sigma_pred

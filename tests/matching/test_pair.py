@@ -511,9 +511,8 @@ def test_epipolar_pass_reports_each_match_where_its_window_determines_it():
     # warp's shape takes up the difference, and a match reported away from where its
     # window's gradients are is extrapolated through that shape (the blur balance off:
     # with it on, the difference is taken out before the shape can take it up); the
-    # growth from the neighbours' disparity plane off (it changes which windows are kept:
-    # measured with it 0.230 / 0.198 / 0.133 px, a ratio of 0.86 that is not this
-    # test's question)
+    # growth from the neighbours' disparity plane off (it changes which windows are kept,
+    # which is not this test's question)
     from matching.rectify import rectify, right_to_rectified
 
     rig = make_rig()
